@@ -1,0 +1,58 @@
+"""``graytrack`` command line (DESIGN.md, "command line").
+
+Every subcommand lives in ``graytrack.service.commands.<name>`` and registers itself; this module
+only dispatches and turns expected failures into a one-line reason with exit status 2, so that bad
+input never ends in a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from typing import Sequence
+
+from graytrack import __version__
+
+# Order here is the order in `graytrack --help`.
+COMMAND_MODULES = ("simulate", "calibrate", "track", "demo")
+
+EXIT_BAD_INPUT = 2
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="graytrack",
+        description="Camera + printed sine target as a displacement sensor: simulate, calibrate, track, diagnose, serve.",
+    )
+    parser.add_argument("--version", action="version", version=f"graytrack {__version__}")
+    subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name in COMMAND_MODULES:
+        importlib.import_module(f"graytrack.service.commands.{name}").register(subparsers)
+    return parser
+
+
+def expected_errors() -> tuple[type[BaseException], ...]:
+    """Failures that mean bad input or a refused computation, not a bug."""
+    from graytrack.core.errors import GraytrackError
+    from graytrack.service.errors import CliError
+
+    return (CliError, GraytrackError, FileNotFoundError, PermissionError, IsADirectoryError)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except expected_errors() as exc:
+        message = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        print(f"graytrack {args.command}: error: {message}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print(f"graytrack {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,1 @@
+"""One module per ``graytrack`` subcommand; each exposes ``register(subparsers)``."""
