@@ -129,6 +129,9 @@ def load(path: str | os.PathLike[str]) -> Recording:
     path = Path(path)
     if not path.is_file():
         raise RecordingError(f"{path}: no such file")
+    with open(path, "rb") as fh:
+        if fh.read(4) != b"PK\x03\x04":
+            raise RecordingError(f"{path}: not an .npz recording (no zip archive header)")
     try:
         with np.load(path, allow_pickle=False) as archive:
             missing = [key for key in ("frames", "t", "reference") if key not in archive.files]

@@ -1,0 +1,111 @@
+"""Least squares for the linear coefficients of a :class:`FourierModel` at fixed geometry.
+
+The design matrix has one row per (frame, row, pixel) and one column per coefficient: 10⁵–10⁶ rows
+by ~50 columns. It is never formed. Its columns are products T_a(θ)·P_l(x) × P_i(u)·P_j(r), so
+the normal matrix is accumulated per (row, pixel) over frames, then contracted with the
+pixel and row polynomials: O(K·R·n·(A·L)²) work, a few milliseconds for the paper's rig.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from graytrack.core.basis import trig_basis, trig_derivative
+from graytrack.core.models.fourier import TWO_PI, FourierModel
+
+_CHUNK_ELEMENTS = 2_000_000
+
+
+@dataclass
+class LinearSystem:
+    """Normal equations G c = h of the model's linear part; c is in (a, l, i, j) order."""
+
+    gram: np.ndarray
+    rhs: np.ndarray
+    shape_alij: tuple[int, int, int, int]
+
+    def solve(self) -> np.ndarray:
+        """Coefficients in the model's (a, i, j, l) layout; rank-deficient directions set to 0."""
+        scale = np.sqrt(np.maximum(np.diag(self.gram), 1e-300))
+        normalised = self.gram / np.outer(scale, scale)
+        values, vectors = np.linalg.eigh(normalised)
+        keep = values > values.max() * 1e-12
+        solution = vectors[:, keep] @ ((vectors[:, keep].T @ (self.rhs / scale)) / values[keep])
+        return (solution / scale).reshape(self.shape_alij).transpose(0, 2, 3, 1)
+
+
+def _frame_chunks(model: FourierModel, n_frames: int) -> list[slice]:
+    per_frame = model.n_rows * model.n_pixels * model.n_trig * (model.stroke_degree + 1)
+    size = max(1, _CHUNK_ELEMENTS // max(per_frame, 1))
+    return [slice(start, min(start + size, n_frames)) for start in range(0, n_frames, size)]
+
+
+def _trig_stroke(model: FourierModel, x_mm: np.ndarray) -> np.ndarray:
+    """``(K, R, n, A·L)``: trig terms times stroke polynomials, the frame-dependent factor."""
+    trig = trig_basis(model.phase(x_mm), model.harmonics)
+    stroke, _ = model.stroke_basis(x_mm)
+    product = trig[..., :, None] * stroke[:, None, None, None, :]
+    return product.reshape(trig.shape[:3] + (-1,))
+
+
+def project_columns(model: FourierModel, x_mm: np.ndarray, values: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Φᵀ·W·v for data-shaped arrays ``values`` ``(K, R, n, m)``: ``(m, A·L·I·J)``."""
+    pixel, row = model.pixel_basis(), model.row_basis()
+    acc = None
+    for part in _frame_chunks(model, len(x_mm)):
+        frame_factor = _trig_stroke(model, x_mm[part])
+        block = np.einsum("krup,krum,kru->rupm", frame_factor, values[part], weights[part], optimize=True)
+        acc = block if acc is None else acc + block
+    return np.einsum("rupm,ui,rj->mpij", acc, pixel, row, optimize=True).reshape(values.shape[-1], -1)
+
+
+def normal_equations(model: FourierModel, x_mm: np.ndarray, data: np.ndarray, weights: np.ndarray) -> LinearSystem:
+    """Accumulate G and h for data ``(K, R, n)`` (already divided by any response) with weights."""
+    pixel, row = model.pixel_basis(), model.row_basis()
+    n_al = model.n_trig * (model.stroke_degree + 1)
+    gram_ru = np.zeros((model.n_rows, model.n_pixels, n_al, n_al))
+    rhs_ru = np.zeros((model.n_rows, model.n_pixels, n_al))
+    for part in _frame_chunks(model, len(x_mm)):
+        frame_factor = _trig_stroke(model, x_mm[part])
+        weighted = frame_factor * weights[part][..., None]
+        gram_ru += np.einsum("krup,kruq->rupq", weighted, frame_factor, optimize=True)
+        rhs_ru += np.einsum("krup,kru->rup", weighted, data[part], optimize=True)
+    gram = np.einsum("rupq,ui,uk,rj,rm->pijqkm", gram_ru, pixel, pixel, row, row, optimize=True)
+    rhs = np.einsum("rup,ui,rj->pij", rhs_ru, pixel, row, optimize=True)
+    n_cols = rhs.size
+    shape_alij = (model.n_trig, model.stroke_degree + 1, model.pixel_degree + 1, model.row_degree + 1)
+    return LinearSystem(gram.reshape(n_cols, n_cols), rhs.reshape(n_cols), shape_alij)
+
+
+def fit_coefficients(model: FourierModel, x_mm: np.ndarray, data: np.ndarray, weights: np.ndarray) -> FourierModel:
+    """The model with its least-squares coefficients for ``data`` at positions ``x_mm``."""
+    coeffs = normal_equations(model, x_mm, data, weights).solve()
+    return model.with_changes(coeffs=coeffs)
+
+
+def phase_slope(model: FourierModel, x_mm: np.ndarray) -> np.ndarray:
+    """∂S/∂θ at the model's coefficients, ``(K, R, n)``: the direction every phase parameter moves."""
+    trig = trig_basis(model.phase(x_mm), model.harmonics)
+    stroke, _ = model.stroke_basis(x_mm)
+    weights = np.einsum("rual,kl->krua", model.spatial_weights(), stroke)
+    return np.einsum("krua,krua->kru", trig_derivative(trig, model.harmonics), weights)
+
+
+def geometry_sensitivities(model: FourierModel, x_mm: np.ndarray, names: tuple[str, ...]) -> np.ndarray:
+    """∂S/∂(geometry parameter) at fixed coefficients, ``(K, R, n, len(names))``."""
+    dphase = phase_slope(model, x_mm)
+    out = []
+    for name in names:
+        if name == "period_mm":
+            factor = -model.phase(x_mm) / model.period_mm
+        elif name == "pixel_pitch_mm":
+            factor = (TWO_PI / model.period_mm) * np.arange(model.n_pixels, dtype=np.float64)[None, None, :]
+        elif name == "row_shift_mm":
+            rows = np.arange(model.n_rows, dtype=np.float64) - (model.n_rows - 1) / 2.0
+            factor = (TWO_PI / model.period_mm) * rows[None, :, None]
+        else:
+            raise ValueError(f"unknown geometry parameter {name}")
+        out.append(dphase * factor)
+    return np.stack(out, axis=-1)

@@ -1,0 +1,236 @@
+"""The gray-level model: Fourier series in the target phase with coefficients smooth in pixel, row
+and stroke position, times a per-pixel response, times a per-frame common mode.
+
+    x_w[k, r, u]  = x_k + p·u + q·(r − r_c)                      where the pixel looks on the target
+    θ[k, r, u]    = 2π·x_w / τ
+    S[k, r, u]    = Σ_a T_a(θ) · W_a(u, r, x_k)                  T = [1, sin θ, cos θ, …, sin Mθ, cos Mθ]
+    W_a(u, r, x)  = Σ_ijl C[a, i, j, l] · P_i(s_u) · P_j(s_r) · P_l(s_x)    (Legendre, scaled coordinates)
+    Y[k, r, u]    = g_k · (gain[r, u] · S + offset[r, u]) + o_k
+
+With M = 5, cubic in u, nothing along r or x and unit response, this is exactly the seed paper's
+model (eq. 11); with M = 1 and degree 0 it is the ideal sine (A, τ_w, α·d, φ, D). Every other
+term is something the closed loop may add when the data ask for it:
+- ``stroke_degree`` > 0: coefficients that drift along the stroke (illumination fixed to the
+  target, print density, pitch chirp seen as a slow phase drift);
+- ``n_rows`` > 1 with ``row_shift_mm``: rows that see a shifted target (camera tilt), with
+  ``row_degree`` for row-dependent shading;
+- ``pixel_gain`` / ``pixel_offset``: a flat field (PRNU/DSNU), rough from pixel to pixel;
+- ``common_mode``: a gain and offset per frame (flicker, exposure drift), solved with x.
+
+The model is linear in C given (τ, p, q): calibration exploits that (variable projection).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from graytrack.core.basis import legendre_basis, scaled, trig_basis, trig_derivative
+from graytrack.core.errors import ModelError, TrackingError
+
+TWO_PI = 2.0 * math.pi
+
+
+@dataclass
+class FourierModel:
+    """Calibrated (or to-be-calibrated) gray-level model of one pixel line or strip."""
+
+    period_mm: float
+    pixel_pitch_mm: float
+    n_pixels: int
+    harmonics: int = 5
+    pixel_degree: int = 3
+    stroke_degree: int = 0
+    stroke_range_mm: tuple[float, float] = (0.0, 1.0)
+    n_rows: int = 1
+    row_degree: int = 0
+    row_shift_mm: float = 0.0
+    coeffs: np.ndarray | None = None
+    pixel_gain: np.ndarray | None = None
+    pixel_offset: np.ndarray | None = None
+    common_mode: bool = False
+    noise_gray: float | None = None
+    name: str = "paper"
+    info: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if not (self.period_mm > 0 and self.pixel_pitch_mm > 0 and self.n_pixels >= 2):
+            raise ModelError(
+                f"model geometry must be positive: period {self.period_mm}, pitch {self.pixel_pitch_mm}, pixels {self.n_pixels}"
+            )
+        for label, value in (("harmonics", self.harmonics), ("pixel_degree", self.pixel_degree),
+                             ("stroke_degree", self.stroke_degree), ("row_degree", self.row_degree)):
+            if value < 0 or int(value) != value:
+                raise ModelError(f"{label} must be a non-negative integer, got {value}")
+        if self.harmonics < 1:
+            raise ModelError("harmonics must be at least 1")
+        if self.coeffs is not None:
+            self.coeffs = np.asarray(self.coeffs, dtype=np.float64)
+            if self.coeffs.shape != self.coeff_shape:
+                raise ModelError(f"coefficients have shape {self.coeffs.shape}, the model needs {self.coeff_shape}")
+        for label in ("pixel_gain", "pixel_offset"):
+            value = getattr(self, label)
+            if value is not None:
+                value = np.asarray(value, dtype=np.float64)
+                if value.shape != (self.n_rows, self.n_pixels):
+                    raise ModelError(f"{label} has shape {value.shape}, the model needs {(self.n_rows, self.n_pixels)}")
+                setattr(self, label, value)
+        self._cache: dict[str, np.ndarray] = {}
+
+    # ----------------------------------------------------------------- structure
+    @property
+    def n_trig(self) -> int:
+        return 2 * self.harmonics + 1
+
+    @property
+    def coeff_shape(self) -> tuple[int, int, int, int]:
+        return (self.n_trig, self.pixel_degree + 1, self.row_degree + 1, self.stroke_degree + 1)
+
+    @property
+    def n_coeffs(self) -> int:
+        return int(np.prod(self.coeff_shape))
+
+    @property
+    def is_calibrated(self) -> bool:
+        return self.coeffs is not None
+
+    def with_changes(self, **changes: Any) -> "FourierModel":
+        """A copy with some fields changed (coefficients dropped unless given: they no longer fit)."""
+        changes.setdefault("coeffs", None if set(changes) - {"noise_gray", "info", "name"} else self.coeffs)
+        return replace(self, **changes)
+
+    # ----------------------------------------------------------------- bases
+    def pixel_basis(self) -> np.ndarray:
+        """``(n, P+1)`` Legendre polynomials of the scaled pixel index."""
+        if "pixel" not in self._cache:
+            u = np.arange(self.n_pixels, dtype=np.float64)
+            self._cache["pixel"] = legendre_basis(scaled(u, 0, self.n_pixels - 1), self.pixel_degree)
+        return self._cache["pixel"]
+
+    def row_basis(self) -> np.ndarray:
+        """``(R, J+1)`` Legendre polynomials of the scaled row index."""
+        if "row" not in self._cache:
+            r = np.arange(self.n_rows, dtype=np.float64)
+            self._cache["row"] = legendre_basis(scaled(r, 0, self.n_rows - 1), self.row_degree)
+        return self._cache["row"]
+
+    def stroke_basis(self, x_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(K, L+1)`` Legendre polynomials of the scaled stroke position, and their d/dx."""
+        lo, hi = self.stroke_range_mm
+        s = scaled(x_mm, lo, hi)
+        values = legendre_basis(s, self.stroke_degree)
+        if self.stroke_degree == 0:
+            return values, np.zeros_like(values)
+        dvalues = np.polynomial.legendre.legder(np.eye(self.stroke_degree + 1), axis=0)  # (L, L+1)
+        slopes = legendre_basis(s, self.stroke_degree - 1) @ dvalues * (2.0 / (hi - lo))
+        return values, slopes
+
+    def target_offset(self) -> np.ndarray:
+        """``(R, n)``: target coordinate seen by each pixel relative to pixel 0 of the centre row."""
+        if "offset" not in self._cache:
+            u = np.arange(self.n_pixels, dtype=np.float64)
+            r = np.arange(self.n_rows, dtype=np.float64) - (self.n_rows - 1) / 2.0
+            self._cache["offset"] = self.pixel_pitch_mm * u[None, :] + self.row_shift_mm * r[:, None]
+        return self._cache["offset"]
+
+    def phase(self, x_mm: np.ndarray) -> np.ndarray:
+        """``(K, R, n)`` target phase θ seen by each pixel at frame positions ``x_mm``."""
+        x_mm = np.asarray(x_mm, dtype=np.float64).reshape(-1)
+        return (TWO_PI / self.period_mm) * (x_mm[:, None, None] + self.target_offset()[None])
+
+    # ----------------------------------------------------------------- evaluation
+    def _require_coeffs(self) -> np.ndarray:
+        if self.coeffs is None:
+            raise ModelError("the model has no coefficients yet: calibrate it first")
+        return self.coeffs
+
+    def spatial_weights(self) -> np.ndarray:
+        """``(R, n, A, L+1)``: coefficient of trig term a and stroke polynomial l at each pixel."""
+        if "weights" not in self._cache:
+            coeffs = self._require_coeffs()
+            self._cache["weights"] = np.einsum("aijl,ui,rj->rual", coeffs, self.pixel_basis(), self.row_basis())
+        return self._cache["weights"]
+
+    def response(self) -> tuple[np.ndarray | float, np.ndarray | float]:
+        gain = self.pixel_gain if self.pixel_gain is not None else 1.0
+        offset = self.pixel_offset if self.pixel_offset is not None else 0.0
+        return gain, offset
+
+    def predict(self, x_mm: np.ndarray, with_derivative: bool = False,
+                with_response: bool = True) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+        """Gray values ``(K, R, n)`` at positions ``x_mm`` (and ∂Y/∂x when asked), unit common mode.
+
+        ``with_response=False`` gives the smooth part S alone, before the per-pixel flat field.
+        """
+        x_mm = np.asarray(x_mm, dtype=np.float64).reshape(-1)
+        trig = trig_basis(self.phase(x_mm), self.harmonics)  # (K, R, n, A)
+        stroke, dstroke = self.stroke_basis(x_mm)  # (K, L+1)
+        weights = np.einsum("rual,kl->krua", self.spatial_weights(), stroke)
+        gain, offset = self.response() if with_response else (1.0, 0.0)
+        values = np.einsum("krua,krua->kru", trig, weights) * gain + offset
+        if not with_derivative:
+            return values
+        dtrig = trig_derivative(trig, self.harmonics) * (TWO_PI / self.period_mm)
+        slope = np.einsum("krua,krua->kru", dtrig, weights)
+        if self.stroke_degree:
+            slope += np.einsum("krua,rual,kl->kru", trig, self.spatial_weights(), dstroke)
+        return values, slope * gain
+
+    def prepare(self, frames: np.ndarray) -> np.ndarray:
+        """Frames ``(K, n)`` or ``(K, R, n)`` as float64 ``(K, R_model, n)``.
+
+        A model that describes the rows jointly (``n_rows`` = 1) sees the row mean: for rows that
+        agree, averaging is the sufficient statistic and costs R times less than fitting every row.
+        """
+        frames = np.asarray(frames, dtype=np.float64)
+        if frames.ndim == 2:
+            frames = frames[:, None, :]
+        if frames.ndim != 3 or frames.shape[-1] != self.n_pixels:
+            raise TrackingError(
+                f"frames have shape {frames.shape}; the model was calibrated for {self.n_pixels} pixels"
+            )
+        if self.n_rows == 1:
+            return frames.mean(axis=1, keepdims=True)
+        if frames.shape[1] != self.n_rows:
+            raise TrackingError(f"frames have {frames.shape[1]} rows; the model was calibrated for {self.n_rows}")
+        return frames
+
+    def rows_averaged(self, frames_rows: int) -> int:
+        """How many raw rows feed each model row (noise drops by its square root)."""
+        return frames_rows if self.n_rows == 1 else 1
+
+    # ----------------------------------------------------------------- reporting
+    def describe(self) -> str:
+        parts = [f"M={self.harmonics}", f"P={self.pixel_degree}"]
+        if self.stroke_degree:
+            parts.append(f"stroke degree {self.stroke_degree}")
+        if self.n_rows > 1:
+            parts.append(f"{self.n_rows} rows, shift {self.row_shift_mm * 1e3:.2f} µm/row")
+        if self.pixel_gain is not None:
+            parts.append("flat field")
+        if self.common_mode:
+            parts.append("per-frame gain/offset")
+        return f"{self.name} ({', '.join(parts)}; τ={self.period_mm:.4f} mm, α·d={self.pixel_pitch_mm:.5f} mm)"
+
+    def ideal_parameters(self) -> dict[str, float]:
+        """A, φ, D of the fundamental at pixel 0 (the ideal model's own parameters)."""
+        coeffs = self._require_coeffs()
+        weights = self.spatial_weights()[(self.n_rows - 1) // 2, 0, :, 0]
+        a1, b1 = weights[1], weights[2]
+        return {"A": float(math.hypot(a1, b1)), "phi": float(math.atan2(b1, a1)), "D": float(weights[0]),
+                "tau_w": self.period_mm, "alpha_d": self.pixel_pitch_mm, "n_coeffs": int(coeffs.size)}
+
+
+def paper_model(period_mm: float, pixel_pitch_mm: float, n_pixels: int,
+                harmonics: int = 5, pixel_degree: int = 3) -> FourierModel:
+    """The seed paper's model: Fourier order M × polynomial degree P in the pixel index."""
+    return FourierModel(period_mm, pixel_pitch_mm, n_pixels, harmonics=harmonics, pixel_degree=pixel_degree,
+                        name="paper")
+
+
+def ideal_model(period_mm: float, pixel_pitch_mm: float, n_pixels: int) -> FourierModel:
+    """The ideal sine A·sin(2π(x + α·d·u)/τ + φ) + D: the paper model with M = 1 and degree 0."""
+    return FourierModel(period_mm, pixel_pitch_mm, n_pixels, harmonics=1, pixel_degree=0, name="ideal")

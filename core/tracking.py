@@ -1,0 +1,245 @@
+"""Sequential tracking: the position of every frame by Gauss–Newton from the previous frame's.
+
+Continuity of motion is what makes a periodic target usable: starting from x_{k−1}, a few
+Gauss–Newton steps land on the right period as long as the stage moved less than about a quarter
+period between frames. When that assumption breaks (a jump, a dropped burst of frames, a
+disturbed image) the tracker must notice rather than report a position one period off: it checks
+the step, the fit residual and, when a grating reading comes with the frame, the disagreement
+with it, and re-acquires by a global search over one period.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from graytrack.core.errors import TrackingError
+from graytrack.core.models.fourier import TWO_PI, FourierModel
+from graytrack.core.recording import Recording
+
+Progress = Callable[[float, str], None]
+ACQUIRE_GRID_PER_PERIOD = 64
+
+
+@dataclass
+class FrameSolution:
+    x_mm: float
+    rms_gray: float
+    information: float  # Σ (∂F/∂x)² after any per-frame nuisance is profiled out
+    iterations: int
+    gain: float = 1.0
+    offset: float = 0.0
+
+
+@dataclass
+class LockEvent:
+    frame: int
+    reason: str
+    x_before_mm: float
+    x_after_mm: float
+    reacquired: bool
+
+
+@dataclass
+class TrackResult:
+    x_mm: np.ndarray
+    locked: np.ndarray
+    rms_gray: np.ndarray
+    crlb_mm: np.ndarray
+    iterations: np.ndarray
+    gain: np.ndarray
+    offset: np.ndarray
+    events: list[LockEvent] = field(default_factory=list)
+
+    def error_um(self, reference: np.ndarray) -> np.ndarray:
+        """Position minus reference in µm (NaN where either is missing)."""
+        return (self.x_mm - reference) * 1e3
+
+
+class FastHarmonics:
+    """F(x) and ∂F/∂x of a model whose coefficients do not depend on x, in O(M·R·n) per call.
+
+    Every pixel's Fourier series is folded into complex weights V_h (pixel offsets included), so
+    one evaluation is z^h (M scalars) times V: no sines or cosines of pixel arrays at all.
+    """
+
+    def __init__(self, model: FourierModel):
+        weights = model.spatial_weights()[..., 0]  # (R, n, A)
+        gain, offset = model.response()
+        gain = np.broadcast_to(np.asarray(gain, dtype=np.float64), weights.shape[:2])
+        harmonics = np.arange(1, model.harmonics + 1)
+        shift = np.exp(1j * TWO_PI / model.period_mm * model.target_offset()[..., None] * harmonics)  # (R, n, M)
+        sin_c, cos_c = weights[..., 1::2], weights[..., 2::2]
+        self.period_mm = model.period_mm
+        self.constant = (gain * weights[..., 0] + offset).reshape(-1)
+        self.v = ((cos_c - 1j * sin_c) * shift * gain[..., None]).reshape(-1, model.harmonics).T.copy()  # (M, P)
+        self.dv = self.v * (1j * TWO_PI / model.period_mm * harmonics)[:, None]
+        self.harmonics = harmonics
+
+    def evaluate(self, x_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Values and slopes ``(G, P)`` at positions ``x_mm`` ``(G,)``."""
+        z = np.exp(1j * TWO_PI / self.period_mm * np.outer(x_mm, self.harmonics))  # (G, M)
+        return self.constant + (z @ self.v).real, (z @ self.dv).real
+
+
+class GeneralHarmonics:
+    """Fallback for models whose coefficients drift along the stroke: the model's own predict."""
+
+    def __init__(self, model: FourierModel):
+        self.model = model
+
+    def evaluate(self, x_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        values, slopes = self.model.predict(np.asarray(x_mm), with_derivative=True)
+        return values.reshape(len(x_mm), -1), slopes.reshape(len(x_mm), -1)
+
+
+class Tracker:
+    """Per-frame solver bound to one calibrated model; holds no frame state of its own."""
+
+    def __init__(self, model: FourierModel, max_iterations: int = 5, tolerance_mm: float = 1e-6,
+                 residual_limit_gray: float | None = None):
+        if not model.is_calibrated:
+            raise TrackingError("the model has no coefficients: calibrate it first")
+        self.model = model
+        self.evaluator = FastHarmonics(model) if model.stroke_degree == 0 else GeneralHarmonics(model)
+        self.max_iterations = max_iterations
+        self.tolerance_mm = tolerance_mm
+        self.quarter_period_mm = model.period_mm / 4.0
+        calibration_rmse = float(model.info.get("calibration_rmse_gray", model.noise_gray or 1.0))
+        self.residual_limit_gray = residual_limit_gray or 3.0 * calibration_rmse + 1.0
+
+    # ------------------------------------------------------------------ one frame
+    def refine(self, frame: np.ndarray, x_start: float) -> FrameSolution:
+        """Gauss–Newton from ``x_start`` (with per-frame gain/offset when the model has them)."""
+        y = frame.reshape(-1)
+        x, gain, offset = float(x_start), 1.0, 0.0
+        values = slopes = None
+        iterations = 0
+        for iterations in range(1, self.max_iterations + 1):
+            values, slopes = self.evaluator.evaluate(np.array([x]))
+            values, slopes = values[0], slopes[0]
+            residual = y - (gain * values + offset)
+            if self.model.common_mode:
+                jac = np.stack([gain * slopes, values, np.ones_like(values)], axis=1)
+                delta = np.linalg.solve(jac.T @ jac, jac.T @ residual)
+                dx = float(delta[0])
+                gain, offset = gain + float(delta[1]), offset + float(delta[2])
+            else:
+                dx = float(slopes @ residual) / float(slopes @ slopes)
+            dx = float(np.clip(dx, -self.quarter_period_mm, self.quarter_period_mm))
+            x += dx
+            if abs(dx) < self.tolerance_mm:
+                break
+        residual = y - (gain * values + offset)
+        rms = float(np.sqrt(residual @ residual / y.size))
+        information = self._information(values, slopes, gain)
+        return FrameSolution(x, rms, information, iterations, gain, offset)
+
+    def _information(self, values: np.ndarray, slopes: np.ndarray, gain: float) -> float:
+        d_x = gain * slopes
+        info = float(d_x @ d_x)
+        if self.model.common_mode:
+            nuisance = np.stack([values, np.ones_like(values)], axis=1)
+            cross = nuisance.T @ d_x
+            info -= float(cross @ np.linalg.solve(nuisance.T @ nuisance, cross))
+        return info
+
+    def acquire(self, frame: np.ndarray, lo_mm: float, hi_mm: float) -> FrameSolution:
+        """Global search on a grid over ``[lo, hi]`` (at least one period), then Gauss–Newton."""
+        count = max(int(np.ceil((hi_mm - lo_mm) / self.model.period_mm * ACQUIRE_GRID_PER_PERIOD)), 8)
+        grid = np.linspace(lo_mm, hi_mm, count, endpoint=False)
+        values, _ = self.evaluator.evaluate(grid)
+        y = frame.reshape(-1)
+        if self.model.common_mode:
+            centred_v = values - values.mean(axis=1, keepdims=True)
+            centred_y = y - y.mean()
+            scale = (centred_v @ centred_y) / np.maximum((centred_v**2).sum(axis=1), 1e-300)
+            cost = ((centred_y[None] - scale[:, None] * centred_v) ** 2).sum(axis=1) + 1e12 * (scale <= 0)
+        else:
+            cost = ((y[None] - values) ** 2).sum(axis=1)
+        return self.refine(frame, float(grid[int(np.argmin(cost))]))
+
+    def acquire_near(self, frame: np.ndarray, anchor_mm: float) -> FrameSolution:
+        half = self.model.period_mm / 2.0
+        return self.acquire(frame, anchor_mm - half, anchor_mm + half)
+
+    def lost_reason(self, solution: FrameSolution, x_prev: float, reference: float) -> str | None:
+        if abs(solution.x_mm - x_prev) > self.quarter_period_mm:
+            return f"step of {solution.x_mm - x_prev:+.3f} mm exceeds a quarter period"
+        if solution.rms_gray > self.residual_limit_gray:
+            return f"residual {solution.rms_gray:.2f} gray exceeds {self.residual_limit_gray:.2f}"
+        if np.isfinite(reference) and abs(solution.x_mm - reference) > self.quarter_period_mm:
+            return f"disagrees with the grating by {solution.x_mm - reference:+.3f} mm"
+        return None
+
+
+def track(model: FourierModel, source: Recording | np.ndarray, reference: np.ndarray | None = None,
+          x0_mm: float | None = None, progress: Progress | None = None, tracker: Tracker | None = None) -> TrackResult:
+    """Track every frame of a recording (or a frame array) sequentially.
+
+    Starts from ``x0_mm``, else from the first finite reference, else acquires on its own over
+    the calibrated stroke. Frames that cannot be placed on a period are NaN, never a guess.
+    """
+    if isinstance(source, Recording):
+        frames, reference = source.frames, source.reference if reference is None else reference
+    else:
+        frames = source
+    frames = np.asarray(frames)
+    prepared = model.prepare(frames)
+    n_frames = prepared.shape[0]
+    reference = np.full(n_frames, np.nan) if reference is None else np.asarray(reference, dtype=np.float64)
+    if reference.shape != (n_frames,):
+        raise TrackingError(f"reference has shape {reference.shape}, expected ({n_frames},)")
+    tracker = tracker or Tracker(model)
+    rows_per_model_row = model.rows_averaged(1 if frames.ndim == 2 else frames.shape[1])
+    sigma = (model.noise_gray or 1.0) / np.sqrt(rows_per_model_row)
+
+    out = {key: np.full(n_frames, np.nan) for key in ("x", "rms", "info", "gain", "offset")}
+    iterations = np.zeros(n_frames, dtype=np.int64)
+    locked = np.zeros(n_frames, dtype=bool)
+    events: list[LockEvent] = []
+    x_prev = x0_mm if x0_mm is not None else (reference[0] if np.isfinite(reference[0]) else None)
+    report_every = max(n_frames // 100, 1)
+    for k in range(n_frames):
+        frame = prepared[k]
+        solution, ok = _solve_frame(tracker, frame, x_prev, reference[k], k, events)
+        if ok:
+            out["x"][k], out["rms"][k], out["info"][k] = solution.x_mm, solution.rms_gray, solution.information
+            out["gain"][k], out["offset"][k] = solution.gain, solution.offset
+            iterations[k] = solution.iterations
+            locked[k] = not (events and events[-1].frame == k)
+            x_prev = solution.x_mm
+        if progress and k % report_every == 0:
+            progress(k / n_frames, f"frame {k}/{n_frames}")
+    if progress:
+        progress(1.0, f"{n_frames} frames, {len(events)} lock event(s)")
+    crlb = sigma / np.sqrt(np.where(out["info"] > 0, out["info"], np.nan))
+    return TrackResult(out["x"], locked, out["rms"], crlb, iterations, out["gain"], out["offset"], events)
+
+
+def _solve_frame(tracker: Tracker, frame: np.ndarray, x_prev: float | None, reference: float, k: int,
+                 events: list[LockEvent]) -> tuple[FrameSolution | None, bool]:
+    """One frame: continue from ``x_prev``; on any sign of lost lock, re-acquire and log it."""
+    if x_prev is None or not np.isfinite(x_prev):
+        lo, hi = tracker.model.stroke_range_mm
+        if np.isfinite(reference):
+            solution = tracker.acquire_near(frame, reference)
+        else:
+            solution = tracker.acquire(frame, lo, max(hi, lo + tracker.model.period_mm))
+        ok = solution.rms_gray <= tracker.residual_limit_gray
+        if k > 0 or not ok:
+            events.append(LockEvent(k, "acquisition", float("nan"), solution.x_mm if ok else float("nan"), ok))
+        return solution, ok
+    solution = tracker.refine(frame, x_prev)
+    reason = tracker.lost_reason(solution, x_prev, reference)
+    if reason is None:
+        return solution, True
+    anchor = reference if np.isfinite(reference) else x_prev
+    again = tracker.acquire_near(frame, anchor)
+    ok = again.rms_gray <= tracker.residual_limit_gray and (
+        not np.isfinite(reference) or abs(again.x_mm - reference) <= tracker.quarter_period_mm
+    )
+    events.append(LockEvent(k, reason, x_prev, again.x_mm if ok else float("nan"), ok))
+    return again, ok

@@ -1,0 +1,57 @@
+"""``graytrack track REC.npz --model MODEL.json --out TRACK.csv``."""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+from graytrack.core.models import load_model
+from graytrack.core.recording import load
+from graytrack.core.tracking import TrackResult, track
+from graytrack.service.progress import ProgressBar
+from graytrack.service.tables import write_csv
+
+CSV_COLUMNS = ("t", "x_mm", "locked", "rms_gray", "crlb_um", "reference_mm", "error_um")
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser("track", help="solve every frame's position with a calibrated model")
+    parser.add_argument("recording", help="recording (.npz) to track")
+    parser.add_argument("--model", required=True, help="model file from `graytrack calibrate` or `diagnose`")
+    parser.add_argument("--out", required=True, help="CSV to write; header starts t,x_mm")
+    parser.add_argument("--no-reference", action="store_true",
+                        help="ignore the recording's grating readout (acquire and track on the image alone)")
+    parser.set_defaults(func=run)
+
+
+def result_columns(t: np.ndarray, result: TrackResult, reference: np.ndarray) -> dict[str, np.ndarray]:
+    return {
+        "t": t, "x_mm": result.x_mm, "locked": result.locked.astype(int), "rms_gray": result.rms_gray,
+        "crlb_um": result.crlb_mm * 1e3, "reference_mm": reference, "error_um": result.error_um(reference),
+    }
+
+
+def summary(result: TrackResult, reference: np.ndarray) -> list[str]:
+    lines = [f"frames  {result.x_mm.size}, locked {int(result.locked.sum())}, lock events {len(result.events)}"]
+    for event in result.events[:10]:
+        state = f"re-acquired at {event.x_after_mm:.4f} mm" if event.reacquired else "not re-acquired"
+        lines.append(f"  frame {event.frame}: {event.reason}; {state}")
+    error = result.error_um(reference)
+    if np.isfinite(error).sum() > 1:
+        lines.append(
+            f"error   std {np.nanstd(error):.3f} um, mean {np.nanmean(error):+.3f} um, max |e| {np.nanmax(np.abs(error)):.3f} um"
+            f" (noise floor {np.nanmedian(result.crlb_mm) * 1e3:.3f} um)"
+        )
+    return lines
+
+
+def run(args: argparse.Namespace) -> int:
+    recording = load(args.recording)
+    model = load_model(args.model)
+    reference = np.full(recording.n_frames, np.nan) if args.no_reference else recording.reference
+    result = track(model, recording.frames, reference=reference, progress=ProgressBar("track"))
+    path = write_csv(args.out, result_columns(recording.t, result, recording.reference))
+    print("\n".join(summary(result, recording.reference)))
+    print(f"wrote   {path}")
+    return 0

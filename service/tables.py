@@ -1,0 +1,19 @@
+"""Plain CSV output of per-frame columns (no pandas: the daemon's install stays small)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+
+def write_csv(path: str | os.PathLike[str], columns: dict[str, np.ndarray]) -> Path:
+    """Write equal-length columns with a header, atomically (never a half-written table)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    table = np.column_stack([np.asarray(values, dtype=np.float64) for values in columns.values()])
+    tmp = path.with_name(f".{path.name}.tmp")
+    np.savetxt(tmp, table, delimiter=",", header=",".join(columns), comments="", fmt="%.9g")
+    os.replace(tmp, path)
+    return path
