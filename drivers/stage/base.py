@@ -1,0 +1,65 @@
+"""What the service needs from a closed-loop linear stage, independent of the controller.
+
+The position read is the grating readout, and it is only useful together with *when* it was
+taken: :class:`PositionReading` carries the host time (``time.monotonic`` by default, the same
+clock the cameras stamp frames with) so the acquisition loop can pair it with an exposure.
+"""
+
+from __future__ import annotations
+
+import abc
+from dataclasses import dataclass
+from types import TracebackType
+
+
+@dataclass(frozen=True)
+class PositionReading:
+    """Grating readout in mm at host time ``t`` (midpoint of request and reply, seconds)."""
+
+    position_mm: float
+    t: float
+    latency_s: float
+
+
+class Stage(abc.ABC):
+    """A single closed-loop linear axis. Moves are absolute in mm unless named otherwise."""
+
+    @abc.abstractmethod
+    def open(self) -> None:
+        """Connect and prepare the axis (servo on, referenced); safe to call twice."""
+
+    @abc.abstractmethod
+    def close(self) -> None: ...
+
+    @abc.abstractmethod
+    def move_to(self, target_mm: float) -> None: ...
+
+    @abc.abstractmethod
+    def move_by(self, delta_mm: float) -> None: ...
+
+    @abc.abstractmethod
+    def position(self) -> PositionReading: ...
+
+    @abc.abstractmethod
+    def on_target(self) -> bool: ...
+
+    @abc.abstractmethod
+    def wait_on_target(self, timeout_s: float) -> PositionReading:
+        """Block until the axis reports on target; return the settled position reading."""
+
+    @abc.abstractmethod
+    def stop(self) -> None:
+        """Stop now (abrupt); the axis stays where it stopped."""
+
+    @abc.abstractmethod
+    def limits(self) -> tuple[float, float]:
+        """The range moves are allowed in: soft limits intersected with the controller's travel."""
+
+    def __enter__(self) -> "Stage":
+        self.open()
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()
