@@ -1,0 +1,399 @@
+"""Effects: named, parameterised physical imperfections that edit a :class:`RigConfig`.
+
+An effect is a small function registered under a name with documented parameters and defaults.
+Switching effects on by name (``--effects tilt:deg=0.5,flicker``) is how scenarios get their
+imperfections and how the closed loop is tested against *undeclared* effects of arbitrary
+magnitude and in any combination: every effect accepts any magnitude its parameters allow, and
+effects compose (they edit different parts of the configuration, or add up where they share one).
+
+Spec syntax (``parse_effects``)::
+
+    name                      defaults
+    name:key=value:key=value  parameters
+    a,b:key=value             several effects, comma-separated
+    flicker:mains_hz=60,depth=0.05   a bare key=value after a comma continues the previous effect
+
+Effects that need randomness (dust positions, flicker phase…) draw it from a stream of their own,
+derived from the rig's seed and the effect's name.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Callable, Mapping, Sequence
+
+import numpy as np
+
+from graytrack.drivers.sim.target import Defect
+
+if TYPE_CHECKING:
+    from graytrack.drivers.sim.rig import RigConfig
+
+
+class EffectError(ValueError):
+    """An unknown effect or a bad parameter in an effect spec."""
+
+
+@dataclass(frozen=True)
+class Param:
+    name: str
+    default: float
+    doc: str
+
+
+Apply = Callable[["RigConfig", dict[str, float], np.random.Generator], None]
+
+
+@dataclass(frozen=True)
+class Effect:
+    name: str
+    group: str
+    summary: str
+    params: tuple[Param, ...]
+    apply: Apply
+
+    def describe(self) -> str:
+        """One line: what it does and its parameters with defaults."""
+        if not self.params:
+            return f"[{self.group}] {self.summary}"
+        plist = ", ".join(f"{p.name}={p.default:g} ({p.doc})" for p in self.params)
+        return f"[{self.group}] {self.summary} Parameters: {plist}."
+
+    def resolve(self, given: Mapping[str, float]) -> dict[str, float]:
+        known = {p.name: p.default for p in self.params}
+        unknown = sorted(set(given) - set(known))
+        if unknown:
+            names = ", ".join(known) or "none"
+            raise EffectError(f"effect {self.name!r} has no parameter {unknown[0]!r} (parameters: {names})")
+        values = dict(known)
+        for key, value in given.items():
+            try:
+                values[key] = float(value)
+            except (TypeError, ValueError):
+                raise EffectError(f"effect {self.name!r}: parameter {key}={value!r} is not a number") from None
+            if not math.isfinite(values[key]):
+                raise EffectError(f"effect {self.name!r}: parameter {key} must be finite")
+        return values
+
+    def spec(self, values: Mapping[str, float]) -> str:
+        """Canonical spec string, parameters in declaration order."""
+        parts = [self.name] + [f"{p.name}={values[p.name]:g}" for p in self.params]
+        return ":".join(parts)
+
+
+EFFECTS: dict[str, Effect] = {}
+
+
+def effect(name: str, group: str, summary: str, **params: tuple[float, str]) -> Callable[[Apply], Apply]:
+    """Register ``fn(config, values, rng)`` as effect ``name`` with parameters ``key=(default, doc)``."""
+
+    def register(fn: Apply) -> Apply:
+        if name in EFFECTS:
+            raise RuntimeError(f"effect {name!r} registered twice")
+        EFFECTS[name] = Effect(name, group, summary, tuple(Param(k, d, doc) for k, (d, doc) in params.items()), fn)
+        return fn
+
+    return register
+
+
+EffectSpec = str | tuple[str, Mapping[str, float]]
+
+
+def parse_effects(specs: Sequence[EffectSpec] | str) -> list[tuple[Effect, dict[str, float]]]:
+    """Specs (strings in the syntax above, or ``(name, {param: value})`` pairs) → effects + values."""
+    if isinstance(specs, str):
+        specs = [specs]
+    pending: list[tuple[str, dict[str, str]]] = []
+    for spec in specs:
+        if isinstance(spec, tuple):
+            name, params = spec
+            pending.append((str(name), dict(params)))
+            continue
+        for token in str(spec).split(","):
+            token = token.strip()
+            if not token:
+                continue
+            parts = [p.strip() for p in token.split(":")]
+            if "=" in parts[0]:
+                if not pending:
+                    raise EffectError(f"effect spec {token!r}: parameter given before any effect name")
+                target = pending[-1][1]
+            else:
+                pending.append((parts[0], {}))
+                target, parts = pending[-1][1], parts[1:]
+            for part in parts:
+                key, sep, value = part.partition("=")
+                if not sep or not key.strip():
+                    raise EffectError(f"effect spec {token!r}: expected key=value, got {part!r}")
+                target[key.strip()] = value.strip()
+    parsed = []
+    for name, given in pending:
+        if name not in EFFECTS:
+            raise EffectError(f"unknown effect {name!r} (known: {', '.join(sorted(EFFECTS))})")
+        eff = EFFECTS[name]
+        parsed.append((eff, eff.resolve(given)))
+    return parsed
+
+
+def apply_effects(config: "RigConfig", specs: Sequence[EffectSpec] | str, seed: int, record: bool = True) -> None:
+    """Apply effects in order; their canonical specs are appended to ``config.effects`` if ``record``."""
+    from graytrack.drivers.sim.rig import rng_for
+
+    for eff, values in parse_effects(specs):
+        eff.apply(config, values, rng_for(seed, "effect", eff.name))
+        if record:
+            config.effects.append(eff.spec(values))
+
+
+def _positive(name: str, key: str, value: float, allow_zero: bool = False) -> float:
+    if value < 0 or (value == 0 and not allow_zero):
+        raise EffectError(f"effect {name!r}: {key} must be {'≥' if allow_zero else '>'} 0, got {value:g}")
+    return value
+
+
+def _field_span(config: "RigConfig") -> tuple[float, float]:
+    """Target x range the camera sees over the stroke."""
+    fov = config.optics.pixel_pitch_mm * config.optics.n_pixels
+    lo, hi = config.stroke_mm
+    return lo + config.optics.x_offset_mm, hi + config.optics.x_offset_mm + fov
+
+
+# ----- target ----------------------------------------------------------------------------------
+
+
+@effect("harmonics", "target", "Print distortion: 2nd and 3rd harmonics added to the profile, relative to its fundamental.",
+        h2=(0.05, "2nd-harmonic amplitude / fundamental"), h3=(0.02, "3rd-harmonic amplitude / fundamental"),
+        phase2_deg=(0.0, "phase of the 2nd harmonic"), phase3_deg=(0.0, "phase of the 3rd harmonic"))
+def _harmonics(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    for order in (2, 3):
+        if v[f"h{order}"]:
+            config.target.harmonics.append((order, v[f"h{order}"], math.radians(v[f"phase{order}_deg"])))
+
+
+@effect("print_gamma", "target", "Nonlinear print (dot gain): each period's profile normalised to [0,1] and raised to gamma.",
+        gamma=(1.3, ">1 narrows the bright crests, <1 the dark troughs"))
+def _print_gamma(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    config.target.print_gamma *= _positive("print_gamma", "gamma", v["gamma"])
+
+
+@effect("pitch_scale", "target", "Pitch error as a scale: the printed period is nominal·(1 + ppm·1e-6).",
+        ppm=(300.0, "scale error in parts per million"))
+def _pitch_scale(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    config.target.scale_error = (1 + config.target.scale_error) * (1 + v["ppm"] * 1e-6) - 1
+
+
+@effect("chirp", "target", "Nonlinear pitch error: the print is warped by um·ξ^order over the field (ξ ∈ [-1, 1]).",
+        um=(20.0, "peak position error of the print, µm"), order=(2.0, "2 = chirp (period changes linearly), 3 = S-shape"))
+def _chirp(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    order = int(round(v["order"]))
+    if order < 2:
+        raise EffectError("effect 'chirp': order must be ≥ 2 (order 1 is pitch_scale)")
+    lo, hi = _field_span(config)
+    config.target.chirp_mm += v["um"] * 1e-3
+    config.target.chirp_order = order
+    config.target.chirp_center_mm = 0.5 * (lo + hi)
+    config.target.chirp_half_span_mm = 0.5 * (hi - lo)
+
+
+def _defect_y_range(config: "RigConfig", margin: float) -> tuple[float, float]:
+    pitch = config.optics.pixel_pitch_mm
+    return -margin, pitch * (config.optics.n_rows - 1) + margin
+
+
+@effect("dust", "target", "Dust on the target: dark Gaussian spots fixed to the target, placed at random over the field.",
+        count=(8.0, "number of spots"), size_um=(50.0, "spot sigma, µm"), depth=(0.3, "relative darkening at the centre"))
+def _dust(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    size = _positive("dust", "size_um", v["size_um"]) * 1e-3
+    lo, hi = _field_span(config)
+    ylo, yhi = _defect_y_range(config, size)
+    for _ in range(int(v["count"])):
+        config.target.defects.append(Defect("dust", rng.uniform(lo, hi), rng.uniform(ylo, yhi), size, v["depth"]))
+
+
+@effect("scratches", "target", "Scratches across the target: thin lines (bright when depth<0) at a small angle to y.",
+        count=(2.0, "number of scratches"), width_um=(15.0, "line sigma, µm"), depth=(-0.25, "relative darkening (<0 brightens)"),
+        angle_deg=(5.0, "angle from the target's y axis"))
+def _scratches(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    width = _positive("scratches", "width_um", v["width_um"]) * 1e-3
+    lo, hi = _field_span(config)
+    for _ in range(int(v["count"])):
+        config.target.defects.append(
+            Defect("scratch", rng.uniform(lo, hi), 0.0, width, v["depth"], math.radians(v["angle_deg"]))
+        )
+
+
+# ----- illumination --------------------------------------------------------------------------
+
+
+@effect("gradient", "illumination", "Uneven light fixed to the target: gain 1 + slope·dx + curvature·dx² along the stroke.",
+        per_10mm=(0.05, "relative gain change per 10 mm"), curvature=(0.0, "relative gain change at ±10 mm from the centre"))
+def _gradient(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    lo, hi = _field_span(config)
+    config.illumination.gradient_per_mm += v["per_10mm"] / 10.0
+    config.illumination.gradient_curvature_per_mm2 += v["curvature"] / 100.0
+    config.illumination.gradient_center_mm = 0.5 * (lo + hi)
+
+
+@effect("vignetting", "illumination", "Light fall-off fixed to the camera: gain 1 − edge·ρ² (ρ = radius / sensor half-width).",
+        edge=(0.08, "relative loss at the half-width"))
+def _vignetting(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    config.illumination.vignetting += v["edge"]
+
+
+@effect("flicker", "illumination", "Lamp flicker at 2×mains: each frame's light scaled by 1 + depth·sinc(2fT)·cos(2π·2f·t + φ).",
+        mains_hz=(50.0, "mains frequency"), depth=(0.02, "relative modulation of the light"),
+        phase_deg=(-1.0, "phase φ; negative = random"))
+def _flicker(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    ill = config.illumination
+    ill.mains_hz = _positive("flicker", "mains_hz", v["mains_hz"])
+    ill.flicker_depth = v["depth"]
+    ill.flicker_phase_rad = math.radians(v["phase_deg"]) if v["phase_deg"] >= 0 else rng.uniform(0, 2 * math.pi)
+
+
+# ----- optics ----------------------------------------------------------------------------------
+
+
+@effect("distortion", "optics", "Radial lens distortion about the sensor centre: positions × (1 + k1·ρ²).",
+        k1=(0.01, "relative stretch at the sensor half-width (<0: barrel)"))
+def _distortion(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    config.optics.distortion_k1 += v["k1"]
+
+
+@effect("defocus", "optics", "Defocus: Gaussian blur on the target; harmonic i loses exp(−2π²σ²(i/τ)²).",
+        sigma_um=(150.0, "blur sigma on the target, µm"))
+def _defocus(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    s = config.optics.defocus_sigma_mm
+    config.optics.defocus_sigma_mm = math.hypot(s, _positive("defocus", "sigma_um", v["sigma_um"], True) * 1e-3)
+
+
+@effect("tilt", "optics", "Camera rows tilted against the axis of motion: row r sees the target shifted by −r·α·d·sin(angle).",
+        deg=(0.5, "tilt angle, degrees"))
+def _tilt(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    config.optics.tilt_rad += math.radians(v["deg"])
+
+
+@effect("motion_blur", "optics", "Longer exposure: the moving profile is integrated over it (amplitude × sinc(v·T/τ)).",
+        exposure_ms=(20.0, "exposure time, ms"))
+def _motion_blur(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    config.timing.exposure_s = _positive("motion_blur", "exposure_ms", v["exposure_ms"], True) * 1e-3
+
+
+# ----- sensor ----------------------------------------------------------------------------------
+
+
+@effect("prnu", "sensor", "Pixel response non-uniformity: a gain per physical pixel, 1 + sigma·N(0,1).",
+        sigma=(0.01, "relative gain spread"))
+def _prnu(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    config.sensor.prnu_sigma = _positive("prnu", "sigma", v["sigma"], True)
+
+
+@effect("dsnu", "sensor", "Dark signal non-uniformity: an offset per physical pixel, sigma·N(0,1) gray.",
+        sigma=(1.0, "offset spread, gray"))
+def _dsnu(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    config.sensor.dsnu_sigma_gray = _positive("dsnu", "sigma", v["sigma"], True)
+
+
+@effect("shot_noise", "sensor", "Photon shot noise: variance = gray·255/full_well (gray²).",
+        full_well=(10000.0, "electrons at full scale"))
+def _shot_noise(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    config.sensor.full_well_e = _positive("shot_noise", "full_well", v["full_well"])
+
+
+@effect("read_noise", "sensor", "Gaussian read noise per pixel and frame (replaces the scenario's).",
+        gray=(0.7, "standard deviation, gray"))
+def _read_noise(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    config.sensor.read_noise_gray = _positive("read_noise", "gray", v["gray"], True)
+
+
+@effect("quantize", "sensor", "Digitise to a bit depth (uint8 up to 8 bits, uint16 above); clips at full scale.",
+        bits=(8.0, "bit depth, 1..16"))
+def _quantize(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    bits = int(round(v["bits"]))
+    if not 1 <= bits <= 16:
+        raise EffectError(f"effect 'quantize': bits must be 1..16, got {bits}")
+    config.sensor.bit_depth = bits
+
+
+@effect("sensor_gamma", "sensor", "Camera output gamma: out = 255·(in/255)^gamma.", gamma=(0.8, "exponent"))
+def _sensor_gamma(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    config.sensor.gamma *= _positive("sensor_gamma", "gamma", v["gamma"])
+
+
+@effect("saturation", "sensor", "Too much gain: the signal is scaled and clipped at full scale (255).",
+        gain=(1.4, "analog gain before the clip"))
+def _saturation(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    config.sensor.gain *= _positive("saturation", "gain", v["gain"])
+    config.sensor.clip = True
+
+
+@effect("rows", "sensor", "ROI strip height: R rows × n pixels taken from the sensor.", n=(16.0, "number of rows"))
+def _rows(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    n = int(round(v["n"]))
+    if n < 1:
+        raise EffectError("effect 'rows': n must be ≥ 1")
+    config.optics.n_rows = n
+    if config.optics.sensor_height is not None:
+        config.optics.sensor_height = max(config.optics.sensor_height, config.optics.roi_y + n)
+
+
+# ----- stage, grating, timing --------------------------------------------------------------------
+
+
+@effect("following_error", "stage", "Weak servo: lower bandwidth and velocity feed-forward; lag 2ζ(1−kv)·v/ω.",
+        bandwidth_hz=(15.0, "servo natural frequency"), kv=(0.0, "velocity feed-forward, 0..1"))
+def _following_error(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    config.stage.bandwidth_hz = _positive("following_error", "bandwidth_hz", v["bandwidth_hz"])
+    config.stage.velocity_feedforward = v["kv"]
+
+
+@effect("settling", "stage", "Underdamped servo: the stage rings after each acceleration change before settling.",
+        damping=(0.15, "damping ratio ζ"), bandwidth_hz=(40.0, "servo natural frequency"))
+def _settling(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    config.stage.damping = _positive("settling", "damping", v["damping"])
+    config.stage.bandwidth_hz = _positive("settling", "bandwidth_hz", v["bandwidth_hz"])
+    config.stage.acceleration_feedforward = 0.0
+
+
+@effect("grating_resolution", "grating", "Reference quantised to a coarser step.", um=(1.0, "resolution, µm"))
+def _grating_resolution(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    config.grating.resolution_mm = _positive("grating_resolution", "um", v["um"], True) * 1e-3
+
+
+@effect("cyclic_error", "grating", "Grating interpolation error: amplitude·sin(2π x / period) added to the reference.",
+        nm=(200.0, "amplitude, nm"), period_um=(20.0, "grating signal period, µm"))
+def _cyclic_error(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    config.grating.cyclic_amplitude_mm = v["nm"] * 1e-6
+    config.grating.cyclic_period_mm = _positive("cyclic_error", "period_um", v["period_um"]) * 1e-3
+    config.grating.cyclic_phase_rad = rng.uniform(0, 2 * math.pi)
+
+
+@effect("time_skew", "timing", "Reference latched later than mid-exposure by a fixed time: its error is v·skew.",
+        ms=(2.0, "latch minus exposure mid-point, ms (negative: earlier)"))
+def _time_skew(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    config.timing.latch_skew_s += v["ms"] * 1e-3
+
+
+@effect("jitter", "timing", "Exposure instants jitter about the frame clock that latches the reference: error v·N(0, σ).",
+        us=(500.0, "jitter standard deviation, µs"))
+def _jitter(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    config.timing.trigger_jitter_s = _positive("jitter", "us", v["us"], True) * 1e-6
+
+
+@effect("timestamp_jitter", "timing", "Recorded frame times noisy about the true exposure (image and reference agree).",
+        us=(200.0, "timestamp noise standard deviation, µs"))
+def _timestamp_jitter(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    config.timing.timestamp_jitter_s = _positive("timestamp_jitter", "us", v["us"], True) * 1e-6
+
+
+@effect("dropped_frames", "timing", "Frames lost at random (gaps in t).", p=(0.05, "probability a frame is dropped"))
+def _dropped_frames(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    if not 0 <= v["p"] < 1:
+        raise EffectError("effect 'dropped_frames': p must be in [0, 1)")
+    config.timing.drop_probability = v["p"]
+
+
+@effect("frame_rate", "timing", "Frame rate (the exposure is capped at the frame period).", hz=(1000.0, "frames per second"))
+def _frame_rate(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    config.timing.frame_rate_hz = _positive("frame_rate", "hz", v["hz"])
+    config.timing.exposure_s = min(config.timing.exposure_s, 1.0 / v["hz"])

@@ -1,0 +1,379 @@
+"""The virtual rig: target + light + optics + sensor + stage + grating + timing, rendered to frames.
+
+Rendering. The light reaching pixel (r, u) when the stage is at x is::
+
+    L = flicker(t) · V(r, u) · G_target(x + s[r,u], y[r,u]) · Re Σ_i C_i(r,u) e^{ji θ(x + s[r,u])}
+
+(V: vignetting, G_target: the illumination field and defects fixed to the target, C: the target's
+Fourier coefficients, already blurred by defocus). When the target phase is affine in x (no chirp),
+``θ(x + s) = κx + κs`` and the sum splits into a per-frame basis ``e^{jiκx}`` times a per-pixel matrix
+``C_i e^{jiκs}``: a frame costs one small matrix product, whatever the number of rows. Motion blur
+is exact in that form too — the mean of ``e^{jiκx(t)}`` over a linear piece of motion is
+``e^{jiκx_mid}·sinc(iκΔx/2π)``. Target-fixed gains and chirp take a slower path that evaluates each
+pixel at sub-samples of the exposure.
+
+The light then goes through the sensor (sensor.py). Ground truth — true exposure instants and
+positions, fixed patterns, the true period — is returned as a :class:`Truth`, never put into the
+recording.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import zlib
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from graytrack.core.recording import Recording
+from graytrack.drivers.sim import illumination as illum
+from graytrack.drivers.sim import target as tgt
+from graytrack.drivers.sim.grating import GratingConfig, GratingReadout
+from graytrack.drivers.sim.illumination import IlluminationConfig
+from graytrack.drivers.sim.optics import OpticsConfig, defocus_attenuation, pixel_geometry
+from graytrack.drivers.sim.sensor import Sensor, SensorConfig
+from graytrack.drivers.sim.stage import SimStage, StageConfig, Trajectory, oscillation, sweep
+from graytrack.drivers.sim.target import TargetConfig
+from graytrack.drivers.sim.timing import TimingConfig, frame_clock
+
+ProgressCallback = Callable[[float, str], None]
+
+# Elements (frames × rows × pixels) rendered per chunk: bounds memory, keeps arrays in cache.
+CHUNK_ELEMENTS = 1 << 18
+
+
+def rng_for(seed: int, *names: str) -> np.random.Generator:
+    """An independent random stream per (seed, component): switching one effect on does not
+    reshuffle the noise or fixed patterns of the others."""
+    keys = [int(seed) & 0xFFFFFFFF] + [zlib.crc32(name.encode()) for name in names]
+    return np.random.default_rng(keys)
+
+
+@dataclass
+class RigConfig:
+    """Everything that defines a virtual rig. Scenarios build one; effects edit it."""
+
+    scenario: str = "custom"
+    target: TargetConfig = field(default_factory=TargetConfig)
+    illumination: IlluminationConfig = field(default_factory=IlluminationConfig)
+    optics: OpticsConfig = field(default_factory=OpticsConfig)
+    sensor: SensorConfig = field(default_factory=SensorConfig)
+    stage: StageConfig = field(default_factory=StageConfig)
+    grating: GratingConfig = field(default_factory=GratingConfig)
+    timing: TimingConfig = field(default_factory=TimingConfig)
+    stroke_mm: tuple[float, float] = (0.0, 10.46)
+    default_seconds: float = 10.0
+    motion: str = "sweep"  # default trajectory: "sweep" once over the stroke, or "oscillation"
+    motion_hz: float = 2.0  # oscillation frequency (full stroke amplitude)
+    effects: list[str] = field(default_factory=list)  # canonical specs of the effects applied
+    n_orders: int = 8  # Fourier orders kept when print gamma creates harmonics
+
+
+@dataclass
+class Truth:
+    """Ground truth of a recording, frame by frame for the frames kept (aligned with the file).
+
+    Arrays per frame ``(K,)``: ``t_s`` true exposure mid-instant, ``x_mm`` true position then,
+    ``v_mm_s`` velocity, ``x_mean_mm`` position averaged over the exposure, ``reference_error_mm``
+    (reference − x_mm), ``light_gain`` (flicker), ``frame_index`` (index before drops). Per pixel
+    ``(R, n)``: ``pixel_x_mm`` target offset seen, ``pixel_gain`` (PRNU × vignetting),
+    ``pixel_offset_gray`` (DSNU). Scalars: ``period_mm`` (true printed period), ``noise_gray``.
+    """
+
+    t_s: np.ndarray
+    x_mm: np.ndarray
+    v_mm_s: np.ndarray
+    x_mean_mm: np.ndarray
+    reference_error_mm: np.ndarray
+    light_gain: np.ndarray
+    frame_index: np.ndarray
+    pixel_x_mm: np.ndarray
+    pixel_gain: np.ndarray
+    pixel_offset_gray: np.ndarray
+    period_mm: float
+    noise_gray: float
+    info: dict[str, Any] = field(default_factory=dict)
+
+    def save(self, path: str | Path) -> Path:
+        """Write as ``.npz`` (arrays by name, ``info`` as a JSON string)."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        arrays = {k: v for k, v in vars(self).items() if k != "info"}
+        arrays["info"] = np.array(json.dumps(self.info, sort_keys=True))
+        with open(path, "wb") as fh:
+            np.savez_compressed(fh, **arrays)
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> "Truth":
+        with np.load(path, allow_pickle=False) as data:
+            values = {k: data[k] for k in data.files}
+        info = json.loads(str(values.pop("info")))
+        for key in ("period_mm", "noise_gray"):
+            values[key] = float(values[key])
+        return cls(**values, info=info)
+
+
+class VirtualRig:
+    """A simulated camera + target + stage + grating, deterministic under ``seed``.
+
+    Fixed patterns (PRNU, DSNU, defect positions) come from ``seed`` alone. Noise comes from a
+    stream that advances with every ``render``/``record`` call: a fresh rig with the same seed
+    repeats the same recordings in the same order.
+    """
+
+    def __init__(self, config: RigConfig, seed: int = 0):
+        self.config = config
+        self.seed = int(seed)
+        self._noise_rng = rng_for(seed, "noise")
+        self._timing_rng = rng_for(seed, "timing")
+        opt, tcfg = config.optics, config.target
+        self.geometry = pixel_geometry(opt)
+        self.sensor = Sensor(
+            config.sensor, self.geometry.full_r, self.geometry.full_u, (opt.full_height, opt.full_width),
+            rng_for(seed, "sensor-pattern"),
+        )
+        coeffs = tgt.fourier_coefficients(tcfg, self.geometry.u, config.n_orders)
+        orders = np.arange(coeffs.shape[0])
+        self._orders = orders
+        coeffs = coeffs * defocus_attenuation(opt, orders, tcfg.true_period_mm)[:, None, None]
+        self._vignetting = illum.camera_field_gain(config.illumination, self.geometry.radius2)
+        self._coeffs = coeffs * self._vignetting  # (M+1, R, n), phase reference: target x
+        self._kappa = 2 * math.pi / tcfg.true_period_mm
+        # fast path: fold the pixel offsets into the coefficients → real matrix (2M+1, R·n)
+        folded = self._coeffs * np.exp(1j * orders[:, None, None] * self._kappa * self.geometry.x_mm)
+        flat = folded.reshape(orders.size, -1)
+        self._matrix = np.concatenate([flat.real, -flat[1:].imag]).astype(np.float64)
+        self._slow = (not tcfg.affine) or config.illumination.has_target_field or bool(tcfg.defects)
+        self._row_y = self.geometry.y_mm.mean(axis=1)
+
+    # ----- shape and nominal figures --------------------------------------------------------
+    @property
+    def n_pixels(self) -> int:
+        return self.config.optics.n_pixels
+
+    @property
+    def n_rows(self) -> int:
+        return self.config.optics.n_rows
+
+    @property
+    def pixel_pitch_mm(self) -> float:
+        """Nominal α·d (what a user would measure or be told)."""
+        return self.config.optics.pixel_pitch_mm
+
+    @property
+    def period_mm(self) -> float:
+        """Nominal printed period τ_w (the true one is in :class:`Truth`)."""
+        return self.config.target.period_mm
+
+    @property
+    def exposure_s(self) -> float:
+        return self.config.timing.exposure_s
+
+    @property
+    def frame_rate_hz(self) -> float:
+        return self.config.timing.frame_rate_hz
+
+    @property
+    def frame_dtype(self) -> np.dtype:
+        return self.sensor.output_dtype
+
+    # ----- parts a driver can use -----------------------------------------------------------
+    def make_stage(self, position_mm: float | None = None, t_s: float = 0.0) -> SimStage:
+        """A fresh :class:`SimStage` with this rig's stage settings, at the stroke start by default."""
+        cfg = StageConfig(**vars(self.config.stage))
+        return SimStage(cfg, self.config.stroke_mm[0] if position_mm is None else position_mm, t_s)
+
+    def make_grating(self, stage: Trajectory) -> GratingReadout:
+        """The rig's grating readout attached to ``stage``."""
+        return GratingReadout(stage, GratingConfig(**vars(self.config.grating)))
+
+    def default_trajectory(self, seconds: float | None = None) -> Trajectory:
+        """The scenario's motion: by default the calibration-like sweep, once over the stroke at
+        constant velocity filling ``seconds``; fast scenarios oscillate over the stroke instead."""
+        seconds = self.config.default_seconds if seconds is None else seconds
+        start, end = self.config.stroke_mm
+        if self.config.motion == "oscillation":
+            return oscillation(0.5 * (start + end), 0.5 * (end - start), self.config.motion_hz)
+        return sweep(start, end, seconds, self.config.stage)
+
+    # ----- rendering ------------------------------------------------------------------------
+    def render(self, x_mm_samples: np.ndarray, t_s: np.ndarray, noise: bool = True) -> np.ndarray:
+        """Frames ``(K, R, n)`` in the sensor's dtype for the stage motion during each exposure.
+
+        ``x_mm_samples`` is ``(K,)`` (stage still during the exposure) or ``(K, S)``: true positions
+        at S instants evenly spaced from the start to the end of each exposure (S ≥ 2); the motion
+        is taken as piecewise linear between them, which is exact for constant velocity with S = 2.
+        ``t_s`` ``(K,)`` are the exposure mid-instants (they set the flicker phase).
+        ``noise=False`` gives the noise-free frames (still quantised).
+        """
+        light = self.render_light(x_mm_samples, t_s)
+        return self.sensor.expose(light, self._noise_rng if noise else None)
+
+    def render_light(self, x_mm_samples: np.ndarray, t_s: np.ndarray) -> np.ndarray:
+        """Noise-free light reaching each pixel ``(K, R, n)``, float64, before the sensor."""
+        x = np.asarray(x_mm_samples, dtype=np.float64)
+        x = x[:, None] if x.ndim == 1 else x
+        t = np.asarray(t_s, dtype=np.float64).reshape(-1)
+        if x.ndim != 2 or t.shape[0] != x.shape[0]:
+            raise ValueError(f"x_mm_samples must be (K,) or (K, S) and t_s (K,), got {x.shape} and {t.shape}")
+        R, n = self.n_rows, self.n_pixels
+        out = np.empty((x.shape[0], R, n))
+        step = max(1, CHUNK_ELEMENTS // (R * n))
+        for k0 in range(0, x.shape[0], step):
+            k1 = min(k0 + step, x.shape[0])
+            xs = x[k0:k1]
+            light = self._light_slow(xs) if self._slow else self._light_fast(xs)
+            out[k0:k1] = light.reshape(k1 - k0, R, n)
+        out *= illum.flicker_gain(self.config.illumination, t, self.exposure_s)[:, None, None]
+        return out
+
+    def _basis(self, theta: np.ndarray) -> np.ndarray:
+        """Real basis ``[1, cos iθ, sin iθ]`` ``(K, 2M+1)`` for fundamental phases θ ``(K,)``."""
+        i = self._orders[1:]
+        arg = theta[:, None] * i[None, :]
+        return np.concatenate([np.ones((theta.size, 1)), np.cos(arg), np.sin(arg)], axis=1)
+
+    def _light_fast(self, xs: np.ndarray) -> np.ndarray:
+        """Affine phase, no target-fixed gain: exposure-averaged basis (exact sinc) × matrix."""
+        theta = self._kappa * xs  # (K, S)
+        i = self._orders[1:]
+        if theta.shape[1] == 1:
+            basis = self._basis(theta[:, 0])
+        else:
+            mid = 0.5 * (theta[:, 1:] + theta[:, :-1])  # (K, S-1) segments
+            span = theta[:, 1:] - theta[:, :-1]
+            damp = np.sinc(span[:, :, None] * i / (2 * math.pi))  # (K, S-1, M)
+            arg = mid[:, :, None] * i
+            cos = (np.cos(arg) * damp).mean(axis=1)
+            sin = (np.sin(arg) * damp).mean(axis=1)
+            basis = np.concatenate([np.ones((xs.shape[0], 1)), cos, sin], axis=1)
+        return basis @ self._matrix
+
+    def _light_slow(self, xs: np.ndarray) -> np.ndarray:
+        """Chirp or target-fixed gains: evaluate every pixel at sub-samples of each exposure."""
+        points = self._subsamples(xs)  # (K, Q)
+        R, n = self.n_rows, self.n_pixels
+        acc = np.zeros((xs.shape[0], R, n))
+        tcfg, icfg = self.config.target, self.config.illumination
+        blur = self.config.optics.defocus_sigma_mm
+        for q in range(points.shape[1]):
+            xq = points[:, q]
+            if tcfg.affine:
+                light = (self._basis(self._kappa * xq) @ self._matrix).reshape(-1, R, n)
+            else:
+                theta = tgt.phase(tcfg, xq[:, None, None] + self.geometry.x_mm)  # (K, R, n)
+                z = np.exp(1j * theta)
+                zi = np.ones_like(z)
+                light = np.broadcast_to(self._coeffs[0].real, z.shape).copy()
+                for c in self._coeffs[1:]:
+                    zi = zi * z
+                    light += (c * zi).real
+            x_w = xq[:, None, None] + self.geometry.x_mm
+            if icfg.has_target_field:
+                light *= illum.target_field_gain(icfg, x_w)
+            if tcfg.defects:
+                for r in range(R):
+                    light[:, r] *= tgt.defect_gain(tcfg.defects, x_w[:, r], float(self._row_y[r]), blur)
+            acc += light
+        return acc / points.shape[1]
+
+    def _subsamples(self, xs: np.ndarray) -> np.ndarray:
+        """Midpoints of equal sub-intervals of each piecewise-linear exposure, fine enough that
+        neither a period nor a defect is smeared between samples."""
+        if xs.shape[1] == 1:
+            return xs
+        scale = self.config.target.true_period_mm / 256
+        sizes = [d.size_mm for d in self.config.target.defects]
+        if sizes:
+            scale = min(scale, min(sizes) / 4)
+        seg = np.abs(np.diff(xs, axis=1)).max()
+        m = int(min(max(math.ceil(seg / scale), 1), 64))
+        frac = (np.arange(m) + 0.5) / m
+        pieces = xs[:, :-1, None] + (xs[:, 1:] - xs[:, :-1])[:, :, None] * frac
+        return pieces.reshape(xs.shape[0], -1)
+
+    # ----- recording ------------------------------------------------------------------------
+    def record(self, seconds: float | None = None, trajectory: Trajectory | None = None,
+               progress: ProgressCallback | None = None) -> tuple[Recording, Truth]:
+        """Record ``seconds`` of frames while the stage follows ``trajectory``.
+
+        Default trajectory: the scenario's sweep (:meth:`default_trajectory`) filling ``seconds``.
+        Returns the recording (what a real rig would write) and the ground truth beside it.
+        """
+        cfg = self.config
+        seconds = cfg.default_seconds if seconds is None else float(seconds)
+        if not seconds > 0:
+            raise ValueError(f"seconds must be positive, got {seconds}")
+        trajectory = self.default_trajectory(seconds) if trajectory is None else trajectory
+        clock = frame_clock(cfg.timing, seconds, self._timing_rng)
+        keep = np.flatnonzero(clock.kept)
+        t_mid = clock.exposure_mid[keep]
+        T = self.exposure_s
+        v_mid = np.asarray(trajectory.velocity(t_mid), dtype=np.float64)
+        moving = T > 0 and float(np.max(np.abs(v_mid))) * T > 1e-9
+        offsets = np.array([-0.5, 0.0, 0.5]) * T if moving else np.zeros(1)
+        x_samples = np.asarray(trajectory.position(t_mid[:, None] + offsets), dtype=np.float64)
+        frames = np.empty((keep.size, self.n_rows, self.n_pixels), dtype=self.frame_dtype)
+        step = max(1, 4 * CHUNK_ELEMENTS // (self.n_rows * self.n_pixels))
+        for k0 in range(0, keep.size, step):
+            k1 = min(k0 + step, keep.size)
+            frames[k0:k1] = self.render(x_samples[k0:k1], t_mid[k0:k1])
+            if progress is not None:
+                progress(k1 / keep.size, f"frame {k1}/{keep.size}")
+        reference = self.make_grating(trajectory).read(clock.latch[keep])
+        x_mid = np.asarray(trajectory.position(t_mid), dtype=np.float64)
+        x_mean = x_samples.mean(axis=1) if x_samples.shape[1] == 1 else (
+            0.25 * x_samples[:, 0] + 0.5 * x_samples[:, 1] + 0.25 * x_samples[:, 2]
+        )
+        stored = frames[:, 0, :] if self.n_rows == 1 else frames
+        rec = Recording(stored, clock.stamp[keep], reference, self.meta())
+        truth = Truth(
+            t_s=t_mid,
+            x_mm=x_mid,
+            v_mm_s=v_mid,
+            x_mean_mm=x_mean,
+            reference_error_mm=reference - x_mid,
+            light_gain=illum.flicker_gain(cfg.illumination, t_mid, T),
+            frame_index=keep,
+            pixel_x_mm=self.geometry.x_mm.copy(),
+            pixel_gain=self.sensor.prnu * self._vignetting * cfg.sensor.gain,
+            pixel_offset_gray=self.sensor.dsnu + cfg.sensor.black_level_gray,
+            period_mm=cfg.target.true_period_mm,
+            noise_gray=cfg.sensor.read_noise_gray,
+            info={"scenario": cfg.scenario, "effects": list(cfg.effects), "seed": self.seed,
+                  "config": _jsonable(asdict(cfg))},
+        )
+        return rec, truth
+
+    def meta(self) -> dict[str, Any]:
+        """Recording metadata: what the rig's owner knows (nominal figures), never the truth."""
+        cfg = self.config
+        meta: dict[str, Any] = {
+            "pixel_pitch_mm": self.pixel_pitch_mm,
+            "period_mm": self.period_mm,
+            "source": "sim",
+            "scenario": cfg.scenario,
+            "effects": list(cfg.effects),
+            "seed": self.seed,
+            "frame_rate_hz": cfg.timing.frame_rate_hz,
+            "exposure_s": cfg.timing.exposure_s,
+            "grating_resolution_mm": cfg.grating.resolution_mm,
+            "gray_scale": "8-bit equivalent" if cfg.sensor.bit_depth is None else f"{cfg.sensor.bit_depth}-bit",
+        }
+        if cfg.sensor.bit_depth is not None:
+            meta["bit_depth"] = cfg.sensor.bit_depth
+        return meta
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, (np.floating, np.integer)):
+        return value.item()
+    return value

@@ -1,0 +1,170 @@
+"""The printed target: its gray profile along x, the pitch of the print, and local defects.
+
+The target's profile is periodic in a *phase* ``θ = 2π w(x_w) / τ_true`` where ``x_w`` is the target
+coordinate, ``τ_true = τ_nominal·(1 + scale error)`` the printed period and ``w(x) = x + chirp(x)``
+a slow nonlinear warp of the print (pitch error that is not a pure scale). Along one period the
+profile is a short Fourier series, ``Re Σ_i C_i e^{jiθ}``; keeping it in this form is what makes
+rendering fast (see ``rig.py``) and lets print distortions (harmonics, print gamma) and optical
+blur be applied as exact operations on the coefficients.
+
+The coefficients may differ from pixel to pixel: the ``paper`` scene is the seed paper's Table 2
+gray field, whose Fourier coefficients are cubics in the pixel index u — it describes a whole rig
+(target, light and camera) rather than the print alone. A plain ``sine`` scene has the same
+coefficients for every pixel.
+
+Defects (dust, scratches) are local and two-dimensional (they depend on the row's y as well), so
+they are not part of the Fourier series; they are a multiplicative gain fixed to the target
+(:func:`defect_gain`), combined with the illumination field fixed to the target.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from graytrack.drivers.sim import paper
+
+
+@dataclass
+class Defect:
+    """A local print defect: Gaussian profile, relative ``depth`` (positive darkens, negative brightens).
+
+    ``kind="dust"`` is a round spot of standard deviation ``size_mm`` centred at (x, y);
+    ``kind="scratch"`` is a line through (x, y) at ``angle_rad`` from the target's y axis with
+    Gaussian cross-section of standard deviation ``size_mm``.
+    """
+
+    kind: str
+    x_mm: float
+    y_mm: float
+    size_mm: float
+    depth: float
+    angle_rad: float = 0.0
+
+
+@dataclass
+class TargetConfig:
+    """What is printed and how well. ``period_mm`` is the nominal (design) period."""
+
+    kind: str = "sine"  # "sine": A sin(θ + φ) + D for every pixel; "paper": Table 2 field
+    period_mm: float = 8.62
+    amplitude_gray: float = 80.0
+    offset_gray: float = 128.0
+    phase_rad: float = 0.0
+    harmonics: list[tuple[int, float, float]] = field(default_factory=list)  # (order, rel. amplitude, phase rad)
+    print_gamma: float = 1.0
+    scale_error: float = 0.0  # printed period = nominal · (1 + scale_error)
+    chirp_mm: float = 0.0  # peak nonlinear pitch error over the chirp span
+    chirp_order: int = 2  # shape of the warp: ξ^order on ξ ∈ [-1, 1]
+    chirp_center_mm: float = 8.0
+    chirp_half_span_mm: float = 10.0
+    defects: list[Defect] = field(default_factory=list)
+
+    @property
+    def true_period_mm(self) -> float:
+        return self.period_mm * (1.0 + self.scale_error)
+
+    @property
+    def affine(self) -> bool:
+        """True when the phase is linear in x (no chirp): the fast rendering path applies."""
+        return self.chirp_mm == 0.0
+
+
+def warp_mm(cfg: TargetConfig, x_w: np.ndarray) -> np.ndarray:
+    """``w(x) = x + chirp(x)``: where along an ideal print the point x_w really lies."""
+    if cfg.chirp_mm == 0.0:
+        return x_w
+    xi = (x_w - cfg.chirp_center_mm) / cfg.chirp_half_span_mm
+    return x_w + cfg.chirp_mm * xi**cfg.chirp_order
+
+
+def phase(cfg: TargetConfig, x_w: np.ndarray) -> np.ndarray:
+    """Target phase θ at target coordinate(s) ``x_w`` (rad)."""
+    return 2 * math.pi * warp_mm(cfg, np.asarray(x_w, dtype=np.float64)) / cfg.true_period_mm
+
+
+def fourier_coefficients(cfg: TargetConfig, u: np.ndarray, n_orders: int = 8) -> np.ndarray:
+    """Complex coefficients ``C`` of shape ``(M+1, *u.shape)``: profile = ``Re Σ_i C_i e^{jiθ}``.
+
+    ``u`` is the pixel index seen by each pixel (the ``paper`` field depends on it). Harmonics and
+    print gamma are applied here; ``n_orders`` bounds the orders that print gamma may create.
+    """
+    u = np.asarray(u, dtype=np.float64)
+    if cfg.kind == "paper":
+        powers = np.stack([np.ones_like(u), u, u**2, u**3], axis=-1)
+        sin_c = np.moveaxis(powers @ paper.SIN_COEFFS.T, -1, 0)  # a_i(u)
+        cos_c = np.moveaxis(powers @ paper.COS_COEFFS.T, -1, 0)  # b_i(u)
+        # a sin + b cos = Re[(b - j a) e^{jθ}]
+        coeffs = np.concatenate([(powers @ paper.OFFSET_COEFFS)[None].astype(complex), cos_c - 1j * sin_c])
+    elif cfg.kind == "sine":
+        coeffs = np.zeros((2,) + u.shape, dtype=complex)
+        coeffs[0] = cfg.offset_gray
+        coeffs[1] = -1j * cfg.amplitude_gray * np.exp(1j * cfg.phase_rad)  # A sin(θ+φ)
+    else:
+        raise ValueError(f"unknown target kind {cfg.kind!r}")
+    for order, rel_amp, ph in cfg.harmonics:
+        coeffs = _add_harmonic(coeffs, int(order), float(rel_amp), float(ph))
+    if cfg.print_gamma != 1.0:
+        coeffs = _apply_gamma(coeffs, cfg.print_gamma, max(n_orders, coeffs.shape[0] - 1))
+    return coeffs
+
+
+def _add_harmonic(coeffs: np.ndarray, order: int, rel_amp: float, ph: float) -> np.ndarray:
+    """Add ``rel_amp·A·sin(order·(θ+φ) + ph)`` where A, φ are each pixel's fundamental."""
+    if order < 2:
+        raise ValueError(f"harmonic order must be ≥ 2, got {order}")
+    if coeffs.shape[0] <= order:
+        coeffs = np.concatenate([coeffs, np.zeros((order + 1 - coeffs.shape[0],) + coeffs.shape[1:], complex)])
+    c1 = coeffs[1]
+    amp = np.abs(c1)
+    unit = np.where(amp > 0, c1 / np.where(amp > 0, amp, 1), 0)  # -j e^{jφ}
+    # -j A e^{j(kφ+ph)} = A · unit^k · (-j)^(1-k) · e^{j ph}
+    coeffs[order] = coeffs[order] + rel_amp * amp * unit**order * (-1j) ** (1 - order) * np.exp(1j * ph)
+    return coeffs
+
+
+def _apply_gamma(coeffs: np.ndarray, gamma: float, n_orders: int) -> np.ndarray:
+    """Print gamma: each pixel's profile, normalised to [0, 1] over a period, raised to ``gamma``.
+
+    Done numerically on 8·(M+1) samples per period and brought back to Fourier coefficients by FFT;
+    the series is truncated at ``n_orders``, which is where a real print's dot gain stops mattering.
+    """
+    n_samples = 8 * (n_orders + 1)
+    theta = 2 * np.pi * np.arange(n_samples) / n_samples
+    orders = np.arange(coeffs.shape[0])
+    basis = np.exp(1j * orders[:, None] * theta[None, :])  # (M+1, N)
+    profile = np.real(np.tensordot(basis, coeffs, axes=(0, 0)))  # (N, ...)
+    lo, hi = profile.min(axis=0), profile.max(axis=0)
+    span = np.where(hi > lo, hi - lo, 1.0)
+    shaped = lo + span * ((profile - lo) / span) ** gamma
+    spectrum = np.fft.fft(shaped, axis=0) / n_samples
+    out = spectrum[: n_orders + 1].copy()
+    out[1:] *= 2  # real signal: Re Σ C_i e^{jiθ} with C_i = 2·X_i for i ≥ 1
+    out[0] = out[0].real
+    return out
+
+
+def defect_gain(defects: list[Defect], x_w: np.ndarray, y_mm: float, blur_sigma_mm: float = 0.0) -> np.ndarray:
+    """Multiplicative gain of the defects along a line of constant y (the row's y on the target).
+
+    Optical blur (defocus) widens each Gaussian defect and lowers its peak exactly as a Gaussian
+    convolution does: σ² → σ² + σ_b², depth × σ/σ' per blurred dimension.
+    """
+    gain = np.ones_like(x_w, dtype=np.float64)
+    for d in defects:
+        s = math.hypot(d.size_mm, blur_sigma_mm)
+        shrink = d.size_mm / s
+        if d.kind == "dust":
+            depth = d.depth * shrink**2
+            dy2 = (y_mm - d.y_mm) ** 2
+            gain *= 1 - depth * np.exp(-((x_w - d.x_mm) ** 2 + dy2) / (2 * s * s))
+        elif d.kind == "scratch":
+            depth = d.depth * shrink
+            x_line = d.x_mm + (y_mm - d.y_mm) * math.tan(d.angle_rad)
+            dist = (x_w - x_line) * math.cos(d.angle_rad)
+            gain *= 1 - depth * np.exp(-(dist**2) / (2 * s * s))
+        else:
+            raise ValueError(f"unknown defect kind {d.kind!r}")
+    return gain

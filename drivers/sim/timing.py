@@ -1,0 +1,59 @@
+"""Frame timing: the frame clock, the exposure window, jitter, skew and dropped frames.
+
+Four instants matter per frame and the simulation keeps them apart:
+
+* the nominal frame clock ``k / f`` (what triggers the camera and latches the grating),
+* the true exposure mid-point (nominal + trigger jitter) — what the image shows,
+* the grating latch (nominal + a fixed skew) — what the reference shows,
+* the recorded timestamp (true mid-exposure + timestamp noise) — what ``t`` in the file says.
+
+With everything ideal all four coincide. Trigger jitter or skew make the image and the reference
+describe different instants, so the reference error is ``v·Δt``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass
+class TimingConfig:
+    frame_rate_hz: float = 50.0
+    exposure_s: float = 0.001
+    t0_s: float = 0.0
+    trigger_jitter_s: float = 0.0  # std of the exposure instant about the frame clock
+    timestamp_jitter_s: float = 0.0  # std of the recorded timestamp about the true exposure
+    latch_skew_s: float = 0.0  # grating latch minus exposure mid-point (constant)
+    drop_probability: float = 0.0  # chance that a frame never arrives
+
+
+@dataclass
+class FrameClock:
+    """Per-frame instants ``(K,)`` of one recording (K counts dropped frames too)."""
+
+    nominal: np.ndarray
+    exposure_mid: np.ndarray
+    latch: np.ndarray
+    stamp: np.ndarray
+    kept: np.ndarray  # bool: frame delivered
+
+
+def frame_clock(cfg: TimingConfig, seconds: float, rng: np.random.Generator) -> FrameClock:
+    """All the instants of a recording of ``seconds`` (at least one frame)."""
+    n = max(int(round(seconds * cfg.frame_rate_hz)), 1)
+    nominal = cfg.t0_s + np.arange(n) / cfg.frame_rate_hz
+    # always draw, so that switching one effect on does not reshuffle the others' randomness
+    trig, stamp_noise, drops = rng.standard_normal(n), rng.standard_normal(n), rng.random(n)
+    exposure_mid = nominal + cfg.trigger_jitter_s * trig
+    kept = drops >= cfg.drop_probability
+    if not kept.any():
+        kept[0] = True
+    return FrameClock(
+        nominal=nominal,
+        exposure_mid=exposure_mid,
+        latch=nominal + cfg.latch_skew_s,
+        stamp=exposure_mid + cfg.timestamp_jitter_s * stamp_noise,
+        kept=kept,
+    )
