@@ -16,7 +16,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from graytrack.core.errors import CalibrationError
-from graytrack.core.linear_fit import fit_coefficients, geometry_sensitivities, normal_equations, project_columns
+from graytrack.core.linear_fit import LinearSystem, fit_coefficients, geometry_sensitivities, project_columns
 from graytrack.core.models.fourier import TWO_PI, FourierModel, ideal_model, paper_model
 from graytrack.core.noise import estimate_sigma
 from graytrack.core.recording import Recording
@@ -152,9 +152,9 @@ def initial_geometry(data: CalibrationData) -> tuple[float, float, float]:
 
 # --------------------------------------------------------------------------- variable projection
 def _projected_fit(model: FourierModel, x_mm: np.ndarray, data: np.ndarray, weights: np.ndarray):
-    fitted = fit_coefficients(model, x_mm, data, weights)
+    fitted, system = fit_coefficients(model, x_mm, data, weights)
     residual = (data - fitted.predict(x_mm, with_response=False)) * np.sqrt(weights)
-    return fitted, residual
+    return fitted, residual, system
 
 
 def fit_geometry(template: FourierModel, x_mm: np.ndarray, data: np.ndarray, weights: np.ndarray,
@@ -165,12 +165,12 @@ def fit_geometry(template: FourierModel, x_mm: np.ndarray, data: np.ndarray, wei
     ``data`` is in the model's smooth-part domain (any flat field and common mode divided out).
     """
     params = np.array([getattr(template, name) for name in names], dtype=np.float64)
-    model, residual = _projected_fit(template, x_mm, data, weights)
+    model, residual, system = _projected_fit(template, x_mm, data, weights)
     cost = float((residual**2).sum())
     damping, history, iteration = 1e-3, [], 0
     sqrt_w = np.sqrt(weights)
     for iteration in range(1, max_iterations + 1):
-        jacobian = _kaufman_jacobian(model, x_mm, weights, names) * sqrt_w[..., None]
+        jacobian = _kaufman_jacobian(model, system, x_mm, weights, names) * sqrt_w[..., None]
         jac = jacobian.reshape(-1, len(names))
         normal, gradient = jac.T @ jac, jac.T @ residual.reshape(-1)
         improved = False
@@ -181,7 +181,7 @@ def fit_geometry(template: FourierModel, x_mm: np.ndarray, data: np.ndarray, wei
                 damping *= 10
                 continue
             trial = template.with_changes(**dict(zip(names, trial_params)))
-            trial_model, trial_residual = _projected_fit(trial, x_mm, data, weights)
+            trial_model, trial_residual, trial_system = _projected_fit(trial, x_mm, data, weights)
             trial_cost = float((trial_residual**2).sum())
             if trial_cost <= cost:
                 improved = True
@@ -190,7 +190,7 @@ def fit_geometry(template: FourierModel, x_mm: np.ndarray, data: np.ndarray, wei
         if not improved:
             break
         relative_drop = (cost - trial_cost) / max(cost, 1e-300)
-        params, model, residual, cost = trial_params, trial_model, trial_residual, trial_cost
+        params, model, residual, cost, system = trial_params, trial_model, trial_residual, trial_cost, trial_system
         damping = max(damping / 10, 1e-9)
         history.append({"iteration": iteration, "cost": cost, **dict(zip(names, params.tolist()))})
         if progress:
@@ -200,15 +200,14 @@ def fit_geometry(template: FourierModel, x_mm: np.ndarray, data: np.ndarray, wei
     return model, iteration, history
 
 
-def _kaufman_jacobian(model: FourierModel, x_mm: np.ndarray, weights: np.ndarray, names: tuple[str, ...]) -> np.ndarray:
+def _kaufman_jacobian(model: FourierModel, system: LinearSystem, x_mm: np.ndarray, weights: np.ndarray,
+                      names: tuple[str, ...]) -> np.ndarray:
     """∂(residual)/∂(geometry) ≈ −(I − P_Φ)·∂S/∂g with P_Φ the weighted projection on the model's span."""
     sens = geometry_sensitivities(model, x_mm, names)  # (K, R, n, m)
-    system = normal_equations(model, x_mm, np.zeros(x_mm.shape + sens.shape[1:3]), weights)
     projected = project_columns(model, x_mm, sens, weights)  # (m, ncoef)
     columns = []
     for index in range(len(names)):
-        system.rhs = projected[index]
-        fitted = model.with_changes(coeffs=system.solve())
+        fitted = model.with_changes(coeffs=system.solve(projected[index]))
         columns.append(sens[..., index] - fitted.predict(x_mm, with_response=False))
     return -np.stack(columns, axis=-1)
 

@@ -26,13 +26,17 @@ class LinearSystem:
     rhs: np.ndarray
     shape_alij: tuple[int, int, int, int]
 
-    def solve(self) -> np.ndarray:
-        """Coefficients in the model's (a, i, j, l) layout; rank-deficient directions set to 0."""
+    def solve(self, rhs: np.ndarray | None = None) -> np.ndarray:
+        """Coefficients in the model's (a, i, j, l) layout; rank-deficient directions set to 0.
+
+        ``rhs`` replaces the data's right-hand side (projections of other vectors on the span).
+        """
+        rhs = self.rhs if rhs is None else rhs
         scale = np.sqrt(np.maximum(np.diag(self.gram), 1e-300))
         normalised = self.gram / np.outer(scale, scale)
         values, vectors = np.linalg.eigh(normalised)
         keep = values > values.max() * 1e-12
-        solution = vectors[:, keep] @ ((vectors[:, keep].T @ (self.rhs / scale)) / values[keep])
+        solution = vectors[:, keep] @ ((vectors[:, keep].T @ (rhs / scale)) / values[keep])
         return (solution / scale).reshape(self.shape_alij).transpose(0, 2, 3, 1)
 
 
@@ -79,10 +83,11 @@ def normal_equations(model: FourierModel, x_mm: np.ndarray, data: np.ndarray, we
     return LinearSystem(gram.reshape(n_cols, n_cols), rhs.reshape(n_cols), shape_alij)
 
 
-def fit_coefficients(model: FourierModel, x_mm: np.ndarray, data: np.ndarray, weights: np.ndarray) -> FourierModel:
-    """The model with its least-squares coefficients for ``data`` at positions ``x_mm``."""
-    coeffs = normal_equations(model, x_mm, data, weights).solve()
-    return model.with_changes(coeffs=coeffs)
+def fit_coefficients(model: FourierModel, x_mm: np.ndarray, data: np.ndarray,
+                     weights: np.ndarray) -> tuple[FourierModel, LinearSystem]:
+    """The model with its least-squares coefficients for ``data`` at ``x_mm``, and its normal equations."""
+    system = normal_equations(model, x_mm, data, weights)
+    return model.with_changes(coeffs=system.solve()), system
 
 
 def phase_slope(model: FourierModel, x_mm: np.ndarray) -> np.ndarray:

@@ -10,6 +10,8 @@ with it, and re-acquires by a global search over one period.
 
 from __future__ import annotations
 
+import cmath
+import math
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -95,47 +97,44 @@ class GeneralHarmonics:
         return values.reshape(len(x_mm), -1), slopes.reshape(len(x_mm), -1)
 
 
-class Tracker:
-    """Per-frame solver bound to one calibrated model; holds no frame state of its own."""
+class GeneralBatch:
+    """Gauss–Newton on frames with any model: per iteration one model evaluation at one x.
 
-    def __init__(self, model: FourierModel, max_iterations: int = 5, tolerance_mm: float = 1e-6,
-                 residual_limit_gray: float | None = None):
-        if not model.is_calibrated:
-            raise TrackingError("the model has no coefficients: calibrate it first")
+    Handles what the fast path cannot: coefficients that drift along the stroke and a per-frame
+    gain/offset solved together with x.
+    """
+
+    def __init__(self, model: FourierModel, prepared: np.ndarray, max_iterations: int, tolerance_mm: float):
         self.model = model
+        self.frames = prepared.reshape(prepared.shape[0], -1)
         self.evaluator = FastHarmonics(model) if model.stroke_degree == 0 else GeneralHarmonics(model)
-        self.max_iterations = max_iterations
-        self.tolerance_mm = tolerance_mm
-        self.quarter_period_mm = model.period_mm / 4.0
-        calibration_rmse = float(model.info.get("calibration_rmse_gray", model.noise_gray or 1.0))
-        self.residual_limit_gray = residual_limit_gray or 3.0 * calibration_rmse + 1.0
+        self.max_iterations, self.tolerance_mm = max_iterations, tolerance_mm
+        self.max_step_mm = model.period_mm / 4.0
 
-    # ------------------------------------------------------------------ one frame
-    def refine(self, frame: np.ndarray, x_start: float) -> FrameSolution:
-        """Gauss–Newton from ``x_start`` (with per-frame gain/offset when the model has them)."""
-        y = frame.reshape(-1)
+    def refine(self, k: int, x_start: float) -> FrameSolution:
+        y = self.frames[k]
         x, gain, offset = float(x_start), 1.0, 0.0
-        values = slopes = None
+        common_mode = self.model.common_mode
         iterations = 0
         for iterations in range(1, self.max_iterations + 1):
             values, slopes = self.evaluator.evaluate(np.array([x]))
             values, slopes = values[0], slopes[0]
             residual = y - (gain * values + offset)
-            if self.model.common_mode:
+            if common_mode:
                 jac = np.stack([gain * slopes, values, np.ones_like(values)], axis=1)
                 delta = np.linalg.solve(jac.T @ jac, jac.T @ residual)
                 dx = float(delta[0])
                 gain, offset = gain + float(delta[1]), offset + float(delta[2])
             else:
                 dx = float(slopes @ residual) / float(slopes @ slopes)
-            dx = float(np.clip(dx, -self.quarter_period_mm, self.quarter_period_mm))
+            dx = min(max(dx, -self.max_step_mm), self.max_step_mm)
             x += dx
             if abs(dx) < self.tolerance_mm:
                 break
-        residual = y - (gain * values + offset)
+        values, slopes = self.evaluator.evaluate(np.array([x]))
+        residual = y - (gain * values[0] + offset)
         rms = float(np.sqrt(residual @ residual / y.size))
-        information = self._information(values, slopes, gain)
-        return FrameSolution(x, rms, information, iterations, gain, offset)
+        return FrameSolution(x, rms, self._information(values[0], slopes[0], gain), iterations, gain, offset)
 
     def _information(self, values: np.ndarray, slopes: np.ndarray, gain: float) -> float:
         d_x = gain * slopes
@@ -146,24 +145,128 @@ class Tracker:
             info -= float(cross @ np.linalg.solve(nuisance.T @ nuisance, cross))
         return info
 
-    def acquire(self, frame: np.ndarray, lo_mm: float, hi_mm: float) -> FrameSolution:
+    def grid_cost(self, k: int, grid: np.ndarray) -> np.ndarray:
+        values, _ = self.evaluator.evaluate(grid)
+        y = self.frames[k]
+        if not self.model.common_mode:
+            return ((y[None] - values) ** 2).sum(axis=1)
+        centred_v = values - values.mean(axis=1, keepdims=True)
+        centred_y = y - y.mean()
+        scale = (centred_v @ centred_y) / np.maximum((centred_v**2).sum(axis=1), 1e-300)
+        return ((centred_y[None] - scale[:, None] * centred_v) ** 2).sum(axis=1) + 1e12 * (scale <= 0)
+
+
+class TrigPolyBatch:
+    """The fast path: each frame reduced to M complex numbers, then a scalar solve per frame.
+
+    For a model whose coefficients do not depend on x, every quantity Gauss–Newton needs is a
+    trigonometric polynomial in x: y·F(x) = y·c + Re Σ_h β_h z^h with β = V·y (one matrix product
+    for all frames), and ‖F‖², ‖F′‖² have frame-independent coefficients (found once by FFT).
+    The per-frame loop then does a few dozen scalar operations instead of array work.
+    """
+
+    def __init__(self, model: FourierModel, prepared: np.ndarray, max_iterations: int, tolerance_mm: float):
+        fast = FastHarmonics(model)
+        frames = prepared.reshape(prepared.shape[0], -1)
+        self.n_values = frames.shape[1]
+        self.omega = TWO_PI / model.period_mm
+        self.max_iterations, self.tolerance_mm = max_iterations, tolerance_mm
+        self.max_step_mm = model.period_mm / 4.0
+        self.harmonics = model.harmonics
+        self.beta = frames @ fast.v.T  # (K, M)
+        self.y_dot_c = frames @ fast.constant
+        self.y_norm = np.einsum("kp,kp->k", frames, frames)
+        self.q, self.d = self._gram_polynomials(fast, model)
+        degree = 2 * self.harmonics
+        orders = np.arange(1, degree + 1)
+        padded_beta = np.zeros((frames.shape[0], degree), dtype=complex)
+        padded_beta[:, : self.harmonics] = self.beta
+        # Per frame, as coefficients of z^1..z^2M:
+        #   F′·(y − F) = Re Σ step_m z^m        (the Gauss–Newton numerator)
+        #   ‖y − F‖² = cost_0 + Re Σ cost_m z^m
+        step = padded_beta * (1j * self.omega * orders) - 0.5 * self.q[1:] * (1j * self.omega * orders)
+        self._step_rows = step.tolist()
+        self._cost_rows = (self.q[1:] - 2.0 * padded_beta).tolist()
+        self._cost_const = (self.y_norm - 2.0 * self.y_dot_c + self.q[0].real).tolist()
+        self._info_coeffs = self.d[1:].tolist()
+        self._info_const = float(self.d[0].real)
+
+    def _gram_polynomials(self, fast: FastHarmonics, model: FourierModel) -> tuple[np.ndarray, np.ndarray]:
+        """Coefficients of ‖F(x)‖² and ‖F′(x)‖² as trig polynomials of degree 2M (sampled + FFT)."""
+        n_samples = 4 * model.harmonics + 4
+        x = np.arange(n_samples) * model.period_mm / n_samples
+        values, slopes = fast.evaluate(x)
+        out = []
+        for sampled in ((values**2).sum(axis=1), (slopes**2).sum(axis=1)):
+            spectrum = np.fft.fft(sampled) / n_samples
+            coeffs = 2.0 * spectrum[: 2 * model.harmonics + 1]
+            coeffs[0] = spectrum[0].real
+            out.append(coeffs)
+        return out[0], out[1]
+
+    def refine(self, k: int, x_start: float) -> FrameSolution:
+        step_coeffs, info_coeffs = self._step_rows[k], self._info_coeffs
+        omega, degree, max_step = self.omega, 2 * self.harmonics, self.max_step_mm
+        x = float(x_start)
+        iterations = 0
+        powers: list[complex] = []
+        information = 1.0
+        for iterations in range(1, self.max_iterations + 1):
+            powers = _powers(cmath.exp(1j * omega * x), degree)
+            numerator = sum([(c * p).real for c, p in zip(step_coeffs, powers)])
+            information = self._info_const + sum([(c * p).real for c, p in zip(info_coeffs, powers)])
+            dx = min(max(numerator / information, -max_step), max_step)
+            x += dx
+            if abs(dx) < self.tolerance_mm:
+                break
+        # Residual and information at the last evaluated point: the final step is below tolerance.
+        cost = self._cost_const[k] + sum([(c * p).real for c, p in zip(self._cost_rows[k], powers)])
+        return FrameSolution(x, math.sqrt(max(cost, 0.0) / self.n_values), information, iterations)
+
+    def grid_cost(self, k: int, grid: np.ndarray) -> np.ndarray:
+        z = np.exp(1j * self.omega * np.outer(grid, np.arange(2 * self.harmonics + 1)))  # (G, 2M+1)
+        model_norm = (z @ self.q).real
+        cross = self.y_dot_c[k] + (z[:, 1:self.harmonics + 1] @ self.beta[k]).real
+        return self.y_norm[k] - 2.0 * cross + model_norm
+
+
+def _powers(z: complex, count: int) -> list[complex]:
+    """[z, z², …, z^count]."""
+    out = [z]
+    for _ in range(count - 1):
+        out.append(out[-1] * z)
+    return out
+
+
+class Tracker:
+    """Per-frame solver bound to one calibrated model; holds no frame state of its own."""
+
+    def __init__(self, model: FourierModel, max_iterations: int = 5, tolerance_mm: float = 1e-6,
+                 residual_limit_gray: float | None = None):
+        if not model.is_calibrated:
+            raise TrackingError("the model has no coefficients: calibrate it first")
+        self.model = model
+        self.max_iterations = max_iterations
+        self.tolerance_mm = tolerance_mm
+        self.quarter_period_mm = model.period_mm / 4.0
+        calibration_rmse = float(model.info.get("calibration_rmse_gray", model.noise_gray or 1.0))
+        self.residual_limit_gray = residual_limit_gray or 3.0 * calibration_rmse + 1.0
+
+    def batch(self, prepared: np.ndarray) -> GeneralBatch | TrigPolyBatch:
+        """Frames ``(K, R, n)`` in the model's row layout, reduced for solving."""
+        fast = self.model.stroke_degree == 0 and not self.model.common_mode
+        kind = TrigPolyBatch if fast else GeneralBatch
+        return kind(self.model, prepared, self.max_iterations, self.tolerance_mm)
+
+    def acquire(self, batch: GeneralBatch | TrigPolyBatch, k: int, lo_mm: float, hi_mm: float) -> FrameSolution:
         """Global search on a grid over ``[lo, hi]`` (at least one period), then Gauss–Newton."""
         count = max(int(np.ceil((hi_mm - lo_mm) / self.model.period_mm * ACQUIRE_GRID_PER_PERIOD)), 8)
         grid = np.linspace(lo_mm, hi_mm, count, endpoint=False)
-        values, _ = self.evaluator.evaluate(grid)
-        y = frame.reshape(-1)
-        if self.model.common_mode:
-            centred_v = values - values.mean(axis=1, keepdims=True)
-            centred_y = y - y.mean()
-            scale = (centred_v @ centred_y) / np.maximum((centred_v**2).sum(axis=1), 1e-300)
-            cost = ((centred_y[None] - scale[:, None] * centred_v) ** 2).sum(axis=1) + 1e12 * (scale <= 0)
-        else:
-            cost = ((y[None] - values) ** 2).sum(axis=1)
-        return self.refine(frame, float(grid[int(np.argmin(cost))]))
+        return batch.refine(k, float(grid[int(np.argmin(batch.grid_cost(k, grid)))]))
 
-    def acquire_near(self, frame: np.ndarray, anchor_mm: float) -> FrameSolution:
+    def acquire_near(self, batch: GeneralBatch | TrigPolyBatch, k: int, anchor_mm: float) -> FrameSolution:
         half = self.model.period_mm / 2.0
-        return self.acquire(frame, anchor_mm - half, anchor_mm + half)
+        return self.acquire(batch, k, anchor_mm - half, anchor_mm + half)
 
     def lost_reason(self, solution: FrameSolution, x_prev: float, reference: float) -> str | None:
         if abs(solution.x_mm - x_prev) > self.quarter_period_mm:
@@ -202,14 +305,18 @@ def track(model: FourierModel, source: Recording | np.ndarray, reference: np.nda
     events: list[LockEvent] = []
     x_prev = x0_mm if x0_mm is not None else (reference[0] if np.isfinite(reference[0]) else None)
     report_every = max(n_frames // 100, 1)
+    batch = tracker.batch(prepared)
+    velocity = 0.0  # mm per frame, from the last two locked frames: a better start than x_{k-1}
     for k in range(n_frames):
-        frame = prepared[k]
-        solution, ok = _solve_frame(tracker, frame, x_prev, reference[k], k, events)
+        solution, ok = _solve_frame(tracker, batch, k, x_prev, velocity, reference[k], events)
+        velocity = 0.0
         if ok:
             out["x"][k], out["rms"][k], out["info"][k] = solution.x_mm, solution.rms_gray, solution.information
             out["gain"][k], out["offset"][k] = solution.gain, solution.offset
             iterations[k] = solution.iterations
             locked[k] = not (events and events[-1].frame == k)
+            if locked[k] and k and locked[k - 1]:
+                velocity = solution.x_mm - x_prev
             x_prev = solution.x_mm
         if progress and k % report_every == 0:
             progress(k / n_frames, f"frame {k}/{n_frames}")
@@ -219,25 +326,25 @@ def track(model: FourierModel, source: Recording | np.ndarray, reference: np.nda
     return TrackResult(out["x"], locked, out["rms"], crlb, iterations, out["gain"], out["offset"], events)
 
 
-def _solve_frame(tracker: Tracker, frame: np.ndarray, x_prev: float | None, reference: float, k: int,
-                 events: list[LockEvent]) -> tuple[FrameSolution | None, bool]:
+def _solve_frame(tracker: Tracker, batch: GeneralBatch | TrigPolyBatch, k: int, x_prev: float | None,
+                 velocity: float, reference: float, events: list[LockEvent]) -> tuple[FrameSolution, bool]:
     """One frame: continue from ``x_prev``; on any sign of lost lock, re-acquire and log it."""
     if x_prev is None or not np.isfinite(x_prev):
         lo, hi = tracker.model.stroke_range_mm
         if np.isfinite(reference):
-            solution = tracker.acquire_near(frame, reference)
+            solution = tracker.acquire_near(batch, k, reference)
         else:
-            solution = tracker.acquire(frame, lo, max(hi, lo + tracker.model.period_mm))
+            solution = tracker.acquire(batch, k, lo, max(hi, lo + tracker.model.period_mm))
         ok = solution.rms_gray <= tracker.residual_limit_gray
         if k > 0 or not ok:
             events.append(LockEvent(k, "acquisition", float("nan"), solution.x_mm if ok else float("nan"), ok))
         return solution, ok
-    solution = tracker.refine(frame, x_prev)
+    solution = batch.refine(k, x_prev + velocity)
     reason = tracker.lost_reason(solution, x_prev, reference)
     if reason is None:
         return solution, True
     anchor = reference if np.isfinite(reference) else x_prev
-    again = tracker.acquire_near(frame, anchor)
+    again = tracker.acquire_near(batch, k, anchor)
     ok = again.rms_gray <= tracker.residual_limit_gray and (
         not np.isfinite(reference) or abs(again.x_mm - reference) <= tracker.quarter_period_mm
     )

@@ -1,0 +1,41 @@
+"""Noise estimate from the data alone, and the Cramér–Rao bound against simulation."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from graytrack.core.noise import crlb_mm, estimate_sigma
+from graytrack.core.tracking import track
+from tests.conftest import paper_recording
+
+
+@pytest.mark.parametrize("sigma_scale", [0.5, 1.0, 3.0])
+def test_sigma_from_data_ignores_flicker(sigma_scale):
+    rec = paper_recording(n_frames=400, seed=21)
+    clean = paper_recording(n_frames=400, seed=21).frames - 0  # same noise draw
+    rng = np.random.default_rng(3)
+    extra = rng.normal(0, 0.7 * np.sqrt(max(sigma_scale**2 - 1, 0)), clean.shape) if sigma_scale >= 1 else 0
+    frames = (clean if sigma_scale >= 1 else clean * 1.0) + extra
+    flicker = 1 + 0.03 * np.sin(np.arange(400) * 0.9)
+    truth = 0.7 * max(sigma_scale, 1.0)
+    assert estimate_sigma(frames * flicker[:, None], rec.reference, 8.6) == pytest.approx(truth * np.mean(flicker), rel=0.06)
+
+
+def test_bound_predicts_monte_carlo_spread(paper_models):
+    """Error std of 400 noisy copies of one frame equals the bound (within sampling error)."""
+    model = paper_models["paper"].model
+    x_true = 3.3
+    clean = model.predict(np.array([x_true]))[0, 0]
+    rng = np.random.default_rng(8)
+    frames = clean + rng.normal(0, 0.7, (400, clean.size))
+    result = track(model, frames, reference=np.full(400, x_true))
+    _, slope = model.predict(np.array([x_true]), with_derivative=True)
+    bound = crlb_mm(slope, 0.7)[0]
+    assert np.std(result.x_mm - x_true) == pytest.approx(bound, rel=0.1)
+
+
+def test_nuisance_costs_information():
+    slope = np.ones((1, 10))
+    nuisance = np.stack([np.linspace(0, 1, 10), np.ones(10)], axis=-1)[None]
+    assert crlb_mm(slope, 1.0, nuisance)[0] > crlb_mm(slope, 1.0)[0]

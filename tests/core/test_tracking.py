@@ -1,0 +1,80 @@
+"""Sequential tracking: lock loss is flagged and re-acquired, never reported one period off."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from graytrack.core.errors import TrackingError
+from graytrack.core.recording import Recording
+from graytrack.core.tracking import Tracker, track
+from graytrack.drivers.sim import paper
+
+
+def jump_recording(jump_mm: float = 3.0, at: int = 150, seed: int = 11) -> Recording:
+    """Slow motion with one instantaneous jump between frames ``at-1`` and ``at``."""
+    x_mm = np.linspace(1.0, 2.5, 300)
+    x_mm[at:] += jump_mm
+    frames = paper.paper_frames(x_mm, rng=np.random.default_rng(seed))[:, 0, :]
+    return Recording(frames.astype(np.float32), np.arange(300) * 1e-3, x_mm, {})
+
+
+@pytest.mark.parametrize("with_reference", [True, False])
+def test_three_mm_jump_is_flagged_and_reacquired(paper_models, with_reference):
+    rec = jump_recording()
+    reference = rec.reference if with_reference else np.full(rec.n_frames, np.nan)
+    result = track(paper_models["paper"].model, rec.frames, reference=reference, x0_mm=rec.reference[0])
+    assert [event.frame for event in result.events] == [150]
+    assert result.events[0].reacquired
+    assert not result.locked[150] and result.locked[:150].all() and result.locked[151:].all()
+    error = result.error_um(rec.reference)
+    assert np.abs(error).max() < 10.0  # every frame, the jump included, on the right period
+
+
+def test_jump_beyond_half_a_period_without_reference_is_not_silently_wrong(paper_models):
+    """5.5 mm is more than half a period: the image alone cannot tell; the frame must be flagged."""
+    rec = jump_recording(jump_mm=5.5)
+    result = track(paper_models["paper"].model, rec.frames, x0_mm=rec.reference[0])
+    assert result.events and result.events[0].frame == 150
+    assert not result.locked[150]
+    with_ref = track(paper_models["paper"].model, rec)
+    assert np.abs(with_ref.error_um(rec.reference)).max() < 10.0
+
+
+def test_acquires_without_any_reference(paper_models, paper_val):
+    model = paper_models["paper"].model
+    start = 700  # inside the calibrated stroke; the periodic image is unique within one period
+    result = track(model, paper_val.frames[start:start + 50])
+    error = result.error_um(paper_val.reference[start:start + 50])
+    offset_periods = np.round(np.nanmedian(error) / (model.period_mm * 1e3))
+    assert np.nanstd(error) < 3.0
+    assert abs(np.nanmedian(error) - offset_periods * model.period_mm * 1e3) < 5.0
+
+
+def test_garbage_frame_is_flagged_not_tracked(paper_models, paper_val):
+    frames = paper_val.frames[:40].copy()
+    frames[20] = np.random.default_rng(0).uniform(0, 255, frames.shape[1])
+    result = track(paper_models["paper"].model, frames, reference=paper_val.reference[:40])
+    assert not result.locked[20] and np.isnan(result.x_mm[20])
+    assert result.locked[21:].all()
+
+
+def test_wrong_pixel_count_is_refused(paper_models):
+    with pytest.raises(TrackingError, match="100 pixels"):
+        track(paper_models["paper"].model, np.zeros((3, 64)))
+
+
+def test_common_mode_gain_is_solved_with_position(paper_models, paper_val):
+    model = paper_models["paper"].model.with_changes(common_mode=True, coeffs=paper_models["paper"].model.coeffs)
+    gain = 1.0 + 0.05 * np.sin(np.arange(paper_val.n_frames) * 0.3)
+    frames = paper_val.frames * gain[:, None] + 3.0
+    result = track(model, frames, reference=paper_val.reference)
+    np.testing.assert_allclose(result.gain, gain, atol=0.007)  # ≈ 5σ of the gain estimate
+    assert np.std(result.error_um(paper_val.reference)) < 1.2 * np.mean(result.crlb_mm) * 1e3
+    plain = track(paper_models["paper"].model, frames, reference=paper_val.reference)
+    assert np.nanstd(plain.error_um(paper_val.reference)) > 3 * np.std(result.error_um(paper_val.reference))
+
+
+def test_tracker_refuses_uncalibrated_model(paper_models):
+    with pytest.raises(TrackingError, match="calibrate"):
+        Tracker(paper_models["paper"].model.with_changes(coeffs=None))

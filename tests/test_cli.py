@@ -1,0 +1,51 @@
+"""The command line: calibrate and track end to end, and one-line errors with exit status 2."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from graytrack.core.recording import save
+from graytrack.service.cli import main
+
+
+@pytest.fixture(scope="module")
+def recordings(tmp_path_factory):
+    from tests.conftest import paper_recording
+
+    folder = tmp_path_factory.mktemp("cli")
+    return (save(paper_recording(n_frames=600, seed=31), folder / "cal.npz"),
+            save(paper_recording(n_frames=300, seed=32, shift_mm=0.002), folder / "val.npz"))
+
+
+def test_calibrate_then_track(tmp_path, recordings, capsys):
+    cal, val = recordings
+    assert main(["calibrate", str(cal), "--model", "paper", "--out", str(tmp_path / "m.json")]) == 0
+    assert "rmse" in capsys.readouterr().out
+    assert main(["track", str(val), "--model", str(tmp_path / "m.json"), "--out", str(tmp_path / "t.csv")]) == 0
+    header = (tmp_path / "t.csv").read_text().splitlines()[0]
+    assert header.startswith("t,x_mm")
+    table = np.loadtxt(tmp_path / "t.csv", delimiter=",", skiprows=1)
+    error_um = table[:, header.split(",").index("error_um")]
+    assert table.shape[0] == 300 and np.std(error_um) < 2.5
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["calibrate", "{missing}", "--out", "{tmp}/m.json"], "no such file"),
+        (["calibrate", "{garbage}", "--out", "{tmp}/m.json"], "not an .npz recording"),
+        (["track", "{cal}", "--model", "{garbage}", "--out", "{tmp}/t.csv"], "not a JSON model file"),
+    ],
+)
+def test_bad_input_is_one_line_and_exit_2(tmp_path, recordings, argv, message):
+    (tmp_path / "garbage.npz").write_bytes(b"\x00garbage")
+    names = {"missing": tmp_path / "nope.npz", "garbage": tmp_path / "garbage.npz", "tmp": tmp_path, "cal": recordings[0]}
+    argv = [arg.format(**names) for arg in argv]
+    run = subprocess.run([sys.executable, "-m", "graytrack", *argv], capture_output=True, text=True, timeout=60)
+    assert run.returncode == 2
+    assert message in run.stderr and "Traceback" not in run.stderr
+    assert len([line for line in run.stderr.splitlines() if "error" in line]) == 1
