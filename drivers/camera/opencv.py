@@ -1,0 +1,196 @@
+"""OpenCV ``VideoCapture`` as a camera: a device index, a video file, or a stream URL.
+
+Live sources buffer frames (V4L2 keeps several, network streams more), so reading them
+naively hands out frames that are already old, and their age is unknown. For live sources a
+grabber thread therefore pulls every frame as soon as the source offers it and keeps only the
+newest; :meth:`read` returns a frame newer than the last one handed out and counts the ones it
+skipped as dropped. Files are read in order, frame by frame, since a file has no "now".
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from graytrack.drivers.camera.base import (
+    Camera,
+    CameraEndOfStream,
+    CameraError,
+    CameraNotFound,
+    CameraSettingError,
+    CameraSettings,
+    CameraTimeout,
+    Frame,
+)
+
+V4L2_EXPOSURE_UNIT_US = 100.0  # V4L2's exposure_time_absolute counts in units of 100 µs
+
+
+@dataclass
+class _Grabbed:
+    seq: int
+    image: np.ndarray
+    t_host: float
+    t_device: float | None
+
+
+def _is_live(source: int | str) -> bool:
+    return isinstance(source, int) or "://" in source or source.startswith("/dev/")
+
+
+class OpenCVCamera(Camera):
+    def __init__(
+        self,
+        source: int | str,
+        settings: CameraSettings | None = None,
+        live: bool | None = None,
+        backend: int = cv2.CAP_ANY,
+    ) -> None:
+        super().__init__(settings)
+        self.source = source
+        self.live = _is_live(source) if live is None else live
+        self.backend = backend
+        self._cap: cv2.VideoCapture | None = None
+        self._cond = threading.Condition()
+        self._latest: _Grabbed | None = None
+        self._ended: str | None = None
+        self._last_seq = -1
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def _open_device(self) -> None:
+        if isinstance(self.source, str) and not self.live and not Path(self.source).is_file():
+            raise CameraNotFound(f"no video file at {self.source}")
+        cap = cv2.VideoCapture(self.source, self.backend)
+        if not cap.isOpened():
+            raise CameraNotFound(f"OpenCV cannot open {self.source!r}")
+        self._cap = cap
+        try:
+            if self.live:
+                cap.set(cv2.CAP_PROP_BUFFERSIZE, 1)  # a hint; the grabber thread is the guarantee
+            self._apply_settings()
+        except CameraError:
+            cap.release()
+            self._cap = None
+            raise
+        self._latest, self._ended, self._last_seq = None, None, -1
+        if self.live:
+            self._stop.clear()
+            self._thread = threading.Thread(target=self._grab_loop, name="opencv-grabber", daemon=True)
+            self._thread.start()
+
+    def _close_device(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(2.0)
+            self._thread = None
+        if self._cap is not None:
+            self._cap.release()
+            self._cap = None
+
+    def _apply_settings(self) -> None:
+        cap = self._cap
+        assert cap is not None
+        wanted = {
+            cv2.CAP_PROP_EXPOSURE: None
+            if self.settings.exposure_us is None
+            else self.settings.exposure_us / V4L2_EXPOSURE_UNIT_US,
+            cv2.CAP_PROP_GAIN: self.settings.gain_db,
+            cv2.CAP_PROP_FPS: self.settings.frame_rate_hz,
+        }
+        for prop, value in wanted.items():
+            if value is None:
+                continue
+            if not self.live:
+                raise CameraSettingError(f"{self.source}: a video file has no exposure, gain or frame rate to set")
+            if not cap.set(prop, float(value)):
+                raise CameraSettingError(f"{self.source!r} refused property {prop} = {value}")
+
+    @property
+    def source_ended(self) -> bool:
+        """A live source's grabber has stopped (end of stream or error); frames may remain."""
+        with self._cond:
+            return self._ended is not None
+
+    # -- frames ----------------------------------------------------------------------------
+    def _read(self, timeout_s: float) -> Frame:
+        return self._read_live(timeout_s) if self.live else self._read_file()
+
+    def _read_file(self) -> Frame:
+        cap = self._cap
+        assert cap is not None
+        ok, image = cap.read()
+        if not ok:
+            raise CameraEndOfStream(f"{self.source}: end of video")
+        frame_id = int(cap.get(cv2.CAP_PROP_POS_FRAMES)) - 1
+        return self._frame(image, frame_id, time.monotonic(), _device_time(cap, live=False))
+
+    def _read_live(self, timeout_s: float) -> Frame:
+        deadline = time.monotonic() + timeout_s
+        with self._cond:
+            while self._latest is None or self._latest.seq <= self._last_seq:
+                if self._ended is not None:
+                    raise CameraEndOfStream(f"{self.source}: {self._ended}")
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    self.stats.timeouts += 1
+                    raise CameraTimeout(f"no frame from {self.source!r} within {timeout_s:g} s")
+                self._cond.wait(remaining)
+            grabbed = self._latest
+            self.stats.dropped += grabbed.seq - self._last_seq - 1
+            self._last_seq = grabbed.seq
+        return self._frame(grabbed.image, grabbed.seq, grabbed.t_host, grabbed.t_device)
+
+    def _grab_loop(self) -> None:
+        cap = self._cap
+        assert cap is not None
+        seq = 0
+        while not self._stop.is_set():
+            if not cap.grab():
+                reason = "end of stream"
+                break
+            t_host = time.monotonic()
+            ok, image = cap.retrieve()
+            if not ok:
+                reason = "frame could not be decoded"
+                break
+            with self._cond:
+                self._latest = _Grabbed(seq, image, t_host, _device_time(cap, live=True))
+                self._cond.notify_all()
+            seq += 1
+        else:
+            reason = "closed"
+        with self._cond:
+            self._ended = reason
+            self._cond.notify_all()
+
+    def _frame(self, image: np.ndarray, frame_id: int, t_host: float, t_device: float | None) -> Frame:
+        mono = to_mono(image)
+        strip = self.settings.roi.crop(mono)
+        return Frame(np.ascontiguousarray(strip), frame_id, t_host, t_device)
+
+
+def to_mono(image: np.ndarray) -> np.ndarray:
+    """Gray levels from whatever OpenCV decoded: BGR, BGRA or already single-channel."""
+    if image.ndim == 2:
+        return image
+    if image.shape[2] == 1:
+        return image[:, :, 0]
+    code = cv2.COLOR_BGRA2GRAY if image.shape[2] == 4 else cv2.COLOR_BGR2GRAY
+    return cv2.cvtColor(image, code)
+
+
+def _device_time(cap: cv2.VideoCapture, live: bool) -> float | None:
+    """Media time of a file frame, or the driver's buffer timestamp of a live one.
+
+    Backends without timestamps report 0 (or -1) for every live frame, which is no information.
+    """
+    msec = cap.get(cv2.CAP_PROP_POS_MSEC)
+    if msec < 0 or (live and msec == 0):
+        return None
+    return msec / 1000.0
