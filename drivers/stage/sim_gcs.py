@@ -148,20 +148,26 @@ class SimGCSInterpreter:
             raise _Refused(7)
 
     def _mov(self, args: list[str]) -> None:
-        target = self._axis_value(args)
-        self._move_allowed(target)
-        self.model.move_to(target, self.clock())
+        self._move(self._axis_value(args))
 
     def _mvr(self, args: list[str]) -> None:
-        target = self.model.target() + self._axis_value(args)
+        self._move(self.model.target() + self._axis_value(args))
+
+    def _move(self, target: float) -> None:
         self._move_allowed(target)
-        self.model.move_to(target, self.clock())
+        try:
+            self.model.move_to(target, self.clock())
+        except ValueError:  # the axis model's own limits
+            raise _Refused(7) from None
 
     def _vel(self, args: list[str]) -> None:
         value = self._axis_value(args)
         if not 0.0 < value <= MAX_VELOCITY_MM_S:
             raise _Refused(8)
-        self.model.set_velocity(value)
+        try:
+            self.model.set_velocity(value)
+        except ValueError:  # the axis model has a lower limit than the controller
+            raise _Refused(8) from None
 
     def _stp(self, args: list[str]) -> None:
         if args:

@@ -1,0 +1,84 @@
+"""The simulated camera: the virtual rig rendered at the stage's true position during exposure.
+
+Frames come on a fixed frame clock like a free-running camera (slot k is exposed around
+``t0 + k / frame_rate``); a frame exists once its exposure has ended, and :meth:`read` returns
+the newest such frame not handed out yet, waiting for the next one if needed — the same
+"never stale" contract as the other drivers. The stage's true positions at the start, middle
+and end of the exposure go to :meth:`VirtualRig.render`, so a moving stage blurs the strip as
+it would on the bench, and the controller's ``POS?`` (the grating) stays a separate, imperfect
+measurement of the same motion.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from graytrack.drivers.camera.base import Camera, CameraSettingError, CameraSettings, CameraTimeout, Frame
+from graytrack.drivers.clock import REAL_TIME, ScaledClock
+from graytrack.drivers.sim.rig import VirtualRig
+from graytrack.drivers.sim.stage import Trajectory
+
+
+class SimCamera(Camera):
+    def __init__(
+        self,
+        rig: VirtualRig,
+        stage: Trajectory,
+        settings: CameraSettings | None = None,
+        clock: ScaledClock = REAL_TIME,
+    ) -> None:
+        super().__init__(settings)
+        self.rig = rig
+        self.stage = stage
+        self.clock = clock
+        self._t0 = 0.0
+        self._last_slot = -1
+
+    @property
+    def frame_rate_hz(self) -> float:
+        return self.settings.frame_rate_hz or self.rig.frame_rate_hz
+
+    @property
+    def exposure_s(self) -> float:
+        us = self.settings.exposure_us
+        return self.rig.exposure_s if us is None else us * 1e-6
+
+    def _open_device(self) -> None:
+        self._apply_settings()
+        self._t0 = self.clock.now()
+        self._last_slot = -1
+
+    def _close_device(self) -> None:
+        pass
+
+    def _apply_settings(self) -> None:
+        if self.settings.gain_db is not None:
+            raise CameraSettingError("the simulated camera's gain is part of the rig scenario")
+        if self.exposure_s * self.frame_rate_hz > 1.0:
+            raise CameraSettingError(
+                f"exposure {self.exposure_s * 1e6:g} us does not fit a frame period at {self.frame_rate_hz:g} Hz"
+            )
+        self.settings.roi.crop(np.empty((self.rig.n_rows, self.rig.n_pixels)))  # raises if it does not fit
+
+    def _slot_mid(self, slot: int) -> float:
+        return self._t0 + 0.5 * self.exposure_s + slot / self.frame_rate_hz
+
+    def _read(self, timeout_s: float) -> Frame:
+        now = self.clock.now()
+        newest = math.floor((now - self._t0 - self.exposure_s) * self.frame_rate_hz)
+        slot = max(newest, self._last_slot + 1)
+        ready_at = self._slot_mid(slot) + 0.5 * self.exposure_s
+        if ready_at - now > timeout_s:
+            self.stats.timeouts += 1
+            raise CameraTimeout(f"no simulated frame within {timeout_s:g} s")
+        self.clock.sleep(ready_at - now)
+        self.stats.dropped += slot - self._last_slot - 1 if self._last_slot >= 0 else 0
+        self._last_slot = slot
+        t_mid = self._slot_mid(slot)
+        half = 0.5 * self.exposure_s
+        instants = np.array([t_mid - half, t_mid, t_mid + half]) if half > 0 else np.array([t_mid])
+        x = np.asarray(self.stage.position(instants), dtype=np.float64)[None, :]
+        strip = self.rig.render(x, np.array([t_mid]))[0]
+        return Frame(np.ascontiguousarray(self.settings.roi.crop(strip)), slot, t_mid, t_mid)
