@@ -9,7 +9,7 @@ calibration take a fraction of a second.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Literal
 
 import numpy as np
@@ -17,7 +17,7 @@ from scipy.optimize import minimize_scalar
 
 from graytrack.core.errors import CalibrationError
 from graytrack.core.linear_fit import LinearSystem, fit_coefficients, geometry_sensitivities, project_columns
-from graytrack.core.models.fourier import TWO_PI, FourierModel, ideal_model, paper_model
+from graytrack.core.models.fourier import TWO_PI, FourierModel
 from graytrack.core.noise import estimate_sigma
 from graytrack.core.recording import Recording
 
@@ -26,6 +26,7 @@ RowMode = Literal["auto", "mean", "each"]
 MIN_FRAMES = 20
 # Rows are modelled separately when the shared model leaves this much more variance than noise.
 ROW_DISAGREEMENT_EXCESS = 0.10
+ALTERNATION_ROUNDS = 4
 
 
 @dataclass
@@ -212,14 +213,101 @@ def _kaufman_jacobian(model: FourierModel, system: LinearSystem, x_mm: np.ndarra
     return -np.stack(columns, axis=-1)
 
 
-# --------------------------------------------------------------------------- public entry
-def template_model(kind: str, period_mm: float, pitch_mm: float, n_pixels: int,
-                   harmonics: int | None = None, pixel_degree: int | None = None) -> FourierModel:
-    if kind == "ideal":
-        return ideal_model(period_mm, pitch_mm, n_pixels)
-    if kind == "paper":
-        return paper_model(period_mm, pitch_mm, n_pixels, harmonics or 5, 3 if pixel_degree is None else pixel_degree)
-    raise CalibrationError(f"unknown model kind {kind!r} (expected 'ideal' or 'paper')")
+# --------------------------------------------------------------------------- model structures
+# The structure of a model and its bilinear parts (flat field, common mode) are fitted here; the
+# smooth part goes through the variable projection above. Alternation converges in a few rounds
+# because the parts live on different axes (pixels vs frames vs smooth functions). To keep the
+# split unique, the flat field holds only what the pixel polynomials cannot: its smooth trend is
+# projected out.
+@dataclass(frozen=True)
+class ModelSpec:
+    """The structure of a model: what the closed loop edits, one effect at a time."""
+
+    harmonics: int = 5
+    pixel_degree: int = 3
+    stroke_degree: int = 0
+    per_row: bool = False
+    flat_field: bool = False
+    common_mode: bool = False
+    clip_gray: tuple[float, float] | None = None
+    name: str = "paper"
+
+    def with_changes(self, **changes) -> "ModelSpec":
+        return replace(self, **changes)
+
+    def template(self, period_mm: float, pitch_mm: float, n_pixels: int, n_rows: int,
+                 row_shift_mm: float = 0.0) -> FourierModel:
+        rows = n_rows if self.per_row else 1
+        return FourierModel(
+            period_mm, pitch_mm, n_pixels, harmonics=self.harmonics, pixel_degree=self.pixel_degree,
+            stroke_degree=self.stroke_degree, n_rows=rows, row_degree=min(2, rows - 1),
+            row_shift_mm=row_shift_mm if self.per_row else 0.0, common_mode=self.common_mode,
+            clip_gray=self.clip_gray, name=self.name,
+        )
+
+
+def _weighted_affine(target: np.ndarray, regressor: np.ndarray, weights: np.ndarray, axis: tuple[int, ...]):
+    """Per-slice least squares target ≈ a·regressor + b over ``axis``: returns (a, b)."""
+    sw = weights.sum(axis=axis)
+    mean_x = (weights * regressor).sum(axis=axis) / np.maximum(sw, 1e-300)
+    mean_y = (weights * target).sum(axis=axis) / np.maximum(sw, 1e-300)
+    expand = tuple(a for a in axis)
+    dx = regressor - np.expand_dims(mean_x, expand)
+    dy = target - np.expand_dims(mean_y, expand)
+    slope = (weights * dx * dy).sum(axis=axis) / np.maximum((weights * dx * dx).sum(axis=axis), 1e-300)
+    return slope, mean_y - slope * mean_x
+
+
+def _rough_part(values: np.ndarray, basis: np.ndarray) -> np.ndarray:
+    """``values`` ``(R, n)`` minus their least-squares fit by the pixel polynomials ``(n, P+1)``."""
+    coef, *_ = np.linalg.lstsq(basis, values.T, rcond=None)
+    return values - (basis @ coef).T
+
+
+def fit_spec(spec: ModelSpec, data: CalibrationData, period_mm: float, pitch_mm: float, row_shift_mm: float = 0.0,
+             progress: Progress | None = None) -> Calibration:
+    """Calibrate a model of structure ``spec``; geometry starts from the given values."""
+    template = spec.template(period_mm, pitch_mm, data.frames.shape[-1], data.frames.shape[1], row_shift_mm)
+    template = template.with_changes(stroke_range_mm=(float(data.x_mm.min()), float(data.x_mm.max())))
+    raw = template.prepare(data.frames)
+    weights = template.prepare(data.weights) if template.n_rows > 1 else data.weights.min(axis=1, keepdims=True)
+    if spec.clip_gray is not None:
+        lo, hi = spec.clip_gray
+        weights = weights * ((raw > lo) & (raw < hi))
+    names = ("period_mm", "pixel_pitch_mm") + (("row_shift_mm",) if template.n_rows > 1 else ())
+    bilinear = spec.flat_field or spec.common_mode
+    frame_gain, frame_offset = np.ones(raw.shape[0]), np.zeros(raw.shape[0])
+    pixel_gain, pixel_offset = np.ones(raw.shape[1:]), np.zeros(raw.shape[1:])
+    model, iterations, history = template, 0, []
+    for round_index in range(ALTERNATION_ROUNDS if bilinear else 1):
+        per_frame = (raw - frame_offset[:, None, None]) / frame_gain[:, None, None]
+        smooth_target = (per_frame - pixel_offset) / pixel_gain
+        if round_index == 0:
+            model, iterations, history = fit_geometry(model, data.x_mm, smooth_target, weights, names, progress=progress)
+        else:
+            model, _ = fit_coefficients(model, data.x_mm, smooth_target, weights)
+        smooth = model.predict(data.x_mm, with_response=False)
+        if spec.flat_field:
+            gain, offset = _weighted_affine(per_frame, smooth, weights, axis=(0,))
+            basis = model.pixel_basis()
+            pixel_gain = 1.0 + _rough_part(gain - 1.0, basis)
+            pixel_offset = _rough_part(offset, basis)
+        if spec.common_mode:
+            frame_gain, frame_offset = _weighted_affine(raw, pixel_gain * smooth + pixel_offset, weights, axis=(1, 2))
+            frame_offset = frame_offset - frame_offset.mean()
+            frame_gain = frame_gain / frame_gain.mean()
+        if progress and bilinear:
+            progress(0.5 + 0.5 * (round_index + 1) / ALTERNATION_ROUNDS, f"alternation round {round_index + 1}")
+    if spec.flat_field:
+        model = model.with_changes(pixel_gain=pixel_gain, pixel_offset=pixel_offset, coeffs=model.coeffs)
+    fitted = frame_gain[:, None, None] * model.predict(data.x_mm) + frame_offset[:, None, None]
+    usable = data.weights.copy()
+    if spec.clip_gray is not None:
+        usable *= (data.frames > spec.clip_gray[0]) & (data.frames < spec.clip_gray[1])
+    rmse = float(np.sqrt((((data.frames - fitted) ** 2) * usable).sum() / max(usable.sum(), 1.0)))
+    model = model.with_changes(noise_gray=data.sigma_gray, coeffs=model.coeffs,
+                               info={**model.info, "calibration_rmse_gray": rmse})
+    return Calibration(model, rmse, data.sigma_gray, iterations, history)
 
 
 def rows_disagree(model: FourierModel, data: CalibrationData) -> bool:
@@ -236,31 +324,30 @@ def rows_disagree(model: FourierModel, data: CalibrationData) -> bool:
     return excess > ROW_DISAGREEMENT_EXCESS
 
 
-def fit_model(template: FourierModel, data: CalibrationData, progress: Progress | None = None) -> Calibration:
-    """Fit a template (any structure) to calibration data; the geometry is refined as well."""
-    names: tuple[str, ...] = ("period_mm", "pixel_pitch_mm") + (("row_shift_mm",) if template.n_rows > 1 else ())
-    shaped = template.prepare(data.frames)
-    weights = template.prepare(data.weights) if template.n_rows > 1 else data.weights.min(axis=1, keepdims=True)
-    lo, hi = float(data.x_mm.min()), float(data.x_mm.max())
-    template = template.with_changes(stroke_range_mm=(lo, hi))
-    model, iterations, history = fit_geometry(template, data.x_mm, shaped, weights, names, progress=progress)
-    residual = (data.frames - model.predict(data.x_mm)) * np.sqrt(data.weights)
-    rmse = float(np.sqrt((residual**2).sum() / data.weights.sum()))
-    model = model.with_changes(noise_gray=data.sigma_gray, info={**model.info, "calibration_rmse_gray": rmse})
-    return Calibration(model, rmse, data.sigma_gray, iterations, history)
+KIND_SPECS = {
+    "ideal": ModelSpec(harmonics=1, pixel_degree=0, name="ideal"),
+    "paper": ModelSpec(harmonics=5, pixel_degree=3, name="paper"),
+}
 
 
 def calibrate(rec: Recording, model: str = "paper", *, harmonics: int | None = None, pixel_degree: int | None = None,
               rows: RowMode = "auto", progress: Progress | None = None) -> Calibration:
     """Calibrate the ``ideal`` or ``paper`` model on a recording with a reference."""
+    if model not in KIND_SPECS:
+        raise CalibrationError(f"unknown model kind {model!r} (expected one of {', '.join(KIND_SPECS)})")
+    spec = KIND_SPECS[model]
+    if harmonics is not None:
+        spec = spec.with_changes(harmonics=harmonics)
+    if pixel_degree is not None:
+        spec = spec.with_changes(pixel_degree=pixel_degree)
     data = calibration_data(rec)
     period, pitch, row_shift = initial_geometry(data)
-    template = template_model(model, period, pitch, rec.n_pixels, harmonics, pixel_degree)
-    result = fit_model(template, data, progress)
+    result = fit_spec(spec, data, period, pitch, progress=progress)
     n_rows = data.frames.shape[1]
     if n_rows > 1 and (rows == "each" or (rows == "auto" and rows_disagree(result.model, data))):
-        per_row = result.model.with_changes(n_rows=n_rows, row_degree=min(2, n_rows - 1), row_shift_mm=row_shift)
-        result = fit_model(per_row, data, progress)
+        geometry = result.model
+        result = fit_spec(spec.with_changes(per_row=True), data, geometry.period_mm, geometry.pixel_pitch_mm,
+                          row_shift, progress)
     if progress:
         progress(1.0, f"done, rms {result.rmse_gray:.3f} gray")
     return result

@@ -60,6 +60,16 @@ class TrackResult:
         return (self.x_mm - reference) * 1e3
 
 
+class ClippedHarmonics:
+    """Wraps an evaluator so that saturated pixels stick at the limit with zero slope."""
+
+    def __init__(self, inner: "FastHarmonics | GeneralHarmonics", model: FourierModel):
+        self.inner, self.model = inner, model
+
+    def evaluate(self, x_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self.model.clip_with_slope(*self.inner.evaluate(x_mm))
+
+
 class FastHarmonics:
     """F(x) and ∂F/∂x of a model whose coefficients do not depend on x, in O(M·R·n) per call.
 
@@ -100,14 +110,15 @@ class GeneralHarmonics:
 class GeneralBatch:
     """Gauss–Newton on frames with any model: per iteration one model evaluation at one x.
 
-    Handles what the fast path cannot: coefficients that drift along the stroke and a per-frame
-    gain/offset solved together with x.
+    Handles what the fast path cannot: coefficients that drift along the stroke, a per-frame
+    gain/offset solved together with x, and saturated pixels.
     """
 
     def __init__(self, model: FourierModel, prepared: np.ndarray, max_iterations: int, tolerance_mm: float):
         self.model = model
         self.frames = prepared.reshape(prepared.shape[0], -1)
-        self.evaluator = FastHarmonics(model) if model.stroke_degree == 0 else GeneralHarmonics(model)
+        evaluator = FastHarmonics(model) if model.stroke_degree == 0 else GeneralHarmonics(model)
+        self.evaluator = evaluator if model.clip_gray is None else ClippedHarmonics(evaluator, model)
         self.max_iterations, self.tolerance_mm = max_iterations, tolerance_mm
         self.max_step_mm = model.period_mm / 4.0
 
@@ -254,7 +265,7 @@ class Tracker:
 
     def batch(self, prepared: np.ndarray) -> GeneralBatch | TrigPolyBatch:
         """Frames ``(K, R, n)`` in the model's row layout, reduced for solving."""
-        fast = self.model.stroke_degree == 0 and not self.model.common_mode
+        fast = self.model.stroke_degree == 0 and not self.model.common_mode and self.model.clip_gray is None
         kind = TrigPolyBatch if fast else GeneralBatch
         return kind(self.model, prepared, self.max_iterations, self.tolerance_mm)
 

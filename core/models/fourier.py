@@ -15,7 +15,8 @@ term is something the closed loop may add when the data ask for it:
 - ``n_rows`` > 1 with ``row_shift_mm``: rows that see a shifted target (camera tilt), with
   ``row_degree`` for row-dependent shading;
 - ``pixel_gain`` / ``pixel_offset``: a flat field (PRNU/DSNU), rough from pixel to pixel;
-- ``common_mode``: a gain and offset per frame (flicker, exposure drift), solved with x.
+- ``common_mode``: a gain and offset per frame (flicker, exposure drift), solved with x;
+- ``clip_gray``: the sensor's floor and ceiling; a clipped pixel says nothing about x.
 
 The model is linear in C given (τ, p, q): calibration exploits that (variable projection).
 """
@@ -52,6 +53,7 @@ class FourierModel:
     pixel_gain: np.ndarray | None = None
     pixel_offset: np.ndarray | None = None
     common_mode: bool = False
+    clip_gray: tuple[float, float] | None = None
     noise_gray: float | None = None
     name: str = "paper"
     info: dict[str, Any] = field(default_factory=dict)
@@ -172,12 +174,25 @@ class FourierModel:
         gain, offset = self.response() if with_response else (1.0, 0.0)
         values = np.einsum("krua,krua->kru", trig, weights) * gain + offset
         if not with_derivative:
-            return values
+            return self.clip(values) if with_response else values
         dtrig = trig_derivative(trig, self.harmonics) * (TWO_PI / self.period_mm)
         slope = np.einsum("krua,krua->kru", dtrig, weights)
         if self.stroke_degree:
             slope += np.einsum("krua,rual,kl->kru", trig, self.spatial_weights(), dstroke)
+        if with_response and self.clip_gray is not None:
+            return self.clip_with_slope(values, slope * gain)
         return values, slope * gain
+
+    def clip(self, values: np.ndarray) -> np.ndarray:
+        return values if self.clip_gray is None else np.clip(values, *self.clip_gray)
+
+    def clip_with_slope(self, values: np.ndarray, slopes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Saturated pixels: the value sticks at the limit and carries no slope."""
+        if self.clip_gray is None:
+            return values, slopes
+        lo, hi = self.clip_gray
+        inside = (values > lo) & (values < hi)
+        return np.clip(values, lo, hi), np.where(inside, slopes, 0.0)
 
     def prepare(self, frames: np.ndarray) -> np.ndarray:
         """Frames ``(K, n)`` or ``(K, R, n)`` as float64 ``(K, R_model, n)``.
@@ -213,6 +228,8 @@ class FourierModel:
             parts.append("flat field")
         if self.common_mode:
             parts.append("per-frame gain/offset")
+        if self.clip_gray is not None:
+            parts.append(f"clipped at {self.clip_gray[0]:g}..{self.clip_gray[1]:g}")
         return f"{self.name} ({', '.join(parts)}; τ={self.period_mm:.4f} mm, α·d={self.pixel_pitch_mm:.5f} mm)"
 
     def ideal_parameters(self) -> dict[str, float]:

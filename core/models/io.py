@@ -26,6 +26,7 @@ def model_to_dict(model: FourierModel) -> dict[str, Any]:
         raise ModelError("refusing to save a model without coefficients: calibrate it first")
     body: dict[str, Any] = {key: getattr(model, key) for key in _SCALAR_FIELDS}
     body["stroke_range_mm"] = list(model.stroke_range_mm)
+    body["clip_gray"] = None if model.clip_gray is None else list(model.clip_gray)
     for key in _ARRAY_FIELDS:
         value = getattr(model, key)
         body[key] = None if value is None else {"shape": list(value.shape), "data": value.ravel().tolist()}
@@ -46,8 +47,9 @@ def model_from_dict(document: Any) -> FourierModel:
     if missing:
         raise ModelError(f"model file lacks {missing[0]!r}")
     kwargs: dict[str, Any] = {key: body[key] for key in _SCALAR_FIELDS if key in body}
-    if "stroke_range_mm" in body:
-        kwargs["stroke_range_mm"] = tuple(body["stroke_range_mm"])
+    for key in ("stroke_range_mm", "clip_gray"):
+        if body.get(key) is not None:
+            kwargs[key] = tuple(float(v) for v in body[key])
     for key in _ARRAY_FIELDS:
         kwargs[key] = _array(body.get(key), key)
     kwargs["info"] = body.get("info") or {}
