@@ -157,14 +157,16 @@ def defect_gain(defects: list[Defect], x_w: np.ndarray, y_mm: float, blur_sigma_
         s = math.hypot(d.size_mm, blur_sigma_mm)
         shrink = d.size_mm / s
         if d.kind == "dust":
-            depth = d.depth * shrink**2
-            dy2 = (y_mm - d.y_mm) ** 2
-            gain *= 1 - depth * np.exp(-((x_w - d.x_mm) ** 2 + dy2) / (2 * s * s))
+            depth = d.depth * shrink**2 * math.exp(-((y_mm - d.y_mm) ** 2) / (2 * s * s))
+            x_centre, sx = d.x_mm, s
         elif d.kind == "scratch":
             depth = d.depth * shrink
-            x_line = d.x_mm + (y_mm - d.y_mm) * math.tan(d.angle_rad)
-            dist = (x_w - x_line) * math.cos(d.angle_rad)
-            gain *= 1 - depth * np.exp(-(dist**2) / (2 * s * s))
+            x_centre, sx = d.x_mm + (y_mm - d.y_mm) * math.tan(d.angle_rad), s / math.cos(d.angle_rad)
         else:
             raise ValueError(f"unknown defect kind {d.kind!r}")
+        # a Gaussian is nil beyond 8σ: evaluate only the pixels near the defect
+        near = np.abs(x_w - x_centre) < 8 * sx
+        if depth and near.any():
+            dx = x_w[near] - x_centre
+            gain[near] *= 1 - depth * np.exp(-(dx * dx) / (2 * sx * sx))
     return gain
