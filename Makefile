@@ -1,13 +1,15 @@
 # The README's two commands: `make run` and `make test`. Both create .venv from python3 when it is
 # missing and (re)install the project when its packaging files change.
 PYTHON ?= python3
+comma  := ,
 VENV   := .venv
 BIN    := $(VENV)/bin
-STAMP  := $(VENV)/.installed
 HOST   ?= 127.0.0.1
 PORT   ?= 8000
 # PyGObject (the Aravis extra) builds against system libraries; install it only where they exist.
 ARAVIS_EXTRA := $(shell pkg-config --exists gobject-introspection-1.0 cairo 2>/dev/null && echo ",aravis")
+# The stamp names the extras, so installing the Aravis system packages later triggers a reinstall.
+STAMP  := $(VENV)/.installed$(subst $(comma),-,$(ARAVIS_EXTRA))
 PYTEST_WORKERS ?= 2
 
 .PHONY: run test bench clean install

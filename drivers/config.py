@@ -1,0 +1,131 @@
+"""Configuration of the camera and the stage controller: the ``[camera]`` and ``[stage]`` tables.
+
+The daemon reads one TOML file (see ``deploy/graytrack.example.toml``); these models own the two
+hardware tables and ignore the others. Unknown keys are errors, not silently ignored, because a
+misspelt ``exposure_us`` on a bench would otherwise run with the camera's default. Every error
+names its key, e.g. ``stage.soft_limits_mm: low must be below high``.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from graytrack.drivers.camera.base import CameraSettings, Roi
+
+STANDARD_BAUD_RATES = (9600, 19200, 38400, 57600, 115200, 230400, 460800)
+
+
+class ConfigError(ValueError):
+    """A configuration file or table that cannot be used; the message names the key."""
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class RoiConfig(_Strict):
+    row: int = Field(0, ge=0, description="first sensor row of the strip")
+    rows: int = Field(1, ge=1, description="rows in the strip")
+    col: int = Field(0, ge=0, description="first pixel column")
+    cols: int | None = Field(None, ge=2, description="pixels per row; omitted = to the sensor's right edge")
+
+    def to_roi(self) -> Roi:
+        return Roi(self.row, self.rows, self.col, self.cols)
+
+
+class CameraConfig(_Strict):
+    kind: Literal["opencv", "aravis", "sim"] = "sim"
+    device: str | int | None = Field(None, description="opencv: index, file or URL; aravis: device id or IP")
+    roi: RoiConfig = RoiConfig()
+    exposure_us: float | None = Field(None, gt=0)
+    gain_db: float | None = None
+    frame_rate_hz: float | None = Field(None, gt=0)
+    trigger: Literal["free-run", "software", "hardware"] = "free-run"
+    trigger_source: str = "Line0"
+    pixel_format: Literal["Mono8", "Mono10", "Mono12", "Mono16"] = "Mono8"
+    n_buffers: int = Field(8, ge=2, le=256)
+    timeout_s: float = Field(1.0, gt=0)
+    scenario: str = Field("paper", description="sim: the virtual rig's scenario")
+    seed: int = 0
+
+    @model_validator(mode="after")
+    def _device_where_needed(self) -> "CameraConfig":
+        if self.kind == "opencv" and self.device is None:
+            raise ValueError("device is required for kind = 'opencv' (an index, a video file or a URL)")
+        if self.kind != "aravis" and self.trigger != "free-run":
+            raise ValueError(f"trigger '{self.trigger}' needs kind = 'aravis'")
+        return self
+
+    def to_settings(self) -> CameraSettings:
+        return CameraSettings(self.exposure_us, self.gain_db, self.frame_rate_hz, self.roi.to_roi())
+
+
+class StageConfig(_Strict):
+    kind: Literal["gcs", "sim"] = "sim"
+    port: str | None = Field(None, description="gcs: serial device, e.g. /dev/serial/by-id/usb-PI_...")
+    baudrate: int = 115200
+    axis: str = Field("1", pattern=r"^[A-Za-z0-9_]+$")
+    soft_limits_mm: tuple[float, float] = (0.0, 10.46)
+    velocity_mm_s: float | None = Field(None, gt=0)
+    timeout_s: float = Field(1.0, gt=0)
+    reference_on_open: bool = True
+
+    @field_validator("baudrate")
+    @classmethod
+    def _standard_baud(cls, value: int) -> int:
+        if value not in STANDARD_BAUD_RATES:
+            raise ValueError(f"must be one of {', '.join(map(str, STANDARD_BAUD_RATES))}")
+        return value
+
+    @field_validator("soft_limits_mm")
+    @classmethod
+    def _ordered(cls, value: tuple[float, float]) -> tuple[float, float]:
+        if not value[0] < value[1]:
+            raise ValueError("low must be below high")
+        return value
+
+    @model_validator(mode="after")
+    def _port_where_needed(self) -> "StageConfig":
+        if self.kind == "gcs" and not self.port:
+            raise ValueError("port is required for kind = 'gcs'")
+        return self
+
+
+class HardwareConfig(_Strict):
+    camera: CameraConfig = CameraConfig()
+    stage: StageConfig = StageConfig()
+
+
+def parse_hardware(tables: dict[str, Any]) -> HardwareConfig:
+    """Validate the ``camera`` and ``stage`` tables of a parsed TOML document (others ignored)."""
+    try:
+        return HardwareConfig.model_validate({k: v for k, v in tables.items() if k in ("camera", "stage")})
+    except ValidationError as exc:
+        raise ConfigError("; ".join(_describe(error) for error in exc.errors())) from None
+
+
+def load_hardware(path: str | Path) -> HardwareConfig:
+    path = Path(path)
+    try:
+        with open(path, "rb") as fh:
+            tables = tomllib.load(fh)
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such file") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: not valid TOML ({exc})") from None
+    try:
+        return parse_hardware(tables)
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
+
+
+def _describe(error: Any) -> str:
+    key = ".".join(str(part) for part in error["loc"])
+    message = error["msg"].removeprefix("Value error, ")
+    if error["type"] == "extra_forbidden":
+        message = "unknown key"
+    return f"{key}: {message}" if key else message

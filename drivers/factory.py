@@ -1,0 +1,95 @@
+"""Build the camera and the stage from their configuration (what the daemon calls at start).
+
+``kind = "sim"`` builds the virtual rig behind the *real* drivers: the stage is a
+:class:`GCSStage` talking to a simulated controller over a pty, so the daemon exercises the same
+code paths with and without hardware. A simulated camera needs the simulated stage (it renders
+that stage's true position), so that combination is required.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from graytrack.drivers.camera.base import Camera
+from graytrack.drivers.clock import REAL_TIME, ScaledClock
+from graytrack.drivers.config import CameraConfig, ConfigError, HardwareConfig, StageConfig
+from graytrack.drivers.stage.gcs_stage import GCSStage
+
+
+@dataclass
+class Hardware:
+    camera: Camera
+    stage: GCSStage
+    controller: object | None = None  # SimGCSController when simulated
+    rig: object | None = None  # VirtualRig when simulated
+
+    def close(self) -> None:
+        self.camera.close()
+        self.stage.close()
+        if self.controller is not None:
+            self.controller.stop()  # type: ignore[attr-defined]
+
+
+def make_gcs_stage(config: StageConfig, port: str | None = None, clock: ScaledClock = REAL_TIME) -> GCSStage:
+    return GCSStage(
+        port or config.port or "",
+        baudrate=config.baudrate,
+        axis=config.axis,
+        timeout_s=config.timeout_s,
+        soft_limits_mm=config.soft_limits_mm,
+        velocity_mm_s=config.velocity_mm_s,
+        reference_on_open=config.reference_on_open,
+        clock=clock.now,
+    )
+
+
+def make_real_camera(config: CameraConfig) -> Camera:
+    """OpenCV or Aravis; the Aravis module (and ``gi``) is only imported when asked for."""
+    if config.kind == "opencv":
+        from graytrack.drivers.camera.opencv import OpenCVCamera
+
+        assert config.device is not None
+        return OpenCVCamera(config.device, config.to_settings())
+    if config.kind == "aravis":
+        from graytrack.drivers.camera.aravis import AravisCamera
+
+        return AravisCamera(
+            None if config.device is None else str(config.device),
+            config.to_settings(),
+            trigger=config.trigger,
+            trigger_source=config.trigger_source,
+            pixel_format=config.pixel_format,
+            n_buffers=config.n_buffers,
+        )
+    raise ConfigError(f"camera.kind: {config.kind!r} is not a hardware camera")
+
+
+def open_hardware(config: HardwareConfig, clock: ScaledClock = REAL_TIME) -> Hardware:
+    """Open camera and stage (stage referenced and ready); the caller closes the result."""
+    if config.camera.kind == "sim" and config.stage.kind != "sim":
+        raise ConfigError("camera.kind = 'sim' renders the simulated stage: set stage.kind = 'sim' too")
+    if config.stage.kind == "gcs":
+        hardware = Hardware(make_real_camera(config.camera), make_gcs_stage(config.stage, clock=clock))
+    else:
+        hardware = _simulated(config, clock)
+    try:
+        hardware.stage.open()
+        hardware.camera.open()
+    except Exception:
+        hardware.close()
+        raise
+    return hardware
+
+
+def _simulated(config: HardwareConfig, clock: ScaledClock) -> Hardware:
+    from graytrack.drivers.camera.sim import SimCamera
+    from graytrack.drivers.sim.scenarios import build_rig
+    from graytrack.drivers.stage.sim_axis import SimStageAxis
+    from graytrack.drivers.stage.sim_controller import SimGCSController
+
+    rig = build_rig(config.camera.scenario, seed=config.camera.seed)
+    truth = rig.make_stage(t_s=clock.now())
+    controller = SimGCSController(SimStageAxis(truth, rig.make_grating(truth)), clock=clock.now).start()
+    stage = make_gcs_stage(config.stage, port=controller.path, clock=clock)
+    camera = SimCamera(rig, truth, config.camera.to_settings(), clock=clock) if config.camera.kind == "sim" else make_real_camera(config.camera)
+    return Hardware(camera, stage, controller, rig)
