@@ -20,7 +20,8 @@ CASES = [
     ("highspeed", (), 5.0),
     ("strip16", ("frame_rate:hz=1000",), 5.0),
     ("highspeed", ("tilt:deg=0.3", "prnu", "dsnu", "flicker", "vignetting", "quantize:bits=8"), 5.0),
-    ("highspeed", ("gradient", "dust"), 1.0),
+    ("highspeed", ("gradient:per_10mm=0.05:curvature=0.02",), 5.0),
+    ("highspeed", ("dust",), 1.0),
     ("lab", ("frame_rate:hz=1000",), 1.0),
 ]
 

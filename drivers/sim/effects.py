@@ -368,6 +368,12 @@ def _cyclic_error(config: "RigConfig", v: dict[str, float], rng: np.random.Gener
     config.grating.cyclic_phase_rad = rng.uniform(0, 2 * math.pi)
 
 
+@effect("grating_latency", "grating", "The readout reports where the stage was a fixed time earlier: error −v·latency.",
+        ms=(1.0, "latency of the position readout, ms"))
+def _grating_latency(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    config.grating.latency_s = _positive("grating_latency", "ms", v["ms"], True) * 1e-3
+
+
 @effect("time_skew", "timing", "Reference latched later than mid-exposure by a fixed time: its error is v·skew.",
         ms=(2.0, "latch minus exposure mid-point, ms (negative: earlier)"))
 def _time_skew(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:

@@ -147,7 +147,10 @@ class VirtualRig:
         folded = self._coeffs * np.exp(1j * orders[:, None, None] * self._kappa * self.geometry.x_mm)
         flat = folded.reshape(orders.size, -1)
         self._matrix = np.concatenate([flat.real, -flat[1:].imag]).astype(np.float64)
-        self._slow = (not tcfg.affine) or config.illumination.has_target_field or bool(tcfg.defects)
+        # a smooth (quadratic) light field fixed to the target stays on the fast path:
+        # G(x + s) = G(x) + G'(x)·s + ½G''·s², one extra matrix per power of s
+        self._matrix_s = [self._matrix * self.geometry.x_mm.reshape(1, -1) ** p for p in (1, 2)]
+        self._slow = (not tcfg.affine) or bool(tcfg.defects)
         self._row_y = self.geometry.y_mm.mean(axis=1)
 
     # ----- shape and nominal figures --------------------------------------------------------
@@ -238,20 +241,42 @@ class VirtualRig:
         return np.concatenate([np.ones((theta.size, 1)), np.cos(arg), np.sin(arg)], axis=1)
 
     def _light_fast(self, xs: np.ndarray) -> np.ndarray:
-        """Affine phase, no target-fixed gain: exposure-averaged basis (exact sinc) × matrix."""
-        theta = self._kappa * xs  # (K, S)
-        i = self._orders[1:]
-        if theta.shape[1] == 1:
-            basis = self._basis(theta[:, 0])
+        """Affine phase, no defects: exposure-averaged basis × per-pixel matrices.
+
+        Each linear piece of the motion (mid-point x_m, half-length h) averages ``e^{jωx}`` to
+        ``e^{jωx_m}·sinc(ωh/π)`` exactly. A smooth light field fixed to the target,
+        ``G(x + s) = G(x_m) + G'(x_m)(s + δ) + ½G''(s + δ)²`` over the piece, adds the powers of the
+        pixel offset s (extra matrices) and the first moment ``⟨δ e^{jωδ}⟩`` (the light changes while
+        the print slides by), which is what makes a blurred frame under uneven light asymmetric.
+        """
+        omega = self._kappa * self._orders[1:]  # (M,)
+        if xs.shape[1] == 1:
+            mids, halves = xs, np.zeros_like(xs)
         else:
-            mid = 0.5 * (theta[:, 1:] + theta[:, :-1])  # (K, S-1) segments
-            span = theta[:, 1:] - theta[:, :-1]
-            damp = np.sinc(span[:, :, None] * i / (2 * math.pi))  # (K, S-1, M)
-            arg = mid[:, :, None] * i
-            cos = (np.cos(arg) * damp).mean(axis=1)
-            sin = (np.sin(arg) * damp).mean(axis=1)
-            basis = np.concatenate([np.ones((xs.shape[0], 1)), cos, sin], axis=1)
-        return basis @ self._matrix
+            mids, halves = 0.5 * (xs[:, 1:] + xs[:, :-1]), 0.5 * (xs[:, 1:] - xs[:, :-1])
+        icfg = self.config.illumination
+        ones, zeros = np.ones((xs.shape[0], 1)), np.zeros((xs.shape[0], 1))
+        total = np.zeros((xs.shape[0], self._matrix.shape[1]))
+        for xm, h in zip(mids.T, halves.T):
+            wh = h[:, None] * omega
+            arg = xm[:, None] * omega
+            cos, sin = np.cos(arg), np.sin(arg)
+            damp = np.sinc(wh / math.pi)
+            basis = np.concatenate([ones, cos * damp, sin * damp], axis=1)
+            light = basis @ self._matrix
+            if icfg.has_target_field:
+                curv = icfg.gradient_curvature_per_mm2
+                slope = (icfg.gradient_per_mm + 2 * curv * (xm - icfg.gradient_center_mm))[:, None]
+                small = np.abs(wh) < 1e-3
+                safe_h = np.where(small, 1.0, h[:, None] * np.ones_like(wh))
+                moment = np.where(small, wh * h[:, None] / 3,
+                                  (np.sin(wh) - wh * np.cos(wh)) / (omega * omega * safe_h))
+                drift = np.concatenate([zeros, -sin * moment, cos * moment], axis=1)  # e^{jωx_m}·j·moment
+                light *= illum.target_field_gain(icfg, xm)[:, None]
+                light += slope * (basis @ self._matrix_s[0] + drift @ self._matrix)
+                light += curv * (basis @ self._matrix_s[1] + 2 * (drift @ self._matrix_s[0]))
+            total += light
+        return total / mids.shape[1]
 
     def _light_slow(self, xs: np.ndarray) -> np.ndarray:
         """Chirp or target-fixed gains: evaluate every pixel at sub-samples of each exposure."""

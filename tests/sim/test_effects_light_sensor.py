@@ -140,3 +140,28 @@ def test_lab_scenario_is_an_8bit_strip_with_light_and_sensor_imperfections():
     assert truth.pixel_gain.std() > 0.005 and truth.light_gain.std() > 0
     assert rig.config.sensor.full_well_e == 10000 and rig.config.effects == ["read_noise:gray=0"]
     assert constant_velocity(0, 1).velocity(np.zeros(3)).tolist() == [1, 1, 1]
+
+
+def test_fixed_patterns_belong_to_physical_pixels_when_the_roi_moves():
+    from graytrack.drivers.sim.rig import VirtualRig
+    from graytrack.drivers.sim.scenarios import build_config
+
+    config = build_config("lab", seed=1)
+    first = VirtualRig(config, seed=1)
+    config.optics.roi_x += 10
+    shifted = VirtualRig(config, seed=1)
+    np.testing.assert_array_equal(shifted.sensor.prnu[:, :-10], first.sensor.prnu[:, 10:])
+    np.testing.assert_array_equal(shifted.sensor.dsnu[:, :-10], first.sensor.dsnu[:, 10:])
+    # vignetting is about the optical axis (sensor centre), not the ROI: the ROI sits right of centre now
+    assert shifted.geometry.radius2[:, -1].mean() > first.geometry.radius2[:, -1].mean()
+
+
+def test_gradient_on_the_fast_path_matches_the_per_pixel_product_while_moving():
+    effects = ["gradient:per_10mm=0.2:curvature=0.1", "motion_blur:exposure_ms=10"]
+    fast = quiet_rig(effects=effects)
+    slow = quiet_rig(effects=[*effects, "dust:count=1:depth=0"])  # a defect forces the per-pixel path
+    assert not fast._slow and slow._slow
+    x = np.c_[np.linspace(0, 10, 40), np.linspace(0.5, 10.5, 40), np.linspace(1, 11, 40)]
+    t = np.zeros(40)
+    np.testing.assert_allclose(fast.render_light(x, t), slow.render_light(x, t), rtol=5e-5)
+    np.testing.assert_allclose(fast.render_light(x[:, :1], t), slow.render_light(x[:, :1], t), rtol=1e-12)

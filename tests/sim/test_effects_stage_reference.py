@@ -131,3 +131,13 @@ def test_frame_rate_sets_the_clock_and_caps_the_exposure():
     assert rec.n_frames == 200
     np.testing.assert_allclose(np.diff(rec.t), 0.005)
     assert rig.exposure_s == pytest.approx(0.005) and rec.meta["frame_rate_hz"] == 200
+
+
+def test_grating_latency_reports_an_earlier_position():
+    rig = build_rig("paper", ["grating_resolution:um=0", "grating_latency:ms=3"])
+    stage = rig.make_stage(position_mm=1.0)
+    stage.move_to(9.0, 0.0)
+    grating = rig.make_grating(stage)
+    t = np.linspace(0.5, 1.0, 11)  # cruising
+    np.testing.assert_allclose(grating.read(t), stage.position(t - 0.003), atol=1e-12)
+    np.testing.assert_allclose(grating.read(t) - stage.position(t), -stage.velocity(t) * 0.003, atol=1e-6)
