@@ -204,19 +204,22 @@ class VirtualRig:
         return sweep(start, end, seconds, self.config.stage)
 
     # ----- rendering ------------------------------------------------------------------------
-    def render(self, x_mm_samples: np.ndarray, t_s: np.ndarray, noise: bool = True) -> np.ndarray:
+    def render(self, x_mm_samples: np.ndarray, t_s: np.ndarray, noise: bool = True,
+               exposure_s: float | None = None) -> np.ndarray:
         """Frames ``(K, R, n)`` in the sensor's dtype for the stage motion during each exposure.
 
         ``x_mm_samples`` is ``(K,)`` (stage still during the exposure) or ``(K, S)``: true positions
         at S instants evenly spaced from the start to the end of each exposure (S ≥ 2); the motion
         is taken as piecewise linear between them, which is exact for constant velocity with S = 2.
         ``t_s`` ``(K,)`` are the exposure mid-instants (they set the flicker phase).
-        ``noise=False`` gives the noise-free frames (still quantised).
+        ``noise=False`` gives the noise-free frames (still quantised). ``exposure_s`` (default: the
+        rig's) is the exposure the flicker is averaged over; a camera driver with its own exposure
+        setting passes it, and spaces ``x_mm_samples`` over the same window.
         """
-        light = self.render_light(x_mm_samples, t_s)
+        light = self.render_light(x_mm_samples, t_s, exposure_s)
         return self.sensor.expose(light, self._noise_rng if noise else None)
 
-    def render_light(self, x_mm_samples: np.ndarray, t_s: np.ndarray) -> np.ndarray:
+    def render_light(self, x_mm_samples: np.ndarray, t_s: np.ndarray, exposure_s: float | None = None) -> np.ndarray:
         """Noise-free light reaching each pixel ``(K, R, n)``, float64, before the sensor."""
         x = np.asarray(x_mm_samples, dtype=np.float64)
         x = x[:, None] if x.ndim == 1 else x
@@ -231,7 +234,8 @@ class VirtualRig:
             xs = x[k0:k1]
             light = self._light_slow(xs) if self._slow else self._light_fast(xs)
             out[k0:k1] = light.reshape(k1 - k0, R, n)
-        out *= illum.flicker_gain(self.config.illumination, t, self.exposure_s)[:, None, None]
+        exposure = self.exposure_s if exposure_s is None else float(exposure_s)
+        out *= illum.flicker_gain(self.config.illumination, t, exposure)[:, None, None]
         return out
 
     def _basis(self, theta: np.ndarray) -> np.ndarray:
