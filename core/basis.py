@@ -28,20 +28,23 @@ def trig_basis(phase: np.ndarray, harmonics: int) -> np.ndarray:
     """``(..., 2M + 1)``: ``[1, sin θ, cos θ, sin 2θ, cos 2θ, …, sin Mθ, cos Mθ]``.
 
     Higher harmonics come from the angle-addition recurrence, so one sin/cos pair is evaluated
-    per point whatever M is.
+    per point whatever M is. The terms are built term-major (each one contiguous, which is what
+    makes the recurrence fast on large strips) and returned as a view with the term axis last.
     """
     phase = np.asarray(phase, dtype=np.float64)
-    out = np.empty(phase.shape + (2 * harmonics + 1,))
-    out[..., 0] = 1.0
-    if harmonics == 0:
-        return out
-    s1, c1 = np.sin(phase), np.cos(phase)
-    out[..., 1], out[..., 2] = s1, c1
-    for h in range(2, harmonics + 1):
-        s_prev, c_prev = out[..., 2 * h - 3], out[..., 2 * h - 2]
-        out[..., 2 * h - 1] = s_prev * c1 + c_prev * s1
-        out[..., 2 * h] = c_prev * c1 - s_prev * s1
-    return out
+    out = np.empty((2 * harmonics + 1,) + phase.shape)
+    out[0] = 1.0
+    if harmonics:
+        np.sin(phase, out=out[1])
+        np.cos(phase, out=out[2])
+        s1, c1 = out[1], out[2]
+        for h in range(2, harmonics + 1):
+            s_prev, c_prev = out[2 * h - 3], out[2 * h - 2]
+            np.multiply(s_prev, c1, out=out[2 * h - 1])
+            out[2 * h - 1] += c_prev * s1
+            np.multiply(c_prev, c1, out=out[2 * h])
+            out[2 * h] -= s_prev * s1
+    return np.moveaxis(out, 0, -1)
 
 
 def trig_derivative(trig: np.ndarray, harmonics: int) -> np.ndarray:

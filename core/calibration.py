@@ -265,8 +265,13 @@ def _rough_part(values: np.ndarray, basis: np.ndarray) -> np.ndarray:
 
 
 def fit_spec(spec: ModelSpec, data: CalibrationData, period_mm: float, pitch_mm: float, row_shift_mm: float = 0.0,
-             progress: Progress | None = None) -> Calibration:
-    """Calibrate a model of structure ``spec``; geometry starts from the given values."""
+             progress: Progress | None = None, refine_geometry: bool = True) -> Calibration:
+    """Calibrate a model of structure ``spec``; geometry starts from the given values.
+
+    ``refine_geometry=False`` keeps τ_w and α·d as given (a per-row model still fits its row
+    shift): once stroke or high-degree pixel terms exist they can trade against the geometry, and
+    a geometry that wanders off its physical value helps nothing while misleading whoever reads it.
+    """
     template = spec.template(period_mm, pitch_mm, data.frames.shape[-1], data.frames.shape[1], row_shift_mm)
     template = template.with_changes(stroke_range_mm=(float(data.x_mm.min()), float(data.x_mm.max())))
     raw = template.prepare(data.frames)
@@ -274,7 +279,8 @@ def fit_spec(spec: ModelSpec, data: CalibrationData, period_mm: float, pitch_mm:
     if spec.clip_gray is not None:
         lo, hi = spec.clip_gray
         weights = weights * ((raw > lo) & (raw < hi))
-    names = ("period_mm", "pixel_pitch_mm") + (("row_shift_mm",) if template.n_rows > 1 else ())
+    names = (("period_mm", "pixel_pitch_mm") if refine_geometry else ()) + (
+        ("row_shift_mm",) if template.n_rows > 1 else ())
     bilinear = spec.flat_field or spec.common_mode
     frame_gain, frame_offset = np.ones(raw.shape[0]), np.zeros(raw.shape[0])
     pixel_gain, pixel_offset = np.ones(raw.shape[1:]), np.zeros(raw.shape[1:])
@@ -282,7 +288,7 @@ def fit_spec(spec: ModelSpec, data: CalibrationData, period_mm: float, pitch_mm:
     for round_index in range(ALTERNATION_ROUNDS if bilinear else 1):
         per_frame = (raw - frame_offset[:, None, None]) / frame_gain[:, None, None]
         smooth_target = (per_frame - pixel_offset) / pixel_gain
-        if round_index == 0:
+        if round_index == 0 and names:
             model, iterations, history = fit_geometry(model, data.x_mm, smooth_target, weights, names, progress=progress)
         else:
             model, _ = fit_coefficients(model, data.x_mm, smooth_target, weights)

@@ -1,0 +1,107 @@
+"""Held-out data and the figures a model earns on it.
+
+Every figure of the closed loop is measured on frames the fit did not see: either a separate
+validation recording, or short blocks interleaved through the calibration sweep, so that the
+held-out frames cover the whole stroke and the whole recording time.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from graytrack.core.calibration import CalibrationData
+from graytrack.core.models.fourier import FourierModel
+from graytrack.core.tracking import TrackResult, track
+
+HOLDOUT_BLOCK_FRAMES = 10
+HOLDOUT_EVERY = 4
+
+
+def subset(data: CalibrationData, index: np.ndarray) -> CalibrationData:
+    return CalibrationData(data.x_mm[index], data.frames[index], data.weights[index], data.sigma_gray, data.meta)
+
+
+def interleaved_split(data: CalibrationData) -> tuple[CalibrationData, CalibrationData]:
+    """Every ``HOLDOUT_EVERY``-th block of ``HOLDOUT_BLOCK_FRAMES`` consecutive frames is held out."""
+    block = np.arange(len(data.x_mm)) // HOLDOUT_BLOCK_FRAMES
+    held = block % HOLDOUT_EVERY == HOLDOUT_EVERY // 2
+    return subset(data, np.flatnonzero(~held)), subset(data, np.flatnonzero(held))
+
+
+@dataclass
+class Fit:
+    """A model's prediction on some frames, with the per-frame common mode solved when it has one."""
+
+    model: FourierModel
+    data: CalibrationData
+    predicted: np.ndarray  # (K, R, n), broadcast to the data's rows
+    smooth: np.ndarray  # (K, Rm, n) the smooth part S
+    slope: np.ndarray  # (K, Rm, n) ∂F/∂x
+    usable: np.ndarray  # (K, R, n) 0/1
+
+    @property
+    def residual(self) -> np.ndarray:
+        return (self.data.frames - self.predicted) * self.usable
+
+    @property
+    def rmse_gray(self) -> float:
+        return float(np.sqrt((self.residual**2).sum() / max(self.usable.sum(), 1.0)))
+
+
+def fit_on(model: FourierModel, data: CalibrationData) -> Fit:
+    values, slope = model.predict(data.x_mm, with_derivative=True)
+    smooth = model.predict(data.x_mm, with_response=False)
+    usable = data.weights.copy()
+    if model.clip_gray is not None:
+        usable *= (data.frames > model.clip_gray[0]) & (data.frames < model.clip_gray[1])
+    values = np.broadcast_to(values, data.frames.shape)
+    if model.common_mode:
+        w = usable
+        sw = w.sum(axis=(1, 2))
+        mx = (w * values).sum(axis=(1, 2)) / sw
+        my = (w * data.frames).sum(axis=(1, 2)) / sw
+        dx = values - mx[:, None, None]
+        gain = (w * dx * (data.frames - my[:, None, None])).sum(axis=(1, 2)) / (w * dx * dx).sum(axis=(1, 2))
+        values = gain[:, None, None] * dx + my[:, None, None]
+    return Fit(model, data, np.asarray(values), smooth, slope, usable)
+
+
+@dataclass
+class Figures:
+    """Held-out figures of one model: the numbers report.json carries."""
+
+    model: str
+    rmse_gray: float
+    error_std_um: float
+    error_max_um: float
+    error_mean_um: float
+    crlb_um: float
+    error_um: np.ndarray
+    x_mm: np.ndarray
+    tracked: TrackResult
+
+    def as_dict(self, with_max: bool = True) -> dict[str, float | str]:
+        out: dict[str, float | str] = {"model": self.model, "rmse_gray": round(self.rmse_gray, 5),
+                                       "error_std_um": round(self.error_std_um, 4)}
+        if with_max:
+            out["error_max_um"] = round(self.error_max_um, 4)
+        out["error_mean_um"] = round(self.error_mean_um, 4)
+        out["crlb_um"] = round(self.crlb_um, 4)
+        return out
+
+
+def figures(model: FourierModel, data: CalibrationData, fit: Fit | None = None) -> Figures:
+    """Residual and tracking error of ``model`` on held-out ``data`` (tracked frame by frame)."""
+    fit = fit or fit_on(model, data)
+    tracked = track(model, data.frames, reference=data.x_mm)
+    error = tracked.error_um(data.x_mm)
+    finite = np.isfinite(error)
+    lost = int((~finite).sum())
+    spread = float(np.std(error[finite])) if finite.any() else float("inf")
+    worst = float(np.max(np.abs(error[finite]))) if finite.any() else float("inf")
+    if lost:  # a frame the tracker could not place counts as the worst error there is
+        worst = float("inf")
+    return Figures(model.describe(), fit.rmse_gray, spread, worst, float(np.mean(error[finite])) if finite.any() else 0.0,
+                   float(np.nanmedian(tracked.crlb_mm) * 1e3), error, data.x_mm, tracked)

@@ -1,0 +1,170 @@
+"""The closed loop: fit the seed paper's model, probe its held-out residual, add the effect the
+strongest structure points to, keep it only if held-out figures improve beyond chance, repeat.
+
+Nothing here knows which effects a recording contains: the probes look along every axis where
+a physical effect can live, and an effect stays only when frames the fit never saw agree. The
+geometry (τ_w, α·d) is fitted once, with the seed paper's model, and then held: later terms
+could trade against it without improving anything.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+from graytrack.core.calibration import KIND_SPECS, CalibrationData, ModelSpec, calibration_data, fit_spec, initial_geometry
+from graytrack.core.diagnosis.effects import EFFECTS
+from graytrack.core.diagnosis.evidence import Evidence, all_evidence, clipping_evidence
+from graytrack.core.diagnosis.heldout import Figures, Fit, figures, fit_on, interleaved_split
+from graytrack.core.models.fourier import FourierModel
+from graytrack.core.recording import Recording
+
+Progress = Callable[[float, str], None]
+MAX_STEPS = 8
+CANDIDATES_PER_STEP = 3
+MIN_Z = 5.0  # evidence weaker than this many noise standard deviations is noise
+NOISE_FLOOR_MARGIN = 1.1  # error std within this factor of the bound: nothing left worth chasing
+
+
+@dataclass
+class Stage:
+    """One model of the loop, fitted on the training frames and measured on the held-out ones."""
+
+    spec: ModelSpec
+    model: FourierModel
+    train: Fit
+    val: Fit
+    figures: Figures
+
+
+@dataclass
+class Step:
+    effect: str
+    evidence: Evidence
+    stage: Stage
+    accepted: bool
+    reason: str
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"effect": self.effect, "family": EFFECTS[self.effect].family, "evidence": self.evidence.text,
+                "z": round(self.evidence.z, 2), "rmse_gray": round(self.stage.figures.rmse_gray, 5),
+                "error_std_um": round(self.stage.figures.error_std_um, 4),
+                "error_max_um": round(self.stage.figures.error_max_um, 4), "model": self.stage.model.describe(),
+                "decision": self.reason}
+
+
+@dataclass
+class DiagnosisResult:
+    before: Stage
+    after: Stage
+    steps: list[Step]
+    rejected: list[Step]
+    final_model: FourierModel
+    sigma_gray: float
+    holdout: str
+    remaining: list[Evidence] = field(default_factory=list)
+
+    def report(self) -> dict[str, Any]:
+        """report.json (DESIGN.md contract, with extra keys that explain the decisions)."""
+        return {
+            "noise": {"gray": round(self.sigma_gray, 5), "crlb_um": round(self.after.figures.crlb_um, 4),
+                      "crlb_before_um": round(self.before.figures.crlb_um, 4)},
+            "before": self.before.figures.as_dict(),
+            "steps": [step.as_dict() for step in self.steps],
+            "after": self.after.figures.as_dict(),
+            "rejected": [step.as_dict() for step in self.rejected],
+            "remaining_evidence": [ev.as_dict() for ev in self.remaining[:5]],
+            "heldout": self.holdout,
+            "final_model": self.final_model.describe(),
+            "effects": {name: effect.describe() for name, effect in EFFECTS.items()},
+        }
+
+
+def _stage(spec: ModelSpec, train: CalibrationData, val: CalibrationData, geometry: tuple[float, float, float],
+           refine_geometry: bool = False) -> Stage:
+    model = fit_spec(spec, train, *geometry, refine_geometry=refine_geometry).model
+    train_fit, val_fit = fit_on(model, train), fit_on(model, val)
+    return Stage(spec, model, train_fit, val_fit, figures(model, val, val_fit))
+
+
+def _better(new: Figures, old: Figures, n_samples: int) -> tuple[bool, str]:
+    """Keep an effect only when held-out figures improve by more than their sampling noise."""
+    if not np.isfinite(new.error_max_um) and np.isfinite(old.error_max_um):
+        return False, "rejected: the tracker lost frames it held before"
+    residual_gain = 1.0 - (new.rmse_gray / old.rmse_gray) ** 2
+    error_gain = 1.0 - (new.error_std_um / old.error_std_um) ** 2
+    chance = 4.0 * np.sqrt(2.0 / n_samples)
+    figures_text = (f"held-out rmse {old.rmse_gray:.3f} → {new.rmse_gray:.3f} gray, "
+                    f"error std {old.error_std_um:.3f} → {new.error_std_um:.3f} µm")
+    if residual_gain > chance and new.error_std_um <= 1.03 * old.error_std_um:
+        return True, "kept: " + figures_text
+    if error_gain > 0.10 and new.rmse_gray <= 1.01 * old.rmse_gray:
+        return True, "kept: " + figures_text
+    return False, "rejected: " + figures_text
+
+
+def _at_noise_floor(stage: Stage) -> bool:
+    sigma2 = stage.val.data.sigma_gray**2
+    n = float(stage.val.usable.sum())
+    residual_ok = stage.figures.rmse_gray**2 <= sigma2 * (1.0 + 4.0 * np.sqrt(2.0 / n))
+    return residual_ok and stage.figures.error_std_um <= NOISE_FLOOR_MARGIN * stage.figures.crlb_um
+
+
+def _candidates(stage: Stage) -> list[tuple[Evidence, Any]]:
+    found: list[tuple[Evidence, Any]] = []
+    clip = clipping_evidence(stage.train, stage.val)
+    if clip is not None:
+        found.append(clip)
+    found += [(ev, None) for ev in all_evidence(stage.train, stage.val) if ev.z > MIN_Z]
+    return found
+
+
+def diagnose(calibration: Recording, validation: Recording | None = None, progress: Progress | None = None,
+             max_steps: int = MAX_STEPS) -> DiagnosisResult:
+    """Run the closed loop on a calibration recording (and an optional validation recording)."""
+    say = progress or (lambda fraction, label: None)
+    data = calibration_data(calibration)
+    if validation is not None:
+        train, val = data, calibration_data(validation)
+        holdout = f"validation recording ({len(val.x_mm)} frames)"
+    else:
+        train, val = interleaved_split(data)
+        holdout = f"{len(val.x_mm)} of {len(data.x_mm)} frames, interleaved blocks the fit did not see"
+    geometry = initial_geometry(train)
+    say(0.02, "fitting the seed paper's model")
+    current = before = _stage(KIND_SPECS["paper"], train, val, geometry, refine_geometry=True)
+    steps: list[Step] = []
+    rejected: list[Step] = []
+    for step_index in range(max_steps):
+        if _at_noise_floor(current):
+            break
+        say(0.05 + 0.85 * step_index / max_steps, f"step {step_index + 1}: probing the residual")
+        accepted = None
+        for evidence, argument in _candidates(current)[:CANDIDATES_PER_STEP]:
+            spec = EFFECTS[evidence.effect].grow(current.spec, argument)
+            if spec is None:
+                continue
+            say(0.05 + 0.85 * (step_index + 0.5) / max_steps, f"step {step_index + 1}: trying {evidence.effect}")
+            m = current.model
+            trial = _stage(spec, train, val, (m.period_mm, m.pixel_pitch_mm, m.row_shift_mm or geometry[2]))
+            keep, reason = _better(trial.figures, current.figures, int(current.val.usable.sum()))
+            record = Step(evidence.effect, evidence, trial, keep, reason)
+            if keep:
+                accepted = record
+                break
+            rejected.append(record)
+        if accepted is None:
+            break
+        steps.append(accepted)
+        current = accepted.stage
+    say(0.92, "refitting the final structure on all calibration frames")
+    final_model = current.model
+    if validation is None:
+        m = current.model
+        final_model = fit_spec(current.spec, data, m.period_mm, m.pixel_pitch_mm, m.row_shift_mm or geometry[2],
+                               refine_geometry=False).model
+    remaining = [ev for ev in all_evidence(current.train, current.val) if ev.z > MIN_Z]
+    say(1.0, f"{len(steps)} effect(s) added")
+    return DiagnosisResult(before, current, steps, rejected, final_model, val.sigma_gray, holdout, remaining)

@@ -1,0 +1,40 @@
+"""``graytrack diagnose CAL.npz [--validate VAL.npz] --out DIR``: the closed loop."""
+
+from __future__ import annotations
+
+import argparse
+
+from graytrack.core.diagnosis import diagnose
+from graytrack.core.recording import load
+from graytrack.service.progress import ProgressBar
+from graytrack.service.report import write_report
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "diagnose", help="closed loop: find what the model misses, add it, report held-out error before and after")
+    parser.add_argument("recording", help="calibration recording (.npz) with a grating reference")
+    parser.add_argument("--validate", help="separate validation recording of the same rig (default: held-out blocks)")
+    parser.add_argument("--out", required=True, help="folder for report.json, report.html and model.json")
+    parser.set_defaults(func=run)
+
+
+def summary_lines(report: dict) -> list[str]:
+    before, after, noise = report["before"], report["after"], report["noise"]
+    lines = [f"before  {before['model']}: rmse {before['rmse_gray']:.4f} gray, error std {before['error_std_um']:.3f} um"]
+    for step in report["steps"]:
+        lines.append(f"  + {step['effect']:<16} {step['evidence']}")
+        lines.append(f"    {'':<16} rmse {step['rmse_gray']:.4f} gray, error std {step['error_std_um']:.3f} um")
+    lines.append(f"after   {after['model']}: rmse {after['rmse_gray']:.4f} gray, error std {after['error_std_um']:.3f} um")
+    lines.append(f"noise   sigma {noise['gray']:.4f} gray, Cramer-Rao bound {noise['crlb_um']:.3f} um")
+    return lines
+
+
+def run(args: argparse.Namespace) -> int:
+    calibration = load(args.recording)
+    validation = load(args.validate) if args.validate else None
+    result = diagnose(calibration, validation, progress=ProgressBar("diagnose"))
+    paths = write_report(result, args.out)
+    print("\n".join(summary_lines(result.report())))
+    print(f"wrote   {paths['json']}, {paths['html']}, {paths['model']}")
+    return 0
