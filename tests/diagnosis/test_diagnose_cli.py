@@ -1,0 +1,40 @@
+"""``graytrack diagnose`` writes the report contract, an HTML report with plots, and a model that tracks."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from graytrack.service.cli import main
+
+
+def test_diagnose_writes_contract_files(tmp_path, capsys):
+    rec = tmp_path / "cal.npz"
+    assert main(["simulate", "--scenario", "paper", "--effects", "gradient", "--seconds", "16", "--seed", "2",
+                 "--out", str(rec)]) == 0
+    assert main(["diagnose", str(rec), "--out", str(tmp_path / "diag")]) == 0
+    out = capsys.readouterr().out
+    assert "before" in out and "after" in out and "stroke" in out
+    report = json.loads((tmp_path / "diag" / "report.json").read_text())
+    assert set(report["noise"]) >= {"gray", "crlb_um"}
+    for key in ("before", "after"):
+        assert set(report[key]) >= {"model", "rmse_gray", "error_std_um", "error_max_um"}
+    assert report["steps"] and set(report["steps"][0]) >= {"effect", "evidence", "rmse_gray", "error_std_um"}
+    page = (tmp_path / "diag" / "report.html").read_text()
+    assert page.count("data:image/png;base64,") == 3 and "noise floor" in page
+    val = tmp_path / "val.npz"
+    assert main(["simulate", "--scenario", "paper", "--effects", "gradient", "--seconds", "6", "--seed", "2",
+                 "--out", str(val)]) == 0
+    assert main(["track", str(val), "--model", str(tmp_path / "diag" / "model.json"), "--out", str(tmp_path / "t.csv")]) == 0
+    table = np.loadtxt(tmp_path / "t.csv", delimiter=",", skiprows=1)
+    assert np.nanstd(table[:, 6]) < 1.3 * report["noise"]["crlb_um"] * 1.2
+
+
+def test_calibrate_auto_saves_the_loops_model(tmp_path):
+    rec = tmp_path / "cal.npz"
+    assert main(["simulate", "--scenario", "paper", "--effects", "prnu:sigma=0.02", "--seconds", "12",
+                 "--out", str(rec)]) == 0
+    assert main(["calibrate", str(rec), "--model", "auto", "--out", str(tmp_path / "m.json")]) == 0
+    model = json.loads((tmp_path / "m.json").read_text())["model"]
+    assert model["pixel_gain"] is not None
