@@ -24,8 +24,9 @@ $(STAMP): pyproject.toml setup.py | $(BIN)/python
 
 install: $(STAMP)
 
+# Until the daemon lands, `make run` runs the main job offline on the virtual rig (DESIGN.md).
 run: $(STAMP)
-	$(BIN)/python -m graytrack run --host $(HOST) --port $(PORT)
+	$(BIN)/python -m graytrack demo --out out/demo
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -n $(PYTEST_WORKERS) $(PYTEST_ARGS)
