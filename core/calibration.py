@@ -13,8 +13,10 @@ from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Literal
 
 import numpy as np
+from scipy.linalg import solveh_banded
 from scipy.optimize import minimize_scalar
 
+from graytrack.core.basis import legendre_basis, scaled, trig_basis
 from graytrack.core.errors import CalibrationError
 from graytrack.core.linear_fit import LinearSystem, fit_coefficients, geometry_sensitivities, project_columns
 from graytrack.core.models.fourier import TWO_PI, FourierModel
@@ -230,6 +232,7 @@ class ModelSpec:
     flat_field: bool = False
     common_mode: bool = False
     clip_gray: tuple[float, float] | None = None
+    target_map: bool = False
     name: str = "paper"
 
     def with_changes(self, **changes) -> "ModelSpec":
@@ -264,6 +267,42 @@ def _rough_part(values: np.ndarray, basis: np.ndarray) -> np.ndarray:
     return values - (basis @ coef).T
 
 
+TARGET_MAP_STEPS_PER_PIXEL = 2
+TARGET_MAP_RIDGE = 1e-3
+
+
+def fit_target_map(model: FourierModel, x_mm: np.ndarray, lit: np.ndarray, smooth: np.ndarray,
+                   weights: np.ndarray) -> dict[str, Any]:
+    """Relative reflectance m(x_w) on a grid along the target, from lit ≈ S·(1 + m(x_w)).
+
+    Piecewise-linear (hat) basis: the normal matrix is tridiagonal, accumulated with bincount and
+    solved banded. What the Fourier × polynomial part can already say (anything periodic or smooth
+    along the target) is projected out, so the map holds only local defects.
+    """
+    step = model.pixel_pitch_mm / TARGET_MAP_STEPS_PER_PIXEL
+    x_w = model.target_coordinate(x_mm)
+    origin = float(x_w.min()) - step
+    size = int(np.ceil((float(x_w.max()) + step - origin) / step)) + 1
+    position = (x_w - origin) / step
+    cell = np.floor(position).astype(np.int64).reshape(-1)
+    frac = (position.reshape(-1) - cell)
+    signal, w = smooth.reshape(-1), np.broadcast_to(weights, smooth.shape).reshape(-1)
+    target = (lit - smooth).reshape(-1)
+    left, right = signal * (1.0 - frac), signal * frac
+    diag = np.bincount(cell, w * left * left, size) + np.bincount(cell + 1, w * right * right, size)
+    off = np.bincount(cell, w * left * right, size)[:-1]
+    rhs = np.bincount(cell, w * left * target, size) + np.bincount(cell + 1, w * right * target, size)
+    ridge = TARGET_MAP_RIDGE * max(float(diag.mean()), 1e-300)
+    banded = np.zeros((2, size))
+    banded[0, 1:], banded[1] = off, diag + ridge
+    values = solveh_banded(banded, rhs)
+    grid = origin + step * np.arange(size)
+    along = legendre_basis(scaled(grid, grid[0], grid[-1]), 4)[:, :, None]
+    smooth_part = (along * trig_basis(TWO_PI * grid / model.period_mm, model.harmonics)[:, None, :]).reshape(size, -1)
+    coef, *_ = np.linalg.lstsq(smooth_part, values, rcond=None)
+    return {"target_map": values - smooth_part @ coef, "target_map_origin_mm": origin, "target_map_step_mm": step}
+
+
 def fit_spec(spec: ModelSpec, data: CalibrationData, period_mm: float, pitch_mm: float, row_shift_mm: float = 0.0,
              progress: Progress | None = None, refine_geometry: bool = True) -> Calibration:
     """Calibrate a model of structure ``spec``; geometry starts from the given values.
@@ -281,31 +320,40 @@ def fit_spec(spec: ModelSpec, data: CalibrationData, period_mm: float, pitch_mm:
         weights = weights * ((raw > lo) & (raw < hi))
     names = (("period_mm", "pixel_pitch_mm") if refine_geometry else ()) + (
         ("row_shift_mm",) if template.n_rows > 1 else ())
-    bilinear = spec.flat_field or spec.common_mode
+    bilinear = spec.flat_field or spec.common_mode or spec.target_map
     frame_gain, frame_offset = np.ones(raw.shape[0]), np.zeros(raw.shape[0])
     pixel_gain, pixel_offset = np.ones(raw.shape[1:]), np.zeros(raw.shape[1:])
+    map_factor: np.ndarray | float = 1.0
+    target_map = None
     model, iterations, history = template, 0, []
     for round_index in range(ALTERNATION_ROUNDS if bilinear else 1):
         per_frame = (raw - frame_offset[:, None, None]) / frame_gain[:, None, None]
-        smooth_target = (per_frame - pixel_offset) / pixel_gain
+        lit = (per_frame - pixel_offset) / pixel_gain  # the light on the target, seen through the smooth model
         if round_index == 0 and names:
-            model, iterations, history = fit_geometry(model, data.x_mm, smooth_target, weights, names, progress=progress)
+            model, iterations, history = fit_geometry(model, data.x_mm, lit / map_factor, weights, names,
+                                                      progress=progress)
         else:
-            model, _ = fit_coefficients(model, data.x_mm, smooth_target, weights)
+            model, _ = fit_coefficients(model, data.x_mm, lit / map_factor, weights)
         smooth = model.predict(data.x_mm, with_response=False)
+        if spec.target_map:
+            target_map = fit_target_map(model, data.x_mm, lit, smooth, weights)
+            map_factor = model.with_changes(coeffs=model.coeffs, **target_map).target_factor(data.x_mm)[0]
+        shaded = smooth * map_factor
         if spec.flat_field:
-            gain, offset = _weighted_affine(per_frame, smooth, weights, axis=(0,))
+            gain, offset = _weighted_affine(per_frame, shaded, weights, axis=(0,))
             basis = model.pixel_basis()
             pixel_gain = 1.0 + _rough_part(gain - 1.0, basis)
             pixel_offset = _rough_part(offset, basis)
         if spec.common_mode:
-            frame_gain, frame_offset = _weighted_affine(raw, pixel_gain * smooth + pixel_offset, weights, axis=(1, 2))
+            frame_gain, frame_offset = _weighted_affine(raw, pixel_gain * shaded + pixel_offset, weights, axis=(1, 2))
             frame_offset = frame_offset - frame_offset.mean()
             frame_gain = frame_gain / frame_gain.mean()
         if progress and bilinear:
             progress(0.5 + 0.5 * (round_index + 1) / ALTERNATION_ROUNDS, f"alternation round {round_index + 1}")
     if spec.flat_field:
         model = model.with_changes(pixel_gain=pixel_gain, pixel_offset=pixel_offset, coeffs=model.coeffs)
+    if target_map is not None:
+        model = model.with_changes(coeffs=model.coeffs, **target_map)
     fitted = frame_gain[:, None, None] * model.predict(data.x_mm) + frame_offset[:, None, None]
     usable = data.weights.copy()
     if spec.clip_gray is not None:

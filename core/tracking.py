@@ -117,7 +117,8 @@ class GeneralBatch:
     def __init__(self, model: FourierModel, prepared: np.ndarray, max_iterations: int, tolerance_mm: float):
         self.model = model
         self.frames = prepared.reshape(prepared.shape[0], -1)
-        evaluator = FastHarmonics(model) if model.stroke_degree == 0 else GeneralHarmonics(model)
+        periodic = model.stroke_degree == 0 and model.target_map is None
+        evaluator = FastHarmonics(model) if periodic else GeneralHarmonics(model)
         self.evaluator = evaluator if model.clip_gray is None else ClippedHarmonics(evaluator, model)
         self.max_iterations, self.tolerance_mm = max_iterations, tolerance_mm
         self.max_step_mm = model.period_mm / 4.0
@@ -265,7 +266,9 @@ class Tracker:
 
     def batch(self, prepared: np.ndarray) -> GeneralBatch | TrigPolyBatch:
         """Frames ``(K, R, n)`` in the model's row layout, reduced for solving."""
-        fast = self.model.stroke_degree == 0 and not self.model.common_mode and self.model.clip_gray is None
+        model = self.model
+        fast = (model.stroke_degree == 0 and not model.common_mode and model.clip_gray is None
+                and model.target_map is None)
         kind = TrigPolyBatch if fast else GeneralBatch
         return kind(self.model, prepared, self.max_iterations, self.tolerance_mm)
 

@@ -75,6 +75,10 @@ EFFECTS: dict[str, Effect] = {
         Effect("rows", "rows of the strip that disagree (camera tilt against the axis, row shading)",
                "one model per row: a target shift per row and row-dependent coefficients",
                "row shift inside the variable projection, row polynomials linear", _once("per_row")),
+        Effect("target_map", "local defects fixed to the target (dust, scratches, print flaws)",
+               "a relative reflectance map on a half-pixel grid along the target (its smooth and periodic part "
+               "left to the Fourier terms)", "tridiagonal least squares, alternating with the smooth part; "
+               "tracking uses its slope too", _once("target_map")),
         Effect("clipping", "sensor saturation or a black clip", "the clip limits: clipped samples carry no position",
                "clipped samples get zero weight in calibration and zero slope in tracking", _clip),
     )

@@ -18,6 +18,7 @@ from typing import Callable
 import numpy as np
 
 from graytrack.core.basis import legendre_basis, scaled, trig_basis
+from graytrack.core.calibration import fit_target_map
 from graytrack.core.diagnosis.heldout import Fit
 
 
@@ -207,6 +208,25 @@ def row_evidence(train: Fit, val: Fit) -> Evidence | None:
                     f"{100 * explained / excess:.0f}% of the held-out residual above noise")
 
 
+def target_map_evidence(train: Fit, val: Fit) -> Evidence | None:
+    """Local defects fixed to the target (dust, scratches): a fine map along the target coordinate,
+    learnt from training frames, predicts the held-out residual wherever the same spot is seen."""
+    if train.model.target_map is not None:
+        return None
+    (res_t, use_t, _), (res_v, use_v, factor) = _model_rows(train), _model_rows(val)
+    found = fit_target_map(train.model, train.data.x_mm, train.smooth + res_t, train.smooth, use_t)
+    mapped = train.model.with_changes(coeffs=train.model.coeffs, **found)
+    predicted = val.smooth * (mapped.target_factor(val.data.x_mm)[0] - 1.0) * use_v
+    explained = factor * float((res_v**2).sum() - ((res_v - predicted) ** 2).sum())
+    sigma2 = val.data.sigma_gray**2
+    excess = _excess(train, val)
+    deepest = float(np.abs(found["target_map"]).max()) * 100
+    return Evidence("target_map", "target coordinate (local)", explained,
+                    explained / sigma2 / np.sqrt(2.0 * found["target_map"].size), explained / excess,
+                    f"spots fixed to the target (deepest {deepest:.1f}% of the light) explain "
+                    f"{100 * explained / excess:.0f}% of the held-out residual above noise")
+
+
 def clipping_evidence(train: Fit, val: Fit) -> tuple[Evidence, tuple[float, float]] | None:
     """Samples piled up at the top or bottom of the gray range: a clipped sensor."""
     if train.model.clip_gray is not None:
@@ -229,7 +249,8 @@ def clipping_evidence(train: Fit, val: Fit) -> tuple[Evidence, tuple[float, floa
 def all_evidence(train: Fit, val: Fit) -> list[Evidence]:
     """Every probe's verdict, strongest first."""
     found = cross_validated_evidence(train, val) + [flat_field_evidence(train, val), common_mode_evidence(train, val)]
-    rows = row_evidence(train, val)
-    if rows is not None:
-        found.append(rows)
+    for probe in (row_evidence, target_map_evidence):
+        evidence = probe(train, val)
+        if evidence is not None:
+            found.append(evidence)
     return sorted(found, key=lambda ev: ev.explained_gray2, reverse=True)

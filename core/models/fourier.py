@@ -16,7 +16,9 @@ term is something the closed loop may add when the data ask for it:
   ``row_degree`` for row-dependent shading;
 - ``pixel_gain`` / ``pixel_offset``: a flat field (PRNU/DSNU), rough from pixel to pixel;
 - ``common_mode``: a gain and offset per frame (flicker, exposure drift), solved with x;
-- ``clip_gray``: the sensor's floor and ceiling; a clipped pixel says nothing about x.
+- ``clip_gray``: the sensor's floor and ceiling; a clipped pixel says nothing about x;
+- ``target_map``: a relative reflectance change fixed to the target, on a fine grid along it
+  (dust, scratches, print defects): S·(1 + m(x_w)), neither periodic nor smooth.
 
 The model is linear in C given (τ, p, q): calibration exploits that (variable projection).
 """
@@ -54,6 +56,9 @@ class FourierModel:
     pixel_offset: np.ndarray | None = None
     common_mode: bool = False
     clip_gray: tuple[float, float] | None = None
+    target_map: np.ndarray | None = None
+    target_map_origin_mm: float = 0.0
+    target_map_step_mm: float = 0.0
     noise_gray: float | None = None
     name: str = "paper"
     info: dict[str, Any] = field(default_factory=dict)
@@ -73,6 +78,10 @@ class FourierModel:
             self.coeffs = np.asarray(self.coeffs, dtype=np.float64)
             if self.coeffs.shape != self.coeff_shape:
                 raise ModelError(f"coefficients have shape {self.coeffs.shape}, the model needs {self.coeff_shape}")
+        if self.target_map is not None:
+            self.target_map = np.asarray(self.target_map, dtype=np.float64).reshape(-1)
+            if self.target_map.size < 2 or not self.target_map_step_mm > 0:
+                raise ModelError("target_map needs at least 2 values and a positive step")
         for label in ("pixel_gain", "pixel_offset"):
             value = getattr(self, label)
             if value is not None:
@@ -172,16 +181,35 @@ class FourierModel:
         stroke, dstroke = self.stroke_basis(x_mm)  # (K, L+1)
         weights = np.einsum("rual,kl->krua", self.spatial_weights(), stroke)
         gain, offset = self.response() if with_response else (1.0, 0.0)
-        values = np.einsum("krua,krua->kru", trig, weights) * gain + offset
+        smooth = np.einsum("krua,krua->kru", trig, weights)
+        use_map = with_response and self.target_map is not None
+        factor, dfactor = self.target_factor(x_mm) if use_map else (1.0, 0.0)
+        values = smooth * factor * gain + offset
         if not with_derivative:
             return self.clip(values) if with_response else values
         dtrig = trig_derivative(trig, self.harmonics) * (TWO_PI / self.period_mm)
         slope = np.einsum("krua,krua->kru", dtrig, weights)
         if self.stroke_degree:
             slope += np.einsum("krua,rual,kl->kru", trig, self.spatial_weights(), dstroke)
+        if use_map:
+            slope = slope * factor + smooth * dfactor
         if with_response and self.clip_gray is not None:
             return self.clip_with_slope(values, slope * gain)
         return values, slope * gain
+
+    def target_coordinate(self, x_mm: np.ndarray) -> np.ndarray:
+        """``(K, R, n)``: where on the target each pixel looks at frame positions ``x_mm``."""
+        return np.asarray(x_mm, dtype=np.float64).reshape(-1)[:, None, None] + self.target_offset()[None]
+
+    def target_factor(self, x_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """1 + m(x_w) and its derivative along x (piecewise linear; 1 outside the mapped range)."""
+        grid = self.target_map_origin_mm + self.target_map_step_mm * np.arange(self.target_map.size)
+        x_w = self.target_coordinate(x_mm)
+        factor = 1.0 + np.interp(x_w, grid, self.target_map, left=0.0, right=0.0)
+        slopes = np.diff(self.target_map) / self.target_map_step_mm
+        cell = np.floor((x_w - grid[0]) / self.target_map_step_mm).astype(np.int64)
+        inside = (cell >= 0) & (cell < slopes.size)
+        return factor, np.where(inside, slopes[np.clip(cell, 0, slopes.size - 1)], 0.0)
 
     def clip(self, values: np.ndarray) -> np.ndarray:
         return values if self.clip_gray is None else np.clip(values, *self.clip_gray)
@@ -228,6 +256,8 @@ class FourierModel:
             parts.append("flat field")
         if self.common_mode:
             parts.append("per-frame gain/offset")
+        if self.target_map is not None:
+            parts.append(f"target map {self.target_map.size} × {self.target_map_step_mm * 1e3:.0f} µm")
         if self.clip_gray is not None:
             parts.append(f"clipped at {self.clip_gray[0]:g}..{self.clip_gray[1]:g}")
         return f"{self.name} ({', '.join(parts)}; τ={self.period_mm:.4f} mm, α·d={self.pixel_pitch_mm:.5f} mm)"

@@ -17,8 +17,9 @@ SCHEMA = "graytrack.model"
 SCHEMA_VERSION = 1
 
 _SCALAR_FIELDS = ("period_mm", "pixel_pitch_mm", "n_pixels", "harmonics", "pixel_degree", "stroke_degree",
-                  "n_rows", "row_degree", "row_shift_mm", "common_mode", "noise_gray", "name")
-_ARRAY_FIELDS = ("coeffs", "pixel_gain", "pixel_offset")
+                  "n_rows", "row_degree", "row_shift_mm", "common_mode", "noise_gray", "name",
+                  "target_map_origin_mm", "target_map_step_mm")
+_ARRAY_FIELDS = ("coeffs", "pixel_gain", "pixel_offset", "target_map")
 
 
 def model_to_dict(model: FourierModel) -> dict[str, Any]:
