@@ -20,6 +20,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from graytrack.core.diagnosis.loop import DiagnosisResult, Stage  # noqa: E402
+from graytrack.core.files import write_atomic  # noqa: E402
 from graytrack.core.models import save_model  # noqa: E402
 
 
@@ -122,13 +123,6 @@ def write_report(result: DiagnosisResult, folder: str | os.PathLike[str]) -> dic
     report = result.report()
     paths = {"json": folder / "report.json", "html": folder / "report.html", "model": folder / "model.json"}
     save_model(result.final_model, paths["model"])
-    for key, text in (("json", json.dumps(report, indent=1, allow_nan=False, default=_finite)),
-                      ("html", render_html(result, report))):
-        tmp = paths[key].with_name(f".{paths[key].name}.tmp")
-        tmp.write_text(text)
-        os.replace(tmp, paths[key])
+    write_atomic(paths["json"], json.dumps(report, indent=1, allow_nan=False, default=float))
+    write_atomic(paths["html"], render_html(result, report))
     return paths
-
-
-def _finite(value):
-    return float(value)

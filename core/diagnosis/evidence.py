@@ -32,7 +32,7 @@ class Evidence:
     text: str
 
     def as_dict(self) -> dict[str, float | str]:
-        return {"effect": self.effect, "axis": self.axis, "z": round(self.z, 2), "share": round(self.share, 4),
+        return {"effect": self.effect, "axis": self.axis, "z": round(float(self.z), 2), "share": round(float(self.share), 4),
                 "text": self.text}
 
 

@@ -82,14 +82,15 @@ class Figures:
     x_mm: np.ndarray
     tracked: TrackResult
 
-    def as_dict(self, with_max: bool = True) -> dict[str, float | str]:
-        out: dict[str, float | str] = {"model": self.model, "rmse_gray": round(self.rmse_gray, 5),
-                                       "error_std_um": round(self.error_std_um, 4)}
-        if with_max:
-            out["error_max_um"] = round(self.error_max_um, 4)
-        out["error_mean_um"] = round(self.error_mean_um, 4)
-        out["crlb_um"] = round(self.crlb_um, 4)
-        return out
+    def as_dict(self) -> dict[str, float | str | int | None]:
+        """JSON-safe figures; a figure that does not exist (frames the tracker lost) is null."""
+        def number(value: float, digits: int) -> float | None:
+            return round(float(value), digits) if np.isfinite(value) else None
+
+        return {"model": self.model, "rmse_gray": number(self.rmse_gray, 5),
+                "error_std_um": number(self.error_std_um, 4), "error_max_um": number(self.error_max_um, 4),
+                "error_mean_um": number(self.error_mean_um, 4), "crlb_um": number(self.crlb_um, 4),
+                "lost_frames": int((~np.isfinite(self.error_um)).sum())}
 
 
 def figures(model: FourierModel, data: CalibrationData, fit: Fit | None = None) -> Figures:

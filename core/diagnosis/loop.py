@@ -48,11 +48,11 @@ class Step:
     reason: str
 
     def as_dict(self) -> dict[str, Any]:
+        figures = self.stage.figures.as_dict()
         return {"effect": self.effect, "family": EFFECTS[self.effect].family, "evidence": self.evidence.text,
-                "z": round(self.evidence.z, 2), "rmse_gray": round(self.stage.figures.rmse_gray, 5),
-                "error_std_um": round(self.stage.figures.error_std_um, 4),
-                "error_max_um": round(self.stage.figures.error_max_um, 4), "model": self.stage.model.describe(),
-                "decision": self.reason}
+                "z": round(float(self.evidence.z), 2), **{key: figures[key] for key in
+                                                          ("rmse_gray", "error_std_um", "error_max_um", "lost_frames")},
+                "model": figures["model"], "decision": self.reason}
 
 
 @dataclass
@@ -69,8 +69,8 @@ class DiagnosisResult:
     def report(self) -> dict[str, Any]:
         """report.json (DESIGN.md contract, with extra keys that explain the decisions)."""
         return {
-            "noise": {"gray": round(self.sigma_gray, 5), "crlb_um": round(self.after.figures.crlb_um, 4),
-                      "crlb_before_um": round(self.before.figures.crlb_um, 4)},
+            "noise": {"gray": round(float(self.sigma_gray), 5), "crlb_um": self.after.figures.as_dict()["crlb_um"],
+                      "crlb_before_um": self.before.figures.as_dict()["crlb_um"]},
             "before": self.before.figures.as_dict(),
             "steps": [step.as_dict() for step in self.steps],
             "after": self.after.figures.as_dict(),

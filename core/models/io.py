@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from graytrack.core.errors import ModelError
+from graytrack.core.files import write_atomic
 from graytrack.core.models.fourier import FourierModel
 
 SCHEMA = "graytrack.model"
@@ -73,12 +74,7 @@ def _array(entry: Any, key: str) -> np.ndarray | None:
 
 
 def save_model(model: FourierModel, path: str | os.PathLike[str]) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(model_to_dict(model), indent=1))
-    os.replace(tmp, path)
-    return path
+    return write_atomic(path, json.dumps(model_to_dict(model), indent=1))
 
 
 def load_model(path: str | os.PathLike[str]) -> FourierModel:

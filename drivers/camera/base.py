@@ -17,9 +17,10 @@ import abc
 import threading
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from types import TracebackType
 
 import numpy as np
+
+from graytrack.drivers.device import Device
 
 
 class CameraError(Exception):
@@ -100,7 +101,7 @@ class CameraSettings:
     roi: Roi = field(default_factory=Roi)
 
 
-class Camera(abc.ABC):
+class Camera(Device):
     """Open, optionally change settings, then ``read`` or iterate ``frames``; close."""
 
     def __init__(self, settings: CameraSettings | None = None) -> None:
@@ -124,14 +125,6 @@ class Camera(abc.ABC):
     def is_open(self) -> bool:
         return self._open
 
-    def __enter__(self) -> "Camera":
-        self.open()
-        return self
-
-    def __exit__(
-        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
-    ) -> None:
-        self.close()
 
     # -- settings --------------------------------------------------------------------------
     def set_exposure(self, exposure_us: float) -> None:

@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import abc
 from dataclasses import dataclass
-from types import TracebackType
+
+from graytrack.drivers.device import Device
 
 
 @dataclass(frozen=True)
@@ -21,7 +22,7 @@ class PositionReading:
     latency_s: float
 
 
-class Stage(abc.ABC):
+class Stage(Device):
     """A single closed-loop linear axis. Moves are absolute in mm unless named otherwise."""
 
     @abc.abstractmethod
@@ -55,11 +56,3 @@ class Stage(abc.ABC):
     def limits(self) -> tuple[float, float]:
         """The range moves are allowed in: soft limits intersected with the controller's travel."""
 
-    def __enter__(self) -> "Stage":
-        self.open()
-        return self
-
-    def __exit__(
-        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
-    ) -> None:
-        self.close()
