@@ -297,7 +297,7 @@ def fit_target_map(model: FourierModel, x_mm: np.ndarray, lit: np.ndarray, smoot
     banded[0, 1:], banded[1] = off, diag + ridge
     values = solveh_banded(banded, rhs)
     grid = origin + step * np.arange(size)
-    along = legendre_basis(scaled(grid, grid[0], grid[-1]), 4)[:, :, None]
+    along = legendre_basis(scaled(grid, grid[0], grid[-1]), 0)[:, :, None]
     smooth_part = (along * trig_basis(TWO_PI * grid / model.period_mm, model.harmonics)[:, None, :]).reshape(size, -1)
     coef, *_ = np.linalg.lstsq(smooth_part, values, rcond=None)
     return {"target_map": values - smooth_part @ coef, "target_map_origin_mm": origin, "target_map_step_mm": step}
@@ -376,6 +376,22 @@ def rows_disagree(model: FourierModel, data: CalibrationData) -> bool:
     expected = data.sigma_gray**2 * (1.0 - 1.0 / n_rows)
     excess = float((spread**2).sum() / data.weights.sum()) / expected - 1.0
     return excess > ROW_DISAGREEMENT_EXCESS
+
+
+def fit_spec_pitch_search(spec: ModelSpec, data: CalibrationData, period_mm: float, pitch_mm: float,
+                          row_shift_mm: float = 0.0, span: float = 0.08) -> Calibration:
+    """:func:`fit_spec` with α·d searched over ±``span`` (relative) for the lowest residual.
+
+    A target map pins features to the target coordinate x + α·d·u, so it needs α·d to a fraction
+    of a defect's width across the line, far better than the smooth model alone determines it
+    (which lets the pixel polynomials absorb a pitch error, or lets the defects bias it).
+    """
+    def cost(pitch: float) -> float:
+        return fit_spec(spec, data, period_mm, pitch, row_shift_mm, refine_geometry=False).rmse_gray
+
+    best = minimize_scalar(cost, bounds=(pitch_mm * (1 - span), pitch_mm * (1 + span)), method="bounded",
+                           options={"xatol": pitch_mm * 2e-4})
+    return fit_spec(spec, data, period_mm, float(best.x), row_shift_mm, refine_geometry=False)
 
 
 KIND_SPECS = {

@@ -14,7 +14,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from graytrack.core.calibration import KIND_SPECS, CalibrationData, ModelSpec, calibration_data, fit_spec, initial_geometry
+from graytrack.core.calibration import (KIND_SPECS, CalibrationData, ModelSpec, calibration_data, fit_spec,
+                                         fit_spec_pitch_search, initial_geometry)
 from graytrack.core.diagnosis.effects import EFFECTS
 from graytrack.core.diagnosis.evidence import Evidence, all_evidence, clipping_evidence
 from graytrack.core.diagnosis.heldout import Figures, Fit, figures, fit_on, interleaved_split
@@ -83,8 +84,11 @@ class DiagnosisResult:
 
 
 def _stage(spec: ModelSpec, train: CalibrationData, val: CalibrationData, geometry: tuple[float, float, float],
-           refine_geometry: bool = False) -> Stage:
-    model = fit_spec(spec, train, *geometry, refine_geometry=refine_geometry).model
+           refine_geometry: bool = False, search_pitch: bool = False) -> Stage:
+    if search_pitch:
+        model = fit_spec_pitch_search(spec, train, *geometry).model
+    else:
+        model = fit_spec(spec, train, *geometry, refine_geometry=refine_geometry).model
     train_fit, val_fit = fit_on(model, train), fit_on(model, val)
     return Stage(spec, model, train_fit, val_fit, figures(model, val, val_fit))
 
@@ -148,7 +152,8 @@ def diagnose(calibration: Recording, validation: Recording | None = None, progre
                 continue
             say(0.05 + 0.85 * (step_index + 0.5) / max_steps, f"step {step_index + 1}: trying {evidence.effect}")
             m = current.model
-            trial = _stage(spec, train, val, (m.period_mm, m.pixel_pitch_mm, m.row_shift_mm or geometry[2]))
+            trial = _stage(spec, train, val, (m.period_mm, m.pixel_pitch_mm, m.row_shift_mm or geometry[2]),
+                           search_pitch=spec.target_map and not current.spec.target_map)
             keep, reason = _better(trial.figures, current.figures, int(current.val.usable.sum()))
             record = Step(evidence.effect, evidence, trial, keep, reason)
             if keep:

@@ -80,3 +80,12 @@ def test_validation_recording_is_used_as_held_out():
     assert len(result.after.figures.error_um) == validation.n_frames
     assert np.isfinite(result.after.figures.error_um).all()
     assert result.report()["after"]["error_std_um"] <= 1.3 * result.report()["noise"]["crlb_um"]
+
+
+def test_dust_on_the_target_becomes_a_map_and_beats_the_plain_floor():
+    """Local defects fixed to the target: mapped along it, they even add information (a sharp edge)."""
+    report = run_loop("dust:count=6")
+    assert [step["effect"] for step in report["steps"]][:1] == ["target_map"]
+    assert report["before"]["error_std_um"] > 4.0 * report["noise"]["crlb_before_um"]
+    assert report["after"]["rmse_gray"] < 1.05 * report["noise"]["gray"]
+    assert report["after"]["error_std_um"] < report["noise"]["crlb_before_um"]
