@@ -14,6 +14,10 @@ from graytrack.core.errors import GraytrackError
 _MAD_TO_SIGMA = 1.4826
 # Second temporal difference y[k+1] − 2 y[k] + y[k−1] of white noise has variance 6σ².
 _SECOND_DIFF_GAIN = np.sqrt(6.0)
+# Frames whose second differences are exactly zero this often are quantised coarser than their noise.
+_QUANTISED_ZERO_FRACTION = 0.2
+# Share of a Gaussian's variance left after dropping its 1 % largest squares (|z| > 2.576).
+_GAUSS_TRIMMED_VARIANCE = 0.9155
 
 
 def estimate_sigma(frames: np.ndarray, reference: np.ndarray | None = None, period_mm: float | None = None) -> float:
@@ -23,7 +27,8 @@ def estimate_sigma(frames: np.ndarray, reference: np.ndarray | None = None, peri
     (F''·Δx²), after removing from each difference frame an affine function of the gray level:
     that takes out common-mode gain and offset changes (flicker, exposure drift), which are not
     pixel noise. Frames that moved more than 2 % of a period between neighbours are skipped when
-    the reference allows telling. A robust (MAD) scale keeps defects and outliers from counting.
+    the reference allows telling. A robust (MAD) scale keeps defects and outliers from counting,
+    except for coarsely quantised frames, where a trimmed variance takes over.
     """
     frames = np.asarray(frames, dtype=np.float64)
     if frames.ndim == 2:
@@ -47,8 +52,22 @@ def estimate_sigma(frames: np.ndarray, reference: np.ndarray | None = None, peri
     rhs = np.einsum("kpi,kp->ki", design, second)
     coef = np.linalg.solve(gram + 1e-9 * np.eye(2), rhs[..., None])[..., 0]
     cleaned = second - np.einsum("kpi,ki->kp", design, coef)
+    if np.mean(second == 0.0) > _QUANTISED_ZERO_FRACTION:
+        return _trimmed_sigma(cleaned) / _SECOND_DIFF_GAIN
     mad = np.median(np.abs(cleaned - np.median(cleaned)))
     return float(_MAD_TO_SIGMA * mad / _SECOND_DIFF_GAIN)
+
+
+def _trimmed_sigma(values: np.ndarray) -> float:
+    """Standard deviation from the mean square below the 99th percentile, rescaled for a Gaussian.
+
+    The fallback for coarsely quantised frames, whose differences take few distinct values: there
+    the median of |d| sits on a quantisation step and says little, while the variance (noise plus
+    quantisation, Δ²/12) is still well estimated.
+    """
+    squares = np.square(values - np.mean(values)).reshape(-1)
+    keep = squares <= np.percentile(squares, 99.0)
+    return float(np.sqrt(squares[keep].mean() / _GAUSS_TRIMMED_VARIANCE))
 
 
 def crlb_mm(slope: np.ndarray, sigma_gray: float, nuisance: np.ndarray | None = None) -> np.ndarray:

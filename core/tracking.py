@@ -71,33 +71,50 @@ class ClippedHarmonics:
 
 
 class FastHarmonics:
-    """F(x) and ∂F/∂x of a model whose coefficients do not depend on x, in O(M·R·n) per call.
+    """F(x) and ∂F/∂x without a single sine of a pixel array: O(L·M·R·n) per call.
 
-    Every pixel's Fourier series is folded into complex weights V_h (pixel offsets included), so
-    one evaluation is z^h (M scalars) times V: no sines or cosines of pixel arrays at all.
+    Every pixel's Fourier series is folded into complex weights V_{l,h} (pixel offsets and flat
+    field included), one set per stroke polynomial l; an evaluation is z^h (M scalars) and the
+    stroke polynomials (L scalars) times V.
     """
 
     def __init__(self, model: FourierModel):
-        weights = model.spatial_weights()[..., 0]  # (R, n, A)
+        weights = model.spatial_weights()  # (R, n, A, L)
         gain, offset = model.response()
         gain = np.broadcast_to(np.asarray(gain, dtype=np.float64), weights.shape[:2])
         harmonics = np.arange(1, model.harmonics + 1)
         shift = np.exp(1j * TWO_PI / model.period_mm * model.target_offset()[..., None] * harmonics)  # (R, n, M)
-        sin_c, cos_c = weights[..., 1::2], weights[..., 2::2]
+        sin_c, cos_c = weights[..., 1::2, :], weights[..., 2::2, :]  # (R, n, M, L)
+        folded = (cos_c - 1j * sin_c) * (shift * gain[..., None])[..., None]
+        n_values = weights.shape[0] * weights.shape[1]
+        self.model = model
         self.period_mm = model.period_mm
-        self.constant = (gain * weights[..., 0] + offset).reshape(-1)
-        self.v = ((cos_c - 1j * sin_c) * shift * gain[..., None]).reshape(-1, model.harmonics).T.copy()  # (M, P)
-        self.dv = self.v * (1j * TWO_PI / model.period_mm * harmonics)[:, None]
         self.harmonics = harmonics
+        self.offset = np.broadcast_to(np.asarray(offset, dtype=np.float64), weights.shape[:2]).reshape(-1)
+        self.constants = (gain[..., None] * weights[..., 0, :]).reshape(n_values, -1).T.copy()  # (L, P)
+        self.vs = folded.reshape(n_values, model.harmonics, -1).transpose(2, 1, 0).copy()  # (L, M, P)
+        # The stroke-independent case, as the fast tracking path reads it:
+        self.constant = self.constants[0] + self.offset
+        self.v = self.vs[0]
+        self.dv = self.v * (1j * TWO_PI / model.period_mm * harmonics)[:, None]
 
     def evaluate(self, x_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Values and slopes ``(G, P)`` at positions ``x_mm`` ``(G,)``."""
+        x_mm = np.asarray(x_mm, dtype=np.float64)
         z = np.exp(1j * TWO_PI / self.period_mm * np.outer(x_mm, self.harmonics))  # (G, M)
-        return self.constant + (z @ self.v).real, (z @ self.dv).real
+        if self.vs.shape[0] == 1:
+            return self.constant + (z @ self.v).real, (z @ self.dv).real
+        stroke, dstroke = self.model.stroke_basis(x_mm)  # (G, L)
+        dz = z * (1j * TWO_PI / self.period_mm * self.harmonics)
+        base = self.constants[None] + np.einsum("gm,lmp->glp", z, self.vs).real
+        turning = np.einsum("gm,lmp->glp", dz, self.vs).real
+        values = self.offset + np.einsum("gl,glp->gp", stroke, base)
+        slopes = np.einsum("gl,glp->gp", stroke, turning) + np.einsum("gl,glp->gp", dstroke, base)
+        return values, slopes
 
 
 class GeneralHarmonics:
-    """Fallback for models whose coefficients drift along the stroke: the model's own predict."""
+    """Fallback for models with a target map: the model's own predict."""
 
     def __init__(self, model: FourierModel):
         self.model = model
@@ -117,8 +134,7 @@ class GeneralBatch:
     def __init__(self, model: FourierModel, prepared: np.ndarray, max_iterations: int, tolerance_mm: float):
         self.model = model
         self.frames = prepared.reshape(prepared.shape[0], -1)
-        periodic = model.stroke_degree == 0 and model.target_map is None
-        evaluator = FastHarmonics(model) if periodic else GeneralHarmonics(model)
+        evaluator = FastHarmonics(model) if model.target_map is None else GeneralHarmonics(model)
         self.evaluator = evaluator if model.clip_gray is None else ClippedHarmonics(evaluator, model)
         self.max_iterations, self.tolerance_mm = max_iterations, tolerance_mm
         self.max_step_mm = model.period_mm / 4.0

@@ -19,14 +19,23 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=run)
 
 
+def _figure(value: float | None, digits: int) -> str:
+    return "n/a" if value is None else f"{value:.{digits}f}"
+
+
+def _figures(entry: dict) -> str:
+    lost = f", {entry['lost_frames']} frame(s) not tracked" if entry.get("lost_frames") else ""
+    return f"rmse {_figure(entry['rmse_gray'], 4)} gray, error std {_figure(entry['error_std_um'], 3)} um{lost}"
+
+
 def summary_lines(report: dict) -> list[str]:
     before, after, noise = report["before"], report["after"], report["noise"]
-    lines = [f"before  {before['model']}: rmse {before['rmse_gray']:.4f} gray, error std {before['error_std_um']:.3f} um"]
+    lines = [f"before  {before['model']}: {_figures(before)}"]
     for step in report["steps"]:
         lines.append(f"  + {step['effect']:<16} {step['evidence']}")
-        lines.append(f"    {'':<16} rmse {step['rmse_gray']:.4f} gray, error std {step['error_std_um']:.3f} um")
-    lines.append(f"after   {after['model']}: rmse {after['rmse_gray']:.4f} gray, error std {after['error_std_um']:.3f} um")
-    lines.append(f"noise   sigma {noise['gray']:.4f} gray, Cramer-Rao bound {noise['crlb_um']:.3f} um")
+        lines.append(f"    {'':<16} {_figures(step)}")
+    lines.append(f"after   {after['model']}: {_figures(after)}")
+    lines.append(f"noise   sigma {_figure(noise['gray'], 4)} gray, Cramer-Rao bound {_figure(noise['crlb_um'], 3)} um")
     return lines
 
 

@@ -66,3 +66,18 @@ def test_derivative_matches_finite_difference(paper_models):
 def test_constructor_checks():
     with pytest.raises(ModelError, match="harmonics"):
         FourierModel(8.6, 0.06, 100, harmonics=0)
+
+
+def test_tracker_evaluator_matches_model_with_stroke_terms_and_flat_field(paper_models):
+    from graytrack.core.tracking import FastHarmonics
+
+    base = paper_models["paper"].model
+    rng = np.random.default_rng(1)
+    model = base.with_changes(stroke_degree=2, n_rows=3, row_degree=1, row_shift_mm=0.01, stroke_range_mm=(0.0, 10.0))
+    model = model.with_changes(coeffs=rng.normal(size=model.coeff_shape), pixel_gain=1 + 0.01 * rng.normal(size=(3, 100)),
+                               pixel_offset=rng.normal(size=(3, 100)))
+    x = np.array([0.5, 3.7, 9.2])
+    values, slopes = FastHarmonics(model).evaluate(x)
+    expected_values, expected_slopes = model.predict(x, with_derivative=True)
+    np.testing.assert_allclose(values, expected_values.reshape(3, -1), rtol=1e-10, atol=1e-9)
+    np.testing.assert_allclose(slopes, expected_slopes.reshape(3, -1), rtol=1e-9, atol=1e-8)

@@ -39,3 +39,12 @@ def test_nuisance_costs_information():
     slope = np.ones((1, 10))
     nuisance = np.stack([np.linspace(0, 1, 10), np.ones(10)], axis=-1)[None]
     assert crlb_mm(slope, 1.0, nuisance)[0] > crlb_mm(slope, 1.0)[0]
+
+
+def test_sigma_of_coarsely_quantised_frames_includes_the_quantisation():
+    """Noise 0.3 of a code on integer codes: the MAD of differences collapses, the variance does not."""
+    rec = paper_recording(n_frames=600, seed=23)
+    rng = np.random.default_rng(4)
+    codes = np.round(rec.frames / 4.0 + rng.normal(0, 0.3, rec.frames.shape) - 0.0)
+    expected = np.sqrt(0.7**2 / 16 + 0.3**2 + 1 / 12)  # scaled noise, added noise, quantisation
+    assert estimate_sigma(codes, rec.reference, 8.6) == pytest.approx(expected, rel=0.12)
