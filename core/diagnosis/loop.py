@@ -25,6 +25,7 @@ from graytrack.core.recording import Recording
 Progress = Callable[[float, str], None]
 MAX_STEPS = 8
 CANDIDATES_PER_STEP = 3
+CONTENDERS_PER_STEP = 2  # effects that pass the held-out test, compared before one is kept
 MIN_Z = 5.0  # evidence weaker than this many noise standard deviations is noise
 NOISE_FLOOR_MARGIN = 1.1  # error std within this factor of the bound: nothing left worth chasing
 
@@ -145,7 +146,7 @@ def diagnose(calibration: Recording, validation: Recording | None = None, progre
         if _at_noise_floor(current):
             break
         say(0.05 + 0.85 * step_index / max_steps, f"step {step_index + 1}: probing the residual")
-        accepted = None
+        contenders: list[Step] = []
         for evidence, argument in _candidates(current)[:CANDIDATES_PER_STEP]:
             spec = EFFECTS[evidence.effect].grow(current.spec, argument)
             if spec is None:
@@ -156,12 +157,17 @@ def diagnose(calibration: Recording, validation: Recording | None = None, progre
                            search_pitch=spec.target_map and not current.spec.target_map)
             keep, reason = _better(trial.figures, current.figures, int(current.val.usable.sum()))
             record = Step(evidence.effect, evidence, trial, keep, reason)
-            if keep:
-                accepted = record
+            if not keep:
+                rejected.append(record)
+                continue
+            contenders.append(record)
+            if len(contenders) == CONTENDERS_PER_STEP:
                 break
-            rejected.append(record)
-        if accepted is None:
+        if not contenders:
             break
+        # The strongest evidence is not always the right cause (a flexible term can soak up what a
+        # simpler physical one explains): of the effects that pass, keep the one that tracks best.
+        accepted = min(contenders, key=lambda step: (step.stage.figures.error_std_um, step.stage.figures.rmse_gray))
         steps.append(accepted)
         current = accepted.stage
     say(0.92, "refitting the final structure on all calibration frames")
