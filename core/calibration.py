@@ -5,6 +5,10 @@ is linear in its coefficients and those are solved exactly by least squares; Lev
 runs only over the 2–3 geometry parameters, with Kaufman's Jacobian of the projected residual.
 That is the structure the seed paper's 45-unknown LM ignores, and it is what makes a 1,000-frame
 calibration take a fraction of a second.
+
+A model's structure (:class:`ModelSpec`: which effects it has) is fitted by :func:`fit_spec`; the
+bilinear parts (flat field, per-frame common mode, target map) by alternation around the
+projection. :func:`calibrate` is the entry for the named kinds ``ideal`` and ``paper``.
 """
 
 from __future__ import annotations

@@ -269,15 +269,3 @@ class FourierModel:
         a1, b1 = weights[1], weights[2]
         return {"A": float(math.hypot(a1, b1)), "phi": float(math.atan2(b1, a1)), "D": float(weights[0]),
                 "tau_w": self.period_mm, "alpha_d": self.pixel_pitch_mm, "n_coeffs": int(coeffs.size)}
-
-
-def paper_model(period_mm: float, pixel_pitch_mm: float, n_pixels: int,
-                harmonics: int = 5, pixel_degree: int = 3) -> FourierModel:
-    """The seed paper's model: Fourier order M × polynomial degree P in the pixel index."""
-    return FourierModel(period_mm, pixel_pitch_mm, n_pixels, harmonics=harmonics, pixel_degree=pixel_degree,
-                        name="paper")
-
-
-def ideal_model(period_mm: float, pixel_pitch_mm: float, n_pixels: int) -> FourierModel:
-    """The ideal sine A·sin(2π(x + α·d·u)/τ + φ) + D: the paper model with M = 1 and degree 0."""
-    return FourierModel(period_mm, pixel_pitch_mm, n_pixels, harmonics=1, pixel_degree=0, name="ideal")
