@@ -87,3 +87,23 @@ def crlb_mm(slope: np.ndarray, sigma_gray: float, nuisance: np.ndarray | None = 
         gram = np.einsum("kpm,kpq->kmq", d_n, d_n)
         info = info - np.einsum("km,km->k", cross, np.linalg.solve(gram, cross[..., None])[..., 0])
     return sigma_gray / np.sqrt(np.maximum(info, 1e-300))
+
+
+def reference_resolution_mm(reference: np.ndarray) -> float:
+    """The grating readout's step when its values sit on a grid (0 when they do not).
+
+    A quantised reference adds its own error, step/√12, to every comparison against it: the error
+    a perfect sensor shows against such a reference cannot fall below that.
+    """
+    values = np.unique(np.asarray(reference, dtype=np.float64)[np.isfinite(reference)])
+    steps = np.diff(values)
+    steps = steps[steps > 1e-9]
+    if steps.size < 3:
+        return 0.0
+    smallest = float(steps.min())
+    for divisor in range(1, 11):  # neighbouring readings may be several steps apart
+        step = smallest / divisor
+        multiples = (values - values[0]) / step
+        if np.allclose(multiples, np.round(multiples), atol=0.02):
+            return step
+    return 0.0

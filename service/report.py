@@ -93,6 +93,9 @@ def _rows(report: dict) -> str:
 def render_html(result: DiagnosisResult, report: dict) -> str:
     before, after, noise = report["before"], report["after"], report["noise"]
     images = {"maps": residual_maps(result), "spread": residual_spread(result), "error": error_plot(result)}
+    reference_line = (f"<p>The grating readout comes in steps of {noise['reference_resolution_um']:.3f} µm: against it "
+                      f"no sensor can show less than {noise['floor_um']:.3f} µm.</p>"
+                      if noise.get("reference_resolution_um") else "")
     remaining = "".join(f"<li>{html.escape(item['text'])} (z = {item['z']})</li>" for item in report["remaining_evidence"])
     return f"""<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>graytrack diagnosis</title>
@@ -105,7 +108,7 @@ th{{background:#f3f3f3}}.big{{font-size:20px}}</style></head><body>
 <table><tr><th></th><th>model</th><th>rmse (gray)</th><th>error std (µm)</th><th>error max (µm)</th><th>mean (µm)</th></tr>
 <tr><td>before</td><td>{html.escape(before['model'])}</td><td>{before['rmse_gray']}</td><td>{before['error_std_um']}</td><td>{before['error_max_um']}</td><td>{before['error_mean_um']}</td></tr>
 <tr><td>after</td><td>{html.escape(after['model'])}</td><td>{after['rmse_gray']}</td><td>{after['error_std_um']}</td><td>{after['error_max_um']}</td><td>{after['error_mean_um']}</td></tr></table>
-<p>Held out: {html.escape(report['heldout'])}. Final model (model.json): {html.escape(report['final_model'])}.</p>
+{reference_line}<p>Held out: {html.escape(report['heldout'])}. Final model (model.json): {html.escape(report['final_model'])}.</p>
 <h2>Effects tried, in order</h2>
 <table><tr><th>effect</th><th>physical family</th><th>evidence in the residual</th><th>rmse</th><th>error std</th><th>decision</th></tr>
 {_rows(report)}</table>

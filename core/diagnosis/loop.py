@@ -20,6 +20,7 @@ from graytrack.core.diagnosis.effects import EFFECTS
 from graytrack.core.diagnosis.evidence import Evidence, all_evidence, clipping_evidence
 from graytrack.core.diagnosis.heldout import Figures, Fit, figures, fit_on, interleaved_split
 from graytrack.core.models.fourier import FourierModel
+from graytrack.core.noise import reference_resolution_mm
 from graytrack.core.recording import Recording
 
 Progress = Callable[[float, str], None]
@@ -66,13 +67,17 @@ class DiagnosisResult:
     final_model: FourierModel
     sigma_gray: float
     holdout: str
+    reference_step_mm: float = 0.0  # quantisation of the grating readout the errors are measured against
     remaining: list[Evidence] = field(default_factory=list)
 
     def report(self) -> dict[str, Any]:
         """report.json (DESIGN.md contract, with extra keys that explain the decisions)."""
         return {
             "noise": {"gray": round(float(self.sigma_gray), 5), "crlb_um": self.after.figures.as_dict()["crlb_um"],
-                      "crlb_before_um": self.before.figures.as_dict()["crlb_um"]},
+                      "crlb_before_um": self.before.figures.as_dict()["crlb_um"],
+                      "reference_resolution_um": round(self.reference_step_mm * 1e3, 4),
+                      "floor_um": round(float(np.hypot(self.after.figures.crlb_um,
+                                                       self.reference_step_mm * 1e3 / np.sqrt(12.0))), 4)},
             "before": self.before.figures.as_dict(),
             "steps": [step.as_dict() for step in self.steps],
             "after": self.after.figures.as_dict(),
@@ -178,4 +183,5 @@ def diagnose(calibration: Recording, validation: Recording | None = None, progre
                                refine_geometry=False).model
     remaining = [ev for ev in all_evidence(current.train, current.val) if ev.z > MIN_Z]
     say(1.0, f"{len(steps)} effect(s) added")
-    return DiagnosisResult(before, current, steps, rejected, final_model, val.sigma_gray, holdout, remaining)
+    return DiagnosisResult(before, current, steps, rejected, final_model, val.sigma_gray, holdout,
+                           reference_resolution_mm(val.x_mm), remaining)

@@ -36,6 +36,9 @@ def summary_lines(report: dict) -> list[str]:
         lines.append(f"    {'':<16} {_figures(step)}")
     lines.append(f"after   {after['model']}: {_figures(after)}")
     lines.append(f"noise   sigma {_figure(noise['gray'], 4)} gray, Cramer-Rao bound {_figure(noise['crlb_um'], 3)} um")
+    if noise.get("reference_resolution_um"):
+        lines.append(f"        grating readout in steps of {noise['reference_resolution_um']:.3f} um: "
+                     f"floor against it {_figure(noise['floor_um'], 3)} um")
     return lines
 
 

@@ -48,3 +48,11 @@ def test_sigma_of_coarsely_quantised_frames_includes_the_quantisation():
     codes = np.round(rec.frames / 4.0 + rng.normal(0, 0.3, rec.frames.shape) - 0.0)
     expected = np.sqrt(0.7**2 / 16 + 0.3**2 + 1 / 12)  # scaled noise, added noise, quantisation
     assert estimate_sigma(codes, rec.reference, 8.6) == pytest.approx(expected, rel=0.12)
+
+
+def test_reference_resolution_is_found_only_on_a_grid():
+    from graytrack.core.noise import reference_resolution_mm
+
+    x = np.linspace(0, 10, 500)
+    assert reference_resolution_mm(np.round(x / 0.005) * 0.005) == pytest.approx(0.005)
+    assert reference_resolution_mm(x + np.random.default_rng(0).normal(0, 1e-4, 500)) == 0.0
