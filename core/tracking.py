@@ -131,11 +131,11 @@ class GeneralBatch:
     gain/offset solved together with x, and saturated pixels.
     """
 
-    def __init__(self, model: FourierModel, prepared: np.ndarray, max_iterations: int, tolerance_mm: float):
+    def __init__(self, model: FourierModel, prepared: np.ndarray, max_iterations: int, tolerance_mm: float,
+                 evaluator: "FastHarmonics | GeneralHarmonics | ClippedHarmonics"):
         self.model = model
         self.frames = prepared.reshape(prepared.shape[0], -1)
-        evaluator = FastHarmonics(model) if model.target_map is None else GeneralHarmonics(model)
-        self.evaluator = evaluator if model.clip_gray is None else ClippedHarmonics(evaluator, model)
+        self.evaluator = evaluator
         self.max_iterations, self.tolerance_mm = max_iterations, tolerance_mm
         self.max_step_mm = model.period_mm / 4.0
 
@@ -193,8 +193,8 @@ class TrigPolyBatch:
     The per-frame loop then does a few dozen scalar operations instead of array work.
     """
 
-    def __init__(self, model: FourierModel, prepared: np.ndarray, max_iterations: int, tolerance_mm: float):
-        fast = FastHarmonics(model)
+    def __init__(self, model: FourierModel, prepared: np.ndarray, max_iterations: int, tolerance_mm: float,
+                 fast: FastHarmonics, gram: tuple[np.ndarray, np.ndarray]):
         frames = prepared.reshape(prepared.shape[0], -1)
         self.n_values = frames.shape[1]
         self.omega = TWO_PI / model.period_mm
@@ -204,7 +204,7 @@ class TrigPolyBatch:
         self.beta = frames @ fast.v.T  # (K, M)
         self.y_dot_c = frames @ fast.constant
         self.y_norm = np.einsum("kp,kp->k", frames, frames)
-        self.q, self.d = self._gram_polynomials(fast, model)
+        self.q, self.d = gram
         degree = 2 * self.harmonics
         orders = np.arange(1, degree + 1)
         padded_beta = np.zeros((frames.shape[0], degree), dtype=complex)
@@ -218,19 +218,6 @@ class TrigPolyBatch:
         self._cost_const = (self.y_norm - 2.0 * self.y_dot_c + self.q[0].real).tolist()
         self._info_coeffs = self.d[1:].tolist()
         self._info_const = float(self.d[0].real)
-
-    def _gram_polynomials(self, fast: FastHarmonics, model: FourierModel) -> tuple[np.ndarray, np.ndarray]:
-        """Coefficients of ‖F(x)‖² and ‖F′(x)‖² as trig polynomials of degree 2M (sampled + FFT)."""
-        n_samples = 4 * model.harmonics + 4
-        x = np.arange(n_samples) * model.period_mm / n_samples
-        values, slopes = fast.evaluate(x)
-        out = []
-        for sampled in ((values**2).sum(axis=1), (slopes**2).sum(axis=1)):
-            spectrum = np.fft.fft(sampled) / n_samples
-            coeffs = 2.0 * spectrum[: 2 * model.harmonics + 1]
-            coeffs[0] = spectrum[0].real
-            out.append(coeffs)
-        return out[0], out[1]
 
     def refine(self, k: int, x_start: float) -> FrameSolution:
         step_coeffs, info_coeffs = self._step_rows[k], self._info_coeffs
@@ -258,6 +245,20 @@ class TrigPolyBatch:
         return self.y_norm[k] - 2.0 * cross + model_norm
 
 
+def gram_polynomials(fast: FastHarmonics, model: FourierModel) -> tuple[np.ndarray, np.ndarray]:
+    """Coefficients of ‖F(x)‖² and ‖F′(x)‖² as trig polynomials of degree 2M (sampled + FFT)."""
+    n_samples = 4 * model.harmonics + 4
+    x = np.arange(n_samples) * model.period_mm / n_samples
+    values, slopes = fast.evaluate(x)
+    out = []
+    for sampled in ((values**2).sum(axis=1), (slopes**2).sum(axis=1)):
+        spectrum = np.fft.fft(sampled) / n_samples
+        coeffs = 2.0 * spectrum[: 2 * model.harmonics + 1]
+        coeffs[0] = spectrum[0].real
+        out.append(coeffs)
+    return out[0], out[1]
+
+
 def _powers(z: complex, count: int) -> list[complex]:
     """[z, z², …, z^count]."""
     out = [z]
@@ -279,14 +280,22 @@ class Tracker:
         self.quarter_period_mm = model.period_mm / 4.0
         calibration_rmse = float(model.info.get("calibration_rmse_gray", model.noise_gray or 1.0))
         self.residual_limit_gray = residual_limit_gray or 3.0 * calibration_rmse + 1.0
+        # Model-level work, done once: live tracking builds a one-frame batch per frame.
+        evaluator = FastHarmonics(model) if model.target_map is None else GeneralHarmonics(model)
+        self.fast_path = (model.stroke_degree == 0 and not model.common_mode and model.clip_gray is None
+                          and model.target_map is None)
+        self.gram = gram_polynomials(evaluator, model) if self.fast_path else None
+        self.evaluator = evaluator if model.clip_gray is None else ClippedHarmonics(evaluator, model)
 
     def batch(self, prepared: np.ndarray) -> GeneralBatch | TrigPolyBatch:
         """Frames ``(K, R, n)`` in the model's row layout, reduced for solving."""
-        model = self.model
-        fast = (model.stroke_degree == 0 and not model.common_mode and model.clip_gray is None
-                and model.target_map is None)
-        kind = TrigPolyBatch if fast else GeneralBatch
-        return kind(self.model, prepared, self.max_iterations, self.tolerance_mm)
+        if self.fast_path:
+            return TrigPolyBatch(self.model, prepared, self.max_iterations, self.tolerance_mm, self.evaluator, self.gram)
+        return GeneralBatch(self.model, prepared, self.max_iterations, self.tolerance_mm, self.evaluator)
+
+    def frame_sigma(self, frame_rows: int) -> float:
+        """Noise of one model row when ``frame_rows`` raw rows feed the model (averaging lowers it)."""
+        return (self.model.noise_gray or 1.0) / np.sqrt(self.model.rows_averaged(frame_rows))
 
     def acquire(self, batch: GeneralBatch | TrigPolyBatch, k: int, lo_mm: float, hi_mm: float) -> FrameSolution:
         """Global search on a grid over ``[lo, hi]`` (at least one period), then Gauss–Newton."""
@@ -308,6 +317,29 @@ class Tracker:
         return None
 
 
+@dataclass
+class SequentialState:
+    """What carries from one frame to the next: the last position, its velocity, the lock."""
+
+    x_prev: float | None = None
+    velocity: float = 0.0  # mm per frame, from the last two locked frames: a better start than x_{k−1}
+    locked: bool = False
+    frame: int = 0
+    events: list[LockEvent] = field(default_factory=list)
+
+    def advance(self, tracker: "Tracker", batch: GeneralBatch | TrigPolyBatch, k: int,
+                reference: float) -> tuple[FrameSolution, bool, bool]:
+        """Solve batch frame ``k`` as the next frame of the sequence: (solution, placed, locked)."""
+        events_before = len(self.events)
+        solution, ok = _solve_frame(tracker, batch, k, self.x_prev, self.velocity, reference, self.events, self.frame)
+        locked = ok and len(self.events) == events_before
+        self.velocity = solution.x_mm - self.x_prev if locked and self.locked and self.x_prev is not None else 0.0
+        if ok:
+            self.x_prev = solution.x_mm
+        self.locked, self.frame = locked, self.frame + 1
+        return solution, ok, locked
+
+
 def track(model: FourierModel, source: Recording | np.ndarray, reference: np.ndarray | None = None,
           x0_mm: float | None = None, progress: Progress | None = None, tracker: Tracker | None = None) -> TrackResult:
     """Track every frame of a recording (or a frame array) sequentially.
@@ -326,39 +358,64 @@ def track(model: FourierModel, source: Recording | np.ndarray, reference: np.nda
     if reference.shape != (n_frames,):
         raise TrackingError(f"reference has shape {reference.shape}, expected ({n_frames},)")
     tracker = tracker or Tracker(model)
-    rows_per_model_row = model.rows_averaged(1 if frames.ndim == 2 else frames.shape[1])
-    sigma = (model.noise_gray or 1.0) / np.sqrt(rows_per_model_row)
+    sigma = tracker.frame_sigma(1 if frames.ndim == 2 else frames.shape[1])
 
     out = {key: np.full(n_frames, np.nan) for key in ("x", "rms", "info", "gain", "offset")}
     iterations = np.zeros(n_frames, dtype=np.int64)
     locked = np.zeros(n_frames, dtype=bool)
-    events: list[LockEvent] = []
-    x_prev = x0_mm if x0_mm is not None else (reference[0] if np.isfinite(reference[0]) else None)
+    state = SequentialState(x_prev=x0_mm if x0_mm is not None else (reference[0] if np.isfinite(reference[0]) else None))
     report_every = max(n_frames // 100, 1)
     batch = tracker.batch(prepared)
-    velocity = 0.0  # mm per frame, from the last two locked frames: a better start than x_{k-1}
     for k in range(n_frames):
-        solution, ok = _solve_frame(tracker, batch, k, x_prev, velocity, reference[k], events)
-        velocity = 0.0
+        solution, ok, locked[k] = state.advance(tracker, batch, k, reference[k])
         if ok:
             out["x"][k], out["rms"][k], out["info"][k] = solution.x_mm, solution.rms_gray, solution.information
             out["gain"][k], out["offset"][k] = solution.gain, solution.offset
             iterations[k] = solution.iterations
-            locked[k] = not (events and events[-1].frame == k)
-            if locked[k] and k and locked[k - 1]:
-                velocity = solution.x_mm - x_prev
-            x_prev = solution.x_mm
         if progress and k % report_every == 0:
             progress(k / n_frames, f"frame {k}/{n_frames}")
     if progress:
-        progress(1.0, f"{n_frames} frames, {len(events)} lock event(s)")
+        progress(1.0, f"{n_frames} frames, {len(state.events)} lock event(s)")
     crlb = sigma / np.sqrt(np.where(out["info"] > 0, out["info"], np.nan))
-    return TrackResult(out["x"], locked, out["rms"], crlb, iterations, out["gain"], out["offset"], events)
+    return TrackResult(out["x"], locked, out["rms"], crlb, iterations, out["gain"], out["offset"], state.events)
+
+
+@dataclass
+class LiveFix:
+    """One frame's answer in live tracking (the daemon's position stream)."""
+
+    x_mm: float  # NaN when the frame could not be placed
+    locked: bool
+    rms_gray: float
+    crlb_mm: float
+    event: LockEvent | None
+
+
+class LiveTracker:
+    """Frame-by-frame tracking for a running rig: the same solver and lock logic as :func:`track`."""
+
+    def __init__(self, model: FourierModel, x0_mm: float | None = None):
+        self.model = model
+        self.tracker = Tracker(model)
+        self.state = SequentialState(x_prev=x0_mm)
+
+    def update(self, frame: np.ndarray, reference_mm: float = float("nan")) -> LiveFix:
+        """Solve one frame ``(n,)`` or ``(R, n)``; ``reference_mm`` is the grating at that instant, if read."""
+        frame = np.asarray(frame)
+        rows = 1 if frame.ndim == 1 else frame.shape[0]
+        batch = self.tracker.batch(self.model.prepare(frame.reshape((1,) + frame.shape)))
+        events_before = len(self.state.events)
+        solution, ok, locked = self.state.advance(self.tracker, batch, 0, float(reference_mm))
+        event = self.state.events[-1] if len(self.state.events) > events_before else None
+        crlb = self.tracker.frame_sigma(rows) / np.sqrt(solution.information) if solution.information > 0 else np.nan
+        return LiveFix(solution.x_mm if ok else float("nan"), locked, solution.rms_gray, float(crlb), event)
 
 
 def _solve_frame(tracker: Tracker, batch: GeneralBatch | TrigPolyBatch, k: int, x_prev: float | None,
-                 velocity: float, reference: float, events: list[LockEvent]) -> tuple[FrameSolution, bool]:
-    """One frame: continue from ``x_prev``; on any sign of lost lock, re-acquire and log it."""
+                 velocity: float, reference: float, events: list[LockEvent],
+                 frame: int) -> tuple[FrameSolution, bool]:
+    """Batch frame ``k`` (frame ``frame`` of the sequence): continue from ``x_prev``; on any sign
+    of lost lock, re-acquire and log it."""
     if x_prev is None or not np.isfinite(x_prev):
         lo, hi = tracker.model.stroke_range_mm
         if np.isfinite(reference):
@@ -366,8 +423,8 @@ def _solve_frame(tracker: Tracker, batch: GeneralBatch | TrigPolyBatch, k: int, 
         else:
             solution = tracker.acquire(batch, k, lo, max(hi, lo + tracker.model.period_mm))
         ok = solution.rms_gray <= tracker.residual_limit_gray
-        if k > 0 or not ok:
-            events.append(LockEvent(k, "acquisition", float("nan"), solution.x_mm if ok else float("nan"), ok))
+        if frame > 0 or not ok:
+            events.append(LockEvent(frame, "acquisition", float("nan"), solution.x_mm if ok else float("nan"), ok))
         return solution, ok
     solution = batch.refine(k, x_prev + velocity)
     reason = tracker.lost_reason(solution, x_prev, reference)
@@ -378,5 +435,5 @@ def _solve_frame(tracker: Tracker, batch: GeneralBatch | TrigPolyBatch, k: int, 
     ok = again.rms_gray <= tracker.residual_limit_gray and (
         not np.isfinite(reference) or abs(again.x_mm - reference) <= tracker.quarter_period_mm
     )
-    events.append(LockEvent(k, reason, x_prev, again.x_mm if ok else float("nan"), ok))
+    events.append(LockEvent(frame, reason, x_prev, again.x_mm if ok else float("nan"), ok))
     return again, ok

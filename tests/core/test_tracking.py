@@ -78,3 +78,17 @@ def test_common_mode_gain_is_solved_with_position(paper_models, paper_val):
 def test_tracker_refuses_uncalibrated_model(paper_models):
     with pytest.raises(TrackingError, match="calibrate"):
         Tracker(paper_models["paper"].model.with_changes(coeffs=None))
+
+
+def test_live_tracker_gives_the_batch_answer_frame_by_frame(paper_models):
+    from graytrack.core.tracking import LiveTracker
+
+    rec = jump_recording()
+    model = paper_models["paper"].model
+    batch = track(model, rec)
+    live = LiveTracker(model, x0_mm=rec.reference[0])
+    fixes = [live.update(frame, reference) for frame, reference in zip(rec.frames, rec.reference)]
+    np.testing.assert_allclose([fix.x_mm for fix in fixes], batch.x_mm, atol=1e-9)
+    assert [fix.locked for fix in fixes] == batch.locked.tolist()
+    assert [k for k, fix in enumerate(fixes) if fix.event] == [150]
+    np.testing.assert_allclose([fix.crlb_mm for fix in fixes], batch.crlb_mm, rtol=1e-9)
