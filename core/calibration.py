@@ -39,11 +39,20 @@ ALTERNATION_ROUNDS = 4
 class CalibrationData:
     """What a fit needs from a recording: positions, frames in the model's row layout, weights."""
 
-    x_mm: np.ndarray  # (K,)
+    x_mm: np.ndarray  # (K,) reference positions
     frames: np.ndarray  # (K, R, n) raw strip, float64
     weights: np.ndarray  # (K, R, n) 1 for usable samples, 0 for saturated or clipped ones
     sigma_gray: float  # model-free per-pixel noise
     meta: dict[str, Any]
+    t_s: np.ndarray | None = None  # (K,) frame times, for velocity-dependent effects
+
+    def subset(self, index: np.ndarray) -> "CalibrationData":
+        t_s = None if self.t_s is None else self.t_s[index]
+        return CalibrationData(self.x_mm[index], self.frames[index], self.weights[index], self.sigma_gray,
+                               self.meta, t_s)
+
+    def with_reference(self, x_mm: np.ndarray) -> "CalibrationData":
+        return CalibrationData(x_mm, self.frames, self.weights, self.sigma_gray, self.meta, self.t_s)
 
     @property
     def stroke_mm(self) -> float:
@@ -74,7 +83,7 @@ def calibration_data(rec: Recording) -> CalibrationData:
     x_mm = rec.reference[valid]
     period = rec.meta.get("period_mm")
     sigma = estimate_sigma(frames, x_mm, period)
-    return CalibrationData(x_mm, frames, weights, sigma, dict(rec.meta))
+    return CalibrationData(x_mm, frames, weights, sigma, dict(rec.meta), rec.t[valid])
 
 
 def usable_samples(frames: np.ndarray, meta: dict[str, Any]) -> np.ndarray:
@@ -237,6 +246,7 @@ class ModelSpec:
     common_mode: bool = False
     clip_gray: tuple[float, float] | None = None
     target_map: bool = False
+    reference_skew_s: float = 0.0  # grating latched this long after mid-exposure (a data correction)
     name: str = "paper"
 
     def with_changes(self, **changes) -> "ModelSpec":

@@ -50,6 +50,10 @@ def _once(flag: str) -> Callable[[ModelSpec, Any], ModelSpec | None]:
     return grow
 
 
+def _reference_skew(spec: ModelSpec, skew_s: Any) -> ModelSpec | None:
+    return None if skew_s is None else spec.with_changes(reference_skew_s=spec.reference_skew_s + float(skew_s))
+
+
 def _clip(spec: ModelSpec, limits: Any) -> ModelSpec | None:
     return None if spec.clip_gray is not None or limits is None else spec.with_changes(clip_gray=tuple(limits))
 
@@ -79,6 +83,10 @@ EFFECTS: dict[str, Effect] = {
                "a relative reflectance map on a half-pixel grid along the target (its smooth and periodic part "
                "left to the Fourier terms)", "tridiagonal least squares, alternating with the smooth part; "
                "tracking uses its slope too", _once("target_map")),
+        Effect("reference_timing", "grating read at another instant than the exposure (latch skew, readout latency)",
+               "the reference moved to mid-exposure: x(t) = ref(t) − v·δ (a correction of the data, kept in "
+               "model.json as info.reference_skew_s)", "δ from the regression of the held-out error on velocity",
+               _reference_skew),
         Effect("clipping", "sensor saturation or a black clip", "the clip limits: clipped samples carry no position",
                "clipped samples get zero weight in calibration and zero slope in tracking", _clip),
     )

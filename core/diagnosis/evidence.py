@@ -20,6 +20,7 @@ import numpy as np
 from graytrack.core.basis import legendre_basis, scaled, trig_basis
 from graytrack.core.calibration import fit_target_map
 from graytrack.core.diagnosis.heldout import Fit
+from graytrack.core.timing import velocity_mm_s
 
 
 @dataclass
@@ -225,6 +226,27 @@ def target_map_evidence(train: Fit, val: Fit) -> Evidence | None:
                     explained / sigma2 / np.sqrt(2.0 * found["target_map"].size), explained / excess,
                     f"spots fixed to the target (deepest {deepest:.1f}% of the light) explain "
                     f"{100 * explained / excess:.0f}% of the held-out residual above noise")
+
+
+def timing_evidence(val: Fit, error_um: np.ndarray) -> tuple[Evidence, float] | None:
+    """Tracking error proportional to velocity: the grating is read at another instant than the
+    exposure's mid-point. Returns the evidence and the skew δ (s) that −v·δ fits."""
+    velocity = velocity_mm_s(val.data.t_s, val.data.x_mm)
+    usable = np.isfinite(error_um)
+    v, e = velocity[usable], error_um[usable]
+    spread = float(((v - v.mean()) ** 2).sum())
+    if v.size < 10 or spread <= 1e-12:
+        return None
+    slope = float(((v - v.mean()) * (e - e.mean())).sum() / spread)  # µm per (mm/s)
+    fitted = e.mean() + slope * (v - v.mean())
+    remaining = float(((e - fitted) ** 2).sum())
+    total = float(((e - e.mean()) ** 2).sum())
+    z = abs(slope) / np.sqrt(remaining / (v.size - 2) / spread) if remaining > 0 else np.inf
+    share = 1.0 - remaining / total if total > 0 else 0.0
+    skew_s = -slope * 1e-3  # e = −v·δ with e in µm, v in mm/s
+    text = (f"the tracking error follows velocity: the grating reads {skew_s * 1e3:+.3f} ms from mid-exposure "
+            f"(−v·δ explains {100 * share:.0f}% of the error variance)")
+    return Evidence("reference_timing", "velocity", share, float(z), share, text), skew_s
 
 
 def clipping_evidence(train: Fit, val: Fit) -> tuple[Evidence, tuple[float, float]] | None:

@@ -13,21 +13,18 @@ import numpy as np
 
 from graytrack.core.calibration import CalibrationData
 from graytrack.core.models.fourier import FourierModel
+from graytrack.core.timing import runs
 from graytrack.core.tracking import TrackResult, track
 
 HOLDOUT_BLOCK_FRAMES = 10
 HOLDOUT_EVERY = 4
 
 
-def subset(data: CalibrationData, index: np.ndarray) -> CalibrationData:
-    return CalibrationData(data.x_mm[index], data.frames[index], data.weights[index], data.sigma_gray, data.meta)
-
-
 def interleaved_split(data: CalibrationData) -> tuple[CalibrationData, CalibrationData]:
     """Every ``HOLDOUT_EVERY``-th block of ``HOLDOUT_BLOCK_FRAMES`` consecutive frames is held out."""
     block = np.arange(len(data.x_mm)) // HOLDOUT_BLOCK_FRAMES
     held = block % HOLDOUT_EVERY == HOLDOUT_EVERY // 2
-    return subset(data, np.flatnonzero(~held)), subset(data, np.flatnonzero(held))
+    return data.subset(np.flatnonzero(~held)), data.subset(np.flatnonzero(held))
 
 
 @dataclass
@@ -93,21 +90,13 @@ class Figures:
                 "lost_frames": int((~np.isfinite(self.error_um)).sum())}
 
 
-def contiguous_runs(x_mm: np.ndarray) -> list[slice]:
-    """Runs of frames without a jump: held-out blocks are separated by the frames the fit used.
-
-    A jump is a step far above the typical one. Each run is tracked from its own first reference,
-    as a rig tracks continuously: tracking across the gaps would test re-acquisition, not the model.
-    """
-    steps = np.abs(np.diff(x_mm))
-    typical = float(np.median(steps)) if steps.size else 0.0
-    breaks = np.flatnonzero(steps > 5.0 * typical + 1e-9) + 1 if typical > 0 else np.array([], dtype=int)
-    edges = [0, *breaks.tolist(), len(x_mm)]
-    return [slice(a, b) for a, b in zip(edges[:-1], edges[1:])]
-
-
 def track_runs(model: FourierModel, data: CalibrationData) -> TrackResult:
-    parts = [track(model, data.frames[run], reference=data.x_mm[run]) for run in contiguous_runs(data.x_mm)]
+    """Track each run of consecutive frames from its own first reference.
+
+    Held-out blocks are separated by the frames the fit used; a rig tracks continuously, and
+    tracking across those gaps would test re-acquisition, not the model.
+    """
+    parts = [track(model, data.frames[run], reference=data.x_mm[run]) for run in runs(data.t_s)]
     joined = {key: np.concatenate([getattr(part, key) for part in parts])
               for key in ("x_mm", "locked", "rms_gray", "crlb_mm", "iterations", "gain", "offset")}
     return TrackResult(**joined, events=[event for part in parts for event in part.events])

@@ -17,10 +17,11 @@ import numpy as np
 from graytrack.core.calibration import (KIND_SPECS, CalibrationData, ModelSpec, calibration_data, fit_spec,
                                          fit_spec_pitch_search, initial_geometry)
 from graytrack.core.diagnosis.effects import EFFECTS
-from graytrack.core.diagnosis.evidence import Evidence, all_evidence, clipping_evidence
+from graytrack.core.diagnosis.evidence import Evidence, all_evidence, clipping_evidence, timing_evidence
 from graytrack.core.diagnosis.heldout import Figures, Fit, figures, fit_on, interleaved_split
 from graytrack.core.models.fourier import FourierModel
 from graytrack.core.noise import reference_resolution_mm
+from graytrack.core.timing import at_exposure
 from graytrack.core.recording import Recording
 
 Progress = Callable[[float, str], None]
@@ -28,7 +29,8 @@ MAX_STEPS = 8
 CANDIDATES_PER_STEP = 3
 CONTENDERS_PER_STEP = 2  # effects that pass the held-out test, compared before one is kept
 MIN_Z = 5.0  # evidence weaker than this many noise standard deviations is noise
-NOISE_FLOOR_MARGIN = 1.1  # error std within this factor of the bound: nothing left worth chasing
+NOISE_FLOOR_MARGIN = 1.1
+TIMING_MIN_SHARE = 0.2  # velocity must explain this share of the error variance to count as a timing fault  # error std within this factor of the bound: nothing left worth chasing
 
 
 @dataclass
@@ -89,8 +91,16 @@ class DiagnosisResult:
         }
 
 
+def at_exposure_instant(data: CalibrationData, spec: ModelSpec) -> CalibrationData:
+    """The data with its reference moved to mid-exposure when the structure knows a latch skew."""
+    if not spec.reference_skew_s:
+        return data
+    return data.with_reference(at_exposure(data.t_s, data.x_mm, spec.reference_skew_s))
+
+
 def _stage(spec: ModelSpec, train: CalibrationData, val: CalibrationData, geometry: tuple[float, float, float],
            refine_geometry: bool = False, search_pitch: bool = False) -> Stage:
+    train, val = at_exposure_instant(train, spec), at_exposure_instant(val, spec)
     if search_pitch:
         model = fit_spec_pitch_search(spec, train, *geometry).model
     else:
@@ -123,10 +133,15 @@ def _at_noise_floor(stage: Stage) -> bool:
 
 
 def _candidates(stage: Stage) -> list[tuple[Evidence, Any]]:
+    """Data-quality findings first (clipped samples, a reference read at the wrong instant), then
+    model terms by how much of the held-out residual they explain."""
     found: list[tuple[Evidence, Any]] = []
     clip = clipping_evidence(stage.train, stage.val)
     if clip is not None:
         found.append(clip)
+    timing = timing_evidence(stage.val, stage.figures.error_um)
+    if timing is not None and timing[0].z > MIN_Z and timing[0].share > TIMING_MIN_SHARE:
+        found.append(timing)
     found += [(ev, None) for ev in all_evidence(stage.train, stage.val) if ev.z > MIN_Z]
     return found
 
@@ -179,8 +194,10 @@ def diagnose(calibration: Recording, validation: Recording | None = None, progre
     final_model = current.model
     if validation is None:
         m = current.model
-        final_model = fit_spec(current.spec, data, m.period_mm, m.pixel_pitch_mm, m.row_shift_mm or geometry[2],
-                               refine_geometry=False).model
+        final_model = fit_spec(current.spec, at_exposure_instant(data, current.spec), m.period_mm, m.pixel_pitch_mm,
+                               m.row_shift_mm or geometry[2], refine_geometry=False).model
+    if current.spec.reference_skew_s:
+        final_model.info["reference_skew_s"] = current.spec.reference_skew_s
     remaining = [ev for ev in all_evidence(current.train, current.val) if ev.z > MIN_Z]
     say(1.0, f"{len(steps)} effect(s) added")
     return DiagnosisResult(before, current, steps, rejected, final_model, val.sigma_gray, holdout,

@@ -8,6 +8,7 @@ import numpy as np
 
 from graytrack.core.models import load_model
 from graytrack.core.recording import load
+from graytrack.core.timing import at_exposure
 from graytrack.core.tracking import TrackResult, track
 from graytrack.service.progress import ProgressBar
 from graytrack.service.tables import write_csv
@@ -49,9 +50,14 @@ def summary(result: TrackResult, reference: np.ndarray) -> list[str]:
 def run(args: argparse.Namespace) -> int:
     recording = load(args.recording)
     model = load_model(args.model)
-    reference = np.full(recording.n_frames, np.nan) if args.no_reference else recording.reference
+    grating = recording.reference
+    skew_s = float(model.info.get("reference_skew_s", 0.0))
+    if skew_s:  # the closed loop found the grating latched off mid-exposure: compare at the exposure
+        grating = at_exposure(recording.t, grating, skew_s)
+        print(f"grating reference moved to mid-exposure ({skew_s * 1e3:+.3f} ms, from the model)")
+    reference = np.full(recording.n_frames, np.nan) if args.no_reference else grating
     result = track(model, recording.frames, reference=reference, progress=ProgressBar("track"))
-    path = write_csv(args.out, result_columns(recording.t, result, recording.reference))
-    print("\n".join(summary(result, recording.reference)))
+    path = write_csv(args.out, result_columns(recording.t, result, grating))
+    print("\n".join(summary(result, grating)))
     print(f"wrote   {path}")
     return 0
