@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Callable
 
-from graytrack.core.calibration import ModelSpec
+from graytrack.core.structure import ModelSpec
 
 MAX_HARMONICS = 13
 MAX_PIXEL_DEGREE = 9

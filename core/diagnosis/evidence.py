@@ -18,7 +18,7 @@ from typing import Callable
 import numpy as np
 
 from graytrack.core.basis import legendre_basis, scaled, trig_basis
-from graytrack.core.calibration import fit_target_map
+from graytrack.core.structure import fit_target_map
 from graytrack.core.diagnosis.heldout import Fit
 from graytrack.core.timing import velocity_mm_s
 

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from graytrack.core.calibration import CalibrationData
+from graytrack.core.calibration_data import CalibrationData
 from graytrack.core.models.fourier import FourierModel
 from graytrack.core.timing import runs
 from graytrack.core.tracking import TrackResult, track

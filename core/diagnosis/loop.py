@@ -14,8 +14,10 @@ from typing import Any, Callable
 
 import numpy as np
 
-from graytrack.core.calibration import (KIND_SPECS, CalibrationData, ModelSpec, calibration_data, fit_spec,
-                                         fit_spec_pitch_search, initial_geometry)
+from graytrack.core.calibration import KIND_SPECS
+from graytrack.core.calibration_data import CalibrationData, calibration_data
+from graytrack.core.geometry import initial_geometry
+from graytrack.core.structure import ModelSpec, fit_spec, fit_spec_pitch_search
 from graytrack.core.diagnosis.effects import EFFECTS
 from graytrack.core.diagnosis.evidence import Evidence, all_evidence, clipping_evidence, timing_evidence
 from graytrack.core.diagnosis.heldout import Figures, Fit, figures, fit_on, interleaved_split

@@ -1,0 +1,82 @@
+"""Calibration data: the frames with a reference, checked, with their noise and usable samples.
+
+Everything that fits a model starts here, so the refusals live here too: no reference, too few
+frames, flat frames (nothing to see) get a message that says which.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from graytrack.core.errors import CalibrationError
+from graytrack.core.models.fourier import FourierModel
+from graytrack.core.noise import estimate_sigma
+from graytrack.core.recording import Recording
+
+MIN_FRAMES = 20
+
+
+@dataclass
+class CalibrationData:
+    """What a fit needs from a recording: positions, frames in the model's row layout, weights."""
+
+    x_mm: np.ndarray  # (K,) reference positions
+    frames: np.ndarray  # (K, R, n) raw strip, float64
+    weights: np.ndarray  # (K, R, n) 1 for usable samples, 0 for saturated or clipped ones
+    sigma_gray: float  # model-free per-pixel noise
+    meta: dict[str, Any]
+    t_s: np.ndarray | None = None  # (K,) frame times, for velocity-dependent effects
+
+    def subset(self, index: np.ndarray) -> "CalibrationData":
+        t_s = None if self.t_s is None else self.t_s[index]
+        return CalibrationData(self.x_mm[index], self.frames[index], self.weights[index], self.sigma_gray,
+                               self.meta, t_s)
+
+    def with_reference(self, x_mm: np.ndarray) -> "CalibrationData":
+        return CalibrationData(x_mm, self.frames, self.weights, self.sigma_gray, self.meta, self.t_s)
+
+    @property
+    def stroke_mm(self) -> float:
+        return float(self.x_mm.max() - self.x_mm.min())
+
+
+@dataclass
+class Calibration:
+    model: FourierModel
+    rmse_gray: float
+    sigma_gray: float
+    iterations: int
+    history: list[dict[str, float]] = field(default_factory=list)
+
+
+def calibration_data(rec: Recording) -> CalibrationData:
+    """Frames with a finite reference, checked for what would make any fit meaningless."""
+    valid = np.isfinite(rec.reference)
+    if not valid.any():
+        raise CalibrationError("the recording has no reference positions: calibration needs the grating readout")
+    if valid.sum() < MIN_FRAMES:
+        raise CalibrationError(f"only {int(valid.sum())} frames have a reference; calibration needs at least {MIN_FRAMES}")
+    frames = rec.strip()[valid]
+    spread = np.percentile(frames, 99) - np.percentile(frames, 1)
+    if spread < 2.0 or frames.std(axis=-1).mean() < 0.5:
+        raise CalibrationError(f"the frames are flat (gray spread {spread:.2f}): no target is visible")
+    weights = usable_samples(frames, rec.meta)
+    x_mm = rec.reference[valid]
+    period = rec.meta.get("period_mm")
+    sigma = estimate_sigma(frames, x_mm, period)
+    return CalibrationData(x_mm, frames, weights, sigma, dict(rec.meta), rec.t[valid])
+
+
+def usable_samples(frames: np.ndarray, meta: dict[str, Any]) -> np.ndarray:
+    """0 where a pixel sits at the sensor's floor or ceiling (clipped: carries no position)."""
+    bit_depth = meta.get("bit_depth")
+    weights = np.ones(frames.shape)
+    if isinstance(bit_depth, int) and 1 <= bit_depth <= 32:
+        weights[(frames >= 2**bit_depth - 1) | (frames <= 0)] = 0.0
+    return weights
+
+
+# --------------------------------------------------------------------------- initial geometry
