@@ -10,29 +10,19 @@ with it, and re-acquires by a global search over one period.
 
 from __future__ import annotations
 
-import cmath
-import math
 from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
 
 from graytrack.core.errors import TrackingError
-from graytrack.core.models.fourier import TWO_PI, FourierModel
+from graytrack.core.evaluation import ClippedHarmonics, FastHarmonics, GeneralHarmonics, gram_polynomials
+from graytrack.core.models.fourier import FourierModel
 from graytrack.core.recording import Recording
+from graytrack.core.solvers import FrameSolution, GeneralBatch, TrigPolyBatch
 
 Progress = Callable[[float, str], None]
 ACQUIRE_GRID_PER_PERIOD = 64
-
-
-@dataclass
-class FrameSolution:
-    x_mm: float
-    rms_gray: float
-    information: float  # Σ (∂F/∂x)² after any per-frame nuisance is profiled out
-    iterations: int
-    gain: float = 1.0
-    offset: float = 0.0
 
 
 @dataclass
@@ -58,213 +48,6 @@ class TrackResult:
     def error_um(self, reference: np.ndarray) -> np.ndarray:
         """Position minus reference in µm (NaN where either is missing)."""
         return (self.x_mm - reference) * 1e3
-
-
-class ClippedHarmonics:
-    """Wraps an evaluator so that saturated pixels stick at the limit with zero slope."""
-
-    def __init__(self, inner: "FastHarmonics | GeneralHarmonics", model: FourierModel):
-        self.inner, self.model = inner, model
-
-    def evaluate(self, x_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return self.model.clip_with_slope(*self.inner.evaluate(x_mm))
-
-
-class FastHarmonics:
-    """F(x) and ∂F/∂x without a single sine of a pixel array: O(L·M·R·n) per call.
-
-    Every pixel's Fourier series is folded into complex weights V_{l,h} (pixel offsets and flat
-    field included), one set per stroke polynomial l; an evaluation is z^h (M scalars) and the
-    stroke polynomials (L scalars) times V.
-    """
-
-    def __init__(self, model: FourierModel):
-        weights = model.spatial_weights()  # (R, n, A, L)
-        gain, offset = model.response()
-        gain = np.broadcast_to(np.asarray(gain, dtype=np.float64), weights.shape[:2])
-        harmonics = np.arange(1, model.harmonics + 1)
-        shift = np.exp(1j * TWO_PI / model.period_mm * model.target_offset()[..., None] * harmonics)  # (R, n, M)
-        sin_c, cos_c = weights[..., 1::2, :], weights[..., 2::2, :]  # (R, n, M, L)
-        folded = (cos_c - 1j * sin_c) * (shift * gain[..., None])[..., None]
-        n_values = weights.shape[0] * weights.shape[1]
-        self.model = model
-        self.period_mm = model.period_mm
-        self.harmonics = harmonics
-        self.offset = np.broadcast_to(np.asarray(offset, dtype=np.float64), weights.shape[:2]).reshape(-1)
-        self.constants = (gain[..., None] * weights[..., 0, :]).reshape(n_values, -1).T.copy()  # (L, P)
-        self.vs = folded.reshape(n_values, model.harmonics, -1).transpose(2, 1, 0).copy()  # (L, M, P)
-        # The stroke-independent case, as the fast tracking path reads it:
-        self.constant = self.constants[0] + self.offset
-        self.v = self.vs[0]
-        self.dv = self.v * (1j * TWO_PI / model.period_mm * harmonics)[:, None]
-
-    def evaluate(self, x_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Values and slopes ``(G, P)`` at positions ``x_mm`` ``(G,)``."""
-        x_mm = np.asarray(x_mm, dtype=np.float64)
-        z = np.exp(1j * TWO_PI / self.period_mm * np.outer(x_mm, self.harmonics))  # (G, M)
-        if self.vs.shape[0] == 1:
-            return self.constant + (z @ self.v).real, (z @ self.dv).real
-        stroke, dstroke = self.model.stroke_basis(x_mm)  # (G, L)
-        dz = z * (1j * TWO_PI / self.period_mm * self.harmonics)
-        base = self.constants[None] + np.einsum("gm,lmp->glp", z, self.vs).real
-        turning = np.einsum("gm,lmp->glp", dz, self.vs).real
-        values = self.offset + np.einsum("gl,glp->gp", stroke, base)
-        slopes = np.einsum("gl,glp->gp", stroke, turning) + np.einsum("gl,glp->gp", dstroke, base)
-        return values, slopes
-
-
-class GeneralHarmonics:
-    """Fallback for models with a target map: the model's own predict."""
-
-    def __init__(self, model: FourierModel):
-        self.model = model
-
-    def evaluate(self, x_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        values, slopes = self.model.predict(np.asarray(x_mm), with_derivative=True)
-        return values.reshape(len(x_mm), -1), slopes.reshape(len(x_mm), -1)
-
-
-class GeneralBatch:
-    """Gauss–Newton on frames with any model: per iteration one model evaluation at one x.
-
-    Handles what the fast path cannot: coefficients that drift along the stroke, a per-frame
-    gain/offset solved together with x, and saturated pixels.
-    """
-
-    def __init__(self, model: FourierModel, prepared: np.ndarray, max_iterations: int, tolerance_mm: float,
-                 evaluator: "FastHarmonics | GeneralHarmonics | ClippedHarmonics"):
-        self.model = model
-        self.frames = prepared.reshape(prepared.shape[0], -1)
-        self.evaluator = evaluator
-        self.max_iterations, self.tolerance_mm = max_iterations, tolerance_mm
-        self.max_step_mm = model.period_mm / 4.0
-
-    def refine(self, k: int, x_start: float) -> FrameSolution:
-        y = self.frames[k]
-        x, gain, offset = float(x_start), 1.0, 0.0
-        common_mode = self.model.common_mode
-        iterations = 0
-        for iterations in range(1, self.max_iterations + 1):
-            values, slopes = self.evaluator.evaluate(np.array([x]))
-            values, slopes = values[0], slopes[0]
-            residual = y - (gain * values + offset)
-            if common_mode:
-                jac = np.stack([gain * slopes, values, np.ones_like(values)], axis=1)
-                delta = np.linalg.solve(jac.T @ jac, jac.T @ residual)
-                dx = float(delta[0])
-                gain, offset = gain + float(delta[1]), offset + float(delta[2])
-            else:
-                dx = float(slopes @ residual) / float(slopes @ slopes)
-            dx = min(max(dx, -self.max_step_mm), self.max_step_mm)
-            x += dx
-            if abs(dx) < self.tolerance_mm:
-                break
-        values, slopes = self.evaluator.evaluate(np.array([x]))
-        residual = y - (gain * values[0] + offset)
-        rms = float(np.sqrt(residual @ residual / y.size))
-        return FrameSolution(x, rms, self._information(values[0], slopes[0], gain), iterations, gain, offset)
-
-    def _information(self, values: np.ndarray, slopes: np.ndarray, gain: float) -> float:
-        d_x = gain * slopes
-        info = float(d_x @ d_x)
-        if self.model.common_mode:
-            nuisance = np.stack([values, np.ones_like(values)], axis=1)
-            cross = nuisance.T @ d_x
-            info -= float(cross @ np.linalg.solve(nuisance.T @ nuisance, cross))
-        return info
-
-    def grid_cost(self, k: int, grid: np.ndarray) -> np.ndarray:
-        values, _ = self.evaluator.evaluate(grid)
-        y = self.frames[k]
-        if not self.model.common_mode:
-            return ((y[None] - values) ** 2).sum(axis=1)
-        centred_v = values - values.mean(axis=1, keepdims=True)
-        centred_y = y - y.mean()
-        scale = (centred_v @ centred_y) / np.maximum((centred_v**2).sum(axis=1), 1e-300)
-        return ((centred_y[None] - scale[:, None] * centred_v) ** 2).sum(axis=1) + 1e12 * (scale <= 0)
-
-
-class TrigPolyBatch:
-    """The fast path: each frame reduced to M complex numbers, then a scalar solve per frame.
-
-    For a model whose coefficients do not depend on x, every quantity Gauss–Newton needs is a
-    trigonometric polynomial in x: y·F(x) = y·c + Re Σ_h β_h z^h with β = V·y (one matrix product
-    for all frames), and ‖F‖², ‖F′‖² have frame-independent coefficients (found once by FFT).
-    The per-frame loop then does a few dozen scalar operations instead of array work.
-    """
-
-    def __init__(self, model: FourierModel, prepared: np.ndarray, max_iterations: int, tolerance_mm: float,
-                 fast: FastHarmonics, gram: tuple[np.ndarray, np.ndarray]):
-        frames = prepared.reshape(prepared.shape[0], -1)
-        self.n_values = frames.shape[1]
-        self.omega = TWO_PI / model.period_mm
-        self.max_iterations, self.tolerance_mm = max_iterations, tolerance_mm
-        self.max_step_mm = model.period_mm / 4.0
-        self.harmonics = model.harmonics
-        self.beta = frames @ fast.v.T  # (K, M)
-        self.y_dot_c = frames @ fast.constant
-        self.y_norm = np.einsum("kp,kp->k", frames, frames)
-        self.q, self.d = gram
-        degree = 2 * self.harmonics
-        orders = np.arange(1, degree + 1)
-        padded_beta = np.zeros((frames.shape[0], degree), dtype=complex)
-        padded_beta[:, : self.harmonics] = self.beta
-        # Per frame, as coefficients of z^1..z^2M:
-        #   F′·(y − F) = Re Σ step_m z^m        (the Gauss–Newton numerator)
-        #   ‖y − F‖² = cost_0 + Re Σ cost_m z^m
-        step = padded_beta * (1j * self.omega * orders) - 0.5 * self.q[1:] * (1j * self.omega * orders)
-        self._step_rows = step.tolist()
-        self._cost_rows = (self.q[1:] - 2.0 * padded_beta).tolist()
-        self._cost_const = (self.y_norm - 2.0 * self.y_dot_c + self.q[0].real).tolist()
-        self._info_coeffs = self.d[1:].tolist()
-        self._info_const = float(self.d[0].real)
-
-    def refine(self, k: int, x_start: float) -> FrameSolution:
-        step_coeffs, info_coeffs = self._step_rows[k], self._info_coeffs
-        omega, degree, max_step = self.omega, 2 * self.harmonics, self.max_step_mm
-        x = float(x_start)
-        iterations = 0
-        powers: list[complex] = []
-        information = 1.0
-        for iterations in range(1, self.max_iterations + 1):
-            powers = _powers(cmath.exp(1j * omega * x), degree)
-            numerator = sum([(c * p).real for c, p in zip(step_coeffs, powers)])
-            information = self._info_const + sum([(c * p).real for c, p in zip(info_coeffs, powers)])
-            dx = min(max(numerator / information, -max_step), max_step)
-            x += dx
-            if abs(dx) < self.tolerance_mm:
-                break
-        # Residual and information at the last evaluated point: the final step is below tolerance.
-        cost = self._cost_const[k] + sum([(c * p).real for c, p in zip(self._cost_rows[k], powers)])
-        return FrameSolution(x, math.sqrt(max(cost, 0.0) / self.n_values), information, iterations)
-
-    def grid_cost(self, k: int, grid: np.ndarray) -> np.ndarray:
-        z = np.exp(1j * self.omega * np.outer(grid, np.arange(2 * self.harmonics + 1)))  # (G, 2M+1)
-        model_norm = (z @ self.q).real
-        cross = self.y_dot_c[k] + (z[:, 1:self.harmonics + 1] @ self.beta[k]).real
-        return self.y_norm[k] - 2.0 * cross + model_norm
-
-
-def gram_polynomials(fast: FastHarmonics, model: FourierModel) -> tuple[np.ndarray, np.ndarray]:
-    """Coefficients of ‖F(x)‖² and ‖F′(x)‖² as trig polynomials of degree 2M (sampled + FFT)."""
-    n_samples = 4 * model.harmonics + 4
-    x = np.arange(n_samples) * model.period_mm / n_samples
-    values, slopes = fast.evaluate(x)
-    out = []
-    for sampled in ((values**2).sum(axis=1), (slopes**2).sum(axis=1)):
-        spectrum = np.fft.fft(sampled) / n_samples
-        coeffs = 2.0 * spectrum[: 2 * model.harmonics + 1]
-        coeffs[0] = spectrum[0].real
-        out.append(coeffs)
-    return out[0], out[1]
-
-
-def _powers(z: complex, count: int) -> list[complex]:
-    """[z, z², …, z^count]."""
-    out = [z]
-    for _ in range(count - 1):
-        out.append(out[-1] * z)
-    return out
 
 
 class Tracker:

@@ -69,7 +69,7 @@ def test_constructor_checks():
 
 
 def test_tracker_evaluator_matches_model_with_stroke_terms_and_flat_field(paper_models):
-    from graytrack.core.tracking import FastHarmonics
+    from graytrack.core.evaluation import FastHarmonics
 
     base = paper_models["paper"].model
     rng = np.random.default_rng(1)

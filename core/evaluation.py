@@ -1,0 +1,90 @@
+"""Evaluating a calibrated model at trial positions, as fast as the model's structure allows.
+
+The tracker asks for F(x) and ∂F/∂x at one or a few positions many times per frame, so the model's
+coefficients are folded once into complex weights per harmonic: an evaluation is then a handful of
+scalar powers times a small matrix, with no sine or cosine of a pixel array.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from graytrack.core.models.fourier import TWO_PI, FourierModel
+
+
+class ClippedHarmonics:
+    """Wraps an evaluator so that saturated pixels stick at the limit with zero slope."""
+
+    def __init__(self, inner: "FastHarmonics | GeneralHarmonics", model: FourierModel):
+        self.inner, self.model = inner, model
+
+    def evaluate(self, x_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self.model.clip_with_slope(*self.inner.evaluate(x_mm))
+
+
+class FastHarmonics:
+    """F(x) and ∂F/∂x without a single sine of a pixel array: O(L·M·R·n) per call.
+
+    Every pixel's Fourier series is folded into complex weights V_{l,h} (pixel offsets and flat
+    field included), one set per stroke polynomial l; an evaluation is z^h (M scalars) and the
+    stroke polynomials (L scalars) times V.
+    """
+
+    def __init__(self, model: FourierModel):
+        weights = model.spatial_weights()  # (R, n, A, L)
+        gain, offset = model.response()
+        gain = np.broadcast_to(np.asarray(gain, dtype=np.float64), weights.shape[:2])
+        harmonics = np.arange(1, model.harmonics + 1)
+        shift = np.exp(1j * TWO_PI / model.period_mm * model.target_offset()[..., None] * harmonics)  # (R, n, M)
+        sin_c, cos_c = weights[..., 1::2, :], weights[..., 2::2, :]  # (R, n, M, L)
+        folded = (cos_c - 1j * sin_c) * (shift * gain[..., None])[..., None]
+        n_values = weights.shape[0] * weights.shape[1]
+        self.model = model
+        self.period_mm = model.period_mm
+        self.harmonics = harmonics
+        self.offset = np.broadcast_to(np.asarray(offset, dtype=np.float64), weights.shape[:2]).reshape(-1)
+        self.constants = (gain[..., None] * weights[..., 0, :]).reshape(n_values, -1).T.copy()  # (L, P)
+        self.vs = folded.reshape(n_values, model.harmonics, -1).transpose(2, 1, 0).copy()  # (L, M, P)
+        # The stroke-independent case, as the fast tracking path reads it:
+        self.constant = self.constants[0] + self.offset
+        self.v = self.vs[0]
+        self.dv = self.v * (1j * TWO_PI / model.period_mm * harmonics)[:, None]
+
+    def evaluate(self, x_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Values and slopes ``(G, P)`` at positions ``x_mm`` ``(G,)``."""
+        x_mm = np.asarray(x_mm, dtype=np.float64)
+        z = np.exp(1j * TWO_PI / self.period_mm * np.outer(x_mm, self.harmonics))  # (G, M)
+        if self.vs.shape[0] == 1:
+            return self.constant + (z @ self.v).real, (z @ self.dv).real
+        stroke, dstroke = self.model.stroke_basis(x_mm)  # (G, L)
+        dz = z * (1j * TWO_PI / self.period_mm * self.harmonics)
+        base = self.constants[None] + np.einsum("gm,lmp->glp", z, self.vs).real
+        turning = np.einsum("gm,lmp->glp", dz, self.vs).real
+        values = self.offset + np.einsum("gl,glp->gp", stroke, base)
+        slopes = np.einsum("gl,glp->gp", stroke, turning) + np.einsum("gl,glp->gp", dstroke, base)
+        return values, slopes
+
+
+class GeneralHarmonics:
+    """Fallback for models with a target map: the model's own predict."""
+
+    def __init__(self, model: FourierModel):
+        self.model = model
+
+    def evaluate(self, x_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        values, slopes = self.model.predict(np.asarray(x_mm), with_derivative=True)
+        return values.reshape(len(x_mm), -1), slopes.reshape(len(x_mm), -1)
+
+
+def gram_polynomials(fast: FastHarmonics, model: FourierModel) -> tuple[np.ndarray, np.ndarray]:
+    """Coefficients of ‖F(x)‖² and ‖F′(x)‖² as trig polynomials of degree 2M (sampled + FFT)."""
+    n_samples = 4 * model.harmonics + 4
+    x = np.arange(n_samples) * model.period_mm / n_samples
+    values, slopes = fast.evaluate(x)
+    out = []
+    for sampled in ((values**2).sum(axis=1), (slopes**2).sum(axis=1)):
+        spectrum = np.fft.fft(sampled) / n_samples
+        coeffs = 2.0 * spectrum[: 2 * model.harmonics + 1]
+        coeffs[0] = spectrum[0].real
+        out.append(coeffs)
+    return out[0], out[1]
