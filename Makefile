@@ -24,9 +24,9 @@ $(STAMP): pyproject.toml setup.py | $(BIN)/python
 
 install: $(STAMP)
 
-# Until the daemon lands, `make run` runs the main job offline on the virtual rig (DESIGN.md).
+# The daemon on the embedded default, the virtual rig, at http://$(HOST):$(PORT) (DESIGN.md).
 run: $(STAMP)
-	$(BIN)/python -m graytrack demo --out out/demo
+	$(BIN)/python -m graytrack serve --host $(HOST) --port $(PORT)
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -n $(PYTEST_WORKERS) $(PYTEST_ARGS)

@@ -1,0 +1,63 @@
+"""``graytrack serve [--config FILE] [--host H] [--port P] [--data-dir DIR]``: the daemon.
+
+Without ``--config`` (or with ``kind = "sim"``) it runs the virtual rig behind the real drivers.
+uvicorn handles SIGINT/SIGTERM by finishing requests and running the app's shutdown, which closes
+the camera and the stage; after SIGTERM the exit status is 0.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+
+from graytrack.drivers.config import ConfigError
+from graytrack.service.errors import CliError
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser("serve", help="run the daemon: hardware (or the virtual rig), HTTP API, status page")
+    parser.add_argument("--config", default=None, help="TOML file ([camera], [stage], [daemon], [sweep]); "
+                                                       "default: the virtual rig")
+    parser.add_argument("--host", default=None, help="address to bind (default 127.0.0.1)")
+    parser.add_argument("--port", type=int, default=None, help="TCP port (default 8000)")
+    parser.add_argument("--data-dir", default=None, help="models, calibrations and the token "
+                                                         "(default $STATE_DIRECTORY or ~/.local/state/graytrack)")
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    import uvicorn
+
+    from graytrack.service.daemon.app import create_app
+    from graytrack.service.daemon.settings import load_settings
+
+    try:
+        settings = load_settings(args.config).with_overrides(host=args.host, port=args.port, data_dir=args.data_dir)
+    except ConfigError as exc:
+        raise CliError(str(exc)) from None
+    if not 0 <= settings.daemon.port <= 65535:
+        raise CliError(f"--port {settings.daemon.port}: must be 0..65535")
+    daemon = settings.daemon
+    logging.basicConfig(level=daemon.log_level.upper(), stream=sys.stderr,
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    try:
+        app = create_app(settings)
+    except OSError as exc:
+        raise CliError(f"data directory {settings.data_path()}: {exc}") from None
+    rig = "virtual rig" if settings.simulated else f"{settings.hardware.camera.kind} camera, GCS stage"
+    print(f"graytrack serve: {rig} at http://{daemon.host}:{daemon.port}  data {settings.data_path()}  "
+          f"token from {app.state.token_source}", file=sys.stderr, flush=True)
+    config = uvicorn.Config(app, host=daemon.host, port=daemon.port, log_level=daemon.log_level,
+                            ws="websockets", lifespan="on", access_log=daemon.log_level == "debug")
+    server = uvicorn.Server(config)
+    # uvicorn shuts down gracefully on SIGTERM and then re-raises it to the handler found at start;
+    # a handler that only notes it turns "killed by SIGTERM" into the clean exit status 0 that
+    # systemd and scripts expect after the hardware has been closed.
+    terminated: list[int] = []
+    signal.signal(signal.SIGTERM, lambda signum, frame: terminated.append(signum))
+    server.run()
+    if terminated:
+        print("graytrack serve: stopped (SIGTERM), hardware closed", file=sys.stderr, flush=True)
+    return 0 if server.started else 1

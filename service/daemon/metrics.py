@@ -1,0 +1,69 @@
+"""``GET /metrics``: the daemon's counters and gauges in the Prometheus text format (v0.0.4).
+
+Hand-written because the set is small and fixed, and the rig has no business pulling in a
+client library for it. Names follow Prometheus conventions (``_total`` counters, base units).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Iterable
+
+from graytrack.service.daemon.broadcast import Broadcaster
+from graytrack.service.daemon.rig import Rig
+
+STATES = ("starting", "idle", "calibrating", "tracking", "fault", "stopping")
+CONTENT_TYPE = "text/plain; version=0.0.4; charset=utf-8"
+
+
+def _metric(name: str, kind: str, help_text: str, samples: Iterable[tuple[str, float]]) -> list[str]:
+    lines = [f"# HELP {name} {help_text}", f"# TYPE {name} {kind}"]
+    for labels, value in samples:
+        text = "NaN" if value is None or (isinstance(value, float) and math.isnan(value)) else repr(float(value))
+        lines.append(f"{name}{labels} {text}")
+    return lines
+
+
+def render(rig: Rig, broadcaster: Broadcaster) -> str:
+    status = rig.status()
+    acquisition, grating = rig.acquisition, rig.grating
+    stats = acquisition.stats if acquisition is not None else None
+    camera = rig.hardware.camera.stats if rig.hardware is not None else None
+    link = rig.hardware.stage.link.stats if rig.hardware is not None else None
+    position = status["position_mm"]
+    out: list[str] = []
+    out += _metric("graytrack_state", "gauge", "1 for the daemon's current state",
+                   [(f'{{state="{s}"}}', float(status["state"] == s)) for s in STATES])
+    out += _metric("graytrack_calibrated", "gauge", "1 when a model is installed", [("", float(status["calibrated"]))])
+    out += _metric("graytrack_position_mm", "gauge", "last tracked position",
+                   [("", float("nan") if position is None else position)])
+    out += _metric("graytrack_crlb_um", "gauge", "Cramer-Rao bound of the last tracked frame",
+                   [("", float("nan") if status["crlb_um"] is None else status["crlb_um"])])
+    out += _metric("graytrack_frame_rate_hz", "gauge", "frames per second over the last frames",
+                   [("", status["frame_rate_hz"])])
+    out += _metric("graytrack_frames_total", "counter", "camera frames received", [("", stats.frames if stats else 0)])
+    out += _metric("graytrack_frames_tracked_total", "counter", "frames tracked", [("", stats.tracked if stats else 0)])
+    out += _metric("graytrack_frames_unplaced_total", "counter", "tracked frames that could not be placed",
+                   [("", stats.unplaced if stats else 0)])
+    out += _metric("graytrack_lock_events_total", "counter", "lock losses and re-acquisitions",
+                   [("", stats.lock_events if stats else 0)])
+    out += _metric("graytrack_camera_dropped_frames_total", "counter", "frames the camera lost or skipped",
+                   [("", camera.dropped if camera else 0)])
+    out += _metric("graytrack_camera_errors_total", "counter", "camera errors other than timeouts",
+                   [("", stats.camera_errors if stats else 0)])
+    out += _metric("graytrack_grating_reads_total", "counter", "POS? readings", [("", grating.reads if grating else 0)])
+    out += _metric("graytrack_grating_errors_total", "counter", "failed POS? readings",
+                   [("", grating.errors if grating else 0)])
+    out += _metric("graytrack_stage_reconnects_total", "counter", "serial port reopened",
+                   [("", link.reconnects if link else 0)])
+    out += _metric("graytrack_faults_total", "counter", "faults raised", [("", rig.faults.raised)])
+    out += _metric("graytrack_calibrations_total", "counter", "calibration sweeps finished by outcome",
+                   [(f'{{outcome="{k}"}}', v) for k, v in sorted(rig.calibrations_finished.items())])
+    out += _metric("graytrack_websocket_clients", "gauge", "connected /ws/position clients",
+                   [("", broadcaster.clients)])
+    out += _metric("graytrack_websocket_messages_total", "counter", "position messages sent",
+                   [("", broadcaster.sent)])
+    out += _metric("graytrack_websocket_dropped_total", "counter", "messages dropped for slow clients",
+                   [("", broadcaster.dropped)])
+    out += _metric("graytrack_uptime_seconds", "gauge", "seconds since start", [("", status["uptime_s"])])
+    return "\n".join(out) + "\n"

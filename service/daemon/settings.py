@@ -1,0 +1,114 @@
+"""The daemon's configuration file: ``[camera]``/``[stage]`` (drivers.config) plus ``[daemon]`` and ``[sweep]``.
+
+One TOML file configures everything (``deploy/graytrack.example.toml``). The hardware tables are
+validated by the drivers' own strict models; the two tables owned here are just as strict, and an
+unknown top-level table is an error too, because a misspelt ``[sweeep]`` on a bench would
+otherwise calibrate with defaults nobody chose. Every error names its key.
+"""
+
+from __future__ import annotations
+
+import os
+import tomllib
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from graytrack.drivers.config import ConfigError, HardwareConfig, _describe, parse_hardware
+
+DEFAULT_HOST = "127.0.0.1"  # DESIGN.md: loopback unless told otherwise
+DEFAULT_PORT = 8000
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class DaemonConfig(_Strict):
+    host: str = DEFAULT_HOST
+    port: int = Field(DEFAULT_PORT, ge=0, le=65535)
+    data_dir: str | None = Field(None, description="models, calibrations, token; default: see default_data_dir()")
+    token: str | None = Field(None, min_length=16, description="bearer token; omitted = generated into data_dir")
+    auto_calibrate: Literal["sim", "always", "never"] = Field(
+        "sim", description="calibrate at start when no model is saved: only on the virtual rig, always, never")
+    camera_fault_after_s: float = Field(2.0, gt=0, description="no frame for this long = camera fault")
+    reopen_interval_s: float = Field(2.0, gt=0, description="wait between attempts to reopen failed hardware")
+    grating_poll_s: float = Field(0.005, gt=0, description="wall time between POS? reads of the grating poller")
+    pair_window_s: float = Field(0.05, gt=0, description="a grating reading further than this from a frame is not paired")
+    sim_clock_scale: float = Field(1.0, gt=0, description="virtual rig only: simulated seconds per wall second")
+    log_level: Literal["debug", "info", "warning", "error"] = "info"
+
+
+class SweepConfig(_Strict):
+    positions: int = Field(41, ge=2, description="step-and-settle stops over the soft limits")
+    # three frames at one stop are what the model-free noise estimate (second differences in time) needs
+    frames_per_position: int = Field(5, ge=3)
+    margin_mm: float = Field(0.1, ge=0, description="keep this far inside the soft limits")
+    settle_timeout_s: float = Field(10.0, gt=0)
+    frame_timeout_s: float = Field(5.0, gt=0, description="wall time to wait for the frames of one stop")
+    model: Literal["paper", "auto"] = Field("paper", description="paper model, or auto = the closed loop")
+    pixel_pitch_mm: float | None = Field(None, gt=0, description="nominal alpha*d for real hardware (else estimated)")
+    period_mm: float | None = Field(None, gt=0, description="nominal target period for real hardware (else estimated)")
+
+
+class Settings(_Strict):
+    hardware: HardwareConfig = HardwareConfig()
+    daemon: DaemonConfig = DaemonConfig()
+    sweep: SweepConfig = SweepConfig()
+
+    @property
+    def simulated(self) -> bool:
+        return self.hardware.stage.kind == "sim"
+
+    def data_path(self) -> Path:
+        return Path(self.daemon.data_dir) if self.daemon.data_dir else default_data_dir()
+
+    def with_overrides(self, **daemon: Any) -> "Settings":
+        """Command-line flags win over the file (``None`` = not given)."""
+        changes = {key: value for key, value in daemon.items() if value is not None}
+        return self.model_copy(update={"daemon": self.daemon.model_copy(update=changes)})
+
+
+OWN_TABLES = {"daemon": DaemonConfig, "sweep": SweepConfig}
+HARDWARE_TABLES = ("camera", "stage")
+
+
+def default_data_dir() -> Path:
+    """systemd's ``StateDirectory`` when run as the unit, else the XDG state directory."""
+    if os.environ.get("STATE_DIRECTORY"):
+        return Path(os.environ["STATE_DIRECTORY"].split(":")[0])
+    base = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
+    return Path(base) / "graytrack"
+
+
+def parse_settings(tables: dict[str, Any]) -> Settings:
+    unknown = sorted(set(tables) - set(OWN_TABLES) - set(HARDWARE_TABLES))
+    if unknown:
+        raise ConfigError(f"{unknown[0]}: unknown table (expected camera, stage, daemon, sweep)")
+    hardware = parse_hardware(tables)
+    parts: dict[str, Any] = {"hardware": hardware}
+    for name, model in OWN_TABLES.items():
+        try:
+            parts[name] = model.model_validate(tables.get(name, {}))
+        except ValidationError as exc:
+            raise ConfigError("; ".join(f"{name}.{_describe(error)}" for error in exc.errors())) from None
+    return Settings(**parts)
+
+
+def load_settings(path: str | os.PathLike[str] | None) -> Settings:
+    """The file's settings, or the embedded default (the virtual rig) when ``path`` is None."""
+    if path is None:
+        return Settings()
+    path = Path(path)
+    try:
+        with open(path, "rb") as fh:
+            tables = tomllib.load(fh)
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such file") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: not valid TOML ({exc})") from None
+    try:
+        return parse_settings(tables)
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc}") from None

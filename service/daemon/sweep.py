@@ -1,0 +1,231 @@
+"""The calibration sweep: step and settle over the stroke, then fit a model against the grating.
+
+At each stop the stage is moved, the sweep waits until the controller reports on target, takes
+the next frames whose exposure began *after* that moment (a frame straddling the settle would
+blur the last of the motion into the calibration), and then reads the grating once more: the
+axis is at rest, so that reading is the reference of every frame of the stop. Those frames form an ordinary :class:`Recording` which is calibrated with the
+paper model (or the closed loop, ``model = "auto"``) and stored with the model and a report; the
+recording is written first, so a failed fit still leaves the data behind for ``graytrack diagnose``.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import queue
+import threading
+import time
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from typing import Any
+
+import numpy as np
+
+from graytrack.core.calibration import calibrate
+from graytrack.core.errors import GraytrackError
+from graytrack.core.models import save_model
+from graytrack.core.models.fourier import FourierModel
+from graytrack.core.recording import Recording, save
+from graytrack.core.files import write_atomic
+from graytrack.drivers.camera.base import Frame
+from graytrack.drivers.stage.base import Stage
+from graytrack.drivers.stage.errors import StageError
+from graytrack.service.daemon.acquisition import Acquisition, Sample
+from graytrack.service.daemon.settings import SweepConfig
+from graytrack.service.daemon.storage import Storage
+
+log = logging.getLogger("graytrack.daemon")
+SWEEP_SHARE = 0.8  # of the progress bar; the fit takes the rest
+
+
+class SweepError(Exception):
+    """The sweep could not finish (stage, camera or fit); the message says which and why."""
+
+
+class SweepAborted(SweepError):
+    """Stopped on request (``POST /api/stage/stop`` or shutdown)."""
+
+
+@dataclass
+class CalibrationJob:
+    """One calibration request, its progress and its outcome; what ``GET /api/calibration/{id}`` returns."""
+
+    id: str
+    model: str
+    positions: int
+    frames_per_position: int
+    state: str = "queued"  # queued → sweeping → fitting → done | failed | aborted
+    progress: float = 0.0
+    message: str = "queued"
+    started: str = field(default_factory=lambda: datetime.now(timezone.utc).isoformat())
+    finished: str | None = None
+    duration_s: float | None = None
+    error: str | None = None
+    report: dict[str, Any] | None = None
+    files: dict[str, str] = field(default_factory=dict)
+    abort: threading.Event = field(default_factory=threading.Event, repr=False)
+
+    @property
+    def active(self) -> bool:
+        return self.state in ("queued", "sweeping", "fitting")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {key: value for key, value in self.__dict__.items() if key != "abort"}
+
+
+def sweep_positions(limits: tuple[float, float], config: SweepConfig) -> np.ndarray:
+    """Evenly spaced stops over the allowed range, ``margin_mm`` inside each limit."""
+    low, high = limits[0] + config.margin_mm, limits[1] - config.margin_mm
+    if not (math.isfinite(low) and math.isfinite(high) and high > low):
+        raise SweepError(f"no room to sweep inside the limits [{limits[0]:g}, {limits[1]:g}] mm")
+    return np.linspace(low, high, config.positions)
+
+
+def exposure_s(frame_camera: Any) -> float:
+    """The camera's exposure if it knows it (the settle test needs the exposure start)."""
+    value = getattr(frame_camera, "exposure_s", None)
+    if value is None:
+        us = getattr(getattr(frame_camera, "settings", None), "exposure_us", None)
+        value = 0.0 if us is None else us * 1e-6
+    return float(value)
+
+
+class Sweep:
+    """Runs one :class:`CalibrationJob` on the calling thread (the rig gives it its own)."""
+
+    def __init__(self, job: CalibrationJob, stage: Stage, acquisition: Acquisition, storage: Storage,
+                 config: SweepConfig, meta: dict[str, Any]) -> None:
+        self.job = job
+        self.stage = stage
+        self.acquisition = acquisition
+        self.storage = storage
+        self.config = config
+        self.meta = meta
+        self.exposure_s = exposure_s(acquisition.camera)
+
+    def run(self) -> FourierModel | None:
+        """The fitted model, or None when the job failed or was aborted (the job says why)."""
+        job, started = self.job, time.monotonic()
+        try:
+            recording = self._sweep()
+            path = save(recording, self.storage.calibration_dir(job.id) / "recording.npz")
+            job.files["recording"] = str(path)
+            model = self._fit(recording)
+            job.state, job.progress = "done", 1.0
+            job.message = (job.report or {}).get("summary", "done")
+            return model
+        except SweepAborted as exc:
+            job.state, job.error, job.message = "aborted", str(exc), str(exc)
+        except (SweepError, StageError, GraytrackError) as exc:
+            if job.abort.is_set():  # a stop request interrupted a move or a settle
+                job.state, job.error, job.message = "aborted", str(exc), "calibration aborted by a stop request"
+                return None
+            job.state, job.error, job.message = "failed", str(exc), f"failed: {exc}"
+            log.error("calibration %s failed: %s", job.id, exc)
+        finally:
+            job.finished = datetime.now(timezone.utc).isoformat()
+            job.duration_s = round(time.monotonic() - started, 3)
+            self._update()
+        return None
+
+    # -- steps -----------------------------------------------------------------------------
+    def _update(self, progress: float | None = None, message: str | None = None) -> None:
+        if progress is not None:
+            self.job.progress = round(float(progress), 4)
+        if message is not None:
+            self.job.message = message
+        self.storage.write_status(self.job.id, self.job.to_dict())
+
+    def _check_abort(self) -> None:
+        if self.job.abort.is_set():
+            raise SweepAborted("calibration aborted by a stop request")
+
+    def _sweep(self) -> Recording:
+        positions = sweep_positions(self.stage.limits(), self.config)
+        self.job.state = "sweeping"
+        frames: list[np.ndarray] = []
+        times: list[float] = []
+        reference: list[float] = []
+        feed = self.acquisition.subscribe()
+        try:
+            for i, target in enumerate(positions):
+                self._check_abort()
+                self.stage.move_to(float(target))
+                settled = self.stage.wait_on_target(self.config.settle_timeout_s)
+                self._check_abort()
+                samples = self._settled_samples(feed, settled.t)
+                # The axis is at rest inside its on-target window, so one POS? read after the frames
+                # is the reference of all of them (pairing with the poller's readings could mix in
+                # one taken before the move when polls are sparse).
+                at_rest = self.stage.position().position_mm
+                for sample in samples:
+                    frames.append(np.asarray(sample.frame.pixels))
+                    times.append(sample.frame.t_host)
+                    reference.append(at_rest)
+                self._update(SWEEP_SHARE * (i + 1) / len(positions),
+                             f"stop {i + 1}/{len(positions)} at {target:.3f} mm")
+        finally:
+            self.acquisition.unsubscribe(feed)
+        strip = np.stack(frames)
+        if strip.shape[1] == 1:
+            strip = strip[:, 0, :]
+        return Recording(strip, np.array(times), np.array(reference), dict(self.meta))
+
+    def _settled_samples(self, feed: "queue.Queue[Sample]", settled_t: float) -> list[Sample]:
+        """The next ``frames_per_position`` frames exposed entirely after ``settled_t``."""
+        wanted, taken = self.config.frames_per_position, []
+        deadline = time.monotonic() + self.config.frame_timeout_s
+        while len(taken) < wanted:
+            self._check_abort()
+            try:
+                sample = feed.get(timeout=max(0.0, min(0.25, deadline - time.monotonic())))
+            except queue.Empty:
+                if time.monotonic() >= deadline:
+                    raise SweepError(f"the camera delivered {len(taken)} of {wanted} frames "
+                                     f"within {self.config.frame_timeout_s:g} s") from None
+                continue
+            if _exposure_start(sample.frame, self.exposure_s) > settled_t:
+                taken.append(sample)
+        return taken
+
+    def _fit(self, recording: Recording) -> FourierModel:
+        self.job.state = "fitting"
+        self._update(SWEEP_SHARE, f"fitting the {self.job.model} model on {recording.n_frames} frames")
+        folder = self.storage.calibration_dir(self.job.id)
+
+        def progress(fraction: float, label: str) -> None:
+            self._update(SWEEP_SHARE + (1 - SWEEP_SHARE) * min(max(fraction, 0.0), 0.99), label)
+
+        if self.job.model == "auto":
+            from graytrack.core.diagnosis import diagnose
+            from graytrack.service.report import write_report
+
+            result = diagnose(recording, progress=progress)
+            paths = write_report(result, folder)
+            model, report = result.final_model, json.loads(paths["json"].read_text())
+            after = report["after"]
+            report["summary"] = f"closed loop: error std {after['error_std_um']:.2f} um after {len(report['steps'])} step(s)"
+            self.job.files.update({name: str(p) for name, p in paths.items()})
+        else:
+            result = calibrate(recording, "paper", progress=progress)
+            model = result.model
+            report = {
+                "model": model.describe(),
+                "rmse_gray": result.rmse_gray,
+                "sigma_gray": result.sigma_gray,
+                "iterations": result.iterations,
+                "frames": recording.n_frames,
+                "stroke_mm": float(np.ptp(recording.reference)),
+                "period_mm": model.period_mm,
+                "pixel_pitch_mm": model.pixel_pitch_mm,
+                "summary": f"paper model: rms {result.rmse_gray:.3f} gray (noise {result.sigma_gray:.3f} gray)",
+            }
+            self.job.files["model"] = str(save_model(model, folder / "model.json"))
+            self.job.files["report"] = str(write_atomic(folder / "report.json", json.dumps(report, indent=1)))
+        self.job.report = report
+        return model
+
+
+def _exposure_start(frame: Frame, exposure: float) -> float:
+    return frame.t_host - 0.5 * exposure

@@ -1,0 +1,26 @@
+"""A running daemon on the virtual rig (real app, real GCS driver on a pty), shared by a module."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import pytest
+from fastapi.testclient import TestClient
+
+from graytrack.service.daemon.app import create_app
+from tests.service.helpers import fast_settings, wait_state
+
+
+@pytest.fixture(scope="module")
+def tracking(tmp_path_factory: pytest.TempPathFactory) -> Iterator[TestClient]:
+    """Started without a model: it calibrates itself (auto_calibrate = "sim") and tracks."""
+    app = create_app(fast_settings(tmp_path_factory.mktemp("daemon")))
+    with TestClient(app) as client:
+        wait_state(client, "tracking", 20.0)
+        yield client
+
+
+@pytest.fixture(scope="module")
+def token(tracking: TestClient) -> dict[str, str]:
+    storage = tracking.app.state.storage
+    return {"Authorization": f"Bearer {storage.token_path.read_text().strip()}"}

@@ -1,0 +1,170 @@
+"""Daemon test helpers: fast settings on the virtual rig, waiting on state, a camera that can fail."""
+
+from __future__ import annotations
+
+import json
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+import httpx
+from fastapi.testclient import TestClient
+
+from graytrack.drivers.camera.base import Camera, CameraError, CameraTimeout, Frame
+from graytrack.drivers.clock import ScaledClock
+from graytrack.drivers.factory import Hardware, open_hardware
+from graytrack.service.daemon.settings import Settings, parse_settings
+
+# The sim clock runs 10x wall time: a 21-stop sweep with real moves and settles takes well under a second.
+FAST_TABLES: dict[str, Any] = {
+    # a long serial timeout: a loaded CI machine can starve the simulated controller's thread
+    "stage": {"kind": "sim", "velocity_mm_s": 20.0, "timeout_s": 5.0},
+    # 20 simulated frames/s = 200 per wall second: enough to test, light enough for a loaded CI machine
+    "camera": {"kind": "sim", "frame_rate_hz": 20.0},
+    "sweep": {"positions": 21, "frames_per_position": 3},
+    # pair_window_s is simulated time: 0.2 s is 20 ms of wall time, several POS? polls even on a loaded machine
+    "daemon": {"sim_clock_scale": 10.0, "camera_fault_after_s": 0.3, "reopen_interval_s": 0.1, "pair_window_s": 0.2},
+}
+
+
+def fast_settings(data_dir: Path, **daemon: Any) -> Settings:
+    tables = {name: dict(table) for name, table in FAST_TABLES.items()}
+    tables["daemon"].update(data_dir=str(data_dir), **daemon)
+    return parse_settings(tables)
+
+
+def wait_for(predicate: Callable[[], Any], timeout_s: float = 10.0, what: str = "condition") -> Any:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(0.02)
+    raise AssertionError(f"timed out after {timeout_s:g} s waiting for {what}")
+
+
+def wait_state(client: TestClient, state: str, timeout_s: float = 10.0) -> dict[str, Any]:
+    def check() -> dict[str, Any] | None:
+        status = client.get("/api/status").json()
+        return status if status["state"] == state else None
+
+    return wait_for(check, timeout_s, f"state {state!r}")
+
+
+class GatedCamera(Camera):
+    """Wraps a camera: ``gate_open = False`` starves the reader, ``fail_reads = n`` raises n errors."""
+
+    def __init__(self, inner: Camera) -> None:
+        super().__init__(inner.settings)
+        self.inner = inner
+        self.gate_open = True
+        self.fail_reads = 0
+        self.opens = 0
+
+    @property
+    def exposure_s(self) -> float:
+        return getattr(self.inner, "exposure_s", 0.0)
+
+    def _open_device(self) -> None:
+        self.inner.open()
+        self.opens += 1
+
+    def _close_device(self) -> None:
+        self.inner.close()
+
+    def _apply_settings(self) -> None:
+        pass
+
+    def _read(self, timeout_s: float) -> Frame:
+        if self.fail_reads > 0:
+            self.fail_reads -= 1
+            raise CameraError("simulated camera fault (cable pulled)")
+        if not self.gate_open:
+            time.sleep(timeout_s)
+            raise CameraTimeout("gated")
+        return self.inner.read(timeout_s)
+
+
+class GatedFactory:
+    """A hardware factory that wraps the camera in :class:`GatedCamera` and keeps the hardware;
+    while ``plugged`` is False opening fails as with an unplugged USB adapter."""
+
+    def __init__(self, plugged: bool = True) -> None:
+        self.plugged = plugged
+        self.attempts = 0
+        self.hardware: Hardware | None = None
+
+    def __call__(self, settings: Settings, clock: ScaledClock) -> Hardware:
+        self.attempts += 1
+        if not self.plugged:
+            raise OSError("no such device: /dev/serial/by-id/usb-PI (unplugged)")
+        hardware = open_hardware(settings.hardware, clock)
+        hardware.camera = GatedCamera(hardware.camera)
+        hardware.camera.open()
+        self.hardware = hardware
+        return hardware
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def write_config(folder: Path) -> Path:
+    """The fast test rig (FAST_TABLES) as a TOML file, data directory inside ``folder``."""
+    lines = []
+    for name, table in FAST_TABLES.items():
+        lines.append(f"[{name}]")
+        lines += [f"{key} = {json.dumps(value)}" for key, value in table.items()]
+    lines.append(f"data_dir = {json.dumps(str(folder / 'data'))}")  # ends up in [daemon], the last table
+    assert list(FAST_TABLES)[-1] == "daemon"
+    config = folder / "graytrack.toml"
+    config.write_text("\n".join(lines) + "\n")
+    return config
+
+
+class ServeProcess:
+    """``python -m graytrack serve`` on a free loopback port; SIGTERM on exit, stderr kept."""
+
+    def __init__(self, folder: Path) -> None:
+        self.folder = folder
+        self.port = free_port()
+        self.base = f"http://127.0.0.1:{self.port}"
+        self.stderr = ""
+        self.process = subprocess.Popen(
+            [sys.executable, "-m", "graytrack", "serve", "--config", str(write_config(folder)), "--port", str(self.port)],
+            stderr=subprocess.PIPE, text=True)
+
+    def status(self) -> dict[str, Any] | None:
+        try:
+            return httpx.get(f"{self.base}/api/status", timeout=2.0).json()
+        except httpx.TransportError:
+            return None
+
+    def wait_state(self, state: str, timeout_s: float = 30.0) -> dict[str, Any]:
+        return wait_for(lambda: (s := self.status()) is not None and s["state"] == state and s, timeout_s,
+                        f"the daemon to reach {state!r}")
+
+    def auth(self) -> dict[str, str]:
+        return {"Authorization": f"Bearer {(self.folder / 'data' / 'token').read_text().strip()}"}
+
+    def terminate(self) -> int:
+        self.process.send_signal(signal.SIGTERM)
+        try:
+            _, self.stderr = self.process.communicate(timeout=15)
+        except subprocess.TimeoutExpired:
+            self.process.kill()
+            _, self.stderr = self.process.communicate()
+        return self.process.returncode
+
+    def __enter__(self) -> "ServeProcess":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.process.returncode is None:
+            self.terminate()

@@ -1,0 +1,64 @@
+"""The status page in real headless Chromium against a running daemon (``graytrack serve``)."""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from tests.service.helpers import ServeProcess
+
+CHROMIUM = Path("/usr/bin/chromium")
+CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
+                 "--disable-sync", "--no-first-run"]
+
+pytestmark = pytest.mark.skipif(not CHROMIUM.exists(), reason="chromium is not installed (apt-get install chromium)")
+
+
+@pytest.fixture
+def page(tmp_path: Path) -> Iterator[tuple[object, ServeProcess]]:
+    sync_api = pytest.importorskip("playwright.sync_api")
+    with ServeProcess(tmp_path) as daemon, sync_api.sync_playwright() as playwright:
+        browser = playwright.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS, headless=True)
+        try:
+            yield browser.new_page(), daemon
+        finally:
+            browser.close()
+
+
+def test_page_shows_live_position_and_runs_a_calibration(page) -> None:
+    from playwright.sync_api import expect
+
+    browser_page, daemon = page
+    daemon.wait_state("tracking")
+    browser_page.goto(daemon.base + "/")
+    expect(browser_page.locator("#state")).to_have_text("tracking", timeout=10_000)
+    position = browser_page.locator("#position")
+    expect(position).to_have_text(re.compile(r"^\d+\.\d{4}$"), timeout=10_000)
+    first = position.text_content()
+    browser_page.wait_for_function(f"document.getElementById('position').textContent !== '{first}'", timeout=10_000)
+
+    # without a token the daemon refuses, and the page says why
+    browser_page.click("#calibrate")
+    expect(browser_page.locator("#message")).to_contain_text("missing bearer token")
+
+    token = (daemon.folder / "data" / "token").read_text().strip()
+    browser_page.fill("#token", token)
+    browser_page.click("#save-token")
+    assert browser_page.evaluate("localStorage.getItem('graytrack.token')") == token
+    browser_page.click("#calibrate")
+    expect(browser_page.locator("#message")).to_contain_text(re.compile(r"calibration \d{8}T\d+Z started"))
+    job_id = browser_page.locator("#message").text_content().split()[1]
+    calibration = browser_page.locator("#calibration-message")
+    expect(calibration).to_contain_text(job_id, timeout=10_000)
+    browser_page.wait_for_function("document.getElementById('progress').value > 0", timeout=10_000)
+    expect(calibration).to_contain_text("done", timeout=20_000)
+    expect(browser_page.locator("#state")).to_have_text("tracking", timeout=10_000)
+
+    # a move from the form is tracked to its target
+    browser_page.fill("#target", "3.5")
+    browser_page.click("#move")
+    expect(browser_page.locator("#message")).to_have_text("moving to 3.5 mm")
+    expect(position).to_have_text(re.compile(r"^3\.(49[89]|50[012])\d$"), timeout=10_000)
