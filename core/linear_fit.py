@@ -8,36 +8,58 @@ pixel and row polynomials: O(K·R·n·(A·L)²) work, a few milliseconds for the
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
+from scipy.linalg import LinAlgError, cho_factor, cho_solve
 
-from graytrack.core.basis import trig_basis, trig_derivative
+from graytrack.core.basis import trig_derivative
 from graytrack.core.models.fourier import TWO_PI, FourierModel
 
 _CHUNK_ELEMENTS = 2_000_000
+_WELL_CONDITIONED = 1e-10  # smallest/largest Cholesky pivot below which the eigen route takes over
 
 
 @dataclass
 class LinearSystem:
-    """Normal equations G c = h of the model's linear part; c is in (a, l, i, j) order."""
+    """Normal equations G c = h of the model's linear part; c is in (a, l, i, j) order.
+
+    The factorisation is computed once and reused: variable projection solves the same G for the
+    data and for each geometry direction it projects.
+    """
 
     gram: np.ndarray
     rhs: np.ndarray
     shape_alij: tuple[int, int, int, int]
+    _solver: Callable[[np.ndarray], np.ndarray] | None = field(default=None, repr=False)
 
     def solve(self, rhs: np.ndarray | None = None) -> np.ndarray:
         """Coefficients in the model's (a, i, j, l) layout; rank-deficient directions set to 0.
 
         ``rhs`` replaces the data's right-hand side (projections of other vectors on the span).
         """
-        rhs = self.rhs if rhs is None else rhs
+        if self._solver is None:
+            self._solver = self._factorise()
+        solution = self._solver(self.rhs if rhs is None else rhs)
+        return solution.reshape(self.shape_alij).transpose(0, 2, 3, 1)
+
+    def _factorise(self) -> Callable[[np.ndarray], np.ndarray]:
+        """Cholesky of the scaled G when it is well conditioned, else an eigen-decomposition that
+        drops the directions the data do not determine."""
         scale = np.sqrt(np.maximum(np.diag(self.gram), 1e-300))
         normalised = self.gram / np.outer(scale, scale)
+        try:
+            factor = cho_factor(normalised, lower=True, check_finite=False)
+            pivots = np.diag(factor[0]) ** 2
+            if pivots.min() > pivots.max() * _WELL_CONDITIONED:
+                return lambda rhs: cho_solve(factor, rhs / scale, check_finite=False) / scale
+        except LinAlgError:
+            pass
         values, vectors = np.linalg.eigh(normalised)
         keep = values > values.max() * 1e-12
-        solution = vectors[:, keep] @ ((vectors[:, keep].T @ (rhs / scale)) / values[keep])
-        return (solution / scale).reshape(self.shape_alij).transpose(0, 2, 3, 1)
+        basis, inverse = vectors[:, keep], 1.0 / values[keep]
+        return lambda rhs: (basis @ ((basis.T @ (rhs / scale)) * inverse)) / scale
 
 
 def _frame_chunks(model: FourierModel, n_frames: int) -> list[slice]:
@@ -46,9 +68,15 @@ def _frame_chunks(model: FourierModel, n_frames: int) -> list[slice]:
     return [slice(start, min(start + size, n_frames)) for start in range(0, n_frames, size)]
 
 
+def _positions(x_mm: np.ndarray, part: slice) -> np.ndarray:
+    """The chunk's positions; the array itself when the chunk is everything (keeps the model's
+    cached trig terms, which are keyed on the array's identity)."""
+    return x_mm if part.start == 0 and part.stop == len(x_mm) else x_mm[part]
+
+
 def _trig_stroke(model: FourierModel, x_mm: np.ndarray) -> np.ndarray:
     """``(K, R, n, A·L)``: trig terms times stroke polynomials, the frame-dependent factor."""
-    trig = trig_basis(model.phase(x_mm), model.harmonics)
+    trig = model.trig(x_mm)
     stroke, _ = model.stroke_basis(x_mm)
     product = trig[..., :, None] * stroke[:, None, None, None, :]
     return product.reshape(trig.shape[:3] + (-1,))
@@ -59,7 +87,7 @@ def project_columns(model: FourierModel, x_mm: np.ndarray, values: np.ndarray, w
     pixel, row = model.pixel_basis(), model.row_basis()
     acc = None
     for part in _frame_chunks(model, len(x_mm)):
-        frame_factor = _trig_stroke(model, x_mm[part])
+        frame_factor = _trig_stroke(model, _positions(x_mm, part))
         block = np.einsum("krup,krum,kru->rupm", frame_factor, values[part], weights[part], optimize=True)
         acc = block if acc is None else acc + block
     return np.einsum("rupm,ui,rj->mpij", acc, pixel, row, optimize=True).reshape(values.shape[-1], -1)
@@ -72,7 +100,7 @@ def normal_equations(model: FourierModel, x_mm: np.ndarray, data: np.ndarray, we
     gram_ru = np.zeros((model.n_rows, model.n_pixels, n_al, n_al))
     rhs_ru = np.zeros((model.n_rows, model.n_pixels, n_al))
     for part in _frame_chunks(model, len(x_mm)):
-        frame_factor = _trig_stroke(model, x_mm[part])
+        frame_factor = _trig_stroke(model, _positions(x_mm, part))
         weighted = frame_factor * weights[part][..., None]
         gram_ru += np.einsum("krup,kruq->rupq", weighted, frame_factor, optimize=True)
         rhs_ru += np.einsum("krup,kru->rup", weighted, data[part], optimize=True)
@@ -92,7 +120,7 @@ def fit_coefficients(model: FourierModel, x_mm: np.ndarray, data: np.ndarray,
 
 def phase_slope(model: FourierModel, x_mm: np.ndarray) -> np.ndarray:
     """∂S/∂θ at the model's coefficients, ``(K, R, n)``: the direction every phase parameter moves."""
-    trig = trig_basis(model.phase(x_mm), model.harmonics)
+    trig = model.trig(x_mm)
     stroke, _ = model.stroke_basis(x_mm)
     weights = np.einsum("rual,kl->krua", model.spatial_weights(), stroke)
     return np.einsum("krua,krua->kru", trig_derivative(trig, model.harmonics), weights)

@@ -16,7 +16,7 @@ import numpy as np
 from scipy.linalg import solveh_banded
 from scipy.optimize import minimize_scalar
 
-from graytrack.core.basis import legendre_basis, scaled, trig_basis
+from graytrack.core.basis import trig_basis
 from graytrack.core.calibration_data import Calibration, CalibrationData
 from graytrack.core.geometry import fit_geometry
 from graytrack.core.linear_fit import fit_coefficients
@@ -24,6 +24,7 @@ from graytrack.core.models.fourier import TWO_PI, FourierModel
 
 Progress = Callable[[float, str], None]
 ALTERNATION_ROUNDS = 4
+PITCH_PIXEL_DEGREE = 1  # pixel polynomial degree of the model that fixes α·d
 
 
 @dataclass(frozen=True)
@@ -103,10 +104,9 @@ def fit_target_map(model: FourierModel, x_mm: np.ndarray, lit: np.ndarray, smoot
     banded[0, 1:], banded[1] = off, diag + ridge
     values = solveh_banded(banded, rhs)
     grid = origin + step * np.arange(size)
-    along = legendre_basis(scaled(grid, grid[0], grid[-1]), 0)[:, :, None]
-    smooth_part = (along * trig_basis(TWO_PI * grid / model.period_mm, model.harmonics)[:, None, :]).reshape(size, -1)
-    coef, *_ = np.linalg.lstsq(smooth_part, values, rcond=None)
-    return {"target_map": values - smooth_part @ coef, "target_map_origin_mm": origin, "target_map_step_mm": step}
+    periodic = trig_basis(TWO_PI * grid / model.period_mm, model.harmonics)
+    coef, *_ = np.linalg.lstsq(periodic, values, rcond=None)
+    return {"target_map": values - periodic @ coef, "target_map_origin_mm": origin, "target_map_step_mm": step}
 
 
 def fit_spec(spec: ModelSpec, data: CalibrationData, period_mm: float, pitch_mm: float, row_shift_mm: float = 0.0,
@@ -116,7 +116,17 @@ def fit_spec(spec: ModelSpec, data: CalibrationData, period_mm: float, pitch_mm:
     ``refine_geometry=False`` keeps τ_w and α·d as given (a per-row model still fits its row
     shift): once stroke or high-degree pixel terms exist they can trade against the geometry, and
     a geometry that wanders off its physical value helps nothing while misleading whoever reads it.
+
+    With refinement, α·d comes from a model at most linear in the pixel index: cubic pixel
+    polynomials can turn the phase by a radian across the line and so absorb a pitch error (a
+    light gradient then pulls α·d 25 % off), a linear one cannot. τ_w is refined with the full model.
     """
+    geometry_names = ("period_mm", "pixel_pitch_mm")
+    if refine_geometry and spec.pixel_degree > PITCH_PIXEL_DEGREE:
+        coarse = spec.with_changes(pixel_degree=PITCH_PIXEL_DEGREE, flat_field=False, common_mode=False,
+                                   target_map=False)
+        pitch_mm = fit_spec(coarse, data, period_mm, pitch_mm, row_shift_mm).model.pixel_pitch_mm
+        geometry_names = ("period_mm",)
     template = spec.template(period_mm, pitch_mm, data.frames.shape[-1], data.frames.shape[1], row_shift_mm)
     template = template.with_changes(stroke_range_mm=(float(data.x_mm.min()), float(data.x_mm.max())))
     raw = template.prepare(data.frames)
@@ -124,8 +134,7 @@ def fit_spec(spec: ModelSpec, data: CalibrationData, period_mm: float, pitch_mm:
     if spec.clip_gray is not None:
         lo, hi = spec.clip_gray
         weights = weights * ((raw > lo) & (raw < hi))
-    names = (("period_mm", "pixel_pitch_mm") if refine_geometry else ()) + (
-        ("row_shift_mm",) if template.n_rows > 1 else ())
+    names = (geometry_names if refine_geometry else ()) + (("row_shift_mm",) if template.n_rows > 1 else ())
     bilinear = spec.flat_field or spec.common_mode or spec.target_map
     frame_gain, frame_offset = np.ones(raw.shape[0]), np.zeros(raw.shape[0])
     pixel_gain, pixel_offset = np.ones(raw.shape[1:]), np.zeros(raw.shape[1:])

@@ -35,6 +35,16 @@ from graytrack.core.basis import legendre_basis, scaled, trig_basis, trig_deriva
 from graytrack.core.errors import ModelError, TrackingError
 
 TWO_PI = 2.0 * math.pi
+_GEOMETRY_FIELDS = {"period_mm", "pixel_pitch_mm", "row_shift_mm", "n_rows", "n_pixels", "harmonics"}
+_TRIG_CACHE_ELEMENTS = 2_000_000
+
+
+def _positions(x_mm: Any) -> np.ndarray:
+    """Positions as a 1-D float64 array; an array that already is one is returned as itself, so
+    that caches keyed on its identity keep working."""
+    if isinstance(x_mm, np.ndarray) and x_mm.ndim == 1 and x_mm.dtype == np.float64:
+        return x_mm
+    return np.asarray(x_mm, dtype=np.float64).reshape(-1)
 
 
 @dataclass
@@ -89,7 +99,7 @@ class FourierModel:
                 if value.shape != (self.n_rows, self.n_pixels):
                     raise ModelError(f"{label} has shape {value.shape}, the model needs {(self.n_rows, self.n_pixels)}")
                 setattr(self, label, value)
-        self._cache: dict[str, np.ndarray] = {}
+        self._cache: dict[str, Any] = {}
 
     # ----------------------------------------------------------------- structure
     @property
@@ -109,9 +119,16 @@ class FourierModel:
         return self.coeffs is not None
 
     def with_changes(self, **changes: Any) -> "FourierModel":
-        """A copy with some fields changed (coefficients dropped unless given: they no longer fit)."""
+        """A copy with some fields changed (coefficients dropped unless given: they no longer fit).
+
+        A copy with the same geometry keeps the cached target-phase terms: variable projection
+        evaluates many coefficient sets at one geometry.
+        """
         changes.setdefault("coeffs", None if set(changes) - {"noise_gray", "info", "name"} else self.coeffs)
-        return replace(self, **changes)
+        copy = replace(self, **changes)
+        if not set(changes) & _GEOMETRY_FIELDS and "trig" in self._cache:
+            copy._cache["trig"] = self._cache["trig"]
+        return copy
 
     # ----------------------------------------------------------------- bases
     def pixel_basis(self) -> np.ndarray:
@@ -149,8 +166,22 @@ class FourierModel:
 
     def phase(self, x_mm: np.ndarray) -> np.ndarray:
         """``(K, R, n)`` target phase θ seen by each pixel at frame positions ``x_mm``."""
-        x_mm = np.asarray(x_mm, dtype=np.float64).reshape(-1)
+        x_mm = _positions(x_mm)
         return (TWO_PI / self.period_mm) * (x_mm[:, None, None] + self.target_offset()[None])
+
+    def trig(self, x_mm: np.ndarray) -> np.ndarray:
+        """``(K, R, n, 2M+1)`` trig terms of the target phase at ``x_mm``.
+
+        Cached for the last position array (held by reference, compared by identity) when small
+        enough: fitting evaluates them again and again for the same frames and geometry.
+        """
+        cached = self._cache.get("trig")
+        if cached is not None and cached[0] is x_mm:
+            return cached[1]
+        values = trig_basis(self.phase(x_mm), self.harmonics)
+        if values.size <= _TRIG_CACHE_ELEMENTS:
+            self._cache["trig"] = (x_mm, values)
+        return values
 
     # ----------------------------------------------------------------- evaluation
     def _require_coeffs(self) -> np.ndarray:
@@ -176,8 +207,8 @@ class FourierModel:
 
         ``with_response=False`` gives the smooth part S alone, before the per-pixel flat field.
         """
-        x_mm = np.asarray(x_mm, dtype=np.float64).reshape(-1)
-        trig = trig_basis(self.phase(x_mm), self.harmonics)  # (K, R, n, A)
+        x_mm = _positions(x_mm)
+        trig = self.trig(x_mm)  # (K, R, n, A)
         stroke, dstroke = self.stroke_basis(x_mm)  # (K, L+1)
         weights = np.einsum("rual,kl->krua", self.spatial_weights(), stroke)
         gain, offset = self.response() if with_response else (1.0, 0.0)
@@ -199,7 +230,7 @@ class FourierModel:
 
     def target_coordinate(self, x_mm: np.ndarray) -> np.ndarray:
         """``(K, R, n)``: where on the target each pixel looks at frame positions ``x_mm``."""
-        return np.asarray(x_mm, dtype=np.float64).reshape(-1)[:, None, None] + self.target_offset()[None]
+        return _positions(x_mm)[:, None, None] + self.target_offset()[None]
 
     def target_factor(self, x_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """1 + m(x_w) and its derivative along x (piecewise linear; 1 outside the mapped range)."""
