@@ -108,15 +108,20 @@ def parse_hardware(tables: dict[str, Any]) -> HardwareConfig:
         raise ConfigError("; ".join(_describe(error) for error in exc.errors())) from None
 
 
-def load_hardware(path: str | Path) -> HardwareConfig:
-    path = Path(path)
+def read_toml(path: Path) -> dict[str, Any]:
+    """A TOML file's tables; a missing or malformed file is a :class:`ConfigError` naming it."""
     try:
         with open(path, "rb") as fh:
-            tables = tomllib.load(fh)
+            return tomllib.load(fh)
     except FileNotFoundError:
         raise ConfigError(f"{path}: no such file") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: not valid TOML ({exc})") from None
+
+
+def load_hardware(path: str | Path) -> HardwareConfig:
+    path = Path(path)
+    tables = read_toml(path)
     try:
         return parse_hardware(tables)
     except ConfigError as exc:

@@ -9,13 +9,12 @@ otherwise calibrate with defaults nobody chose. Every error names its key.
 from __future__ import annotations
 
 import os
-import tomllib
 from pathlib import Path
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from graytrack.drivers.config import ConfigError, HardwareConfig, _describe, parse_hardware
+from graytrack.drivers.config import ConfigError, HardwareConfig, _describe, parse_hardware, read_toml
 
 DEFAULT_HOST = "127.0.0.1"  # DESIGN.md: loopback unless told otherwise
 DEFAULT_PORT = 8000
@@ -101,13 +100,7 @@ def load_settings(path: str | os.PathLike[str] | None) -> Settings:
     if path is None:
         return Settings()
     path = Path(path)
-    try:
-        with open(path, "rb") as fh:
-            tables = tomllib.load(fh)
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: no such file") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: not valid TOML ({exc})") from None
+    tables = read_toml(path)
     try:
         return parse_settings(tables)
     except ConfigError as exc:

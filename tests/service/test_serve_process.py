@@ -3,16 +3,14 @@
 from __future__ import annotations
 
 import json
-import os
 import stat
-import subprocess
-import sys
 from pathlib import Path
 
 import httpx
 import pytest
 from websockets.sync.client import connect
 
+from graytrack.service.cli import main
 from tests.service.helpers import ServeProcess
 
 
@@ -41,11 +39,10 @@ def test_serve_process_tracks_streams_and_shuts_down_cleanly(tmp_path: Path) -> 
     ("[sweep]\nframes_per_position = 2\n", "sweep.frames_per_position"),
     ("[stage]\nbaudrate = 1234\n", "stage.baudrate"),
 ])
-def test_serve_refuses_a_bad_config_in_one_line(tmp_path: Path, content: str, message: str) -> None:
+def test_serve_refuses_a_bad_config_in_one_line(tmp_path: Path, content: str, message: str,
+                                                capsys: pytest.CaptureFixture[str]) -> None:
     config = tmp_path / "bad.toml"
     config.write_text(content)
-    result = subprocess.run([sys.executable, "-m", "graytrack", "serve", "--config", str(config)],
-                            capture_output=True, text=True, timeout=30, env={**os.environ, "STATE_DIRECTORY": str(tmp_path)})
-    assert result.returncode == 2
-    lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("graytrack serve: error: ") and message in lines[0], result.stderr
+    assert main(["serve", "--config", str(config)]) == 2  # the CLI's path, in-process (no daemon starts)
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("graytrack serve: error: ") and message in lines[0], lines
