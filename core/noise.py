@@ -12,19 +12,25 @@ import numpy as np
 from graytrack.core.errors import GraytrackError
 
 _MAD_TO_SIGMA = 1.4826
-# Second temporal difference y[k+1] − 2 y[k] + y[k−1] of white noise has variance 6σ².
+# Second temporal difference y[k+1] − 2 y[k] + y[k−1] of white noise has variance 6σ², a first 2σ².
 _SECOND_DIFF_GAIN = np.sqrt(6.0)
+_FIRST_DIFF_GAIN = np.sqrt(2.0)
 # Frames whose second differences are exactly zero this often are quantised coarser than their noise.
 _QUANTISED_ZERO_FRACTION = 0.2
 # Share of a Gaussian's variance left after dropping its 1 % largest squares (|z| > 2.576).
 _GAUSS_TRIMMED_VARIANCE = 0.9155
+# Reference steps below this are a stage at rest (a grating's resolution is about 0.5 µm).
+STILL_MM = 2e-3
+MIN_STILL_PAIRS = 10
 
 
 def estimate_sigma(frames: np.ndarray, reference: np.ndarray | None = None, period_mm: float | None = None) -> float:
     """Per-pixel gray-level noise σ of frames ``(K, n)`` or ``(K, R, n)``.
 
-    Uses second differences along time, where a slowly moving target contributes almost nothing
-    (F''·Δx²), after removing from each difference frame an affine function of the gray level:
+    Uses differences along time: first differences between frames taken at rest when the
+    reference shows a step-and-settle sweep, otherwise second differences, where a slowly moving
+    target contributes almost nothing (F''·Δx²). From each difference frame an affine function of
+    the gray level is removed:
     that takes out common-mode gain and offset changes (flicker, exposure drift), which are not
     pixel noise. Frames that moved more than 2 % of a period between neighbours are skipped when
     the reference allows telling. A robust (MAD) scale keeps defects and outliers from counting,
@@ -37,15 +43,12 @@ def estimate_sigma(frames: np.ndarray, reference: np.ndarray | None = None, peri
         raise GraytrackError("need at least 3 frames to estimate the noise")
     n_frames = frames.shape[0]
     flat = frames.reshape(n_frames, -1)
-    second = flat[2:] - 2.0 * flat[1:-1] + flat[:-2]
-    keep = np.ones(n_frames - 2, dtype=bool)
-    if reference is not None and period_mm is not None and np.isfinite(reference).sum() >= 3:
-        step = np.abs(np.diff(reference))
-        local = np.maximum(step[1:], step[:-1])
-        keep = ~(local > 0.02 * period_mm)
-        if keep.sum() < 3:
-            keep[:] = True
-    second, level = second[keep], flat[1:-1][keep]
+    still = _still_pairs(reference)
+    if still is not None:  # a stage at rest: first differences of frames at one position
+        second, level, gain = (flat[1:] - flat[:-1])[still], flat[:-1][still], _FIRST_DIFF_GAIN
+    else:
+        keep = _quiet_triples(reference, period_mm, n_frames)
+        second, level, gain = (flat[2:] - 2.0 * flat[1:-1] + flat[:-2])[keep], flat[1:-1][keep], _SECOND_DIFF_GAIN
     # Remove a per-difference-frame affine function of the gray level (common-mode gain/offset).
     design = np.stack([np.ones_like(level), level - level.mean(axis=1, keepdims=True)], axis=-1)
     gram = np.einsum("kpi,kpj->kij", design, design)
@@ -53,9 +56,28 @@ def estimate_sigma(frames: np.ndarray, reference: np.ndarray | None = None, peri
     coef = np.linalg.solve(gram + 1e-9 * np.eye(2), rhs[..., None])[..., 0]
     cleaned = second - np.einsum("kpi,ki->kp", design, coef)
     if np.mean(second == 0.0) > _QUANTISED_ZERO_FRACTION:
-        return _trimmed_sigma(cleaned) / _SECOND_DIFF_GAIN
+        return _trimmed_sigma(cleaned) / gain
     mad = np.median(np.abs(cleaned - np.median(cleaned)))
-    return float(_MAD_TO_SIGMA * mad / _SECOND_DIFF_GAIN)
+    return float(_MAD_TO_SIGMA * mad / gain)
+
+
+def _still_pairs(reference: np.ndarray | None) -> np.ndarray | None:
+    """Consecutive frame pairs taken at rest (a step-and-settle sweep), when there are enough."""
+    if reference is None or np.isfinite(reference).sum() < 3:
+        return None
+    still = np.abs(np.diff(reference)) < STILL_MM
+    return still if still.sum() >= MIN_STILL_PAIRS else None
+
+
+def _quiet_triples(reference: np.ndarray | None, period_mm: float | None, n_frames: int) -> np.ndarray:
+    """Frame triples (k−1, k, k+1) that moved little enough for a second difference to be noise:
+    less than 2 % of a period when the period is known; all of them otherwise or if too few."""
+    keep = np.ones(n_frames - 2, dtype=bool)
+    if reference is None or period_mm is None or np.isfinite(reference).sum() < 3:
+        return keep
+    step = np.abs(np.diff(reference))
+    keep = ~(np.maximum(step[1:], step[:-1]) > 0.02 * period_mm)
+    return keep if keep.sum() >= 3 else np.ones(n_frames - 2, dtype=bool)
 
 
 def _trimmed_sigma(values: np.ndarray) -> float:

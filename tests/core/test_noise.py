@@ -56,3 +56,13 @@ def test_reference_resolution_is_found_only_on_a_grid():
     x = np.linspace(0, 10, 500)
     assert reference_resolution_mm(np.round(x / 0.005) * 0.005) == pytest.approx(0.005)
     assert reference_resolution_mm(x + np.random.default_rng(0).normal(0, 1e-4, 500)) == 0.0
+
+
+@pytest.mark.parametrize("per_stop", [2, 3])
+def test_sigma_of_a_step_and_settle_sweep_uses_the_stops_only(per_stop):
+    """Frames at rest and no period in meta: the moves between stops must not count as noise."""
+    from graytrack.drivers.sim import paper
+
+    stops = np.repeat(np.linspace(0, 10, 90), per_stop)
+    frames = paper.paper_frames(stops, rng=np.random.default_rng(9))[:, 0, :]
+    assert estimate_sigma(frames, stops) == pytest.approx(0.7, rel=0.08)
