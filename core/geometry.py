@@ -20,6 +20,7 @@ from graytrack.core.linear_fit import LinearSystem, fit_coefficients, geometry_s
 from graytrack.core.models.fourier import TWO_PI, FourierModel
 
 Progress = Callable[[float, str], None]
+CONVERGED_RELATIVE_GAIN = 1e-9  # relative cost decrease below which the geometry is converged
 
 
 def estimate_period(x_mm: np.ndarray, line: np.ndarray, stroke_mm: float) -> float:
@@ -107,6 +108,7 @@ def fit_geometry(template: FourierModel, x_mm: np.ndarray, data: np.ndarray, wei
     ``data`` is in the model's smooth-part domain (any flat field and common mode divided out).
     """
     params = np.array([getattr(template, name) for name in names], dtype=np.float64)
+    positive = np.array([name in ("period_mm", "pixel_pitch_mm") for name in names])
     model, residual, system = _projected_fit(template, x_mm, data, weights)
     cost = float((residual**2).sum())
     damping, history, iteration = 1e-3, [], 0
@@ -115,11 +117,17 @@ def fit_geometry(template: FourierModel, x_mm: np.ndarray, data: np.ndarray, wei
         jacobian = _kaufman_jacobian(model, system, x_mm, weights, names) * sqrt_w[..., None]
         jac = jacobian.reshape(-1, len(names))
         normal, gradient = jac.T @ jac, jac.T @ residual.reshape(-1)
-        improved = False
+        improved = converged = False
         while damping < 1e12:
             step = -np.linalg.solve(normal + damping * np.diag(np.diag(normal) + 1e-300), gradient)
+            # What the local linear model promises; below rounding of the cost there is nothing
+            # left to gain, and trying would only cost full refits.
+            promised = -2.0 * float(gradient @ step) - float(step @ normal @ step)
+            if promised <= CONVERGED_RELATIVE_GAIN * cost:
+                converged = True
+                break
             trial_params = params + step
-            if trial_params[0] <= 0 or (len(names) > 1 and trial_params[1] == 0):
+            if np.any(trial_params[positive] <= 0):
                 damping *= 10
                 continue
             trial = template.with_changes(**dict(zip(names, trial_params)))
@@ -129,7 +137,7 @@ def fit_geometry(template: FourierModel, x_mm: np.ndarray, data: np.ndarray, wei
                 improved = True
                 break
             damping *= 10
-        if not improved:
+        if converged or not improved:
             break
         relative_drop = (cost - trial_cost) / max(cost, 1e-300)
         params, model, residual, cost, system = trial_params, trial_model, trial_residual, trial_cost, trial_system
@@ -137,7 +145,7 @@ def fit_geometry(template: FourierModel, x_mm: np.ndarray, data: np.ndarray, wei
         history.append({"iteration": iteration, "cost": cost, **dict(zip(names, params.tolist()))})
         if progress:
             progress(min(0.95, iteration / 10), f"geometry iteration {iteration}, rms {np.sqrt(cost / residual.size):.3f}")
-        if relative_drop < 1e-10 or np.all(np.abs(step) <= 1e-12 * np.abs(params) + 1e-15):
+        if relative_drop < CONVERGED_RELATIVE_GAIN:
             break
     return model, iteration, history
 

@@ -94,21 +94,27 @@ def project_columns(model: FourierModel, x_mm: np.ndarray, values: np.ndarray, w
 
 
 def normal_equations(model: FourierModel, x_mm: np.ndarray, data: np.ndarray, weights: np.ndarray) -> LinearSystem:
-    """Accumulate G and h for data ``(K, R, n)`` (already divided by any response) with weights."""
-    pixel, row = model.pixel_basis(), model.row_basis()
+    """Accumulate G and h for data ``(K, R, n)`` (already divided by any response) with weights.
+
+    Per (row, pixel), the frames are summed by one batched matrix product; the pixel and row
+    polynomials then enter through one more product with their outer products.
+    """
     n_al = model.n_trig * (model.stroke_degree + 1)
     gram_ru = np.zeros((model.n_rows, model.n_pixels, n_al, n_al))
     rhs_ru = np.zeros((model.n_rows, model.n_pixels, n_al))
     for part in _frame_chunks(model, len(x_mm)):
-        frame_factor = _trig_stroke(model, _positions(x_mm, part))
-        weighted = frame_factor * weights[part][..., None]
-        gram_ru += np.einsum("krup,kruq->rupq", weighted, frame_factor, optimize=True)
-        rhs_ru += np.einsum("krup,kru->rup", weighted, data[part], optimize=True)
-    gram = np.einsum("rupq,ui,uk,rj,rm->pijqkm", gram_ru, pixel, pixel, row, row, optimize=True)
-    rhs = np.einsum("rup,ui,rj->pij", rhs_ru, pixel, row, optimize=True)
-    n_cols = rhs.size
+        frame_factor = np.moveaxis(_trig_stroke(model, _positions(x_mm, part)), 0, 2)  # (R, n, K, AL)
+        weighted = frame_factor * np.moveaxis(weights[part], 0, 2)[..., None]
+        gram_ru += np.matmul(np.swapaxes(weighted, -1, -2), frame_factor)
+        rhs_ru += np.matmul(np.swapaxes(weighted, -1, -2), np.moveaxis(data[part], 0, 2)[..., None])[..., 0]
+    spatial = np.einsum("ui,rj->ruij", model.pixel_basis(), model.row_basis()).reshape(model.n_rows, model.n_pixels, -1)
+    n_ij = spatial.shape[-1]
+    outer = np.einsum("rua,rub->ruab", spatial, spatial).reshape(-1, n_ij * n_ij)  # (R·n, IJ·IJ)
+    gram = (gram_ru.reshape(-1, n_al * n_al).T @ outer).reshape(n_al, n_al, n_ij, n_ij)
+    gram = gram.transpose(0, 2, 1, 3).reshape(n_al * n_ij, n_al * n_ij)
+    rhs = np.einsum("rup,rua->pa", rhs_ru, spatial).reshape(-1)
     shape_alij = (model.n_trig, model.stroke_degree + 1, model.pixel_degree + 1, model.row_degree + 1)
-    return LinearSystem(gram.reshape(n_cols, n_cols), rhs.reshape(n_cols), shape_alij)
+    return LinearSystem(gram, rhs, shape_alij)
 
 
 def fit_coefficients(model: FourierModel, x_mm: np.ndarray, data: np.ndarray,

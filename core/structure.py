@@ -119,13 +119,16 @@ def fit_spec(spec: ModelSpec, data: CalibrationData, period_mm: float, pitch_mm:
 
     With refinement, α·d comes from a model at most linear in the pixel index: cubic pixel
     polynomials can turn the phase by a radian across the line and so absorb a pitch error (a
-    light gradient then pulls α·d 25 % off), a linear one cannot. τ_w is refined with the full model.
+    light gradient then pulls α·d 25 % off), a linear one cannot. That model leaves a large
+    residual, where Gauss–Newton steps zig-zag, so α·d is found by a scan and a bounded search
+    instead. τ_w is then refined with the full model.
     """
     geometry_names = ("period_mm", "pixel_pitch_mm")
     if refine_geometry and spec.pixel_degree > PITCH_PIXEL_DEGREE:
         coarse = spec.with_changes(pixel_degree=PITCH_PIXEL_DEGREE, flat_field=False, common_mode=False,
                                    target_map=False)
-        pitch_mm = fit_spec(coarse, data, period_mm, pitch_mm, row_shift_mm).model.pixel_pitch_mm
+        pitch_mm = fit_spec_pitch_search(coarse, data, period_mm, pitch_mm, row_shift_mm,
+                                         grid_step=0.02).model.pixel_pitch_mm
         geometry_names = ("period_mm",)
     template = spec.template(period_mm, pitch_mm, data.frames.shape[-1], data.frames.shape[1], row_shift_mm)
     template = template.with_changes(stroke_range_mm=(float(data.x_mm.min()), float(data.x_mm.max())))
@@ -180,7 +183,7 @@ def fit_spec(spec: ModelSpec, data: CalibrationData, period_mm: float, pitch_mm:
 
 
 def fit_spec_pitch_search(spec: ModelSpec, data: CalibrationData, period_mm: float, pitch_mm: float,
-                          row_shift_mm: float = 0.0, span: float = 0.12) -> Calibration:
+                          row_shift_mm: float = 0.0, span: float = 0.12, grid_step: float = 0.01) -> Calibration:
     """:func:`fit_spec` with α·d searched for the lowest residual.
 
     A target map pins features to the target coordinate x + α·d·u, so it needs α·d to a fraction
@@ -191,7 +194,7 @@ def fit_spec_pitch_search(spec: ModelSpec, data: CalibrationData, period_mm: flo
     """
     nominal = data.meta.get("pixel_pitch_mm", pitch_mm)
     lo, hi = min(pitch_mm, nominal) * (1 - span), max(pitch_mm, nominal) * (1 + span)
-    grid = np.linspace(lo, hi, int(np.ceil((hi - lo) / (0.01 * pitch_mm))) + 1)
+    grid = np.linspace(lo, hi, int(np.ceil((hi - lo) / (grid_step * pitch_mm))) + 1)
 
     def cost(pitch: float, rounds: int | None = None) -> float:
         return fit_spec(spec, data, period_mm, pitch, row_shift_mm, refine_geometry=False, rounds=rounds).rmse_gray
