@@ -105,7 +105,7 @@ def parse_hardware(tables: dict[str, Any]) -> HardwareConfig:
     try:
         return HardwareConfig.model_validate({k: v for k, v in tables.items() if k in ("camera", "stage")})
     except ValidationError as exc:
-        raise ConfigError("; ".join(_describe(error) for error in exc.errors())) from None
+        raise ConfigError("; ".join(describe_validation_error(error) for error in exc.errors())) from None
 
 
 def read_toml(path: Path) -> dict[str, Any]:
@@ -128,7 +128,8 @@ def load_hardware(path: str | Path) -> HardwareConfig:
         raise ConfigError(f"{path}: {exc}") from None
 
 
-def _describe(error: Any) -> str:
+def describe_validation_error(error: Any) -> str:
+    """One pydantic error as ``table.key: message`` ("unknown key" for a key the model forbids)."""
     key = ".".join(str(part) for part in error["loc"])
     message = error["msg"].removeprefix("Value error, ")
     if error["type"] == "extra_forbidden":

@@ -14,7 +14,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from graytrack.drivers.config import ConfigError, HardwareConfig, _describe, parse_hardware, read_toml
+from graytrack.drivers.config import ConfigError, HardwareConfig, describe_validation_error, parse_hardware, read_toml
 
 DEFAULT_HOST = "127.0.0.1"  # DESIGN.md: loopback unless told otherwise
 DEFAULT_PORT = 8000
@@ -91,7 +91,7 @@ def parse_settings(tables: dict[str, Any]) -> Settings:
         try:
             parts[name] = model.model_validate(tables.get(name, {}))
         except ValidationError as exc:
-            raise ConfigError("; ".join(f"{name}.{_describe(error)}" for error in exc.errors())) from None
+            raise ConfigError("; ".join(f"{name}.{describe_validation_error(error)}" for error in exc.errors())) from None
     return Settings(**parts)
 
 
