@@ -35,6 +35,7 @@ class ModelSpec:
     pixel_degree: int = 3
     stroke_degree: int = 0
     per_row: bool = False
+    row_degree: int = 2  # row polynomials of a per-row model (capped at rows − 1)
     flat_field: bool = False
     common_mode: bool = False
     clip_gray: tuple[float, float] | None = None
@@ -50,7 +51,7 @@ class ModelSpec:
         rows = n_rows if self.per_row else 1
         return FourierModel(
             period_mm, pitch_mm, n_pixels, harmonics=self.harmonics, pixel_degree=self.pixel_degree,
-            stroke_degree=self.stroke_degree, n_rows=rows, row_degree=min(2, rows - 1),
+            stroke_degree=self.stroke_degree, n_rows=rows, row_degree=min(self.row_degree, rows - 1),
             row_shift_mm=row_shift_mm if self.per_row else 0.0, common_mode=self.common_mode,
             clip_gray=self.clip_gray, name=self.name,
         )
@@ -137,7 +138,17 @@ def fit_spec(spec: ModelSpec, data: CalibrationData, period_mm: float, pitch_mm:
     if spec.clip_gray is not None:
         lo, hi = spec.clip_gray
         weights = weights * ((raw > lo) & (raw < hi))
-    names = (geometry_names if refine_geometry else ()) + (("row_shift_mm",) if template.n_rows > 1 else ())
+    row_names: tuple[str, ...] = ()
+    if template.n_rows > 1 and template.row_degree > 0:
+        # Row polynomials can absorb a row shift as they absorb a pitch error: the shift (the
+        # camera's tilt) is found with rows that differ by nothing else, then held.
+        flat_rows = spec.with_changes(row_degree=0, flat_field=False, common_mode=False, target_map=False)
+        row_shift_mm = fit_spec(flat_rows, data, period_mm, pitch_mm, row_shift_mm,
+                                refine_geometry=False).model.row_shift_mm
+        template = template.with_changes(row_shift_mm=row_shift_mm)
+    elif template.n_rows > 1:
+        row_names = ("row_shift_mm",)
+    names = (geometry_names if refine_geometry else ()) + row_names
     bilinear = spec.flat_field or spec.common_mode or spec.target_map
     frame_gain, frame_offset = np.ones(raw.shape[0]), np.zeros(raw.shape[0])
     pixel_gain, pixel_offset = np.ones(raw.shape[1:]), np.zeros(raw.shape[1:])
