@@ -16,6 +16,7 @@ import numpy as np
 
 from graytrack.core.calibration import KIND_SPECS
 from graytrack.core.calibration_data import CalibrationData, calibration_data
+from graytrack.core.errors import CalibrationError
 from graytrack.core.geometry import initial_geometry
 from graytrack.core.structure import ModelSpec, fit_spec, fit_spec_pitch_search
 from graytrack.core.diagnosis.effects import EFFECTS
@@ -154,6 +155,10 @@ def diagnose(calibration: Recording, validation: Recording | None = None, progre
     say = progress or (lambda fraction, label: None)
     data = calibration_data(calibration)
     if validation is not None:
+        if (validation.n_rows, validation.n_pixels) != (calibration.n_rows, calibration.n_pixels):
+            raise CalibrationError(
+                f"the validation recording has {validation.n_rows} row(s) × {validation.n_pixels} px, the calibration "
+                f"{calibration.n_rows} × {calibration.n_pixels}: both must come from the same camera ROI")
         train, val = data, calibration_data(validation)
         holdout = f"validation recording ({len(val.x_mm)} frames)"
     else:

@@ -38,3 +38,12 @@ def test_calibrate_auto_saves_the_loops_model(tmp_path):
     assert main(["calibrate", str(rec), "--model", "auto", "--out", str(tmp_path / "m.json")]) == 0
     model = json.loads((tmp_path / "m.json").read_text())["model"]
     assert model["pixel_gain"] is not None
+
+
+def test_validation_of_another_roi_is_refused(tmp_path, capsys):
+    single, strip = tmp_path / "one.npz", tmp_path / "strip.npz"
+    assert main(["simulate", "--scenario", "paper", "--seconds", "4", "--out", str(single)]) == 0
+    assert main(["simulate", "--scenario", "strip16", "--seconds", "4", "--out", str(strip)]) == 0
+    assert main(["diagnose", str(strip), "--validate", str(single), "--out", str(tmp_path / "d")]) == 2
+    assert "same camera ROI" in capsys.readouterr().err
+    assert not (tmp_path / "d" / "report.json").exists()
