@@ -39,7 +39,7 @@ class ModelSpec:
     flat_field: bool = False
     common_mode: bool = False
     clip_gray: tuple[float, float] | None = None
-    target_map: bool = False
+    target_map: int = 0  # grid steps per pixel footprint of a target map (0: none)
     reference_skew_s: float = 0.0  # grating latched this long after mid-exposure (a data correction)
     name: str = "paper"
 
@@ -75,19 +75,20 @@ def _rough_part(values: np.ndarray, basis: np.ndarray) -> np.ndarray:
     return values - (basis @ coef).T
 
 
-TARGET_MAP_STEPS_PER_PIXEL = 2
+DEFAULT_MAP_STEPS = 2  # half a pixel footprint: finer grids are noisier, coarser ones blur dust
+MAX_MAP_STEPS = 4  # a quarter of a pixel footprint, for defects narrower than a pixel (scratches)
 TARGET_MAP_RIDGE = 1e-3
 
 
 def fit_target_map(model: FourierModel, x_mm: np.ndarray, lit: np.ndarray, smooth: np.ndarray,
-                   weights: np.ndarray) -> dict[str, Any]:
+                   weights: np.ndarray, steps_per_pixel: int = DEFAULT_MAP_STEPS) -> dict[str, Any]:
     """Relative reflectance m(x_w) on a grid along the target, from lit ≈ S·(1 + m(x_w)).
 
     Piecewise-linear (hat) basis: the normal matrix is tridiagonal, accumulated with bincount and
     solved banded. What the Fourier × polynomial part can already say (anything periodic or smooth
     along the target) is projected out, so the map holds only local defects.
     """
-    step = model.pixel_pitch_mm / TARGET_MAP_STEPS_PER_PIXEL
+    step = model.pixel_pitch_mm / steps_per_pixel
     x_w = model.target_coordinate(x_mm)
     origin = float(x_w.min()) - step
     size = int(np.ceil((float(x_w.max()) + step - origin) / step)) + 1
@@ -127,7 +128,7 @@ def fit_spec(spec: ModelSpec, data: CalibrationData, period_mm: float, pitch_mm:
     geometry_names = ("period_mm", "pixel_pitch_mm")
     if refine_geometry and spec.pixel_degree > PITCH_PIXEL_DEGREE:
         coarse = spec.with_changes(pixel_degree=PITCH_PIXEL_DEGREE, flat_field=False, common_mode=False,
-                                   target_map=False)
+                                   target_map=0)
         pitch_mm = fit_spec_pitch_search(coarse, data, period_mm, pitch_mm, row_shift_mm,
                                          grid_step=0.02).model.pixel_pitch_mm
         geometry_names = ("period_mm",)
@@ -142,7 +143,7 @@ def fit_spec(spec: ModelSpec, data: CalibrationData, period_mm: float, pitch_mm:
     if template.n_rows > 1 and template.row_degree > 0:
         # Row polynomials can absorb a row shift as they absorb a pitch error: the shift (the
         # camera's tilt) is found with rows that differ by nothing else, then held.
-        flat_rows = spec.with_changes(row_degree=0, flat_field=False, common_mode=False, target_map=False)
+        flat_rows = spec.with_changes(row_degree=0, flat_field=False, common_mode=False, target_map=0)
         row_shift_mm = fit_spec(flat_rows, data, period_mm, pitch_mm, row_shift_mm,
                                 refine_geometry=False).model.row_shift_mm
         template = template.with_changes(row_shift_mm=row_shift_mm)
@@ -165,7 +166,7 @@ def fit_spec(spec: ModelSpec, data: CalibrationData, period_mm: float, pitch_mm:
             model, _ = fit_coefficients(model, data.x_mm, lit / map_factor, weights)
         smooth = model.predict(data.x_mm, with_response=False)
         if spec.target_map:
-            target_map = fit_target_map(model, data.x_mm, lit, smooth, weights)
+            target_map = fit_target_map(model, data.x_mm, lit, smooth, weights, spec.target_map)
             map_factor = model.with_changes(coeffs=model.coeffs, **target_map).target_factor(data.x_mm)[0]
         shaded = smooth * map_factor
         if spec.flat_field:

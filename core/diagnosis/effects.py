@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Callable
 
-from graytrack.core.structure import ModelSpec
+from graytrack.core.structure import DEFAULT_MAP_STEPS, MAX_MAP_STEPS, ModelSpec
 
 MAX_HARMONICS = 13
 MAX_PIXEL_DEGREE = 9
@@ -50,6 +50,11 @@ def _once(flag: str) -> Callable[[ModelSpec, Any], ModelSpec | None]:
     return grow
 
 
+def _finer_map(spec: ModelSpec, _: Any) -> ModelSpec | None:
+    steps = 2 * spec.target_map if spec.target_map else DEFAULT_MAP_STEPS
+    return spec.with_changes(target_map=steps) if steps <= MAX_MAP_STEPS else None
+
+
 def _reference_skew(spec: ModelSpec, skew_s: Any) -> ModelSpec | None:
     return None if skew_s is None else spec.with_changes(reference_skew_s=spec.reference_skew_s + float(skew_s))
 
@@ -80,9 +85,9 @@ EFFECTS: dict[str, Effect] = {
                "one model per row: a target shift per row and row-dependent coefficients",
                "row shift inside the variable projection, row polynomials linear", _once("per_row")),
         Effect("target_map", "local defects fixed to the target (dust, scratches, print flaws)",
-               "a relative reflectance map on a half-pixel grid along the target (its smooth and periodic part "
-               "left to the Fourier terms)", "tridiagonal least squares, alternating with the smooth part; "
-               "tracking uses its slope too", _once("target_map")),
+               "a relative reflectance map on a half-pixel grid along the target (its periodic part left to the "
+               "Fourier terms)", "tridiagonal least squares, alternating with the smooth part; "
+               "tracking uses its slope too; a second step halves the grid", _finer_map),
         Effect("reference_timing", "grating read at another instant than the exposure (latch skew, readout latency)",
                "the reference moved to mid-exposure: x(t) = ref(t) − v·δ (a correction of the data, kept in "
                "model.json as info.reference_skew_s)", "δ from the regression of the held-out error on velocity",

@@ -18,7 +18,7 @@ from typing import Callable
 import numpy as np
 
 from graytrack.core.basis import legendre_basis, scaled, trig_basis
-from graytrack.core.structure import fit_target_map
+from graytrack.core.structure import DEFAULT_MAP_STEPS, MAX_MAP_STEPS, fit_target_map
 from graytrack.core.diagnosis.heldout import Fit
 from graytrack.core.timing import velocity_mm_s
 
@@ -212,11 +212,16 @@ def row_evidence(train: Fit, val: Fit) -> Evidence | None:
 def target_map_evidence(train: Fit, val: Fit) -> Evidence | None:
     """Local defects fixed to the target (dust, scratches): a fine map along the target coordinate,
     learnt from training frames, predicts the held-out residual wherever the same spot is seen."""
-    if train.model.target_map is not None:
-        return None
+    model = train.model
+    steps = DEFAULT_MAP_STEPS
+    if model.target_map is not None:  # a map exists: would one twice as fine say more?
+        steps = 2 * int(round(model.pixel_pitch_mm / model.target_map_step_mm))
+        if steps > MAX_MAP_STEPS:
+            return None
     (res_t, use_t, _), (res_v, use_v, factor) = _model_rows(train), _model_rows(val)
-    found = fit_target_map(train.model, train.data.x_mm, train.smooth + res_t, train.smooth, use_t)
-    mapped = train.model.with_changes(coeffs=train.model.coeffs, **found)
+    found = fit_target_map(model.with_changes(coeffs=model.coeffs, target_map=None), train.data.x_mm,
+                           train.smooth + res_t, train.smooth, use_t, steps)
+    mapped = model.with_changes(coeffs=model.coeffs, **found)
     predicted = val.smooth * (mapped.target_factor(val.data.x_mm)[0] - 1.0) * use_v
     explained = factor * float((res_v**2).sum() - ((res_v - predicted) ** 2).sum())
     sigma2 = val.data.sigma_gray**2
@@ -224,7 +229,8 @@ def target_map_evidence(train: Fit, val: Fit) -> Evidence | None:
     deepest = float(np.abs(found["target_map"]).max()) * 100
     return Evidence("target_map", "target coordinate (local)", explained,
                     explained / sigma2 / np.sqrt(2.0 * found["target_map"].size), explained / excess,
-                    f"spots fixed to the target (deepest {deepest:.1f}% of the light) explain "
+                    f"spots fixed to the target (deepest {deepest:.1f}% of the light, on a "
+                    f"{found['target_map_step_mm'] * 1e3:.0f} µm grid) explain "
                     f"{100 * explained / excess:.0f}% of the held-out residual above noise")
 
 

@@ -181,7 +181,7 @@ def diagnose(calibration: Recording, validation: Recording | None = None, progre
             say(0.05 + 0.85 * (step_index + 0.5) / max_steps, f"step {step_index + 1}: trying {evidence.effect}")
             m = current.model
             trial = _stage(spec, train, val, (m.period_mm, m.pixel_pitch_mm, m.row_shift_mm or geometry[2]),
-                           search_pitch=spec.target_map and not current.spec.target_map)
+                           search_pitch=spec.target_map > current.spec.target_map)
             keep, reason = _better(trial.figures, current.figures, int(current.val.usable.sum()))
             record = Step(evidence.effect, evidence, trial, keep, reason)
             if not keep:
