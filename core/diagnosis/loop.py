@@ -149,23 +149,54 @@ def _candidates(stage: Stage) -> list[tuple[Evidence, Any]]:
     return found
 
 
+def _held_out(calibration: Recording, validation: Recording | None) -> tuple[CalibrationData, CalibrationData,
+                                                                             CalibrationData, str]:
+    """(all calibration data, training part, held-out part, how the held-out part was chosen)."""
+    data = calibration_data(calibration)
+    if validation is None:
+        train, val = interleaved_split(data)
+        return data, train, val, f"{len(val.x_mm)} of {len(data.x_mm)} frames, interleaved blocks the fit did not see"
+    if (validation.n_rows, validation.n_pixels) != (calibration.n_rows, calibration.n_pixels):
+        raise CalibrationError(
+            f"the validation recording has {validation.n_rows} row(s) × {validation.n_pixels} px, the calibration "
+            f"{calibration.n_rows} × {calibration.n_pixels}: both must come from the same camera ROI")
+    val = calibration_data(validation)
+    return data, data, val, f"validation recording ({len(val.x_mm)} frames)"
+
+
+def _next_step(current: Stage, train: CalibrationData, val: CalibrationData, rejected: list[Step],
+               row_shift_guess_mm: float, say: Progress, fraction: float) -> Step | None:
+    """Try the effects the residual points to; of those that pass the held-out test, the one that
+    tracks best (the strongest evidence is not always the right cause: a flexible term can soak
+    up what a simpler physical one explains). None when nothing passes."""
+    contenders: list[Step] = []
+    m = current.model
+    geometry = (m.period_mm, m.pixel_pitch_mm, m.row_shift_mm or row_shift_guess_mm)
+    for evidence, argument in _candidates(current)[:CANDIDATES_PER_STEP]:
+        spec = EFFECTS[evidence.effect].grow(current.spec, argument)
+        if spec is None:
+            continue
+        say(fraction, f"trying {evidence.effect}")
+        trial = _stage(spec, train, val, geometry, search_pitch=spec.target_map > current.spec.target_map)
+        keep, reason = _better(trial.figures, current.figures, int(current.val.usable.sum()))
+        record = Step(evidence.effect, evidence, trial, keep, reason)
+        if not keep:
+            rejected.append(record)
+            continue
+        contenders.append(record)
+        if len(contenders) == CONTENDERS_PER_STEP:
+            break
+    return min(contenders, key=lambda step: (step.stage.figures.error_std_um, step.stage.figures.rmse_gray),
+               default=None)
+
+
 def diagnose(calibration: Recording, validation: Recording | None = None, progress: Progress | None = None,
              max_steps: int = MAX_STEPS) -> DiagnosisResult:
     """Run the closed loop on a calibration recording (and an optional validation recording)."""
     say = progress or (lambda fraction, label: None)
-    data = calibration_data(calibration)
-    if validation is not None:
-        if (validation.n_rows, validation.n_pixels) != (calibration.n_rows, calibration.n_pixels):
-            raise CalibrationError(
-                f"the validation recording has {validation.n_rows} row(s) × {validation.n_pixels} px, the calibration "
-                f"{calibration.n_rows} × {calibration.n_pixels}: both must come from the same camera ROI")
-        train, val = data, calibration_data(validation)
-        holdout = f"validation recording ({len(val.x_mm)} frames)"
-    else:
-        train, val = interleaved_split(data)
-        holdout = f"{len(val.x_mm)} of {len(data.x_mm)} frames, interleaved blocks the fit did not see"
-    geometry = initial_geometry(train)
+    data, train, val, holdout = _held_out(calibration, validation)
     say(0.02, "fitting the seed paper's model")
+    geometry = initial_geometry(train)
     current = before = _stage(KIND_SPECS["paper"], train, val, geometry, refine_geometry=True)
     steps: list[Step] = []
     rejected: list[Step] = []
@@ -173,36 +204,18 @@ def diagnose(calibration: Recording, validation: Recording | None = None, progre
         if _at_noise_floor(current):
             break
         say(0.05 + 0.85 * step_index / max_steps, f"step {step_index + 1}: probing the residual")
-        contenders: list[Step] = []
-        for evidence, argument in _candidates(current)[:CANDIDATES_PER_STEP]:
-            spec = EFFECTS[evidence.effect].grow(current.spec, argument)
-            if spec is None:
-                continue
-            say(0.05 + 0.85 * (step_index + 0.5) / max_steps, f"step {step_index + 1}: trying {evidence.effect}")
-            m = current.model
-            trial = _stage(spec, train, val, (m.period_mm, m.pixel_pitch_mm, m.row_shift_mm or geometry[2]),
-                           search_pitch=spec.target_map > current.spec.target_map)
-            keep, reason = _better(trial.figures, current.figures, int(current.val.usable.sum()))
-            record = Step(evidence.effect, evidence, trial, keep, reason)
-            if not keep:
-                rejected.append(record)
-                continue
-            contenders.append(record)
-            if len(contenders) == CONTENDERS_PER_STEP:
-                break
-        if not contenders:
+        accepted = _next_step(current, train, val, rejected, geometry[2], say,
+                              0.05 + 0.85 * (step_index + 0.5) / max_steps)
+        if accepted is None:
             break
-        # The strongest evidence is not always the right cause (a flexible term can soak up what a
-        # simpler physical one explains): of the effects that pass, keep the one that tracks best.
-        accepted = min(contenders, key=lambda step: (step.stage.figures.error_std_um, step.stage.figures.rmse_gray))
         steps.append(accepted)
         current = accepted.stage
-    say(0.92, "refitting the final structure on all calibration frames")
     final_model = current.model
     if validation is None:
+        say(0.92, "refitting the final structure on all calibration frames")
         m = current.model
         final_model = fit_spec(current.spec, at_exposure_instant(data, current.spec), m.period_mm, m.pixel_pitch_mm,
-                               m.row_shift_mm or geometry[2], refine_geometry=False).model
+                               m.row_shift_mm, refine_geometry=False).model
     if current.spec.reference_skew_s:
         final_model.info["reference_skew_s"] = current.spec.reference_skew_s
     remaining = [ev for ev in all_evidence(current.train, current.val) if ev.z > MIN_Z]
