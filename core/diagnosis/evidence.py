@@ -240,8 +240,10 @@ def timing_evidence(val: Fit, error_um: np.ndarray) -> tuple[Evidence, float] | 
     velocity = velocity_mm_s(val.data.t_s, val.data.x_mm)
     usable = np.isfinite(error_um)
     v, e = velocity[usable], error_um[usable]
+    if v.size < 10:
+        return None
     spread = float(((v - v.mean()) ** 2).sum())
-    if v.size < 10 or spread <= 1e-12:
+    if spread <= 1e-12:
         return None
     slope = float(((v - v.mean()) * (e - e.mean())).sum() / spread)  # µm per (mm/s)
     fitted = e.mean() + slope * (v - v.mean())

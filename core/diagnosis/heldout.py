@@ -114,4 +114,10 @@ def figures(model: FourierModel, data: CalibrationData, fit: Fit | None = None) 
     if lost:  # a frame the tracker could not place counts as the worst error there is
         worst = float("inf")
     return Figures(model.describe(), fit.rmse_gray, spread, worst, float(np.mean(error[finite])) if finite.any() else 0.0,
-                   float(np.nanmedian(tracked.crlb_mm) * 1e3), error, data.x_mm, tracked)
+                   _median_um(tracked.crlb_mm), error, data.x_mm, tracked)
+
+
+def _median_um(values_mm: np.ndarray) -> float:
+    """Median of the finite values in µm; NaN when the tracker placed no frame at all."""
+    finite = values_mm[np.isfinite(values_mm)]
+    return float(np.median(finite) * 1e3) if finite.size else float("nan")

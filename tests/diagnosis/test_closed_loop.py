@@ -106,3 +106,15 @@ def test_reference_read_late_is_traced_to_timing_and_corrected():
     assert result.final_model.info["reference_skew_s"] == pytest.approx(0.3e-3, rel=0.1)
     assert report["before"]["error_std_um"] > 10 * report["noise"]["crlb_um"]
     assert report["after"]["error_std_um"] <= 1.3 * report["noise"]["crlb_um"]
+
+
+def test_heavy_saturation_that_defeats_the_seed_model_is_reported_and_fixed():
+    """Gain 1.6 into an 8-bit clip: the seed model places no held-out frame; clipping fixes it."""
+    import json
+
+    report = run_loop("saturation:gain=1.6,quantize:bits=8", seed=5)
+    assert report["before"]["error_std_um"] is None and report["before"]["lost_frames"] > 0
+    assert report["steps"][0]["effect"] == "clipping"
+    assert report["after"]["lost_frames"] == 0
+    assert report["after"]["error_std_um"] <= 1.3 * report["noise"]["crlb_um"]
+    json.dumps(report, allow_nan=False)  # the contract file holds no NaN or infinity
