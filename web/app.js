@@ -58,7 +58,9 @@ function plot(now) {
   const canvas = $("plot");
   const ctx = canvas.getContext("2d");
   ctx.clearRect(0, 0, canvas.width, canvas.height);
-  const series = (key, color) => {
+  // Two bands, so that position and error never overlap: position above, error below, each with
+  // its own scale; position labels on the left, error labels on the right.
+  const series = (key, color, top, bottom, right) => {
     const values = samples.map((s) => s[key]).filter((v) => v !== null && Number.isFinite(v));
     if (values.length < 2) return;
     let lo = Math.min(...values), hi = Math.max(...values);
@@ -69,17 +71,20 @@ function plot(now) {
     for (const s of samples) {
       if (s[key] === null || !Number.isFinite(s[key])) { started = false; continue; }
       const px = canvas.width * (1 - (now - s.t) / PLOT_SECONDS);
-      const py = canvas.height - 8 - (canvas.height - 16) * (s[key] - lo) / (hi - lo);
+      const py = bottom - (bottom - top) * (s[key] - lo) / (hi - lo);
       if (started) ctx.lineTo(px, py); else ctx.moveTo(px, py);
       started = true;
     }
     ctx.stroke();
     ctx.fillStyle = color;
-    ctx.fillText(`${hi.toPrecision(5)}`, 4, 12);
-    ctx.fillText(`${lo.toPrecision(5)}`, 4, canvas.height - 4);
+    ctx.textAlign = right ? "right" : "left";
+    const x = right ? canvas.width - 4 : 4;
+    ctx.fillText(`${hi.toPrecision(5)}`, x, top + 4);
+    ctx.fillText(`${lo.toPrecision(5)}`, x, bottom + 4);
   };
-  series("x", "#2b6cb0");
-  series("e", "#b7791f");
+  const h = canvas.height;
+  series("x", "#2b6cb0", 10, 0.55 * h - 6, false);
+  series("e", "#b7791f", 0.55 * h + 10, h - 8, true);
 }
 
 // -- status --------------------------------------------------------------------------------
