@@ -21,6 +21,7 @@ from graytrack.core.calibration_data import Calibration, CalibrationData
 from graytrack.core.geometry import fit_geometry
 from graytrack.core.linear_fit import fit_coefficients
 from graytrack.core.models.fourier import TWO_PI, FourierModel
+from graytrack.core.regression import weighted_affine
 
 Progress = Callable[[float, str], None]
 ALTERNATION_ROUNDS = 4
@@ -55,18 +56,6 @@ class ModelSpec:
             row_shift_mm=row_shift_mm if self.per_row else 0.0, common_mode=self.common_mode,
             clip_gray=self.clip_gray, name=self.name,
         )
-
-
-def _weighted_affine(target: np.ndarray, regressor: np.ndarray, weights: np.ndarray, axis: tuple[int, ...]):
-    """Per-slice least squares target ≈ a·regressor + b over ``axis``: returns (a, b)."""
-    sw = weights.sum(axis=axis)
-    mean_x = (weights * regressor).sum(axis=axis) / np.maximum(sw, 1e-300)
-    mean_y = (weights * target).sum(axis=axis) / np.maximum(sw, 1e-300)
-    expand = tuple(a for a in axis)
-    dx = regressor - np.expand_dims(mean_x, expand)
-    dy = target - np.expand_dims(mean_y, expand)
-    slope = (weights * dx * dy).sum(axis=axis) / np.maximum((weights * dx * dx).sum(axis=axis), 1e-300)
-    return slope, mean_y - slope * mean_x
 
 
 def _rough_part(values: np.ndarray, basis: np.ndarray) -> np.ndarray:
@@ -170,12 +159,12 @@ def fit_spec(spec: ModelSpec, data: CalibrationData, period_mm: float, pitch_mm:
             map_factor = model.with_changes(coeffs=model.coeffs, **target_map).target_factor(data.x_mm)[0]
         shaded = smooth * map_factor
         if spec.flat_field:
-            gain, offset = _weighted_affine(per_frame, shaded, weights, axis=(0,))
+            gain, offset = weighted_affine(per_frame, shaded, weights, axis=(0,))
             basis = model.pixel_basis()
             pixel_gain = 1.0 + _rough_part(gain - 1.0, basis)
             pixel_offset = _rough_part(offset, basis)
         if spec.common_mode:
-            frame_gain, frame_offset = _weighted_affine(raw, pixel_gain * shaded + pixel_offset, weights, axis=(1, 2))
+            frame_gain, frame_offset = weighted_affine(raw, pixel_gain * shaded + pixel_offset, weights, axis=(1, 2))
             frame_offset = frame_offset - frame_offset.mean()
             frame_gain = frame_gain / frame_gain.mean()
         if progress and bilinear:

@@ -20,6 +20,7 @@ import numpy as np
 from graytrack.core.basis import legendre_basis, scaled, trig_basis
 from graytrack.core.structure import DEFAULT_MAP_STEPS, MAX_MAP_STEPS, fit_target_map
 from graytrack.core.diagnosis.heldout import Fit
+from graytrack.core.regression import weighted_affine
 from graytrack.core.timing import velocity_mm_s
 
 
@@ -131,19 +132,9 @@ def cross_validated_evidence(train: Fit, val: Fit) -> list[Evidence]:
 
 def flat_field_evidence(train: Fit, val: Fit) -> Evidence:
     """A gain and offset per pixel, fitted on training frames, applied to held-out ones."""
-    def per_pixel(fit: Fit):
-        s = np.broadcast_to(fit.predicted, fit.data.frames.shape)
-        w = fit.usable
-        return s, w, fit.residual
-
-    s_t, w_t, r_t = per_pixel(train)
-    sw = w_t.sum(axis=0)
-    ms = (w_t * s_t).sum(axis=0) / np.maximum(sw, 1e-300)
-    mr = (w_t * r_t).sum(axis=0) / np.maximum(sw, 1e-300)
-    slope = (w_t * (s_t - ms) * (r_t - mr)).sum(axis=0) / np.maximum((w_t * (s_t - ms) ** 2).sum(axis=0), 1e-300)
-    intercept = mr - slope * ms
-    s_v, w_v, r_v = per_pixel(val)
-    corrected = r_v - (slope * s_v + intercept) * w_v
+    slope, intercept = weighted_affine(train.residual, train.predicted, train.usable, axis=(0,))
+    r_v = val.residual
+    corrected = r_v - (slope * val.predicted + intercept) * val.usable
     explained = float((r_v**2).sum() - (corrected**2).sum())
     sigma2 = val.data.sigma_gray**2
     p = 2 * slope.size
@@ -159,14 +150,9 @@ def common_mode_evidence(train: Fit, val: Fit) -> Evidence:
     """A gain and offset per frame (fitted on the held-out frames themselves, charged per parameter)."""
     if train.model.common_mode:
         return Evidence("common_mode", "time (per frame)", 0.0, 0.0, 0.0, "already modelled")
-    s, w, r = np.broadcast_to(val.predicted, val.data.frames.shape), val.usable, val.residual
-    axes = (1, 2)
-    sw = w.sum(axis=axes)
-    ms = (w * s).sum(axis=axes) / sw
-    mr = (w * r).sum(axis=axes) / sw
-    ds = s - ms[:, None, None]
-    gain = (w * ds * (r - mr[:, None, None])).sum(axis=axes) / (w * ds * ds).sum(axis=axes)
-    corrected = (r - (gain[:, None, None] * ds + mr[:, None, None])) * w
+    r = val.residual
+    gain, offset = weighted_affine(r, val.predicted, val.usable, axis=(1, 2))
+    corrected = (r - (gain[:, None, None] * val.predicted + offset[:, None, None])) * val.usable
     explained = float((r**2).sum() - (corrected**2).sum())
     sigma2 = val.data.sigma_gray**2
     p = 2 * len(gain)

@@ -13,6 +13,7 @@ import numpy as np
 
 from graytrack.core.calibration_data import CalibrationData
 from graytrack.core.models.fourier import FourierModel
+from graytrack.core.regression import weighted_affine
 from graytrack.core.timing import runs
 from graytrack.core.tracking import TrackResult, track
 
@@ -55,13 +56,8 @@ def fit_on(model: FourierModel, data: CalibrationData) -> Fit:
         usable *= (data.frames > model.clip_gray[0]) & (data.frames < model.clip_gray[1])
     values = np.broadcast_to(values, data.frames.shape)
     if model.common_mode:
-        w = usable
-        sw = w.sum(axis=(1, 2))
-        mx = (w * values).sum(axis=(1, 2)) / sw
-        my = (w * data.frames).sum(axis=(1, 2)) / sw
-        dx = values - mx[:, None, None]
-        gain = (w * dx * (data.frames - my[:, None, None])).sum(axis=(1, 2)) / (w * dx * dx).sum(axis=(1, 2))
-        values = gain[:, None, None] * dx + my[:, None, None]
+        gain, offset = weighted_affine(data.frames, values, usable, axis=(1, 2))
+        values = gain[:, None, None] * values + offset[:, None, None]
     return Fit(model, data, np.asarray(values), smooth, slope, usable)
 
 
