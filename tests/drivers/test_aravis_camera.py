@@ -70,14 +70,16 @@ def test_fake_camera_free_run_delivers_roi_strips_with_ids_and_timestamps() -> N
 
 def test_latest_only_skips_the_backlog_and_counts_it_as_dropped() -> None:
     settings = CameraSettings(frame_rate_hz=200.0, roi=Roi(row=0, rows=1, col=0, cols=64))
-    with AravisCamera("Fake_1", settings, n_buffers=16) as camera:
+    with AravisCamera("Fake_1", settings, n_buffers=32) as camera:
         first = camera.read(1.0)
-        time.sleep(0.1)  # ~20 frames pile up in the pool
+        time.sleep(0.2)  # ~40 frames arrive; the pool holds up to 32 of them
         fresh = camera.read(1.0)
         received = time.monotonic()
-    assert frames_between(first.frame_id, fresh.frame_id) >= 10
-    assert camera.stats.dropped >= 10
-    assert received - fresh.t_host < 0.03, "the handed-out frame is the newest, not the oldest queued"
+    assert frames_between(first.frame_id, fresh.frame_id) >= 20
+    assert camera.stats.dropped >= 20
+    # The oldest queued frame would be over 150 ms old; the newest is a few ms old plus whatever
+    # the scheduler adds under the parallel suite's load.
+    assert received - fresh.t_host < 0.1, "the handed-out frame is the newest, not the oldest queued"
 
 
 def test_software_trigger_produces_one_frame_per_read_and_mono16_is_uint16() -> None:
