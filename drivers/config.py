@@ -10,13 +10,16 @@ from __future__ import annotations
 
 import tomllib
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Callable, Literal, TypeVar
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from graytrack.drivers.camera.base import CameraSettings, Roi
 
 STANDARD_BAUD_RATES = (9600, 19200, 38400, 57600, 115200, 230400, 460800)
+
+
+ParsedT = TypeVar("ParsedT")
 
 
 class ConfigError(ValueError):
@@ -119,13 +122,18 @@ def read_toml(path: Path) -> dict[str, Any]:
         raise ConfigError(f"{path}: not valid TOML ({exc})") from None
 
 
-def load_hardware(path: str | Path) -> HardwareConfig:
+def load_toml(path: str | Path, parse: Callable[[dict[str, Any]], ParsedT]) -> ParsedT:
+    """Read a TOML file and validate it with ``parse``; every error names the file."""
     path = Path(path)
     tables = read_toml(path)
     try:
-        return parse_hardware(tables)
+        return parse(tables)
     except ConfigError as exc:
         raise ConfigError(f"{path}: {exc}") from None
+
+
+def load_hardware(path: str | Path) -> HardwareConfig:
+    return load_toml(path, parse_hardware)
 
 
 def describe_validation_error(error: Any) -> str:

@@ -14,7 +14,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from graytrack.drivers.config import ConfigError, HardwareConfig, describe_validation_error, parse_hardware, read_toml
+from graytrack.drivers.config import ConfigError, HardwareConfig, describe_validation_error, load_toml, parse_hardware
 
 DEFAULT_HOST = "127.0.0.1"  # DESIGN.md: loopback unless told otherwise
 DEFAULT_PORT = 8000
@@ -99,9 +99,4 @@ def load_settings(path: str | os.PathLike[str] | None) -> Settings:
     """The file's settings, or the embedded default (the virtual rig) when ``path`` is None."""
     if path is None:
         return Settings()
-    path = Path(path)
-    tables = read_toml(path)
-    try:
-        return parse_settings(tables)
-    except ConfigError as exc:
-        raise ConfigError(f"{path}: {exc}") from None
+    return load_toml(path, parse_settings)
