@@ -27,6 +27,7 @@ from graytrack.core.models.fourier import FourierModel
 from graytrack.core.tracking import LiveFix, LiveTracker
 from graytrack.drivers.camera.base import Camera, CameraError, CameraTimeout, Frame
 from graytrack.service.daemon.grating import GratingPoller
+from graytrack.service.daemon.worker import Worker
 
 log = logging.getLogger("graytrack.daemon")
 READ_TIMEOUT_S = 0.25  # short, so stop requests and fault timing are honoured promptly
@@ -74,9 +75,10 @@ def fix_message(seq: int, sample: Sample, fix: LiveFix) -> dict[str, Any]:
     return message
 
 
-class Acquisition:
+class Acquisition(Worker):
     def __init__(self, camera: Camera, grating: GratingPoller, publish: Callable[[dict[str, Any]], None],
                  on_fault: Callable[[str | None], None], fault_after_s: float, reopen_interval_s: float) -> None:
+        super().__init__("acquisition")
         self.camera = camera
         self.grating = grating
         self.publish = publish
@@ -88,20 +90,10 @@ class Acquisition:
         self._pending: tuple[FourierModel, float | None] | None = None
         self._subscribers: list[queue.Queue[Sample]] = []
         self._lock = threading.Lock()
-        self._stop = threading.Event()
         self._arrivals: deque[float] = deque(maxlen=RATE_WINDOW)
         self._seq = 0
-        self._thread = threading.Thread(target=self._run, name="acquisition", daemon=True)
 
     # -- control (any thread) --------------------------------------------------------------
-    def start(self) -> "Acquisition":
-        self._thread.start()
-        return self
-
-    def stop(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=5.0)
-
     def install_model(self, model: FourierModel, x0_mm: float | None = None) -> None:
         """Track with ``model`` from the next frame on (started near ``x0_mm`` when given)."""
         with self._lock:

@@ -19,6 +19,7 @@ from typing import Callable
 
 from graytrack.drivers.stage.base import PositionReading, Stage
 from graytrack.drivers.stage.errors import StageError
+from graytrack.service.daemon.worker import Worker
 
 log = logging.getLogger("graytrack.daemon")
 HISTORY = 64
@@ -45,7 +46,7 @@ def pair_reading(readings: list[PositionReading], t: float, window_s: float) -> 
     return a.position_mm + (b.position_mm - a.position_mm) * (t - a.t) / (b.t - a.t)
 
 
-class GratingPoller:
+class GratingPoller(Worker):
     """Reads ``POS?`` every ``poll_s`` (wall time) and keeps the recent readings.
 
     Failures are reported through ``on_fault(reason or None)`` — None when a read succeeds again —
@@ -54,6 +55,7 @@ class GratingPoller:
 
     def __init__(self, stage: Stage, poll_s: float, window_s: float,
                  on_fault: Callable[[str | None], None]) -> None:
+        super().__init__("grating-poller")
         self.stage = stage
         self.poll_s = poll_s
         self.window_s = window_s
@@ -62,16 +64,6 @@ class GratingPoller:
         self.errors = 0
         self._readings: deque[PositionReading] = deque(maxlen=HISTORY)
         self._lock = threading.Lock()
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="grating-poller", daemon=True)
-
-    def start(self) -> "GratingPoller":
-        self._thread.start()
-        return self
-
-    def stop(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=5.0)
 
     def latest(self) -> PositionReading | None:
         with self._lock:
