@@ -15,7 +15,7 @@ from graytrack.core.calibration_data import CalibrationData
 from graytrack.core.models.fourier import FourierModel
 from graytrack.core.regression import weighted_affine
 from graytrack.core.timing import runs
-from graytrack.core.tracking import TrackResult, track
+from graytrack.core.tracking import Tracker, TrackResult, track
 
 HOLDOUT_BLOCK_FRAMES = 10
 HOLDOUT_EVERY = 4
@@ -92,7 +92,8 @@ def track_runs(model: FourierModel, data: CalibrationData) -> TrackResult:
     Held-out blocks are separated by the frames the fit used; a rig tracks continuously, and
     tracking across those gaps would test re-acquisition, not the model.
     """
-    parts = [track(model, data.frames[run], reference=data.x_mm[run]) for run in runs(data.t_s)]
+    tracker = Tracker(model)  # model-level work (folded weights, Gram polynomials) once for all runs
+    parts = [track(model, data.frames[run], reference=data.x_mm[run], tracker=tracker) for run in runs(data.t_s)]
     joined = {key: np.concatenate([getattr(part, key) for part in parts])
               for key in ("x_mm", "locked", "rms_gray", "crlb_mm", "iterations", "gain", "offset")}
     return TrackResult(**joined, events=[event for part in parts for event in part.events])
