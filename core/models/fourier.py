@@ -20,6 +20,11 @@ term is something the closed loop may add when the data ask for it:
 - ``target_map``: a relative reflectance change fixed to the target, on a fine grid along it
   (dust, scratches, print defects): S·(1 + m(x_w)), neither periodic nor smooth.
 
+Two fields say how much each sample is worth rather than what it should read:
+- ``pixel_weight`` ``(R, n)``: 0 for a pixel found bad (stuck, dead, hot, noisy), 1 otherwise;
+- ``pixel_noise``: σ² as a function of gray level (photon transfer, core/pixel_noise.py); without
+  it every sample has σ = ``noise_gray``.
+
 The model is linear in C given (τ, p, q): calibration exploits that (variable projection).
 """
 
@@ -33,6 +38,7 @@ import numpy as np
 
 from graytrack.core.basis import legendre_basis, scaled, trig_basis, trig_derivative
 from graytrack.core.errors import ModelError, TrackingError
+from graytrack.core.pixel_noise import PixelNoise
 
 TWO_PI = 2.0 * math.pi
 _GEOMETRY_FIELDS = {"period_mm", "pixel_pitch_mm", "row_shift_mm", "n_rows", "n_pixels", "harmonics"}
@@ -70,6 +76,8 @@ class FourierModel:
     target_map_origin_mm: float = 0.0
     target_map_step_mm: float = 0.0
     noise_gray: float | None = None
+    pixel_weight: np.ndarray | None = None
+    pixel_noise: PixelNoise | None = None
     name: str = "paper"
     info: dict[str, Any] = field(default_factory=dict)
 
@@ -92,7 +100,7 @@ class FourierModel:
             self.target_map = np.asarray(self.target_map, dtype=np.float64).reshape(-1)
             if self.target_map.size < 2 or not self.target_map_step_mm > 0:
                 raise ModelError("target_map needs at least 2 values and a positive step")
-        for label in ("pixel_gain", "pixel_offset"):
+        for label in ("pixel_gain", "pixel_offset", "pixel_weight"):
             value = getattr(self, label)
             if value is not None:
                 value = np.asarray(value, dtype=np.float64)
@@ -195,6 +203,15 @@ class FourierModel:
             coeffs = self._require_coeffs()
             self._cache["weights"] = np.einsum("aijl,ui,rj->rual", coeffs, self.pixel_basis(), self.row_basis())
         return self._cache["weights"]
+
+    def noise(self) -> PixelNoise:
+        """The sample noise model: the fitted photon-transfer curve, else one σ for every sample."""
+        return self.pixel_noise if self.pixel_noise is not None else PixelNoise.constant(self.noise_gray or 1.0)
+
+    def inverse_variance(self, gray: np.ndarray) -> np.ndarray:
+        """1/σ² (gray⁻²) of samples ``(…, R, n)`` whose expected values are ``gray``, zero on masked pixels."""
+        weights = 1.0 / self.noise().variance(gray)
+        return weights if self.pixel_weight is None else weights * self.pixel_weight
 
     def response(self) -> tuple[np.ndarray | float, np.ndarray | float]:
         gain = self.pixel_gain if self.pixel_gain is not None else 1.0

@@ -13,6 +13,7 @@ import numpy as np
 from graytrack.core.errors import ModelError
 from graytrack.core.files import write_atomic
 from graytrack.core.models.fourier import FourierModel
+from graytrack.core.pixel_noise import PixelNoise
 
 SCHEMA = "graytrack.model"
 SCHEMA_VERSION = 1
@@ -20,7 +21,7 @@ SCHEMA_VERSION = 1
 _SCALAR_FIELDS = ("period_mm", "pixel_pitch_mm", "n_pixels", "harmonics", "pixel_degree", "stroke_degree",
                   "n_rows", "row_degree", "row_shift_mm", "common_mode", "noise_gray", "name",
                   "target_map_origin_mm", "target_map_step_mm")
-_ARRAY_FIELDS = ("coeffs", "pixel_gain", "pixel_offset", "target_map")
+_ARRAY_FIELDS = ("coeffs", "pixel_gain", "pixel_offset", "target_map", "pixel_weight")
 
 
 def model_to_dict(model: FourierModel) -> dict[str, Any]:
@@ -32,6 +33,7 @@ def model_to_dict(model: FourierModel) -> dict[str, Any]:
     for key in _ARRAY_FIELDS:
         value = getattr(model, key)
         body[key] = None if value is None else {"shape": list(value.shape), "data": value.ravel().tolist()}
+    body["pixel_noise"] = None if model.pixel_noise is None else model.pixel_noise.as_dict()
     body["info"] = model.info
     return {"schema": SCHEMA, "version": SCHEMA_VERSION, "model": body}
 
@@ -54,6 +56,8 @@ def model_from_dict(document: Any) -> FourierModel:
             kwargs[key] = tuple(float(v) for v in body[key])
     for key in _ARRAY_FIELDS:
         kwargs[key] = _array(body.get(key), key)
+    if body.get("pixel_noise") is not None:
+        kwargs["pixel_noise"] = PixelNoise.from_dict(body["pixel_noise"])
     kwargs["info"] = body.get("info") or {}
     try:
         return FourierModel(**kwargs)
