@@ -5,11 +5,6 @@ from __future__ import annotations
 import argparse
 import sys
 
-from graytrack.core.calibration import calibrate
-from graytrack.core.models import save_model
-from graytrack.core.recording import load
-from graytrack.service.progress import ProgressBar
-
 MODEL_KINDS = ("ideal", "paper", "auto")
 
 
@@ -28,6 +23,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from graytrack.core.calibration import calibrate
+    from graytrack.core.models import save_model
+    from graytrack.core.recording import load
+    from graytrack.service.progress import ProgressBar
+
     recording = load(args.recording)
     if args.model == "auto":
         return run_auto(recording, args.out)
@@ -43,7 +43,9 @@ def run(args: argparse.Namespace) -> int:
 def run_auto(recording, out: str) -> int:
     """The closed loop's final model, with its held-out figures as the summary."""
     from graytrack.core.diagnosis import diagnose
+    from graytrack.core.models import save_model
     from graytrack.service.commands.diagnose import summary_lines
+    from graytrack.service.progress import ProgressBar
 
     result = diagnose(recording, progress=ProgressBar("calibrate auto"))
     path = save_model(result.final_model, out)

@@ -10,16 +10,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import numpy as np
-
-from graytrack.core.calibration import calibrate
-from graytrack.core.diagnosis import diagnose
-from graytrack.core.recording import save
-from graytrack.core.tracking import track
-from graytrack.drivers.sim.scenarios import build_rig
-from graytrack.service.commands.diagnose import summary_lines
-from graytrack.service.report import write_report
-
 UNDECLARED_EFFECTS = "gradient:per_10mm=0.05,prnu:sigma=0.015,flicker:mains_hz=60:depth=0.02"
 
 
@@ -31,6 +21,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from graytrack.core.calibration import calibrate
+    from graytrack.core.diagnosis import diagnose
+    from graytrack.core.recording import save
+    from graytrack.core.tracking import track
+    from graytrack.drivers.sim.scenarios import build_rig
+    from graytrack.service.commands.diagnose import summary_lines
+    from graytrack.service.report import write_report
+
     out = Path(args.out)
     rig = build_rig("paper", seed=args.seed)
     cal, _ = rig.record(20.0)

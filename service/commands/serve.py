@@ -12,7 +12,6 @@ import logging
 import signal
 import sys
 
-from graytrack.drivers.config import ConfigError
 from graytrack.service.errors import CliError
 
 
@@ -30,6 +29,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     import uvicorn
 
+    from graytrack.drivers.config import ConfigError
     from graytrack.service.daemon.app import create_app
     from graytrack.service.daemon.settings import load_settings
 

@@ -8,9 +8,7 @@ from __future__ import annotations
 
 import argparse
 
-from graytrack.core.recording import save
 from graytrack.service.errors import CliError
-from graytrack.service.progress import ProgressBar
 
 EFFECT_SYNTAX = (
     "Effects: --effects NAME[:KEY=VALUE[:KEY=VALUE...]][,NAME...]; repeat --effects to add more.\n"
@@ -46,7 +44,9 @@ def listing() -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    from graytrack.core.recording import save
     from graytrack.drivers.sim.scenarios import build_rig
+    from graytrack.service.progress import ProgressBar
 
     if args.list:
         print(listing())

@@ -3,15 +3,12 @@
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING
 
-import numpy as np
+if TYPE_CHECKING:  # the parser is built for every command: only `run` imports the numerics
+    import numpy as np
 
-from graytrack.core.models import load_model
-from graytrack.core.recording import load
-from graytrack.core.timing import at_exposure
-from graytrack.core.tracking import TrackResult, track
-from graytrack.service.progress import ProgressBar
-from graytrack.service.tables import write_csv
+    from graytrack.core.tracking import TrackResult
 
 CSV_COLUMNS = ("t", "x_mm", "locked", "rms_gray", "crlb_um", "reference_mm", "error_um")
 
@@ -34,6 +31,8 @@ def result_columns(t: np.ndarray, result: TrackResult, reference: np.ndarray) ->
 
 
 def summary(result: TrackResult, reference: np.ndarray) -> list[str]:
+    import numpy as np
+
     lines = [f"frames  {result.x_mm.size}, locked {int(result.locked.sum())}, lock events {len(result.events)}"]
     for event in result.events[:10]:
         state = f"re-acquired at {event.x_after_mm:.4f} mm" if event.reacquired else "not re-acquired"
@@ -48,6 +47,15 @@ def summary(result: TrackResult, reference: np.ndarray) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from graytrack.core.models import load_model
+    from graytrack.core.recording import load
+    from graytrack.core.timing import at_exposure
+    from graytrack.core.tracking import track
+    from graytrack.service.progress import ProgressBar
+    from graytrack.service.tables import write_csv
+
     recording = load(args.recording)
     model = load_model(args.model)
     grating = recording.reference

@@ -20,7 +20,7 @@ def test_open_identifies_switches_servo_on_references_and_sets_velocity(
     assert stage.servo_on() and stage.is_referenced()
     assert stage.velocity() == 20.0
     assert stage.limits() == (0.0, 25.0)
-    assert controller.received[:2] == ["*IDN?", "SVO? 1"]
+    assert list(controller.received)[:2] == ["*IDN?", "SVO? 1"]
     assert "SVO 1 1" in controller.received and "FRF 1" in controller.received
 
 
@@ -52,7 +52,7 @@ def test_soft_limits_refuse_moves_before_anything_is_sent(controller: SimGCSCont
             stage.move_to(20.5)
         with pytest.raises(StageLimitError):
             stage.move_by(-8.0)  # 12.5 - 8 = 4.5 < 5
-        assert not any(line.startswith(("MOV ", "MVR ")) for line in controller.received[sent:])
+        assert not any(line.startswith(("MOV ", "MVR ")) for line in list(controller.received)[sent:])
 
 
 def test_controller_errors_carry_gcs_number_and_text(controller: SimGCSController, stage: GCSStage) -> None:
@@ -145,3 +145,12 @@ def test_unknown_controller_model_is_accepted_with_its_own_idn(timeout_s: float)
     with SimGCSController(TrapezoidAxis(), idn="(c)2020 PI, E-873.1AT, 1, 2") as ctl:
         with GCSStage(ctl.path, timeout_s=timeout_s) as stage:
             assert stage.identify() == "(c)2020 PI, E-873.1AT, 1, 2"
+
+
+def test_command_log_is_bounded_so_memory_stays_flat(timeout_s: float) -> None:
+    with SimGCSController(TrapezoidAxis(), keep_received=50) as ctl:
+        with GCSStage(ctl.path, timeout_s=timeout_s) as stage:
+            for _ in range(120):
+                stage.position()
+            assert len(ctl.received) == 50, "only the newest lines are kept"
+            assert list(ctl.received)[-1] == "POS? 1" and "*IDN?" not in ctl.received
