@@ -92,6 +92,10 @@ class FourierModel:
                 raise ModelError(f"{label} must be a non-negative integer, got {value}")
         if self.harmonics < 1:
             raise ModelError("harmonics must be at least 1")
+        if self.clip_gray is not None:
+            low, high = (float(v) for v in self.clip_gray)
+            if not (np.isfinite(low) and np.isfinite(high) and low < high):
+                raise ModelError(f"clip_gray must be [floor, ceiling] with floor < ceiling, got {list(self.clip_gray)}")
         if self.coeffs is not None:
             self.coeffs = np.asarray(self.coeffs, dtype=np.float64)
             if self.coeffs.shape != self.coeff_shape:

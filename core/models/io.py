@@ -53,7 +53,12 @@ def model_from_dict(document: Any) -> FourierModel:
     kwargs: dict[str, Any] = {key: body[key] for key in _SCALAR_FIELDS if key in body}
     for key in ("stroke_range_mm", "clip_gray"):
         if body.get(key) is not None:
-            kwargs[key] = tuple(float(v) for v in body[key])
+            try:
+                kwargs[key] = tuple(float(v) for v in body[key])
+            except (TypeError, ValueError):
+                raise ModelError(f"model file: {key} must be a pair of numbers, got {body[key]!r}") from None
+            if len(kwargs[key]) != 2:
+                raise ModelError(f"model file: {key} must be a pair of numbers, got {body[key]!r}")
     for key in _ARRAY_FIELDS:
         kwargs[key] = _array(body.get(key), key)
     if body.get("pixel_noise") is not None:
@@ -89,6 +94,8 @@ def load_model(path: str | os.PathLike[str]) -> FourierModel:
         document = json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise ModelError(f"{path}: not a JSON model file ({exc})") from None
+    except RecursionError:
+        raise ModelError(f"{path}: not a model file (JSON nested too deeply to read)") from None
     try:
         return model_from_dict(document)
     except ModelError as exc:

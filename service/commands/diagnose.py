@@ -41,8 +41,10 @@ def run(args: argparse.Namespace) -> int:
     from graytrack.core.diagnosis import diagnose
     from graytrack.core.recording import load
     from graytrack.service.progress import ProgressBar
+    from graytrack.service.outputs import output_folder
     from graytrack.service.report import write_report
 
+    output_folder(args.out)
     calibration = load(args.recording)
     validation = load(args.validate) if args.validate else None
     result = diagnose(calibration, validation, progress=ProgressBar("diagnose"))

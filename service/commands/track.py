@@ -54,8 +54,10 @@ def run(args: argparse.Namespace) -> int:
     from graytrack.core.timing import at_exposure
     from graytrack.core.tracking import track
     from graytrack.service.progress import ProgressBar
+    from graytrack.service.outputs import output_file
     from graytrack.service.tables import write_csv
 
+    output_file(args.out)
     recording = load(args.recording)
     model = load_model(args.model)
     grating = recording.reference
