@@ -94,7 +94,7 @@ class FourierModel:
             raise ModelError("harmonics must be at least 1")
         if self.clip_gray is not None:
             low, high = (float(v) for v in self.clip_gray)
-            if not (np.isfinite(low) and np.isfinite(high) and low < high):
+            if not low < high:  # NaN fails too; an infinite side means "never clips there"
                 raise ModelError(f"clip_gray must be [floor, ceiling] with floor < ceiling, got {list(self.clip_gray)}")
         if self.coeffs is not None:
             self.coeffs = np.asarray(self.coeffs, dtype=np.float64)

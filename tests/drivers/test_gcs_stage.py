@@ -103,9 +103,9 @@ def test_unknown_controller_model_is_accepted_with_its_own_idn(timeout_s: float)
             assert stage.identify() == "(c)2020 PI, E-873.1AT, 1, 2"
 
 
-def test_command_log_is_bounded_so_memory_stays_flat(timeout_s: float) -> None:
+def test_command_log_is_bounded_so_memory_stays_flat() -> None:
     with SimGCSController(TrapezoidAxis(), keep_received=50) as ctl:
-        with GCSStage(ctl.path, timeout_s=timeout_s) as stage:
+        with GCSStage(ctl.path, timeout_s=1.0) as stage:
             for _ in range(120):
                 stage.position()
             assert len(ctl.received) == 50, "only the newest lines are kept"
