@@ -15,7 +15,6 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 
@@ -33,6 +32,7 @@ from graytrack.drivers.camera.opencv import OpenCVCamera
 from graytrack.drivers.camera.sim import SimCamera
 from graytrack.drivers.clock import ScaledClock
 from graytrack.drivers.sim.scenarios import build_rig
+from tests.drivers.videos import write_video
 
 SLACK_S = 0.1  # scheduling delay the parallel suite may add between a frame's end and its delivery
 N_FRAMES = 8
@@ -88,13 +88,8 @@ def video_frame(index: int) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def video(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    path = tmp_path_factory.mktemp("video") / "camera.mkv"
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"FFV1"), VIDEO_FPS, (VIDEO_W, VIDEO_H), True)
-    assert writer.isOpened()
-    for index in range(VIDEO_FRAMES):
-        writer.write(cv2.cvtColor(video_frame(index), cv2.COLOR_GRAY2BGR))
-    writer.release()
-    return path
+    return write_video(tmp_path_factory.mktemp("video") / "camera.mkv", map(video_frame, range(VIDEO_FRAMES)),
+                       VIDEO_FPS)
 
 
 def opencv_case(video: Path) -> Case:

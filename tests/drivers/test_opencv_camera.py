@@ -5,7 +5,6 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 
@@ -17,6 +16,7 @@ from graytrack.drivers.camera.base import (
     Roi,
 )
 from graytrack.drivers.camera.opencv import OpenCVCamera
+from tests.drivers.videos import write_video
 
 N_FRAMES, WIDTH, HEIGHT, FPS = 24, 96, 20, 25.0
 
@@ -31,13 +31,7 @@ def bgr_frame(index: int) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def video(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    path = tmp_path_factory.mktemp("video") / "strip.mkv"
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"FFV1"), FPS, (WIDTH, HEIGHT), True)
-    assert writer.isOpened()
-    for index in range(N_FRAMES):
-        writer.write(bgr_frame(index))
-    writer.release()
-    return path
+    return write_video(tmp_path_factory.mktemp("video") / "strip.mkv", map(bgr_frame, range(N_FRAMES)), FPS)
 
 
 def expected_gray(index: int) -> np.ndarray:
