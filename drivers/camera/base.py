@@ -138,6 +138,17 @@ class Camera(Device):
     def is_open(self) -> bool:
         return self._open
 
+    # -- time contract (drivers refine these) -----------------------------------------------
+    @property
+    def exposure_s(self) -> float:
+        """The exposure frames are taken with, seconds on the camera's clock (0 when unknown)."""
+        us = self.settings.exposure_us
+        return 0.0 if us is None else us * 1e-6
+
+    @property
+    def t_uncertainty_s(self) -> float:
+        """The bound this driver states on |Frame.t_host - true mid-exposure|."""
+        return 0.0
 
     # -- settings --------------------------------------------------------------------------
     def set_exposure(self, exposure_us: float) -> None:
