@@ -14,7 +14,7 @@ import numpy as np
 from graytrack.core.chunked import DEFAULT_OVERLAP, ChunkTask, track_chunk, track_chunked
 from graytrack.core.models.fourier import FourierModel
 from graytrack.core.tracking import TrackResult
-from graytrack.service.batch.cluster import add_cluster_arguments, dask_client
+from graytrack.service.batch.cluster import add_cluster_arguments, dask_client, distributed_module
 
 
 @dataclass(frozen=True)
@@ -35,8 +35,10 @@ def add_chunk_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def chunk_options(args: argparse.Namespace) -> ChunkOptions | None:
+    """The chunking asked for, if any (checked for Dask before any file is read)."""
     if not args.chunk_frames:
         return None
+    distributed_module()
     return ChunkOptions(args.chunk_frames, args.overlap, args.scheduler, args.workers)
 
 

@@ -65,9 +65,10 @@ def solve(recording: Recording, model: FourierModel, no_reference: bool = False,
 
 
 def run(args: argparse.Namespace) -> int:
+    chunks = chunk_options(args)
     recording = load(args.recording)
     model = load_model(args.model)
-    result, grating = solve(recording, model, args.no_reference, ProgressBar("track"), chunk_options(args))
+    result, grating = solve(recording, model, args.no_reference, ProgressBar("track"), chunks)
     path = write_csv(args.out, result_columns(recording.t, result, grating))
     print("\n".join(summary(result, grating)))
     print(f"wrote   {path}")
