@@ -17,7 +17,8 @@ import numpy as np
 from graytrack.core.calibration import calibrate
 from graytrack.core.recording import Recording
 
-DEFAULT_PARTS = 4
+MAX_PARTS = 8  # more parts, a better estimate of the spread (7 degrees of freedom at 8)
+FRAMES_PER_PART = 25  # calibration refuses fewer than 20 frames
 BLOCKS_PER_PART = 32  # enough blocks that every part spans the whole stroke
 
 
@@ -35,8 +36,12 @@ def interleaved_parts(n_frames: int, parts: int) -> list[np.ndarray]:
     return [np.flatnonzero(owner == part) for part in range(parts)]
 
 
-def geometry_spread(rec: Recording, kind: str = "paper", parts: int = DEFAULT_PARTS) -> GeometrySpread:
-    """Uncertainty of τ_w and α·d of ``calibrate(rec, kind)``, from ``parts`` interleaved refits."""
+def geometry_spread(rec: Recording, kind: str = "paper", parts: int | None = None) -> GeometrySpread:
+    """Uncertainty of τ_w and α·d of ``calibrate(rec, kind)``, from ``parts`` interleaved refits
+    (default: as many as the frames allow, up to 8; NaN when fewer than two parts fit)."""
+    parts = parts or min(MAX_PARTS, rec.n_frames // FRAMES_PER_PART)
+    if parts < 2:
+        return GeometrySpread(float("nan"), float("nan"), parts)
     estimates = np.array([
         (model.period_mm, model.pixel_pitch_mm)
         for model in (calibrate(rec.subset(index), kind).model for index in interleaved_parts(rec.n_frames, parts))

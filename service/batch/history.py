@@ -3,8 +3,9 @@
 Input is what ``graytrack batch calibrate|diagnose`` writes: ``summary.csv`` rows with the rig,
 the calibration time, τ_w and α·d with their uncertainty (interleaved refits, core/geometry_spread),
 the noise σ, the held-out error and the effects the closed loop found. A value is pointed out when
-it moved further from the rig's previous calibration, or from its first one (slow drift hides
-between neighbours), than ``Z_LIMIT`` combined standard uncertainties.
+it moved further from the rig's previous calibration, or from the level of its last change (or
+first calibration: slow drift hides between neighbours), than ``Z_LIMIT`` combined standard
+uncertainties.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import numpy as np
 from graytrack.service.batch.summary import SUMMARY, read_summary
 from graytrack.service.errors import CliError
 
-Z_LIMIT = 3.0
+Z_LIMIT = 4.0  # with uncertainties estimated from a few refits, z has heavier tails than a normal
 
 
 @dataclass(frozen=True)
@@ -56,14 +57,14 @@ class Change:
     since: Calibration
     at: Calibration
     z: float
-    against: str  # "previous" or "first"
+    against: str  # "previous" (a step) or "baseline" (drift accumulated since ``since``)
 
     def text(self) -> str:
         q = self.quantity
         delta = (self.at.values[q.key] - self.since.values[q.key]) * q.scale
+        how = "a step from the previous calibration" if self.against == "previous" else "a drift over several calibrations"
         return (f"{self.rig}: {q.label} changed by {delta:+.4g} {q.unit} from {self.since.when:%Y-%m-%d %H:%M} "
-                f"to {self.at.when:%Y-%m-%d %H:%M} ({self.z:.1f}× the combined uncertainty, against the {self.against} "
-                f"calibration)")
+                f"to {self.at.when:%Y-%m-%d %H:%M} ({self.z:.1f}× the combined uncertainty; {how})")
 
 
 def _number(text: str | None) -> float:
@@ -134,20 +135,20 @@ def _z(a: Calibration, b: Calibration, key: str) -> float:
 
 
 def changes(calibrations: list[Calibration], z_limit: float = Z_LIMIT) -> list[Change]:
-    """Changes of one rig beyond ``z_limit`` combined uncertainties: from each calibration to the
-    next, and the first time the rig leaves its first calibration's band."""
+    """Changes of one rig beyond ``z_limit`` combined uncertainties: a step from one calibration
+    to the next, or a slow drift accumulated since the last change (or the first calibration)."""
     found: list[Change] = []
-    first = calibrations[0] if calibrations else None
     for q in QUANTITIES:
-        left_first = False
+        baseline = calibrations[0] if calibrations else None
         for before, after in zip(calibrations, calibrations[1:]):
-            z = _z(before, after, q.key)
-            if z > z_limit:
-                found.append(Change(after.rig, q, before, after, z, "previous"))
-            z0 = _z(first, after, q.key)
-            if not left_first and before is not first and z0 > z_limit and not z > z_limit:
-                found.append(Change(after.rig, q, first, after, z0, "first"))
-                left_first = True
+            step, drift = _z(before, after, q.key), _z(baseline, after, q.key)
+            if step > z_limit:
+                found.append(Change(after.rig, q, before, after, step, "previous"))
+            elif baseline is not before and drift > z_limit:
+                found.append(Change(after.rig, q, baseline, after, drift, "baseline"))
+            else:
+                continue
+            baseline = after  # the new level is what later calibrations are held against
     return sorted(found, key=lambda change: change.at.when)
 
 

@@ -56,7 +56,11 @@ def _geometry(model: FourierModel) -> dict[str, Any]:
 
 
 def _spread(rec: Recording) -> dict[str, Any]:
-    spread = geometry_spread(rec)
+    """τ_w and α·d uncertainty; unknown (empty) when the parts cannot be calibrated on their own."""
+    try:
+        spread = geometry_spread(rec)
+    except GraytrackError:
+        return {}
     return {"tau_w_u_mm": spread.period_mm, "alpha_d_u_mm": spread.pixel_pitch_mm}
 
 
