@@ -3,6 +3,8 @@ corrupt file) and an in-process Dask cluster to run batches on (threads: fast to
 
 from __future__ import annotations
 
+import contextlib
+import io
 from pathlib import Path
 
 import pytest
@@ -48,6 +50,19 @@ def in_process_scheduler() -> str:
                                        dashboard_address=None)
     yield cluster.scheduler_address
     cluster.close()
+
+
+@pytest.fixture(scope="session")
+def calibrated(archive, in_process_scheduler, tmp_path_factory) -> dict:
+    """``graytrack batch calibrate`` over the whole archive once: exit code, rows, output, stderr."""
+    from graytrack.service.batch.summary import read_summary
+    from graytrack.service.cli import main
+
+    out = tmp_path_factory.mktemp("calibrated")
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        code = main(["batch", "calibrate", *batch_paths(archive), "--out", str(out), "--scheduler", in_process_scheduler])
+    return {"code": code, "rows": read_summary(out / "summary.csv"), "out": out, "stderr": err.getvalue()}
 
 
 def batch_paths(archive: dict[str, Path]) -> list[str]:

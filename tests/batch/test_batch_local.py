@@ -14,7 +14,7 @@ from graytrack.core.models import load_model
 from graytrack.service.batch.summary import COLUMNS, read_summary
 from graytrack.service.cli import main
 
-from tests.batch.conftest import batch_paths, without_time
+from tests.batch.conftest import without_time
 
 pytest.importorskip("distributed")
 
@@ -24,8 +24,8 @@ def run_batch(kind: str, paths: list[str], out: Path, scheduler: str, *extra: st
     return code, read_summary(out / "summary.csv")
 
 
-def test_calibrate_batch_rows_failure_and_outputs(archive, in_process_scheduler, tmp_path, capsys):
-    code, rows = run_batch("calibrate", batch_paths(archive), tmp_path, in_process_scheduler)
+def test_calibrate_batch_rows_failure_and_outputs(calibrated):
+    code, rows, out = calibrated["code"], calibrated["rows"], calibrated["out"]
     assert code == 1  # one recording failed; the batch still finished every other one
     assert list(rows[0]) == list(COLUMNS)
     by_name = {row["name"]: row for row in rows}
@@ -34,13 +34,13 @@ def test_calibrate_batch_rows_failure_and_outputs(archive, in_process_scheduler,
                                       "sweep", "corrupt"])
     corrupt = by_name["corrupt"]
     assert corrupt["status"] == "failed" and "not a readable .npz recording" in corrupt["reason"]
-    assert "\n" not in corrupt["reason"] and not (tmp_path / "corrupt").exists()
+    assert "\n" not in corrupt["reason"] and not (out / "corrupt").exists()
     for name, row in by_name.items():
         if name == "corrupt":
             continue
         assert row["status"] == "ok", row["reason"]
         assert row["frames"] == "100" and row["rows_x_pixels"] == "1x100"
-        model = load_model(tmp_path / name / "model.json")  # as `graytrack calibrate` writes it
+        model = load_model(out / name / "model.json")  # as `graytrack calibrate` writes it
         assert float(row["tau_w_mm"]) == pytest.approx(model.period_mm, rel=1e-6)
         assert 0 < float(row["tau_w_u_mm"]) < 2e-3 and 0 < float(row["alpha_d_u_mm"]) < 2e-4
         assert float(row["noise_gray"]) == pytest.approx(0.7, rel=0.05)
@@ -49,8 +49,7 @@ def test_calibrate_batch_rows_failure_and_outputs(archive, in_process_scheduler,
     assert by_name["sweep"]["rig"] == "loose"
     stretched = float(by_name["rig-b-20260112T080000000000Z"]["tau_w_mm"])
     assert stretched / float(by_name["rig-b-20260105T080000000000Z"]["tau_w_mm"]) == pytest.approx(1.003, abs=3e-4)
-    err = capsys.readouterr().err
-    assert "batch: 6/6 done, 1 failed" in err and "rec/s" in err
+    assert "batch: 6/6 done, 1 failed" in calibrated["stderr"] and "rec/s" in calibrated["stderr"]
 
 
 def test_resume_skips_finished_recordings_and_force_redoes_them(archive, in_process_scheduler, tmp_path, capsys):

@@ -63,10 +63,9 @@ def loopback_cluster(tmp_path):
     assert all(process.poll() is not None for process in processes)
 
 
-def test_real_scheduler_and_two_workers_give_the_same_rows(archive, in_process_scheduler, loopback_cluster, tmp_path):
+def test_real_scheduler_and_two_workers_give_the_same_rows(archive, calibrated, loopback_cluster, tmp_path):
     paths = batch_paths(archive)
-    local, remote = tmp_path / "local", tmp_path / "remote"
-    assert main(["batch", "calibrate", *paths, "--out", str(local), "--scheduler", in_process_scheduler]) == 1
+    local, remote = calibrated["out"], tmp_path / "remote"
     # --workers 2 with a scheduler: wait until both worker processes have joined
     assert main(["batch", "calibrate", *paths, "--out", str(remote), "--scheduler", loopback_cluster,
                  "--workers", "2"]) == 1

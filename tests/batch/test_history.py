@@ -42,16 +42,14 @@ def test_slow_drift_is_pointed_out_against_the_level_before_it():
     assert "drift over several calibrations" in found[0].text()
 
 
-def test_history_of_a_batch_points_out_the_stretched_target(archive, in_process_scheduler, tmp_path, capsys):
-    out = tmp_path / "batch"
-    assert main(["batch", "calibrate", str(archive["rig-a"]), str(archive["rig-b"]), "--out", str(out),
-                 "--scheduler", in_process_scheduler]) == 0
-    capsys.readouterr()
-    assert main(["history", str(out)]) == 0
+def test_history_of_a_batch_points_out_the_stretched_target(calibrated, tmp_path, capsys):
+    out = tmp_path / "history.html"
+    assert main(["history", str(calibrated["out"] / "summary.csv"), "--out", str(out)]) == 0
     printed = capsys.readouterr().out
     changed = [line for line in printed.splitlines() if line.startswith("  changed")]
     assert len(changed) == 1 and "rig-b: target period τ_w changed by +2" in changed[0]  # 0.3 % of 8.62 mm
-    page = (out / "history.html").read_text()
+    assert "3 rig(s)" in printed  # rig-a, rig-b and the loose recording's folder; the corrupt row is left out
+    page = out.read_text()
     assert re.search(r'<ul id="changes"><li class=flag>rig-b: target period', page)
     assert 'src="data:image/png;base64,' in page and "http" not in page  # self-contained
     for q in QUANTITIES:
