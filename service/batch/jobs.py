@@ -4,7 +4,8 @@
 Whatever goes wrong with one recording (an unreadable file, a refused calibration, a bug) ends
 as that row's ``failed`` status with a one-line reason; the batch goes on. A row is written to
 ``OUT/<name>/batch.json`` after every output file, so its presence means the outputs are
-complete: that is what resume checks.
+complete; with the work's kind, options and the input's size and time in it, that is what resume
+checks.
 """
 
 from __future__ import annotations
@@ -132,6 +133,12 @@ def _where_and_when(source: Source, rec: Recording | None) -> dict[str, Any]:
             "calibrated_at": when}
 
 
+def fingerprint(path: Path) -> list[int]:
+    """Size and modification time of the input: a replaced recording is new work, not a finished one."""
+    stat = path.stat()
+    return [stat.st_size, stat.st_mtime_ns]
+
+
 def run_job(job: Job) -> dict[str, str]:
     """Do one recording's work and return its summary row (never raises for the recording's sake)."""
     started = time.perf_counter()
@@ -146,7 +153,8 @@ def run_job(job: Job) -> dict[str, str]:
     row = format_row({**_where_and_when(job.source, rec), **shape, **figures,
                       "seconds": time.perf_counter() - started, "status": status, "reason": reason})
     if status == "ok":
-        marker = {"kind": job.kind, "options": job.options, "path": str(job.source.path), "row": row}
+        marker = {"kind": job.kind, "options": job.options, "path": str(job.source.path),
+                  "input": fingerprint(job.source.path), "row": row}
         write_atomic(job.folder / MARKER, json.dumps(marker, indent=1))
     return row
 
@@ -157,6 +165,10 @@ def finished_row(job: Job) -> dict[str, str] | None:
         marker = json.loads((job.folder / MARKER).read_text())
     except (OSError, ValueError):
         return None
+    try:
+        current = fingerprint(job.source.path)
+    except OSError:
+        return None
     same = (marker.get("kind") == job.kind and marker.get("options") == job.options
-            and marker.get("path") == str(job.source.path))
+            and marker.get("path") == str(job.source.path) and marker.get("input") == current)
     return marker.get("row") if same and isinstance(marker.get("row"), dict) else None

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -65,6 +66,14 @@ def test_resume_skips_finished_recordings_and_force_redoes_them(archive, in_proc
     (tmp_path / first[0]["name"] / "batch.json").unlink()  # an incomplete output is redone
     _, partial = run_batch("calibrate", paths, tmp_path, in_process_scheduler)
     assert "1 run, 2 skipped" in capsys.readouterr().out and without_time(partial) == without_time(first)
+    replaced = Path(first[1]["path"])
+    times = (replaced.stat().st_atime_ns, replaced.stat().st_mtime_ns)
+    os.utime(replaced, ns=(times[0], times[1] + 1))  # as if a new recording had been written there
+    try:
+        run_batch("calibrate", paths, tmp_path, in_process_scheduler)
+    finally:
+        os.utime(replaced, ns=times)  # the archive is shared with other tests
+    assert "1 run, 2 skipped" in capsys.readouterr().out
     _, forced = run_batch("calibrate", paths, tmp_path, in_process_scheduler, "--force")
     assert "3 run, 0 skipped" in capsys.readouterr().out and without_time(forced) == without_time(first)
     _, ideal = run_batch("calibrate", paths, tmp_path, in_process_scheduler, "--model", "ideal")
