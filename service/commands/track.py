@@ -5,10 +5,15 @@ from __future__ import annotations
 import argparse
 from typing import TYPE_CHECKING
 
+from graytrack.service.batch.chunks import ChunkOptions, add_chunk_arguments, chunk_options
+
 if TYPE_CHECKING:  # the parser is built for every command: only `run` imports the numerics
     import numpy as np
 
+    from graytrack.core.models.fourier import FourierModel
+    from graytrack.core.recording import Recording
     from graytrack.core.tracking import TrackResult
+    from graytrack.service.progress import ProgressBar
 
 CSV_COLUMNS = ("t", "x_mm", "locked", "rms_gray", "crlb_um", "reference_mm", "error_um")
 
@@ -20,6 +25,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--out", required=True, help="CSV to write; header starts t,x_mm")
     parser.add_argument("--no-reference", action="store_true",
                         help="ignore the recording's grating readout (acquire and track on the image alone)")
+    add_chunk_arguments(parser)
     parser.set_defaults(func=run)
 
 
@@ -46,27 +52,38 @@ def summary(result: TrackResult, reference: np.ndarray) -> list[str]:
     return lines
 
 
-def run(args: argparse.Namespace) -> int:
+def solve(recording: Recording, model: FourierModel, no_reference: bool = False,
+          progress: ProgressBar | None = None, chunks: ChunkOptions | None = None) -> tuple[TrackResult, np.ndarray]:
+    """Track a recording as the command does: (result, the grating at the exposure instants)."""
     import numpy as np
 
-    from graytrack.core.models import load_model
-    from graytrack.core.recording import load
     from graytrack.core.timing import at_exposure
     from graytrack.core.tracking import track
-    from graytrack.service.progress import ProgressBar
-    from graytrack.service.outputs import output_file
-    from graytrack.service.tables import write_csv
+    from graytrack.service.batch.chunks import track_in_chunks
 
-    output_file(args.out)
-    recording = load(args.recording)
-    model = load_model(args.model)
     grating = recording.reference
     skew_s = float(model.info.get("reference_skew_s", 0.0))
     if skew_s:  # the closed loop found the grating latched off mid-exposure: compare at the exposure
         grating = at_exposure(recording.t, grating, skew_s)
         print(f"grating reference moved to mid-exposure ({skew_s * 1e3:+.3f} ms, from the model)")
-    reference = np.full(recording.n_frames, np.nan) if args.no_reference else grating
-    result = track(model, recording.frames, reference=reference, progress=ProgressBar("track"))
+    reference = np.full(recording.n_frames, np.nan) if no_reference else grating
+    if chunks is not None:
+        return track_in_chunks(model, recording.frames, reference, chunks), grating
+    return track(model, recording.frames, reference=reference, progress=progress), grating
+
+
+def run(args: argparse.Namespace) -> int:
+    from graytrack.core.models import load_model
+    from graytrack.core.recording import load
+    from graytrack.service.outputs import output_file
+    from graytrack.service.progress import ProgressBar
+    from graytrack.service.tables import write_csv
+
+    chunks = chunk_options(args)
+    output_file(args.out)
+    recording = load(args.recording)
+    model = load_model(args.model)
+    result, grating = solve(recording, model, args.no_reference, ProgressBar("track"), chunks)
     path = write_csv(args.out, result_columns(recording.t, result, grating))
     print("\n".join(summary(result, grating)))
     print(f"wrote   {path}")
