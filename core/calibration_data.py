@@ -6,7 +6,7 @@ frames, flat frames (nothing to see) get a message that says which.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -36,7 +36,10 @@ class CalibrationData:
                                self.meta, t_s)
 
     def with_reference(self, x_mm: np.ndarray) -> "CalibrationData":
-        return CalibrationData(x_mm, self.frames, self.weights, self.sigma_gray, self.meta, self.t_s)
+        return replace(self, x_mm=x_mm)
+
+    def with_weights(self, weights: np.ndarray) -> "CalibrationData":
+        return replace(self, weights=weights)
 
     @property
     def stroke_mm(self) -> float:

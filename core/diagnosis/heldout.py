@@ -8,6 +8,7 @@ held-out frames cover the whole stroke and the whole recording time.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -16,6 +17,9 @@ from graytrack.core.models.fourier import FourierModel
 from graytrack.core.regression import weighted_affine
 from graytrack.core.timing import runs
 from graytrack.core.tracking import Tracker, TrackResult, track
+
+if TYPE_CHECKING:
+    from graytrack.core.structure import ModelSpec
 
 HOLDOUT_BLOCK_FRAMES = 10
 HOLDOUT_EVERY = 4
@@ -118,3 +122,15 @@ def _median_um(values_mm: np.ndarray) -> float:
     """Median of the finite values in µm; NaN when the tracker placed no frame at all."""
     finite = values_mm[np.isfinite(values_mm)]
     return float(np.median(finite) * 1e3) if finite.size else float("nan")
+
+
+@dataclass
+class Stage:
+    """One model of the loop, fitted on the training frames and measured on the held-out ones:
+    what every effect's probe looks at."""
+
+    spec: "ModelSpec"
+    model: FourierModel
+    train: Fit
+    val: Fit
+    figures: Figures
