@@ -78,6 +78,8 @@ class DiagnosisResult:
             "heldout": self.holdout,
             "final_model": self.final_model.describe(),
             "effects": {name: effect.describe() for name, effect in effects.registry().items()},
+            "findings": {effect.name: entry for effect, setting in effects.active(self.after.spec)
+                         if (entry := effect.report(setting)) is not None},
         }
 
 

@@ -104,6 +104,10 @@ class Effect:
         """The fitted model with what this effect keeps in it."""
         return model
 
+    def report(self, setting: Any) -> Any:
+        """What report.json lists for this setting beyond the step (e.g. the pixels masked); None: nothing."""
+        return None
+
     # ----------------------------------------------------------------- tracking
     def needs_general_path(self, model: "FourierModel") -> bool:
         """True when the tracker's fast path (x-independent coefficients, plain least squares)
