@@ -112,29 +112,54 @@ def fit_spec(spec: ModelSpec, data: CalibrationData, period_mm: float, pitch_mm:
     steps = [(effect, setting) for effect, setting in effects.active(spec) if effect.bilinear]
     state = effects.Alternation(data.x_mm, raw, weights, template, np.ones(raw.shape[0]), np.zeros(raw.shape[0]),
                                 np.ones(raw.shape[1:]), np.zeros(raw.shape[1:]), found={})
-    iterations, history = 0, []
     n_rounds = (rounds or ALTERNATION_ROUNDS) if steps else 1
+    iterations, history = _alternate(state, steps, n_rounds, names, progress)
+    model = _finished(spec, state)
+    noise = data.pixel_noise
+    if noise is not None and noise.signal_dependent:
+        # Photon-transfer weights 1/σ²(y) at the fitted values (not the noisy samples, which would
+        # bias the fit towards dark ones), normalised to mean 1, then the linear parts once more.
+        fitted = state.frame_gain[:, None, None] * model.predict(data.x_mm) + state.frame_offset[:, None, None]
+        inverse = weights / noise.variance(fitted)
+        state.weights = inverse / max(float(inverse[weights > 0].mean()), 1e-300)
+        _alternate(state, steps, n_rounds, (), None)
+        model = _finished(spec, state)
+    fitted = state.frame_gain[:, None, None] * model.predict(data.x_mm) + state.frame_offset[:, None, None]
+    usable = (data.weights > 0) & (model.pixel_weight > 0 if model.pixel_weight is not None else True)
+    residual2 = ((data.frames - fitted) ** 2) * usable
+    rmse = float(np.sqrt(residual2.sum() / max(usable.sum(), 1.0)))
+    model = model.with_changes(noise_gray=data.sigma_gray, coeffs=model.coeffs, pixel_noise=noise,
+                               info={**model.info, "calibration_rmse_gray": rmse})
+    chi2 = float((residual2 * model.inverse_variance(fitted)).sum() / max(usable.sum(), 1.0))
+    model.info["calibration_chi2"] = chi2
+    return Calibration(model, rmse, data.sigma_gray, iterations, history)
+
+
+def _alternate(state: effects.Alternation, steps: list[tuple[effects.Effect, Any]], n_rounds: int,
+               names: tuple[str, ...], progress: Progress | None) -> tuple[int, list[dict[str, float]]]:
+    """Rounds of the smooth fit (geometry too in the first, when ``names`` are given) and of every
+    bilinear effect's step."""
+    iterations, history = 0, []
     for round_index in range(n_rounds):
         lit = state.lit / state.map_factor
         if round_index == 0 and names:
-            state.model, iterations, history = fit_geometry(state.model, data.x_mm, lit, weights, names,
+            state.model, iterations, history = fit_geometry(state.model, state.x_mm, lit, state.weights, names,
                                                             progress=progress)
         else:
-            state.model, _ = fit_coefficients(state.model, data.x_mm, lit, weights)
-        state.smooth = state.model.predict(data.x_mm, with_response=False)
+            state.model, _ = fit_coefficients(state.model, state.x_mm, lit, state.weights)
+        state.smooth = state.model.predict(state.x_mm, with_response=False)
         for effect, setting in steps:
             effect.fit_step(setting, state)
         if progress and steps:
             progress(0.5 + 0.5 * (round_index + 1) / n_rounds, f"alternation round {round_index + 1}")
+    return iterations, history
+
+
+def _finished(spec: ModelSpec, state: effects.Alternation) -> FourierModel:
     model = state.model
     for effect, setting in effects.active(spec):
         model = effect.finish(setting, state, model)
-    fitted = state.frame_gain[:, None, None] * model.predict(data.x_mm) + state.frame_offset[:, None, None]
-    usable = data.weights > 0
-    rmse = float(np.sqrt((((data.frames - fitted) ** 2) * usable).sum() / max(usable.sum(), 1.0)))
-    model = model.with_changes(noise_gray=data.sigma_gray, coeffs=model.coeffs,
-                               info={**model.info, "calibration_rmse_gray": rmse})
-    return Calibration(model, rmse, data.sigma_gray, iterations, history)
+    return model
 
 
 def fit_spec_pitch_search(spec: ModelSpec, data: CalibrationData, period_mm: float, pitch_mm: float,

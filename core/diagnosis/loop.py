@@ -142,7 +142,8 @@ def _next_step(current: Stage, train: CalibrationData, val: CalibrationData, rej
                row_shift_guess_mm: float, say: Progress, fraction: float) -> Step | None:
     """Try the effects the residual points to; of those that pass the held-out test, the one that
     tracks best (the strongest evidence is not always the right cause: a flexible term can soak
-    up what a simpler physical one explains). None when nothing passes."""
+    up what a simpler physical one explains). A fault of the data (bad pixels, clipping, a skewed
+    reference) that passes is taken at once. None when nothing passes."""
     contenders: list[Step] = []
     m = current.model
     geometry = (m.period_mm, m.pixel_pitch_mm, m.row_shift_mm or row_shift_guess_mm)
@@ -158,6 +159,8 @@ def _next_step(current: Stage, train: CalibrationData, val: CalibrationData, rej
         if not keep:
             rejected.append(record)
             continue
+        if effect.data_quality:  # a fault of the data is fixed first, not weighed against model terms
+            return record
         contenders.append(record)
         if len(contenders) == CONTENDERS_PER_STEP:
             break

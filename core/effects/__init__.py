@@ -88,6 +88,11 @@ class Effect:
         """The spec with this effect added or grown; None when it cannot grow any further."""
         return None if spec.get(self.name) is not None else spec.set(self.name, True if argument is None else argument)
 
+    def screen(self, data: "CalibrationData") -> Any:
+        """A setting found without any model (a data-quality check every calibration runs, the
+        named model kinds included); None: nothing found or not a model-free effect."""
+        return None
+
     # ----------------------------------------------------------------- calibration
     def model_fields(self, setting: Any) -> dict[str, Any]:
         """Fields of the model template this setting fixes before fitting."""
@@ -146,6 +151,15 @@ def prepare_data(spec: "ModelSpec", data: "CalibrationData") -> "CalibrationData
     for effect, setting in active(spec):
         data = effect.prepare_data(setting, data)
     return data
+
+
+def screened(spec: "ModelSpec", data: "CalibrationData") -> "ModelSpec":
+    """``spec`` with every model-free data-quality finding on ``data`` added."""
+    for effect in registry().values():
+        setting = effect.screen(data)
+        if setting is not None:
+            spec = effect.grow(spec, setting) or spec
+    return spec
 
 
 def needs_general_path(model: "FourierModel") -> bool:

@@ -120,8 +120,8 @@ class BadPixels(Effect):
 
         train, val = stage.train, stage.val
         known = {(r, u) for r, u, _ in stage.spec.get(self.name, ())}
-        found = [f for f in find_bad_pixels(train.data, train.data.frames - np.broadcast_to(
-            train.predicted, train.data.frames.shape), train.data.weights) if f[:2] not in known]
+        residual = train.data.frames - np.broadcast_to(train.predicted, train.data.frames.shape)
+        found = [f for f in find_bad_pixels(train.data, residual, train.usable) if f[:2] not in known]
         if not found:
             return None
         shape = val.data.frames.shape[1:]
@@ -136,6 +136,9 @@ class BadPixels(Effect):
         return Evidence(self.name, "pixel (single)", explained, float(z), 1.0,
                         f"{len(found)} pixel(s) do not see the target as the others do: {named}{more}",
                         tuple(found))
+
+    def screen(self, data):
+        return tuple(find_bad_pixels(data)) or None
 
     def grow(self, spec, argument):
         if not argument:
