@@ -83,8 +83,9 @@ def estimate_pixel_noise(frames: np.ndarray, reference: np.ndarray | None = None
 
     The temporal differences of :func:`temporal_differences`, binned by gray level; a trimmed
     variance per bin; a weighted straight line var = a + K·y through the bins. Quantisation
-    (Δ = 1 count, Δ²/12) is split off the intercept when the bit depth is known. The black level
-    is taken as the darkest usable level. When the slope is not significant (or not positive) the
+    (Δ = 1 count, Δ²/12) is split off the intercept when the bit depth is known. Without dark
+    frames a black level b cannot be told from read noise (σ² = read − K·b + K·y): the curve is
+    referred to gray 0, which describes every level seen exactly. When the slope is not significant (or not positive) the
     constant-σ model is returned: a curve that the data do not support would only add noise to
     the weights. ``usable`` ``(R, n)`` leaves out pixels found bad.
     """
@@ -117,10 +118,12 @@ def estimate_pixel_noise(frames: np.ndarray, reference: np.ndarray | None = None
     significant = slope > _SLOPE_Z * slope_sd and slope * spread > _MIN_SIGNAL_SHARE * max(intercept, 1e-12)
     if not significant:
         return PixelNoise.constant(sigma)
-    dark = float(levels.min())
-    at_dark = intercept + slope * dark
-    return PixelNoise(read_var=max(at_dark - quant_var, 0.0), shot_gain=float(slope), dark_gray=dark,
-                      quant_var=quant_var)
+    read_var = float(intercept) - quant_var
+    if read_var >= 0.0:
+        return PixelNoise(read_var=read_var, shot_gain=float(slope), quant_var=quant_var)
+    # The line meets the quantisation floor above gray 0 (a black level the data cannot separate
+    # from read noise): start the shot noise there, the same curve over every level seen.
+    return PixelNoise(read_var=0.0, shot_gain=float(slope), dark_gray=-read_var / float(slope), quant_var=quant_var)
 
 
 def _chi2_scale(design: np.ndarray, weights: np.ndarray, y: np.ndarray, intercept: float, slope: float) -> float:

@@ -18,6 +18,7 @@ from scipy.ndimage import median_filter
 
 from graytrack.core.effects import Effect
 from graytrack.core.noise import temporal_differences
+from graytrack.core.regression import weighted_affine
 
 STUCK_SHARE = 0.05  # temporal spread below this share of a typical pixel's: the pixel does not see the light
 OUTLIER_Z = 10.0  # robust z-score (MAD) beyond which a pixel stands out from the others
@@ -73,8 +74,14 @@ def model_free_bad_pixels(frames: np.ndarray, reference: np.ndarray | None, peri
     return sorted((r, u, reason) for (r, u), reason in found.items())
 
 
-def residual_bad_pixels(residual: np.ndarray, usable: np.ndarray, sigma_gray: float) -> list[Finding]:
-    """Pixels whose fit residual ``(K, R, n)`` is far above noise and far above the other pixels'."""
+def residual_bad_pixels(residual: np.ndarray, predicted: np.ndarray, usable: np.ndarray,
+                        sigma_gray: float) -> list[Finding]:
+    """Pixels whose fit residual ``(K, R, n)`` is far above noise and far above the other pixels',
+    after a gain and offset per pixel: what such a response explains is the flat field's, not a
+    defect."""
+    predicted = np.broadcast_to(predicted, residual.shape)
+    gain, offset = weighted_affine(residual, predicted, usable, axis=(0,))
+    residual = (residual - gain * predicted - offset) * usable
     count = np.maximum(usable.sum(axis=0), 1.0)
     variance = (residual**2).sum(axis=0) / count
     good = usable.max(axis=0) > 0
@@ -86,7 +93,8 @@ def residual_bad_pixels(residual: np.ndarray, usable: np.ndarray, sigma_gray: fl
              f"noise {sigma_gray:.2f})") for r, u in zip(*np.nonzero(hits))]
 
 
-def find_bad_pixels(data: Any, residual: np.ndarray | None = None, usable: np.ndarray | None = None) -> list[Finding]:
+def find_bad_pixels(data: Any, residual: np.ndarray | None = None, predicted: np.ndarray | None = None,
+                    usable: np.ndarray | None = None) -> list[Finding]:
     """Every bad pixel of calibration data: model-free findings, then (given a fit's residual)
     pixels that do not follow the target."""
     noise = getattr(data, "pixel_noise", None)
@@ -94,7 +102,7 @@ def find_bad_pixels(data: Any, residual: np.ndarray | None = None, usable: np.nd
                                   None if noise is None else noise.variance)
     if residual is not None:
         known = {(r, u) for r, u, _ in found}
-        found += [f for f in residual_bad_pixels(residual, usable, data.sigma_gray) if f[:2] not in known]
+        found += [f for f in residual_bad_pixels(residual, predicted, usable, data.sigma_gray) if f[:2] not in known]
     return sorted(found)
 
 
@@ -121,7 +129,7 @@ class BadPixels(Effect):
         train, val = stage.train, stage.val
         known = {(r, u) for r, u, _ in stage.spec.get(self.name, ())}
         residual = train.data.frames - np.broadcast_to(train.predicted, train.data.frames.shape)
-        found = [f for f in find_bad_pixels(train.data, residual, train.usable) if f[:2] not in known]
+        found = [f for f in find_bad_pixels(train.data, residual, train.predicted, train.usable) if f[:2] not in known]
         if not found:
             return None
         shape = val.data.frames.shape[1:]
