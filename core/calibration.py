@@ -10,6 +10,8 @@ from __future__ import annotations
 
 from typing import Callable, Literal
 
+import numpy as np
+
 from graytrack.core import effects
 from graytrack.core.calibration_data import Calibration, CalibrationData, calibration_data
 from graytrack.core.errors import CalibrationError
@@ -34,9 +36,12 @@ def rows_disagree(model: FourierModel, data: CalibrationData) -> bool:
     """
     n_rows = data.frames.shape[1]
     weights = data.weights if model.pixel_weight is None else data.weights * (model.pixel_weight > 0)
-    residual = (data.frames - model.predict(data.x_mm)) * weights
+    predicted = model.predict(data.x_mm)
+    residual = (data.frames - predicted) * weights
     spread = (residual - residual.mean(axis=1, keepdims=True)) * weights
-    expected = data.sigma_gray**2 * (1.0 - 1.0 / n_rows)
+    noise = data.pixel_noise if data.pixel_noise is not None else model.noise()
+    variance = float((noise.variance(np.broadcast_to(predicted, weights.shape)) * weights).sum() / weights.sum())
+    expected = variance * (1.0 - 1.0 / n_rows)
     excess = float((spread**2).sum() / weights.sum()) / expected - 1.0
     return excess > ROW_DISAGREEMENT_EXCESS
 

@@ -63,11 +63,15 @@ def temporal_differences(frames: np.ndarray, reference: np.ndarray | None = None
     n_frames = frames.shape[0]
     flat = frames.reshape(n_frames, -1)
     still = _still_pairs(reference)
+    # The level of a difference is the mean of the frames in it: uncorrelated with the difference
+    # itself (the middle frame alone is not), so binning by level does not bias the variance.
     if still is not None:  # a stage at rest: first differences of frames at one position
-        second, level, gain = (flat[1:] - flat[:-1])[still], flat[:-1][still], _FIRST_DIFF_GAIN
+        second, gain = (flat[1:] - flat[:-1])[still], _FIRST_DIFF_GAIN
+        level = (0.5 * (flat[1:] + flat[:-1]))[still]
     else:
         keep = _quiet_triples(reference, period_mm, n_frames)
-        second, level, gain = (flat[2:] - 2.0 * flat[1:-1] + flat[:-2])[keep], flat[1:-1][keep], _SECOND_DIFF_GAIN
+        second, gain = (flat[2:] - 2.0 * flat[1:-1] + flat[:-2])[keep], _SECOND_DIFF_GAIN
+        level = ((flat[2:] + flat[1:-1] + flat[:-2]) / 3.0)[keep]
     # Remove a per-difference-frame affine function of the gray level (common-mode gain/offset).
     design = np.stack([np.ones_like(level), level - level.mean(axis=1, keepdims=True)], axis=-1)
     gram = np.einsum("kpi,kpj->kij", design, design)
