@@ -14,6 +14,7 @@ import numpy as np
 
 from graytrack.core.calibration_data import CalibrationData
 from graytrack.core.models.fourier import FourierModel
+from graytrack.core.noise import crlb_mm
 from graytrack.core.regression import weighted_affine
 from graytrack.core.timing import runs
 from graytrack.core.tracking import Tracker, TrackResult, track
@@ -116,8 +117,21 @@ def figures(model: FourierModel, data: CalibrationData, fit: Fit | None = None) 
     worst = float(np.max(np.abs(error[finite]))) if finite.any() else float("inf")
     if lost:  # a frame the tracker could not place counts as the worst error there is
         worst = float("inf")
+    bound_mm = tracked.crlb_mm
+    if model.pixel_noise is not None and model.pixel_noise.signal_dependent:
+        bound_mm = np.where(np.isfinite(bound_mm), curve_bound_mm(model, data, fit), np.nan)
     return Figures(model.describe(), fit.rmse_gray, spread, worst, float(np.mean(error[finite])) if finite.any() else 0.0,
-                   _median_um(tracked.crlb_mm), error, data.x_mm, tracked)
+                   _median_um(bound_mm), error, data.x_mm, tracked)
+
+
+def curve_bound_mm(model: FourierModel, data: CalibrationData, fit: Fit) -> np.ndarray:
+    """Cramér–Rao bound per frame with the photon-transfer curve: each sample's σ²(y) at its
+    expected value (a row average of R raw rows has 1/R of it), masked pixels carrying nothing
+    (their slope is 0), the per-frame gain and offset profiled out when the model solves them."""
+    predicted = np.asarray(fit.predicted)[:, :model.n_rows]  # a shared model's rows are all alike
+    variance = model.pixel_noise.variance(predicted) / model.rows_averaged(data.frames.shape[1])
+    nuisance = np.stack([predicted, np.ones_like(predicted)], axis=-1) if model.common_mode else None
+    return crlb_mm(fit.slope, 1.0, nuisance, variance)
 
 
 def _median_um(values_mm: np.ndarray) -> float:

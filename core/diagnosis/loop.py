@@ -69,7 +69,8 @@ class DiagnosisResult:
                       "crlb_before_um": self.before.figures.as_dict()["crlb_um"],
                       "reference_resolution_um": round(self.reference_step_mm * 1e3, 4),
                       "floor_um": round(float(np.hypot(self.after.figures.crlb_um,
-                                                       self.reference_step_mm * 1e3 / np.sqrt(12.0))), 4)},
+                                                       self.reference_step_mm * 1e3 / np.sqrt(12.0))), 4),
+                      "pixel_noise": _curve(self.final_model)},
             "before": self.before.figures.as_dict(),
             "steps": [step.as_dict() for step in self.steps],
             "after": self.after.figures.as_dict(),
@@ -81,6 +82,16 @@ class DiagnosisResult:
             "findings": {effect.name: entry for effect, setting in effects.active(self.after.spec)
                          if (entry := effect.report(setting)) is not None},
         }
+
+
+def _curve(model: FourierModel) -> dict[str, Any]:
+    """The noise model behind the bound: the fitted photon-transfer curve, or one σ for all."""
+    noise = model.noise()
+    body: dict[str, Any] = {key: round(value, 6) for key, value in noise.as_dict().items()}
+    body["signal_dependent"] = noise.signal_dependent
+    chi2 = model.info.get("calibration_chi2")
+    body["calibration_chi2"] = None if chi2 is None else round(float(chi2), 4)
+    return body
 
 
 def _stage(spec: ModelSpec, train: CalibrationData, val: CalibrationData, geometry: tuple[float, float, float],
