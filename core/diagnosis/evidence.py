@@ -54,6 +54,12 @@ def stroke_poly(fit: Fit, degree: int = 4) -> np.ndarray:
 Basis = Callable[[Fit], np.ndarray]  # -> (K, Rm, n, p) in the model's row layout
 
 
+def trig_times_pixel(trig: np.ndarray, pixel: np.ndarray) -> np.ndarray:
+    """Every trig term ``(K, Rm, n, A)`` times every pixel function ``(n, P)``: a basis ``(K, Rm, n, A·P)``."""
+    out = trig[..., :, None] * pixel[None, None, :, None, :]
+    return out.reshape(out.shape[:3] + (-1,))
+
+
 def excess_over_noise(train: Fit, val: Fit) -> float:
     sigma2 = val.data.sigma_gray**2
     return max(float((val.residual**2).sum()) - sigma2 * float(val.usable.sum()), sigma2)

@@ -15,11 +15,11 @@ PROBE_ORDERS = 4  # orders beyond the model's that the probe looks at
 
 def harmonic_basis(fit: Any) -> np.ndarray:
     """Harmonics above the model's order, times the first two pixel polynomials."""
+    from graytrack.core.diagnosis.evidence import trig_times_pixel
+
     model = fit.model
     trig = trig_basis(model.phase(fit.data.x_mm), model.harmonics + PROBE_ORDERS)[..., 2 * model.harmonics + 1:]
-    pixel = model.pixel_basis()[:, :2]
-    out = trig[..., :, None] * pixel[None, None, :, None, :]
-    return out.reshape(out.shape[:3] + (-1,))
+    return trig_times_pixel(trig, model.pixel_basis()[:, :2])
 
 
 class Harmonics(Effect):

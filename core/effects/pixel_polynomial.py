@@ -14,12 +14,12 @@ MAX_PIXEL_DEGREE = 9
 
 def pixel_polynomial_basis(fit: Any) -> np.ndarray:
     """The model's trig terms times the next three pixel polynomials."""
+    from graytrack.core.diagnosis.evidence import trig_times_pixel
+
     model = fit.model
-    trig = trig_basis(model.phase(fit.data.x_mm), model.harmonics)
     u = np.arange(model.n_pixels, dtype=np.float64)
     higher = legendre_basis(scaled(u, 0, model.n_pixels - 1), model.pixel_degree + 3)[:, model.pixel_degree + 1:]
-    out = trig[..., :, None] * higher[None, None, :, None, :]
-    return out.reshape(out.shape[:3] + (-1,))
+    return trig_times_pixel(trig_basis(model.phase(fit.data.x_mm), model.harmonics), higher)
 
 
 class PixelPolynomial(Effect):
