@@ -60,3 +60,28 @@ def test_clean_data_masks_nothing(effects):
     recording, _ = build_rig("paper", effects, seed=6).record(8.0)
     model = calibrate(recording, "paper").model
     assert model.pixel_weight is None and "bad_pixels" not in model.info
+
+
+def test_noisy_pixels_are_masked_by_the_noise_curve():
+    rig = build_rig("paper", "rows:n=16,bad_pixels:stuck=0:dead=0:hot=0:noisy=2:noisy_gray=3", seed=2)
+    recording, _ = rig.record(8.0)
+    model = calibrate(recording, "paper").model
+    listed = {(p["row"], p["pixel"]): p["reason"] for p in model.info["bad_pixels"]}
+    assert set(listed) == set(_truth_places(rig)) and all(r.startswith("noisy") for r in listed.values())
+
+
+def test_a_pixel_that_does_not_follow_the_target_is_found_from_the_residual():
+    """Its own gain and offset cannot explain it (that would be the flat field's): a slow wander."""
+    from graytrack.core.effects.bad_pixels import residual_bad_pixels
+
+    rng = np.random.default_rng(1)
+    predicted = 128 + 80 * np.sin(np.linspace(0, 40, 600))[:, None, None] * np.ones((1, 2, 50))
+    residual = 0.7 * rng.standard_normal(predicted.shape)
+    residual[:, 0, 7] += 0.05 * (predicted[:, 0, 7] - 128)  # a weak pixel: the flat field's
+    residual[:, 1, 30] += np.cumsum(rng.standard_normal(600)) * 0.5  # wanders on its own
+    found = residual_bad_pixels(residual, predicted, np.ones(predicted.shape), 0.7)
+    assert [(r, u) for r, u, _ in found] == [(1, 30)] and "does not follow" in found[0][2]
+
+
+def _truth_places(rig) -> set[tuple[int, int]]:
+    return {(b.row, b.pixel) for b in rig.config.sensor.bad_pixels}
