@@ -35,7 +35,7 @@ def rows_disagree(model: FourierModel, data: CalibrationData) -> bool:
     rows alike (a too-simple model) cancels there, so this asks about the rows, not the model.
     """
     n_rows = data.frames.shape[1]
-    weights = data.weights if model.pixel_weight is None else data.weights * (model.pixel_weight > 0)
+    weights = data.weights * model.seen()
     predicted = model.predict(data.x_mm)
     residual = (data.frames - predicted) * weights
     spread = (residual - residual.mean(axis=1, keepdims=True)) * weights

@@ -125,7 +125,7 @@ def fit_spec(spec: ModelSpec, data: CalibrationData, period_mm: float, pitch_mm:
         _alternate(state, steps, n_rounds, (), None)
         model = _finished(spec, state)
     fitted = state.frame_gain[:, None, None] * model.predict(data.x_mm) + state.frame_offset[:, None, None]
-    usable = (data.weights > 0) & (model.pixel_weight > 0 if model.pixel_weight is not None else True)
+    usable = (data.weights > 0) * model.seen()
     residual2 = ((data.frames - fitted) ** 2) * usable
     rmse = float(np.sqrt(residual2.sum() / max(usable.sum(), 1.0)))
     model = model.with_changes(noise_gray=data.sigma_gray, coeffs=model.coeffs, pixel_noise=noise,

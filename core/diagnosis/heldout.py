@@ -56,9 +56,7 @@ class Fit:
 def fit_on(model: FourierModel, data: CalibrationData) -> Fit:
     values, slope = model.predict(data.x_mm, with_derivative=True)
     smooth = model.predict(data.x_mm, with_response=False)
-    usable = (data.weights > 0).astype(np.float64)
-    if model.pixel_weight is not None:  # a shared model masks the whole column of a bad pixel
-        usable *= model.pixel_weight > 0
+    usable = (data.weights > 0) * model.seen()
     if model.clip_gray is not None:
         usable *= (data.frames > model.clip_gray[0]) & (data.frames < model.clip_gray[1])
     values = np.broadcast_to(values, data.frames.shape)

@@ -213,6 +213,11 @@ class FourierModel:
         weights = 1.0 / self.noise().variance(gray)
         return weights if self.pixel_weight is None else weights * self.pixel_weight
 
+    def seen(self) -> np.ndarray | float:
+        """``(R, n)`` 1 where the model describes the pixel, 0 where it is masked (1.0: no mask).
+        A shared (row-averaged) model masks a bad pixel's whole column."""
+        return 1.0 if self.pixel_weight is None else (self.pixel_weight > 0).astype(np.float64)
+
     def response(self) -> tuple[np.ndarray | float, np.ndarray | float]:
         """Per-pixel gain and offset. A masked pixel (``pixel_weight`` 0) has both 0: it reads 0
         with no slope, as :meth:`prepare` makes its frames read, so every solver, weighted or
@@ -220,8 +225,7 @@ class FourierModel:
         gain = self.pixel_gain if self.pixel_gain is not None else 1.0
         offset = self.pixel_offset if self.pixel_offset is not None else 0.0
         if self.pixel_weight is not None:
-            seen = self.pixel_weight > 0
-            gain, offset = gain * seen, offset * seen
+            gain, offset = gain * self.seen(), offset * self.seen()
         return gain, offset
 
     def predict(self, x_mm: np.ndarray, with_derivative: bool = False,
@@ -293,7 +297,7 @@ class FourierModel:
             frames = frames.mean(axis=1, keepdims=True)
         elif frames.shape[1] != self.n_rows:
             raise TrackingError(f"frames have {frames.shape[1]} rows; the model was calibrated for {self.n_rows}")
-        return frames if self.pixel_weight is None else frames * (self.pixel_weight > 0)
+        return frames if self.pixel_weight is None else frames * self.seen()
 
     def rows_averaged(self, frames_rows: int) -> int:
         """How many raw rows feed each model row (noise drops by its square root)."""
