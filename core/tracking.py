@@ -15,6 +15,7 @@ from typing import Callable
 
 import numpy as np
 
+from graytrack.core import effects
 from graytrack.core.errors import TrackingError
 from graytrack.core.evaluation import ClippedHarmonics, FastHarmonics, GeneralHarmonics, gram_polynomials
 from graytrack.core.models.fourier import FourierModel
@@ -65,8 +66,7 @@ class Tracker:
         self.residual_limit_gray = residual_limit_gray or 3.0 * calibration_rmse + 1.0
         # Model-level work, done once: live tracking builds a one-frame batch per frame.
         evaluator = FastHarmonics(model) if model.target_map is None else GeneralHarmonics(model)
-        self.fast_path = (model.stroke_degree == 0 and not model.common_mode and model.clip_gray is None
-                          and model.target_map is None)
+        self.fast_path = not effects.needs_general_path(model)
         self.gram = gram_polynomials(evaluator, model) if self.fast_path else None
         self.evaluator = evaluator if model.clip_gray is None else ClippedHarmonics(evaluator, model)
 

@@ -217,7 +217,7 @@ class VirtualRig:
         setting passes it, and spaces ``x_mm_samples`` over the same window.
         """
         light = self.render_light(x_mm_samples, t_s, exposure_s)
-        return self.sensor.expose(light, self._noise_rng if noise else None)
+        return self.sensor.expose(light, self._noise_rng if noise else None, t_s)
 
     def render_light(self, x_mm_samples: np.ndarray, t_s: np.ndarray, exposure_s: float | None = None) -> np.ndarray:
         """Noise-free light reaching each pixel ``(K, R, n)``, float64, before the sensor."""
