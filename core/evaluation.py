@@ -94,8 +94,10 @@ class TrigTables:
         line = np.zeros((n_pixels, width), dtype=complex)
         line[:, 0] = fast.constant
         line[:, 1:model.harmonics + 1] = fast.v.T
-        # y·F and y·F′ coefficients, and a column of ones for y·1: one product per frame
-        self.linear = np.concatenate([line, line * self.phase_orders, np.ones((n_pixels, 1))], axis=1)
+        # y·F and y·F′ coefficients, and a column of ones for y·1: one real product per frame,
+        # stored as interleaved (re, im) pairs so that the product views as complex without a copy
+        linear = np.concatenate([line, line * self.phase_orders, np.ones((n_pixels, 1))], axis=1)
+        self.linear = np.ascontiguousarray(linear).view(np.float64)
         n_samples = 2 * self.degree + 4
         x = np.arange(n_samples) * model.period_mm / n_samples
         values, slopes = fast.evaluate(x)  # (N, P)

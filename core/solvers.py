@@ -162,6 +162,20 @@ def robust_solve(source: MomentSource, k: int, start: FrameSolution, free: bool,
 
 
 # --------------------------------------------------------------------------- moment sources
+@dataclass(frozen=True)
+class StaticWeights:
+    """Weights every frame shares (constant noise, masked pixels): their part of the moments, once."""
+
+    weights: np.ndarray  # (1, P)
+    gram: np.ndarray  # (1, 5, 2M+1): F·F, F′·F, F′·F′, F·1, F′·1 under these weights
+    total: float
+    count: int
+
+    @classmethod
+    def of(cls, tables: TrigTables, weights: np.ndarray) -> "StaticWeights":
+        return cls(weights, tables.weighted_gram(weights), float(weights.sum()), int((weights > 0).sum()))
+
+
 class TrigPolyBatch:
     """The fast path: per frame a (7, 2M+1) matrix of trig-polynomial coefficients, then scalars.
 
@@ -174,29 +188,30 @@ class TrigPolyBatch:
     """
 
     def __init__(self, tables: TrigTables, frames: np.ndarray, weights: np.ndarray,
-                 static_gram: np.ndarray | None = None):
+                 static: StaticWeights | None = None):
         frames = frames.reshape(frames.shape[0], -1)
         self.tables, self.frames, self.n_frames = tables, frames, frames.shape[0]
         self._weights = weights  # (K, P) or (1, P) when every frame shares them
-        degree = tables.degree
+        width = tables.degree + 1
         weighted = weights * frames
-        linear = weighted @ tables.linear  # (K, 2·(D+1)+1): y·F, y·F′ coefficients, and y·1
-        gram = static_gram if static_gram is not None else tables.weighted_gram(weights)  # (K|1, 5, D+1)
-        rows = np.empty((self.n_frames, 7, degree + 1), dtype=complex)
-        rows[:, :5] = gram
-        rows[:, 5] = linear[:, : degree + 1]
-        rows[:, 6] = linear[:, degree + 1: 2 * degree + 2]
-        self.rows = rows
-        y_norm = np.einsum("kp,kp->k", weighted, frames)
-        sum_w = weights.sum(axis=1)
-        count = (weights > 0).sum(axis=1)
-        self._scalars = np.stack(np.broadcast_arrays(y_norm, linear[:, -1].real, sum_w, count), axis=1).tolist()
+        linear = (weighted @ tables.linear).view(complex)  # y·F, y·F′ coefficients, and y·1
+        gram = static.gram if static is not None else tables.weighted_gram(weights)
+        if gram.shape[0] != self.n_frames:
+            gram = np.broadcast_to(gram, (self.n_frames,) + gram.shape[1:])
+        self.rows = np.concatenate((gram, linear[:, : 2 * width].reshape(-1, 2, width)), axis=1)  # (K, 7, D+1)
+        y_norm = (weighted * frames).sum(axis=1).tolist()
+        y_sum = linear[:, -1].real.tolist()
+        if static is not None:
+            self._scalars = [[a, b, static.total, static.count] for a, b in zip(y_norm, y_sum)]
+        else:
+            self._scalars = [list(item) for item in zip(y_norm, y_sum, weights.sum(axis=1).tolist(),
+                                                         (weights > 0).sum(axis=1).tolist())]
 
     def scalars(self, k: int) -> list[float]:
         return self._scalars[k]
 
     def moments(self, k: int, x_mm: float) -> list[float]:
-        return (self.rows[k] @ np.exp(self.tables.phase_orders * x_mm)).real.tolist()
+        return self.rows[k].dot(np.exp(self.tables.phase_orders * x_mm)).real.tolist()
 
     def grid_moments(self, k: int, grid: np.ndarray) -> np.ndarray:
         return (np.exp(np.outer(grid, self.tables.phase_orders)) @ self.rows[k].T).real

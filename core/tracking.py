@@ -20,8 +20,8 @@ from graytrack.core.errors import TrackingError
 from graytrack.core.evaluation import ClippedHarmonics, FastHarmonics, GeneralHarmonics, TrigTables
 from graytrack.core.models.fourier import FourierModel
 from graytrack.core.recording import Recording
-from graytrack.core.solvers import (FrameSolution, GeneralBatch, SolverSettings, TrigPolyBatch, gauss_newton,
-                                    grid_cost, robust_solve)
+from graytrack.core.solvers import (FrameSolution, GeneralBatch, SolverSettings, StaticWeights, TrigPolyBatch,
+                                    gauss_newton, grid_cost, robust_solve)
 
 Progress = Callable[[float, str], None]
 ACQUIRE_GRID_PER_PERIOD = 64
@@ -78,12 +78,14 @@ class Tracker:
 
     ``light``: ``"fixed"`` keeps the calibrated light; ``"free"`` solves a gain and offset with x
     in every frame; ``"auto"`` solves them when a frame's χ² says the light changed, and keeps
-    solving them until the calibrated light fits again. Default: ``"free"`` for a model with a
+    solving them until the calibrated light fits again. ``tolerance_mm``: the last Gauss–Newton step
+    taken; it is applied, and what remains after it is that step times the contraction (≪ 1 on a
+    converged frame), far below any bound. Default: ``"free"`` for a model with a
     per-frame common mode, else ``"fixed"``. ``robust``: frames whose χ² is beyond the noise are
     solved again by IRLS, so that a pixel gone bad in this run does not pull the position.
     """
 
-    def __init__(self, model: FourierModel, max_iterations: int = 5, tolerance_mm: float = 1e-6,
+    def __init__(self, model: FourierModel, max_iterations: int = 5, tolerance_mm: float = 1e-5,
                  residual_limit_gray: float | None = None, light: str | None = None, robust: bool = False):
         if not model.is_calibrated:
             raise TrackingError("the model has no coefficients: calibrate it first")
@@ -109,7 +111,7 @@ class Tracker:
         noise = model.noise()
         self.signal_dependent = noise.signal_dependent
         self.static_weights = model.inverse_variance(np.zeros((model.n_rows, model.n_pixels))).reshape(1, -1)
-        self._static_gram: dict[int, np.ndarray] = {}
+        self._static: dict[int, StaticWeights] = {}  # by rows averaged: what every frame shares
 
     def weights(self, prepared: np.ndarray, frame_rows: int) -> np.ndarray:
         """1/σ² per sample ``(K|1, P)``: the noise model at the observed gray level (the variance of
@@ -121,16 +123,14 @@ class Tracker:
 
     def batch(self, prepared: np.ndarray, frame_rows: int = 1) -> GeneralBatch | TrigPolyBatch:
         """Frames ``(K, R, n)`` in the model's row layout, reduced for solving."""
-        weights = self.weights(prepared, frame_rows)
         if not self.fast_path:
-            return GeneralBatch(self.evaluator, prepared, weights)
-        gram = None
-        if not self.signal_dependent:
-            rows = self.model.rows_averaged(frame_rows)
-            if rows not in self._static_gram:
-                self._static_gram[rows] = self.tables.weighted_gram(weights)
-            gram = self._static_gram[rows]
-        return TrigPolyBatch(self.tables, prepared, weights, gram)
+            return GeneralBatch(self.evaluator, prepared, self.weights(prepared, frame_rows))
+        if self.signal_dependent:
+            return TrigPolyBatch(self.tables, prepared, self.weights(prepared, frame_rows))
+        static = self._static.get(frame_rows)
+        if static is None:
+            static = self._static[frame_rows] = StaticWeights.of(self.tables, self.weights(prepared, frame_rows))
+        return TrigPolyBatch(self.tables, prepared, static.weights, static)
 
     def frame_sigma(self, frame_rows: int) -> float:
         """Noise of one model row when ``frame_rows`` raw rows feed the model (averaging lowers it)."""
