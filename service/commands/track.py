@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
 import numpy as np
 
@@ -13,7 +14,8 @@ from graytrack.core.tracking import TrackResult, track
 from graytrack.service.progress import ProgressBar
 from graytrack.service.tables import write_csv
 
-CSV_COLUMNS = ("t", "x_mm", "locked", "rms_gray", "crlb_um", "reference_mm", "error_um")
+CSV_COLUMNS = ("t", "x_mm", "locked", "rms_gray", "crlb_um", "reference_mm", "error_um", "chi2", "rejected_px",
+               "gain", "offset_gray", "stale")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -23,6 +25,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--out", required=True, help="CSV to write; header starts t,x_mm")
     parser.add_argument("--no-reference", action="store_true",
                         help="ignore the recording's grating readout (acquire and track on the image alone)")
+    parser.add_argument("--light", choices=("auto", "fixed", "free"), default="auto",
+                        help="per-frame light gain/offset: solved when a frame's residual asks for it (auto, default), "
+                             "never (fixed: the calibration's light), or always (free)")
+    parser.add_argument("--no-robust", action="store_true",
+                        help="do not set aside pixels that went bad in this run (robust reweighting is on by default)")
     parser.set_defaults(func=run)
 
 
@@ -30,6 +37,8 @@ def result_columns(t: np.ndarray, result: TrackResult, reference: np.ndarray) ->
     return {
         "t": t, "x_mm": result.x_mm, "locked": result.locked.astype(int), "rms_gray": result.rms_gray,
         "crlb_um": result.crlb_mm * 1e3, "reference_mm": reference, "error_um": result.error_um(reference),
+        "chi2": result.chi2, "rejected_px": result.rejected_px, "gain": result.gain, "offset_gray": result.offset,
+        "stale": result.stale.astype(int),
     }
 
 
@@ -44,7 +53,28 @@ def summary(result: TrackResult, reference: np.ndarray) -> list[str]:
             f"error   std {np.nanstd(error):.3f} um, mean {np.nanmean(error):+.3f} um, max |e| {np.nanmax(np.abs(error)):.3f} um"
             f" (noise floor {np.nanmedian(result.crlb_mm) * 1e3:.3f} um)"
         )
+    lines.extend(validity(result))
     return lines
+
+
+def validity(result: TrackResult) -> list[str]:
+    """How well the model still describes the images: χ², rejected pixels, light, and staleness."""
+    chi2 = result.chi2[np.isfinite(result.chi2)]
+    if not chi2.size:
+        return []
+    lines = [f"model   chi2 per pixel median {np.median(chi2):.2f} (calibration {result.chi2_calibration:.2f}); "
+             f"frames with rejected pixels {int((result.rejected_px > 0).sum())}, "
+             f"with the light re-solved {int((np.isfinite(result.gain) & (result.gain != 1.0)).sum())}"]
+    return lines
+
+
+def stale_warning(result: TrackResult) -> str | None:
+    """One line for stderr when the model went stale during the run (sustained χ² rise)."""
+    if not result.stale.any():
+        return None
+    first = int(np.argmax(result.stale))
+    return (f"warning: model stale from frame {first} on (residual chi2 stays above the calibration's "
+            f"{result.chi2_calibration:.2f}): recalibrate (graytrack calibrate, or graytrack diagnose for the cause)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -56,8 +86,12 @@ def run(args: argparse.Namespace) -> int:
         grating = at_exposure(recording.t, grating, skew_s)
         print(f"grating reference moved to mid-exposure ({skew_s * 1e3:+.3f} ms, from the model)")
     reference = np.full(recording.n_frames, np.nan) if args.no_reference else grating
-    result = track(model, recording.frames, reference=reference, progress=ProgressBar("track"))
+    result = track(model, recording.frames, reference=reference, progress=ProgressBar("track"), light=args.light,
+                   robust=not args.no_robust)
     path = write_csv(args.out, result_columns(recording.t, result, grating))
     print("\n".join(summary(result, grating)))
+    warning = stale_warning(result)
+    if warning:
+        print(warning, file=sys.stderr)
     print(f"wrote   {path}")
     return 0
