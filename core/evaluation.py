@@ -94,6 +94,7 @@ class TrigTables:
         line = np.zeros((n_pixels, width), dtype=complex)
         line[:, 0] = fast.constant
         line[:, 1:model.harmonics + 1] = fast.v.T
+        self._line, self._harmonics = line, model.harmonics
         # y·F and y·F′ coefficients, and a column of ones for y·1: one real product per frame,
         # stored as interleaved (re, im) pairs so that the product views as complex without a copy
         linear = np.concatenate([line, line * self.phase_orders, np.ones((n_pixels, 1))], axis=1)
@@ -103,6 +104,11 @@ class TrigTables:
         values, slopes = fast.evaluate(x)  # (N, P)
         squares = [_trig_coefficients(sampled, self.degree) for sampled in (values**2, slopes**2)]
         self._gram = np.concatenate([squares[0], squares[1], line], axis=1)  # (P, 3·(D+1))
+
+    def values_at(self, x_mm: float) -> np.ndarray:
+        """F(x) ``(P,)`` at one position: M powers of z times the folded weights."""
+        return self._line[:, 0].real + (self._line[:, 1:self._harmonics + 1] @ np.exp(
+            self.phase_orders[1:self._harmonics + 1] * x_mm)).real
 
     def weighted_gram(self, weights: np.ndarray) -> np.ndarray:
         """``(K, 5, D+1)``: coefficients of F·F, F′·F, F′·F′, F·1, F′·1 under weights ``(K, P)``."""

@@ -18,14 +18,15 @@ information, the grid cost for acquisition and the robust loop are written once,
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
 
 from graytrack.core.evaluation import ClippedHarmonics, FastHarmonics, GeneralHarmonics, TrigTables
 
-TUKEY_C = 6.0  # redescending cut, in robust σ: gross outliers (dust, glints, stuck pixels) get weight 0
+CORE_SIGMA, CUT_SIGMA = 3.5, 7.0  # redescending weight: full inside the core, none beyond the cut (robust σ)
+MASK_CACHE_SIZE = 64  # masks of rejected pixels whose moment tables are kept (one bad pixel: one mask)
 ROBUST_ITERATIONS = 6
 MAD_TO_SIGMA = 1.4826
 
@@ -42,6 +43,8 @@ class FrameSolution:
     rejected: int = 0  # pixels the robust reweighting set to zero weight
     free_light: bool = False  # gain and offset were solved with x
     light_excess: float = 0.0  # χ² added by forcing the calibrated light (gain 1, offset 0) at this x
+    rejected_mask: np.ndarray | None = None  # which pixels were rejected (for the next frame's start)
+    rejected_weights_exact: bool = True  # the solve used 0/1 weights: a repeat with the same set adds nothing
 
 
 class MomentSource(Protocol):
@@ -55,6 +58,7 @@ class MomentSource(Protocol):
     def residuals(self, k: int, x_mm: float, gain: float, offset: float) -> np.ndarray: ...
     def weights(self, k: int) -> np.ndarray: ...
     def reweighted(self, k: int, weights: np.ndarray) -> "MomentSource": ...
+    def masked(self, k: int, keep: np.ndarray) -> "MomentSource": ...
 
 
 # --------------------------------------------------------------------------- the shared solver
@@ -132,33 +136,62 @@ def grid_cost(source: MomentSource, k: int, grid: np.ndarray, free: bool) -> np.
     return yy - explained + np.where(gain > 0.0, 0.0, np.inf)
 
 
-def robust_solve(source: MomentSource, k: int, start: FrameSolution, free: bool,
-                 settings: SolverSettings) -> FrameSolution:
-    """Iteratively reweighted least squares with Tukey's biweight on the normalised residuals.
+def redescending(u: np.ndarray) -> np.ndarray:
+    """Weight of a pixel whose residual is ``u`` robust σ: 1 inside ``CORE_SIGMA``, Tukey's
+    biweight taper to 0 at ``CUT_SIGMA`` and beyond. Honest pixels keep their full weight (no
+    efficiency lost to the noise), gross outliers (dust, glints, stuck pixels) get none."""
+    t = np.clip((np.abs(u) - CORE_SIGMA) / (CUT_SIGMA - CORE_SIGMA), 0.0, 1.0)
+    return (1.0 - t * t) ** 2
 
-    Starts from ``start`` (a position and light close to the truth, e.g. the motion prediction),
-    scales the residuals by their median absolute value (never below the noise model), gives
-    pixels beyond ``TUKEY_C`` robust σ zero weight and solves again with the rest, until the set of
-    rejected pixels settles. The bound comes with the weights used: that of the pixels kept.
+
+def robust_solve(source: MomentSource, k: int, start: FrameSolution, free: bool, settings: SolverSettings,
+                 rejected: np.ndarray | None = None) -> FrameSolution:
+    """Iteratively reweighted least squares with a redescending weight on the normalised residuals.
+
+    Starts from ``start`` (a position and light close to the truth, e.g. the motion prediction)
+    and, when given, the pixels the previous frame rejected; scales the residuals by their median
+    absolute value (never below the noise model), weighs them by :func:`redescending` and solves
+    again, until the set of rejected pixels settles. The bound comes with the weights used: that
+    of the pixels kept. A weight of exactly 0 or 1 everywhere (the usual case) is a mask, whose
+    share of the moments the source may keep from frame to frame.
     """
     base = source.weights(k)
     root = np.sqrt(base)
     used = base > 0.0
     x, gain, offset = start.x_mm, start.gain, start.offset
     solution, rejected_before = start, None
+    if rejected is not None:
+        solution = _solve_weighted(source, k, x, free, settings, np.where(rejected, 0.0, 1.0), rejected)
+        x, gain, offset, rejected_before = solution.x_mm, solution.gain, solution.offset, rejected
     for _ in range(ROBUST_ITERATIONS):
         normalised = source.residuals(k, x, gain, offset) * root
-        scale = max(1.0, MAD_TO_SIGMA * float(np.median(np.abs(normalised[used])))) if used.any() else 1.0
-        u = normalised / (TUKEY_C * scale)
-        tukey = np.where(np.abs(u) < 1.0, (1.0 - u * u) ** 2, 0.0)
-        rejected = used & (tukey == 0.0)
-        solution = gauss_newton(source.reweighted(k, base * tukey), 0, x, free, settings)
-        solution.rejected = int(rejected.sum())
-        settled = rejected_before is not None and np.array_equal(rejected, rejected_before)
+        scale = max(1.0, MAD_TO_SIGMA * _middle(np.abs(normalised[used])))
+        factor = redescending(normalised / scale)
+        rejected = used & (factor == 0.0)
+        if rejected_before is not None and np.array_equal(rejected, rejected_before) and solution.rejected_weights_exact:
+            break  # the last solve already used these weights
+        solution = _solve_weighted(source, k, x, free, settings, factor, rejected)
         x, gain, offset, rejected_before = solution.x_mm, solution.gain, solution.offset, rejected
-        if settled:
-            break
     return solution
+
+
+def _solve_weighted(source: MomentSource, k: int, x_start: float, free: bool, settings: SolverSettings,
+                    factor: np.ndarray, rejected: np.ndarray) -> FrameSolution:
+    """Gauss–Newton with the base weights times ``factor``; a 0/1 factor goes through the mask path."""
+    mask = bool(np.all((factor == 0.0) | (factor == 1.0)))
+    source_k = source.masked(k, factor > 0.0) if mask else source.reweighted(k, source.weights(k) * factor)
+    solution = gauss_newton(source_k, 0, x_start, free, settings)
+    solution.rejected, solution.rejected_mask, solution.rejected_weights_exact = int(rejected.sum()), rejected, mask
+    return solution
+
+
+def _middle(values: np.ndarray) -> float:
+    """The (upper) median by one partial sort: a scale estimate needs no more, and np.median's
+    generality costs more than the rest of a robust iteration."""
+    if not values.size:
+        return 0.0
+    half = values.size // 2
+    return float(np.partition(values, half)[half])
 
 
 # --------------------------------------------------------------------------- moment sources
@@ -170,10 +203,21 @@ class StaticWeights:
     gram: np.ndarray  # (1, 5, 2M+1): F·F, F′·F, F′·F′, F·1, F′·1 under these weights
     total: float
     count: int
+    masked: dict[bytes, "StaticWeights"] = field(default_factory=dict)  # the same with pixels set aside
 
     @classmethod
     def of(cls, tables: TrigTables, weights: np.ndarray) -> "StaticWeights":
         return cls(weights, tables.weighted_gram(weights), float(weights.sum()), int((weights > 0).sum()))
+
+    def without(self, tables: TrigTables, keep: np.ndarray) -> "StaticWeights":
+        """These weights with the pixels outside ``keep`` at zero, built once per mask."""
+        key = np.packbits(keep).tobytes()
+        found = self.masked.get(key)
+        if found is None:
+            if len(self.masked) >= MASK_CACHE_SIZE:
+                self.masked.clear()
+            found = self.masked[key] = StaticWeights.of(tables, self.weights * keep)
+        return found
 
 
 class TrigPolyBatch:
@@ -192,6 +236,7 @@ class TrigPolyBatch:
         frames = frames.reshape(frames.shape[0], -1)
         self.tables, self.frames, self.n_frames = tables, frames, frames.shape[0]
         self._weights = weights  # (K, P) or (1, P) when every frame shares them
+        self._static = static
         width = tables.degree + 1
         weighted = weights * frames
         linear = (weighted @ tables.linear).view(complex)  # y·F, y·F′ coefficients, and y·1
@@ -220,11 +265,16 @@ class TrigPolyBatch:
         return self._weights[k if self._weights.shape[0] > 1 else 0]
 
     def residuals(self, k: int, x_mm: float, gain: float, offset: float) -> np.ndarray:
-        values, _ = self.tables.fast.evaluate(np.array([x_mm]))
-        return self.frames[k] - gain * values[0] - offset
+        return self.frames[k] - gain * self.tables.values_at(x_mm) - offset
 
     def reweighted(self, k: int, weights: np.ndarray) -> "TrigPolyBatch":
         return TrigPolyBatch(self.tables, self.frames[k:k + 1], weights[None])
+
+    def masked(self, k: int, keep: np.ndarray) -> "TrigPolyBatch":
+        if self._static is None:
+            return self.reweighted(k, self.weights(k) * keep)
+        static = self._static.without(self.tables, keep)
+        return TrigPolyBatch(self.tables, self.frames[k:k + 1], static.weights, static)
 
 
 class GeneralBatch:
@@ -263,3 +313,6 @@ class GeneralBatch:
 
     def reweighted(self, k: int, weights: np.ndarray) -> "GeneralBatch":
         return GeneralBatch(self.evaluator, self.frames[k:k + 1], weights[None])
+
+    def masked(self, k: int, keep: np.ndarray) -> "GeneralBatch":
+        return self.reweighted(k, self.weights(k) * keep)

@@ -65,12 +65,12 @@ class TrackResult:
 @dataclass
 class LightMemory:
     """What the solve of one frame tells the next: whether the light has changed, the last light,
-    and whether the frame had pixels to reject (then the next frame starts robust)."""
+    and the pixels it rejected (then the next frame starts robust, without them)."""
 
     free: bool = False
     gain: float = 1.0
     offset: float = 0.0
-    rejecting: bool = False
+    rejected: np.ndarray | None = None  # the pixels the last frame set aside
 
 
 class Tracker:
@@ -139,8 +139,8 @@ class Tracker:
     def solve(self, batch: GeneralBatch | TrigPolyBatch, k: int, x_start: float, memory: LightMemory) -> FrameSolution:
         """Frame ``k`` from ``x_start``: the light and robustness the frame asks for, cheapest first."""
         free = self.light == "free" or (self.light == "auto" and memory.free)
-        if self.robust and memory.rejecting:
-            solution = robust_solve(batch, k, self._start(x_start, memory), free, self.settings)
+        if self.robust and memory.rejected is not None:
+            solution = robust_solve(batch, k, self._start(x_start, memory), free, self.settings, memory.rejected)
         else:
             solution = gauss_newton(batch, k, x_start, free, self.settings)
             if solution.chi2 > self.chi2_limit and self.light == "auto" and not free:
@@ -149,7 +149,7 @@ class Tracker:
                 solution = robust_solve(batch, k, self._start(x_start, memory), free, self.settings)
         memory.free = self.light == "auto" and solution.free_light and solution.light_excess > LIGHT_RETURN_CHI2
         memory.gain, memory.offset = solution.gain, solution.offset
-        memory.rejecting = solution.rejected > 0
+        memory.rejected = solution.rejected_mask if solution.rejected else None
         return solution
 
     @staticmethod
