@@ -157,19 +157,22 @@ def robust_solve(source: MomentSource, k: int, start: FrameSolution, free: bool,
     """
     base = source.weights(k)
     root = np.sqrt(base)
-    used = base > 0.0
+    unused = base <= 0.0
     x, gain, offset = start.x_mm, start.gain, start.offset
     solution, rejected_before = start, None
     if rejected is not None:
         solution = _solve_weighted(source, k, x, free, settings, np.where(rejected, 0.0, 1.0), rejected)
         x, gain, offset, rejected_before = solution.x_mm, solution.gain, solution.offset, rejected
     for _ in range(ROBUST_ITERATIONS):
-        normalised = source.residuals(k, x, gain, offset) * root
-        scale = max(1.0, MAD_TO_SIGMA * _middle(np.abs(normalised[used])))
-        factor = redescending(normalised / scale)
-        rejected = used & (factor == 0.0)
-        if rejected_before is not None and np.array_equal(rejected, rejected_before) and solution.rejected_weights_exact:
+        size = np.abs(source.residuals(k, x, gain, offset) * root)
+        size[unused] = 0.0
+        size /= max(1.0, MAD_TO_SIGMA * _middle(size[~unused]))
+        rejected = size >= CUT_SIGMA
+        tapered = bool(np.any(size > CORE_SIGMA) and np.any((size > CORE_SIGMA) & ~rejected))
+        if not tapered and rejected_before is not None and np.array_equal(rejected, rejected_before) \
+                and solution.rejected_weights_exact:
             break  # the last solve already used these weights
+        factor = redescending(size) if tapered else np.where(rejected, 0.0, 1.0)
         solution = _solve_weighted(source, k, x, free, settings, factor, rejected)
         x, gain, offset, rejected_before = solution.x_mm, solution.gain, solution.offset, rejected
     return solution
@@ -178,7 +181,7 @@ def robust_solve(source: MomentSource, k: int, start: FrameSolution, free: bool,
 def _solve_weighted(source: MomentSource, k: int, x_start: float, free: bool, settings: SolverSettings,
                     factor: np.ndarray, rejected: np.ndarray) -> FrameSolution:
     """Gauss–Newton with the base weights times ``factor``; a 0/1 factor goes through the mask path."""
-    mask = bool(np.all((factor == 0.0) | (factor == 1.0)))
+    mask = bool(np.all((factor == 0.0) | (factor == 1.0)))  # (also when every pixel is kept)
     source_k = source.masked(k, factor > 0.0) if mask else source.reweighted(k, source.weights(k) * factor)
     solution = gauss_newton(source_k, 0, x_start, free, settings)
     solution.rejected, solution.rejected_mask, solution.rejected_weights_exact = int(rejected.sum()), rejected, mask
