@@ -137,24 +137,27 @@ class Tracker:
         return (self.model.noise_gray or 1.0) / np.sqrt(self.model.rows_averaged(frame_rows))
 
     def solve(self, batch: GeneralBatch | TrigPolyBatch, k: int, x_start: float, memory: LightMemory) -> FrameSolution:
-        """Frame ``k`` from ``x_start``: the light and robustness the frame asks for, cheapest first."""
+        """Frame ``k`` from ``x_start``: the light and robustness the frame asks for, cheapest first
+        (what the last frame needed, then the light solved, then the robust solve)."""
         free = self.light == "free" or (self.light == "auto" and memory.free)
-        if self.robust and memory.rejected is not None:
-            solution = robust_solve(batch, k, self._start(x_start, memory), free, self.settings, memory.rejected)
-        else:
-            solution = gauss_newton(batch, k, x_start, free, self.settings)
-            if solution.chi2 > self.chi2_limit and self.light == "auto" and not free:
-                solution, free = gauss_newton(batch, k, x_start, True, self.settings), True
-            if solution.chi2 > self.chi2_limit and self.robust:
-                solution = robust_solve(batch, k, self._start(x_start, memory), free, self.settings)
+        robust_first = self.robust and memory.rejected is not None
+        solution = self._attempt(batch, k, x_start, memory, free, robust_first)
+        if solution.chi2 > self.chi2_limit and self.light == "auto" and not free:
+            free = True
+            solution = self._attempt(batch, k, x_start, memory, free, robust_first)
+        if solution.chi2 > self.chi2_limit and self.robust and not robust_first:
+            solution = self._attempt(batch, k, x_start, memory, free, True)
         memory.free = self.light == "auto" and solution.free_light and solution.light_excess > LIGHT_RETURN_CHI2
         memory.gain, memory.offset = solution.gain, solution.offset
         memory.rejected = solution.rejected_mask if solution.rejected else None
         return solution
 
-    @staticmethod
-    def _start(x_start: float, memory: LightMemory) -> FrameSolution:
-        return FrameSolution(x_start, float("nan"), 0.0, 0, memory.gain, memory.offset)
+    def _attempt(self, batch: GeneralBatch | TrigPolyBatch, k: int, x_start: float, memory: LightMemory,
+                 free: bool, robust: bool) -> FrameSolution:
+        if not robust:
+            return gauss_newton(batch, k, x_start, free, self.settings)
+        start = FrameSolution(x_start, float("nan"), 0.0, 0, memory.gain, memory.offset)
+        return robust_solve(batch, k, start, free, self.settings, memory.rejected)
 
     def acquire(self, batch: GeneralBatch | TrigPolyBatch, k: int, lo_mm: float, hi_mm: float,
                 memory: LightMemory) -> FrameSolution:

@@ -214,3 +214,20 @@ def test_unknown_light_mode_is_refused(paper_rig):
 
     with pytest.raises(TrackingError, match="light mode"):
         Tracker(paper_rig[1], light="sometimes")
+
+
+def test_general_path_follows_light_and_rejects_a_pixel(paper_rig):
+    """A model off the fast path (clip limits) gets the light and the robust solve from the same solver."""
+    rig, model = paper_rig
+    clipped = model.with_changes(clip_gray=(-1000.0, 1000.0), coeffs=model.coeffs)
+    tracker = Tracker(clipped, light="auto", robust=True)
+    assert not tracker.fast_path
+    n = 120
+    frames, x_true = run_of(rig, n, np.where(np.arange(n) < 60, 1.0, 1.2), np.where(np.arange(n) < 60, 0.0, -15.0))
+    frames = frames.copy()
+    frames[30:, 70] = 0.0
+    result = track(clipped, frames, reference=x_true, tracker=tracker)
+    fast = track(model, frames, reference=x_true, light="auto", robust=True)
+    assert result.locked.all() and (result.rejected_px[30:] == 1).all()
+    np.testing.assert_allclose(result.x_mm, fast.x_mm, atol=1e-6)
+    np.testing.assert_allclose(result.crlb_mm, fast.crlb_mm, rtol=1e-4)
