@@ -152,39 +152,41 @@ def robust_solve(source: MomentSource, k: int, start: FrameSolution, free: bool,
     and, when given, the pixels the previous frame rejected; scales the residuals by their median
     absolute value (never below the noise model), weighs them by :func:`redescending` and solves
     again, until the set of rejected pixels settles. The bound comes with the weights used: that
-    of the pixels kept. A weight of exactly 0 or 1 everywhere (the usual case) is a mask, whose
-    share of the moments the source may keep from frame to frame.
+    of the pixels kept. When no pixel sits in the taper (the usual case) the weights are a mask.
     """
     base = source.weights(k)
     root = np.sqrt(base)
-    unused = base <= 0.0
+    used = base > 0.0
+    masked_pixels = not used.all()
     x, gain, offset = start.x_mm, start.gain, start.offset
     solution, rejected_before = start, None
     if rejected is not None:
-        solution = _solve_weighted(source, k, x, free, settings, np.where(rejected, 0.0, 1.0), rejected)
+        solution = _solve_weighted(source, k, x, free, settings, rejected)
         x, gain, offset, rejected_before = solution.x_mm, solution.gain, solution.offset, rejected
     for _ in range(ROBUST_ITERATIONS):
         size = np.abs(source.residuals(k, x, gain, offset) * root)
-        size[unused] = 0.0
-        size /= max(1.0, MAD_TO_SIGMA * _middle(size[~unused]))
+        size *= 1.0 / max(1.0, MAD_TO_SIGMA * _middle(size[used] if masked_pixels else size))
         rejected = size >= CUT_SIGMA
-        tapered = bool(np.any(size > CORE_SIGMA) and np.any((size > CORE_SIGMA) & ~rejected))
-        if not tapered and rejected_before is not None and np.array_equal(rejected, rejected_before) \
-                and solution.rejected_weights_exact:
+        if masked_pixels:
+            rejected &= used
+        beyond_core = size > CORE_SIGMA
+        tapered = bool(beyond_core.any()) and bool((beyond_core & ~rejected).any())
+        if not tapered and rejected_before is not None and solution.rejected_weights_exact \
+                and not (rejected ^ rejected_before).any():
             break  # the last solve already used these weights
-        factor = redescending(size) if tapered else np.where(rejected, 0.0, 1.0)
-        solution = _solve_weighted(source, k, x, free, settings, factor, rejected)
+        solution = _solve_weighted(source, k, x, free, settings, rejected, redescending(size) if tapered else None)
         x, gain, offset, rejected_before = solution.x_mm, solution.gain, solution.offset, rejected
     return solution
 
 
 def _solve_weighted(source: MomentSource, k: int, x_start: float, free: bool, settings: SolverSettings,
-                    factor: np.ndarray, rejected: np.ndarray) -> FrameSolution:
-    """Gauss–Newton with the base weights times ``factor``; a 0/1 factor goes through the mask path."""
-    mask = bool(np.all((factor == 0.0) | (factor == 1.0)))  # (also when every pixel is kept)
-    source_k = source.masked(k, factor > 0.0) if mask else source.reweighted(k, source.weights(k) * factor)
+                    rejected: np.ndarray, factor: np.ndarray | None = None) -> FrameSolution:
+    """Gauss–Newton with the base weights times ``factor``, or without the ``rejected`` pixels when
+    there is no factor (a mask: its share of the moments can be kept from frame to frame)."""
+    source_k = source.masked(k, ~rejected) if factor is None else source.reweighted(k, source.weights(k) * factor)
     solution = gauss_newton(source_k, 0, x_start, free, settings)
-    solution.rejected, solution.rejected_mask, solution.rejected_weights_exact = int(rejected.sum()), rejected, mask
+    solution.rejected, solution.rejected_mask, solution.rejected_weights_exact = int(rejected.sum()), rejected, \
+        factor is None
     return solution
 
 
