@@ -105,9 +105,11 @@ class TrigTables:
         squares = [_trig_coefficients(sampled, self.degree) for sampled in (values**2, slopes**2)]
         self._gram = np.concatenate([squares[0], squares[1], line], axis=1)  # (P, 3·(D+1))
 
-    def values_at(self, x_mm: float) -> np.ndarray:
-        """F(x) ``(P,)`` at one position: M powers of z times the folded weights."""
-        return self._line[:, 0].real + (self._line[:, 1:self._harmonics + 1] @ np.exp(
+    def values_at(self, x_mm: float, pixels: np.ndarray | None = None) -> np.ndarray:
+        """F(x) at one position, of every pixel ``(P,)`` or of ``pixels``: M powers of z times the
+        folded weights."""
+        line = self._line if pixels is None else self._line[pixels]
+        return line[:, 0].real + (line[:, 1:self._harmonics + 1] @ np.exp(
             self.phase_orders[1:self._harmonics + 1] * x_mm)).real
 
     def weighted_gram(self, weights: np.ndarray) -> np.ndarray:

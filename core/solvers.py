@@ -55,7 +55,8 @@ class MomentSource(Protocol):
     def moments(self, k: int, x_mm: float) -> list[float]: ...
     def grid_moments(self, k: int, grid: np.ndarray) -> np.ndarray: ...
     def scalars(self, k: int) -> list[float]: ...
-    def residuals(self, k: int, x_mm: float, gain: float, offset: float) -> np.ndarray: ...
+    def residuals(self, k: int, x_mm: float, gain: float, offset: float,
+                  pixels: np.ndarray | None = None) -> np.ndarray: ...
     def weights(self, k: int) -> np.ndarray: ...
     def reweighted(self, k: int, weights: np.ndarray) -> "MomentSource": ...
     def masked(self, k: int, keep: np.ndarray) -> "MomentSource": ...
@@ -145,11 +146,13 @@ def redescending(u: np.ndarray) -> np.ndarray:
 
 
 def robust_solve(source: MomentSource, k: int, start: FrameSolution, free: bool, settings: SolverSettings,
-                 rejected: np.ndarray | None = None) -> FrameSolution:
+                 rejected: np.ndarray | None = None, chi2_limit: float = -1.0) -> FrameSolution:
     """Iteratively reweighted least squares with a redescending weight on the normalised residuals.
 
     Starts from ``start`` (a position and light close to the truth, e.g. the motion prediction)
-    and, when given, the pixels the previous frame rejected; scales the residuals by their median
+    and, when given, the pixels the previous frame rejected (when the others then fit, χ² within
+    ``chi2_limit``, and those are still beyond the cut, that is the answer: a bad pixel that stays
+    bad costs one solve per frame); scales the residuals by their median
     absolute value (never below the noise model), weighs them by :func:`redescending` and solves
     again, until the set of rejected pixels settles. The bound comes with the weights used: that
     of the pixels kept. When no pixel sits in the taper (the usual case) the weights are a mask.
@@ -163,6 +166,11 @@ def robust_solve(source: MomentSource, k: int, start: FrameSolution, free: bool,
     if rejected is not None:
         solution = _solve_weighted(source, k, x, free, settings, rejected)
         x, gain, offset, rejected_before = solution.x_mm, solution.gain, solution.offset, rejected
+        if solution.chi2 <= chi2_limit:  # the kept pixels fit: are the ones set aside still outliers?
+            pixels = np.flatnonzero(rejected)
+            set_aside = np.abs(source.residuals(k, x, gain, offset, pixels) * root[pixels])
+            if (set_aside >= CUT_SIGMA).all():
+                return solution
     for _ in range(ROBUST_ITERATIONS):
         size = np.abs(source.residuals(k, x, gain, offset) * root)
         size *= 1.0 / max(1.0, MAD_TO_SIGMA * _middle(size[used] if masked_pixels else size))
@@ -269,8 +277,11 @@ class TrigPolyBatch:
     def weights(self, k: int) -> np.ndarray:
         return self._weights[k if self._weights.shape[0] > 1 else 0]
 
-    def residuals(self, k: int, x_mm: float, gain: float, offset: float) -> np.ndarray:
-        return self.frames[k] - gain * self.tables.values_at(x_mm) - offset
+    def residuals(self, k: int, x_mm: float, gain: float, offset: float,
+                  pixels: np.ndarray | None = None) -> np.ndarray:
+        """y − (g·F(x) + o), of every pixel or of ``pixels``."""
+        y = self.frames[k] if pixels is None else self.frames[k, pixels]
+        return y - gain * self.tables.values_at(x_mm, pixels) - offset
 
     def reweighted(self, k: int, weights: np.ndarray) -> "TrigPolyBatch":
         return TrigPolyBatch(self.tables, self.frames[k:k + 1], weights[None])
@@ -312,9 +323,11 @@ class GeneralBatch:
     def moments(self, k: int, x_mm: float) -> list[float]:
         return self.grid_moments(k, np.array([x_mm]))[0].tolist()
 
-    def residuals(self, k: int, x_mm: float, gain: float, offset: float) -> np.ndarray:
+    def residuals(self, k: int, x_mm: float, gain: float, offset: float,
+                  pixels: np.ndarray | None = None) -> np.ndarray:
         values, _ = self.evaluator.evaluate(np.array([x_mm]))
-        return self.frames[k] - gain * values[0] - offset
+        residual = self.frames[k] - gain * values[0] - offset
+        return residual if pixels is None else residual[pixels]
 
     def reweighted(self, k: int, weights: np.ndarray) -> "GeneralBatch":
         return GeneralBatch(self.evaluator, self.frames[k:k + 1], weights[None])

@@ -157,7 +157,7 @@ class Tracker:
         if not robust:
             return gauss_newton(batch, k, x_start, free, self.settings)
         start = FrameSolution(x_start, float("nan"), 0.0, 0, memory.gain, memory.offset)
-        return robust_solve(batch, k, start, free, self.settings, memory.rejected)
+        return robust_solve(batch, k, start, free, self.settings, memory.rejected, self.chi2_limit)
 
     def acquire(self, batch: GeneralBatch | TrigPolyBatch, k: int, lo_mm: float, hi_mm: float,
                 memory: LightMemory) -> FrameSolution:
