@@ -6,6 +6,12 @@ period between frames. When that assumption breaks (a jump, a dropped burst of f
 disturbed image) the tracker must notice rather than report a position one period off: it checks
 the step, the fit residual and, when a grating reading comes with the frame, the disagreement
 with it, and re-acquires by a global search over one period.
+
+The world also changes after calibration: the light (a lamp dims, the room light comes on), a
+pixel (dust lands on the sensor, a glint), the scene itself. Each frame is solved as cheaply as
+it allows: with the calibrated light unless its χ² asks for the light's gain and offset to be
+solved too, by robust reweighting only when a pixel does not fit; and every frame's χ² against
+the noise model feeds a running average that says when the model has gone stale.
 """
 
 from __future__ import annotations
