@@ -31,7 +31,7 @@ DEFAULT_OVERLAP = 32
 # the Gauss–Newton tolerance. Anything beyond this is a different solution, not rounding.
 AGREE_MM = 1e-5
 
-PER_FRAME = ("x_mm", "locked", "rms_gray", "crlb_mm", "iterations", "gain", "offset")
+PER_FRAME = ("x_mm", "locked", "rms_gray", "crlb_mm", "iterations", "gain", "offset", "chi2", "rejected_px", "stale")
 
 
 @dataclass(frozen=True)
@@ -52,6 +52,8 @@ class ChunkTask:
     reference: np.ndarray
     chunk: Chunk
     x0_mm: float | None = None
+    light: str | None = None  # as track(): the light mode and the robust reweighting
+    robust: bool = False
 
 
 @dataclass
@@ -77,14 +79,15 @@ def plan_chunks(n_frames: int, chunk_frames: int, overlap: int = DEFAULT_OVERLAP
 
 
 def chunk_task(model: FourierModel, frames: np.ndarray, reference: np.ndarray, chunk: Chunk,
-               x0_mm: float | None = None) -> ChunkTask:
+               x0_mm: float | None = None, light: str | None = None, robust: bool = False) -> ChunkTask:
     return ChunkTask(model, np.asarray(frames)[chunk.start:chunk.stop], np.asarray(reference)[chunk.start:chunk.stop],
-                     chunk, x0_mm)
+                     chunk, x0_mm, light, robust)
 
 
 def track_chunk(task: ChunkTask) -> TrackResult:
     """Track one chunk from a cold start (or from ``x0_mm``, the previous frame's position)."""
-    return track(task.model, task.frames, reference=task.reference, x0_mm=task.x0_mm)
+    return track(task.model, task.frames, reference=task.reference, x0_mm=task.x0_mm, light=task.light,
+                 robust=task.robust)
 
 
 def is_periodic(model: FourierModel) -> bool:
@@ -130,7 +133,8 @@ MapChunks = Callable[[Sequence[ChunkTask]], Sequence[TrackResult]]
 
 def track_chunked(model: FourierModel, frames: np.ndarray, reference: np.ndarray | None, chunk_frames: int,
                   overlap: int = DEFAULT_OVERLAP, map_chunks: MapChunks | None = None, x0_mm: float | None = None,
-                  redo: Callable[[ChunkTask], TrackResult] = track_chunk) -> tuple[TrackResult, StitchReport]:
+                  redo: Callable[[ChunkTask], TrackResult] = track_chunk, light: str | None = None,
+                  robust: bool = False) -> tuple[TrackResult, StitchReport]:
     """Track ``frames`` in chunks (``map_chunks`` runs them, in parallel if it can) and stitch them.
 
     ``x0_mm`` is the first frame's start, as in :func:`track`. The result has the same columns as
@@ -143,12 +147,15 @@ def track_chunked(model: FourierModel, frames: np.ndarray, reference: np.ndarray
     if reference.shape != (n_frames,):
         raise TrackingError(f"reference has shape {reference.shape}, expected ({n_frames},)")
     chunks = plan_chunks(n_frames, chunk_frames, overlap)
-    tasks = [chunk_task(model, frames, reference, chunk, x0_mm if chunk.start == 0 else None) for chunk in chunks]
+    tasks = [chunk_task(model, frames, reference, chunk, x0_mm if chunk.start == 0 else None, light, robust)
+             for chunk in chunks]
     results = list((map_chunks or (lambda items: [track_chunk(item) for item in items]))(tasks))
 
     nan = lambda: np.full(n_frames, np.nan)  # noqa: E731
     stitched = TrackResult(nan(), np.zeros(n_frames, dtype=bool), nan(), nan(), np.zeros(n_frames, dtype=np.int64),
-                           nan(), nan(), [])
+                           nan(), nan(), [], chi2=nan(), rejected_px=np.zeros(n_frames, dtype=np.int64),
+                           stale=np.zeros(n_frames, dtype=bool),
+                           chi2_calibration=results[0].chi2_calibration if results else float("nan"))
     report = StitchReport(len(chunks))
     for index, (chunk, result) in enumerate(zip(chunks, results)):
         shift = 0.0
@@ -157,7 +164,7 @@ def track_chunked(model: FourierModel, frames: np.ndarray, reference: np.ndarray
             if problem:
                 report.redone.append((index, problem))
                 x0 = _last_position(stitched.x_mm, chunk.keep)
-                task = chunk_task(model, frames, reference, Chunk(chunk.keep, chunk.keep, chunk.stop), x0)
+                task = chunk_task(model, frames, reference, Chunk(chunk.keep, chunk.keep, chunk.stop), x0, light, robust)
                 result, shift = redo(task), 0.0
                 chunk = task.chunk
             elif shift:

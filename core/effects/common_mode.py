@@ -45,8 +45,5 @@ class CommonMode(Effect):
         state.frame_offset = offset - offset.mean()
         state.frame_gain = gain / gain.mean()
 
-    def needs_general_path(self, model):
-        return model.common_mode
-
 
 EFFECT = CommonMode()

@@ -297,8 +297,8 @@ class FourierModel:
             raise TrackingError(
                 f"frames have shape {frames.shape}; the model was calibrated for {self.n_pixels} pixels"
             )
-        if self.n_rows == 1:
-            frames = frames.mean(axis=1, keepdims=True)
+        if self.n_rows == 1:  # (one row needs no averaging: live tracking prepares frames one at a time)
+            frames = frames if frames.shape[1] == 1 else frames.mean(axis=1, keepdims=True)
         elif frames.shape[1] != self.n_rows:
             raise TrackingError(f"frames have {frames.shape[1]} rows; the model was calibrated for {self.n_rows}")
         return frames if self.pixel_weight is None else frames * self.seen()

@@ -46,7 +46,7 @@ def chunk_options(args: argparse.Namespace) -> ChunkOptions | None:
 
 
 def track_in_chunks(model: FourierModel, frames: np.ndarray, reference: np.ndarray,
-                    options: ChunkOptions) -> TrackResult:
+                    options: ChunkOptions, light: str | None = None, robust: bool = False) -> TrackResult:
     from graytrack.core.chunked import DEFAULT_OVERLAP, track_chunk, track_chunked
 
     overlap = DEFAULT_OVERLAP if options.overlap is None else options.overlap
@@ -54,7 +54,8 @@ def track_in_chunks(model: FourierModel, frames: np.ndarray, reference: np.ndarr
         def map_chunks(tasks: list[ChunkTask]) -> list[TrackResult]:
             return client.gather(client.map(track_chunk, tasks, pure=False))
 
-        result, report = track_chunked(model, frames, reference, options.chunk_frames, overlap, map_chunks)
+        result, report = track_chunked(model, frames, reference, options.chunk_frames, overlap, map_chunks,
+                                       light=light, robust=robust)
     shifts = ", ".join(f"chunk {index} {shift:+.4f} mm" for index, shift in report.shifted) or "none"
     print(f"chunks  {report.chunks} of {options.chunk_frames} frames (overlap {overlap}); period picks: {shifts}")
     for index, why in report.redone:
