@@ -252,6 +252,19 @@ def _flicker(config: "RigConfig", v: dict[str, float], rng: np.random.Generator)
     ill.flicker_phase_rad = math.radians(v["phase_deg"]) if v["phase_deg"] >= 0 else rng.uniform(0, 2 * math.pi)
 
 
+@effect("light_change", "illumination", "The light changes during the run (room light switched on, a lamp dimming): "
+        "from start_s on the lamp gives gain × its light and stray light adds ambient_gray evenly; ramp_s spreads the "
+        "change over time (0: a step).",
+        gain=(0.9, "lamp light after the change, relative"), ambient_gray=(6.0, "stray light added, gray"),
+        start_s=(0.0, "when the change begins, s"), ramp_s=(0.0, "how long it takes, s (0: a step)"))
+def _light_change(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    ill = config.illumination
+    ill.level_gain = _positive("light_change", "gain", v["gain"])
+    ill.ambient_gray = v["ambient_gray"]
+    ill.level_start_s = v["start_s"]
+    ill.level_ramp_s = _positive("light_change", "ramp_s", v["ramp_s"], True)
+
+
 # ----- optics ----------------------------------------------------------------------------------
 
 
