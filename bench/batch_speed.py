@@ -102,10 +102,11 @@ def main() -> None:
                   f"{frames / outcome.seconds:8.0f} frames/s (batch {outcome.seconds:.2f} s; cluster start and "
                   f"imports {start_s:.2f} s, not counted); the workers got {cores:.2f} core(s) of CPU "
                   f"(load average {os.getloadavg()[0]:.1f})")
-        efficiency = per_core[2] / per_core[1]
+        measured = per_core[2] / per_core[1]
+        efficiency = min(measured, 1.0)  # above 100 % is run-to-run noise, not a gain
         print(f"  best of each: 2 workers vs 1 = {rates[2] / rates[1]:.2f}x in wall time on this machine "
               f"({os.cpu_count()} cores, shared); per CPU-second received: {per_core[1]:.2f} vs {per_core[2]:.2f} "
-              f"recordings, efficiency {efficiency:.0%} (what N workers with a core each keep of N×)")
+              f"recordings, efficiency {measured:.0%} (what N workers with a core each keep of N×)")
 
         short, long = 250, 2000
         costs = {n: task_cost(args.kind, tmp, n) for n in (short, long)}
