@@ -237,9 +237,16 @@ def test_no_frame_within_the_timeout_raises_camera_timeout(case: Case) -> None:
     camera = opened(case, case.settings())
     try:
         camera.read(2.0)
-        start = time.monotonic()
-        with pytest.raises(CameraTimeout):
-            camera.read(case.host_period_s / 8)
+        # Right after a frame, the next is most of a period away. On a loaded machine the frame
+        # just read may itself have come late, with the next one close behind: try again then.
+        for _ in range(5):
+            start = time.monotonic()
+            try:
+                camera.read(case.host_period_s / 8)
+            except CameraTimeout:
+                break
+        else:
+            pytest.fail("five reads with an eighth of a period to wait all got a frame")
         assert time.monotonic() - start < case.host_period_s / 8 + SLACK_S
         assert camera.stats.timeouts == 1
         camera.read(2.0)  # and frames keep coming
