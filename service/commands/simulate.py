@@ -28,6 +28,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--effects", action="append", default=[], metavar="SPEC",
                         help="effects to switch on, e.g. tilt:deg=0.5,flicker")
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0): same seed, same recording")
+    parser.add_argument("--run", type=int, default=0, metavar="N",
+                        help="another session of the same rig (same seed): same fixed patterns, noise of its own")
     parser.add_argument("--truth", default=None, metavar="FILE", help="also write the ground truth (.npz) here")
     parser.add_argument("--out", default=None, metavar="REC.npz", help="recording to write")
     parser.set_defaults(func=run)
@@ -62,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
     if args.truth:
         output_file(args.truth, "--truth")
     try:
-        rig = build_rig(args.scenario, args.effects, seed=args.seed)
+        rig = build_rig(args.scenario, args.effects, seed=args.seed, run=args.run)
     except ValueError as exc:
         raise CliError(str(exc)) from None
     seconds = rig.config.default_seconds if args.seconds is None else args.seconds
