@@ -55,3 +55,18 @@ def test_the_closed_loops_model_tracks_through_a_step_change_of_light(gain, offs
     lost, spread, bound = error_against_bound(model, run)
     assert lost == 0
     assert spread <= 1.1 * bound, f"{spread:.3f} µm against a bound of {bound:.3f} µm"
+
+
+def test_samples_driven_into_saturation_after_calibration_are_set_aside():
+    """More light than at calibration drives the crests of an 8-bit sensor into its ceiling: the
+    tracker sets those samples aside (they say nothing about x) instead of losing the frames."""
+    from graytrack.core.calibration import calibrate
+
+    calibration, _ = build_rig("paper", "quantize:bits=8", seed=6).record(16.0)
+    model = calibrate(calibration, "paper").model
+    assert model.info["sensor_range_gray"] == [0.0, 255.0]
+    run, _ = build_rig("paper", "quantize:bits=8,light_change:gain=1.35:ambient_gray=5", seed=6, run=1).record(8.0)
+    assert (run.frames == 255).mean() > 0.05  # a good share of the samples sit at the ceiling
+    lost, spread, bound = error_against_bound(model, run)
+    assert lost == 0
+    assert spread <= 1.3 * bound, f"{spread:.3f} µm against a bound of {bound:.3f} µm"
