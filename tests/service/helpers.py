@@ -26,8 +26,9 @@ FAST_TABLES: dict[str, Any] = {
     # 20 simulated frames/s = 200 per wall second: enough to test, light enough for a loaded CI machine
     "camera": {"kind": "sim", "frame_rate_hz": 20.0},
     "sweep": {"positions": 21, "frames_per_position": 3},
-    # pair_window_s is simulated time: 0.2 s is 20 ms of wall time, several POS? polls even on a loaded machine
-    "daemon": {"sim_clock_scale": 10.0, "camera_fault_after_s": 0.3, "reopen_interval_s": 0.1, "pair_window_s": 0.2},
+    # the page's tests reach the daemon as "testserver" (TestClient's Host)
+    "daemon": {"sim_clock_scale": 10.0, "camera_fault_after_s": 0.3, "reopen_interval_s": 0.1,
+               "allowed_hosts": ["testserver"]},
 }
 
 

@@ -7,9 +7,11 @@ from pathlib import Path
 
 import pytest
 
+from graytrack.core.errors import ModelError
 from graytrack.drivers.config import ConfigError
-from graytrack.drivers.stage.base import PositionReading
-from graytrack.service.daemon.grating import pair_reading
+import numpy as np
+
+from graytrack.service.daemon.grating import Readings
 from graytrack.service.daemon.settings import default_data_dir, load_settings
 from graytrack.service.daemon.storage import Storage
 
@@ -54,13 +56,38 @@ def test_token_is_generated_once_with_mode_0600_and_ids_sort_by_time(tmp_path: P
         storage.calibration_dir("../../etc")
     assert storage.load_current_model() is None
     storage.model_path.write_text("{not json")
-    assert storage.load_current_model() is None, "a broken model file is ignored, not fatal"
+    with pytest.raises(ModelError, match="not a JSON model file"):  # the rig turns it into a fault with this reason
+        storage.load_current_model()
 
 
-def test_grating_readings_are_paired_by_time() -> None:
-    readings = [PositionReading(1.0, 0.00, 0.001), PositionReading(2.0, 0.01, 0.001), PositionReading(2.0, 0.02, 0.001)]
-    assert pair_reading(readings, 0.005, 0.05) == pytest.approx(1.5)  # bracketed: interpolated
-    assert pair_reading(readings, 0.025, 0.05) == pytest.approx(2.0)  # after the last: extrapolated
-    assert pair_reading(readings[:1], 0.01, 0.05) == 1.0  # one reading close enough
-    assert pair_reading(readings, 1.0, 0.05) != pair_reading(readings, 1.0, 0.05)  # none near: NaN
-    assert pair_reading([], 0.0, 0.05) != pair_reading([], 0.0, 0.05)
+def _readings(t: np.ndarray, x: np.ndarray, **kwargs: float) -> Readings:
+    readings = Readings(window_s=kwargs.get("window_s", 0.02), tolerance_mm=kwargs.get("tolerance_mm", 1e-3))
+    for ti, xi in zip(t, x):
+        readings.append(float(ti), float(xi))
+    return readings
+
+
+def test_grating_pairing_interpolates_straight_motion_and_refuses_acceleration() -> None:
+    t = np.arange(0.0, 0.1, 0.005)
+    moving = _readings(t, 2.0 + 10.0 * t)  # 10 mm/s, polled every 5 ms
+    assert moving.at(0.0425) == pytest.approx(2.425, abs=1e-12), "bracketed: interpolated"
+    assert np.isnan(moving.at(0.2)), "after the last reading of a moving stage: unknown"
+    assert np.isnan(moving.at(-0.01)), "before the first reading: unknown"
+    # accelerating at 2000 mm/s^2: a straight line between readings 5 ms apart is 6 um off
+    accelerating = _readings(t, 1000.0 * t**2)
+    assert np.isnan(accelerating.at(0.0425))
+    gentle = _readings(t, 10.0 * t**2)  # 20 mm/s^2: 0.06 um error, below the tolerance
+    assert gentle.at(0.0425) == pytest.approx(10.0 * 0.0425**2, abs=1e-4)
+    sparse = _readings(np.array([0.0, 0.05, 0.1, 0.15]), np.array([0.0, 0.5, 1.0, 1.5]))
+    assert np.isnan(sparse.at(0.075)), "readings further apart than the window do not bracket"
+
+
+def test_grating_pairing_holds_a_resting_stage_until_a_command() -> None:
+    t = np.arange(0.0, 0.02, 0.005)
+    resting = _readings(t, np.full(t.size, 3.0))
+    assert resting.at(t[-1] + 0.004) == 3.0, "at rest, the newest reading holds for a frame just after it"
+    assert np.isnan(resting.at(t[-1] + 0.05)), "not for long"
+    resting.note_command(t[-1] + 0.001)
+    assert np.isnan(resting.at(t[-1] + 0.004)), "a move was commanded since: the stage may be moving"
+    creeping = _readings(t, 3.0 + 0.01 * np.arange(t.size))
+    assert np.isnan(creeping.at(t[-1] + 0.004)), "readings that disagree are not rest"

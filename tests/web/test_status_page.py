@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.service.helpers import ServeProcess
+from tests.service.helpers import ServeProcess, wait_for
 
 CHROMIUM = Path("/usr/bin/chromium")
 CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
@@ -38,7 +38,7 @@ def test_page_shows_live_position_and_runs_a_calibration(page) -> None:
     position = browser_page.locator("#position")
     expect(position).to_have_text(re.compile(r"^\d+\.\d{4}$"), timeout=10_000)
     first = position.text_content()
-    browser_page.wait_for_function(f"document.getElementById('position').textContent !== '{first}'", timeout=10_000)
+    expect(position).not_to_have_text(first, timeout=10_000)
 
     # without a token the daemon refuses, and the page says why
     browser_page.click("#calibrate")
@@ -53,7 +53,7 @@ def test_page_shows_live_position_and_runs_a_calibration(page) -> None:
     job_id = browser_page.locator("#message").text_content().split()[1]
     calibration = browser_page.locator("#calibration-message")
     expect(calibration).to_contain_text(job_id, timeout=10_000)
-    browser_page.wait_for_function("document.getElementById('progress').value > 0", timeout=10_000)
+    wait_for(lambda: browser_page.evaluate("document.getElementById('progress').value") > 0, what="progress")
     expect(calibration).to_contain_text("done", timeout=20_000)
     expect(browser_page.locator("#state")).to_have_text("tracking", timeout=10_000)
 
