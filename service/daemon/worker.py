@@ -20,15 +20,15 @@ RESTART_PAUSE_S = 0.2
 
 def describe(exc: BaseException) -> str:
     """One line: the message, and the type when the message alone would not say what happened
-    (``ZeroDivisionError: division by zero``; an ``OSError`` or a project error speaks for itself)."""
+    (``ZeroDivisionError: division by zero``; an ``OSError`` or graytrack's own errors speak for themselves)."""
     if isinstance(exc, OSError) and exc.strerror:
         text = f"{exc.strerror}: {exc.filename}" if exc.filename else exc.strerror
     else:
         text = str(exc).splitlines()[0][:300] if str(exc) else ""
-    builtin = type(exc).__module__ == "builtins" and not isinstance(exc, OSError)
+    speaks = isinstance(exc, OSError) or type(exc).__module__.startswith("graytrack.")
     if not text:
         return type(exc).__name__
-    return f"{type(exc).__name__}: {text}" if builtin else text
+    return text if speaks else f"{type(exc).__name__}: {text}"
 
 
 class Worker:
