@@ -32,8 +32,9 @@ from graytrack.service.daemon.storage import Storage
 
 log = logging.getLogger("graytrack.daemon")
 ROUTERS = (status.router, calibration.router, stage.router, stream.router, pages.router)
-# The frame thread and the event loop share the GIL; Python hands it over every 5 ms by default,
-# which is the latency tail of a 1 kHz stream. 0.5 ms costs a little throughput, not the tail.
+# The frame thread and the event loop share the GIL. A thread that computes for long (a calibration
+# fit, a status document) holds it for Python's default 5 ms switch interval before the stream's
+# thread gets a turn: five frames at 1 kHz. 0.5 ms bounds that wait to half a frame.
 SWITCH_INTERVAL_S = 0.0005
 
 
