@@ -10,6 +10,9 @@ is mid-exposure on the same clock. A frame gets a reference only when it can be 
 * **bracketed** — a reading before and one after the frame, at most ``window_s`` apart, and the
   motion between them straight: the change of velocity to the neighbouring readings, times the
   span, bounds the interpolation error (``|a| h² / 8``), which must stay below ``tolerance_mm``;
+  and each reading's instant known well enough: a reading was taken somewhere between request
+  and reply, so while moving at ``v`` its stamp may be off by ``|v| · latency / 2`` (a reply
+  delayed by a busy machine makes that large), which must stay below ``tolerance_mm`` too;
 * **at rest** — the last readings agree within ``tolerance_mm``, the newest is within
   ``window_s`` of the frame and no move was commanded since the first of them.
 
@@ -45,15 +48,18 @@ class Readings:
         self.tolerance_mm = tolerance_mm
         self._t: deque[float] = deque(maxlen=history)
         self._x: deque[float] = deque(maxlen=history)
+        self._latency: deque[float] = deque(maxlen=history)
         self._lock = threading.Lock()
         self.command_t = -math.inf  # host time of the last commanded move or stop
 
-    def append(self, t: float, x_mm: float) -> None:
+    def append(self, t: float, x_mm: float, latency_s: float = 0.0) -> None:
+        """A reading stamped ``t`` (host s), taken at most ``latency_s / 2`` from that stamp."""
         with self._lock:
             if self._t and t <= self._t[-1]:
                 return
             self._t.append(t)
             self._x.append(x_mm)
+            self._latency.append(latency_s)
 
     def latest(self) -> tuple[float, float] | None:
         with self._lock:
@@ -93,6 +99,8 @@ class Readings:
             dv.append(abs((xs[i + 2] - xb) / (ts[i + 2] - tb) - v))
         if not dv or max(dv) * span / 8.0 > self.tolerance_mm:
             return NAN  # accelerating (or nothing to tell): the straight line may be wrong
+        if abs(v) * 0.5 * max(self._latency[i], self._latency[i + 1]) > self.tolerance_mm:
+            return NAN  # moving, and the readings' instants are too loosely known
         return xa + (xb - xa) * (t - ta) / span
 
     def _at_rest(self, t: float) -> float:
@@ -147,6 +155,6 @@ class GratingPoller(Worker):
                 self._stop.wait(max(self.poll_s, 0.2))  # do not hammer a failing link
                 continue
             self.reads += 1
-            self.readings.append(self.to_host(reading.t), reading.position_mm)
+            self.readings.append(self.to_host(reading.t), reading.position_mm, self.to_host.seconds(reading.latency_s))
             self.on_fault(None)
             self._stop.wait(max(0.0, self.poll_s - (time.monotonic() - started)))

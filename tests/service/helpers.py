@@ -32,10 +32,11 @@ FAST_TABLES: dict[str, Any] = {
 }
 
 
-def fast_settings(data_dir: Path, **daemon: Any) -> Settings:
-    tables = {name: dict(table) for name, table in FAST_TABLES.items()}
-    tables["daemon"].update(data_dir=str(data_dir), **daemon)
-    return parse_settings(tables)
+def fast_settings(data_dir: Path, tables: dict[str, dict[str, Any]] | None = None, **daemon: Any) -> Settings:
+    """FAST_TABLES with ``data_dir``, ``daemon`` keys and whole-table ``tables`` updates."""
+    merged = {name: {**table, **(tables or {}).get(name, {})} for name, table in FAST_TABLES.items()}
+    merged["daemon"].update(data_dir=str(data_dir), **daemon)
+    return parse_settings(merged)
 
 
 def wait_for(predicate: Callable[[], Any], timeout_s: float = 10.0, what: str = "condition") -> Any:

@@ -45,37 +45,47 @@ def test_sigterm_during_the_fit_leaves_no_done_job_without_its_model(tmp_path: P
         wait_for(lambda: _job_state(daemon, job_id) == "fitting", 30.0, "the fit")
         assert daemon.terminate() == 0, daemon.stderr
     on_disk = _status_file(tmp_path, job_id)
-    assert on_disk["state"] == "aborted", on_disk
-    assert on_disk["message"] == "calibration aborted: the daemon is shutting down"
-    assert not (tmp_path / "data" / "model.json").exists(), "no model was installed for an aborted job"
+    installed = tmp_path / "data" / "model.json"
+    # the fit may end before the shutdown reaches the job: then it is done *and* installed
+    if on_disk["state"] == "done":
+        assert installed.read_text() == Path(on_disk["files"]["model"]).read_text()
+        assert (tmp_path / "data" / "active").read_text().strip() == job_id
+    else:
+        assert on_disk["state"] == "aborted", on_disk
+        assert on_disk["message"] == "calibration aborted: the daemon is shutting down"
+        assert not installed.exists(), "no model was installed for an aborted job"
     assert "Traceback" not in daemon.stderr
 
 
-@pytest.mark.parametrize("phase", ["sweeping", "fitting"])
-def test_kill_9_leaves_the_job_interrupted_at_the_next_start(tmp_path: Path, phase: str) -> None:
-    with ServeProcess(tmp_path, **SLOW_FIT) as daemon:
-        job_id = _start_calibration(daemon)
-        wait_for(lambda: _job_state(daemon, job_id) == phase, 30.0, phase)
-        daemon.process.kill()
-        daemon.process.wait()
-    assert _status_file(tmp_path, job_id)["state"] == phase, "kill -9 left it active on disk"
-    with ServeProcess(tmp_path, **SLOW_FIT) as daemon:  # the kernel released the lock with the process
-        daemon.wait_state("idle")
-        job = httpx.get(f"{daemon.base}/api/calibration/{job_id}", timeout=5).json()
-        assert job["state"] == "interrupted" and job["message"] == f"interrupted while {phase} (the daemon stopped)"
-        assert httpx.get(f"{daemon.base}/api/status", timeout=5).json()["state"] == "idle"
+def test_kill_9_in_the_sweep_or_the_fit_leaves_the_job_interrupted_at_the_next_start(tmp_path: Path) -> None:
+    killed: list[tuple[str, str]] = []
+    for phase in ("sweeping", "fitting", None):
+        with ServeProcess(tmp_path, **SLOW_FIT) as daemon:  # the kernel released the lock with the process
+            daemon.wait_state("idle")
+            for job_id, state in killed:
+                job = httpx.get(f"{daemon.base}/api/calibration/{job_id}", timeout=5).json()
+                assert job["state"] == "interrupted" and job["message"] == f"interrupted while {state} (the daemon stopped)"
+            if phase is None:
+                break
+            job_id = _start_calibration(daemon)
+            wait_for(lambda: _job_state(daemon, job_id) == phase, 30.0, phase)
+            daemon.process.kill()
+            daemon.process.wait()
+        assert _status_file(tmp_path, job_id)["state"] == phase, "kill -9 left it active on disk"
+        killed.append((job_id, phase))
+    assert len(killed) == 2
 
 
 def test_a_second_daemon_on_the_same_data_directory_exits_2_naming_the_first(tmp_path: Path) -> None:
-    with ServeProcess(tmp_path) as first:
-        first.wait_state("tracking")
+    with ServeProcess(tmp_path, **SLOW_FIT) as first:
+        first.wait_state("idle")
         second = subprocess.run([sys.executable, "-m", "graytrack", "serve", "--config", str(first.config),
                                  "--port", "0"], capture_output=True, text=True, timeout=60)
         assert second.returncode == 2
         lines = second.stderr.strip().splitlines()
         assert lines == [f"graytrack serve: error: data directory {tmp_path / 'data'} is in use by another "
                          f"graytrack serve (pid {first.process.pid})"], second.stderr
-        assert first.status()["state"] == "tracking", "the first daemon is untouched"
+        assert first.status()["state"] == "idle", "the first daemon is untouched"
 
 
 def test_a_bad_host_or_a_busy_port_is_one_line_and_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

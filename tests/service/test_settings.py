@@ -60,10 +60,10 @@ def test_token_is_generated_once_with_mode_0600_and_ids_sort_by_time(tmp_path: P
         storage.load_current_model()
 
 
-def _readings(t: np.ndarray, x: np.ndarray, **kwargs: float) -> Readings:
-    readings = Readings(window_s=kwargs.get("window_s", 0.02), tolerance_mm=kwargs.get("tolerance_mm", 1e-3))
+def _readings(t: np.ndarray, x: np.ndarray, latency_s: float = 0.0) -> Readings:
+    readings = Readings(window_s=0.02, tolerance_mm=1e-3)
     for ti, xi in zip(t, x):
-        readings.append(float(ti), float(xi))
+        readings.append(float(ti), float(xi), latency_s)
     return readings
 
 
@@ -80,6 +80,9 @@ def test_grating_pairing_interpolates_straight_motion_and_refuses_acceleration()
     assert gentle.at(0.0425) == pytest.approx(10.0 * 0.0425**2, abs=1e-4)
     sparse = _readings(np.array([0.0, 0.05, 0.1, 0.15]), np.array([0.0, 0.5, 1.0, 1.5]))
     assert np.isnan(sparse.at(0.075)), "readings further apart than the window do not bracket"
+    # replies 0.3 ms after the request: at 10 mm/s the stamps are uncertain by 1.5 um, over the tolerance
+    assert np.isnan(_readings(t, 2.0 + 10.0 * t, latency_s=3e-4).at(0.0425))
+    assert _readings(t, 2.0 + 1.0 * t, latency_s=3e-4).at(0.0425) == pytest.approx(2.0425), "slower: 0.15 um"
 
 
 def test_grating_pairing_holds_a_resting_stage_until_a_command() -> None:

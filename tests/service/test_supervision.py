@@ -107,3 +107,19 @@ def test_an_unexpected_error_in_a_calibration_fails_the_job_and_restores_the_dae
         done = wait_for(lambda: (j := daemon.get(f"/api/calibration/{again.json()['id']}").json())["state"] == "done" and j,
                         what="a calibration after the failure")
         assert done["progress"] == 1.0
+
+
+def test_a_shutdown_during_the_fit_aborts_the_job_and_installs_nothing(tmp_path, monkeypatch: pytest.MonkeyPatch) -> None:
+    real_calibrate, fitting = sweep.calibrate, []
+
+    def slow_fit(*args, **kwargs):  # a fit that is still running when the shutdown comes
+        fitting.append(True)
+        wait_for(lambda: daemon.rig.job.abort.is_set(), 20.0, "the shutdown to reach the job")
+        return real_calibrate(*args, **kwargs)
+
+    monkeypatch.setattr(sweep, "calibrate", slow_fit)
+    with LiveServer(create_app(fast_settings(tmp_path))) as daemon:
+        job_id = wait_for(lambda: daemon.rig.job and fitting and daemon.rig.job.id, 20.0, "the fit")
+    on_disk = json.loads((tmp_path / "calibrations" / job_id / "status.json").read_text())
+    assert on_disk["state"] == "aborted" and on_disk["message"] == "calibration aborted: the daemon is shutting down"
+    assert not (tmp_path / "model.json").exists() and not (tmp_path / "active").exists()
