@@ -97,14 +97,7 @@ class Rig:
         if thread is not None:
             thread.join(timeout=10.0)
         self.supervisor.stop()
-        with self._lock:
-            for worker in (self.acquisition, self.grating):
-                if worker is not None:
-                    worker.stop()
-            if self.hardware is not None:
-                self.hardware.close()
-                log.info("hardware closed")
-            self.hardware = None
+        self._detach()
 
     def emit(self, kind: str, **details: Any) -> None:
         for listener in self.listeners:
@@ -123,7 +116,7 @@ class Rig:
             try:
                 self._attach(hardware)
             except BaseException:
-                self._detach()
+                self._detach(forget=True)
                 raise
             return
 
@@ -157,14 +150,18 @@ class Rig:
         else:
             log.info("no saved model: idle until POST /api/calibration")
 
-    def _detach(self) -> None:
+    def _detach(self, forget: bool = False) -> None:
+        """Stop the workers and close the hardware (shutdown; ``forget`` after a bring-up that failed half-way)."""
         with self._lock:
             for worker in (self.acquisition, self.grating):
                 if worker is not None:
                     worker.stop()
             if self.hardware is not None:
                 self.hardware.close()
-            self.hardware, self.acquisition, self.grating = None, None, None
+                log.info("hardware closed")
+            self.hardware = None
+            if forget:
+                self.acquisition, self.grating = None, None
 
     def _new_grating(self) -> GratingPoller:
         assert self.hardware is not None
