@@ -56,7 +56,8 @@ def free_port() -> int:
 
 def config(folder: Path, rate: float) -> Path:
     path = folder / f"rate{rate:g}.toml"
-    path.write_text(f'[camera]\nkind = "sim"\nframe_rate_hz = {rate}\n'
+    exposure_us = min(1000.0, 0.5e6 / rate)  # the rig's 1 ms exposure fits up to 1000 frames/s
+    path.write_text(f'[camera]\nkind = "sim"\nframe_rate_hz = {rate}\nexposure_us = {exposure_us}\n'
                     f'[daemon]\ndata_dir = "{folder / "data"}"\nlog_level = "warning"\n')
     return path
 
@@ -80,8 +81,9 @@ def wait_tracking(base: str, timeout_s: float = 120.0) -> None:
 
 def run(folder: Path, rate: float, clients: int, seconds: float) -> dict[str, float]:
     port = free_port()
+    log = (folder / f"serve-{rate:g}-{clients}.log").open("w")
     daemon = subprocess.Popen([sys.executable, "-m", "graytrack", "serve", "--config", str(config(folder, rate)),
-                               "--port", str(port)], stderr=subprocess.DEVNULL)
+                               "--port", str(port)], stderr=log)
     try:
         wait_tracking(f"http://127.0.0.1:{port}")
         time.sleep(0.5)
@@ -92,6 +94,7 @@ def run(folder: Path, rate: float, clients: int, seconds: float) -> dict[str, fl
     finally:
         daemon.terminate()
         daemon.wait(timeout=30)
+        log.close()
     outs = json.loads(result.stdout)
     latency = np.concatenate([[m[0] for m in out] for out in outs]) * 1e3
     missing = sum(int(np.sum(np.diff([m[1] for m in out]) - 1)) for out in outs)
@@ -99,6 +102,10 @@ def run(folder: Path, rate: float, clients: int, seconds: float) -> dict[str, fl
     return {"rate": rate, "clients": clients, "msgs_s": np.mean([len(out) for out in outs]) / seconds,
             "missing": missing, "dropped": dropped, "p50": np.percentile(latency, 50),
             "p99": np.percentile(latency, 99), "max": latency.max(), "cpu": 100 * cpu}
+
+
+def load_average() -> str:
+    return Path("/proc/loadavg").read_text().split()[0]
 
 
 def main() -> None:
@@ -110,6 +117,7 @@ def main() -> None:
     try:
         # one calibration (the daemon calibrates itself at the first start), its model reused by every run
         run(folder, 200, 1, 0.5)
+        print(f"machine: {os.cpu_count()} cores, load average {load_average()} at start")
         print(f"{'frames/s':>8} {'clients':>7} {'msgs/s':>8} {'missing':>7} {'dropped':>7} "
               f"{'p50 ms':>7} {'p99 ms':>7} {'max ms':>7} {'CPU %':>6}")
         for rate in (float(r) for r in args.rates.split(",")):
@@ -117,6 +125,7 @@ def main() -> None:
                 r = run(folder, rate, clients, args.seconds)
                 print(f"{r['rate']:8.0f} {r['clients']:7d} {r['msgs_s']:8.0f} {r['missing']:7d} {r['dropped']:7d} "
                       f"{r['p50']:7.2f} {r['p99']:7.2f} {r['max']:7.2f} {r['cpu']:6.0f}", flush=True)
+        print(f"load average {load_average()} at the end")
     finally:
         shutil.rmtree(folder, ignore_errors=True)
 
