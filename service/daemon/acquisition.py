@@ -99,8 +99,10 @@ def fix_message(seq: int, sample: Sample, fix: LiveFix, dropped: int) -> dict[st
 class Acquisition(Worker):
     def __init__(self, camera: Camera, readings: Readings, to_host: HostTime,
                  publish: Callable[[dict[str, Any]], None], faults: Callable[[str, str | None], None],
-                 fault_after_s: float, reopen_interval_s: float) -> None:
+                 fault_after_s: float, reopen_interval_s: float,
+                 on_event: Callable[[str, str], None] = lambda kind, message: None) -> None:
         super().__init__("acquisition", lambda reason: faults("acquisition", reason))
+        self.on_event = on_event  # lock losses, re-acquisitions, stale-model flags: the event log
         self.camera = camera
         self.readings = readings
         self.to_host = to_host
@@ -117,6 +119,7 @@ class Acquisition(Worker):
         self._arrivals: deque[float] = deque(maxlen=RATE_WINDOW)
         self._seq = 0
         self._last_id: int | None = None
+        self._stale = False
 
     # -- control (any thread) --------------------------------------------------------------
     def install_model(self, model: FourierModel, x0_mm: float | None = None) -> None:
@@ -245,6 +248,16 @@ class Acquisition(Worker):
             stats.unplaced += 1
         if fix.event is not None:
             stats.lock_events += 1
+            event = fix.event
+            self.on_event("lock_reacquired" if event.reacquired else "lock_lost",
+                          f"{'lock re-acquired' if event.reacquired else 'lock lost'} at frame "
+                          f"{sample.frame.frame_id}: {event.reason}")
+        stale = bool(getattr(fix, "stale", False))
+        if stale != self._stale:
+            self._stale = stale
+            self.on_event("model_stale" if stale else "model_fresh",
+                          "the model no longer fits the frames (stale): recalibrate" if stale
+                          else "the model fits the frames again")
         self._seq += 1
         message = fix_message(self._seq, sample, fix, stats.dropped)
         stats.last_message = message

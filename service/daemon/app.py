@@ -21,17 +21,19 @@ from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
 from starlette.exceptions import HTTPException
 
-from graytrack.service.daemon.api import calibration, pages, stage, status, stream
+from graytrack.service.daemon.api import calibration, history, pages, profile, stage, status, stream
 from graytrack.service.daemon.api.pages import WEB_DIR
 from graytrack.service.daemon.api.security import WebGuard, WebPolicy
 from graytrack.service.daemon.broadcast import Broadcaster
 from graytrack.service.daemon.errors import DaemonError
+from graytrack.service.daemon.record import Record
 from graytrack.service.daemon.rig import HardwareFactory, Rig, default_factory
 from graytrack.service.daemon.settings import Settings
 from graytrack.service.daemon.storage import Storage
 
 log = logging.getLogger("graytrack.daemon")
-ROUTERS = (status.router, calibration.router, stage.router, stream.router, pages.router)
+ROUTERS = (status.router, calibration.router, history.router, profile.router, stage.router, stream.router,
+           pages.router)
 # The frame thread and the event loop share the GIL. A thread that computes for long (a calibration
 # fit, a status document) holds it for Python's default 5 ms switch interval before the stream's
 # thread gets a turn: five frames at 1 kHz. 0.5 ms bounds that wait to half a frame.
@@ -71,7 +73,8 @@ def create_app(settings: Settings, factory: HardwareFactory = default_factory) -
         storage.unlock()
         raise
     broadcaster = Broadcaster()
-    rig = Rig(settings, storage, broadcaster.publish, factory)
+    record = Record(storage.root / "record.sqlite")
+    rig = Rig(settings, storage, record, broadcaster.publish, factory)
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -84,6 +87,7 @@ def create_app(settings: Settings, factory: HardwareFactory = default_factory) -
         finally:
             await asyncio.to_thread(rig.close)
             sys.setswitchinterval(previous)
+            record.close()
             storage.unlock()
 
     docs = settings.daemon.api_docs

@@ -30,6 +30,10 @@ class NotFound(DaemonError):
     status = 404
 
 
+class Invalid(DaemonError):
+    status = 422
+
+
 class DataDirInUse(DaemonError):
     """Another daemon holds the data directory's lock (``graytrack serve`` exits 2 with this line)."""
 

@@ -65,6 +65,14 @@ class Readings:
         with self._lock:
             return (self._t[-1], self._x[-1]) if self._t else None
 
+    def moving(self) -> bool | None:
+        """Whether the last readings disagree (None before there are enough of them)."""
+        with self._lock:
+            if len(self._x) < REST_READINGS:
+                return None
+            recent = list(self._x)[-REST_READINGS:]
+        return max(recent) - min(recent) > self.tolerance_mm
+
     def note_command(self, t: float) -> None:
         """A move or stop was sent at host time ``t``: rest seen before it proves nothing after it."""
         self.command_t = t

@@ -16,6 +16,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from pathlib import Path
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from typing import Any, Callable, Protocol
@@ -151,3 +152,14 @@ def mark_interrupted(storage: Storage) -> list[str]:
     if marked:
         log.warning("calibration(s) %s were interrupted by the last shutdown", ", ".join(marked))
     return marked
+
+
+def calibration_row(job: CalibrationJob, model: FourierModel) -> dict[str, Any]:
+    """The record's row of a job being installed (its files by name, its quality in µm)."""
+    report = job.report or {}
+    held_out = report.get("held_out") or {}
+    effects = [step.get("effect") for step in report.get("steps", []) if step.get("effect")]
+    return {"id": job.id, "started": job.started, "finished": utc_now(), "model_kind": job.model,
+            "model": model.describe(), "error_std_um": held_out.get("error_std_um"), "bound_um": held_out.get("bound_um"),
+            "frames": report.get("frames"), "effects": effects,
+            "files": sorted({Path(p).name for p in job.files.values()}), "summary": report.get("summary")}

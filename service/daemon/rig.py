@@ -21,11 +21,13 @@ from __future__ import annotations
 
 import logging
 import math
+import sqlite3
 import threading
 import time
 from typing import Any, Callable
 
 from graytrack import __version__
+from graytrack.core.models import load_model
 from graytrack.core.models.fourier import FourierModel
 from graytrack.drivers.clock import REAL_TIME, ScaledClock
 from graytrack.drivers.factory import Hardware, open_hardware
@@ -34,7 +36,8 @@ from graytrack.service.daemon import status as status_doc
 from graytrack.service.daemon.acquisition import Acquisition
 from graytrack.service.daemon.errors import Busy, NotFound, NotReady, OutOfLimits
 from graytrack.service.daemon.grating import GratingPoller, Readings
-from graytrack.service.daemon.jobs import CalibrationJob, JobRunner, mark_interrupted
+from graytrack.service.daemon.jobs import CalibrationJob, JobRunner, calibration_row, mark_interrupted
+from graytrack.service.daemon.record import Record
 from graytrack.service.daemon.settings import Settings
 from graytrack.service.daemon.storage import Storage
 from graytrack.service.daemon.supervision import Faults, Supervisor, sentence
@@ -44,6 +47,7 @@ from graytrack.service.daemon.worker import describe
 
 log = logging.getLogger("graytrack.daemon")
 HardwareFactory = Callable[[Settings, ScaledClock], Hardware]
+MAX_VELOCITY_MM_S = 100.0
 
 
 def default_factory(settings: Settings, clock: ScaledClock) -> Hardware:
@@ -51,11 +55,12 @@ def default_factory(settings: Settings, clock: ScaledClock) -> Hardware:
 
 
 class Rig:
-    def __init__(self, settings: Settings, storage: Storage, publish: Callable[[dict[str, Any]], None],
+    def __init__(self, settings: Settings, storage: Storage, record: Record, publish: Callable[[dict[str, Any]], None],
                  factory: HardwareFactory = default_factory) -> None:
         daemon = settings.daemon
         self.settings = settings
         self.storage = storage
+        self.record = record
         self.publish = publish
         self.factory = factory
         self.clock = ScaledClock(daemon.sim_clock_scale) if settings.simulated else REAL_TIME
@@ -69,12 +74,14 @@ class Rig:
         self.jobs: dict[str, CalibrationJob] = {}
         self.job: CalibrationJob | None = None
         self.calibrations_finished: dict[str, int] = {"done": 0, "failed": 0, "aborted": 0}
-        self.listeners: list[Callable[[str, dict[str, Any]], None]] = []  # (kind, details): the event record
         self.closing = threading.Event()
         self.started_at = time.monotonic()
         self._sweep_thread: threading.Thread | None = None
+        self.target_mm: float | None = None  # the last commanded target (the page's moving indicator)
+        self.velocity_mm_s: float | None = None
         self._lock = threading.RLock()
         self.supervisor = Supervisor(self._bring_up, self._watch, self.faults, daemon.reopen_interval_s)
+        self.faults.listeners.append(self._fault_event)
 
     # -- lifecycle -------------------------------------------------------------------------
     def start(self) -> "Rig":
@@ -98,13 +105,33 @@ class Rig:
             thread.join(timeout=10.0)
         self.supervisor.stop()
         self._detach()
+        self.event("shutdown", "daemon stopped")
 
-    def emit(self, kind: str, **details: Any) -> None:
-        for listener in self.listeners:
-            listener(kind, details)
+    def event(self, kind: str, message: str, **details: Any) -> None:
+        """One line in the event log (``GET /api/events``); the record failing never stops the rig."""
+        try:
+            self.record.event(kind, message, **details)
+        except sqlite3.Error as exc:
+            log.error("cannot record the event %r: %s", message, exc)
+
+    def _fault_event(self, source: str, reason: str | None, previous: str | None) -> None:
+        if reason is None:
+            self.event("recovered", f"{source} recovered", source=source, was=previous)
+        else:
+            self.event("fault", f"{source}: {reason}", source=source)
+
+    def _stream_event(self, kind: str, message: str) -> None:
+        """Lock losses, re-acquisitions and stale-model flags from the frame loop (rare, never per frame)."""
+        self.event(kind, message)
 
     def _bring_up(self) -> None:
-        mark_interrupted(self.storage)
+        interrupted = mark_interrupted(self.storage)
+        for job_id in interrupted:
+            self.event("calibration_interrupted", f"calibration {job_id} was interrupted by the last shutdown",
+                       calibration=job_id)
+        unfinished = [i for i in self.record.calibration_ids()
+                      if (self.storage.read_status(i) or {}).get("state") != "done"]
+        self.record.remove_calibrations(unfinished)
         while not self.closing.is_set():
             try:
                 hardware = self.factory(self.settings, self.clock)
@@ -127,11 +154,13 @@ class Rig:
                 hardware.close()
                 return
             self.hardware = hardware
+            self.velocity_mm_s = hardware.stage.velocity()
             self.grating = self._new_grating()
             self.acquisition = self._new_acquisition()
         log.info("hardware open: %s camera, %s stage, limits %s mm", self.settings.hardware.camera.kind,
                  self.settings.hardware.stage.kind, hardware.stage.limits())
-        self.emit("start", simulated=self.settings.simulated)
+        self.event("start", f"daemon started ({'virtual rig' if self.settings.simulated else 'hardware'})",
+                   simulated=self.settings.simulated)
         try:
             model = self.storage.load_current_model()
         except Exception as exc:  # noqa: BLE001 - a broken model file: say so, stay up, let a calibration replace it
@@ -172,7 +201,7 @@ class Rig:
         assert self.hardware is not None
         daemon = self.settings.daemon
         acquisition = Acquisition(self.hardware.camera, self.readings, self.to_host, self.publish, self.faults.set,
-                                  daemon.camera_fault_after_s, daemon.reopen_interval_s)
+                                  daemon.camera_fault_after_s, daemon.reopen_interval_s, self._stream_event)
         if self.model is not None:
             acquisition.install_model(self.model, self.grating.latest_mm() if self.grating else None)
         return acquisition.start()
@@ -235,20 +264,46 @@ class Rig:
             self._sweep_thread.start()
         log.info("calibration %s started (%d stops x %d frames, %s model)", job.id, config.positions,
                  config.frames_per_position, config.model)
-        self.emit("calibration_started", calibration=job.id)
+        self.event("calibration_started", f"calibration {job.id} started", calibration=job.id)
         return job
 
     def _install_calibration(self, model: FourierModel, job: CalibrationJob) -> None:
-        """The job's ``installing`` step: the data directory's model first, then the tracker."""
+        """The job's ``installing`` step: the data directory's model, the tracker, then the record's row."""
         self.storage.save_current_model(model)
         self.storage.set_active(job.id)
         self.install(model)
-        self.emit("model_installed", calibration=job.id, model=model.describe())
+        self.record.add_calibration(calibration_row(job, model))
+        self.event("model_installed", f"model of calibration {job.id} installed: {model.describe()}", calibration=job.id)
 
     def _finished(self, job: CalibrationJob) -> None:
         self.calibrations_finished[job.state] = self.calibrations_finished.get(job.state, 0) + 1
         log.info("calibration %s %s in %.1f s: %s", job.id, job.state, job.duration_s or 0.0, job.message)
-        self.emit(f"calibration_{job.state}", calibration=job.id, message=job.message)
+        self.event(f"calibration_{job.state}", f"calibration {job.id} {job.state}: {job.message}", calibration=job.id)
+
+    def activate(self, calibration_id: str) -> dict[str, Any]:
+        """Roll back (or forward) to the model of an earlier calibration that finished ``done``."""
+        with self._lock:
+            self._ready()
+            if self.job is not None and self.job.active:
+                raise Busy(f"calibration {self.job.id} is running; stop it first")
+            row = self.record.calibration(calibration_id)
+            if row is None:
+                raise NotFound(f"no finished calibration {calibration_id!r}")
+            model = load_model(self.storage.calibration_dir(calibration_id) / "model.json")
+            self.storage.save_current_model(model)
+            self.storage.set_active(calibration_id)
+            self.install(model)
+        self.event("model_installed", f"model of calibration {calibration_id} activated: {model.describe()}",
+                   calibration=calibration_id)
+        return {"active": calibration_id, "model": model.describe()}
+
+    def active_calibration(self) -> dict[str, Any] | None:
+        active = self.storage.active_id()
+        if active is None or self.model is None:
+            return None
+        row = self.record.calibration(active)
+        return {"id": active} if row is None else {key: row[key] for key in
+                                                   ("id", "finished", "model", "error_std_um", "bound_um")}
 
     def _meta(self, hardware: Hardware) -> dict[str, Any]:
         meta: dict[str, Any] = hardware.rig.meta() if hardware.rig is not None else {}  # type: ignore[attr-defined]
@@ -273,9 +328,7 @@ class Rig:
         return self.calibration(latest)
 
     def move(self, target_mm: float) -> dict[str, Any]:
-        hardware, _ = self._ready()
-        if self.job is not None and self.job.active:
-            raise Busy(f"calibration {self.job.id} is moving the stage; POST /api/stage/stop aborts it")
+        hardware = self._idle_stage()
         low, high = hardware.stage.limits()
         if not (math.isfinite(target_mm) and low <= target_mm <= high):
             raise OutOfLimits(f"target_mm {target_mm:g} is outside the soft limits [{low:g}, {high:g}] mm")
@@ -286,8 +339,48 @@ class Rig:
             raise OutOfLimits(str(exc)) from None
         except StageError as exc:
             raise NotReady(f"stage: {exc}") from None
-        self.emit("move", target_mm=target_mm)
+        self.target_mm = target_mm
+        self.event("move", f"move to {target_mm:g} mm", target_mm=target_mm)
         return {"target_mm": target_mm, "limits_mm": [low, high]}
+
+    def _idle_stage(self) -> Hardware:
+        hardware, _ = self._ready()
+        if self.job is not None and self.job.active:
+            raise Busy(f"calibration {self.job.id} is moving the stage; POST /api/stage/stop aborts it")
+        return hardware
+
+    def jog(self, step_mm: float) -> dict[str, Any]:
+        """A relative move by ``step_mm`` from where the grating says the stage is."""
+        position = self.grating.latest_mm() if self.grating is not None else None
+        if position is None:
+            raise NotReady("no grating reading yet: the stage position is unknown")
+        if not math.isfinite(step_mm) or step_mm == 0:
+            raise OutOfLimits("step_mm must be a non-zero finite number")
+        return self.move(round(position + step_mm, 6))
+
+    def home(self) -> dict[str, Any]:
+        """The reference move (``FRF``): the controller finds its reference mark again."""
+        hardware = self._idle_stage()
+        self.readings.note_command(time.monotonic())
+        self.target_mm = None
+        try:
+            hardware.stage.reference()
+        except StageError as exc:
+            raise NotReady(f"stage: {exc}") from None
+        self.event("home", "reference move done")
+        return {"referenced": True}
+
+    def set_velocity(self, velocity_mm_s: float) -> dict[str, Any]:
+        hardware = self._idle_stage()
+        if not (math.isfinite(velocity_mm_s) and 0 < velocity_mm_s <= MAX_VELOCITY_MM_S):
+            raise OutOfLimits(f"velocity_mm_s {velocity_mm_s:g} is outside (0, {MAX_VELOCITY_MM_S:g}] mm/s")
+        try:
+            hardware.stage.set_velocity(velocity_mm_s)
+            self.velocity_mm_s = hardware.stage.velocity()
+        except StageError as exc:
+            raise NotReady(f"stage: {exc}") from None
+        self.event("velocity", f"velocity set to {self.velocity_mm_s:g} mm/s")
+        return {"velocity_mm_s": self.velocity_mm_s}
 
     def stop(self) -> dict[str, Any]:
         """Stop the stage now; an active calibration is aborted first (it would move it again).
@@ -304,5 +397,5 @@ class Rig:
             hardware.stage.stop()
         except StageError as exc:
             raise NotReady(f"stage: {exc}") from None
-        self.emit("stop", aborted_calibration=job.id if aborted and job is not None else None)
+        self.event("stop", "stage stopped" + (f", calibration {job.id} aborted" if aborted and job is not None else ""))
         return {"stopped": True, "aborted_calibration": job.id if aborted and job is not None else None}

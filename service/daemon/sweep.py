@@ -28,7 +28,9 @@ from graytrack.core.files import write_atomic
 from graytrack.drivers.stage.base import Stage
 from graytrack.service.daemon.acquisition import Acquisition, Sample
 from graytrack.service.daemon.settings import SweepConfig
+from graytrack.service.daemon import report_page
 from graytrack.service.daemon.jobs import JobRunner
+from graytrack.service.daemon.quality import held_out_quality
 from graytrack.service.daemon.storage import Storage
 from graytrack.service.daemon.timebase import HostTime
 
@@ -146,11 +148,18 @@ class Sweep:
             paths = write_report(result, folder)
             model, report = result.final_model, json.loads(paths["json"].read_text())
             after = report["after"]
-            report["summary"] = f"closed loop: error std {after['error_std_um']:.2f} um after {len(report['steps'])} step(s)"
+            report["held_out"] = {"error_std_um": after["error_std_um"], "bound_um": report["noise"]["crlb_um"],
+                                  "method": "closed loop (graytrack diagnose)"}
+            report["summary"] = (f"closed loop: held-out error {after['error_std_um']:.2f} µm "
+                                 f"(bound {report['noise']['crlb_um']:.2f} µm) after {len(report['steps'])} step(s)")
             self.job.files.update({name: str(p) for name, p in paths.items()})
         else:
             result = calibrate(recording, "paper", progress=progress)
             model = result.model
+            self.runner.update(SWEEP_SHARE + 0.5 * (1 - SWEEP_SHARE), "held-out error: two-fold by stop")
+            held_out = held_out_quality(recording, self.config.frames_per_position)
+            quality = ("" if held_out is None else
+                       f"held-out error {held_out['error_std_um']:.2f} µm (bound {held_out['bound_um']:.2f} µm), ")
             report = {
                 "model": model.describe(),
                 "rmse_gray": result.rmse_gray,
@@ -160,9 +169,11 @@ class Sweep:
                 "stroke_mm": float(np.ptp(recording.reference)),
                 "period_mm": model.period_mm,
                 "pixel_pitch_mm": model.pixel_pitch_mm,
-                "summary": f"paper model: rms {result.rmse_gray:.3f} gray (noise {result.sigma_gray:.3f} gray)",
+                "held_out": held_out,
+                "summary": f"paper model: {quality}rms {result.rmse_gray:.3f} gray (noise {result.sigma_gray:.3f} gray)",
             }
             self.job.files["model"] = str(save_model(model, folder / "model.json"))
             self.job.files["report"] = str(write_atomic(folder / "report.json", json.dumps(report, indent=1)))
+            self.job.files["html"] = str(write_atomic(folder / "report.html", report_page.render(self.job.id, report)))
         self.job.report = report
         return model

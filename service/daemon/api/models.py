@@ -48,6 +48,9 @@ class Status(BaseModel):
     stale: bool
     age_ms: float | None
     grating_mm: float | None
+    moving: bool | None = Field(description="the grating readings of the last few polls disagree")
+    target_mm: float | None = Field(description="the last commanded target")
+    velocity_mm_s: float | None
     reason: str | None = Field(description="every part in fault, in one sentence")
     faults: dict[str, str]
     model: str | None
@@ -56,6 +59,7 @@ class Status(BaseModel):
     frames: int
     dropped: int
     calibration: JobSummary | None
+    active_calibration: dict[str, Any] | None = Field(description="the calibration whose model is in use")
     simulated: bool
     uptime_s: float
     version: str
@@ -89,6 +93,24 @@ class MoveRequest(BaseModel):
                                                   description="absolute target within the soft limits")
 
 
+class JogRequest(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    step_mm: Annotated[float, Strict()] = Field(allow_inf_nan=False, description="relative move from the grating position")
+
+
+class VelocityRequest(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    velocity_mm_s: Annotated[float, Strict()] = Field(allow_inf_nan=False, gt=0)
+
+
+class Homed(BaseModel):
+    referenced: bool
+
+
+class Velocity(BaseModel):
+    velocity_mm_s: float
+
+
 class Moved(BaseModel):
     target_mm: float
     limits_mm: list[float]
@@ -97,3 +119,38 @@ class Moved(BaseModel):
 class Stopped(BaseModel):
     stopped: bool
     aborted_calibration: str | None
+
+
+class CalibrationRow(BaseModel):
+    id: str
+    started: str
+    finished: str
+    model_kind: str
+    model: str | None
+    error_std_um: float | None = Field(description="held-out position error std (µm)")
+    bound_um: float | None = Field(description="Cramér–Rao bound of the same frames (µm)")
+    frames: int | None
+    effects: list[str]
+    files: list[str] = Field(description="names served at /api/calibrations/{id}/files/{name}")
+    summary: str | None
+    active: bool = False
+
+
+class CalibrationPage(BaseModel):
+    items: list[CalibrationRow]
+    total: int
+    limit: int
+    offset: int
+
+
+class Event(BaseModel):
+    id: int
+    t_unix: float
+    kind: str
+    message: str
+    details: dict[str, Any]
+
+
+class Activated(BaseModel):
+    active: str
+    model: str

@@ -135,7 +135,9 @@ class WebGuard:
 
         async def send_secured(message: Message) -> None:
             if message["type"] == "http.response.start":
-                message = {**message, "headers": [*message.get("headers", []), *security]}
+                own = message.get("headers", [])
+                extra = [h for h in security if not any(k.lower() == h[0] for k, _ in own)]  # a route may be stricter
+                message = {**message, "headers": [*own, *extra]}
             await send(message)
 
         if scope["method"] in MUTATING:
