@@ -20,21 +20,27 @@ from graytrack.core.tracking import track
 MIN_STOPS_PER_FOLD = 4
 
 
+def held_out_folds(recording: Recording, frames_per_stop: int) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Per fold, for the held-out frames: ``(reference_mm, error_um, bound_um)``; [] when too short to split."""
+    stops = np.arange(recording.n_frames) // frames_per_stop
+    if int(stops.max()) + 1 < 2 * MIN_STOPS_PER_FOLD:
+        return []
+    folds = []
+    for fold in (0, 1):
+        model = calibrate(_subset(recording, stops % 2 != fold), "paper").model
+        held = _subset(recording, stops % 2 == fold)
+        result = track(model, held.frames, x0_mm=float(held.reference[0]))
+        folds.append((held.reference, result.error_um(held.reference), result.crlb_mm * 1e3))
+    return folds
+
+
 def held_out_quality(recording: Recording, frames_per_stop: int) -> dict[str, Any] | None:
     """``{"error_std_um", "bound_um", "frames", "method"}``, or None when the sweep is too short to split."""
-    stops = np.arange(recording.n_frames) // frames_per_stop
-    n_stops = int(stops.max()) + 1
-    if n_stops < 2 * MIN_STOPS_PER_FOLD:
+    folds = held_out_folds(recording, frames_per_stop)
+    if not folds:
         return None
-    errors, bounds = [], []
-    for fold in (0, 1):
-        train, test = stops % 2 != fold, stops % 2 == fold
-        model = calibrate(_subset(recording, train), "paper").model
-        held = _subset(recording, test)
-        result = track(model, held.frames, x0_mm=float(held.reference[0]))
-        errors.append(result.error_um(held.reference))
-        bounds.append(result.crlb_mm * 1e3)
-    error, bound = np.concatenate(errors), np.concatenate(bounds)
+    error = np.concatenate([f[1] for f in folds])
+    bound = np.concatenate([f[2] for f in folds])
     placed = np.isfinite(error)
     if placed.sum() < 2:
         return None

@@ -15,13 +15,17 @@ from graytrack.service.daemon.grating import Readings
 from graytrack.service.daemon.settings import default_data_dir, load_settings
 from graytrack.service.daemon.storage import Storage
 
-EXAMPLE = Path(__file__).resolve().parents[2] / "deploy" / "graytrack.example.toml"
+ROOT = Path(__file__).resolve().parents[2]
+EXAMPLE = ROOT / "deploy" / "graytrack.example.toml"
 
 
 def test_the_example_config_is_valid_and_the_default_is_the_virtual_rig() -> None:
     example = load_settings(EXAMPLE)
     assert example.hardware.camera.kind == "aravis" and not example.simulated
     assert example.daemon.host == "127.0.0.1" and example.sweep.model == "paper"
+    opencv = load_settings(ROOT / "deploy" / "graytrack.opencv.toml")
+    assert opencv.hardware.camera.kind == "opencv" and opencv.hardware.camera.device == 0 and not opencv.simulated
+    assert opencv.daemon.auto_calibrate == "never"
     default = load_settings(None)
     assert default.simulated and default.daemon.host == "127.0.0.1" and default.daemon.port == 8000
     assert default.with_overrides(port=9000, host=None).daemon.port == 9000
@@ -94,3 +98,18 @@ def test_grating_pairing_holds_a_resting_stage_until_a_command() -> None:
     assert np.isnan(resting.at(t[-1] + 0.004)), "a move was commanded since: the stage may be moving"
     creeping = _readings(t, 3.0 + 0.01 * np.arange(t.size))
     assert np.isnan(creeping.at(t[-1] + 0.004)), "readings that disagree are not rest"
+
+
+def test_make_run_installs_only_what_running_needs(tmp_path: Path) -> None:
+    import re
+    import subprocess
+
+    dry = subprocess.run(["make", "-n", "run", f"VENV={tmp_path / 'venv'}"], cwd=ROOT, capture_output=True,
+                         text=True, check=True).stdout
+    installs = [line for line in dry.splitlines() if "pip install" in line and "--upgrade pip" not in line]
+    assert len(installs) == 1 and re.search(r'-e "?\.', installs[0]), dry
+    extras = re.search(r"\[([^\]]*)\]", installs[0])
+    assert extras is None or "test" not in extras.group(1).split(","), "no pytest, no playwright for running"
+    service = subprocess.run(["make", "-n", "service-venv", f"PREFIX={tmp_path / 'opt'}"], cwd=ROOT,
+                             capture_output=True, text=True, check=True).stdout
+    assert f"-m venv {tmp_path / 'opt'}/.venv" in service and " -e " not in service, "the service venv is not editable"
