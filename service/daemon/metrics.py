@@ -77,5 +77,12 @@ def render(rig: Rig, broadcaster: Broadcaster) -> str:
                    [("", broadcaster.sent)])
     out += _metric("graytrack_websocket_dropped_total", "counter", "messages dropped for slow clients",
                    [("", broadcaster.dropped)])
+    fit = status.get("fit") or {}
+    for key, help_text in (("chi2", "reduced chi-square of the newest frame's fit"),
+                           ("rejected_px", "pixels the newest frame's fit rejected"),
+                           ("stale", "1 when the tracker flags the model as stale (recalibrate)")):
+        if key in fit:
+            out += _metric(f"graytrack_fit_{key}", "gauge", help_text,
+                           [("", float("nan") if fit[key] is None else float(fit[key]))])
     out += _metric("graytrack_uptime_seconds", "gauge", "seconds since start", [("", status["uptime_s"])])
     return "\n".join(out) + "\n"

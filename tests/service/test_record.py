@@ -120,3 +120,31 @@ def test_history_survives_a_restart_and_a_kill_9(tmp_path: Path) -> None:
         third.wait_state("tracking")
         kinds = [e["kind"] for e in httpx.get(f"{third.base}/api/events", timeout=5).json()]
         assert kinds.count("start") == 3 and kinds.count("shutdown") == 1
+
+
+def test_the_trackers_fit_figures_and_stale_model_flags_reach_status_metrics_and_events(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from types import SimpleNamespace
+
+    from graytrack.core import tracking
+
+    real_update, flag = tracking.LiveTracker.update, {"stale": False}
+
+    def update(self, frame, reference_mm=float("nan")):  # the tracker's per-frame fit figures, stale on demand
+        fix = real_update(self, frame, reference_mm)
+        return SimpleNamespace(**{**vars(fix), "gain": 1.01, "offset": -0.2, "rejected_px": 2, "chi2": 1.04,
+                                  "stale": flag["stale"]})
+
+    monkeypatch.setattr(tracking.LiveTracker, "update", update)
+    with LiveServer(create_app(fast_settings(tmp_path))) as daemon:
+        daemon.wait_state("tracking")
+        flag["stale"] = True
+        wait_for(lambda: "model_stale" in [e["kind"] for e in daemon.get("/api/events").json()], what="the stale flag")
+        fit = daemon.status()["fit"]
+        assert fit == {"gain": 1.01, "offset": -0.2, "rejected_px": 2, "chi2": 1.04, "stale": True}
+        metrics = daemon.get("/metrics").text
+        assert "graytrack_fit_stale 1.0" in metrics and "graytrack_fit_rejected_px 2.0" in metrics
+        flag["stale"] = False
+        wait_for(lambda: "model_fresh" in [e["kind"] for e in daemon.get("/api/events").json()], what="fresh again")
+        kinds = [e["kind"] for e in daemon.get("/api/events").json()]
+        assert kinds.count("model_stale") == 1, "a flag is recorded when it changes, not per frame"

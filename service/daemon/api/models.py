@@ -45,6 +45,8 @@ class Status(BaseModel):
     position_mm: float | None = Field(description="null when no fresh tracked frame (older than stale_after_s)")
     locked: bool | None
     crlb_um: float | None
+    fit: dict[str, float | int | bool | None] | None = Field(
+        None, description="the tracker's fit of the newest frame: gain, offset, rejected_px, chi2, stale (when reported)")
     stale: bool
     age_ms: float | None
     grating_mm: float | None
