@@ -103,31 +103,32 @@ class JobRunner:
 
     def run(self, steps: Steps) -> None:
         job, started = self.job, time.monotonic()
+        outcome: dict[str, Any]
         try:
             recording = steps.sweep()
             model = steps.fit(recording)
             job.check_abort()  # a stop during the fit: the operator asked for no new model
             self.enter("installing", message="installing the new model")
             self.install(model, job)
-            job.state, job.progress = "done", 1.0
-            job.message = (job.report or {}).get("summary", "done")
+            outcome = {"state": "done", "progress": 1.0, "message": (job.report or {}).get("summary", "done")}
         except Aborted as exc:
-            job.state, job.error, job.message = "aborted", str(exc), str(exc)
+            outcome = {"state": "aborted", "error": str(exc), "message": str(exc)}
         except Exception as exc:  # noqa: BLE001 - every failure ends the job with its reason
             if job.abort.is_set():  # a stop request interrupted a move or a settle
-                job.state, job.error, job.message = "aborted", describe(exc), job.abort_reason
+                outcome = {"state": "aborted", "error": describe(exc), "message": job.abort_reason}
             else:
                 reason = describe(exc)
-                job.state, job.error, job.message = "failed", reason, f"failed: {reason}"
+                outcome = {"state": "failed", "error": reason, "message": f"failed: {reason}"}
                 log.error("calibration %s failed: %s", job.id, reason, exc_info=not _expected(exc))
-        finally:
-            job.finished = utc_now()
-            job.duration_s = round(time.monotonic() - started, 3)
-            try:
-                self.storage.write_status(job.id, job.to_dict())
-            except Exception:  # noqa: BLE001 - a full disk: the job is over anyway, say it in the log
-                log.exception("calibration %s: cannot write its final status", job.id)
-            self.on_finish(job)
+        outcome.update(finished=utc_now(), duration_s=round(time.monotonic() - started, 3))
+        # on disk first, then in memory: whoever sees the job ended finds its status.json ended too
+        try:
+            self.storage.write_status(job.id, {**job.to_dict(), **outcome})
+        except Exception:  # noqa: BLE001 - a full disk: the job is over anyway, say it in the log
+            log.exception("calibration %s: cannot write its final status", job.id)
+        for key, value in outcome.items():
+            setattr(job, key, value)
+        self.on_finish(job)
 
 
 def _expected(exc: Exception) -> bool:
