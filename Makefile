@@ -24,7 +24,7 @@ $(BIN)/python:
 	$(BIN)/python -m pip install --quiet --upgrade pip
 
 $(STAMP): pyproject.toml setup.py | $(BIN)/python
-	$(BIN)/python -m pip install --quiet -e ".[test$(ARAVIS_EXTRA)]"
+	$(BIN)/python -m pip install --quiet -e ".[test,cluster$(ARAVIS_EXTRA)]"
 	touch $(STAMP)
 
 install: $(STAMP)

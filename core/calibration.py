@@ -10,6 +10,9 @@ from __future__ import annotations
 
 from typing import Callable, Literal
 
+import numpy as np
+
+from graytrack.core import effects
 from graytrack.core.calibration_data import Calibration, CalibrationData, calibration_data
 from graytrack.core.errors import CalibrationError
 from graytrack.core.geometry import initial_geometry
@@ -32,10 +35,14 @@ def rows_disagree(model: FourierModel, data: CalibrationData) -> bool:
     rows alike (a too-simple model) cancels there, so this asks about the rows, not the model.
     """
     n_rows = data.frames.shape[1]
-    residual = (data.frames - model.predict(data.x_mm)) * data.weights
-    spread = residual - residual.mean(axis=1, keepdims=True)
-    expected = data.sigma_gray**2 * (1.0 - 1.0 / n_rows)
-    excess = float((spread**2).sum() / data.weights.sum()) / expected - 1.0
+    weights = data.weights * model.seen()
+    predicted = model.predict(data.x_mm)
+    residual = (data.frames - predicted) * weights
+    spread = (residual - residual.mean(axis=1, keepdims=True)) * weights
+    noise = data.pixel_noise if data.pixel_noise is not None else model.noise()
+    variance = float((noise.variance(np.broadcast_to(predicted, weights.shape)) * weights).sum() / weights.sum())
+    expected = variance * (1.0 - 1.0 / n_rows)
+    excess = float((spread**2).sum() / weights.sum()) / expected - 1.0
     return excess > ROW_DISAGREEMENT_EXCESS
 
 
@@ -56,6 +63,10 @@ def calibrate(rec: Recording, model: str = "paper", *, harmonics: int | None = N
     if pixel_degree is not None:
         spec = spec.with_changes(pixel_degree=pixel_degree)
     data = calibration_data(rec)
+    # Data quality first, whatever the kind: a stuck pixel left in a cubic pixel fit biases the
+    # whole model (core/effects: bad pixels are masked and listed in the model's info).
+    spec = effects.screened(spec, data)
+    data = effects.prepare_data(spec, data)
     period, pitch, row_shift = initial_geometry(data)
     result = fit_spec(spec, data, period, pitch, progress=progress)
     n_rows = data.frames.shape[1]

@@ -6,14 +6,15 @@ frames, flat frames (nothing to see) get a message that says which.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
 from graytrack.core.errors import CalibrationError
 from graytrack.core.models.fourier import FourierModel
-from graytrack.core.noise import estimate_sigma
+from graytrack.core.noise import estimate_pixel_noise, estimate_sigma
+from graytrack.core.pixel_noise import PixelNoise
 from graytrack.core.recording import Recording
 
 MIN_FRAMES = 20
@@ -29,14 +30,17 @@ class CalibrationData:
     sigma_gray: float  # model-free per-pixel noise
     meta: dict[str, Any]
     t_s: np.ndarray | None = None  # (K,) frame times, for velocity-dependent effects
+    pixel_noise: PixelNoise | None = None  # photon-transfer curve of one raw sample (None: σ for all)
 
     def subset(self, index: np.ndarray) -> "CalibrationData":
         t_s = None if self.t_s is None else self.t_s[index]
-        return CalibrationData(self.x_mm[index], self.frames[index], self.weights[index], self.sigma_gray,
-                               self.meta, t_s)
+        return replace(self, x_mm=self.x_mm[index], frames=self.frames[index], weights=self.weights[index], t_s=t_s)
 
     def with_reference(self, x_mm: np.ndarray) -> "CalibrationData":
-        return CalibrationData(x_mm, self.frames, self.weights, self.sigma_gray, self.meta, self.t_s)
+        return replace(self, x_mm=x_mm)
+
+    def with_weights(self, weights: np.ndarray) -> "CalibrationData":
+        return replace(self, weights=weights)
 
     @property
     def stroke_mm(self) -> float:
@@ -67,7 +71,9 @@ def calibration_data(rec: Recording) -> CalibrationData:
     x_mm = rec.reference[valid]
     period = rec.meta.get("period_mm")
     sigma = estimate_sigma(frames, x_mm, period)
-    return CalibrationData(x_mm, frames, weights, sigma, dict(rec.meta), rec.t[valid])
+    noise = estimate_pixel_noise(frames, x_mm, period, rec.meta.get("bit_depth"))
+    return CalibrationData(x_mm, frames, weights, sigma, dict(rec.meta), rec.t[valid],
+                           noise if noise.signal_dependent else None)
 
 
 def usable_samples(frames: np.ndarray, meta: dict[str, Any]) -> np.ndarray:

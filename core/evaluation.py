@@ -76,15 +76,58 @@ class GeneralHarmonics:
         return values.reshape(len(x_mm), -1), slopes.reshape(len(x_mm), -1)
 
 
-def gram_polynomials(fast: FastHarmonics, model: FourierModel) -> tuple[np.ndarray, np.ndarray]:
-    """Coefficients of ‖F(x)‖² and ‖F′(x)‖² as trig polynomials of degree 2M (sampled + FFT)."""
-    n_samples = 4 * model.harmonics + 4
-    x = np.arange(n_samples) * model.period_mm / n_samples
-    values, slopes = fast.evaluate(x)
-    out = []
-    for sampled in ((values**2).sum(axis=1), (slopes**2).sum(axis=1)):
-        spectrum = np.fft.fft(sampled) / n_samples
-        coeffs = 2.0 * spectrum[: 2 * model.harmonics + 1]
-        coeffs[0] = spectrum[0].real
-        out.append(coeffs)
-    return out[0], out[1]
+class TrigTables:
+    """Model-level tables of the fast tracking path: per pixel, F_p, F_p² and F′_p² as trig
+    polynomials in x of degree 2M (coefficients of z^0..z^2M, z = exp(iωx)).
+
+    A weighted moment Σ_p w_p·F_p(x)² is then (w @ table) evaluated at z: per-frame weights cost
+    one matrix product, the same reduction as the frame itself. Derivatives in x multiply the
+    coefficient of z^m by iωm, so F′·F, F′·1 and y·F′ need no table of their own.
+    """
+
+    def __init__(self, fast: FastHarmonics, model: FourierModel):
+        self.fast = fast
+        self.degree = 2 * model.harmonics
+        n_pixels = fast.constant.size
+        width = self.degree + 1
+        self.phase_orders = 1j * (TWO_PI / model.period_mm) * np.arange(width)  # iωm: z^m = exp(iωm·x)
+        line = np.zeros((n_pixels, width), dtype=complex)
+        line[:, 0] = fast.constant
+        line[:, 1:model.harmonics + 1] = fast.v.T
+        self._line, self._harmonics = line, model.harmonics
+        # y·F and y·F′ coefficients, and a column of ones for y·1: one real product per frame,
+        # stored as interleaved (re, im) pairs so that the product views as complex without a copy
+        linear = np.concatenate([line, line * self.phase_orders, np.ones((n_pixels, 1))], axis=1)
+        self.linear = np.ascontiguousarray(linear).view(np.float64)
+        n_samples = 2 * self.degree + 4
+        x = np.arange(n_samples) * model.period_mm / n_samples
+        values, slopes = fast.evaluate(x)  # (N, P)
+        squares = [_trig_coefficients(sampled, self.degree) for sampled in (values**2, slopes**2)]
+        self._gram = np.concatenate([squares[0], squares[1], line], axis=1)  # (P, 3·(D+1))
+
+    def values_at(self, x_mm: float, pixels: np.ndarray | None = None) -> np.ndarray:
+        """F(x) at one position, of every pixel ``(P,)`` or of ``pixels``: M powers of z times the
+        folded weights."""
+        line = self._line if pixels is None else self._line[pixels]
+        return line[:, 0].real + (line[:, 1:self._harmonics + 1] @ np.exp(
+            self.phase_orders[1:self._harmonics + 1] * x_mm)).real
+
+    def weighted_gram(self, weights: np.ndarray) -> np.ndarray:
+        """``(K, 5, D+1)``: coefficients of F·F, F′·F, F′·F′, F·1, F′·1 under weights ``(K, P)``."""
+        width = self.degree + 1
+        folded = (weights @ self._gram).reshape(weights.shape[0], 3, width)
+        out = np.empty((weights.shape[0], 5, width), dtype=complex)
+        out[:, 0] = folded[:, 0]
+        out[:, 1] = 0.5 * folded[:, 0] * self.phase_orders  # F′·F = ½ d(F·F)/dx
+        out[:, 2] = folded[:, 1]
+        out[:, 3] = folded[:, 2]
+        out[:, 4] = folded[:, 2] * self.phase_orders
+        return out
+
+
+def _trig_coefficients(sampled: np.ndarray, degree: int) -> np.ndarray:
+    """``(P, degree+1)`` coefficients c_m with f(x) = Re Σ c_m z^m, from samples ``(N, P)`` over one period."""
+    spectrum = np.fft.fft(sampled, axis=0) / sampled.shape[0]
+    coeffs = 2.0 * spectrum[: degree + 1]
+    coeffs[0] = spectrum[0].real
+    return coeffs.T.copy()

@@ -3,12 +3,16 @@
 A recording is what every other part trades in (the virtual rig writes it, calibration and the
 closed loop read it, the daemon stores it), so the reader is strict: anything malformed is
 refused with a message that names the offending key, and nothing downstream ever sees a
-half-valid array.
+half-valid array. A file is checked against what it declares before anything is read: the zip
+directory's sizes and each array's ``.npy`` header must describe arrays that fit the memory
+budget (:func:`memory_budget_bytes`), so a hostile file (a header claiming 10¹² frames, a small
+zip inflating to gigabytes) is refused in one line instead of exhausting memory.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import os
 import zipfile
 from dataclasses import dataclass, field
@@ -18,8 +22,41 @@ from typing import Any
 import numpy as np
 
 from graytrack.core.errors import GraytrackError
+from graytrack.core.files import open_atomic
 
 FRAME_DTYPES = (np.dtype(np.uint8), np.dtype(np.uint16), np.dtype(np.float32), np.dtype(np.float64))
+ARRAY_KEYS = ("frames", "t", "reference")
+MAX_ABS_REFERENCE_MM = 1e6  # a kilometre: beyond it a "position" is a unit or scaling mistake
+MAX_ABS_GRAY = 1e9  # float frames beyond this are not gray levels (and overflow squared sums)
+MAX_META_BYTES = 1 << 20
+BUDGET_ENV = "GRAYTRACK_MEMORY_BUDGET_MB"
+
+
+def memory_budget_bytes() -> int:
+    """How much a recording may need once loaded: a quarter of this machine's memory
+    (``GRAYTRACK_MEMORY_BUDGET_MB`` overrides), since the tools work on float64 copies."""
+    override = os.environ.get(BUDGET_ENV)
+    if override:
+        try:
+            return max(1, int(float(override) * 2**20))
+        except ValueError:
+            pass
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") // 4
+    except (ValueError, OSError, AttributeError):
+        return 2 * 2**30
+
+
+def working_bytes(shape: tuple[int, ...]) -> int:
+    """Memory the tools need for an array of this shape: its float64 working copy."""
+    return math.prod(int(n) for n in shape) * 8
+
+
+def describe_bytes(n: float) -> str:
+    for unit, size in (("TB", 1e12), ("GB", 1e9), ("MB", 1e6)):
+        if n >= size:
+            return f"{n / size:.1f} {unit}"
+    return f"{n / 1e3:.1f} kB"
 
 
 class RecordingError(GraytrackError):
@@ -89,10 +126,19 @@ def validate(rec: Recording) -> None:
     for key, values in (("t", rec.t), ("reference", rec.reference)):
         if values.shape != (n_frames,):
             raise RecordingError(f"{key}: expected shape ({n_frames},) to match frames, got {values.shape}")
+    if frames.dtype.kind == "f" and np.abs(frames).max() > MAX_ABS_GRAY:
+        raise RecordingError(f"frames: gray values beyond ±{MAX_ABS_GRAY:g} are not gray levels")
     if not np.isfinite(rec.t).all():
         raise RecordingError("t: holds NaN or infinite times")
+    steps = np.diff(rec.t)
+    if (steps <= 0).any():
+        k = int(np.argmax(steps <= 0)) + 1
+        raise RecordingError(f"t: times must increase frame by frame; frame {k} is at {rec.t[k]!r} s, "
+                             f"frame {k - 1} at {rec.t[k - 1]!r} s")
     if np.isinf(rec.reference).any():
         raise RecordingError("reference: holds infinite values (use NaN for 'no reading')")
+    if (np.abs(rec.reference) > MAX_ABS_REFERENCE_MM).any():
+        raise RecordingError(f"reference: positions beyond ±{MAX_ABS_REFERENCE_MM:g} mm are not stage positions")
     if not isinstance(rec.meta, dict):
         raise RecordingError("meta: must be a JSON object")
     for key in ("pixel_pitch_mm", "period_mm"):
@@ -108,9 +154,7 @@ def save(rec: Recording, path: str | os.PathLike[str]) -> Path:
     path = Path(path)
     if path.suffix != ".npz":
         path = path.with_name(path.name + ".npz")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "wb") as fh:
+    with open_atomic(path) as fh:
         np.savez_compressed(
             fh,
             frames=rec.frames,
@@ -118,9 +162,6 @@ def save(rec: Recording, path: str | os.PathLike[str]) -> Path:
             reference=rec.reference,
             meta=np.array(json.dumps(rec.meta, sort_keys=True)),
         )
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
     return path
 
 
@@ -133,16 +174,19 @@ def load(path: str | os.PathLike[str]) -> Recording:
         if fh.read(4) != b"PK\x03\x04":
             raise RecordingError(f"{path}: not an .npz recording (no zip archive header)")
     try:
-        with np.load(path, allow_pickle=False) as archive:
-            missing = [key for key in ("frames", "t", "reference") if key not in archive.files]
+        with zipfile.ZipFile(path) as archive:
+            members = {info.filename.removesuffix(".npy"): info for info in archive.infolist()}
+            missing = [key for key in ARRAY_KEYS if key not in members]
             if missing:
                 raise RecordingError(f"{path}: missing key {missing[0]!r}")
-            arrays = {key: archive[key] for key in ("frames", "t", "reference")}
-            meta_raw = archive["meta"] if "meta" in archive.files else None
-    except RecordingError:
-        raise
-    except (zipfile.BadZipFile, EOFError, OSError, ValueError) as exc:
+            wanted = [*ARRAY_KEYS, "meta"] if "meta" in members else list(ARRAY_KEYS)
+            _check_declared_sizes(archive, {key: members[key] for key in wanted})
+            arrays = {key: _read_member(archive, members[key], key) for key in wanted}
+    except RecordingError as exc:
+        raise RecordingError(f"{path}: {exc}" if not str(exc).startswith(str(path)) else str(exc)) from None
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, OSError, ValueError, NotImplementedError) as exc:
         raise RecordingError(f"{path}: not a readable .npz recording ({exc})") from None
+    meta_raw = arrays.pop("meta", None)
     meta = _parse_meta(meta_raw, path)
     for key in ("t", "reference"):
         if arrays[key].dtype.kind not in "fiu":
@@ -151,6 +195,51 @@ def load(path: str | os.PathLike[str]) -> Recording:
         return Recording(arrays["frames"], arrays["t"], arrays["reference"], meta)
     except RecordingError as exc:
         raise RecordingError(f"{path}: {exc}") from None
+
+
+def _npy_header(archive: zipfile.ZipFile, info: zipfile.ZipInfo, key: str) -> tuple[tuple[int, ...], np.dtype]:
+    """Shape and dtype from a member's ``.npy`` header, read without reading the array."""
+    try:
+        with archive.open(info) as fh:
+            version = np.lib.format.read_magic(fh)
+            readers = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}
+            if version not in readers:
+                raise ValueError(f".npy format version {version} is not one numpy writes for arrays like these")
+            shape, _, dtype = readers[version](fh, max_header_size=10_000)
+    except Exception as exc:  # noqa: BLE001 - numpy's header parser raises anything from SyntaxError to TokenError
+        raise RecordingError(f"{key}: broken .npy header ({type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''})") from None
+    if not isinstance(shape, tuple) or not all(isinstance(n, int) and n >= 0 for n in shape):
+        raise RecordingError(f"{key}: broken .npy header (shape {shape!r})")
+    if dtype.hasobject:
+        raise RecordingError(f"{key}: holds Python objects, which a recording never does")
+    return shape, dtype
+
+
+def _check_declared_sizes(archive: zipfile.ZipFile, members: dict[str, zipfile.ZipInfo]) -> None:
+    """Refuse before reading when the arrays declared would not fit the memory budget."""
+    budget = memory_budget_bytes()
+    total = 0
+    for key, info in members.items():
+        shape, dtype = _npy_header(archive, info, key)
+        stored = math.prod(shape) * dtype.itemsize
+        if key == "meta" and stored > MAX_META_BYTES:
+            raise RecordingError(f"meta: declares {describe_bytes(stored)}, more than a JSON note needs")
+        if info.file_size > stored + 4096:  # the header is small; more bytes than the array is a lie
+            raise RecordingError(f"{key}: the zip entry inflates to {describe_bytes(info.file_size)}, "
+                                 f"more than its declared {shape} {dtype} array")
+        total += working_bytes(shape) if key != "meta" else stored
+        if total > budget:
+            raise RecordingError(
+                f"{key}: declares {shape} {dtype}, needing {describe_bytes(total)} in memory, beyond the budget of "
+                f"{describe_bytes(budget)} ({BUDGET_ENV} sets it; default a quarter of this machine's memory)")
+
+
+def _read_member(archive: zipfile.ZipFile, info: zipfile.ZipInfo, key: str) -> np.ndarray:
+    try:
+        with archive.open(info) as fh:
+            return np.lib.format.read_array(fh, allow_pickle=False, max_header_size=10_000)
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
+        raise RecordingError(f"{key}: cannot be read ({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})") from None
 
 
 def _parse_meta(raw: np.ndarray | None, path: Path) -> dict[str, Any]:

@@ -1,156 +1,336 @@
-"""Per-frame position solvers: Gauss–Newton on a batch of frames, from a given start.
+"""Per-frame position solvers: weighted Gauss–Newton for x, with the light's gain and offset as
+optional nuisance parameters, and a robust reweighting for pixels that went bad in the run.
 
-Two implementations of one small interface (``refine(k, x_start)``, ``grid_cost(k, grid)``): the
-fast path for models whose coefficients do not depend on x, and the general one for everything
-else (stroke-dependent coefficients, per-frame gain/offset, clipping, a target map).
+The frame model is y ≈ g·F(x) + o with weights w = 1/σ² per pixel. Everything one Gauss–Newton
+step needs is a handful of weighted inner products at the trial x (the *moments*):
+
+    F·F, F′·F, F′·F′, F·1, F′·1, y·F, y·F′        (x-dependent)
+    y·y, y·1, 1·1                                 (per frame)
+
+Two sources of moments share one solver: :class:`TrigPolyBatch` (the fast path), where each
+x-dependent moment is a trigonometric polynomial in x whose coefficients are matrix products of
+the frame and its weights with model-level tables, so the per-frame work is a few scalar
+evaluations; and :class:`GeneralBatch`, which evaluates the model at x (stroke-dependent
+coefficients, clipping, a target map). The step, the gain/offset profile, the Schur-complement
+information, the grid cost for acquisition and the robust loop are written once, here.
 """
 
 from __future__ import annotations
 
-import cmath
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 
-from graytrack.core.evaluation import ClippedHarmonics, FastHarmonics, GeneralHarmonics
-from graytrack.core.models.fourier import TWO_PI, FourierModel
+from graytrack.core.evaluation import ClippedHarmonics, FastHarmonics, GeneralHarmonics, TrigTables
+
+CORE_SIGMA, CUT_SIGMA = 3.5, 7.0  # redescending weight: full inside the core, none beyond the cut (robust σ)
+MASK_CACHE_SIZE = 64  # masks of rejected pixels whose moment tables are kept (one bad pixel: one mask)
+ROBUST_ITERATIONS = 6
+MAD_TO_SIGMA = 1.4826
 
 
 @dataclass
 class FrameSolution:
     x_mm: float
-    rms_gray: float
-    information: float  # Σ (∂F/∂x)² after any per-frame nuisance is profiled out
+    rms_gray: float  # √χ² × the model's σ: the residual rms when every pixel has that σ
+    information: float  # Fisher information on x (1/mm²), gain/offset profiled out when solved
     iterations: int
     gain: float = 1.0
     offset: float = 0.0
+    chi2: float = float("nan")  # weighted residual per used pixel (≈ 1 when the model is right)
+    rejected: int = 0  # pixels the robust reweighting set to zero weight
+    free_light: bool = False  # gain and offset were solved with x
+    light_excess: float = 0.0  # χ² added by forcing the calibrated light (gain 1, offset 0) at this x
+    rejected_mask: np.ndarray | None = None  # which pixels were rejected (for the next frame's start)
+    rejected_weights_exact: bool = True  # the solve used 0/1 weights: a repeat with the same set adds nothing
 
 
-class GeneralBatch:
-    """Gauss–Newton on frames with any model: per iteration one model evaluation at one x.
+class MomentSource(Protocol):
+    """What the solver needs from a batch of reduced frames."""
 
-    Handles what the fast path cannot: coefficients that drift along the stroke, a per-frame
-    gain/offset solved together with x, and saturated pixels.
+    n_frames: int
+
+    def moments(self, k: int, x_mm: float) -> list[float]: ...
+    def grid_moments(self, k: int, grid: np.ndarray) -> np.ndarray: ...
+    def scalars(self, k: int) -> list[float]: ...
+    def residuals(self, k: int, x_mm: float, gain: float, offset: float,
+                  pixels: np.ndarray | None = None) -> np.ndarray: ...
+    def weights(self, k: int) -> np.ndarray: ...
+    def reweighted(self, k: int, weights: np.ndarray) -> "MomentSource": ...
+    def masked(self, k: int, keep: np.ndarray) -> "MomentSource": ...
+
+
+# --------------------------------------------------------------------------- the shared solver
+@dataclass(frozen=True)
+class SolverSettings:
+    max_iterations: int
+    tolerance_mm: float
+    max_step_mm: float
+    sigma_gray: float  # the model's σ, to report χ² as an equivalent rms in gray
+
+
+def _light(m: list[float], s: list[float]) -> tuple[float, float, float]:
+    """Least-squares gain and offset at fixed x from the moments, and the 2×2 determinant."""
+    ff, f1, yf = m[0], m[3], m[5]
+    _, y1, s11 = s[0], s[1], s[2]
+    det = ff * s11 - f1 * f1
+    if det <= 0.0:
+        return 1.0, 0.0, 0.0
+    return (yf * s11 - f1 * y1) / det, (ff * y1 - f1 * yf) / det, det
+
+
+def _step(m: list[float], s: list[float], free: bool) -> tuple[float, float, float, float, float]:
+    """(numerator, information, gain, offset, cost) of the Gauss–Newton step in x at these moments.
+
+    With free light the gain and offset are profiled out (their LS values at this x) and the
+    information is the Schur complement: what is left for x once g and o are estimated too.
     """
+    ff, fdf, dfdf, f1, df1, yf, ydf = m
+    yy, y1, s11 = s[0], s[1], s[2]
+    gain, offset, det = _light(m, s) if free else (1.0, 0.0, 0.0)
+    numerator = gain * (ydf - gain * fdf - offset * df1)
+    information = gain * gain * dfdf
+    if det > 0.0:
+        a, b = gain * fdf, gain * df1
+        information -= (a * a * s11 - 2.0 * a * b * f1 + b * b * ff) / det
+    cost = yy - 2.0 * gain * yf - 2.0 * offset * y1 + gain * gain * ff + 2.0 * gain * offset * f1 + offset * offset * s11
+    return numerator, information, gain, offset, cost
 
-    def __init__(self, model: FourierModel, prepared: np.ndarray, max_iterations: int, tolerance_mm: float,
-                 evaluator: "FastHarmonics | GeneralHarmonics | ClippedHarmonics"):
-        self.model = model
-        self.frames = prepared.reshape(prepared.shape[0], -1)
-        self.evaluator = evaluator
-        self.max_iterations, self.tolerance_mm = max_iterations, tolerance_mm
-        self.max_step_mm = model.period_mm / 4.0
 
-    def refine(self, k: int, x_start: float) -> FrameSolution:
-        y = self.frames[k]
-        x, gain, offset = float(x_start), 1.0, 0.0
-        common_mode = self.model.common_mode
-        iterations = 0
-        for iterations in range(1, self.max_iterations + 1):
-            values, slopes = self.evaluator.evaluate(np.array([x]))
-            values, slopes = values[0], slopes[0]
-            residual = y - (gain * values + offset)
-            if common_mode:
-                jac = np.stack([gain * slopes, values, np.ones_like(values)], axis=1)
-                delta = np.linalg.solve(jac.T @ jac, jac.T @ residual)
-                dx = float(delta[0])
-                gain, offset = gain + float(delta[1]), offset + float(delta[2])
-            else:
-                dx = float(slopes @ residual) / float(slopes @ slopes)
-            dx = min(max(dx, -self.max_step_mm), self.max_step_mm)
-            x += dx
-            if abs(dx) < self.tolerance_mm:
-                break
-        values, slopes = self.evaluator.evaluate(np.array([x]))
-        residual = y - (gain * values[0] + offset)
-        rms = float(np.sqrt(residual @ residual / y.size))
-        return FrameSolution(x, rms, self._information(values[0], slopes[0], gain), iterations, gain, offset)
+def gauss_newton(source: MomentSource, k: int, x_start: float, free: bool, settings: SolverSettings) -> FrameSolution:
+    """Weighted Gauss–Newton on frame ``k`` from ``x_start``; gain/offset profiled when ``free``."""
+    scalars = source.scalars(k)
+    x, iterations = float(x_start), 0
+    max_step, tolerance = settings.max_step_mm, settings.tolerance_mm
+    numerator, information, gain, offset, cost = 0.0, 0.0, 1.0, 0.0, float("inf")
+    m: list[float] = []
+    for iterations in range(1, settings.max_iterations + 1):
+        m = source.moments(k, x)
+        numerator, information, gain, offset, cost = _step(m, scalars, free)
+        dx = numerator / information if information > 0.0 else 0.0
+        dx = min(max(dx, -max_step), max_step)
+        x += dx
+        if abs(dx) < tolerance:
+            break
+    # χ², information and light at the last evaluated point: the final step is below tolerance.
+    n_used = max(scalars[3] - (2 if free else 0) - 1, 1.0)
+    chi2 = max(cost, 0.0) / n_used
+    excess = scalars[0] - 2.0 * m[5] + m[0] - cost if free else 0.0
+    return FrameSolution(x, settings.sigma_gray * math.sqrt(chi2), information, iterations, gain, offset, chi2,
+                         0, free, excess)
 
-    def _information(self, values: np.ndarray, slopes: np.ndarray, gain: float) -> float:
-        d_x = gain * slopes
-        info = float(d_x @ d_x)
-        if self.model.common_mode:
-            nuisance = np.stack([values, np.ones_like(values)], axis=1)
-            cross = nuisance.T @ d_x
-            info -= float(cross @ np.linalg.solve(nuisance.T @ nuisance, cross))
-        return info
 
-    def grid_cost(self, k: int, grid: np.ndarray) -> np.ndarray:
-        values, _ = self.evaluator.evaluate(grid)
-        y = self.frames[k]
-        if not self.model.common_mode:
-            return ((y[None] - values) ** 2).sum(axis=1)
-        centred_v = values - values.mean(axis=1, keepdims=True)
-        centred_y = y - y.mean()
-        scale = (centred_v @ centred_y) / np.maximum((centred_v**2).sum(axis=1), 1e-300)
-        return ((centred_y[None] - scale[:, None] * centred_v) ** 2).sum(axis=1) + 1e12 * (scale <= 0)
+def grid_cost(source: MomentSource, k: int, grid: np.ndarray, free: bool) -> np.ndarray:
+    """Weighted residual cost at each grid position; with ``free`` light it is the cost after the
+    best gain and offset at that position (invariant to the light), and a non-positive gain is
+    refused (it would fit the target's negative)."""
+    m = source.grid_moments(k, grid)  # (G, 7)
+    yy, y1, s11 = source.scalars(k)[:3]
+    ff, f1, yf = m[:, 0], m[:, 3], m[:, 5]
+    if not free:
+        return yy - 2.0 * yf + ff
+    det = np.maximum(ff * s11 - f1 * f1, 1e-300)
+    gain = (yf * s11 - f1 * y1) / det
+    explained = (yf * yf * s11 - 2.0 * yf * y1 * f1 + y1 * y1 * ff) / det
+    return yy - explained + np.where(gain > 0.0, 0.0, np.inf)
+
+
+def redescending(u: np.ndarray) -> np.ndarray:
+    """Weight of a pixel whose residual is ``u`` robust σ: 1 inside ``CORE_SIGMA``, Tukey's
+    biweight taper to 0 at ``CUT_SIGMA`` and beyond. Honest pixels keep their full weight (no
+    efficiency lost to the noise), gross outliers (dust, glints, stuck pixels) get none."""
+    t = np.clip((np.abs(u) - CORE_SIGMA) / (CUT_SIGMA - CORE_SIGMA), 0.0, 1.0)
+    return (1.0 - t * t) ** 2
+
+
+def robust_solve(source: MomentSource, k: int, start: FrameSolution, free: bool, settings: SolverSettings,
+                 rejected: np.ndarray | None = None, chi2_limit: float = -1.0) -> FrameSolution:
+    """Iteratively reweighted least squares with a redescending weight on the normalised residuals.
+
+    Starts from ``start`` (a position and light close to the truth, e.g. the motion prediction)
+    and, when given, the pixels the previous frame rejected (when the others then fit, χ² within
+    ``chi2_limit``, and those are still beyond the cut, that is the answer: a bad pixel that stays
+    bad costs one solve per frame); scales the residuals by their median
+    absolute value (never below the noise model), weighs them by :func:`redescending` and solves
+    again, until the set of rejected pixels settles. The bound comes with the weights used: that
+    of the pixels kept. When no pixel sits in the taper (the usual case) the weights are a mask.
+    """
+    base = source.weights(k)
+    root = np.sqrt(base)
+    used = base > 0.0
+    masked_pixels = not used.all()
+    x, gain, offset = start.x_mm, start.gain, start.offset
+    solution, rejected_before = start, None
+    if rejected is not None:
+        solution = _solve_weighted(source, k, x, free, settings, rejected)
+        x, gain, offset, rejected_before = solution.x_mm, solution.gain, solution.offset, rejected
+        if solution.chi2 <= chi2_limit:  # the kept pixels fit: are the ones set aside still outliers?
+            pixels = np.flatnonzero(rejected)
+            set_aside = np.abs(source.residuals(k, x, gain, offset, pixels) * root[pixels])
+            if (set_aside >= CUT_SIGMA).all():
+                return solution
+    for _ in range(ROBUST_ITERATIONS):
+        size = np.abs(source.residuals(k, x, gain, offset) * root)
+        size *= 1.0 / max(1.0, MAD_TO_SIGMA * _middle(size[used] if masked_pixels else size))
+        rejected = size >= CUT_SIGMA
+        if masked_pixels:
+            rejected &= used
+        beyond_core = size > CORE_SIGMA
+        tapered = bool(beyond_core.any()) and bool((beyond_core & ~rejected).any())
+        if not tapered and rejected_before is not None and solution.rejected_weights_exact \
+                and not (rejected ^ rejected_before).any():
+            break  # the last solve already used these weights
+        solution = _solve_weighted(source, k, x, free, settings, rejected, redescending(size) if tapered else None)
+        x, gain, offset, rejected_before = solution.x_mm, solution.gain, solution.offset, rejected
+    return solution
+
+
+def _solve_weighted(source: MomentSource, k: int, x_start: float, free: bool, settings: SolverSettings,
+                    rejected: np.ndarray, factor: np.ndarray | None = None) -> FrameSolution:
+    """Gauss–Newton with the base weights times ``factor``, or without the ``rejected`` pixels when
+    there is no factor (a mask: its share of the moments can be kept from frame to frame)."""
+    source_k = source.masked(k, ~rejected) if factor is None else source.reweighted(k, source.weights(k) * factor)
+    solution = gauss_newton(source_k, 0, x_start, free, settings)
+    solution.rejected, solution.rejected_mask, solution.rejected_weights_exact = int(rejected.sum()), rejected, \
+        factor is None
+    return solution
+
+
+def _middle(values: np.ndarray) -> float:
+    """The (upper) median by one partial sort: a scale estimate needs no more, and np.median's
+    generality costs more than the rest of a robust iteration."""
+    if not values.size:
+        return 0.0
+    half = values.size // 2
+    return float(np.partition(values, half)[half])
+
+
+# --------------------------------------------------------------------------- moment sources
+@dataclass(frozen=True)
+class StaticWeights:
+    """Weights every frame shares (constant noise, masked pixels): their part of the moments, once."""
+
+    weights: np.ndarray  # (1, P)
+    gram: np.ndarray  # (1, 5, 2M+1): F·F, F′·F, F′·F′, F·1, F′·1 under these weights
+    total: float
+    count: int
+    masked: dict[bytes, "StaticWeights"] = field(default_factory=dict)  # the same with pixels set aside
+
+    @classmethod
+    def of(cls, tables: TrigTables, weights: np.ndarray) -> "StaticWeights":
+        return cls(weights, tables.weighted_gram(weights), float(weights.sum()), int((weights > 0).sum()))
+
+    def without(self, tables: TrigTables, keep: np.ndarray) -> "StaticWeights":
+        """These weights with the pixels outside ``keep`` at zero, built once per mask."""
+        key = np.packbits(keep).tobytes()
+        found = self.masked.get(key)
+        if found is None:
+            if len(self.masked) >= MASK_CACHE_SIZE:
+                self.masked.clear()
+            found = self.masked[key] = StaticWeights.of(tables, self.weights * keep)
+        return found
 
 
 class TrigPolyBatch:
-    """The fast path: each frame reduced to M complex numbers, then a scalar solve per frame.
+    """The fast path: per frame a (7, 2M+1) matrix of trig-polynomial coefficients, then scalars.
 
-    For a model whose coefficients do not depend on x, every quantity Gauss–Newton needs is a
-    trigonometric polynomial in x: y·F(x) = y·c + Re Σ_h β_h z^h with β = V·y (one matrix product
-    for all frames), and ‖F‖², ‖F′‖² have frame-independent coefficients (found once by FFT).
-    The per-frame loop then does a few dozen scalar operations instead of array work.
+    For a model whose coefficients do not depend on x, each pixel's F_p, F_p², F′_p² are trig
+    polynomials with model-level coefficients (:class:`TrigTables`). A weighted moment is then
+    Σ_p w_p·(coefficients of pixel p): the weights of every frame fold in by one matrix product,
+    exact whether the weights are fixed (noise model, masked pixels) or change per frame
+    (signal-dependent variance, robust reweighting). Per iteration: z^0..z^2M and one 7×(2M+1)
+    product.
     """
 
-    def __init__(self, model: FourierModel, prepared: np.ndarray, max_iterations: int, tolerance_mm: float,
-                 fast: FastHarmonics, gram: tuple[np.ndarray, np.ndarray]):
-        frames = prepared.reshape(prepared.shape[0], -1)
-        self.n_values = frames.shape[1]
-        self.omega = TWO_PI / model.period_mm
-        self.max_iterations, self.tolerance_mm = max_iterations, tolerance_mm
-        self.max_step_mm = model.period_mm / 4.0
-        self.harmonics = model.harmonics
-        self.beta = frames @ fast.v.T  # (K, M)
-        self.y_dot_c = frames @ fast.constant
-        self.y_norm = np.einsum("kp,kp->k", frames, frames)
-        self.q, self.d = gram
-        degree = 2 * self.harmonics
-        orders = np.arange(1, degree + 1)
-        padded_beta = np.zeros((frames.shape[0], degree), dtype=complex)
-        padded_beta[:, : self.harmonics] = self.beta
-        # Per frame, as coefficients of z^1..z^2M:
-        #   F′·(y − F) = Re Σ step_m z^m        (the Gauss–Newton numerator)
-        #   ‖y − F‖² = cost_0 + Re Σ cost_m z^m
-        step = padded_beta * (1j * self.omega * orders) - 0.5 * self.q[1:] * (1j * self.omega * orders)
-        self._step_rows = step.tolist()
-        self._cost_rows = (self.q[1:] - 2.0 * padded_beta).tolist()
-        self._cost_const = (self.y_norm - 2.0 * self.y_dot_c + self.q[0].real).tolist()
-        self._info_coeffs = self.d[1:].tolist()
-        self._info_const = float(self.d[0].real)
+    def __init__(self, tables: TrigTables, frames: np.ndarray, weights: np.ndarray,
+                 static: StaticWeights | None = None):
+        frames = frames.reshape(frames.shape[0], -1)
+        self.tables, self.frames, self.n_frames = tables, frames, frames.shape[0]
+        self._weights = weights  # (K, P) or (1, P) when every frame shares them
+        self._static = static
+        width = tables.degree + 1
+        weighted = weights * frames
+        linear = (weighted @ tables.linear).view(complex)  # y·F, y·F′ coefficients, and y·1
+        gram = static.gram if static is not None else tables.weighted_gram(weights)
+        if gram.shape[0] != self.n_frames:
+            gram = np.broadcast_to(gram, (self.n_frames,) + gram.shape[1:])
+        self.rows = np.concatenate((gram, linear[:, : 2 * width].reshape(-1, 2, width)), axis=1)  # (K, 7, D+1)
+        y_norm = (weighted * frames).sum(axis=1).tolist()
+        y_sum = linear[:, -1].real.tolist()
+        if static is not None:
+            self._scalars = [[a, b, static.total, static.count] for a, b in zip(y_norm, y_sum)]
+        else:
+            self._scalars = [list(item) for item in zip(y_norm, y_sum, weights.sum(axis=1).tolist(),
+                                                         (weights > 0).sum(axis=1).tolist())]
 
-    def refine(self, k: int, x_start: float) -> FrameSolution:
-        step_coeffs, info_coeffs = self._step_rows[k], self._info_coeffs
-        omega, degree, max_step = self.omega, 2 * self.harmonics, self.max_step_mm
-        x = float(x_start)
-        iterations = 0
-        powers: list[complex] = []
-        information = 1.0
-        for iterations in range(1, self.max_iterations + 1):
-            powers = _powers(cmath.exp(1j * omega * x), degree)
-            numerator = sum([(c * p).real for c, p in zip(step_coeffs, powers)])
-            information = self._info_const + sum([(c * p).real for c, p in zip(info_coeffs, powers)])
-            dx = min(max(numerator / information, -max_step), max_step)
-            x += dx
-            if abs(dx) < self.tolerance_mm:
-                break
-        # Residual and information at the last evaluated point: the final step is below tolerance.
-        cost = self._cost_const[k] + sum([(c * p).real for c, p in zip(self._cost_rows[k], powers)])
-        return FrameSolution(x, math.sqrt(max(cost, 0.0) / self.n_values), information, iterations)
+    def scalars(self, k: int) -> list[float]:
+        return self._scalars[k]
 
-    def grid_cost(self, k: int, grid: np.ndarray) -> np.ndarray:
-        z = np.exp(1j * self.omega * np.outer(grid, np.arange(2 * self.harmonics + 1)))  # (G, 2M+1)
-        model_norm = (z @ self.q).real
-        cross = self.y_dot_c[k] + (z[:, 1:self.harmonics + 1] @ self.beta[k]).real
-        return self.y_norm[k] - 2.0 * cross + model_norm
+    def moments(self, k: int, x_mm: float) -> list[float]:
+        return self.rows[k].dot(np.exp(self.tables.phase_orders * x_mm)).real.tolist()
+
+    def grid_moments(self, k: int, grid: np.ndarray) -> np.ndarray:
+        return (np.exp(np.outer(grid, self.tables.phase_orders)) @ self.rows[k].T).real
+
+    def weights(self, k: int) -> np.ndarray:
+        return self._weights[k if self._weights.shape[0] > 1 else 0]
+
+    def residuals(self, k: int, x_mm: float, gain: float, offset: float,
+                  pixels: np.ndarray | None = None) -> np.ndarray:
+        """y − (g·F(x) + o), of every pixel or of ``pixels``."""
+        y = self.frames[k] if pixels is None else self.frames[k, pixels]
+        return y - gain * self.tables.values_at(x_mm, pixels) - offset
+
+    def reweighted(self, k: int, weights: np.ndarray) -> "TrigPolyBatch":
+        return TrigPolyBatch(self.tables, self.frames[k:k + 1], weights[None])
+
+    def masked(self, k: int, keep: np.ndarray) -> "TrigPolyBatch":
+        if self._static is None:
+            return self.reweighted(k, self.weights(k) * keep)
+        static = self._static.without(self.tables, keep)
+        return TrigPolyBatch(self.tables, self.frames[k:k + 1], static.weights, static)
 
 
-def _powers(z: complex, count: int) -> list[complex]:
-    """[z, z², …, z^count]."""
-    out = [z]
-    for _ in range(count - 1):
-        out.append(out[-1] * z)
-    return out
+class GeneralBatch:
+    """Moments by evaluating the model at x: any model (stroke drift, clipping, a target map)."""
+
+    def __init__(self, evaluator: "FastHarmonics | GeneralHarmonics | ClippedHarmonics", frames: np.ndarray,
+                 weights: np.ndarray):
+        self.frames = frames.reshape(frames.shape[0], -1)
+        self.n_frames = self.frames.shape[0]
+        self.evaluator = evaluator
+        self._weights = weights
+        weighted = weights * self.frames
+        self._scalars = np.stack(np.broadcast_arrays(
+            np.einsum("kp,kp->k", weighted, self.frames), weighted.sum(axis=1), weights.sum(axis=1),
+            (weights > 0).sum(axis=1)), axis=1).tolist()
+
+    def scalars(self, k: int) -> list[float]:
+        return self._scalars[k]
+
+    def weights(self, k: int) -> np.ndarray:
+        return self._weights[k if self._weights.shape[0] > 1 else 0]
+
+    def grid_moments(self, k: int, grid: np.ndarray) -> np.ndarray:
+        values, slopes = self.evaluator.evaluate(np.asarray(grid, dtype=np.float64))
+        w, y = self.weights(k), self.frames[k]
+        wv, ws = values * w, slopes * w
+        return np.stack([(wv * values).sum(1), (ws * values).sum(1), (ws * slopes).sum(1), wv.sum(1), ws.sum(1),
+                         wv @ y, ws @ y], axis=1)
+
+    def moments(self, k: int, x_mm: float) -> list[float]:
+        return self.grid_moments(k, np.array([x_mm]))[0].tolist()
+
+    def residuals(self, k: int, x_mm: float, gain: float, offset: float,
+                  pixels: np.ndarray | None = None) -> np.ndarray:
+        values, _ = self.evaluator.evaluate(np.array([x_mm]))
+        residual = self.frames[k] - gain * values[0] - offset
+        return residual if pixels is None else residual[pixels]
+
+    def reweighted(self, k: int, weights: np.ndarray) -> "GeneralBatch":
+        return GeneralBatch(self.evaluator, self.frames[k:k + 1], weights[None])
+
+    def masked(self, k: int, keep: np.ndarray) -> "GeneralBatch":
+        return self.reweighted(k, self.weights(k) * keep)

@@ -1,10 +1,11 @@
 """Model structures: which effects a model has (:class:`ModelSpec`), and fitting one to data.
 
 The smooth part (Fourier × polynomials) goes through the variable projection of geometry.py. The
-bilinear parts (flat field, per-frame common mode, target map) are fitted by alternation around
-it, which converges in a few rounds because they live on different axes (pixels vs frames vs
-the target coordinate vs smooth functions). To keep the split unique, the flat field holds only
-what the pixel polynomials cannot, and the target map only what is not periodic.
+bilinear effects (flat field, per-frame common mode, target map: core/effects/) are fitted by
+alternation around it, each re-fitting its own layer in turn; that converges in a few rounds
+because they live on different axes (pixels vs frames vs the target coordinate vs smooth
+functions). Each effect keeps its split unique itself (the flat field holds only what the pixel
+polynomials cannot, the target map only what is not periodic).
 """
 
 from __future__ import annotations
@@ -13,15 +14,13 @@ from dataclasses import dataclass, replace
 from typing import Any, Callable
 
 import numpy as np
-from scipy.linalg import solveh_banded
 from scipy.optimize import minimize_scalar
 
-from graytrack.core.basis import trig_basis
+from graytrack.core import effects
 from graytrack.core.calibration_data import Calibration, CalibrationData
 from graytrack.core.geometry import fit_geometry
 from graytrack.core.linear_fit import fit_coefficients
-from graytrack.core.models.fourier import TWO_PI, FourierModel
-from graytrack.core.regression import weighted_affine
+from graytrack.core.models.fourier import FourierModel
 
 Progress = Callable[[float, str], None]
 ALTERNATION_ROUNDS = 4
@@ -30,74 +29,49 @@ PITCH_PIXEL_DEGREE = 1  # pixel polynomial degree of the model that fixes α·d
 
 @dataclass(frozen=True)
 class ModelSpec:
-    """The structure of a model: what the closed loop edits, one effect at a time."""
+    """The structure of a model: what the closed loop edits, one effect at a time.
+
+    The sizes of the smooth model are fields; every other effect keeps its setting (a flag, the
+    clip limits, a grid size, a list of pixels…) under its own name in ``settings``, so a new
+    effect needs no new field here (core/effects/).
+    """
 
     harmonics: int = 5
     pixel_degree: int = 3
     stroke_degree: int = 0
     per_row: bool = False
     row_degree: int = 2  # row polynomials of a per-row model (capped at rows − 1)
-    flat_field: bool = False
-    common_mode: bool = False
-    clip_gray: tuple[float, float] | None = None
-    target_map: int = 0  # grid steps per pixel footprint of a target map (0: none)
-    reference_skew_s: float = 0.0  # grating latched this long after mid-exposure (a data correction)
     name: str = "paper"
+    settings: tuple[tuple[str, Any], ...] = ()
 
     def with_changes(self, **changes) -> "ModelSpec":
         return replace(self, **changes)
 
+    def get(self, effect: str, default: Any = None) -> Any:
+        """The setting of ``effect`` (``default`` when the spec does not have it)."""
+        return dict(self.settings).get(effect, default)
+
+    def set(self, effect: str, setting: Any) -> "ModelSpec":
+        """A copy with ``effect`` set (``None`` removes it)."""
+        settings = {**dict(self.settings), effect: setting}
+        return replace(self, settings=tuple((k, v) for k, v in settings.items() if v is not None))
+
+    def smooth_only(self, **changes) -> "ModelSpec":
+        """The spec without its bilinear effects: the model that fixes the geometry."""
+        kept = tuple((k, v) for k, v in self.settings if not effects.registry()[k].bilinear)
+        return replace(self, settings=kept, **changes)
+
     def template(self, period_mm: float, pitch_mm: float, n_pixels: int, n_rows: int,
                  row_shift_mm: float = 0.0) -> FourierModel:
         rows = n_rows if self.per_row else 1
+        fields: dict[str, Any] = {}
+        for effect, setting in effects.active(self):
+            fields.update(effect.model_fields(setting))
         return FourierModel(
             period_mm, pitch_mm, n_pixels, harmonics=self.harmonics, pixel_degree=self.pixel_degree,
             stroke_degree=self.stroke_degree, n_rows=rows, row_degree=min(self.row_degree, rows - 1),
-            row_shift_mm=row_shift_mm if self.per_row else 0.0, common_mode=self.common_mode,
-            clip_gray=self.clip_gray, name=self.name,
+            row_shift_mm=row_shift_mm if self.per_row else 0.0, name=self.name, **fields,
         )
-
-
-def _rough_part(values: np.ndarray, basis: np.ndarray) -> np.ndarray:
-    """``values`` ``(R, n)`` minus their least-squares fit by the pixel polynomials ``(n, P+1)``."""
-    coef, *_ = np.linalg.lstsq(basis, values.T, rcond=None)
-    return values - (basis @ coef).T
-
-
-DEFAULT_MAP_STEPS = 2  # half a pixel footprint: finer grids are noisier, coarser ones blur dust
-MAX_MAP_STEPS = 4  # a quarter of a pixel footprint, for defects narrower than a pixel (scratches)
-TARGET_MAP_RIDGE = 1e-3
-
-
-def fit_target_map(model: FourierModel, x_mm: np.ndarray, lit: np.ndarray, smooth: np.ndarray,
-                   weights: np.ndarray, steps_per_pixel: int = DEFAULT_MAP_STEPS) -> dict[str, Any]:
-    """Relative reflectance m(x_w) on a grid along the target, from lit ≈ S·(1 + m(x_w)).
-
-    Piecewise-linear (hat) basis: the normal matrix is tridiagonal, accumulated with bincount and
-    solved banded. What the Fourier × polynomial part can already say (anything periodic or smooth
-    along the target) is projected out, so the map holds only local defects.
-    """
-    step = model.pixel_pitch_mm / steps_per_pixel
-    x_w = model.target_coordinate(x_mm)
-    origin = float(x_w.min()) - step
-    size = int(np.ceil((float(x_w.max()) + step - origin) / step)) + 1
-    position = (x_w - origin) / step
-    cell = np.floor(position).astype(np.int64).reshape(-1)
-    frac = (position.reshape(-1) - cell)
-    signal, w = smooth.reshape(-1), np.broadcast_to(weights, smooth.shape).reshape(-1)
-    target = (lit - smooth).reshape(-1)
-    left, right = signal * (1.0 - frac), signal * frac
-    diag = np.bincount(cell, w * left * left, size) + np.bincount(cell + 1, w * right * right, size)
-    off = np.bincount(cell, w * left * right, size)[:-1]
-    rhs = np.bincount(cell, w * left * target, size) + np.bincount(cell + 1, w * right * target, size)
-    ridge = TARGET_MAP_RIDGE * max(float(diag.mean()), 1e-300)
-    banded = np.zeros((2, size))
-    banded[0, 1:], banded[1] = off, diag + ridge
-    values = solveh_banded(banded, rhs)
-    grid = origin + step * np.arange(size)
-    periodic = trig_basis(TWO_PI * grid / model.period_mm, model.harmonics)
-    coef, *_ = np.linalg.lstsq(periodic, values, rcond=None)
-    return {"target_map": values - periodic @ coef, "target_map_origin_mm": origin, "target_map_step_mm": step}
 
 
 def fit_spec(spec: ModelSpec, data: CalibrationData, period_mm: float, pitch_mm: float, row_shift_mm: float = 0.0,
@@ -116,8 +90,7 @@ def fit_spec(spec: ModelSpec, data: CalibrationData, period_mm: float, pitch_mm:
     """
     geometry_names = ("period_mm", "pixel_pitch_mm")
     if refine_geometry and spec.pixel_degree > PITCH_PIXEL_DEGREE:
-        coarse = spec.with_changes(pixel_degree=PITCH_PIXEL_DEGREE, flat_field=False, common_mode=False,
-                                   target_map=0)
+        coarse = spec.smooth_only(pixel_degree=PITCH_PIXEL_DEGREE)
         pitch_mm = fit_spec_pitch_search(coarse, data, period_mm, pitch_mm, row_shift_mm,
                                          grid_step=0.02).model.pixel_pitch_mm
         geometry_names = ("period_mm",)
@@ -125,62 +98,68 @@ def fit_spec(spec: ModelSpec, data: CalibrationData, period_mm: float, pitch_mm:
     template = template.with_changes(stroke_range_mm=(float(data.x_mm.min()), float(data.x_mm.max())))
     raw = template.prepare(data.frames)
     weights = template.prepare(data.weights) if template.n_rows > 1 else data.weights.min(axis=1, keepdims=True)
-    if spec.clip_gray is not None:
-        lo, hi = spec.clip_gray
-        weights = weights * ((raw > lo) & (raw < hi))
     row_names: tuple[str, ...] = ()
     if template.n_rows > 1 and template.row_degree > 0:
         # Row polynomials can absorb a row shift as they absorb a pitch error: the shift (the
         # camera's tilt) is found with rows that differ by nothing else, then held.
-        flat_rows = spec.with_changes(row_degree=0, flat_field=False, common_mode=False, target_map=0)
+        flat_rows = spec.smooth_only(row_degree=0)
         row_shift_mm = fit_spec(flat_rows, data, period_mm, pitch_mm, row_shift_mm,
                                 refine_geometry=False).model.row_shift_mm
         template = template.with_changes(row_shift_mm=row_shift_mm)
     elif template.n_rows > 1:
         row_names = ("row_shift_mm",)
     names = (geometry_names if refine_geometry else ()) + row_names
-    bilinear = spec.flat_field or spec.common_mode or spec.target_map
-    frame_gain, frame_offset = np.ones(raw.shape[0]), np.zeros(raw.shape[0])
-    pixel_gain, pixel_offset = np.ones(raw.shape[1:]), np.zeros(raw.shape[1:])
-    map_factor: np.ndarray | float = 1.0
-    target_map = None
-    model, iterations, history = template, 0, []
-    for round_index in range((rounds or ALTERNATION_ROUNDS) if bilinear else 1):
-        per_frame = (raw - frame_offset[:, None, None]) / frame_gain[:, None, None]
-        lit = (per_frame - pixel_offset) / pixel_gain  # the light on the target, seen through the smooth model
-        if round_index == 0 and names:
-            model, iterations, history = fit_geometry(model, data.x_mm, lit / map_factor, weights, names,
-                                                      progress=progress)
-        else:
-            model, _ = fit_coefficients(model, data.x_mm, lit / map_factor, weights)
-        smooth = model.predict(data.x_mm, with_response=False)
-        if spec.target_map:
-            target_map = fit_target_map(model, data.x_mm, lit, smooth, weights, spec.target_map)
-            map_factor = model.with_changes(coeffs=model.coeffs, **target_map).target_factor(data.x_mm)[0]
-        shaded = smooth * map_factor
-        if spec.flat_field:
-            gain, offset = weighted_affine(per_frame, shaded, weights, axis=(0,))
-            basis = model.pixel_basis()
-            pixel_gain = 1.0 + _rough_part(gain - 1.0, basis)
-            pixel_offset = _rough_part(offset, basis)
-        if spec.common_mode:
-            frame_gain, frame_offset = weighted_affine(raw, pixel_gain * shaded + pixel_offset, weights, axis=(1, 2))
-            frame_offset = frame_offset - frame_offset.mean()
-            frame_gain = frame_gain / frame_gain.mean()
-        if progress and bilinear:
-            progress(0.5 + 0.5 * (round_index + 1) / ALTERNATION_ROUNDS, f"alternation round {round_index + 1}")
-    if spec.flat_field:
-        model = model.with_changes(pixel_gain=pixel_gain, pixel_offset=pixel_offset, coeffs=model.coeffs)
-    if target_map is not None:
-        model = model.with_changes(coeffs=model.coeffs, **target_map)
-    fitted = frame_gain[:, None, None] * model.predict(data.x_mm) + frame_offset[:, None, None]
-    usable = data.weights.copy()
-    if spec.clip_gray is not None:
-        usable *= (data.frames > spec.clip_gray[0]) & (data.frames < spec.clip_gray[1])
-    rmse = float(np.sqrt((((data.frames - fitted) ** 2) * usable).sum() / max(usable.sum(), 1.0)))
-    model = model.with_changes(noise_gray=data.sigma_gray, coeffs=model.coeffs,
+    steps = [(effect, setting) for effect, setting in effects.active(spec) if effect.bilinear]
+    state = effects.Alternation(data.x_mm, raw, weights, template, np.ones(raw.shape[0]), np.zeros(raw.shape[0]),
+                                np.ones(raw.shape[1:]), np.zeros(raw.shape[1:]), found={})
+    n_rounds = (rounds or ALTERNATION_ROUNDS) if steps else 1
+    iterations, history = _alternate(state, steps, n_rounds, names, progress)
+    model = _finished(spec, state)
+    noise = data.pixel_noise
+    if noise is not None and noise.signal_dependent:
+        # Photon-transfer weights 1/σ²(y) at the fitted values (not the noisy samples, which would
+        # bias the fit towards dark ones), normalised to mean 1, then the linear parts once more.
+        fitted = state.frame_gain[:, None, None] * model.predict(data.x_mm) + state.frame_offset[:, None, None]
+        inverse = weights / noise.variance(fitted)
+        state.weights = inverse / max(float(inverse[weights > 0].mean()), 1e-300)
+        _alternate(state, steps, n_rounds, (), None)
+        model = _finished(spec, state)
+    fitted = state.frame_gain[:, None, None] * model.predict(data.x_mm) + state.frame_offset[:, None, None]
+    usable = (data.weights > 0) * model.seen()
+    residual2 = ((data.frames - fitted) ** 2) * usable
+    rmse = float(np.sqrt(residual2.sum() / max(usable.sum(), 1.0)))
+    model = model.with_changes(noise_gray=data.sigma_gray, coeffs=model.coeffs, pixel_noise=noise,
                                info={**model.info, "calibration_rmse_gray": rmse})
+    chi2 = float((residual2 * model.inverse_variance(fitted)).sum() / max(usable.sum(), 1.0))
+    model.info["calibration_chi2"] = chi2
     return Calibration(model, rmse, data.sigma_gray, iterations, history)
+
+
+def _alternate(state: effects.Alternation, steps: list[tuple[effects.Effect, Any]], n_rounds: int,
+               names: tuple[str, ...], progress: Progress | None) -> tuple[int, list[dict[str, float]]]:
+    """Rounds of the smooth fit (geometry too in the first, when ``names`` are given) and of every
+    bilinear effect's step."""
+    iterations, history = 0, []
+    for round_index in range(n_rounds):
+        lit = state.lit / state.map_factor
+        if round_index == 0 and names:
+            state.model, iterations, history = fit_geometry(state.model, state.x_mm, lit, state.weights, names,
+                                                            progress=progress)
+        else:
+            state.model, _ = fit_coefficients(state.model, state.x_mm, lit, state.weights)
+        state.smooth = state.model.predict(state.x_mm, with_response=False)
+        for effect, setting in steps:
+            effect.fit_step(setting, state)
+        if progress and steps:
+            progress(0.5 + 0.5 * (round_index + 1) / n_rounds, f"alternation round {round_index + 1}")
+    return iterations, history
+
+
+def _finished(spec: ModelSpec, state: effects.Alternation) -> FourierModel:
+    model = state.model
+    for effect, setting in effects.active(spec):
+        model = effect.finish(setting, state, model)
+    return model
 
 
 def fit_spec_pitch_search(spec: ModelSpec, data: CalibrationData, period_mm: float, pitch_mm: float,

@@ -6,23 +6,38 @@ period between frames. When that assumption breaks (a jump, a dropped burst of f
 disturbed image) the tracker must notice rather than report a position one period off: it checks
 the step, the fit residual and, when a grating reading comes with the frame, the disagreement
 with it, and re-acquires by a global search over one period.
+
+The world also changes after calibration: the light (a lamp dims, the room light comes on), a
+pixel (dust lands on the sensor, a glint), the scene itself. Each frame is solved as cheaply as
+it allows: with the calibrated light unless its χ² asks for the light's gain and offset to be
+solved too, by robust reweighting only when a pixel does not fit; and every frame's χ² against
+the noise model feeds a running average that says when the model has gone stale.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
 
+from graytrack.core import effects
 from graytrack.core.errors import TrackingError
-from graytrack.core.evaluation import ClippedHarmonics, FastHarmonics, GeneralHarmonics, gram_polynomials
+from graytrack.core.evaluation import ClippedHarmonics, FastHarmonics, GeneralHarmonics, TrigTables
 from graytrack.core.models.fourier import FourierModel
 from graytrack.core.recording import Recording
-from graytrack.core.solvers import FrameSolution, GeneralBatch, TrigPolyBatch
+from graytrack.core.solvers import (FrameSolution, GeneralBatch, SolverSettings, StaticWeights, TrigPolyBatch,
+                                    gauss_newton, grid_cost, robust_solve)
 
 Progress = Callable[[float, str], None]
 ACQUIRE_GRID_PER_PERIOD = 64
+LIGHT_MODES = ("fixed", "auto", "free")
+LIGHT_RETURN_CHI2 = 13.8  # χ² (2 dof, 99.9 %) above which the calibrated light (gain 1, offset 0) is refused
+GAIN_RANGE = (0.2, 5.0)  # a solved light gain outside this is not the target seen under other light
+MAX_REJECTED_FRACTION = 0.25  # a frame needing more pixels rejected than this is not trusted
+STALE_WINDOW = 100  # frames: the χ² average that must rise for the model to be called stale
+BATCH_CHUNK = 4096  # frames reduced at a time (bounds memory on long recordings)
 
 
 @dataclass
@@ -44,57 +59,143 @@ class TrackResult:
     gain: np.ndarray
     offset: np.ndarray
     events: list[LockEvent] = field(default_factory=list)
+    chi2: np.ndarray | None = None  # weighted residual per pixel against the noise model (≈ 1: model right)
+    rejected_px: np.ndarray | None = None  # pixels the robust reweighting gave zero weight
+    stale: np.ndarray | None = None  # the model was stale at this frame (sustained χ² rise)
+    chi2_calibration: float = float("nan")  # the calibration's own level, what χ² is compared with
 
     def error_um(self, reference: np.ndarray) -> np.ndarray:
         """Position minus reference in µm (NaN where either is missing)."""
         return (self.x_mm - reference) * 1e3
 
 
-class Tracker:
-    """Per-frame solver bound to one calibrated model; holds no frame state of its own."""
+@dataclass
+class LightMemory:
+    """What the solve of one frame tells the next: whether the light has changed, the last light,
+    and the pixels it rejected (then the next frame starts robust, without them)."""
 
-    def __init__(self, model: FourierModel, max_iterations: int = 5, tolerance_mm: float = 1e-6,
-                 residual_limit_gray: float | None = None):
+    free: bool = False
+    gain: float = 1.0
+    offset: float = 0.0
+    rejected: np.ndarray | None = None  # the pixels the last frame set aside
+
+
+class Tracker:
+    """Per-frame solver bound to one calibrated model; holds no frame state of its own.
+
+    ``light``: ``"fixed"`` keeps the calibrated light; ``"free"`` solves a gain and offset with x
+    in every frame; ``"auto"`` solves them when a frame's χ² says the light changed, and keeps
+    solving them until the calibrated light fits again. ``tolerance_mm``: the last Gauss–Newton step
+    taken; it is applied, and what remains after it is that step times the contraction (≪ 1 on a
+    converged frame), far below any bound. Default: ``"free"`` for a model with a
+    per-frame common mode, else ``"fixed"``. ``robust``: frames whose χ² is beyond the noise are
+    solved again by IRLS, so that a pixel gone bad in this run does not pull the position.
+    """
+
+    def __init__(self, model: FourierModel, max_iterations: int = 5, tolerance_mm: float = 1e-5,
+                 residual_limit_gray: float | None = None, light: str | None = None, robust: bool = False):
         if not model.is_calibrated:
             raise TrackingError("the model has no coefficients: calibrate it first")
-        self.model = model
-        self.max_iterations = max_iterations
-        self.tolerance_mm = tolerance_mm
+        light = light or ("free" if model.common_mode else "fixed")
+        if light not in LIGHT_MODES:
+            raise TrackingError(f"light mode must be one of {', '.join(LIGHT_MODES)}, got {light!r}")
+        self.model, self.light, self.robust = model, light, robust
         self.quarter_period_mm = model.period_mm / 4.0
-        calibration_rmse = float(model.info.get("calibration_rmse_gray", model.noise_gray or 1.0))
+        sigma = model.noise_gray or 1.0
+        self.settings = SolverSettings(max_iterations, tolerance_mm, self.quarter_period_mm, sigma)
+        calibration_rmse = float(model.info.get("calibration_rmse_gray", sigma))
         self.residual_limit_gray = residual_limit_gray or 3.0 * calibration_rmse + 1.0
-        # Model-level work, done once: live tracking builds a one-frame batch per frame.
+        n_values = model.n_rows * model.n_pixels
+        self.chi2_calibration = float(model.info.get("calibration_chi2", (calibration_rmse / sigma) ** 2))
+        # beyond 5 standard deviations of one frame's χ² at the calibration's level: the frame asks
+        self.chi2_limit = self.chi2_calibration * (1.0 + 5.0 * np.sqrt(2.0 / n_values))
+        self.stale_limit = max(1.5 * self.chi2_calibration, self.chi2_calibration + 0.5)
+        # Model-level work, done once: live tracking reduces one frame at a time.
         evaluator = FastHarmonics(model) if model.target_map is None else GeneralHarmonics(model)
-        self.fast_path = (model.stroke_degree == 0 and not model.common_mode and model.clip_gray is None
-                          and model.target_map is None)
-        self.gram = gram_polynomials(evaluator, model) if self.fast_path else None
+        self.fast_path = not effects.needs_general_path(model)
+        self.tables = TrigTables(evaluator, model) if self.fast_path else None
         self.evaluator = evaluator if model.clip_gray is None else ClippedHarmonics(evaluator, model)
+        noise = model.noise()
+        self.signal_dependent = noise.signal_dependent
+        self.static_weights = model.inverse_variance(np.zeros((model.n_rows, model.n_pixels))).reshape(1, -1)
+        self._static: dict[int, StaticWeights] = {}  # by rows averaged: what every frame shares
 
-    def batch(self, prepared: np.ndarray) -> GeneralBatch | TrigPolyBatch:
+    def weights(self, prepared: np.ndarray, frame_rows: int) -> np.ndarray:
+        """1/σ² per sample ``(K|1, P)``: the noise model at the observed gray level (the variance of
+        a row mean when rows are averaged), zero on masked pixels."""
+        rows = self.model.rows_averaged(frame_rows)
+        if self.signal_dependent:
+            return self.model.inverse_variance(prepared).reshape(prepared.shape[0], -1) * rows
+        return self.static_weights * rows
+
+    def batch(self, prepared: np.ndarray, frame_rows: int = 1) -> GeneralBatch | TrigPolyBatch:
         """Frames ``(K, R, n)`` in the model's row layout, reduced for solving."""
-        if self.fast_path:
-            return TrigPolyBatch(self.model, prepared, self.max_iterations, self.tolerance_mm, self.evaluator, self.gram)
-        return GeneralBatch(self.model, prepared, self.max_iterations, self.tolerance_mm, self.evaluator)
+        if not self.fast_path:
+            return GeneralBatch(self.evaluator, prepared, self.weights(prepared, frame_rows))
+        if self.signal_dependent:
+            return TrigPolyBatch(self.tables, prepared, self.weights(prepared, frame_rows))
+        static = self._static.get(frame_rows)
+        if static is None:
+            static = self._static[frame_rows] = StaticWeights.of(self.tables, self.weights(prepared, frame_rows))
+        return TrigPolyBatch(self.tables, prepared, static.weights, static)
 
     def frame_sigma(self, frame_rows: int) -> float:
         """Noise of one model row when ``frame_rows`` raw rows feed the model (averaging lowers it)."""
         return (self.model.noise_gray or 1.0) / np.sqrt(self.model.rows_averaged(frame_rows))
 
-    def acquire(self, batch: GeneralBatch | TrigPolyBatch, k: int, lo_mm: float, hi_mm: float) -> FrameSolution:
-        """Global search on a grid over ``[lo, hi]`` (at least one period), then Gauss–Newton."""
+    def solve(self, batch: GeneralBatch | TrigPolyBatch, k: int, x_start: float, memory: LightMemory) -> FrameSolution:
+        """Frame ``k`` from ``x_start``: the light and robustness the frame asks for, cheapest first
+        (what the last frame needed, then the light solved, then the robust solve)."""
+        free = self.light == "free" or (self.light == "auto" and memory.free)
+        robust_first = self.robust and memory.rejected is not None
+        solution = self._attempt(batch, k, x_start, memory, free, robust_first)
+        if solution.chi2 > self.chi2_limit and self.light == "auto" and not free:
+            free = True
+            solution = self._attempt(batch, k, x_start, memory, free, robust_first)
+        if solution.chi2 > self.chi2_limit and self.robust and not robust_first:
+            solution = self._attempt(batch, k, x_start, memory, free, True)
+        memory.free = self.light == "auto" and solution.free_light and solution.light_excess > LIGHT_RETURN_CHI2
+        memory.gain, memory.offset = solution.gain, solution.offset
+        memory.rejected = solution.rejected_mask if solution.rejected else None
+        return solution
+
+    def _attempt(self, batch: GeneralBatch | TrigPolyBatch, k: int, x_start: float, memory: LightMemory,
+                 free: bool, robust: bool) -> FrameSolution:
+        if not robust:
+            return gauss_newton(batch, k, x_start, free, self.settings)
+        start = FrameSolution(x_start, float("nan"), 0.0, 0, memory.gain, memory.offset)
+        return robust_solve(batch, k, start, free, self.settings, memory.rejected, self.chi2_limit)
+
+    def acquire(self, batch: GeneralBatch | TrigPolyBatch, k: int, lo_mm: float, hi_mm: float,
+                memory: LightMemory) -> FrameSolution:
+        """Global search on a grid over ``[lo, hi]`` (at least one period), then the frame's solve.
+        The search is blind to the light unless the light is held fixed."""
         count = max(int(np.ceil((hi_mm - lo_mm) / self.model.period_mm * ACQUIRE_GRID_PER_PERIOD)), 8)
         grid = np.linspace(lo_mm, hi_mm, count, endpoint=False)
-        return batch.refine(k, float(grid[int(np.argmin(batch.grid_cost(k, grid)))]))
+        best = float(grid[int(np.argmin(grid_cost(batch, k, grid, self.light != "fixed")))])
+        return self.solve(batch, k, best, memory)
 
-    def acquire_near(self, batch: GeneralBatch | TrigPolyBatch, k: int, anchor_mm: float) -> FrameSolution:
+    def acquire_near(self, batch: GeneralBatch | TrigPolyBatch, k: int, anchor_mm: float,
+                     memory: LightMemory) -> FrameSolution:
         half = self.model.period_mm / 2.0
-        return self.acquire(batch, k, anchor_mm - half, anchor_mm + half)
+        return self.acquire(batch, k, anchor_mm - half, anchor_mm + half, memory)
+
+    def untrusted(self, solution: FrameSolution) -> str | None:
+        """Why a solution, wherever it lies, cannot be trusted (None when it can)."""
+        if solution.rms_gray > self.residual_limit_gray:
+            return f"residual {solution.rms_gray:.2f} gray exceeds {self.residual_limit_gray:.2f}"
+        if solution.free_light and not GAIN_RANGE[0] < solution.gain < GAIN_RANGE[1]:
+            return f"light gain {solution.gain:.2f} outside {GAIN_RANGE[0]:g}..{GAIN_RANGE[1]:g}"
+        if solution.rejected > MAX_REJECTED_FRACTION * self.model.n_rows * self.model.n_pixels:
+            return f"{solution.rejected} pixels rejected as outliers"
+        return None
 
     def lost_reason(self, solution: FrameSolution, x_prev: float, reference: float) -> str | None:
         if abs(solution.x_mm - x_prev) > self.quarter_period_mm:
             return f"step of {solution.x_mm - x_prev:+.3f} mm exceeds a quarter period"
-        if solution.rms_gray > self.residual_limit_gray:
-            return f"residual {solution.rms_gray:.2f} gray exceeds {self.residual_limit_gray:.2f}"
+        reason = self.untrusted(solution)
+        if reason:
+            return reason
         if np.isfinite(reference) and abs(solution.x_mm - reference) > self.quarter_period_mm:
             return f"disagrees with the grating by {solution.x_mm - reference:+.3f} mm"
         return None
@@ -102,55 +203,78 @@ class Tracker:
 
 @dataclass
 class SequentialState:
-    """What carries from one frame to the next: the last position, its velocity, the lock."""
+    """What carries from one frame to the next: the last position, its velocity, the lock, the
+    light, and the running χ² that tells whether the model still describes the images."""
 
     x_prev: float | None = None
     velocity: float = 0.0  # mm per frame, from the last two locked frames: a better start than x_{k−1}
     locked: bool = False
     frame: int = 0
     events: list[LockEvent] = field(default_factory=list)
+    memory: LightMemory = field(default_factory=LightMemory)
+    chi2_average: float | None = None  # exponential average over about STALE_WINDOW frames
+    stale: bool = False
 
     def advance(self, tracker: "Tracker", batch: GeneralBatch | TrigPolyBatch, k: int,
                 reference: float) -> tuple[FrameSolution, bool, bool]:
         """Solve batch frame ``k`` as the next frame of the sequence: (solution, placed, locked)."""
         events_before = len(self.events)
-        solution, ok = _solve_frame(tracker, batch, k, self.x_prev, self.velocity, reference, self.events, self.frame)
+        solution, ok = _solve_frame(tracker, batch, k, self, reference)
         locked = ok and len(self.events) == events_before
         self.velocity = solution.x_mm - self.x_prev if locked and self.locked and self.x_prev is not None else 0.0
         if ok:
             self.x_prev = solution.x_mm
         self.locked, self.frame = locked, self.frame + 1
+        self._watch_model(tracker, solution.chi2)
         return solution, ok, locked
+
+    def _watch_model(self, tracker: "Tracker", chi2: float) -> None:
+        """A running χ² average (one frame's contribution capped, so a single garbage frame
+        cannot flip it) above the stale limit: the images have left what the model describes."""
+        if not np.isfinite(chi2):
+            return
+        capped = min(chi2, 3.0 * tracker.stale_limit)
+        if self.chi2_average is None:
+            self.chi2_average = tracker.chi2_calibration
+        self.chi2_average += (capped - self.chi2_average) / STALE_WINDOW
+        self.stale = self.chi2_average > tracker.stale_limit
 
 
 def track(model: FourierModel, source: Recording | np.ndarray, reference: np.ndarray | None = None,
-          x0_mm: float | None = None, progress: Progress | None = None, tracker: Tracker | None = None) -> TrackResult:
+          x0_mm: float | None = None, progress: Progress | None = None, tracker: Tracker | None = None,
+          light: str | None = None, robust: bool = False) -> TrackResult:
     """Track every frame of a recording (or a frame array) sequentially.
 
     Starts from ``x0_mm``, else from the first finite reference, else acquires on its own over
     the calibrated stroke. Frames that cannot be placed on a period are NaN, never a guess.
+    ``light`` and ``robust`` as for :class:`Tracker` (ignored when a ``tracker`` is given).
     """
     if isinstance(source, Recording):
         frames, reference = source.frames, source.reference if reference is None else reference
     else:
         frames = source
     frames = np.asarray(frames)
-    prepared = model.prepare(frames)
-    n_frames = prepared.shape[0]
+    frame_rows = 1 if frames.ndim == 2 else frames.shape[1]
+    n_frames = frames.shape[0]
     reference = np.full(n_frames, np.nan) if reference is None else np.asarray(reference, dtype=np.float64)
     if reference.shape != (n_frames,):
         raise TrackingError(f"reference has shape {reference.shape}, expected ({n_frames},)")
-    tracker = tracker or Tracker(model)
-    sigma = tracker.frame_sigma(1 if frames.ndim == 2 else frames.shape[1])
+    tracker = tracker or Tracker(model, light=light, robust=robust)
 
-    out = {key: np.full(n_frames, np.nan) for key in ("x", "rms", "info", "gain", "offset")}
+    out = {key: np.full(n_frames, np.nan) for key in ("x", "rms", "info", "gain", "offset", "chi2")}
     iterations = np.zeros(n_frames, dtype=np.int64)
+    rejected = np.zeros(n_frames, dtype=np.int64)
     locked = np.zeros(n_frames, dtype=bool)
-    state = SequentialState(x_prev=x0_mm if x0_mm is not None else (reference[0] if np.isfinite(reference[0]) else None))
+    stale = np.zeros(n_frames, dtype=bool)
+    state = SequentialState(x_prev=x0_mm if x0_mm is not None else (
+        reference[0] if n_frames and np.isfinite(reference[0]) else None))
     report_every = max(n_frames // 100, 1)
-    batch = tracker.batch(prepared)
+    batch = None
     for k in range(n_frames):
-        solution, ok, locked[k] = state.advance(tracker, batch, k, reference[k])
+        if k % BATCH_CHUNK == 0:
+            batch = tracker.batch(model.prepare(frames[k:k + BATCH_CHUNK]), frame_rows)
+        solution, ok, locked[k] = state.advance(tracker, batch, k % BATCH_CHUNK, reference[k])
+        out["chi2"][k], rejected[k], stale[k] = solution.chi2, solution.rejected, state.stale
         if ok:
             out["x"][k], out["rms"][k], out["info"][k] = solution.x_mm, solution.rms_gray, solution.information
             out["gain"][k], out["offset"][k] = solution.gain, solution.offset
@@ -159,8 +283,9 @@ def track(model: FourierModel, source: Recording | np.ndarray, reference: np.nda
             progress(k / n_frames, f"frame {k}/{n_frames}")
     if progress:
         progress(1.0, f"{n_frames} frames, {len(state.events)} lock event(s)")
-    crlb = sigma / np.sqrt(np.where(out["info"] > 0, out["info"], np.nan))
-    return TrackResult(out["x"], locked, out["rms"], crlb, iterations, out["gain"], out["offset"], state.events)
+    crlb = 1.0 / np.sqrt(np.where(out["info"] > 0, out["info"], np.nan))
+    return TrackResult(out["x"], locked, out["rms"], crlb, iterations, out["gain"], out["offset"], state.events,
+                       out["chi2"], rejected, stale, tracker.chi2_calibration)
 
 
 @dataclass
@@ -172,50 +297,62 @@ class LiveFix:
     rms_gray: float
     crlb_mm: float
     event: LockEvent | None
+    chi2: float = float("nan")  # weighted residual per pixel against the noise model
+    rejected_px: int = 0  # pixels the robust reweighting set aside in this frame
+    gain: float = 1.0  # the light relative to calibration (1, 0 unless solved)
+    offset_gray: float = 0.0
+    stale: bool = False  # the model no longer describes the images: recalibrate
 
 
 class LiveTracker:
-    """Frame-by-frame tracking for a running rig: the same solver and lock logic as :func:`track`."""
+    """Frame-by-frame tracking for a running rig: the same solver and lock logic as :func:`track`,
+    with the light re-solved when it changes and bad pixels set aside (both on by default)."""
 
-    def __init__(self, model: FourierModel, x0_mm: float | None = None):
+    def __init__(self, model: FourierModel, x0_mm: float | None = None, light: str = "auto", robust: bool = True):
         self.model = model
-        self.tracker = Tracker(model)
+        self.tracker = Tracker(model, light=light, robust=robust)
         self.state = SequentialState(x_prev=x0_mm)
+
+    @property
+    def stale(self) -> bool:
+        """The model has stopped describing the images (sustained χ² rise): recalibrate."""
+        return self.state.stale
 
     def update(self, frame: np.ndarray, reference_mm: float = float("nan")) -> LiveFix:
         """Solve one frame ``(n,)`` or ``(R, n)``; ``reference_mm`` is the grating at that instant, if read."""
         frame = np.asarray(frame)
         rows = 1 if frame.ndim == 1 else frame.shape[0]
-        batch = self.tracker.batch(self.model.prepare(frame.reshape((1,) + frame.shape)))
+        batch = self.tracker.batch(self.model.prepare(frame.reshape((1,) + frame.shape)), rows)
         events_before = len(self.state.events)
         solution, ok, locked = self.state.advance(self.tracker, batch, 0, float(reference_mm))
         event = self.state.events[-1] if len(self.state.events) > events_before else None
-        crlb = self.tracker.frame_sigma(rows) / np.sqrt(solution.information) if solution.information > 0 else np.nan
-        return LiveFix(solution.x_mm if ok else float("nan"), locked, solution.rms_gray, float(crlb), event)
+        crlb = 1.0 / math.sqrt(solution.information) if solution.information > 0 else float("nan")
+        return LiveFix(solution.x_mm if ok else float("nan"), locked, solution.rms_gray, crlb, event,
+                       solution.chi2, solution.rejected, solution.gain, solution.offset, self.state.stale)
 
 
-def _solve_frame(tracker: Tracker, batch: GeneralBatch | TrigPolyBatch, k: int, x_prev: float | None,
-                 velocity: float, reference: float, events: list[LockEvent],
-                 frame: int) -> tuple[FrameSolution, bool]:
-    """Batch frame ``k`` (frame ``frame`` of the sequence): continue from ``x_prev``; on any sign
+def _solve_frame(tracker: Tracker, batch: GeneralBatch | TrigPolyBatch, k: int, state: SequentialState,
+                 reference: float) -> tuple[FrameSolution, bool]:
+    """Batch frame ``k`` as the state's next frame: continue from its last position; on any sign
     of lost lock, re-acquire and log it."""
+    x_prev, events, frame, memory = state.x_prev, state.events, state.frame, state.memory
     if x_prev is None or not np.isfinite(x_prev):
         lo, hi = tracker.model.stroke_range_mm
         if np.isfinite(reference):
-            solution = tracker.acquire_near(batch, k, reference)
+            solution = tracker.acquire_near(batch, k, reference, memory)
         else:
-            solution = tracker.acquire(batch, k, lo, max(hi, lo + tracker.model.period_mm))
-        ok = solution.rms_gray <= tracker.residual_limit_gray
+            solution = tracker.acquire(batch, k, lo, max(hi, lo + tracker.model.period_mm), memory)
+        ok = tracker.untrusted(solution) is None
         if frame > 0 or not ok:
             events.append(LockEvent(frame, "acquisition", float("nan"), solution.x_mm if ok else float("nan"), ok))
         return solution, ok
-    solution = batch.refine(k, x_prev + velocity)
+    solution = tracker.solve(batch, k, x_prev + state.velocity, memory)
     reason = tracker.lost_reason(solution, x_prev, reference)
     if reason is None:
         return solution, True
     anchor = reference if np.isfinite(reference) else x_prev
-    again = tracker.acquire_near(batch, k, anchor)
-    ok = again.rms_gray <= tracker.residual_limit_gray and (
+    again = tracker.acquire_near(batch, k, anchor, memory)
+    ok = tracker.untrusted(again) is None and (
         not np.isfinite(reference) or abs(again.x_mm - reference) <= tracker.quarter_period_mm
     )
     events.append(LockEvent(frame, reason, x_prev, again.x_mm if ok else float("nan"), ok))

@@ -3,7 +3,9 @@
 The simulated controller, the simulated camera and the drivers talking to them must agree on
 one clock, because pairing an exposure with a grating reading is what the rig is about. Tests
 run that clock faster than wall time (``ScaledClock(10)``) so that a calibration sweep of real
-moves, settles and frames takes a fraction of a second without changing any of the timing logic.
+moves, settles and frames takes a fraction of a second without changing any of the timing logic. What leaves a simulated device is host time all the
+same (:meth:`ScaledClock.to_host`): physics runs on the simulated clock, the frame and reading
+boundaries map to ``time.monotonic``, so the time contract holds whatever the scale.
 """
 
 from __future__ import annotations
@@ -21,6 +23,14 @@ class ScaledClock:
 
     def now(self) -> float:
         return self.scale * (time.monotonic() - self._origin)
+
+    def to_host(self, t: float) -> float:
+        """The host ``time.monotonic`` instant at which this clock read ``t``."""
+        return self._origin + t / self.scale
+
+    def duration_to_host(self, seconds: float) -> float:
+        """A span of this clock's seconds in host seconds."""
+        return seconds / self.scale
 
     def sleep(self, seconds: float) -> None:
         """Sleep for ``seconds`` of this clock's time."""

@@ -120,6 +120,12 @@ def read_toml(path: Path) -> dict[str, Any]:
         raise ConfigError(f"{path}: no such file") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: not valid TOML ({exc})") from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{path}: not valid TOML (not UTF-8 text: byte {exc.start} is {exc.object[exc.start]:#04x})") from None
+    except RecursionError:
+        raise ConfigError(f"{path}: not valid TOML (nested too deeply to read)") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{path}: is a directory, not a TOML file") from None
 
 
 def load_toml(path: str | Path, parse: Callable[[dict[str, Any]], ParsedT]) -> ParsedT:

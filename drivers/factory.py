@@ -30,7 +30,7 @@ class Hardware:
             self.controller.stop()  # type: ignore[attr-defined]
 
 
-def make_gcs_stage(config: StageConfig, port: str | None = None, clock: ScaledClock = REAL_TIME) -> GCSStage:
+def make_gcs_stage(config: StageConfig, port: str | None = None) -> GCSStage:
     return GCSStage(
         port or config.port or "",
         baudrate=config.baudrate,
@@ -39,7 +39,6 @@ def make_gcs_stage(config: StageConfig, port: str | None = None, clock: ScaledCl
         soft_limits_mm=config.soft_limits_mm,
         velocity_mm_s=config.velocity_mm_s,
         reference_on_open=config.reference_on_open,
-        clock=clock.now,
     )
 
 
@@ -69,7 +68,7 @@ def open_hardware(config: HardwareConfig, clock: ScaledClock = REAL_TIME) -> Har
     if config.camera.kind == "sim" and config.stage.kind != "sim":
         raise ConfigError("camera.kind = 'sim' renders the simulated stage: set stage.kind = 'sim' too")
     if config.stage.kind == "gcs":
-        hardware = Hardware(make_real_camera(config.camera), make_gcs_stage(config.stage, clock=clock))
+        hardware = Hardware(make_real_camera(config.camera), make_gcs_stage(config.stage))
     else:
         hardware = _simulated(config, clock)
     try:
@@ -90,6 +89,6 @@ def _simulated(config: HardwareConfig, clock: ScaledClock) -> Hardware:
     rig = build_rig(config.camera.scenario, seed=config.camera.seed)
     truth = rig.make_stage(t_s=clock.now())
     controller = SimGCSController(SimStageAxis(truth, rig.make_grating(truth)), clock=clock.now).start()
-    stage = make_gcs_stage(config.stage, port=controller.path, clock=clock)
+    stage = make_gcs_stage(config.stage, port=controller.path)
     camera = SimCamera(rig, truth, config.camera.to_settings(), clock=clock) if config.camera.kind == "sim" else make_real_camera(config.camera)
     return Hardware(camera, stage, controller, rig)

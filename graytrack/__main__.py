@@ -2,4 +2,5 @@
 
 from graytrack.service.cli import main
 
-raise SystemExit(main())
+if __name__ == "__main__":  # Dask's worker processes import the main module again: run nothing then
+    raise SystemExit(main())

@@ -15,7 +15,7 @@ from typing import Sequence
 from graytrack import __version__
 
 # Order here is the order in `graytrack --help`.
-COMMAND_MODULES = ("simulate", "calibrate", "track", "diagnose", "serve", "demo")
+COMMAND_MODULES = ("simulate", "calibrate", "track", "diagnose", "batch", "history", "serve", "demo")
 
 EXIT_BAD_INPUT = 2
 
@@ -37,7 +37,15 @@ def expected_errors() -> tuple[type[BaseException], ...]:
     from graytrack.core.errors import GraytrackError
     from graytrack.service.errors import CliError
 
-    return (CliError, GraytrackError, FileNotFoundError, PermissionError, IsADirectoryError)
+    return (CliError, GraytrackError, OSError)
+
+
+def reason(exc: BaseException) -> str:
+    """The one line shown for an expected failure; an OS error names its file, not its errno."""
+    if isinstance(exc, OSError) and exc.strerror:
+        return f"{exc.filename}: {exc.strerror}" if exc.filename else exc.strerror
+    text = str(exc)
+    return text.splitlines()[0] if text else type(exc).__name__
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -46,8 +54,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except expected_errors() as exc:
-        message = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        print(f"graytrack {args.command}: error: {message}", file=sys.stderr)
+        print(f"graytrack {args.command}: error: {reason(exc)}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
         print(f"graytrack {args.command}: interrupted", file=sys.stderr)

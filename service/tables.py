@@ -7,13 +7,13 @@ from pathlib import Path
 
 import numpy as np
 
+from graytrack.core.files import open_atomic
+
 
 def write_csv(path: str | os.PathLike[str], columns: dict[str, np.ndarray]) -> Path:
     """Write equal-length columns with a header, atomically (never a half-written table)."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     table = np.column_stack([np.asarray(values, dtype=np.float64) for values in columns.values()])
-    tmp = path.with_name(f".{path.name}.tmp")
-    np.savetxt(tmp, table, delimiter=",", header=",".join(columns), comments="", fmt="%.9g")
-    os.replace(tmp, path)
+    with open_atomic(path) as fh:
+        np.savetxt(fh, table, delimiter=",", header=",".join(columns), comments="", fmt="%.9g")
     return path

@@ -49,3 +49,17 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, recordings, argv, message):
     assert run.returncode == 2
     assert message in run.stderr and "Traceback" not in run.stderr
     assert len([line for line in run.stderr.splitlines() if "error" in line]) == 1
+
+
+HEAVY_MODULES = ("numpy", "scipy", "matplotlib", "cv2", "pydantic", "fastapi", "uvicorn", "graytrack.core")
+
+
+def test_building_the_parser_imports_no_numerics_or_server():
+    """Every invocation builds the whole parser: command modules import their work inside `run`."""
+    code = ("import sys; from graytrack.service.cli import build_parser; build_parser(); "
+            f"print(sorted(m for m in sys.modules if m.split('.')[0] in {HEAVY_MODULES!r} or m.startswith({HEAVY_MODULES!r})))")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True)
+    assert run.stdout.strip() == "[]", run.stdout
+    help_run = subprocess.run([sys.executable, "-m", "graytrack", "track", "--help"], capture_output=True, text=True,
+                              timeout=60)
+    assert help_run.returncode == 0 and "--model" in help_run.stdout

@@ -8,14 +8,19 @@ held-out frames cover the whole stroke and the whole recording time.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from graytrack.core.calibration_data import CalibrationData
 from graytrack.core.models.fourier import FourierModel
+from graytrack.core.noise import crlb_mm
 from graytrack.core.regression import weighted_affine
 from graytrack.core.timing import runs
 from graytrack.core.tracking import Tracker, TrackResult, track
+
+if TYPE_CHECKING:
+    from graytrack.core.structure import ModelSpec
 
 HOLDOUT_BLOCK_FRAMES = 10
 HOLDOUT_EVERY = 4
@@ -51,7 +56,7 @@ class Fit:
 def fit_on(model: FourierModel, data: CalibrationData) -> Fit:
     values, slope = model.predict(data.x_mm, with_derivative=True)
     smooth = model.predict(data.x_mm, with_response=False)
-    usable = data.weights.copy()
+    usable = (data.weights > 0) * model.seen()
     if model.clip_gray is not None:
         usable *= (data.frames > model.clip_gray[0]) & (data.frames < model.clip_gray[1])
     values = np.broadcast_to(values, data.frames.shape)
@@ -110,11 +115,36 @@ def figures(model: FourierModel, data: CalibrationData, fit: Fit | None = None) 
     worst = float(np.max(np.abs(error[finite]))) if finite.any() else float("inf")
     if lost:  # a frame the tracker could not place counts as the worst error there is
         worst = float("inf")
+    bound_mm = tracked.crlb_mm
+    if model.pixel_noise is not None and model.pixel_noise.signal_dependent:
+        bound_mm = np.where(np.isfinite(bound_mm), curve_bound_mm(model, data, fit), np.nan)
     return Figures(model.describe(), fit.rmse_gray, spread, worst, float(np.mean(error[finite])) if finite.any() else 0.0,
-                   _median_um(tracked.crlb_mm), error, data.x_mm, tracked)
+                   _median_um(bound_mm), error, data.x_mm, tracked)
+
+
+def curve_bound_mm(model: FourierModel, data: CalibrationData, fit: Fit) -> np.ndarray:
+    """Cramér–Rao bound per frame with the photon-transfer curve: each sample's σ²(y) at its
+    expected value (a row average of R raw rows has 1/R of it), masked pixels carrying nothing
+    (their slope is 0), the per-frame gain and offset profiled out when the model solves them."""
+    predicted = np.asarray(fit.predicted)[:, :model.n_rows]  # a shared model's rows are all alike
+    variance = model.pixel_noise.variance(predicted) / model.rows_averaged(data.frames.shape[1])
+    nuisance = np.stack([predicted, np.ones_like(predicted)], axis=-1) if model.common_mode else None
+    return crlb_mm(fit.slope, 1.0, nuisance, variance)
 
 
 def _median_um(values_mm: np.ndarray) -> float:
     """Median of the finite values in µm; NaN when the tracker placed no frame at all."""
     finite = values_mm[np.isfinite(values_mm)]
     return float(np.median(finite) * 1e3) if finite.size else float("nan")
+
+
+@dataclass
+class Stage:
+    """One model of the loop, fitted on the training frames and measured on the held-out ones:
+    what every effect's probe looks at."""
+
+    spec: "ModelSpec"
+    model: FourierModel
+    train: Fit
+    val: Fit
+    figures: Figures

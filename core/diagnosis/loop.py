@@ -18,13 +18,12 @@ from graytrack.core.calibration import KIND_SPECS
 from graytrack.core.calibration_data import CalibrationData, calibration_data
 from graytrack.core.errors import CalibrationError
 from graytrack.core.geometry import initial_geometry
+from graytrack.core import effects
 from graytrack.core.structure import ModelSpec, fit_spec, fit_spec_pitch_search
-from graytrack.core.diagnosis.effects import EFFECTS
-from graytrack.core.diagnosis.evidence import Evidence, all_evidence, clipping_evidence, timing_evidence
-from graytrack.core.diagnosis.heldout import Figures, Fit, figures, fit_on, interleaved_split
+from graytrack.core.diagnosis.evidence import Evidence, all_evidence
+from graytrack.core.diagnosis.heldout import Figures, Stage, figures, fit_on, interleaved_split
 from graytrack.core.models.fourier import FourierModel
 from graytrack.core.noise import reference_resolution_mm
-from graytrack.core.timing import at_exposure
 from graytrack.core.recording import Recording
 
 Progress = Callable[[float, str], None]
@@ -32,19 +31,7 @@ MAX_STEPS = 8
 CANDIDATES_PER_STEP = 3
 CONTENDERS_PER_STEP = 2  # effects that pass the held-out test, compared before one is kept
 MIN_Z = 5.0  # evidence weaker than this many noise standard deviations is noise
-NOISE_FLOOR_MARGIN = 1.1
-TIMING_MIN_SHARE = 0.2  # velocity must explain this share of the error variance to count as a timing fault  # error std within this factor of the bound: nothing left worth chasing
-
-
-@dataclass
-class Stage:
-    """One model of the loop, fitted on the training frames and measured on the held-out ones."""
-
-    spec: ModelSpec
-    model: FourierModel
-    train: Fit
-    val: Fit
-    figures: Figures
+NOISE_FLOOR_MARGIN = 1.1  # error std within this factor of the bound: nothing left worth chasing
 
 
 @dataclass
@@ -57,7 +44,7 @@ class Step:
 
     def as_dict(self) -> dict[str, Any]:
         figures = self.stage.figures.as_dict()
-        return {"effect": self.effect, "family": EFFECTS[self.effect].family, "evidence": self.evidence.text,
+        return {"effect": self.effect, "family": effects.registry()[self.effect].family, "evidence": self.evidence.text,
                 "z": round(float(self.evidence.z), 2), **{key: figures[key] for key in
                                                           ("rmse_gray", "error_std_um", "error_max_um", "lost_frames")},
                 "model": figures["model"], "decision": self.reason}
@@ -82,7 +69,8 @@ class DiagnosisResult:
                       "crlb_before_um": self.before.figures.as_dict()["crlb_um"],
                       "reference_resolution_um": round(self.reference_step_mm * 1e3, 4),
                       "floor_um": round(float(np.hypot(self.after.figures.crlb_um,
-                                                       self.reference_step_mm * 1e3 / np.sqrt(12.0))), 4)},
+                                                       self.reference_step_mm * 1e3 / np.sqrt(12.0))), 4),
+                      "pixel_noise": _curve(self.final_model)},
             "before": self.before.figures.as_dict(),
             "steps": [step.as_dict() for step in self.steps],
             "after": self.after.figures.as_dict(),
@@ -90,20 +78,25 @@ class DiagnosisResult:
             "remaining_evidence": [ev.as_dict() for ev in self.remaining[:5]],
             "heldout": self.holdout,
             "final_model": self.final_model.describe(),
-            "effects": {name: effect.describe() for name, effect in EFFECTS.items()},
+            "effects": {name: effect.describe() for name, effect in effects.registry().items()},
+            "findings": {effect.name: entry for effect, setting in effects.active(self.after.spec)
+                         if (entry := effect.report(setting)) is not None},
         }
 
 
-def at_exposure_instant(data: CalibrationData, spec: ModelSpec) -> CalibrationData:
-    """The data with its reference moved to mid-exposure when the structure knows a latch skew."""
-    if not spec.reference_skew_s:
-        return data
-    return data.with_reference(at_exposure(data.t_s, data.x_mm, spec.reference_skew_s))
+def _curve(model: FourierModel) -> dict[str, Any]:
+    """The noise model behind the bound: the fitted photon-transfer curve, or one σ for all."""
+    noise = model.noise()
+    body: dict[str, Any] = {key: round(value, 6) for key, value in noise.as_dict().items()}
+    body["signal_dependent"] = noise.signal_dependent
+    chi2 = model.info.get("calibration_chi2")
+    body["calibration_chi2"] = None if chi2 is None else round(float(chi2), 4)
+    return body
 
 
 def _stage(spec: ModelSpec, train: CalibrationData, val: CalibrationData, geometry: tuple[float, float, float],
            refine_geometry: bool = False, search_pitch: bool = False) -> Stage:
-    train, val = at_exposure_instant(train, spec), at_exposure_instant(val, spec)
+    train, val = effects.prepare_data(spec, train), effects.prepare_data(spec, val)
     if search_pitch:
         model = fit_spec_pitch_search(spec, train, *geometry).model
     else:
@@ -135,18 +128,10 @@ def _at_noise_floor(stage: Stage) -> bool:
     return residual_ok and stage.figures.error_std_um <= NOISE_FLOOR_MARGIN * stage.figures.crlb_um
 
 
-def _candidates(stage: Stage) -> list[tuple[Evidence, Any]]:
-    """Data-quality findings first (clipped samples, a reference read at the wrong instant), then
-    model terms by how much of the held-out residual they explain."""
-    found: list[tuple[Evidence, Any]] = []
-    clip = clipping_evidence(stage.train, stage.val)
-    if clip is not None:
-        found.append(clip)
-    timing = timing_evidence(stage.val, stage.figures.error_um)
-    if timing is not None and timing[0].z > MIN_Z and timing[0].share > TIMING_MIN_SHARE:
-        found.append(timing)
-    found += [(ev, None) for ev in all_evidence(stage.train, stage.val) if ev.z > MIN_Z]
-    return found
+def _candidates(stage: Stage) -> list[Evidence]:
+    """What the probes found beyond noise: data-quality findings first, then model terms by how
+    much of the held-out residual they explain."""
+    return [ev for ev in all_evidence(stage) if ev.z > MIN_Z]
 
 
 def _held_out(calibration: Recording, validation: Recording | None) -> tuple[CalibrationData, CalibrationData,
@@ -168,21 +153,25 @@ def _next_step(current: Stage, train: CalibrationData, val: CalibrationData, rej
                row_shift_guess_mm: float, say: Progress, fraction: float) -> Step | None:
     """Try the effects the residual points to; of those that pass the held-out test, the one that
     tracks best (the strongest evidence is not always the right cause: a flexible term can soak
-    up what a simpler physical one explains). None when nothing passes."""
+    up what a simpler physical one explains). A fault of the data (bad pixels, clipping, a skewed
+    reference) that passes is taken at once. None when nothing passes."""
     contenders: list[Step] = []
     m = current.model
     geometry = (m.period_mm, m.pixel_pitch_mm, m.row_shift_mm or row_shift_guess_mm)
-    for evidence, argument in _candidates(current)[:CANDIDATES_PER_STEP]:
-        spec = EFFECTS[evidence.effect].grow(current.spec, argument)
+    for evidence in _candidates(current)[:CANDIDATES_PER_STEP]:
+        effect = effects.registry()[evidence.effect]
+        spec = effect.grow(current.spec, evidence.argument)
         if spec is None:
             continue
         say(fraction, f"trying {evidence.effect}")
-        trial = _stage(spec, train, val, geometry, search_pitch=spec.target_map > current.spec.target_map)
+        trial = _stage(spec, train, val, geometry, search_pitch=effect.search_pitch)
         keep, reason = _better(trial.figures, current.figures, int(current.val.usable.sum()))
         record = Step(evidence.effect, evidence, trial, keep, reason)
         if not keep:
             rejected.append(record)
             continue
+        if effect.data_quality:  # a fault of the data is fixed first, not weighed against model terms
+            return record
         contenders.append(record)
         if len(contenders) == CONTENDERS_PER_STEP:
             break
@@ -214,11 +203,9 @@ def diagnose(calibration: Recording, validation: Recording | None = None, progre
     if validation is None:
         say(0.92, "refitting the final structure on all calibration frames")
         m = current.model
-        final_model = fit_spec(current.spec, at_exposure_instant(data, current.spec), m.period_mm, m.pixel_pitch_mm,
-                               m.row_shift_mm, refine_geometry=False).model
-    if current.spec.reference_skew_s:
-        final_model.info["reference_skew_s"] = current.spec.reference_skew_s
-    remaining = [ev for ev in all_evidence(current.train, current.val) if ev.z > MIN_Z]
+        final_model = fit_spec(current.spec, effects.prepare_data(current.spec, data), m.period_mm,
+                               m.pixel_pitch_mm, m.row_shift_mm, refine_geometry=False).model
+    remaining = _candidates(current)
     say(1.0, f"{len(steps)} effect(s) added")
     return DiagnosisResult(before, current, steps, rejected, final_model, val.sigma_gray, holdout,
                            reference_resolution_mm(val.x_mm), remaining)

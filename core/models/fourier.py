@@ -92,6 +92,10 @@ class FourierModel:
                 raise ModelError(f"{label} must be a non-negative integer, got {value}")
         if self.harmonics < 1:
             raise ModelError("harmonics must be at least 1")
+        if self.clip_gray is not None:
+            low, high = (float(v) for v in self.clip_gray)
+            if not low < high:  # NaN fails too; an infinite side means "never clips there"
+                raise ModelError(f"clip_gray must be [floor, ceiling] with floor < ceiling, got {list(self.clip_gray)}")
         if self.coeffs is not None:
             self.coeffs = np.asarray(self.coeffs, dtype=np.float64)
             if self.coeffs.shape != self.coeff_shape:
@@ -213,9 +217,19 @@ class FourierModel:
         weights = 1.0 / self.noise().variance(gray)
         return weights if self.pixel_weight is None else weights * self.pixel_weight
 
+    def seen(self) -> np.ndarray | float:
+        """``(R, n)`` 1 where the model describes the pixel, 0 where it is masked (1.0: no mask).
+        A shared (row-averaged) model masks a bad pixel's whole column."""
+        return 1.0 if self.pixel_weight is None else (self.pixel_weight > 0).astype(np.float64)
+
     def response(self) -> tuple[np.ndarray | float, np.ndarray | float]:
+        """Per-pixel gain and offset. A masked pixel (``pixel_weight`` 0) has both 0: it reads 0
+        with no slope, as :meth:`prepare` makes its frames read, so every solver, weighted or
+        not, sees it carry no position and no residual."""
         gain = self.pixel_gain if self.pixel_gain is not None else 1.0
         offset = self.pixel_offset if self.pixel_offset is not None else 0.0
+        if self.pixel_weight is not None:
+            gain, offset = gain * self.seen(), offset * self.seen()
         return gain, offset
 
     def predict(self, x_mm: np.ndarray, with_derivative: bool = False,
@@ -283,11 +297,11 @@ class FourierModel:
             raise TrackingError(
                 f"frames have shape {frames.shape}; the model was calibrated for {self.n_pixels} pixels"
             )
-        if self.n_rows == 1:
-            return frames.mean(axis=1, keepdims=True)
-        if frames.shape[1] != self.n_rows:
+        if self.n_rows == 1:  # (one row needs no averaging: live tracking prepares frames one at a time)
+            frames = frames if frames.shape[1] == 1 else frames.mean(axis=1, keepdims=True)
+        elif frames.shape[1] != self.n_rows:
             raise TrackingError(f"frames have {frames.shape[1]} rows; the model was calibrated for {self.n_rows}")
-        return frames
+        return frames if self.pixel_weight is None else frames * self.seen()
 
     def rows_averaged(self, frames_rows: int) -> int:
         """How many raw rows feed each model row (noise drops by its square root)."""
@@ -306,6 +320,8 @@ class FourierModel:
             parts.append("per-frame gain/offset")
         if self.target_map is not None:
             parts.append(f"target map {self.target_map.size} × {self.target_map_step_mm * 1e3:.0f} µm")
+        if self.pixel_weight is not None and (self.pixel_weight == 0).any():
+            parts.append(f"{int((self.pixel_weight == 0).sum())} pixel(s) masked")
         if self.clip_gray is not None:
             parts.append(f"clipped at {self.clip_gray[0]:g}..{self.clip_gray[1]:g}")
         return f"{self.name} ({', '.join(parts)}; τ={self.period_mm:.4f} mm, α·d={self.pixel_pitch_mm:.5f} mm)"

@@ -3,6 +3,7 @@ incompatible graytrack is refused by name instead of being half-read."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 from pathlib import Path
@@ -18,23 +19,55 @@ from graytrack.core.pixel_noise import PixelNoise
 SCHEMA = "graytrack.model"
 SCHEMA_VERSION = 1
 
-_SCALAR_FIELDS = ("period_mm", "pixel_pitch_mm", "n_pixels", "harmonics", "pixel_degree", "stroke_degree",
-                  "n_rows", "row_degree", "row_shift_mm", "common_mode", "noise_gray", "name",
-                  "target_map_origin_mm", "target_map_step_mm")
-_ARRAY_FIELDS = ("coeffs", "pixel_gain", "pixel_offset", "target_map", "pixel_weight")
+def _codec(annotation: str) -> str:
+    """How a FourierModel field is written, from its type: arrays as shape + data, tuples as lists,
+    the noise model as its own object, everything else as it is."""
+    for kind in ("ndarray", "PixelNoise", "tuple"):
+        if kind in annotation:
+            return kind
+    return "plain"
+
+
+def _fields() -> dict[str, str]:
+    """Every model field that a file holds, with its codec (derived from the dataclass, so a new
+    field of the model is saved and loaded without being listed here)."""
+    return {f.name: _codec(str(f.type)) for f in dataclasses.fields(FourierModel) if f.init}
+
+
+def _encode(value: Any, codec: str) -> Any:
+    if value is None:
+        return None
+    if codec == "ndarray":
+        return {"shape": list(value.shape), "data": value.ravel().tolist()}
+    if codec == "PixelNoise":
+        return value.as_dict()
+    if codec == "tuple":
+        return list(value)
+    return value
+
+
+def _decode(value: Any, codec: str, key: str) -> Any:
+    if value is None:
+        return None
+    if codec == "ndarray":
+        return _array(value, key)
+    if codec == "PixelNoise":
+        return PixelNoise.from_dict(value)
+    if codec == "tuple":
+        try:
+            pair = tuple(float(v) for v in value)
+        except (TypeError, ValueError):
+            pair = ()
+        if len(pair) != 2:  # every tuple field of the model is a (low, high) pair
+            raise ModelError(f"model file: {key} must be a pair of numbers, got {value!r}")
+        return pair
+    return value
 
 
 def model_to_dict(model: FourierModel) -> dict[str, Any]:
     if model.coeffs is None:
         raise ModelError("refusing to save a model without coefficients: calibrate it first")
-    body: dict[str, Any] = {key: getattr(model, key) for key in _SCALAR_FIELDS}
-    body["stroke_range_mm"] = list(model.stroke_range_mm)
-    body["clip_gray"] = None if model.clip_gray is None else list(model.clip_gray)
-    for key in _ARRAY_FIELDS:
-        value = getattr(model, key)
-        body[key] = None if value is None else {"shape": list(value.shape), "data": value.ravel().tolist()}
-    body["pixel_noise"] = None if model.pixel_noise is None else model.pixel_noise.as_dict()
-    body["info"] = model.info
+    body = {key: _encode(getattr(model, key), codec) for key, codec in _fields().items()}
     return {"schema": SCHEMA, "version": SCHEMA_VERSION, "model": body}
 
 
@@ -50,14 +83,7 @@ def model_from_dict(document: Any) -> FourierModel:
     missing = [key for key in ("period_mm", "pixel_pitch_mm", "n_pixels", "coeffs") if body.get(key) is None]
     if missing:
         raise ModelError(f"model file lacks {missing[0]!r}")
-    kwargs: dict[str, Any] = {key: body[key] for key in _SCALAR_FIELDS if key in body}
-    for key in ("stroke_range_mm", "clip_gray"):
-        if body.get(key) is not None:
-            kwargs[key] = tuple(float(v) for v in body[key])
-    for key in _ARRAY_FIELDS:
-        kwargs[key] = _array(body.get(key), key)
-    if body.get("pixel_noise") is not None:
-        kwargs["pixel_noise"] = PixelNoise.from_dict(body["pixel_noise"])
+    kwargs = {key: _decode(body[key], codec, key) for key, codec in _fields().items() if key in body}
     kwargs["info"] = body.get("info") or {}
     try:
         return FourierModel(**kwargs)
@@ -89,6 +115,8 @@ def load_model(path: str | os.PathLike[str]) -> FourierModel:
         document = json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise ModelError(f"{path}: not a JSON model file ({exc})") from None
+    except RecursionError:
+        raise ModelError(f"{path}: not a model file (JSON nested too deeply to read)") from None
     try:
         return model_from_dict(document)
     except ModelError as exc:

@@ -10,6 +10,15 @@ are counted and recycled, never handed out), and, with ``latest_only``, skips to
 filled buffer so that a slow consumer gets current frames rather than a backlog. Gaps in the
 camera's frame ids (frames lost in transit or skipped here) are counted as dropped.
 
+Time: a buffer carries the camera's own timestamp (exact spacing, unknown origin, a few ppm of
+drift) and the host's receive time (exact clock, but late by scheduling jitter and now and then
+by milliseconds). :class:`~graytrack.drivers.camera.clock_fit.DeviceClockFit` maps the first
+onto the second by an online offset-and-drift fit on the lower envelope, and the frame's
+``t_host`` is that mapped arrival minus the readout (``readout_s``) minus half the exposure the
+camera reports: mid-exposure on ``time.monotonic``. Until the fit has 1.6 s of frames the
+stated uncertainty is a frame period (as for a receive-time stamp); then it is three times the
+envelope's scatter plus ``TIMING_FLOOR_S``.
+
 Triggering: ``free-run`` (continuous at the frame rate), ``software`` (each read fires the
 trigger and waits for that frame), ``hardware`` (frames start on ``trigger_source``).
 """
@@ -21,6 +30,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from graytrack.drivers.camera.clock_fit import DeviceClockFit
 from graytrack.drivers.camera.base import (
     Camera,
     CameraError,
@@ -35,6 +45,7 @@ from graytrack.drivers.camera.base import (
 TriggerMode = Literal["free-run", "software", "hardware"]
 PIXEL_DTYPES = {"Mono8": np.uint8, "Mono10": np.uint16, "Mono12": np.uint16, "Mono16": np.uint16}
 GVSP_FRAME_ID_MODULUS = 1 << 16  # GigE Vision 1.x block ids are 16 bits and skip 0 on wrap
+TIMING_FLOOR_S = 100e-6  # host wake-up and clock-conversion jitter left after the envelope fit
 
 _aravis_module: Any = None
 
@@ -76,6 +87,7 @@ class AravisCamera(Camera):
         pixel_format: str = "Mono8",
         n_buffers: int = 8,
         latest_only: bool = True,
+        readout_s: float = 0.0,
     ) -> None:
         super().__init__(settings)
         if pixel_format not in PIXEL_DTYPES:
@@ -88,11 +100,29 @@ class AravisCamera(Camera):
         self.pixel_format = pixel_format
         self.n_buffers = max(2, n_buffers)
         self.latest_only = latest_only
+        if readout_s < 0:
+            raise CameraSettingError(f"readout_s must not be negative, got {readout_s}")
+        self.readout_s = readout_s
+        self.clock_fit = DeviceClockFit()
+        self._exposure_s = 0.0
+        self._period_s = 0.1
         self._aravis: Any = None
         self._camera: Any = None
         self._stream: Any = None
         self._region: tuple[int, int, int, int] = (0, 0, 0, 0)
         self._last_frame_id: int | None = None
+
+    @property
+    def exposure_s(self) -> float:
+        """The exposure the camera reports using, seconds."""
+        return self._exposure_s
+
+    @property
+    def t_uncertainty_s(self) -> float:
+        fit = self.clock_fit
+        if not fit.established:
+            return self._period_s + fit.spread_s
+        return 3.0 * fit.spread_s + TIMING_FLOOR_S
 
     @property
     def model(self) -> str:
@@ -107,6 +137,7 @@ class AravisCamera(Camera):
             self._camera = aravis.Camera.new(self.device_id)
         except Exception as exc:  # GLib.Error; its class lives in gi, which is optional
             raise CameraNotFound(f"Aravis cannot open camera {self.device_id or '(first found)'}: {exc}") from None
+        self.clock_fit = DeviceClockFit()
         try:
             self._configure()
         except Exception:
@@ -146,6 +177,10 @@ class AravisCamera(Camera):
             _call("gain", camera.set_gain, float(s.gain_db))
         if s.frame_rate_hz is not None and self.trigger == "free-run":
             _call("frame rate", camera.set_frame_rate, float(s.frame_rate_hz))
+        # What the camera really uses (it rounds): read once here, not per frame over the wire.
+        self._exposure_s = max(0.0, float(_call("exposure", camera.get_exposure_time))) * 1e-6
+        rate = float(_call("frame rate", camera.get_frame_rate))
+        self._period_s = 1.0 / rate if rate > 0 else 0.1
         if restart:
             self._start_stream()
 
@@ -236,7 +271,16 @@ class AravisCamera(Camera):
         frame_id = int(buffer.get_frame_id())
         self.stats.dropped += frames_between(self._last_frame_id, frame_id)
         self._last_frame_id = frame_id
-        return Frame(strip, frame_id, _host_time(buffer.get_system_timestamp()), buffer.get_timestamp() * 1e-9)
+        return Frame(strip, frame_id, self._mid_exposure(buffer), buffer.get_timestamp() * 1e-9,
+                     exposure_s=self._exposure_s, t_uncertainty_s=self.t_uncertainty_s)
+
+    def _mid_exposure(self, buffer: Any) -> float:
+        arrival = _host_time(buffer.get_system_timestamp())
+        device_ns = int(buffer.get_timestamp())
+        if device_ns > 0:  # 0: the transport layer gave no device timestamp
+            self.clock_fit.add(device_ns, arrival)
+            arrival = self.clock_fit.host_time(device_ns)
+        return arrival - self.readout_s - 0.5 * self._exposure_s
 
 
 def frames_between(last: int | None, current: int) -> int:

@@ -6,9 +6,15 @@ sensor needs (exposure, gain, frame rate, the ROI strip), and frames that carry 
 timestamps. A frame is a strip of ``rows`` sensor rows by ``cols`` pixels, mono, in the camera's
 native integer depth; the strip is what the tracker consumes, so nothing larger is handed out.
 
-Timestamps: ``t_host`` is on the host's ``time.monotonic`` clock, the clock the stage driver
-stamps position readings with, so frames and grating readings can be paired. ``t_device`` is the
-camera's own clock when it has one (seconds, arbitrary origin), useful for exact frame spacing.
+Time contract (the same for every driver): ``Frame.t_host`` is the *middle of the exposure* on
+the host's ``time.monotonic`` clock, the clock the stage driver stamps position readings with
+and the one every process on the machine shares, so a frame and a grating reading can be paired
+and a client can compute a frame's age. ``Frame.exposure_s`` is the exposure's length on that
+clock, so the exposure spans ``t_host ± exposure_s / 2``. ``Frame.t_uncertainty_s`` is the
+driver's stated bound on how far ``t_host`` may be from the true mid-exposure: a camera that
+only tells when a frame arrived gives a wider bound than one whose own clock is mapped to the
+host's. ``t_device`` is the camera's own clock when it has one (seconds, arbitrary origin; the
+simulated clock for the simulated camera), useful for exact frame spacing.
 """
 
 from __future__ import annotations
@@ -77,8 +83,15 @@ class Roi:
 class Frame:
     pixels: np.ndarray  # (rows, cols), mono
     frame_id: int
-    t_host: float
-    t_device: float | None = None
+    t_host: float  # mid-exposure, time.monotonic seconds
+    t_device: float | None = None  # the camera's own clock, seconds
+    exposure_s: float = 0.0  # exposure length on the t_host clock
+    t_uncertainty_s: float = 0.0  # stated bound on |t_host - true mid-exposure|
+
+    @property
+    def exposure_end(self) -> float:
+        """When the exposure ended, host ``time.monotonic`` seconds."""
+        return self.t_host + 0.5 * self.exposure_s
 
 
 @dataclass
@@ -125,6 +138,17 @@ class Camera(Device):
     def is_open(self) -> bool:
         return self._open
 
+    # -- time contract (drivers refine these) -----------------------------------------------
+    @property
+    def exposure_s(self) -> float:
+        """The exposure frames are taken with, seconds on the camera's clock (0 when unknown)."""
+        us = self.settings.exposure_us
+        return 0.0 if us is None else us * 1e-6
+
+    @property
+    def t_uncertainty_s(self) -> float:
+        """The bound this driver states on |Frame.t_host - true mid-exposure|."""
+        return 0.0
 
     # -- settings --------------------------------------------------------------------------
     def set_exposure(self, exposure_us: float) -> None:

@@ -4,7 +4,16 @@ Live sources buffer frames (V4L2 keeps several, network streams more), so readin
 naively hands out frames that are already old, and their age is unknown. For live sources a
 grabber thread therefore pulls every frame as soon as the source offers it and keeps only the
 newest; :meth:`read` returns a frame newer than the last one handed out and counts the ones it
-skipped as dropped. Files are read in order, frame by frame, since a file has no "now".
+skipped as dropped. Files are read in order, frame by frame, since a file has no "now"; a file
+opened as live plays at full speed, or at its own frame rate with ``realtime=True`` (a camera
+stand-in for tests).
+
+Time: ``VideoCapture`` tells only when a frame was handed over (the moment ``grab`` returns),
+not when it was exposed. The driver estimates mid-exposure as that grab time minus the sensor
+readout (``readout_s``, 0 when unknown) minus half the exposure, and states its uncertainty as
+one frame period: a frame may wait up to a period in the driver's queue before the grab sees it.
+When the exposure is unknown (no ``exposure_us`` set and no ``exposure_s`` given) it is taken as
+0 and half a period is added to the uncertainty.
 """
 
 from __future__ import annotations
@@ -29,13 +38,14 @@ from graytrack.drivers.camera.base import (
 )
 
 V4L2_EXPOSURE_UNIT_US = 100.0  # V4L2's exposure_time_absolute counts in units of 100 µs
+UNKNOWN_PERIOD_S = 0.1  # the uncertainty when the source states no frame rate (10 Hz webcams exist)
 
 
 @dataclass
 class _Grabbed:
     seq: int
     image: np.ndarray
-    t_host: float
+    t_grab: float
     t_device: float | None
 
 
@@ -50,11 +60,20 @@ class OpenCVCamera(Camera):
         settings: CameraSettings | None = None,
         live: bool | None = None,
         backend: int = cv2.CAP_ANY,
+        readout_s: float = 0.0,
+        exposure_s: float | None = None,
+        realtime: bool = False,
     ) -> None:
         super().__init__(settings)
+        if readout_s < 0 or (exposure_s is not None and exposure_s < 0):
+            raise CameraSettingError("readout_s and exposure_s must not be negative")
         self.source = source
         self.live = _is_live(source) if live is None else live
         self.backend = backend
+        self.readout_s = readout_s
+        self.nominal_exposure_s = exposure_s
+        self.realtime = realtime
+        self._source_fps = 0.0
         self._cap: cv2.VideoCapture | None = None
         self._cond = threading.Condition()
         self._latest: _Grabbed | None = None
@@ -70,6 +89,7 @@ class OpenCVCamera(Camera):
         if not cap.isOpened():
             raise CameraNotFound(f"OpenCV cannot open {self.source!r}")
         self._cap = cap
+        self._source_fps = float(cap.get(cv2.CAP_PROP_FPS) or 0.0)
         try:
             if self.live:
                 cap.set(cv2.CAP_PROP_BUFFERSIZE, 1)  # a hint; the grabber thread is the guarantee
@@ -110,6 +130,33 @@ class OpenCVCamera(Camera):
                 raise CameraSettingError(f"{self.source}: a video file has no exposure, gain or frame rate to set")
             if not cap.set(prop, float(value)):
                 raise CameraSettingError(f"{self.source!r} refused property {prop} = {value}")
+        width, height = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
+        if width > 0 and height > 0:  # sources that state their size: refuse an ROI now, not at read
+            self.settings.roi.crop(np.empty((height, width), dtype=np.uint8))
+
+    # -- time ------------------------------------------------------------------------------
+    @property
+    def exposure_s(self) -> float:
+        """The exposure set, else the nominal one given, else 0 (unknown)."""
+        if self.settings.exposure_us is not None:
+            return self.settings.exposure_us * 1e-6
+        return self.nominal_exposure_s or 0.0
+
+    @property
+    def frame_period_s(self) -> float | None:
+        rate = self.settings.frame_rate_hz or self._source_fps
+        return 1.0 / rate if rate and rate > 0 else None
+
+    @property
+    def t_uncertainty_s(self) -> float:
+        """Bound on |t_host - mid-exposure|: a frame period of queueing, half more if exposure is unknown."""
+        period = self.frame_period_s or UNKNOWN_PERIOD_S
+        known = self.settings.exposure_us is not None or self.nominal_exposure_s is not None
+        return period if known else 1.5 * period
+
+    def mid_exposure(self, t_grab: float) -> float:
+        """Mid-exposure estimated from the host time ``grab`` returned."""
+        return t_grab - self.readout_s - 0.5 * self.exposure_s
 
     @property
     def source_ended(self) -> bool:
@@ -124,11 +171,13 @@ class OpenCVCamera(Camera):
     def _read_file(self) -> Frame:
         cap = self._cap
         assert cap is not None
-        ok, image = cap.read()
+        ok = cap.grab()
+        t_grab = time.monotonic()
+        ok, image = cap.retrieve() if ok else (False, None)
         if not ok:
             raise CameraEndOfStream(f"{self.source}: end of video")
         frame_id = int(cap.get(cv2.CAP_PROP_POS_FRAMES)) - 1
-        return self._frame(image, frame_id, time.monotonic(), _device_time(cap, live=False))
+        return self._frame(image, frame_id, t_grab, _device_time(cap, live=False))
 
     def _read_live(self, timeout_s: float) -> Frame:
         deadline = time.monotonic() + timeout_s
@@ -144,23 +193,28 @@ class OpenCVCamera(Camera):
             grabbed = self._latest
             self.stats.dropped += grabbed.seq - self._last_seq - 1
             self._last_seq = grabbed.seq
-        return self._frame(grabbed.image, grabbed.seq, grabbed.t_host, grabbed.t_device)
+        return self._frame(grabbed.image, grabbed.seq, grabbed.t_grab, grabbed.t_device)
 
     def _grab_loop(self) -> None:
         cap = self._cap
         assert cap is not None
         seq = 0
+        period = self.frame_period_s if self.realtime else None
+        start = time.monotonic()
         while not self._stop.is_set():
+            if period is not None and self._stop.wait(max(0.0, start + (seq + 1) * period - time.monotonic())):
+                reason = "closed"
+                break
             if not cap.grab():
                 reason = "end of stream"
                 break
-            t_host = time.monotonic()
+            t_grab = time.monotonic()
             ok, image = cap.retrieve()
             if not ok:
                 reason = "frame could not be decoded"
                 break
             with self._cond:
-                self._latest = _Grabbed(seq, image, t_host, _device_time(cap, live=True))
+                self._latest = _Grabbed(seq, image, t_grab, _device_time(cap, live=True))
                 self._cond.notify_all()
             seq += 1
         else:
@@ -169,10 +223,11 @@ class OpenCVCamera(Camera):
             self._ended = reason
             self._cond.notify_all()
 
-    def _frame(self, image: np.ndarray, frame_id: int, t_host: float, t_device: float | None) -> Frame:
+    def _frame(self, image: np.ndarray, frame_id: int, t_grab: float, t_device: float | None) -> Frame:
         mono = to_mono(image)
         strip = self.settings.roi.crop(mono)
-        return Frame(np.ascontiguousarray(strip), frame_id, t_host, t_device)
+        return Frame(np.ascontiguousarray(strip), frame_id, self.mid_exposure(t_grab), t_device,
+                     exposure_s=self.exposure_s, t_uncertainty_s=self.t_uncertainty_s)
 
 
 def to_mono(image: np.ndarray) -> np.ndarray:

@@ -7,6 +7,11 @@ the newest such frame not handed out yet, waiting for the next one if needed —
 and end of the exposure go to :meth:`VirtualRig.render`, so a moving stage blurs the strip as
 it would on the bench, and the controller's ``POS?`` (the grating) stays a separate, imperfect
 measurement of the same motion.
+
+Time: the exposure slots and the stage's motion live on the simulated clock (which may run
+faster than wall time); a frame's ``t_host`` is that slot's mid-exposure mapped to the host's
+``time.monotonic`` and ``t_device`` is the simulated instant. The mapping is exact, so the
+stated timing uncertainty is zero.
 """
 
 from __future__ import annotations
@@ -70,7 +75,7 @@ class SimCamera(Camera):
         newest = math.floor((now - self._t0 - self.exposure_s) * self.frame_rate_hz)
         slot = max(newest, self._last_slot + 1)
         ready_at = self._slot_mid(slot) + 0.5 * self.exposure_s
-        if ready_at - now > timeout_s:
+        if self.clock.duration_to_host(ready_at - now) > timeout_s:
             self.stats.timeouts += 1
             raise CameraTimeout(f"no simulated frame within {timeout_s:g} s")
         self.clock.sleep(ready_at - now)
@@ -81,4 +86,7 @@ class SimCamera(Camera):
         instants = np.array([t_mid - half, t_mid, t_mid + half]) if half > 0 else np.array([t_mid])
         x = np.asarray(self.stage.position(instants), dtype=np.float64)[None, :]
         strip = self.rig.render(x, np.array([t_mid]))[0]
-        return Frame(np.ascontiguousarray(self.settings.roi.crop(strip)), slot, t_mid, t_mid)
+        pixels = np.ascontiguousarray(self.settings.roi.crop(strip))
+        # Physics ran on the simulated clock; what leaves the camera is host time (the contract).
+        return Frame(pixels, slot, self.clock.to_host(t_mid), t_device=t_mid,
+                     exposure_s=self.clock.duration_to_host(self.exposure_s), t_uncertainty_s=0.0)

@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, Callable, Mapping, Sequence
 
 import numpy as np
 
+from graytrack.drivers.sim.sensor import FULL_SCALE_GRAY, BadPixel
 from graytrack.drivers.sim.target import Defect
 
 if TYPE_CHECKING:
@@ -251,6 +252,19 @@ def _flicker(config: "RigConfig", v: dict[str, float], rng: np.random.Generator)
     ill.flicker_phase_rad = math.radians(v["phase_deg"]) if v["phase_deg"] >= 0 else rng.uniform(0, 2 * math.pi)
 
 
+@effect("light_change", "illumination", "The light changes during the run (room light switched on, a lamp dimming): "
+        "from start_s on the lamp gives gain × its light and stray light adds ambient_gray evenly; ramp_s spreads the "
+        "change over time (0: a step).",
+        gain=(0.9, "lamp light after the change, relative"), ambient_gray=(6.0, "stray light added, gray"),
+        start_s=(0.0, "when the change begins, s"), ramp_s=(0.0, "how long it takes, s (0: a step)"))
+def _light_change(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    ill = config.illumination
+    ill.level_gain = _positive("light_change", "gain", v["gain"])
+    ill.ambient_gray = v["ambient_gray"]
+    ill.level_start_s = v["start_s"]
+    ill.level_ramp_s = _positive("light_change", "ramp_s", v["ramp_s"], True)
+
+
 # ----- optics ----------------------------------------------------------------------------------
 
 
@@ -298,6 +312,41 @@ def _dsnu(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) ->
         full_well=(10000.0, "electrons at full scale"))
 def _shot_noise(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
     config.sensor.full_well_e = _positive("shot_noise", "full_well", v["full_well"])
+
+
+@effect("photon_transfer", "sensor", "A sensor described as EMVA 1288 does: full well and read noise in electrons, "
+        "bit depth, black level; conversion gain 2^bits / full well (DN per electron); replaces the read noise.",
+        full_well=(32000.0, "electrons at full scale"), read_e=(12.0, "read noise, electrons rms"),
+        bits=(8.0, "bit depth of the readout, 1..16"), black_gray=(4.0, "black level, 8-bit-equivalent gray"))
+def _photon_transfer(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    full_well = _positive("photon_transfer", "full_well", v["full_well"])
+    config.sensor.full_well_e = full_well
+    config.sensor.read_noise_gray = _positive("photon_transfer", "read_e", v["read_e"], True) * 255.0 / full_well
+    config.sensor.black_level_gray = _positive("photon_transfer", "black_gray", v["black_gray"], True)
+    _quantize(config, {"bits": v["bits"]}, rng)
+
+
+@effect("bad_pixels", "sensor", "Defective pixels at random places of the ROI (or side by side from row/pixel): "
+        "stuck high, dead (stuck at 0), hot (an offset), noisy; from time start_s on.",
+        stuck=(1.0, "pixels stuck at full scale"), dead=(1.0, "pixels stuck at 0"), hot=(1.0, "hot pixels"),
+        noisy=(0.0, "noisy pixels"), hot_gray=(40.0, "offset of a hot pixel, gray"),
+        noisy_gray=(8.0, "extra noise of a noisy pixel, gray rms"), start_s=(0.0, "time they go bad, s"),
+        row=(-1.0, "row of the first one (-1: random places)"), pixel=(-1.0, "pixel of the first one"))
+def _bad_pixels(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    kinds = [("stuck", FULL_SCALE_GRAY)] * int(v["stuck"]) + [("stuck", 0.0)] * int(v["dead"]) + \
+        [("hot", v["hot_gray"])] * int(v["hot"]) + [("noisy", v["noisy_gray"])] * int(v["noisy"])
+    rows, width = config.optics.n_rows, config.optics.n_pixels
+    if len(kinds) > rows * width:
+        raise EffectError(f"effect 'bad_pixels': {len(kinds)} bad pixels do not fit in {rows} × {width}")
+    if v["pixel"] >= 0:
+        start = int(v["row"]) * width + int(v["pixel"])
+        if not 0 <= start <= rows * width - len(kinds) or v["row"] < 0:
+            raise EffectError("effect 'bad_pixels': row/pixel put the bad pixels outside the ROI")
+        places = np.arange(start, start + len(kinds))
+    else:
+        places = rng.choice(rows * width, size=len(kinds), replace=False)
+    for (kind, value), place in zip(kinds, places):
+        config.sensor.bad_pixels.append(BadPixel(kind, int(place // width), int(place % width), value, v["start_s"]))
 
 
 @effect("read_noise", "sensor", "Gaussian read noise per pixel and frame (replaces the scenario's).",

@@ -30,6 +30,10 @@ class IlluminationConfig:
     flicker_depth: float = 0.0  # relative modulation of the light at 2·mains
     mains_hz: float = 50.0
     flicker_phase_rad: float = 0.0
+    level_gain: float = 1.0  # the lamp's light relative to the start of the run, once changed
+    ambient_gray: float = 0.0  # stray light added evenly over the field once changed (gray)
+    level_start_s: float = 0.0  # when the light changes
+    level_ramp_s: float = 0.0  # how long the change takes (0: a step)
 
     @property
     def has_target_field(self) -> bool:
@@ -45,6 +49,18 @@ def target_field_gain(cfg: IlluminationConfig, x_w: np.ndarray) -> np.ndarray:
 def camera_field_gain(cfg: IlluminationConfig, radius2: np.ndarray) -> np.ndarray:
     """Vignetting gain from each pixel's squared radius (normalised to the sensor half-width)."""
     return 1.0 - cfg.vignetting * np.asarray(radius2, dtype=np.float64)
+
+
+def level_change(cfg: IlluminationConfig, t_mid_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-frame (gain, ambient gray) of a light that changes during the run: someone switches on the
+    room light or a lamp ages. Before ``level_start_s`` nothing changes; then the change ramps in
+    linearly over ``level_ramp_s`` (a step when 0)."""
+    t = np.asarray(t_mid_s, dtype=np.float64)
+    if cfg.level_ramp_s > 0:
+        share = np.clip((t - cfg.level_start_s) / cfg.level_ramp_s, 0.0, 1.0)
+    else:
+        share = (t >= cfg.level_start_s).astype(np.float64)
+    return 1.0 + (cfg.level_gain - 1.0) * share, cfg.ambient_gray * share
 
 
 def flicker_gain(cfg: IlluminationConfig, t_mid_s: np.ndarray, exposure_s: float) -> np.ndarray:

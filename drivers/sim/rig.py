@@ -217,7 +217,7 @@ class VirtualRig:
         setting passes it, and spaces ``x_mm_samples`` over the same window.
         """
         light = self.render_light(x_mm_samples, t_s, exposure_s)
-        return self.sensor.expose(light, self._noise_rng if noise else None)
+        return self.sensor.expose(light, self._noise_rng if noise else None, t_s)
 
     def render_light(self, x_mm_samples: np.ndarray, t_s: np.ndarray, exposure_s: float | None = None) -> np.ndarray:
         """Noise-free light reaching each pixel ``(K, R, n)``, float64, before the sensor."""
@@ -235,7 +235,9 @@ class VirtualRig:
             light = self._light_slow(xs) if self._slow else self._light_fast(xs)
             out[k0:k1] = light.reshape(k1 - k0, R, n)
         exposure = self.exposure_s if exposure_s is None else float(exposure_s)
-        out *= illum.flicker_gain(self.config.illumination, t, exposure)[:, None, None]
+        gain, ambient = illum.level_change(self.config.illumination, t)
+        out *= (illum.flicker_gain(self.config.illumination, t, exposure) * gain)[:, None, None]
+        out += ambient[:, None, None]
         return out
 
     def _basis(self, theta: np.ndarray) -> np.ndarray:
@@ -366,7 +368,7 @@ class VirtualRig:
             v_mm_s=v_mid,
             x_mean_mm=x_mean,
             reference_error_mm=reference - x_mid,
-            light_gain=illum.flicker_gain(cfg.illumination, t_mid, T),
+            light_gain=illum.flicker_gain(cfg.illumination, t_mid, T) * illum.level_change(cfg.illumination, t_mid)[0],
             frame_index=keep,
             pixel_x_mm=self.geometry.x_mm.copy(),
             pixel_gain=self.sensor.prnu * self._vignetting * cfg.sensor.gain,

@@ -13,7 +13,7 @@ the full sensor (a pattern fixed to the pixels, whatever the ROI and the scene).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -31,6 +31,22 @@ class SensorConfig:
     gain: float = 1.0  # analog gain in front of the clip (saturation)
     gamma: float = 1.0  # camera output gamma
     clip: bool = False  # clip at [0, full scale] (always on when quantising)
+    bad_pixels: list["BadPixel"] = field(default_factory=list)
+
+
+@dataclass
+class BadPixel:
+    """A defective pixel of the ROI (row, pixel), from time ``start_s`` on (8-bit-equivalent gray).
+
+    ``stuck`` reads ``value`` whatever the light (255: stuck high, 0: dead); ``hot`` adds ``value``
+    (a large dark-current offset); ``noisy`` adds Gaussian noise of standard deviation ``value``.
+    """
+
+    kind: str  # "stuck" | "hot" | "noisy"
+    row: int
+    pixel: int
+    value: float
+    start_s: float = 0.0
 
 
 class Sensor:
@@ -58,8 +74,10 @@ class Sensor:
             return np.dtype(np.float32)
         return np.dtype(np.uint8) if bits <= 8 else np.dtype(np.uint16)
 
-    def expose(self, light_gray: np.ndarray, rng: np.random.Generator | None) -> np.ndarray:
+    def expose(self, light_gray: np.ndarray, rng: np.random.Generator | None,
+               t_s: np.ndarray | None = None) -> np.ndarray:
         """Frames from the light reaching each pixel ``(K, R, n)``; ``rng=None`` means noise-free.
+        ``t_s`` ``(K,)`` (exposure instants) decides which bad pixels have gone bad yet.
 
         Works in float32 (resolution 2e-5 gray at full scale, far below any noise here): the
         noise draws and the arithmetic are what bound the render speed.
@@ -81,6 +99,8 @@ class Sensor:
         if cfg.gamma != 1.0:
             signal = np.float32(FULL_SCALE_GRAY) * (np.maximum(signal, 0.0) / np.float32(FULL_SCALE_GRAY)) ** np.float32(
                 cfg.gamma)
+        for bad in cfg.bad_pixels:
+            _spoil(signal, bad, rng, t_s)
         if cfg.clip or cfg.bit_depth is not None:
             np.clip(signal, 0.0, FULL_SCALE_GRAY, out=signal)
         if cfg.bit_depth is None:
@@ -88,3 +108,18 @@ class Sensor:
         scale = np.float32(2.0 ** (cfg.bit_depth - 8))
         top = 2**cfg.bit_depth - 1
         return np.clip(np.rint(signal * scale), 0, top).astype(self.output_dtype)
+
+
+def _spoil(signal: np.ndarray, bad: BadPixel, rng: np.random.Generator | None, t_s: np.ndarray | None) -> None:
+    """Apply one bad pixel in place to frames ``(K, R, n)`` exposed at ``t_s``."""
+    frames = np.ones(signal.shape[0], dtype=bool) if t_s is None else np.asarray(t_s) >= bad.start_s
+    if not frames.any():
+        return
+    column = signal[:, bad.row, bad.pixel]
+    if bad.kind == "stuck":
+        column[frames] = bad.value
+    elif bad.kind == "hot":
+        column[frames] += np.float32(bad.value)
+    elif rng is not None:  # noisy
+        column[frames] += np.float32(bad.value) * rng.standard_normal(int(frames.sum()), dtype=np.float32)
+    signal[:, bad.row, bad.pixel] = column

@@ -46,7 +46,11 @@ def frame_clock(cfg: TimingConfig, seconds: float, rng: np.random.Generator) -> 
     nominal = cfg.t0_s + np.arange(n) / cfg.frame_rate_hz
     # always draw, so that switching one effect on does not reshuffle the others' randomness
     trig, stamp_noise, drops = rng.standard_normal(n), rng.standard_normal(n), rng.random(n)
-    exposure_mid = nominal + cfg.trigger_jitter_s * trig
+    # A camera's frames never swap places: offsets stay within half a period either side (a
+    # no-op for any jitter small against the period), so recorded times always increase.
+    half = 0.49 / cfg.frame_rate_hz
+    exposure_mid = nominal + np.clip(cfg.trigger_jitter_s * trig, -half, half)
+    stamp = nominal + np.clip(exposure_mid - nominal + cfg.timestamp_jitter_s * stamp_noise, -half, half)
     kept = drops >= cfg.drop_probability
     if not kept.any():
         kept[0] = True
@@ -54,6 +58,6 @@ def frame_clock(cfg: TimingConfig, seconds: float, rng: np.random.Generator) -> 
         nominal=nominal,
         exposure_mid=exposure_mid,
         latch=nominal + cfg.latch_skew_s,
-        stamp=exposure_mid + cfg.timestamp_jitter_s * stamp_noise,
+        stamp=stamp,
         kept=kept,
     )

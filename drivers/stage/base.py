@@ -1,8 +1,9 @@
 """What the service needs from a closed-loop linear stage, independent of the controller.
 
 The position read is the grating readout, and it is only useful together with *when* it was
-taken: :class:`PositionReading` carries the host time (``time.monotonic`` by default, the same
-clock the cameras stamp frames with) so the acquisition loop can pair it with an exposure.
+taken: :class:`PositionReading` carries the host time on ``time.monotonic`` (the middle of the
+request and the reply, the clock the cameras stamp mid-exposure with, whatever clock a simulated
+controller runs on) so the acquisition loop can pair it with an exposure.
 """
 
 from __future__ import annotations
@@ -15,7 +16,8 @@ from graytrack.drivers.device import Device
 
 @dataclass(frozen=True)
 class PositionReading:
-    """Grating readout in mm at host time ``t`` (midpoint of request and reply, seconds)."""
+    """Grating readout in mm at host ``time.monotonic`` ``t`` (midpoint of request and reply, seconds);
+    ``latency_s`` is the round trip, so the reading was taken within ``t ± latency_s / 2``."""
 
     position_mm: float
     t: float

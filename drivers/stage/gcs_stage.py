@@ -33,7 +33,6 @@ class GCSStage(Stage):
         soft_limits_mm: tuple[float, float] | None = None,
         velocity_mm_s: float | None = None,
         reference_on_open: bool = True,
-        clock: Callable[[], float] = time.monotonic,
     ) -> None:
         if soft_limits_mm is not None and not soft_limits_mm[0] < soft_limits_mm[1]:
             raise ValueError(f"soft limits must be (low, high) with low < high, got {soft_limits_mm}")
@@ -41,7 +40,9 @@ class GCSStage(Stage):
         self.soft_limits_mm = soft_limits_mm
         self.velocity_mm_s = velocity_mm_s
         self.reference_on_open = reference_on_open
-        self.link = GCSConnection(port, baudrate=baudrate, timeout_s=timeout_s, clock=clock)
+        # Readings are stamped on the host's time.monotonic whatever clock the controller runs on
+        # (a simulated one may run faster): the time contract the cameras also keep.
+        self.link = GCSConnection(port, baudrate=baudrate, timeout_s=timeout_s)
         self._travel: tuple[float, float] | None = None
 
     # -- lifecycle -------------------------------------------------------------------------

@@ -20,6 +20,7 @@ import tempfile
 import threading
 import time
 import tty
+from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Literal
@@ -29,6 +30,7 @@ from graytrack.drivers.stage.axis_model import AxisModel, TrapezoidAxis
 from graytrack.drivers.stage.sim_gcs import DEFAULT_IDN, SimGCSInterpreter
 
 FaultKind = Literal["garbage", "partial", "drop", "slow", "error"]
+RECEIVED_KEPT = 1000  # command lines kept for tests and logs; a daemon polls POS? for days
 
 
 @dataclass
@@ -58,6 +60,7 @@ class SimGCSController:
         reference_mm: float | None = None,
         clock: Callable[[], float] = time.monotonic,
         seed: int = 0,
+        keep_received: int = RECEIVED_KEPT,
     ) -> None:
         self.model = model if model is not None else TrapezoidAxis()
         self.interpreter = SimGCSInterpreter(self.model, clock, axis=axis, idn=idn, reference_mm=reference_mm)
@@ -66,7 +69,9 @@ class SimGCSController:
             self._tmpdir = tempfile.TemporaryDirectory(prefix="simgcs-")
             path = Path(self._tmpdir.name) / "ttyGCS0"
         self.path = str(path)
-        self.received: list[str] = []  # every command line, for tests and logs
+        # The newest command lines, oldest first, for tests and logs. Bounded: the daemon's
+        # grating poller sends hundreds of POS? a second, and an unbounded log grew ~1.4 GB a day.
+        self.received: deque[str] = deque(maxlen=keep_received)
         self._rng = random.Random(seed)
         self._faults: list[Fault] = []
         self._lock = threading.Lock()  # guards the pty fds and the interpreter

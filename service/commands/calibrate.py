@@ -3,14 +3,20 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
+from typing import TYPE_CHECKING
 
-from graytrack.core.calibration import calibrate
-from graytrack.core.models import save_model
-from graytrack.core.recording import load
-from graytrack.service.progress import ProgressBar
+from graytrack.service.errors import CliError
+from graytrack.service.outputs import output_file
+
+if TYPE_CHECKING:
+    from graytrack.core.recording import Recording
 
 MODEL_KINDS = ("ideal", "paper", "auto")
+DEFAULT_PIXEL_DEGREE = 3
+PIXELS_PER_POLY_COEFF = 10  # a degree-P polynomial over n pixels fits (P+1)/n of the noise: keep it under 10 %
+DATA_PER_COEFF = 10  # gray values per model coefficient, at least
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -27,13 +33,59 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=run)
 
 
+def model_size_limits(recording: "Recording", pixel_degree: int) -> tuple[int, str, int, str]:
+    """The largest harmonics and pixel degree this recording can support, each with its reason."""
+    import numpy as np
+
+    from graytrack.core.recording import describe_bytes, memory_budget_bytes
+
+    n_pixels = recording.n_pixels
+    max_degree = max(0, n_pixels // PIXELS_PER_POLY_COEFF - 1)
+    degree_reason = (f"{n_pixels} pixels support a polynomial of degree {max_degree} at most "
+                     f"({PIXELS_PER_POLY_COEFF} pixels per coefficient; more fits the noise)")
+    data = int(np.isfinite(recording.reference).sum()) * n_pixels * recording.n_rows
+    terms = pixel_degree + 1
+    limits = [((data // (DATA_PER_COEFF * terms) - 1) // 2,
+               f"{data} gray values with a reference support {DATA_PER_COEFF * terms} per harmonic pair at most")]
+    budget = memory_budget_bytes()
+    limits.append(((budget // (8 * max(data, 1) * terms) - 1) // 2,
+                   f"the fit's design matrix must stay within the memory budget of {describe_bytes(budget)}"))
+    period, pitch = recording.meta.get("period_mm"), recording.meta.get("pixel_pitch_mm")
+    if period and pitch:
+        limits.append((math.floor(period / (2 * pitch)),
+                       f"a period of {period:g} mm sampled every {pitch:g} mm aliases above that harmonic"))
+    max_harmonics, harmonics_reason = min(limits, key=lambda item: item[0])
+    return max(max_harmonics, 0), harmonics_reason, max_degree, degree_reason
+
+
+def check_model_size(recording: "Recording", harmonics: int | None, pixel_degree: int | None) -> None:
+    """Refuse a model larger than the data can determine, before minutes of fitting."""
+    if harmonics is not None and harmonics < 1:
+        raise CliError(f"--harmonics {harmonics}: must be at least 1")
+    if pixel_degree is not None and pixel_degree < 0:
+        raise CliError(f"--pixel-degree {pixel_degree}: must be 0 or more")
+    degree = DEFAULT_PIXEL_DEGREE if pixel_degree is None else pixel_degree
+    max_harmonics, harmonics_reason, max_degree, degree_reason = model_size_limits(recording, degree)
+    if pixel_degree is not None and pixel_degree > max_degree:
+        raise CliError(f"--pixel-degree {pixel_degree}: at most {max_degree} here; {degree_reason}")
+    if harmonics is not None and harmonics > max_harmonics:
+        raise CliError(f"--harmonics {harmonics}: at most {max_harmonics} here; {harmonics_reason}")
+
+
 def run(args: argparse.Namespace) -> int:
+    from graytrack.core.calibration import calibrate
+    from graytrack.core.models import save_model
+    from graytrack.core.recording import load
+    from graytrack.service.progress import ProgressBar
+
+    out = output_file(args.out)
     recording = load(args.recording)
+    check_model_size(recording, args.harmonics, args.pixel_degree)
     if args.model == "auto":
-        return run_auto(recording, args.out)
+        return run_auto(recording, str(out))
     result = calibrate(recording, args.model, harmonics=args.harmonics, pixel_degree=args.pixel_degree,
                        rows=args.rows, progress=ProgressBar("calibrate"))
-    path = save_model(result.model, args.out)
+    path = save_model(result.model, out)
     print(f"model   {result.model.describe()}")
     print(f"rmse    {result.rmse_gray:.4f} gray (noise sigma {result.sigma_gray:.4f} gray from the data)")
     print(f"wrote   {path}", file=sys.stdout)
@@ -43,7 +95,9 @@ def run(args: argparse.Namespace) -> int:
 def run_auto(recording, out: str) -> int:
     """The closed loop's final model, with its held-out figures as the summary."""
     from graytrack.core.diagnosis import diagnose
+    from graytrack.core.models import save_model
     from graytrack.service.commands.diagnose import summary_lines
+    from graytrack.service.progress import ProgressBar
 
     result = diagnose(recording, progress=ProgressBar("calibrate auto"))
     path = save_model(result.final_model, out)

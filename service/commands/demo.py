@@ -8,17 +8,6 @@ not told about and runs the closed loop on it.
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
-
-import numpy as np
-
-from graytrack.core.calibration import calibrate
-from graytrack.core.diagnosis import diagnose
-from graytrack.core.recording import save
-from graytrack.core.tracking import track
-from graytrack.drivers.sim.scenarios import build_rig
-from graytrack.service.commands.diagnose import summary_lines
-from graytrack.service.report import write_report
 
 UNDECLARED_EFFECTS = "gradient:per_10mm=0.05,prnu:sigma=0.015,flicker:mains_hz=60:depth=0.02"
 
@@ -31,7 +20,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    out = Path(args.out)
+    import numpy as np
+
+    from graytrack.core.calibration import calibrate
+    from graytrack.core.diagnosis import diagnose
+    from graytrack.core.recording import save
+    from graytrack.core.tracking import track
+    from graytrack.drivers.sim.scenarios import build_rig
+    from graytrack.service.commands.diagnose import summary_lines
+    from graytrack.service.outputs import output_folder
+    from graytrack.service.report import write_report
+
+    out = output_folder(args.out)
     rig = build_rig("paper", seed=args.seed)
     cal, _ = rig.record(20.0)
     val, _ = rig.record(10.0)

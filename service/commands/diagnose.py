@@ -4,11 +4,6 @@ from __future__ import annotations
 
 import argparse
 
-from graytrack.core.diagnosis import diagnose
-from graytrack.core.recording import load
-from graytrack.service.progress import ProgressBar
-from graytrack.service.report import write_report
-
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
@@ -43,6 +38,13 @@ def summary_lines(report: dict) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> int:
+    from graytrack.core.diagnosis import diagnose
+    from graytrack.core.recording import load
+    from graytrack.service.progress import ProgressBar
+    from graytrack.service.outputs import output_folder
+    from graytrack.service.report import write_report
+
+    output_folder(args.out)
     calibration = load(args.recording)
     validation = load(args.validate) if args.validate else None
     result = diagnose(calibration, validation, progress=ProgressBar("diagnose"))

@@ -14,7 +14,6 @@ import signal
 import socket
 import sys
 
-from graytrack.drivers.config import ConfigError
 from graytrack.service.errors import CliError
 
 
@@ -54,6 +53,7 @@ def bind(host: str, port: int) -> socket.socket:
 def run(args: argparse.Namespace) -> int:
     import uvicorn
 
+    from graytrack.drivers.config import ConfigError
     from graytrack.service.daemon.app import create_app
     from graytrack.service.daemon.errors import DataDirInUse
     from graytrack.service.daemon.settings import load_settings

@@ -7,10 +7,9 @@ effects with their parameters. Ground truth goes to ``--truth`` only, never into
 from __future__ import annotations
 
 import argparse
+import math
 
-from graytrack.core.recording import save
 from graytrack.service.errors import CliError
-from graytrack.service.progress import ProgressBar
 
 EFFECT_SYNTAX = (
     "Effects: --effects NAME[:KEY=VALUE[:KEY=VALUE...]][,NAME...]; repeat --effects to add more.\n"
@@ -46,19 +45,32 @@ def listing() -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    from graytrack.core.recording import describe_bytes, memory_budget_bytes, save, working_bytes
     from graytrack.drivers.sim.scenarios import build_rig
+    from graytrack.service.outputs import output_file
+    from graytrack.service.progress import ProgressBar
 
     if args.list:
         print(listing())
         return 0
     if not args.out:
         raise CliError("--out REC.npz is required (or --list)")
-    if args.seconds is not None and not args.seconds > 0:
-        raise CliError(f"--seconds must be positive, got {args.seconds:g}")
+    if args.seconds is not None and not (math.isfinite(args.seconds) and args.seconds > 0):
+        raise CliError(f"--seconds must be positive and finite, got {args.seconds:g}")
+    output_file(args.out if args.out.endswith(".npz") else args.out + ".npz")
+    if args.truth:
+        output_file(args.truth, "--truth")
     try:
         rig = build_rig(args.scenario, args.effects, seed=args.seed)
     except ValueError as exc:
         raise CliError(str(exc)) from None
+    if args.seconds is not None:
+        frames = math.ceil(args.seconds * rig.frame_rate_hz)
+        need, budget = working_bytes((frames, rig.n_rows, rig.n_pixels)), memory_budget_bytes()
+        if need > budget:
+            longest = budget / (8 * rig.n_rows * rig.n_pixels * rig.frame_rate_hz)
+            raise CliError(f"--seconds {args.seconds:g}: {frames} frames need {describe_bytes(need)}, beyond the "
+                           f"memory budget of {describe_bytes(budget)}; at most {longest:.0f} s for this scenario")
     rec, truth = rig.record(args.seconds, progress=ProgressBar("simulate"))
     path = save(rec, args.out)
     shape = "×".join(str(s) for s in rec.frames.shape)

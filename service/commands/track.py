@@ -3,17 +3,21 @@
 from __future__ import annotations
 
 import argparse
+import sys
+from typing import TYPE_CHECKING
 
-import numpy as np
+from graytrack.service.batch.chunks import ChunkOptions, add_chunk_arguments, chunk_options
 
-from graytrack.core.models import load_model
-from graytrack.core.recording import load
-from graytrack.core.timing import at_exposure
-from graytrack.core.tracking import TrackResult, track
-from graytrack.service.progress import ProgressBar
-from graytrack.service.tables import write_csv
+if TYPE_CHECKING:  # the parser is built for every command: only `run` imports the numerics
+    import numpy as np
 
-CSV_COLUMNS = ("t", "x_mm", "locked", "rms_gray", "crlb_um", "reference_mm", "error_um")
+    from graytrack.core.models.fourier import FourierModel
+    from graytrack.core.recording import Recording
+    from graytrack.core.tracking import TrackResult
+    from graytrack.service.progress import ProgressBar
+
+CSV_COLUMNS = ("t", "x_mm", "locked", "rms_gray", "crlb_um", "reference_mm", "error_um", "chi2", "rejected_px",
+               "gain", "offset_gray", "stale")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -23,6 +27,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--out", required=True, help="CSV to write; header starts t,x_mm")
     parser.add_argument("--no-reference", action="store_true",
                         help="ignore the recording's grating readout (acquire and track on the image alone)")
+    parser.add_argument("--light", choices=("auto", "fixed", "free"), default="auto",
+                        help="per-frame light gain/offset: solved when a frame's residual asks for it (auto, default), "
+                             "never (fixed: the calibration's light), or always (free)")
+    parser.add_argument("--no-robust", action="store_true",
+                        help="do not set aside pixels that went bad in this run (robust reweighting is on by default)")
+    add_chunk_arguments(parser)
     parser.set_defaults(func=run)
 
 
@@ -30,10 +40,14 @@ def result_columns(t: np.ndarray, result: TrackResult, reference: np.ndarray) ->
     return {
         "t": t, "x_mm": result.x_mm, "locked": result.locked.astype(int), "rms_gray": result.rms_gray,
         "crlb_um": result.crlb_mm * 1e3, "reference_mm": reference, "error_um": result.error_um(reference),
+        "chi2": result.chi2, "rejected_px": result.rejected_px, "gain": result.gain, "offset_gray": result.offset,
+        "stale": result.stale.astype(int),
     }
 
 
 def summary(result: TrackResult, reference: np.ndarray) -> list[str]:
+    import numpy as np
+
     lines = [f"frames  {result.x_mm.size}, locked {int(result.locked.sum())}, lock events {len(result.events)}"]
     for event in result.events[:10]:
         state = f"re-acquired at {event.x_after_mm:.4f} mm" if event.reacquired else "not re-acquired"
@@ -42,22 +56,74 @@ def summary(result: TrackResult, reference: np.ndarray) -> list[str]:
     if np.isfinite(error).sum() > 1:
         lines.append(
             f"error   std {np.nanstd(error):.3f} um, mean {np.nanmean(error):+.3f} um, max |e| {np.nanmax(np.abs(error)):.3f} um"
-            f" (noise floor {np.nanmedian(result.crlb_mm) * 1e3:.3f} um)"
+            f" (noise floor {np.sqrt(np.nanmean(np.square(result.crlb_mm))) * 1e3:.3f} um, the rms of the frames' bounds)"
         )
+    lines.extend(validity(result))
     return lines
 
 
-def run(args: argparse.Namespace) -> int:
-    recording = load(args.recording)
-    model = load_model(args.model)
+def validity(result: TrackResult) -> list[str]:
+    """How well the model still describes the images: χ², rejected pixels, light, and staleness."""
+    import numpy as np
+
+    chi2 = result.chi2[np.isfinite(result.chi2)]
+    if not chi2.size:
+        return []
+    lines = [f"model   chi2 per pixel median {np.median(chi2):.2f} (calibration {result.chi2_calibration:.2f}); "
+             f"frames with rejected pixels {int((result.rejected_px > 0).sum())}, "
+             f"with the light re-solved {int((np.isfinite(result.gain) & (result.gain != 1.0)).sum())}"]
+    return lines
+
+
+def stale_warning(result: TrackResult) -> str | None:
+    """One line for stderr when the model went stale during the run (sustained χ² rise)."""
+    import numpy as np
+
+    if not result.stale.any():
+        return None
+    first = int(np.argmax(result.stale))
+    return (f"warning: model stale from frame {first} on (residual chi2 stays above the calibration's "
+            f"{result.chi2_calibration:.2f}): recalibrate (graytrack calibrate, or graytrack diagnose for the cause)")
+
+
+def solve(recording: Recording, model: FourierModel, no_reference: bool = False,
+          progress: ProgressBar | None = None, chunks: ChunkOptions | None = None, light: str = "auto",
+          robust: bool = True) -> tuple[TrackResult, np.ndarray]:
+    """Track a recording as the command does: (result, the grating at the exposure instants)."""
+    import numpy as np
+
+    from graytrack.core.timing import at_exposure
+    from graytrack.core.tracking import track
+    from graytrack.service.batch.chunks import track_in_chunks
+
     grating = recording.reference
     skew_s = float(model.info.get("reference_skew_s", 0.0))
     if skew_s:  # the closed loop found the grating latched off mid-exposure: compare at the exposure
         grating = at_exposure(recording.t, grating, skew_s)
         print(f"grating reference moved to mid-exposure ({skew_s * 1e3:+.3f} ms, from the model)")
-    reference = np.full(recording.n_frames, np.nan) if args.no_reference else grating
-    result = track(model, recording.frames, reference=reference, progress=ProgressBar("track"))
+    reference = np.full(recording.n_frames, np.nan) if no_reference else grating
+    if chunks is not None:
+        return track_in_chunks(model, recording.frames, reference, chunks, light, robust), grating
+    return track(model, recording.frames, reference=reference, progress=progress, light=light, robust=robust), grating
+
+
+def run(args: argparse.Namespace) -> int:
+    from graytrack.core.models import load_model
+    from graytrack.core.recording import load
+    from graytrack.service.outputs import output_file
+    from graytrack.service.progress import ProgressBar
+    from graytrack.service.tables import write_csv
+
+    chunks = chunk_options(args)
+    output_file(args.out)
+    recording = load(args.recording)
+    model = load_model(args.model)
+    result, grating = solve(recording, model, args.no_reference, ProgressBar("track"), chunks, args.light,
+                            not args.no_robust)
     path = write_csv(args.out, result_columns(recording.t, result, grating))
     print("\n".join(summary(result, grating)))
+    warning = stale_warning(result)
+    if warning:
+        print(warning, file=sys.stderr)
     print(f"wrote   {path}")
     return 0

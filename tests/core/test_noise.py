@@ -66,3 +66,19 @@ def test_sigma_of_a_step_and_settle_sweep_uses_the_stops_only(per_stop):
     stops = np.repeat(np.linspace(0, 10, 90), per_stop)
     frames = paper.paper_frames(stops, rng=np.random.default_rng(9))[:, 0, :]
     assert estimate_sigma(frames, stops) == pytest.approx(0.7, rel=0.08)
+
+
+@pytest.mark.parametrize("grating_um, expected_mm", [(None, (0.0, 0.0005)), (50.0, (0.05,))])
+def test_step_and_settle_floor_comes_from_the_grating_not_the_stops(grating_um, expected_mm):
+    """Stops 256.5 µm apart, frames at rest only (as the daemon's sweep keeps them): the readout's
+    step is the grating's (or unknown), never the spacing of the stops."""
+    from graytrack.core.noise import reference_resolution_mm
+    from graytrack.drivers.sim.scenarios import build_rig
+    from graytrack.drivers.sim.stage import steps
+
+    rig = build_rig("paper", "" if grating_um is None else f"grating_resolution:um={grating_um}", seed=1)
+    recording, truth = rig.record(9.0, trajectory=steps(0.0, 0.2565 * 30, 30, 0.2, rig.config.stage))
+    at_rest = np.abs(truth.v_mm_s) < 1e-9
+    step = reference_resolution_mm(recording.reference[at_rest])
+    assert np.diff(np.unique(recording.reference[at_rest])).max() > 0.2  # the stops are there
+    assert any(step == pytest.approx(value, abs=1e-9) for value in expected_mm), step

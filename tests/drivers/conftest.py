@@ -26,5 +26,8 @@ def controller() -> Iterator[SimGCSController]:
 
 @pytest.fixture
 def stage(controller: SimGCSController) -> Iterator[GCSStage]:
-    with GCSStage(controller.path, timeout_s=TIMEOUT_S, velocity_mm_s=20.0) as driver:
+    # Opened with a generous timeout (set-up is not under test and the machine may be loaded),
+    # then short, so fault tests that must time out stay fast.
+    with GCSStage(controller.path, timeout_s=1.0, velocity_mm_s=20.0) as driver:
+        driver.link.timeout_s = TIMEOUT_S
         yield driver

@@ -5,7 +5,6 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 
@@ -17,6 +16,7 @@ from graytrack.drivers.camera.base import (
     Roi,
 )
 from graytrack.drivers.camera.opencv import OpenCVCamera
+from tests.drivers.videos import write_video
 
 N_FRAMES, WIDTH, HEIGHT, FPS = 24, 96, 20, 25.0
 
@@ -31,13 +31,7 @@ def bgr_frame(index: int) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def video(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    path = tmp_path_factory.mktemp("video") / "strip.mkv"
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"FFV1"), FPS, (WIDTH, HEIGHT), True)
-    assert writer.isOpened()
-    for index in range(N_FRAMES):
-        writer.write(bgr_frame(index))
-    writer.release()
-    return path
+    return write_video(tmp_path_factory.mktemp("video") / "strip.mkv", map(bgr_frame, range(N_FRAMES)), FPS)
 
 
 def expected_gray(index: int) -> np.ndarray:
@@ -89,13 +83,13 @@ def test_callback_delivery_gets_every_file_frame(video: Path) -> None:
     assert received == list(range(N_FRAMES))
 
 
-def test_clear_errors_for_missing_files_bad_roi_and_unsettable_properties(video: Path, tmp_path: Path) -> None:
+def test_a_missing_file_is_not_found_and_a_video_file_has_no_exposure(video: Path, tmp_path: Path) -> None:
+    """ROI, exposure, timestamps, timeouts of a live-played file: the camera contract suite."""
     with pytest.raises(CameraNotFound):
         OpenCVCamera(str(tmp_path / "nope.mkv")).open()
-    with pytest.raises(CameraSettingError, match="video file"):
-        OpenCVCamera(str(video), CameraSettings(exposure_us=500.0)).open()
-    with OpenCVCamera(str(video), CameraSettings(roi=Roi(row=HEIGHT - 1, rows=2))) as camera:
-        with pytest.raises(CameraSettingError, match="does not fit"):
-            camera.read()
+    with OpenCVCamera(str(video)) as camera:
+        frame = camera.read()
+    # No exposure known: 0, and the stated uncertainty widens to 1.5 frame periods.
+    assert frame.exposure_s == 0.0 and frame.t_uncertainty_s == pytest.approx(1.5 / FPS)
     with pytest.raises(CameraSettingError):
         Roi(rows=0)

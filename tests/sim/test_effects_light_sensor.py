@@ -54,6 +54,18 @@ def test_flicker_is_a_common_mode_gain_per_frame_at_twice_mains():
     np.testing.assert_allclose(long, expected_long, atol=1e-12)
 
 
+def test_light_change_scales_the_lamp_and_adds_stray_light_from_its_start():
+    rig = quiet_rig(effects=["light_change:gain=0.8:ambient_gray=10:start_s=1:ramp_s=2"])
+    t = np.array([0.0, 0.99, 2.0, 3.0, 5.0])
+    x = np.full(t.size, 3.0)
+    changed, steady = rig.render_light(x, t)[:, 0], quiet_rig().render_light(x, t)[:, 0]
+    gain = np.array([1.0, 1.0, 0.9, 0.8, 0.8])
+    ambient = np.array([0.0, 0.0, 5.0, 10.0, 10.0])
+    np.testing.assert_allclose(changed, gain[:, None] * steady + ambient[:, None], atol=1e-9)
+    step = quiet_rig(effects=["light_change:gain=1.2:ambient_gray=-4:start_s=1"]).render_light(x, t)[:, 0]
+    np.testing.assert_allclose(step[[1, 2]], [steady[1], 1.2 * steady[2] - 4.0], atol=1e-9)
+
+
 def _still_frames(rig, n_frames: int, x: float = 2.0, noise: bool = True) -> np.ndarray:
     x_samples = np.full(n_frames, x)
     return rig.render(x_samples, np.zeros(n_frames), noise=noise).astype(float)

@@ -1,0 +1,170 @@
+"""Bad pixels: stuck, dead, hot, noisy, or not following the target. Found, named and masked.
+
+A pixel that does not see the target is worse than useless to a least-squares fit: a pixel stuck
+at full scale in a line of 100 pulls a cubic pixel polynomial far off and, in tracking, drags
+every frame's position. Most defects show without any model, in the pixel's own time series
+(it does not move, it sits far off its neighbours, it is noisier than the photon-transfer curve
+allows); the rest show as a residual far above noise once a model is fitted. Found pixels get
+weight 0 in calibration and in the model (``pixel_weight``), and are named with their (row,
+pixel) and the reason.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from scipy.ndimage import median_filter
+
+from graytrack.core.effects import Effect
+from graytrack.core.noise import temporal_differences
+from graytrack.core.regression import weighted_affine
+
+STUCK_SHARE = 0.05  # temporal spread below this share of a typical pixel's: the pixel does not see the light
+OUTLIER_Z = 10.0  # robust z-score (MAD) beyond which a pixel stands out from the others
+HOT_MIN_SIGMAS = 10.0  # an offset must also exceed this many noise σ to count
+NOISY_RATIO = 4.0  # temporal variance this many times what the noise curve allows
+FOLLOW_RATIO = 9.0  # residual variance this many times the noise: the pixel does not follow the target
+NEIGHBOURS = 7
+
+Finding = tuple[int, int, str]  # (row, pixel, reason)
+
+
+def _robust_z(values: np.ndarray, good: np.ndarray) -> np.ndarray:
+    centre = np.median(values[good])
+    scale = 1.4826 * np.median(np.abs(values[good] - centre))
+    return (values - centre) / max(scale, 1e-12)
+
+
+def model_free_bad_pixels(frames: np.ndarray, reference: np.ndarray | None, period_mm: float | None,
+                          sigma_gray: float, variance_at: Any = None) -> list[Finding]:
+    """Stuck, dead, hot and noisy pixels of frames ``(K, R, n)``, from their time series alone.
+
+    ``variance_at(gray)`` is the noise curve (σ² at a gray level); default σ² = ``sigma_gray``².
+    """
+    frames = np.asarray(frames, dtype=np.float64)
+    mean, spread = frames.mean(axis=0), frames.std(axis=0)
+    typical = float(np.median(spread))
+    found: dict[tuple[int, int], str] = {}
+    floor = float(frames.min())
+    for r, u in zip(*np.nonzero(spread < STUCK_SHARE * typical)):
+        value = float(mean[r, u])
+        found[(int(r), int(u))] = (f"dead (stuck at the floor, {value:g})" if value <= floor + 0.5
+                                   else f"stuck at {value:g} (does not see the light)")
+    good = np.ones(mean.shape, dtype=bool)
+    for r, u in found:
+        good[r, u] = False
+    local = median_filter(mean, size=(1, NEIGHBOURS), mode="nearest")
+    offset = mean - local
+    z = _robust_z(offset, good)
+    for r, u in zip(*np.nonzero((np.abs(z) > OUTLIER_Z) & (np.abs(offset) > HOT_MIN_SIGMAS * sigma_gray) & good)):
+        kind = "hot" if offset[r, u] > 0 else "dark"
+        found[(int(r), int(u))] = f"{kind} (offset {offset[r, u]:+.1f} gray from its neighbours)"
+        good[r, u] = False
+    cleaned, level, gain, _ = temporal_differences(frames, reference, period_mm)
+    shape = frames.shape[1:]
+    temporal = (np.mean(cleaned**2, axis=0) / gain**2).reshape(shape)
+    expected = (np.full(shape, sigma_gray**2) if variance_at is None
+                else variance_at(level.mean(axis=0).reshape(shape)))
+    ratio = temporal / np.maximum(expected, 1e-12)
+    z = _robust_z(ratio, good)
+    for r, u in zip(*np.nonzero((ratio > NOISY_RATIO) & (z > OUTLIER_Z) & good)):
+        found[(int(r), int(u))] = f"noisy (σ {np.sqrt(temporal[r, u]):.1f} gray, the noise curve allows " \
+                                  f"{np.sqrt(expected[r, u]):.1f})"
+    return sorted((r, u, reason) for (r, u), reason in found.items())
+
+
+def residual_bad_pixels(residual: np.ndarray, predicted: np.ndarray, usable: np.ndarray,
+                        sigma_gray: float) -> list[Finding]:
+    """Pixels whose fit residual ``(K, R, n)`` is far above noise and far above the other pixels',
+    after a gain and offset per pixel: what such a response explains is the flat field's, not a
+    defect."""
+    predicted = np.broadcast_to(predicted, residual.shape)
+    gain, offset = weighted_affine(residual, predicted, usable, axis=(0,))
+    residual = (residual - gain * predicted - offset) * usable
+    count = np.maximum(usable.sum(axis=0), 1.0)
+    variance = (residual**2).sum(axis=0) / count
+    good = usable.max(axis=0) > 0
+    if not good.any():
+        return []
+    z = _robust_z(variance, good)
+    hits = (variance > FOLLOW_RATIO * sigma_gray**2) & (z > OUTLIER_Z) & good
+    return [(int(r), int(u), f"does not follow the target (residual {np.sqrt(variance[r, u]):.1f} gray rms, "
+             f"noise {sigma_gray:.2f})") for r, u in zip(*np.nonzero(hits))]
+
+
+def find_bad_pixels(data: Any, residual: np.ndarray | None = None, predicted: np.ndarray | None = None,
+                    usable: np.ndarray | None = None) -> list[Finding]:
+    """Every bad pixel of calibration data: model-free findings, then (given a fit's residual)
+    pixels that do not follow the target."""
+    noise = getattr(data, "pixel_noise", None)
+    found = model_free_bad_pixels(data.frames, data.x_mm, data.meta.get("period_mm"), data.sigma_gray,
+                                  None if noise is None else noise.variance)
+    if residual is not None:
+        known = {(r, u) for r, u, _ in found}
+        found += [f for f in residual_bad_pixels(residual, predicted, usable, data.sigma_gray) if f[:2] not in known]
+    return sorted(found)
+
+
+def mask(findings: Any, shape: tuple[int, int]) -> np.ndarray:
+    """``(R, n)``: 0 at the listed pixels, 1 elsewhere."""
+    weights = np.ones(shape)
+    for r, u, _ in findings:
+        weights[r, u] = 0.0
+    return weights
+
+
+class BadPixels(Effect):
+    name = "bad_pixels"
+    family = "pixels that do not see the target (stuck, dead, hot, noisy, a defect that does not follow the light)"
+    adds = "weight 0 for those pixels in calibration and tracking; their indices and reasons in the report"
+    fitted = ("model-free tests of each pixel's time series (spread, offset from its neighbours, noise against the "
+              "photon-transfer curve), then the fit's residual per pixel")
+    order = 1
+    data_quality = True
+
+    def probe(self, stage):
+        from graytrack.core.diagnosis.evidence import Evidence
+
+        train, val = stage.train, stage.val
+        known = {(r, u) for r, u, _ in stage.spec.get(self.name, ())}
+        residual = train.data.frames - np.broadcast_to(train.predicted, train.data.frames.shape)
+        found = [f for f in find_bad_pixels(train.data, residual, train.predicted, train.usable) if f[:2] not in known]
+        if not found:
+            return None
+        shape = val.data.frames.shape[1:]
+        spoiled = 1.0 - mask(found, shape)
+        raw = (val.data.frames - val.predicted) * spoiled
+        explained = float((raw**2).sum())
+        sigma2 = val.data.sigma_gray**2
+        n_samples = max(float(spoiled.sum()) * val.data.frames.shape[0], 1.0)
+        z = (explained / sigma2 - n_samples) / np.sqrt(2.0 * n_samples)
+        named = "; ".join(f"({r}, {u}) {reason}" for r, u, reason in found[:8])
+        more = f" and {len(found) - 8} more" if len(found) > 8 else ""
+        return Evidence(self.name, "pixel (single)", explained, float(z), 1.0,
+                        f"{len(found)} pixel(s) do not see the target as the others do: {named}{more}",
+                        tuple(found))
+
+    def screen(self, data):
+        return tuple(find_bad_pixels(data)) or None
+
+    def grow(self, spec, argument):
+        if not argument:
+            return None
+        return spec.set(self.name, tuple(sorted(set(spec.get(self.name, ())) | set(argument))))
+
+    def prepare_data(self, setting, data):
+        return data.with_weights(data.weights * mask(setting, data.frames.shape[1:]))
+
+    def finish(self, setting, state, model):
+        weight = np.ones((model.n_rows, model.n_pixels))
+        for r, u, _ in setting:
+            weight[r if model.n_rows > 1 else 0, u] = 0.0  # a shared model averages the rows: the column goes
+        listed = [{"row": r, "pixel": u, "reason": reason} for r, u, reason in setting]
+        return model.with_changes(coeffs=model.coeffs, pixel_weight=weight, info={**model.info, "bad_pixels": listed})
+
+    def report(self, setting):
+        return [{"row": r, "pixel": u, "reason": reason} for r, u, reason in setting]
+
+
+EFFECT = BadPixels()
