@@ -1,8 +1,7 @@
 """The frame loop: every camera frame is paired with the grating, handed to listeners and tracked.
 
 One thread owns the camera (cameras are not thread-safe, and one reader guarantees that every
-frame is seen once, in order). Per frame it: puts the frame's mid-exposure on the host clock,
-pairs the grating (:class:`Readings`), offers the frame to subscribers (the calibration sweep),
+frame is seen once, in order). Per frame it: pairs the grating (:class:`Readings`), offers the frame to subscribers (the calibration sweep),
 and, when a model is installed, runs the :class:`LiveTracker` and publishes one message.
 
 Faults: no frame for ``camera_fault_after_s`` raises a camera fault; any other camera error
@@ -33,13 +32,12 @@ from graytrack.core.models.fourier import FourierModel
 from graytrack.core.tracking import LiveFix, LiveTracker
 from graytrack.drivers.camera.base import Camera, CameraError, CameraTimeout, Frame
 from graytrack.service.daemon.grating import Readings
-from graytrack.service.daemon.timebase import HostTime
 from graytrack.service.daemon.worker import Worker, describe
 
 log = logging.getLogger("graytrack.daemon")
 READ_TIMEOUT_S = 0.25  # short, so stop requests and fault timing are honoured promptly
 RATE_WINDOW = 200
-LIVEFIX_EXTRAS = ("gain", "offset", "rejected_px", "chi2", "stale")  # LiveFix fields the stream passes on when present
+LIVEFIX_EXTRAS = ("gain", "offset_gray", "rejected_px", "chi2", "stale")  # LiveFix fields the stream passes on when present
 
 
 @dataclass(frozen=True)
@@ -97,7 +95,7 @@ def fix_message(seq: int, sample: Sample, fix: LiveFix, dropped: int) -> dict[st
 
 
 class Acquisition(Worker):
-    def __init__(self, camera: Camera, readings: Readings, to_host: HostTime,
+    def __init__(self, camera: Camera, readings: Readings,
                  publish: Callable[[dict[str, Any]], None], faults: Callable[[str, str | None], None],
                  fault_after_s: float, reopen_interval_s: float,
                  on_event: Callable[[str, str], None] = lambda kind, message: None) -> None:
@@ -105,7 +103,6 @@ class Acquisition(Worker):
         self.on_event = on_event  # lock losses, re-acquisitions, stale-model flags: the event log
         self.camera = camera
         self.readings = readings
-        self.to_host = to_host
         self.publish = publish
         self.faults = faults
         self.fault_after_s = fault_after_s
@@ -162,7 +159,7 @@ class Acquisition(Worker):
             frame = self._next_frame()
             if frame is None:
                 continue
-            t = self.to_host(frame.t_host)
+            t = frame.t_host  # mid-exposure on time.monotonic, for every driver (the camera contract)
             sample = Sample(frame, t, self.readings.at(t))
             self._offer(sample)
             self._track(sample)

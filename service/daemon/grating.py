@@ -133,13 +133,12 @@ class GratingPoller(Worker):
     so the rig can show a stage fault and clear it once the link recovers.
     """
 
-    def __init__(self, stage: Stage, poll_s: float, readings: Readings, to_host: Callable[[float], float],
+    def __init__(self, stage: Stage, poll_s: float, readings: Readings,
                  on_fault: Callable[[str | None], None]) -> None:
         super().__init__("grating-poller", on_fault)
         self.stage = stage
         self.poll_s = poll_s
         self.readings = readings
-        self.to_host = to_host
         self.on_fault = on_fault
         self.reads = 0
         self.errors = 0
@@ -163,6 +162,6 @@ class GratingPoller(Worker):
                 self._stop.wait(max(self.poll_s, 0.2))  # do not hammer a failing link
                 continue
             self.reads += 1
-            self.readings.append(self.to_host(reading.t), reading.position_mm, self.to_host.seconds(reading.latency_s))
+            self.readings.append(reading.t, reading.position_mm, reading.latency_s)  # host time (stage contract)
             self.on_fault(None)
             self._stop.wait(max(0.0, self.poll_s - (time.monotonic() - started)))

@@ -65,7 +65,7 @@ def profile(acquisition: Acquisition | None, model: FourierModel | None, row: in
         return document
     predicted = np.asarray(model.predict(np.array([x])))[0]  # (R_model, n)
     predicted = predicted[min(row, predicted.shape[0] - 1)] if row is not None else predicted.mean(axis=0)
-    gain, offset = getattr(fix, "gain", None), getattr(fix, "offset", None)
+    gain, offset = getattr(fix, "gain", None), getattr(fix, "offset_gray", None)
     if gain is not None and offset is not None and math.isfinite(gain) and math.isfinite(offset):
         predicted = predicted * gain + offset
     averaged = rows if row is None and model.n_rows == 1 else 1

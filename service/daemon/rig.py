@@ -42,7 +42,6 @@ from graytrack.service.daemon.settings import Settings
 from graytrack.service.daemon.storage import Storage
 from graytrack.service.daemon.supervision import Faults, Supervisor, sentence
 from graytrack.service.daemon.sweep import Sweep
-from graytrack.service.daemon.timebase import HostTime
 from graytrack.service.daemon.worker import describe
 
 log = logging.getLogger("graytrack.daemon")
@@ -64,7 +63,6 @@ class Rig:
         self.publish = publish
         self.factory = factory
         self.clock = ScaledClock(daemon.sim_clock_scale) if settings.simulated else REAL_TIME
-        self.to_host = HostTime(self.clock)
         self.faults = Faults()
         self.readings = Readings(daemon.pair_window_s, daemon.pair_tolerance_um * 1e-3)
         self.hardware: Hardware | None = None
@@ -194,13 +192,13 @@ class Rig:
 
     def _new_grating(self) -> GratingPoller:
         assert self.hardware is not None
-        return GratingPoller(self.hardware.stage, self.settings.daemon.grating_poll_s, self.readings, self.to_host,
+        return GratingPoller(self.hardware.stage, self.settings.daemon.grating_poll_s, self.readings,
                              self.faults.reporter("stage")).start()
 
     def _new_acquisition(self) -> Acquisition:
         assert self.hardware is not None
         daemon = self.settings.daemon
-        acquisition = Acquisition(self.hardware.camera, self.readings, self.to_host, self.publish, self.faults.set,
+        acquisition = Acquisition(self.hardware.camera, self.readings, self.publish, self.faults.set,
                                   daemon.camera_fault_after_s, daemon.reopen_interval_s, self._stream_event)
         if self.model is not None:
             acquisition.install_model(self.model, self.grating.latest_mm() if self.grating else None)
@@ -259,7 +257,7 @@ class Rig:
             self.job = job
             runner = JobRunner(job, self.storage, self._install_calibration, self._finished)
             sweep = Sweep(runner, hardware.stage, acquisition, self.storage, config, self._meta(hardware),
-                          self.to_host, self.readings.note_command)
+                          self.readings.note_command)
             self._sweep_thread = threading.Thread(target=runner.run, args=(sweep,), name="sweep", daemon=True)
             self._sweep_thread.start()
         log.info("calibration %s started (%d stops x %d frames, %s model)", job.id, config.positions,

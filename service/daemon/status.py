@@ -55,7 +55,7 @@ def status(rig: "Rig") -> dict[str, Any]:
         "position_mm": last["x_mm"] if fresh else None,
         "locked": bool(last["locked"]) if fresh else None,
         "crlb_um": last.get("crlb_um") if fresh else None,
-        # the tracker's per-frame fit figures, when it reports them (gain, offset, rejected pixels, chi², stale model)
+        # the tracker's per-frame fit figures (gain, offset, rejected pixels, chi², stale model)
         "fit": {key: last[key] for key in LIVEFIX_EXTRAS if key in last} if fresh else None,
         "stale": last is not None and not fresh,
         "age_ms": round(acquisition.seconds_since_tracked() * 1e3, 1) if last is not None and acquisition else None,

@@ -32,7 +32,6 @@ from graytrack.service.daemon import report_page
 from graytrack.service.daemon.jobs import JobRunner
 from graytrack.service.daemon.quality import held_out_quality
 from graytrack.service.daemon.storage import Storage
-from graytrack.service.daemon.timebase import HostTime
 
 log = logging.getLogger("graytrack.daemon")
 SWEEP_SHARE = 0.8  # of the progress bar; the fit takes the rest
@@ -50,20 +49,11 @@ def sweep_positions(limits: tuple[float, float], config: SweepConfig) -> np.ndar
     return np.linspace(low, high, config.positions)
 
 
-def exposure_s(frame_camera: Any) -> float:
-    """The camera's exposure if it knows it (the settle test needs the exposure start)."""
-    value = getattr(frame_camera, "exposure_s", None)
-    if value is None:
-        us = getattr(getattr(frame_camera, "settings", None), "exposure_us", None)
-        value = 0.0 if us is None else us * 1e-6
-    return float(value)
-
-
 class Sweep:
     """The two steps of a calibration job (:class:`JobRunner` runs them and owns the states)."""
 
     def __init__(self, runner: JobRunner, stage: Stage, acquisition: Acquisition, storage: Storage,
-                 config: SweepConfig, meta: dict[str, Any], to_host: HostTime,
+                 config: SweepConfig, meta: dict[str, Any],
                  on_command: Callable[[float], None]) -> None:
         self.runner = runner
         self.job = runner.job
@@ -72,9 +62,7 @@ class Sweep:
         self.storage = storage
         self.config = config
         self.meta = meta
-        self.to_host = to_host
         self.on_command = on_command  # the pairing must not assume rest across a commanded move
-        self.exposure_s = to_host.seconds(exposure_s(acquisition.camera))
 
     def sweep(self) -> Recording:
         """Step, settle and record; the recording is saved before the fit (a failed fit keeps the data)."""
@@ -95,7 +83,7 @@ class Sweep:
                 self.job.check_abort()
                 self.on_command(time.monotonic())
                 self.stage.move_to(float(target))
-                settled = self.to_host(self.stage.wait_on_target(self.config.settle_timeout_s).t)
+                settled = self.stage.wait_on_target(self.config.settle_timeout_s).t  # host time, as frames
                 self.job.check_abort()
                 samples = self._settled_samples(feed, settled)
                 # The axis is at rest inside its on-target window, so one POS? read after the frames
@@ -128,7 +116,8 @@ class Sweep:
                     raise SweepError(f"the camera delivered {len(taken)} of {wanted} frames "
                                      f"within {self.config.frame_timeout_s:g} s") from None
                 continue
-            if sample.t - 0.5 * self.exposure_s > settled_t:
+            frame = sample.frame
+            if frame.t_host - 0.5 * frame.exposure_s - frame.t_uncertainty_s > settled_t:  # began after the settle
                 taken.append(sample)
         return taken
 

@@ -1,37 +1,13 @@
-"""One place that puts driver timestamps on the host's clock (``time.monotonic``).
+"""Wall-clock time for the stream's ``t_unix``.
 
-The stream, the pairing and the sweep all work in host time, the clock a client on this machine
-reads too. Hardware drivers stamp in host time; the virtual rig may run on a :class:`ScaledClock`
-(``sim_clock_scale``) whose seconds are not the host's. :class:`HostTime` maps either onto the
-host clock, deciding per stamp by which clock it is near: a stamp is always of the last moments,
-and the two clocks differ by far more than that (different origin, different rate).
+Every driver stamps frames and grating readings on the host's ``time.monotonic()`` (the drivers'
+time contract), which is what the daemon pairs and streams as ``t``. A controller on another
+machine needs the same instant on the wall clock (synchronised by PTP or NTP): ``t_unix``.
 """
 
 from __future__ import annotations
 
 import time
-
-from graytrack.drivers.clock import ScaledClock
-
-
-class HostTime:
-    def __init__(self, clock: ScaledClock) -> None:
-        self.clock = clock
-        self.identity = clock.scale == 1.0 and clock._origin == 0.0
-
-    def __call__(self, t: float) -> float:
-        """``t`` (a driver's timestamp) in seconds of ``time.monotonic()``."""
-        if self.identity:
-            return t
-        now = time.monotonic()
-        if abs(t - now) <= abs(t - self.clock.now()):
-            return t
-        return self.clock._origin + t / self.clock.scale
-
-    def seconds(self, duration: float) -> float:
-        """A driver-clock duration in host seconds (exposures of the virtual camera)."""
-        return duration / self.clock.scale
-
 
 WALL_OFFSET_REFRESH_S = 1.0
 

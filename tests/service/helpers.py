@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import signal
 import socket
@@ -85,7 +86,7 @@ class GatedCamera(Camera):
     def _read(self, timeout_s: float) -> Frame:
         if self.narrow_by:  # as after an ROI change on the camera: frames of another width
             frame = self.inner.read(timeout_s)
-            return Frame(frame.pixels[..., : -self.narrow_by], frame.frame_id, frame.t_host, frame.t_device)
+            return dataclasses.replace(frame, pixels=frame.pixels[..., : -self.narrow_by])
         if self.fail_reads > 0:
             self.fail_reads -= 1
             raise CameraError("simulated camera fault (cable pulled)")

@@ -132,7 +132,7 @@ def test_the_trackers_fit_figures_and_stale_model_flags_reach_status_metrics_and
 
     def update(self, frame, reference_mm=float("nan")):  # the tracker's per-frame fit figures, stale on demand
         fix = real_update(self, frame, reference_mm)
-        return SimpleNamespace(**{**vars(fix), "gain": 1.01, "offset": -0.2, "rejected_px": 2, "chi2": 1.04,
+        return SimpleNamespace(**{**vars(fix), "gain": 1.01, "offset_gray": -0.2, "rejected_px": 2, "chi2": 1.04,
                                   "stale": flag["stale"]})
 
     monkeypatch.setattr(tracking.LiveTracker, "update", update)
@@ -141,7 +141,7 @@ def test_the_trackers_fit_figures_and_stale_model_flags_reach_status_metrics_and
         flag["stale"] = True
         wait_for(lambda: "model_stale" in [e["kind"] for e in daemon.get("/api/events").json()], what="the stale flag")
         fit = daemon.status()["fit"]
-        assert fit == {"gain": 1.01, "offset": -0.2, "rejected_px": 2, "chi2": 1.04, "stale": True}
+        assert fit == {"gain": 1.01, "offset_gray": -0.2, "rejected_px": 2, "chi2": 1.04, "stale": True}
         metrics = daemon.get("/metrics").text
         assert "graytrack_fit_stale 1.0" in metrics and "graytrack_fit_rejected_px 2.0" in metrics
         flag["stale"] = False

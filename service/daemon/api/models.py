@@ -46,7 +46,7 @@ class Status(BaseModel):
     locked: bool | None
     crlb_um: float | None
     fit: dict[str, float | int | bool | None] | None = Field(
-        None, description="the tracker's fit of the newest frame: gain, offset, rejected_px, chi2, stale (when reported)")
+        None, description="the tracker's fit of the newest frame: gain, offset_gray, rejected_px, chi2, stale")
     stale: bool
     age_ms: float | None
     grating_mm: float | None
