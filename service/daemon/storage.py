@@ -72,7 +72,10 @@ class Storage:
                 pass
             finally:
                 tmp.unlink(missing_ok=True)
-        token = self.token_path.read_text().strip()
+        try:
+            token = self.token_path.read_text().strip()
+        except UnicodeDecodeError:
+            raise GraytrackError(f"{self.token_path}: not a text token; delete it to regenerate") from None
         if len(token) < 16:
             raise GraytrackError(f"{self.token_path}: token shorter than 16 characters; delete it to regenerate")
         return token, False
