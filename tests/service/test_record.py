@@ -38,7 +38,7 @@ def test_calibrations_are_listed_newest_first_with_their_quality_and_paginated(d
     for row in page["items"]:
         assert row["model_kind"] == "paper" and row["frames"] == 63
         # held-out error near the Cramér–Rao bound of the same frames (noise-limited tracking)
-        assert row["bound_um"] < row["error_std_um"] < 2.5 * row["bound_um"], row
+        assert 0.7 * row["bound_um"] < row["error_std_um"] < 2.5 * row["bound_um"], row
         assert set(row["files"]) == {"model.json", "recording.npz", "report.json", "report.html"}
     second = daemon.get("/api/calibrations", params={"limit": 1, "offset": 1}).json()
     assert [c["id"] for c in second["items"]] == [oldest["id"]] and second["total"] == 2
