@@ -175,7 +175,7 @@ def test_a_fault_is_in_the_event_log_and_disables_the_controls_with_its_reason(t
     factory = GatedFactory()
     with LiveServer(create_app(fast_settings(tmp_path), factory)) as daemon:
         daemon.wait_state("tracking")
-        browser_page = browser.new_page()
+        browser_page = browser.new_page(viewport={"width": 390, "height": 844})
         console = watch_console(browser_page)
         browser_page.goto(daemon.base + "/")
         expect(browser_page.locator("#move")).to_be_enabled(timeout=10_000)
@@ -188,6 +188,7 @@ def test_a_fault_is_in_the_event_log_and_disables_the_controls_with_its_reason(t
             expect(browser_page.locator(control)).to_be_disabled()
         expect(browser_page.locator("#controls-reason")).to_contain_text("disabled during the fault: camera: no frame for")
         expect(browser_page.locator("#stop")).to_be_enabled()
+        assert browser_page.evaluate("document.documentElement.scrollWidth") <= 390, "the long reason wraps at 390 px"
         factory.hardware.camera.gate_open = True
         expect(browser_page.locator("#state")).to_have_text("tracking", timeout=10_000)
         expect(browser_page.locator("#events li[data-kind=recovered]").first).to_contain_text("camera recovered",
