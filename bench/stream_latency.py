@@ -7,7 +7,8 @@ the message's ``t`` (mid-exposure; both on this machine's ``time.monotonic``), `
 the daemon's ``dropped`` count (camera frames missing from the stream). The daemon's CPU is read
 from /proc. All figures come from the same run, so they compare with each other on a shared machine.
 
-Run: .venv/bin/python bench/stream_latency.py [--seconds 5] [--rates 200,500,1000,1500]
+Run: .venv/bin/python bench/stream_latency.py [--seconds 5] [--rates 200,500,1000,1500] [--clients 1,4]
+     [--polls 0.005,0.02]   (grating poll periods compared side by side)
 """
 
 from __future__ import annotations
@@ -54,11 +55,11 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def config(folder: Path, rate: float) -> Path:
-    path = folder / f"rate{rate:g}.toml"
+def config(folder: Path, rate: float, poll_s: float = 0.005) -> Path:
+    path = folder / f"rate{rate:g}-poll{poll_s:g}.toml"
     exposure_us = min(1000.0, 0.5e6 / rate)  # the rig's 1 ms exposure fits up to 1000 frames/s
     path.write_text(f'[camera]\nkind = "sim"\nframe_rate_hz = {rate}\nexposure_us = {exposure_us}\n'
-                    f'[daemon]\ndata_dir = "{folder / "data"}"\nlog_level = "warning"\n')
+                    f'[daemon]\ndata_dir = "{folder / "data"}"\nlog_level = "warning"\ngrating_poll_s = {poll_s}\n')
     return path
 
 
@@ -79,10 +80,10 @@ def wait_tracking(base: str, timeout_s: float = 120.0) -> None:
     raise SystemExit(f"the daemon at {base} did not start tracking within {timeout_s:g} s")
 
 
-def run(folder: Path, rate: float, clients: int, seconds: float) -> dict[str, float]:
+def run(folder: Path, rate: float, clients: int, seconds: float, poll_s: float = 0.005) -> dict[str, float]:
     port = free_port()
     log = (folder / f"serve-{rate:g}-{clients}.log").open("w")
-    daemon = subprocess.Popen([sys.executable, "-m", "graytrack", "serve", "--config", str(config(folder, rate)),
+    daemon = subprocess.Popen([sys.executable, "-m", "graytrack", "serve", "--config", str(config(folder, rate, poll_s)),
                                "--port", str(port)], stderr=log)
     try:
         wait_tracking(f"http://127.0.0.1:{port}")
@@ -112,19 +113,22 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seconds", type=float, default=5.0)
     parser.add_argument("--rates", default="200,500,1000,1500")
+    parser.add_argument("--clients", default="1,4")
+    parser.add_argument("--polls", default="0.005", help="grating poll periods (s) to compare, side by side")
     args = parser.parse_args()
     folder = Path(tempfile.mkdtemp(prefix="graytrack-bench-"))
     try:
         # one calibration (the daemon calibrates itself at the first start), its model reused by every run
         run(folder, 200, 1, 0.5)
         print(f"machine: {os.cpu_count()} cores, load average {load_average()} at start")
-        print(f"{'frames/s':>8} {'clients':>7} {'msgs/s':>8} {'missing':>7} {'dropped':>7} "
+        print(f"{'poll ms':>7} {'frames/s':>8} {'clients':>7} {'msgs/s':>8} {'missing':>7} {'dropped':>7} "
               f"{'p50 ms':>7} {'p99 ms':>7} {'max ms':>7} {'CPU %':>6}")
         for rate in (float(r) for r in args.rates.split(",")):
-            for clients in (1, 4):
-                r = run(folder, rate, clients, args.seconds)
-                print(f"{r['rate']:8.0f} {r['clients']:7d} {r['msgs_s']:8.0f} {r['missing']:7d} {r['dropped']:7d} "
-                      f"{r['p50']:7.2f} {r['p99']:7.2f} {r['max']:7.2f} {r['cpu']:6.0f}", flush=True)
+            for clients in (int(c) for c in args.clients.split(",")):
+                for poll in (float(p) for p in args.polls.split(",")):
+                    r = run(folder, rate, clients, args.seconds, poll)
+                    print(f"{poll * 1e3:7.1f} {r['rate']:8.0f} {r['clients']:7d} {r['msgs_s']:8.0f} {r['missing']:7d} {r['dropped']:7d} "
+                          f"{r['p50']:7.2f} {r['p99']:7.2f} {r['max']:7.2f} {r['cpu']:6.0f}", flush=True)
         print(f"load average {load_average()} at the end")
     finally:
         shutil.rmtree(folder, ignore_errors=True)
