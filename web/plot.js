@@ -38,15 +38,20 @@ const Plot = (() => {
     return [lo, hi];
   }
 
-  // "Nice" tick values (1, 2, 5 × 10^k) over [lo, hi].
+  // "Nice" tick values (1, 2, 5 × 10^k) over [lo, hi]: about `count`, never fewer than three.
   function ticks(lo, hi, count) {
     const span = hi - lo;
     if (!(span > 0)) return [lo];
-    const raw = span / count, power = Math.pow(10, Math.floor(Math.log10(raw)));
-    const step = [1, 2, 5, 10].map((m) => m * power).find((s) => s >= raw);
-    const out = [];
-    for (let v = Math.ceil(lo / step) * step; v <= hi + step * 1e-9; v += step) out.push(Math.abs(v) < step * 1e-9 ? 0 : v);
-    return out;
+    const power = Math.pow(10, Math.floor(Math.log10(span / count)));
+    const steps = [10, 5, 2, 1, 0.5, 0.2, 0.1].map((m) => m * power).filter((s) => s <= span);
+    let out = [];
+    for (const step of steps) {
+      if (span / step > 2 * count) break;
+      out = [];
+      for (let v = Math.ceil(lo / step) * step; v <= hi + step * 1e-9; v += step) out.push(Math.abs(v) < step * 1e-9 ? 0 : v);
+      if (out.length >= Math.min(3, count)) break;
+    }
+    return out.length ? out : [lo, hi];
   }
 
   function decimals(step) {
@@ -55,7 +60,7 @@ const Plot = (() => {
 
   function yAxis(ctx, box, range, unit, color, right) {
     const marks = ticks(range[0], range[1], 4);
-    const digits = marks.length > 1 ? decimals(marks[1] - marks[0]) : 3;
+    const digits = decimals(marks.length > 1 ? marks[1] - marks[0] : range[1] - range[0]);
     ctx.fillStyle = color;
     ctx.textAlign = right ? "left" : "right";
     ctx.textBaseline = "middle";
