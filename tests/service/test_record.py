@@ -90,7 +90,7 @@ def test_events_are_recorded_and_read_since_a_cursor(daemon: LiveServer) -> None
     moment = newer[0]["t_unix"]
     from datetime import datetime, timezone
 
-    iso = datetime.fromtimestamp(moment, timezone.utc).isoformat()
+    iso = datetime.fromtimestamp(moment - 2e-6, timezone.utc).isoformat()  # ISO keeps microseconds: round down
     assert [e["id"] for e in daemon.get("/api/events", params={"since": iso}).json()] == [e["id"] for e in newer]
     assert daemon.get("/api/events", params={"since": "yesterday"}).status_code == 422
 
