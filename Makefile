@@ -10,9 +10,14 @@ PORT   ?= 8000
 ARAVIS_EXTRA := $(shell pkg-config --exists gobject-introspection-1.0 cairo 2>/dev/null && echo ",aravis")
 # The stamp names the extras, so installing the Aravis system packages later triggers a reinstall.
 STAMP  := $(VENV)/.installed$(subst $(comma),-,$(ARAVIS_EXTRA))
+# `make run` installs what running needs, nothing for the tests (no pytest, no playwright).
+RUN_EXTRAS := $(if $(ARAVIS_EXTRA),[aravis],)
+RUN_STAMP  := $(VENV)/.run-installed$(subst $(comma),-,$(ARAVIS_EXTRA))
+# `make service-venv`: a non-editable install for the systemd unit (deploy/graytrack.service).
+PREFIX ?= /opt/graytrack
 PYTEST_WORKERS ?= 2
 
-.PHONY: run test bench clean install
+.PHONY: run test bench clean install service-venv docs-images
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -24,9 +29,25 @@ $(STAMP): pyproject.toml setup.py | $(BIN)/python
 
 install: $(STAMP)
 
-# The daemon on the embedded default, the virtual rig, at http://$(HOST):$(PORT) (DESIGN.md).
-run: $(STAMP)
+$(RUN_STAMP): pyproject.toml setup.py | $(BIN)/python
+	$(BIN)/python -m pip install --quiet -e ".$(RUN_EXTRAS)"
+	touch $(RUN_STAMP)
+
+# The daemon on the embedded default, the virtual rig, at http://$(HOST):$(PORT).
+run: $(RUN_STAMP)
 	$(BIN)/python -m graytrack serve --host $(HOST) --port $(PORT)
+
+# A venv of its own for the service, with graytrack installed from this checkout as a package
+# (not editable: the service keeps running whatever happens to the checkout). README, "Install as a service".
+service-venv:
+	$(PYTHON) -m venv $(PREFIX)/.venv
+	$(PREFIX)/.venv/bin/python -m pip install --quiet --upgrade pip
+	$(PREFIX)/.venv/bin/python -m pip install --quiet "$(CURDIR)$(RUN_EXTRAS)"
+	install -m 0644 README.md $(PREFIX)/README.md
+
+# docs/page.png (the status page) and docs/report.png (a calibration's error plot), made from a live daemon.
+docs-images: $(STAMP)
+	$(BIN)/python docs/make_images.py
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -n $(PYTEST_WORKERS) $(PYTEST_ARGS)

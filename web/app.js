@@ -1,15 +1,22 @@
-// The status page: live position over /ws/position, state and calibration from /api/status,
-// calibrate / move / stop with the bearer token kept in localStorage. No libraries: the rig may be offline.
+// The status page: live position over /ws/position (decimated), state, line view, calibration,
+// history and events from the API; calibrate / move / jog / home / velocity / stop / activate with
+// the bearer token kept in localStorage. No libraries: the rig may be offline.
 "use strict";
 
 const TOKEN_KEY = "graytrack.token";
-const PLOT_SECONDS = 10;
+const STREAM_RATE = 60; // messages/s the page asks for: plenty for the eye, light at 1 kHz
+const KEEP_S = 600;
+const PROFILE_MS = 250;
 const $ = (id) => document.getElementById(id);
-const samples = []; // {t (s, page clock), x (mm), e (µm or null)}
-let latest = null; // newest WebSocket message, drawn on the next animation frame
-let drawPending = false;
+const samples = []; // {t (s, page clock), x (mm), e (µm or NaN)}
+let latest = null;
+let paused = false;
+let status = null;
+let lastEvent = 0;
+let historyKey = "";
+const calibratable = new Set(["tracking", "model"]); // faults during which a calibration still helps
 
-const fmt = (value, digits) => (value === null || value === undefined || Number.isNaN(value) ? "—" : value.toFixed(digits));
+const fmt = (value, digits) => (value === null || value === undefined || Number.isNaN(value) ? "—" : Number(value).toFixed(digits));
 
 function say(text, isError = false) {
   const box = $("message");
@@ -17,8 +24,12 @@ function say(text, isError = false) {
   box.classList.toggle("error", isError);
 }
 
+// A request the daemon would refuse is not sent (the browser would log the refusal as an error):
+// without a token the page says so itself.
 async function api(method, path, body) {
-  const headers = { Authorization: `Bearer ${localStorage.getItem(TOKEN_KEY) || ""}` };
+  const token = localStorage.getItem(TOKEN_KEY);
+  if (!token) throw new Error("missing bearer token: save the contents of DATA/token under Access");
+  const headers = { Authorization: `Bearer ${token}` };
   if (body !== undefined) headers["Content-Type"] = "application/json";
   const response = await fetch(path, { method, headers, body: body === undefined ? undefined : JSON.stringify(body) });
   const data = await response.json().catch(() => ({}));
@@ -26,92 +37,198 @@ async function api(method, path, body) {
   return data;
 }
 
+async function get(path) {
+  const response = await fetch(path);
+  const data = await response.json().catch(() => ({}));
+  if (!response.ok) throw new Error(data.error || `${response.status} ${response.statusText}`);
+  return data;
+}
+
 // -- live position -------------------------------------------------------------------------
 function connect() {
-  const ws = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws/position`);
+  const token = localStorage.getItem(TOKEN_KEY);
+  const query = `max_rate=${STREAM_RATE}` + (token ? `&token=${encodeURIComponent(token)}` : "");
+  const ws = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws/position?${query}`);
   ws.onmessage = (event) => {
     latest = JSON.parse(event.data);
-    samples.push({ t: performance.now() / 1000, x: latest.x_mm, e: latest.error_um ?? null });
-    if (!drawPending) {
-      drawPending = true;
-      requestAnimationFrame(draw);
-    }
+    const t = performance.now() / 1000;
+    samples.push({ t, x: latest.x_mm ?? NaN, e: latest.error_um ?? NaN });
+    while (samples.length && samples[0].t < t - KEEP_S) samples.shift();
   };
   ws.onclose = () => setTimeout(connect, 1000);
 }
 
 function draw() {
-  drawPending = false;
   if (latest) {
     $("position").textContent = fmt(latest.x_mm, 4);
     $("locked").textContent = latest.locked ? "locked" : "lost";
     $("grating").textContent = latest.reference_mm === undefined ? "—" : `${fmt(latest.reference_mm, 4)} mm`;
     $("error").textContent = latest.error_um === undefined ? "—" : `${fmt(latest.error_um, 2)} µm`;
     $("crlb").textContent = latest.crlb_um === null ? "—" : `${fmt(latest.crlb_um, 2)} µm`;
+    $("dropped").textContent = String(latest.dropped ?? "—");
   }
-  const now = performance.now() / 1000;
-  while (samples.length && samples[0].t < now - PLOT_SECONDS) samples.shift();
-  plot(now);
+  if (!paused) {
+    const clipped = Plot.timeSeries($("plot"), samples, performance.now() / 1000, Number($("window").value));
+    $("plot").dataset.clipped = String(clipped);
+  }
+  setTimeout(() => requestAnimationFrame(draw), 50);
 }
 
-function plot(now) {
-  const canvas = $("plot");
-  const ctx = canvas.getContext("2d");
-  ctx.clearRect(0, 0, canvas.width, canvas.height);
-  // Two bands, so that position and error never overlap: position above, error below, each with
-  // its own scale; position labels on the left, error labels on the right.
-  const series = (key, color, top, bottom, right) => {
-    const values = samples.map((s) => s[key]).filter((v) => v !== null && Number.isFinite(v));
-    if (values.length < 2) return;
-    let lo = Math.min(...values), hi = Math.max(...values);
-    if (hi - lo < 1e-9) { lo -= 0.5; hi += 0.5; }
-    ctx.strokeStyle = color;
-    ctx.beginPath();
-    let started = false;
-    for (const s of samples) {
-      if (s[key] === null || !Number.isFinite(s[key])) { started = false; continue; }
-      const px = canvas.width * (1 - (now - s.t) / PLOT_SECONDS);
-      const py = bottom - (bottom - top) * (s[key] - lo) / (hi - lo);
-      if (started) ctx.lineTo(px, py); else ctx.moveTo(px, py);
-      started = true;
+// -- line view -----------------------------------------------------------------------------
+async function refreshProfile() {
+  if (document.hidden) return;
+  const row = $("profile-row").value;
+  try {
+    const doc = await get(`/api/profile${row === "" ? "" : `?row=${row}`}`);
+    Plot.profile($("profile"), doc);
+    const canvas = $("profile");
+    canvas.dataset.frameId = String(doc.frame_id);
+    canvas.dataset.model = doc.model ? "yes" : "no";
+    let info = `frame ${doc.frame_id} · ${doc.pixels.length} pixels · ${doc.rows} row(s)`;
+    if (doc.residual) {
+      const r = doc.residual.filter(Number.isFinite);
+      const rms = Math.sqrt(r.reduce((a, v) => a + v * v, 0) / Math.max(r.length, 1));
+      const sigma = doc.sigma.filter(Number.isFinite);
+      const noise = Math.sqrt(sigma.reduce((a, v) => a + v * v, 0) / Math.max(sigma.length, 1));
+      canvas.dataset.residualRms = rms.toFixed(3);
+      canvas.dataset.noise = noise.toFixed(3);
+      info += ` · x ${fmt(doc.x_mm, 4)} mm · residual rms ${fmt(rms, 2)} gray (noise ${fmt(noise, 2)} gray)`;
+    } else {
+      info += ` · ${doc.why_no_model}`;
     }
-    ctx.stroke();
-    ctx.fillStyle = color;
-    ctx.textAlign = right ? "right" : "left";
-    const x = right ? canvas.width - 4 : 4;
-    ctx.fillText(`${hi.toPrecision(5)}`, x, top + 4);
-    ctx.fillText(`${lo.toPrecision(5)}`, x, bottom + 4);
-  };
-  const h = canvas.height;
-  series("x", "#2b6cb0", 10, 0.55 * h - 6, false);
-  series("e", "#b7791f", 0.55 * h + 10, h - 8, true);
+    if (doc.saturated.length) info += ` · ${doc.saturated.length} saturated`;
+    if (doc.bad.length) info += ` · ${doc.bad.length} bad`;
+    $("profile-info").textContent = info;
+    const select = $("profile-row");
+    if (select.options.length !== doc.rows + 1) {
+      for (let i = select.options.length - 1; i < doc.rows; i++) select.add(new Option(`row ${i}`, String(i)));
+    }
+  } catch (err) {
+    $("profile-info").textContent = `no line view: ${err.message}`;
+  }
 }
 
-// -- status --------------------------------------------------------------------------------
+// -- status, controls ----------------------------------------------------------------------
+function controlsReason(s) {
+  if (s.state === "calibrating") return `calibration ${s.calibration.id} is running: moves are disabled (Stop aborts it)`;
+  if (s.state === "fault") return `disabled during the fault: ${s.reason}`;
+  if (s.state === "starting") return "disabled until the hardware is open";
+  if (s.state === "stopping") return "the daemon is shutting down";
+  return "";
+}
+
+function applyStatus(s) {
+  status = s;
+  const state = $("state");
+  state.textContent = s.state;
+  state.dataset.state = s.state;
+  $("reason").textContent = s.reason || "";
+  $("sim-badge").hidden = !s.simulated;
+  $("model").textContent = s.model || "no model: start a calibration";
+  const active = s.active_calibration;
+  $("active-calibration").textContent = active && active.error_std_um !== undefined && active.error_std_um !== null
+    ? `held-out error ${fmt(active.error_std_um, 2)} µm · bound ${fmt(active.bound_um, 2)} µm (calibration ${active.id})`
+    : (active ? `calibration ${active.id}` : "");
+  $("rate").textContent = fmt(s.frame_rate_hz, 1);
+  if (s.position_mm === null) $("position").textContent = "—";
+  if (s.limits_mm) {
+    $("limits").textContent = `soft limits ${s.limits_mm[0]} … ${s.limits_mm[1]} mm`;
+    $("target").min = s.limits_mm[0];
+    $("target").max = s.limits_mm[1];
+  }
+  const moving = $("moving");
+  moving.dataset.moving = String(s.moving);
+  moving.textContent = s.moving === null ? "" : s.moving
+    ? `moving${s.target_mm === null ? "" : ` → ${s.target_mm} mm`}` : "at rest";
+  if (s.velocity_mm_s !== null && document.activeElement !== $("velocity")) $("velocity").placeholder = `${s.velocity_mm_s}`;
+  const job = s.calibration;
+  if (job) {
+    $("progress").value = job.progress;
+    const ended = ["failed", "aborted", "interrupted"].includes(job.state);
+    $("calibration-message").textContent = `${job.id}: ${job.state}${ended ? ` at ${Math.round(job.progress * 100)} %` : ` · ${Math.round(job.progress * 100)} %`} · ${job.message}`;
+  }
+  const reason = controlsReason(s);
+  $("controls-reason").textContent = reason;
+  for (const id of ["move", "target", "jog-minus", "jog-plus", "jog-step", "home", "velocity", "set-velocity"]) {
+    $(id).disabled = reason !== "";
+    $(id).title = reason;
+  }
+  const blocking = Object.keys(s.faults || {}).filter((k) => !calibratable.has(k));
+  const calibrateReason = s.state === "calibrating" ? "a calibration is running"
+    : ["starting", "stopping"].includes(s.state) ? reason : blocking.length ? `disabled during the fault: ${s.reason}` : "";
+  $("calibrate").disabled = calibrateReason !== "";
+  $("calibrate").title = calibrateReason;
+  for (const button of document.querySelectorAll("#history button")) button.disabled = reason !== "" || button.dataset.active === "true";
+  const key = `${job ? job.id + job.state : ""}|${active ? active.id : ""}`;
+  if (key !== historyKey) {
+    historyKey = key;
+    refreshHistory();
+  }
+}
+
 async function refresh() {
   try {
-    const status = await (await fetch("/api/status")).json();
-    const state = $("state");
-    state.textContent = status.state;
-    state.dataset.state = status.state;
-    $("reason").textContent = status.reason || "";
-    $("model").textContent = status.model || "no model: start a calibration";
-    $("rate").textContent = fmt(status.frame_rate_hz, 1);
-    if (!status.calibrated) $("position").textContent = "—";
-    if (status.limits_mm) {
-      $("limits").textContent = `soft limits ${status.limits_mm[0]} … ${status.limits_mm[1]} mm`;
-      $("target").min = status.limits_mm[0];
-      $("target").max = status.limits_mm[1];
-    }
-    const job = status.calibration;
-    if (job) {
-      $("progress").value = job.progress;
-      $("calibration-message").textContent = `${job.id}: ${job.state} · ${Math.round(job.progress * 100)} % · ${job.message}`;
-    }
-    $("calibrate").disabled = status.state === "calibrating";
+    applyStatus(await get("/api/status"));
   } catch (err) {
     $("state").textContent = "offline";
     $("state").dataset.state = "fault";
+  }
+}
+
+// -- history and events --------------------------------------------------------------------
+async function refreshHistory() {
+  try {
+    const page = await get("/api/calibrations?limit=20");
+    const body = $("history").tBodies[0];
+    body.replaceChildren(...page.items.map((c) => {
+      const tr = document.createElement("tr");
+      tr.dataset.id = c.id;
+      tr.classList.toggle("active", c.active);
+      const when = new Date(c.finished).toLocaleString();
+      const quality = c.error_std_um === null ? "—" : `${fmt(c.error_std_um, 2)} µm (bound ${fmt(c.bound_um, 2)} µm)`;
+      const cells = [when, quality, c.model || c.model_kind];
+      for (const text of cells) { const td = document.createElement("td"); td.textContent = text; tr.append(td); }
+      const actions = document.createElement("td");
+      if (c.files.includes("report.html")) {
+        const link = document.createElement("a");
+        link.href = `/api/calibrations/${c.id}/files/report.html`;
+        link.target = "_blank"; link.rel = "noopener"; link.textContent = "report";
+        link.className = "report-link";
+        actions.append(link, " ");
+      }
+      const button = document.createElement("button");
+      button.type = "button";
+      button.className = "secondary activate";
+      button.dataset.active = String(c.active);
+      button.textContent = c.active ? "active" : "Activate";
+      button.disabled = c.active;
+      button.addEventListener("click", () => act((r) => `calibration ${r.active} is active`, () =>
+        api("POST", `/api/calibrations/${c.id}/activate`)));
+      actions.append(button);
+      tr.append(actions);
+      return tr;
+    }));
+  } catch (err) {
+    say(`history: ${err.message}`, true);
+  }
+}
+
+async function refreshEvents() {
+  try {
+    const events = await get(`/api/events?since=${lastEvent}`);
+    const list = $("events");
+    for (const e of events) {
+      lastEvent = Math.max(lastEvent, e.id);
+      const li = document.createElement("li");
+      li.dataset.kind = e.kind;
+      const time = document.createElement("time");
+      time.textContent = new Date(e.t_unix * 1000).toLocaleTimeString();
+      li.append(time, e.message);
+      list.prepend(li);
+    }
+    while (list.children.length > 200) list.lastElementChild.remove();
+  } catch (err) {
+    // the status line already says when the daemon is offline
   }
 }
 
@@ -120,19 +237,52 @@ async function act(label, call) {
   try {
     const result = await call();
     say(label(result));
-    refresh();
   } catch (err) {
     say(err.message, true);
   }
+  refresh();
+}
+
+function number(id, what) {
+  const text = $(id).value.trim();
+  const value = Number(text);
+  if (text === "" || !Number.isFinite(value)) throw new Error(`${what}: enter a number`);
+  return value;
+}
+
+function withinLimits(name, target) {
+  const limits = status && status.limits_mm;
+  if (limits && !(target >= limits[0] && target <= limits[1])) {
+    throw new Error(`${name} ${target} is outside the soft limits [${limits[0]}, ${limits[1]}] mm`);
+  }
+  return target;
 }
 
 $("calibrate").addEventListener("click", () =>
   act((job) => `calibration ${job.id} started`, () => api("POST", "/api/calibration")));
-$("stop").addEventListener("click", () => act(() => "stopped", () => api("POST", "/api/stage/stop")));
+$("stop").addEventListener("click", () => act((r) => r.aborted_calibration ? `stopped; calibration ${r.aborted_calibration} aborted` : "stopped",
+  () => api("POST", "/api/stage/stop")));
 $("move-form").addEventListener("submit", (event) => {
   event.preventDefault();
-  const target = Number.parseFloat($("target").value);
-  act((r) => `moving to ${r.target_mm} mm`, () => api("POST", "/api/stage/move", { target_mm: target }));
+  act((r) => `moving to ${r.target_mm} mm`, async () =>
+    api("POST", "/api/stage/move", { target_mm: withinLimits("target_mm", number("target", "target")) }));
+});
+for (const [id, sign] of [["jog-minus", -1], ["jog-plus", 1]]) {
+  $(id).addEventListener("click", () => act((r) => `moving to ${r.target_mm} mm`, async () => {
+    const step = sign * Number($("jog-step").value);
+    if (status && status.grating_mm !== null) withinLimits("target_mm", Math.round((status.grating_mm + step) * 1e6) / 1e6);
+    return api("POST", "/api/stage/jog", { step_mm: step });
+  }));
+}
+$("home").addEventListener("click", () => act(() => "referenced (home)", () => api("POST", "/api/stage/home")));
+$("velocity-form").addEventListener("submit", (event) => {
+  event.preventDefault();
+  act((r) => `velocity ${r.velocity_mm_s} mm/s`, async () =>
+    api("POST", "/api/stage/velocity", { velocity_mm_s: number("velocity", "velocity") }));
+});
+$("pause").addEventListener("click", () => {
+  paused = !paused;
+  $("pause").textContent = paused ? "Resume" : "Pause";
 });
 $("token-form").addEventListener("submit", (event) => {
   event.preventDefault();
@@ -143,4 +293,9 @@ $("token-form").addEventListener("submit", (event) => {
 
 connect();
 refresh();
+refreshEvents();
+refreshProfile();
 setInterval(refresh, 500);
+setInterval(refreshEvents, 2000);
+setInterval(refreshProfile, PROFILE_MS);
+requestAnimationFrame(draw);

@@ -1,13 +1,18 @@
 """The frame loop: every camera frame is paired with the grating, handed to listeners and tracked.
 
 One thread owns the camera (cameras are not thread-safe, and one reader guarantees that every
-frame is seen once, in order). Per frame it: pairs the grating reading by host time, offers the
-frame to subscribers (the calibration sweep), and, when a model is installed, runs the
-:class:`LiveTracker` and publishes one message (the WebSocket stream).
+frame is seen once, in order). Per frame it: pairs the grating (:class:`Readings`), offers the frame to subscribers (the calibration sweep),
+and, when a model is installed, runs the :class:`LiveTracker` and publishes one message.
 
 Faults: no frame for ``camera_fault_after_s`` raises a camera fault; any other camera error
-closes the camera and reopens it every ``reopen_interval_s``. The loop itself never ends on a
-fault, so the daemon recovers by itself when frames return.
+closes the camera and reopens it every ``reopen_interval_s``; an exception from the tracker
+(a frame of another width after an ROI change, a model that cannot be evaluated) is a
+``tracking`` fault that clears on the next frame tracked. Anything else is a crash of the
+worker, which :class:`Worker` reports and restarts. The loop never ends on a fault.
+
+Per-frame cost matters at 1 kHz (the stream's latency tail): the loop allocates one dict per
+frame and nothing else of its own, and hands the message to the broadcaster, which encodes it
+once for all clients.
 """
 
 from __future__ import annotations
@@ -26,19 +31,21 @@ import numpy as np
 from graytrack.core.models.fourier import FourierModel
 from graytrack.core.tracking import LiveFix, LiveTracker
 from graytrack.drivers.camera.base import Camera, CameraError, CameraTimeout, Frame
-from graytrack.service.daemon.grating import GratingPoller
-from graytrack.service.daemon.worker import Worker
+from graytrack.service.daemon.grating import Readings
+from graytrack.service.daemon.worker import Worker, describe
 
 log = logging.getLogger("graytrack.daemon")
 READ_TIMEOUT_S = 0.25  # short, so stop requests and fault timing are honoured promptly
 RATE_WINDOW = 200
+LIVEFIX_EXTRAS = ("gain", "offset_gray", "rejected_px", "chi2", "stale")  # LiveFix fields the stream passes on when present
 
 
 @dataclass(frozen=True)
 class Sample:
-    """A frame and the grating position paired with it (NaN when none was close in time)."""
+    """A frame, its mid-exposure on the host clock and the grating position paired with it (NaN if none)."""
 
     frame: Frame
+    t: float
     reference_mm: float
 
 
@@ -50,48 +57,66 @@ class AcquisitionStats:
     lock_events: int = 0
     camera_errors: int = 0
     camera_reopens: int = 0
+    tracking_errors: int = 0
+    dropped: int = 0  # frames missing from the camera's frame_id sequence
     last_message: dict[str, Any] | None = None
     last_frame_wall: float = 0.0
+    last_tracked_wall: float = -math.inf
 
 
-def fix_message(seq: int, sample: Sample, fix: LiveFix) -> dict[str, Any]:
-    """The WebSocket message of one tracked frame (DESIGN.md: seq, t, x_mm, locked, reference_mm?)."""
-    finite = math.isfinite(fix.x_mm)
+def _finite(value: float) -> float | None:
+    return value if math.isfinite(value) else None
+
+
+def fix_message(seq: int, sample: Sample, fix: LiveFix, dropped: int) -> dict[str, Any]:
+    """The stream message of one tracked frame (DESIGN.md; ``t_unix`` and ``age_ms`` are added at send)."""
+    x = _finite(fix.x_mm)
     message: dict[str, Any] = {
         "seq": seq,
-        "t": sample.frame.t_host,
-        "x_mm": fix.x_mm if finite else None,
+        "t": sample.t,
+        "x_mm": x,
         "locked": bool(fix.locked),
         "frame_id": sample.frame.frame_id,
-        "rms_gray": fix.rms_gray if math.isfinite(fix.rms_gray) else None,
-        "crlb_um": fix.crlb_mm * 1e3 if math.isfinite(fix.crlb_mm) else None,
+        "dropped": dropped,
+        "rms_gray": _finite(fix.rms_gray),
+        "crlb_um": _finite(fix.crlb_mm * 1e3),
     }
-    if math.isfinite(sample.reference_mm):
+    for name in LIVEFIX_EXTRAS:
+        value = getattr(fix, name, None)
+        if value is not None:
+            message[name] = value if isinstance(value, (bool, int)) else _finite(float(value))
+    if sample.reference_mm == sample.reference_mm:  # not NaN
         message["reference_mm"] = sample.reference_mm
-        if finite:
-            message["error_um"] = (fix.x_mm - sample.reference_mm) * 1e3
+        if x is not None:
+            message["error_um"] = (x - sample.reference_mm) * 1e3
     if fix.event is not None:
         message["event"] = fix.event.reason
     return message
 
 
 class Acquisition(Worker):
-    def __init__(self, camera: Camera, grating: GratingPoller, publish: Callable[[dict[str, Any]], None],
-                 on_fault: Callable[[str | None], None], fault_after_s: float, reopen_interval_s: float) -> None:
-        super().__init__("acquisition")
+    def __init__(self, camera: Camera, readings: Readings,
+                 publish: Callable[[dict[str, Any]], None], faults: Callable[[str, str | None], None],
+                 fault_after_s: float, reopen_interval_s: float,
+                 on_event: Callable[[str, str], None] = lambda kind, message: None) -> None:
+        super().__init__("acquisition", lambda reason: faults("acquisition", reason))
+        self.on_event = on_event  # lock losses, re-acquisitions, stale-model flags: the event log
         self.camera = camera
-        self.grating = grating
+        self.readings = readings
         self.publish = publish
-        self.on_fault = on_fault
+        self.faults = faults
         self.fault_after_s = fault_after_s
         self.reopen_interval_s = reopen_interval_s
         self.stats = AcquisitionStats(last_frame_wall=time.monotonic())
+        self.latest: tuple[Sample, LiveFix | None] | None = None  # the line view reads it (no copy)
         self._tracker: LiveTracker | None = None
         self._pending: tuple[FourierModel, float | None] | None = None
         self._subscribers: list[queue.Queue[Sample]] = []
         self._lock = threading.Lock()
         self._arrivals: deque[float] = deque(maxlen=RATE_WINDOW)
         self._seq = 0
+        self._last_id: int | None = None
+        self._stale = False
 
     # -- control (any thread) --------------------------------------------------------------
     def install_model(self, model: FourierModel, x0_mm: float | None = None) -> None:
@@ -100,8 +125,8 @@ class Acquisition(Worker):
             self._pending = (model, x0_mm)
 
     @property
-    def tracking(self) -> bool:
-        return self._tracker is not None or self._pending is not None
+    def tracker(self) -> LiveTracker | None:
+        return self._tracker
 
     def subscribe(self, maxsize: int = 1000) -> "queue.Queue[Sample]":
         """A queue receiving every following frame (the oldest are dropped if it is not emptied)."""
@@ -115,15 +140,18 @@ class Acquisition(Worker):
             if q in self._subscribers:
                 self._subscribers.remove(q)
 
-    def frame_rate_hz(self) -> float:
-        """Frames per wall second over the last few hundred frames."""
+    def frame_rate_hz(self, stale_after_s: float) -> float:
+        """Frames per second over the last few hundred frames; 0 when the newest is older than ``stale_after_s``."""
         arrivals = list(self._arrivals)
-        if len(arrivals) < 2 or arrivals[-1] <= arrivals[0]:
+        if len(arrivals) < 2 or arrivals[-1] <= arrivals[0] or time.monotonic() - arrivals[-1] > stale_after_s:
             return 0.0
         return (len(arrivals) - 1) / (arrivals[-1] - arrivals[0])
 
     def seconds_since_frame(self) -> float:
         return time.monotonic() - self.stats.last_frame_wall
+
+    def seconds_since_tracked(self) -> float:
+        return time.monotonic() - self.stats.last_tracked_wall
 
     # -- the loop --------------------------------------------------------------------------
     def _run(self) -> None:
@@ -131,9 +159,13 @@ class Acquisition(Worker):
             frame = self._next_frame()
             if frame is None:
                 continue
-            sample = Sample(frame, self.grating.at(frame.t_host))
+            t = frame.t_host  # mid-exposure on time.monotonic, for every driver (the camera contract)
+            sample = Sample(frame, t, self.readings.at(t))
             self._offer(sample)
             self._track(sample)
+
+    def _recover(self) -> None:
+        self._reopen()
 
     def _next_frame(self) -> Frame | None:
         try:
@@ -141,23 +173,29 @@ class Acquisition(Worker):
         except CameraTimeout:
             silent = self.seconds_since_frame()
             if silent > self.fault_after_s:
-                self.on_fault(f"no frame for {silent:.1f} s")
+                self.faults("camera", f"no frame for {silent:.1f} s")
             return None
         except CameraError as exc:
             self.stats.camera_errors += 1
-            self.on_fault(f"camera error: {exc}")
+            self.faults("camera", f"camera error: {exc}")
             self._reopen()
             return None
         now = time.monotonic()
-        self.stats.frames += 1
-        self.stats.last_frame_wall = now
+        stats = self.stats
+        stats.frames += 1
+        stats.last_frame_wall = now
         self._arrivals.append(now)
-        self.on_fault(None)
+        if self._last_id is not None and frame.frame_id > self._last_id + 1:
+            stats.dropped += frame.frame_id - self._last_id - 1
+        self._last_id = frame.frame_id
+        self.faults("camera", None)
+        self.faults("acquisition", None)
         return frame
 
     def _reopen(self) -> None:
         """Close, wait, open again; failures leave the fault standing for the next round."""
         self.camera.close()
+        self._last_id = None
         if self._stop.wait(self.reopen_interval_s):
             return
         try:
@@ -165,9 +203,11 @@ class Acquisition(Worker):
             self.stats.camera_reopens += 1
             log.info("camera reopened")
         except CameraError as exc:
-            self.on_fault(f"camera cannot be reopened: {exc}")
+            self.faults("camera", f"camera cannot be reopened: {exc}")
 
     def _offer(self, sample: Sample) -> None:
+        if not self._subscribers:
+            return
         with self._lock:
             subscribers = list(self._subscribers)
         for q in subscribers:
@@ -181,18 +221,49 @@ class Acquisition(Worker):
                     pass
 
     def _track(self, sample: Sample) -> None:
-        with self._lock:
-            pending, self._pending = self._pending, None
-        if pending is not None:
-            model, x0 = pending
-            self._tracker = LiveTracker(model, x0 if x0 is not None and math.isfinite(x0) else None)
-        if self._tracker is None:
+        if self._pending is not None:
+            with self._lock:
+                pending, self._pending = self._pending, None
+            if pending is not None:
+                self._start_tracker(*pending)
+        tracker = self._tracker
+        if tracker is None:
+            self.latest = (sample, None)
             return
-        fix = self._tracker.update(np.asarray(sample.frame.pixels), sample.reference_mm)
-        self.stats.tracked += 1
-        self.stats.unplaced += not math.isfinite(fix.x_mm)
-        self.stats.lock_events += fix.event is not None
+        try:
+            fix = tracker.update(np.asarray(sample.frame.pixels), sample.reference_mm)
+        except Exception as exc:  # noqa: BLE001 - a frame or model the tracker cannot use: a fault, not a dead loop
+            self.stats.tracking_errors += 1
+            self.faults("tracking", f"frame {sample.frame.frame_id} cannot be tracked: {describe(exc)}")
+            self.latest = (sample, None)
+            return
+        self.faults("tracking", None)
+        stats = self.stats
+        stats.tracked += 1
+        stats.last_tracked_wall = time.monotonic()
+        if fix.x_mm != fix.x_mm:
+            stats.unplaced += 1
+        if fix.event is not None:
+            stats.lock_events += 1
+            event = fix.event
+            self.on_event("lock_reacquired" if event.reacquired else "lock_lost",
+                          f"{'lock re-acquired' if event.reacquired else 'lock lost'} at frame "
+                          f"{sample.frame.frame_id}: {event.reason}")
+        stale = bool(getattr(fix, "stale", False))
+        if stale != self._stale:
+            self._stale = stale
+            self.on_event("model_stale" if stale else "model_fresh",
+                          "the model no longer fits the frames (stale): recalibrate" if stale
+                          else "the model fits the frames again")
         self._seq += 1
-        message = fix_message(self._seq, sample, fix)
-        self.stats.last_message = message
+        message = fix_message(self._seq, sample, fix, stats.dropped)
+        stats.last_message = message
+        self.latest = (sample, fix)
         self.publish(message)
+
+    def _start_tracker(self, model: FourierModel, x0: float | None) -> None:
+        try:
+            self._tracker = LiveTracker(model, x0 if x0 is not None and math.isfinite(x0) else None)
+        except Exception as exc:  # noqa: BLE001 - an unusable model: say so, keep reading frames
+            self._tracker = None
+            self.faults("tracking", f"cannot track with this model: {describe(exc)}")

@@ -1,8 +1,11 @@
 """Fan-out of position messages from the acquisition thread to WebSocket clients on the event loop.
 
-The acquisition thread must never wait for a slow client, so each message is encoded once and
-handed to the event loop with ``call_soon_threadsafe``; every client has a bounded queue and a
+The acquisition thread must never wait for a slow client. Each message is encoded once, for all
+clients, on the acquisition thread (adding ``t_unix`` and ``age_ms``, the send-time figures), and
+handed to the event loop with one ``call_soon_threadsafe``. Every client has a bounded queue: a
 client that falls behind loses its oldest messages (counted), not the others' nor the tracker's.
+A client may ask for at most ``max_rate`` messages per second (pages do): the others are skipped
+for it at delivery, before they cost it a send.
 """
 
 from __future__ import annotations
@@ -10,16 +13,47 @@ from __future__ import annotations
 import asyncio
 import json
 import threading
+import time
 from typing import Any
 
+from graytrack.service.daemon.timebase import WallClock
+
 CLIENT_QUEUE = 2000
+
+
+class Client:
+    """One connection's queue and decimation."""
+
+    __slots__ = ("queue", "min_interval_s", "last_t", "dropped")
+
+    def __init__(self, max_rate_hz: float | None) -> None:
+        self.queue: asyncio.Queue[str] = asyncio.Queue(CLIENT_QUEUE)
+        self.min_interval_s = 1.0 / max_rate_hz if max_rate_hz else 0.0
+        self.last_t = -1e18
+        self.dropped = 0
+
+    def offer(self, text: str, t: float) -> bool:
+        """Queue ``text`` (frame time ``t``) unless decimated; False when the oldest had to go."""
+        if self.min_interval_s:
+            if t - self.last_t < self.min_interval_s:
+                return True
+            self.last_t = t
+        q = self.queue
+        if q.full():
+            q.get_nowait()
+            self.dropped += 1
+            q.put_nowait(text)
+            return False
+        q.put_nowait(text)
+        return True
 
 
 class Broadcaster:
     def __init__(self) -> None:
         self._loop: asyncio.AbstractEventLoop | None = None
-        self._clients: set[asyncio.Queue[str]] = set()
+        self._clients: tuple[Client, ...] = ()
         self._lock = threading.Lock()
+        self._wall = WallClock()
         self.published = 0
         self.sent = 0
         self.dropped = 0
@@ -32,15 +66,23 @@ class Broadcaster:
     def clients(self) -> int:
         return len(self._clients)
 
-    def subscribe(self) -> "asyncio.Queue[str]":
-        q: asyncio.Queue[str] = asyncio.Queue(CLIENT_QUEUE)
+    def subscribe(self, max_rate_hz: float | None = None) -> Client:
+        client = Client(max_rate_hz)
         with self._lock:
-            self._clients.add(q)
-        return q
+            self._clients = self._clients + (client,)
+        return client
 
-    def unsubscribe(self, q: "asyncio.Queue[str]") -> None:
+    def unsubscribe(self, client: Client) -> None:
         with self._lock:
-            self._clients.discard(q)
+            self._clients = tuple(c for c in self._clients if c is not client)
+
+    def encode(self, message: dict[str, Any]) -> str:
+        """The message as sent: with ``t_unix`` (wall clock) and ``age_ms`` (now minus mid-exposure)."""
+        now = time.monotonic()
+        t = message["t"]
+        message["t_unix"] = self._wall.unix(t, now)
+        message["age_ms"] = round((now - t) * 1e3, 4)
+        return json.dumps(message, allow_nan=False, separators=(",", ":"))
 
     def publish(self, message: dict[str, Any]) -> None:
         """Called from any thread; returns at once."""
@@ -48,17 +90,13 @@ class Broadcaster:
         loop = self._loop
         if loop is None or not self._clients or loop.is_closed():
             return
-        text = json.dumps(message, allow_nan=False)
+        text = self.encode(message)  # the acquisition thread is done with it
         try:
-            loop.call_soon_threadsafe(self._deliver, text)
+            loop.call_soon_threadsafe(self._deliver, text, message["t"])
         except RuntimeError:  # the loop closed between the check and the call (shutdown)
             pass
 
-    def _deliver(self, text: str) -> None:
-        with self._lock:
-            clients = list(self._clients)
-        for q in clients:
-            if q.full():
-                q.get_nowait()
+    def _deliver(self, text: str, t: float) -> None:
+        for client in self._clients:  # an immutable tuple: no lock on the hot path
+            if not client.offer(text, t):
                 self.dropped += 1
-            q.put_nowait(text)

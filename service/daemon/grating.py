@@ -2,78 +2,154 @@
 
 Why a separate thread: a serial transaction can block for the link timeout when the controller
 or its USB adapter misbehaves, and the camera loop must not stall (or drop frames) because of it.
-Why pairing by time rather than "the latest reading": DESIGN.md — the reference must be read for
-the same instant as the exposure. Frames carry their mid-exposure host time and readings the
-midpoint of request and reply on the same clock, so a frame's reference is the readings nearest
-to it in time, linearly interpolated (or extrapolated over a few ms while moving).
+
+Why pairing this way (DESIGN.md: the reference must be read for the same instant as the
+exposure): a reading is the midpoint of its request and reply on the host clock, a frame's time
+is mid-exposure on the same clock. A frame gets a reference only when it can be *known*:
+
+* **bracketed** — a reading before and one after the frame, at most ``window_s`` apart, and the
+  motion between them straight: the change of velocity to the neighbouring readings, times the
+  span, bounds the interpolation error (``|a| h² / 8``), which must stay below ``tolerance_mm``;
+  and each reading's instant known well enough: a reading was taken somewhere between request
+  and reply, so while moving at ``v`` its stamp may be off by ``|v| · latency / 2`` (a reply
+  delayed by a busy machine makes that large), which must stay below ``tolerance_mm`` too;
+* **at rest** — the last readings agree within ``tolerance_mm``, the newest is within
+  ``window_s`` of the frame and no move was commanded since the first of them.
+
+Otherwise no reference is sent: a wrong reference is worse than none (the stream's ``error_um``
+would show the pairing, not the tracker). Pairing is called once per frame, so it scans the few
+newest readings in place instead of copying the history.
 """
 
 from __future__ import annotations
 
-import bisect
 import logging
+import math
 import threading
 import time
 from collections import deque
 from typing import Callable
 
-from graytrack.drivers.stage.base import PositionReading, Stage
+from graytrack.drivers.stage.base import Stage
 from graytrack.drivers.stage.errors import StageError
 from graytrack.service.daemon.worker import Worker
 
 log = logging.getLogger("graytrack.daemon")
 HISTORY = 64
+REST_READINGS = 3
+NAN = float("nan")
 
 
-def pair_reading(readings: list[PositionReading], t: float, window_s: float) -> float:
-    """The grating position at host time ``t`` from readings sorted by time; NaN if none is near.
+class Readings:
+    """Recent (host time, position) pairs, oldest first; safe to append and pair from two threads."""
 
-    Uses the two readings closest to ``t`` (a bracketing pair when there is one) and draws the
-    line through them; both must lie within ``window_s`` of ``t``. One reading alone is used as
-    it is when it is that close (a stage at rest reads the same anyway).
-    """
-    if not readings:
-        return float("nan")
-    times = [r.t for r in readings]
-    first = min(max(bisect.bisect_left(times, t) - 1, 0), max(len(readings) - 2, 0))
-    candidates = readings[first: first + 2]  # the bracketing pair, else the two at the near end
-    near = [r for r in candidates if abs(r.t - t) <= window_s]
-    if not near:
-        return float("nan")
-    if len(near) == 1 or near[1].t == near[0].t:
-        return near[0].position_mm
-    a, b = near
-    return a.position_mm + (b.position_mm - a.position_mm) * (t - a.t) / (b.t - a.t)
+    def __init__(self, window_s: float, tolerance_mm: float, history: int = HISTORY) -> None:
+        self.window_s = window_s
+        self.tolerance_mm = tolerance_mm
+        self._t: deque[float] = deque(maxlen=history)
+        self._x: deque[float] = deque(maxlen=history)
+        self._latency: deque[float] = deque(maxlen=history)
+        self._lock = threading.Lock()
+        self.command_t = -math.inf  # host time of the last commanded move or stop
+
+    def append(self, t: float, x_mm: float, latency_s: float = 0.0) -> None:
+        """A reading stamped ``t`` (host s), taken at most ``latency_s / 2`` from that stamp."""
+        with self._lock:
+            if self._t and t <= self._t[-1]:
+                return
+            self._t.append(t)
+            self._x.append(x_mm)
+            self._latency.append(latency_s)
+
+    def latest(self) -> tuple[float, float] | None:
+        with self._lock:
+            return (self._t[-1], self._x[-1]) if self._t else None
+
+    def moving(self) -> bool | None:
+        """Whether the last readings disagree (None before there are enough of them)."""
+        with self._lock:
+            if len(self._x) < REST_READINGS:
+                return None
+            recent = list(self._x)[-REST_READINGS:]
+        return max(recent) - min(recent) > self.tolerance_mm
+
+    def note_command(self, t: float) -> None:
+        """A move or stop was sent at host time ``t``: rest seen before it proves nothing after it."""
+        self.command_t = t
+
+    def at(self, t: float) -> float:
+        """The grating position at host time ``t``, or NaN when it cannot be known (see module doc)."""
+        with self._lock:
+            n = len(self._t)
+            if n == 0:
+                return NAN
+            ts, xs = self._t, self._x
+            i = n - 1
+            while i >= 0 and ts[i] > t:  # the frame is recent: few steps from the end
+                i -= 1
+            if i < 0:
+                return NAN
+            if i < n - 1:
+                return self._bracketed(i, t)
+            return self._at_rest(t)
+
+    def _bracketed(self, i: int, t: float) -> float:
+        ts, xs = self._t, self._x
+        ta, tb, xa, xb = ts[i], ts[i + 1], xs[i], xs[i + 1]
+        span = tb - ta
+        if span > self.window_s or span <= 0:
+            return NAN
+        v = (xb - xa) / span
+        dv = []
+        if i > 0 and ta - ts[i - 1] <= self.window_s:
+            dv.append(abs(v - (xa - xs[i - 1]) / (ta - ts[i - 1])))
+        if i + 2 < len(ts) and ts[i + 2] - tb <= self.window_s:
+            dv.append(abs((xs[i + 2] - xb) / (ts[i + 2] - tb) - v))
+        if not dv or max(dv) * span / 8.0 > self.tolerance_mm:
+            return NAN  # accelerating (or nothing to tell): the straight line may be wrong
+        if abs(v) * 0.5 * max(self._latency[i], self._latency[i + 1]) > self.tolerance_mm:
+            return NAN  # moving, and the readings' instants are too loosely known
+        return xa + (xb - xa) * (t - ta) / span
+
+    def _at_rest(self, t: float) -> float:
+        ts, xs = self._t, self._x
+        n = len(ts)
+        if n < REST_READINGS or t - ts[-1] > self.window_s:
+            return NAN
+        first = n - REST_READINGS
+        if ts[first] <= self.command_t or ts[-1] - ts[first] > REST_READINGS * self.window_s:
+            return NAN
+        newest = xs[-1]
+        for k in range(first, n - 1):
+            if abs(xs[k] - newest) > self.tolerance_mm:
+                return NAN
+        return newest
 
 
 class GratingPoller(Worker):
-    """Reads ``POS?`` every ``poll_s`` (wall time) and keeps the recent readings.
+    """Reads ``POS?`` every ``poll_s`` (wall time) into :class:`Readings` (host time).
 
     Failures are reported through ``on_fault(reason or None)`` — None when a read succeeds again —
     so the rig can show a stage fault and clear it once the link recovers.
     """
 
-    def __init__(self, stage: Stage, poll_s: float, window_s: float,
+    def __init__(self, stage: Stage, poll_s: float, readings: Readings,
                  on_fault: Callable[[str | None], None]) -> None:
-        super().__init__("grating-poller")
+        super().__init__("grating-poller", on_fault)
         self.stage = stage
         self.poll_s = poll_s
-        self.window_s = window_s
+        self.readings = readings
         self.on_fault = on_fault
         self.reads = 0
         self.errors = 0
-        self._readings: deque[PositionReading] = deque(maxlen=HISTORY)
-        self._lock = threading.Lock()
 
-    def latest(self) -> PositionReading | None:
-        with self._lock:
-            return self._readings[-1] if self._readings else None
+    def latest_mm(self) -> float | None:
+        latest = self.readings.latest()
+        return None if latest is None else latest[1]
 
-    def at(self, t: float) -> float:
-        """The grating position at host time ``t`` (NaN when no reading is close enough)."""
-        with self._lock:
-            readings = list(self._readings)
-        return pair_reading(readings, t, self.window_s)
+    def latest_t(self) -> float | None:
+        latest = self.readings.latest()
+        return None if latest is None else latest[0]
 
     def _run(self) -> None:
         while not self._stop.is_set():
@@ -86,7 +162,6 @@ class GratingPoller(Worker):
                 self._stop.wait(max(self.poll_s, 0.2))  # do not hammer a failing link
                 continue
             self.reads += 1
-            with self._lock:
-                self._readings.append(reading)
+            self.readings.append(reading.t, reading.position_mm, reading.latency_s)  # host time (stage contract)
             self.on_fault(None)
             self._stop.wait(max(0.0, self.poll_s - (time.monotonic() - started)))

@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 from typing import Iterable
 
+from graytrack.service.daemon import status as rig_status
 from graytrack.service.daemon.broadcast import Broadcaster
 from graytrack.service.daemon.rig import Rig
 
@@ -28,8 +29,9 @@ def render(rig: Rig, broadcaster: Broadcaster) -> str:
     status = rig.status()
     acquisition, grating = rig.acquisition, rig.grating
     stats = acquisition.stats if acquisition is not None else None
-    camera = rig.hardware.camera.stats if rig.hardware is not None else None
-    link = rig.hardware.stage.link.stats if rig.hardware is not None else None
+    hardware = rig.hardware
+    camera = hardware.camera.stats if hardware is not None else None
+    link = hardware.stage.link.stats if hardware is not None else None
     position = status["position_mm"]
     out: list[str] = []
     out += _metric("graytrack_state", "gauge", "1 for the daemon's current state",
@@ -39,8 +41,12 @@ def render(rig: Rig, broadcaster: Broadcaster) -> str:
                    [("", float("nan") if position is None else position)])
     out += _metric("graytrack_crlb_um", "gauge", "Cramer-Rao bound of the last tracked frame",
                    [("", float("nan") if status["crlb_um"] is None else status["crlb_um"])])
-    out += _metric("graytrack_frame_rate_hz", "gauge", "frames per second over the last frames",
+    out += _metric("graytrack_frame_rate_hz", "gauge", "frames per second over the last frames (0 when stale)",
                    [("", status["frame_rate_hz"])])
+    out += _metric("graytrack_stale", "gauge", "1 when the newest tracked frame is older than stale_after_s",
+                   [("", float(status["stale"]))])
+    out += _metric("graytrack_healthy", "gauge", "1 when frames are being tracked now (/healthz 200)",
+                   [("", float(rig_status.tracking_fresh(rig)))])
     out += _metric("graytrack_frames_total", "counter", "camera frames received", [("", stats.frames if stats else 0)])
     out += _metric("graytrack_frames_tracked_total", "counter", "frames tracked", [("", stats.tracked if stats else 0)])
     out += _metric("graytrack_frames_unplaced_total", "counter", "tracked frames that could not be placed",
@@ -49,6 +55,12 @@ def render(rig: Rig, broadcaster: Broadcaster) -> str:
                    [("", stats.lock_events if stats else 0)])
     out += _metric("graytrack_camera_dropped_frames_total", "counter", "frames the camera lost or skipped",
                    [("", camera.dropped if camera else 0)])
+    out += _metric("graytrack_frames_dropped_total", "counter", "gaps in the camera's frame_id sequence (the stream's dropped)",
+                   [("", stats.dropped if stats else 0)])
+    out += _metric("graytrack_tracking_errors_total", "counter", "frames the tracker raised on",
+                   [("", stats.tracking_errors if stats else 0)])
+    out += _metric("graytrack_worker_crashes_total", "counter", "worker loops restarted after an exception",
+                   [("", (acquisition.crashes if acquisition else 0) + (grating.crashes if grating else 0))])
     out += _metric("graytrack_camera_errors_total", "counter", "camera errors other than timeouts",
                    [("", stats.camera_errors if stats else 0)])
     out += _metric("graytrack_grating_reads_total", "counter", "POS? readings", [("", grating.reads if grating else 0)])
@@ -65,5 +77,12 @@ def render(rig: Rig, broadcaster: Broadcaster) -> str:
                    [("", broadcaster.sent)])
     out += _metric("graytrack_websocket_dropped_total", "counter", "messages dropped for slow clients",
                    [("", broadcaster.dropped)])
+    fit = status.get("fit") or {}
+    for key, help_text in (("chi2", "reduced chi-square of the newest frame's fit"),
+                           ("rejected_px", "pixels the newest frame's fit rejected"),
+                           ("stale", "1 when the tracker flags the model as stale (recalibrate)")):
+        if key in fit:
+            out += _metric(f"graytrack_fit_{key}", "gauge", help_text,
+                           [("", float("nan") if fit[key] is None else float(fit[key]))])
     out += _metric("graytrack_uptime_seconds", "gauge", "seconds since start", [("", status["uptime_s"])])
     return "\n".join(out) + "\n"

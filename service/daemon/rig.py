@@ -1,120 +1,89 @@
-"""The rig's lifecycle: open the hardware, track, calibrate on request, survive faults, close.
+"""The rig: owns the hardware and the workers, answers requests; state is derived (``status``).
 
 The state the API reports is *derived*, never stored, so it cannot disagree with what the parts
 are doing::
 
     stopping     close() was called
-    fault        hardware could not be opened, or the camera / the grating readout is failing
+    fault        a part is failing: hardware cannot be opened, camera, stage (grating readout),
+                 tracking (frames or model the tracker cannot use), a crashed worker, start-up
     starting     hardware is being opened
-    calibrating  a calibration sweep is running
-    tracking     a model is installed and frames are being tracked
+    calibrating  a calibration job is active
+    tracking     a model is installed (frames tracked: /healthz says whether they are, now)
     idle         hardware open, no model yet (POST /api/calibration to get one)
 
-Hardware that fails to open is retried every ``reopen_interval_s`` by a supervisor thread, so a
-daemon started before its camera or USB adapter is plugged in comes up by itself.
+Who does what: :mod:`supervision` (faults, bring-up with retries, the watchdog), :mod:`jobs`
+(the calibration state machine), :mod:`status` (the status document), :mod:`acquisition` and
+:mod:`grating` (the two workers). Hardware that fails to open is retried every
+``reopen_interval_s``, so a daemon started before its camera is plugged in comes up by itself.
 """
 
 from __future__ import annotations
 
 import logging
 import math
+import sqlite3
 import threading
 import time
 from typing import Any, Callable
 
 from graytrack import __version__
+from graytrack.core.models import load_model
+from graytrack.core.models.fourier import FourierModel
 from graytrack.drivers.clock import REAL_TIME, ScaledClock
 from graytrack.drivers.factory import Hardware, open_hardware
 from graytrack.drivers.stage.errors import StageError, StageLimitError
+from graytrack.service.daemon import status as status_doc
 from graytrack.service.daemon.acquisition import Acquisition
-from graytrack.service.daemon.grating import GratingPoller
+from graytrack.service.daemon.errors import Busy, NotFound, NotReady, OutOfLimits
+from graytrack.service.daemon.grating import GratingPoller, Readings
+from graytrack.service.daemon.jobs import CalibrationJob, JobRunner, calibration_row, mark_interrupted
+from graytrack.service.daemon.record import Record
 from graytrack.service.daemon.settings import Settings
 from graytrack.service.daemon.storage import Storage
-from graytrack.service.daemon.sweep import CalibrationJob, Sweep
+from graytrack.service.daemon.supervision import Faults, Supervisor, sentence
+from graytrack.service.daemon.sweep import Sweep
+from graytrack.service.daemon.worker import describe
 
 log = logging.getLogger("graytrack.daemon")
 HardwareFactory = Callable[[Settings, ScaledClock], Hardware]
-
-
-class RigError(Exception):
-    """A request the rig refuses; ``status`` is the HTTP status the API answers with."""
-
-    status = 409
-
-
-class NotReady(RigError):
-    status = 503
-
-
-class Busy(RigError):
-    status = 409
-
-
-class OutOfLimits(RigError):
-    status = 422
+MAX_VELOCITY_MM_S = 100.0
 
 
 def default_factory(settings: Settings, clock: ScaledClock) -> Hardware:
     return open_hardware(settings.hardware, clock)
 
 
-class Faults:
-    """Current faults by source (``hardware``, ``camera``, ``stage``), thread-safe, logged on change."""
-
-    def __init__(self) -> None:
-        self._faults: dict[str, str] = {}
-        self._lock = threading.Lock()
-        self.raised = 0
-
-    def reporter(self, source: str) -> Callable[[str | None], None]:
-        """A callback setting (reason) or clearing (None) this source's fault."""
-        return lambda reason: self.set(source, reason)
-
-    def set(self, source: str, reason: str | None) -> None:
-        with self._lock:
-            previous = self._faults.get(source)
-            if reason == previous:
-                return
-            if reason is None:
-                del self._faults[source]
-            else:
-                self._faults[source] = reason
-                self.raised += previous is None
-        if reason is None:
-            log.info("%s fault cleared", source)
-        elif previous is None:
-            log.warning("%s fault: %s", source, reason)
-
-    def snapshot(self) -> dict[str, str]:
-        with self._lock:
-            return dict(self._faults)
-
-
 class Rig:
-    def __init__(self, settings: Settings, storage: Storage, publish: Callable[[dict[str, Any]], None],
+    def __init__(self, settings: Settings, storage: Storage, record: Record, publish: Callable[[dict[str, Any]], None],
                  factory: HardwareFactory = default_factory) -> None:
+        daemon = settings.daemon
         self.settings = settings
         self.storage = storage
+        self.record = record
         self.publish = publish
         self.factory = factory
-        self.clock = ScaledClock(settings.daemon.sim_clock_scale) if settings.simulated else REAL_TIME
+        self.clock = ScaledClock(daemon.sim_clock_scale) if settings.simulated else REAL_TIME
         self.faults = Faults()
+        self.readings = Readings(daemon.pair_window_s, daemon.pair_tolerance_um * 1e-3)
         self.hardware: Hardware | None = None
         self.grating: GratingPoller | None = None
         self.acquisition: Acquisition | None = None
-        self.model = None
+        self.model: FourierModel | None = None
         self.jobs: dict[str, CalibrationJob] = {}
+        self.job: CalibrationJob | None = None
         self.calibrations_finished: dict[str, int] = {"done": 0, "failed": 0, "aborted": 0}
-        self._job: CalibrationJob | None = None
+        self.closing = threading.Event()
+        self.started_at = time.monotonic()
         self._sweep_thread: threading.Thread | None = None
+        self.target_mm: float | None = None  # the last commanded target (the page's moving indicator)
+        self.velocity_mm_s: float | None = None
         self._lock = threading.RLock()
-        self._closing = threading.Event()
-        self._started_wall = time.monotonic()
-        self._supervisor = threading.Thread(target=self._bring_up, name="rig-supervisor", daemon=True)
+        self.supervisor = Supervisor(self._bring_up, self._watch, self.faults, daemon.reopen_interval_s)
+        self.faults.listeners.append(self._fault_event)
 
     # -- lifecycle -------------------------------------------------------------------------
     def start(self) -> "Rig":
-        self._supervisor.start()
+        self.supervisor.start()
         return self
 
     def wait_ready(self, timeout_s: float) -> bool:
@@ -125,148 +94,214 @@ class Rig:
         return self.acquisition is not None
 
     def close(self) -> None:
-        """Abort a sweep, stop the threads, close the hardware; safe to call twice."""
-        self._closing.set()
-        job, thread = self._job, self._sweep_thread
-        if job is not None:
-            job.abort.set()
+        """Abort a job, stop the threads, close the hardware; safe to call twice."""
+        self.closing.set()
+        job, thread = self.job, self._sweep_thread
+        if job is not None and job.active:
+            job.request_abort("calibration aborted: the daemon is shutting down")
         if thread is not None:
             thread.join(timeout=10.0)
-        if self._supervisor.is_alive():
-            self._supervisor.join(timeout=10.0)
-        with self._lock:
-            if self.acquisition is not None:
-                self.acquisition.stop()
-            if self.grating is not None:
-                self.grating.stop()
-            if self.hardware is not None:
-                self.hardware.close()
-                log.info("hardware closed")
-            self.hardware = None
+        self.supervisor.stop()
+        self._detach()
+        self.event("shutdown", "daemon stopped")
+
+    def event(self, kind: str, message: str, **details: Any) -> None:
+        """One line in the event log (``GET /api/events``); the record failing never stops the rig."""
+        try:
+            self.record.event(kind, message, **details)
+        except sqlite3.Error as exc:
+            log.error("cannot record the event %r: %s", message, exc)
+
+    def _fault_event(self, source: str, reason: str | None, previous: str | None) -> None:
+        if reason is None:
+            self.event("recovered", f"{source} recovered", source=source, was=previous)
+        else:
+            self.event("fault", f"{source}: {reason}", source=source)
+
+    def _stream_event(self, kind: str, message: str) -> None:
+        """Lock losses, re-acquisitions and stale-model flags from the frame loop (rare, never per frame)."""
+        self.event(kind, message)
 
     def _bring_up(self) -> None:
-        while not self._closing.is_set():
+        interrupted = mark_interrupted(self.storage)
+        for job_id in interrupted:
+            self.event("calibration_interrupted", f"calibration {job_id} was interrupted by the last shutdown",
+                       calibration=job_id)
+        unfinished = [i for i in self.record.calibration_ids()
+                      if (self.storage.read_status(i) or {}).get("state") != "done"]
+        self.record.remove_calibrations(unfinished)
+        while not self.closing.is_set():
             try:
                 hardware = self.factory(self.settings, self.clock)
-            except Exception as exc:  # any driver error: report, retry; the daemon must stay up
-                self.faults.set("hardware", f"cannot open the hardware: {exc}")
-                self._closing.wait(self.settings.daemon.reopen_interval_s)
+            except Exception as exc:  # noqa: BLE001 - any driver error: report, retry; the daemon stays up
+                self.faults.set("hardware", f"cannot open the hardware: {describe(exc)}")
+                self.closing.wait(self.settings.daemon.reopen_interval_s)
                 continue
             self.faults.set("hardware", None)
-            self._attach(hardware)
+            try:
+                self._attach(hardware)
+            except BaseException:
+                self._detach(forget=True)
+                raise
             return
 
     def _attach(self, hardware: Hardware) -> None:
         daemon = self.settings.daemon
         with self._lock:
-            if self._closing.is_set():
+            if self.closing.is_set():
                 hardware.close()
                 return
             self.hardware = hardware
-            self.grating = GratingPoller(hardware.stage, daemon.grating_poll_s, daemon.pair_window_s,
-                                         self.faults.reporter("stage")).start()
-            self.acquisition = Acquisition(hardware.camera, self.grating, self.publish, self.faults.reporter("camera"),
-                                           daemon.camera_fault_after_s, daemon.reopen_interval_s).start()
+            self.velocity_mm_s = hardware.stage.velocity()
+            self.grating = self._new_grating()
+            self.acquisition = self._new_acquisition()
         log.info("hardware open: %s camera, %s stage, limits %s mm", self.settings.hardware.camera.kind,
                  self.settings.hardware.stage.kind, hardware.stage.limits())
-        model = self.storage.load_current_model()
+        self.event("start", f"daemon started ({'virtual rig' if self.settings.simulated else 'hardware'})",
+                   simulated=self.settings.simulated)
+        try:
+            model = self.storage.load_current_model()
+        except Exception as exc:  # noqa: BLE001 - a broken model file: say so, stay up, let a calibration replace it
+            self.faults.set("model", f"the saved model {self.storage.model_path} cannot be used "
+                                     f"({describe(exc)}); run a calibration to replace it")
+            return
         if model is not None:
             log.info("tracking with the saved model %s", model.describe())
-            self._install(model)
+            self.install(model)
         elif daemon.auto_calibrate == "always" or (daemon.auto_calibrate == "sim" and self.settings.simulated):
             log.info("no saved model: calibrating (auto_calibrate = %s)", daemon.auto_calibrate)
             try:
                 self.start_calibration()
-            except RigError as exc:
+            except (Busy, NotReady) as exc:
                 log.warning("automatic calibration not started: %s", exc)
         else:
             log.info("no saved model: idle until POST /api/calibration")
 
-    def _install(self, model: Any) -> None:
-        assert self.acquisition is not None and self.grating is not None
-        latest = self.grating.latest()
+    def _detach(self, forget: bool = False) -> None:
+        """Stop the workers and close the hardware (shutdown; ``forget`` after a bring-up that failed half-way)."""
+        with self._lock:
+            for worker in (self.acquisition, self.grating):
+                if worker is not None:
+                    worker.stop()
+            if self.hardware is not None:
+                self.hardware.close()
+                log.info("hardware closed")
+            self.hardware = None
+            if forget:
+                self.acquisition, self.grating = None, None
+
+    def _new_grating(self) -> GratingPoller:
+        assert self.hardware is not None
+        return GratingPoller(self.hardware.stage, self.settings.daemon.grating_poll_s, self.readings,
+                             self.faults.reporter("stage")).start()
+
+    def _new_acquisition(self) -> Acquisition:
+        assert self.hardware is not None
+        daemon = self.settings.daemon
+        acquisition = Acquisition(self.hardware.camera, self.readings, self.publish, self.faults.set,
+                                  daemon.camera_fault_after_s, daemon.reopen_interval_s, self._stream_event)
+        if self.model is not None:
+            acquisition.install_model(self.model, self.grating.latest_mm() if self.grating else None)
+        return acquisition.start()
+
+    def _watch(self) -> None:
+        """The watchdog: a worker thread that is gone (it should never be) is a fault, and is replaced."""
+        with self._lock:
+            if self.closing.is_set() or self.hardware is None:
+                return
+            if self.acquisition is not None and not self.acquisition.alive:
+                self.faults.set("acquisition", "the frame loop ended unexpectedly; restarted")
+                self.acquisition = self._new_acquisition()
+            if self.grating is not None and not self.grating.alive:
+                self.faults.set("grating-poller", "the grating poller ended unexpectedly; restarted")
+                self.grating = self._new_grating()
+
+    def install(self, model: FourierModel) -> None:
+        """Track with ``model`` from the next frame on, starting near the grating's position."""
+        assert self.acquisition is not None
         self.model = model
-        self.acquisition.install_model(model, None if latest is None else latest.position_mm)
+        self.faults.set("model", None)
+        self.acquisition.install_model(model, self.grating.latest_mm() if self.grating else None)
 
     # -- state -----------------------------------------------------------------------------
     @property
     def state(self) -> str:
-        if self._closing.is_set():
-            return "stopping"
-        if self.faults.snapshot():
-            return "fault"
-        if self.acquisition is None:
-            return "starting"
-        if self._job is not None and self._job.active:
-            return "calibrating"
-        return "tracking" if self.model is not None else "idle"
+        return status_doc.state(self)
 
     def status(self) -> dict[str, Any]:
-        faults = self.faults.snapshot()
-        acquisition, grating = self.acquisition, self.grating
-        last = acquisition.stats.last_message if acquisition is not None else None
-        fresh = acquisition is not None and acquisition.seconds_since_frame() <= self.settings.daemon.camera_fault_after_s
-        latest = grating.latest() if grating is not None else None
-        job = self._job
-        return {
-            "state": self.state,
-            "calibrated": self.model is not None,
-            "position_mm": last["x_mm"] if last is not None and fresh else None,
-            "locked": bool(last["locked"]) if last is not None and fresh else None,
-            "crlb_um": last.get("crlb_um") if last is not None and fresh else None,
-            "grating_mm": latest.position_mm if latest is not None else None,
-            "reason": "; ".join(f"{source}: {reason}" for source, reason in faults.items()) or None,
-            "faults": faults,
-            "model": self.model.describe() if self.model is not None else None,
-            "limits_mm": list(self.hardware.stage.limits()) if self.hardware is not None else None,
-            "frame_rate_hz": round(acquisition.frame_rate_hz(), 2) if acquisition is not None else 0.0,
-            "frames": acquisition.stats.frames if acquisition is not None else 0,
-            "calibration": None if job is None else {key: job.to_dict()[key] for key in
-                                                       ("id", "state", "progress", "message")},
-            "simulated": self.settings.simulated,
-            "uptime_s": round(time.monotonic() - self._started_wall, 3),
-            "version": __version__,
-        }
+        return status_doc.status(self)
 
     # -- requests --------------------------------------------------------------------------
     def _ready(self) -> tuple[Hardware, Acquisition]:
-        if self._closing.is_set():
+        if self.closing.is_set():
             raise NotReady("the daemon is shutting down")
-        if self.hardware is None or self.acquisition is None:
-            reason = self.faults.snapshot().get("hardware", "the hardware is still being opened")
-            raise NotReady(f"hardware not ready: {reason}")
-        return self.hardware, self.acquisition
+        hardware, acquisition = self.hardware, self.acquisition
+        if hardware is None or acquisition is None:
+            faults = self.faults.snapshot()
+            raise NotReady(f"hardware not ready: {sentence(faults) or 'the hardware is still being opened'}")
+        return hardware, acquisition
 
     def start_calibration(self) -> CalibrationJob:
         with self._lock:
             hardware, acquisition = self._ready()
-            if self._job is not None and self._job.active:
-                raise Busy(f"calibration {self._job.id} is already running")
-            faults = self.faults.snapshot()
-            if faults:
-                raise NotReady("cannot calibrate during a fault: " + "; ".join(f"{k}: {v}" for k, v in faults.items()))
+            if self.job is not None and self.job.active:
+                raise Busy(f"calibration {self.job.id} is already running")
+            blocking = self.faults.blocking_calibration()
+            if blocking:
+                raise NotReady(f"cannot calibrate during a fault: {sentence(blocking)}")
             config = self.settings.sweep
             job = CalibrationJob(self.storage.new_calibration_id(), config.model, config.positions,
                                  config.frames_per_position)
             self.storage.write_status(job.id, job.to_dict())
             self.jobs[job.id] = job
-            self._job = job
-            sweep = Sweep(job, hardware.stage, acquisition, self.storage, config, self._meta(hardware))
-            self._sweep_thread = threading.Thread(target=self._run_sweep, args=(sweep,), name="sweep", daemon=True)
+            self.job = job
+            runner = JobRunner(job, self.storage, self._install_calibration, self._finished)
+            sweep = Sweep(runner, hardware.stage, acquisition, self.storage, config, self._meta(hardware),
+                          self.readings.note_command)
+            self._sweep_thread = threading.Thread(target=runner.run, args=(sweep,), name="sweep", daemon=True)
             self._sweep_thread.start()
         log.info("calibration %s started (%d stops x %d frames, %s model)", job.id, config.positions,
                  config.frames_per_position, config.model)
+        self.event("calibration_started", f"calibration {job.id} started", calibration=job.id)
         return job
 
-    def _run_sweep(self, sweep: Sweep) -> None:
-        model = sweep.run()
-        job = sweep.job
-        self.calibrations_finished[job.state] = self.calibrations_finished.get(job.state, 0) + 1
-        if model is None or self._closing.is_set():
-            return
+    def _install_calibration(self, model: FourierModel, job: CalibrationJob) -> None:
+        """The job's ``installing`` step: the data directory's model, the tracker, then the record's row."""
         self.storage.save_current_model(model)
-        self._install(model)
-        log.info("calibration %s done in %.1f s: %s", job.id, job.duration_s or 0.0, job.message)
+        self.storage.set_active(job.id)
+        self.install(model)
+        self.record.add_calibration(calibration_row(job, model))
+        self.event("model_installed", f"model of calibration {job.id} installed: {model.describe()}", calibration=job.id)
+
+    def _finished(self, job: CalibrationJob) -> None:
+        self.calibrations_finished[job.state] = self.calibrations_finished.get(job.state, 0) + 1
+        log.info("calibration %s %s in %.1f s: %s", job.id, job.state, job.duration_s or 0.0, job.message)
+        self.event(f"calibration_{job.state}", f"calibration {job.id} {job.state}: {job.message}", calibration=job.id)
+
+    def activate(self, calibration_id: str) -> dict[str, Any]:
+        """Roll back (or forward) to the model of an earlier calibration that finished ``done``."""
+        with self._lock:
+            self._ready()
+            if self.job is not None and self.job.active:
+                raise Busy(f"calibration {self.job.id} is running; stop it first")
+            row = self.record.calibration(calibration_id)
+            if row is None:
+                raise NotFound(f"no finished calibration {calibration_id!r}")
+            model = load_model(self.storage.calibration_dir(calibration_id) / "model.json")
+            self.storage.save_current_model(model)
+            self.storage.set_active(calibration_id)
+            self.install(model)
+        self.event("model_installed", f"model of calibration {calibration_id} activated: {model.describe()}",
+                   calibration=calibration_id)
+        return {"active": calibration_id, "model": model.describe()}
+
+    def active_calibration(self) -> dict[str, Any] | None:
+        active = self.storage.active_id()
+        if active is None or self.model is None:
+            return None
+        row = self.record.calibration(active)
+        return {"id": active} if row is None else {key: row[key] for key in
+                                                   ("id", "finished", "model", "error_std_um", "bound_um")}
 
     def _meta(self, hardware: Hardware) -> dict[str, Any]:
         meta: dict[str, Any] = hardware.rig.meta() if hardware.rig is not None else {}  # type: ignore[attr-defined]
@@ -277,38 +312,88 @@ class Rig:
                 meta[key] = value
         return meta
 
-    def calibration(self, calibration_id: str) -> dict[str, Any] | None:
+    def calibration(self, calibration_id: str) -> dict[str, Any]:
         job = self.jobs.get(calibration_id)
-        return job.to_dict() if job is not None else self.storage.read_status(calibration_id)
+        document = job.to_dict() if job is not None else self.storage.read_status(calibration_id)
+        if document is None:
+            raise NotFound(f"no calibration {calibration_id!r}")
+        return document
 
-    def latest_calibration(self) -> dict[str, Any] | None:
+    def latest_calibration(self) -> dict[str, Any]:
         latest = self.storage.latest_calibration_id()
-        return None if latest is None else self.calibration(latest)
+        if latest is None:
+            raise NotFound("no calibration has been run yet")
+        return self.calibration(latest)
 
     def move(self, target_mm: float) -> dict[str, Any]:
-        hardware, _ = self._ready()
-        if self._job is not None and self._job.active:
-            raise Busy(f"calibration {self._job.id} is moving the stage; POST /api/stage/stop aborts it")
+        hardware = self._idle_stage()
         low, high = hardware.stage.limits()
         if not (math.isfinite(target_mm) and low <= target_mm <= high):
             raise OutOfLimits(f"target_mm {target_mm:g} is outside the soft limits [{low:g}, {high:g}] mm")
+        self.readings.note_command(time.monotonic())
         try:
             hardware.stage.move_to(target_mm)
         except StageLimitError as exc:
             raise OutOfLimits(str(exc)) from None
         except StageError as exc:
             raise NotReady(f"stage: {exc}") from None
+        self.target_mm = target_mm
+        self.event("move", f"move to {target_mm:g} mm", target_mm=target_mm)
         return {"target_mm": target_mm, "limits_mm": [low, high]}
 
-    def stop(self) -> dict[str, Any]:
-        """Stop the stage now; a running calibration is aborted first (it would move it again)."""
+    def _idle_stage(self) -> Hardware:
         hardware, _ = self._ready()
-        job = self._job
+        if self.job is not None and self.job.active:
+            raise Busy(f"calibration {self.job.id} is moving the stage; POST /api/stage/stop aborts it")
+        return hardware
+
+    def jog(self, step_mm: float) -> dict[str, Any]:
+        """A relative move by ``step_mm`` from where the grating says the stage is."""
+        position = self.grating.latest_mm() if self.grating is not None else None
+        if position is None:
+            raise NotReady("no grating reading yet: the stage position is unknown")
+        if not math.isfinite(step_mm) or step_mm == 0:
+            raise OutOfLimits("step_mm must be a non-zero finite number")
+        return self.move(round(position + step_mm, 6))
+
+    def home(self) -> dict[str, Any]:
+        """The reference move (``FRF``): the controller finds its reference mark again."""
+        hardware = self._idle_stage()
+        self.readings.note_command(time.monotonic())
+        self.target_mm = None
+        try:
+            hardware.stage.reference()
+        except StageError as exc:
+            raise NotReady(f"stage: {exc}") from None
+        self.event("home", "reference move done")
+        return {"referenced": True}
+
+    def set_velocity(self, velocity_mm_s: float) -> dict[str, Any]:
+        hardware = self._idle_stage()
+        if not (math.isfinite(velocity_mm_s) and 0 < velocity_mm_s <= MAX_VELOCITY_MM_S):
+            raise OutOfLimits(f"velocity_mm_s {velocity_mm_s:g} is outside (0, {MAX_VELOCITY_MM_S:g}] mm/s")
+        try:
+            hardware.stage.set_velocity(velocity_mm_s)
+            self.velocity_mm_s = hardware.stage.velocity()
+        except StageError as exc:
+            raise NotReady(f"stage: {exc}") from None
+        self.event("velocity", f"velocity set to {self.velocity_mm_s:g} mm/s")
+        return {"velocity_mm_s": self.velocity_mm_s}
+
+    def stop(self) -> dict[str, Any]:
+        """Stop the stage now; an active calibration is aborted first (it would move it again).
+
+        The abort is requested before anything can fail, so a stop always ends a job.
+        """
+        job = self.job
         aborted = job is not None and job.active
-        if aborted:
-            job.abort.set()
+        if aborted and job is not None:
+            job.request_abort("calibration aborted by a stop request")
+        hardware, _ = self._ready()
+        self.readings.note_command(time.monotonic())
         try:
             hardware.stage.stop()
         except StageError as exc:
             raise NotReady(f"stage: {exc}") from None
+        self.event("stop", "stage stopped" + (f", calibration {job.id} aborted" if aborted and job is not None else ""))
         return {"stopped": True, "aborted_calibration": job.id if aborted and job is not None else None}

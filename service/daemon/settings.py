@@ -34,7 +34,15 @@ class DaemonConfig(_Strict):
     camera_fault_after_s: float = Field(2.0, gt=0, description="no frame for this long = camera fault")
     reopen_interval_s: float = Field(2.0, gt=0, description="wait between attempts to reopen failed hardware")
     grating_poll_s: float = Field(0.005, gt=0, description="wall time between POS? reads of the grating poller")
-    pair_window_s: float = Field(0.05, gt=0, description="a grating reading further than this from a frame is not paired")
+    pair_window_s: float = Field(0.02, gt=0, description="host seconds: the widest gap between the two grating "
+                                                         "readings a frame is interpolated between")
+    pair_tolerance_um: float = Field(1.0, gt=0, description="largest interpolation error a paired reference may have "
+                                                           "(acceleration between readings); else none is sent")
+    stale_after_s: float = Field(0.5, gt=0, description="a position or rate older than this is withdrawn (null)")
+    allowed_origins: list[str] = Field(default_factory=list, description="WebSocket Origins accepted besides the page's own")
+    allowed_hosts: list[str] = Field(default_factory=list, description="Host names accepted besides the bind address and "
+                                                                       "loopback names (DNS rebinding guard)")
+    api_docs: bool = Field(False, description="serve the interactive API docs at /api/docs (loads scripts from a CDN)")
     sim_clock_scale: float = Field(1.0, gt=0, description="virtual rig only: simulated seconds per wall second")
     log_level: Literal["debug", "info", "warning", "error"] = "info"
 

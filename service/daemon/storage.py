@@ -2,8 +2,10 @@
 
 Layout::
 
+    DATA/lock                       held (flock) by the one daemon using this directory; has its pid
     DATA/token                      bearer token, mode 0600, generated at first start
     DATA/model.json                 the model the daemon tracks with (loaded at start)
+    DATA/active                     the id of the calibration that model came from
     DATA/calibrations/<id>/         one sweep: status.json, recording.npz, model.json, report.json(, report.html)
 
 Everything is written atomically (temporary file + rename), so a crash or a full disk never leaves
@@ -13,6 +15,8 @@ is what "latest" means.
 
 from __future__ import annotations
 
+import errno
+import fcntl
 import json
 import logging
 import os
@@ -26,6 +30,7 @@ from graytrack.core.errors import GraytrackError
 from graytrack.core.files import write_atomic
 from graytrack.core.models import load_model, save_model
 from graytrack.core.models.fourier import FourierModel
+from graytrack.service.daemon.errors import DataDirInUse
 
 log = logging.getLogger("graytrack.daemon")
 CALIBRATION_ID = re.compile(r"^\d{8}T\d{6}\d{6}Z$")
@@ -38,6 +43,7 @@ class Storage:
         self.calibrations = self.root / "calibrations"
         self.calibrations.mkdir(exist_ok=True)
         self._last_time: datetime | None = None
+        self._lock_fd: int | None = None
 
     # -- token -----------------------------------------------------------------------------
     @property
@@ -45,18 +51,64 @@ class Storage:
         return self.root / "token"
 
     def token(self) -> tuple[str, bool]:
-        """The stored token, created (mode 0600, never readable by others) if missing; ``(token, created)``."""
+        """The stored token, created (mode 0600, never readable by others) if missing; ``(token, created)``.
+
+        Created whole or not at all: the token is written to a private temporary file which is then
+        hard-linked to its name, an atomic create-if-absent, so a concurrent first start reads either
+        no file or the complete one, never an empty one.
+        """
+        if not self.token_path.exists():
+            token = secrets.token_urlsafe(32)
+            tmp = self.root / f".token.{os.getpid()}.{secrets.token_hex(4)}.tmp"
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+            try:
+                with os.fdopen(fd, "w") as fh:
+                    fh.write(token + "\n")
+                    fh.flush()
+                    os.fsync(fh.fileno())
+                os.link(tmp, self.token_path)
+                return token, True
+            except FileExistsError:
+                pass
+            finally:
+                tmp.unlink(missing_ok=True)
         try:
-            fd = os.open(self.token_path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
-        except FileExistsError:
             token = self.token_path.read_text().strip()
-            if len(token) < 16:
-                raise GraytrackError(f"{self.token_path}: token shorter than 16 characters; delete it to regenerate")
-            return token, False
-        token = secrets.token_urlsafe(32)
-        with os.fdopen(fd, "w") as fh:
-            fh.write(token + "\n")
-        return token, True
+        except UnicodeDecodeError:
+            raise GraytrackError(f"{self.token_path}: not a text token; delete it to regenerate") from None
+        if len(token) < 16:
+            raise GraytrackError(f"{self.token_path}: token shorter than 16 characters; delete it to regenerate")
+        return token, False
+
+    # -- one daemon per directory -----------------------------------------------------------
+    @property
+    def lock_path(self) -> Path:
+        return self.root / "lock"
+
+    def lock(self) -> None:
+        """Hold this directory for this process (released when it exits, however it exits).
+
+        Raises :class:`DataDirInUse` naming the holder's pid: two daemons on one directory would
+        overwrite each other's model and calibrations.
+        """
+        fd = os.open(self.lock_path, os.O_RDWR | os.O_CREAT, 0o600)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as exc:
+            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
+            os.close(fd)
+            if exc.errno in (errno.EWOULDBLOCK, errno.EACCES):
+                raise DataDirInUse(f"data directory {self.root} is in use by another graytrack serve "
+                                   f"(pid {holder})") from None
+            raise
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        self._lock_fd = fd
+
+    def unlock(self) -> None:
+        fd, self._lock_fd = self._lock_fd, None
+        if fd is not None:
+            os.close(fd)
 
     # -- current model ---------------------------------------------------------------------
     @property
@@ -64,17 +116,29 @@ class Storage:
         return self.root / "model.json"
 
     def load_current_model(self) -> FourierModel | None:
-        """The saved model, or None when there is none (an unreadable one is logged, not fatal)."""
+        """The saved model, or None when there is none; an unreadable one raises (the rig says why)."""
         if not self.model_path.exists():
             return None
-        try:
-            return load_model(self.model_path)
-        except GraytrackError as exc:
-            log.error("ignoring the saved model: %s", exc)
-            return None
+        return load_model(self.model_path)
 
     def save_current_model(self, model: FourierModel) -> Path:
         return save_model(model, self.model_path)
+
+    # -- the active calibration --------------------------------------------------------------
+    @property
+    def active_path(self) -> Path:
+        return self.root / "active"
+
+    def set_active(self, calibration_id: str) -> None:
+        """The calibration whose model ``model.json`` holds (written after the model, atomically)."""
+        write_atomic(self.active_path, calibration_id + "\n")
+
+    def active_id(self) -> str | None:
+        try:
+            value = self.active_path.read_text().strip()
+        except OSError:
+            return None
+        return value if CALIBRATION_ID.match(value) else None
 
     # -- calibrations ----------------------------------------------------------------------
     def new_calibration_id(self) -> str:
@@ -100,9 +164,13 @@ class Storage:
             return None
         try:
             return json.loads(path.read_text())
-        except (FileNotFoundError, json.JSONDecodeError):
+        except (OSError, ValueError, RecursionError):  # missing, or not a document this daemon wrote
             return None
 
+    def calibration_ids(self) -> list[str]:
+        """Every calibration's id, oldest first."""
+        return sorted(p.name for p in self.calibrations.iterdir() if CALIBRATION_ID.match(p.name))
+
     def latest_calibration_id(self) -> str | None:
-        ids = sorted(p.name for p in self.calibrations.iterdir() if CALIBRATION_ID.match(p.name))
+        ids = self.calibration_ids()
         return ids[-1] if ids else None

@@ -14,11 +14,8 @@ import json
 import logging
 import math
 import queue
-import threading
 import time
-from dataclasses import dataclass, field
-from datetime import datetime, timezone
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -28,50 +25,20 @@ from graytrack.core.models import save_model
 from graytrack.core.models.fourier import FourierModel
 from graytrack.core.recording import Recording, save
 from graytrack.core.files import write_atomic
-from graytrack.drivers.camera.base import Frame
 from graytrack.drivers.stage.base import Stage
-from graytrack.drivers.stage.errors import StageError
 from graytrack.service.daemon.acquisition import Acquisition, Sample
 from graytrack.service.daemon.settings import SweepConfig
+from graytrack.service.daemon import report_page
+from graytrack.service.daemon.jobs import JobRunner
+from graytrack.service.daemon.quality import held_out_quality
 from graytrack.service.daemon.storage import Storage
 
 log = logging.getLogger("graytrack.daemon")
 SWEEP_SHARE = 0.8  # of the progress bar; the fit takes the rest
 
 
-class SweepError(Exception):
-    """The sweep could not finish (stage, camera or fit); the message says which and why."""
-
-
-class SweepAborted(SweepError):
-    """Stopped on request (``POST /api/stage/stop`` or shutdown)."""
-
-
-@dataclass
-class CalibrationJob:
-    """One calibration request, its progress and its outcome; what ``GET /api/calibration/{id}`` returns."""
-
-    id: str
-    model: str
-    positions: int
-    frames_per_position: int
-    state: str = "queued"  # queued → sweeping → fitting → done | failed | aborted
-    progress: float = 0.0
-    message: str = "queued"
-    started: str = field(default_factory=lambda: datetime.now(timezone.utc).isoformat())
-    finished: str | None = None
-    duration_s: float | None = None
-    error: str | None = None
-    report: dict[str, Any] | None = None
-    files: dict[str, str] = field(default_factory=dict)
-    abort: threading.Event = field(default_factory=threading.Event, repr=False)
-
-    @property
-    def active(self) -> bool:
-        return self.state in ("queued", "sweeping", "fitting")
-
-    def to_dict(self) -> dict[str, Any]:
-        return {key: value for key, value in self.__dict__.items() if key != "abort"}
+class SweepError(GraytrackError):
+    """The sweep could not finish (stage, camera, limits); the message says which and why."""
 
 
 def sweep_positions(limits: tuple[float, float], config: SweepConfig) -> np.ndarray:
@@ -82,89 +49,53 @@ def sweep_positions(limits: tuple[float, float], config: SweepConfig) -> np.ndar
     return np.linspace(low, high, config.positions)
 
 
-def exposure_s(frame_camera: Any) -> float:
-    """The camera's exposure if it knows it (the settle test needs the exposure start)."""
-    value = getattr(frame_camera, "exposure_s", None)
-    if value is None:
-        us = getattr(getattr(frame_camera, "settings", None), "exposure_us", None)
-        value = 0.0 if us is None else us * 1e-6
-    return float(value)
-
-
 class Sweep:
-    """Runs one :class:`CalibrationJob` on the calling thread (the rig gives it its own)."""
+    """The two steps of a calibration job (:class:`JobRunner` runs them and owns the states)."""
 
-    def __init__(self, job: CalibrationJob, stage: Stage, acquisition: Acquisition, storage: Storage,
-                 config: SweepConfig, meta: dict[str, Any]) -> None:
-        self.job = job
+    def __init__(self, runner: JobRunner, stage: Stage, acquisition: Acquisition, storage: Storage,
+                 config: SweepConfig, meta: dict[str, Any],
+                 on_command: Callable[[float], None]) -> None:
+        self.runner = runner
+        self.job = runner.job
         self.stage = stage
         self.acquisition = acquisition
         self.storage = storage
         self.config = config
         self.meta = meta
-        self.exposure_s = exposure_s(acquisition.camera)
+        self.on_command = on_command  # the pairing must not assume rest across a commanded move
 
-    def run(self) -> FourierModel | None:
-        """The fitted model, or None when the job failed or was aborted (the job says why)."""
-        job, started = self.job, time.monotonic()
-        try:
-            recording = self._sweep()
-            path = save(recording, self.storage.calibration_dir(job.id) / "recording.npz")
-            job.files["recording"] = str(path)
-            model = self._fit(recording)
-            job.state, job.progress = "done", 1.0
-            job.message = (job.report or {}).get("summary", "done")
-            return model
-        except SweepAborted as exc:
-            job.state, job.error, job.message = "aborted", str(exc), str(exc)
-        except (SweepError, StageError, GraytrackError) as exc:
-            if job.abort.is_set():  # a stop request interrupted a move or a settle
-                job.state, job.error, job.message = "aborted", str(exc), "calibration aborted by a stop request"
-                return None
-            job.state, job.error, job.message = "failed", str(exc), f"failed: {exc}"
-            log.error("calibration %s failed: %s", job.id, exc)
-        finally:
-            job.finished = datetime.now(timezone.utc).isoformat()
-            job.duration_s = round(time.monotonic() - started, 3)
-            self._update()
-        return None
-
-    # -- steps -----------------------------------------------------------------------------
-    def _update(self, progress: float | None = None, message: str | None = None) -> None:
-        if progress is not None:
-            self.job.progress = round(float(progress), 4)
-        if message is not None:
-            self.job.message = message
-        self.storage.write_status(self.job.id, self.job.to_dict())
-
-    def _check_abort(self) -> None:
-        if self.job.abort.is_set():
-            raise SweepAborted("calibration aborted by a stop request")
+    def sweep(self) -> Recording:
+        """Step, settle and record; the recording is saved before the fit (a failed fit keeps the data)."""
+        recording = self._sweep()
+        path = save(recording, self.storage.calibration_dir(self.job.id) / "recording.npz")
+        self.job.files["recording"] = str(path)
+        return recording
 
     def _sweep(self) -> Recording:
         positions = sweep_positions(self.stage.limits(), self.config)
-        self.job.state = "sweeping"
+        self.runner.enter("sweeping", 0.0, f"moving to the first of {len(positions)} stops")
         frames: list[np.ndarray] = []
         times: list[float] = []
         reference: list[float] = []
         feed = self.acquisition.subscribe()
         try:
             for i, target in enumerate(positions):
-                self._check_abort()
+                self.job.check_abort()
+                self.on_command(time.monotonic())
                 self.stage.move_to(float(target))
-                settled = self.stage.wait_on_target(self.config.settle_timeout_s)
-                self._check_abort()
-                samples = self._settled_samples(feed, settled.t)
+                settled = self.stage.wait_on_target(self.config.settle_timeout_s).t  # host time, as frames
+                self.job.check_abort()
+                samples = self._settled_samples(feed, settled)
                 # The axis is at rest inside its on-target window, so one POS? read after the frames
                 # is the reference of all of them (pairing with the poller's readings could mix in
                 # one taken before the move when polls are sparse).
                 at_rest = self.stage.position().position_mm
                 for sample in samples:
                     frames.append(np.asarray(sample.frame.pixels))
-                    times.append(sample.frame.t_host)
+                    times.append(sample.t)
                     reference.append(at_rest)
-                self._update(SWEEP_SHARE * (i + 1) / len(positions),
-                             f"stop {i + 1}/{len(positions)} at {target:.3f} mm")
+                self.runner.update(SWEEP_SHARE * (i + 1) / len(positions),
+                                   f"stop {i + 1}/{len(positions)} at {target:.3f} mm")
         finally:
             self.acquisition.unsubscribe(feed)
         strip = np.stack(frames)
@@ -177,7 +108,7 @@ class Sweep:
         wanted, taken = self.config.frames_per_position, []
         deadline = time.monotonic() + self.config.frame_timeout_s
         while len(taken) < wanted:
-            self._check_abort()
+            self.job.check_abort()
             try:
                 sample = feed.get(timeout=max(0.0, min(0.25, deadline - time.monotonic())))
             except queue.Empty:
@@ -185,17 +116,18 @@ class Sweep:
                     raise SweepError(f"the camera delivered {len(taken)} of {wanted} frames "
                                      f"within {self.config.frame_timeout_s:g} s") from None
                 continue
-            if _exposure_start(sample.frame, self.exposure_s) > settled_t:
+            frame = sample.frame
+            if frame.t_host - 0.5 * frame.exposure_s - frame.t_uncertainty_s > settled_t:  # began after the settle
                 taken.append(sample)
         return taken
 
-    def _fit(self, recording: Recording) -> FourierModel:
-        self.job.state = "fitting"
-        self._update(SWEEP_SHARE, f"fitting the {self.job.model} model on {recording.n_frames} frames")
+    def fit(self, recording: Recording) -> FourierModel:
+        """The model of the job's kind, saved with its report in the calibration's folder."""
+        self.runner.enter("fitting", SWEEP_SHARE, f"fitting the {self.job.model} model on {recording.n_frames} frames")
         folder = self.storage.calibration_dir(self.job.id)
 
         def progress(fraction: float, label: str) -> None:
-            self._update(SWEEP_SHARE + (1 - SWEEP_SHARE) * min(max(fraction, 0.0), 0.99), label)
+            self.runner.update(SWEEP_SHARE + (1 - SWEEP_SHARE) * min(max(fraction, 0.0), 0.99), label)
 
         if self.job.model == "auto":
             from graytrack.core.diagnosis import diagnose
@@ -205,11 +137,18 @@ class Sweep:
             paths = write_report(result, folder)
             model, report = result.final_model, json.loads(paths["json"].read_text())
             after = report["after"]
-            report["summary"] = f"closed loop: error std {after['error_std_um']:.2f} um after {len(report['steps'])} step(s)"
+            report["held_out"] = {"error_std_um": after["error_std_um"], "bound_um": report["noise"]["crlb_um"],
+                                  "method": "closed loop (graytrack diagnose)"}
+            report["summary"] = (f"closed loop: held-out error {after['error_std_um']:.2f} µm "
+                                 f"(bound {report['noise']['crlb_um']:.2f} µm) after {len(report['steps'])} step(s)")
             self.job.files.update({name: str(p) for name, p in paths.items()})
         else:
             result = calibrate(recording, "paper", progress=progress)
             model = result.model
+            self.runner.update(SWEEP_SHARE + 0.5 * (1 - SWEEP_SHARE), "held-out error: two-fold by stop")
+            held_out = held_out_quality(recording, self.config.frames_per_position)
+            quality = ("" if held_out is None else
+                       f"held-out error {held_out['error_std_um']:.2f} µm (bound {held_out['bound_um']:.2f} µm), ")
             report = {
                 "model": model.describe(),
                 "rmse_gray": result.rmse_gray,
@@ -219,13 +158,11 @@ class Sweep:
                 "stroke_mm": float(np.ptp(recording.reference)),
                 "period_mm": model.period_mm,
                 "pixel_pitch_mm": model.pixel_pitch_mm,
-                "summary": f"paper model: rms {result.rmse_gray:.3f} gray (noise {result.sigma_gray:.3f} gray)",
+                "held_out": held_out,
+                "summary": f"paper model: {quality}rms {result.rmse_gray:.3f} gray (noise {result.sigma_gray:.3f} gray)",
             }
             self.job.files["model"] = str(save_model(model, folder / "model.json"))
             self.job.files["report"] = str(write_atomic(folder / "report.json", json.dumps(report, indent=1)))
+            self.job.files["html"] = str(write_atomic(folder / "report.html", report_page.render(self.job.id, report)))
         self.job.report = report
         return model
-
-
-def _exposure_start(frame: Frame, exposure: float) -> float:
-    return frame.t_host - 0.5 * exposure

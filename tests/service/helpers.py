@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import signal
 import socket
@@ -26,15 +27,18 @@ FAST_TABLES: dict[str, Any] = {
     # 20 simulated frames/s = 200 per wall second: enough to test, light enough for a loaded CI machine
     "camera": {"kind": "sim", "frame_rate_hz": 20.0},
     "sweep": {"positions": 21, "frames_per_position": 3},
-    # pair_window_s is simulated time: 0.2 s is 20 ms of wall time, several POS? polls even on a loaded machine
-    "daemon": {"sim_clock_scale": 10.0, "camera_fault_after_s": 0.3, "reopen_interval_s": 0.1, "pair_window_s": 0.2},
+    # the page's tests reach the daemon as "testserver" (TestClient's Host)
+    # fault and staleness thresholds a loaded CI machine does not cross by itself
+    "daemon": {"sim_clock_scale": 10.0, "camera_fault_after_s": 1.0, "stale_after_s": 1.0, "reopen_interval_s": 0.1,
+               "allowed_hosts": ["testserver"]},
 }
 
 
-def fast_settings(data_dir: Path, **daemon: Any) -> Settings:
-    tables = {name: dict(table) for name, table in FAST_TABLES.items()}
-    tables["daemon"].update(data_dir=str(data_dir), **daemon)
-    return parse_settings(tables)
+def fast_settings(data_dir: Path, tables: dict[str, dict[str, Any]] | None = None, **daemon: Any) -> Settings:
+    """FAST_TABLES with ``data_dir``, ``daemon`` keys and whole-table ``tables`` updates."""
+    merged = {name: {**table, **(tables or {}).get(name, {})} for name, table in FAST_TABLES.items()}
+    merged["daemon"].update(data_dir=str(data_dir), **daemon)
+    return parse_settings(merged)
 
 
 def wait_for(predicate: Callable[[], Any], timeout_s: float = 10.0, what: str = "condition") -> Any:
@@ -63,6 +67,7 @@ class GatedCamera(Camera):
         self.inner = inner
         self.gate_open = True
         self.fail_reads = 0
+        self.narrow_by = 0
         self.opens = 0
 
     @property
@@ -80,6 +85,9 @@ class GatedCamera(Camera):
         pass
 
     def _read(self, timeout_s: float) -> Frame:
+        if self.narrow_by:  # as after an ROI change on the camera: frames of another width
+            frame = self.inner.read(timeout_s)
+            return dataclasses.replace(frame, pixels=frame.pixels[..., : -self.narrow_by])
         if self.fail_reads > 0:
             self.fail_reads -= 1
             raise CameraError("simulated camera fault (cable pulled)")
@@ -115,12 +123,12 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def write_config(folder: Path) -> Path:
-    """The fast test rig (FAST_TABLES) as a TOML file, data directory inside ``folder``."""
+def write_config(folder: Path, **changes: dict[str, Any]) -> Path:
+    """The fast test rig (FAST_TABLES, updated by ``changes``) as a TOML file, data directory inside ``folder``."""
     lines = []
     for name, table in FAST_TABLES.items():
         lines.append(f"[{name}]")
-        lines += [f"{key} = {json.dumps(value)}" for key, value in table.items()]
+        lines += [f"{key} = {json.dumps(value)}" for key, value in {**table, **changes.get(name, {})}.items()]
     lines.append(f"data_dir = {json.dumps(str(folder / 'data'))}")  # ends up in [daemon], the last table
     assert list(FAST_TABLES)[-1] == "daemon"
     config = folder / "graytrack.toml"
@@ -131,13 +139,14 @@ def write_config(folder: Path) -> Path:
 class ServeProcess:
     """``python -m graytrack serve`` on a free loopback port; SIGTERM on exit, stderr kept."""
 
-    def __init__(self, folder: Path) -> None:
+    def __init__(self, folder: Path, **tables: dict[str, Any]) -> None:
         self.folder = folder
         self.port = free_port()
         self.base = f"http://127.0.0.1:{self.port}"
         self.stderr = ""
+        self.config = write_config(folder, **tables)
         self.process = subprocess.Popen(
-            [sys.executable, "-m", "graytrack", "serve", "--config", str(write_config(folder)), "--port", str(self.port)],
+            [sys.executable, "-m", "graytrack", "serve", "--config", str(self.config), "--port", str(self.port)],
             stderr=subprocess.PIPE, text=True)
 
     def status(self) -> dict[str, Any] | None:
@@ -168,3 +177,49 @@ class ServeProcess:
     def __exit__(self, *exc: object) -> None:
         if self.process.returncode is None:
             self.terminate()
+
+
+class LiveServer:
+    """The app on a real uvicorn server in this process (loopback, free port), so a test can inject
+    faults into the running rig (monkeypatch, gated hardware) and still talk HTTP/WebSocket to it."""
+
+    def __init__(self, app: Any) -> None:
+        import threading
+
+        import uvicorn
+
+        self.app = app
+        self.port = free_port()
+        self.base = f"http://127.0.0.1:{self.port}"
+        config = uvicorn.Config(app, host="127.0.0.1", port=self.port, ws="websockets-sansio", lifespan="on",
+                                log_level="warning")
+        self.server = uvicorn.Server(config)
+        self.thread = threading.Thread(target=self.server.run, name="uvicorn", daemon=True)
+
+    @property
+    def rig(self) -> Any:
+        return self.app.state.rig
+
+    def auth(self) -> dict[str, str]:
+        return {"Authorization": f"Bearer {self.app.state.policy.token}"}
+
+    def get(self, path: str, **kwargs: Any) -> httpx.Response:
+        return httpx.get(self.base + path, timeout=5.0, **kwargs)
+
+    def post(self, path: str, **kwargs: Any) -> httpx.Response:
+        return httpx.post(self.base + path, timeout=5.0, **kwargs)
+
+    def status(self) -> dict[str, Any]:
+        return self.get("/api/status").json()
+
+    def wait_state(self, state: str, timeout_s: float = 20.0) -> dict[str, Any]:
+        return wait_for(lambda: (s := self.status())["state"] == state and s, timeout_s, f"state {state!r}")
+
+    def __enter__(self) -> "LiveServer":
+        self.thread.start()
+        wait_for(lambda: self.server.started, 10.0, "uvicorn to start")
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.server.should_exit = True
+        self.thread.join(timeout=20.0)

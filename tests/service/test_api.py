@@ -21,7 +21,7 @@ def test_status_and_health_follow_the_contract(tracking: TestClient) -> None:
     assert isinstance(status["position_mm"], float) and 0.0 <= status["position_mm"] <= 10.46
     assert status["reason"] is None and status["limits_mm"] == [0.0, 10.46]
     assert abs(status["position_mm"] - status["grating_mm"]) < 0.01
-    assert tracking.get("/healthz").json() == {"ok": True, "state": "tracking"}
+    assert tracking.get("/healthz").json() == {"ok": True, "state": "tracking", "reason": None}
 
 
 def test_first_start_calibrated_itself_and_stored_everything(tracking: TestClient) -> None:
@@ -135,12 +135,14 @@ def test_calibration_on_request_shows_progress_and_stop_aborts_it(tmp_path) -> N
         assert wait_state(client, "tracking")["calibrated"] is True
 
 
-def test_a_restart_tracks_with_the_saved_model_without_calibrating(tracking: TestClient) -> None:
-    storage = tracking.app.state.storage
-    before = sorted(p.name for p in storage.calibrations.iterdir())
-    settings = fast_settings(storage.root)
-    with TestClient(create_app(settings)) as client:
+def test_a_restart_tracks_with_the_saved_model_without_calibrating(tmp_path) -> None:
+    with TestClient(create_app(fast_settings(tmp_path))) as client:
+        wait_state(client, "tracking", 20.0)
+        first = client.get("/api/calibration/latest").json()
+    storage_dir = tmp_path / "calibrations"
+    before = sorted(p.name for p in storage_dir.iterdir())
+    with TestClient(create_app(fast_settings(tmp_path))) as client:
         status = wait_state(client, "tracking")
-        assert status["calibrated"] and status["calibration"] is None
+        assert status["calibrated"] and status["model"] == first["report"]["model"]
         wait_for(lambda: client.get("/api/status").json()["position_mm"] is not None, what="a position")
-    assert sorted(p.name for p in storage.calibrations.iterdir()) == before
+    assert sorted(p.name for p in storage_dir.iterdir()) == before == [first["id"]]

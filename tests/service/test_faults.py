@@ -18,7 +18,9 @@ def test_camera_silence_and_camera_errors_are_faults_that_clear(tmp_path) -> Non
         status = wait_state(client, "fault")
         assert status["reason"].startswith("camera: no frame for")
         wait_for(lambda: client.get("/api/status").json()["position_mm"] is None, what="the stale position withdrawn")
-        assert client.get("/healthz").json() == {"ok": True, "state": "fault"}
+        health = client.get("/healthz")
+        assert health.status_code == 503 and health.json()["ok"] is False
+        assert health.json()["reason"].startswith("camera: no frame for")
         auth = {"Authorization": f"Bearer {client.app.state.storage.token_path.read_text().strip()}"}
         refused = client.post("/api/calibration", headers=auth)
         assert refused.status_code == 503 and "fault" in refused.json()["error"]

@@ -31,6 +31,7 @@ def test_serve_process_tracks_streams_and_shuts_down_cleanly(tmp_path: Path) -> 
         assert "graytrack_frames_tracked_total" in httpx.get(f"{daemon.base}/metrics").text
         assert daemon.terminate() == 0, daemon.stderr
     assert "hardware closed" in daemon.stderr and "Traceback" not in daemon.stderr
+    assert "Warning" not in daemon.stderr, "no deprecation warning at start (uvicorn's websockets-sansio)"
 
 
 @pytest.mark.parametrize("content, message", [

@@ -7,19 +7,25 @@ from pathlib import Path
 
 import pytest
 
+from graytrack.core.errors import ModelError
 from graytrack.drivers.config import ConfigError
-from graytrack.drivers.stage.base import PositionReading
-from graytrack.service.daemon.grating import pair_reading
+import numpy as np
+
+from graytrack.service.daemon.grating import Readings
 from graytrack.service.daemon.settings import default_data_dir, load_settings
 from graytrack.service.daemon.storage import Storage
 
-EXAMPLE = Path(__file__).resolve().parents[2] / "deploy" / "graytrack.example.toml"
+ROOT = Path(__file__).resolve().parents[2]
+EXAMPLE = ROOT / "deploy" / "graytrack.example.toml"
 
 
 def test_the_example_config_is_valid_and_the_default_is_the_virtual_rig() -> None:
     example = load_settings(EXAMPLE)
     assert example.hardware.camera.kind == "aravis" and not example.simulated
     assert example.daemon.host == "127.0.0.1" and example.sweep.model == "paper"
+    opencv = load_settings(ROOT / "deploy" / "graytrack.opencv.toml")
+    assert opencv.hardware.camera.kind == "opencv" and opencv.hardware.camera.device == 0 and not opencv.simulated
+    assert opencv.daemon.auto_calibrate == "never"
     default = load_settings(None)
     assert default.simulated and default.daemon.host == "127.0.0.1" and default.daemon.port == 8000
     assert default.with_overrides(port=9000, host=None).daemon.port == 9000
@@ -54,13 +60,56 @@ def test_token_is_generated_once_with_mode_0600_and_ids_sort_by_time(tmp_path: P
         storage.calibration_dir("../../etc")
     assert storage.load_current_model() is None
     storage.model_path.write_text("{not json")
-    assert storage.load_current_model() is None, "a broken model file is ignored, not fatal"
+    with pytest.raises(ModelError, match="not a JSON model file"):  # the rig turns it into a fault with this reason
+        storage.load_current_model()
 
 
-def test_grating_readings_are_paired_by_time() -> None:
-    readings = [PositionReading(1.0, 0.00, 0.001), PositionReading(2.0, 0.01, 0.001), PositionReading(2.0, 0.02, 0.001)]
-    assert pair_reading(readings, 0.005, 0.05) == pytest.approx(1.5)  # bracketed: interpolated
-    assert pair_reading(readings, 0.025, 0.05) == pytest.approx(2.0)  # after the last: extrapolated
-    assert pair_reading(readings[:1], 0.01, 0.05) == 1.0  # one reading close enough
-    assert pair_reading(readings, 1.0, 0.05) != pair_reading(readings, 1.0, 0.05)  # none near: NaN
-    assert pair_reading([], 0.0, 0.05) != pair_reading([], 0.0, 0.05)
+def _readings(t: np.ndarray, x: np.ndarray, latency_s: float = 0.0) -> Readings:
+    readings = Readings(window_s=0.02, tolerance_mm=1e-3)
+    for ti, xi in zip(t, x):
+        readings.append(float(ti), float(xi), latency_s)
+    return readings
+
+
+def test_grating_pairing_interpolates_straight_motion_and_refuses_acceleration() -> None:
+    t = np.arange(0.0, 0.1, 0.005)
+    moving = _readings(t, 2.0 + 10.0 * t)  # 10 mm/s, polled every 5 ms
+    assert moving.at(0.0425) == pytest.approx(2.425, abs=1e-12), "bracketed: interpolated"
+    assert np.isnan(moving.at(0.2)), "after the last reading of a moving stage: unknown"
+    assert np.isnan(moving.at(-0.01)), "before the first reading: unknown"
+    # accelerating at 2000 mm/s^2: a straight line between readings 5 ms apart is 6 um off
+    accelerating = _readings(t, 1000.0 * t**2)
+    assert np.isnan(accelerating.at(0.0425))
+    gentle = _readings(t, 10.0 * t**2)  # 20 mm/s^2: 0.06 um error, below the tolerance
+    assert gentle.at(0.0425) == pytest.approx(10.0 * 0.0425**2, abs=1e-4)
+    sparse = _readings(np.array([0.0, 0.05, 0.1, 0.15]), np.array([0.0, 0.5, 1.0, 1.5]))
+    assert np.isnan(sparse.at(0.075)), "readings further apart than the window do not bracket"
+    # replies 0.3 ms after the request: at 10 mm/s the stamps are uncertain by 1.5 um, over the tolerance
+    assert np.isnan(_readings(t, 2.0 + 10.0 * t, latency_s=3e-4).at(0.0425))
+    assert _readings(t, 2.0 + 1.0 * t, latency_s=3e-4).at(0.0425) == pytest.approx(2.0425), "slower: 0.15 um"
+
+
+def test_grating_pairing_holds_a_resting_stage_until_a_command() -> None:
+    t = np.arange(0.0, 0.02, 0.005)
+    resting = _readings(t, np.full(t.size, 3.0))
+    assert resting.at(t[-1] + 0.004) == 3.0, "at rest, the newest reading holds for a frame just after it"
+    assert np.isnan(resting.at(t[-1] + 0.05)), "not for long"
+    resting.note_command(t[-1] + 0.001)
+    assert np.isnan(resting.at(t[-1] + 0.004)), "a move was commanded since: the stage may be moving"
+    creeping = _readings(t, 3.0 + 0.01 * np.arange(t.size))
+    assert np.isnan(creeping.at(t[-1] + 0.004)), "readings that disagree are not rest"
+
+
+def test_make_run_installs_only_what_running_needs(tmp_path: Path) -> None:
+    import re
+    import subprocess
+
+    dry = subprocess.run(["make", "-n", "run", f"VENV={tmp_path / 'venv'}"], cwd=ROOT, capture_output=True,
+                         text=True, check=True).stdout
+    installs = [line for line in dry.splitlines() if "pip install" in line and "--upgrade pip" not in line]
+    assert len(installs) == 1 and re.search(r'-e "?\.', installs[0]), dry
+    extras = re.search(r"\[([^\]]*)\]", installs[0])
+    assert extras is None or "test" not in extras.group(1).split(","), "no pytest, no playwright for running"
+    service = subprocess.run(["make", "-n", "service-venv", f"PREFIX={tmp_path / 'opt'}"], cwd=ROOT,
+                             capture_output=True, text=True, check=True).stdout
+    assert f"-m venv {tmp_path / 'opt'}/.venv" in service and " -e " not in service, "the service venv is not editable"

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.service.helpers import ServeProcess
+from tests.service.helpers import GatedFactory, LiveServer, ServeProcess, fast_settings, wait_for
 
 CHROMIUM = Path("/usr/bin/chromium")
 CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
@@ -18,31 +18,47 @@ pytestmark = pytest.mark.skipif(not CHROMIUM.exists(), reason="chromium is not i
 
 
 @pytest.fixture
-def page(tmp_path: Path) -> Iterator[tuple[object, ServeProcess]]:
+def browser() -> Iterator[object]:
     sync_api = pytest.importorskip("playwright.sync_api")
-    with ServeProcess(tmp_path) as daemon, sync_api.sync_playwright() as playwright:
-        browser = playwright.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS, headless=True)
+    with sync_api.sync_playwright() as playwright:
+        chromium = playwright.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS, headless=True)
         try:
-            yield browser.new_page(), daemon
+            yield chromium
         finally:
-            browser.close()
+            chromium.close()
+
+
+def watch_console(browser_page) -> list[str]:
+    """Every console error and uncaught exception of the page, collected as it runs."""
+    errors: list[str] = []
+    browser_page.on("console", lambda message: errors.append(message.text) if message.type == "error" else None)
+    browser_page.on("pageerror", lambda error: errors.append(str(error)))
+    return errors
+
+
+@pytest.fixture
+def page(tmp_path: Path, browser) -> Iterator[tuple[object, ServeProcess]]:
+    with ServeProcess(tmp_path) as daemon:
+        yield browser.new_page(), daemon
 
 
 def test_page_shows_live_position_and_runs_a_calibration(page) -> None:
     from playwright.sync_api import expect
 
     browser_page, daemon = page
+    console = watch_console(browser_page)
     daemon.wait_state("tracking")
     browser_page.goto(daemon.base + "/")
     expect(browser_page.locator("#state")).to_have_text("tracking", timeout=10_000)
+    expect(browser_page.locator("#sim-badge")).to_be_visible()
     position = browser_page.locator("#position")
     expect(position).to_have_text(re.compile(r"^\d+\.\d{4}$"), timeout=10_000)
     first = position.text_content()
-    browser_page.wait_for_function(f"document.getElementById('position').textContent !== '{first}'", timeout=10_000)
+    expect(position).not_to_have_text(first, timeout=10_000)
 
     # without a token the daemon refuses, and the page says why
     browser_page.click("#calibrate")
-    expect(browser_page.locator("#message")).to_contain_text("missing bearer token")
+    expect(browser_page.locator("#message")).to_contain_text("missing bearer token: save the contents of DATA/token")
 
     token = (daemon.folder / "data" / "token").read_text().strip()
     browser_page.fill("#token", token)
@@ -53,12 +69,129 @@ def test_page_shows_live_position_and_runs_a_calibration(page) -> None:
     job_id = browser_page.locator("#message").text_content().split()[1]
     calibration = browser_page.locator("#calibration-message")
     expect(calibration).to_contain_text(job_id, timeout=10_000)
-    browser_page.wait_for_function("document.getElementById('progress').value > 0", timeout=10_000)
+    wait_for(lambda: browser_page.evaluate("document.getElementById('progress').value") > 0, what="progress")
     expect(calibration).to_contain_text("done", timeout=20_000)
     expect(browser_page.locator("#state")).to_have_text("tracking", timeout=10_000)
 
-    # a move from the form is tracked to its target
+    # the new calibration is in the history with its held-out error in µm, and its report opens
+    history = browser_page.locator("#history tbody tr")
+    expect(history).to_have_count(2, timeout=10_000)
+    newest = history.first
+    assert newest.get_attribute("data-id") == job_id and "active" in newest.get_attribute("class")
+    expect(newest).to_contain_text(re.compile(r"\d\.\d\d µm \(bound \d\.\d\d µm\)"))
+    expect(browser_page.locator("#active-calibration")).to_contain_text(re.compile(r"held-out error \d\.\d\d µm"))
+    with browser_page.context.expect_page() as opened:
+        newest.locator("a.report-link").click()
+    report = opened.value
+    report.wait_for_load_state()
+    assert "held-out error" in report.text_content("body") and job_id in report.title()
+    report.close()
+
+    # rolling back to the first calibration changes the model in use, and says so
+    first = history.nth(1)
+    first_id = first.get_attribute("data-id")
+    first.locator("button.activate").click()
+    expect(browser_page.locator("#message")).to_have_text(f"calibration {first_id} is active")
+    assert daemon.status()["active_calibration"]["id"] == first_id
+    expect(history.nth(1)).to_have_class(re.compile("active"), timeout=5_000)
+    expect(browser_page.locator("#events")).to_contain_text(f"model of calibration {first_id} activated")
+
+    # a move from the form is tracked to its target; a refused value leaves no false message
     browser_page.fill("#target", "3.5")
     browser_page.click("#move")
     expect(browser_page.locator("#message")).to_have_text("moving to 3.5 mm")
     expect(position).to_have_text(re.compile(r"^3\.(49[89]|50[012])\d$"), timeout=10_000)
+    browser_page.fill("#target", "25")
+    browser_page.click("#move")
+    expect(browser_page.locator("#message")).to_have_text("target_mm 25 is outside the soft limits [0, 10.46] mm")
+    browser_page.click("#jog-plus")
+    expect(browser_page.locator("#message")).to_have_text(re.compile(r"^moving to 3\.6\d* mm$"))
+    assert console == [], console
+
+
+def test_a_page_on_another_origin_cannot_frame_the_status_page(page, tmp_path: Path) -> None:
+    import functools
+    import http.server
+    import threading
+
+    browser_page, daemon = page
+    daemon.wait_state("tracking")
+    site = tmp_path / "site"
+    site.mkdir()
+    (site / "own.html").write_text('<p id="own">the attacker\'s own page</p>')
+    (site / "index.html").write_text(f'<iframe id="victim" src="{daemon.base}/"></iframe>'
+                                     '<iframe id="control" src="/own.html"></iframe>')
+    handler = functools.partial(http.server.SimpleHTTPRequestHandler, directory=str(site))
+    attacker = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
+    threading.Thread(target=attacker.serve_forever, daemon=True).start()
+    try:
+        browser_page.goto(f"http://127.0.0.1:{attacker.server_address[1]}/index.html")
+        browser_page.wait_for_timeout(1500)
+        frames = {frame.url: frame for frame in browser_page.frames[1:]}
+        control = next(f for url, f in frames.items() if url.endswith("/own.html"))
+        assert control.query_selector("#own") is not None, "the control frame loads: framing as such works"
+        victim = [f for url, f in frames.items() if not url.endswith("/own.html")]
+        assert victim and all(f.query_selector("#position") is None for f in victim), [f.url for f in victim]
+    finally:
+        attacker.shutdown()
+
+
+def test_the_line_view_shows_the_frame_with_the_model_following_it(tmp_path: Path, browser) -> None:
+    from playwright.sync_api import expect
+
+    from graytrack.service.daemon.app import create_app
+
+    with LiveServer(create_app(fast_settings(tmp_path))) as daemon:
+        daemon.wait_state("tracking")
+        browser_page = browser.new_page(viewport={"width": 390, "height": 844})
+        console = watch_console(browser_page)
+        browser_page.goto(daemon.base + "/")
+        canvas = browser_page.locator("#profile")
+        expect(canvas).to_have_attribute("data-model", "yes", timeout=10_000)
+        frames = set()
+        for _ in range(3):  # updated a few times a second, and the overlay fits each new frame
+            frame_id = canvas.get_attribute("data-frame-id")
+            frames.add(frame_id)
+            residual, noise = float(canvas.get_attribute("data-residual-rms")), float(canvas.get_attribute("data-noise"))
+            assert residual < 1.5 * noise, (residual, noise)
+            expect(canvas).not_to_have_attribute("data-frame-id", frame_id, timeout=5_000)
+        assert len(frames) == 3
+        slow = daemon.post("/api/stage/velocity", json={"velocity_mm_s": 0.2}, headers=daemon.auth())
+        assert slow.json() == {"velocity_mm_s": 0.2}  # 2 mm per wall second at the test's 10x clock
+        assert daemon.post("/api/stage/move", json={"target_mm": 3.0}, headers=daemon.auth()).status_code == 202
+        expect(browser_page.locator("#moving")).to_have_text("moving → 3 mm", timeout=5_000)
+        wait_for(lambda: abs((daemon.status()["position_mm"] or 0) - 3.0) < 0.01, 20.0, "the move")
+        assert float(canvas.get_attribute("data-residual-rms")) < 1.5 * float(canvas.get_attribute("data-noise"))
+        # usable at 390 px: nothing wider than the screen
+        assert browser_page.evaluate("document.documentElement.scrollWidth") <= 390
+        assert console == [], console
+
+
+def test_a_fault_is_in_the_event_log_and_disables_the_controls_with_its_reason(tmp_path: Path, browser) -> None:
+    from playwright.sync_api import expect
+
+    from graytrack.service.daemon.app import create_app
+
+    factory = GatedFactory()
+    with LiveServer(create_app(fast_settings(tmp_path), factory)) as daemon:
+        daemon.wait_state("tracking")
+        browser_page = browser.new_page(viewport={"width": 390, "height": 844})
+        console = watch_console(browser_page)
+        browser_page.goto(daemon.base + "/")
+        expect(browser_page.locator("#move")).to_be_enabled(timeout=10_000)
+        factory.hardware.camera.gate_open = False
+        expect(browser_page.locator("#state")).to_have_text("fault", timeout=10_000)
+        expect(browser_page.locator("#reason")).to_contain_text(re.compile(r"^camera: no frame for \d+\.\d s\.$"))
+        expect(browser_page.locator("#events li[data-kind=fault]").first).to_contain_text("camera: no frame for",
+                                                                                          timeout=5_000)
+        for control in ("#move", "#jog-plus", "#home", "#set-velocity", "#calibrate"):
+            expect(browser_page.locator(control)).to_be_disabled()
+        expect(browser_page.locator("#controls-reason")).to_contain_text("disabled during the fault: camera: no frame for")
+        expect(browser_page.locator("#stop")).to_be_enabled()
+        assert browser_page.evaluate("document.documentElement.scrollWidth") <= 390, "the long reason wraps at 390 px"
+        factory.hardware.camera.gate_open = True
+        expect(browser_page.locator("#state")).to_have_text("tracking", timeout=10_000)
+        expect(browser_page.locator("#events li[data-kind=recovered]").first).to_contain_text("camera recovered",
+                                                                                              timeout=5_000)
+        expect(browser_page.locator("#move")).to_be_enabled()
+        assert console == [], console

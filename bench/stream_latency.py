@@ -1,0 +1,138 @@
+"""Stream latency of ``graytrack serve`` on the virtual rig, per frame rate and number of clients.
+
+For each frame rate (200, 500, 1000, 1500 frames/s) and 1 or 4 WebSocket clients, a daemon is
+started as its own process (sim clock at wall speed, the model of one shared calibration), the
+clients run in another process and, for a few seconds, record per message the receipt time minus
+the message's ``t`` (mid-exposure; both on this machine's ``time.monotonic``), ``seq`` gaps and
+the daemon's ``dropped`` count (camera frames missing from the stream). The daemon's CPU is read
+from /proc. All figures come from the same run, so they compare with each other on a shared machine.
+
+Run: .venv/bin/python bench/stream_latency.py [--seconds 5] [--rates 200,500,1000,1500] [--clients 1,4]
+     [--polls 0.005,0.02]   (grating poll periods compared side by side)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import httpx
+import numpy as np
+
+CLIENT = r"""
+import asyncio, json, sys, time
+from websockets.asyncio.client import connect
+
+async def client(url, seconds, out):
+    async with connect(url, max_queue=None) as ws:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            text = await ws.recv()
+            now = time.monotonic()
+            m = json.loads(text)
+            out.append((now - m["t"], m["seq"], m["dropped"]))
+
+async def main(url, n, seconds):
+    outs = [[] for _ in range(n)]
+    await asyncio.gather(*(client(url, seconds, out) for out in outs))
+    print(json.dumps(outs))
+
+asyncio.run(main(sys.argv[1], int(sys.argv[2]), float(sys.argv[3])))
+"""
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def config(folder: Path, rate: float, poll_s: float = 0.005) -> Path:
+    path = folder / f"rate{rate:g}-poll{poll_s:g}.toml"
+    exposure_us = min(1000.0, 0.5e6 / rate)  # the rig's 1 ms exposure fits up to 1000 frames/s
+    path.write_text(f'[camera]\nkind = "sim"\nframe_rate_hz = {rate}\nexposure_us = {exposure_us}\n'
+                    f'[daemon]\ndata_dir = "{folder / "data"}"\nlog_level = "warning"\ngrating_poll_s = {poll_s}\n')
+    return path
+
+
+def cpu_seconds(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def wait_tracking(base: str, timeout_s: float = 120.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        try:
+            if httpx.get(f"{base}/healthz", timeout=2).status_code == 200:
+                return
+        except httpx.TransportError:
+            pass
+        time.sleep(0.2)
+    raise SystemExit(f"the daemon at {base} did not start tracking within {timeout_s:g} s")
+
+
+def run(folder: Path, rate: float, clients: int, seconds: float, poll_s: float = 0.005) -> dict[str, float]:
+    port = free_port()
+    log = (folder / f"serve-{rate:g}-{clients}.log").open("w")
+    daemon = subprocess.Popen([sys.executable, "-m", "graytrack", "serve", "--config", str(config(folder, rate, poll_s)),
+                               "--port", str(port)], stderr=log)
+    try:
+        wait_tracking(f"http://127.0.0.1:{port}")
+        time.sleep(0.5)
+        cpu0, wall0 = cpu_seconds(daemon.pid), time.monotonic()
+        result = subprocess.run([sys.executable, "-c", CLIENT, f"ws://127.0.0.1:{port}/ws/position", str(clients),
+                                 str(seconds)], capture_output=True, text=True, check=True)
+        cpu = (cpu_seconds(daemon.pid) - cpu0) / (time.monotonic() - wall0)
+    finally:
+        daemon.terminate()
+        daemon.wait(timeout=30)
+        log.close()
+    outs = json.loads(result.stdout)
+    latency = np.concatenate([[m[0] for m in out] for out in outs]) * 1e3
+    missing = sum(int(np.sum(np.diff([m[1] for m in out]) - 1)) for out in outs)
+    dropped = max(out[-1][2] - out[0][2] for out in outs)
+    return {"rate": rate, "clients": clients, "msgs_s": np.mean([len(out) for out in outs]) / seconds,
+            "missing": missing, "dropped": dropped, "p50": np.percentile(latency, 50),
+            "p99": np.percentile(latency, 99), "max": latency.max(), "cpu": 100 * cpu}
+
+
+def load_average() -> str:
+    return Path("/proc/loadavg").read_text().split()[0]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--seconds", type=float, default=5.0)
+    parser.add_argument("--rates", default="200,500,1000,1500")
+    parser.add_argument("--clients", default="1,4")
+    parser.add_argument("--polls", default="0.005", help="grating poll periods (s) to compare, side by side")
+    args = parser.parse_args()
+    folder = Path(tempfile.mkdtemp(prefix="graytrack-bench-"))
+    try:
+        # one calibration (the daemon calibrates itself at the first start), its model reused by every run
+        run(folder, 200, 1, 0.5)
+        print(f"machine: {os.cpu_count()} cores, load average {load_average()} at start")
+        print(f"{'poll ms':>7} {'frames/s':>8} {'clients':>7} {'msgs/s':>8} {'missing':>7} {'dropped':>7} "
+              f"{'p50 ms':>7} {'p99 ms':>7} {'max ms':>7} {'CPU %':>6}")
+        for rate in (float(r) for r in args.rates.split(",")):
+            for clients in (int(c) for c in args.clients.split(",")):
+                for poll in (float(p) for p in args.polls.split(",")):
+                    r = run(folder, rate, clients, args.seconds, poll)
+                    print(f"{poll * 1e3:7.1f} {r['rate']:8.0f} {r['clients']:7d} {r['msgs_s']:8.0f} {r['missing']:7d} {r['dropped']:7d} "
+                          f"{r['p50']:7.2f} {r['p99']:7.2f} {r['max']:7.2f} {r['cpu']:6.0f}", flush=True)
+        print(f"load average {load_average()} at the end")
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,1 @@
+"""The HTTP interface, one router per resource (status, calibration, stage, stream, pages)."""

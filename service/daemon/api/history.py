@@ -1,0 +1,76 @@
+"""The record: calibrations (newest first, with their files) and the event log; rolling back a model."""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Any
+
+from fastapi import APIRouter, Depends, Query
+from fastapi.responses import FileResponse
+
+from graytrack.service.daemon.api.deps import AUTHORIZED
+from graytrack.service.daemon.api.deps import rig as get_rig
+from graytrack.service.daemon.api.models import Activated, CalibrationPage, CalibrationRow, Event, errors
+from graytrack.service.daemon.errors import Invalid, NotFound
+from graytrack.service.daemon.rig import Rig
+
+router = APIRouter(tags=["record"])
+FILES = {"report.html": "text/html", "report.json": "application/json", "model.json": "application/json",
+         "recording.npz": "application/octet-stream"}
+
+
+@router.get("/api/calibrations", response_model=CalibrationPage)
+def calibrations(limit: int = Query(20, ge=1, le=500), offset: int = Query(0, ge=0),
+                 rig: Rig = Depends(get_rig)) -> Any:
+    """Calibrations that finished ``done``, newest first."""
+    items, total = rig.record.calibrations(limit, offset)
+    active = rig.storage.active_id()
+    return {"items": [{**item, "active": item["id"] == active} for item in items], "total": total,
+            "limit": limit, "offset": offset}
+
+
+@router.get("/api/calibrations/{calibration_id}", response_model=CalibrationRow, responses=errors(404))
+def calibration_row(calibration_id: str, rig: Rig = Depends(get_rig)) -> Any:
+    row = rig.record.calibration(calibration_id)
+    if row is None:
+        raise NotFound(f"no finished calibration {calibration_id!r}")
+    return {**row, "active": row["id"] == rig.storage.active_id()}
+
+
+@router.get("/api/calibrations/{calibration_id}/files/{name}", response_class=FileResponse, responses=errors(404))
+def calibration_file(calibration_id: str, name: str, rig: Rig = Depends(get_rig)) -> FileResponse:
+    """``report.html``, ``report.json``, ``model.json`` or ``recording.npz`` of a finished calibration."""
+    row = rig.record.calibration(calibration_id)
+    if row is None or name not in FILES or name not in row["files"]:
+        raise NotFound(f"no file {name!r} in calibration {calibration_id!r}")
+    path = rig.storage.calibration_dir(calibration_id) / name
+    if not path.is_file():
+        raise NotFound(f"{name} of calibration {calibration_id} is gone from the data directory")
+    disposition = "inline" if name.startswith("report") else "attachment"
+    # the closed loop's report styles itself inline; it runs no script either way
+    headers = {"Content-Security-Policy": "default-src 'none'; style-src 'self' 'unsafe-inline'; img-src 'self' data:; "
+                                          "frame-ancestors 'none'; base-uri 'none'; form-action 'none'"}
+    return FileResponse(path, media_type=FILES[name], filename=f"{calibration_id}-{name}",
+                        content_disposition_type=disposition, headers=headers)
+
+
+@router.post("/api/calibrations/{calibration_id}/activate", dependencies=AUTHORIZED, response_model=Activated,
+             responses=errors(401, 404, 409, 413, 503))
+def activate(calibration_id: str, rig: Rig = Depends(get_rig)) -> Any:
+    """Track with that calibration's model from now on (and after restarts)."""
+    return rig.activate(calibration_id)
+
+
+@router.get("/api/events", response_model=list[Event], responses=errors(422))
+def events(since: str = Query("0", description="an event id (the last one seen) or an ISO 8601 time"),
+           limit: int = Query(200, ge=1, le=500), rig: Rig = Depends(get_rig)) -> Any:
+    """Events after ``since``, oldest first."""
+    if since.isdigit():
+        return rig.record.events(since_id=int(since), limit=limit)
+    try:
+        moment = datetime.fromisoformat(since.replace("Z", "+00:00"))
+    except ValueError:
+        raise Invalid(f"since={since!r}: give an event id or an ISO 8601 time") from None
+    if moment.tzinfo is None:
+        moment = moment.astimezone()
+    return rig.record.events(since_unix=moment.timestamp(), limit=limit)

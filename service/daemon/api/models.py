@@ -1,0 +1,158 @@
+"""Response and request bodies of the API, so the OpenAPI document shows every schema."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any
+
+from pydantic import BaseModel, ConfigDict, Field, Strict
+
+
+class ErrorBody(BaseModel):
+    error: str = Field(description="one clear sentence")
+    detail: list[dict[str, Any]] | None = None
+
+
+ERRORS: dict[int | str, dict[str, Any]] = {
+    status: {"model": ErrorBody, "description": text}
+    for status, text in ((401, "missing or invalid bearer token"), (404, "no such resource"),
+                         (409, "conflicts with what the rig is doing"), (413, "request body over 64 KiB"),
+                         (422, "invalid request"), (503, "the hardware is not ready or in fault"))
+}
+
+
+def errors(*statuses: int) -> dict[int | str, dict[str, Any]]:
+    return {status: ERRORS[status] for status in statuses}
+
+
+class Health(BaseModel):
+    ok: bool
+    state: str
+    reason: str | None = None
+
+
+class JobSummary(BaseModel):
+    id: str
+    state: str
+    progress: float
+    message: str
+    error: str | None = None
+
+
+class Status(BaseModel):
+    model_config = ConfigDict(extra="allow")  # later additions stay visible to clients
+    state: str = Field(description="starting, idle, calibrating, tracking, fault or stopping")
+    calibrated: bool
+    position_mm: float | None = Field(description="null when no fresh tracked frame (older than stale_after_s)")
+    locked: bool | None
+    crlb_um: float | None
+    fit: dict[str, float | int | bool | None] | None = Field(
+        None, description="the tracker's fit of the newest frame: gain, offset_gray, rejected_px, chi2, stale")
+    stale: bool
+    age_ms: float | None
+    grating_mm: float | None
+    moving: bool | None = Field(description="the grating readings of the last few polls disagree")
+    target_mm: float | None = Field(description="the last commanded target")
+    velocity_mm_s: float | None
+    reason: str | None = Field(description="every part in fault, in one sentence")
+    faults: dict[str, str]
+    model: str | None
+    limits_mm: list[float] | None
+    frame_rate_hz: float
+    frames: int
+    dropped: int
+    calibration: JobSummary | None
+    active_calibration: dict[str, Any] | None = Field(description="the calibration whose model is in use")
+    simulated: bool
+    uptime_s: float
+    version: str
+
+
+class Calibration(BaseModel):
+    model_config = ConfigDict(extra="allow")
+    id: str
+    model: str
+    positions: int
+    frames_per_position: int
+    state: str = Field(description="queued, sweeping, fitting, installing, done, failed, aborted or interrupted")
+    progress: float
+    message: str
+    started: str
+    finished: str | None = None
+    duration_s: float | None = None
+    error: str | None = None
+    report: dict[str, Any] | None = None
+    files: dict[str, str] = {}
+
+
+class CalibrationStarted(Calibration):
+    url: str
+
+
+class MoveRequest(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    # strict: a JSON number only (true is not 1 mm, "5" is not 5 mm)
+    target_mm: Annotated[float, Strict()] = Field(allow_inf_nan=False,
+                                                  description="absolute target within the soft limits")
+
+
+class JogRequest(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    step_mm: Annotated[float, Strict()] = Field(allow_inf_nan=False, description="relative move from the grating position")
+
+
+class VelocityRequest(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    velocity_mm_s: Annotated[float, Strict()] = Field(allow_inf_nan=False, gt=0)
+
+
+class Homed(BaseModel):
+    referenced: bool
+
+
+class Velocity(BaseModel):
+    velocity_mm_s: float
+
+
+class Moved(BaseModel):
+    target_mm: float
+    limits_mm: list[float]
+
+
+class Stopped(BaseModel):
+    stopped: bool
+    aborted_calibration: str | None
+
+
+class CalibrationRow(BaseModel):
+    id: str
+    started: str
+    finished: str
+    model_kind: str
+    model: str | None
+    error_std_um: float | None = Field(description="held-out position error std (µm)")
+    bound_um: float | None = Field(description="Cramér–Rao bound of the same frames (µm)")
+    frames: int | None
+    effects: list[str]
+    files: list[str] = Field(description="names served at /api/calibrations/{id}/files/{name}")
+    summary: str | None
+    active: bool = False
+
+
+class CalibrationPage(BaseModel):
+    items: list[CalibrationRow]
+    total: int
+    limit: int
+    offset: int
+
+
+class Event(BaseModel):
+    id: int
+    t_unix: float
+    kind: str
+    message: str
+    details: dict[str, Any]
+
+
+class Activated(BaseModel):
+    active: str
+    model: str

@@ -1,0 +1,187 @@
+"""What keeps the daemon closed to the web, in one place.
+
+* every HTTP answer says it may not be framed (``X-Frame-Options: DENY``, CSP ``frame-ancestors
+  'none'``) and may run no inline script (CSP ``script-src 'self'``): a page on another origin
+  cannot put the status page under an operator's click;
+* a request that changes state is refused before its body is read when the bearer token is
+  missing or wrong, and its body may not exceed 64 KiB (checked while it arrives, before any
+  parsing): a large anonymous body costs the daemon nothing;
+* the WebSocket accepts a browser only from its own origin (or a configured one) and a Host that
+  is this machine (a DNS-rebound name is refused), and asks for the token when the daemon listens
+  beyond loopback.
+"""
+
+from __future__ import annotations
+
+import hmac
+import ipaddress
+import json
+import re
+import socket
+from typing import Any, Awaitable, Callable
+from urllib.parse import parse_qs
+
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
+
+from graytrack.service.daemon.settings import DaemonConfig
+
+MAX_BODY = 64 * 1024
+MUTATING = frozenset({"POST", "PUT", "PATCH", "DELETE"})
+LOOPBACK_NAMES = frozenset({"localhost", "127.0.0.1", "::1", "ip6-localhost"})
+SAFE_HOST = re.compile(r"^[A-Za-z0-9.\-:\[\]]{1,255}$")
+
+
+def token_matches(given: str, token: str) -> bool:
+    return bool(given) and hmac.compare_digest(given.strip().encode(), token.encode())
+
+
+def bearer(headers: dict[str, str]) -> str:
+    scheme, _, given = headers.get("authorization", "").partition(" ")
+    return given.strip() if scheme.lower() == "bearer" else ""
+
+
+def split_host(host: str) -> str:
+    """The name part of a Host header (``[::1]:8000`` → ``::1``, ``a.b:80`` → ``a.b``)."""
+    if host.startswith("["):
+        return host[1:].partition("]")[0]
+    return host.rsplit(":", 1)[0] if host.count(":") == 1 else host
+
+
+def is_loopback(host: str) -> bool:
+    if host in LOOPBACK_NAMES:
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+class WebPolicy:
+    """The daemon's own view of which hosts and origins are its own."""
+
+    def __init__(self, daemon: DaemonConfig, token: str) -> None:
+        self.token = token
+        self.bind_host = daemon.host
+        self.beyond_loopback = not is_loopback(daemon.host)
+        self.allowed_origins = frozenset(o.rstrip("/") for o in daemon.allowed_origins)
+        names = set(LOOPBACK_NAMES) | {daemon.host} | set(daemon.allowed_hosts)
+        if self.beyond_loopback:
+            hostname = socket.gethostname()
+            names |= {hostname, f"{hostname}.local"}
+        self.host_names = frozenset(n.lower() for n in names)
+
+    def host_allowed(self, host_header: str) -> bool:
+        """This machine by a name it has, or any IP literal (a rebinding attack needs a foreign *name*)."""
+        name = split_host(host_header).lower()
+        if name in self.host_names:
+            return True
+        try:
+            ipaddress.ip_address(name)
+            return True
+        except ValueError:
+            return False
+
+    def origin_allowed(self, origin: str | None, host_header: str) -> bool:
+        if origin is None:  # not a browser: Origin is what browsers send, and cannot be forged by a page
+            return True
+        origin = origin.rstrip("/")
+        return origin in self.allowed_origins or origin in (f"http://{host_header}", f"https://{host_header}")
+
+    def websocket_refusal(self, scope: Scope) -> str | None:
+        """Why this WebSocket handshake is refused, or None."""
+        headers = {k.decode("latin-1"): v.decode("latin-1") for k, v in scope.get("headers", [])}
+        host = headers.get("host", "")
+        if not self.host_allowed(host):
+            return f"Host {host!r} is not this daemon"
+        if not self.origin_allowed(headers.get("origin"), host):
+            return f"Origin {headers.get('origin')!r} is not allowed"
+        if self.beyond_loopback:
+            query = parse_qs(scope.get("query_string", b"").decode("latin-1"))
+            given = bearer(headers) or (query.get("token") or [""])[0]
+            if not token_matches(given, self.token):
+                return "this daemon listens beyond loopback: the stream needs the token (?token=…)"
+        return None
+
+    def csp(self, host_header: str) -> str:
+        connect = "'self'"
+        if SAFE_HOST.match(host_header):
+            connect += f" ws://{host_header} wss://{host_header}"
+        return ("default-src 'self'; script-src 'self'; style-src 'self'; img-src 'self' data:; "
+                f"connect-src {connect}; frame-ancestors 'none'; base-uri 'none'; form-action 'self'; object-src 'none'")
+
+
+async def _send_json(send: Send, status: int, body: dict[str, Any], headers: list[tuple[bytes, bytes]]) -> None:
+    payload = json.dumps(body).encode()
+    await send({"type": "http.response.start", "status": status,
+                "headers": [(b"content-type", b"application/json"), (b"content-length", str(len(payload)).encode()),
+                            *headers]})
+    await send({"type": "http.response.body", "body": payload})
+
+
+class WebGuard:
+    """ASGI middleware: the HTTP half of the module's rules (headers, token before body, body limit)."""
+
+    def __init__(self, app: ASGIApp, policy: WebPolicy, max_body: int = MAX_BODY) -> None:
+        self.app, self.policy, self.max_body = app, policy, max_body
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        headers = {k.decode("latin-1"): v.decode("latin-1") for k, v in scope.get("headers", [])}
+        security = [(b"x-frame-options", b"DENY"), (b"x-content-type-options", b"nosniff"),
+                    (b"referrer-policy", b"no-referrer"),
+                    (b"content-security-policy", self.policy.csp(headers.get("host", "")).encode())]
+
+        async def send_secured(message: Message) -> None:
+            if message["type"] == "http.response.start":
+                own = message.get("headers", [])
+                extra = [h for h in security if not any(k.lower() == h[0] for k, _ in own)]  # a route may be stricter
+                message = {**message, "headers": [*own, *extra]}
+            await send(message)
+
+        if scope["method"] in MUTATING:
+            given = bearer(headers)
+            if not given:
+                await _send_json(send_secured, 401, {"error": "missing bearer token: send 'Authorization: Bearer <token>'"},
+                                 [(b"www-authenticate", b"Bearer")])
+                return
+            if not token_matches(given, self.policy.token):
+                await _send_json(send_secured, 401, {"error": "invalid bearer token"}, [(b"www-authenticate", b"Bearer")])
+                return
+            receive = await self._bounded_body(headers, receive, send_secured)
+            if receive is None:
+                return
+        await self.app(scope, receive, send_secured)
+
+    async def _bounded_body(self, headers: dict[str, str], receive: Receive,
+                            send: Send) -> Callable[[], Awaitable[Message]] | None:
+        """The whole body (at most ``max_body`` bytes) replayed to the app; None after answering 413."""
+        too_large = {"error": f"request body over {self.max_body // 1024} KiB"}
+        declared = headers.get("content-length")
+        if declared is not None and (not declared.isdigit() or int(declared) > self.max_body):
+            await _send_json(send, 413, too_large, [(b"connection", b"close")])
+            return None
+        chunks, size = [], 0
+        while True:
+            message = await receive()
+            if message["type"] == "http.disconnect":
+                break
+            chunk = message.get("body", b"")
+            size += len(chunk)
+            if size > self.max_body:
+                await _send_json(send, 413, too_large, [(b"connection", b"close")])
+                return None
+            chunks.append(chunk)
+            if not message.get("more_body", False):
+                break
+        body, delivered = b"".join(chunks), False
+
+        async def replay() -> Message:
+            nonlocal delivered
+            if not delivered:
+                delivered = True
+                return {"type": "http.request", "body": body, "more_body": False}
+            return await receive()
+
+        return replay

@@ -1,0 +1,42 @@
+"""``/healthz``, ``/api/status`` and ``/metrics``: what the daemon is doing, as of now."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fastapi import APIRouter, Depends, Request
+from fastapi.responses import JSONResponse, PlainTextResponse
+
+from graytrack.service.daemon import metrics
+from graytrack.service.daemon import status as rig_status
+from graytrack.service.daemon.api.deps import rig as get_rig
+from graytrack.service.daemon.api.models import Health, Status, errors
+from graytrack.service.daemon.rig import Rig
+
+router = APIRouter(tags=["status"])
+
+
+@router.get("/healthz", response_model=Health, responses=errors(503))
+def healthz(rig: Rig = Depends(get_rig)) -> Any:
+    """200 while frames are being tracked now; 503 otherwise (starting, idle, fault, stale), with the reason."""
+    fresh = rig_status.tracking_fresh(rig)
+    state = rig.state
+    body = {"ok": fresh, "state": state, "reason": None}
+    if not fresh:
+        status = rig.status()
+        body["reason"] = status["reason"] or ("frames are not being tracked" if state != "idle"
+                                              else "no model installed: calibrate first")
+        return JSONResponse(body, status_code=503)
+    return body
+
+
+@router.get("/api/status", response_model=Status)
+def status(rig: Rig = Depends(get_rig)) -> Any:
+    return rig.status()
+
+
+@router.get("/metrics", response_class=PlainTextResponse)
+def prometheus(request: Request) -> PlainTextResponse:
+    """Counters and gauges in the Prometheus text format."""
+    return PlainTextResponse(metrics.render(request.app.state.rig, request.app.state.broadcaster),
+                             media_type=metrics.CONTENT_TYPE)

@@ -1,0 +1,71 @@
+"""``WS /ws/position``: one message per tracked frame (or at most ``?max_rate=`` per second).
+
+Two tasks per connection, not per message: one sends what the broadcaster queued, one waits for
+the client to go away. The handshake is checked by :class:`WebPolicy` (Host, Origin, token).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+
+from fastapi import APIRouter, WebSocket, WebSocketDisconnect
+
+from graytrack.service.daemon.broadcast import Broadcaster, Client
+
+router = APIRouter()
+POLICY_VIOLATION = 1008
+
+
+@router.websocket("/ws/position")
+async def positions(websocket: WebSocket) -> None:
+    refusal = websocket.app.state.policy.websocket_refusal(websocket.scope)
+    if refusal is not None:
+        await websocket.close(code=POLICY_VIOLATION, reason=refusal[:120])
+        return
+    max_rate = _max_rate(websocket.query_params.get("max_rate"))
+    if max_rate is False:
+        await websocket.close(code=POLICY_VIOLATION, reason="max_rate must be a positive number (messages/s)")
+        return
+    await websocket.accept()
+    broadcaster: Broadcaster = websocket.app.state.broadcaster
+    client = broadcaster.subscribe(max_rate or None)
+    sender = asyncio.create_task(_pump(websocket, client, broadcaster))
+    closed = asyncio.create_task(_until_closed(websocket))
+    try:
+        await asyncio.wait({sender, closed}, return_when=asyncio.FIRST_COMPLETED)
+    finally:
+        broadcaster.unsubscribe(client)
+        sender.cancel()
+        closed.cancel()
+
+
+def _max_rate(text: str | None) -> float | None | bool:
+    if text is None:
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        return False
+    return value if math.isfinite(value) and value > 0 else False
+
+
+async def _pump(websocket: WebSocket, client: Client, broadcaster: Broadcaster) -> None:
+    queue = client.queue
+    try:
+        while True:
+            await websocket.send_text(await queue.get())
+            broadcaster.sent += 1
+    except (WebSocketDisconnect, RuntimeError):
+        return
+
+
+async def _until_closed(websocket: WebSocket) -> None:
+    """Returns when the client goes away (clients have nothing to say on this socket)."""
+    try:
+        while True:
+            message = await websocket.receive()
+            if message["type"] == "websocket.disconnect":
+                return
+    except (WebSocketDisconnect, RuntimeError):
+        return

@@ -1,0 +1,106 @@
+"""The position stream through a real uvicorn server: defined instants, visible drops, decimation,
+and grating references that are right or absent while the stage moves."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import threading
+import time
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+from websockets.sync.client import connect
+
+from graytrack.service.daemon.app import create_app
+from tests.service.helpers import LiveServer, fast_settings, wait_for
+
+
+@pytest.fixture(scope="module")
+def daemon(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LiveServer]:
+    with LiveServer(create_app(fast_settings(tmp_path_factory.mktemp("stream")))) as server:
+        server.wait_state("tracking")
+        yield server
+
+
+def _collect(daemon: LiveServer, count: int, query: str = "") -> list[tuple[float, dict]]:
+    """``count`` messages with the monotonic time each was received."""
+    received = []
+    with connect(f"ws://127.0.0.1:{daemon.port}/ws/position{query}", open_timeout=5) as ws:
+        for _ in range(count):
+            text = ws.recv(timeout=5)
+            received.append((time.monotonic(), json.loads(text)))
+    return received
+
+
+def test_messages_carry_host_time_wall_time_and_age(daemon: LiveServer) -> None:
+    received = _collect(daemon, 200)
+    t = np.array([m["t"] for _, m in received])
+    arrival = np.array([r for r, _ in received])
+    latency = arrival - t
+    # t is mid-exposure on this process's time.monotonic(): received after it, and soon after
+    assert np.all(latency > 0) and np.median(latency) < 0.1, np.percentile(latency, [0, 50, 100])
+    age = np.array([m["age_ms"] for _, m in received]) * 1e-3
+    assert np.all(age >= 0) and np.all(age <= latency + 1e-3), "age is taken at send, before receipt"
+    offset = np.array([m["t_unix"] for _, m in received]) - t
+    assert abs(np.median(offset) - (time.time() - time.monotonic())) < 0.05 and np.ptp(offset) < 0.01
+    ids = np.array([m["frame_id"] for _, m in received])
+    dropped = np.array([m["dropped"] for _, m in received])
+    # every camera frame not in the stream is counted: frame_id gaps add up to the dropped counter
+    assert (ids[-1] - ids[0]) - (len(ids) - 1) == dropped[-1] - dropped[0]
+
+
+def test_a_page_asks_for_a_decimated_stream(daemon: LiveServer) -> None:
+    received = _collect(daemon, 12, "?max_rate=20")
+    t = np.array([m["t"] for _, m in received])
+    assert np.min(np.diff(t)) >= 0.05 - 1e-6, "at most 20 messages per second"
+    seqs = [m["seq"] for _, m in received]
+    assert np.all(np.diff(seqs) > 1), "the skipped messages are visible as seq gaps"
+
+
+def test_references_during_moves_are_right_or_absent(daemon: LiveServer, tmp_path) -> None:
+    # real time and a slow stage (2 mm/s), the saved model of the module's daemon: moves that last
+    # long enough to be paired, starts and stops that must not be
+    shutil.copy(daemon.rig.storage.model_path, tmp_path / "model.json")
+    slow = {"stage": {"velocity_mm_s": 2.0}, "camera": {"frame_rate_hz": 200.0}}
+    settings = fast_settings(tmp_path, slow, sim_clock_scale=1.0, auto_calibrate="never")
+    with LiveServer(create_app(settings)) as rig:
+        rig.wait_state("tracking")
+        stop = threading.Event()
+
+        def move_around() -> None:
+            for target in (4.6, 5.4, 4.8, 5.5, 5.0):
+                rig.post("/api/stage/move", json={"target_mm": target}, headers=rig.auth())
+                if stop.wait(0.45):
+                    return
+
+        rig.post("/api/stage/move", json={"target_mm": 5.0}, headers=rig.auth())
+        wait_for(lambda: abs((rig.status()["position_mm"] or 0) - 5.0) < 0.01, what="the start")
+        mover = threading.Thread(target=move_around)
+        mover.start()
+        try:
+            received = [m for _, m in _collect(rig, 450)]
+        finally:
+            stop.set()
+            mover.join()
+    x = np.array([np.nan if m["x_mm"] is None else m["x_mm"] for m in received])
+    t = np.array([m["t"] for m in received])
+    speed = np.abs(np.gradient(x, t))
+    moving = [m for m, v in zip(received, speed) if v > 0.5 and "error_um" in m and m["locked"]]
+    assert len(moving) >= 10, f"only {len(moving)} frames paired while moving"
+    error = np.abs([m["error_um"] for m in moving])
+    bound = np.median([m["crlb_um"] for m in moving])
+    assert np.percentile(error, 99.9) <= 5 * bound, (np.percentile(error, [50, 99, 99.9, 100]), bound)
+
+
+def test_metrics_count_drops_and_staleness(daemon: LiveServer) -> None:
+    (_, message), = _collect(daemon, 1)
+    values = {}
+    for line in daemon.get("/metrics").text.splitlines():
+        if not line.startswith("#"):
+            name, value = line.rsplit(" ", 1)
+            values[name] = float(value)
+    assert values["graytrack_stale"] == 0.0 and values["graytrack_healthy"] == 1.0
+    assert values["graytrack_frames_dropped_total"] >= message["dropped"], "the counter only grows"
+    assert values["graytrack_frames_total"] > message["seq"]

@@ -1,0 +1,125 @@
+"""Supervision through a real uvicorn server: every injected failure becomes a fault with its
+reason, /healthz answers 503 while frames are not tracked, and the daemon recovers by itself."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from graytrack.service.daemon import grating, sweep
+from graytrack.service.daemon.app import create_app
+from tests.service.helpers import GatedFactory, LiveServer, fast_settings, wait_for
+
+
+def test_frames_of_another_width_are_a_tracking_fault_not_a_dead_loop(tmp_path) -> None:
+    factory = GatedFactory()
+    with LiveServer(create_app(fast_settings(tmp_path), factory)) as daemon:
+        daemon.wait_state("tracking")
+        assert daemon.get("/healthz").status_code == 200
+        factory.hardware.camera.narrow_by = 7  # an ROI change on the camera
+        status = daemon.wait_state("fault")
+        assert status["faults"]["tracking"].startswith("frame ") and "cannot be tracked" in status["faults"]["tracking"]
+        health = daemon.get("/healthz")
+        assert health.status_code == 503 and "tracking" in health.json()["reason"]
+        wait_for(lambda: daemon.status()["position_mm"] is None, what="the stale position withdrawn")
+        assert daemon.status()["stale"] is True
+        factory.hardware.camera.narrow_by = 0
+        daemon.wait_state("tracking")
+        assert wait_for(lambda: daemon.get("/healthz").status_code == 200, what="healthy again")
+
+
+def test_a_crashing_frame_loop_is_reported_and_restarted(tmp_path, monkeypatch: pytest.MonkeyPatch) -> None:
+    with LiveServer(create_app(fast_settings(tmp_path))) as daemon:
+        daemon.wait_state("tracking")
+        real_at, calls = grating.Readings.at, {"n": 0}
+
+        def explode_once(self, t):  # an unexpected bug inside the loop, once
+            calls["n"] += 1
+            if calls["n"] == 1:
+                raise RuntimeError("injected")
+            return real_at(self, t)
+
+        monkeypatch.setattr(grating.Readings, "at", explode_once)
+        reasons = []
+        daemon.rig.faults.listeners.append(lambda source, reason, previous: reasons.append((source, reason)))
+        wait_for(lambda: daemon.rig.acquisition.crashes == 1, what="the crash")
+        assert ("acquisition", "acquisition crashed: RuntimeError: injected") in reasons
+        daemon.wait_state("tracking")
+        metrics = daemon.get("/metrics").text
+        assert "graytrack_worker_crashes_total 1.0" in metrics and "graytrack_healthy 1.0" in metrics
+
+
+def test_an_unusable_saved_model_is_a_fault_with_its_reason_and_a_calibration_replaces_it(tmp_path) -> None:
+    nested = "[" * 100_000 + "]" * 100_000
+    (tmp_path / "model.json").write_text('{"kind": "fourier", "coefficients": ' + nested + "}")
+    with LiveServer(create_app(fast_settings(tmp_path, auto_calibrate="never"))) as daemon:
+        status = daemon.wait_state("fault")
+        assert status["faults"]["model"].startswith(f"the saved model {tmp_path / 'model.json'} cannot be used")
+        assert status["reason"].startswith("model: the saved model") and status["calibrated"] is False
+        assert daemon.get("/healthz").status_code == 503
+        started = daemon.post("/api/calibration", headers=daemon.auth())
+        assert started.status_code == 202, started.text
+        daemon.wait_state("tracking")
+        assert json.loads((tmp_path / "model.json").read_text())["schema"] == "graytrack.model"
+
+
+def test_a_model_the_tracker_cannot_evaluate_is_a_fault(tmp_path) -> None:
+    with LiveServer(create_app(fast_settings(tmp_path))) as daemon:
+        daemon.wait_state("tracking")
+    document = json.loads((tmp_path / "model.json").read_text())
+    document["model"]["clip_gray"] = [255, 0]
+    (tmp_path / "model.json").write_text(json.dumps(document))
+    with LiveServer(create_app(fast_settings(tmp_path, auto_calibrate="never"))) as daemon:
+        status = daemon.wait_state("fault")
+        assert set(status["faults"]) & {"model", "tracking"}, status
+        assert daemon.get("/healthz").status_code == 503
+        assert daemon.get("/metrics").status_code == 200
+
+
+@pytest.mark.parametrize("failure, reason", [
+    (np.linalg.LinAlgError("SVD did not converge"), "LinAlgError: SVD did not converge"),
+    (OSError(28, "No space left on device"), "No space left on device"),
+])
+def test_an_unexpected_error_in_a_calibration_fails_the_job_and_restores_the_daemon(
+        tmp_path, monkeypatch: pytest.MonkeyPatch, failure: Exception, reason: str) -> None:
+    with LiveServer(create_app(fast_settings(tmp_path))) as daemon:
+        daemon.wait_state("tracking")
+        model_before = (tmp_path / "model.json").read_text()
+        if isinstance(failure, OSError):  # the disk fills while the new model is installed
+            monkeypatch.setattr(daemon.rig.storage, "save_current_model", lambda model: (_ for _ in ()).throw(failure))
+        else:
+            monkeypatch.setattr(sweep, "calibrate", lambda *a, **k: (_ for _ in ()).throw(failure))
+        job_id = daemon.post("/api/calibration", headers=daemon.auth()).json()["id"]
+        job = wait_for(lambda: (j := daemon.get(f"/api/calibration/{job_id}").json())["state"] in ("failed", "done") and j,
+                       what="the job to end")
+        assert job["state"] == "failed" and job["error"] == reason, job
+        on_disk = json.loads((tmp_path / "calibrations" / job_id / "status.json").read_text())
+        assert on_disk["state"] == "failed"
+        status = daemon.wait_state("tracking")
+        assert status["calibration"]["state"] == "failed"
+        assert (tmp_path / "model.json").read_text() == model_before, "the old model stays in use"
+        assert daemon.post("/api/stage/move", json={"target_mm": 2.0}, headers=daemon.auth()).status_code == 202
+        monkeypatch.undo()
+        again = daemon.post("/api/calibration", headers=daemon.auth())
+        assert again.status_code == 202
+        done = wait_for(lambda: (j := daemon.get(f"/api/calibration/{again.json()['id']}").json())["state"] == "done" and j,
+                        what="a calibration after the failure")
+        assert done["progress"] == 1.0
+
+
+def test_a_shutdown_during_the_fit_aborts_the_job_and_installs_nothing(tmp_path, monkeypatch: pytest.MonkeyPatch) -> None:
+    real_calibrate, fitting = sweep.calibrate, []
+
+    def slow_fit(*args, **kwargs):  # a fit that is still running when the shutdown comes
+        fitting.append(True)
+        wait_for(lambda: daemon.rig.job.abort.is_set(), 20.0, "the shutdown to reach the job")
+        return real_calibrate(*args, **kwargs)
+
+    monkeypatch.setattr(sweep, "calibrate", slow_fit)
+    with LiveServer(create_app(fast_settings(tmp_path))) as daemon:
+        job_id = wait_for(lambda: daemon.rig.job and fitting and daemon.rig.job.id, 20.0, "the fit")
+    on_disk = json.loads((tmp_path / "calibrations" / job_id / "status.json").read_text())
+    assert on_disk["state"] == "aborted" and on_disk["message"] == "calibration aborted: the daemon is shutting down"
+    assert not (tmp_path / "model.json").exists() and not (tmp_path / "active").exists()

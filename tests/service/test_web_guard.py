@@ -1,0 +1,124 @@
+"""Closed to the web, through a real uvicorn server: no framing, no inline script, token before
+body, 64 KiB bodies, WebSocket Origin/Host checks, strict JSON numbers, a truthful OpenAPI."""
+
+from __future__ import annotations
+
+import socket
+import time
+from collections.abc import Iterator
+
+import pytest
+from websockets.exceptions import InvalidStatus
+from websockets.sync.client import connect
+
+from graytrack.service.daemon.app import create_app
+from tests.service.helpers import LiveServer, fast_settings
+
+
+@pytest.fixture(scope="module")
+def daemon(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LiveServer]:
+    folder = tmp_path_factory.mktemp("guard")
+    with LiveServer(create_app(fast_settings(folder, allowed_origins=["https://console.lab.example"]))) as server:
+        server.wait_state("tracking")
+        yield server
+
+
+def _raw(daemon: LiveServer, head: str, body: bytes = b"") -> tuple[int, float]:
+    """Send a raw request (headers, optionally part of a body); the status and how long it took."""
+    started = time.monotonic()
+    with socket.create_connection(("127.0.0.1", daemon.port), timeout=5) as s:
+        s.sendall(head.encode() + body)
+        reply = s.recv(4096).decode(errors="replace")
+    return int(reply.split()[1]), time.monotonic() - started
+
+
+def test_every_page_refuses_framing_and_inline_script(daemon: LiveServer) -> None:
+    for path in ("/", "/api/status", "/static/app.js", "/healthz", "/no-such-page"):
+        headers = daemon.get(path).headers
+        assert headers["x-frame-options"] == "DENY", path
+        csp = headers["content-security-policy"]
+        assert "frame-ancestors 'none'" in csp and "script-src 'self'" in csp and "unsafe-inline" not in csp, path
+    assert "<script>" not in daemon.get("/").text, "no inline script on the page"
+
+
+def test_the_token_is_checked_before_the_body_is_read(daemon: LiveServer) -> None:
+    # 200 MB announced, nothing sent: the answer comes at once, the body is never waited for
+    status, took = _raw(daemon, "POST /api/stage/move HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+                                "Content-Type: application/json\r\nContent-Length: 200000000\r\n\r\n")
+    assert status == 401 and took < 2.0
+    token = daemon.app.state.policy.token
+    status, _ = _raw(daemon, f"POST /api/stage/move HTTP/1.1\r\nHost: 127.0.0.1\r\nAuthorization: Bearer {token}\r\n"
+                             "Content-Type: application/json\r\nContent-Length: 200000000\r\n\r\n")
+    assert status == 413, "over 64 KiB: refused before reading, token or not"
+
+
+def test_bodies_over_64_kib_are_refused_even_when_chunked(daemon: LiveServer) -> None:
+    token = daemon.app.state.policy.token
+    chunk = b"[" * 40_000
+    chunked = b"".join(b"%x\r\n%s\r\n" % (len(chunk), chunk) for _ in range(3)) + b"0\r\n\r\n"
+    status, _ = _raw(daemon, f"POST /api/stage/move HTTP/1.1\r\nHost: 127.0.0.1\r\nAuthorization: Bearer {token}\r\n"
+                             "Content-Type: application/json\r\nTransfer-Encoding: chunked\r\n\r\n", chunked)
+    assert status == 413
+    small = daemon.post("/api/stage/move", json={"target_mm": 1.0, "pad": "x" * 1000}, headers=daemon.auth())
+    assert small.status_code == 422 and "pad" in small.json()["error"], "a small body still reaches validation"
+
+
+@pytest.mark.parametrize("body", [{"target_mm": True}, {"target_mm": "5"}, {"target_mm": None}, {"target_mm": [1]}])
+def test_target_mm_is_strictly_a_json_number(daemon: LiveServer, body: dict) -> None:
+    response = daemon.post("/api/stage/move", json=body, headers=daemon.auth())
+    assert response.status_code == 422 and response.json()["error"].startswith("invalid request: target_mm"), response.text
+
+
+def test_an_integer_target_is_a_number(daemon: LiveServer) -> None:
+    assert daemon.post("/api/stage/move", json={"target_mm": 3}, headers=daemon.auth()).json()["target_mm"] == 3.0
+
+
+def _ws(daemon: LiveServer, **headers: str) -> dict:
+    url = f"ws://127.0.0.1:{daemon.port}/ws/position"
+    with connect(url, additional_headers=headers, open_timeout=5) as ws:
+        import json
+
+        return json.loads(ws.recv(timeout=5))
+
+
+def test_the_websocket_accepts_its_own_origin_and_configured_ones_only(daemon: LiveServer) -> None:
+    assert "seq" in _ws(daemon)  # not a browser: no Origin
+    assert "seq" in _ws(daemon, Origin=f"http://127.0.0.1:{daemon.port}")
+    assert "seq" in _ws(daemon, Origin="https://console.lab.example")
+    for origin in ("http://evil.example", f"http://127.0.0.1:{daemon.port + 1}", "null"):
+        with pytest.raises(InvalidStatus) as refused:
+            _ws(daemon, Origin=origin)
+        assert refused.value.response.status_code == 403, origin
+
+
+def test_the_websocket_refuses_a_foreign_host_name(daemon: LiveServer) -> None:
+    # DNS rebinding: a foreign name resolving to 127.0.0.1, the page's own origin under that name
+    with pytest.raises(InvalidStatus) as refused:
+        _ws(daemon, Host=f"rebind.evil.example:{daemon.port}", Origin=f"http://rebind.evil.example:{daemon.port}")
+    assert refused.value.response.status_code == 403
+    assert "seq" in _ws(daemon, Host=f"localhost:{daemon.port}")
+
+
+def test_openapi_declares_the_bearer_scheme_every_answer_and_every_schema(daemon: LiveServer) -> None:
+    document = daemon.get("/api/openapi.json").json()
+    assert document["components"]["securitySchemes"]["HTTPBearer"] == {
+        "type": "http", "scheme": "bearer", "description": "the token from the config or DATA/token"}
+    move = document["paths"]["/api/stage/move"]["post"]
+    assert move["security"] == [{"HTTPBearer": []}]
+    assert {"202", "401", "409", "413", "422", "503"} <= set(move["responses"])
+    assert set(document["paths"]["/api/calibration/{calibration_id}"]["get"]["responses"]) >= {"200", "404"}
+    assert "503" in document["paths"]["/healthz"]["get"]["responses"]
+    schemas = document["components"]["schemas"]
+    assert {"Status", "Calibration", "ErrorBody", "Moved", "Stopped", "Health"} <= set(schemas)
+    assert daemon.get("/api/docs").status_code == 404, "the docs page loads a CDN: off unless configured"
+
+
+def test_beyond_loopback_the_stream_needs_the_token(tmp_path) -> None:
+    from graytrack.service.daemon.api.security import WebPolicy
+
+    settings = fast_settings(tmp_path, host="0.0.0.0")
+    policy = WebPolicy(settings.daemon, "t" * 32)
+    scope = {"headers": [(b"host", b"192.0.2.7:8000")], "query_string": b""}
+    assert "needs the token" in policy.websocket_refusal(scope)
+    assert policy.websocket_refusal({**scope, "query_string": b"token=" + b"t" * 32}) is None
+    assert policy.websocket_refusal({**scope, "headers": [*scope["headers"], (b"authorization", b"Bearer " + b"t" * 32)]}) is None
