@@ -4,7 +4,8 @@ Each case is a rig with effects nobody tells the software about; the measured ru
 session of the same rig (same fixed patterns, its own noise), sometimes with the light changed or
 a pixel failed in between. For each case it prints, for the seed paper's model (`calibrate
 --model paper`) and for the closed loop's model (`diagnose`), the frames lost and the error std
-over the rms of the per-frame Cramér–Rao bounds, tracked as `graytrack track` does.
+over the rms of the per-frame Cramér–Rao bounds, tracked as `graytrack track` does, and how many
+of the run's frames were flagged stale (the model no longer describes the images).
 
     .venv/bin/python bench/robustness_sweep.py [CASE-SUBSTRING]
 """
@@ -48,16 +49,17 @@ CASES = [
 ]
 
 
-def measured(model, run) -> tuple[int, float, float]:
+def measured(model, run) -> tuple[int, float, float, int]:
+    """(frames lost, error std µm, rms bound µm, frames flagged stale)."""
     result = track(model, run, light="auto", robust=True)
     error = result.error_um(run.reference)
     bound = float(np.sqrt(np.nanmean(np.square(result.crlb_mm * 1e3))))
-    return int((~np.isfinite(error)).sum()), float(np.nanstd(error)), bound
+    return int((~np.isfinite(error)).sum()), float(np.nanstd(error)), bound, int(result.stale.sum())
 
 
 def main(selection: str = "") -> None:
-    print(f"{'scenario':9} {'rig effects':52} {'changed before the run':28} "
-          f"{'paper: lost  std/bound':>22} {'loop: lost  std/bound':>22}  loop added")
+    print(f"{'scenario':9} {'rig effects':52} {'changed':12} "
+          f"{'paper: lost  std/bound  stale':>30} {'loop: lost  std/bound  stale':>30}  loop added")
     for scenario, rig_effects, later in CASES:
         label = f"{scenario} {rig_effects} {later}"
         if selection not in label:
@@ -67,15 +69,14 @@ def main(selection: str = "") -> None:
         run_effects = ",".join(part for part in (rig_effects, later) if part)
         run, _ = build_rig(scenario, run_effects, seed=3, run=1).record(10.0)
         cells = []
-        paper = calibrate(calibration, "paper").model
-        lost, spread, bound = measured(paper, run)
-        cells.append(f"{lost:5d} {spread:6.3f}/{bound:.3f}={spread / bound:4.2f}")
         loop = diagnose(calibration)
-        lost, spread, bound = measured(loop.final_model, run)
-        cells.append(f"{lost:5d} {spread:6.3f}/{bound:.3f}={spread / bound:4.2f}")
+        for model in (calibrate(calibration, "paper").model, loop.final_model):
+            lost, spread, bound, stale = measured(model, run)
+            cells.append(f"{lost:5d} {spread:6.3f}/{bound:.3f}={spread / bound:4.2f} {stale:5d}")
         added = ",".join(step.effect for step in loop.steps) or "-"
-        print(f"{scenario:9} {rig_effects or '-':52.52} {('light' if 'light' in later else '') + (' pixel' if 'start_s=5' in later else '') or '-':28}"
-              f" {cells[0]:>22} {cells[1]:>22}  {added} ({time.perf_counter() - started:.0f} s)", flush=True)
+        changed = " ".join(word for word, key in (("light", "light_change"), ("pixel", "start_s=5")) if key in later)
+        print(f"{scenario:9} {rig_effects or '-':52.52} {changed or '-':12}"
+              f" {cells[0]:>30} {cells[1]:>30}  {added} ({time.perf_counter() - started:.0f} s)", flush=True)
 
 
 if __name__ == "__main__":

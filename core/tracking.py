@@ -37,6 +37,7 @@ LIGHT_RETURN_CHI2 = 13.8  # χ² (2 dof, 99.9 %) above which the calibrated ligh
 GAIN_RANGE = (0.2, 5.0)  # a solved light gain outside this is not the target seen under other light
 MAX_REJECTED_FRACTION = 0.25  # a frame needing more pixels rejected than this is not trusted
 STALE_WINDOW = 100  # frames: the χ² average that must rise for the model to be called stale
+STALE_RATIO = 1.1  # a running χ² this much above calibration's: the model no longer describes the images
 BATCH_CHUNK = 4096  # frames reduced at a time (bounds memory on long recordings)
 
 
@@ -109,7 +110,12 @@ class Tracker:
         self.chi2_calibration = float(model.info.get("calibration_chi2", (calibration_rmse / sigma) ** 2))
         # beyond 5 standard deviations of one frame's χ² at the calibration's level: the frame asks
         self.chi2_limit = self.chi2_calibration * (1.0 + 5.0 * np.sqrt(2.0 / n_values))
-        self.stale_limit = max(1.5 * self.chi2_calibration, self.chi2_calibration + 0.5)
+        # The running average's own spread is ≈ √(2/(window·pixels)) of the level; beyond five of
+        # those the light is re-solved (a change too small for one frame to show), and beyond a
+        # tenth more than calibration the model is called stale: its images are no longer these.
+        average_spread = np.sqrt(2.0 / (STALE_WINDOW * n_values))
+        self.sustained_limit = self.chi2_calibration * (1.0 + 5.0 * average_spread)
+        self.stale_limit = self.chi2_calibration * (STALE_RATIO + 5.0 * average_spread)
         # Model-level work, done once: live tracking reduces one frame at a time.
         evaluator = FastHarmonics(model) if model.target_map is None else GeneralHarmonics(model)
         self.fast_path = not effects.needs_general_path(model)
@@ -252,6 +258,8 @@ class SequentialState:
             self.chi2_average = tracker.chi2_calibration
         self.chi2_average += (capped - self.chi2_average) / STALE_WINDOW
         self.stale = self.chi2_average > tracker.stale_limit
+        if tracker.light == "auto" and self.chi2_average > tracker.sustained_limit:
+            self.memory.free = True  # the next frame re-solves the light; it stays so if the light changed
 
 
 def track(model: FourierModel, source: Recording | np.ndarray, reference: np.ndarray | None = None,
