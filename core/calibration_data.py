@@ -76,12 +76,20 @@ def calibration_data(rec: Recording) -> CalibrationData:
                            noise if noise.signal_dependent else None)
 
 
+def sensor_range(meta: dict[str, Any]) -> tuple[float, float] | None:
+    """The readout's floor and ceiling (0, 2^bits − 1) when the recording states its bit depth."""
+    bit_depth = meta.get("bit_depth")
+    if isinstance(bit_depth, int) and not isinstance(bit_depth, bool) and 1 <= bit_depth <= 32:
+        return 0.0, float(2**bit_depth - 1)
+    return None
+
+
 def usable_samples(frames: np.ndarray, meta: dict[str, Any]) -> np.ndarray:
     """0 where a pixel sits at the sensor's floor or ceiling (clipped: carries no position)."""
-    bit_depth = meta.get("bit_depth")
     weights = np.ones(frames.shape)
-    if isinstance(bit_depth, int) and 1 <= bit_depth <= 32:
-        weights[(frames >= 2**bit_depth - 1) | (frames <= 0)] = 0.0
+    limits = sensor_range(meta)
+    if limits is not None:
+        weights[(frames >= limits[1]) | (frames <= limits[0])] = 0.0
     return weights
 
 

@@ -17,7 +17,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from graytrack.core import effects
-from graytrack.core.calibration_data import Calibration, CalibrationData
+from graytrack.core.calibration_data import Calibration, CalibrationData, sensor_range
 from graytrack.core.geometry import fit_geometry
 from graytrack.core.linear_fit import fit_coefficients
 from graytrack.core.models.fourier import FourierModel
@@ -90,7 +90,9 @@ def fit_spec(spec: ModelSpec, data: CalibrationData, period_mm: float, pitch_mm:
     """
     geometry_names = ("period_mm", "pixel_pitch_mm")
     if refine_geometry and spec.pixel_degree > PITCH_PIXEL_DEGREE:
-        coarse = spec.smooth_only(pixel_degree=PITCH_PIXEL_DEGREE)
+        # α·d is one number for the whole strip: the row mean fixes it as well as every row does,
+        # at a fraction of the cost of a per-row model inside every step of the search.
+        coarse = spec.smooth_only(pixel_degree=PITCH_PIXEL_DEGREE, per_row=False)
         pitch_mm = fit_spec_pitch_search(coarse, data, period_mm, pitch_mm, row_shift_mm,
                                          grid_step=0.02).model.pixel_pitch_mm
         geometry_names = ("period_mm",)
@@ -128,8 +130,11 @@ def fit_spec(spec: ModelSpec, data: CalibrationData, period_mm: float, pitch_mm:
     usable = (data.weights > 0) * model.seen()
     residual2 = ((data.frames - fitted) ** 2) * usable
     rmse = float(np.sqrt(residual2.sum() / max(usable.sum(), 1.0)))
-    model = model.with_changes(noise_gray=data.sigma_gray, coeffs=model.coeffs, pixel_noise=noise,
-                               info={**model.info, "calibration_rmse_gray": rmse})
+    info = {**model.info, "calibration_rmse_gray": rmse}
+    limits = sensor_range(data.meta)
+    if limits is not None:  # the tracker sets aside samples stuck at a limit, whatever the model
+        info["sensor_range_gray"] = list(limits)
+    model = model.with_changes(noise_gray=data.sigma_gray, coeffs=model.coeffs, pixel_noise=noise, info=info)
     chi2 = float((residual2 * model.inverse_variance(fitted)).sum() / max(usable.sum(), 1.0))
     model.info["calibration_chi2"] = chi2
     return Calibration(model, rmse, data.sigma_gray, iterations, history)

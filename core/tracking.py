@@ -119,24 +119,38 @@ class Tracker:
         self.signal_dependent = noise.signal_dependent
         self.static_weights = model.inverse_variance(np.zeros((model.n_rows, model.n_pixels))).reshape(1, -1)
         self._static: dict[int, StaticWeights] = {}  # by rows averaged: what every frame shares
+        # Robust tracking also sets aside samples stuck at the sensor's floor or ceiling (the
+        # closed loop's plain tracking leaves them to its clipping effect, which models them).
+        limits = model.info.get("sensor_range_gray") if robust else None
+        self.sensor_range = None if limits is None else (float(limits[0]), float(limits[1]))
 
-    def weights(self, prepared: np.ndarray, frame_rows: int) -> np.ndarray:
+    def weights(self, prepared: np.ndarray, frame_rows: int) -> tuple[np.ndarray, bool]:
         """1/σ² per sample ``(K|1, P)``: the noise model at the observed gray level (the variance of
-        a row mean when rows are averaged), zero on masked pixels."""
+        a row mean when rows are averaged), zero on masked pixels and, when tracking robustly, on
+        samples stuck at the sensor's floor or ceiling (saturated by more light than at
+        calibration: they say nothing about x). The flag is True when these are the weights every frame shares, ``(1, P)``."""
         rows = self.model.rows_averaged(frame_rows)
-        if self.signal_dependent:
-            return self.model.inverse_variance(prepared).reshape(prepared.shape[0], -1) * rows
-        return self.static_weights * rows
+        n_frames = prepared.shape[0]
+        shared = not self.signal_dependent
+        weights = self.static_weights * rows if shared else \
+            self.model.inverse_variance(prepared).reshape(n_frames, -1) * rows
+        if self.sensor_range is not None:
+            flat = prepared.reshape(n_frames, -1)
+            inside = (flat > self.sensor_range[0]) & (flat < self.sensor_range[1])
+            if not inside.all():
+                weights, shared = weights * inside, False
+        return weights, shared
 
     def batch(self, prepared: np.ndarray, frame_rows: int = 1) -> GeneralBatch | TrigPolyBatch:
         """Frames ``(K, R, n)`` in the model's row layout, reduced for solving."""
+        weights, shared = self.weights(prepared, frame_rows)
         if not self.fast_path:
-            return GeneralBatch(self.evaluator, prepared, self.weights(prepared, frame_rows))
-        if self.signal_dependent:
-            return TrigPolyBatch(self.tables, prepared, self.weights(prepared, frame_rows))
+            return GeneralBatch(self.evaluator, prepared, weights)
+        if not shared:
+            return TrigPolyBatch(self.tables, prepared, weights)
         static = self._static.get(frame_rows)
         if static is None:
-            static = self._static[frame_rows] = StaticWeights.of(self.tables, self.weights(prepared, frame_rows))
+            static = self._static[frame_rows] = StaticWeights.of(self.tables, weights)
         return TrigPolyBatch(self.tables, prepared, static.weights, static)
 
     def frame_sigma(self, frame_rows: int) -> float:

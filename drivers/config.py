@@ -47,6 +47,8 @@ class CameraConfig(_Strict):
     exposure_us: float | None = Field(None, gt=0)
     gain_db: float | None = None
     frame_rate_hz: float | None = Field(None, gt=0)
+    readout_us: float = Field(0.0, ge=0, description="opencv, aravis: exposure end to frame hand-over, "
+                                                     "subtracted with half the exposure to stamp mid-exposure")
     trigger: Literal["free-run", "software", "hardware"] = "free-run"
     trigger_source: str = "Line0"
     pixel_format: Literal["Mono8", "Mono10", "Mono12", "Mono16"] = "Mono8"

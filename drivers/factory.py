@@ -48,7 +48,7 @@ def make_real_camera(config: CameraConfig) -> Camera:
         from graytrack.drivers.camera.opencv import OpenCVCamera
 
         assert config.device is not None
-        return OpenCVCamera(config.device, config.to_settings())
+        return OpenCVCamera(config.device, config.to_settings(), readout_s=config.readout_us * 1e-6)
     if config.kind == "aravis":
         from graytrack.drivers.camera.aravis import AravisCamera
 
@@ -59,6 +59,7 @@ def make_real_camera(config: CameraConfig) -> Camera:
             trigger_source=config.trigger_source,
             pixel_format=config.pixel_format,
             n_buffers=config.n_buffers,
+            readout_s=config.readout_us * 1e-6,
         )
     raise ConfigError(f"camera.kind: {config.kind!r} is not a hardware camera")
 

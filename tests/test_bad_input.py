@@ -174,12 +174,14 @@ def test_harmonics_without_a_nominal_geometry_are_bounded_by_the_data(tmp_path: 
                                                                       capsys: pytest.CaptureFixture[str]) -> None:
     rec = save(paper_recording(n_frames=100, seed=4, meta={}), tmp_path / "r.npz")
     refused(["calibrate", str(rec), "--harmonics", "200", "--out", str(tmp_path / "m.json")], capsys,
-            "--harmonics 200: at most 124 here; 10000 gray values with a reference support 40 per harmonic pair")
+            "--harmonics 200: at most 124 here; 10000 gray values with a reference determine 1000 coefficients")
 
 
 # -- output paths ------------------------------------------------------------------------------
-def test_out_is_an_existing_folder(tmp_path: Path, cal: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    line = refused(["calibrate", str(cal), "--out", str(tmp_path)], capsys, "is a folder; name the file to write")
+@pytest.mark.parametrize("command", ["calibrate", "simulate"])
+def test_out_is_an_existing_folder(tmp_path: Path, cal: Path, capsys: pytest.CaptureFixture[str], command: str) -> None:
+    argv = ["calibrate", str(cal)] if command == "calibrate" else ["simulate", "--seconds", "0.1"]
+    line = refused([*argv, "--out", str(tmp_path)], capsys, "is a folder; name the file to write")
     assert ".tmp" not in line and list(tmp_path.glob(".*")) == []
 
 
@@ -209,3 +211,11 @@ def test_a_whole_process_shows_no_traceback(tmp_path: Path) -> None:
     run = subprocess.run([sys.executable, "-m", "graytrack", "calibrate", str(rec), "--out", str(tmp_path / "m.json")],
                          capture_output=True, text=True, timeout=60)
     assert run.returncode == 2 and "Traceback" not in run.stderr and len(run.stderr.strip().splitlines()) == 1
+
+
+def test_effect_counts_beyond_a_real_rig_are_refused_before_building_it(tmp_path: Path,
+                                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    refused(["simulate", "--effects", "rows:n=1000000", "--out", str(tmp_path / "r.npz")], capsys,
+            "effect 'rows': n (a sensor's ROI strip) must be 1..4096")
+    refused(["simulate", "--effects", "dust:count=1e9", "--out", str(tmp_path / "r.npz")], capsys,
+            "effect 'dust': count must be 0..10000")

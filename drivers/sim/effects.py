@@ -153,6 +153,15 @@ def _positive(name: str, key: str, value: float, allow_zero: bool = False) -> fl
     return value
 
 
+def _count(name: str, key: str, value: float, low: int, high: int) -> int:
+    """An integer parameter within the range a real rig can have (beyond it the simulation would
+    only exhaust memory)."""
+    n = int(round(value))
+    if not low <= n <= high:
+        raise EffectError(f"effect {name!r}: {key} must be {low}..{high}, got {value:g}")
+    return n
+
+
 def _field_span(config: "RigConfig") -> tuple[float, float]:
     """Target x range the camera sees over the stroke."""
     fov = config.optics.pixel_pitch_mm * config.optics.n_pixels
@@ -187,9 +196,7 @@ def _pitch_scale(config: "RigConfig", v: dict[str, float], rng: np.random.Genera
 @effect("chirp", "target", "Nonlinear pitch error: the print is warped by um·ξ^order over the field (ξ ∈ [-1, 1]).",
         um=(20.0, "peak position error of the print, µm"), order=(2.0, "2 = chirp (period changes linearly), 3 = S-shape"))
 def _chirp(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
-    order = int(round(v["order"]))
-    if order < 2:
-        raise EffectError("effect 'chirp': order must be ≥ 2 (order 1 is pitch_scale)")
+    order = _count("chirp", "order (order 1 is pitch_scale)", v["order"], 2, 9)
     lo, hi = _field_span(config)
     config.target.chirp_mm += v["um"] * 1e-3
     config.target.chirp_order = order
@@ -208,7 +215,7 @@ def _dust(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) ->
     size = _positive("dust", "size_um", v["size_um"]) * 1e-3
     lo, hi = _field_span(config)
     ylo, yhi = _defect_y_range(config, size)
-    for _ in range(int(v["count"])):
+    for _ in range(_count("dust", "count", v["count"], 0, 10_000)):
         config.target.defects.append(Defect("dust", rng.uniform(lo, hi), rng.uniform(ylo, yhi), size, v["depth"]))
 
 
@@ -218,7 +225,7 @@ def _dust(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) ->
 def _scratches(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
     width = _positive("scratches", "width_um", v["width_um"]) * 1e-3
     lo, hi = _field_span(config)
-    for _ in range(int(v["count"])):
+    for _ in range(_count("scratches", "count", v["count"], 0, 1_000)):
         config.target.defects.append(
             Defect("scratch", rng.uniform(lo, hi), 0.0, width, v["depth"], math.radians(v["angle_deg"]))
         )
@@ -358,10 +365,7 @@ def _read_noise(config: "RigConfig", v: dict[str, float], rng: np.random.Generat
 @effect("quantize", "sensor", "Digitise to a bit depth (uint8 up to 8 bits, uint16 above); clips at full scale.",
         bits=(8.0, "bit depth, 1..16"))
 def _quantize(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
-    bits = int(round(v["bits"]))
-    if not 1 <= bits <= 16:
-        raise EffectError(f"effect 'quantize': bits must be 1..16, got {bits}")
-    config.sensor.bit_depth = bits
+    config.sensor.bit_depth = _count("quantize", "bits", v["bits"], 1, 16)
 
 
 @effect("sensor_gamma", "sensor", "Camera output gamma: out = 255·(in/255)^gamma.", gamma=(0.8, "exponent"))
@@ -378,9 +382,7 @@ def _saturation(config: "RigConfig", v: dict[str, float], rng: np.random.Generat
 
 @effect("rows", "sensor", "ROI strip height: R rows × n pixels taken from the sensor.", n=(16.0, "number of rows"))
 def _rows(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
-    n = int(round(v["n"]))
-    if n < 1:
-        raise EffectError("effect 'rows': n must be ≥ 1")
+    n = _count("rows", "n (a sensor's ROI strip)", v["n"], 1, 4096)
     config.optics.n_rows = n
     if config.optics.sensor_height is not None:
         config.optics.sensor_height = max(config.optics.sensor_height, config.optics.roi_y + n)

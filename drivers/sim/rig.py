@@ -122,13 +122,15 @@ class VirtualRig:
 
     Fixed patterns (PRNU, DSNU, defect positions) come from ``seed`` alone. Noise comes from a
     stream that advances with every ``render``/``record`` call: a fresh rig with the same seed
-    repeats the same recordings in the same order.
+    repeats the same recordings in the same order, unless ``run`` names another session.
     """
 
-    def __init__(self, config: RigConfig, seed: int = 0):
+    def __init__(self, config: RigConfig, seed: int = 0, run: int = 0):
         self.config = config
         self.seed = int(seed)
-        self._noise_rng = rng_for(seed, "noise")
+        # ``run`` > 0: another session of the same rig (same fixed patterns, fresh noise), as when a
+        # calibrated camera records the run it measures.
+        self._noise_rng = rng_for(seed, "noise") if run == 0 else rng_for(seed, "noise", f"run {run}")
         self._timing_rng = rng_for(seed, "timing")
         opt, tcfg = config.optics, config.target
         self.geometry = pixel_geometry(opt)

@@ -132,14 +132,15 @@ def build_config(scenario: str, effects: Sequence[EffectSpec] | str = (), seed: 
     return config
 
 
-def build_rig(scenario: str, effects: Sequence[EffectSpec] | str = (), seed: int = 0) -> VirtualRig:
+def build_rig(scenario: str, effects: Sequence[EffectSpec] | str = (), seed: int = 0, run: int = 0) -> VirtualRig:
     """A :class:`VirtualRig` for ``scenario`` with ``effects`` switched on, deterministic under ``seed``.
 
     ``effects`` are spec strings (``"tilt:deg=0.5"``, ``"flicker,prnu:sigma=0.02"``) or
     ``(name, {param: value})`` pairs. Raises :class:`ScenarioError` / :class:`EffectError`
-    (both ``ValueError``) on unknown names or bad parameters.
+    (both ``ValueError``) on unknown names or bad parameters. ``run`` > 0 is another session of the
+    same rig: the same fixed patterns (PRNU, defects, dust) with noise of its own.
     """
-    return VirtualRig(build_config(scenario, effects, seed), seed=seed)
+    return VirtualRig(build_config(scenario, effects, seed), seed=seed, run=run)
 
 
 __all__ = ["EffectError", "ScenarioError", "build_config", "build_rig", "list_effects", "list_scenarios"]

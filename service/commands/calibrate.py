@@ -46,7 +46,8 @@ def model_size_limits(recording: "Recording", pixel_degree: int) -> tuple[int, s
     data = int(np.isfinite(recording.reference).sum()) * n_pixels * recording.n_rows
     terms = pixel_degree + 1
     limits = [((data // (DATA_PER_COEFF * terms) - 1) // 2,
-               f"{data} gray values with a reference support {DATA_PER_COEFF * terms} per harmonic pair at most")]
+               f"{data} gray values with a reference determine {data // DATA_PER_COEFF} coefficients at most "
+               f"({DATA_PER_COEFF} values each), and the model has {2 * terms} per harmonic")]
     budget = memory_budget_bytes()
     limits.append(((budget // (8 * max(data, 1) * terms) - 1) // 2,
                    f"the fit's design matrix must stay within the memory budget of {describe_bytes(budget)}"))

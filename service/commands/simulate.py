@@ -28,6 +28,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--effects", action="append", default=[], metavar="SPEC",
                         help="effects to switch on, e.g. tilt:deg=0.5,flicker")
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0): same seed, same recording")
+    parser.add_argument("--run", type=int, default=0, metavar="N",
+                        help="another session of the same rig (same seed): same fixed patterns, noise of its own")
     parser.add_argument("--truth", default=None, metavar="FILE", help="also write the ground truth (.npz) here")
     parser.add_argument("--out", default=None, metavar="REC.npz", help="recording to write")
     parser.set_defaults(func=run)
@@ -57,20 +59,22 @@ def run(args: argparse.Namespace) -> int:
         raise CliError("--out REC.npz is required (or --list)")
     if args.seconds is not None and not (math.isfinite(args.seconds) and args.seconds > 0):
         raise CliError(f"--seconds must be positive and finite, got {args.seconds:g}")
-    output_file(args.out if args.out.endswith(".npz") else args.out + ".npz")
+    output_file(args.out)
+    output_file(args.out if args.out.endswith(".npz") else args.out + ".npz")  # the name save() writes
     if args.truth:
         output_file(args.truth, "--truth")
     try:
-        rig = build_rig(args.scenario, args.effects, seed=args.seed)
+        rig = build_rig(args.scenario, args.effects, seed=args.seed, run=args.run)
     except ValueError as exc:
         raise CliError(str(exc)) from None
-    if args.seconds is not None:
-        frames = math.ceil(args.seconds * rig.frame_rate_hz)
-        need, budget = working_bytes((frames, rig.n_rows, rig.n_pixels)), memory_budget_bytes()
-        if need > budget:
-            longest = budget / (8 * rig.n_rows * rig.n_pixels * rig.frame_rate_hz)
-            raise CliError(f"--seconds {args.seconds:g}: {frames} frames need {describe_bytes(need)}, beyond the "
-                           f"memory budget of {describe_bytes(budget)}; at most {longest:.0f} s for this scenario")
+    seconds = rig.config.default_seconds if args.seconds is None else args.seconds
+    frames = math.ceil(seconds * rig.frame_rate_hz)
+    need, budget = working_bytes((frames, rig.n_rows, rig.n_pixels)), memory_budget_bytes()
+    if need > budget:
+        longest = budget / (8 * rig.n_rows * rig.n_pixels * rig.frame_rate_hz)
+        raise CliError(f"--seconds {seconds:g}: {frames} frames of {rig.n_rows}x{rig.n_pixels} px need "
+                       f"{describe_bytes(need)}, beyond the memory budget of {describe_bytes(budget)}; "
+                       f"at most {longest:.0f} s for this scenario")
     rec, truth = rig.record(args.seconds, progress=ProgressBar("simulate"))
     path = save(rec, args.out)
     shape = "×".join(str(s) for s in rec.frames.shape)

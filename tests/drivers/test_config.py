@@ -17,7 +17,7 @@ def test_example_config_parses_into_typed_settings() -> None:
     assert config.camera.kind == "aravis" and config.stage.kind == "gcs"
     settings = config.camera.to_settings()
     assert settings.roi == Roi(row=480, rows=16, col=320, cols=128)
-    assert settings.exposure_us == 500.0 and settings.frame_rate_hz == 200.0
+    assert settings.exposure_us == 500.0 and settings.frame_rate_hz == 200.0 and config.camera.readout_us == 0.0
     assert config.stage.soft_limits_mm == (0.0, 20.0) and config.stage.baudrate == 115200
 
 

@@ -93,3 +93,20 @@ def test_a_missing_file_is_not_found_and_a_video_file_has_no_exposure(video: Pat
     assert frame.exposure_s == 0.0 and frame.t_uncertainty_s == pytest.approx(1.5 / FPS)
     with pytest.raises(CameraSettingError):
         Roi(rows=0)
+
+
+def test_readout_and_exposure_move_the_stamp_back_from_the_grab(video: Path) -> None:
+    from graytrack.drivers.config import parse_hardware
+    from graytrack.drivers.factory import make_real_camera
+
+    config = parse_hardware({"camera": {"kind": "opencv", "device": str(video), "readout_us": 4000.0}})
+    camera = make_real_camera(config.camera)
+    assert isinstance(camera, OpenCVCamera) and camera.readout_s == pytest.approx(0.004)
+    camera.nominal_exposure_s = 0.01
+    with camera:
+        before = time.monotonic()
+        frame = camera.read()
+        after = time.monotonic()
+    # grab time lies in [before, after]; mid-exposure is 4 ms of readout and 5 ms of exposure earlier
+    assert before - 0.009 <= frame.t_host <= after - 0.009
+    assert frame.exposure_s == 0.01 and frame.t_uncertainty_s == pytest.approx(1 / FPS)

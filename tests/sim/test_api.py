@@ -128,3 +128,13 @@ def test_cli_list_names_scenarios_and_effects(capsys):
     for name in list(list_scenarios()) + list(EFFECTS):
         assert name in text
     assert "NAME[:KEY=VALUE" in text
+
+
+def test_another_run_of_the_same_rig_keeps_its_fixed_patterns_and_draws_new_noise():
+    first, truth_first = build_rig("paper", "prnu:sigma=0.02,bad_pixels", seed=3).record(2.0)
+    again, _ = build_rig("paper", "prnu:sigma=0.02,bad_pixels", seed=3).record(2.0)
+    other, truth_other = build_rig("paper", "prnu:sigma=0.02,bad_pixels", seed=3, run=1).record(2.0)
+    np.testing.assert_array_equal(first.frames, again.frames)
+    np.testing.assert_array_equal(truth_first.pixel_gain, truth_other.pixel_gain)
+    noise = other.frames.astype(float) - first.frames.astype(float)
+    assert 0.8 < np.std(noise) / np.sqrt(2 * 0.7**2) < 1.2  # two independent draws of σ = 0.7

@@ -1,0 +1,82 @@
+"""Calibrate on one run of a virtual rig, measure another: the error against the noise floor.
+
+Each case is a rig with effects nobody tells the software about; the measured run is a second
+session of the same rig (same fixed patterns, its own noise), sometimes with the light changed or
+a pixel failed in between. For each case it prints, for the seed paper's model (`calibrate
+--model paper`) and for the closed loop's model (`diagnose`), the frames lost and the error std
+over the rms of the per-frame Cramér–Rao bounds, tracked as `graytrack track` does.
+
+    .venv/bin/python bench/robustness_sweep.py [CASE-SUBSTRING]
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import numpy as np
+
+from graytrack.core.calibration import calibrate
+from graytrack.core.diagnosis import diagnose
+from graytrack.core.tracking import track
+from graytrack.drivers.sim.scenarios import build_rig
+
+LATER_LIGHT = "light_change:gain=0.85:ambient_gray=8:start_s=3"
+LATER_PIXEL = "bad_pixels:stuck=1:dead=0:hot=0:row=0:pixel=40:start_s=5"
+
+# (scenario, effects of the rig, what changes before the measured run)
+CASES = [
+    ("paper", "", ""),
+    ("paper", "", LATER_LIGHT),
+    ("paper", "", LATER_PIXEL),
+    ("paper", "defocus:sigma_um=200", ""),
+    ("paper", "distortion:k1=0.02,vignetting:edge=0.15", ""),
+    ("paper", "print_gamma:gamma=1.4,harmonics:h2=0.05:h3=0.02", LATER_LIGHT),
+    ("paper", "prnu:sigma=0.03,dsnu:sigma=2", ""),
+    ("paper", "scratches:count=3", ""),
+    ("paper", "dust:count=6", LATER_LIGHT),
+    ("paper", "flicker:mains_hz=50:depth=0.05", ""),
+    ("paper", "quantize:bits=6", ""),
+    ("paper", "photon_transfer:full_well=10000:read_e=8:bits=8", LATER_LIGHT),
+    ("paper", "bad_pixels:stuck=1:dead=1:hot=1:noisy=1", ""),
+    ("paper", "saturation:gain=1.3,quantize:bits=8", ""),
+    ("paper", "pitch_scale:ppm=500,gradient:per_10mm=0.08", ""),
+    ("paper", "motion_blur:exposure_ms=8", ""),
+    ("paper", "dropped_frames:p=0.1,timestamp_jitter:us=300", ""),
+    ("strip16", "tilt:deg=2,prnu:sigma=0.01,bad_pixels", LATER_LIGHT + "," + LATER_PIXEL.replace("row=0", "row=3")),
+    ("lab", "", LATER_LIGHT),
+]
+
+
+def measured(model, run) -> tuple[int, float, float]:
+    result = track(model, run, light="auto", robust=True)
+    error = result.error_um(run.reference)
+    bound = float(np.sqrt(np.nanmean(np.square(result.crlb_mm * 1e3))))
+    return int((~np.isfinite(error)).sum()), float(np.nanstd(error)), bound
+
+
+def main(selection: str = "") -> None:
+    print(f"{'scenario':9} {'rig effects':52} {'changed before the run':28} "
+          f"{'paper: lost  std/bound':>22} {'loop: lost  std/bound':>22}  loop added")
+    for scenario, rig_effects, later in CASES:
+        label = f"{scenario} {rig_effects} {later}"
+        if selection not in label:
+            continue
+        started = time.perf_counter()
+        calibration, _ = build_rig(scenario, rig_effects, seed=3).record(20.0)
+        run_effects = ",".join(part for part in (rig_effects, later) if part)
+        run, _ = build_rig(scenario, run_effects, seed=3, run=1).record(10.0)
+        cells = []
+        paper = calibrate(calibration, "paper").model
+        lost, spread, bound = measured(paper, run)
+        cells.append(f"{lost:5d} {spread:6.3f}/{bound:.3f}={spread / bound:4.2f}")
+        loop = diagnose(calibration)
+        lost, spread, bound = measured(loop.final_model, run)
+        cells.append(f"{lost:5d} {spread:6.3f}/{bound:.3f}={spread / bound:4.2f}")
+        added = ",".join(step.effect for step in loop.steps) or "-"
+        print(f"{scenario:9} {rig_effects or '-':52.52} {('light' if 'light' in later else '') + (' pixel' if 'start_s=5' in later else '') or '-':28}"
+              f" {cells[0]:>22} {cells[1]:>22}  {added} ({time.perf_counter() - started:.0f} s)", flush=True)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1] if len(sys.argv) > 1 else "")
