@@ -13,8 +13,9 @@ is mid-exposure on the same clock. A frame gets a reference only when it can be 
   and each reading's instant known well enough: a reading was taken somewhere between request
   and reply, so while moving at ``v`` its stamp may be off by ``|v| · latency / 2`` (a reply
   delayed by a busy machine makes that large), which must stay below ``tolerance_mm`` too;
-* **at rest** — the last readings agree within ``tolerance_mm``, the newest is within
-  ``window_s`` of the frame and no move was commanded since the first of them.
+* **at rest** — the last readings agree within ``tolerance_mm``, no move was commanded since the
+  first of them, and the newest is at most ``rest_s`` old (a closed-loop axis at rest holds its
+  position; the limit only guards against a poller that stopped).
 
 Otherwise no reference is sent: a wrong reference is worse than none (the stream's ``error_um``
 would show the pairing, not the tracker). Pairing is called once per frame, so it scans the few
@@ -43,8 +44,9 @@ NAN = float("nan")
 class Readings:
     """Recent (host time, position) pairs, oldest first; safe to append and pair from two threads."""
 
-    def __init__(self, window_s: float, tolerance_mm: float, history: int = HISTORY) -> None:
+    def __init__(self, window_s: float, tolerance_mm: float, rest_s: float = 0.25, history: int = HISTORY) -> None:
         self.window_s = window_s
+        self.rest_s = rest_s
         self.tolerance_mm = tolerance_mm
         self._t: deque[float] = deque(maxlen=history)
         self._x: deque[float] = deque(maxlen=history)
@@ -114,10 +116,10 @@ class Readings:
     def _at_rest(self, t: float) -> float:
         ts, xs = self._t, self._x
         n = len(ts)
-        if n < REST_READINGS or t - ts[-1] > self.window_s:
+        if n < REST_READINGS or t - ts[-1] > self.rest_s:
             return NAN
         first = n - REST_READINGS
-        if ts[first] <= self.command_t or ts[-1] - ts[first] > REST_READINGS * self.window_s:
+        if ts[first] <= self.command_t or ts[-1] - ts[first] > REST_READINGS * self.rest_s:
             return NAN
         newest = xs[-1]
         for k in range(first, n - 1):

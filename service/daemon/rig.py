@@ -64,7 +64,7 @@ class Rig:
         self.factory = factory
         self.clock = ScaledClock(daemon.sim_clock_scale) if settings.simulated else REAL_TIME
         self.faults = Faults()
-        self.readings = Readings(daemon.pair_window_s, daemon.pair_tolerance_um * 1e-3)
+        self.readings = Readings(daemon.pair_window_s, daemon.pair_tolerance_um * 1e-3, daemon.pair_rest_s)
         self.hardware: Hardware | None = None
         self.grating: GratingPoller | None = None
         self.acquisition: Acquisition | None = None

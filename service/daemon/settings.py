@@ -38,6 +38,8 @@ class DaemonConfig(_Strict):
                                                          "readings a frame is interpolated between")
     pair_tolerance_um: float = Field(1.0, gt=0, description="largest interpolation error a paired reference may have "
                                                            "(acceleration between readings); else none is sent")
+    pair_rest_s: float = Field(0.25, gt=0, description="host seconds the newest grating reading of a stage at rest "
+                                                       "(no command since) stands for")
     stale_after_s: float = Field(0.5, gt=0, description="a position or rate older than this is withdrawn (null)")
     allowed_origins: list[str] = Field(default_factory=list, description="WebSocket Origins accepted besides the page's own")
     allowed_hosts: list[str] = Field(default_factory=list, description="Host names accepted besides the bind address and "

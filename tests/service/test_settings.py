@@ -65,7 +65,7 @@ def test_token_is_generated_once_with_mode_0600_and_ids_sort_by_time(tmp_path: P
 
 
 def _readings(t: np.ndarray, x: np.ndarray, latency_s: float = 0.0) -> Readings:
-    readings = Readings(window_s=0.02, tolerance_mm=1e-3)
+    readings = Readings(window_s=0.02, tolerance_mm=1e-3, rest_s=0.05)
     for ti, xi in zip(t, x):
         readings.append(float(ti), float(xi), latency_s)
     return readings
@@ -93,7 +93,8 @@ def test_grating_pairing_holds_a_resting_stage_until_a_command() -> None:
     t = np.arange(0.0, 0.02, 0.005)
     resting = _readings(t, np.full(t.size, 3.0))
     assert resting.at(t[-1] + 0.004) == 3.0, "at rest, the newest reading holds for a frame just after it"
-    assert np.isnan(resting.at(t[-1] + 0.05)), "not for long"
+    assert resting.at(t[-1] + 0.04) == 3.0, "for longer than the bracketing window: a closed-loop axis holds"
+    assert np.isnan(resting.at(t[-1] + 0.06)), "not for longer than rest_s (a stalled poller)"
     resting.note_command(t[-1] + 0.001)
     assert np.isnan(resting.at(t[-1] + 0.004)), "a move was commanded since: the stage may be moving"
     creeping = _readings(t, 3.0 + 0.01 * np.arange(t.size))

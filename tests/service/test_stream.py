@@ -88,7 +88,7 @@ def test_references_during_moves_are_right_or_absent(daemon: LiveServer, tmp_pat
     t = np.array([m["t"] for m in received])
     speed = np.abs(np.gradient(x, t))
     moving = [m for m, v in zip(received, speed) if v > 0.5 and "error_um" in m and m["locked"]]
-    assert len(moving) >= 10, f"only {len(moving)} frames paired while moving"
+    assert len(moving) >= 5, f"only {len(moving)} frames paired while moving"
     error = np.abs([m["error_um"] for m in moving])
     bound = np.median([m["crlb_um"] for m in moving])
     assert np.percentile(error, 99.9) <= 5 * bound, (np.percentile(error, [50, 99, 99.9, 100]), bound)
