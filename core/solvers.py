@@ -17,6 +17,7 @@ information, the grid cost for acquisition and the robust loop are written once,
 
 from __future__ import annotations
 
+import cmath
 import math
 from dataclasses import dataclass, field
 from typing import Protocol
@@ -59,7 +60,9 @@ class MomentSource(Protocol):
                   pixels: np.ndarray | None = None) -> np.ndarray: ...
     def weights(self, k: int) -> np.ndarray: ...
     def reweighted(self, k: int, weights: np.ndarray) -> "MomentSource": ...
-    def masked(self, k: int, keep: np.ndarray) -> "MomentSource": ...
+    def without(self, k: int, rejected: np.ndarray) -> "MomentSource": ...
+    def set_aside_residuals(self, k: int, x_mm: float, gain: float, offset: float,
+                            rejected: np.ndarray) -> list[float]: ...
 
 
 # --------------------------------------------------------------------------- the shared solver
@@ -157,20 +160,18 @@ def robust_solve(source: MomentSource, k: int, start: FrameSolution, free: bool,
     again, until the set of rejected pixels settles. The bound comes with the weights used: that
     of the pixels kept. When no pixel sits in the taper (the usual case) the weights are a mask.
     """
-    base = source.weights(k)
-    root = np.sqrt(base)
-    used = base > 0.0
-    masked_pixels = not used.all()
     x, gain, offset = start.x_mm, start.gain, start.offset
     solution, rejected_before = start, None
     if rejected is not None:
         solution = _solve_weighted(source, k, x, free, settings, rejected)
         x, gain, offset, rejected_before = solution.x_mm, solution.gain, solution.offset, rejected
         if solution.chi2 <= chi2_limit:  # the kept pixels fit: are the ones set aside still outliers?
-            pixels = np.flatnonzero(rejected)
-            set_aside = np.abs(source.residuals(k, x, gain, offset, pixels) * root[pixels])
-            if (set_aside >= CUT_SIGMA).all():
-                return solution
+            if all(size >= CUT_SIGMA for size in source.set_aside_residuals(k, x, gain, offset, rejected)):
+                return solution  # a bad pixel that stays bad: one masked solve, nothing else
+    base = source.weights(k)
+    root = np.sqrt(base)
+    used = base > 0.0
+    masked_pixels = not used.all()
     for _ in range(ROBUST_ITERATIONS):
         size = np.abs(source.residuals(k, x, gain, offset) * root)
         size *= 1.0 / max(1.0, MAD_TO_SIGMA * _middle(size[used] if masked_pixels else size))
@@ -191,11 +192,18 @@ def _solve_weighted(source: MomentSource, k: int, x_start: float, free: bool, se
                     rejected: np.ndarray, factor: np.ndarray | None = None) -> FrameSolution:
     """Gauss–Newton with the base weights times ``factor``, or without the ``rejected`` pixels when
     there is no factor (a mask: its share of the moments can be kept from frame to frame)."""
-    source_k = source.masked(k, ~rejected) if factor is None else source.reweighted(k, source.weights(k) * factor)
+    source_k = source.without(k, rejected) if factor is None else source.reweighted(k, source.weights(k) * factor)
     solution = gauss_newton(source_k, 0, x_start, free, settings)
-    solution.rejected, solution.rejected_mask, solution.rejected_weights_exact = int(rejected.sum()), rejected, \
-        factor is None
+    solution.rejected, solution.rejected_mask, solution.rejected_weights_exact = int(np.count_nonzero(rejected)), \
+        rejected, factor is None
     return solution
+
+
+def _set_aside_residuals(source: MomentSource, k: int, x_mm: float, gain: float, offset: float,
+                         rejected: np.ndarray) -> list[float]:
+    """|residual|·√w of the ``rejected`` pixels, from any source."""
+    pixels = np.flatnonzero(rejected)
+    return (np.abs(source.residuals(k, x_mm, gain, offset, pixels)) * np.sqrt(source.weights(k)[pixels])).tolist()
 
 
 def _middle(values: np.ndarray) -> float:
@@ -216,21 +224,64 @@ class StaticWeights:
     gram: np.ndarray  # (1, 5, 2M+1): F·F, F′·F, F′·F′, F·1, F′·1 under these weights
     total: float
     count: int
-    masked: dict[bytes, "StaticWeights"] = field(default_factory=dict)  # the same with pixels set aside
+    masked: dict[bytes, "SetAside"] = field(default_factory=dict)  # the same with pixels set aside
+    last_set_aside: list = field(default_factory=list)  # [mask, SetAside]: the set the last frame used
 
     @classmethod
     def of(cls, tables: TrigTables, weights: np.ndarray) -> "StaticWeights":
         return cls(weights, tables.weighted_gram(weights), float(weights.sum()), int((weights > 0).sum()))
 
-    def without(self, tables: TrigTables, keep: np.ndarray) -> "StaticWeights":
-        """These weights with the pixels outside ``keep`` at zero, built once per mask."""
-        key = np.packbits(keep).tobytes()
+    def set_aside(self, tables: TrigTables, rejected: np.ndarray) -> "SetAside":
+        """What the fast path keeps for the pixels ``rejected`` (a mask): built once per set, and
+        found again without a look-up while the same mask carries from frame to frame."""
+        last = self.last_set_aside
+        if last and last[0] is rejected:
+            return last[1]
+        removed = np.flatnonzero(rejected)
+        key = removed.tobytes()
         found = self.masked.get(key)
         if found is None:
             if len(self.masked) >= MASK_CACHE_SIZE:
                 self.masked.clear()
-            found = self.masked[key] = StaticWeights.of(tables, self.weights * keep)
+            found = self.masked[key] = SetAside.of(self, tables, removed)
+        last[:] = [rejected, found]
         return found
+
+
+@dataclass(frozen=True)
+class SetAside:
+    """Pixels set aside from weights every frame shares: the kept pixels' tables, and the set-aside
+    pixels' own share of a frame's moments (subtracted per frame: O(set aside), not O(pixels))
+    and of its model values (a set-aside pixel is checked in scalar Python: a few pixels)."""
+
+    removed: np.ndarray  # pixel indices
+    kept: StaticWeights  # the weights with these pixels at zero, and their moment tables
+    weights: np.ndarray  # (R,) their base weights
+    linear: np.ndarray  # (R, 2·(D+1)+1) complex: their y·F, y·F′, y·1 coefficients per unit y
+    roots: list[float]  # √weight, to normalise their residuals
+    lines: list[list[complex]]  # F of each as coefficients of z^0..z^M
+    omega_i: complex  # iω: z = exp(iω·x)
+
+    @classmethod
+    def of(cls, static: StaticWeights, tables: TrigTables, removed: np.ndarray) -> "SetAside":
+        keep = np.ones(static.weights.shape[1], dtype=bool)
+        keep[removed] = False
+        weights = static.weights[0, removed]
+        return cls(removed, StaticWeights.of(tables, static.weights * keep), weights,
+                   tables.linear[removed].view(complex), np.sqrt(weights).tolist(),
+                   tables.line_coefficients(removed), complex(tables.phase_orders[1]))
+
+    def normalised_residuals(self, y: list[float], x_mm: float, gain: float, offset: float) -> list[float]:
+        """|y − (g·F(x) + o)|·√w of each set-aside pixel."""
+        z = cmath.exp(self.omega_i * x_mm)
+        out = []
+        for value, line, root in zip(y, self.lines, self.roots):
+            model, power = line[0].real, 1.0 + 0j
+            for coefficient in line[1:]:
+                power *= z
+                model += (coefficient * power).real
+            out.append(abs(value - gain * model - offset) * root)
+        return out
 
 
 class TrigPolyBatch:
@@ -286,11 +337,34 @@ class TrigPolyBatch:
     def reweighted(self, k: int, weights: np.ndarray) -> "TrigPolyBatch":
         return TrigPolyBatch(self.tables, self.frames[k:k + 1], weights[None])
 
-    def masked(self, k: int, keep: np.ndarray) -> "TrigPolyBatch":
+    def without(self, k: int, rejected: np.ndarray) -> "TrigPolyBatch":
+        """Frame ``k`` with the ``rejected`` pixels set aside. With weights every frame shares, the
+        kept pixels' tables come from the cache and the frame's own moments lose the rejected
+        pixels' share by a subtraction."""
         if self._static is None:
-            return self.reweighted(k, self.weights(k) * keep)
-        static = self._static.without(self.tables, keep)
-        return TrigPolyBatch(self.tables, self.frames[k:k + 1], static.weights, static)
+            return self.reweighted(k, self.weights(k) * ~rejected)
+        plan = self._static.set_aside(self.tables, rejected)
+        static = plan.kept
+        y = self.frames[k, plan.removed]
+        wy = plan.weights * y
+        share = wy @ plan.linear
+        width = self.tables.degree + 1
+        part = object.__new__(TrigPolyBatch)
+        part.tables, part.frames, part.n_frames = self.tables, self.frames[k:k + 1], 1
+        part._weights, part._static = static.weights, static
+        part.rows = np.concatenate((static.gram, (self.rows[k, 5:] - share[: 2 * width].reshape(2, width))[None]),
+                                   axis=1)
+        y_norm, y_sum = self._scalars[k][:2]
+        part._scalars = [[y_norm - float(wy @ y), y_sum - share[-1].real, static.total, static.count]]
+        return part
+
+    def set_aside_residuals(self, k: int, x_mm: float, gain: float, offset: float,
+                            rejected: np.ndarray) -> list[float]:
+        """|residual|·√w of the ``rejected`` pixels at this solution."""
+        if self._static is None:
+            return _set_aside_residuals(self, k, x_mm, gain, offset, rejected)
+        plan = self._static.set_aside(self.tables, rejected)
+        return plan.normalised_residuals(self.frames[k, plan.removed].tolist(), x_mm, gain, offset)
 
 
 class GeneralBatch:
@@ -332,5 +406,9 @@ class GeneralBatch:
     def reweighted(self, k: int, weights: np.ndarray) -> "GeneralBatch":
         return GeneralBatch(self.evaluator, self.frames[k:k + 1], weights[None])
 
-    def masked(self, k: int, keep: np.ndarray) -> "GeneralBatch":
-        return self.reweighted(k, self.weights(k) * keep)
+    def without(self, k: int, rejected: np.ndarray) -> "GeneralBatch":
+        return self.reweighted(k, self.weights(k) * ~rejected)
+
+    def set_aside_residuals(self, k: int, x_mm: float, gain: float, offset: float,
+                            rejected: np.ndarray) -> list[float]:
+        return _set_aside_residuals(self, k, x_mm, gain, offset, rejected)
