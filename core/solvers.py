@@ -29,6 +29,7 @@ from graytrack.core.evaluation import ClippedHarmonics, FastHarmonics, GeneralHa
 CORE_SIGMA, CUT_SIGMA = 3.5, 7.0  # redescending weight: full inside the core, none beyond the cut (robust σ)
 MASK_CACHE_SIZE = 64  # masks of rejected pixels whose moment tables are kept (one bad pixel: one mask)
 ROBUST_ITERATIONS = 6
+SET_ASIDE_BLOCK = 64  # frames whose moments lose a set-aside pixel's share in one vectorised step
 MAD_TO_SIGMA = 1.4826
 
 
@@ -301,6 +302,7 @@ class TrigPolyBatch:
         self.tables, self.frames, self.n_frames = tables, frames, frames.shape[0]
         self._weights = weights  # (K, P) or (1, P) when every frame shares them
         self._static = static
+        self._set_aside_block: tuple | None = None  # (plan, start, stop, rows, scalars) of :meth:`without`
         width = tables.degree + 1
         weighted = weights * frames
         linear = (weighted @ tables.linear).view(complex)  # y·F, y·F′ coefficients, and y·1
@@ -344,19 +346,30 @@ class TrigPolyBatch:
         if self._static is None:
             return self.reweighted(k, self.weights(k) * ~rejected)
         plan = self._static.set_aside(self.tables, rejected)
-        static = plan.kept
-        y = self.frames[k, plan.removed]
-        wy = plan.weights * y
-        share = wy @ plan.linear
-        width = self.tables.degree + 1
+        block = self._set_aside_block
+        if block is None or block[0] is not plan or not block[1] <= k < block[2]:
+            block = self._set_aside_block = self._block_without(plan, k, min(k + SET_ASIDE_BLOCK, self.n_frames))
+        j = k - block[1]
         part = object.__new__(TrigPolyBatch)
         part.tables, part.frames, part.n_frames = self.tables, self.frames[k:k + 1], 1
-        part._weights, part._static = static.weights, static
-        part.rows = np.concatenate((static.gram, (self.rows[k, 5:] - share[: 2 * width].reshape(2, width))[None]),
-                                   axis=1)
-        y_norm, y_sum = self._scalars[k][:2]
-        part._scalars = [[y_norm - float(wy @ y), y_sum - share[-1].real, static.total, static.count]]
+        part._weights, part._static, part._set_aside_block = plan.kept.weights, plan.kept, None
+        part.rows, part._scalars = block[3][j:j + 1], block[4][j:j + 1]
         return part
+
+    def _block_without(self, plan: "SetAside", start: int, stop: int) -> tuple:
+        """Frames ``start:stop`` with ``plan``'s pixels set aside, in one vectorised step: a bad
+        pixel usually stays bad for many frames, so its share is subtracted for a block at once."""
+        y = self.frames[start:stop, plan.removed]
+        wy = y * plan.weights
+        share = wy @ plan.linear  # (B, 2·(D+1)+1)
+        width = self.tables.degree + 1
+        kept = plan.kept
+        linear = self.rows[start:stop, 5:] - share[:, : 2 * width].reshape(-1, 2, width)
+        rows = np.concatenate((np.broadcast_to(kept.gram, (stop - start,) + kept.gram.shape[1:]), linear), axis=1)
+        y_norm = [item[0] for item in self._scalars[start:stop]] - (wy * y).sum(axis=1)
+        y_sum = [item[1] for item in self._scalars[start:stop]] - share[:, -1].real
+        scalars = [[a, b, kept.total, kept.count] for a, b in zip(y_norm.tolist(), y_sum.tolist())]
+        return plan, start, stop, rows, scalars
 
     def set_aside_residuals(self, k: int, x_mm: float, gain: float, offset: float,
                             rejected: np.ndarray) -> list[float]:
