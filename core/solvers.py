@@ -318,6 +318,26 @@ class TrigPolyBatch:
             self._scalars = [list(item) for item in zip(y_norm, y_sum, weights.sum(axis=1).tolist(),
                                                          (weights > 0).sum(axis=1).tolist())]
 
+    def reload(self, frame: np.ndarray) -> "TrigPolyBatch":
+        """This one-frame batch with weights every frame shares, for the next ``frame`` ``(1, P)``:
+        the same reduction written into the buffers it already has (live tracking allocates
+        nothing per frame but the small moment lists)."""
+        if self.n_frames != 1 or self._static is None:
+            raise ValueError("only a one-frame batch with shared weights reloads")
+        if not hasattr(self, "_buffers"):
+            self._buffers = (np.empty_like(self.frames), np.empty((1, self.tables.linear.shape[1])))
+        weighted, linear = self._buffers
+        width = self.tables.degree + 1
+        self.frames = frame
+        np.multiply(self._weights, frame, out=weighted)
+        np.matmul(weighted, self.tables.linear, out=linear)
+        coefficients = linear.view(complex)[0]
+        self.rows[0, 5:] = coefficients[: 2 * width].reshape(2, width)
+        np.multiply(weighted, frame, out=weighted)
+        self._scalars = [[float(weighted.sum()), coefficients[-1].real, self._static.total, self._static.count]]
+        self._set_aside_block = None
+        return self
+
     def scalars(self, k: int) -> list[float]:
         return self._scalars[k]
 
