@@ -384,6 +384,13 @@ class TrigPolyBatch:
         share = wy @ plan.linear  # (B, 2·(D+1)+1)
         width = self.tables.degree + 1
         kept = plan.kept
+        if stop - start == 1:  # live tracking: one frame, no lists to build
+            rows = np.empty((1,) + self.rows.shape[1:], dtype=complex)
+            rows[0, :5] = kept.gram[0]
+            np.subtract(self.rows[start, 5:], share[0, : 2 * width].reshape(2, width), out=rows[0, 5:])
+            y_norm, y_sum = self._scalars[start][:2]
+            return plan, start, stop, rows, [[y_norm - float(wy[0] @ y[0]), y_sum - share[0, -1].real, kept.total,
+                                              kept.count]]
         linear = self.rows[start:stop, 5:] - share[:, : 2 * width].reshape(-1, 2, width)
         rows = np.concatenate((np.broadcast_to(kept.gram, (stop - start,) + kept.gram.shape[1:]), linear), axis=1)
         y_norm = [item[0] for item in self._scalars[start:stop]] - (wy * y).sum(axis=1)

@@ -346,7 +346,8 @@ class LiveTracker:
         if frame.ndim == 1:
             line[0] = frame
         else:
-            np.mean(frame, axis=0, dtype=np.float64, out=line[0])
+            np.add.reduce(frame, axis=0, dtype=np.float64, out=line[0])  # the row mean, as prepare's
+            np.true_divide(line, rows, out=line)
         batch = self._batches.get(rows)
         if batch is None:
             batch = self._batches[rows] = self.tracker.batch(line.reshape(1, 1, -1).copy(), rows)
