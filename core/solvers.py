@@ -61,7 +61,7 @@ class MomentSource(Protocol):
                   pixels: np.ndarray | None = None) -> np.ndarray: ...
     def weights(self, k: int) -> np.ndarray: ...
     def reweighted(self, k: int, weights: np.ndarray) -> "MomentSource": ...
-    def without(self, k: int, rejected: np.ndarray) -> "MomentSource": ...
+    def without(self, k: int, rejected: np.ndarray) -> "MomentSource | FrameMoments": ...
     def set_aside_residuals(self, k: int, x_mm: float, gain: float, offset: float,
                             rejected: np.ndarray) -> list[float]: ...
 
@@ -167,7 +167,7 @@ def robust_solve(source: MomentSource, k: int, start: FrameSolution, free: bool,
         solution = _solve_weighted(source, k, x, free, settings, rejected)
         x, gain, offset, rejected_before = solution.x_mm, solution.gain, solution.offset, rejected
         if solution.chi2 <= chi2_limit:  # the kept pixels fit: are the ones set aside still outliers?
-            if all(size >= CUT_SIGMA for size in source.set_aside_residuals(k, x, gain, offset, rejected)):
+            if min(source.set_aside_residuals(k, x, gain, offset, rejected), default=CUT_SIGMA) >= CUT_SIGMA:
                 return solution  # a bad pixel that stays bad: one masked solve, nothing else
     base = source.weights(k)
     root = np.sqrt(base)
@@ -302,7 +302,7 @@ class TrigPolyBatch:
         self.tables, self.frames, self.n_frames = tables, frames, frames.shape[0]
         self._weights = weights  # (K, P) or (1, P) when every frame shares them
         self._static = static
-        self._set_aside_block: tuple | None = None  # (plan, start, stop, rows, scalars) of :meth:`without`
+        self._set_aside_block: SetAsideBlock | None = None  # the last block :meth:`without` built
         width = tables.degree + 1
         weighted = weights * frames
         linear = (weighted @ tables.linear).view(complex)  # y·F, y·F′ coefficients, and y·1
@@ -359,24 +359,32 @@ class TrigPolyBatch:
     def reweighted(self, k: int, weights: np.ndarray) -> "TrigPolyBatch":
         return TrigPolyBatch(self.tables, self.frames[k:k + 1], weights[None])
 
-    def without(self, k: int, rejected: np.ndarray) -> "TrigPolyBatch":
+    def without(self, k: int, rejected: np.ndarray) -> "TrigPolyBatch | FrameMoments":
         """Frame ``k`` with the ``rejected`` pixels set aside. With weights every frame shares, the
         kept pixels' tables come from the cache and the frame's own moments lose the rejected
         pixels' share by a subtraction."""
         if self._static is None:
             return self.reweighted(k, self.weights(k) * ~rejected)
+        block = self._block(k, rejected)
+        j = k - block.start
+        return FrameMoments(block.rows[j], block.scalars[j], self.tables.phase_orders)
+
+    def set_aside_residuals(self, k: int, x_mm: float, gain: float, offset: float,
+                            rejected: np.ndarray) -> list[float]:
+        """|residual|·√w of the ``rejected`` pixels at this solution."""
+        if self._static is None:
+            return _set_aside_residuals(self, k, x_mm, gain, offset, rejected)
+        block = self._block(k, rejected)
+        return block.plan.normalised_residuals(block.values[k - block.start], x_mm, gain, offset)
+
+    def _block(self, k: int, rejected: np.ndarray) -> "SetAsideBlock":
         plan = self._static.set_aside(self.tables, rejected)
         block = self._set_aside_block
-        if block is None or block[0] is not plan or not block[1] <= k < block[2]:
+        if block is None or block.plan is not plan or not block.start <= k < block.stop:
             block = self._set_aside_block = self._block_without(plan, k, min(k + SET_ASIDE_BLOCK, self.n_frames))
-        j = k - block[1]
-        part = object.__new__(TrigPolyBatch)
-        part.tables, part.frames, part.n_frames = self.tables, self.frames[k:k + 1], 1
-        part._weights, part._static, part._set_aside_block = plan.kept.weights, plan.kept, None
-        part.rows, part._scalars = block[3][j:j + 1], block[4][j:j + 1]
-        return part
+        return block
 
-    def _block_without(self, plan: "SetAside", start: int, stop: int) -> tuple:
+    def _block_without(self, plan: "SetAside", start: int, stop: int) -> "SetAsideBlock":
         """Frames ``start:stop`` with ``plan``'s pixels set aside, in one vectorised step: a bad
         pixel usually stays bad for many frames, so its share is subtracted for a block at once."""
         y = self.frames[start:stop, plan.removed]
@@ -389,22 +397,44 @@ class TrigPolyBatch:
             rows[0, :5] = kept.gram[0]
             np.subtract(self.rows[start, 5:], share[0, : 2 * width].reshape(2, width), out=rows[0, 5:])
             y_norm, y_sum = self._scalars[start][:2]
-            return plan, start, stop, rows, [[y_norm - float(wy[0] @ y[0]), y_sum - share[0, -1].real, kept.total,
-                                              kept.count]]
+            scalars = [[y_norm - float(wy[0] @ y[0]), y_sum - share[0, -1].real, kept.total, kept.count]]
+            return SetAsideBlock(plan, start, stop, rows, scalars, y.tolist())
         linear = self.rows[start:stop, 5:] - share[:, : 2 * width].reshape(-1, 2, width)
         rows = np.concatenate((np.broadcast_to(kept.gram, (stop - start,) + kept.gram.shape[1:]), linear), axis=1)
         y_norm = [item[0] for item in self._scalars[start:stop]] - (wy * y).sum(axis=1)
         y_sum = [item[1] for item in self._scalars[start:stop]] - share[:, -1].real
         scalars = [[a, b, kept.total, kept.count] for a, b in zip(y_norm.tolist(), y_sum.tolist())]
-        return plan, start, stop, rows, scalars
+        return SetAsideBlock(plan, start, stop, rows, scalars, y.tolist())
 
-    def set_aside_residuals(self, k: int, x_mm: float, gain: float, offset: float,
-                            rejected: np.ndarray) -> list[float]:
-        """|residual|·√w of the ``rejected`` pixels at this solution."""
-        if self._static is None:
-            return _set_aside_residuals(self, k, x_mm, gain, offset, rejected)
-        plan = self._static.set_aside(self.tables, rejected)
-        return plan.normalised_residuals(self.frames[k, plan.removed].tolist(), x_mm, gain, offset)
+
+@dataclass(frozen=True)
+class SetAsideBlock:
+    """Frames ``start:stop`` of a batch with a set of pixels set aside: their moments, and the
+    set-aside pixels' values (to check they are still outliers)."""
+
+    plan: SetAside
+    start: int
+    stop: int
+    rows: np.ndarray  # (B, 7, D+1)
+    scalars: list[list[float]]
+    values: list[list[float]]  # (B, set aside)
+
+
+class FrameMoments:
+    """One frame's moment coefficients, as much of a source as Gauss–Newton reads (the solve of
+    a frame with pixels set aside: a few µs per frame, so nothing else is built)."""
+
+    __slots__ = ("rows", "_scalars", "phase_orders")
+    n_frames = 1
+
+    def __init__(self, rows: np.ndarray, scalars: list[float], phase_orders: np.ndarray):
+        self.rows, self._scalars, self.phase_orders = rows, scalars, phase_orders
+
+    def scalars(self, k: int) -> list[float]:
+        return self._scalars
+
+    def moments(self, k: int, x_mm: float) -> list[float]:
+        return self.rows.dot(np.exp(self.phase_orders * x_mm)).real.tolist()
 
 
 class GeneralBatch:
