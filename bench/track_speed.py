@@ -24,7 +24,7 @@ from graytrack.core.tracking import LiveTracker, track
 from graytrack.drivers.sim import paper
 
 N_FRAMES = 1000
-REPEATS = 7
+REPEATS = 15
 CLOCK = time.process_time
 VARIANTS = {  # name: (light, robust)
     "plain (calibrated light)": ("fixed", False),

@@ -112,6 +112,11 @@ class TrigTables:
         return line[:, 0].real + (line[:, 1:self._harmonics + 1] @ np.exp(
             self.phase_orders[1:self._harmonics + 1] * x_mm)).real
 
+    def line_coefficients(self, pixels: np.ndarray) -> list[list[complex]]:
+        """F of each of ``pixels`` as Python coefficients of z^0..z^M (Re Σ c_h z^h): for
+        evaluating a few pixels in scalar code."""
+        return self._line[pixels, : self._harmonics + 1].tolist()
+
     def weighted_gram(self, weights: np.ndarray) -> np.ndarray:
         """``(K, 5, D+1)``: coefficients of F·F, F′·F, F′·F′, F·1, F′·1 under weights ``(K, P)``."""
         width = self.degree + 1

@@ -17,6 +17,7 @@ information, the grid cost for acquisition and the robust loop are written once,
 
 from __future__ import annotations
 
+import cmath
 import math
 from dataclasses import dataclass, field
 from typing import Protocol
@@ -28,6 +29,7 @@ from graytrack.core.evaluation import ClippedHarmonics, FastHarmonics, GeneralHa
 CORE_SIGMA, CUT_SIGMA = 3.5, 7.0  # redescending weight: full inside the core, none beyond the cut (robust σ)
 MASK_CACHE_SIZE = 64  # masks of rejected pixels whose moment tables are kept (one bad pixel: one mask)
 ROBUST_ITERATIONS = 6
+SET_ASIDE_BLOCK = 64  # frames whose moments lose a set-aside pixel's share in one vectorised step
 MAD_TO_SIGMA = 1.4826
 
 
@@ -59,7 +61,9 @@ class MomentSource(Protocol):
                   pixels: np.ndarray | None = None) -> np.ndarray: ...
     def weights(self, k: int) -> np.ndarray: ...
     def reweighted(self, k: int, weights: np.ndarray) -> "MomentSource": ...
-    def masked(self, k: int, keep: np.ndarray) -> "MomentSource": ...
+    def without(self, k: int, rejected: np.ndarray) -> "MomentSource | FrameMoments": ...
+    def set_aside_residuals(self, k: int, x_mm: float, gain: float, offset: float,
+                            rejected: np.ndarray) -> list[float]: ...
 
 
 # --------------------------------------------------------------------------- the shared solver
@@ -157,20 +161,18 @@ def robust_solve(source: MomentSource, k: int, start: FrameSolution, free: bool,
     again, until the set of rejected pixels settles. The bound comes with the weights used: that
     of the pixels kept. When no pixel sits in the taper (the usual case) the weights are a mask.
     """
-    base = source.weights(k)
-    root = np.sqrt(base)
-    used = base > 0.0
-    masked_pixels = not used.all()
     x, gain, offset = start.x_mm, start.gain, start.offset
     solution, rejected_before = start, None
     if rejected is not None:
         solution = _solve_weighted(source, k, x, free, settings, rejected)
         x, gain, offset, rejected_before = solution.x_mm, solution.gain, solution.offset, rejected
         if solution.chi2 <= chi2_limit:  # the kept pixels fit: are the ones set aside still outliers?
-            pixels = np.flatnonzero(rejected)
-            set_aside = np.abs(source.residuals(k, x, gain, offset, pixels) * root[pixels])
-            if (set_aside >= CUT_SIGMA).all():
-                return solution
+            if min(source.set_aside_residuals(k, x, gain, offset, rejected), default=CUT_SIGMA) >= CUT_SIGMA:
+                return solution  # a bad pixel that stays bad: one masked solve, nothing else
+    base = source.weights(k)
+    root = np.sqrt(base)
+    used = base > 0.0
+    masked_pixels = not used.all()
     for _ in range(ROBUST_ITERATIONS):
         size = np.abs(source.residuals(k, x, gain, offset) * root)
         size *= 1.0 / max(1.0, MAD_TO_SIGMA * _middle(size[used] if masked_pixels else size))
@@ -191,11 +193,18 @@ def _solve_weighted(source: MomentSource, k: int, x_start: float, free: bool, se
                     rejected: np.ndarray, factor: np.ndarray | None = None) -> FrameSolution:
     """Gauss–Newton with the base weights times ``factor``, or without the ``rejected`` pixels when
     there is no factor (a mask: its share of the moments can be kept from frame to frame)."""
-    source_k = source.masked(k, ~rejected) if factor is None else source.reweighted(k, source.weights(k) * factor)
+    source_k = source.without(k, rejected) if factor is None else source.reweighted(k, source.weights(k) * factor)
     solution = gauss_newton(source_k, 0, x_start, free, settings)
-    solution.rejected, solution.rejected_mask, solution.rejected_weights_exact = int(rejected.sum()), rejected, \
-        factor is None
+    solution.rejected, solution.rejected_mask, solution.rejected_weights_exact = int(np.count_nonzero(rejected)), \
+        rejected, factor is None
     return solution
+
+
+def _set_aside_residuals(source: MomentSource, k: int, x_mm: float, gain: float, offset: float,
+                         rejected: np.ndarray) -> list[float]:
+    """|residual|·√w of the ``rejected`` pixels, from any source."""
+    pixels = np.flatnonzero(rejected)
+    return (np.abs(source.residuals(k, x_mm, gain, offset, pixels)) * np.sqrt(source.weights(k)[pixels])).tolist()
 
 
 def _middle(values: np.ndarray) -> float:
@@ -216,21 +225,64 @@ class StaticWeights:
     gram: np.ndarray  # (1, 5, 2M+1): F·F, F′·F, F′·F′, F·1, F′·1 under these weights
     total: float
     count: int
-    masked: dict[bytes, "StaticWeights"] = field(default_factory=dict)  # the same with pixels set aside
+    masked: dict[bytes, "SetAside"] = field(default_factory=dict)  # the same with pixels set aside
+    last_set_aside: list = field(default_factory=list)  # [mask, SetAside]: the set the last frame used
 
     @classmethod
     def of(cls, tables: TrigTables, weights: np.ndarray) -> "StaticWeights":
         return cls(weights, tables.weighted_gram(weights), float(weights.sum()), int((weights > 0).sum()))
 
-    def without(self, tables: TrigTables, keep: np.ndarray) -> "StaticWeights":
-        """These weights with the pixels outside ``keep`` at zero, built once per mask."""
-        key = np.packbits(keep).tobytes()
+    def set_aside(self, tables: TrigTables, rejected: np.ndarray) -> "SetAside":
+        """What the fast path keeps for the pixels ``rejected`` (a mask): built once per set, and
+        found again without a look-up while the same mask carries from frame to frame."""
+        last = self.last_set_aside
+        if last and last[0] is rejected:
+            return last[1]
+        removed = np.flatnonzero(rejected)
+        key = removed.tobytes()
         found = self.masked.get(key)
         if found is None:
             if len(self.masked) >= MASK_CACHE_SIZE:
                 self.masked.clear()
-            found = self.masked[key] = StaticWeights.of(tables, self.weights * keep)
+            found = self.masked[key] = SetAside.of(self, tables, removed)
+        last[:] = [rejected, found]
         return found
+
+
+@dataclass(frozen=True)
+class SetAside:
+    """Pixels set aside from weights every frame shares: the kept pixels' tables, and the set-aside
+    pixels' own share of a frame's moments (subtracted per frame: O(set aside), not O(pixels))
+    and of its model values (a set-aside pixel is checked in scalar Python: a few pixels)."""
+
+    removed: np.ndarray  # pixel indices
+    kept: StaticWeights  # the weights with these pixels at zero, and their moment tables
+    weights: np.ndarray  # (R,) their base weights
+    linear: np.ndarray  # (R, 2·(D+1)+1) complex: their y·F, y·F′, y·1 coefficients per unit y
+    roots: list[float]  # √weight, to normalise their residuals
+    lines: list[list[complex]]  # F of each as coefficients of z^0..z^M
+    omega_i: complex  # iω: z = exp(iω·x)
+
+    @classmethod
+    def of(cls, static: StaticWeights, tables: TrigTables, removed: np.ndarray) -> "SetAside":
+        keep = np.ones(static.weights.shape[1], dtype=bool)
+        keep[removed] = False
+        weights = static.weights[0, removed]
+        return cls(removed, StaticWeights.of(tables, static.weights * keep), weights,
+                   tables.linear[removed].view(complex), np.sqrt(weights).tolist(),
+                   tables.line_coefficients(removed), complex(tables.phase_orders[1]))
+
+    def normalised_residuals(self, y: list[float], x_mm: float, gain: float, offset: float) -> list[float]:
+        """|y − (g·F(x) + o)|·√w of each set-aside pixel."""
+        z = cmath.exp(self.omega_i * x_mm)
+        out = []
+        for value, line, root in zip(y, self.lines, self.roots):
+            model, power = line[0].real, 1.0 + 0j
+            for coefficient in line[1:]:
+                power *= z
+                model += (coefficient * power).real
+            out.append(abs(value - gain * model - offset) * root)
+        return out
 
 
 class TrigPolyBatch:
@@ -250,6 +302,7 @@ class TrigPolyBatch:
         self.tables, self.frames, self.n_frames = tables, frames, frames.shape[0]
         self._weights = weights  # (K, P) or (1, P) when every frame shares them
         self._static = static
+        self._set_aside_block: SetAsideBlock | None = None  # the last block :meth:`without` built
         width = tables.degree + 1
         weighted = weights * frames
         linear = (weighted @ tables.linear).view(complex)  # y·F, y·F′ coefficients, and y·1
@@ -264,6 +317,26 @@ class TrigPolyBatch:
         else:
             self._scalars = [list(item) for item in zip(y_norm, y_sum, weights.sum(axis=1).tolist(),
                                                          (weights > 0).sum(axis=1).tolist())]
+
+    def reload(self, frame: np.ndarray) -> "TrigPolyBatch":
+        """This one-frame batch with weights every frame shares, for the next ``frame`` ``(1, P)``:
+        the same reduction written into the buffers it already has (live tracking allocates
+        nothing per frame but the small moment lists)."""
+        if self.n_frames != 1 or self._static is None:
+            raise ValueError("only a one-frame batch with shared weights reloads")
+        if not hasattr(self, "_buffers"):
+            self._buffers = (np.empty_like(self.frames), np.empty((1, self.tables.linear.shape[1])))
+        weighted, linear = self._buffers
+        width = self.tables.degree + 1
+        self.frames = frame
+        np.multiply(self._weights, frame, out=weighted)
+        np.matmul(weighted, self.tables.linear, out=linear)
+        coefficients = linear.view(complex)[0]
+        self.rows[0, 5:] = coefficients[: 2 * width].reshape(2, width)
+        np.multiply(weighted, frame, out=weighted)
+        self._scalars = [[float(weighted.sum()), coefficients[-1].real, self._static.total, self._static.count]]
+        self._set_aside_block = None
+        return self
 
     def scalars(self, k: int) -> list[float]:
         return self._scalars[k]
@@ -286,11 +359,82 @@ class TrigPolyBatch:
     def reweighted(self, k: int, weights: np.ndarray) -> "TrigPolyBatch":
         return TrigPolyBatch(self.tables, self.frames[k:k + 1], weights[None])
 
-    def masked(self, k: int, keep: np.ndarray) -> "TrigPolyBatch":
+    def without(self, k: int, rejected: np.ndarray) -> "TrigPolyBatch | FrameMoments":
+        """Frame ``k`` with the ``rejected`` pixels set aside. With weights every frame shares, the
+        kept pixels' tables come from the cache and the frame's own moments lose the rejected
+        pixels' share by a subtraction."""
         if self._static is None:
-            return self.reweighted(k, self.weights(k) * keep)
-        static = self._static.without(self.tables, keep)
-        return TrigPolyBatch(self.tables, self.frames[k:k + 1], static.weights, static)
+            return self.reweighted(k, self.weights(k) * ~rejected)
+        block = self._block(k, rejected)
+        j = k - block.start
+        return FrameMoments(block.rows[j], block.scalars[j], self.tables.phase_orders)
+
+    def set_aside_residuals(self, k: int, x_mm: float, gain: float, offset: float,
+                            rejected: np.ndarray) -> list[float]:
+        """|residual|·√w of the ``rejected`` pixels at this solution."""
+        if self._static is None:
+            return _set_aside_residuals(self, k, x_mm, gain, offset, rejected)
+        block = self._block(k, rejected)
+        return block.plan.normalised_residuals(block.values[k - block.start], x_mm, gain, offset)
+
+    def _block(self, k: int, rejected: np.ndarray) -> "SetAsideBlock":
+        plan = self._static.set_aside(self.tables, rejected)
+        block = self._set_aside_block
+        if block is None or block.plan is not plan or not block.start <= k < block.stop:
+            block = self._set_aside_block = self._block_without(plan, k, min(k + SET_ASIDE_BLOCK, self.n_frames))
+        return block
+
+    def _block_without(self, plan: "SetAside", start: int, stop: int) -> "SetAsideBlock":
+        """Frames ``start:stop`` with ``plan``'s pixels set aside, in one vectorised step: a bad
+        pixel usually stays bad for many frames, so its share is subtracted for a block at once."""
+        y = self.frames[start:stop, plan.removed]
+        wy = y * plan.weights
+        share = wy @ plan.linear  # (B, 2·(D+1)+1)
+        width = self.tables.degree + 1
+        kept = plan.kept
+        if stop - start == 1:  # live tracking: one frame, no lists to build
+            rows = np.empty((1,) + self.rows.shape[1:], dtype=complex)
+            rows[0, :5] = kept.gram[0]
+            np.subtract(self.rows[start, 5:], share[0, : 2 * width].reshape(2, width), out=rows[0, 5:])
+            y_norm, y_sum = self._scalars[start][:2]
+            scalars = [[y_norm - float(wy[0] @ y[0]), y_sum - share[0, -1].real, kept.total, kept.count]]
+            return SetAsideBlock(plan, start, stop, rows, scalars, y.tolist())
+        linear = self.rows[start:stop, 5:] - share[:, : 2 * width].reshape(-1, 2, width)
+        rows = np.concatenate((np.broadcast_to(kept.gram, (stop - start,) + kept.gram.shape[1:]), linear), axis=1)
+        y_norm = [item[0] for item in self._scalars[start:stop]] - (wy * y).sum(axis=1)
+        y_sum = [item[1] for item in self._scalars[start:stop]] - share[:, -1].real
+        scalars = [[a, b, kept.total, kept.count] for a, b in zip(y_norm.tolist(), y_sum.tolist())]
+        return SetAsideBlock(plan, start, stop, rows, scalars, y.tolist())
+
+
+@dataclass(frozen=True)
+class SetAsideBlock:
+    """Frames ``start:stop`` of a batch with a set of pixels set aside: their moments, and the
+    set-aside pixels' values (to check they are still outliers)."""
+
+    plan: SetAside
+    start: int
+    stop: int
+    rows: np.ndarray  # (B, 7, D+1)
+    scalars: list[list[float]]
+    values: list[list[float]]  # (B, set aside)
+
+
+class FrameMoments:
+    """One frame's moment coefficients, as much of a source as Gauss–Newton reads (the solve of
+    a frame with pixels set aside: a few µs per frame, so nothing else is built)."""
+
+    __slots__ = ("rows", "_scalars", "phase_orders")
+    n_frames = 1
+
+    def __init__(self, rows: np.ndarray, scalars: list[float], phase_orders: np.ndarray):
+        self.rows, self._scalars, self.phase_orders = rows, scalars, phase_orders
+
+    def scalars(self, k: int) -> list[float]:
+        return self._scalars
+
+    def moments(self, k: int, x_mm: float) -> list[float]:
+        return self.rows.dot(np.exp(self.phase_orders * x_mm)).real.tolist()
 
 
 class GeneralBatch:
@@ -332,5 +476,9 @@ class GeneralBatch:
     def reweighted(self, k: int, weights: np.ndarray) -> "GeneralBatch":
         return GeneralBatch(self.evaluator, self.frames[k:k + 1], weights[None])
 
-    def masked(self, k: int, keep: np.ndarray) -> "GeneralBatch":
-        return self.reweighted(k, self.weights(k) * keep)
+    def without(self, k: int, rejected: np.ndarray) -> "GeneralBatch":
+        return self.reweighted(k, self.weights(k) * ~rejected)
+
+    def set_aside_residuals(self, k: int, x_mm: float, gain: float, offset: float,
+                            rejected: np.ndarray) -> list[float]:
+        return _set_aside_residuals(self, k, x_mm, gain, offset, rejected)

@@ -216,7 +216,7 @@ class Tracker:
         reason = self.untrusted(solution)
         if reason:
             return reason
-        if np.isfinite(reference) and abs(solution.x_mm - reference) > self.quarter_period_mm:
+        if math.isfinite(reference) and abs(solution.x_mm - reference) > self.quarter_period_mm:
             return f"disagrees with the grating by {solution.x_mm - reference:+.3f} mm"
         return None
 
@@ -251,7 +251,7 @@ class SequentialState:
     def _watch_model(self, tracker: "Tracker", chi2: float) -> None:
         """A running χ² average (one frame's contribution capped, so a single garbage frame
         cannot flip it) above the stale limit: the images have left what the model describes."""
-        if not np.isfinite(chi2):
+        if not math.isfinite(chi2):
             return
         capped = min(chi2, 3.0 * tracker.stale_limit)
         if self.chi2_average is None:
@@ -334,6 +334,12 @@ class LiveTracker:
         self.model = model
         self.tracker = Tracker(model, light=light, robust=robust)
         self.state = SequentialState(x_prev=x0_mm)
+        # The lean path: a one-row model without pixel weights reads a frame (or its row mean) into
+        # one preallocated line and reloads one batch in place; anything else goes through prepare.
+        self._lean = model.n_rows == 1 and model.pixel_weight is None and self.tracker.fast_path \
+            and not self.tracker.signal_dependent
+        self._line = np.empty((1, model.n_pixels))
+        self._batches: dict[int, TrigPolyBatch] = {}  # by rows averaged
 
     @property
     def stale(self) -> bool:
@@ -344,7 +350,9 @@ class LiveTracker:
         """Solve one frame ``(n,)`` or ``(R, n)``; ``reference_mm`` is the grating at that instant, if read."""
         frame = np.asarray(frame)
         rows = 1 if frame.ndim == 1 else frame.shape[0]
-        batch = self.tracker.batch(self.model.prepare(frame.reshape((1,) + frame.shape)), rows)
+        batch = self._lean_batch(frame, rows)
+        if batch is None:
+            batch = self.tracker.batch(self.model.prepare(frame.reshape((1,) + frame.shape)), rows)
         events_before = len(self.state.events)
         solution, ok, locked = self.state.advance(self.tracker, batch, 0, float(reference_mm))
         event = self.state.events[-1] if len(self.state.events) > events_before else None
@@ -352,15 +360,30 @@ class LiveTracker:
         return LiveFix(solution.x_mm if ok else float("nan"), locked, solution.rms_gray, crlb, event,
                        solution.chi2, solution.rejected, solution.gain, solution.offset, self.state.stale)
 
+    def _lean_batch(self, frame: np.ndarray, rows: int) -> TrigPolyBatch | None:
+        """The frame's batch by one reduction into the preallocated line (None: not this path)."""
+        if not self._lean or frame.shape[-1] != self.model.n_pixels or frame.ndim not in (1, 2):
+            return None
+        line = self._line
+        if frame.ndim == 1:
+            line[0] = frame
+        else:
+            np.add.reduce(frame, axis=0, dtype=np.float64, out=line[0])  # the row mean, as prepare's
+            np.true_divide(line, rows, out=line)
+        batch = self._batches.get(rows)
+        if batch is None:
+            batch = self._batches[rows] = self.tracker.batch(line.reshape(1, 1, -1).copy(), rows)
+        return batch.reload(line)
+
 
 def _solve_frame(tracker: Tracker, batch: GeneralBatch | TrigPolyBatch, k: int, state: SequentialState,
                  reference: float) -> tuple[FrameSolution, bool]:
     """Batch frame ``k`` as the state's next frame: continue from its last position; on any sign
     of lost lock, re-acquire and log it."""
     x_prev, events, frame, memory = state.x_prev, state.events, state.frame, state.memory
-    if x_prev is None or not np.isfinite(x_prev):
+    if x_prev is None or not math.isfinite(x_prev):
         lo, hi = tracker.model.stroke_range_mm
-        if np.isfinite(reference):
+        if math.isfinite(reference):
             solution = tracker.acquire_near(batch, k, reference, memory)
         else:
             solution = tracker.acquire(batch, k, lo, max(hi, lo + tracker.model.period_mm), memory)
@@ -372,10 +395,10 @@ def _solve_frame(tracker: Tracker, batch: GeneralBatch | TrigPolyBatch, k: int, 
     reason = tracker.lost_reason(solution, x_prev, reference)
     if reason is None:
         return solution, True
-    anchor = reference if np.isfinite(reference) else x_prev
+    anchor = reference if math.isfinite(reference) else x_prev
     again = tracker.acquire_near(batch, k, anchor, memory)
     ok = tracker.untrusted(again) is None and (
-        not np.isfinite(reference) or abs(again.x_mm - reference) <= tracker.quarter_period_mm
+        not math.isfinite(reference) or abs(again.x_mm - reference) <= tracker.quarter_period_mm
     )
     events.append(LockEvent(frame, reason, x_prev, again.x_mm if ok else float("nan"), ok))
     return again, ok

@@ -68,6 +68,47 @@ def test_fast_path_matches_direct_evaluation_with_weights_and_free_light(paper_r
         np.testing.assert_allclose(grid_cost(fast, 3, grid, free), grid_cost(direct, 3, grid, free), rtol=1e-8)
 
 
+def test_set_aside_pixels_match_a_direct_masked_solve(paper_rig):
+    """Setting pixels aside by subtracting their share of the frame's moments (a block of frames
+    at once, or one live frame) gives the solve of the kept pixels evaluated directly, and their
+    residuals as the model gives them."""
+    rig, model = paper_rig
+    frames, x_true = run_of(rig, 70, light_gain=0.8, light_offset=10.0)
+    frames = frames.copy()
+    frames[:, [12, 61]] = [255.0, 0.0]
+    prepared = model.prepare(frames)
+    tracker = Tracker(model, light="auto", robust=True)
+    fast = tracker.batch(prepared)
+    rejected = np.zeros(model.n_pixels, dtype=bool)
+    rejected[[12, 61]] = True
+    weights = tracker.weights(prepared, 1) * ~rejected
+    direct = GeneralBatch(FastHarmonics(model), prepared, weights)
+    one = tracker.batch(prepared[68:69])
+    for k, source, j in [(k, fast, k) for k in (0, 5, 63, 64, 69)] + [(68, one, 0)]:
+        a = gauss_newton(source.without(j, rejected), 0, x_true[k] + 0.05, True, tracker.settings)
+        b = gauss_newton(direct, k, x_true[k] + 0.05, True, tracker.settings)
+        assert a.x_mm == pytest.approx(b.x_mm, abs=1e-9)
+        assert (a.information, a.chi2, a.gain, a.offset) == pytest.approx((b.information, b.chi2, b.gain, b.offset),
+                                                                           rel=1e-8)
+        residuals = source.set_aside_residuals(j, a.x_mm, a.gain, a.offset, rejected)
+        values = FastHarmonics(model).evaluate(np.array([a.x_mm]))[0][0, [12, 61]]
+        expected = np.abs(frames[k, [12, 61]] - a.gain * values - a.offset) * np.sqrt(tracker.static_weights[0, [12, 61]])
+        np.testing.assert_allclose(residuals, expected, rtol=1e-9)
+
+
+def test_live_tracker_averages_rows_as_the_batch_does(paper_rig):
+    """A multi-row frame on a one-row model: the live row mean (one reduction into its buffer)
+    gives the batch tracker's answer frame by frame."""
+    rig, model = paper_rig
+    frames, x_true = run_of(rig, 40)
+    rows = frames[:, None, :] + np.random.default_rng(4).normal(0.0, 2.0, (40, 4, model.n_pixels))
+    live = LiveTracker(model, x0_mm=x_true[0])
+    fixes = [live.update(frame.astype(np.float32)) for frame in rows]
+    batch = track(model, rows.astype(np.float32), x0_mm=x_true[0], light="auto", robust=True)
+    np.testing.assert_allclose([fix.x_mm for fix in fixes], batch.x_mm, atol=1e-9)
+    np.testing.assert_allclose([fix.crlb_mm for fix in fixes], batch.crlb_mm, rtol=1e-9)
+
+
 def test_bound_with_free_light_is_the_schur_complement(paper_rig):
     """The reported bound equals σ/√(Schur complement of the Fisher matrix) computed independently."""
     rig, model = paper_rig
