@@ -370,6 +370,9 @@ class LiveTracker:
         else:
             np.add.reduce(frame, axis=0, dtype=np.float64, out=line[0])  # the row mean, as prepare's
             np.true_divide(line, rows, out=line)
+        limits = self.tracker.sensor_range
+        if limits is not None and (line.min() <= limits[0] or line.max() >= limits[1]):
+            return None  # samples at the sensor's limits: the general route sets them aside
         batch = self._batches.get(rows)
         if batch is None:
             batch = self._batches[rows] = self.tracker.batch(line.reshape(1, 1, -1).copy(), rows)

@@ -81,7 +81,7 @@ def test_set_aside_pixels_match_a_direct_masked_solve(paper_rig):
     fast = tracker.batch(prepared)
     rejected = np.zeros(model.n_pixels, dtype=bool)
     rejected[[12, 61]] = True
-    weights = tracker.weights(prepared, 1) * ~rejected
+    weights = tracker.weights(prepared, 1)[0] * ~rejected
     direct = GeneralBatch(FastHarmonics(model), prepared, weights)
     one = tracker.batch(prepared[68:69])
     for k, source, j in [(k, fast, k) for k in (0, 5, 63, 64, 69)] + [(68, one, 0)]:

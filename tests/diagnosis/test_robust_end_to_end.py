@@ -70,3 +70,18 @@ def test_samples_driven_into_saturation_after_calibration_are_set_aside():
     lost, spread, bound = error_against_bound(model, run)
     assert lost == 0
     assert spread <= 1.3 * bound, f"{spread:.3f} µm against a bound of {bound:.3f} µm"
+
+
+def test_live_tracking_sets_saturated_samples_aside_as_the_batch_tracker_does():
+    from graytrack.core.calibration import calibrate
+    from graytrack.core.tracking import LiveTracker
+
+    calibration, _ = build_rig("paper", "quantize:bits=8", seed=6).record(10.0)
+    model = calibrate(calibration, "paper").model
+    run, _ = build_rig("paper", "quantize:bits=8,light_change:gain=1.35:ambient_gray=5:start_s=1",
+                       seed=6, run=1).record(3.0)
+    live = LiveTracker(model, x0_mm=float(run.reference[0]))
+    fixes = [live.update(frame) for frame in run.frames]
+    batch = track(model, run, x0_mm=float(run.reference[0]), light="auto", robust=True)
+    np.testing.assert_allclose([fix.x_mm for fix in fixes], batch.x_mm, atol=1e-9)
+    assert all(fix.locked for fix in fixes)
