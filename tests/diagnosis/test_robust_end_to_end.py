@@ -85,3 +85,19 @@ def test_live_tracking_sets_saturated_samples_aside_as_the_batch_tracker_does():
     batch = track(model, run, x0_mm=float(run.reference[0]), light="auto", robust=True)
     np.testing.assert_allclose([fix.x_mm for fix in fixes], batch.x_mm, atol=1e-9)
     assert all(fix.locked for fix in fixes)
+
+
+def test_a_change_of_the_lights_shape_after_calibration_is_flagged_stale():
+    """Vignetting appearing after calibration changes the light's shape across the line, which no
+    per-frame gain and offset can absorb: the position is biased, and the tracker says so."""
+    from graytrack.core.calibration import calibrate
+
+    calibration, _ = build_rig("paper", "", seed=3).record(16.0)
+    model = calibrate(calibration, "paper").model
+    run, _ = build_rig("paper", "vignetting:edge=0.05", seed=3, run=1).record(8.0)
+    result = track(model, run, light="auto", robust=True)
+    error = result.error_um(run.reference)
+    assert np.nanstd(error) > 5 * np.sqrt(np.nanmean(np.square(result.crlb_mm * 1e3)))  # really wrong
+    assert result.stale[-200:].all() and not result.stale[:10].any()
+    steady, _ = build_rig("paper", "", seed=3, run=1).record(8.0)
+    assert not track(model, steady, light="auto", robust=True).stale.any()
