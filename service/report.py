@@ -22,6 +22,7 @@ import numpy as np  # noqa: E402
 from graytrack.core.diagnosis.loop import DiagnosisResult, Stage  # noqa: E402
 from graytrack.core.files import write_atomic  # noqa: E402
 from graytrack.core.models import save_model  # noqa: E402
+from graytrack.core.pixel_noise import PixelNoise  # noqa: E402
 
 
 def _png(figure: plt.Figure) -> str:
@@ -90,6 +91,27 @@ def _rows(report: dict) -> str:
     return "\n".join(cells) or "<tr><td colspan=6>nothing added: the residual holds no structure beyond noise</td></tr>"
 
 
+def _findings(report: dict) -> str:
+    """What the data showed beyond model terms: pixels set aside, and the noise model behind the bound."""
+    bad = report.get("findings", {}).get("bad_pixels") or []
+    items = "".join(f"<li>row {item['row']}, pixel {item['pixel']}: {html.escape(str(item['reason']))}</li>"
+                    for item in bad)
+    pixels = (f"<p>{len(bad)} pixel(s) set aside (masked in model.json):</p><ul>{items}</ul>" if bad
+              else "<p>No pixel set aside: every pixel sees the target as the others do.</p>")
+    curve = report["noise"].get("pixel_noise") or {}
+    if curve.get("signal_dependent"):
+        model = PixelNoise(**{key: curve[key] for key in PixelNoise.__dataclass_fields__})
+        sigmas = ", ".join(f"{float(model.sigma(level)):.3f} at {level:g}" for level in (32.0, 128.0, 224.0))
+        noise = (f"<p>Noise grows with the signal (photon transfer): σ²(y) = {curve['read_var']:.4f} + "
+                 f"{curve['quant_var']:.4f} + {curve['shot_gain']:.5f}·(y − {curve['dark_gray']:.1f}) gray²; "
+                 f"σ = {sigmas} gray. Calibration and tracking weight each sample by 1/σ²(y), and the bound uses it.</p>")
+    else:
+        noise = f"<p>Noise is one σ = {report['noise']['gray']:.3f} gray for every gray level.</p>"
+    chi2 = curve.get("calibration_chi2")
+    level = f"<p>Calibration χ² per sample: {chi2:.3f} (1 when the model and the noise model hold).</p>" if chi2 else ""
+    return f"<h2>Pixels and noise</h2>{pixels}{noise}{level}"
+
+
 def render_html(result: DiagnosisResult, report: dict) -> str:
     before, after, noise = report["before"], report["after"], report["noise"]
     images = {"maps": residual_maps(result), "spread": residual_spread(result), "error": error_plot(result)}
@@ -109,6 +131,7 @@ th{{background:#f3f3f3}}.big{{font-size:20px}}</style></head><body>
 <tr><td>before</td><td>{html.escape(before['model'])}</td><td>{before['rmse_gray']}</td><td>{before['error_std_um']}</td><td>{before['error_max_um']}</td><td>{before['error_mean_um']}</td></tr>
 <tr><td>after</td><td>{html.escape(after['model'])}</td><td>{after['rmse_gray']}</td><td>{after['error_std_um']}</td><td>{after['error_max_um']}</td><td>{after['error_mean_um']}</td></tr></table>
 {reference_line}<p>Held out: {html.escape(report['heldout'])}. Final model (model.json): {html.escape(report['final_model'])}.</p>
+{_findings(report)}
 <h2>Effects tried, in order</h2>
 <table><tr><th>effect</th><th>physical family</th><th>evidence in the residual</th><th>rmse</th><th>error std</th><th>decision</th></tr>
 {_rows(report)}</table>

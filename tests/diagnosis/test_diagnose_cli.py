@@ -47,3 +47,14 @@ def test_validation_of_another_roi_is_refused(tmp_path, capsys):
     assert main(["diagnose", str(strip), "--validate", str(single), "--out", str(tmp_path / "d")]) == 2
     assert "same camera ROI" in capsys.readouterr().err
     assert not (tmp_path / "d" / "report.json").exists()
+
+
+def test_report_names_the_pixels_set_aside_and_the_noise_curve(tmp_path):
+    rec = tmp_path / "cal.npz"
+    assert main(["simulate", "--scenario", "paper", "--effects",
+                 "bad_pixels:stuck=1:dead=0:hot=0:row=0:pixel=33,photon_transfer:full_well=10000:read_e=10:bits=8",
+                 "--seconds", "12", "--out", str(rec)]) == 0
+    assert main(["diagnose", str(rec), "--out", str(tmp_path / "diag")]) == 0
+    page = (tmp_path / "diag" / "report.html").read_text()
+    assert "row 0, pixel 33: stuck" in page
+    assert "Noise grows with the signal" in page and "1/σ²(y)" in page
