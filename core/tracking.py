@@ -32,6 +32,7 @@ from graytrack.core.solvers import (FrameSolution, GeneralBatch, SolverSettings,
 
 Progress = Callable[[float, str], None]
 ACQUIRE_GRID_PER_PERIOD = 64
+AMBIGUITY_CHI2 = 25.0  # a rival start within this χ² of the best one (5σ): the image cannot tell them apart
 LIGHT_MODES = ("fixed", "auto", "free")
 LIGHT_RETURN_CHI2 = 13.8  # χ² (2 dof, 99.9 %) above which the calibrated light (gain 1, offset 0) is refused
 GAIN_RANGE = (0.2, 5.0)  # a solved light gain outside this is not the target seen under other light
@@ -190,10 +191,34 @@ class Tracker:
                 memory: LightMemory) -> FrameSolution:
         """Global search on a grid over ``[lo, hi]`` (at least one period), then the frame's solve.
         The search is blind to the light unless the light is held fixed."""
+        return self.acquire_with_rival(batch, k, lo_mm, hi_mm, memory)[0]
+
+    def acquire_with_rival(self, batch: GeneralBatch | TrigPolyBatch, k: int, lo_mm: float, hi_mm: float,
+                           memory: LightMemory) -> tuple[FrameSolution, float | None]:
+        """:meth:`acquire`, and how far away (mm) another start fits as well as the best (None: none).
+
+        Over a stroke of several periods a periodic target shows the same image once a period:
+        only what is not periodic (a target map, drift along the stroke) can tell the periods
+        apart. The best grid point more than ¾ period from the best one is refined too; when the
+        two fits differ by less than ``AMBIGUITY_CHI2`` the image alone cannot say which period
+        the stage is in, and the better of the two is kept.
+        """
         count = max(int(np.ceil((hi_mm - lo_mm) / self.model.period_mm * ACQUIRE_GRID_PER_PERIOD)), 8)
         grid = np.linspace(lo_mm, hi_mm, count, endpoint=False)
-        best = float(grid[int(np.argmin(grid_cost(batch, k, grid, self.light != "fixed")))])
-        return self.solve(batch, k, best, memory)
+        free = self.light != "fixed"
+        costs = grid_cost(batch, k, grid, free)
+        starts: list[float] = []  # the best grid point of each period-sized neighbourhood
+        for index in np.argsort(costs):
+            if all(abs(grid[index] - x) > 0.75 * self.model.period_mm for x in starts):
+                starts.append(float(grid[index]))
+        if len(starts) == 1:
+            return self.solve(batch, k, starts[0], memory), None
+        refined = sorted((gauss_newton(batch, k, x, free, self.settings).chi2, x) for x in starts)
+        samples = batch.scalars(k)[3]
+        (best_chi2, start), (next_chi2, other) = refined[0], refined[1]
+        solution = self.solve(batch, k, start, memory)
+        ambiguous = (next_chi2 - best_chi2) * samples < AMBIGUITY_CHI2
+        return solution, (other - start if ambiguous else None)
 
     def acquire_near(self, batch: GeneralBatch | TrigPolyBatch, k: int, anchor_mm: float,
                      memory: LightMemory) -> FrameSolution:
@@ -389,7 +414,10 @@ def _solve_frame(tracker: Tracker, batch: GeneralBatch | TrigPolyBatch, k: int, 
         if math.isfinite(reference):
             solution = tracker.acquire_near(batch, k, reference, memory)
         else:
-            solution = tracker.acquire(batch, k, lo, max(hi, lo + tracker.model.period_mm), memory)
+            solution, rival = tracker.acquire_with_rival(batch, k, lo, max(hi, lo + tracker.model.period_mm), memory)
+            if rival is not None and tracker.untrusted(solution) is None:
+                events.append(LockEvent(frame, f"acquired without a reference, but a position {rival:+.3f} mm away "
+                                               "fits as well: the period is a guess", float("nan"), solution.x_mm, True))
         ok = tracker.untrusted(solution) is None
         if frame > 0 or not ok:
             events.append(LockEvent(frame, "acquisition", float("nan"), solution.x_mm if ok else float("nan"), ok))

@@ -92,3 +92,16 @@ def test_live_tracker_gives_the_batch_answer_frame_by_frame(paper_models):
     assert [fix.locked for fix in fixes] == batch.locked.tolist()
     assert [k for k, fix in enumerate(fixes) if fix.event] == [150]
     np.testing.assert_allclose([fix.crlb_mm for fix in fixes], batch.crlb_mm, rtol=1e-9)
+
+
+@pytest.mark.parametrize("start_mm,ambiguous", [(1.0, True), (5.2, False)])
+def test_acquisition_without_reference_says_when_the_period_is_a_guess(paper_models, paper_val, start_mm, ambiguous):
+    """The paper stroke (10.46 mm) holds 1.2 periods: near its ends the image fits twice, a period
+    apart, and only the middle is unique. The tracker says which, instead of picking silently."""
+    model = paper_models["paper"].model
+    start = int(np.argmin(np.abs(paper_val.reference - start_mm)))
+    result = track(model, paper_val.frames[start:start + 20])
+    guesses = [event for event in result.events if "period is a guess" in event.reason]
+    assert bool(guesses) == ambiguous
+    if ambiguous:
+        assert guesses[0].frame == 0 and not result.locked[0] and result.locked[1:].all()
