@@ -38,12 +38,13 @@ async def client(url, seconds, out):
             text = await ws.recv()
             now = time.monotonic()
             m = json.loads(text)
-            out.append((now - m["t"], m["seq"], m["dropped"]))
+            out.append((now - m["t"], m["seq"], m["dropped"], m["age_ms"]))
 
 async def main(url, n, seconds):
     outs = [[] for _ in range(n)]
+    cpu0, wall0 = time.process_time(), time.monotonic()
     await asyncio.gather(*(client(url, seconds, out) for out in outs))
-    print(json.dumps(outs))
+    print(json.dumps({"outs": outs, "cpu": (time.process_time() - cpu0) / (time.monotonic() - wall0)}))
 
 asyncio.run(main(sys.argv[1], int(sys.argv[2]), float(sys.argv[3])))
 """
@@ -96,13 +97,16 @@ def run(folder: Path, rate: float, clients: int, seconds: float, poll_s: float =
         daemon.terminate()
         daemon.wait(timeout=30)
         log.close()
-    outs = json.loads(result.stdout)
+    measured = json.loads(result.stdout)
+    outs = measured["outs"]
     latency = np.concatenate([[m[0] for m in out] for out in outs]) * 1e3
+    encoded = np.concatenate([[m[3] for m in out] for out in outs])  # mid-exposure to encoded, in the daemon
     missing = sum(int(np.sum(np.diff([m[1] for m in out]) - 1)) for out in outs)
     dropped = max(out[-1][2] - out[0][2] for out in outs)
     return {"rate": rate, "clients": clients, "msgs_s": np.mean([len(out) for out in outs]) / seconds,
             "missing": missing, "dropped": dropped, "p50": np.percentile(latency, 50),
-            "p99": np.percentile(latency, 99), "max": latency.max(), "cpu": 100 * cpu}
+            "p99": np.percentile(latency, 99), "max": latency.max(), "cpu": 100 * cpu,
+            "client_cpu": 100 * measured["cpu"], "enc50": np.percentile(encoded, 50), "enc99": np.percentile(encoded, 99)}
 
 
 def load_average() -> str:
@@ -122,13 +126,14 @@ def main() -> None:
         run(folder, 200, 1, 0.5)
         print(f"machine: {os.cpu_count()} cores, load average {load_average()} at start")
         print(f"{'poll ms':>7} {'frames/s':>8} {'clients':>7} {'msgs/s':>8} {'missing':>7} {'dropped':>7} "
-              f"{'p50 ms':>7} {'p99 ms':>7} {'max ms':>7} {'CPU %':>6}")
+              f"{'p50 ms':>7} {'p99 ms':>7} {'max ms':>7} {'CPU %':>6} {'cl CPU':>6} {'enc p50':>7} {'enc p99':>7}")
         for rate in (float(r) for r in args.rates.split(",")):
             for clients in (int(c) for c in args.clients.split(",")):
                 for poll in (float(p) for p in args.polls.split(",")):
                     r = run(folder, rate, clients, args.seconds, poll)
                     print(f"{poll * 1e3:7.1f} {r['rate']:8.0f} {r['clients']:7d} {r['msgs_s']:8.0f} {r['missing']:7d} {r['dropped']:7d} "
-                          f"{r['p50']:7.2f} {r['p99']:7.2f} {r['max']:7.2f} {r['cpu']:6.0f}", flush=True)
+                          f"{r['p50']:7.2f} {r['p99']:7.2f} {r['max']:7.2f} {r['cpu']:6.0f} {r['client_cpu']:6.0f} {r['enc50']:7.2f} {r['enc99']:7.2f}",
+                          flush=True)
         print(f"load average {load_average()} at the end")
     finally:
         shutil.rmtree(folder, ignore_errors=True)
