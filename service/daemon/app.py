@@ -38,6 +38,11 @@ ROUTERS = (status.router, calibration.router, history.router, profile.router, st
 # fit, a status document) holds it for Python's default 5 ms switch interval before the stream's
 # thread gets a turn: five frames at 1 kHz. 0.5 ms bounds that wait to half a frame.
 SWITCH_INTERVAL_S = 0.0005
+# How uvicorn serves this app (the command and the tests use the same). No permessage-deflate: the
+# stream encodes each message once for all clients, but deflate would compress it again per client on
+# the event loop (zlib, ~100 us a message: at 1 kHz x 4 clients the loop's largest cost and the
+# stream's latency tail), to save bytes on ~300-byte messages that pages receive decimated anyway.
+SERVER_OPTIONS: dict[str, Any] = {"ws": "websockets-sansio", "ws_per_message_deflate": False, "lifespan": "on"}
 
 
 def resolve_token(settings: Settings, storage: Storage) -> tuple[str, str]:

@@ -188,11 +188,12 @@ class LiveServer:
 
         import uvicorn
 
+        from graytrack.service.daemon.app import SERVER_OPTIONS
+
         self.app = app
         self.port = free_port()
         self.base = f"http://127.0.0.1:{self.port}"
-        config = uvicorn.Config(app, host="127.0.0.1", port=self.port, ws="websockets-sansio", lifespan="on",
-                                log_level="warning")
+        config = uvicorn.Config(app, host="127.0.0.1", port=self.port, log_level="warning", **SERVER_OPTIONS)
         self.server = uvicorn.Server(config)
         self.thread = threading.Thread(target=self.server.run, name="uvicorn", daemon=True)
 
