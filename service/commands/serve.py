@@ -54,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
     import uvicorn
 
     from graytrack.drivers.config import ConfigError
-    from graytrack.service.daemon.app import SERVER_OPTIONS, create_app
+    from graytrack.service.daemon.app import create_app
     from graytrack.service.daemon.errors import DataDirInUse
     from graytrack.service.daemon.settings import load_settings
 
@@ -82,7 +82,8 @@ def run(args: argparse.Namespace) -> int:
     port = sock.getsockname()[1]
     print(f"graytrack serve: {rig} at http://{daemon.host}:{port}  data {settings.data_path()}  "
           f"token from {app.state.token_source}", file=sys.stderr, flush=True)
-    config = uvicorn.Config(app, log_level=daemon.log_level, access_log=daemon.log_level == "debug", **SERVER_OPTIONS)
+    config = uvicorn.Config(app, log_level=daemon.log_level, access_log=daemon.log_level == "debug",
+                            **app.state.server_options)
     server = uvicorn.Server(config)
     # uvicorn shuts down gracefully on SIGTERM and then re-raises it to the handler found at start;
     # a handler that only notes it turns "killed by SIGTERM" into the clean exit status 0 that

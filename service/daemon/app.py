@@ -38,11 +38,14 @@ ROUTERS = (status.router, calibration.router, history.router, profile.router, st
 # fit, a status document) holds it for Python's default 5 ms switch interval before the stream's
 # thread gets a turn: five frames at 1 kHz. 0.5 ms bounds that wait to half a frame.
 SWITCH_INTERVAL_S = 0.0005
-# How uvicorn serves this app (the command and the tests use the same). No permessage-deflate: the
-# stream encodes each message once for all clients, but deflate would compress it again per client on
-# the event loop (zlib, ~100 us a message: at 1 kHz x 4 clients the loop's largest cost and the
-# stream's latency tail), to save bytes on ~300-byte messages that pages receive decimated anyway.
-SERVER_OPTIONS: dict[str, Any] = {"ws": "websockets-sansio", "ws_per_message_deflate": False, "lifespan": "on"}
+
+
+def server_options(settings: Settings) -> dict[str, Any]:
+    """How uvicorn serves this app (``graytrack serve`` and the tests use the same). No permessage-deflate
+    unless configured: the stream encodes each message once for all clients, and deflate would compress it
+    again per client on the event loop (~100 us a message; at 1 kHz x 4 clients that was the loop's largest
+    cost and the stream's latency tail) to save bytes on ~300-byte messages that pages receive decimated."""
+    return {"ws": "websockets-sansio", "ws_per_message_deflate": settings.daemon.ws_compression, "lifespan": "on"}
 
 
 def resolve_token(settings: Settings, storage: Storage) -> tuple[str, str]:
@@ -101,6 +104,7 @@ def create_app(settings: Settings, factory: HardwareFactory = default_factory) -
                   description="Camera displacement sensor daemon. State changes need a bearer token.")
     app.state.rig, app.state.storage, app.state.broadcaster = rig, storage, broadcaster
     app.state.token_source = token_source
+    app.state.server_options = server_options(settings)
     app.state.policy = WebPolicy(settings.daemon, token)
     app.add_middleware(WebGuard, policy=app.state.policy)
 
