@@ -28,7 +28,7 @@ from graytrack.core.evaluation import ClippedHarmonics, FastHarmonics, GeneralHa
 from graytrack.core.models.fourier import FourierModel
 from graytrack.core.recording import Recording
 from graytrack.core.solvers import (FrameSolution, GeneralBatch, SolverSettings, StaticWeights, TrigPolyBatch,
-                                    gauss_newton, grid_cost, robust_solve)
+                                    field_basis, field_solve, gauss_newton, grid_cost, robust_solve)
 
 Progress = Callable[[float, str], None]
 ACQUIRE_GRID_PER_PERIOD = 64
@@ -38,6 +38,10 @@ GAIN_RANGE = (0.2, 5.0)  # a solved light gain outside this is not the target se
 MAX_REJECTED_FRACTION = 0.25  # a frame needing more pixels rejected than this is not trusted
 STALE_WINDOW = 100  # frames: the χ² average that must rise for the model to be called stale
 STALE_RATIO = 1.1  # a running χ² this much above calibration's: the model no longer describes the images
+FIELD_WINDOW = 20  # frames: the average χ² gain of the light field that decides whether it is used
+# A uniform light is nested in the field (2 more unknowns): the χ² it gains is χ²(2) when the light
+# is uniform, mean 2 and spread 2; its average over the window beyond five of its spreads: a field.
+FIELD_KEEP = 2.0 + 5.0 * 2.0 / math.sqrt(FIELD_WINDOW)
 BATCH_CHUNK = 4096  # frames reduced at a time (bounds memory on long recordings)
 
 
@@ -79,6 +83,8 @@ class LightMemory:
     gain: float = 1.0
     offset: float = 0.0
     rejected: np.ndarray | None = None  # the pixels the last frame set aside
+    field: bool = False  # a light field (shape across the line) is solved alongside the uniform light
+    field_gain: float = 0.0  # running average of the χ² the field gains over the uniform light
 
 
 class Tracker:
@@ -129,6 +135,7 @@ class Tracker:
         # closed loop's plain tracking leaves them to its clipping effect, which models them).
         limits = model.info.get("sensor_range_gray") if robust else None
         self.sensor_range = None if limits is None else (float(limits[0]), float(limits[1]))
+        self.field_basis = field_basis(model.n_rows, model.n_pixels) if light == "auto" else None
 
     def weights(self, prepared: np.ndarray, frame_rows: int) -> tuple[np.ndarray, bool]:
         """1/σ² per sample ``(K|1, P)``: the noise model at the observed gray level (the variance of
@@ -177,7 +184,23 @@ class Tracker:
         memory.free = self.light == "auto" and solution.free_light and solution.light_excess > LIGHT_RETURN_CHI2
         memory.gain, memory.offset = solution.gain, solution.offset
         memory.rejected = solution.rejected_mask if solution.rejected else None
+        if memory.field and self.field_basis is not None:
+            solution = self._field(batch, k, solution, memory)
         return solution
+
+    def _field(self, batch: GeneralBatch | TrigPolyBatch, k: int, uniform: FrameSolution,
+               memory: LightMemory) -> FrameSolution:
+        """The frame solved with a light field as well as with the uniform light; the field's answer
+        is taken while its χ² gain, averaged over the last frames, says the light changed shape.
+        Once the average falls back, the field stops being solved."""
+        weights = batch.weights(k)
+        if uniform.rejected:
+            weights = weights * ~uniform.rejected_mask
+        field = field_solve(self.evaluator, batch.frames[k], weights, self.field_basis, uniform, self.settings)
+        gained = min(max(uniform.cost - field.cost, 0.0), 10.0 * FIELD_KEEP) if math.isfinite(field.cost) else 0.0
+        memory.field_gain += (gained - memory.field_gain) / FIELD_WINDOW
+        memory.field = memory.field_gain > FIELD_KEEP
+        return field if memory.field and self.untrusted(field) is None else uniform
 
     def _attempt(self, batch: GeneralBatch | TrigPolyBatch, k: int, x_start: float, memory: LightMemory,
                  free: bool, robust: bool) -> FrameSolution:
@@ -259,6 +282,8 @@ class SequentialState:
         self.chi2_average += (capped - self.chi2_average) / STALE_WINDOW
         self.stale = self.chi2_average > tracker.stale_limit
         if tracker.light == "auto" and self.chi2_average > tracker.sustained_limit:
+            if self.memory.free and not self.memory.field:  # a uniform light was not enough: try its shape
+                self.memory.field, self.memory.field_gain = True, 2.0 * FIELD_KEEP
             self.memory.free = True  # the next frame re-solves the light; it stays so if the light changed
 
 
