@@ -49,6 +49,8 @@ class FrameSolution:
     rejected_mask: np.ndarray | None = None  # which pixels were rejected (for the next frame's start)
     rejected_weights_exact: bool = True  # the solve used 0/1 weights: a repeat with the same set adds nothing
     field: bool = False  # a light field (gain smooth across the pixels) was solved with x
+    shape: np.ndarray | None = None  # the field's shape: gain coefficients beyond the uniform one
+    shape_precision: np.ndarray | None = None  # their inverse covariance, x and the rest profiled out
 
 
 class MomentSource(Protocol):
@@ -510,7 +512,9 @@ def field_solve(evaluator: "FastHarmonics | GeneralHarmonics | ClippedHarmonics"
     Asked for only when a uniform gain and offset leave χ² above the calibration's level, so it
     evaluates F and F′ at x directly (no tables) and solves a small least squares per step. The
     information on x is the Schur complement with the degree+2 nuisances: the honest, larger floor.
-    ``cost`` is the weighted residual, to set against the uniform light's at its own best x."""
+    ``cost`` is the weighted residual, to set against the uniform light's at its own best x;
+    ``shape`` and ``shape_precision`` let the caller check that the shape holds still from frame to
+    frame, as a light's does (a change of the pattern that the field merely mimics does not)."""
     n_basis = basis.shape[1]
     x = float(start.x_mm)
     yw = y * weights
@@ -518,6 +522,7 @@ def field_solve(evaluator: "FastHarmonics | GeneralHarmonics | ClippedHarmonics"
     theta = np.zeros(n_basis + 1)  # the gain's Legendre coefficients, then the offset
     theta[0], theta[n_basis] = start.gain, start.offset
     information, cost, iterations = 0.0, float("inf"), 0
+    fisher = np.eye(n_basis + 2)
     for iterations in range(1, settings.max_iterations + 1):
         values, slopes = evaluator.evaluate(np.array([x]))
         design = np.concatenate((basis * values[0][:, None], np.ones((y.size, 1))), axis=1)  # (P, B+1)
@@ -531,13 +536,19 @@ def field_solve(evaluator: "FastHarmonics | GeneralHarmonics | ClippedHarmonics"
         jacobian = (basis @ theta[:n_basis]) * slopes[0]  # ∂model/∂x with the field as solved
         cross = weighted.T @ jacobian
         numerator = float(jacobian @ (yw - weighted @ theta))
-        information = float(jacobian @ (jacobian * weights)) - float(cross @ np.linalg.solve(normal, cross))
+        slope_norm = float(jacobian @ (jacobian * weights))
+        information = slope_norm - float(cross @ np.linalg.solve(normal, cross))
+        fisher = np.block([[np.array([[slope_norm]]), cross[None]], [cross[:, None], normal]])
         dx = numerator / information if information > 0.0 else 0.0
         dx = min(max(dx, -settings.max_step_mm), settings.max_step_mm)
         x += dx
         if abs(dx) < settings.tolerance_mm:
             break
     chi2 = max(cost, 0.0) / max(n_used - theta.size - 1, 1.0)
+    try:
+        shape_precision = np.linalg.inv(np.linalg.inv(fisher)[2:-1, 2:-1])
+    except np.linalg.LinAlgError:
+        shape_precision = np.zeros((n_basis - 1, n_basis - 1))
     return FrameSolution(x, settings.sigma_gray * math.sqrt(chi2), information, iterations, float(theta[0]),
                          float(theta[n_basis]), chi2, start.rejected, True, 0.0, cost,
-                         start.rejected_mask, start.rejected_weights_exact, field=True)
+                         start.rejected_mask, start.rejected_weights_exact, True, theta[1:n_basis], shape_precision)

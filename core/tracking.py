@@ -42,6 +42,10 @@ FIELD_WINDOW = 20  # frames: the average χ² gain of the light field that decid
 # A uniform light is nested in the field (2 more unknowns): the χ² it gains is χ²(2) when the light
 # is uniform, mean 2 and spread 2; its average over the window beyond five of its spreads: a field.
 FIELD_KEEP = 2.0 + 5.0 * 2.0 / math.sqrt(FIELD_WINDOW)
+# A light's shape holds still: each frame's shape, against the running mean in units of its own
+# noise, scatters as χ²/dof ≈ 1. Beyond five spreads of that average the field only mimics another
+# change (defocus, a different print) and would hide it: the uniform light's answer is kept.
+FIELD_SCATTER_LIMIT = 1.0 + 5.0 * math.sqrt(2.0 / (2 * FIELD_WINDOW))
 BATCH_CHUNK = 4096  # frames reduced at a time (bounds memory on long recordings)
 
 
@@ -85,6 +89,8 @@ class LightMemory:
     rejected: np.ndarray | None = None  # the pixels the last frame set aside
     field: bool = False  # a light field (shape across the line) is solved alongside the uniform light
     field_gain: float = 0.0  # running average of the χ² the field gains over the uniform light
+    field_shape: np.ndarray | None = None  # running average of the field's shape
+    field_scatter: float = 1.0  # running average of each frame's shape against it, per dof in its noise
 
 
 class Tracker:
@@ -200,7 +206,16 @@ class Tracker:
         gained = min(max(uniform.cost - field.cost, 0.0), 10.0 * FIELD_KEEP) if math.isfinite(field.cost) else 0.0
         memory.field_gain += (gained - memory.field_gain) / FIELD_WINDOW
         memory.field = memory.field_gain > FIELD_KEEP
-        return field if memory.field and self.untrusted(field) is None else uniform
+        if memory.field_shape is None:
+            memory.field_shape, memory.field_scatter = field.shape.copy(), 1.0
+        deviation = field.shape - memory.field_shape
+        scatter = min(float(deviation @ field.shape_precision @ deviation) / deviation.size, 10.0 * FIELD_SCATTER_LIMIT)
+        memory.field_scatter += (scatter - memory.field_scatter) / FIELD_WINDOW
+        memory.field_shape += deviation / FIELD_WINDOW
+        if not memory.field:
+            memory.field_shape = None
+        steady_shape = memory.field_scatter < FIELD_SCATTER_LIMIT
+        return field if memory.field and steady_shape and self.untrusted(field) is None else uniform
 
     def _attempt(self, batch: GeneralBatch | TrigPolyBatch, k: int, x_start: float, memory: LightMemory,
                  free: bool, robust: bool) -> FrameSolution:

@@ -85,3 +85,14 @@ def test_field_bound_is_the_schur_complement_of_the_full_information(model):
                      np.ones(y.size)]
     fisher = jacobian.T @ (jacobian * weights[:, None])
     assert 1.0 / solution.information == pytest.approx(np.linalg.inv(fisher)[0, 0], rel=1e-3)
+
+
+def test_a_change_the_field_only_mimics_is_still_flagged_stale(model):
+    """Defocus after calibration changes the pattern, not the light: a field can lower χ² by
+    trading its shape against x, but that shape wanders from frame to frame, so it is refused
+    and the model is called stale, as it should be."""
+    run, _ = build_rig("paper", "defocus:sigma_um=300", seed=3, run=1).record(8.0)
+    result = track(model, run, light="auto", robust=True)
+    assert result.stale[-100:].all()
+    uniform_bound = track(model, run, tracker=uniform_only(model)).crlb_mm[-200:] * 1e3
+    assert rms(result.crlb_mm[-200:] * 1e3) < 1.5 * rms(uniform_bound)  # the field's answers were not taken
