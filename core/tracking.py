@@ -88,7 +88,8 @@ class LightMemory:
     offset: float = 0.0
     rejected: np.ndarray | None = None  # the pixels the last frame set aside
     field: bool = False  # a light field (shape across the line) is solved alongside the uniform light
-    field_gain: float = 0.0  # running average of the χ² the field gains over the uniform light
+    field_gain: float = 2.0  # running average of the χ² the field gains over the uniform light (from
+    # the mean of χ²(2), what a uniform light leaves it: the evidence for a field must build up)
     field_shape: np.ndarray | None = None  # running average of the field's shape
     field_scatter: float = 1.0  # running average of each frame's shape against it, per dof in its noise
 
@@ -202,20 +203,25 @@ class Tracker:
         weights = batch.weights(k)
         if uniform.rejected:
             weights = weights * ~uniform.rejected_mask
-        field = field_solve(self.evaluator, batch.frames[k], weights, self.field_basis, uniform, self.settings)
-        gained = min(max(uniform.cost - field.cost, 0.0), 10.0 * FIELD_KEEP) if math.isfinite(field.cost) else 0.0
+        shaped = field_solve(self.evaluator, batch.frames[k], weights, self.field_basis, uniform, self.settings)
+        # In units of the calibration's own χ² level: where the model already left residue at
+        # calibration, a difference of costs is that much larger without the light changing.
+        level = self.chi2_calibration
+        gained = (uniform.cost - shaped.cost) / level if math.isfinite(shaped.cost) else 0.0
+        gained = min(max(gained, 0.0), 10.0 * FIELD_KEEP)
         memory.field_gain += (gained - memory.field_gain) / FIELD_WINDOW
         memory.field = memory.field_gain > FIELD_KEEP
         if memory.field_shape is None:
-            memory.field_shape, memory.field_scatter = field.shape.copy(), 1.0
-        deviation = field.shape - memory.field_shape
-        scatter = min(float(deviation @ field.shape_precision @ deviation) / deviation.size, 10.0 * FIELD_SCATTER_LIMIT)
+            memory.field_shape, memory.field_scatter = shaped.shape.copy(), 1.0
+        deviation = shaped.shape - memory.field_shape
+        scatter = float(deviation @ shaped.shape_precision @ deviation) / (deviation.size * level)
+        scatter = min(scatter, 10.0 * FIELD_SCATTER_LIMIT)
         memory.field_scatter += (scatter - memory.field_scatter) / FIELD_WINDOW
         memory.field_shape += deviation / FIELD_WINDOW
         if not memory.field:
             memory.field_shape = None
         steady_shape = memory.field_scatter < FIELD_SCATTER_LIMIT
-        return field if memory.field and steady_shape and self.untrusted(field) is None else uniform
+        return shaped if memory.field and steady_shape and self.untrusted(shaped) is None else uniform
 
     def _attempt(self, batch: GeneralBatch | TrigPolyBatch, k: int, x_start: float, memory: LightMemory,
                  free: bool, robust: bool) -> FrameSolution:
@@ -297,8 +303,8 @@ class SequentialState:
         self.chi2_average += (capped - self.chi2_average) / STALE_WINDOW
         self.stale = self.chi2_average > tracker.stale_limit
         if tracker.light == "auto" and self.chi2_average > tracker.sustained_limit:
-            if self.memory.free and not self.memory.field:  # a uniform light was not enough: try its shape
-                self.memory.field, self.memory.field_gain = True, 2.0 * FIELD_KEEP
+            if self.memory.free:  # a uniform light was not enough: try its shape
+                self.memory.field = True
             self.memory.free = True  # the next frame re-solves the light; it stays so if the light changed
 
 
