@@ -92,6 +92,7 @@ class LightMemory:
     # the mean of χ²(2), what a uniform light leaves it: the evidence for a field must build up)
     field_shape: np.ndarray | None = None  # running average of the field's shape
     field_scatter: float = 1.0  # running average of each frame's shape against it, per dof in its noise
+    uniform_chi2: float = 0.0  # running average of the uniform light's χ² while the field is tried
 
 
 class Tracker:
@@ -198,8 +199,9 @@ class Tracker:
     def _field(self, batch: GeneralBatch | TrigPolyBatch, k: int, uniform: FrameSolution,
                memory: LightMemory) -> FrameSolution:
         """The frame solved with a light field as well as with the uniform light; the field's answer
-        is taken while its χ² gain, averaged over the last frames, says the light changed shape.
-        Once the average falls back, the field stops being solved."""
+        is taken while its χ² gain, averaged over the last frames, says the light changed shape,
+        the uniform light's own χ² stays above the calibration's level and the shape holds still.
+        Once the gain falls back, the field stops being solved."""
         weights = batch.weights(k)
         if uniform.rejected:
             weights = weights * ~uniform.rejected_mask
@@ -212,16 +214,18 @@ class Tracker:
         memory.field_gain += (gained - memory.field_gain) / FIELD_WINDOW
         memory.field = memory.field_gain > FIELD_KEEP
         if memory.field_shape is None:
-            memory.field_shape, memory.field_scatter = shaped.shape.copy(), 1.0
+            memory.field_shape, memory.field_scatter, memory.uniform_chi2 = shaped.shape.copy(), 1.0, uniform.chi2
         deviation = shaped.shape - memory.field_shape
         scatter = float(deviation @ shaped.shape_precision @ deviation) / (deviation.size * level)
         scatter = min(scatter, 10.0 * FIELD_SCATTER_LIMIT)
         memory.field_scatter += (scatter - memory.field_scatter) / FIELD_WINDOW
         memory.field_shape += deviation / FIELD_WINDOW
+        memory.uniform_chi2 += (uniform.chi2 - memory.uniform_chi2) / STALE_WINDOW
         if not memory.field:
             memory.field_shape = None
-        steady_shape = memory.field_scatter < FIELD_SCATTER_LIMIT
-        return shaped if memory.field and steady_shape and self.untrusted(shaped) is None else uniform
+        # taken only while the uniform light does not fit as at calibration, and the shape holds still
+        wanted = memory.uniform_chi2 > self.sustained_limit and memory.field_scatter < FIELD_SCATTER_LIMIT
+        return shaped if memory.field and wanted and self.untrusted(shaped) is None else uniform
 
     def _attempt(self, batch: GeneralBatch | TrigPolyBatch, k: int, x_start: float, memory: LightMemory,
                  free: bool, robust: bool) -> FrameSolution:
