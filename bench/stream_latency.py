@@ -9,6 +9,11 @@ from /proc. All figures come from the same run, so they compare with each other 
 
 Run: .venv/bin/python bench/stream_latency.py [--seconds 5] [--rates 200,500,1000,1500] [--clients 1,4]
      [--polls 0.005,0.02]   (grating poll periods compared side by side)
+     [--deflate 0,1]        (the WebSocket's permessage-deflate off and on, side by side)
+
+Besides the receipt latency it prints ``enc``: mid-exposure to the message's encoding in the daemon
+(its ``age_ms``), so a tail can be placed before (frame thread) or after (event loop, send, client) it,
+and the client process's own CPU (it shares the machine's cores with the daemon).
 """
 
 from __future__ import annotations
@@ -38,12 +43,13 @@ async def client(url, seconds, out):
             text = await ws.recv()
             now = time.monotonic()
             m = json.loads(text)
-            out.append((now - m["t"], m["seq"], m["dropped"]))
+            out.append((now - m["t"], m["seq"], m["dropped"], m["age_ms"]))  # age_ms: mid-exposure to encoding, in the daemon
 
 async def main(url, n, seconds):
     outs = [[] for _ in range(n)]
+    cpu0, wall0 = time.process_time(), time.monotonic()
     await asyncio.gather(*(client(url, seconds, out) for out in outs))
-    print(json.dumps(outs))
+    print(json.dumps({"outs": outs, "cpu": (time.process_time() - cpu0) / (time.monotonic() - wall0)}))
 
 asyncio.run(main(sys.argv[1], int(sys.argv[2]), float(sys.argv[3])))
 """
@@ -55,11 +61,12 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def config(folder: Path, rate: float, poll_s: float = 0.005) -> Path:
-    path = folder / f"rate{rate:g}-poll{poll_s:g}.toml"
+def config(folder: Path, rate: float, poll_s: float = 0.005, deflate: bool = False) -> Path:
+    path = folder / f"rate{rate:g}-poll{poll_s:g}-deflate{int(deflate)}.toml"
     exposure_us = min(1000.0, 0.5e6 / rate)  # the rig's 1 ms exposure fits up to 1000 frames/s
     path.write_text(f'[camera]\nkind = "sim"\nframe_rate_hz = {rate}\nexposure_us = {exposure_us}\n'
-                    f'[daemon]\ndata_dir = "{folder / "data"}"\nlog_level = "warning"\ngrating_poll_s = {poll_s}\n')
+                    f'[daemon]\ndata_dir = "{folder / "data"}"\nlog_level = "warning"\ngrating_poll_s = {poll_s}\n'
+                    f'ws_compression = {str(deflate).lower()}\n')
     return path
 
 
@@ -80,10 +87,11 @@ def wait_tracking(base: str, timeout_s: float = 120.0) -> None:
     raise SystemExit(f"the daemon at {base} did not start tracking within {timeout_s:g} s")
 
 
-def run(folder: Path, rate: float, clients: int, seconds: float, poll_s: float = 0.005) -> dict[str, float]:
+def run(folder: Path, rate: float, clients: int, seconds: float, poll_s: float = 0.005,
+        deflate: bool = False) -> dict[str, float]:
     port = free_port()
     log = (folder / f"serve-{rate:g}-{clients}.log").open("w")
-    daemon = subprocess.Popen([sys.executable, "-m", "graytrack", "serve", "--config", str(config(folder, rate, poll_s)),
+    daemon = subprocess.Popen([sys.executable, "-m", "graytrack", "serve", "--config", str(config(folder, rate, poll_s, deflate)),
                                "--port", str(port)], stderr=log)
     try:
         wait_tracking(f"http://127.0.0.1:{port}")
@@ -96,13 +104,16 @@ def run(folder: Path, rate: float, clients: int, seconds: float, poll_s: float =
         daemon.terminate()
         daemon.wait(timeout=30)
         log.close()
-    outs = json.loads(result.stdout)
+    measured = json.loads(result.stdout)
+    outs = measured["outs"]
     latency = np.concatenate([[m[0] for m in out] for out in outs]) * 1e3
+    encoded = np.concatenate([[m[3] for m in out] for out in outs])  # mid-exposure to encoded, in the daemon
     missing = sum(int(np.sum(np.diff([m[1] for m in out]) - 1)) for out in outs)
     dropped = max(out[-1][2] - out[0][2] for out in outs)
     return {"rate": rate, "clients": clients, "msgs_s": np.mean([len(out) for out in outs]) / seconds,
             "missing": missing, "dropped": dropped, "p50": np.percentile(latency, 50),
-            "p99": np.percentile(latency, 99), "max": latency.max(), "cpu": 100 * cpu}
+            "p99": np.percentile(latency, 99), "max": latency.max(), "cpu": 100 * cpu,
+            "client_cpu": 100 * measured["cpu"], "enc50": np.percentile(encoded, 50), "enc99": np.percentile(encoded, 99)}
 
 
 def load_average() -> str:
@@ -114,6 +125,7 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=5.0)
     parser.add_argument("--rates", default="200,500,1000,1500")
     parser.add_argument("--clients", default="1,4")
+    parser.add_argument("--deflate", default="0", help="permessage-deflate off/on (0,1) to compare, side by side")
     parser.add_argument("--polls", default="0.005", help="grating poll periods (s) to compare, side by side")
     args = parser.parse_args()
     folder = Path(tempfile.mkdtemp(prefix="graytrack-bench-"))
@@ -121,14 +133,15 @@ def main() -> None:
         # one calibration (the daemon calibrates itself at the first start), its model reused by every run
         run(folder, 200, 1, 0.5)
         print(f"machine: {os.cpu_count()} cores, load average {load_average()} at start")
-        print(f"{'poll ms':>7} {'frames/s':>8} {'clients':>7} {'msgs/s':>8} {'missing':>7} {'dropped':>7} "
-              f"{'p50 ms':>7} {'p99 ms':>7} {'max ms':>7} {'CPU %':>6}")
+        print(f"{'deflate':>7} {'poll ms':>7} {'frames/s':>8} {'clients':>7} {'msgs/s':>8} {'missing':>7} {'dropped':>7} "
+              f"{'p50 ms':>7} {'p99 ms':>7} {'max ms':>7} {'CPU %':>6} {'cl CPU':>6} {'enc p50':>7} {'enc p99':>7}")
         for rate in (float(r) for r in args.rates.split(",")):
             for clients in (int(c) for c in args.clients.split(",")):
-                for poll in (float(p) for p in args.polls.split(",")):
-                    r = run(folder, rate, clients, args.seconds, poll)
-                    print(f"{poll * 1e3:7.1f} {r['rate']:8.0f} {r['clients']:7d} {r['msgs_s']:8.0f} {r['missing']:7d} {r['dropped']:7d} "
-                          f"{r['p50']:7.2f} {r['p99']:7.2f} {r['max']:7.2f} {r['cpu']:6.0f}", flush=True)
+                for poll, deflate in ((float(p), d == "1") for p in args.polls.split(",") for d in args.deflate.split(",")):
+                    r = run(folder, rate, clients, args.seconds, poll, deflate)
+                    print(f"{'on' if deflate else 'off':>7} {poll * 1e3:7.1f} {r['rate']:8.0f} {r['clients']:7d} {r['msgs_s']:8.0f} {r['missing']:7d} {r['dropped']:7d} "
+                          f"{r['p50']:7.2f} {r['p99']:7.2f} {r['max']:7.2f} {r['cpu']:6.0f} {r['client_cpu']:6.0f} {r['enc50']:7.2f} {r['enc99']:7.2f}",
+                          flush=True)
         print(f"load average {load_average()} at the end")
     finally:
         shutil.rmtree(folder, ignore_errors=True)

@@ -28,7 +28,7 @@ from graytrack.core.evaluation import ClippedHarmonics, FastHarmonics, GeneralHa
 from graytrack.core.models.fourier import FourierModel
 from graytrack.core.recording import Recording
 from graytrack.core.solvers import (FrameSolution, GeneralBatch, SolverSettings, StaticWeights, TrigPolyBatch,
-                                    gauss_newton, grid_cost, robust_solve)
+                                    field_basis, field_solve, gauss_newton, grid_cost, robust_solve)
 
 Progress = Callable[[float, str], None]
 ACQUIRE_GRID_PER_PERIOD = 64
@@ -39,6 +39,14 @@ GAIN_RANGE = (0.2, 5.0)  # a solved light gain outside this is not the target se
 MAX_REJECTED_FRACTION = 0.25  # a frame needing more pixels rejected than this is not trusted
 STALE_WINDOW = 100  # frames: the χ² average that must rise for the model to be called stale
 STALE_RATIO = 1.1  # a running χ² this much above calibration's: the model no longer describes the images
+FIELD_WINDOW = 20  # frames: the average χ² gain of the light field that decides whether it is used
+# A uniform light is nested in the field (2 more unknowns): the χ² it gains is χ²(2) when the light
+# is uniform, mean 2 and spread 2; its average over the window beyond five of its spreads: a field.
+FIELD_KEEP = 2.0 + 5.0 * 2.0 / math.sqrt(FIELD_WINDOW)
+# A light's shape holds still: each frame's shape, against the running mean in units of its own
+# noise, scatters as χ²/dof ≈ 1. Beyond five spreads of that average the field only mimics another
+# change (defocus, a different print) and would hide it: the uniform light's answer is kept.
+FIELD_SCATTER_LIMIT = 1.0 + 5.0 * math.sqrt(2.0 / (2 * FIELD_WINDOW))
 BATCH_CHUNK = 4096  # frames reduced at a time (bounds memory on long recordings)
 
 
@@ -80,6 +88,12 @@ class LightMemory:
     gain: float = 1.0
     offset: float = 0.0
     rejected: np.ndarray | None = None  # the pixels the last frame set aside
+    field: bool = False  # a light field (shape across the line) is solved alongside the uniform light
+    field_gain: float = 2.0  # running average of the χ² the field gains over the uniform light (from
+    # the mean of χ²(2), what a uniform light leaves it: the evidence for a field must build up)
+    field_shape: np.ndarray | None = None  # running average of the field's shape
+    field_scatter: float = 1.0  # running average of each frame's shape against it, per dof in its noise
+    uniform_chi2: float = 0.0  # running average of the uniform light's χ² while the field is tried
 
 
 class Tracker:
@@ -130,6 +144,7 @@ class Tracker:
         # closed loop's plain tracking leaves them to its clipping effect, which models them).
         limits = model.info.get("sensor_range_gray") if robust else None
         self.sensor_range = None if limits is None else (float(limits[0]), float(limits[1]))
+        self.field_basis = field_basis(model.n_rows, model.n_pixels) if light == "auto" else None
 
     def weights(self, prepared: np.ndarray, frame_rows: int) -> tuple[np.ndarray, bool]:
         """1/σ² per sample ``(K|1, P)``: the noise model at the observed gray level (the variance of
@@ -178,7 +193,40 @@ class Tracker:
         memory.free = self.light == "auto" and solution.free_light and solution.light_excess > LIGHT_RETURN_CHI2
         memory.gain, memory.offset = solution.gain, solution.offset
         memory.rejected = solution.rejected_mask if solution.rejected else None
+        if memory.field and self.field_basis is not None:
+            solution = self._field(batch, k, solution, memory)
         return solution
+
+    def _field(self, batch: GeneralBatch | TrigPolyBatch, k: int, uniform: FrameSolution,
+               memory: LightMemory) -> FrameSolution:
+        """The frame solved with a light field as well as with the uniform light; the field's answer
+        is taken while its χ² gain, averaged over the last frames, says the light changed shape,
+        the uniform light's own χ² stays above the calibration's level and the shape holds still.
+        Once the gain falls back, the field stops being solved."""
+        weights = batch.weights(k)
+        if uniform.rejected:
+            weights = weights * ~uniform.rejected_mask
+        shaped = field_solve(self.evaluator, batch.frames[k], weights, self.field_basis, uniform, self.settings)
+        # In units of the calibration's own χ² level: where the model already left residue at
+        # calibration, a difference of costs is that much larger without the light changing.
+        level = self.chi2_calibration
+        gained = (uniform.cost - shaped.cost) / level if math.isfinite(shaped.cost) else 0.0
+        gained = min(max(gained, 0.0), 10.0 * FIELD_KEEP)
+        memory.field_gain += (gained - memory.field_gain) / FIELD_WINDOW
+        memory.field = memory.field_gain > FIELD_KEEP
+        if memory.field_shape is None:
+            memory.field_shape, memory.field_scatter, memory.uniform_chi2 = shaped.shape.copy(), 1.0, uniform.chi2
+        deviation = shaped.shape - memory.field_shape
+        scatter = float(deviation @ shaped.shape_precision @ deviation) / (deviation.size * level)
+        scatter = min(scatter, 10.0 * FIELD_SCATTER_LIMIT)
+        memory.field_scatter += (scatter - memory.field_scatter) / FIELD_WINDOW
+        memory.field_shape += deviation / FIELD_WINDOW
+        memory.uniform_chi2 += (uniform.chi2 - memory.uniform_chi2) / STALE_WINDOW
+        if not memory.field:
+            memory.field_shape = None
+        # taken only while the uniform light does not fit as at calibration, and the shape holds still
+        wanted = memory.uniform_chi2 > self.sustained_limit and memory.field_scatter < FIELD_SCATTER_LIMIT
+        return shaped if memory.field and wanted and self.untrusted(shaped) is None else uniform
 
     def _attempt(self, batch: GeneralBatch | TrigPolyBatch, k: int, x_start: float, memory: LightMemory,
                  free: bool, robust: bool) -> FrameSolution:
@@ -284,6 +332,8 @@ class SequentialState:
         self.chi2_average += (capped - self.chi2_average) / STALE_WINDOW
         self.stale = self.chi2_average > tracker.stale_limit
         if tracker.light == "auto" and self.chi2_average > tracker.sustained_limit:
+            if self.memory.free:  # a uniform light was not enough: try its shape
+                self.memory.field = True
             self.memory.free = True  # the next frame re-solves the light; it stays so if the light changed
 
 

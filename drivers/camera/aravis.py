@@ -306,8 +306,16 @@ def _round_up(value: int, step: int) -> int:
     return -(-value // step) * step
 
 
+CONTROL_ATTEMPTS = 3  # a GigE Vision control packet lost on a busy link or host times out; the next usually passes
+
+
 def _call(what: str, method: Any, *args: Any) -> Any:
-    try:
-        return method(*args)
-    except Exception as exc:  # GLib.Error from the device
-        raise CameraSettingError(f"camera refused {what} {args if args else ''}: {exc}") from None
+    """A control call to the device; retried when it timed out (GVCP runs over UDP: a lost
+    packet is a timeout, not a refusal), refused with the device's reason otherwise."""
+    for attempt in range(CONTROL_ATTEMPTS):
+        try:
+            return method(*args)
+        except Exception as exc:  # GLib.Error from the device
+            if "timeout" not in str(exc).lower() or attempt == CONTROL_ATTEMPTS - 1:
+                raise CameraSettingError(f"camera refused {what} {args if args else ''}: {exc}") from None
+    raise AssertionError("unreachable")

@@ -82,8 +82,8 @@ def run(args: argparse.Namespace) -> int:
     port = sock.getsockname()[1]
     print(f"graytrack serve: {rig} at http://{daemon.host}:{port}  data {settings.data_path()}  "
           f"token from {app.state.token_source}", file=sys.stderr, flush=True)
-    config = uvicorn.Config(app, log_level=daemon.log_level, ws="websockets-sansio", lifespan="on",
-                            access_log=daemon.log_level == "debug")
+    config = uvicorn.Config(app, log_level=daemon.log_level, access_log=daemon.log_level == "debug",
+                            **app.state.server_options)
     server = uvicorn.Server(config)
     # uvicorn shuts down gracefully on SIGTERM and then re-raises it to the handler found at start;
     # a handler that only notes it turns "killed by SIGTERM" into the clean exit status 0 that

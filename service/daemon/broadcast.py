@@ -14,6 +14,7 @@ import asyncio
 import json
 import threading
 import time
+from collections import deque
 from typing import Any
 
 from graytrack.service.daemon.timebase import WallClock
@@ -54,6 +55,8 @@ class Broadcaster:
         self._clients: tuple[Client, ...] = ()
         self._lock = threading.Lock()
         self._wall = WallClock()
+        self._handover: deque[tuple[str, float]] = deque()
+        self._scheduled = False
         self.published = 0
         self.sent = 0
         self.dropped = 0
@@ -90,13 +93,22 @@ class Broadcaster:
         loop = self._loop
         if loop is None or not self._clients or loop.is_closed():
             return
-        text = self.encode(message)  # the acquisition thread is done with it
+        self._handover.append((self.encode(message), message["t"]))  # the acquisition thread is done with it
+        if self._scheduled:
+            return  # a delivery is pending on the loop: it will take this message too
+        self._scheduled = True
         try:
-            loop.call_soon_threadsafe(self._deliver, text, message["t"])
+            loop.call_soon_threadsafe(self._deliver)
         except RuntimeError:  # the loop closed between the check and the call (shutdown)
-            pass
+            self._scheduled = False
 
-    def _deliver(self, text: str, t: float) -> None:
-        for client in self._clients:  # an immutable tuple: no lock on the hot path
-            if not client.offer(text, t):
-                self.dropped += 1
+    def _deliver(self) -> None:
+        """On the loop: everything handed over so far, in order. The flag drops first, so a message
+        appended while this runs is either taken here or schedules the next delivery (never stranded)."""
+        self._scheduled = False
+        handover = self._handover
+        while handover:
+            text, t = handover.popleft()
+            for client in self._clients:  # an immutable tuple: no lock on the hot path
+                if not client.offer(text, t):
+                    self.dropped += 1

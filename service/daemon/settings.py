@@ -44,6 +44,9 @@ class DaemonConfig(_Strict):
     allowed_origins: list[str] = Field(default_factory=list, description="WebSocket Origins accepted besides the page's own")
     allowed_hosts: list[str] = Field(default_factory=list, description="Host names accepted besides the bind address and "
                                                                        "loopback names (DNS rebinding guard)")
+    ws_compression: bool = Field(False, description="permessage-deflate on WebSockets: fewer bytes on a slow link, "
+                                 "but one zlib compression per message and client on the event loop (at 1 kHz the "
+                                 "stream's largest loop cost and its latency tail)")
     api_docs: bool = Field(False, description="serve the interactive API docs at /api/docs (loads scripts from a CDN)")
     sim_clock_scale: float = Field(1.0, gt=0, description="virtual rig only: simulated seconds per wall second")
     log_level: Literal["debug", "info", "warning", "error"] = "info"

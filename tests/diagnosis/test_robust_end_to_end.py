@@ -87,17 +87,19 @@ def test_live_tracking_sets_saturated_samples_aside_as_the_batch_tracker_does():
     assert all(fix.locked for fix in fixes)
 
 
-def test_a_change_of_the_lights_shape_after_calibration_is_flagged_stale():
+def test_a_change_of_the_lights_shape_after_calibration_is_followed_by_a_light_field():
     """Vignetting appearing after calibration changes the light's shape across the line, which no
-    per-frame gain and offset can absorb: the position is biased, and the tracker says so."""
+    uniform gain and offset can absorb: the running χ² rises, the tracker solves a light field
+    (gain smooth across the line) and ends at its larger bound; χ² is back, so the model is not stale."""
     from graytrack.core.calibration import calibrate
 
     calibration, _ = build_rig("paper", "", seed=3).record(16.0)
     model = calibrate(calibration, "paper").model
     run, _ = build_rig("paper", "vignetting:edge=0.05", seed=3, run=1).record(8.0)
     result = track(model, run, light="auto", robust=True)
-    error = result.error_um(run.reference)
-    assert np.nanstd(error) > 5 * np.sqrt(np.nanmean(np.square(result.crlb_mm * 1e3)))  # really wrong
-    assert result.stale[-200:].all() and not result.stale[:10].any()
+    error, bound = result.error_um(run.reference)[-200:], result.crlb_mm[-200:] * 1e3
+    assert np.isfinite(result.x_mm).all()
+    assert np.sqrt(np.mean(np.square(error))) <= 1.3 * np.sqrt(np.mean(np.square(bound)))
+    assert not result.stale.any()
     steady, _ = build_rig("paper", "", seed=3, run=1).record(8.0)
     assert not track(model, steady, light="auto", robust=True).stale.any()

@@ -104,3 +104,12 @@ def test_metrics_count_drops_and_staleness(daemon: LiveServer) -> None:
     assert values["graytrack_stale"] == 0.0 and values["graytrack_healthy"] == 1.0
     assert values["graytrack_frames_dropped_total"] >= message["dropped"], "the counter only grows"
     assert values["graytrack_frames_total"] > message["seq"]
+
+
+def test_no_permessage_deflate_unless_configured(daemon: LiveServer) -> None:
+    # the client offers deflate (websockets does by default); the daemon declines: compressing every
+    # message again per client on the event loop was the 1 kHz stream's largest loop cost
+    with connect(f"ws://127.0.0.1:{daemon.port}/ws/position", open_timeout=5) as ws:
+        assert "permessage-deflate" in (ws.request.headers.get("Sec-WebSocket-Extensions") or "")
+        assert ws.response.headers.get("Sec-WebSocket-Extensions") is None
+        assert json.loads(ws.recv(timeout=5))["seq"] > 0
