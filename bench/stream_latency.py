@@ -10,6 +10,7 @@ from /proc. All figures come from the same run, so they compare with each other 
 Run: .venv/bin/python bench/stream_latency.py [--seconds 5] [--rates 200,500,1000,1500] [--clients 1,4]
      [--polls 0.005,0.02]   (grating poll periods compared side by side)
      [--deflate 0,1]        (the WebSocket's permessage-deflate off and on, side by side)
+     [--priority 0,10]      (the daemon's realtime_priority: normal scheduling or SCHED_FIFO 10, side by side)
 
 Besides the receipt latency it prints ``enc``: mid-exposure to the message's encoding in the daemon
 (its ``age_ms``), so a tail can be placed before (frame thread) or after (event loop, send, client) it,
@@ -61,12 +62,12 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def config(folder: Path, rate: float, poll_s: float = 0.005, deflate: bool = False) -> Path:
-    path = folder / f"rate{rate:g}-poll{poll_s:g}-deflate{int(deflate)}.toml"
+def config(folder: Path, rate: float, poll_s: float = 0.005, deflate: bool = False, priority: int = 0) -> Path:
+    path = folder / f"rate{rate:g}-poll{poll_s:g}-deflate{int(deflate)}-prio{priority}.toml"
     exposure_us = min(1000.0, 0.5e6 / rate)  # the rig's 1 ms exposure fits up to 1000 frames/s
     path.write_text(f'[camera]\nkind = "sim"\nframe_rate_hz = {rate}\nexposure_us = {exposure_us}\n'
                     f'[daemon]\ndata_dir = "{folder / "data"}"\nlog_level = "warning"\ngrating_poll_s = {poll_s}\n'
-                    f'ws_compression = {str(deflate).lower()}\n')
+                    f'ws_compression = {str(deflate).lower()}\nrealtime_priority = {priority}\n')
     return path
 
 
@@ -88,10 +89,10 @@ def wait_tracking(base: str, timeout_s: float = 120.0) -> None:
 
 
 def run(folder: Path, rate: float, clients: int, seconds: float, poll_s: float = 0.005,
-        deflate: bool = False) -> dict[str, float]:
+        deflate: bool = False, priority: int = 0) -> dict[str, float]:
     port = free_port()
     log = (folder / f"serve-{rate:g}-{clients}.log").open("w")
-    daemon = subprocess.Popen([sys.executable, "-m", "graytrack", "serve", "--config", str(config(folder, rate, poll_s, deflate)),
+    daemon = subprocess.Popen([sys.executable, "-m", "graytrack", "serve", "--config", str(config(folder, rate, poll_s, deflate, priority)),
                                "--port", str(port)], stderr=log)
     try:
         wait_tracking(f"http://127.0.0.1:{port}")
@@ -127,19 +128,21 @@ def main() -> None:
     parser.add_argument("--clients", default="1,4")
     parser.add_argument("--deflate", default="0", help="permessage-deflate off/on (0,1) to compare, side by side")
     parser.add_argument("--polls", default="0.005", help="grating poll periods (s) to compare, side by side")
+    parser.add_argument("--priority", default="0", help="the daemon's realtime_priority values to compare, side by side")
     args = parser.parse_args()
     folder = Path(tempfile.mkdtemp(prefix="graytrack-bench-"))
     try:
         # one calibration (the daemon calibrates itself at the first start), its model reused by every run
         run(folder, 200, 1, 0.5)
         print(f"machine: {os.cpu_count()} cores, load average {load_average()} at start")
-        print(f"{'deflate':>7} {'poll ms':>7} {'frames/s':>8} {'clients':>7} {'msgs/s':>8} {'missing':>7} {'dropped':>7} "
+        print(f"{'prio':>4} {'deflate':>7} {'poll ms':>7} {'frames/s':>8} {'clients':>7} {'msgs/s':>8} {'missing':>7} {'dropped':>7} "
               f"{'p50 ms':>7} {'p99 ms':>7} {'max ms':>7} {'CPU %':>6} {'cl CPU':>6} {'enc p50':>7} {'enc p99':>7}")
         for rate in (float(r) for r in args.rates.split(",")):
             for clients in (int(c) for c in args.clients.split(",")):
-                for poll, deflate in ((float(p), d == "1") for p in args.polls.split(",") for d in args.deflate.split(",")):
-                    r = run(folder, rate, clients, args.seconds, poll, deflate)
-                    print(f"{'on' if deflate else 'off':>7} {poll * 1e3:7.1f} {r['rate']:8.0f} {r['clients']:7d} {r['msgs_s']:8.0f} {r['missing']:7d} {r['dropped']:7d} "
+                for poll, deflate, prio in ((float(p), d == "1", int(q)) for p in args.polls.split(",")
+                                            for d in args.deflate.split(",") for q in args.priority.split(",")):
+                    r = run(folder, rate, clients, args.seconds, poll, deflate, prio)
+                    print(f"{prio:4d} {'on' if deflate else 'off':>7} {poll * 1e3:7.1f} {r['rate']:8.0f} {r['clients']:7d} {r['msgs_s']:8.0f} {r['missing']:7d} {r['dropped']:7d} "
                           f"{r['p50']:7.2f} {r['p99']:7.2f} {r['max']:7.2f} {r['cpu']:6.0f} {r['client_cpu']:6.0f} {r['enc50']:7.2f} {r['enc99']:7.2f}",
                           flush=True)
         print(f"load average {load_average()} at the end")

@@ -14,6 +14,7 @@ from typing import Any, Callable, Literal, TypeVar
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from graytrack.drivers.camera.backlog import DEFAULT_MAX_LAG_S
 from graytrack.drivers.camera.base import CameraSettings, Roi
 
 STANDARD_BAUD_RATES = (9600, 19200, 38400, 57600, 115200, 230400, 460800)
@@ -53,6 +54,9 @@ class CameraConfig(_Strict):
     trigger_source: str = "Line0"
     pixel_format: Literal["Mono8", "Mono10", "Mono12", "Mono16"] = "Mono8"
     n_buffers: int = Field(8, ge=2, le=256)
+    max_lag_ms: float = Field(DEFAULT_MAX_LAG_S * 1e3, ge=0, le=1000,
+                              description="a read hands out frames in order while the oldest waiting is within this "
+                                          "of the newest; older ones are skipped (dropped). 0 = newest only")
     timeout_s: float = Field(1.0, gt=0)
     scenario: str = Field("paper", description="sim: the virtual rig's scenario")
     seed: int = 0
@@ -66,7 +70,8 @@ class CameraConfig(_Strict):
         return self
 
     def to_settings(self) -> CameraSettings:
-        return CameraSettings(self.exposure_us, self.gain_db, self.frame_rate_hz, self.roi.to_roi())
+        return CameraSettings(self.exposure_us, self.gain_db, self.frame_rate_hz, self.roi.to_roi(),
+                              max_lag_s=self.max_lag_ms * 1e-3)
 
 
 class StageConfig(_Strict):

@@ -5,10 +5,13 @@ until a camera is opened; :func:`load_aravis` raises :class:`CameraUnavailable` 
 install hint when they are missing.
 
 Acquisition: a stream with a pool of pre-allocated buffers, filled by Aravis's own thread.
-:meth:`AravisCamera.read` pops the next filled buffer, checks its status (incomplete buffers
-are counted and recycled, never handed out), and, with ``latest_only``, skips to the newest
-filled buffer so that a slow consumer gets current frames rather than a backlog. Gaps in the
-camera's frame ids (frames lost in transit or skipped here) are counted as dropped.
+:meth:`AravisCamera.read` takes every filled buffer waiting, checks its status (incomplete
+buffers are counted and recycled, never handed out), copies the ROI strip out and gives the
+buffer straight back to the pool, so the pool stays free for the camera however late the reader
+is. The strips wait in a host-side backlog and are handed out oldest first within the lag budget
+(``settings.max_lag_s``, see backlog.py): a late reader loses no frame, a slow one gets current
+frames rather than an ever older backlog. Gaps in the camera's frame ids between frames handed
+out (lost in transit, or skipped for the budget) are counted as dropped.
 
 Time: a buffer carries the camera's own timestamp (exact spacing, unknown origin, a few ppm of
 drift) and the host's receive time (exact clock, but late by scheduling jitter and now and then
@@ -30,7 +33,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from graytrack.drivers.camera.clock_fit import DeviceClockFit
+from graytrack.drivers.camera.backlog import Backlog
 from graytrack.drivers.camera.base import (
     Camera,
     CameraError,
@@ -41,6 +44,7 @@ from graytrack.drivers.camera.base import (
     CameraUnavailable,
     Frame,
 )
+from graytrack.drivers.camera.clock_fit import DeviceClockFit
 
 TriggerMode = Literal["free-run", "software", "hardware"]
 PIXEL_DTYPES = {"Mono8": np.uint8, "Mono10": np.uint16, "Mono12": np.uint16, "Mono16": np.uint16}
@@ -86,7 +90,6 @@ class AravisCamera(Camera):
         trigger_source: str = "Line0",
         pixel_format: str = "Mono8",
         n_buffers: int = 8,
-        latest_only: bool = True,
         readout_s: float = 0.0,
     ) -> None:
         super().__init__(settings)
@@ -99,7 +102,6 @@ class AravisCamera(Camera):
         self.trigger_source = trigger_source
         self.pixel_format = pixel_format
         self.n_buffers = max(2, n_buffers)
-        self.latest_only = latest_only
         if readout_s < 0:
             raise CameraSettingError(f"readout_s must not be negative, got {readout_s}")
         self.readout_s = readout_s
@@ -111,6 +113,7 @@ class AravisCamera(Camera):
         self._stream: Any = None
         self._region: tuple[int, int, int, int] = (0, 0, 0, 0)
         self._last_frame_id: int | None = None
+        self._backlog: Backlog[Frame] = Backlog()
 
     @property
     def exposure_s(self) -> float:
@@ -208,6 +211,7 @@ class AravisCamera(Camera):
             stream.push_buffer(self._aravis.Buffer.new_allocate(payload))
         self._stream = stream
         self._last_frame_id = None
+        self._backlog.clear()
         _call("start acquisition", self._camera.start_acquisition)
 
     def _stop_stream(self) -> None:
@@ -228,37 +232,31 @@ class AravisCamera(Camera):
         if self.trigger == "software":
             self._camera.software_trigger()
         while True:
-            remaining_us = int(max(0.0, deadline - time.monotonic()) * 1e6)
-            buffer = stream.timeout_pop_buffer(remaining_us) if remaining_us > 0 else stream.try_pop_buffer()
+            while (buffer := stream.try_pop_buffer()) is not None:
+                self._keep(stream, buffer)
+            frame = self._backlog.take(self.settings.max_lag_s, time.monotonic())
+            if frame is not None:
+                break
+            remaining_us = int((deadline - time.monotonic()) * 1e6)
+            buffer = stream.timeout_pop_buffer(remaining_us) if remaining_us > 0 else None
             if buffer is None:
                 self.stats.timeouts += 1
                 raise CameraTimeout(f"no frame from {self.model} within {timeout_s:g} s")
-            if self.latest_only:
-                buffer = self._newest(stream, buffer)
-            if buffer.get_status() == self._aravis.BufferStatus.SUCCESS:
-                break
-            self.stats.incomplete += 1
-            stream.push_buffer(buffer)
+            self._keep(stream, buffer)
+        self.stats.dropped += frames_between(self._last_frame_id, frame.frame_id)
+        self._last_frame_id = frame.frame_id
+        return frame
+
+    def _keep(self, stream: Any, buffer: Any) -> None:
+        """A filled buffer's strip into the backlog (incomplete ones are counted); the buffer back to the pool."""
         try:
-            return self._frame(buffer)
+            if buffer.get_status() == self._aravis.BufferStatus.SUCCESS:
+                frame = self._frame(buffer)
+                self._backlog.push(frame.exposure_end + self.readout_s, frame, self.settings.max_lag_s)
+            else:
+                self.stats.incomplete += 1
         finally:
             stream.push_buffer(buffer)
-
-    def _newest(self, stream: Any, buffer: Any) -> Any:
-        """Skip to the newest filled buffer, recycling the older ones.
-
-        Skipped frames show up as a gap in frame ids and are counted as dropped there.
-        """
-        while (newer := stream.try_pop_buffer()) is not None:
-            if newer.get_status() != self._aravis.BufferStatus.SUCCESS:
-                self.stats.incomplete += 1
-                stream.push_buffer(newer)
-                continue
-            if buffer.get_status() != self._aravis.BufferStatus.SUCCESS:
-                self.stats.incomplete += 1
-            stream.push_buffer(buffer)
-            buffer = newer
-        return buffer
 
     def _frame(self, buffer: Any) -> Frame:
         width, height = buffer.get_image_width(), buffer.get_image_height()
@@ -268,10 +266,7 @@ class AravisCamera(Camera):
         roi = self.settings.roi
         cols = self._region[2] - (roi.col - x) if roi.cols is None else roi.cols
         strip = image[roi.row - y : roi.row - y + roi.rows, roi.col - x : roi.col - x + cols].copy()
-        frame_id = int(buffer.get_frame_id())
-        self.stats.dropped += frames_between(self._last_frame_id, frame_id)
-        self._last_frame_id = frame_id
-        return Frame(strip, frame_id, self._mid_exposure(buffer), buffer.get_timestamp() * 1e-9,
+        return Frame(strip, int(buffer.get_frame_id()), self._mid_exposure(buffer), buffer.get_timestamp() * 1e-9,
                      exposure_s=self._exposure_s, t_uncertainty_s=self.t_uncertainty_s)
 
     def _mid_exposure(self, buffer: Any) -> float:

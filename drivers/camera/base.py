@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from graytrack.drivers.camera.backlog import DEFAULT_MAX_LAG_S
 from graytrack.drivers.device import Device
 
 
@@ -112,6 +113,9 @@ class CameraSettings:
     gain_db: float | None = None
     frame_rate_hz: float | None = None
     roi: Roi = field(default_factory=Roi)
+    # The read policy, host side: how far behind the newest delivered frame a read still hands out
+    # the older ones in order (see backlog.py). 0 = newest only.
+    max_lag_s: float = DEFAULT_MAX_LAG_S
 
 
 class Camera(Device):
@@ -177,7 +181,9 @@ class Camera(Device):
 
     # -- frames ----------------------------------------------------------------------------
     def read(self, timeout_s: float = 1.0) -> Frame:
-        """The next frame not handed out before; never one older than the previous."""
+        """The next frame not handed out before, oldest first within ``settings.max_lag_s`` of the
+        newest delivered (older ones are skipped and counted in ``stats.dropped``); never one older
+        than the previous."""
         if not self._open:
             raise CameraError(f"{type(self).__name__} is not open")
         frame = self._read(timeout_s)

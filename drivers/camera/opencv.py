@@ -2,9 +2,9 @@
 
 Live sources buffer frames (V4L2 keeps several, network streams more), so reading them
 naively hands out frames that are already old, and their age is unknown. For live sources a
-grabber thread therefore pulls every frame as soon as the source offers it and keeps only the
-newest; :meth:`read` returns a frame newer than the last one handed out and counts the ones it
-skipped as dropped. Files are read in order, frame by frame, since a file has no "now"; a file
+grabber thread therefore pulls every frame as soon as the source offers it, stamps it, and keeps
+it in a backlog bounded by the lag budget (``settings.max_lag_s``, see backlog.py); :meth:`read`
+returns the oldest frame within that budget of the newest and counts the ones skipped as dropped. Files are read in order, frame by frame, since a file has no "now"; a file
 opened as live plays at full speed, or at its own frame rate with ``realtime=True`` (a camera
 stand-in for tests).
 
@@ -26,6 +26,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from graytrack.drivers.camera.backlog import Backlog
 from graytrack.drivers.camera.base import (
     Camera,
     CameraEndOfStream,
@@ -38,6 +39,7 @@ from graytrack.drivers.camera.base import (
 )
 
 V4L2_EXPOSURE_UNIT_US = 100.0  # V4L2's exposure_time_absolute counts in units of 100 µs
+BACKLOG_IMAGES = 32  # whole decoded images wait in the backlog: bounded in number, whatever the lag budget
 UNKNOWN_PERIOD_S = 0.1  # the uncertainty when the source states no frame rate (10 Hz webcams exist)
 
 
@@ -76,7 +78,7 @@ class OpenCVCamera(Camera):
         self._source_fps = 0.0
         self._cap: cv2.VideoCapture | None = None
         self._cond = threading.Condition()
-        self._latest: _Grabbed | None = None
+        self._backlog: Backlog[_Grabbed] = Backlog(BACKLOG_IMAGES)
         self._ended: str | None = None
         self._last_seq = -1
         self._stop = threading.Event()
@@ -98,7 +100,8 @@ class OpenCVCamera(Camera):
             cap.release()
             self._cap = None
             raise
-        self._latest, self._ended, self._last_seq = None, None, -1
+        self._ended, self._last_seq = None, -1
+        self._backlog.clear()
         if self.live:
             self._stop.clear()
             self._thread = threading.Thread(target=self._grab_loop, name="opencv-grabber", daemon=True)
@@ -182,7 +185,7 @@ class OpenCVCamera(Camera):
     def _read_live(self, timeout_s: float) -> Frame:
         deadline = time.monotonic() + timeout_s
         with self._cond:
-            while self._latest is None or self._latest.seq <= self._last_seq:
+            while (grabbed := self._backlog.take(self.settings.max_lag_s, time.monotonic())) is None:
                 if self._ended is not None:
                     raise CameraEndOfStream(f"{self.source}: {self._ended}")
                 remaining = deadline - time.monotonic()
@@ -190,7 +193,6 @@ class OpenCVCamera(Camera):
                     self.stats.timeouts += 1
                     raise CameraTimeout(f"no frame from {self.source!r} within {timeout_s:g} s")
                 self._cond.wait(remaining)
-            grabbed = self._latest
             self.stats.dropped += grabbed.seq - self._last_seq - 1
             self._last_seq = grabbed.seq
         return self._frame(grabbed.image, grabbed.seq, grabbed.t_grab, grabbed.t_device)
@@ -214,7 +216,8 @@ class OpenCVCamera(Camera):
                 reason = "frame could not be decoded"
                 break
             with self._cond:
-                self._latest = _Grabbed(seq, image, t_grab, _device_time(cap, live=True))
+                self._backlog.push(t_grab, _Grabbed(seq, image, t_grab, _device_time(cap, live=True)),
+                                   self.settings.max_lag_s)
                 self._cond.notify_all()
             seq += 1
         else:

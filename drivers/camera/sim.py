@@ -2,8 +2,9 @@
 
 Frames come on a fixed frame clock like a free-running camera (slot k is exposed around
 ``t0 + k / frame_rate``); a frame exists once its exposure has ended, and :meth:`read` returns
-the newest such frame not handed out yet, waiting for the next one if needed — the same
-"never stale" contract as the other drivers. The stage's true positions at the start, middle
+the oldest such frame not handed out yet within the lag budget (``settings.max_lag_s``) of the
+newest, waiting for the next one if none is ready: the buffer pool of a real camera, and the same
+read policy as the other drivers. The stage's true positions at the start, middle
 and end of the exposure go to :meth:`VirtualRig.render`, so a moving stage blurs the strip as
 it would on the bench, and the controller's ``POS?`` (the grating) stays a separate, imperfect
 measurement of the same motion.
@@ -20,6 +21,7 @@ import math
 
 import numpy as np
 
+from graytrack.drivers.camera.backlog import first_slot
 from graytrack.drivers.camera.base import Camera, CameraSettingError, CameraSettings, CameraTimeout, Frame
 from graytrack.drivers.clock import REAL_TIME, ScaledClock
 from graytrack.drivers.sim.rig import VirtualRig
@@ -73,7 +75,8 @@ class SimCamera(Camera):
     def _read(self, timeout_s: float) -> Frame:
         now = self.clock.now()
         newest = math.floor((now - self._t0 - self.exposure_s) * self.frame_rate_hz)
-        slot = max(newest, self._last_slot + 1)
+        slot = first_slot(newest, self._last_slot + 1, self.settings.max_lag_s * self.clock.scale,
+                          1.0 / self.frame_rate_hz)
         ready_at = self._slot_mid(slot) + 0.5 * self.exposure_s
         if self.clock.duration_to_host(ready_at - now) > timeout_s:
             self.stats.timeouts += 1

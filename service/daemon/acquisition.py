@@ -32,6 +32,7 @@ from graytrack.core.models.fourier import FourierModel
 from graytrack.core.tracking import LiveFix, LiveTracker
 from graytrack.drivers.camera.base import Camera, CameraError, CameraTimeout, Frame
 from graytrack.service.daemon.grating import Readings
+from graytrack.drivers.realtime import raise_thread_priority
 from graytrack.service.daemon.worker import Worker, describe
 
 log = logging.getLogger("graytrack.daemon")
@@ -98,9 +99,10 @@ class Acquisition(Worker):
     def __init__(self, camera: Camera, readings: Readings,
                  publish: Callable[[dict[str, Any]], None], faults: Callable[[str, str | None], None],
                  fault_after_s: float, reopen_interval_s: float,
-                 on_event: Callable[[str, str], None] = lambda kind, message: None) -> None:
+                 on_event: Callable[[str, str], None] = lambda kind, message: None, priority: int = 0) -> None:
         super().__init__("acquisition", lambda reason: faults("acquisition", reason))
         self.on_event = on_event  # lock losses, re-acquisitions, stale-model flags: the event log
+        self.priority = priority  # SCHED_FIFO level of the frame loop (realtime.py), 0 = normal
         self.camera = camera
         self.readings = readings
         self.publish = publish
@@ -155,6 +157,7 @@ class Acquisition(Worker):
 
     # -- the loop --------------------------------------------------------------------------
     def _run(self) -> None:
+        raise_thread_priority(self.priority, "frame loop")
         while not self._stop.is_set():
             frame = self._next_frame()
             if frame is None:

@@ -27,6 +27,7 @@ from graytrack.service.daemon.api.security import WebGuard, WebPolicy
 from graytrack.service.daemon.broadcast import Broadcaster
 from graytrack.service.daemon.errors import DaemonError
 from graytrack.service.daemon.record import Record
+from graytrack.drivers.realtime import raise_thread_priority
 from graytrack.service.daemon.rig import HardwareFactory, Rig, default_factory
 from graytrack.service.daemon.settings import Settings
 from graytrack.service.daemon.storage import Storage
@@ -89,6 +90,7 @@ def create_app(settings: Settings, factory: HardwareFactory = default_factory) -
         broadcaster.bind(asyncio.get_running_loop())
         previous = sys.getswitchinterval()
         sys.setswitchinterval(SWITCH_INTERVAL_S)
+        raise_thread_priority(settings.daemon.realtime_priority, "event loop")  # before the rig's threads: they start normal
         rig.start()
         try:
             yield

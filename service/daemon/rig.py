@@ -199,7 +199,8 @@ class Rig:
         assert self.hardware is not None
         daemon = self.settings.daemon
         acquisition = Acquisition(self.hardware.camera, self.readings, self.publish, self.faults.set,
-                                  daemon.camera_fault_after_s, daemon.reopen_interval_s, self._stream_event)
+                                  daemon.camera_fault_after_s, daemon.reopen_interval_s, self._stream_event,
+                                  priority=daemon.realtime_priority)
         if self.model is not None:
             acquisition.install_model(self.model, self.grating.latest_mm() if self.grating else None)
         return acquisition.start()

@@ -48,6 +48,9 @@ class DaemonConfig(_Strict):
                                  "but one zlib compression per message and client on the event loop (at 1 kHz the "
                                  "stream's largest loop cost and its latency tail)")
     api_docs: bool = Field(False, description="serve the interactive API docs at /api/docs (loads scripts from a CDN)")
+    realtime_priority: int = Field(0, ge=0, le=99, description="SCHED_FIFO priority of the frame loop and the event "
+                                   "loop (1-99; needs LimitRTPRIO or CAP_SYS_NICE): the stream's latency tail on a busy machine. "
+                                   "0 = normal scheduling")
     sim_clock_scale: float = Field(1.0, gt=0, description="virtual rig only: simulated seconds per wall second")
     log_level: Literal["debug", "info", "warning", "error"] = "info"
 

@@ -1,5 +1,5 @@
 """What only the Aravis driver has, against Aravis's in-process fake ``Fake_1``: lazy ``gi``,
-16-bit frame-id wrap, latest-only skipping, software trigger, Mono16, gain. The camera contract
+16-bit frame-id wrap, newest-only skipping, software trigger, Mono16, gain. The camera contract
 (timestamps, exposure, ROI, timeouts, reopen; also the GigE Vision fake on loopback) is in
 test_camera_contract.py. They skip only where PyGObject is absent; CI installs it (.ci/run,
 Makefile's aravis extra), so there they run.
@@ -42,8 +42,8 @@ def test_frame_id_gaps_count_drops_across_the_16_bit_wrap() -> None:
 gi = pytest.importorskip("gi")
 
 
-def test_latest_only_skips_the_backlog_and_counts_it_as_dropped() -> None:
-    settings = CameraSettings(frame_rate_hz=200.0, roi=Roi(row=0, rows=1, col=0, cols=64))
+def test_with_no_lag_budget_a_late_read_skips_to_the_newest_and_counts_the_rest_as_dropped() -> None:
+    settings = CameraSettings(frame_rate_hz=200.0, roi=Roi(row=0, rows=1, col=0, cols=64), max_lag_s=0.0)
     with AravisCamera("Fake_1", settings, n_buffers=32) as camera:
         first = camera.read(1.0)
         time.sleep(0.2)  # ~40 frames arrive; the pool holds up to 32 of them

@@ -270,3 +270,33 @@ def test_close_then_reopen_delivers_fresh_frames(case: Case) -> None:
         assert camera.stats.delivered == 1, "statistics restart with the session"
     finally:
         camera.close()
+
+
+BUDGET_PERIODS = 12  # the lag budget of the next test, in frame periods
+
+
+def test_a_late_reader_loses_no_frame_within_the_lag_budget_and_skips_beyond_it(case: Case) -> None:
+    """The read policy (backlog.py): frames taken while the reader was late come in order, none
+    lost; a reader later than the budget skips the frames delivered before it (counted as
+    dropped; a camera's own pool may have lost more meanwhile) and is current again at once."""
+    period = case.host_period_s
+    settings = case.settings()
+    settings.max_lag_s = BUDGET_PERIODS * period
+    camera = opened(case, settings)
+    try:
+        first = camera.read(2.0)
+        time.sleep(3 * period)  # about three frames finish while nobody reads
+        caught_up = [camera.read(2.0) for _ in range(4)]
+        ids = [first.frame_id] + [f.frame_id for f in caught_up]
+        assert np.all(np.diff(ids) == 1), f"frames lost while the reader was late: ids {ids}"
+        assert camera.stats.dropped == 0
+        time.sleep(3 * BUDGET_PERIODS * period)  # far beyond the budget
+        skipped_to = camera.read(2.0)
+        before = time.monotonic()
+        current = camera.read(2.0)
+    finally:
+        camera.close()
+    gap = skipped_to.frame_id - caught_up[-1].frame_id - 1
+    assert gap >= BUDGET_PERIODS // 2, "the oldest frames beyond the budget were skipped"
+    assert camera.stats.dropped == gap + current.frame_id - skipped_to.frame_id - 1
+    assert before - current.exposure_end <= (BUDGET_PERIODS + 1) * period + SLACK_S + current.t_uncertainty_s

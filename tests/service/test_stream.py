@@ -4,6 +4,7 @@ and grating references that are right or absent while the stage moves."""
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import threading
 import time
@@ -113,3 +114,28 @@ def test_no_permessage_deflate_unless_configured(daemon: LiveServer) -> None:
         assert "permessage-deflate" in (ws.request.headers.get("Sec-WebSocket-Extensions") or "")
         assert ws.response.headers.get("Sec-WebSocket-Extensions") is None
         assert json.loads(ws.recv(timeout=5))["seq"] > 0
+
+
+def _policy(tid: int) -> int:
+    """The scheduling policy of one of this process's threads (/proc: field 41 of stat)."""
+    stat = open(f"/proc/self/task/{tid}/stat").read()
+    return int(stat.rsplit(")", 1)[1].split()[38])
+
+
+def test_realtime_priority_raises_the_frame_loop_and_the_event_loop_only(daemon: LiveServer, tmp_path,
+                                                                         caplog: pytest.LogCaptureFixture) -> None:
+    shutil.copy(daemon.rig.storage.model_path, tmp_path / "model.json")
+    settings = fast_settings(tmp_path, realtime_priority=3, auto_calibrate="never")
+    with LiveServer(create_app(settings)) as rig:
+        rig.wait_state("tracking")
+        acquisition, grating = rig.rig.acquisition, rig.rig.grating
+        frame_loop = _policy(acquisition._thread.native_id)
+        event_loop = _policy(rig.thread.native_id)
+        poller = _policy(grating._thread.native_id)
+        received = _collect(rig, 20)
+    assert poller == os.SCHED_OTHER, "threads the raised ones start are ordinary (SCHED_RESET_ON_FORK)"
+    if any("realtime_priority = 3 refused" in r.getMessage() for r in caplog.records):
+        assert frame_loop == event_loop == os.SCHED_OTHER, "refused (no CAP_SYS_NICE here): said, and normal"
+    else:
+        assert frame_loop == event_loop == os.SCHED_FIFO
+    assert len(received) == 20, "the stream runs either way"

@@ -1,0 +1,39 @@
+"""Real-time scheduling for the two threads a position stream waits on: the frame loop and the event loop.
+
+On a shared machine a thread that should run when a frame is ready can wait a millisecond or more
+for a core (measured here: a plain process sleeping 1 ms wakes over 1 ms late about once a second
+on an idle 2-core VM, several times a second under load), and every such wait is a late message
+in the stream. ``SCHED_FIFO`` lets the frame loop and the event loop take a core as soon as they
+are runnable. Only the calling thread is raised, with ``SCHED_RESET_ON_FORK`` so that threads it
+creates (the calibration fit, the thread pool of blocking handlers) start as ordinary ones: a
+fit must not starve the rest of the machine. The kernel's real-time throttling (95 % by default)
+stays as the last guard. Needs an ``RLIMIT_RTPRIO`` of at least the level (deploy/graytrack.service
+sets ``LimitRTPRIO``) or ``CAP_SYS_NICE``; without either the daemon logs a warning per thread and
+runs them at normal priority.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+
+log = logging.getLogger("graytrack.realtime")
+
+
+def raise_thread_priority(level: int, thread: str) -> bool:
+    """The calling thread to ``SCHED_FIFO`` at ``level`` (1–99; 0 leaves it alone). True when it took effect."""
+    if level <= 0:
+        return False
+    policy = getattr(os, "SCHED_FIFO", None)
+    if policy is None or not hasattr(os, "sched_setscheduler"):
+        log.warning("realtime_priority: this platform has no SCHED_FIFO; the %s runs at normal priority", thread)
+        return False
+    try:
+        os.sched_setscheduler(0, policy | getattr(os, "SCHED_RESET_ON_FORK", 0), os.sched_param(level))
+    except OSError as exc:
+        log.warning("realtime_priority = %d refused for the %s (%s): it runs at normal priority; grant "
+                    "LimitRTPRIO or CAP_SYS_NICE (see deploy/graytrack.service) or set realtime_priority = 0",
+                    level, thread, exc.strerror or exc)
+        return False
+    return True
+
