@@ -10,7 +10,8 @@ from /proc. All figures come from the same run, so they compare with each other 
 Run: .venv/bin/python bench/stream_latency.py [--seconds 5] [--rates 200,500,1000,1500] [--clients 1,4]
      [--polls 0.005,0.02]   (grating poll periods compared side by side)
      [--deflate 0,1]        (the WebSocket's permessage-deflate off and on, side by side)
-     [--priority 0,10]      (the daemon's realtime_priority: normal scheduling or SCHED_FIFO 10, side by side)
+     [--priority 0,10]      (the daemon's realtime_priority, and the clients': normal or SCHED_FIFO 10, side by side)
+     [--load 2]             (that many busy-looping processes run meanwhile: a machine with other work)
 
 Besides the receipt latency it prints ``enc``: mid-exposure to the message's encoding in the daemon
 (its ``age_ms``), so a tail can be placed before (frame thread) or after (event loop, send, client) it,
@@ -98,8 +99,10 @@ def run(folder: Path, rate: float, clients: int, seconds: float, poll_s: float =
         wait_tracking(f"http://127.0.0.1:{port}")
         time.sleep(0.5)
         cpu0, wall0 = cpu_seconds(daemon.pid), time.monotonic()
+        # the clients get the daemon's priority: a motion controller that waits for a core measures its own delay
+        raise_client = (lambda: os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))) if priority else None
         result = subprocess.run([sys.executable, "-c", CLIENT, f"ws://127.0.0.1:{port}/ws/position", str(clients),
-                                 str(seconds)], capture_output=True, text=True, check=True)
+                                 str(seconds)], capture_output=True, text=True, check=True, preexec_fn=raise_client)
         cpu = (cpu_seconds(daemon.pid) - cpu0) / (time.monotonic() - wall0)
     finally:
         daemon.terminate()
@@ -129,12 +132,15 @@ def main() -> None:
     parser.add_argument("--deflate", default="0", help="permessage-deflate off/on (0,1) to compare, side by side")
     parser.add_argument("--polls", default="0.005", help="grating poll periods (s) to compare, side by side")
     parser.add_argument("--priority", default="0", help="the daemon's realtime_priority values to compare, side by side")
+    parser.add_argument("--load", type=int, default=0, help="busy-looping processes to run meanwhile")
     args = parser.parse_args()
     folder = Path(tempfile.mkdtemp(prefix="graytrack-bench-"))
+    burners = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(args.load)]
     try:
         # one calibration (the daemon calibrates itself at the first start), its model reused by every run
         run(folder, 200, 1, 0.5)
-        print(f"machine: {os.cpu_count()} cores, load average {load_average()} at start")
+        print(f"machine: {os.cpu_count()} cores, load average {load_average()} at start, "
+              f"{args.load} busy-looping processes meanwhile")
         print(f"{'prio':>4} {'deflate':>7} {'poll ms':>7} {'frames/s':>8} {'clients':>7} {'msgs/s':>8} {'missing':>7} {'dropped':>7} "
               f"{'p50 ms':>7} {'p99 ms':>7} {'max ms':>7} {'CPU %':>6} {'cl CPU':>6} {'enc p50':>7} {'enc p99':>7}")
         for rate in (float(r) for r in args.rates.split(",")):
@@ -147,6 +153,8 @@ def main() -> None:
                           flush=True)
         print(f"load average {load_average()} at the end")
     finally:
+        for burner in burners:
+            burner.kill()
         shutil.rmtree(folder, ignore_errors=True)
 
 
