@@ -16,8 +16,11 @@ from __future__ import annotations
 
 import logging
 import os
+from typing import Callable
 
 log = logging.getLogger("graytrack.realtime")
+DEFAULT_LEVEL = 10  # the daemon's default: asked for everywhere, so a refusal of it is information, not a warning
+_said: set[str] = set()
 
 
 def raise_thread_priority(level: int, thread: str) -> bool:
@@ -26,14 +29,21 @@ def raise_thread_priority(level: int, thread: str) -> bool:
         return False
     policy = getattr(os, "SCHED_FIFO", None)
     if policy is None or not hasattr(os, "sched_setscheduler"):
-        log.warning("realtime_priority: this platform has no SCHED_FIFO; the %s runs at normal priority", thread)
+        _say_once(log.info, "realtime_priority: this platform has no SCHED_FIFO; the daemon runs at normal priority")
         return False
     try:
         os.sched_setscheduler(0, policy | getattr(os, "SCHED_RESET_ON_FORK", 0), os.sched_param(level))
     except OSError as exc:
-        log.warning("realtime_priority = %d refused for the %s (%s): it runs at normal priority; grant "
-                    "LimitRTPRIO or CAP_SYS_NICE (see deploy/graytrack.service) or set realtime_priority = 0",
-                    level, thread, exc.strerror or exc)
+        say = log.info if level == DEFAULT_LEVEL else log.warning
+        _say_once(say, f"realtime_priority = {level} refused ({exc.strerror or exc}): the {thread} and the others run "
+                       "at normal priority; grant LimitRTPRIO or CAP_SYS_NICE (deploy/graytrack.service) or set 0")
         return False
     return True
 
+
+def _say_once(say: Callable[[str], None], message: str) -> None:
+    """One line per kind of refusal, not one per thread."""
+    kind = message.split("(")[0]
+    if kind not in _said:
+        _said.add(kind)
+        say(message)

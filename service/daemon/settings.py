@@ -15,6 +15,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from graytrack.drivers.config import ConfigError, HardwareConfig, describe_validation_error, load_toml, parse_hardware
+from graytrack.drivers.realtime import DEFAULT_LEVEL
 
 DEFAULT_HOST = "127.0.0.1"  # DESIGN.md: loopback unless told otherwise
 DEFAULT_PORT = 8000
@@ -48,7 +49,7 @@ class DaemonConfig(_Strict):
                                  "but one zlib compression per message and client on the event loop (at 1 kHz the "
                                  "stream's largest loop cost and its latency tail)")
     api_docs: bool = Field(False, description="serve the interactive API docs at /api/docs (loads scripts from a CDN)")
-    realtime_priority: int = Field(0, ge=0, le=99, description="SCHED_FIFO priority of the frame loop and the event "
+    realtime_priority: int = Field(DEFAULT_LEVEL, ge=0, le=99, description="SCHED_FIFO priority of the frame loop and the event "
                                    "loop (1-99; needs LimitRTPRIO or CAP_SYS_NICE): the stream's latency tail on a busy machine. "
                                    "0 = normal scheduling")
     sim_clock_scale: float = Field(1.0, gt=0, description="virtual rig only: simulated seconds per wall second")
