@@ -46,15 +46,20 @@ def wait(predicate, timeout_s: float, what: str):
     raise SystemExit(f"make_images: timed out waiting for {what}")
 
 
-def report_plot(recording_path: Path, frames_per_stop: int, out: Path) -> None:
+def report_plot(recording_path: Path, out: Path) -> None:
+    """The held-out error of the calibration the daemon made with the default sweep (a scan)."""
     from graytrack.core.recording import load
     from graytrack.service.daemon.quality import held_out_folds
+    from graytrack.service.daemon.settings import SweepConfig
+    from graytrack.service.daemon.sweep import held_out_block
 
+    recording = load(recording_path)
+    block = held_out_block(SweepConfig(), recording.n_frames)
     fig, ax = plt.subplots(figsize=(7, 3.2), dpi=150)
-    for (x, error, bound), color, label in zip(held_out_folds(load(recording_path), frames_per_stop),
+    for (x, error, bound), color, label in zip(held_out_folds(recording, block),
                                                ("#2b6cb0", "#b7791f"), ("even", "odd")):
         ax.fill_between(np.sort(x), -np.nanmedian(bound), np.nanmedian(bound), color="0.85", zorder=0)
-        ax.plot(x, error, "o", ms=3, color=color, label=f"held out: {label} stops")
+        ax.plot(x, error, "o", ms=2, color=color, label=f"held out: {label} blocks")
     ax.set_xlabel("stage position (mm)")
     ax.set_ylabel("error vs grating (µm)")
     ax.set_title("calibration: held-out error against position; grey: ±1 Cramér–Rao bound", fontsize=10)
@@ -86,9 +91,7 @@ def main() -> None:
             page.screenshot(path=str(DOCS / "page.png"), full_page=True)
             browser.close()
         latest = httpx.get(f"{base}/api/calibrations", timeout=5).json()["items"][0]
-        job = httpx.get(f"{base}/api/calibration/{latest['id']}", timeout=5).json()
-        report_plot(folder / "data" / "calibrations" / latest["id"] / "recording.npz", job["frames_per_position"],
-                    DOCS / "report.png")
+        report_plot(folder / "data" / "calibrations" / latest["id"] / "recording.npz", DOCS / "report.png")
         print(f"wrote {DOCS / 'page.png'} and {DOCS / 'report.png'} (calibration {latest['id']}: "
               f"held-out {latest['error_std_um']:.2f} µm, bound {latest['bound_um']:.2f} µm)")
     finally:

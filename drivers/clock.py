@@ -28,6 +28,10 @@ class ScaledClock:
         """The host ``time.monotonic`` instant at which this clock read ``t``."""
         return self._origin + t / self.scale
 
+    def from_host(self, t_host: float) -> float:
+        """This clock's reading at host ``time.monotonic`` instant ``t_host``."""
+        return self.scale * (t_host - self._origin)
+
     def duration_to_host(self, seconds: float) -> float:
         """A span of this clock's seconds in host seconds."""
         return seconds / self.scale

@@ -59,7 +59,18 @@ class CameraConfig(_Strict):
                                           "of the newest; older ones are skipped (dropped). 0 = newest only")
     timeout_s: float = Field(1.0, gt=0)
     scenario: str = Field("paper", description="sim: the virtual rig's scenario")
+    effects: str = Field("", description="sim: effects the virtual rig has besides its scenario's, as "
+                                         "`graytrack simulate --effects` takes them (e.g. \"dust:count=6,flicker\")")
     seed: int = 0
+
+    @model_validator(mode="after")
+    def _rig_exists(self) -> "CameraConfig":
+        """A virtual rig that cannot be built is a configuration error now, not a fault at start."""
+        if self.kind == "sim":
+            from graytrack.drivers.sim.scenarios import build_config
+
+            build_config(self.scenario, self.effects, seed=self.seed)  # ValueError naming the scenario or effect
+        return self
 
     @model_validator(mode="after")
     def _device_where_needed(self) -> "CameraConfig":

@@ -87,7 +87,7 @@ def _simulated(config: HardwareConfig, clock: ScaledClock) -> Hardware:
     from graytrack.drivers.stage.sim_axis import SimStageAxis
     from graytrack.drivers.stage.sim_controller import SimGCSController
 
-    rig = build_rig(config.camera.scenario, seed=config.camera.seed)
+    rig = build_rig(config.camera.scenario, config.camera.effects, seed=config.camera.seed)
     truth = rig.make_stage(t_s=clock.now())
     controller = SimGCSController(SimStageAxis(truth, rig.make_grating(truth)), clock=clock.now).start()
     stage = make_gcs_stage(config.stage, port=controller.path)

@@ -55,6 +55,13 @@ class Stage(Device):
         """Stop now (abrupt); the axis stays where it stopped."""
 
     @abc.abstractmethod
+    def set_velocity(self, velocity_mm_s: float) -> None:
+        """The velocity of the following moves (a calibration pass sets its own, then restores this)."""
+
+    @abc.abstractmethod
+    def velocity(self) -> float: ...
+
+    @abc.abstractmethod
     def limits(self) -> tuple[float, float]:
         """The range moves are allowed in: soft limits intersected with the controller's travel."""
 

@@ -67,6 +67,12 @@ class Readings:
         with self._lock:
             return (self._t[-1], self._x[-1]) if self._t else None
 
+    def typical_latency_s(self) -> float:
+        """The median round trip of the recent readings (0 before any): how well their instants are known."""
+        with self._lock:
+            latencies = sorted(self._latency)
+        return latencies[len(latencies) // 2] if latencies else 0.0
+
     def moving(self) -> bool | None:
         """Whether the last readings disagree (None before there are enough of them)."""
         with self._lock:

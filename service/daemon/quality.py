@@ -1,10 +1,10 @@
 """A calibration's quality in the unit a user cares about: held-out position error in µm, next to
 the Cramér–Rao bound of the same frames.
 
-The installed model is fitted on every stop; its quality is measured on frames it did not see,
-by a two-fold split *by stop* (fit on the even stops, track the odd ones, and the other way round):
-stops are the independent units of a sweep, and the frames of one stop share its reference, so
-holding out frames within a stop would flatter the model.
+The installed model is fitted on every frame; its quality is measured on frames it did not see,
+by a two-fold split *by block* (fit on the even blocks, track the odd ones, and the other way
+round). A block is a stop of a step-and-settle sweep (its frames share one reference, so holding
+out frames within a stop would flatter the model), or a stretch of a scan's pass.
 """
 
 from __future__ import annotations
@@ -20,9 +20,9 @@ from graytrack.core.tracking import track
 MIN_STOPS_PER_FOLD = 4
 
 
-def held_out_folds(recording: Recording, frames_per_stop: int) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+def held_out_folds(recording: Recording, block_frames: int) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Per fold, for the held-out frames: ``(reference_mm, error_um, bound_um)``; [] when too short to split."""
-    stops = np.arange(recording.n_frames) // frames_per_stop
+    stops = np.arange(recording.n_frames) // block_frames
     if int(stops.max()) + 1 < 2 * MIN_STOPS_PER_FOLD:
         return []
     folds = []
@@ -34,9 +34,9 @@ def held_out_folds(recording: Recording, frames_per_stop: int) -> list[tuple[np.
     return folds
 
 
-def held_out_quality(recording: Recording, frames_per_stop: int) -> dict[str, Any] | None:
+def held_out_quality(recording: Recording, block_frames: int) -> dict[str, Any] | None:
     """``{"error_std_um", "bound_um", "frames", "method"}``, or None when the sweep is too short to split."""
-    folds = held_out_folds(recording, frames_per_stop)
+    folds = held_out_folds(recording, block_frames)
     if not folds:
         return None
     error = np.concatenate([f[1] for f in folds])
@@ -45,7 +45,7 @@ def held_out_quality(recording: Recording, frames_per_stop: int) -> dict[str, An
     if placed.sum() < 2:
         return None
     return {"error_std_um": float(np.std(error[placed])), "bound_um": float(np.median(bound[placed])),
-            "frames": int(placed.sum()), "method": "two-fold by stop, paper model"}
+            "frames": int(placed.sum()), "method": "two-fold by block, paper model"}
 
 
 def _subset(recording: Recording, keep: np.ndarray) -> Recording:

@@ -258,11 +258,12 @@ class Rig:
             self.job = job
             runner = JobRunner(job, self.storage, self._install_calibration, self._finished)
             sweep = Sweep(runner, hardware.stage, acquisition, self.storage, config, self._meta(hardware),
-                          self.readings.note_command)
+                          self.readings.note_command, self.clock.scale)
             self._sweep_thread = threading.Thread(target=runner.run, args=(sweep,), name="sweep", daemon=True)
             self._sweep_thread.start()
-        log.info("calibration %s started (%d stops x %d frames, %s model)", job.id, config.positions,
-                 config.frames_per_position, config.model)
+        log.info("calibration %s started (%s, %s model)", job.id,
+                 f"{config.positions} stops x {config.frames_per_position} frames" if config.kind == "stops"
+                 else f"a pass of {config.scan_frames} frames", config.model)
         self.event("calibration_started", f"calibration {job.id} started", calibration=job.id)
         return job
 

@@ -57,13 +57,20 @@ class DaemonConfig(_Strict):
 
 
 class SweepConfig(_Strict):
-    positions: int = Field(41, ge=2, description="step-and-settle stops over the soft limits")
+    kind: Literal["scan", "stops"] = Field("scan", description="scan: frames at rest at both ends and one pass at "
+                                           "constant velocity recording every frame with its interpolated grating "
+                                           "reference (dense: what the closed loop needs to see the print along the "
+                                           "stroke); stops: step and settle at `positions` stops")
+    scan_frames: int = Field(1000, ge=50, le=100_000, description="scan: frames the pass should record; its velocity "
+                                                                   "follows from the frame rate (at most the stage's)")
+    positions: int = Field(41, ge=2, description="stops: step-and-settle stops over the soft limits")
     # three frames at one stop are what the model-free noise estimate (second differences in time) needs
-    frames_per_position: int = Field(5, ge=3)
+    frames_per_position: int = Field(5, ge=3, description="frames at each stop (scan: at each end)")
     margin_mm: float = Field(0.1, ge=0, description="keep this far inside the soft limits")
     settle_timeout_s: float = Field(10.0, gt=0)
     frame_timeout_s: float = Field(5.0, gt=0, description="wall time to wait for the frames of one stop")
-    model: Literal["paper", "auto"] = Field("paper", description="paper model, or auto = the closed loop")
+    model: Literal["paper", "auto"] = Field("auto", description="auto = the closed loop (finds the effects the rig "
+                                            "has), or the paper model")
     pixel_pitch_mm: float | None = Field(None, gt=0, description="nominal alpha*d for real hardware (else estimated)")
     period_mm: float | None = Field(None, gt=0, description="nominal target period for real hardware (else estimated)")
 

@@ -1,11 +1,25 @@
-"""The calibration sweep: step and settle over the stroke, then fit a model against the grating.
+"""The calibration sweep: record the stroke against the grating, then fit a model.
 
-At each stop the stage is moved, the sweep waits until the controller reports on target, takes
-the next frames whose exposure began *after* that moment (a frame straddling the settle would
-blur the last of the motion into the calibration), and then reads the grating once more: the
-axis is at rest, so that reading is the reference of every frame of the stop. Those frames form an ordinary :class:`Recording` which is calibrated with the
-paper model (or the closed loop, ``model = "auto"``) and stored with the model and a report; the
-recording is written first, so a failed fit still leaves the data behind for ``graytrack diagnose``.
+A **stop**: the stage is moved, the sweep waits until the controller reports on target, takes the
+next frames whose exposure began *after* that moment (a frame straddling the settle would blur
+the last of the motion into the calibration), and then reads the grating once more: the axis is
+at rest, so that reading is the reference of every frame of the stop.
+
+``kind = "scan"`` (the default): a stop at each end of the stroke (frames at rest: the noise
+estimate needs several at one place) and a pass at constant velocity up and one down, keeping
+every frame whose grating reference is known (interpolated between the poller's bracketing
+readings, :class:`Readings`; the acceleration at both ends gives none and those frames are left
+out). Why a scan: what a rig gets wrong is often fixed to the print (dust, a smudge, the pitch
+drifting along the stroke), and seeing it takes frames every few micrometres of the stroke, not
+at 41 stops; 1,000 frames take seconds. Why both ways: every position is seen at +v and at −v,
+so an error that follows velocity (the grating read off mid-exposure) cannot pass for one that
+follows position, and the other way round (one pass and two stops at its ends would confound
+them: the closed loop read a 14 µm offset at the ends as a 7 ms timing skew). ``kind = "stops"``: step and settle at
+``positions`` stops.
+
+The frames form an ordinary :class:`Recording`, calibrated with the closed loop (``model =
+"auto"``) or the paper model and stored with the model and a report; the recording is written
+first, so a failed fit still leaves the data behind for ``graytrack diagnose``.
 """
 
 from __future__ import annotations
@@ -15,6 +29,7 @@ import logging
 import math
 import queue
 import time
+from collections import deque
 from typing import Any, Callable
 
 import numpy as np
@@ -35,18 +50,55 @@ from graytrack.service.daemon.storage import Storage
 
 log = logging.getLogger("graytrack.daemon")
 SWEEP_SHARE = 0.8  # of the progress bar; the fit takes the rest
+MIN_PASS_FRAMES = 50  # a pass that pairs fewer frames with the grating cannot calibrate anything
+ON_TARGET_CHECK_S = 0.1  # how often the pass asks the controller whether it has arrived
+PAIRING_MARGIN = 0.5  # the pass's velocity uses half the pairing tolerance for the readings' timing
+HELD_OUT_BLOCKS = 40  # a scan is cut into this many blocks for the two-fold held-out error
 
 
 class SweepError(GraytrackError):
     """The sweep could not finish (stage, camera, limits); the message says which and why."""
 
 
-def sweep_positions(limits: tuple[float, float], config: SweepConfig) -> np.ndarray:
-    """Evenly spaced stops over the allowed range, ``margin_mm`` inside each limit."""
+def sweep_range(limits: tuple[float, float], config: SweepConfig) -> tuple[float, float]:
+    """The allowed range, ``margin_mm`` inside each limit."""
     low, high = limits[0] + config.margin_mm, limits[1] - config.margin_mm
     if not (math.isfinite(low) and math.isfinite(high) and high > low):
         raise SweepError(f"no room to sweep inside the limits [{limits[0]:g}, {limits[1]:g}] mm")
-    return np.linspace(low, high, config.positions)
+    return low, high
+
+
+def sweep_positions(limits: tuple[float, float], config: SweepConfig) -> np.ndarray:
+    """Evenly spaced stops over the allowed range, ``margin_mm`` inside each limit."""
+    return np.linspace(*sweep_range(limits, config), config.positions)
+
+
+def held_out_block(config: SweepConfig, n_frames: int) -> int:
+    """Frames per held-out block: a stop, or a scan's share of ``HELD_OUT_BLOCKS``."""
+    if config.kind == "stops":
+        return config.frames_per_position
+    return max(config.frames_per_position, n_frames // HELD_OUT_BLOCKS)
+
+
+class _Frames:
+    """The recording being gathered: frames, their times and references, in order."""
+
+    def __init__(self, meta: dict[str, Any]) -> None:
+        self.meta = meta
+        self.frames: list[np.ndarray] = []
+        self.times: list[float] = []
+        self.reference: list[float] = []
+
+    def add(self, sample: Sample, reference_mm: float) -> None:
+        self.frames.append(np.asarray(sample.frame.pixels))
+        self.times.append(sample.t)
+        self.reference.append(reference_mm)
+
+    def recording(self) -> Recording:
+        strip = np.stack(self.frames)
+        if strip.shape[1] == 1:
+            strip = strip[:, 0, :]
+        return Recording(strip, np.array(self.times), np.array(self.reference), dict(self.meta))
 
 
 class Sweep:
@@ -54,7 +106,7 @@ class Sweep:
 
     def __init__(self, runner: JobRunner, stage: Stage, acquisition: Acquisition, storage: Storage,
                  config: SweepConfig, meta: dict[str, Any],
-                 on_command: Callable[[float], None]) -> None:
+                 on_command: Callable[[float], None], clock_scale: float = 1.0) -> None:
         self.runner = runner
         self.job = runner.job
         self.stage = stage
@@ -63,45 +115,123 @@ class Sweep:
         self.config = config
         self.meta = meta
         self.on_command = on_command  # the pairing must not assume rest across a commanded move
+        self.clock_scale = clock_scale  # the stage's seconds per wall second (the virtual rig may run fast)
 
     def sweep(self) -> Recording:
-        """Step, settle and record; the recording is saved before the fit (a failed fit keeps the data)."""
-        recording = self._sweep()
+        """Record the stroke; the recording is saved before the fit (a failed fit keeps the data)."""
+        feed = self.acquisition.subscribe()
+        try:
+            recording = self._scan(feed) if self.config.kind == "scan" else self._stops(feed)
+        finally:
+            self.acquisition.unsubscribe(feed)
         path = save(recording, self.storage.calibration_dir(self.job.id) / "recording.npz")
         self.job.files["recording"] = str(path)
         return recording
 
-    def _sweep(self) -> Recording:
+    def _stops(self, feed: "queue.Queue[Sample]") -> Recording:
         positions = sweep_positions(self.stage.limits(), self.config)
         self.runner.enter("sweeping", 0.0, f"moving to the first of {len(positions)} stops")
-        frames: list[np.ndarray] = []
-        times: list[float] = []
-        reference: list[float] = []
-        feed = self.acquisition.subscribe()
+        gathered = _Frames(self.meta)
+        for i, target in enumerate(positions):
+            self._stop_at(feed, float(target), gathered)
+            self.runner.update(SWEEP_SHARE * (i + 1) / len(positions),
+                               f"stop {i + 1}/{len(positions)} at {target:.3f} mm")
+        return gathered.recording()
+
+    def _stop_at(self, feed: "queue.Queue[Sample]", target: float, gathered: _Frames) -> None:
+        self.job.check_abort()
+        self.on_command(time.monotonic())
+        self.stage.move_to(target)
+        settled = self.stage.wait_on_target(self.config.settle_timeout_s).t  # host time, as frames
+        self.job.check_abort()
+        samples = self._settled_samples(feed, settled)
+        # The axis is at rest inside its on-target window, so one POS? read after the frames
+        # is the reference of all of them (pairing with the poller's readings could mix in
+        # one taken before the move when polls are sparse).
+        at_rest = self.stage.position().position_mm
+        for sample in samples:
+            gathered.add(sample, at_rest)
+
+    def _scan(self, feed: "queue.Queue[Sample]") -> Recording:
+        low, high = sweep_range(self.stage.limits(), self.config)
+        self.runner.enter("sweeping", 0.0, f"moving to the start of the pass ({low:.3f} mm)")
+        gathered = _Frames(self.meta)
+        self._stop_at(feed, low, gathered)
+        velocity, keep_every = self._scan_velocity(high - low)  # frames have flowed for a while: their rate is known
+        paired = self._pass(feed, low, high, velocity, keep_every, gathered, share=(0.05, 0.5))
+        self._stop_at(feed, high, gathered)
+        paired += self._pass(feed, high, low, velocity, keep_every, gathered, share=(0.5, 0.95))
+        if paired < MIN_PASS_FRAMES:
+            raise SweepError(f"the passes paired {paired} frames with the grating (fewer than {MIN_PASS_FRAMES}): "
+                             f"poll the grating faster (grating_poll_s) or record more frames (scan_frames)")
+        self.runner.update(SWEEP_SHARE, f"scan done: {paired} frames on the move, "
+                                        f"{2 * self.config.frames_per_position} at rest")
+        return gathered.recording()
+
+    def _scan_velocity(self, stroke_mm: float) -> tuple[float, int]:
+        """The velocity that gives ``scan_frames`` frames over the two passes, and one frame in how many
+        to keep. At most the stage's own velocity, and slow enough that a reading's instant (known to
+        half its round trip) stays within the pairing tolerance; a pass slowed for that keeps every
+        k-th frame, so the fit gets about ``scan_frames`` still."""
+        wall_rate = self.acquisition.frame_rate_hz(stale_after_s=2.0)
+        if wall_rate <= 0:
+            raise SweepError("the camera delivers no frames: nothing to scan with")
+        frame_rate = wall_rate / self.clock_scale  # frames per second of the stage's clock
+        velocity = min(2 * stroke_mm * frame_rate / self.config.scan_frames, self.stage.velocity())  # two passes
+        readings = self.acquisition.readings
+        half_round_trip = 0.5 * readings.typical_latency_s() * self.clock_scale
+        if half_round_trip > 0:
+            velocity = min(velocity, PAIRING_MARGIN * readings.tolerance_mm / half_round_trip)
+        expected = 2 * stroke_mm * frame_rate / velocity
+        return velocity, max(1, round(expected / self.config.scan_frames))
+
+    def _pass(self, feed: "queue.Queue[Sample]", start: float, end: float, velocity: float, keep_every: int,
+              gathered: _Frames, share: tuple[float, float]) -> int:
+        """Move ``start`` → ``end`` at ``velocity`` keeping every ``keep_every``-th frame the grating pairs;
+        returns their number. ``share`` is the part of the sweep's progress bar this pass fills."""
+        readings = self.acquisition.readings
+        previous = self.stage.velocity()
+        waiting: deque[Sample] = deque()
+        paired = seen = 0
+        wall_s = abs(end - start) / velocity / self.clock_scale
+        allowed_s = 2.0 * wall_s + self.config.settle_timeout_s
+        deadline = time.monotonic() + allowed_s
+        self.runner.update(SWEEP_SHARE * share[0], f"pass to {end:.3f} mm at {velocity:.3g} mm/s")
+        self.stage.set_velocity(velocity)
         try:
-            for i, target in enumerate(positions):
+            self.on_command(time.monotonic())
+            self.stage.move_to(end)
+            next_check = time.monotonic() + ON_TARGET_CHECK_S
+            while True:
                 self.job.check_abort()
-                self.on_command(time.monotonic())
-                self.stage.move_to(float(target))
-                settled = self.stage.wait_on_target(self.config.settle_timeout_s).t  # host time, as frames
-                self.job.check_abort()
-                samples = self._settled_samples(feed, settled)
-                # The axis is at rest inside its on-target window, so one POS? read after the frames
-                # is the reference of all of them (pairing with the poller's readings could mix in
-                # one taken before the move when polls are sparse).
-                at_rest = self.stage.position().position_mm
-                for sample in samples:
-                    frames.append(np.asarray(sample.frame.pixels))
-                    times.append(sample.t)
-                    reference.append(at_rest)
-                self.runner.update(SWEEP_SHARE * (i + 1) / len(positions),
-                                   f"stop {i + 1}/{len(positions)} at {target:.3f} mm")
+                try:
+                    waiting.append(feed.get(timeout=0.02))
+                except queue.Empty:
+                    pass
+                latest = readings.latest()
+                # A frame is paired once a reading after it exists (the bracketing one): never guessed ahead.
+                while waiting and latest is not None and waiting[0].t < latest[0]:
+                    sample = waiting.popleft()
+                    seen += 1
+                    if seen % keep_every:
+                        continue
+                    reference = readings.at(sample.t)
+                    if reference == reference:
+                        gathered.add(sample, reference)
+                        paired += 1
+                if time.monotonic() < next_check:
+                    continue
+                next_check = time.monotonic() + ON_TARGET_CHECK_S
+                if latest is not None:
+                    done = min(max((latest[1] - start) / (end - start), 0.0), 1.0)
+                    self.runner.update(SWEEP_SHARE * (share[0] + (share[1] - share[0]) * done),
+                                       f"pass at {latest[1]:.3f} mm, {paired} frames")
+                if self.stage.on_target() and abs(self.stage.position().position_mm - end) < 1e-3:
+                    return paired
+                if time.monotonic() > deadline:
+                    raise SweepError(f"the pass did not reach {end:.3f} mm within {allowed_s:.0f} s")
         finally:
-            self.acquisition.unsubscribe(feed)
-        strip = np.stack(frames)
-        if strip.shape[1] == 1:
-            strip = strip[:, 0, :]
-        return Recording(strip, np.array(times), np.array(reference), dict(self.meta))
+            self.stage.set_velocity(previous)
 
     def _settled_samples(self, feed: "queue.Queue[Sample]", settled_t: float) -> list[Sample]:
         """The next ``frames_per_position`` frames exposed entirely after ``settled_t``."""
@@ -145,8 +275,8 @@ class Sweep:
         else:
             result = calibrate(recording, "paper", progress=progress)
             model = result.model
-            self.runner.update(SWEEP_SHARE + 0.5 * (1 - SWEEP_SHARE), "held-out error: two-fold by stop")
-            held_out = held_out_quality(recording, self.config.frames_per_position)
+            self.runner.update(SWEEP_SHARE + 0.5 * (1 - SWEEP_SHARE), "held-out error: two-fold by block")
+            held_out = held_out_quality(recording, held_out_block(self.config, recording.n_frames))
             quality = ("" if held_out is None else
                        f"held-out error {held_out['error_std_um']:.2f} µm (bound {held_out['bound_um']:.2f} µm), ")
             report = {

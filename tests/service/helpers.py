@@ -26,7 +26,8 @@ FAST_TABLES: dict[str, Any] = {
     "stage": {"kind": "sim", "velocity_mm_s": 20.0, "timeout_s": 5.0},
     # 20 simulated frames/s = 200 per wall second: enough to test, light enough for a loaded CI machine
     "camera": {"kind": "sim", "frame_rate_hz": 20.0},
-    "sweep": {"positions": 21, "frames_per_position": 3},
+    # step and settle, paper model: the quickest calibration (the scan and the closed loop: test_sweep_scan.py)
+    "sweep": {"kind": "stops", "positions": 21, "frames_per_position": 3, "model": "paper"},
     # the page's tests reach the daemon as "testserver" (TestClient's Host)
     # fault and staleness thresholds a loaded CI machine does not cross by itself
     # normal scheduling: the suite's daemons share 2 cores with the test processes (one test checks realtime)

@@ -1,0 +1,69 @@
+"""The calibration scan through a real uvicorn server: frames at rest at both ends, one pass at
+constant velocity whose every kept frame carries the grating's position at its mid-exposure, dense
+along the stroke, and the closed loop's model fitted on it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from graytrack.core.recording import load
+from graytrack.service.daemon.app import create_app
+from tests.service.helpers import LiveServer, fast_settings
+
+SCAN_FRAMES = 600
+LOW, HIGH = 0.1, 10.36  # the soft limits, 0.1 mm inside
+
+
+@pytest.fixture(scope="module")
+def scanned(tmp_path_factory: pytest.TempPathFactory):
+    # Target-fixed dust (what 21 stops cannot see and a pass can). The clock
+    # runs only 2x here: a reading's round trip, as the rig's clock sees it, bounds how fast a pass may
+    # go and keep its references within the 1 µm pairing tolerance, and 10x would slow it down 5x more.
+    tables = {"sweep": {"kind": "scan", "scan_frames": SCAN_FRAMES, "model": "auto"},
+              "camera": {"effects": "dust:count=6", "frame_rate_hz": 100.0}}
+    settings = fast_settings(tmp_path_factory.mktemp("scan"), tables, sim_clock_scale=2.0)
+    with LiveServer(create_app(settings)) as server:
+        status = server.wait_state("tracking", timeout_s=120)
+        job = server.get("/api/calibration/latest").json()
+        hardware = server.rig.hardware
+        recording = load(job["files"]["recording"])
+        truth = hardware.camera.stage  # the virtual rig's true motion, on its own clock
+        clock = server.rig.clock
+        yield status, job, recording, np.asarray(truth.position(clock.from_host(recording.t)), dtype=float)
+
+
+def test_the_scan_records_dense_passes_both_ways_and_frames_at_rest_at_each_end(scanned) -> None:
+    _, job, recording, _ = scanned
+    assert job["state"] == "done"
+    rest = 3  # frames_per_position of the fast settings, at each end
+    reference = recording.reference
+    assert np.ptp(reference[:rest]) == 0, "the start: one reading at rest"
+    assert reference[0] == pytest.approx(LOW, abs=1e-3)
+    top = int(np.argmax(reference))
+    assert reference[top] == pytest.approx(HIGH, abs=1e-3)
+    up, down = reference[rest:top], reference[top:]
+    at_top = np.flatnonzero(np.abs(down - reference[top]) < 1e-9)
+    down = down[at_top[-1] + 1:]
+    assert len(at_top) >= rest, "the far end: frames at rest"
+    assert len(up) + len(down) >= 0.3 * SCAN_FRAMES, f"only {len(up) + len(down)} frames of the passes were paired"
+    assert np.all(np.diff(up) >= 0) and np.all(np.diff(down) <= 0), "one pass up, one down"
+    for one_way in (up, down):
+        assert np.ptp(one_way) > 0.9 * (HIGH - LOW), "over the whole stroke"
+        assert np.median(np.abs(np.diff(one_way))) < 0.05, "dense (21 stops: 0.5 mm apart)"
+    # frames the grating could not pair (readings answered late on a loaded machine) leave holes, the other pass fills them
+    assert np.max(np.diff(np.sort(np.concatenate([up, down])))) < 0.25
+
+
+def test_every_pass_frame_carries_the_position_at_its_mid_exposure(scanned) -> None:
+    _, _, recording, true_mm = scanned
+    error_um = (recording.reference - true_mm) * 1e3
+    # the grating itself reads to a fraction of a micrometre; pairing keeps its error under 1 µm
+    assert np.percentile(np.abs(error_um), 99) < 1.5, np.percentile(np.abs(error_um), [50, 99, 100])
+
+
+def test_the_closed_loop_calibrates_on_the_scan_near_its_bound(scanned) -> None:
+    status, job, _, _ = scanned
+    held_out = job["report"]["held_out"]
+    assert held_out["error_std_um"] <= 1.6 * held_out["bound_um"], held_out
+    assert status["active_calibration"]["id"] == job["id"]
