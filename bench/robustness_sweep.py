@@ -48,6 +48,17 @@ CASES = [
     ("paper", "dropped_frames:p=0.1,timestamp_jitter:us=300", ""),
     ("strip16", "tilt:deg=2,prnu:sigma=0.01,bad_pixels", LATER_LIGHT + "," + LATER_PIXEL.replace("row=0", "row=3")),
     ("lab", "", LATER_LIGHT),
+    ("paper", "glare:gray=20", ""),
+    ("paper", "gain_hunting:depth=0.05", ""),
+    ("paper", "telegraph_pixels:count=3", ""),
+    ("paper", "row_banding:gray=1", ""),
+    ("paper", "mono12_in_16:black_gray=16", LATER_LIGHT),
+    ("paper", "smudge:depth=0.35", ""),
+    ("paper", "vibration:um=2:hz=180", ""),
+    ("paper", "duplicate_frames:p=0.03", ""),
+    ("paper", "clock_drift:ppm=100", ""),
+    ("strip16", "row_banding:gray=1,telegraph_pixels:count=6", ""),
+    ("lab", "gain_hunting:depth=0.05,duplicate_frames:p=0.03", ""),
 ]
 
 
