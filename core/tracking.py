@@ -22,7 +22,7 @@ from typing import Callable
 
 import numpy as np
 
-from graytrack.core import effects
+from graytrack.core import effects, repeats
 from graytrack.core.errors import TrackingError
 from graytrack.core.evaluation import ClippedHarmonics, FastHarmonics, GeneralHarmonics, TrigTables
 from graytrack.core.models.fourier import FourierModel
@@ -73,6 +73,7 @@ class TrackResult:
     rejected_px: np.ndarray | None = None  # pixels the robust reweighting gave zero weight
     stale: np.ndarray | None = None  # the model was stale at this frame (sustained χ² rise)
     chi2_calibration: float = float("nan")  # the calibration's own level, what χ² is compared with
+    repeated: np.ndarray | None = None  # the image repeats the frame before bit for bit (given no position)
 
     def error_um(self, reference: np.ndarray) -> np.ndarray:
         """Position minus reference in µm (NaN where either is missing)."""
@@ -321,6 +322,14 @@ class SequentialState:
         self._watch_model(tracker, solution.chi2)
         return solution, ok, locked
 
+    def repeat(self) -> None:
+        """The frame repeats the image before it (a driver's double delivery): it shows where the stage
+        was, not where its timestamp says; no position, logged, and the sequence goes on past it."""
+        self.events.append(LockEvent(self.frame, f"the image repeats frame {self.frame - 1} bit for bit (delivered "
+                                                 "twice by the camera driver): no position for it",
+                                     self.x_prev if self.x_prev is not None else float("nan"), float("nan"), False))
+        self.frame += 1
+
     def _watch_model(self, tracker: "Tracker", chi2: float) -> None:
         """A running χ² average (one frame's contribution capped, so a single garbage frame
         cannot flip it) above the stale limit: the images have left what the model describes."""
@@ -363,6 +372,7 @@ def track(model: FourierModel, source: Recording | np.ndarray, reference: np.nda
     rejected = np.zeros(n_frames, dtype=np.int64)
     locked = np.zeros(n_frames, dtype=bool)
     stale = np.zeros(n_frames, dtype=bool)
+    repeated = repeats.repeated(frames, model.noise_gray or 0.0)
     state = SequentialState(x_prev=x0_mm if x0_mm is not None else (
         reference[0] if n_frames and np.isfinite(reference[0]) else None))
     report_every = max(n_frames // 100, 1)
@@ -370,6 +380,10 @@ def track(model: FourierModel, source: Recording | np.ndarray, reference: np.nda
     for k in range(n_frames):
         if k % BATCH_CHUNK == 0:
             batch = tracker.batch(model.prepare(frames[k:k + BATCH_CHUNK]), frame_rows)
+        if repeated[k]:
+            state.repeat()
+            stale[k] = state.stale
+            continue
         solution, ok, locked[k] = state.advance(tracker, batch, k % BATCH_CHUNK, reference[k])
         out["chi2"][k], rejected[k], stale[k] = solution.chi2, solution.rejected, state.stale
         if ok:
@@ -382,7 +396,7 @@ def track(model: FourierModel, source: Recording | np.ndarray, reference: np.nda
         progress(1.0, f"{n_frames} frames, {len(state.events)} lock event(s)")
     crlb = 1.0 / np.sqrt(np.where(out["info"] > 0, out["info"], np.nan))
     return TrackResult(out["x"], locked, out["rms"], crlb, iterations, out["gain"], out["offset"], state.events,
-                       out["chi2"], rejected, stale, tracker.chi2_calibration)
+                       out["chi2"], rejected, stale, tracker.chi2_calibration, repeated)
 
 
 @dataclass
