@@ -183,7 +183,9 @@ class Tracker:
     def solve(self, batch: GeneralBatch | TrigPolyBatch, k: int, x_start: float, memory: LightMemory) -> FrameSolution:
         """Frame ``k`` from ``x_start``: the light and robustness the frame asks for, cheapest first
         (what the last frame needed, then the light solved, then the robust solve)."""
-        free = self.light == "free" or (self.light == "auto" and memory.free)
+        # A model fitted with a gain and offset per frame knows the light moves from frame to frame
+        # (flicker, auto-exposure, row banding): "auto" then solves it in every frame, as calibration did.
+        free = self.light == "free" or (self.light == "auto" and (memory.free or self.model.common_mode))
         robust_first = self.robust and memory.rejected is not None
         solution = self._attempt(batch, k, x_start, memory, free, robust_first)
         if solution.chi2 > self.chi2_limit and self.light == "auto" and not free:
