@@ -44,11 +44,12 @@ def repeated(frames: np.ndarray, sigma_gray: float, before: np.ndarray | None = 
     same = np.zeros(frames.shape[0], dtype=bool)
     if frames.shape[0] == 0:
         return same
-    n_samples = int(np.prod(frames.shape[1:]))
-    if chance_log10(n_samples, sigma_gray, number_step(frames)) > CHANCE_LIMIT_LOG10:
-        return same
     axes = tuple(range(1, frames.ndim))
     same[1:] = np.all(frames[1:] == frames[:-1], axis=axes)
     if before is not None and np.shape(before) == frames.shape[1:]:
         same[0] = bool(np.array_equal(frames[0], before))
+    if same.any():  # the chance only matters for the rare identical pair (cheap for live frames)
+        n_samples = int(np.prod(frames.shape[1:]))
+        if chance_log10(n_samples, sigma_gray, number_step(frames)) > CHANCE_LIMIT_LOG10:
+            same[:] = False
     return same

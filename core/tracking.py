@@ -431,6 +431,7 @@ class LiveTracker:
             and not self.tracker.signal_dependent
         self._line = np.empty((1, model.n_pixels))
         self._batches: dict[int, TrigPolyBatch] = {}  # by rows averaged
+        self._last_frame: np.ndarray | None = None  # to tell a driver's repeated image from a new one
 
     @property
     def stale(self) -> bool:
@@ -440,6 +441,11 @@ class LiveTracker:
     def update(self, frame: np.ndarray, reference_mm: float = float("nan")) -> LiveFix:
         """Solve one frame ``(n,)`` or ``(R, n)``; ``reference_mm`` is the grating at that instant, if read."""
         frame = np.asarray(frame)
+        last, self._last_frame = self._last_frame, frame.copy()
+        if last is not None and repeats.repeated(frame[None], self.model.noise_gray or 0.0, last)[0]:
+            self.state.repeat()
+            return LiveFix(float("nan"), False, float("nan"), float("nan"), self.state.events[-1],
+                           stale=self.state.stale)
         rows = 1 if frame.ndim == 1 else frame.shape[0]
         batch = self._lean_batch(frame, rows)
         if batch is None:

@@ -54,3 +54,13 @@ def test_calibration_leaves_repeated_images_out_and_says_so(paper_cal):
     assert f"{REPEATS.size} repeated image(s) left out" in result.model.describe()
     clean = calibrate(paper_cal, "paper")
     assert result.rmse_gray == pytest.approx(clean.rmse_gray, rel=0.02)
+
+
+def test_live_tracking_gives_a_repeated_image_no_position(paper_models, paper_val):
+    from graytrack.core.tracking import LiveTracker
+
+    live = LiveTracker(paper_models["paper"].model, x0_mm=float(paper_val.reference[0]))
+    fixes = [live.update(paper_val.frames[k], paper_val.reference[k]) for k in (0, 1, 1, 2)]
+    assert [np.isfinite(f.x_mm) for f in fixes] == [True, True, False, True]
+    assert "repeats frame 1" in fixes[2].event.reason and fixes[3].event is None
+    assert abs(fixes[3].x_mm - paper_val.reference[2]) < 0.01
