@@ -48,15 +48,28 @@ CASES = [
     ("paper", "dropped_frames:p=0.1,timestamp_jitter:us=300", ""),
     ("strip16", "tilt:deg=2,prnu:sigma=0.01,bad_pixels", LATER_LIGHT + "," + LATER_PIXEL.replace("row=0", "row=3")),
     ("lab", "", LATER_LIGHT),
+    ("paper", "glare:gray=20", ""),
+    ("paper", "gain_hunting:depth=0.05", ""),
+    ("paper", "telegraph_pixels:count=3", ""),
+    ("paper", "row_banding:gray=1", ""),
+    ("paper", "mono12_in_16:black_gray=16", LATER_LIGHT),
+    ("paper", "smudge:depth=0.35", ""),
+    ("paper", "vibration:um=2:hz=180", ""),
+    ("paper", "duplicate_frames:p=0.03", ""),
+    ("paper", "clock_drift:ppm=100", ""),
+    ("strip16", "row_banding:gray=1,telegraph_pixels:count=6", ""),
+    ("lab", "gain_hunting:depth=0.05,duplicate_frames:p=0.03", ""),
 ]
 
 
-def measured(model, run) -> tuple[int, float, float, int]:
-    """(frames lost, error std µm, rms bound µm, frames flagged stale)."""
+def measured(model, run) -> tuple[int, float, float, int, int]:
+    """(frames lost, error std µm, rms bound µm, frames flagged stale, repeated images set aside)."""
     result = track(model, run, light="auto", robust=True)
     error = result.error_um(run.reference)
     bound = float(np.sqrt(np.nanmean(np.square(result.crlb_mm * 1e3))))
-    return int((~np.isfinite(error)).sum()), float(np.nanstd(error)), bound, int(result.stale.sum())
+    repeated = result.repeated
+    lost = int((~np.isfinite(error) & ~repeated).sum())
+    return lost, float(np.nanstd(error)), bound, int(result.stale.sum()), int(repeated.sum())
 
 
 def main(selection: str = "") -> None:
@@ -74,9 +87,10 @@ def main(selection: str = "") -> None:
         cells = []
         loop = diagnose(calibration)
         for model in (calibrate(calibration, "paper").model, loop.final_model):
-            lost, spread, bound, stale = measured(model, run)
+            lost, spread, bound, stale, repeated = measured(model, run)
             cells.append(f"{lost:5d} {spread:6.3f}/{bound:.3f}={spread / bound:4.2f} {stale:5d}")
         added = ",".join(step.effect for step in loop.steps) or "-"
+        added += f", {repeated} repeated images set aside" if repeated else ""
         changed = " ".join(word for word, key in (("light", "light_change"), ("pixel", "start_s=2.5")) if key in later)
         print(f"{scenario:9} {rig_effects or '-':52.52} {changed or '-':12}"
               f" {cells[0]:>30} {cells[1]:>30}  {added} ({time.perf_counter() - started:.0f} s)", flush=True)

@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from graytrack.core import repeats
 from graytrack.core.errors import CalibrationError
 from graytrack.core.models.fourier import FourierModel
 from graytrack.core.noise import estimate_pixel_noise, estimate_sigma
@@ -67,13 +68,17 @@ def calibration_data(rec: Recording) -> CalibrationData:
     spread = np.percentile(frames, 99) - np.percentile(frames, 1)
     if spread < 2.0 or frames.std(axis=-1).mean() < 0.5:
         raise CalibrationError(f"the frames are flat (gray spread {spread:.2f}): no target is visible")
-    weights = usable_samples(frames, rec.meta)
-    x_mm = rec.reference[valid]
+    x_mm, t_s, meta = rec.reference[valid], rec.t[valid], dict(rec.meta)
     period = rec.meta.get("period_mm")
     sigma = estimate_sigma(frames, x_mm, period)
+    # An image the driver delivered twice pairs an old position with a new reading: left out, counted.
+    repeated = repeats.repeated(frames, sigma)
+    if repeated.any():
+        frames, x_mm, t_s = frames[~repeated], x_mm[~repeated], t_s[~repeated]
+        meta["repeated_frames"] = int(repeated.sum())
+    weights = usable_samples(frames, rec.meta)
     noise = estimate_pixel_noise(frames, x_mm, period, rec.meta.get("bit_depth"))
-    return CalibrationData(x_mm, frames, weights, sigma, dict(rec.meta), rec.t[valid],
-                           noise if noise.signal_dependent else None)
+    return CalibrationData(x_mm, frames, weights, sigma, meta, t_s, noise if noise.signal_dependent else None)
 
 
 def sensor_range(meta: dict[str, Any]) -> tuple[float, float] | None:

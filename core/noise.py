@@ -72,12 +72,18 @@ def temporal_differences(frames: np.ndarray, reference: np.ndarray | None = None
         keep = _quiet_triples(reference, period_mm, n_frames)
         second, gain = (flat[2:] - 2.0 * flat[1:-1] + flat[:-2])[keep], _SECOND_DIFF_GAIN
         level = ((flat[2:] + flat[1:-1] + flat[:-2]) / 3.0)[keep]
-    # Remove a per-difference-frame affine function of the gray level (common-mode gain/offset).
-    design = np.stack([np.ones_like(level), level - level.mean(axis=1, keepdims=True)], axis=-1)
-    gram = np.einsum("kpi,kpj->kij", design, design)
-    rhs = np.einsum("kpi,kp->ki", design, second)
-    coef = np.linalg.solve(gram + 1e-9 * np.eye(2), rhs[..., None])[..., 0]
-    cleaned = second - np.einsum("kpi,ki->kp", design, coef)
+    # Remove from each difference frame an offset per row and a gain common to the frame: a change
+    # of the light or exposure (flicker, drift) and a readout offset that differs from row to row
+    # (row banding) are common to many pixels, not pixel noise — left in, they would inflate σ and
+    # with it the bound every error is compared with.
+    rows = frames.shape[1]
+    by_row = second.reshape(second.shape[0], rows, -1)
+    level_by_row = level.reshape(by_row.shape)
+    centred = by_row - by_row.mean(axis=2, keepdims=True)
+    level_centred = level_by_row - level_by_row.mean(axis=2, keepdims=True)
+    slope = np.einsum("krp,krp->k", centred, level_centred) / (
+        np.einsum("krp,krp->k", level_centred, level_centred) + 1e-9)
+    cleaned = (centred - slope[:, None, None] * level_centred).reshape(second.shape)
     return cleaned, level, float(gain), bool(np.mean(second == 0.0) > _QUANTISED_ZERO_FRACTION)
 
 

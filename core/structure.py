@@ -131,6 +131,8 @@ def fit_spec(spec: ModelSpec, data: CalibrationData, period_mm: float, pitch_mm:
     residual2 = ((data.frames - fitted) ** 2) * usable
     rmse = float(np.sqrt(residual2.sum() / max(usable.sum(), 1.0)))
     info = {**model.info, "calibration_rmse_gray": rmse}
+    if data.meta.get("repeated_frames"):  # calibration_data left them out: the model says so
+        info["repeated_frames"] = int(data.meta["repeated_frames"])
     limits = sensor_range(data.meta)
     if limits is not None:  # the tracker sets aside samples stuck at a limit, whatever the model
         info["sensor_range_gray"] = list(limits)

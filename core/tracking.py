@@ -22,7 +22,7 @@ from typing import Callable
 
 import numpy as np
 
-from graytrack.core import effects
+from graytrack.core import effects, repeats
 from graytrack.core.errors import TrackingError
 from graytrack.core.evaluation import ClippedHarmonics, FastHarmonics, GeneralHarmonics, TrigTables
 from graytrack.core.models.fourier import FourierModel
@@ -73,6 +73,7 @@ class TrackResult:
     rejected_px: np.ndarray | None = None  # pixels the robust reweighting gave zero weight
     stale: np.ndarray | None = None  # the model was stale at this frame (sustained χ² rise)
     chi2_calibration: float = float("nan")  # the calibration's own level, what χ² is compared with
+    repeated: np.ndarray | None = None  # the image repeats the frame before bit for bit (given no position)
 
     def error_um(self, reference: np.ndarray) -> np.ndarray:
         """Position minus reference in µm (NaN where either is missing)."""
@@ -182,7 +183,9 @@ class Tracker:
     def solve(self, batch: GeneralBatch | TrigPolyBatch, k: int, x_start: float, memory: LightMemory) -> FrameSolution:
         """Frame ``k`` from ``x_start``: the light and robustness the frame asks for, cheapest first
         (what the last frame needed, then the light solved, then the robust solve)."""
-        free = self.light == "free" or (self.light == "auto" and memory.free)
+        # A model fitted with a gain and offset per frame knows the light moves from frame to frame
+        # (flicker, auto-exposure, row banding): "auto" then solves it in every frame, as calibration did.
+        free = self.light == "free" or (self.light == "auto" and (memory.free or self.model.common_mode))
         robust_first = self.robust and memory.rejected is not None
         solution = self._attempt(batch, k, x_start, memory, free, robust_first)
         if solution.chi2 > self.chi2_limit and self.light == "auto" and not free:
@@ -321,6 +324,14 @@ class SequentialState:
         self._watch_model(tracker, solution.chi2)
         return solution, ok, locked
 
+    def repeat(self) -> None:
+        """The frame repeats the image before it (a driver's double delivery): it shows where the stage
+        was, not where its timestamp says; no position, logged, and the sequence goes on past it."""
+        self.events.append(LockEvent(self.frame, f"the image repeats frame {self.frame - 1} bit for bit (delivered "
+                                                 "twice by the camera driver): no position for it",
+                                     self.x_prev if self.x_prev is not None else float("nan"), float("nan"), False))
+        self.frame += 1
+
     def _watch_model(self, tracker: "Tracker", chi2: float) -> None:
         """A running χ² average (one frame's contribution capped, so a single garbage frame
         cannot flip it) above the stale limit: the images have left what the model describes."""
@@ -363,6 +374,7 @@ def track(model: FourierModel, source: Recording | np.ndarray, reference: np.nda
     rejected = np.zeros(n_frames, dtype=np.int64)
     locked = np.zeros(n_frames, dtype=bool)
     stale = np.zeros(n_frames, dtype=bool)
+    repeated = repeats.repeated(frames, model.noise_gray or 0.0)
     state = SequentialState(x_prev=x0_mm if x0_mm is not None else (
         reference[0] if n_frames and np.isfinite(reference[0]) else None))
     report_every = max(n_frames // 100, 1)
@@ -370,6 +382,10 @@ def track(model: FourierModel, source: Recording | np.ndarray, reference: np.nda
     for k in range(n_frames):
         if k % BATCH_CHUNK == 0:
             batch = tracker.batch(model.prepare(frames[k:k + BATCH_CHUNK]), frame_rows)
+        if repeated[k]:
+            state.repeat()
+            stale[k] = state.stale
+            continue
         solution, ok, locked[k] = state.advance(tracker, batch, k % BATCH_CHUNK, reference[k])
         out["chi2"][k], rejected[k], stale[k] = solution.chi2, solution.rejected, state.stale
         if ok:
@@ -382,7 +398,7 @@ def track(model: FourierModel, source: Recording | np.ndarray, reference: np.nda
         progress(1.0, f"{n_frames} frames, {len(state.events)} lock event(s)")
     crlb = 1.0 / np.sqrt(np.where(out["info"] > 0, out["info"], np.nan))
     return TrackResult(out["x"], locked, out["rms"], crlb, iterations, out["gain"], out["offset"], state.events,
-                       out["chi2"], rejected, stale, tracker.chi2_calibration)
+                       out["chi2"], rejected, stale, tracker.chi2_calibration, repeated)
 
 
 @dataclass
@@ -415,6 +431,7 @@ class LiveTracker:
             and not self.tracker.signal_dependent
         self._line = np.empty((1, model.n_pixels))
         self._batches: dict[int, TrigPolyBatch] = {}  # by rows averaged
+        self._last_frame: np.ndarray | None = None  # to tell a driver's repeated image from a new one
 
     @property
     def stale(self) -> bool:
@@ -424,6 +441,11 @@ class LiveTracker:
     def update(self, frame: np.ndarray, reference_mm: float = float("nan")) -> LiveFix:
         """Solve one frame ``(n,)`` or ``(R, n)``; ``reference_mm`` is the grating at that instant, if read."""
         frame = np.asarray(frame)
+        last, self._last_frame = self._last_frame, frame.copy()
+        if last is not None and repeats.repeated(frame[None], self.model.noise_gray or 0.0, last)[0]:
+            self.state.repeat()
+            return LiveFix(float("nan"), False, float("nan"), float("nan"), self.state.events[-1],
+                           stale=self.state.stale)
         rows = 1 if frame.ndim == 1 else frame.shape[0]
         batch = self._lean_batch(frame, rows)
         if batch is None:

@@ -324,6 +324,8 @@ class FourierModel:
             parts.append(f"{int((self.pixel_weight == 0).sum())} pixel(s) masked")
         if self.clip_gray is not None:
             parts.append(f"clipped at {self.clip_gray[0]:g}..{self.clip_gray[1]:g}")
+        if self.info.get("repeated_frames"):
+            parts.append(f"{self.info['repeated_frames']} repeated image(s) left out of calibration")
         return f"{self.name} ({', '.join(parts)}; τ={self.period_mm:.4f} mm, α·d={self.pixel_pitch_mm:.5f} mm)"
 
     def ideal_parameters(self) -> dict[str, float]:

@@ -454,3 +454,100 @@ def _dropped_frames(config: "RigConfig", v: dict[str, float], rng: np.random.Gen
 def _frame_rate(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
     config.timing.frame_rate_hz = _positive("frame_rate", "hz", v["hz"])
     config.timing.exposure_s = min(config.timing.exposure_s, 1.0 / v["hz"])
+
+
+# ----- effects found by red-teaming the closed loop (light, pixels, print, optics, timing) --------
+
+
+@effect("glare", "illumination", "A bright blob fixed to the camera (a reflection in the lens or a window): stray light "
+        "added to the image, Gaussian about a point of the ROI; it dims and flickers with the lamp.",
+        gray=(20.0, "stray light at the centre, gray"), at=(0.7, "centre along the line, fraction of the ROI width"),
+        row=(0.5, "centre across the rows, fraction of the ROI height"), sigma_px=(8.0, "size, pixels"))
+def _glare(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    ill = config.illumination
+    ill.glare_gray = v["gray"]
+    ill.glare_center = (v["at"], v["row"])
+    ill.glare_sigma_px = _positive("glare", "sigma_px", v["sigma_px"])
+
+
+@effect("gain_hunting", "sensor", "Auto-exposure/auto-gain hunting: the camera's gain swings frame to frame, "
+        "1 + depth·sin(2π·hz·t + φ), in steps of `step` (a coarse gain register).",
+        depth=(0.05, "relative swing of the gain"), hz=(1.5, "hunting frequency"),
+        step=(0.01, "gain step, relative (0: smooth)"), phase_deg=(-1.0, "phase φ; negative = random"))
+def _gain_hunting(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    sensor = config.sensor
+    if not 0 <= v["depth"] < 1:
+        raise EffectError("effect 'gain_hunting': depth must be in [0, 1)")
+    sensor.gain_hunt_depth = v["depth"]
+    sensor.gain_hunt_hz = _positive("gain_hunting", "hz", v["hz"])
+    sensor.gain_hunt_step = _positive("gain_hunting", "step", v["step"], True)
+    sensor.gain_hunt_phase_rad = math.radians(v["phase_deg"]) if v["phase_deg"] >= 0 else rng.uniform(0, 2 * math.pi)
+
+
+@effect("telegraph_pixels", "sensor", "Random-telegraph (flickering) pixels: a charge trap makes each of `count` pixels "
+        "jump by `gray` and back at random instants, `rate_hz` flips per second on average.",
+        count=(3.0, "number of flickering pixels"), gray=(6.0, "size of the jump, gray"),
+        rate_hz=(4.0, "mean flips per second"))
+def _telegraph_pixels(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    rows, width = config.optics.n_rows, config.optics.n_pixels
+    count = _count("telegraph_pixels", "count", v["count"], 0, rows * width)
+    rate = _positive("telegraph_pixels", "rate_hz", v["rate_hz"])
+    cycle = 600.0  # the flips drawn for ten minutes, then repeated: no recording notices
+    for place in rng.choice(rows * width, size=count, replace=False):
+        n_flips = int(rng.poisson(rate * cycle)) // 2 * 2  # even: the pattern repeats seamlessly
+        flips = tuple(float(t) for t in np.sort(rng.uniform(0.0, cycle, n_flips)))
+        config.sensor.bad_pixels.append(
+            BadPixel("telegraph", int(place // width), int(place % width), v["gray"], 0.0, flips, cycle))
+
+
+@effect("row_banding", "sensor", "Row banding: each frame every row gets an offset of its own (the readout's "
+        "reference drifts line by line), Gaussian, common to all pixels of the row.",
+        gray=(1.0, "offset standard deviation, gray"))
+def _row_banding(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    config.sensor.row_noise_gray = _positive("row_banding", "gray", v["gray"], True)
+
+
+@effect("mono12_in_16", "sensor", "Mono12 data left-aligned in 16-bit words (values step by 16) with a camera "
+        "black level: what a machine-vision camera set to Mono16 delivers.",
+        black_gray=(16.0, "black level, 8-bit-equivalent gray"), read_e=(6.0, "read noise, electrons rms"),
+        full_well=(10000.0, "electrons at full scale"))
+def _mono12_in_16(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    _photon_transfer(config, {"full_well": v["full_well"], "read_e": v["read_e"], "bits": 16.0,
+                              "black_gray": v["black_gray"]}, rng)
+    config.sensor.lsb_shift = 4
+
+
+@effect("smudge", "target", "A local print defect: an ink smudge darkening part of one period, across the whole "
+        "height, somewhere in the stroke.",
+        at=(0.6, "place along the field seen over the stroke, 0..1"), width_um=(700.0, "Gaussian sigma, µm"),
+        depth=(0.35, "relative darkening at its centre"))
+def _smudge(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    if not 0 <= v["at"] <= 1:
+        raise EffectError("effect 'smudge': at must be in [0, 1]")
+    lo, hi = _field_span(config)
+    width = _positive("smudge", "width_um", v["width_um"]) * 1e-3
+    config.target.defects.append(Defect("scratch", lo + v["at"] * (hi - lo), 0.0, width, v["depth"], 0.0))
+
+
+@effect("vibration", "stage", "A structural vibration on the stage (a fan, a pump, a limit cycle): "
+        "amplitude·sin(2π·hz·t); the grating sees it, the camera averages it over the exposure.",
+        um=(2.0, "amplitude, µm"), hz=(180.0, "frequency"), phase_deg=(-1.0, "phase; negative = random"))
+def _vibration(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    stage = config.stage
+    stage.vibration_mm = _positive("vibration", "um", v["um"], True) * 1e-3
+    stage.vibration_hz = _positive("vibration", "hz", v["hz"])
+    stage.vibration_phase_rad = math.radians(v["phase_deg"]) if v["phase_deg"] >= 0 else rng.uniform(0, 2 * math.pi)
+
+
+@effect("duplicate_frames", "timing", "The driver delivers the previous image again with a new timestamp and "
+        "reference reading (as USB drivers do when a frame is late).", p=(0.03, "probability per frame"))
+def _duplicate_frames(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    if not 0 <= v["p"] < 1:
+        raise EffectError("effect 'duplicate_frames': p must be in [0, 1)")
+    config.timing.duplicate_probability = v["p"]
+
+
+@effect("clock_drift", "timing", "A free-running camera whose clock runs fast (or slow) against the reference's: "
+        "its exposures drift from the reference's latch by ppm·t.", ppm=(100.0, "clock rate error, parts per million"))
+def _clock_drift(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    config.timing.clock_ppm = v["ppm"]

@@ -34,6 +34,9 @@ class IlluminationConfig:
     ambient_gray: float = 0.0  # stray light added evenly over the field once changed (gray)
     level_start_s: float = 0.0  # when the light changes
     level_ramp_s: float = 0.0  # how long the change takes (0: a step)
+    glare_gray: float = 0.0  # stray light of a bright blob fixed to the camera, at its centre (gray)
+    glare_center: tuple[float, float] = (0.5, 0.5)  # (pixel, row) of its centre, as fractions of the ROI
+    glare_sigma_px: float = 10.0  # its size, pixels
 
     @property
     def has_target_field(self) -> bool:
@@ -49,6 +52,17 @@ def target_field_gain(cfg: IlluminationConfig, x_w: np.ndarray) -> np.ndarray:
 def camera_field_gain(cfg: IlluminationConfig, radius2: np.ndarray) -> np.ndarray:
     """Vignetting gain from each pixel's squared radius (normalised to the sensor half-width)."""
     return 1.0 - cfg.vignetting * np.asarray(radius2, dtype=np.float64)
+
+
+def glare(cfg: IlluminationConfig, n_rows: int, n_pixels: int) -> np.ndarray:
+    """Stray light ``(R, n)`` of a glare fixed to the camera (a reflection in the lens or window):
+    it adds to the image whatever the stage position, so unlike the print it does not move."""
+    if cfg.glare_gray == 0.0:
+        return np.zeros((n_rows, n_pixels))
+    u = np.arange(n_pixels) - cfg.glare_center[0] * (n_pixels - 1)
+    r = np.arange(n_rows) - cfg.glare_center[1] * (n_rows - 1)
+    d2 = r[:, None] ** 2 + u[None, :] ** 2
+    return cfg.glare_gray * np.exp(-d2 / (2 * cfg.glare_sigma_px**2))
 
 
 def level_change(cfg: IlluminationConfig, t_mid_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

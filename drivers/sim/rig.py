@@ -35,7 +35,7 @@ from graytrack.drivers.sim.grating import GratingConfig, GratingReadout
 from graytrack.drivers.sim.illumination import IlluminationConfig
 from graytrack.drivers.sim.optics import OpticsConfig, defocus_attenuation, pixel_geometry
 from graytrack.drivers.sim.sensor import Sensor, SensorConfig
-from graytrack.drivers.sim.stage import SimStage, StageConfig, Trajectory, oscillation, sweep
+from graytrack.drivers.sim.stage import SimStage, StageConfig, Trajectory, Vibrating, oscillation, sweep
 from graytrack.drivers.sim.target import TargetConfig
 from graytrack.drivers.sim.timing import TimingConfig, frame_clock
 
@@ -154,6 +154,8 @@ class VirtualRig:
         self._matrix_s = [self._matrix * self.geometry.x_mm.reshape(1, -1) ** p for p in (1, 2)]
         self._slow = (not tcfg.affine) or bool(tcfg.defects)
         self._row_y = self.geometry.y_mm.mean(axis=1)
+        self._glare = illum.glare(config.illumination, opt.n_rows, opt.n_pixels)
+        self._duplicate_rng = rng_for(seed, "duplicates") if run == 0 else rng_for(seed, "duplicates", f"run {run}")
 
     # ----- shape and nominal figures --------------------------------------------------------
     @property
@@ -236,6 +238,8 @@ class VirtualRig:
             xs = x[k0:k1]
             light = self._light_slow(xs) if self._slow else self._light_fast(xs)
             out[k0:k1] = light.reshape(k1 - k0, R, n)
+        if self.config.illumination.glare_gray:
+            out += self._glare  # the lamp's stray light: it dims and flickers with the lamp
         exposure = self.exposure_s if exposure_s is None else float(exposure_s)
         gain, ambient = illum.level_change(self.config.illumination, t)
         out *= (illum.flicker_gain(self.config.illumination, t, exposure) * gain)[:, None, None]
@@ -342,13 +346,25 @@ class VirtualRig:
         if not seconds > 0:
             raise ValueError(f"seconds must be positive, got {seconds}")
         trajectory = self.default_trajectory(seconds) if trajectory is None else trajectory
+        stage = cfg.stage
+        if stage.vibration_mm:
+            trajectory = Vibrating(trajectory, stage.vibration_mm, stage.vibration_hz, stage.vibration_phase_rad)
         clock = frame_clock(cfg.timing, seconds, self._timing_rng)
         keep = np.flatnonzero(clock.kept)
-        t_mid = clock.exposure_mid[keep]
+        # a driver that delivers the previous image again, with a new timestamp (and reference)
+        shown = np.arange(keep.size)
+        if cfg.timing.duplicate_probability:
+            again = self._duplicate_rng.random(keep.size) < cfg.timing.duplicate_probability
+            again[0] = False
+            shown = np.maximum.accumulate(np.where(again, 0, shown))
+        t_mid = clock.exposure_mid[keep][shown]
         T = self.exposure_s
         v_mid = np.asarray(trajectory.velocity(t_mid), dtype=np.float64)
         moving = T > 0 and float(np.max(np.abs(v_mid))) * T > 1e-9
-        offsets = np.array([-0.5, 0.0, 0.5]) * T if moving else np.zeros(1)
+        # a vibration is followed through the exposure: enough samples per cycle for the piecewise-
+        # linear motion to integrate it (constant velocity needs only the ends and the middle)
+        pieces = 2 if not stage.vibration_mm else max(2, 2 * math.ceil(8 * stage.vibration_hz * T))
+        offsets = np.linspace(-0.5, 0.5, pieces + 1) * T if moving else np.zeros(1)
         x_samples = np.asarray(trajectory.position(t_mid[:, None] + offsets), dtype=np.float64)
         frames = np.empty((keep.size, self.n_rows, self.n_pixels), dtype=self.frame_dtype)
         step = max(1, 4 * CHUNK_ELEMENTS // (self.n_rows * self.n_pixels))
@@ -357,10 +373,13 @@ class VirtualRig:
             frames[k0:k1] = self.render(x_samples[k0:k1], t_mid[k0:k1])
             if progress is not None:
                 progress(k1 / keep.size, f"frame {k1}/{keep.size}")
+        duplicated = shown != np.arange(keep.size)
+        if duplicated.any():  # the very same image (and noise) as the frame it repeats
+            frames[duplicated] = frames[shown[duplicated]]
         reference = self.make_grating(trajectory).read(clock.latch[keep])
         x_mid = np.asarray(trajectory.position(t_mid), dtype=np.float64)
         x_mean = x_samples.mean(axis=1) if x_samples.shape[1] == 1 else (
-            0.25 * x_samples[:, 0] + 0.5 * x_samples[:, 1] + 0.25 * x_samples[:, 2]
+            0.5 * (x_samples[:, 1:] + x_samples[:, :-1]).mean(axis=1)  # trapezoid over the exposure
         )
         stored = frames[:, 0, :] if self.n_rows == 1 else frames
         rec = Recording(stored, clock.stamp[keep], reference, self.meta())

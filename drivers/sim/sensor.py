@@ -32,6 +32,12 @@ class SensorConfig:
     gamma: float = 1.0  # camera output gamma
     clip: bool = False  # clip at [0, full scale] (always on when quantising)
     bad_pixels: list["BadPixel"] = field(default_factory=list)
+    row_noise_gray: float = 0.0  # banding: a per-frame offset common to each row, std (gray)
+    gain_hunt_depth: float = 0.0  # auto-gain hunting: relative swing of the camera gain
+    gain_hunt_hz: float = 1.0  # how fast the auto gain hunts
+    gain_hunt_step: float = 0.0  # the gain moves in steps of this (relative; 0: smoothly)
+    gain_hunt_phase_rad: float = 0.0
+    lsb_shift: int = 0  # data left-aligned in a wider word (Mono12 in 16 bits: 4); quantises at bit_depth − shift
 
 
 @dataclass
@@ -39,14 +45,18 @@ class BadPixel:
     """A defective pixel of the ROI (row, pixel), from time ``start_s`` on (8-bit-equivalent gray).
 
     ``stuck`` reads ``value`` whatever the light (255: stuck high, 0: dead); ``hot`` adds ``value``
-    (a large dark-current offset); ``noisy`` adds Gaussian noise of standard deviation ``value``.
+    (a large dark-current offset); ``noisy`` adds Gaussian noise of standard deviation ``value``;
+    ``telegraph`` (random telegraph signal, a charge trap) adds ``value`` while it is "up", flipping
+    at the instants ``switch_s`` (a Poisson process drawn once, repeating every ``cycle_s``).
     """
 
-    kind: str  # "stuck" | "hot" | "noisy"
+    kind: str  # "stuck" | "hot" | "noisy" | "telegraph"
     row: int
     pixel: int
     value: float
     start_s: float = 0.0
+    switch_s: tuple[float, ...] = ()  # telegraph: instants it flips, repeating every ``cycle_s``
+    cycle_s: float = 0.0
 
 
 class Sensor:
@@ -86,6 +96,8 @@ class Sensor:
         signal = np.asarray(light_gray, dtype=np.float32)
         gain = (self.prnu * cfg.gain).astype(np.float32)
         signal = signal * gain if (cfg.prnu_sigma or cfg.gain != 1.0) else signal.copy()
+        if cfg.gain_hunt_depth and t_s is not None:
+            signal *= hunting_gain(cfg, np.asarray(t_s, dtype=np.float64)).astype(np.float32)[:, None, None]
         if rng is not None and cfg.full_well_e:
             # Poisson in electrons, Gaussian approximation: var(gray) = gray · 255 / full_well
             shot = np.sqrt(np.maximum(signal, 0.0) * np.float32(FULL_SCALE_GRAY / cfg.full_well_e))
@@ -96,6 +108,8 @@ class Sensor:
             noise = rng.standard_normal(signal.shape, dtype=np.float32)
             noise *= np.float32(cfg.read_noise_gray)
             signal += noise
+        if rng is not None and cfg.row_noise_gray:
+            signal += np.float32(cfg.row_noise_gray) * rng.standard_normal(signal.shape[:2] + (1,), dtype=np.float32)
         if cfg.gamma != 1.0:
             signal = np.float32(FULL_SCALE_GRAY) * (np.maximum(signal, 0.0) / np.float32(FULL_SCALE_GRAY)) ** np.float32(
                 cfg.gamma)
@@ -105,9 +119,21 @@ class Sensor:
             np.clip(signal, 0.0, FULL_SCALE_GRAY, out=signal)
         if cfg.bit_depth is None:
             return signal
-        scale = np.float32(2.0 ** (cfg.bit_depth - 8))
-        top = 2**cfg.bit_depth - 1
-        return np.clip(np.rint(signal * scale), 0, top).astype(self.output_dtype)
+        significant = cfg.bit_depth - cfg.lsb_shift
+        scale = np.float32(2.0 ** (significant - 8))
+        top = 2**significant - 1
+        counts = np.clip(np.rint(signal * scale), 0, top).astype(self.output_dtype)
+        return counts << cfg.lsb_shift if cfg.lsb_shift else counts
+
+
+def hunting_gain(cfg: SensorConfig, t_s: np.ndarray) -> np.ndarray:
+    """Per-frame camera gain of an auto-gain loop that hunts: ``1 + depth·sin(2π f t + φ)``, moved in
+    steps of ``gain_hunt_step`` when the camera's gain register is coarse (a real loop overshoots in
+    discrete gain steps, frame after frame)."""
+    gain = 1.0 + cfg.gain_hunt_depth * np.sin(2 * np.pi * cfg.gain_hunt_hz * t_s + cfg.gain_hunt_phase_rad)
+    if cfg.gain_hunt_step > 0:
+        gain = 1.0 + cfg.gain_hunt_step * np.round((gain - 1.0) / cfg.gain_hunt_step)
+    return gain
 
 
 def _spoil(signal: np.ndarray, bad: BadPixel, rng: np.random.Generator | None, t_s: np.ndarray | None) -> None:
@@ -120,6 +146,10 @@ def _spoil(signal: np.ndarray, bad: BadPixel, rng: np.random.Generator | None, t
         column[frames] = bad.value
     elif bad.kind == "hot":
         column[frames] += np.float32(bad.value)
+    elif bad.kind == "telegraph":
+        t = np.zeros(signal.shape[0]) if t_s is None else np.asarray(t_s, dtype=np.float64)
+        flips = np.searchsorted(np.asarray(bad.switch_s), np.mod(t, bad.cycle_s) if bad.cycle_s > 0 else t)
+        column[frames & (flips % 2 == 1)] += np.float32(bad.value)
     elif rng is not None:  # noisy
         column[frames] += np.float32(bad.value) * rng.standard_normal(int(frames.sum()), dtype=np.float32)
     signal[:, bad.row, bad.pixel] = column

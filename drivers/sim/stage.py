@@ -55,6 +55,9 @@ class StageConfig:
     acceleration_feedforward: float = 0.9  # k_a: 1 = no acceleration-driven error
     on_target_window_mm: float = 0.0005  # PI: settle window
     settle_time_s: float = 0.01  # PI: settle time
+    vibration_mm: float = 0.0  # amplitude of a structural vibration riding on the motion
+    vibration_hz: float = 180.0
+    vibration_phase_rad: float = 0.0
 
 
 class SoftLimitError(ValueError):
@@ -398,3 +401,24 @@ def oscillation(center_mm: float, amplitude_mm: float, frequency_hz: float) -> F
         lambda t: center_mm + amplitude_mm * np.sin(w * t),
         lambda t: amplitude_mm * w * np.cos(w * t),
     )
+
+
+@dataclass
+class Vibrating:
+    """A trajectory with a structural vibration on top, ``A sin(2π f t + φ)`` (a fan, a pump, the
+    servo's own limit cycle): the grating on the stage sees it, the camera averages it over the
+    exposure (blur and a position that is not the one at mid-exposure)."""
+
+    base: Trajectory
+    amplitude_mm: float
+    frequency_hz: float
+    phase_rad: float = 0.0
+
+    def position(self, t_s: ArrayLike) -> np.ndarray:
+        t = np.asarray(t_s, dtype=np.float64)
+        return self.base.position(t) + self.amplitude_mm * np.sin(2 * math.pi * self.frequency_hz * t + self.phase_rad)
+
+    def velocity(self, t_s: ArrayLike) -> np.ndarray:
+        t = np.asarray(t_s, dtype=np.float64)
+        w = 2 * math.pi * self.frequency_hz
+        return self.base.velocity(t) + self.amplitude_mm * w * np.cos(w * t + self.phase_rad)

@@ -27,6 +27,8 @@ class TimingConfig:
     timestamp_jitter_s: float = 0.0  # std of the recorded timestamp about the true exposure
     latch_skew_s: float = 0.0  # grating latch minus exposure mid-point (constant)
     drop_probability: float = 0.0  # chance that a frame never arrives
+    duplicate_probability: float = 0.0  # chance that the driver delivers the previous image again
+    clock_ppm: float = 0.0  # the camera's clock runs fast by this against the reference's
 
 
 @dataclass
@@ -51,6 +53,9 @@ def frame_clock(cfg: TimingConfig, seconds: float, rng: np.random.Generator) -> 
     half = 0.49 / cfg.frame_rate_hz
     exposure_mid = nominal + np.clip(cfg.trigger_jitter_s * trig, -half, half)
     stamp = nominal + np.clip(exposure_mid - nominal + cfg.timestamp_jitter_s * stamp_noise, -half, half)
+    # A free-running camera on its own clock: its frames fall ever later (or earlier) against the
+    # reference's clock, which latches the grating; its timestamps count its own clock.
+    exposure_mid = exposure_mid + cfg.clock_ppm * 1e-6 * (nominal - cfg.t0_s)
     kept = drops >= cfg.drop_probability
     if not kept.any():
         kept[0] = True
