@@ -40,7 +40,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--scenario", default="lab")
     parser.add_argument("--effects", default="")
-    parser.add_argument("--sweep", default="scan", choices=("scan", "stops"))
+    parser.add_argument("--sweep", default="stops", choices=("stops", "scan"))
     parser.add_argument("--model", default="auto", choices=("auto", "paper"))
     parser.add_argument("--messages", type=int, default=600, help="stream messages read at each position")
     args = parser.parse_args()

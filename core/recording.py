@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import threading
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -197,15 +198,27 @@ def load(path: str | os.PathLike[str]) -> Recording:
         raise RecordingError(f"{path}: {exc}") from None
 
 
+# numpy parses a .npy header with ast.literal_eval, and CPython 3.11's AST constructor is not safe
+# from two threads at once (it raised "AST constructor recursion depth mismatch" when Dask's threads
+# read recordings side by side): headers are parsed one at a time; the data is read in parallel.
+_HEADER_LOCK = threading.Lock()
+_HEADER_READERS = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}
+
+
+def _read_header(fh: Any) -> tuple[tuple[int, ...], bool, np.dtype]:
+    """(shape, Fortran order, dtype) of the ``.npy`` stream ``fh``, left at the start of its data."""
+    version = np.lib.format.read_magic(fh)
+    if version not in _HEADER_READERS:
+        raise ValueError(f".npy format version {version} is not one numpy writes for arrays like these")
+    with _HEADER_LOCK:
+        return _HEADER_READERS[version](fh, max_header_size=10_000)
+
+
 def _npy_header(archive: zipfile.ZipFile, info: zipfile.ZipInfo, key: str) -> tuple[tuple[int, ...], np.dtype]:
     """Shape and dtype from a member's ``.npy`` header, read without reading the array."""
     try:
         with archive.open(info) as fh:
-            version = np.lib.format.read_magic(fh)
-            readers = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}
-            if version not in readers:
-                raise ValueError(f".npy format version {version} is not one numpy writes for arrays like these")
-            shape, _, dtype = readers[version](fh, max_header_size=10_000)
+            shape, _, dtype = _read_header(fh)
     except Exception as exc:  # noqa: BLE001 - numpy's header parser raises anything from SyntaxError to TokenError
         raise RecordingError(f"{key}: broken .npy header ({type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''})") from None
     if not isinstance(shape, tuple) or not all(isinstance(n, int) and n >= 0 for n in shape):
@@ -235,9 +248,21 @@ def _check_declared_sizes(archive: zipfile.ZipFile, members: dict[str, zipfile.Z
 
 
 def _read_member(archive: zipfile.ZipFile, info: zipfile.ZipInfo, key: str) -> np.ndarray:
+    """The member's array (its header was checked against the budget by :func:`_npy_header`)."""
     try:
         with archive.open(info) as fh:
-            return np.lib.format.read_array(fh, allow_pickle=False, max_header_size=10_000)
+            shape, fortran, dtype = _read_header(fh)
+            if dtype.hasobject:
+                raise ValueError("holds Python objects")
+            flat = np.empty(math.prod(shape), dtype=dtype)
+            buffer = memoryview(flat).cast("B")
+            filled = 0
+            while filled < len(buffer):  # straight into the array: no second copy of a large recording
+                got = fh.readinto(buffer[filled:])
+                if not got:
+                    raise EOFError(f"{filled} of {len(buffer)} bytes")
+                filled += got
+            return flat.reshape(shape, order="F" if fortran else "C")
     except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
         raise RecordingError(f"{key}: cannot be read ({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})") from None
 

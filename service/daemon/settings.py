@@ -57,10 +57,10 @@ class DaemonConfig(_Strict):
 
 
 class SweepConfig(_Strict):
-    kind: Literal["scan", "stops"] = Field("scan", description="scan: frames at rest at both ends and one pass at "
-                                           "constant velocity recording every frame with its interpolated grating "
-                                           "reference (dense: what the closed loop needs to see the print along the "
-                                           "stroke); stops: step and settle at `positions` stops")
+    kind: Literal["stops", "scan"] = Field("stops", description="stops: step and settle at `positions` stops; scan: "
+                                           "frames at rest at both ends and a pass up and one down at constant "
+                                           "velocity, every frame with its interpolated grating reference (frames in "
+                                           "motion at ±v: what a timing error of the grating shows in)")
     scan_frames: int = Field(1000, ge=50, le=100_000, description="scan: frames the pass should record; its velocity "
                                                                    "follows from the frame rate (at most the stage's)")
     positions: int = Field(41, ge=2, description="stops: step-and-settle stops over the soft limits")

@@ -5,17 +5,19 @@ next frames whose exposure began *after* that moment (a frame straddling the set
 the last of the motion into the calibration), and then reads the grating once more: the axis is
 at rest, so that reading is the reference of every frame of the stop.
 
-``kind = "scan"`` (the default): a stop at each end of the stroke (frames at rest: the noise
+``kind = "stops"`` (the default): step and settle at ``positions`` stops.
+
+``kind = "scan"``: a stop at each end of the stroke (frames at rest: the noise
 estimate needs several at one place) and a pass at constant velocity up and one down, keeping
 every frame whose grating reference is known (interpolated between the poller's bracketing
 readings, :class:`Readings`; the acceleration at both ends gives none and those frames are left
-out). Why a scan: what a rig gets wrong is often fixed to the print (dust, a smudge, the pitch
-drifting along the stroke), and seeing it takes frames every few micrometres of the stroke, not
-at 41 stops; 1,000 frames take seconds. Why both ways: every position is seen at +v and at −v,
-so an error that follows velocity (the grating read off mid-exposure) cannot pass for one that
-follows position, and the other way round (one pass and two stops at its ends would confound
-them: the closed loop read a 14 µm offset at the ends as a 7 ms timing skew). ``kind = "stops"``: step and settle at
-``positions`` stops.
+out). A scan calibrates on frames in motion, as they are tracked during moves, and only motion
+shows an error that follows velocity (the grating read off mid-exposure). Why both ways: every
+position is seen at +v and at −v, so such an error cannot pass for one that follows position, and
+the other way round (one pass and two stops at its ends confound them: on the `lab` rig the closed
+loop read an offset of the stroke's ends as a 7 ms timing skew and tracked 4–15 µm off at rest).
+What the print does along the stroke (dust, a smudge) the stops see as well: each frame sees
+several millimetres of the target, at 41 shifts.
 
 The frames form an ordinary :class:`Recording`, calibrated with the closed loop (``model =
 "auto"``) or the paper model and stored with the model and a report; the recording is written

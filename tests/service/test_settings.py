@@ -22,7 +22,7 @@ EXAMPLE = ROOT / "deploy" / "graytrack.example.toml"
 def test_the_example_config_is_valid_and_the_default_is_the_virtual_rig() -> None:
     example = load_settings(EXAMPLE)
     assert example.hardware.camera.kind == "aravis" and not example.simulated
-    assert example.daemon.host == "127.0.0.1" and example.sweep.model == "paper"
+    assert example.daemon.host == "127.0.0.1" and example.sweep.model == "auto"
     opencv = load_settings(ROOT / "deploy" / "graytrack.opencv.toml")
     assert opencv.hardware.camera.kind == "opencv" and opencv.hardware.camera.device == 0 and not opencv.simulated
     assert opencv.daemon.auto_calibrate == "never"
