@@ -57,6 +57,7 @@ class LockEvent:
     x_before_mm: float
     x_after_mm: float
     reacquired: bool
+    lost: bool = True  # False: an event that is no loss of lock (a repeated image, set aside)
 
 
 @dataclass
@@ -329,7 +330,8 @@ class SequentialState:
         was, not where its timestamp says; no position, logged, and the sequence goes on past it."""
         self.events.append(LockEvent(self.frame, f"the image repeats frame {self.frame - 1} bit for bit (delivered "
                                                  "twice by the camera driver): no position for it",
-                                     self.x_prev if self.x_prev is not None else float("nan"), float("nan"), False))
+                                     self.x_prev if self.x_prev is not None else float("nan"), float("nan"), False,
+                                     lost=False))
         self.frame += 1
 
     def _watch_model(self, tracker: "Tracker", chi2: float) -> None:

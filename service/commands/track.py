@@ -50,6 +50,9 @@ def summary(result: TrackResult, reference: np.ndarray) -> list[str]:
 
     lines = [f"frames  {result.x_mm.size}, locked {int(result.locked.sum())}, lock events {len(result.events)}"]
     for event in result.events[:10]:
+        if not event.lost:
+            lines.append(f"  frame {event.frame}: {event.reason}")
+            continue
         state = f"re-acquired at {event.x_after_mm:.4f} mm" if event.reacquired else "not re-acquired"
         lines.append(f"  frame {event.frame}: {event.reason}; {state}")
     error = result.error_um(reference)

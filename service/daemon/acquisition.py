@@ -249,9 +249,12 @@ class Acquisition(Worker):
         if fix.event is not None:
             stats.lock_events += 1
             event = fix.event
-            self.on_event("lock_reacquired" if event.reacquired else "lock_lost",
-                          f"{'lock re-acquired' if event.reacquired else 'lock lost'} at frame "
-                          f"{sample.frame.frame_id}: {event.reason}")
+            if not getattr(event, "lost", True):
+                self.on_event("frame_repeated", f"frame {sample.frame.frame_id}: {event.reason}")
+            else:
+                self.on_event("lock_reacquired" if event.reacquired else "lock_lost",
+                              f"{'lock re-acquired' if event.reacquired else 'lock lost'} at frame "
+                              f"{sample.frame.frame_id}: {event.reason}")
         stale = bool(getattr(fix, "stale", False))
         if stale != self._stale:
             self._stale = stale

@@ -8,7 +8,8 @@ at rest, so that reading is the reference of every frame of the stop.
 ``kind = "stops"`` (the default): step and settle at ``positions`` stops.
 
 ``kind = "scan"``: a stop at each end of the stroke (frames at rest: the noise
-estimate needs several at one place) and a pass at constant velocity up and one down, keeping
+estimate needs several at one place) and a pass at constant velocity up and one down (repeated,
+up to ``MAX_ROUND_TRIPS``, while too few frames were paired), keeping
 every frame whose grating reference is known (interpolated between the poller's bracketing
 readings, :class:`Readings`; the acceleration at both ends gives none and those frames are left
 out). A scan calibrates on frames in motion, as they are tracked during moves, and only motion
@@ -55,7 +56,9 @@ SWEEP_SHARE = 0.8  # of the progress bar; the fit takes the rest
 MIN_PASS_FRAMES = 50  # a pass that pairs fewer frames with the grating cannot calibrate anything
 ON_TARGET_CHECK_S = 0.1  # how often the pass asks the controller whether it has arrived
 PAIRING_MARGIN = 0.5  # the pass's velocity uses half the pairing tolerance for the readings' timing
-HELD_OUT_BLOCKS = 40  # a scan is cut into this many blocks for the two-fold held-out error
+HELD_OUT_BLOCKS = 40
+MAX_ROUND_TRIPS = 3  # a scan goes up and down again while it has fewer than ENOUGH_SHARE of its frames
+ENOUGH_SHARE = 0.8  # a scan is cut into this many blocks for the two-fold held-out error
 
 
 class SweepError(GraytrackError):
@@ -160,9 +163,18 @@ class Sweep:
         gathered = _Frames(self.meta)
         self._stop_at(feed, low, gathered)
         velocity, keep_every = self._scan_velocity(high - low)  # frames have flowed for a while: their rate is known
-        paired = self._pass(feed, low, high, velocity, keep_every, gathered, share=(0.05, 0.5))
-        self._stop_at(feed, high, gathered)
-        paired += self._pass(feed, high, low, velocity, keep_every, gathered, share=(0.5, 0.95))
+        paired = 0
+        for round_trip in range(MAX_ROUND_TRIPS):
+            # Readings answered late (a loaded host) pair no frame: go again, both ways, until the scan
+            # has most of the frames it asked for.
+            if round_trip and paired >= ENOUGH_SHARE * self.config.scan_frames:
+                break
+            share = (round_trip / MAX_ROUND_TRIPS, (round_trip + 1) / MAX_ROUND_TRIPS)
+            middle = 0.5 * (share[0] + share[1])
+            paired += self._pass(feed, low, high, velocity, keep_every, gathered, share=(share[0], middle))
+            if round_trip == 0:
+                self._stop_at(feed, high, gathered)
+            paired += self._pass(feed, high, low, velocity, keep_every, gathered, share=(middle, share[1]))
         if paired < MIN_PASS_FRAMES:
             raise SweepError(f"the passes paired {paired} frames with the grating (fewer than {MIN_PASS_FRAMES}): "
                              f"poll the grating faster (grating_poll_s) or record more frames (scan_frames)")
