@@ -38,6 +38,7 @@ def raise_thread_priority(level: int, thread: str) -> bool:
         _say_once(say, f"realtime_priority = {level} refused ({exc.strerror or exc}): the {thread} and the others run "
                        "at normal priority; grant LimitRTPRIO or CAP_SYS_NICE (deploy/graytrack.service) or set 0")
         return False
+    log.info("the %s runs SCHED_FIFO at priority %d", thread, level)
     return True
 
 
