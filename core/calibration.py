@@ -13,11 +13,14 @@ from typing import Callable, Literal
 import numpy as np
 
 from graytrack.core import effects
+from graytrack.core.adequacy import assessed
 from graytrack.core.calibration_data import Calibration, CalibrationData, calibration_data
 from graytrack.core.errors import CalibrationError
 from graytrack.core.geometry import initial_geometry
+from graytrack.core.geometry_check import MIN_SEEN_SHARE, GeometryError, check_geometry
 from graytrack.core.models.fourier import FourierModel
 from graytrack.core.recording import Recording
+from graytrack.core.reference_monitor import record_calibration_line
 from graytrack.core.structure import ModelSpec, fit_spec
 
 Progress = Callable[[float, str], None]
@@ -53,8 +56,14 @@ KIND_SPECS = {
 
 
 def calibrate(rec: Recording, model: str = "paper", *, harmonics: int | None = None, pixel_degree: int | None = None,
-              rows: RowMode = "auto", progress: Progress | None = None) -> Calibration:
-    """Calibrate the ``ideal`` or ``paper`` model on a recording with a reference."""
+              rows: RowMode = "auto", progress: Progress | None = None, check: bool = True) -> Calibration:
+    """Calibrate the ``ideal`` or ``paper`` model on a recording with a reference.
+
+    The fit's geometry is then checked (core/geometry_check.py): a fault of the rig's set-up (a
+    reversed pixel axis, a wrong period) raises :class:`GeometryError` naming the cause and the
+    fix; a doubt is kept as warnings in ``result.geometry`` and the model's info. ``check=False``
+    keeps a refused model (to study it), marked refused in its info all the same.
+    """
     if model not in KIND_SPECS:
         raise CalibrationError(f"unknown model kind {model!r} (expected one of {', '.join(KIND_SPECS)})")
     spec = KIND_SPECS[model]
@@ -70,10 +79,18 @@ def calibrate(rec: Recording, model: str = "paper", *, harmonics: int | None = N
     period, pitch, row_shift = initial_geometry(data)
     result = fit_spec(spec, data, period, pitch, progress=progress)
     n_rows = data.frames.shape[1]
-    if n_rows > 1 and (rows == "each" or (rows == "auto" and rows_disagree(result.model, data))):
+    # Whole rows set aside (off the print) blind the row mean at every column: only rows of their own see.
+    blind = float(np.mean(result.model.seen())) < MIN_SEEN_SHARE
+    if n_rows > 1 and (rows == "each" or (rows == "auto" and (blind or rows_disagree(result.model, data)))):
         geometry = result.model
         result = fit_spec(spec.with_changes(per_row=True), data, geometry.period_mm, geometry.pixel_pitch_mm,
                           row_shift, progress)
+    assessed(result.model, data)
+    result.geometry = check_geometry(data, result.model, result.rmse_gray)
+    result.model.info["geometry"] = result.geometry.as_dict()
+    if check and result.geometry.refused:
+        raise GeometryError(result.geometry)
+    record_calibration_line(result.model, rec)  # camera against grating on its own run: drift is measured from it
     if progress:
         progress(1.0, f"done, rms {result.rmse_gray:.3f} gray")
     return result

@@ -17,6 +17,7 @@ from graytrack.core.models.fourier import FourierModel
 from graytrack.core.noise import estimate_pixel_noise, estimate_sigma
 from graytrack.core.pixel_noise import PixelNoise
 from graytrack.core.recording import Recording
+from graytrack.core.transients import find_transients
 
 MIN_FRAMES = 20
 
@@ -32,10 +33,13 @@ class CalibrationData:
     meta: dict[str, Any]
     t_s: np.ndarray | None = None  # (K,) frame times, for velocity-dependent effects
     pixel_noise: PixelNoise | None = None  # photon-transfer curve of one raw sample (None: σ for all)
+    transients: np.ndarray | None = None  # (K, R, n) bool: samples set aside as transients (also weight 0)
 
     def subset(self, index: np.ndarray) -> "CalibrationData":
         t_s = None if self.t_s is None else self.t_s[index]
-        return replace(self, x_mm=self.x_mm[index], frames=self.frames[index], weights=self.weights[index], t_s=t_s)
+        transients = None if self.transients is None else self.transients[index]
+        return replace(self, x_mm=self.x_mm[index], frames=self.frames[index], weights=self.weights[index], t_s=t_s,
+                       transients=transients)
 
     def with_reference(self, x_mm: np.ndarray) -> "CalibrationData":
         return replace(self, x_mm=x_mm)
@@ -55,6 +59,7 @@ class Calibration:
     sigma_gray: float
     iterations: int
     history: list[dict[str, float]] = field(default_factory=list)
+    geometry: Any = None  # core.geometry_check.GeometryCheck of the fit (None: not checked)
 
 
 def calibration_data(rec: Recording) -> CalibrationData:
@@ -77,8 +82,18 @@ def calibration_data(rec: Recording) -> CalibrationData:
         frames, x_mm, t_s = frames[~repeated], x_mm[~repeated], t_s[~repeated]
         meta["repeated_frames"] = int(repeated.sum())
     weights = usable_samples(frames, rec.meta)
-    noise = estimate_pixel_noise(frames, x_mm, period, rec.meta.get("bit_depth"))
-    return CalibrationData(x_mm, frames, weights, sigma, meta, t_s, noise if noise.signal_dependent else None)
+    # Transients (glints, passing dust) lose the samples they cover in the frames they last, not
+    # their pixels; the noise is measured without them (core/transients.py).
+    numbers = np.flatnonzero(valid) if not repeated.any() else np.flatnonzero(valid)[~repeated]
+    found = find_transients(frames, x_mm, sigma, period, rec.meta.get("pixel_pitch_mm"), numbers)
+    exclude = None
+    if found.events:
+        exclude = found.mask
+        weights[exclude] = 0.0
+        sigma = estimate_sigma(frames, x_mm, period, exclude)
+        meta["transients"] = found.summary()
+    noise = estimate_pixel_noise(frames, x_mm, period, rec.meta.get("bit_depth"), exclude=exclude)
+    return CalibrationData(x_mm, frames, weights, sigma, meta, t_s, noise if noise.signal_dependent else None, exclude)
 
 
 def sensor_range(meta: dict[str, Any]) -> tuple[float, float] | None:

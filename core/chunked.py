@@ -25,13 +25,15 @@ import numpy as np
 from graytrack.core.errors import TrackingError
 from graytrack.core.models.fourier import FourierModel
 from graytrack.core.tracking import LockEvent, TrackResult, track
+from graytrack.core.validity import FAMILIES
 
 DEFAULT_OVERLAP = 32
 # Both chunks solve the same frames with the same solver: after the period is picked they agree to
 # the Gauss–Newton tolerance. Anything beyond this is a different solution, not rounding.
 AGREE_MM = 1e-5
 
-PER_FRAME = ("x_mm", "locked", "rms_gray", "crlb_mm", "iterations", "gain", "offset", "chi2", "rejected_px", "stale")
+PER_FRAME = ("x_mm", "locked", "rms_gray", "crlb_mm", "iterations", "gain", "offset", "chi2", "rejected_px", "stale",
+             "stale_reason", "transient_px", "focus", "focus_sigma")
 
 
 @dataclass(frozen=True)
@@ -155,7 +157,10 @@ def track_chunked(model: FourierModel, frames: np.ndarray, reference: np.ndarray
     stitched = TrackResult(nan(), np.zeros(n_frames, dtype=bool), nan(), nan(), np.zeros(n_frames, dtype=np.int64),
                            nan(), nan(), [], chi2=nan(), rejected_px=np.zeros(n_frames, dtype=np.int64),
                            stale=np.zeros(n_frames, dtype=bool),
-                           chi2_calibration=results[0].chi2_calibration if results else float("nan"))
+                           stale_reason=np.full(n_frames, "", dtype=f"<U{max(map(len, FAMILIES))}"),
+                           transient_px=np.zeros(n_frames, dtype=np.int64),
+                           chi2_calibration=results[0].chi2_calibration if results else float("nan"),
+                           focus=nan(), focus_sigma=nan())
     report = StitchReport(len(chunks))
     for index, (chunk, result) in enumerate(zip(chunks, results)):
         shift = 0.0

@@ -7,6 +7,8 @@ noise with whatever the model misses, which would make a poor model look noise-l
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from graytrack.core.errors import GraytrackError
@@ -31,7 +33,8 @@ _SLOPE_Z = 5.0  # the shot-noise slope must stand this many standard errors abov
 _MIN_SIGNAL_SHARE = 0.1  # … and add this share of the read variance over the gray range seen
 
 
-def estimate_sigma(frames: np.ndarray, reference: np.ndarray | None = None, period_mm: float | None = None) -> float:
+def estimate_sigma(frames: np.ndarray, reference: np.ndarray | None = None, period_mm: float | None = None,
+                   exclude: np.ndarray | None = None) -> float:
     """Per-pixel gray-level noise σ of frames ``(K, n)`` or ``(K, R, n)``.
 
     Uses differences along time: first differences between frames taken at rest when the
@@ -41,9 +44,12 @@ def estimate_sigma(frames: np.ndarray, reference: np.ndarray | None = None, peri
     that takes out common-mode gain and offset changes (flicker, exposure drift), which are not
     pixel noise. Frames that moved more than 2 % of a period between neighbours are skipped when
     the reference allows telling. A robust (MAD) scale keeps defects and outliers from counting,
-    except for coarsely quantised frames, where a trimmed variance takes over.
+    except for coarsely quantised frames, where a trimmed variance takes over. ``exclude`` (bool,
+    like ``frames``) marks samples to leave out (transients, core/transients.py).
     """
-    cleaned, _, gain, quantised = temporal_differences(frames, reference, period_mm)
+    cleaned, _, gain, quantised = temporal_differences(frames, reference, period_mm, exclude)
+    if exclude is not None:
+        cleaned = cleaned[np.isfinite(cleaned)]
     if quantised:
         return _trimmed_sigma(cleaned) / gain
     mad = np.median(np.abs(cleaned - np.median(cleaned)))
@@ -51,10 +57,13 @@ def estimate_sigma(frames: np.ndarray, reference: np.ndarray | None = None, peri
 
 
 def temporal_differences(frames: np.ndarray, reference: np.ndarray | None = None,
-                         period_mm: float | None = None) -> tuple[np.ndarray, np.ndarray, float, bool]:
+                         period_mm: float | None = None,
+                         exclude: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, float, bool]:
     """Noise samples along time, model-free: (differences ``(D, P)`` with the common mode removed,
     the gray level each was taken at ``(D, P)``, the factor from difference to sample σ, whether
-    the frames are quantised coarser than their noise)."""
+    the frames are quantised coarser than their noise). Differences that touch a sample marked in
+    ``exclude`` (bool, like ``frames``: a glint's) are NaN and take no part in the common mode:
+    a glint in one frame would otherwise tilt the gain fitted to its whole difference frame."""
     frames = np.asarray(frames, dtype=np.float64)
     if frames.ndim == 2:
         frames = frames[:, None, :]
@@ -65,13 +74,16 @@ def temporal_differences(frames: np.ndarray, reference: np.ndarray | None = None
     still = _still_pairs(reference)
     # The level of a difference is the mean of the frames in it: uncorrelated with the difference
     # itself (the middle frame alone is not), so binning by level does not bias the variance.
+    spoiled = None if exclude is None else np.asarray(exclude, dtype=bool).reshape(n_frames, -1)
     if still is not None:  # a stage at rest: first differences of frames at one position
         second, gain = (flat[1:] - flat[:-1])[still], _FIRST_DIFF_GAIN
         level = (0.5 * (flat[1:] + flat[:-1]))[still]
+        touched = None if spoiled is None else (spoiled[1:] | spoiled[:-1])[still]
     else:
         keep = _quiet_triples(reference, period_mm, n_frames)
         second, gain = (flat[2:] - 2.0 * flat[1:-1] + flat[:-2])[keep], _SECOND_DIFF_GAIN
         level = ((flat[2:] + flat[1:-1] + flat[:-2]) / 3.0)[keep]
+        touched = None if spoiled is None else (spoiled[2:] | spoiled[1:-1] | spoiled[:-2])[keep]
     # Remove from each difference frame an offset per row and a gain common to the frame: a change
     # of the light or exposure (flicker, drift) and a readout offset that differs from row to row
     # (row banding) are common to many pixels, not pixel noise — left in, they would inflate σ and
@@ -79,16 +91,27 @@ def temporal_differences(frames: np.ndarray, reference: np.ndarray | None = None
     rows = frames.shape[1]
     by_row = second.reshape(second.shape[0], rows, -1)
     level_by_row = level.reshape(by_row.shape)
-    centred = by_row - by_row.mean(axis=2, keepdims=True)
-    level_centred = level_by_row - level_by_row.mean(axis=2, keepdims=True)
-    slope = np.einsum("krp,krp->k", centred, level_centred) / (
-        np.einsum("krp,krp->k", level_centred, level_centred) + 1e-9)
+    if touched is None:
+        centred = by_row - by_row.mean(axis=2, keepdims=True)
+        level_centred = level_by_row - level_by_row.mean(axis=2, keepdims=True)
+        slope = np.einsum("krp,krp->k", centred, level_centred) / (
+            np.einsum("krp,krp->k", level_centred, level_centred) + 1e-9)
+        cleaned = (centred - slope[:, None, None] * level_centred).reshape(second.shape)
+        return cleaned, level, float(gain), bool(np.mean(second == 0.0) > _QUANTISED_ZERO_FRACTION)
+    used = (~touched).reshape(by_row.shape).astype(np.float64)
+    count = np.maximum(used.sum(axis=2, keepdims=True), 1.0)
+    centred = by_row - (by_row * used).sum(axis=2, keepdims=True) / count
+    level_centred = level_by_row - (level_by_row * used).sum(axis=2, keepdims=True) / count
+    slope = np.einsum("krp,krp->k", centred * used, level_centred) / (
+        np.einsum("krp,krp->k", level_centred * used, level_centred) + 1e-9)
     cleaned = (centred - slope[:, None, None] * level_centred).reshape(second.shape)
-    return cleaned, level, float(gain), bool(np.mean(second == 0.0) > _QUANTISED_ZERO_FRACTION)
+    cleaned[touched] = np.nan
+    return cleaned, level, float(gain), bool(np.mean(second[~touched] == 0.0) > _QUANTISED_ZERO_FRACTION)
 
 
 def estimate_pixel_noise(frames: np.ndarray, reference: np.ndarray | None = None, period_mm: float | None = None,
-                         bit_depth: int | None = None, usable: np.ndarray | None = None) -> PixelNoise:
+                         bit_depth: int | None = None, usable: np.ndarray | None = None,
+                         exclude: np.ndarray | None = None) -> PixelNoise:
     """The photon-transfer curve σ²(y) of the frames, model-free (EMVA 1288 from the data itself).
 
     The temporal differences of :func:`temporal_differences`, binned by gray level; a trimmed
@@ -97,13 +120,17 @@ def estimate_pixel_noise(frames: np.ndarray, reference: np.ndarray | None = None
     frames a black level b cannot be told from read noise (σ² = read − K·b + K·y): the curve is
     referred to gray 0, which describes every level seen exactly. When the slope is not significant (or not positive) the
     constant-σ model is returned: a curve that the data do not support would only add noise to
-    the weights. ``usable`` ``(R, n)`` leaves out pixels found bad.
+    the weights. ``usable`` ``(R, n)`` leaves out pixels found bad, ``exclude`` (like ``frames``)
+    samples set aside as transients.
     """
-    cleaned, level, gain, _ = temporal_differences(frames, reference, period_mm)
+    cleaned, level, gain, _ = temporal_differences(frames, reference, period_mm, exclude)
     if usable is not None:
         keep = np.asarray(usable, dtype=bool).reshape(-1)
         cleaned, level = cleaned[:, keep], level[:, keep]
     variance_samples, levels = (cleaned / gain).reshape(-1), level.reshape(-1)
+    if exclude is not None:
+        finite = np.isfinite(variance_samples)
+        variance_samples, levels = variance_samples[finite], levels[finite]
     quant_var = 1.0 / 12.0 if isinstance(bit_depth, int) and bit_depth > 0 else 0.0
     sigma = float(np.sqrt(_trimmed_variance(variance_samples)))
     edges = np.unique(np.percentile(levels, np.linspace(0.0, 100.0, _NOISE_BINS + 1)))
@@ -215,8 +242,10 @@ def reference_resolution_mm(reference: np.ndarray) -> float:
     A step-and-settle sweep reads the grating once per stop, so its values are the stops, and
     their spacing is no readout step: the grid shows only where gaps between neighbouring values
     differ from one another (stops of 250 and 300 µm on a 50 µm readout) or where the smallest gap
-    is several steps of a common divisor. When every gap is the same, the readout step is not
-    resolved by the data, unless that gap is small enough to be a readout step itself.
+    is several steps of a common divisor. When every gap is a whole number of the smallest gap
+    (every gap the same, or some stops left out, as in a held-out subset of the stops), the
+    readout step is not resolved by the data, unless that gap is small enough to be a readout step
+    itself.
     """
     values = np.unique(np.asarray(reference, dtype=np.float64)[np.isfinite(reference)])
     gaps = np.diff(values)
@@ -232,7 +261,7 @@ def reference_resolution_mm(reference: np.ndarray) -> float:
         step = base / divisor
         multiples = (values - values[0]) / step
         if np.allclose(multiples, np.round(multiples), rtol=0.0, atol=0.02):
-            if regular and divisor == 1 and step > MAX_REGULAR_READOUT_STEP_MM:
-                return 0.0  # one spacing everywhere, far coarser than a readout: the stops of a sweep
+            if divisor == 1 and step > MAX_REGULAR_READOUT_STEP_MM and math.isclose(step, smallest, rel_tol=1e-6):
+                return 0.0  # the values' own spacing, far coarser than a readout: the stops of a sweep
             return step
     return 0.0

@@ -60,6 +60,9 @@ def describe_bytes(n: float) -> str:
     return f"{n / 1e3:.1f} kB"
 
 
+PIXEL_AXIS_REVERSED = "pixel_axis_reversed"  # meta: frames reversed from the camera's order to the contract's
+
+
 class RecordingError(GraytrackError):
     """A recording file or array set that does not follow the contract."""
 
@@ -103,6 +106,15 @@ class Recording:
     def subset(self, index: np.ndarray | slice) -> "Recording":
         """The same recording restricted to some frames (for hold-out splits)."""
         return Recording(self.frames[index], self.t[index], self.reference[index], dict(self.meta))
+
+    def flipped(self) -> "Recording":
+        """The pixel axis reversed (``--flip``, ``[camera] flip``): for a camera whose u runs against the
+        target coordinate, which the contract wants increasing. ``meta["pixel_axis_reversed"]`` says
+        the frames are no longer as the camera delivered them (a second flip takes it back)."""
+        meta = dict(self.meta)
+        if meta.pop(PIXEL_AXIS_REVERSED, False) is not True:
+            meta[PIXEL_AXIS_REVERSED] = True
+        return Recording(np.ascontiguousarray(self.frames[..., ::-1]), self.t, self.reference, meta)
 
     def has_reference(self) -> bool:
         return bool(np.isfinite(self.reference).any())

@@ -24,6 +24,7 @@ from typing import Protocol
 
 import numpy as np
 
+from graytrack.core import transients
 from graytrack.core.evaluation import ClippedHarmonics, FastHarmonics, GeneralHarmonics, TrigTables
 
 CORE_SIGMA, CUT_SIGMA = 3.5, 7.0  # redescending weight: full inside the core, none beyond the cut (robust σ)
@@ -31,6 +32,9 @@ MASK_CACHE_SIZE = 64  # masks of rejected pixels whose moment tables are kept (o
 ROBUST_ITERATIONS = 6
 SET_ASIDE_BLOCK = 64  # frames whose moments lose a set-aside pixel's share in one vectorised step
 MAD_TO_SIGMA = 1.4826
+# A blob up to half the line wide is still set aside as one transient in tracking (the frame is then
+# unlocked when it loses too much, with the transient as the reason); a wider change is the light's.
+TRANSIENT_MAX_WIDTH_SHARE = 0.5
 
 
 @dataclass
@@ -51,6 +55,13 @@ class FrameSolution:
     field: bool = False  # a light field (gain smooth across the pixels) was solved with x
     shape: np.ndarray | None = None  # the field's shape: gain coefficients beyond the uniform one
     shape_precision: np.ndarray | None = None  # their inverse covariance, x and the rest profiled out
+    transient_px: int = 0  # of the rejected samples, those of a compact blob (a glint, passing dust)
+    transient_share: float = 0.0  # those as a share of the frame's samples (raw rows when set aside row by row)
+    transient_at: float = float("nan")  # mean pixel (column) of those samples: where along the line they sit
+    focus: float = 0.0  # change of blur variance since calibration (px² of the pixel footprint), when estimated
+    focus_sigma: float = float("nan")  # its standard error (NaN: the focus was not estimated on this frame)
+    focus_solved: bool = False  # the answer has the focus term profiled out (its bound is the Schur complement)
+    chi2_calibrated_focus: float = float("nan")  # with focus_solved: the frame's χ² at the calibration's focus
 
 
 class MomentSource(Protocol):
@@ -154,7 +165,8 @@ def redescending(u: np.ndarray) -> np.ndarray:
 
 
 def robust_solve(source: MomentSource, k: int, start: FrameSolution, free: bool, settings: SolverSettings,
-                 rejected: np.ndarray | None = None, chi2_limit: float = -1.0) -> FrameSolution:
+                 rejected: np.ndarray | None = None, chi2_limit: float = -1.0,
+                 layout: tuple[int, int] | None = None) -> FrameSolution:
     """Iteratively reweighted least squares with a redescending weight on the normalised residuals.
 
     Starts from ``start`` (a position and light close to the truth, e.g. the motion prediction)
@@ -164,6 +176,11 @@ def robust_solve(source: MomentSource, k: int, start: FrameSolution, free: bool,
     absolute value (never below the noise model), weighs them by :func:`redescending` and solves
     again, until the set of rejected pixels settles. The bound comes with the weights used: that
     of the pixels kept. When no pixel sits in the taper (the usual case) the weights are a mask.
+
+    With ``layout`` (rows, pixels of a frame), an outlier that is part of a compact blob (a glint,
+    passing dust: core/transients.py) takes its whole support with it, tails down to
+    ``transients.GROW_Z`` and a pixel beyond: the tails of a glint bright enough to reject sit
+    below the cut and would otherwise pull the position (``transient_px`` counts those samples).
     """
     x, gain, offset = start.x_mm, start.gain, start.offset
     solution, rejected_before = start, None
@@ -181,16 +198,49 @@ def robust_solve(source: MomentSource, k: int, start: FrameSolution, free: bool,
         size = np.abs(source.residuals(k, x, gain, offset) * root)
         size *= 1.0 / max(1.0, MAD_TO_SIGMA * _middle(size[used] if masked_pixels else size))
         rejected = size >= CUT_SIGMA
+        blob = None
+        if layout is not None and _may_be_blob(rejected, size, layout):
+            blob = transients.compact_blobs(size.reshape((1,) + layout), CUT_SIGMA,
+                                            max_width_share=TRANSIENT_MAX_WIDTH_SHARE).reshape(-1)
+            rejected |= blob
         if masked_pixels:
             rejected &= used
         beyond_core = size > CORE_SIGMA
         tapered = bool(beyond_core.any()) and bool((beyond_core & ~rejected).any())
         if not tapered and rejected_before is not None and solution.rejected_weights_exact \
                 and not (rejected ^ rejected_before).any():
+            _mark_transient(solution, None if blob is None else blob & rejected, layout)
             break  # the last solve already used these weights
-        solution = _solve_weighted(source, k, x, free, settings, rejected, redescending(size) if tapered else None)
+        factor = None
+        if tapered:
+            factor = redescending(size)
+            factor[rejected] = 0.0  # a blob's tails too, not only what is beyond the cut
+        solution = _solve_weighted(source, k, x, free, settings, rejected, factor)
+        _mark_transient(solution, None if blob is None else blob & rejected, layout)
         x, gain, offset, rejected_before = solution.x_mm, solution.gain, solution.offset, rejected
     return solution
+
+
+def _mark_transient(solution: FrameSolution, samples: np.ndarray | None, layout: tuple[int, int] | None) -> None:
+    """Count the samples set aside as a transient on ``solution``, their share and mean column."""
+    count = 0 if samples is None else int(np.count_nonzero(samples))
+    solution.transient_px = count
+    solution.transient_share = count / samples.size if count else 0.0
+    solution.transient_at = float(np.flatnonzero(samples).mean() % layout[1]) if count and layout else float("nan")
+    if count and layout and layout[0] > 1:
+        solution.transient_at = float(np.nonzero(samples.reshape(layout))[1].mean())
+
+
+def _may_be_blob(rejected: np.ndarray, size: np.ndarray, layout: tuple[int, int]) -> bool:
+    """A rejected sample with a neighbour beyond the blob threshold: the blob search may find one
+    (a lone stuck pixel, the usual rejection, skips it)."""
+    if not rejected.any():
+        return False
+    near = (size > transients.GROW_Z).reshape(layout)
+    out = rejected.reshape(layout)
+    if (out[:, :-1] & near[:, 1:]).any() or (out[:, 1:] & near[:, :-1]).any():
+        return True
+    return layout[0] > 1 and bool((out[:-1] & near[1:]).any() or (out[1:] & near[:-1]).any())
 
 
 def _solve_weighted(source: MomentSource, k: int, x_start: float, free: bool, settings: SolverSettings,
@@ -299,6 +349,8 @@ class TrigPolyBatch:
     (signal-dependent variance, robust reweighting). Per iteration: z^0..z^2M and one 7×(2M+1)
     product.
     """
+
+    raw: np.ndarray | None = None  # (K, R, n) the strip rows a row-averaged batch was made of, when kept
 
     def __init__(self, tables: TrigTables, frames: np.ndarray, weights: np.ndarray,
                  static: StaticWeights | None = None):
@@ -444,6 +496,8 @@ class FrameMoments:
 class GeneralBatch:
     """Moments by evaluating the model at x: any model (stroke drift, clipping, a target map)."""
 
+    raw: np.ndarray | None = None  # (K, R, n) the strip rows a row-averaged batch was made of, when kept
+
     def __init__(self, evaluator: "FastHarmonics | GeneralHarmonics | ClippedHarmonics", frames: np.ndarray,
                  weights: np.ndarray):
         self.frames = frames.reshape(frames.shape[0], -1)
@@ -495,6 +549,22 @@ FIELD_DEGREE = 2  # Legendre degree of the gain across the line (the offset stay
 # leaves x almost unidentified (paper rig: bound 68 µm against 10 µm with the offset uniform).
 
 
+def profiled_step(jacobian: np.ndarray, weighted: np.ndarray, weights: np.ndarray, yw: np.ndarray,
+                  theta: np.ndarray, held: np.ndarray, normal: np.ndarray,
+                  max_step_mm: float) -> tuple[float, float, np.ndarray]:
+    """One Gauss–Newton step in x with the linear nuisances (columns of the design, ``weighted`` =
+    design × weights, solved as ``theta`` from the normal matrix ``held``, which may carry a prior)
+    profiled out: ``(step, information on x, the Fisher matrix of x and the nuisances)``. The
+    information is the Schur complement: what the frame says about x once the nuisances took their share."""
+    cross = weighted.T @ jacobian
+    numerator = float(jacobian @ (yw - weighted @ theta))
+    slope_norm = float(jacobian @ (jacobian * weights))
+    information = slope_norm - float(cross @ np.linalg.solve(held, cross))
+    fisher = np.block([[np.array([[slope_norm]]), cross[None]], [cross[:, None], normal]])
+    step = numerator / information if information > 0.0 else 0.0
+    return min(max(step, -max_step_mm), max_step_mm), information, fisher
+
+
 def field_basis(n_rows: int, n_pixels: int, degree: int = FIELD_DEGREE) -> np.ndarray:
     """``(R·n, degree+1)`` Legendre polynomials of the pixel's column scaled to [−1, 1], the same in
     every row: the shapes a light may take across the line (vignetting, a gradient) that a
@@ -534,13 +604,8 @@ def field_solve(evaluator: "FastHarmonics | GeneralHarmonics | ClippedHarmonics"
             break
         cost = yy - float(projected @ theta)
         jacobian = (basis @ theta[:n_basis]) * slopes[0]  # ∂model/∂x with the field as solved
-        cross = weighted.T @ jacobian
-        numerator = float(jacobian @ (yw - weighted @ theta))
-        slope_norm = float(jacobian @ (jacobian * weights))
-        information = slope_norm - float(cross @ np.linalg.solve(normal, cross))
-        fisher = np.block([[np.array([[slope_norm]]), cross[None]], [cross[:, None], normal]])
-        dx = numerator / information if information > 0.0 else 0.0
-        dx = min(max(dx, -settings.max_step_mm), settings.max_step_mm)
+        dx, information, fisher = profiled_step(jacobian, weighted, weights, yw, theta, normal, normal,
+                                                settings.max_step_mm)
         x += dx
         if abs(dx) < settings.tolerance_mm:
             break
@@ -551,4 +616,5 @@ def field_solve(evaluator: "FastHarmonics | GeneralHarmonics | ClippedHarmonics"
         shape_precision = np.zeros((n_basis - 1, n_basis - 1))
     return FrameSolution(x, settings.sigma_gray * math.sqrt(chi2), information, iterations, float(theta[0]),
                          float(theta[n_basis]), chi2, start.rejected, True, 0.0, cost,
-                         start.rejected_mask, start.rejected_weights_exact, True, theta[1:n_basis], shape_precision)
+                         start.rejected_mask, start.rejected_weights_exact, True, theta[1:n_basis], shape_precision,
+                         start.transient_px, start.transient_share, start.transient_at)

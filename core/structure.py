@@ -130,9 +130,12 @@ def fit_spec(spec: ModelSpec, data: CalibrationData, period_mm: float, pitch_mm:
     usable = (data.weights > 0) * model.seen()
     residual2 = ((data.frames - fitted) ** 2) * usable
     rmse = float(np.sqrt(residual2.sum() / max(usable.sum(), 1.0)))
-    info = {**model.info, "calibration_rmse_gray": rmse}
+    info = {**model.info, "calibration_rmse_gray": rmse,  # frames and their spread: what the scale is known from
+            "calibration_frames": int(np.size(data.x_mm)), "calibration_x_std_mm": float(np.std(data.x_mm))}
     if data.meta.get("repeated_frames"):  # calibration_data left them out: the model says so
         info["repeated_frames"] = int(data.meta["repeated_frames"])
+    if data.meta.get("transients"):  # samples calibration_data set aside as transients (glints)
+        info["transients"] = data.meta["transients"]
     limits = sensor_range(data.meta)
     if limits is not None:  # the tracker sets aside samples stuck at a limit, whatever the model
         info["sensor_range_gray"] = list(limits)
@@ -149,7 +152,10 @@ def _alternate(state: effects.Alternation, steps: list[tuple[effects.Effect, Any
     iterations, history = 0, []
     for round_index in range(n_rounds):
         lit = state.lit / state.map_factor
-        if round_index == 0 and names:
+        # an effect whose layer the geometry would otherwise absorb has the geometry refined again
+        # once its layer is known (the second round)
+        again = round_index == 1 and any(effect.refits_geometry for effect, _ in steps)
+        if (round_index == 0 or again) and names:
             state.model, iterations, history = fit_geometry(state.model, state.x_mm, lit, state.weights, names,
                                                             progress=progress)
         else:

@@ -16,19 +16,24 @@ the noise model feeds a running average that says when the model has gone stale.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
 
-from graytrack.core import effects, repeats
+from graytrack.core import attribution, effects, repeats, transients
 from graytrack.core.errors import TrackingError
+from graytrack.core.geometry_check import refusal
 from graytrack.core.evaluation import ClippedHarmonics, FastHarmonics, GeneralHarmonics, TrigTables
-from graytrack.core.models.fourier import FourierModel
+from graytrack.core.focus_solve import CurvatureTable, FocusPrior, focus_solve, general_focus_solve
+from graytrack.core.models.fourier import TWO_PI, FourierModel
 from graytrack.core.recording import Recording
-from graytrack.core.solvers import (FrameSolution, GeneralBatch, SolverSettings, StaticWeights, TrigPolyBatch,
-                                    field_basis, field_solve, gauss_newton, grid_cost, robust_solve)
+from graytrack.core.validity import FAMILIES, FrameSign, Monitor, monitor_for
+from graytrack.core.solvers import (CUT_SIGMA, TRANSIENT_MAX_WIDTH_SHARE, FrameSolution, GeneralBatch, SolverSettings,
+                                    StaticWeights, TrigPolyBatch, field_basis, field_solve, gauss_newton, grid_cost,
+                                    robust_solve)
 
 Progress = Callable[[float, str], None]
 ACQUIRE_GRID_PER_PERIOD = 64
@@ -47,6 +52,17 @@ FIELD_KEEP = 2.0 + 5.0 * 2.0 / math.sqrt(FIELD_WINDOW)
 # noise, scatters as χ²/dof ≈ 1. Beyond five spreads of that average the field only mimics another
 # change (defocus, a different print) and would hide it: the uniform light's answer is kept.
 FIELD_SCATTER_LIMIT = 1.0 + 5.0 * math.sqrt(2.0 / (2 * FIELD_WINDOW))
+# A uniform light is nested in the focus term (1 more unknown, the blur): the χ² it gains is χ²(1)
+# when the focus holds, mean 1 and spread √2; its average over the window beyond five spreads: a blur.
+FOCUS_KEEP = 1.0 + 5.0 * math.sqrt(2.0) / math.sqrt(FIELD_WINDOW)
+# The field has one unknown more than the focus term and mimics a blur: it is taken over the focus
+# only when, frame by frame, it gains more than the focus by more than that unknown's χ²(1), by
+# five spreads of the window's average.
+FIELD_BEYOND_FOCUS = FOCUS_KEEP
+# One frame's χ² gain counts at most this much (a garbage frame cannot flip the average); the same
+# cap for the field and the focus, or the comparison of their averages would be the caps'.
+EVIDENCE_CAP = 10.0 * FIELD_KEEP
+FOCUS_PRIOR_FRAMES = 5  # frames of focus estimates before they hold the next frame's focus
 BATCH_CHUNK = 4096  # frames reduced at a time (bounds memory on long recordings)
 
 
@@ -75,6 +91,10 @@ class TrackResult:
     stale: np.ndarray | None = None  # the model was stale at this frame (sustained χ² rise)
     chi2_calibration: float = float("nan")  # the calibration's own level, what χ² is compared with
     repeated: np.ndarray | None = None  # the image repeats the frame before bit for bit (given no position)
+    stale_reason: np.ndarray | None = None  # the family blamed while stale ("" when not): core/validity.py
+    transient_px: np.ndarray | None = None  # samples set aside as a compact transient (glint, passing dust)
+    focus: np.ndarray | None = None  # change of blur variance since calibration, px² (NaN: not estimated)
+    focus_sigma: np.ndarray | None = None  # its standard error, px²
 
     def error_um(self, reference: np.ndarray) -> np.ndarray:
         """Position minus reference in µm (NaN where either is missing)."""
@@ -95,7 +115,50 @@ class LightMemory:
     # the mean of χ²(2), what a uniform light leaves it: the evidence for a field must build up)
     field_shape: np.ndarray | None = None  # running average of the field's shape
     field_scatter: float = 1.0  # running average of each frame's shape against it, per dof in its noise
-    uniform_chi2: float = 0.0  # running average of the uniform light's χ² while the field is tried
+    uniform_chi2: float = 0.0  # running average of the uniform light's χ² while the field or focus is tried
+    focus: bool = False  # a change of focus (blur) is solved alongside the uniform light
+    focus_gain: float = 1.0  # running average of the χ² the focus term gains over the uniform light
+    # (from the mean of χ²(1), what a steady focus leaves it)
+    focus_track: "FocusTrack" = dataclasses.field(default_factory=lambda: FocusTrack())  # the last frames' focus
+    # (``field`` is this class's own attribute here, hence dataclasses.field)
+    field_over_focus: float = 1.0  # running average of the χ² the field gains over the focus term (from
+    # the mean of χ²(1), the field's one extra unknown, when the focus explains the frames)
+
+
+@dataclass
+class FocusTrack:
+    """The focus the last frames found, averaged by precision with a forgetting of FIELD_WINDOW
+    frames: the prior of the next frame's focus (a focus drifts slowly; each frame need not pay
+    for finding it alone). When the frames scatter more than their errors say (a fast drift), the
+    prior widens by that much; after a window with no estimate it is forgotten."""
+
+    precision: float = 0.0  # Σ λ^age / σ²
+    weighted: float = 0.0  # Σ λ^age δ / σ²
+    dispersion: float = 0.0  # Σ λ^age (δ − mean before)² / σ²
+    count: float = 0.0  # Σ λ^age
+    idle: int = 0  # frames since the last estimate
+
+    def prior(self) -> FocusPrior | None:
+        if self.count < FOCUS_PRIOR_FRAMES or self.precision <= 0.0:
+            return None
+        scatter = max(1.0, self.dispersion / self.count)
+        return FocusPrior(self.weighted / self.precision, scatter / self.precision)
+
+    def add(self, delta_mm2: float, sigma_mm2: float) -> None:
+        if not (math.isfinite(delta_mm2) and math.isfinite(sigma_mm2) and sigma_mm2 > 0.0):
+            return
+        keep, weight = 1.0 - 1.0 / FIELD_WINDOW, 1.0 / (sigma_mm2 * sigma_mm2)
+        if self.precision > 0.0:
+            self.dispersion = keep * self.dispersion + weight * (delta_mm2 - self.weighted / self.precision) ** 2
+        self.precision = keep * self.precision + weight
+        self.weighted = keep * self.weighted + weight * delta_mm2
+        self.count = keep * self.count + 1.0
+        self.idle = 0
+
+    def wait(self) -> None:
+        self.idle += 1
+        if self.idle > FIELD_WINDOW:
+            self.precision = self.weighted = self.dispersion = self.count = 0.0
 
 
 class Tracker:
@@ -103,8 +166,9 @@ class Tracker:
 
     ``light``: ``"fixed"`` keeps the calibrated light; ``"free"`` solves a gain and offset with x
     in every frame; ``"auto"`` solves them when a frame's χ² says the light changed, and keeps
-    solving them until the calibrated light fits again. ``tolerance_mm``: the last Gauss–Newton step
-    taken; it is applied, and what remains after it is that step times the contraction (≪ 1 on a
+    solving them until the calibrated light fits again; when a uniform light is not enough it also
+    tries a light field and a change of focus (blur), and takes the one the evidence asks for.
+    ``tolerance_mm``: the last Gauss–Newton step taken; it is applied, and what remains after it is that step times the contraction (≪ 1 on a
     converged frame), far below any bound. Default: ``"free"`` for a model with a
     per-frame common mode, else ``"fixed"``. ``robust``: frames whose χ² is beyond the noise are
     solved again by IRLS, so that a pixel gone bad in this run does not pull the position.
@@ -118,6 +182,9 @@ class Tracker:
         if light not in LIGHT_MODES:
             raise TrackingError(f"light mode must be one of {', '.join(LIGHT_MODES)}, got {light!r}")
         self.model, self.light, self.robust = model, light, robust
+        # A model its own calibration refused (a reversed pixel axis, a wrong period: kept only to be
+        # studied) places frames, but none of them is called locked.
+        self.refused = refusal(model)
         self.quarter_period_mm = model.period_mm / 4.0
         sigma = model.noise_gray or 1.0
         self.settings = SolverSettings(max_iterations, tolerance_mm, self.quarter_period_mm, sigma)
@@ -147,6 +214,11 @@ class Tracker:
         limits = model.info.get("sensor_range_gray") if robust else None
         self.sensor_range = None if limits is None else (float(limits[0]), float(limits[1]))
         self.field_basis = field_basis(model.n_rows, model.n_pixels) if light == "auto" else None
+        self.layout = (model.n_rows, model.n_pixels)  # a prepared frame's samples: blobs are compact in it
+        # The focus term lives on the fast path's moments (its one extra table built on first use),
+        # or on the model evaluated at x for the others.
+        self.focus_capable = light == "auto"
+        self._curvature: CurvatureTable | None = None
 
     def weights(self, prepared: np.ndarray, frame_rows: int) -> tuple[np.ndarray, bool]:
         """1/σ² per sample ``(K|1, P)``: the noise model at the observed gray level (the variance of
@@ -165,17 +237,23 @@ class Tracker:
                 weights, shared = weights * inside, False
         return weights, shared
 
-    def batch(self, prepared: np.ndarray, frame_rows: int = 1) -> GeneralBatch | TrigPolyBatch:
-        """Frames ``(K, R, n)`` in the model's row layout, reduced for solving."""
+    def batch(self, prepared: np.ndarray, frame_rows: int = 1, raw: np.ndarray | None = None) -> GeneralBatch | TrigPolyBatch:
+        """Frames ``(K, R, n)`` in the model's row layout, reduced for solving. ``raw``: the strip
+        frames themselves, kept when the model averages their rows, so that a transient on a few
+        rows is set aside on those rows only (:meth:`_rows_refined`)."""
         weights, shared = self.weights(prepared, frame_rows)
         if not self.fast_path:
-            return GeneralBatch(self.evaluator, prepared, weights)
-        if not shared:
-            return TrigPolyBatch(self.tables, prepared, weights)
-        static = self._static.get(frame_rows)
-        if static is None:
-            static = self._static[frame_rows] = StaticWeights.of(self.tables, weights)
-        return TrigPolyBatch(self.tables, prepared, static.weights, static)
+            batch: GeneralBatch | TrigPolyBatch = GeneralBatch(self.evaluator, prepared, weights)
+        elif not shared:
+            batch = TrigPolyBatch(self.tables, prepared, weights)
+        else:
+            static = self._static.get(frame_rows)
+            if static is None:
+                static = self._static[frame_rows] = StaticWeights.of(self.tables, weights)
+            batch = TrigPolyBatch(self.tables, prepared, static.weights, static)
+        if raw is not None and self.model.n_rows == 1 and frame_rows > 1:
+            batch.raw = np.asarray(raw)
+        return batch
 
     def frame_sigma(self, frame_rows: int) -> float:
         """Noise of one model row when ``frame_rows`` raw rows feed the model (averaging lowers it)."""
@@ -189,24 +267,124 @@ class Tracker:
         free = self.light == "free" or (self.light == "auto" and (memory.free or self.model.common_mode))
         robust_first = self.robust and memory.rejected is not None
         solution = self._attempt(batch, k, x_start, memory, free, robust_first)
+        asked = solution.chi2 > self.chi2_limit
         if solution.chi2 > self.chi2_limit and self.light == "auto" and not free:
             free = True
             solution = self._attempt(batch, k, x_start, memory, free, robust_first)
+        freed_here = free and self.light == "auto" and not (memory.free or self.model.common_mode)
         if solution.chi2 > self.chi2_limit and self.robust and not robust_first:
             solution = self._attempt(batch, k, x_start, memory, free, True)
+        if freed_here and solution.rejected and solution.free_light and solution.light_excess <= LIGHT_RETURN_CHI2:
+            # The light was freed for samples that turned out to be outliers (a glint): with them out the
+            # calibrated light fits, and solving it would only cost the frame information.
+            start = FrameSolution(solution.x_mm, float("nan"), 0.0, 0)
+            solution = robust_solve(batch, k, start, False, self.settings, solution.rejected_mask, self.chi2_limit,
+                                    self.layout)
+        if solution.transient_px and batch.raw is not None:
+            solution = self._rows_refined(batch, k, solution)
         memory.free = self.light == "auto" and solution.free_light and solution.light_excess > LIGHT_RETURN_CHI2
         memory.gain, memory.offset = solution.gain, solution.offset
         memory.rejected = solution.rejected_mask if solution.rejected else None
-        if memory.field and self.field_basis is not None:
-            solution = self._field(batch, k, solution, memory)
+        if self.focus_capable and (asked or (solution.free_light and solution.chi2 > self.sustained_limit)):
+            memory.focus = True  # the frame did not fit as at calibration: a blur is one cheap unknown away
+        tried_field = memory.field and self.field_basis is not None
+        tried_focus = memory.focus and self.focus_capable
+        if tried_field or tried_focus:
+            solution = self._changed(batch, k, solution, memory, tried_field, tried_focus)
+        if not tried_focus:
+            memory.focus_track.wait()
         return solution
+
+    def _rows_refined(self, batch: GeneralBatch | TrigPolyBatch, k: int, line: FrameSolution) -> FrameSolution:
+        """A transient found in the row mean of a strip, set aside row by row: a glint on 4 rows of
+        16 costs those 4 rows' samples, not whole columns. The blob is found again in the raw rows
+        (with samples at the sensor's limits, which a row mean hides); each column's mean is taken
+        over the rows kept, with the information of that many rows, and the frame solved again
+        (robustly: a bad pixel's column stays out). ``transient_px`` counts raw samples then."""
+        model = self.model
+        raw = np.asarray(batch.raw[k], dtype=np.float64)  # (R, n)
+        values = self.evaluator.evaluate(np.array([line.x_mm]))[0][0]
+        predicted = np.broadcast_to(line.gain * values + line.offset, raw.shape)
+        per_sample = model.inverse_variance(predicted)  # 1/σ² of one raw sample, 0 on masked pixels
+        used = per_sample > 0.0
+        size = np.abs(raw - predicted) * np.sqrt(per_sample)
+        size /= max(1.0, 1.4826 * float(np.median(size[used]))) if used.any() else 1.0
+        blob = transients.compact_blobs(size[None], CUT_SIGMA, max_width_share=TRANSIENT_MAX_WIDTH_SHARE)[0]
+        out = blob.copy()
+        if self.sensor_range is not None:
+            out |= (raw <= self.sensor_range[0]) | (raw >= self.sensor_range[1])
+        if not blob.any():
+            return line
+        keep = (per_sample * (used & ~out))
+        weights = keep.sum(axis=0)  # the information of the kept rows' mean
+        mean = np.where(weights > 0, (keep * raw).sum(axis=0) / np.maximum(weights, 1e-300), 0.0)
+        if self.fast_path:
+            single: GeneralBatch | TrigPolyBatch = TrigPolyBatch(self.tables, mean[None], weights[None])
+        else:
+            single = GeneralBatch(self.evaluator, mean[None], weights[None])
+        start = FrameSolution(line.x_mm, float("nan"), 0.0, 0, line.gain, line.offset)
+        solution = robust_solve(single, 0, start, line.free_light, self.settings, None, self.chi2_limit, self.layout)
+        solution.transient_px = int(blob.sum())
+        solution.transient_share = float(blob.mean())
+        solution.transient_at = float(np.nonzero(blob)[1].mean())
+        return solution
+
+    def _changed(self, batch: GeneralBatch | TrigPolyBatch, k: int, uniform: FrameSolution, memory: LightMemory,
+                 tried_field: bool, tried_focus: bool) -> FrameSolution:
+        """The frame solved with a light field and/or a focus change as well as with the uniform
+        light, and the answer the evidence asks for. Each is taken only while the uniform light's
+        own χ² stays above the calibration's level and its χ² gain, averaged over the last frames,
+        is beyond what its extra unknowns gain by chance. Both can follow a blur (the field by
+        trading its shape against x): the field is taken only when it explains more than the focus
+        by more than its one extra unknown, and its shape holds still. The focus estimate rides on
+        whichever answer is taken, for the focus watch."""
+        if memory.field_shape is None and memory.focus_gain <= FOCUS_KEEP:  # neither has built up evidence yet
+            memory.uniform_chi2 = uniform.chi2
+        memory.uniform_chi2 += (uniform.chi2 - memory.uniform_chi2) / STALE_WINDOW
+        wanted = memory.uniform_chi2 > self.sustained_limit
+        shaped = self._field(batch, k, uniform, memory) if tried_field else None
+        focused = self._focus(batch, k, uniform, memory) if tried_focus else None
+        answer = uniform
+        if shaped is not None and focused is not None:
+            beyond = (focused.cost - shaped.cost) / self.chi2_calibration
+            beyond = min(max(beyond, -EVIDENCE_CAP), EVIDENCE_CAP) if math.isfinite(beyond) else 0.0
+            memory.field_over_focus += (beyond - memory.field_over_focus) / FIELD_WINDOW
+        field_over_focus = focused is None or memory.field_over_focus > FIELD_BEYOND_FOCUS
+        if shaped is not None and memory.field and wanted and memory.field_scatter < FIELD_SCATTER_LIMIT \
+                and field_over_focus and self.untrusted(shaped) is None:
+            answer = shaped
+        elif focused is not None and memory.focus and wanted and self.untrusted(focused) is None:
+            answer = focused
+            focused.chi2_calibrated_focus = uniform.chi2
+        if focused is not None and answer is uniform:  # under the field's answer the blur-only fit is no estimate
+            answer.focus, answer.focus_sigma = focused.focus, focused.focus_sigma
+        return answer
+
+    def _focus(self, batch: GeneralBatch | TrigPolyBatch, k: int, uniform: FrameSolution,
+               memory: LightMemory) -> FrameSolution:
+        """The frame with a change of focus profiled out, and the running evidence for it."""
+        model = self.model
+        prior = memory.focus_track.prior()
+        if not self.fast_path:
+            focused = general_focus_solve(self.evaluator, batch.frames[k], batch.weights(k), uniform, self.settings,
+                                          model.period_mm, model.pixel_pitch_mm, prior)
+        else:
+            if self._curvature is None:
+                self._curvature = CurvatureTable(self.tables, model.period_mm)
+            focused = focus_solve(batch, k, self._curvature, uniform, self.settings, model.pixel_pitch_mm, prior)
+        footprint = model.pixel_pitch_mm**2
+        memory.focus_track.add(focused.focus * footprint, focused.focus_sigma * footprint)
+        gained = (uniform.cost - focused.cost) / self.chi2_calibration if math.isfinite(focused.cost) else 0.0
+        gained = min(max(gained, 0.0), EVIDENCE_CAP)
+        memory.focus_gain += (gained - memory.focus_gain) / FIELD_WINDOW
+        memory.focus = memory.focus_gain > FOCUS_KEEP
+        return focused
 
     def _field(self, batch: GeneralBatch | TrigPolyBatch, k: int, uniform: FrameSolution,
                memory: LightMemory) -> FrameSolution:
-        """The frame solved with a light field as well as with the uniform light; the field's answer
-        is taken while its χ² gain, averaged over the last frames, says the light changed shape,
-        the uniform light's own χ² stays above the calibration's level and the shape holds still.
-        Once the gain falls back, the field stops being solved."""
+        """The frame solved with a light field, and the running evidence for it: its χ² gain over
+        the uniform light and how still its shape holds. Once the gain falls back, the field
+        stops being solved."""
         weights = batch.weights(k)
         if uniform.rejected:
             weights = weights * ~uniform.rejected_mask
@@ -215,29 +393,26 @@ class Tracker:
         # calibration, a difference of costs is that much larger without the light changing.
         level = self.chi2_calibration
         gained = (uniform.cost - shaped.cost) / level if math.isfinite(shaped.cost) else 0.0
-        gained = min(max(gained, 0.0), 10.0 * FIELD_KEEP)
+        gained = min(max(gained, 0.0), EVIDENCE_CAP)
         memory.field_gain += (gained - memory.field_gain) / FIELD_WINDOW
         memory.field = memory.field_gain > FIELD_KEEP
         if memory.field_shape is None:
-            memory.field_shape, memory.field_scatter, memory.uniform_chi2 = shaped.shape.copy(), 1.0, uniform.chi2
+            memory.field_shape, memory.field_scatter = shaped.shape.copy(), 1.0
         deviation = shaped.shape - memory.field_shape
         scatter = float(deviation @ shaped.shape_precision @ deviation) / (deviation.size * level)
         scatter = min(scatter, 10.0 * FIELD_SCATTER_LIMIT)
         memory.field_scatter += (scatter - memory.field_scatter) / FIELD_WINDOW
         memory.field_shape += deviation / FIELD_WINDOW
-        memory.uniform_chi2 += (uniform.chi2 - memory.uniform_chi2) / STALE_WINDOW
         if not memory.field:
             memory.field_shape = None
-        # taken only while the uniform light does not fit as at calibration, and the shape holds still
-        wanted = memory.uniform_chi2 > self.sustained_limit and memory.field_scatter < FIELD_SCATTER_LIMIT
-        return shaped if memory.field and wanted and self.untrusted(shaped) is None else uniform
+        return shaped
 
     def _attempt(self, batch: GeneralBatch | TrigPolyBatch, k: int, x_start: float, memory: LightMemory,
                  free: bool, robust: bool) -> FrameSolution:
         if not robust:
             return gauss_newton(batch, k, x_start, free, self.settings)
         start = FrameSolution(x_start, float("nan"), 0.0, 0, memory.gain, memory.offset)
-        return robust_solve(batch, k, start, free, self.settings, memory.rejected, self.chi2_limit)
+        return robust_solve(batch, k, start, free, self.settings, memory.rejected, self.chi2_limit, self.layout)
 
     def acquire(self, batch: GeneralBatch | TrigPolyBatch, k: int, lo_mm: float, hi_mm: float,
                 memory: LightMemory) -> FrameSolution:
@@ -277,12 +452,32 @@ class Tracker:
         half = self.model.period_mm / 2.0
         return self.acquire(batch, k, anchor_mm - half, anchor_mm + half, memory)
 
+    def explain(self, batch: GeneralBatch | TrigPolyBatch, k: int, solution: FrameSolution) -> dict:
+        """The shapes in frame ``k``'s residual (core/attribution.py) and its largest samples: what
+        the validity monitor asks when χ² has risen. Costs one evaluation at three positions."""
+        step = self.model.period_mm * 1e-3
+        values, slopes = self.evaluator.evaluate(np.array([solution.x_mm - step, solution.x_mm, solution.x_mm + step]))
+        curvature = (slopes[2] - slopes[0]) / (2.0 * step)
+        weights = batch.weights(k)
+        if solution.rejected_mask is not None:
+            weights = weights * ~solution.rejected_mask
+        residual = batch.residuals(k, solution.x_mm, solution.gain, solution.offset)
+        phase = (TWO_PI / self.model.period_mm) * (solution.x_mm + self.model.target_offset().reshape(-1))
+        columns = attribution.shapes(values[1], slopes[1], curvature, self.model.n_rows, phase, self.model.harmonics)
+        squares = residual * residual * weights
+        top = np.argpartition(squares, squares.size - max(2, squares.size // 50))[-max(2, squares.size // 50):]
+        shares, coefficients = attribution.shares(residual, weights, columns)
+        return {"shares": shares, "coefficients": coefficients, "top": top.tolist()}
+
     def untrusted(self, solution: FrameSolution) -> str | None:
         """Why a solution, wherever it lies, cannot be trusted (None when it can)."""
         if solution.rms_gray > self.residual_limit_gray:
             return f"residual {solution.rms_gray:.2f} gray exceeds {self.residual_limit_gray:.2f}"
         if solution.free_light and not GAIN_RANGE[0] < solution.gain < GAIN_RANGE[1]:
             return f"light gain {solution.gain:.2f} outside {GAIN_RANGE[0]:g}..{GAIN_RANGE[1]:g}"
+        if solution.transient_share > MAX_REJECTED_FRACTION:
+            return (f"a transient (glint, reflection, passing dust) covers {100 * solution.transient_share:.0f} % of "
+                    f"the frame ({solution.transient_px} samples): too little left to trust the position")
         if solution.rejected > MAX_REJECTED_FRACTION * self.model.n_rows * self.model.n_pixels:
             return f"{solution.rejected} pixels rejected as outliers"
         return None
@@ -310,7 +505,12 @@ class SequentialState:
     events: list[LockEvent] = field(default_factory=list)
     memory: LightMemory = field(default_factory=LightMemory)
     chi2_average: float | None = None  # exponential average over about STALE_WINDOW frames
-    stale: bool = False
+    chi2_suspect: bool = False  # the average is beyond its own spread above calibration's level
+    chi2_stale: bool = False  # ... and beyond the stale limit
+    stale: bool = False  # the validity monitor says the model no longer holds (core/validity.py)
+    stale_reason: str | None = None  # the family it blames
+    monitor: Monitor | None = None  # made from the tracker at the first frame
+    rows_averaged: int = 1  # raw rows behind each model row
 
     def advance(self, tracker: "Tracker", batch: GeneralBatch | TrigPolyBatch, k: int,
                 reference: float) -> tuple[FrameSolution, bool, bool]:
@@ -322,8 +522,28 @@ class SequentialState:
         if ok:
             self.x_prev = solution.x_mm
         self.locked, self.frame = locked, self.frame + 1
-        self._watch_model(tracker, solution.chi2)
-        return solution, ok, locked
+        # with a focus term solved, the model as calibrated is what the running χ² watches
+        focus_free = solution.chi2_calibrated_focus
+        self._watch_model(tracker, focus_free if math.isfinite(focus_free) else solution.chi2)
+        self._watch_validity(tracker, batch, k, solution, ok, reference)
+        return solution, ok, locked and tracker.refused is None
+
+    def _watch_validity(self, tracker: "Tracker", batch: GeneralBatch | TrigPolyBatch, k: int,
+                        solution: FrameSolution, placed: bool, reference: float) -> None:
+        if self.monitor is None:
+            self.monitor = monitor_for(tracker)
+        sign = FrameSign(
+            self.frame - 1, solution.chi2, solution.information, gain=solution.gain, offset_gray=solution.offset,
+            focus=getattr(solution, "focus", 0.0), focus_sigma=getattr(solution, "focus_sigma", float("nan")),
+            rejected_px=solution.rejected, transient_px=getattr(solution, "transient_px", 0),
+            transient_at=getattr(solution, "transient_at", float("nan")),
+            x_mm=solution.x_mm, reference_mm=reference, placed=placed, rows_averaged=self.rows_averaged,
+            free_light=solution.free_light, field=solution.field,
+            chi2_average=self.chi2_average if self.chi2_average is not None else float("nan"),
+            chi2_suspect=self.chi2_suspect, chi2_stale=self.chi2_stale,
+            explain=(lambda: tracker.explain(batch, k, solution)) if placed and self.chi2_suspect else None)
+        verdict = self.monitor.observe(sign)
+        self.stale, self.stale_reason = verdict.stale, verdict.reason
 
     def repeat(self) -> None:
         """The frame repeats the image before it (a driver's double delivery): it shows where the stage
@@ -343,10 +563,11 @@ class SequentialState:
         if self.chi2_average is None:
             self.chi2_average = tracker.chi2_calibration
         self.chi2_average += (capped - self.chi2_average) / STALE_WINDOW
-        self.stale = self.chi2_average > tracker.stale_limit
-        if tracker.light == "auto" and self.chi2_average > tracker.sustained_limit:
-            if self.memory.free:  # a uniform light was not enough: try its shape
-                self.memory.field = True
+        self.chi2_suspect = self.chi2_average > tracker.sustained_limit
+        self.chi2_stale = self.chi2_average > tracker.stale_limit
+        if tracker.light == "auto" and self.chi2_suspect:
+            if self.memory.free:  # a uniform light was not enough: try its shape, and a change of focus
+                self.memory.field = self.memory.focus = True
             self.memory.free = True  # the next frame re-solves the light; it stays so if the light changed
 
 
@@ -371,25 +592,35 @@ def track(model: FourierModel, source: Recording | np.ndarray, reference: np.nda
         raise TrackingError(f"reference has shape {reference.shape}, expected ({n_frames},)")
     tracker = tracker or Tracker(model, light=light, robust=robust)
 
-    out = {key: np.full(n_frames, np.nan) for key in ("x", "rms", "info", "gain", "offset", "chi2")}
+    out = {key: np.full(n_frames, np.nan) for key in ("x", "rms", "info", "gain", "offset", "chi2", "focus",
+                                                      "focus_sigma")}
     iterations = np.zeros(n_frames, dtype=np.int64)
     rejected = np.zeros(n_frames, dtype=np.int64)
+    transient = np.zeros(n_frames, dtype=np.int64)
     locked = np.zeros(n_frames, dtype=bool)
     stale = np.zeros(n_frames, dtype=bool)
+    stale_reason = np.full(n_frames, "", dtype=f"<U{max(map(len, FAMILIES))}")
     repeated = repeats.repeated(frames, model.noise_gray or 0.0)
     state = SequentialState(x_prev=x0_mm if x0_mm is not None else (
-        reference[0] if n_frames and np.isfinite(reference[0]) else None))
+        reference[0] if n_frames and np.isfinite(reference[0]) else None),
+        rows_averaged=model.rows_averaged(frame_rows))
     report_every = max(n_frames // 100, 1)
     batch = None
     for k in range(n_frames):
         if k % BATCH_CHUNK == 0:
-            batch = tracker.batch(model.prepare(frames[k:k + BATCH_CHUNK]), frame_rows)
-        if repeated[k]:
+            chunk = frames[k:k + BATCH_CHUNK]
+            batch = tracker.batch(model.prepare(chunk), frame_rows, raw=chunk if frames.ndim == 3 else None)
+        if not repeated[k]:
+            solution, ok, locked[k] = state.advance(tracker, batch, k % BATCH_CHUNK, reference[k])
+            out["chi2"][k], rejected[k] = solution.chi2, solution.rejected
+            transient[k] = solution.transient_px
+            if math.isfinite(solution.focus_sigma):
+                out["focus"][k], out["focus_sigma"][k] = solution.focus, solution.focus_sigma
+        else:
             state.repeat()
-            stale[k] = state.stale
-            continue
-        solution, ok, locked[k] = state.advance(tracker, batch, k % BATCH_CHUNK, reference[k])
-        out["chi2"][k], rejected[k], stale[k] = solution.chi2, solution.rejected, state.stale
+            ok = False
+        stale[k] = state.stale
+        stale_reason[k] = state.stale_reason or ""
         if ok:
             out["x"][k], out["rms"][k], out["info"][k] = solution.x_mm, solution.rms_gray, solution.information
             out["gain"][k], out["offset"][k] = solution.gain, solution.offset
@@ -400,7 +631,8 @@ def track(model: FourierModel, source: Recording | np.ndarray, reference: np.nda
         progress(1.0, f"{n_frames} frames, {len(state.events)} lock event(s)")
     crlb = 1.0 / np.sqrt(np.where(out["info"] > 0, out["info"], np.nan))
     return TrackResult(out["x"], locked, out["rms"], crlb, iterations, out["gain"], out["offset"], state.events,
-                       out["chi2"], rejected, stale, tracker.chi2_calibration, repeated)
+                       out["chi2"], rejected, stale, tracker.chi2_calibration, repeated, stale_reason, transient,
+                       out["focus"], out["focus_sigma"])
 
 
 @dataclass
@@ -417,6 +649,10 @@ class LiveFix:
     gain: float = 1.0  # the light relative to calibration (1, 0 unless solved)
     offset_gray: float = 0.0
     stale: bool = False  # the model no longer describes the images: recalibrate
+    stale_reason: str | None = None  # the family of causes blamed while stale (core/validity.py)
+    transient_px: int = 0  # samples set aside as a compact transient (a glint, passing dust)
+    focus: float = float("nan")  # change of blur variance since calibration, px² (NaN: not estimated)
+    focus_sigma: float = float("nan")
 
 
 class LiveTracker:
@@ -447,17 +683,23 @@ class LiveTracker:
         if last is not None and repeats.repeated(frame[None], self.model.noise_gray or 0.0, last)[0]:
             self.state.repeat()
             return LiveFix(float("nan"), False, float("nan"), float("nan"), self.state.events[-1],
-                           stale=self.state.stale)
+                           stale=self.state.stale, stale_reason=self.state.stale_reason)
         rows = 1 if frame.ndim == 1 else frame.shape[0]
+        self.state.rows_averaged = self.model.rows_averaged(rows)
         batch = self._lean_batch(frame, rows)
         if batch is None:
-            batch = self.tracker.batch(self.model.prepare(frame.reshape((1,) + frame.shape)), rows)
+            batch = self.tracker.batch(self.model.prepare(frame.reshape((1,) + frame.shape)), rows,
+                                       raw=frame[None] if frame.ndim == 2 else None)
+        elif rows > 1:
+            batch.raw = frame[None]  # a transient on a few rows is set aside on those rows only
         events_before = len(self.state.events)
         solution, ok, locked = self.state.advance(self.tracker, batch, 0, float(reference_mm))
         event = self.state.events[-1] if len(self.state.events) > events_before else None
         crlb = 1.0 / math.sqrt(solution.information) if solution.information > 0 else float("nan")
         return LiveFix(solution.x_mm if ok else float("nan"), locked, solution.rms_gray, crlb, event,
-                       solution.chi2, solution.rejected, solution.gain, solution.offset, self.state.stale)
+                       solution.chi2, solution.rejected, solution.gain, solution.offset, self.state.stale,
+                       self.state.stale_reason, solution.transient_px,
+                       solution.focus if math.isfinite(solution.focus_sigma) else float("nan"), solution.focus_sigma)
 
     def _lean_batch(self, frame: np.ndarray, rows: int) -> TrigPolyBatch | None:
         """The frame's batch by one reduction into the preallocated line (None: not this path)."""

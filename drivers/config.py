@@ -58,6 +58,8 @@ class CameraConfig(_Strict):
                               description="a read hands out frames in order while the oldest waiting is within this "
                                           "of the newest; older ones are skipped (dropped). 0 = newest only")
     timeout_s: float = Field(1.0, gt=0)
+    flip: bool = Field(False, description="reverse the pixel axis of every frame (a camera mounted the other way "
+                                          "round: increasing column must be increasing target coordinate)")
     scenario: str = Field("paper", description="sim: the virtual rig's scenario")
     effects: str = Field("", description="sim: effects the virtual rig has besides its scenario's, as "
                                          "`graytrack simulate --effects` takes them (e.g. \"dust:count=6,flicker\")")
@@ -82,7 +84,7 @@ class CameraConfig(_Strict):
 
     def to_settings(self) -> CameraSettings:
         return CameraSettings(self.exposure_us, self.gain_db, self.frame_rate_hz, self.roi.to_roi(),
-                              max_lag_s=self.max_lag_ms * 1e-3)
+                              max_lag_s=self.max_lag_ms * 1e-3, flip=self.flip)
 
 
 class StageConfig(_Strict):

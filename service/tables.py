@@ -11,9 +11,16 @@ from graytrack.core.files import open_atomic
 
 
 def write_csv(path: str | os.PathLike[str], columns: dict[str, np.ndarray]) -> Path:
-    """Write equal-length columns with a header, atomically (never a half-written table)."""
+    """Write equal-length columns with a header, atomically (never a half-written table). Numbers
+    are written to 9 significant digits; text columns (a stale reason) as they are."""
     path = Path(path)
-    table = np.column_stack([np.asarray(values, dtype=np.float64) for values in columns.values()])
+    cells = [values.astype(str) if (values := np.asarray(column)).dtype.kind in "US"
+             else np.char.mod("%.9g", values.astype(np.float64)) for column in columns.values()]
+    rows = cells[0].astype(object)
+    for column in cells[1:]:
+        rows = rows + "," + column.astype(object)
     with open_atomic(path) as fh:
-        np.savetxt(fh, table, delimiter=",", header=",".join(columns), comments="", fmt="%.9g")
+        fh.write((",".join(columns) + "\n").encode())
+        if rows.size:
+            fh.write(("\n".join(rows) + "\n").encode())
     return path

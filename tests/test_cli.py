@@ -10,6 +10,7 @@ import pytest
 
 from graytrack.core.recording import save
 from graytrack.service.cli import main
+from tests.tables import read_columns
 
 
 @pytest.fixture(scope="module")
@@ -28,9 +29,8 @@ def test_calibrate_then_track(tmp_path, recordings, capsys):
     assert main(["track", str(val), "--model", str(tmp_path / "m.json"), "--out", str(tmp_path / "t.csv")]) == 0
     header = (tmp_path / "t.csv").read_text().splitlines()[0]
     assert header.startswith("t,x_mm")
-    table = np.loadtxt(tmp_path / "t.csv", delimiter=",", skiprows=1)
-    error_um = table[:, header.split(",").index("error_um")]
-    assert table.shape[0] == 300 and np.std(error_um) < 2.5
+    error_um = read_columns(tmp_path / "t.csv")["error_um"]
+    assert error_um.shape[0] == 300 and np.std(error_um) < 2.5
 
 
 @pytest.mark.parametrize(

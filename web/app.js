@@ -123,6 +123,9 @@ function applyStatus(s) {
   state.textContent = s.state;
   state.dataset.state = s.state;
   $("reason").textContent = s.reason || "";
+  const staleNote = $("model-stale");
+  staleNote.hidden = !s.model_stale;
+  staleNote.textContent = s.model_stale ? `model stale: ${s.stale_reason} changed since calibration — recalibrate` : "";
   $("sim-badge").hidden = !s.simulated;
   $("model").textContent = s.model || "no model: start a calibration";
   const active = s.active_calibration;

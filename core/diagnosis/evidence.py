@@ -26,7 +26,7 @@ class Evidence:
     axis: str
     explained_gray2: float  # held-out sum of squares the structure removes
     z: float  # how many noise standard deviations that is beyond chance
-    share: float  # fraction of the held-out residual's excess over noise it explains
+    share: float  # fraction (0…1) of the held-out residual's excess over noise it explains
     text: str
     argument: Any = None  # what the effect's grow() needs from the probe (clip limits, a skew, pixels)
 
@@ -65,6 +65,29 @@ def excess_over_noise(train: Fit, val: Fit) -> float:
     return max(float((val.residual**2).sum()) - sigma2 * float(val.usable.sum()), sigma2)
 
 
+def share_above_noise(beyond_noise_gray2: float, train: Fit, val: Fit) -> float:
+    """The fraction, in [0, 1], of the held-out residual above noise that a structure accounts for.
+
+    ``beyond_noise_gray2`` is what the structure removes from the held-out sum of squares beyond
+    what fitting it to noise alone would remove (cross-validated probes: all they remove; probes
+    fitted on the held-out frames: less their parameters' share of σ²). The residual above noise,
+    estimated as its sum of squares less σ² per sample, can come out smaller than that when the
+    residual is at the noise level (the model-free σ a little high): what a structure removes
+    beyond noise is by definition part of the residual above noise, so the share is taken of the
+    larger of the two and 100 % reads "all the residual that the noise does not account for".
+    A structure that removes no more than noise would counts for nothing: 0.
+    """
+    beyond = float(beyond_noise_gray2)
+    if not np.isfinite(beyond) or beyond <= 0.0:
+        return 0.0
+    return beyond / max(excess_over_noise(train, val), beyond)
+
+
+def explains(share: float) -> str:
+    """The words every probe ends its evidence with."""
+    return f"explain {100 * share:.0f}% of the held-out residual above noise"
+
+
 def z_beyond_noise(explained: float, n_params: float, sigma2: float) -> float:
     """Removed sum of squares beyond what n_params fitted to noise remove, in noise std units."""
     return (explained / sigma2 - n_params) / np.sqrt(2.0 * max(n_params, 1.0))
@@ -87,7 +110,6 @@ def cross_validated_evidence(effect: str, axis: str, stage: Stage, basis: Basis,
     the training residual, scored by what it removes from the held-out residual."""
     train, val = stage.train, stage.val
     sigma2 = val.data.sigma_gray**2
-    excess = excess_over_noise(train, val)
     (res_t, use_t, _), (res_v, use_v, factor) = model_rows(train), model_rows(val)
     b_train, b_val = basis(train), basis(val)
     p = b_train.shape[-1]
@@ -96,8 +118,8 @@ def cross_validated_evidence(effect: str, axis: str, stage: Stage, basis: Basis,
                                           b_val.reshape(-1, p)[mask_v], _flat(res_v)[mask_v])
     # Cross-validated: noise alone removes about nothing on held-out data, so no parameter count.
     z = explained / sigma2 / np.sqrt(2.0 * p)
-    return Evidence(effect, axis, explained, z, explained / excess,
-                    f"{label} explain {100 * explained / excess:.0f}% of the held-out residual above noise")
+    share = share_above_noise(explained, train, val)
+    return Evidence(effect, axis, explained, z, share, f"{label} {explains(share)}")
 
 
 def all_evidence(stage: Stage) -> list[Evidence]:

@@ -63,6 +63,10 @@ def fit_on(model: FourierModel, data: CalibrationData) -> Fit:
     if model.common_mode:
         gain, offset = weighted_affine(data.frames, values, usable, axis=(1, 2))
         values = gain[:, None, None] * values + offset[:, None, None]
+    from graytrack.core.effects.focus import FOCUS_INFO, with_frame_focus  # effects use this module: on use
+
+    if model.info.get(FOCUS_INFO):  # calibrated with a focus per frame: each held-out frame has its own
+        values = with_frame_focus(model, data.x_mm, data.frames, np.asarray(values), usable)
     return Fit(model, data, np.asarray(values), smooth, slope, usable)
 
 
@@ -97,7 +101,10 @@ def track_runs(model: FourierModel, data: CalibrationData) -> TrackResult:
     Held-out blocks are separated by the frames the fit used; a rig tracks continuously, and
     tracking across those gaps would test re-acquisition, not the model.
     """
-    tracker = Tracker(model)  # model-level work (folded weights, Gram polynomials) once for all runs
+    # Frames with transients (glints) are tracked as the instrument tracks them, robustly: a glint
+    # says nothing about the model, and a plain solve would lose those frames and blame it.
+    robust = data.transients is not None and bool(data.transients.any())
+    tracker = Tracker(model, robust=robust)  # model-level work (folded weights, Gram polynomials) once for all runs
     parts = [track(model, data.frames[run], reference=data.x_mm[run], tracker=tracker) for run in runs(data.t_s)]
     joined = {key: np.concatenate([getattr(part, key) for part in parts])
               for key in ("x_mm", "locked", "rms_gray", "crlb_mm", "iterations", "gain", "offset")}
@@ -118,8 +125,8 @@ def figures(model: FourierModel, data: CalibrationData, fit: Fit | None = None) 
     bound_mm = tracked.crlb_mm
     if model.pixel_noise is not None and model.pixel_noise.signal_dependent:
         bound_mm = np.where(np.isfinite(bound_mm), curve_bound_mm(model, data, fit), np.nan)
-    return Figures(model.describe(), fit.rmse_gray, spread, worst, float(np.mean(error[finite])) if finite.any() else 0.0,
-                   _median_um(bound_mm), error, data.x_mm, tracked)
+    mean = float(np.mean(error[finite])) if finite.any() else float("nan")  # no frame placed: no mean (not 0)
+    return Figures(model.describe(), fit.rmse_gray, spread, worst, mean, _median_um(bound_mm), error, data.x_mm, tracked)
 
 
 def curve_bound_mm(model: FourierModel, data: CalibrationData, fit: Fit) -> np.ndarray:

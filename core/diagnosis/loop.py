@@ -15,13 +15,18 @@ from typing import Any, Callable
 import numpy as np
 
 from graytrack.core.calibration import KIND_SPECS
+from graytrack.core.reference_monitor import record_calibration_line
 from graytrack.core.calibration_data import CalibrationData, calibration_data
+from graytrack.core.compression import JpegFinding, bound_with_quantisation_mm, find_jpeg
 from graytrack.core.errors import CalibrationError
 from graytrack.core.geometry import initial_geometry
+from graytrack.core.geometry_check import GeometryCheck, GeometryError, check_geometry
+from graytrack.core.jsonable import finite_or_none
 from graytrack.core import effects
 from graytrack.core.structure import ModelSpec, fit_spec, fit_spec_pitch_search
 from graytrack.core.diagnosis.evidence import Evidence, all_evidence
 from graytrack.core.diagnosis.heldout import Figures, Stage, figures, fit_on, interleaved_split
+from graytrack.core.adequacy import assessed
 from graytrack.core.models.fourier import FourierModel
 from graytrack.core.noise import reference_resolution_mm
 from graytrack.core.recording import Recording
@@ -32,6 +37,7 @@ CANDIDATES_PER_STEP = 3
 CONTENDERS_PER_STEP = 2  # effects that pass the held-out test, compared before one is kept
 MIN_Z = 5.0  # evidence weaker than this many noise standard deviations is noise
 NOISE_FLOOR_MARGIN = 1.1  # error std within this factor of the bound: nothing left worth chasing
+_NO_TRANSIENTS = {"count": 0, "frames": 0, "samples": 0, "share_of_frames": 0.0, "events": []}
 
 
 @dataclass
@@ -61,10 +67,34 @@ class DiagnosisResult:
     holdout: str
     reference_step_mm: float = 0.0  # quantisation of the grating readout the errors are measured against
     remaining: list[Evidence] = field(default_factory=list)
+    compression: JpegFinding | None = None  # the frames come from a JPEG (MJPEG) stream
+    geometry: GeometryCheck | None = None  # the rig's set-up judged on the seed paper's fit, then the final one
+
+    def compression_report(self) -> dict[str, Any] | None:
+        """The JPEG stream the frames came through and the bound its quantisation leaves (the
+        white-noise bound promises more than such frames hold), on the held-out frames."""
+        if self.compression is None:
+            return None
+        fit = self.after.val
+        slope = np.broadcast_to(fit.slope, fit.data.frames.shape) * fit.usable
+        bound_mm = bound_with_quantisation_mm(slope, fit.data.sigma_gray**2, self.compression.table)
+        return {"kind": "jpeg", "quality": self.compression.quality, "score": round(self.compression.score, 3),
+                "crlb_um": round(float(np.median(bound_mm)) * 1e3, 4)}
+
+    @property
+    def refused(self) -> bool:
+        """The loop stopped at a fault of the rig's geometry: no model of it is worth keeping."""
+        return self.geometry is not None and self.geometry.refused
+
+    def raise_if_refused(self) -> None:
+        if self.refused:
+            raise GeometryError(self.geometry)
 
     def report(self) -> dict[str, Any]:
-        """report.json (DESIGN.md contract, with extra keys that explain the decisions)."""
-        return {
+        """report.json (DESIGN.md contract, with extra keys that explain the decisions). A figure that
+        does not exist (no frame placed, no bound) is null, never NaN: JSON carries no NaN."""
+        return finite_or_none({
+            "geometry": None if self.geometry is None else self.geometry.as_dict(),
             "noise": {"gray": round(float(self.sigma_gray), 5), "crlb_um": self.after.figures.as_dict()["crlb_um"],
                       "crlb_before_um": self.before.figures.as_dict()["crlb_um"],
                       "reference_resolution_um": round(self.reference_step_mm * 1e3, 4),
@@ -79,9 +109,11 @@ class DiagnosisResult:
             "heldout": self.holdout,
             "final_model": self.final_model.describe(),
             "effects": {name: effect.describe() for name, effect in effects.registry().items()},
-            "findings": {effect.name: entry for effect, setting in effects.active(self.after.spec)
-                         if (entry := effect.report(setting)) is not None},
-        }
+            "findings": {**{effect.name: entry for effect, setting in effects.active(self.after.spec)
+                            if (entry := effect.report(setting)) is not None},
+                         "transients": self.final_model.info.get("transients") or _NO_TRANSIENTS,
+                         **({"compression": compressed} if (compressed := self.compression_report()) else {})},
+        })
 
 
 def _curve(model: FourierModel) -> dict[str, Any]:
@@ -189,6 +221,14 @@ def diagnose(calibration: Recording, validation: Recording | None = None, progre
     current = before = _stage(KIND_SPECS["paper"], train, val, geometry, refine_geometry=True)
     steps: list[Step] = []
     rejected: list[Step] = []
+    # A fault of the rig's set-up (a reversed pixel axis, a wrong period) is no missing model term:
+    # the loop stops rather than bend a degree-9 polynomial and the period around it.
+    verdict = check_geometry(train, before.model)
+    if verdict.refused:
+        say(1.0, f"stopped: {verdict.message}")
+        return DiagnosisResult(before, before, [], [], before.model, val.sigma_gray, holdout,
+                               readout_step_mm(calibration if validation is None else validation), [],
+                               geometry=verdict)
     for step_index in range(max_steps):
         if _at_noise_floor(current):
             break
@@ -205,7 +245,22 @@ def diagnose(calibration: Recording, validation: Recording | None = None, progre
         m = current.model
         final_model = fit_spec(current.spec, effects.prepare_data(current.spec, data), m.period_mm,
                                m.pixel_pitch_mm, m.row_shift_mm, refine_geometry=False).model
+    assessed(final_model, data)
+    record_calibration_line(final_model, calibration)  # camera against grating: drift is measured from it
     remaining = _candidates(current)
+    if steps:  # the final model's own residual and geometry (the seed model's doubts may be gone)
+        verdict = check_geometry(effects.prepare_data(current.spec, data), final_model)
     say(1.0, f"{len(steps)} effect(s) added")
     return DiagnosisResult(before, current, steps, rejected, final_model, val.sigma_gray, holdout,
-                           reference_resolution_mm(val.x_mm), remaining)
+                           readout_step_mm(calibration if validation is None else validation), remaining,
+                           find_jpeg((calibration if validation is None else validation).frames), verdict)
+
+
+def readout_step_mm(measured_against: Recording) -> float:
+    """The grating readout's step, found on the whole recording the held-out errors are measured against.
+
+    Never on the held-out frames alone: of a step-and-settle sweep they keep some stops and drop
+    others, and stops 256.5 µm apart with gaps of one and seven stops look like a 256.5 µm
+    readout grid. The whole sweep shows one regular stop spacing, which is no readout step.
+    """
+    return reference_resolution_mm(measured_against.reference)

@@ -33,8 +33,9 @@ if TYPE_CHECKING:
 class Alternation:
     """What the rounds of a calibration share: the frames peeled layer by layer, and the layers.
 
-    Y = frame_gain·(pixel_gain·S·map_factor + pixel_offset) + frame_offset; each bilinear effect
-    re-fits its own layer from the others in turn, the smooth model S is fitted to ``lit``.
+    Y = frame_gain·(pixel_gain·(S + δ·B)·map_factor + pixel_offset) + frame_offset; each bilinear
+    effect re-fits its own layer from the others in turn, the smooth model S is fitted to ``lit``
+    (δ·B: a change of focus per frame times the blur direction ∂S/∂δ, when the focus effect is on).
     """
 
     x_mm: "np.ndarray"
@@ -48,6 +49,7 @@ class Alternation:
     map_factor: "np.ndarray | float" = 1.0
     smooth: "np.ndarray | None" = None
     found: dict[str, Any] | None = None  # model fields the steps found (flat field, target map, …)
+    blurred: "np.ndarray | float" = 0.0  # δ·B per frame and pixel (the focus effect's layer)
 
     @property
     def per_frame(self) -> "np.ndarray":
@@ -56,12 +58,13 @@ class Alternation:
 
     @property
     def lit(self) -> "np.ndarray":
-        """The light on the target as the smooth model sees it (common mode and flat field out)."""
-        return (self.per_frame - self.pixel_offset) / self.pixel_gain
+        """The light on the target as the smooth model sees it (common mode, flat field and the
+        frames' change of focus out)."""
+        return (self.per_frame - self.pixel_offset) / self.pixel_gain - self.blurred * self.map_factor
 
     @property
     def shaded(self) -> "np.ndarray":
-        return self.smooth * self.map_factor
+        return (self.smooth + self.blurred) * self.map_factor
 
 
 class Effect:
@@ -75,6 +78,7 @@ class Effect:
     data_quality: bool = False  # a finding about the data: tried before model terms
     bilinear: bool = False  # fitted by alternation with the smooth model (switched off for geometry fits)
     search_pitch: bool = False  # growing it needs α·d to a fraction of a defect: search it again
+    refits_geometry: bool = False  # its layer, unknown in the first round, would pull τ_w: refine it again after
 
     def describe(self) -> dict[str, str]:
         return {"effect": self.name, "family": self.family, "adds": self.adds, "fitted": self.fitted}

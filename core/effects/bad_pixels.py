@@ -37,10 +37,12 @@ def _robust_z(values: np.ndarray, good: np.ndarray) -> np.ndarray:
 
 
 def model_free_bad_pixels(frames: np.ndarray, reference: np.ndarray | None, period_mm: float | None,
-                          sigma_gray: float, variance_at: Any = None) -> list[Finding]:
+                          sigma_gray: float, variance_at: Any = None, transients: np.ndarray | None = None) -> list[Finding]:
     """Stuck, dead, hot and noisy pixels of frames ``(K, R, n)``, from their time series alone.
 
     ``variance_at(gray)`` is the noise curve (σ² at a gray level); default σ² = ``sigma_gray``².
+    ``transients`` (bool, like ``frames``) are samples a glint or passing dust spoiled: a pixel is
+    judged on the frames where nothing passed over it (core/transients.py).
     """
     frames = np.asarray(frames, dtype=np.float64)
     mean, spread = frames.mean(axis=0), frames.std(axis=0)
@@ -61,9 +63,15 @@ def model_free_bad_pixels(frames: np.ndarray, reference: np.ndarray | None, peri
         kind = "hot" if offset[r, u] > 0 else "dark"
         found[(int(r), int(u))] = f"{kind} (offset {offset[r, u]:+.1f} gray from its neighbours)"
         good[r, u] = False
-    cleaned, level, gain, _ = temporal_differences(frames, reference, period_mm)
+    cleaned, level, gain, _ = temporal_differences(frames, reference, period_mm, transients)
     shape = frames.shape[1:]
-    temporal = (np.mean(cleaned**2, axis=0) / gain**2).reshape(shape)
+    if transients is None:
+        temporal = (np.mean(cleaned**2, axis=0) / gain**2).reshape(shape)
+    else:
+        clear = np.isfinite(cleaned)
+        squares = np.where(clear, cleaned, 0.0) ** 2
+        temporal = (squares.sum(axis=0) / np.maximum(clear.sum(axis=0), 1) / gain**2).reshape(shape)
+        level = (np.where(clear, level, 0.0).sum(axis=0) / np.maximum(clear.sum(axis=0), 1))[None]
     expected = (np.full(shape, sigma_gray**2) if variance_at is None
                 else variance_at(level.mean(axis=0).reshape(shape)))
     ratio = temporal / np.maximum(expected, 1e-12)
@@ -99,7 +107,7 @@ def find_bad_pixels(data: Any, residual: np.ndarray | None = None, predicted: np
     pixels that do not follow the target."""
     noise = getattr(data, "pixel_noise", None)
     found = model_free_bad_pixels(data.frames, data.x_mm, data.meta.get("period_mm"), data.sigma_gray,
-                                  None if noise is None else noise.variance)
+                                  None if noise is None else noise.variance, getattr(data, "transients", None))
     if residual is not None:
         known = {(r, u) for r, u, _ in found}
         found += [f for f in residual_bad_pixels(residual, predicted, usable, data.sigma_gray) if f[:2] not in known]

@@ -18,7 +18,7 @@ class CommonMode(Effect):
 
     def probe(self, stage):
         """A gain and offset per frame, fitted on the held-out frames themselves (charged per parameter)."""
-        from graytrack.core.diagnosis.evidence import Evidence, excess_over_noise, z_beyond_noise
+        from graytrack.core.diagnosis.evidence import Evidence, explains, share_above_noise, z_beyond_noise
 
         train, val = stage.train, stage.val
         if train.model.common_mode:
@@ -27,14 +27,14 @@ class CommonMode(Effect):
         gain, offset = weighted_affine(r, val.predicted, val.usable, axis=(1, 2))
         corrected = (r - (gain[:, None, None] * val.predicted + offset[:, None, None])) * val.usable
         explained = float((r**2).sum() - (corrected**2).sum())
+        noise_removes = 2 * len(gain) * val.data.sigma_gray**2  # fitted on these very frames: noise gives some
         z = z_beyond_noise(explained, 2 * len(gain), val.data.sigma_gray**2)
-        excess = excess_over_noise(train, val)
+        share = share_above_noise(explained - noise_removes, train, val)
         # Smooth-in-stroke gain belongs to the stroke probe; only what varies from frame to frame counts here.
         jitter = np.diff(gain[np.argsort(val.data.x_mm)])
         frame_to_frame = float(np.std(jitter) / np.sqrt(2)) * 100
-        return Evidence(self.name, "time (per frame)", explained, z, explained / excess,
-                        f"a gain per frame ({frame_to_frame:.2f}% rms from frame to frame) and offset explain "
-                        f"{100 * explained / excess:.0f}% of the held-out residual above noise")
+        return Evidence(self.name, "time (per frame)", explained, z, share,
+                        f"a gain per frame ({frame_to_frame:.2f}% rms from frame to frame) and offset {explains(share)}")
 
     def model_fields(self, setting):
         return {"common_mode": True}

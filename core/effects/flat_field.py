@@ -25,7 +25,7 @@ class FlatField(Effect):
 
     def probe(self, stage):
         """A gain and offset per pixel, fitted on training frames, applied to held-out ones."""
-        from graytrack.core.diagnosis.evidence import Evidence, excess_over_noise
+        from graytrack.core.diagnosis.evidence import Evidence, explains, share_above_noise
 
         train, val = stage.train, stage.val
         slope, intercept = weighted_affine(train.residual, train.predicted, train.usable, axis=(0,))
@@ -35,10 +35,9 @@ class FlatField(Effect):
         sigma2 = val.data.sigma_gray**2
         z = explained / sigma2 / np.sqrt(2.0 * 2 * slope.size)
         spread = float(np.std(slope)) * 100
-        excess = excess_over_noise(train, val)
-        return Evidence(self.name, "pixel index (pixel to pixel)", explained, z, explained / excess,
-                        f"a gain ({spread:.2f}% rms) and offset per pixel explain {100 * explained / excess:.0f}% "
-                        "of the held-out residual above noise")
+        share = share_above_noise(explained, train, val)  # fitted on training frames: cross-validated
+        return Evidence(self.name, "pixel index (pixel to pixel)", explained, z, share,
+                        f"a gain ({spread:.2f}% rms) and offset per pixel {explains(share)}")
 
     def fit_step(self, setting, state):
         gain, offset = weighted_affine(state.per_frame, state.shaded, state.weights, axis=(0,))

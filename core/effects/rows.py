@@ -20,7 +20,7 @@ class Rows(Effect):
         The basis is block-diagonal in the row, so each row's three coefficients are solved on
         their own: a batch of 3×3 systems instead of one large least-squares problem.
         """
-        from graytrack.core.diagnosis.evidence import Evidence, excess_over_noise
+        from graytrack.core.diagnosis.evidence import Evidence, explains, share_above_noise
 
         train, val = stage.train, stage.val
         if val.data.frames.shape[1] < 2 or train.model.n_rows > 1:
@@ -40,11 +40,10 @@ class Rows(Effect):
         sigma2 = val.data.sigma_gray**2
         n_rows = val.data.frames.shape[1]
         per_row_um = float(np.polyfit(np.arange(n_rows), coef[:, 0] * 1e3, 1)[0])
-        excess = excess_over_noise(train, val)
-        return Evidence(self.name, "row (tilt)", explained, explained / sigma2 / np.sqrt(6.0 * n_rows),
-                        explained / excess,
-                        f"rows see the target shifted by {per_row_um:+.2f} µm per row (tilt); per-row terms explain "
-                        f"{100 * explained / excess:.0f}% of the held-out residual above noise")
+        share = share_above_noise(explained, train, val)  # fitted on training frames: cross-validated
+        return Evidence(self.name, "row (tilt)", explained, explained / sigma2 / np.sqrt(6.0 * n_rows), share,
+                        f"rows see the target shifted by {per_row_um:+.2f} µm per row (tilt); per-row terms "
+                        f"{explains(share)}")
 
     def grow(self, spec, argument):
         return None if spec.per_row else spec.with_changes(per_row=True)

@@ -61,7 +61,7 @@ class TargetMap(Effect):
     def probe(self, stage):
         """A fine map along the target coordinate, learnt from training frames, predicts the
         held-out residual wherever the same spot is seen."""
-        from graytrack.core.diagnosis.evidence import Evidence, excess_over_noise, model_rows
+        from graytrack.core.diagnosis.evidence import Evidence, explains, model_rows, share_above_noise
 
         train, val = stage.train, stage.val
         model = train.model
@@ -77,13 +77,12 @@ class TargetMap(Effect):
         predicted = val.smooth * (mapped.target_factor(val.data.x_mm)[0] - 1.0) * use_v
         explained = factor * float((res_v**2).sum() - ((res_v - predicted) ** 2).sum())
         sigma2 = val.data.sigma_gray**2
-        excess = excess_over_noise(train, val)
+        share = share_above_noise(explained, train, val)  # learnt on training frames: cross-validated
         deepest = float(np.abs(found["target_map"]).max()) * 100
         return Evidence(self.name, "target coordinate (local)", explained,
-                        explained / sigma2 / np.sqrt(2.0 * found["target_map"].size), explained / excess,
+                        explained / sigma2 / np.sqrt(2.0 * found["target_map"].size), share,
                         f"spots fixed to the target (deepest {deepest:.1f}% of the light, on a "
-                        f"{found['target_map_step_mm'] * 1e3:.0f} µm grid) explain "
-                        f"{100 * explained / excess:.0f}% of the held-out residual above noise")
+                        f"{found['target_map_step_mm'] * 1e3:.0f} µm grid) {explains(share)}")
 
     def grow(self, spec, argument):
         current = spec.get(self.name)
@@ -91,8 +90,9 @@ class TargetMap(Effect):
         return spec.set(self.name, steps) if steps <= MAX_MAP_STEPS else None
 
     def fit_step(self, setting, state):
-        state.found.update(fit_target_map(state.model, state.x_mm, state.lit, state.smooth, state.weights, setting))
-        mapped = state.model.with_changes(coeffs=state.model.coeffs, **state.found)
+        mapped_fields = fit_target_map(state.model, state.x_mm, state.lit, state.smooth, state.weights, setting)
+        state.found.update(mapped_fields)  # (other effects keep their own findings in ``found`` too)
+        mapped = state.model.with_changes(coeffs=state.model.coeffs, **mapped_fields)
         state.map_factor = mapped.target_factor(state.x_mm)[0]
 
     def finish(self, setting, state, model):

@@ -20,6 +20,7 @@ simulated clock for the simulated camera), useful for exact frame spacing.
 from __future__ import annotations
 
 import abc
+import dataclasses
 import threading
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -116,6 +117,9 @@ class CameraSettings:
     # The read policy, host side: how far behind the newest delivered frame a read still hands out
     # the older ones in order (see backlog.py). 0 = newest only.
     max_lag_s: float = DEFAULT_MAX_LAG_S
+    # Reverse the pixel axis of every frame handed out: a camera mounted the other way round (its
+    # column index running against the target coordinate, which DESIGN.md's u must follow).
+    flip: bool = False
 
 
 class Camera(Device):
@@ -187,6 +191,8 @@ class Camera(Device):
         if not self._open:
             raise CameraError(f"{type(self).__name__} is not open")
         frame = self._read(timeout_s)
+        if self.settings.flip:  # here, once for every driver: the strip's columns as the contract wants them
+            frame = dataclasses.replace(frame, pixels=np.ascontiguousarray(frame.pixels[..., ::-1]))
         self.stats.delivered += 1
         return frame
 

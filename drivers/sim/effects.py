@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Callable, Mapping, Sequence
 import numpy as np
 
 from graytrack.drivers.sim.sensor import FULL_SCALE_GRAY, BadPixel
-from graytrack.drivers.sim.target import Defect
+from graytrack.drivers.sim.target import Defect, Growth
 
 if TYPE_CHECKING:
     from graytrack.drivers.sim.rig import RigConfig
@@ -204,6 +204,22 @@ def _chirp(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -
     config.target.chirp_half_span_mm = 0.5 * (hi - lo)
 
 
+@effect("target_growth", "target", "The print grows after calibration (paper in humidity, a film warming up): "
+        "stretched by ppm about a fixed point from start_s on, over ramp_s (0: a step); the stage's grating does not "
+        "see it, so the camera reads −ppm·(x − centre) against it.",
+        ppm=(250.0, "growth, parts per million (negative: shrinks)"),
+        at=(0.5, "fixed point along the field seen over the stroke, 0..1 (0.5: the target's centre)"),
+        start_s=(0.0, "when the growth begins, s"), ramp_s=(0.0, "how long it takes, s (0: a step)"))
+def _target_growth(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    if not 0 <= v["at"] <= 1:
+        raise EffectError("effect 'target_growth': at must be in [0, 1]")
+    if v["ppm"] <= -1e6:
+        raise EffectError("effect 'target_growth': ppm must be > -1e6 (the print cannot shrink to nothing)")
+    lo, hi = _field_span(config)
+    config.target.growths.append(Growth(v["ppm"], lo + v["at"] * (hi - lo), v["start_s"],
+                                        _positive("target_growth", "ramp_s", v["ramp_s"], True)))
+
+
 def _defect_y_range(config: "RigConfig", margin: float) -> tuple[float, float]:
     pitch = config.optics.pixel_pitch_mm
     return -margin, pitch * (config.optics.n_rows - 1) + margin
@@ -288,10 +304,49 @@ def _defocus(config: "RigConfig", v: dict[str, float], rng: np.random.Generator)
     config.optics.defocus_sigma_mm = math.hypot(s, _positive("defocus", "sigma_um", v["sigma_um"], True) * 1e-3)
 
 
+@effect("focus_drift", "optics", "Focus drifting during the run (a lens mount warming up): from start_s the blur σ on the "
+        "target moves by px pixel footprints (px·α·d; >0 blurrier, <0 sharper, never below σ = 0: a sharper image "
+        "needs a base defocus to lose), ramped in over ramp_s (0: a step).",
+        px=(0.5, "change of the blur σ, pixels"), start_s=(0.0, "when the change begins, s"),
+        ramp_s=(0.0, "how long it takes, s (0: a step)"))
+def _focus_drift(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    optics = config.optics
+    optics.focus_drift_mm += v["px"] * optics.pixel_pitch_mm
+    optics.focus_start_s = v["start_s"]
+    optics.focus_ramp_s = _positive("focus_drift", "ramp_s", v["ramp_s"], True)
+
+
 @effect("tilt", "optics", "Camera rows tilted against the axis of motion: row r sees the target shifted by −r·α·d·sin(angle).",
         deg=(0.5, "tilt angle, degrees"))
 def _tilt(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
     config.optics.tilt_rad += math.radians(v["deg"])
+
+
+@effect("mirrored", "optics", "The pixel axis reversed (camera mounted the other way round, ReverseX on): "
+        "increasing u sees decreasing target x (the recording contract wants the opposite).")
+def _mirrored(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    config.optics.mirrored = not config.optics.mirrored
+
+
+@effect("magnification", "optics", "The lens images the target larger or smaller than the rig's nominal α·d says "
+        "(refocused, a spacer changed): the true pixel footprint is nominal·(1 + percent/100).",
+        percent=(10.0, "footprint error, %"))
+def _magnification(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    if not v["percent"] > -100:
+        raise EffectError("effect 'magnification': percent must be above -100")
+    config.optics.magnification_error = (1 + config.optics.magnification_error) * (1 + v["percent"] / 100) - 1
+
+
+@effect("off_target", "optics", "The ROI partly off the print: its last `share` of columns (and its first `rows` "
+        "rows) look past the print's edge at a plain surface of `gray`.",
+        share=(0.3, "share of the line's columns off the print, 0..1"), rows=(0.0, "rows off the print"),
+        gray=(200.0, "the plain surface's light, gray"))
+def _off_target(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    if not 0 <= v["share"] <= 1:
+        raise EffectError("effect 'off_target': share must be in [0, 1]")
+    config.optics.off_target_cols = int(round(v["share"] * config.optics.n_pixels))
+    config.optics.off_target_rows = _count("off_target", "rows", v["rows"], 0, config.optics.n_rows)
+    config.optics.background_gray = _positive("off_target", "gray", v["gray"], True)
 
 
 @effect("motion_blur", "optics", "Longer exposure: the moving profile is integrated over it (amplitude × sinc(v·T/τ)).",
@@ -539,6 +594,23 @@ def _vibration(config: "RigConfig", v: dict[str, float], rng: np.random.Generato
     stage.vibration_phase_rad = math.radians(v["phase_deg"]) if v["phase_deg"] >= 0 else rng.uniform(0, 2 * math.pi)
 
 
+@effect("glints", "illumination", "Specular glints: the lamp mirrored by a glossy spot of the print, a bright Gaussian "
+        "blob a few pixels wide (and rows high) pinned to that spot, lasting 1..4 frames, on a share p of the frames; "
+        "bright ones saturate the sensor. A later glints spec replaces the earlier one (a run glinting more often).",
+        p=(0.05, "share of frames with a glint"), gray_min=(80.0, "weakest peak, gray"),
+        gray_max=(200.0, "brightest peak, gray"), sigma_px=(1.5, "blob size (Gaussian sigma), pixels"))
+def _glints(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    if not 0 <= v["p"] < 1:
+        raise EffectError("effect 'glints': p must be in [0, 1)")
+    if not 0 <= v["gray_min"] <= v["gray_max"]:
+        raise EffectError("effect 'glints': need 0 ≤ gray_min ≤ gray_max")
+    cfg = config.glints
+    cfg.probability = v["p"]
+    cfg.gray_min, cfg.gray_max = v["gray_min"], v["gray_max"]
+    cfg.sigma_px = _positive("glints", "sigma_px", v["sigma_px"])
+    cfg.seed = int(rng.integers(0, 2**31))
+
+
 @effect("duplicate_frames", "timing", "The driver delivers the previous image again with a new timestamp and "
         "reference reading (as USB drivers do when a frame is late).", p=(0.03, "probability per frame"))
 def _duplicate_frames(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
@@ -551,3 +623,10 @@ def _duplicate_frames(config: "RigConfig", v: dict[str, float], rng: np.random.G
         "its exposures drift from the reference's latch by ppm·t.", ppm=(100.0, "clock rate error, parts per million"))
 def _clock_drift(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
     config.timing.clock_ppm = v["ppm"]
+
+
+@effect("mjpeg", "sensor", "Lossy MJPEG stream (baseline JPEG of each 8-bit frame, 8×8 blocks from the ROI's "
+        "corner, the standard luminance table scaled for the quality).", quality=(75.0, "JPEG quality, 1…100"))
+def _mjpeg(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    config.sensor.jpeg_quality = _count("mjpeg", "quality", v["quality"], 1, 100)
+    config.sensor.bit_depth = 8  # an MJPEG stream carries 8-bit samples whatever the sensor digitises

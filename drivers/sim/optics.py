@@ -9,7 +9,13 @@ Pixel ``(r, u)`` of the ROI sees target coordinate ``x_w = x_stage + s[r, u]``. 
 * tilt of the sensor rows against the axis of motion by an angle ψ: row r is displaced along x by
   ``−r·α·d·sin ψ`` — every row sees the same profile at a phase shifted linearly with its row;
 * defocus: a Gaussian blur of standard deviation σ on the target, which multiplies harmonic i of
-  the profile by ``exp(−2π² σ² (i/τ)²)`` and widens local defects.
+  the profile by ``exp(−2π² σ² (i/τ)²)`` and widens local defects;
+* a mirrored readout (the camera mounted the other way round, or its ReverseX on): the sensor's
+  columns are read out in reverse, so increasing ROI column u sees *decreasing* target x. What the
+  paper's field attaches to the readout column (its pixel polynomials) stays with u.
+* focus drift: σ changing during a run, σ(t) = max(σ₀ + Δσ·ramp(t), 0). The change is on σ (what a
+  person turning a focus ring sees), so a sharper image (Δσ < 0) needs a rig that had a blur to
+  lose: from a sharp rig it clips at σ = 0 and nothing changes.
 
 Motion blur is not here: it comes from integrating the moving scene over the exposure (rig.py).
 """
@@ -37,6 +43,16 @@ class OpticsConfig:
     distortion_k1: float = 0.0  # relative radial stretch at the sensor half-width
     tilt_rad: float = 0.0
     defocus_sigma_mm: float = 0.0
+    mirrored: bool = False  # columns read out in reverse: u grows against the target coordinate
+    magnification_error: float = 0.0  # true α·d = nominal · (1 + this): a lens refocused, a mount moved
+    off_target_cols: int = 0  # ROI columns, from its far end, that see no print (a plain surface)
+    off_target_rows: int = 0  # ROI rows, from its first, that see no print
+    background_gray: float = 200.0  # what those pixels see instead (before the sensor)
+    # Focus drifting during a run (a lens mount warming up): the blur σ moves from defocus_sigma_mm
+    # by focus_drift_mm, ramping in linearly from focus_start_s over focus_ramp_s (0: a step).
+    focus_drift_mm: float = 0.0
+    focus_start_s: float = 0.0
+    focus_ramp_s: float = 0.0
 
     @property
     def full_width(self) -> int:
@@ -68,18 +84,51 @@ def pixel_geometry(cfg: OpticsConfig) -> PixelGeometry:
     uc, rc = (cfg.full_width - 1) / 2.0, (cfg.full_height - 1) / 2.0
     half = max(cfg.full_width / 2.0, 1.0)
     du, dr = full_u - uc, full_r - rc
+    if cfg.mirrored:  # the physical column behind readout column u is the one across the centre
+        du = -du
     radius2 = (du * du + dr * dr) / (half * half)
     stretch = 1.0 + cfg.distortion_k1 * radius2
     # distorted positions, relative to the ROI origin's (undistorted) position
     pu = uc + du * stretch - cfg.roi_x
     pr = rc + dr * stretch - cfg.roi_y
     c, s = math.cos(cfg.tilt_rad), math.sin(cfg.tilt_rad)
-    x = cfg.x_offset_mm + cfg.pixel_pitch_mm * (pu * c - pr * s)
-    y = cfg.pixel_pitch_mm * (pu * s + pr * c)
+    pitch = cfg.pixel_pitch_mm * (1.0 + cfg.magnification_error)
+    x = cfg.x_offset_mm + pitch * (pu * c - pr * s)
+    y = pitch * (pu * s + pr * c)
     return PixelGeometry(x, y, radius2, cols, full_u, full_r)
+
+
+def off_target(cfg: OpticsConfig) -> np.ndarray:
+    """``(R, n)`` True where the ROI looks past the print's edge (sees the plain background)."""
+    mask = np.zeros((cfg.n_rows, cfg.n_pixels), dtype=bool)
+    if cfg.off_target_cols:
+        mask[:, cfg.n_pixels - cfg.off_target_cols:] = True
+    mask[: cfg.off_target_rows] = True
+    return mask
 
 
 def defocus_attenuation(cfg: OpticsConfig, orders: np.ndarray, period_mm: float) -> np.ndarray:
     """Gain of Fourier order(s) ``orders`` of a profile of period ``period_mm`` under defocus."""
     f = np.asarray(orders, dtype=float) / period_mm
     return np.exp(-2 * math.pi**2 * cfg.defocus_sigma_mm**2 * f * f)
+
+
+def blur_sigma_mm(cfg: OpticsConfig, t_s: np.ndarray) -> np.ndarray:
+    """Blur σ on the target (mm) at frame times ``t_s`` ``(K,)``: the base defocus, moved by the focus drift."""
+    t = np.asarray(t_s, dtype=np.float64)
+    if cfg.focus_ramp_s > 0:
+        share = np.clip((t - cfg.focus_start_s) / cfg.focus_ramp_s, 0.0, 1.0)
+    else:
+        share = (t >= cfg.focus_start_s).astype(np.float64)
+    return np.maximum(cfg.defocus_sigma_mm + cfg.focus_drift_mm * share, 0.0)
+
+
+def focus_attenuation(cfg: OpticsConfig, orders: np.ndarray, period_mm: float, t_s: np.ndarray) -> np.ndarray | None:
+    """``(K, orders)`` gain of each Fourier order at each frame relative to the base defocus (which
+    the rig's coefficients already carry); None when the focus does not drift. A Gaussian blur's
+    variances add, so the change is exp(−2π² (σ(t)² − σ₀²) (i/τ)²): above 1 when the image sharpens."""
+    if cfg.focus_drift_mm == 0.0:
+        return None
+    change = blur_sigma_mm(cfg, t_s) ** 2 - cfg.defocus_sigma_mm**2
+    f = np.asarray(orders, dtype=float) / period_mm
+    return np.exp(-2 * math.pi**2 * change[:, None] * (f * f)[None, :])

@@ -31,9 +31,10 @@ import numpy as np
 from graytrack.core.recording import Recording
 from graytrack.drivers.sim import illumination as illum
 from graytrack.drivers.sim import target as tgt
+from graytrack.drivers.sim.glints import GlintConfig, Glints
 from graytrack.drivers.sim.grating import GratingConfig, GratingReadout
 from graytrack.drivers.sim.illumination import IlluminationConfig
-from graytrack.drivers.sim.optics import OpticsConfig, defocus_attenuation, pixel_geometry
+from graytrack.drivers.sim.optics import OpticsConfig, defocus_attenuation, focus_attenuation, off_target, pixel_geometry
 from graytrack.drivers.sim.sensor import Sensor, SensorConfig
 from graytrack.drivers.sim.stage import SimStage, StageConfig, Trajectory, Vibrating, oscillation, sweep
 from graytrack.drivers.sim.target import TargetConfig
@@ -64,6 +65,7 @@ class RigConfig:
     stage: StageConfig = field(default_factory=StageConfig)
     grating: GratingConfig = field(default_factory=GratingConfig)
     timing: TimingConfig = field(default_factory=TimingConfig)
+    glints: GlintConfig = field(default_factory=GlintConfig)
     stroke_mm: tuple[float, float] = (0.0, 10.46)
     default_seconds: float = 10.0
     motion: str = "sweep"  # default trajectory: "sweep" once over the stroke, or "oscillation"
@@ -142,6 +144,10 @@ class VirtualRig:
         orders = np.arange(coeffs.shape[0])
         self._orders = orders
         coeffs = coeffs * defocus_attenuation(opt, orders, tcfg.true_period_mm)[:, None, None]
+        beyond = off_target(opt)
+        if beyond.any():  # pixels past the print's edge: a plain surface, no period
+            coeffs[:, beyond] = 0.0
+            coeffs[0, beyond] = opt.background_gray
         self._vignetting = illum.camera_field_gain(config.illumination, self.geometry.radius2)
         self._coeffs = coeffs * self._vignetting  # (M+1, R, n), phase reference: target x
         self._kappa = 2 * math.pi / tcfg.true_period_mm
@@ -152,10 +158,13 @@ class VirtualRig:
         # a smooth (quadratic) light field fixed to the target stays on the fast path:
         # G(x + s) = G(x) + G'(x)·s + ½G''·s², one extra matrix per power of s
         self._matrix_s = [self._matrix * self.geometry.x_mm.reshape(1, -1) ** p for p in (1, 2)]
-        self._slow = (not tcfg.affine) or bool(tcfg.defects)
+        self._slow = (not tcfg.affine) or bool(tcfg.defects) or bool(tcfg.growths)
         self._row_y = self.geometry.y_mm.mean(axis=1)
         self._glare = illum.glare(config.illumination, opt.n_rows, opt.n_pixels)
         self._duplicate_rng = rng_for(seed, "duplicates") if run == 0 else rng_for(seed, "duplicates", f"run {run}")
+        gcfg = config.glints
+        self._glints = Glints(gcfg, rng_for(gcfg.seed, "glints", f"run {run}"), config.timing.frame_rate_hz,
+                              opt.n_rows) if gcfg.probability > 0 else None
 
     # ----- shape and nominal figures --------------------------------------------------------
     @property
@@ -236,10 +245,13 @@ class VirtualRig:
         for k0 in range(0, x.shape[0], step):
             k1 = min(k0 + step, x.shape[0])
             xs = x[k0:k1]
-            light = self._light_slow(xs) if self._slow else self._light_fast(xs)
+            focus = focus_attenuation(self.config.optics, self._orders[1:], self.config.target.true_period_mm, t[k0:k1])
+            light = self._light_slow(xs, t[k0:k1], focus) if self._slow else self._light_fast(xs, focus)
             out[k0:k1] = light.reshape(k1 - k0, R, n)
         if self.config.illumination.glare_gray:
             out += self._glare  # the lamp's stray light: it dims and flickers with the lamp
+        if self._glints is not None:  # the lamp mirrored by the print: it dims and flickers with it too
+            self._glints.add_light(out, t, x.mean(axis=1), self.geometry.x_mm, self.pixel_pitch_mm)
         exposure = self.exposure_s if exposure_s is None else float(exposure_s)
         gain, ambient = illum.level_change(self.config.illumination, t)
         out *= (illum.flicker_gain(self.config.illumination, t, exposure) * gain)[:, None, None]
@@ -252,8 +264,11 @@ class VirtualRig:
         arg = theta[:, None] * i[None, :]
         return np.concatenate([np.ones((theta.size, 1)), np.cos(arg), np.sin(arg)], axis=1)
 
-    def _light_fast(self, xs: np.ndarray) -> np.ndarray:
+    def _light_fast(self, xs: np.ndarray, focus: np.ndarray | None = None) -> np.ndarray:
         """Affine phase, no defects: exposure-averaged basis × per-pixel matrices.
+
+        ``focus`` ``(K, M)``: each frame's gain of each order from a focus drift (a blur acts on the
+        target's orders exactly as the motion's sinc does, so it folds into the same damping).
 
         Each linear piece of the motion (mid-point x_m, half-length h) averages ``e^{jωx}`` to
         ``e^{jωx_m}·sinc(ωh/π)`` exactly. A smooth light field fixed to the target,
@@ -274,6 +289,8 @@ class VirtualRig:
             arg = xm[:, None] * omega
             cos, sin = np.cos(arg), np.sin(arg)
             damp = np.sinc(wh / math.pi)
+            if focus is not None:
+                damp = damp * focus
             basis = np.concatenate([ones, cos * damp, sin * damp], axis=1)
             light = basis @ self._matrix
             if icfg.has_target_field:
@@ -283,6 +300,8 @@ class VirtualRig:
                 safe_h = np.where(small, 1.0, h[:, None] * np.ones_like(wh))
                 moment = np.where(small, wh * h[:, None] / 3,
                                   (np.sin(wh) - wh * np.cos(wh)) / (omega * omega * safe_h))
+                if focus is not None:
+                    moment = moment * focus
                 drift = np.concatenate([zeros, -sin * moment, cos * moment], axis=1)  # e^{jωx_m}·j·moment
                 light *= illum.target_field_gain(icfg, xm)[:, None]
                 light += slope * (basis @ self._matrix_s[0] + drift @ self._matrix)
@@ -290,31 +309,39 @@ class VirtualRig:
             total += light
         return total / mids.shape[1]
 
-    def _light_slow(self, xs: np.ndarray) -> np.ndarray:
-        """Chirp or target-fixed gains: evaluate every pixel at sub-samples of each exposure."""
+    def _light_slow(self, xs: np.ndarray, t: np.ndarray, focus: np.ndarray | None = None) -> np.ndarray:
+        """Chirp, target-fixed gains or a growing print: evaluate every pixel at sub-samples of each
+        exposure. A growing print is taken at each frame's mid-exposure ``t`` (it grows over seconds).
+        ``focus`` as for :meth:`_light_fast`; defects keep the base blur (their widening by a drift
+        of a fraction of a pixel is far below what they do to the profile)."""
         points = self._subsamples(xs)  # (K, Q)
         R, n = self.n_rows, self.n_pixels
         acc = np.zeros((xs.shape[0], R, n))
         tcfg, icfg = self.config.target, self.config.illumination
         blur = self.config.optics.defocus_sigma_mm
+        t_frame = t[:, None, None] if tcfg.growths else None
         for q in range(points.shape[1]):
             xq = points[:, q]
-            if tcfg.affine:
-                light = (self._basis(self._kappa * xq) @ self._matrix).reshape(-1, R, n)
+            if tcfg.affine and not tcfg.growths:
+                basis = self._basis(self._kappa * xq)
+                if focus is not None:
+                    basis[:, 1:] *= np.tile(focus, 2)
+                light = (basis @ self._matrix).reshape(-1, R, n)
             else:
-                theta = tgt.phase(tcfg, xq[:, None, None] + self.geometry.x_mm)  # (K, R, n)
+                theta = tgt.phase(tcfg, xq[:, None, None] + self.geometry.x_mm, t_frame)  # (K, R, n)
                 z = np.exp(1j * theta)
                 zi = np.ones_like(z)
                 light = np.broadcast_to(self._coeffs[0].real, z.shape).copy()
-                for c in self._coeffs[1:]:
+                for i, c in enumerate(self._coeffs[1:]):
                     zi = zi * z
-                    light += (c * zi).real
+                    light += (c * zi).real if focus is None else (c * zi).real * focus[:, i, None, None]
             x_w = xq[:, None, None] + self.geometry.x_mm
             if icfg.has_target_field:
                 light *= illum.target_field_gain(icfg, x_w)
-            if tcfg.defects:
+            if tcfg.defects:  # printed on the target: they move with it when it grows
+                x_print = tgt.printed_coordinate(tcfg, x_w, t_frame)
                 for r in range(R):
-                    light[:, r] *= tgt.defect_gain(tcfg.defects, x_w[:, r], float(self._row_y[r]), blur)
+                    light[:, r] *= tgt.defect_gain(tcfg.defects, x_print[:, r], float(self._row_y[r]), blur)
             acc += light
         return acc / points.shape[1]
 

@@ -17,6 +17,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from graytrack.drivers.sim import jpeg
+
 FULL_SCALE_GRAY = 255.0
 
 
@@ -38,6 +40,7 @@ class SensorConfig:
     gain_hunt_step: float = 0.0  # the gain moves in steps of this (relative; 0: smoothly)
     gain_hunt_phase_rad: float = 0.0
     lsb_shift: int = 0  # data left-aligned in a wider word (Mono12 in 16 bits: 4); quantises at bit_depth − shift
+    jpeg_quality: int = 0  # an MJPEG stream: each 8-bit frame through JPEG at this quality (0: none)
 
 
 @dataclass
@@ -123,6 +126,8 @@ class Sensor:
         scale = np.float32(2.0 ** (significant - 8))
         top = 2**significant - 1
         counts = np.clip(np.rint(signal * scale), 0, top).astype(self.output_dtype)
+        if cfg.jpeg_quality:
+            counts = jpeg.compress(counts, cfg.jpeg_quality)
         return counts << cfg.lsb_shift if cfg.lsb_shift else counts
 
 

@@ -12,6 +12,13 @@ gray field, whose Fourier coefficients are cubics in the pixel index u — it de
 (target, light and camera) rather than the print alone. A plain ``sine`` scene has the same
 coefficients for every pixel.
 
+The print may also change size after calibration (paper in humidity, a film warming up):
+:class:`Growth` stretches the target about a fixed point by a factor that may ramp in time. It moves
+every printed feature (the profile and the defects) and nothing else: the light falls where it did
+and the stage's own grating does not see it. A camera calibrated before the growth then reads a
+position off by ``−g·(x − c)``: a scale error against the grating, and an offset wherever the view
+is not centred on the fixed point.
+
 Defects (dust, scratches) are local and two-dimensional (they depend on the row's y as well), so
 they are not part of the Fourier series; they are a multiplicative gain fixed to the target
 (:func:`defect_gain`), combined with the illumination field fixed to the target.
@@ -45,6 +52,26 @@ class Defect:
 
 
 @dataclass
+class Growth:
+    """The print grows by ``ppm`` (parts per million) about target coordinate ``center_mm``: from
+    ``start_s`` on, reached linearly over ``ramp_s`` (0: a step)."""
+
+    ppm: float
+    center_mm: float
+    start_s: float = 0.0
+    ramp_s: float = 0.0
+
+    def relative(self, t_s: np.ndarray) -> np.ndarray:
+        """The growth ``g(t)`` (dimensionless) at time(s) ``t_s``."""
+        t = np.asarray(t_s, dtype=np.float64)
+        if self.ramp_s > 0:
+            done = np.clip((t - self.start_s) / self.ramp_s, 0.0, 1.0)
+        else:
+            done = (t >= self.start_s).astype(np.float64)
+        return self.ppm * 1e-6 * done
+
+
+@dataclass
 class TargetConfig:
     """What is printed and how well. ``period_mm`` is the nominal (design) period."""
 
@@ -61,6 +88,7 @@ class TargetConfig:
     chirp_center_mm: float = 8.0
     chirp_half_span_mm: float = 10.0
     defects: list[Defect] = field(default_factory=list)
+    growths: list[Growth] = field(default_factory=list)  # applied in order, after calibration-time printing
 
     @property
     def true_period_mm(self) -> float:
@@ -80,9 +108,23 @@ def warp_mm(cfg: TargetConfig, x_w: np.ndarray) -> np.ndarray:
     return x_w + cfg.chirp_mm * xi**cfg.chirp_order
 
 
-def phase(cfg: TargetConfig, x_w: np.ndarray) -> np.ndarray:
-    """Target phase θ at target coordinate(s) ``x_w`` (rad)."""
-    return 2 * math.pi * warp_mm(cfg, np.asarray(x_w, dtype=np.float64)) / cfg.true_period_mm
+def printed_coordinate(cfg: TargetConfig, x_w: np.ndarray, t_s: np.ndarray | None) -> np.ndarray:
+    """Where on the print as it was made lies the point now at target coordinate ``x_w``.
+
+    ``t_s`` broadcasts against ``x_w`` (one time per frame: ``(K, 1, 1)`` for ``(K, R, n)``); each
+    growth ``x → c + (x − c)(1 + g)`` is undone in reverse order. No growth or no time: ``x_w``.
+    """
+    x = np.asarray(x_w, dtype=np.float64)
+    if not cfg.growths or t_s is None:
+        return x
+    for growth in reversed(cfg.growths):
+        x = growth.center_mm + (x - growth.center_mm) / (1.0 + growth.relative(t_s))
+    return x
+
+
+def phase(cfg: TargetConfig, x_w: np.ndarray, t_s: np.ndarray | None = None) -> np.ndarray:
+    """Target phase θ at target coordinate(s) ``x_w`` (rad), at time(s) ``t_s`` when the print grows."""
+    return 2 * math.pi * warp_mm(cfg, printed_coordinate(cfg, x_w, t_s)) / cfg.true_period_mm
 
 
 def fourier_coefficients(cfg: TargetConfig, u: np.ndarray, n_orders: int = 8) -> np.ndarray:

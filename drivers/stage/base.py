@@ -61,6 +61,10 @@ class Stage(Device):
     @abc.abstractmethod
     def velocity(self) -> float: ...
 
+    def velocity_limit(self) -> float | None:
+        """The highest velocity the controller takes, mm/s (None: it does not say)."""
+        return None
+
     @abc.abstractmethod
     def limits(self) -> tuple[float, float]:
         """The range moves are allowed in: soft limits intersected with the controller's travel."""

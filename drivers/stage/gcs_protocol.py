@@ -95,6 +95,18 @@ def parse_axis_float(line: str, axis: str) -> float:
     return value
 
 
+def parse_parameter(line: str, axis: str, parameter: str) -> float:
+    """``SPA?`` answer ``"1 0xA=50.000000"`` for ``axis`` and ``parameter`` as a float."""
+    key, sep, value = line.partition("=")
+    words = key.split()
+    if not sep or len(words) != 2 or words[0] != axis or int(words[1], 0) != int(parameter, 0):
+        raise ValueError(f"expected '{axis} {parameter}=<value>', got {line!r}")
+    number = float(value)
+    if not math.isfinite(number):
+        raise ValueError(f"non-finite value in {line!r}")
+    return number
+
+
 def parse_axis_bool(line: str, axis: str) -> bool:
     value = parse_axis_value(line, axis)
     if value not in ("0", "1"):

@@ -18,8 +18,9 @@ from typing import Callable
 from graytrack.drivers.stage import gcs_protocol as gcs
 from graytrack.drivers.stage.base import PositionReading, Stage
 from graytrack.drivers.stage.connection import GCSConnection, Reply
-from graytrack.drivers.stage.errors import StageLimitError, StageTimeoutError
+from graytrack.drivers.stage.errors import GCSControllerError, StageError, StageLimitError, StageTimeoutError
 
+VELOCITY_OUT_OF_LIMITS = 8  # the GCS error number VEL leaves for a velocity the controller will not take
 STOPPED_BY_COMMAND = 10  # the error STP/HLT leave in the register; expected after our own stop
 
 
@@ -133,10 +134,29 @@ class GCSStage(Stage):
     def set_velocity(self, velocity_mm_s: float) -> None:
         if not velocity_mm_s > 0:
             raise StageLimitError(f"velocity must be positive, got {velocity_mm_s}")
-        self.link.command("VEL", self.axis, float(velocity_mm_s))
+        if float(gcs.format_number(float(velocity_mm_s))) <= 0.0:
+            raise StageLimitError(f"velocity {velocity_mm_s:g} mm/s is below the 1e-9 mm/s the GCS protocol can express")
+        try:
+            self.link.command("VEL", self.axis, float(velocity_mm_s))
+        except GCSControllerError as exc:
+            if exc.code != VELOCITY_OUT_OF_LIMITS:
+                raise
+            limit = self.velocity_limit()
+            raise StageLimitError(f"velocity {velocity_mm_s:g} mm/s is beyond the controller's limit"
+                                  + (f" of {limit:g} mm/s" if limit is not None else "")) from None
 
     def velocity(self) -> float:
         return self._query_axis("VEL?", gcs.parse_axis_float)
+
+    def velocity_limit(self) -> float | None:
+        """The controller's maximum closed-loop velocity (parameter 0xA), None when it will not say."""
+        try:
+            value, _ = self.link.query("SPA?", self.axis, "0xA",
+                                       parse=lambda lines: gcs.parse_parameter(gcs.single_line(lines), self.axis, "0xA"))
+        except StageError:
+            self.link.error_code()  # an older controller refuses SPA?: its error register is cleared
+            return None
+        return value
 
     def stop(self) -> None:
         """``STP``: abrupt stop of all axes. The controller then holds error 10, which is ours."""

@@ -17,6 +17,7 @@ from graytrack.drivers.stage.axis_model import AxisModel
 
 DEFAULT_IDN = "(c)2024 Physik Instrumente (PI) GmbH & Co. KG, C-863.12 (simulated), 0000000001, 01.001"
 MAX_VELOCITY_MM_S = 50.0
+MAX_VELOCITY_PARAMETER = 0xA  # PI's parameter ID of the maximum closed-loop velocity
 
 
 class _Refused(Exception):
@@ -64,6 +65,7 @@ class SimGCSInterpreter:
             "ONT?": lambda args: self._axis_reply(args, lambda: int(self.model.on_target(self.clock()))),
             "VEL": self._vel,
             "VEL?": lambda args: self._axis_reply(args, self.model.velocity_setting),
+            "SPA?": self._spa,
             "TMN?": lambda args: self._axis_reply(args, lambda: self.model.travel_mm[0]),
             "TMX?": lambda args: self._axis_reply(args, lambda: self.model.travel_mm[1]),
             "STP": self._stp,
@@ -159,6 +161,20 @@ class SimGCSInterpreter:
             self.model.move_to(target, self.clock())
         except ValueError:  # the axis model's own limits
             raise _Refused(7) from None
+
+    def _spa(self, args: list[str]) -> list[str]:
+        """``SPA? axis param``: the one parameter a client needs here, 0xA, the closed-loop velocity limit."""
+        if len(args) != 2:
+            raise _Refused(24)
+        if args[0] != self.axis:
+            raise _Refused(15)
+        try:
+            parameter = int(args[1], 0)
+        except ValueError:
+            raise _Refused(1) from None
+        if parameter != MAX_VELOCITY_PARAMETER:
+            raise _Refused(54)
+        return [f"{self.axis} {args[1]}={MAX_VELOCITY_MM_S:.6f}"]
 
     def _vel(self, args: list[str]) -> None:
         value = self._axis_value(args)

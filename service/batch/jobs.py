@@ -84,7 +84,8 @@ def _diagnose(rec: Recording, job: Job, write_all: bool = True) -> dict[str, Any
     report = result.report()
     if write_all:
         write_report(result, job.folder)
-    else:
+    result.raise_if_refused()  # the row fails with the geometry's cause (the report, when written, says more)
+    if not write_all:
         save_model(result.final_model, job.folder / "model.json")
     before, after = report["before"], report["after"]
     return {**_geometry(result.final_model), "rmse_gray": after["rmse_gray"], "noise_gray": report["noise"]["gray"],
@@ -101,10 +102,11 @@ def _track_model(rec_path: Path, option: str | None) -> Path:
 
 
 def _track(rec: Recording, job: Job) -> dict[str, Any]:
-    from graytrack.service.commands.track import result_columns, solve
+    from graytrack.service.commands.track import oriented, result_columns, solve
     from graytrack.service.tables import write_csv
 
     model = load_model(_track_model(job.source.path, job.options.get("model")))
+    rec = oriented(rec, model, False)  # a model calibrated with --flip reverses its camera's frames likewise
     result, grating = solve(rec, model, bool(job.options.get("no_reference")))
     write_csv(job.folder / "track.csv", result_columns(rec.t, result, grating))
     error = result.error_um(grating)

@@ -30,7 +30,35 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--pixel-degree", type=int, default=None, help="polynomial degree P in u (default 3)")
     parser.add_argument("--rows", choices=("auto", "mean", "each"), default="auto",
                         help="multi-row strips: average rows, model each row, or decide from the data")
+    add_flip_argument(parser)
     parser.set_defaults(func=run)
+
+
+def add_flip_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--flip", action="store_true",
+                        help="reverse the pixel axis first (a camera whose u runs against the target coordinate: "
+                             "mounted the other way round, or ReverseX); the model says so, and track follows it")
+
+
+def flip_for_calibration(recording: "Recording", flip: bool) -> "Recording":
+    """The recording as the model will see it (reversed with ``--flip``, said on stdout)."""
+    if not flip:
+        return recording
+    print("flip    pixel axis reversed (--flip): the model describes the reversed frames")
+    return recording.flipped()
+
+
+def mark_flip(model, flip: bool) -> None:
+    """Record ``--flip`` in the model's info: ``track`` reverses this camera's frames likewise."""
+    if flip:
+        model.info["flip"] = True
+
+
+def print_geometry_warnings(geometry) -> None:
+    """A doubtful geometry check (core/geometry_check.py): each likely cause on stderr."""
+    if geometry is not None and geometry.status == "doubtful":
+        for text in geometry.warnings:
+            print(f"warning: {text}", file=sys.stderr)
 
 
 def model_size_limits(recording: "Recording", pixel_degree: int) -> tuple[int, str, int, str]:
@@ -80,20 +108,41 @@ def run(args: argparse.Namespace) -> int:
     from graytrack.service.progress import ProgressBar
 
     out = output_file(args.out)
-    recording = load(args.recording)
+    recording = flip_for_calibration(load(args.recording), args.flip)
     check_model_size(recording, args.harmonics, args.pixel_degree)
     if args.model == "auto":
-        return run_auto(recording, str(out))
+        return run_auto(recording, str(out), args.flip)
     result = calibrate(recording, args.model, harmonics=args.harmonics, pixel_degree=args.pixel_degree,
                        rows=args.rows, progress=ProgressBar("calibrate"))
+    mark_flip(result.model, args.flip)
     path = save_model(result.model, out)
     print(f"model   {result.model.describe()}")
     print(f"rmse    {result.rmse_gray:.4f} gray (noise sigma {result.sigma_gray:.4f} gray from the data)")
+    print_geometry_warnings(result.geometry)
+    if result.model.info.get("transients"):
+        from graytrack.core.transients import summary_line
+
+        print(f"data    {summary_line(result.model.info['transients'])}")
     print(f"wrote   {path}", file=sys.stdout)
+    warning = adequacy_warning(result.model)
+    if warning:
+        print(warning, file=sys.stderr)
     return 0
 
 
-def run_auto(recording, out: str) -> int:
+def adequacy_warning(model) -> str | None:
+    """One line for stderr when the model errs beyond its bound on its own calibration frames."""
+    from graytrack.core.adequacy import INADEQUATE_RATIO
+
+    ratio = model.info.get("calibration_error_ratio")
+    if ratio is None or ratio <= INADEQUATE_RATIO:
+        return None
+    return (f"warning: this model places its own calibration frames {ratio:.1f}x as far off as their noise floor: "
+            f"it does not describe this rig, and every position it gives will be flagged stale (geometry); "
+            f"use --model auto (the closed loop) or graytrack diagnose for the cause")
+
+
+def run_auto(recording, out: str, flip: bool = False) -> int:
     """The closed loop's final model, with its held-out figures as the summary."""
     from graytrack.core.diagnosis import diagnose
     from graytrack.core.models import save_model
@@ -101,6 +150,8 @@ def run_auto(recording, out: str) -> int:
     from graytrack.service.progress import ProgressBar
 
     result = diagnose(recording, progress=ProgressBar("calibrate auto"))
+    result.raise_if_refused()
+    mark_flip(result.final_model, flip)
     path = save_model(result.final_model, out)
     print("\n".join(summary_lines(result.report())))
     print(f"wrote   {path}")

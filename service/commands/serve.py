@@ -55,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
 
     from graytrack.drivers.config import ConfigError
     from graytrack.service.daemon.app import create_app
-    from graytrack.service.daemon.errors import DataDirInUse
+    from graytrack.service.daemon.errors import DataDirInUse, UnsafeDataDir
     from graytrack.service.daemon.settings import load_settings
 
     try:
@@ -69,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     try:
         app = create_app(settings)
-    except DataDirInUse as exc:
+    except (DataDirInUse, UnsafeDataDir) as exc:
         raise CliError(str(exc)) from None
     except OSError as exc:
         raise CliError(f"data directory {settings.data_path()}: {exc.strerror or exc}") from None

@@ -17,7 +17,7 @@ if TYPE_CHECKING:  # the parser is built for every command: only `run` imports t
     from graytrack.service.progress import ProgressBar
 
 CSV_COLUMNS = ("t", "x_mm", "locked", "rms_gray", "crlb_um", "reference_mm", "error_um", "chi2", "rejected_px",
-               "gain", "offset_gray", "stale")
+               "gain", "offset_gray", "stale", "stale_reason", "transient_px", "focus_px2", "focus_sigma_px2")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -32,8 +32,28 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                              "never (fixed: the calibration's light), or always (free)")
     parser.add_argument("--no-robust", action="store_true",
                         help="do not set aside pixels that went bad in this run (robust reweighting is on by default)")
+    parser.add_argument("--trim", action="store_true",
+                        help="correct scale and offset against the recording's grating as the daemon's online trim "
+                             "would (only on evidence of a drift; columns trim_um, trim_sigma_um)")
+    parser.add_argument("--flip", action="store_true",
+                        help="reverse the pixel axis first (default: when the model was calibrated with --flip)")
     add_chunk_arguments(parser)
     parser.set_defaults(func=run)
+
+
+def oriented(recording: Recording, model: FourierModel, flip: bool) -> Recording:
+    """The recording as the model expects it. ``--flip`` reverses the pixel axis; without it, a model
+    calibrated with ``--flip`` reverses the frames of its camera likewise, unless the recording says
+    its frames were reversed already (by ``[camera] flip`` or a tool); each is said on stdout."""
+    from graytrack.core.recording import PIXEL_AXIS_REVERSED
+
+    if flip:
+        print("flip    pixel axis reversed (--flip)")
+        return recording.flipped()
+    if model.info.get("flip") and not recording.meta.get(PIXEL_AXIS_REVERSED):
+        print("flip    pixel axis reversed: the model was calibrated with --flip")
+        return recording.flipped()
+    return recording
 
 
 def result_columns(t: np.ndarray, result: TrackResult, reference: np.ndarray) -> dict[str, np.ndarray]:
@@ -41,7 +61,8 @@ def result_columns(t: np.ndarray, result: TrackResult, reference: np.ndarray) ->
         "t": t, "x_mm": result.x_mm, "locked": result.locked.astype(int), "rms_gray": result.rms_gray,
         "crlb_um": result.crlb_mm * 1e3, "reference_mm": reference, "error_um": result.error_um(reference),
         "chi2": result.chi2, "rejected_px": result.rejected_px, "gain": result.gain, "offset_gray": result.offset,
-        "stale": result.stale.astype(int),
+        "stale": result.stale.astype(int), "stale_reason": result.stale_reason,
+        "transient_px": result.transient_px, "focus_px2": result.focus, "focus_sigma_px2": result.focus_sigma,
     }
 
 
@@ -82,18 +103,36 @@ def stale_warning(result: TrackResult) -> str | None:
     """One line for stderr when the model went stale during the run (sustained χ² rise)."""
     import numpy as np
 
+    from graytrack.core.validity import ADVICE
+
     if not result.stale.any():
         return None
     first = int(np.argmax(result.stale))
-    return (f"warning: model stale from frame {first} on (residual chi2 stays above the calibration's "
-            f"{result.chi2_calibration:.2f}): recalibrate (graytrack calibrate, or graytrack diagnose for the cause)")
+    families, counts = np.unique(result.stale_reason[result.stale], return_counts=True)
+    causes = ", ".join(f"{family} ({count} frames)" for family, count in sorted(zip(families, counts),
+                                                                               key=lambda item: -item[1]))
+    return (f"warning: model stale on {int(result.stale.sum())} of {result.stale.size} frames from frame {first} on, "
+            f"for {causes}: {ADVICE[str(families[np.argmax(counts)])]}")
+
 
 
 def solve(recording: Recording, model: FourierModel, no_reference: bool = False,
           progress: ProgressBar | None = None, chunks: ChunkOptions | None = None, light: str = "auto",
           robust: bool = True) -> tuple[TrackResult, np.ndarray]:
-    """Track a recording as the command does: (result, the grating at the exposure instants)."""
+    """Track a recording as the command does: (result, the grating at the exposure instants).
+
+    ``recording`` is oriented already (:func:`oriented`); frames that fit the model far better
+    reversed are refused here, before a run tracked millimetres off."""
     import numpy as np
+
+    from graytrack.core.errors import TrackingError
+    from graytrack.core.geometry_check import FLIP_GAIN, orientation_mismatch
+
+    mismatch = orientation_mismatch(model, recording)
+    if mismatch is not None and mismatch >= FLIP_GAIN:
+        raise TrackingError(f"the frames look reversed against the model: at the grating's positions they fit it "
+                            f"{mismatch:.0f}x better reversed; track with --flip, or without it when the frames were "
+                            f"reversed already (model calibrated with --flip: {bool(model.info.get('flip'))})")
 
     from graytrack.core.timing import at_exposure
     from graytrack.core.tracking import track
@@ -115,18 +154,26 @@ def run(args: argparse.Namespace) -> int:
     from graytrack.core.recording import load
     from graytrack.service.outputs import output_file
     from graytrack.service.progress import ProgressBar
+    from graytrack.service.commands.track_scale import check
     from graytrack.service.tables import write_csv
 
     chunks = chunk_options(args)
     output_file(args.out)
     recording = load(args.recording)
     model = load_model(args.model)
+    recording = oriented(recording, model, args.flip)
     result, grating = solve(recording, model, args.no_reference, ProgressBar("track"), chunks, args.light,
                             not args.no_robust)
-    path = write_csv(args.out, result_columns(recording.t, result, grating))
-    print("\n".join(summary(result, grating)))
-    warning = stale_warning(result)
-    if warning:
-        print(warning, file=sys.stderr)
+    scale = check(recording, model, result, grating if not args.no_reference else grating * float("nan"), args.trim)
+    path = write_csv(args.out, {**result_columns(recording.t, result, grating), **scale.columns})
+    print("\n".join(summary(result, grating) + scale.lines))
+    from graytrack.core.geometry_check import refusal
+
+    if refusal(model):
+        print(f"warning: the model's calibration refused its geometry ({refusal(model)}): no frame is called locked",
+              file=sys.stderr)
+    for warning in (stale_warning(result), scale.warning):
+        if warning:
+            print(warning, file=sys.stderr)
     print(f"wrote   {path}")
     return 0

@@ -30,15 +30,17 @@ import numpy as np
 
 from graytrack.core.models.fourier import FourierModel
 from graytrack.core.tracking import LiveFix, LiveTracker
+from graytrack.core.validity import ADVICE
 from graytrack.drivers.camera.base import Camera, CameraError, CameraTimeout, Frame
 from graytrack.service.daemon.grating import Readings
+from graytrack.service.daemon.trim import ReferenceTrim
 from graytrack.drivers.realtime import raise_thread_priority
 from graytrack.service.daemon.worker import Worker, describe
 
 log = logging.getLogger("graytrack.daemon")
 READ_TIMEOUT_S = 0.25  # short, so stop requests and fault timing are honoured promptly
 RATE_WINDOW = 200
-LIVEFIX_EXTRAS = ("gain", "offset_gray", "rejected_px", "chi2", "stale")  # LiveFix fields the stream passes on when present
+LIVEFIX_EXTRAS = ("gain", "offset_gray", "rejected_px", "transient_px", "chi2", "focus", "stale", "stale_reason")  # LiveFix fields the stream passes on when present
 
 
 @dataclass(frozen=True)
@@ -85,7 +87,7 @@ def fix_message(seq: int, sample: Sample, fix: LiveFix, dropped: int) -> dict[st
     for name in LIVEFIX_EXTRAS:
         value = getattr(fix, name, None)
         if value is not None:
-            message[name] = value if isinstance(value, (bool, int)) else _finite(float(value))
+            message[name] = value if isinstance(value, (bool, int, str)) else _finite(float(value))
     if sample.reference_mm == sample.reference_mm:  # not NaN
         message["reference_mm"] = sample.reference_mm
         if x is not None:
@@ -99,10 +101,12 @@ class Acquisition(Worker):
     def __init__(self, camera: Camera, readings: Readings,
                  publish: Callable[[dict[str, Any]], None], faults: Callable[[str, str | None], None],
                  fault_after_s: float, reopen_interval_s: float,
-                 on_event: Callable[[str, str], None] = lambda kind, message: None, priority: int = 0) -> None:
+                 on_event: Callable[[str, str], None] = lambda kind, message: None, priority: int = 0,
+                 trim: ReferenceTrim | None = None) -> None:
         super().__init__("acquisition", lambda reason: faults("acquisition", reason))
         self.on_event = on_event  # lock losses, re-acquisitions, stale-model flags: the event log
         self.priority = priority  # SCHED_FIFO level of the frame loop (realtime.py), 0 = normal
+        self.trim = trim or ReferenceTrim(False, on_event)  # camera against grating (service/daemon/trim.py)
         self.camera = camera
         self.readings = readings
         self.publish = publish
@@ -118,7 +122,7 @@ class Acquisition(Worker):
         self._arrivals: deque[float] = deque(maxlen=RATE_WINDOW)
         self._seq = 0
         self._last_id: int | None = None
-        self._stale = False
+        self._stale: str | None = None  # the family the model is stale for (None: it holds)
 
     # -- control (any thread) --------------------------------------------------------------
     def install_model(self, model: FourierModel, x0_mm: float | None = None) -> None:
@@ -141,6 +145,11 @@ class Acquisition(Worker):
         with self._lock:
             if q in self._subscribers:
                 self._subscribers.remove(q)
+
+    @property
+    def model_stale(self) -> str | None:
+        """The family of causes the tracker's model is stale for (None: it holds)."""
+        return self._stale
 
     def frame_rate_hz(self, stale_after_s: float) -> float:
         """Frames per second over the last few hundred frames; 0 when the newest is older than ``stale_after_s``."""
@@ -241,6 +250,7 @@ class Acquisition(Worker):
             self.latest = (sample, None)
             return
         self.faults("tracking", None)
+        fix = self.trim.apply(fix, sample.reference_mm)
         stats = self.stats
         stats.tracked += 1
         stats.last_tracked_wall = time.monotonic()
@@ -255,14 +265,16 @@ class Acquisition(Worker):
                 self.on_event("lock_reacquired" if event.reacquired else "lock_lost",
                               f"{'lock re-acquired' if event.reacquired else 'lock lost'} at frame "
                               f"{sample.frame.frame_id}: {event.reason}")
-        stale = bool(getattr(fix, "stale", False))
+        stale = getattr(fix, "stale_reason", None) if getattr(fix, "stale", False) else None
         if stale != self._stale:
             self._stale = stale
-            self.on_event("model_stale" if stale else "model_fresh",
-                          "the model no longer fits the frames (stale): recalibrate" if stale
-                          else "the model fits the frames again")
+            if stale:
+                self.on_event("model_stale", f"the model no longer holds (stale, cause: {stale}): {ADVICE[stale]}")
+            else:
+                self.on_event("model_fresh", "the model holds again")
         self._seq += 1
         message = fix_message(self._seq, sample, fix, stats.dropped)
+        self.trim.annotate(message, fix)
         stats.last_message = message
         self.latest = (sample, fix)
         self.publish(message)
@@ -270,6 +282,7 @@ class Acquisition(Worker):
     def _start_tracker(self, model: FourierModel, x0: float | None) -> None:
         try:
             self._tracker = LiveTracker(model, x0 if x0 is not None and math.isfinite(x0) else None)
+            self.trim.install(model, self._tracker.tracker)
         except Exception as exc:  # noqa: BLE001 - an unusable model: say so, keep reading frames
             self._tracker = None
             self.faults("tracking", f"cannot track with this model: {describe(exc)}")

@@ -21,12 +21,12 @@ from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
 from starlette.exceptions import HTTPException
 
-from graytrack.service.daemon.api import calibration, history, pages, profile, stage, status, stream
+from graytrack.service.daemon.api import calibration, history, pages, profile, stage, status, stream, trim
 from graytrack.service.daemon.api.pages import WEB_DIR
 from graytrack.service.daemon.api.security import WebGuard, WebPolicy
 from graytrack.service.daemon.broadcast import Broadcaster
 from graytrack.service.daemon.errors import DaemonError
-from graytrack.service.daemon.record import Record
+from graytrack.service.daemon.record import open_record
 from graytrack.drivers.realtime import raise_thread_priority
 from graytrack.service.daemon.rig import HardwareFactory, Rig, default_factory
 from graytrack.service.daemon.settings import Settings
@@ -34,7 +34,7 @@ from graytrack.service.daemon.storage import Storage
 
 log = logging.getLogger("graytrack.daemon")
 ROUTERS = (status.router, calibration.router, history.router, profile.router, stage.router, stream.router,
-           pages.router)
+           pages.router, trim.router)
 # The frame thread and the event loop share the GIL. A thread that computes for long (a calibration
 # fit, a status document) holds it for Python's default 5 ms switch interval before the stream's
 # thread gets a turn: five frames at 1 kHz. 0.5 ms bounds that wait to half a frame.
@@ -82,8 +82,13 @@ def create_app(settings: Settings, factory: HardwareFactory = default_factory) -
         storage.unlock()
         raise
     broadcaster = Broadcaster()
-    record = Record(storage.root / "record.sqlite")
+    record, damaged = open_record(storage.root / "record.sqlite")
     rig = Rig(settings, storage, record, broadcaster.publish, factory)
+    if damaged is not None:
+        log.error("the record %s could not be read: set aside as %s, a new one started", record.path, damaged)
+        rig.event("record_rebuilt", f"the record could not be read: the damaged file was kept as {damaged.name} and "
+                                    "a new record started; the calibrations come back from their folders",
+                  damaged=str(damaged))
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:

@@ -34,6 +34,18 @@ class Invalid(DaemonError):
     status = 422
 
 
+class InsufficientStorage(DaemonError):
+    """The data directory has no room for what the request would write."""
+
+    status = 507
+
+
+class UnsafeDataDir(DaemonError):
+    """The data directory or its token could be changed by another user (``serve`` exits 2 with the fix)."""
+
+    status = 503
+
+
 class DataDirInUse(DaemonError):
     """Another daemon holds the data directory's lock (``graytrack serve`` exits 2 with this line)."""
 

@@ -155,6 +155,17 @@ class GratingPoller(Worker):
         latest = self.readings.latest()
         return None if latest is None else latest[1]
 
+    def silent_s(self, now: float | None = None) -> float | None:
+        """Seconds since the newest reading (host time; None before the first)."""
+        latest = self.latest_t()
+        return None if latest is None else (time.monotonic() if now is None else now) - latest
+
+    def fresh_mm(self, max_age_s: float) -> float | None:
+        """The newest reading while it is younger than ``max_age_s``: a figure older than that is
+        withdrawn, never shown frozen while the stage may be elsewhere."""
+        latest = self.readings.latest()
+        return None if latest is None or time.monotonic() - latest[0] > max_age_s else latest[1]
+
     def latest_t(self) -> float | None:
         latest = self.readings.latest()
         return None if latest is None else latest[0]

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from typing import Any, Callable, Protocol
 
+from graytrack.core.models import load_model
 from graytrack.core.models.fourier import FourierModel
 from graytrack.service.daemon.storage import Storage
 from graytrack.service.daemon.worker import describe
@@ -157,10 +158,38 @@ def mark_interrupted(storage: Storage) -> list[str]:
 
 def calibration_row(job: CalibrationJob, model: FourierModel) -> dict[str, Any]:
     """The record's row of a job being installed (its files by name, its quality in µm)."""
-    report = job.report or {}
+    return row_of(job.to_dict(), model.describe(), utc_now())
+
+
+def row_of(document: dict[str, Any], model: str | None, finished: str | None) -> dict[str, Any]:
+    """The record's row from a job's document (as ``status.json`` keeps it)."""
+    report = document.get("report") or {}
     held_out = report.get("held_out") or {}
     effects = [step.get("effect") for step in report.get("steps", []) if step.get("effect")]
-    return {"id": job.id, "started": job.started, "finished": utc_now(), "model_kind": job.model,
-            "model": model.describe(), "error_std_um": held_out.get("error_std_um"), "bound_um": held_out.get("bound_um"),
+    return {"id": document["id"], "started": document.get("started") or "", "finished": finished or "",
+            "model_kind": document.get("model") or "", "model": model,
+            "error_std_um": held_out.get("error_std_um"), "bound_um": held_out.get("bound_um"),
             "frames": report.get("frames"), "effects": effects,
-            "files": sorted({Path(p).name for p in job.files.values()}), "summary": report.get("summary")}
+            "files": sorted({Path(p).name for p in (document.get("files") or {}).values()}),
+            "summary": report.get("summary")}
+
+
+def reconcile(storage: Storage, record: Any) -> tuple[list[str], list[str]]:
+    """Make the record's calibrations those the folders say ended ``done``: ``(removed, restored)``."""
+    done = {}
+    for calibration_id in storage.calibration_ids():
+        document = storage.read_status(calibration_id)
+        if document is not None and document.get("state") == "done" and document.get("id") == calibration_id:
+            done[calibration_id] = document
+    listed = set(record.calibration_ids())
+    removed = sorted(listed - set(done))
+    record.remove_calibrations(removed)
+    restored = sorted(set(done) - listed)
+    for calibration_id in restored:
+        document = done[calibration_id]
+        try:
+            model = load_model(storage.calibration_dir(calibration_id) / "model.json").describe()
+        except Exception:  # noqa: BLE001 - the row says what it can; activating it will say why not
+            model = None
+        record.add_calibration(row_of(document, model, document.get("finished")))
+    return removed, restored

@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 from typing import Iterable
 
+from graytrack.core.validity import FAMILIES
 from graytrack.service.daemon import status as rig_status
 from graytrack.service.daemon.broadcast import Broadcaster
 from graytrack.service.daemon.rig import Rig
@@ -77,9 +78,13 @@ def render(rig: Rig, broadcaster: Broadcaster) -> str:
                    [("", broadcaster.sent)])
     out += _metric("graytrack_websocket_dropped_total", "counter", "messages dropped for slow clients",
                    [("", broadcaster.dropped)])
+    out += _metric("graytrack_model_stale", "gauge", "1 for the family of causes the model is stale for (all 0: it holds)",
+                   [(f'{{reason="{family}"}}', float(status.get("stale_reason") == family)) for family in FAMILIES])
     fit = status.get("fit") or {}
     for key, help_text in (("chi2", "reduced chi-square of the newest frame's fit"),
                            ("rejected_px", "pixels the newest frame's fit rejected"),
+                           ("transient_px", "samples of the newest frame set aside as a transient (glint, dust)"),
+                           ("focus", "change of blur variance since calibration, px^2 (NaN: not estimated)"),
                            ("stale", "1 when the tracker flags the model as stale (recalibrate)")):
         if key in fit:
             out += _metric(f"graytrack_fit_{key}", "gauge", help_text,

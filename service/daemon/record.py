@@ -6,8 +6,14 @@ never the history. Rows are small and few (a calibration a day, events on change
 write is its own transaction from whatever thread reports it.
 
 A calibration gets its row when it is ``done`` (installed), never before: a job that fails, is
-aborted or interrupted leaves events, not a calibration one could activate. At start-up rows whose
-job did not end ``done`` on disk are removed (the window between the row and the status file).
+aborted or interrupted leaves events, not a calibration one could activate. At start-up the rows
+are reconciled with the calibration folders, which are the truth: rows whose job did not end
+``done`` on disk are removed (the window between the row and the status file), and folders that
+ended ``done`` without a row get one (a record truncated, replaced or rebuilt).
+
+The record is never a single point of failure: a file SQLite cannot read (a bad header, a
+truncated or damaged page) is set aside under a name of its own, kept for inspection, and a new
+one is started; the calibrations come back from their folders, and an event says what happened.
 """
 
 from __future__ import annotations
@@ -47,6 +53,26 @@ CALIBRATION_COLUMNS = ("id", "started", "finished", "model_kind", "model", "erro
 MAX_PAGE = 500
 
 
+def open_record(path: Path) -> tuple["Record", Path | None]:
+    """The record at ``path``, or a new one when that file is damaged: ``(record, where the damaged
+    file was moved)``."""
+    path = Path(path)
+    try:
+        record = Record(path)
+        record.check()
+        return record, None
+    except sqlite3.DatabaseError:
+        pass
+    if "record" in locals():
+        record.close()
+    aside = path.with_name(f"{path.name}.damaged-{time.strftime('%Y%m%dT%H%M%S')}")
+    for suffix in ("", "-wal", "-shm"):
+        companion = path.with_name(path.name + suffix)
+        if companion.exists():
+            companion.replace(aside.with_name(aside.name + suffix))
+    return Record(path), aside
+
+
 class Record:
     def __init__(self, path: Path) -> None:
         self.path = Path(path)
@@ -58,6 +84,15 @@ class Record:
             raise sqlite3.OperationalError(f"{self.path}: cannot use WAL mode ({mode})")
         self._db.execute("PRAGMA synchronous=NORMAL")
         self._db.executescript(SCHEMA)
+
+    def check(self) -> None:
+        """Raise :class:`sqlite3.DatabaseError` unless every page of the file reads back."""
+        with self._lock:
+            verdict = self._db.execute("PRAGMA quick_check").fetchone()[0]
+            self._db.execute("SELECT COUNT(*) FROM events").fetchone()
+            self._db.execute("SELECT COUNT(*) FROM calibrations").fetchone()
+        if verdict != "ok":
+            raise sqlite3.DatabaseError(f"{self.path}: {verdict}")
 
     def close(self) -> None:
         with self._lock:

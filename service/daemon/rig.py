@@ -21,22 +21,27 @@ from __future__ import annotations
 
 import logging
 import math
+import shutil
 import sqlite3
 import threading
 import time
+
+import numpy as np
 from typing import Any, Callable
 
 from graytrack import __version__
 from graytrack.core.models import load_model
 from graytrack.core.models.fourier import FourierModel
+from graytrack.core.recording import PIXEL_AXIS_REVERSED
 from graytrack.drivers.clock import REAL_TIME, ScaledClock
 from graytrack.drivers.factory import Hardware, open_hardware
 from graytrack.drivers.stage.errors import StageError, StageLimitError
 from graytrack.service.daemon import status as status_doc
 from graytrack.service.daemon.acquisition import Acquisition
-from graytrack.service.daemon.errors import Busy, NotFound, NotReady, OutOfLimits
+from graytrack.service.daemon.trim import ReferenceTrim
+from graytrack.service.daemon.errors import Busy, InsufficientStorage, NotFound, NotReady, OutOfLimits
 from graytrack.service.daemon.grating import GratingPoller, Readings
-from graytrack.service.daemon.jobs import CalibrationJob, JobRunner, calibration_row, mark_interrupted
+from graytrack.service.daemon.jobs import CalibrationJob, JobRunner, calibration_row, mark_interrupted, reconcile
 from graytrack.service.daemon.record import Record
 from graytrack.service.daemon.settings import Settings
 from graytrack.service.daemon.storage import Storage
@@ -47,6 +52,7 @@ from graytrack.service.daemon.worker import describe
 log = logging.getLogger("graytrack.daemon")
 HardwareFactory = Callable[[Settings, ScaledClock], Hardware]
 MAX_VELOCITY_MM_S = 100.0
+ROOM_MARGIN_BYTES = 16 * 2**20  # model, report, status and the record's growth
 
 
 def default_factory(settings: Settings, clock: ScaledClock) -> Hardware:
@@ -77,6 +83,7 @@ class Rig:
         self._sweep_thread: threading.Thread | None = None
         self.target_mm: float | None = None  # the last commanded target (the page's moving indicator)
         self.velocity_mm_s: float | None = None
+        self.velocity_limit_mm_s: float | None = None
         self._lock = threading.RLock()
         self.supervisor = Supervisor(self._bring_up, self._watch, self.faults, daemon.reopen_interval_s)
         self.faults.listeners.append(self._fault_event)
@@ -106,15 +113,21 @@ class Rig:
         self.event("shutdown", "daemon stopped")
 
     def event(self, kind: str, message: str, **details: Any) -> None:
-        """One line in the event log (``GET /api/events``); the record failing never stops the rig."""
+        """One line in the event log (``GET /api/events``); the record failing never stops the rig,
+        but it is a fault (``record``) for as long as it fails: a history that silently stops is a lie."""
         try:
             self.record.event(kind, message, **details)
         except sqlite3.Error as exc:
             log.error("cannot record the event %r: %s", message, exc)
+            self.faults.set("record", f"the event log {self.record.path.name} cannot be written ({exc}): "
+                                      f"events are only in the daemon's log until it is fixed")
+            return
+        self.faults.set("record", None)
 
-    def _fault_event(self, source: str, reason: str | None, previous: str | None) -> None:
+    def _fault_event(self, source: str, reason: str | None, previous: str | None, seconds: float) -> None:
         if reason is None:
-            self.event("recovered", f"{source} recovered", source=source, was=previous)
+            self.event("recovered", f"{source} recovered after {seconds:.1f} s", source=source, was=previous,
+                       duration_s=round(seconds, 3))
         else:
             self.event("fault", f"{source}: {reason}", source=source)
 
@@ -127,9 +140,10 @@ class Rig:
         for job_id in interrupted:
             self.event("calibration_interrupted", f"calibration {job_id} was interrupted by the last shutdown",
                        calibration=job_id)
-        unfinished = [i for i in self.record.calibration_ids()
-                      if (self.storage.read_status(i) or {}).get("state") != "done"]
-        self.record.remove_calibrations(unfinished)
+        removed, restored = reconcile(self.storage, self.record)
+        if restored:
+            self.event("record_restored", f"{len(restored)} finished calibration(s) were missing from the record and "
+                                          f"were restored from their folders", calibrations=restored)
         while not self.closing.is_set():
             try:
                 hardware = self.factory(self.settings, self.clock)
@@ -153,6 +167,7 @@ class Rig:
                 return
             self.hardware = hardware
             self.velocity_mm_s = hardware.stage.velocity()
+            self.velocity_limit_mm_s = hardware.stage.velocity_limit()  # asked once: it is the controller's
             self.grating = self._new_grating()
             self.acquisition = self._new_acquisition()
         log.info("hardware open: %s camera, %s stage, limits %s mm", self.settings.hardware.camera.kind,
@@ -160,12 +175,19 @@ class Rig:
         self.event("start", f"daemon started ({'virtual rig' if self.settings.simulated else 'hardware'})",
                    simulated=self.settings.simulated)
         try:
-            model = self.storage.load_current_model()
+            model, repaired = self.storage.reconcile_model()
+            if repaired:
+                log.warning("data directory: %s", repaired)
+                self.event("model_reconciled", repaired)
         except Exception as exc:  # noqa: BLE001 - a broken model file: say so, stay up, let a calibration replace it
             self.faults.set("model", f"the saved model {self.storage.model_path} cannot be used "
                                      f"({describe(exc)}); run a calibration to replace it")
             return
-        if model is not None:
+        mismatch = None if model is None else self._flip_mismatch(model)
+        if mismatch is not None:
+            self.faults.set("model", mismatch)
+            self.event("geometry", mismatch)
+        elif model is not None:
             log.info("tracking with the saved model %s", model.describe())
             self.install(model)
         elif daemon.auto_calibrate == "always" or (daemon.auto_calibrate == "sim" and self.settings.simulated):
@@ -200,7 +222,7 @@ class Rig:
         daemon = self.settings.daemon
         acquisition = Acquisition(self.hardware.camera, self.readings, self.publish, self.faults.set,
                                   daemon.camera_fault_after_s, daemon.reopen_interval_s, self._stream_event,
-                                  priority=daemon.realtime_priority)
+                                  priority=daemon.realtime_priority, trim=ReferenceTrim(daemon.trim, self._stream_event))
         if self.model is not None:
             acquisition.install_model(self.model, self.grating.latest_mm() if self.grating else None)
         return acquisition.start()
@@ -216,6 +238,11 @@ class Rig:
             if self.grating is not None and not self.grating.alive:
                 self.faults.set("grating-poller", "the grating poller ended unexpectedly; restarted")
                 self.grating = self._new_grating()
+            silent = self.grating.silent_s() if self.grating is not None else None
+            if silent is not None and silent > self.settings.daemon.camera_fault_after_s:
+                # the poller is blocked in a read that will time out later: its silence is the fault now,
+                # within the camera's time (the poller clears it with its next good reading)
+                self.faults.set("stage", f"the controller has not answered POS? for {silent:.1f} s")
 
     def install(self, model: FourierModel) -> None:
         """Track with ``model`` from the next frame on, starting near the grating's position."""
@@ -251,9 +278,15 @@ class Rig:
             if blocking:
                 raise NotReady(f"cannot calibrate during a fault: {sentence(blocking)}")
             config = self.settings.sweep
+            self._check_room(acquisition)
             job = CalibrationJob(self.storage.new_calibration_id(), config.model, config.positions,
                                  config.frames_per_position)
-            self.storage.write_status(job.id, job.to_dict())
+            try:
+                self.storage.write_status(job.id, job.to_dict())
+            except OSError as exc:  # no room even for its status: no job, and no empty folder left behind
+                shutil.rmtree(self.storage.calibration_dir(job.id), ignore_errors=True)
+                self.event("calibration_refused", f"calibration not started: {describe(exc)}")
+                raise InsufficientStorage(f"cannot write to the data directory: {describe(exc)}") from None
             self.jobs[job.id] = job
             self.job = job
             runner = JobRunner(job, self.storage, self._install_calibration, self._finished)
@@ -267,10 +300,32 @@ class Rig:
         self.event("calibration_started", f"calibration {job.id} started", calibration=job.id)
         return job
 
+    def _check_room(self, acquisition: Acquisition) -> None:
+        """Refuse a sweep the data directory has no room for, before anything is written (its
+        recording, as float64 samples, plus the model, the report and a margin)."""
+        config = self.settings.sweep
+        latest = acquisition.latest
+        if latest is None:
+            return
+        frames = config.positions * config.frames_per_position if config.kind == "stops" else 3 * 2 * config.scan_frames
+        needed = frames * np.asarray(latest[0].frame.pixels).size * 8 + ROOM_MARGIN_BYTES
+        free = shutil.disk_usage(self.storage.calibrations).free
+        if free < needed:
+            message = (f"the data directory has {free / 1e6:.1f} MB free; a sweep needs about {needed / 1e6:.1f} MB "
+                       f"(its recording, model and report): free some space or move [daemon] data_dir")
+            self.event("calibration_refused", f"calibration not started: {message}")
+            raise InsufficientStorage(message)
+
     def _install_calibration(self, model: FourierModel, job: CalibrationJob) -> None:
-        """The job's ``installing`` step: the data directory's model, the tracker, then the record's row."""
-        self.storage.save_current_model(model)
+        """The job's ``installing`` step: the pointer to the job's own model (the one atomic switch a
+        crash cannot split), the copy in the data directory, the tracker, then the record's row."""
+        previous = self.storage.active_id()
         self.storage.set_active(job.id)
+        try:
+            self.storage.copy_model_of(job.id)
+        except BaseException:  # a full disk: the pointer goes back, the old model stays what is tracked
+            self.storage.restore_active(previous)
+            raise
         self.install(model)
         self.record.add_calibration(calibration_row(job, model))
         self.event("model_installed", f"model of calibration {job.id} installed: {model.describe()}", calibration=job.id)
@@ -290,8 +345,11 @@ class Rig:
             if row is None:
                 raise NotFound(f"no finished calibration {calibration_id!r}")
             model = load_model(self.storage.calibration_dir(calibration_id) / "model.json")
-            self.storage.save_current_model(model)
+            mismatch = self._flip_mismatch(model)
+            if mismatch is not None:
+                raise NotReady(mismatch)
             self.storage.set_active(calibration_id)
+            self.storage.copy_model_of(calibration_id)
             self.install(model)
         self.event("model_installed", f"model of calibration {calibration_id} activated: {model.describe()}",
                    calibration=calibration_id)
@@ -305,9 +363,20 @@ class Rig:
         return {"id": active} if row is None else {key: row[key] for key in
                                                    ("id", "finished", "model", "error_std_um", "bound_um")}
 
+    def _flip_mismatch(self, model: FourierModel) -> str | None:
+        """Why ``model`` cannot track this camera's frames: calibrated with the other ``[camera] flip``."""
+        calibrated = model.info.get("camera_flip")
+        now = bool(getattr(self.hardware.camera.settings, "flip", False)) if self.hardware is not None else None
+        if calibrated is None or now is None or bool(calibrated) == now:
+            return None
+        return (f"the model was calibrated with [camera] flip = {str(bool(calibrated)).lower()} and the camera now has "
+                f"flip = {str(now).lower()}: its frames run the other way; recalibrate or set flip back")
+
     def _meta(self, hardware: Hardware) -> dict[str, Any]:
         meta: dict[str, Any] = hardware.rig.meta() if hardware.rig is not None else {}  # type: ignore[attr-defined]
         meta.update({"source": "graytrack serve", "daemon_version": __version__})
+        if getattr(hardware.camera.settings, "flip", False):  # [camera] flip: frames reversed at the driver
+            meta[PIXEL_AXIS_REVERSED] = True
         for key in ("pixel_pitch_mm", "period_mm"):
             value = getattr(self.settings.sweep, key)
             if value is not None:
@@ -372,11 +441,16 @@ class Rig:
 
     def set_velocity(self, velocity_mm_s: float) -> dict[str, Any]:
         hardware = self._idle_stage()
-        if not (math.isfinite(velocity_mm_s) and 0 < velocity_mm_s <= MAX_VELOCITY_MM_S):
-            raise OutOfLimits(f"velocity_mm_s {velocity_mm_s:g} is outside (0, {MAX_VELOCITY_MM_S:g}] mm/s")
+        controller = self.velocity_limit_mm_s
+        highest = MAX_VELOCITY_MM_S if controller is None else min(MAX_VELOCITY_MM_S, controller)
+        if not (math.isfinite(velocity_mm_s) and 0 < velocity_mm_s <= highest):
+            whose = "the controller's limit" if controller is not None and controller < MAX_VELOCITY_MM_S else "the limit"
+            raise OutOfLimits(f"velocity_mm_s {velocity_mm_s:g} is outside (0, {highest:g}] mm/s ({whose})")
         try:
             hardware.stage.set_velocity(velocity_mm_s)
             self.velocity_mm_s = hardware.stage.velocity()
+        except StageLimitError as exc:  # refused for its value (422), not because the stage is not ready (503)
+            raise OutOfLimits(str(exc)) from None
         except StageError as exc:
             raise NotReady(f"stage: {exc}") from None
         self.event("velocity", f"velocity set to {self.velocity_mm_s:g} mm/s")

@@ -52,6 +52,9 @@ class DaemonConfig(_Strict):
     realtime_priority: int = Field(DEFAULT_LEVEL, ge=0, le=99, description="SCHED_FIFO priority of the frame loop and the event "
                                    "loop (1-99; needs LimitRTPRIO or CAP_SYS_NICE): the stream's latency tail on a busy machine. "
                                    "0 = normal scheduling")
+    trim: bool = Field(False, description="correct the streamed position's scale and offset against the grating "
+                       "(an online trim, only on evidence of a drift since calibration; POST /api/trim/reset clears it, "
+                       "a new calibration too)")
     sim_clock_scale: float = Field(1.0, gt=0, description="virtual rig only: simulated seconds per wall second")
     log_level: Literal["debug", "info", "warning", "error"] = "info"
 

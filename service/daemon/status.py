@@ -49,6 +49,7 @@ def status(rig: "Rig") -> dict[str, Any]:
     fresh = last is not None and acquisition is not None and acquisition.seconds_since_tracked() <= stale_after
     job = rig.job
     rate = acquisition.frame_rate_hz(stale_after) if acquisition is not None else 0.0
+    model_stale = acquisition.model_stale if acquisition is not None and rig.model is not None else None
     return {
         "state": state(rig),
         "calibrated": rig.model is not None,
@@ -58,8 +59,12 @@ def status(rig: "Rig") -> dict[str, Any]:
         # the tracker's per-frame fit figures (gain, offset, rejected pixels, chi², stale model)
         "fit": {key: last[key] for key in LIVEFIX_EXTRAS if key in last} if fresh else None,
         "stale": last is not None and not fresh,
+        "model_stale": model_stale is not None,
+        "stale_reason": model_stale,
         "age_ms": round(acquisition.seconds_since_tracked() * 1e3, 1) if last is not None and acquisition else None,
-        "grating_mm": grating.latest_mm() if grating is not None else None,
+        "grating_mm": grating.fresh_mm(stale_after) if grating is not None else None,
+        "grating_age_ms": round(silent * 1e3, 1) if grating is not None and (silent := grating.silent_s()) is not None
+        else None,
         "moving": rig.readings.moving() if grating is not None else None,
         "target_mm": rig.target_mm,
         "velocity_mm_s": rig.velocity_mm_s,
@@ -72,6 +77,7 @@ def status(rig: "Rig") -> dict[str, Any]:
         "dropped": acquisition.stats.dropped if acquisition is not None else 0,
         "calibration": None if job is None else {key: job.to_dict()[key] for key in JOB_FIELDS},
         "active_calibration": rig.active_calibration(),
+        "trim": acquisition.trim.status() if acquisition is not None else None,  # camera against grating
         "simulated": rig.settings.simulated,
         "uptime_s": round(time.monotonic() - rig.started_at, 3),
         "version": __version__,

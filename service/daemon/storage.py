@@ -30,16 +30,29 @@ from graytrack.core.errors import GraytrackError
 from graytrack.core.files import write_atomic
 from graytrack.core.models import load_model, save_model
 from graytrack.core.models.fourier import FourierModel
-from graytrack.service.daemon.errors import DataDirInUse
+from graytrack.service.daemon.errors import DataDirInUse, UnsafeDataDir
 
 log = logging.getLogger("graytrack.daemon")
 CALIBRATION_ID = re.compile(r"^\d{8}T\d{6}\d{6}Z$")
+
+
+def private(path: Path, what: str, forbidden_mode: int, fix: str) -> None:
+    """Refuse ``path`` when another user owns it or may change it (as ssh refuses a key file): in a
+    directory others can write, anyone could plant the token that then moves the stage."""
+    info = path.stat()
+    if info.st_uid != os.geteuid():
+        raise UnsafeDataDir(f"{what} {path} is owned by uid {info.st_uid}, not by this user (uid {os.geteuid()}): "
+                            f"use a directory of your own (--data-dir) or chown it")
+    if info.st_mode & forbidden_mode:
+        raise UnsafeDataDir(f"{what} {path} has mode {info.st_mode & 0o777:o}: other users could change it; "
+                            f"fix: {fix}")
 
 
 class Storage:
     def __init__(self, root: Path) -> None:
         self.root = Path(root)
         self.root.mkdir(parents=True, exist_ok=True, mode=0o700)  # holds the token
+        private(self.root, "data directory", 0o022, f"chmod go-w {self.root}")
         self.calibrations = self.root / "calibrations"
         self.calibrations.mkdir(exist_ok=True)
         self._last_time: datetime | None = None
@@ -72,6 +85,7 @@ class Storage:
                 pass
             finally:
                 tmp.unlink(missing_ok=True)
+        private(self.token_path, "token file", 0o077, f"chmod 600 {self.token_path}")
         try:
             token = self.token_path.read_text().strip()
         except UnicodeDecodeError:
@@ -124,6 +138,40 @@ class Storage:
     def save_current_model(self, model: FourierModel) -> Path:
         return save_model(model, self.model_path)
 
+    def copy_model_of(self, calibration_id: str) -> None:
+        """``model.json`` becomes a byte-for-byte copy of that calibration's model."""
+        write_atomic(self.model_path, (self.calibration_dir(calibration_id) / "model.json").read_bytes())
+
+    def reconcile_model(self) -> tuple[FourierModel | None, str | None]:
+        """The model to track with, and what was set right when the directory disagreed with itself.
+
+        ``active`` is the one pointer an install switches; the model of record is that calibration's
+        own ``model.json``, and ``DATA/model.json`` a copy of it. After a crash anywhere in an install
+        the pointer names either a calibration that finished ``done`` (its model is the one) or one
+        that did not (the install never completed: back to the newest calibration that did). A
+        ``DATA/model.json`` with no calibration behind it (placed by hand) is used as it is.
+        """
+        done = [i for i in self.calibration_ids()
+                if (self.read_status(i) or {}).get("state") == "done" and (self.calibration_dir(i) / "model.json").is_file()]
+        active = self.active_id()
+        chosen = active if active in done else (done[-1] if done else None)
+        notes = []
+        if chosen is None:
+            if active is not None:
+                self.active_path.unlink(missing_ok=True)
+                notes.append(f"the active calibration {active} never finished installing and no earlier one did")
+            return self.load_current_model(), "; ".join(notes) or None
+        model = load_model(self.calibration_dir(chosen) / "model.json")
+        if chosen != active:
+            self.set_active(chosen)
+            notes.append(f"the active calibration {active or '(none)'} never finished installing: "
+                         f"back to calibration {chosen}, the newest one that did")
+        source = (self.calibration_dir(chosen) / "model.json").read_bytes()
+        if not self.model_path.is_file() or self.model_path.read_bytes() != source:
+            self.copy_model_of(chosen)
+            notes.append(f"model.json was not calibration {chosen}'s model: restored from it")
+        return model, "; ".join(notes) or None
+
     # -- the active calibration --------------------------------------------------------------
     @property
     def active_path(self) -> Path:
@@ -132,6 +180,13 @@ class Storage:
     def set_active(self, calibration_id: str) -> None:
         """The calibration whose model ``model.json`` holds (written after the model, atomically)."""
         write_atomic(self.active_path, calibration_id + "\n")
+
+    def restore_active(self, calibration_id: str | None) -> None:
+        """Point back at ``calibration_id`` (None: no calibration) after an install that failed."""
+        if calibration_id is None:
+            self.active_path.unlink(missing_ok=True)
+        else:
+            self.set_active(calibration_id)
 
     def active_id(self) -> str | None:
         try:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from typing import Callable
 
 from graytrack.service.daemon.worker import describe
@@ -22,13 +23,21 @@ CALIBRATABLE = frozenset({"tracking", "model"})
 
 
 class Faults:
-    """Current faults by source, thread-safe, logged on change; ``listeners`` see every change."""
+    """Current faults by source, thread-safe, logged on change.
 
-    def __init__(self) -> None:
+    ``listeners(source, reason, previous, seconds)`` hear a fault when it is raised (``previous``
+    None) and when it clears (``reason`` None, ``seconds`` how long it lasted): an event is a
+    change of state. A fault whose text changes while it lasts (a camera's growing silence) is
+    shown as it is now, but is not a new fault: an outage of an hour is two events, not thousands.
+    """
+
+    def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
         self._faults: dict[str, str] = {}
+        self._since: dict[str, float] = {}
         self._lock = threading.Lock()
+        self._clock = clock
         self.raised = 0
-        self.listeners: list[Callable[[str, str | None, str | None], None]] = []
+        self.listeners: list[Callable[[str, str | None, str | None, float], None]] = []
 
     def reporter(self, source: str) -> Callable[[str | None], None]:
         """A callback setting (reason) or clearing (None) this source's fault."""
@@ -43,15 +52,21 @@ class Faults:
                 return
             if reason is None:
                 del self._faults[source]
+                seconds = self._clock() - self._since.pop(source)
             else:
                 self._faults[source] = reason
                 self.raised += previous is None
+                if previous is None:
+                    self._since[source] = self._clock()
+                seconds = 0.0
         if reason is None:
-            log.info("%s fault cleared", source)
+            log.info("%s fault cleared after %.1f s", source, seconds)
         elif previous is None:
             log.warning("%s fault: %s", source, reason)
+        else:
+            return  # the same fault, described anew
         for listener in self.listeners:
-            listener(source, reason, previous)
+            listener(source, reason, previous, seconds)
 
     def snapshot(self) -> dict[str, str]:
         with self._lock:

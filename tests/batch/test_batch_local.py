@@ -16,6 +16,7 @@ from graytrack.service.batch.summary import COLUMNS, read_summary
 from graytrack.service.cli import main
 
 from tests.batch.conftest import without_time
+from tests.tables import read_columns
 
 pytest.importorskip("distributed")
 
@@ -117,7 +118,7 @@ def test_chunked_track_command_equals_sequential(archive, in_process_scheduler, 
     assert main([*common, "--out", str(tmp_path / "seq.csv")]) == 0
     assert main([*common, "--out", str(tmp_path / "chunked.csv"), "--chunk-frames", "30", "--overlap", "10",
                  "--scheduler", in_process_scheduler]) == 0
-    seq, chunked = (np.genfromtxt(tmp_path / f"{n}.csv", delimiter=",", names=True) for n in ("seq", "chunked"))
+    seq, chunked = (read_columns(tmp_path / f"{n}.csv") for n in ("seq", "chunked"))
     both = (seq["locked"] == 1) & (chunked["locked"] == 1)
     assert both.sum() >= 95
     assert np.max(np.abs(seq["x_mm"][both] - chunked["x_mm"][both])) < 1e-6  # 1 nm

@@ -11,6 +11,7 @@ from graytrack.core.recording import Recording, save
 from graytrack.drivers.sim.scenarios import build_rig
 from graytrack.service.cli import main
 from tests.core.test_tracking_light_weights import run_of
+from tests.tables import read_columns
 
 
 def test_track_command_follows_changed_light_and_reports_validity(tmp_path, capsys):
@@ -27,15 +28,13 @@ def test_track_command_follows_changed_light_and_reports_validity(tmp_path, caps
     assert "chi2 per pixel" in out.out and "stale" not in out.err
     header = (tmp_path / "t.csv").read_text().splitlines()[0].split(",")
     assert header[:2] == ["t", "x_mm"] and {"chi2", "rejected_px", "gain", "offset_gray", "stale"} <= set(header)
-    table = np.loadtxt(tmp_path / "t.csv", delimiter=",", skiprows=1)
-    column = {name: table[:, i] for i, name in enumerate(header)}
+    column = read_columns(tmp_path / "t.csv")
     assert column["locked"].all() and np.abs(column["error_um"]).max() < 10.0
     assert (column["rejected_px"][50:] == 1).all() and (column["rejected_px"][:50] == 0).all()
     np.testing.assert_allclose(column["gain"], 0.85, atol=0.02)
 
     assert main(args + ["--light", "fixed", "--no-robust"]) == 0
-    table = np.loadtxt(tmp_path / "t.csv", delimiter=",", skiprows=1)
-    assert not table[:, header.index("locked")].all()  # the old behaviour: blind under the new light
+    assert not read_columns(tmp_path / "t.csv")["locked"].all()  # the old behaviour: blind under the new light
     capsys.readouterr()
 
     changed = build_rig("paper", "harmonics:h2=0.02", seed=7)
@@ -43,4 +42,4 @@ def test_track_command_follows_changed_light_and_reports_validity(tmp_path, caps
     save(Recording(frames, np.arange(300) / 50.0, x_true, rig.meta()), tmp_path / "run.npz")
     assert main(args) == 0
     err = capsys.readouterr().err
-    assert "model stale from frame" in err and "recalibrate" in err
+    assert "model stale on" in err and "recalibrate" in err and "for geometry" in err  # a print the model does not know

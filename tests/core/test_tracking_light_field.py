@@ -1,7 +1,8 @@
 """A light whose shape across the line changes after calibration (vignetting, a gradient): the
 tracker solves a light field (gain smooth across the pixels, offset uniform) when a uniform gain
 and offset leave the running χ² above the calibration's level, and reports the bound with those
-nuisances profiled out: larger, but what the data allow."""
+nuisances profiled out: larger, but what the data allow. That loss of precision is flagged: the
+model is stale for the light, though every position is at its (larger) bound."""
 
 from __future__ import annotations
 
@@ -37,7 +38,10 @@ def test_a_light_changing_shape_is_tracked_at_the_field_bound(model, later):
     error, bound = result.error_um(run.reference)[-200:], result.crlb_mm[-200:] * 1e3
     assert np.isfinite(result.x_mm).all()
     assert rms(error) <= 1.3 * rms(bound)
-    assert not result.stale.any() and np.median(result.chi2[-200:]) < 1.1 * result.chi2_calibration
+    assert np.median(result.chi2[-200:]) < 1.1 * result.chi2_calibration  # the field describes the images
+    # ... at a price χ² cannot show: the bound is over twice the calibration's, so the model is
+    # stale with the light as its reason (recalibrating gets the precision back)
+    assert (result.stale_reason[-200:] == "light").all()
     before = track(model, run, tracker=uniform_only(model))
     uniform_bound = before.crlb_mm[-200:] * 1e3
     assert rms(before.error_um(run.reference)[-200:]) > 5 * rms(uniform_bound)  # biased without the field

@@ -7,6 +7,7 @@ import json
 import numpy as np
 
 from graytrack.service.cli import main
+from tests.tables import read_columns
 
 
 def test_diagnose_writes_contract_files(tmp_path, capsys):
@@ -27,8 +28,7 @@ def test_diagnose_writes_contract_files(tmp_path, capsys):
     assert main(["simulate", "--scenario", "paper", "--effects", "gradient", "--seconds", "6", "--seed", "2",
                  "--out", str(val)]) == 0
     assert main(["track", str(val), "--model", str(tmp_path / "diag" / "model.json"), "--out", str(tmp_path / "t.csv")]) == 0
-    table = np.loadtxt(tmp_path / "t.csv", delimiter=",", skiprows=1)
-    assert np.nanstd(table[:, 6]) < 1.3 * report["noise"]["crlb_um"] * 1.2
+    assert np.nanstd(read_columns(tmp_path / "t.csv")["error_um"]) < 1.3 * report["noise"]["crlb_um"] * 1.2
 
 
 def test_calibrate_auto_saves_the_loops_model(tmp_path):

@@ -8,6 +8,7 @@ close and reopen.
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
 import subprocess
 import time
@@ -303,3 +304,17 @@ def test_a_late_reader_loses_no_frame_within_the_lag_budget_and_skips_beyond_it(
     assert gap >= BUDGET_PERIODS // 2, "the oldest frames beyond the budget were skipped"
     assert camera.stats.dropped == gap + current.frame_id - skipped_to.frame_id - 1
     assert before - current.exposure_end <= (BUDGET_PERIODS + 1) * period + SLACK_S + current.t_uncertainty_s
+
+
+def test_flip_reverses_the_pixel_axis_of_every_frame_handed_out(case: Case) -> None:
+    """``[camera] flip``: for a camera mounted the other way round, applied once for every driver."""
+    roi = Roi(row=1, rows=2, col=2, cols=30)
+    settings = case.settings(roi)
+    settings.flip = True
+    camera = opened(case, settings)
+    try:
+        frame = camera.read(2.0)
+    finally:
+        camera.close()
+    assert frame.pixels.shape == (2, 30)
+    case.check_pixels(dataclasses.replace(frame, pixels=frame.pixels[:, ::-1]), roi)  # as delivered, reversed

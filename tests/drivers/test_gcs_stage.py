@@ -8,7 +8,7 @@ import time
 import pytest
 
 from graytrack.drivers.stage.axis_model import TrapezoidAxis
-from graytrack.drivers.stage.errors import GCSControllerError
+from graytrack.drivers.stage.errors import GCSControllerError, StageLimitError
 from graytrack.drivers.stage.gcs_stage import GCSStage
 from graytrack.drivers.stage.sim_controller import Fault, SimGCSController
 
@@ -25,9 +25,11 @@ def test_open_identifies_switches_servo_on_references_and_sets_velocity(
 
 
 def test_controller_errors_carry_gcs_number_and_text(controller: SimGCSController, stage: GCSStage) -> None:
-    with pytest.raises(GCSControllerError) as err:
-        stage.set_velocity(500.0)  # above the controller's maximum
-    assert err.value.code == 8 and "velocity" in err.value.text and "VEL 1 500.0" == err.value.command
+    with pytest.raises(StageLimitError, match="beyond the controller's limit of 50 mm/s"):
+        stage.set_velocity(500.0)  # GCS error 8 on VEL: named with the limit the controller gives (SPA? 0xA)
+    assert stage.velocity_limit() == 50.0 and stage.error_code() == 0
+    with pytest.raises(StageLimitError, match="below the 1e-9 mm/s"):
+        stage.set_velocity(1e-12)  # would go out as "VEL 1 0.0"
     controller.inject(Fault("error", command="MOV", code=7))
     with pytest.raises(GCSControllerError, match="GCS error 7 .target position out of limits.") as err:
         stage.move_to(13.0)

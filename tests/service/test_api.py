@@ -16,7 +16,9 @@ from tests.service.helpers import fast_settings, wait_for, wait_state
 
 
 def test_status_and_health_follow_the_contract(tracking: TestClient) -> None:
-    status = tracking.get("/api/status").json()
+    # a fresh tracked frame (a loaded machine may have left the newest one older than stale_after_s)
+    status = wait_for(lambda: (s := tracking.get("/api/status").json())["position_mm"] is not None
+                      and s["grating_mm"] is not None and s, 20.0, "a fresh position and grating reading")
     assert status["state"] == "tracking" and status["calibrated"] is True
     assert isinstance(status["position_mm"], float) and 0.0 <= status["position_mm"] <= 10.46
     assert status["reason"] is None and status["limits_mm"] == [0.0, 10.46]

@@ -61,3 +61,28 @@ def test_hardware_that_cannot_be_opened_is_retried(tmp_path) -> None:
         wait_for(lambda: factory.attempts >= 2, what="a second attempt")
         factory.plugged = True
         wait_state(client, "tracking", 20.0)
+
+
+def test_a_silent_controller_is_a_fault_within_the_cameras_time_and_its_figure_is_withdrawn(tmp_path) -> None:
+    """The controller stops answering (every POS? dropped): the serial timeout is 5 s in these tests,
+    but the daemon calls the silence a fault after camera_fault_after_s (1 s), and the last
+    grating figure is withdrawn after stale_after_s instead of shown frozen."""
+    from graytrack.drivers.stage.sim_controller import Fault
+
+    factory = GatedFactory()
+    with TestClient(create_app(fast_settings(tmp_path), factory)) as client:
+        wait_state(client, "tracking", 20.0)
+        assert client.get("/api/status").json()["grating_mm"] is not None
+        controller = factory.hardware.controller
+        controller.inject(Fault("drop", command="POS?", count=10_000))
+        status = wait_state(client, "fault", 10.0)
+        assert "stage" in status["faults"] and "has not answered" in status["faults"]["stage"]
+        assert status["grating_mm"] is None and status["grating_age_ms"] > 1000
+        assert client.get("/healthz").status_code == 503
+        with controller._lock:
+            controller._faults.clear()
+        status = wait_state(client, "tracking", 20.0)
+        assert status["grating_mm"] is not None
+        events = [e for e in client.get("/api/events").json() if e["details"].get("source") == "stage"]
+        assert [e["kind"] for e in events] == ["fault", "recovered"], "one event raised, one on recovery"
+        assert events[1]["details"]["duration_s"] > 1.0

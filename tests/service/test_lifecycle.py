@@ -116,3 +116,72 @@ def test_the_token_is_created_whole_by_concurrent_first_starts(tmp_path: Path) -
     tokens = {p.communicate(timeout=60)[0].strip() for p in processes}
     assert len(tokens) == 1 and len(tokens.pop()) >= 32, "every start read the one complete token"
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".token")], "no temporary file left"
+
+
+@pytest.mark.parametrize("planted", ["directory", "token"])
+def test_a_directory_or_token_others_can_write_is_refused_with_the_fix(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], planted: str) -> None:
+    """A world-writable data directory lets another user plant DATA/token before the first start
+    (that token would then move the stage); a token file others can read or write leaks or plants it."""
+    import os
+
+    data = tmp_path / "data"
+    data.mkdir()
+    if planted == "directory":
+        data.chmod(0o777)
+        fix = f"chmod go-w {data}"
+    else:
+        (data / "token").write_text("planted-by-another-user-0123456789\n")
+        (data / "token").chmod(0o666)
+        fix = f"chmod 600 {data / 'token'}"
+    assert main(["serve", "--data-dir", str(data), "--port", "0"]) == 2
+    line = capsys.readouterr().err.strip()
+    assert "\n" not in line and "other users could change it" in line and line.endswith(fix)
+    assert not (data / "lock").exists() or planted == "token"  # refused before anything was written
+    (data if planted == "directory" else data / "token").chmod(0o700 if planted == "directory" else 0o600)
+    from graytrack.service.daemon.storage import Storage
+
+    Storage(data).token()  # accepted once fixed
+    assert os.stat(data).st_mode & 0o022 == 0
+
+
+def _crash_mid_install(tmp_path: Path, step: int) -> tuple[str, str]:
+    """Two calibrations done through a real daemon, then the data directory as a kill -9 after
+    ``step`` of a third one's install leaves it: 0 = the job's model written, 1 = the pointer
+    switched, 2 = the copy in DATA written (its status still says ``installing``)."""
+    import shutil
+
+    with ServeProcess(tmp_path, daemon={"auto_calibrate": "never"}) as daemon:
+        daemon.wait_state("idle")
+        ids = []
+        for _ in range(2):
+            response = httpx.post(f"{daemon.base}/api/calibration", headers=daemon.auth(), timeout=5)
+            ids.append(response.json()["id"])
+            wait_for(lambda: _job_state(daemon, ids[-1]) == "done", 60.0, "a calibration")
+        assert daemon.terminate() == 0
+    data = tmp_path / "data"
+    first, second = ids
+    third = second[:9] + "235959" + second[15:]  # a later id of the same day
+    shutil.copytree(data / "calibrations" / first, data / "calibrations" / third)
+    status = _status_file(tmp_path, first)
+    status.update(id=third, state="installing")
+    (data / "calibrations" / third / "status.json").write_text(json.dumps(status))
+    if step >= 1:
+        (data / "active").write_text(third + "\n")
+    if step >= 2:
+        shutil.copy(data / "calibrations" / third / "model.json", data / "model.json")
+    return second, third
+
+
+@pytest.mark.parametrize("step", [0, 1, 2])
+def test_a_crash_anywhere_in_an_install_leaves_the_pointer_and_the_model_agreeing(tmp_path: Path, step: int) -> None:
+    before, crashed = _crash_mid_install(tmp_path, step)
+    data = tmp_path / "data"
+    with ServeProcess(tmp_path, daemon={"auto_calibrate": "never"}) as daemon:
+        status = daemon.wait_state("tracking")
+        assert httpx.get(f"{daemon.base}/api/calibration/{crashed}", timeout=5).json()["state"] == "interrupted"
+        assert status["active_calibration"]["id"] == before, "the newest calibration that finished installing"
+        assert (data / "model.json").read_bytes() == (data / "calibrations" / before / "model.json").read_bytes()
+        events = httpx.get(f"{daemon.base}/api/events", timeout=5).json()
+        reconciled = [e["message"] for e in events if e["kind"] == "model_reconciled"]
+        assert bool(reconciled) == (step > 0), "the start-up check says what it set right, and only then"

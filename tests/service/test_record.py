@@ -133,18 +133,85 @@ def test_the_trackers_fit_figures_and_stale_model_flags_reach_status_metrics_and
     def update(self, frame, reference_mm=float("nan")):  # the tracker's per-frame fit figures, stale on demand
         fix = real_update(self, frame, reference_mm)
         return SimpleNamespace(**{**vars(fix), "gain": 1.01, "offset_gray": -0.2, "rejected_px": 2, "chi2": 1.04,
-                                  "stale": flag["stale"]})
+                                  "stale": flag["stale"], "stale_reason": "focus" if flag["stale"] else None})
 
     monkeypatch.setattr(tracking.LiveTracker, "update", update)
     with LiveServer(create_app(fast_settings(tmp_path))) as daemon:
         daemon.wait_state("tracking")
         flag["stale"] = True
         wait_for(lambda: "model_stale" in [e["kind"] for e in daemon.get("/api/events").json()], what="the stale flag")
-        fit = daemon.status()["fit"]
-        assert fit == {"gain": 1.01, "offset_gray": -0.2, "rejected_px": 2, "chi2": 1.04, "stale": True}
+        status = daemon.status()
+        assert status["fit"] == {"gain": 1.01, "offset_gray": -0.2, "rejected_px": 2, "transient_px": 0, "chi2": 1.04,
+                                 "focus": None, "stale": True, "stale_reason": "focus"}
+        assert status["model_stale"] and status["stale_reason"] == "focus"
+        health = daemon.get("/healthz")
+        assert health.status_code == 503 and "focus" in health.json()["reason"], "a stale model is not healthy"
         metrics = daemon.get("/metrics").text
         assert "graytrack_fit_stale 1.0" in metrics and "graytrack_fit_rejected_px 2.0" in metrics
+        assert 'graytrack_model_stale{reason="focus"} 1.0' in metrics
+        assert 'graytrack_model_stale{reason="light"} 0.0' in metrics
+        stale_event = [e for e in daemon.get("/api/events").json() if e["kind"] == "model_stale"][0]
+        assert "focus" in stale_event["message"] and "lens" in stale_event["message"]
         flag["stale"] = False
         wait_for(lambda: "model_fresh" in [e["kind"] for e in daemon.get("/api/events").json()], what="fresh again")
         kinds = [e["kind"] for e in daemon.get("/api/events").json()]
         assert kinds.count("model_stale") == 1, "a flag is recorded when it changes, not per frame"
+
+
+def _damage(database: Path, how: str) -> None:
+    if how == "header":
+        with open(database, "r+b") as fh:
+            fh.write(b"this is not SQLite")
+    elif how == "truncated":
+        with open(database, "r+b") as fh:
+            fh.truncate(min(40 * 1024, database.stat().st_size // 2))
+    elif how == "empty":
+        database.write_bytes(b"")
+    elif how == "missing":
+        database.unlink()
+
+
+@pytest.mark.parametrize("how", ["header", "truncated", "empty", "missing"])
+def test_a_damaged_record_is_set_aside_and_rebuilt_from_the_calibration_folders(tmp_path: Path, how: str) -> None:
+    with ServeProcess(tmp_path, daemon={"auto_calibrate": "never"}) as first:
+        first.wait_state("idle")
+        done = []
+        for _ in range(2):
+            job = httpx.post(f"{first.base}/api/calibration", headers=first.auth(), timeout=5).json()["id"]
+            wait_for(lambda: httpx.get(f"{first.base}/api/calibration/{job}", timeout=5).json()["state"] == "done",
+                     60.0, "a calibration")
+            done.append(job)
+        assert first.terminate() == 0
+    database = tmp_path / "data" / "record.sqlite"
+    for suffix in ("-wal", "-shm"):
+        database.with_name(database.name + suffix).unlink(missing_ok=True)
+    _damage(database, how)
+    with ServeProcess(tmp_path, daemon={"auto_calibrate": "never"}) as second:
+        status = second.wait_state("tracking")
+        assert status["active_calibration"]["id"] == done[-1]
+        page = httpx.get(f"{second.base}/api/calibrations", timeout=5).json()
+        assert [c["id"] for c in page["items"]] == done[::-1], "every finished calibration listed again"
+        assert all(c["error_std_um"] is not None for c in page["items"])
+        assert httpx.post(f"{second.base}/api/calibrations/{done[0]}/activate", headers=second.auth(),
+                          timeout=5).status_code == 200
+        kinds = [e["kind"] for e in httpx.get(f"{second.base}/api/events", timeout=5).json()]
+        assert "record_restored" in kinds
+        if how in ("header", "truncated"):
+            assert "record_rebuilt" in kinds
+            kept = [p.name for p in database.parent.iterdir() if ".damaged-" in p.name]
+            assert kept, "the damaged file is kept for inspection"
+
+
+def test_an_event_log_that_cannot_be_written_is_a_fault_not_a_line_on_stderr(tmp_path: Path) -> None:
+    with LiveServer(create_app(fast_settings(tmp_path, auto_calibrate="never"))) as daemon:
+        daemon.wait_state("idle")
+        record = daemon.rig.record
+        real_db = record._db
+        record._db = sqlite3.connect(":memory:", check_same_thread=False)  # no tables: every write fails
+        daemon.rig.event("test", "an event that cannot be written")
+        status = daemon.status()
+        assert "record" in status["faults"] and "cannot be written" in status["faults"]["record"]
+        assert "graytrack_faults_total 1.0" in daemon.get("/metrics").text
+        record._db = real_db
+        daemon.rig.event("test", "written again")
+        assert "record" not in daemon.status()["faults"]

@@ -43,7 +43,7 @@ def test_a_crashing_frame_loop_is_reported_and_restarted(tmp_path, monkeypatch: 
 
         monkeypatch.setattr(grating.Readings, "at", explode_once)
         reasons = []
-        daemon.rig.faults.listeners.append(lambda source, reason, previous: reasons.append((source, reason)))
+        daemon.rig.faults.listeners.append(lambda source, reason, previous, seconds: reasons.append((source, reason)))
         wait_for(lambda: daemon.rig.acquisition.crashes == 1, what="the crash")
         assert ("acquisition", "acquisition crashed: RuntimeError: injected") in reasons
         daemon.wait_state("tracking")
@@ -68,9 +68,11 @@ def test_an_unusable_saved_model_is_a_fault_with_its_reason_and_a_calibration_re
 def test_a_model_the_tracker_cannot_evaluate_is_a_fault(tmp_path) -> None:
     with LiveServer(create_app(fast_settings(tmp_path))) as daemon:
         daemon.wait_state("tracking")
-    document = json.loads((tmp_path / "model.json").read_text())
+    # the model of record is the active calibration's own (DATA/model.json is its copy)
+    of_record = tmp_path / "calibrations" / (tmp_path / "active").read_text().strip() / "model.json"
+    document = json.loads(of_record.read_text())
     document["model"]["clip_gray"] = [255, 0]
-    (tmp_path / "model.json").write_text(json.dumps(document))
+    of_record.write_text(json.dumps(document))
     with LiveServer(create_app(fast_settings(tmp_path, auto_calibrate="never"))) as daemon:
         status = daemon.wait_state("fault")
         assert set(status["faults"]) & {"model", "tracking"}, status
@@ -88,7 +90,7 @@ def test_an_unexpected_error_in_a_calibration_fails_the_job_and_restores_the_dae
         daemon.wait_state("tracking")
         model_before = (tmp_path / "model.json").read_text()
         if isinstance(failure, OSError):  # the disk fills while the new model is installed
-            monkeypatch.setattr(daemon.rig.storage, "save_current_model", lambda model: (_ for _ in ()).throw(failure))
+            monkeypatch.setattr(daemon.rig.storage, "copy_model_of", lambda job_id: (_ for _ in ()).throw(failure))
         else:
             monkeypatch.setattr(sweep, "calibrate", lambda *a, **k: (_ for _ in ()).throw(failure))
         job_id = daemon.post("/api/calibration", headers=daemon.auth()).json()["id"]
@@ -123,3 +125,56 @@ def test_a_shutdown_during_the_fit_aborts_the_job_and_installs_nothing(tmp_path,
     on_disk = json.loads((tmp_path / "calibrations" / job_id / "status.json").read_text())
     assert on_disk["state"] == "aborted" and on_disk["message"] == "calibration aborted: the daemon is shutting down"
     assert not (tmp_path / "model.json").exists() and not (tmp_path / "active").exists()
+
+
+def test_a_fault_is_two_events_however_long_it_lasts_and_its_text_changes() -> None:
+    """A camera silent for an hour describes its silence anew every check: still one fault raised
+    and one recovery, the recovery carrying how long it lasted (an injected clock, no waiting)."""
+    from graytrack.service.daemon.supervision import Faults
+
+    now = [100.0]
+    faults = Faults(clock=lambda: now[0])
+    heard = []
+    faults.listeners.append(lambda source, reason, previous, seconds: heard.append((source, reason, seconds)))
+    for second in range(3600):
+        now[0] = 100.0 + second
+        faults.set("camera", f"no frame for {second + 0.3:.1f} s")
+        faults.set("stage", None)  # a source that was never in fault says nothing
+    assert faults.snapshot() == {"camera": "no frame for 3599.3 s"}, "the status shows the text as it is now"
+    now[0] = 3700.0
+    faults.set("camera", None)
+    assert heard == [("camera", "no frame for 0.3 s", 0.0), ("camera", None, 3600.0)]
+    assert faults.raised == 1
+
+
+def test_no_room_for_a_sweep_is_refused_before_anything_is_written(tmp_path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import shutil
+    from collections import namedtuple
+
+    with LiveServer(create_app(fast_settings(tmp_path, auto_calibrate="never"))) as daemon:
+        daemon.wait_state("idle")
+        wait_for(lambda: daemon.rig.acquisition.latest is not None, what="a frame")
+        before = sorted(p.name for p in (tmp_path / "calibrations").iterdir())
+        usage = namedtuple("usage", "total used free")
+        monkeypatch.setattr(shutil, "disk_usage", lambda path: usage(10**9, 10**9 - 100_000, 100_000))
+        answer = daemon.post("/api/calibration", headers=daemon.auth())
+        assert answer.status_code == 507 and "MB free" in answer.json()["error"]
+        assert sorted(p.name for p in (tmp_path / "calibrations").iterdir()) == before, "no empty folder"
+        kinds = [e["kind"] for e in daemon.get("/api/events").json()]
+        assert "calibration_refused" in kinds
+        monkeypatch.undo()
+        assert daemon.post("/api/calibration", headers=daemon.auth()).status_code == 202
+
+
+def test_a_valid_but_wrong_model_is_not_healthy(tmp_path) -> None:
+    """A model whose period is 5 % off loads and tracks, but the images are not what it describes:
+    the model is flagged stale with a cause, /healthz answers 503 and the status says so."""
+    with LiveServer(create_app(fast_settings(tmp_path))) as daemon:
+        daemon.wait_state("tracking")
+        model = daemon.rig.model
+        daemon.rig.install(model.with_changes(period_mm=model.period_mm * 1.05, coeffs=model.coeffs))
+        status = wait_for(lambda: (s := daemon.status())["model_stale"] and s, 20.0, "the stale flag")
+        assert status["stale_reason"] in ("geometry", "light", "scale")
+        health = daemon.get("/healthz")
+        assert health.status_code == 503 and "stale" in health.json()["reason"]
+        assert "model_stale" in [e["kind"] for e in daemon.get("/api/events").json()]

@@ -122,3 +122,44 @@ def test_beyond_loopback_the_stream_needs_the_token(tmp_path) -> None:
     assert "needs the token" in policy.websocket_refusal(scope)
     assert policy.websocket_refusal({**scope, "query_string": b"token=" + b"t" * 32}) is None
     assert policy.websocket_refusal({**scope, "headers": [*scope["headers"], (b"authorization", b"Bearer " + b"t" * 32)]}) is None
+
+
+@pytest.mark.parametrize("path", ["/api/status", "/api/events", "/", "/api/calibrations", "/healthz"])
+def test_plain_http_refuses_a_rebound_host_name(daemon: LiveServer, path: str) -> None:
+    """DNS rebinding: a page on evil.example resolves its own name to 127.0.0.1 and reads the
+    daemon as same-origin. Every route checks Host, not only the WebSocket."""
+    answer = daemon.get(path, headers={"Host": f"rebind.evil.example:{daemon.port}"})
+    assert answer.status_code == 400 and "allowed_hosts" in answer.json()["error"]
+    assert answer.headers["x-frame-options"] == "DENY"
+    assert daemon.get(path, headers={"Host": f"localhost:{daemon.port}"}).status_code in (200, 503)
+
+
+@pytest.mark.parametrize("query", ["/api/events?since=%C2%B2", "/api/events?since=18446744073709551616",
+                                   "/api/events?since=0001-01-01", "/api/events?since=9999-99-99",
+                                   "/api/calibrations?offset=9223372036854775808",
+                                   "/api/calibrations?limit=-1", "/api/events?limit=abc"])
+def test_malformed_queries_are_422_with_a_json_reason(daemon: LiveServer, query: str) -> None:
+    answer = daemon.get(query)
+    assert answer.status_code == 422, answer.text
+    assert answer.json().get("error") and answer.headers["x-frame-options"] == "DENY"
+
+
+def test_an_unforeseen_error_is_json_with_the_security_headers(tmp_path, monkeypatch) -> None:
+    from graytrack.service.daemon.rig import Rig
+
+    def broken(self):
+        raise RuntimeError("a bug in a route")
+
+    with LiveServer(create_app(fast_settings(tmp_path))) as server:
+        monkeypatch.setattr(Rig, "status", broken)
+        answer = server.get("/api/status")
+        assert answer.status_code == 500 and "log" in answer.json()["error"]
+        assert answer.headers["x-frame-options"] == "DENY" and "frame-ancestors" in answer.headers["content-security-policy"]
+        monkeypatch.undo()
+        assert server.get("/api/status").status_code == 200, "the daemon goes on"
+
+
+@pytest.mark.parametrize("velocity, limit", [(75.0, "(0, 50] mm/s (the controller's limit)"), (1e-12, "1e-9 mm/s")])
+def test_a_velocity_the_controller_cannot_take_is_422_naming_the_limit(daemon: LiveServer, velocity, limit) -> None:
+    answer = daemon.post("/api/stage/velocity", json={"velocity_mm_s": velocity}, headers=daemon.auth())
+    assert answer.status_code == 422 and limit in answer.json()["error"], answer.text

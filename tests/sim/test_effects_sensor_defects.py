@@ -47,3 +47,24 @@ def test_bad_pixels_given_a_place_sit_side_by_side_there():
     rig = quiet_rig(effects=["bad_pixels:stuck=1:dead=1:hot=1:row=0:pixel=10"])
     assert [(b.row, b.pixel, b.kind, b.value) for b in rig.config.sensor.bad_pixels] == [
         (0, 10, "stuck", 255.0), (0, 11, "stuck", 0.0), (0, 12, "hot", 40.0)]
+
+
+def test_mjpeg_loses_detail_block_by_block_at_its_quality():
+    """Baseline JPEG of each 8-bit frame: the loss sits in 8×8 blocks from the ROI's corner, grows as
+    the quality falls, and quality 100 keeps the codes to within one step."""
+    from graytrack.drivers.sim.jpeg import compress, quantisation_table
+    from graytrack.drivers.sim.scenarios import build_rig
+
+    plain, _ = build_rig("lab", seed=3).record(0.3)
+    assert quantisation_table(50)[0, 0] == 16 and quantisation_table(75)[0, 0] == 8  # T.81 K.1, IJG scaling
+    loss = {q: compress(plain.frames, q).astype(float) - plain.frames for q in (100, 75, 30)}
+    assert np.abs(loss[100]).max() <= 1.0
+    rms = {q: float(np.sqrt(np.mean(loss[q] ** 2))) for q in loss}
+    assert rms[100] < 0.6 < rms[75] < rms[30]
+    # block edges: the loss jumps more across a block's edge than inside it
+    step = np.abs(np.diff(loss[30], axis=2)).mean(axis=(0, 1))
+    assert step[7::8].mean() > 1.15 * np.delete(step, np.s_[7::8]).mean()
+    rig = build_rig("lab", "mjpeg:quality=75", seed=3)
+    recorded, _ = rig.record(0.3)
+    assert recorded.frames.dtype == np.uint8 and rig.config.sensor.jpeg_quality == 75
+    assert np.abs(recorded.frames.astype(float) - compress(plain.frames, 75)).max() == 0.0  # same frames, compressed

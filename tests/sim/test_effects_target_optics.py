@@ -109,6 +109,22 @@ def test_defocus_attenuates_harmonic_i_by_gaussian_mtf():
     assert amps[0] == pytest.approx(128.0, abs=1e-9)
 
 
+def test_focus_drift_moves_the_blur_sigma_by_pixels_from_its_start_and_never_below_sharp():
+    """From start_s the rig renders as a defocus of σ₀ + px·α·d would (σ on the target), before it
+    as σ₀; a sharper change than the base blur clips at a sharp image."""
+    pitch = paper.PIXEL_PITCH_MM
+    x, before, after = np.linspace(0.0, 5.0, 5), np.full(5, 0.5), np.full(5, 1.5)
+    drifting = quiet_rig("paper", ["defocus:sigma_um=200", "focus_drift:px=-0.5:start_s=1"])
+    for t, sigma_um in ((before, 200.0), (after, 200.0 - 500.0 * pitch)):
+        expected = light(quiet_rig("paper", [f"defocus:sigma_um={sigma_um}"]), x, t)
+        np.testing.assert_allclose(light(drifting, x, t), expected, atol=1e-9)
+    ramped = quiet_rig("paper", ["defocus:sigma_um=200", "focus_drift:px=2:start_s=0:ramp_s=2"])
+    halfway = quiet_rig("paper", [f"defocus:sigma_um={200.0 + 1000.0 * pitch}"])
+    np.testing.assert_allclose(light(ramped, x, np.ones(5)), light(halfway, x), atol=1e-9)
+    sharp = quiet_rig("paper", ["defocus:sigma_um=20", "focus_drift:px=-3"])
+    np.testing.assert_allclose(light(sharp, x, after), light(quiet_rig("paper"), x), atol=1e-9)
+
+
 def test_tilt_shifts_the_phase_linearly_with_row():
     deg = 5.0
     rig = quiet_rig(effects=["rows:n=16", f"tilt:deg={deg}"])

@@ -15,7 +15,7 @@ router = APIRouter(prefix="/api/calibration", tags=["calibration"])
 
 
 @router.post("", status_code=202, dependencies=AUTHORIZED, response_model=CalibrationStarted,
-             responses=errors(401, 409, 413, 503))
+             responses=errors(401, 409, 413, 503, 507))
 def start_calibration(rig: Rig = Depends(get_rig)) -> Any:
     """Start the sweep; follow it at ``url``."""
     job = rig.start_calibration()

@@ -15,12 +15,13 @@ from graytrack.service.daemon.errors import Invalid, NotFound
 from graytrack.service.daemon.rig import Rig
 
 router = APIRouter(tags=["record"])
+MAX_ROW_ID = 2**63 - 1  # SQLite's integers are 64-bit: a larger id or offset names no row
 FILES = {"report.html": "text/html", "report.json": "application/json", "model.json": "application/json",
          "recording.npz": "application/octet-stream"}
 
 
 @router.get("/api/calibrations", response_model=CalibrationPage)
-def calibrations(limit: int = Query(20, ge=1, le=500), offset: int = Query(0, ge=0),
+def calibrations(limit: int = Query(20, ge=1, le=500), offset: int = Query(0, ge=0, le=MAX_ROW_ID),
                  rig: Rig = Depends(get_rig)) -> Any:
     """Calibrations that finished ``done``, newest first."""
     items, total = rig.record.calibrations(limit, offset)
@@ -65,12 +66,15 @@ def activate(calibration_id: str, rig: Rig = Depends(get_rig)) -> Any:
 def events(since: str = Query("0", description="an event id (the last one seen) or an ISO 8601 time"),
            limit: int = Query(200, ge=1, le=500), rig: Rig = Depends(get_rig)) -> Any:
     """Events after ``since``, oldest first."""
-    if since.isdigit():
+    if since.isascii() and since.isdigit():  # ASCII digits only: "²" is a digit to str.isdigit
+        if int(since) > MAX_ROW_ID:
+            raise Invalid(f"since={since}: event ids are below 2^63")
         return rig.record.events(since_id=int(since), limit=limit)
     try:
         moment = datetime.fromisoformat(since.replace("Z", "+00:00"))
-    except ValueError:
-        raise Invalid(f"since={since!r}: give an event id or an ISO 8601 time") from None
-    if moment.tzinfo is None:
-        moment = moment.astimezone()
-    return rig.record.events(since_unix=moment.timestamp(), limit=limit)
+        if moment.tzinfo is None:
+            moment = moment.astimezone()
+        since_unix = moment.timestamp()
+    except (ValueError, OverflowError, OSError):  # not a time, or one the platform cannot place (year 1)
+        raise Invalid(f"since={since!r}: give an event id or an ISO 8601 time after 1970") from None
+    return rig.record.events(since_unix=since_unix, limit=limit)

@@ -16,7 +16,8 @@ ERRORS: dict[int | str, dict[str, Any]] = {
     status: {"model": ErrorBody, "description": text}
     for status, text in ((401, "missing or invalid bearer token"), (404, "no such resource"),
                          (409, "conflicts with what the rig is doing"), (413, "request body over 64 KiB"),
-                         (422, "invalid request"), (503, "the hardware is not ready or in fault"))
+                         (422, "invalid request"), (503, "the hardware is not ready or in fault"),
+                         (507, "no room in the data directory for what the request would write"))
 }
 
 
@@ -45,9 +46,13 @@ class Status(BaseModel):
     position_mm: float | None = Field(description="null when no fresh tracked frame (older than stale_after_s)")
     locked: bool | None
     crlb_um: float | None
-    fit: dict[str, float | int | bool | None] | None = Field(
-        None, description="the tracker's fit of the newest frame: gain, offset_gray, rejected_px, chi2, stale")
-    stale: bool
+    fit: dict[str, float | int | bool | str | None] | None = Field(
+        None, description="the tracker's fit of the newest frame: gain, offset_gray, rejected_px, chi2, stale, "
+                          "stale_reason")
+    stale: bool = Field(description="the newest figures are older than stale_after_s (withdrawn)")
+    model_stale: bool = Field(False, description="the validity monitor says the model no longer holds: recalibrate")
+    stale_reason: str | None = Field(
+        None, description="while model_stale: the family of causes (transients, pixels, light, focus, scale, geometry)")
     age_ms: float | None
     grating_mm: float | None
     moving: bool | None = Field(description="the grating readings of the last few polls disagree")

@@ -6,9 +6,12 @@
 * a request that changes state is refused before its body is read when the bearer token is
   missing or wrong, and its body may not exceed 64 KiB (checked while it arrives, before any
   parsing): a large anonymous body costs the daemon nothing;
-* the WebSocket accepts a browser only from its own origin (or a configured one) and a Host that
-  is this machine (a DNS-rebound name is refused), and asks for the token when the daemon listens
-  beyond loopback.
+* every HTTP request and the WebSocket name this machine in their Host (a DNS-rebound name is
+  refused: a page on another site could otherwise read the status, the events and the recordings
+  through a name it controls); the WebSocket accepts a browser only from its own origin (or a
+  configured one), and asks for the token when the daemon listens beyond loopback;
+* an error the routes did not foresee is still a JSON answer with these headers (logged with its
+  traceback), never a bare text 500.
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ from __future__ import annotations
 import hmac
 import ipaddress
 import json
+import logging
 import re
 import socket
 from typing import Any, Awaitable, Callable
@@ -25,6 +29,7 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from graytrack.service.daemon.settings import DaemonConfig
 
+log = logging.getLogger("graytrack.daemon")
 MAX_BODY = 64 * 1024
 MUTATING = frozenset({"POST", "PUT", "PATCH", "DELETE"})
 LOOPBACK_NAMES = frozenset({"localhost", "127.0.0.1", "::1", "ip6-localhost"})
@@ -133,13 +138,22 @@ class WebGuard:
                     (b"referrer-policy", b"no-referrer"),
                     (b"content-security-policy", self.policy.csp(headers.get("host", "")).encode())]
 
+        started = False
+
         async def send_secured(message: Message) -> None:
+            nonlocal started
             if message["type"] == "http.response.start":
+                started = True
                 own = message.get("headers", [])
                 extra = [h for h in security if not any(k.lower() == h[0] for k, _ in own)]  # a route may be stricter
                 message = {**message, "headers": [*own, *extra]}
             await send(message)
 
+        host = headers.get("host", "")
+        if not self.policy.host_allowed(host):
+            await _send_json(send_secured, 400, {"error": f"Host {host[:100]!r} is not this daemon: reach it by its "
+                                                          "address, or add the name to [daemon] allowed_hosts"}, [])
+            return
         if scope["method"] in MUTATING:
             given = bearer(headers)
             if not given:
@@ -152,7 +166,13 @@ class WebGuard:
             receive = await self._bounded_body(headers, receive, send_secured)
             if receive is None:
                 return
-        await self.app(scope, receive, send_secured)
+        try:
+            await self.app(scope, receive, send_secured)
+        except Exception:  # noqa: BLE001 - whatever a route did not foresee: JSON, headers, the daemon goes on
+            log.exception("unhandled error answering %s %s", scope["method"], scope.get("path", ""))
+            if started:
+                raise
+            await _send_json(send_secured, 500, {"error": "internal error (the daemon's log has the details)"}, [])
 
     async def _bounded_body(self, headers: dict[str, str], receive: Receive,
                             send: Send) -> Callable[[], Awaitable[Message]] | None:

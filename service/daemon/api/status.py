@@ -7,6 +7,7 @@ from typing import Any
 from fastapi import APIRouter, Depends, Request
 from fastapi.responses import JSONResponse, PlainTextResponse
 
+from graytrack.core.validity import ADVICE
 from graytrack.service.daemon import metrics
 from graytrack.service.daemon import status as rig_status
 from graytrack.service.daemon.api.deps import rig as get_rig
@@ -21,11 +22,15 @@ def healthz(rig: Rig = Depends(get_rig)) -> Any:
     """200 while frames are being tracked now; 503 otherwise (starting, idle, fault, stale), with the reason."""
     fresh = rig_status.tracking_fresh(rig)
     state = rig.state
-    body = {"ok": fresh, "state": state, "reason": None}
+    stale = rig.acquisition.model_stale if fresh and rig.acquisition is not None else None
+    body = {"ok": fresh and stale is None, "state": state, "reason": None}
     if not fresh:
         status = rig.status()
         body["reason"] = status["reason"] or ("frames are not being tracked" if state != "idle"
                                               else "no model installed: calibrate first")
+        return JSONResponse(body, status_code=503)
+    if stale is not None:
+        body["reason"] = f"the model is stale (cause: {stale}): {ADVICE[stale]}"
         return JSONResponse(body, status_code=503)
     return body
 

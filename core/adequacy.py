@@ -1,0 +1,54 @@
+"""How far a calibrated model's own residual moves the positions it gives, against their bound.
+
+A model that leaves structure in its calibration residual (a print harmonic it lacks, a light it
+does not describe) places frames off by the part of that residual that looks like a shift: per
+frame, the weighted projection of the residual onto ∂F/∂x, with the light's gain and offset
+profiled out as the tracker does. Its rms over the calibration frames, against the rms of their
+Cramér–Rao bounds, says before any run whether the model can measure at its bound at all: a
+model 5× off on the very frames it was fitted to will be at least as far off on the next run,
+however still its χ² stays, and every one of its positions must say so.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from graytrack.core.calibration_data import CalibrationData
+from graytrack.core.models.fourier import FourierModel
+
+MAX_FRAMES = 400  # frames looked at (evenly spread): the ratio is a statistic, not a census
+INADEQUATE_RATIO = 2.0  # beyond this, every position the model gives is flagged (core/watches/adequacy.py)
+
+
+def error_ratio(model: FourierModel, data: CalibrationData) -> float:
+    """rms of the per-frame position bias the residual implies over the rms of the frames' bounds."""
+    n_frames = data.frames.shape[0]
+    picked = np.unique(np.linspace(0, n_frames - 1, min(n_frames, MAX_FRAMES)).astype(int))
+    x = data.x_mm[picked]
+    frames = model.prepare(data.frames[picked]).reshape(picked.size, -1)
+    values, slopes = model.predict(x, with_derivative=True)
+    values, slopes = values.reshape(picked.size, -1), slopes.reshape(picked.size, -1)
+    weights = model.inverse_variance(values.reshape((picked.size,) + model.prepare(data.frames[:1]).shape[1:]))
+    weights = weights.reshape(picked.size, -1) * model.rows_averaged(data.frames.shape[1])
+    usable_samples = np.broadcast_to(data.weights, data.frames.shape)[picked]
+    if model.n_rows == 1:  # a row mean is usable only where every row is (a glint's samples spoil it), as in the fit
+        usable_samples = usable_samples.min(axis=1, keepdims=True)
+    weights = weights * (model.prepare(usable_samples).reshape(picked.size, -1) > 0)
+    # per frame: regress the residual on [F′, F, 1] (x, gain, offset) by weighted least squares
+    basis = np.stack([slopes, values, np.ones_like(values)], axis=2)  # (K, P, 3)
+    fisher = np.einsum("kp,kpi,kpj->kij", weights, basis, basis)
+    residual = frames - values
+    score = np.einsum("kp,kpi,kp->ki", weights, basis, residual)
+    usable = np.linalg.det(fisher) > 0
+    if not usable.any():
+        return float("nan")
+    shift = np.linalg.solve(fisher[usable], score[usable][..., None])[:, 0, 0]
+    bound2 = np.linalg.inv(fisher[usable])[:, 0, 0]  # x with the gain and offset profiled out
+    return float(np.sqrt(np.mean(shift * shift)) / np.sqrt(np.mean(bound2)))
+
+
+def assessed(model: FourierModel, data: CalibrationData) -> FourierModel:
+    """The model with ``info["calibration_error_ratio"]`` set."""
+    ratio = error_ratio(model, data)
+    model.info["calibration_error_ratio"] = round(ratio, 3) if np.isfinite(ratio) else None
+    return model

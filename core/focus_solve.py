@@ -1,0 +1,233 @@
+"""A frame solved with a change of focus as a nuisance, on the fast path's moments.
+
+A Gaussian blur of variance δ on the target multiplies harmonic m of the profile by
+exp(−2π² δ (m/τ)²). A model whose coefficients do not depend on x sees the target only through
+x + s_p, so to first order in δ the blur adds δ·B(x) with
+
+    B = ∂F/∂δ = −2π²/τ² Σ m² (a_m cos mφ + b_m sin mφ) = ½ ∂²F/∂x²
+
+(the heat equation: blurring is diffusion along the target coordinate). B is a trig polynomial
+like F, so every inner product the solve needs is a derivative of a moment the fast path already
+has (F·F, F′·F′, F·1, y·F), except F″·F″: one more model-level table, built on first use.
+
+The frame model is y ≈ g·F(x) + h·B(x) + o, linear in (g, h, o) at fixed x: they are profiled
+out at each Gauss–Newton step in x, the information on x is the Schur complement with the three
+of them, and the focus change is δ = h/g. The x Jacobian g·F′ + h·B′ drops the h²·B′·B′ term of
+its norm (relative size (2π²δ(M/τ)²)², far below the noise for a blur change of a few pixels).
+Valid while 2π²δ(M/τ)² ≪ 1: a change of focus that wipes out the top harmonic is a new model.
+Models the fast path cannot hold (stroke terms, a target map) get the same solve with F″ and F‴
+from differences of the model's slopes (:func:`general_focus_solve`).
+
+A focus drifts slowly (seconds to minutes), so the last frames' estimates can hold this frame's:
+given a :class:`FocusPrior` the blur coefficient gets one more observation in the normal
+equations, and the bound on x (the Schur complement given the prior) comes back towards the
+uniform light's instead of paying for the blur anew in every frame. The δ each frame reports is
+still its own, without the prior: independent estimates for the watch and for the next prior.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from graytrack.core.evaluation import TrigTables, _trig_coefficients
+from graytrack.core.solvers import FrameSolution, SolverSettings, TrigPolyBatch, profiled_step
+
+FOCUS_UNKNOWNS = 3  # gain, blur and offset: what the frame's χ² loses degrees of freedom to
+FOCUS_STEP_PERIODS = 1e-3  # finite-difference step of the general path's F″, F‴, in periods
+
+
+class CurvatureTable:
+    """Per pixel, F″² as a trig polynomial of degree 2M (the one moment of the blur term that is
+    not a derivative of the fast path's moments), and its weighted sum for the last weights seen."""
+
+    def __init__(self, tables: TrigTables, period_mm: float):
+        fast = tables.fast
+        harmonics = fast.harmonics
+        omega = 2.0 * math.pi / period_mm
+        n_samples = 2 * tables.degree + 4
+        x = np.arange(n_samples) * period_mm / n_samples
+        z = np.exp(1j * omega * np.outer(x, harmonics))
+        curvature = (z @ (fast.v * (-(omega * harmonics) ** 2)[:, None])).real  # (N, P)
+        self.table = _trig_coefficients(curvature**2, tables.degree)  # (P, D+1)
+        self._last: tuple[np.ndarray, np.ndarray] | None = None
+
+    def weighted(self, weights: np.ndarray) -> np.ndarray:
+        """Σ_p w_p·F″_p² coefficients ``(D+1,)``; weights every frame shares are folded in once."""
+        last = self._last
+        if last is not None and last[0] is weights:
+            return last[1]
+        folded = weights @ self.table
+        self._last = (weights, folded)
+        return folded
+
+
+@dataclass(frozen=True)
+class FocusMoments:
+    """One frame's inner products of the blur solve as trig polynomials, one row each."""
+
+    rows: np.ndarray  # (17, D+1) complex, see :func:`focus_moments`
+    yy: float
+    y1: float
+    ones: float  # Σ w
+    count: float  # samples used
+    phase_orders: np.ndarray
+
+
+def focus_moments(source: TrigPolyBatch, k: int, curvature: CurvatureTable,
+                  rejected: np.ndarray | None) -> FocusMoments:
+    """The rows of frame ``k`` (pixels ``rejected`` set aside), derived from the fast path's seven.
+
+    With P = iωm (a derivative) and the identities F·F″ = ½(F·F)″ − F′·F′, F′·F″ = ½(F′·F′)′:
+    FF, FF″, F″F″, F1, F″1, yF, yF″ (the normal equations of g, h, o) and FF′, FF‴, F″F′,
+    F″F‴, F′1, F‴1, F′F′, F′F‴, yF′, yF‴ (those of the x Jacobian)."""
+    weights = source.weights(k)
+    if rejected is not None and rejected.any():
+        weights = weights * ~rejected
+        source, k = source.reweighted(k, weights), 0
+    ff, _, dd, f1, _, yf, _ = source.rows[k]
+    scalars = source.scalars(k)
+    p = source.tables.phase_orders
+    p2, p3 = p * p, p * p * p
+    cc = curvature.weighted(weights)
+    fc = 0.5 * p2 * ff - dd  # F·F″
+    dc = 0.5 * p * dd  # F′·F″
+    rows = np.stack([
+        ff, fc, cc, f1, p2 * f1, yf, p2 * yf,  # normal equations
+        0.5 * p * ff, p * fc - dc, dc, 0.5 * p * cc, p * f1, p3 * f1,  # F, F″, 1 against F′ and F‴
+        dd, p * dc - cc, p * yf, p3 * yf,  # F′ against F′ and F‴, y against F′ and F‴
+    ])
+    return FocusMoments(rows, scalars[0], scalars[1], scalars[2], scalars[3], p)
+
+
+def focus_solve(source: TrigPolyBatch, k: int, curvature: CurvatureTable, start: FrameSolution,
+                settings: SolverSettings, pixel_pitch_mm: float, prior: FocusPrior | None = None) -> FrameSolution:
+    """Gauss–Newton in x from ``start`` with gain, blur and offset profiled out (see the module
+    docstring). The solution's ``focus`` is δ in px² of the pixel footprint on the target,
+    ``focus_sigma`` its standard error with x, gain and offset estimated too: this frame's own
+    estimate, whatever the ``prior`` (see :class:`FocusPrior`) did to x."""
+    moments = focus_moments(source, k, curvature, start.rejected_mask if start.rejected else None)
+    rows, orders = moments.rows, moments.phase_orders
+    x, theta = float(start.x_mm), np.array([start.gain, 0.0, start.offset])
+    information, cost, iterations = 0.0, float("inf"), 0
+    normal = cross = np.zeros(3)
+    jj = 0.0
+    for iterations in range(1, settings.max_iterations + 1):
+        m = (rows @ np.exp(orders * x)).real
+        normal = np.array([[m[0], 0.5 * m[1], m[3]],
+                           [0.5 * m[1], 0.25 * m[2], 0.5 * m[4]],
+                           [m[3], 0.5 * m[4], moments.ones]])
+        projected = np.array([m[5], 0.5 * m[6], moments.y1])
+        held, held_projected = _with_prior(normal, projected, prior, theta[0])
+        try:
+            theta = np.linalg.solve(held, held_projected)
+        except np.linalg.LinAlgError:
+            break
+        g, h = theta[0], 0.5 * theta[1]  # J = g·F′ + h·F‴ (B′ = ½F‴, h·B′ = θ₁·½·F‴)
+        cost = moments.yy - 2.0 * float(projected @ theta) + float(theta @ normal @ theta)
+        cross = np.array([g * m[7] + h * m[8], 0.5 * (g * m[9] + h * m[10]), g * m[11] + h * m[12]])
+        jj = g * g * m[13] + 2.0 * g * h * m[14]
+        numerator = g * m[15] + h * m[16] - float(theta @ cross)
+        information = jj - float(cross @ np.linalg.solve(held, cross))
+        dx = numerator / information if information > 0.0 else 0.0
+        dx = min(max(dx, -settings.max_step_mm), settings.max_step_mm)
+        x += dx
+        if abs(dx) < settings.tolerance_mm:
+            break
+    fisher = np.block([[np.array([[jj]]), cross[None]], [cross[:, None], normal]])
+    return _solution(x, theta, _own(normal, projected, theta), cost, information, fisher, moments.count, iterations,
+                     start, settings, pixel_pitch_mm)
+
+
+def general_focus_solve(evaluator, y: np.ndarray, weights: np.ndarray, start: FrameSolution,
+                        settings: SolverSettings, period_mm: float, pixel_pitch_mm: float,
+                        prior: FocusPrior | None = None) -> FrameSolution:
+    """:func:`focus_solve` for models the fast path cannot hold (stroke-dependent coefficients, a
+    target map, clipping): B = ½F″ and B′ = ½F‴ by central differences of the model's slopes
+    (a step of a thousandth of a period: relative error ~(2πM·10⁻³)²/6, far below the noise), the
+    same (g, h, o) least squares and Schur complement, with dense arrays."""
+    step = FOCUS_STEP_PERIODS * period_mm
+    if start.rejected:
+        weights = weights * ~start.rejected_mask
+    x = float(start.x_mm)
+    yw = y * weights
+    yy, n_used = float(yw @ y), float(np.count_nonzero(weights))
+    theta = np.array([start.gain, 0.0, start.offset])
+    information, cost, iterations = 0.0, float("inf"), 0
+    fisher = np.eye(4)
+    for iterations in range(1, settings.max_iterations + 1):
+        values, slopes = evaluator.evaluate(np.array([x - step, x, x + step]))
+        blur = 0.25 * (slopes[2] - slopes[0]) / step  # ½F″
+        blur_slope = 0.5 * (slopes[2] - 2.0 * slopes[1] + slopes[0]) / (step * step)  # ½F‴
+        design = np.stack((values[1], blur, np.ones(y.size)), axis=1)
+        weighted = design * weights[:, None]
+        normal, projected = weighted.T @ design, weighted.T @ y
+        held, held_projected = _with_prior(normal, projected, prior, theta[0])
+        try:
+            theta = np.linalg.solve(held, held_projected)
+        except np.linalg.LinAlgError:
+            break
+        cost = yy - 2.0 * float(projected @ theta) + float(theta @ normal @ theta)
+        jacobian = theta[0] * slopes[1] + theta[1] * blur_slope
+        dx, information, fisher = profiled_step(jacobian, weighted, weights, yw, theta, held, normal,
+                                                settings.max_step_mm)
+        x += dx
+        if abs(dx) < settings.tolerance_mm:
+            break
+    return _solution(x, theta, _own(normal, projected, theta), cost, information, fisher, n_used, iterations, start,
+                     settings, pixel_pitch_mm)
+
+
+@dataclass(frozen=True)
+class FocusPrior:
+    """What the last frames say about the focus (δ in mm² and its variance): a focus drifts slowly,
+    so a frame need not find it again on its own. It enters the frame's normal equations as one
+    more observation of the blur coefficient; the information on x is then the Schur complement
+    given it, close to the uniform light's once the prior is much tighter than one frame."""
+
+    delta_mm2: float
+    variance_mm4: float
+
+
+def _with_prior(normal: np.ndarray, projected: np.ndarray, prior: FocusPrior | None,
+                gain: float) -> tuple[np.ndarray, np.ndarray]:
+    """The normal equations of (g, h, o) with the prior on h = g·δ added (g at its last value)."""
+    if prior is None or not prior.variance_mm4 > 0.0:
+        return normal, projected
+    variance = gain * gain * prior.variance_mm4
+    held, held_projected = normal.copy(), projected.copy()
+    held[1, 1] += 1.0 / variance
+    held_projected[1] += gain * prior.delta_mm2 / variance
+    return held, held_projected
+
+
+def _own(normal: np.ndarray, projected: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+    """The frame's own (g, h, o) at the final x, without a prior: the independent estimate the
+    focus watch and the next frames' prior average."""
+    try:
+        return np.linalg.solve(normal, projected)
+    except np.linalg.LinAlgError:
+        return fallback
+
+
+def _solution(x: float, theta: np.ndarray, own: np.ndarray, cost: float, information: float, fisher: np.ndarray,
+              n_used: float, iterations: int, start: FrameSolution, settings: SolverSettings,
+              pixel_pitch_mm: float) -> FrameSolution:
+    """The frame's answer with the focus term: x, gain and offset as solved (``theta``); δ = h/g in
+    px² and its standard error from the frame's own estimate (``own``) and the Fisher matrix of
+    (x, g, h, o)."""
+    chi2 = max(cost, 0.0) / max(n_used - FOCUS_UNKNOWNS - 1, 1.0)
+    gain, offset = float(theta[0]), float(theta[2])
+    own_gain, blur = float(own[0]), float(own[1])
+    try:
+        blur_variance = float(np.linalg.inv(fisher)[2, 2])
+    except np.linalg.LinAlgError:
+        blur_variance = float("inf")
+    footprint = pixel_pitch_mm * pixel_pitch_mm
+    focus = blur / own_gain / footprint if own_gain else float("nan")
+    focus_sigma = math.sqrt(max(blur_variance, 0.0)) / abs(own_gain) / footprint if own_gain else float("nan")
+    return FrameSolution(x, settings.sigma_gray * math.sqrt(chi2), information, iterations, gain, offset, chi2,
+                         start.rejected, True, 0.0, cost, start.rejected_mask, start.rejected_weights_exact,
+                         focus=focus, focus_sigma=focus_sigma, focus_solved=True)

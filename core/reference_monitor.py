@@ -1,0 +1,527 @@
+"""Camera against grating while tracking: has the target's scale or offset moved since calibration?
+
+Calibration makes the camera agree with the stage's grating; a print that grows (paper in
+humidity), a camera that shifts on its mount or a stage re-homed elsewhere breaks that agreement
+as a straight line in position: ``camera − grating = offset + scale·(x − x_c)``. The image cannot
+see it (the model still fits every frame), the grating can. So whenever frames come with a grating
+reading, a weighted line is fitted to ``camera − grating`` over a sliding window of frames:
+
+- weights from each frame's bound (its Cramér–Rao bound, with the grating's quantisation added);
+- uncertainty from both the bounds and the observed scatter (the covariance is scaled up by the
+  window's χ² per degree of freedom when that exceeds 1), so a noisy grating or a vibration the
+  camera and the grating see differently widens the uncertainty instead of faking evidence;
+- the grating's rounding is fixed wherever the stage rests: it averages down with the number of
+  places read, not of frames (a stage resting at two places does not make a scale of it);
+- drift is measured from the calibration's own line: the calibration recording tracked by the
+  model it produced (:func:`record_calibration_line`, kept in the model's info as
+  ``reference_line``), with its uncertainty. A model need not agree with its grating exactly (a
+  closed-loop model on a rig with 3 % PRNU was
+  seen 220 ppm off its own calibration run); what changed since is the news.
+  Its structure along the stroke (a model's error is no straight line) is kept too
+  (``reference_structure_um``): a window seeing one stretch may find that much without any change.
+  A model without that line is compared with zero, its uncertainty taken from its K frames spread
+  over the stroke (std s): σ/√K for the offset, σ/(√K·s) for the scale (else one window's);
+- a weak prior on the scale (``prior_scale_ppm``) keeps the fit defined while the stage stands
+  still: then only the offset is observed, as it should be.
+
+A drift is flagged (``stale``) when it is beyond its uncertainty (χ² of offset and scale together, 2 dof,
+above ``z_on²``) and physically meaningful: the error it makes somewhere over the calibrated
+stroke exceeds ``floor_um`` and half a grating step (an offset below half a step cannot be told
+from the grating's own rounding while the stage stands still). The flag holds until the χ² falls
+below ``z_off²`` (hysteresis: a window sliding over a threshold does not flicker).
+
+The same estimate serves an online trim (:class:`Trimmer`): adopted only on evidence, logged,
+reversible; once adopted, drift is measured against the trim instead of the calibration. Its
+evidence is the flag's: a change since calibration beyond both uncertainties. A camera that
+disagrees with the grating only within what its calibration knew (a sweep of 63 frames knows the
+scale to ~60 ppm) is not trimmed: that is a calibration to repeat, not a drift to follow, and a
+window of frames resting at a few places (each with its own model error and grating rounding)
+would otherwise be taken for a line it is not.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+DEFAULT_WINDOW = 500  # frames in the sliding window
+MIN_FRAMES = 30  # frames before the window says anything
+Z_ON, Z_OFF = 5.0, 3.0  # drift significance (σ) to raise and to clear the flag
+FLOOR_UM = 0.2  # the smallest error over the stroke worth a flag (below a grating ruler's certified accuracy)
+PRIOR_SCALE_PPM = 1000.0  # standard deviation of the prior on the scale: unobservable while the stage rests
+GATE = 8.0  # a frame whose residual is beyond this many of its σ from the line is an outlier (not added)
+REFINE = 0.7  # a trim is refined when a later window knows its scale or offset this much better (σ ratio)
+UPDATE_EVERY = 4  # frames between fits and tests (every frame while flagged): a quarter of the cost, a few frames' lag
+RECOMPUTE_EVERY = 4096  # frames between exact re-sums of the window (bounds rounding drift)
+
+
+@dataclass(frozen=True)
+class Line:
+    """``camera − grating = offset + scale·(x − center)``, with its covariance.
+
+    Units: offset in µm, scale in ppm (µm per m, i.e. 1e-6), covariance ``(var_o, cov_os, var_s)``
+    in µm², µm·ppm and ppm².
+    """
+
+    offset_um: float = 0.0
+    scale_ppm: float = 0.0
+    covariance: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    center_mm: float = 0.0
+    frames: int = 0
+    mean_mm: float = float("nan")  # the weighted mean position of the frames it was fitted to
+
+    @property
+    def offset_sigma_um(self) -> float:
+        return math.sqrt(self.covariance[0])
+
+    @property
+    def scale_sigma_ppm(self) -> float:
+        return math.sqrt(self.covariance[2])
+
+    def at_um(self, x_mm: float | np.ndarray) -> float | np.ndarray:
+        """The line's value at position(s) ``x_mm`` (µm)."""
+        return self.offset_um + self.scale_ppm * 1e-3 * (np.asarray(x_mm) - self.center_mm)
+
+    def sigma_um(self, x_mm: float | np.ndarray) -> float | np.ndarray:
+        """Its standard error at ``x_mm`` (µm)."""
+        d = (np.asarray(x_mm) - self.center_mm) * 1e-3  # ppm·mm → µm
+        var_o, cov, var_s = self.covariance
+        return np.sqrt(np.maximum(var_o + 2 * d * cov + d * d * var_s, 0.0))
+
+    def describe(self) -> str:
+        """One line: the line's value where its frames were (the best-known point) and its scale."""
+        at = self.mean_mm if math.isfinite(self.mean_mm) else self.center_mm
+        return (f"camera - grating {float(self.at_um(at)):+.3f} +/- {float(self.sigma_um(at)):.3f} um around "
+                f"{at:.3f} mm, scale {self.scale_ppm:+.1f} +/- {self.scale_sigma_ppm:.1f} ppm, offset "
+                f"{self.offset_um:+.3f} +/- {self.offset_sigma_um:.3f} um at {self.center_mm:.3f} mm "
+                f"({self.frames} frames)")
+
+    @classmethod
+    def from_dict(cls, doc: dict) -> "Line":
+        """The inverse of :meth:`as_dict` (as kept in a model's info)."""
+        var_o, var_s = float(doc["offset_sigma_um"]) ** 2, float(doc["scale_sigma_ppm"]) ** 2
+        return cls(float(doc["offset_um"]), float(doc["scale_ppm"]), (var_o, float(doc.get("covariance", 0.0)), var_s),
+                   float(doc["center_mm"]), int(doc.get("frames", 0)), float(doc.get("mean_mm") or math.nan))
+
+    def as_dict(self) -> dict[str, float | int | None]:
+        """Its figures, and its value where its frames were (``at_mean_um``: what a resting stage shows)."""
+        known = math.isfinite(self.mean_mm)
+        return {"offset_um": self.offset_um, "offset_sigma_um": self.offset_sigma_um, "scale_ppm": self.scale_ppm,
+                "scale_sigma_ppm": self.scale_sigma_ppm, "covariance": self.covariance[1],
+                "center_mm": self.center_mm, "frames": self.frames,
+                "mean_mm": self.mean_mm if known else None,
+                "at_mean_um": float(self.at_um(self.mean_mm)) if known else None,
+                "at_mean_sigma_um": float(self.sigma_um(self.mean_mm)) if known else None}
+
+
+@dataclass
+class ReferenceMonitor:
+    """The sliding-window line of camera − grating and the drift test against the current reference
+    line (zero, the calibration's, until a trim is adopted). Pure numerics; O(1) per frame."""
+
+    center_mm: float
+    half_stroke_mm: float
+    window: int = DEFAULT_WINDOW
+    reference_sigma_mm: float = 0.0  # the grating's own noise per reading (quantisation: step/√12)
+    resolution_mm: float = 0.0  # the grating's step (the offset floor is half of it)
+    floor_um: float = FLOOR_UM
+    z_on: float = Z_ON
+    z_off: float = Z_OFF
+    min_frames: int = MIN_FRAMES
+    prior_scale_ppm: float = PRIOR_SCALE_PPM
+    calibration_frames: int = 0  # frames the calibration had (0: unknown, taken as one window's)
+    calibration_x_std_mm: float = 0.0  # the spread of their positions
+    calibration: Line | None = None  # the calibration run's own line (None: zero, see above)
+    calibration_structure_um: float = 0.0  # rms of the calibration run's camera − grating about that line, in stretches
+    baseline: Line | None = None  # the trim in force, which drift is then measured against
+    stale: bool = False
+    significance: float = 0.0  # χ² (2 dof) of the latest drift against its uncertainty and the reference line's
+    estimate: Line | None = None  # the window's line, once it has min_frames
+    # Per frame in plain floats (numpy's per-call cost would dominate a six-number update at 1 kHz)
+    _rows: list[tuple[float, float, float, float]] = field(init=False, repr=False)  # ring: (w, d, r, new place)
+    _sums: list[float] = field(init=False, repr=False)  # Σw, Σwd, Σwd², Σwr, Σwrd, Σwr²
+    _count: int = field(default=0, init=False)
+    _next: int = field(default=0, init=False)
+    _since_recompute: int = field(default=0, init=False)
+    _outliers: int = field(default=0, init=False)
+    _places: float = field(default=0.0, init=False)  # frames in the window read at a new grating value
+    _fed: int = field(default=0, init=False)  # frames added since the start
+    _scatter: float = field(default=1.0, init=False)  # the last fit's χ² per dof (at least 1)
+    _last_reference: float = field(default=math.nan, init=False)
+
+    def __post_init__(self) -> None:
+        if self.window < max(self.min_frames, 3):
+            raise ValueError(f"window must hold at least {max(self.min_frames, 3)} frames, got {self.window}")
+        self._rows = [(0.0, 0.0, 0.0, 0.0)] * self.window
+        self._sums = [0.0] * 6
+
+    @classmethod
+    def for_model(cls, model, reference_resolution_mm: float = 0.0, **options) -> "ReferenceMonitor":
+        """A monitor about the centre of ``model``'s calibrated stroke (``stroke_range_mm``), its
+        floor judged over that stroke; ``reference_resolution_mm``: the grating's step, if known."""
+        lo, hi = model.stroke_range_mm
+        step = max(float(reference_resolution_mm), 0.0)
+        info = getattr(model, "info", {}) or {}
+        options.setdefault("calibration_frames", int(info.get("calibration_frames", 0)))
+        options.setdefault("calibration_x_std_mm", float(info.get("calibration_x_std_mm", 0.0)))
+        if isinstance(info.get("reference_line"), dict):
+            options.setdefault("calibration", Line.from_dict(info["reference_line"]))
+            options.setdefault("calibration_structure_um", float(info.get("reference_structure_um") or 0.0))
+        return cls(0.5 * (lo + hi), 0.5 * (hi - lo), reference_sigma_mm=step / math.sqrt(12.0), resolution_mm=step,
+                   **options)
+
+    @property
+    def frames(self) -> int:
+        return self._count
+
+    def reset(self) -> None:
+        """Forget the window (a new model: the line starts again from its calibration)."""
+        self._rows = [(0.0, 0.0, 0.0, 0.0)] * self.window
+        self._sums = [0.0] * 6
+        self._places, self._last_reference, self._scatter = 0.0, math.nan, 1.0
+        self._count = self._next = self._since_recompute = self._outliers = 0
+        self.estimate, self.stale, self.significance, self.baseline = None, False, 0.0, None
+
+    def observe(self, x_mm: float, reference_mm: float, bound_mm: float) -> bool:
+        """Add one frame (the camera's untrimmed position, the grating at the same instant, the
+        frame's bound); returns whether the drift is flagged. Frames missing any of the three are skipped."""
+        if not (math.isfinite(x_mm) and math.isfinite(reference_mm) and math.isfinite(bound_mm) and bound_mm > 0):
+            return self.stale
+        d = reference_mm - self.center_mm
+        r = (x_mm - reference_mm) * 1e3
+        var = (bound_mm * bound_mm + self.reference_sigma_mm * self.reference_sigma_mm) * 1e6
+        if self._is_outlier(d, r, var):
+            return self.stale
+        new_place = not abs(reference_mm - self._last_reference) < max(self.resolution_mm, 1e-12)
+        self._last_reference = reference_mm
+        self._add(1.0 / var, d, r, float(new_place))
+        self._fed += 1
+        if self._fed % UPDATE_EVERY == 0 or self._count == self.min_frames or self.stale:
+            self._update()
+        return self.stale
+
+    def _is_outlier(self, d: float, r: float, var: float) -> bool:
+        """A frame far off the window's line (a glint, a lost period): left out, unless a run of them
+        says the line itself jumped (a camera knocked, a stage re-homed): then the window restarts."""
+        line = self.estimate
+        if line is None:
+            return False
+        scatter = self._scatter
+        dd = d * 1e-3  # ppm·mm → µm
+        var_o, cov, var_s = line.covariance
+        spread = var * scatter + var_o + 2 * dd * cov + dd * dd * var_s
+        if (r - line.offset_um - line.scale_ppm * dd) ** 2 <= GATE * GATE * spread:
+            self._outliers = 0
+            return False
+        self._outliers += 1
+        if self._outliers < max(self.min_frames // 2, 3):
+            return True
+        baseline, stale = self.baseline, self.stale
+        self.reset()  # a jump: the old window no longer describes the line
+        self.baseline, self.stale = baseline, stale
+        return False
+
+    def _add(self, w: float, d: float, r: float, new_place: float) -> None:
+        slot = self._next
+        sums = self._sums
+        wd, wr = w * d, w * r
+        if self._count == self.window:  # the oldest frame leaves as this one comes in
+            ow, od, o_r, o_place = self._rows[slot]
+            owd, owr = ow * od, ow * o_r
+            sums[0] += w - ow
+            sums[1] += wd - owd
+            sums[2] += wd * d - owd * od
+            sums[3] += wr - owr
+            sums[4] += wr * d - owr * od
+            sums[5] += wr * r - owr * o_r
+            self._places += new_place - o_place
+        else:
+            self._count += 1
+            sums[0] += w
+            sums[1] += wd
+            sums[2] += wd * d
+            sums[3] += wr
+            sums[4] += wr * d
+            sums[5] += wr * r
+            self._places += new_place
+        self._rows[slot] = (w, d, r, new_place)
+        self._next = (slot + 1) % self.window
+        self._since_recompute += 1
+        if self._since_recompute >= RECOMPUTE_EVERY:
+            rows = np.array(self._rows[: self._count] if self._count < self.window else self._rows)
+            self._sums = [float(v) for v in _terms(rows[:, 0], rows[:, 1], rows[:, 2], total=True)]
+            self._places = float(rows[:, 3].sum())
+            self._since_recompute = 0
+
+    def _update(self) -> None:
+        if self._count < self.min_frames:
+            return
+        line = self._fit()
+        self.estimate = line
+        base = self.baseline or self.calibration
+        do = line.offset_um - (base.offset_um if base else 0.0)
+        ds = line.scale_ppm - (base.scale_ppm if base else 0.0)
+        meaningful = abs(do) + abs(ds) * 1e-3 * self.half_stroke_mm >= max(self.floor_um, 0.5 * self.resolution_mm * 1e3)
+        reference = base.covariance if base is not None else self._calibration_covariance(line)
+        self.significance = _chi2(do, ds, line.covariance, _plus(reference, self._structure_covariance()))
+        self.stale = meaningful and self.significance >= (self.z_off if self.stale else self.z_on) ** 2
+
+    def _fit(self) -> Line:
+        """The weighted line with the scale's prior, its covariance scaled by the observed scatter."""
+        sw, swd, swdd, swr, swrd, _ = self._sums
+        prior = self._prior_weight()
+        base_scale = (self.baseline.scale_ppm if self.baseline else 0.0) * 1e-3  # µm/mm
+        # normal equations in (offset µm, scale µm/mm)
+        n11, n12, n22 = sw, swd, swdd + prior
+        r1, r2 = swr, swrd + prior * base_scale
+        det = n11 * n22 - n12 * n12
+        offset = (n22 * r1 - n12 * r2) / det
+        slope = (n11 * r2 - n12 * r1) / det
+        self._scatter = max(self._chi2_per_dof(offset, slope), 1.0)
+        inflate = self._scatter / det
+        var_o, cov, var_s = self._rounding_covariance()
+        return Line(offset, slope * 1e3, (n22 * inflate + var_o, (-n12 * inflate + cov) * 1e3,
+                                          (n11 * inflate + var_s) * 1e6), self.center_mm, self._count,
+                    self.center_mm + swd / sw)
+
+    def _rounding_covariance(self) -> tuple[float, float, float]:
+        """The grating's rounding, fixed wherever the stage rests: independent only between the
+        places the window was read at, so it averages down with their number, not the frames'.
+        In (µm², µm²/mm, µm²/mm²) about the centre."""
+        sigma2 = (self.reference_sigma_mm * 1e3) ** 2
+        if sigma2 == 0.0:
+            return 0.0, 0.0, 0.0
+        sw, swd, swdd = self._sums[0], self._sums[1], self._sums[2]
+        places = max(self._places, 1.0)
+        mean = swd / sw
+        spread2 = max(swdd / sw - mean * mean, 0.0)
+        var_s = sigma2 / (places * spread2) if spread2 > 0 else math.inf
+        var_s = min(var_s, 1.0 / self._prior_weight())
+        return sigma2 / places + mean * mean * var_s, -mean * var_s, var_s
+
+    def _structure_covariance(self) -> tuple[float, float, float]:
+        """The model's own structure along the stroke (``calibration_structure_um``): a window over a
+        stretch of half-span h may see the line off by that much, and its slope by that over h."""
+        sigma2 = self.calibration_structure_um ** 2
+        if sigma2 == 0.0:
+            return 0.0, 0.0, 0.0
+        sw, swd, swdd = self._sums[0], self._sums[1], self._sums[2]
+        half2 = 3.0 * max(swdd / sw - (swd / sw) ** 2, 0.0)  # (half-span)² of an even spread with that variance
+        var_s = min(sigma2 / half2 if half2 > 0 else math.inf, 1.0 / self._prior_weight())  # (µm/mm)²
+        return sigma2, 0.0, var_s * 1e6
+
+    def _calibration_covariance(self, line: Line) -> tuple[float, float, float]:
+        """The calibration's line, known from its frames with the bound the window's frames have."""
+        k, spread = self.calibration_frames, self.calibration_x_std_mm
+        if k < 3 or not spread > 0:
+            return line.covariance
+        sw = self._sums[0]
+        var = self._count / sw * max(self._chi2_per_dof(line.offset_um, line.scale_ppm * 1e-3), 1.0)  # µm², per frame
+        return var / k, 0.0, var / (k * spread * spread) * 1e6
+
+    def _prior_weight(self) -> float:
+        return 1.0 / (self.prior_scale_ppm * 1e-3) ** 2  # in (µm/mm)⁻²
+
+    def _chi2_per_dof(self, a: float, b: float) -> float:
+        """The window's weighted χ² per degree of freedom about the line ``a + b·d`` (µm, µm/mm)."""
+        sw, swd, swdd, swr, swrd, swrr = self._sums
+        chi2 = swrr - 2 * a * swr - 2 * b * swrd + a * a * sw + 2 * a * b * swd + b * b * swdd
+        return max(chi2, 0.0) / max(self._count - 2, 1)
+
+
+def _plus(a: tuple[float, float, float], b: tuple[float, float, float]) -> tuple[float, float, float]:
+    return a[0] + b[0], a[1] + b[1], a[2] + b[2]
+
+
+def _chi2(do: float, ds: float, cov: tuple[float, float, float], other: tuple[float, float, float]) -> float:
+    """χ² of the difference (offset µm, scale ppm) under the sum of two covariances."""
+    a, b, c = cov[0] + other[0], cov[1] + other[1], cov[2] + other[2]
+    det = a * c - b * b
+    return (c * do * do - 2 * b * do * ds + a * ds * ds) / det if det > 0 else 0.0
+
+
+def _terms(w, d, r, total: bool = False):
+    """w, wd, wd², wr, wrd, wr² of one frame (floats), or their sums over many (arrays, ``total``)."""
+    terms = (w, w * d, w * d * d, w * r, w * r * d, w * r * r)
+    return tuple(t.sum() for t in terms) if total else terms
+
+
+def drift_message(monitor: ReferenceMonitor) -> str:
+    """The sentence for a raised flag: how far, how sure, against what."""
+    against = "the trim in force" if monitor.baseline is not None else "calibration"
+    line = monitor.estimate
+    return f"camera against grating drifted from {against} ({monitor.significance ** 0.5:.1f} sigma): " + (
+        line.describe() if line is not None else "")
+
+
+@dataclass(frozen=True)
+class TrimEvent:
+    """A change of the trim: ``kind`` is ``trim_applied`` or ``trim_cleared``."""
+
+    kind: str
+    message: str
+    line: Line | None
+
+
+@dataclass
+class Trimmer:
+    """An online scale/offset trim on the monitor's evidence: ``x' = x − (offset + scale·(x − x_c))``.
+
+    Adopted only when the monitor flags a drift (never without evidence), refined when a later
+    window knows the line clearly better (its scale or offset σ below :data:`REFINE` of the
+    trim's: a first trim taken on a short stretch of the stroke is improved as the stage moves
+    on, in a few logged steps rather than every frame), and cleared on
+    request (a new calibration clears it too). ``step`` applies the trim in force to a position and
+    gives the trim's own standard error there, to be added in quadrature to the frame's bound.
+    """
+
+    monitor: ReferenceMonitor
+    trim: Line | None = None
+
+    def observe(self, x_mm: float, reference_mm: float, bound_mm: float) -> TrimEvent | None:
+        """Feed one frame to the monitor and adopt or refine the trim; the event when it changed."""
+        self.monitor.observe(x_mm, reference_mm, bound_mm)
+        return self.consider()
+
+    def consider(self) -> TrimEvent | None:
+        """Adopt the monitor's line when it is evidence (or a clearly better estimate of the trim)."""
+        line, monitor = self.monitor.estimate, self.monitor
+        if line is None:
+            return None
+        if monitor.stale:
+            against = "the trim in force" if self.trim is not None else "calibration"
+            return self._adopt(line, f"drifted from {against} by {monitor.significance ** 0.5:.1f} sigma")
+        trim = self.trim
+        if trim is not None and line.frames >= monitor.min_frames and (
+                line.scale_sigma_ppm < REFINE * trim.scale_sigma_ppm or line.offset_sigma_um < REFINE * trim.offset_sigma_um):
+            return self._adopt(line, "refined: a window that knows the line better")
+        return None
+
+    def _adopt(self, line: Line, why: str) -> TrimEvent:
+        self.trim = line
+        self.monitor.baseline = line
+        self.monitor.stale = False
+        self.monitor.significance = 0.0
+        return TrimEvent("trim_applied", f"trim applied ({why}): {line.describe()}", line)
+
+    def clear(self, why: str = "on request") -> TrimEvent | None:
+        """Drop the trim and measure drift against the calibration again, on a fresh window (else the
+        evidence of the frames before would re-adopt it at once)."""
+        if self.trim is None:
+            return None
+        self.trim = None
+        self.monitor.reset()  # fresh evidence for any new trim, not the frames the old one came from
+        return TrimEvent("trim_cleared", f"trim cleared ({why})", None)
+
+    def step(self, x_mm: float) -> tuple[float, float]:
+        """(the trimmed position in mm, the trim's standard error there in mm); no trim: (x, 0)."""
+        trim = self.trim
+        if trim is None or not math.isfinite(x_mm):
+            return x_mm, 0.0
+        return x_mm - float(trim.at_um(x_mm)) * 1e-3, float(trim.sigma_um(x_mm)) * 1e-3
+
+
+@dataclass
+class Followed:
+    """A recording followed frame by frame (what the daemon would have done live)."""
+
+    stale: np.ndarray  # the drift was flagged at this frame
+    x_mm: np.ndarray  # positions, trimmed when a trim was in force
+    trim_um: np.ndarray  # the correction applied (x − x'), µm; 0 without a trim
+    trim_sigma_um: np.ndarray  # its standard error, µm
+    events: list[tuple[int, TrimEvent | str]]  # (frame, a trim event or a flag message)
+    final: Line | None  # the window's last line
+
+
+def follow(monitor: ReferenceMonitor, x_mm: np.ndarray, reference_mm: np.ndarray, bound_mm: np.ndarray,
+           usable: np.ndarray | None = None, trim: bool = False) -> Followed:
+    """Run the monitor (and with ``trim`` the trimmer) causally over a tracked recording.
+
+    ``usable`` (default: all) marks the frames whose position can be trusted (locked); the others
+    are not fed, and are trimmed with the trim in force. Frame k's flag and trim use frames ≤ k only.
+    """
+    n = len(x_mm)
+    usable = np.ones(n, dtype=bool) if usable is None else np.asarray(usable, dtype=bool)
+    trimmer = Trimmer(monitor)
+    stale = np.zeros(n, dtype=bool)
+    out, corr, sigma = np.array(x_mm, dtype=np.float64), np.zeros(n), np.zeros(n)
+    events: list[tuple[int, TrimEvent | str]] = []
+    was = False
+    for k in range(n):
+        x, ref, bound = float(x_mm[k]), float(reference_mm[k]), float(bound_mm[k])
+        if usable[k]:
+            monitor.observe(x, ref, bound)
+        flagged = monitor.stale
+        if flagged and not was:
+            line = monitor.estimate
+            events.append((k, drift_message(monitor)))
+        was = flagged
+        stale[k] = flagged
+        if trim:
+            event = trimmer.consider()
+            if event is not None:
+                events.append((k, event))
+                was = monitor.stale
+            out[k], s = trimmer.step(x)
+            corr[k], sigma[k] = (x - out[k]) * 1e3, s * 1e3
+    return Followed(stale, out, corr, sigma, events, monitor.estimate)
+
+
+def scale_tells(model) -> bool:
+    """Whether camera − grating can say anything about the scale for this model: not for a model
+    that errs beyond its bound on its own calibration frames (core/adequacy.py): its positions are
+    off by its own structure, which a window's line would take for a drift, and they are flagged
+    for ``geometry`` already."""
+    from graytrack.core.adequacy import INADEQUATE_RATIO
+
+    ratio = (getattr(model, "info", None) or {}).get("calibration_error_ratio")
+    return ratio is None or not ratio > INADEQUATE_RATIO
+
+
+def record_calibration_line(model, recording) -> Line | None:
+    """Track the calibration ``recording`` with the ``model`` fitted to it, as tracking will, and keep
+    the line camera − grating in ``model.info["reference_line"]``: the agreement drift is measured
+    from. None (and nothing kept) when the recording has no grating reading or too few frames."""
+    from graytrack.core.noise import reference_resolution_mm
+    from graytrack.core.tracking import track
+
+    reference = np.asarray(recording.reference, dtype=np.float64)
+    if np.isfinite(reference).sum() < MIN_FRAMES:
+        return None
+    result = track(model, recording, light="auto", robust=True)
+    step = float(recording.meta.get("grating_resolution_mm", 0.0) or 0.0) or reference_resolution_mm(reference)
+    lo, hi = model.stroke_range_mm
+    monitor = ReferenceMonitor(0.5 * (lo + hi), 0.5 * (hi - lo), window=max(reference.size, MIN_FRAMES),
+                               reference_sigma_mm=step / math.sqrt(12.0), resolution_mm=step)
+    for x, ref, bound, locked in zip(result.x_mm.tolist(), reference.tolist(), result.crlb_mm.tolist(),
+                                     result.locked.tolist()):
+        if locked:
+            monitor.observe(x, ref, bound)
+    if monitor.frames >= MIN_FRAMES:
+        monitor._update()  # the fit of every frame (observe fits every few)
+    line = monitor.estimate
+    if line is not None:
+        model.info["reference_line"] = line.as_dict()
+        usable = result.locked & np.isfinite(result.x_mm) & np.isfinite(reference)
+        model.info["reference_structure_um"] = round(structure_um(
+            reference[usable], (result.x_mm[usable] - reference[usable]) * 1e3 - line.at_um(reference[usable]),
+            result.crlb_mm[usable] * 1e3), 4)
+    return line
+
+
+def structure_um(x_mm: np.ndarray, residual_um: np.ndarray, bound_um: np.ndarray, bins: int = 16) -> float:
+    """The rms of camera − grating about its line, in stretches of the stroke, beyond the frames'
+    noise: what a window seeing only one stretch may find off the line without anything having
+    changed (a model's own error along the stroke is not a straight line)."""
+    if x_mm.size < 2 * bins:
+        return 0.0
+    edges = np.linspace(x_mm.min(), x_mm.max() + 1e-12, bins + 1)
+    which = np.clip(np.searchsorted(edges, x_mm, side="right") - 1, 0, bins - 1)
+    excess = []
+    for b in range(bins):
+        r, noise = residual_um[which == b], bound_um[which == b]
+        if r.size >= 3:
+            excess.append(r.mean() ** 2 - np.mean(noise ** 2) / r.size)
+    return float(math.sqrt(max(np.mean(excess), 0.0))) if excess else 0.0

@@ -1,0 +1,124 @@
+"""Is the model still the right one? Watches that look past χ², each naming a family of causes.
+
+χ² alone is blind when a per-frame nuisance absorbs a change: a light field solved across the
+line can mimic a blur, a robust solve can hide a growing defect. So besides the running χ², the
+monitor watches what the nuisances cost and how far they moved (the frame's bound against the
+calibration's, the light gain, a focus term, the pixels set aside, transients, the camera against
+the grating). Each watch answers in its own family, so a stale flag always comes with a reason a
+person can act on: ``light``, ``focus``, ``pixels``, ``transients``, ``scale`` or ``geometry``.
+
+A watch is one small class with ``observe(sign) -> family | None`` in a module of
+``core/watches/`` that defines ``make(tracker) -> Watch | None``: the monitor finds them by name,
+so a new watch is one module. Every frame the monitor asks each watch; the model is stale while
+any of them blames a family, with the first such family (in the order of :data:`FAMILIES`, from
+the most to the least specific cause) as its reason.
+"""
+
+from __future__ import annotations
+
+import importlib
+import math
+import pkgutil
+from dataclasses import dataclass, field
+from typing import Any, Callable, Protocol
+
+FAMILIES = ("transients", "pixels", "light", "focus", "scale", "geometry")
+RANK = {family: rank for rank, family in enumerate(FAMILIES)}
+
+# What to do about each family of causes, one line each (the CLI, the daemon's events and page).
+ADVICE = {
+    "transients": "glints or passing dust keep hitting the line: shade the target or move the ROI",
+    "pixels": "pixels went bad since calibration: recalibrate (the new calibration masks them)",
+    "light": "the light changed beyond what the model can follow at its precision: fix the light or recalibrate",
+    "focus": "the focus moved since calibration: check the lens and its mount, then recalibrate",
+    "scale": "the target's scale against the grating drifted (paper growth, temperature): recalibrate",
+    "geometry": "the images are no longer what the model describes: recalibrate "
+                "(graytrack diagnose names the cause)",
+}
+
+
+@dataclass(slots=True)
+class FrameSign:
+    """What one frame's solve tells the monitor beyond its position (NaN/None: not known)."""
+
+    frame: int
+    chi2: float = float("nan")  # weighted residual per used sample against the noise model
+    information: float = float("nan")  # the frame's Fisher information on x (1/mm²), as solved
+    information_calibrated: float = float("nan")  # the same at x with the calibrated light and all samples
+    gain: float = 1.0  # the light relative to calibration
+    offset_gray: float = 0.0
+    focus: float = 0.0  # change in blur variance since calibration (px²), when a focus term was solved
+    focus_sigma: float = float("nan")  # its standard error
+    rejected_px: int = 0  # samples set aside by the robust solve (bad pixels)
+    transient_px: int = 0  # samples set aside as a compact transient (a glint, passing dust)
+    transient_at: float = float("nan")  # mean pixel (column) of those samples: a blob that stays put is no transient
+    x_mm: float = float("nan")
+    reference_mm: float = float("nan")  # the grating at the same instant, when read
+    placed: bool = True
+    rows_averaged: int = 1  # raw rows behind each model row (information scales with it)
+    free_light: bool = False  # the light's gain and offset were solved with x
+    field: bool = False  # a light field across the line was solved with x
+    chi2_average: float = float("nan")  # the tracker's running χ² (its light control reads it too)
+    chi2_suspect: bool = False  # the running χ² is beyond its own spread above calibration's level
+    chi2_stale: bool = False  # ... and beyond the stale limit
+    # What the frame's residual looks like, computed only when a watch asks (it costs an evaluation):
+    # the share of its excess χ² each family's shapes explain (see core/watches/attribution.py).
+    explain: Callable[[], dict[str, Any]] | None = None
+
+
+class Watch(Protocol):
+    """One look at the model's validity; keeps its own running state."""
+
+    family: str
+    # A verdict on the model itself (refused or inadequate at calibration) outranks whatever a
+    # frame's nuisances suggest: those only describe how a wrong model fails on this frame.
+    decisive: bool = False
+
+    def observe(self, sign: FrameSign) -> str | None:
+        """The family this watch blames now (None: nothing to say)."""
+
+
+@dataclass
+class Verdict:
+    stale: bool = False
+    reason: str | None = None
+
+
+@dataclass
+class Monitor:
+    """Every watch, asked once per frame; the verdict is stale while any watch blames a family."""
+
+    watches: list[Watch] = field(default_factory=list)
+    verdict: Verdict = field(default_factory=Verdict)
+
+    def observe(self, sign: FrameSign) -> Verdict:
+        reason, rank = None, len(FAMILIES)
+        for watch in self.watches:  # every watch, every frame: each keeps its own running state
+            family = watch.observe(sign)
+            if family is not None and (RANK[family] < rank or getattr(watch, "decisive", False)):
+                reason, rank = family, -1 if getattr(watch, "decisive", False) else RANK[family]
+        if reason != self.verdict.reason:
+            self.verdict = Verdict(reason is not None, reason)
+        return self.verdict
+
+
+def monitor_for(tracker: Any) -> Monitor:
+    """A monitor with every watch of ``core/watches/`` that applies to ``tracker``'s model."""
+    from graytrack.core import watches  # the watches read the tracker's model: imported on use
+
+    made = []
+    for info in pkgutil.iter_modules(watches.__path__):
+        if info.name.startswith("_"):
+            continue
+        module = importlib.import_module(f"{watches.__name__}.{info.name}")
+        make = getattr(module, "make", None)
+        if make is not None and (watch := make(tracker)) is not None:
+            made.append(watch)
+    return Monitor(made)
+
+
+def running(average: float | None, value: float, window: int) -> float:
+    """An exponential average over about ``window`` samples (the first value starts it)."""
+    if average is None or not math.isfinite(average):
+        return value
+    return average + (value - average) / window

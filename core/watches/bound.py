@@ -1,0 +1,77 @@
+"""What the nuisances cost: the frame's bound against the calibration's at the same position.
+
+A per-frame nuisance (the light, a light field, a focus term, samples set aside) can absorb a
+change so well that χ² stays at its calibration level, while the frame carries less information
+about x than the calibrated model would give it there: that loss is the price of the nuisance and
+the evidence χ² cannot see. Information lost only to a uniform dimming of the light is the
+light's own (the signal is smaller) and is left to the light watch; beyond that, a sustained loss
+to less than half (a bound √2 worse) is flagged, blamed on the nuisance that was working. Only
+while χ² is at its calibration level: once χ² sees the change, the χ² watch, which reads the
+residual's shape, is the better judge of its cause.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from graytrack.core.validity import FrameSign, running
+
+WINDOW = 100  # frames
+KEPT_LIMIT = 0.5  # information kept, averaged over the window, below which the model is stale
+SUSPECT = 0.8  # above this the nuisances cost little: which one works is not followed
+GRID_PER_PERIOD = 64
+
+
+class BoundWatch:
+    family = "light"
+
+    def __init__(self, grid_start: float, grid_step: float, information: np.ndarray):
+        self.start, self.step, self.table = grid_start, grid_step, information.tolist()
+        self.kept: float | None = None
+        self.blame: dict[str, float] = {}
+
+    def calibrated(self, x_mm: float) -> float:
+        """Information per model row on x at ``x_mm`` with the calibrated light and every sample."""
+        position = (x_mm - self.start) / self.step
+        index = min(max(int(position), 0), len(self.table) - 2)
+        fraction = min(max(position - index, 0.0), 1.0)
+        return self.table[index] + fraction * (self.table[index + 1] - self.table[index])
+
+    def observe(self, sign: FrameSign) -> str | None:
+        if not (sign.placed and math.isfinite(sign.information) and math.isfinite(sign.x_mm)):
+            return None
+        reference = self.calibrated(sign.x_mm) * sign.rows_averaged
+        if reference <= 0:
+            return None
+        light = sign.gain * sign.gain if sign.free_light else 1.0
+        kept = min(sign.information / (reference * light), 2.0)
+        self.kept = running(self.kept, kept, WINDOW)
+        if self.kept > SUSPECT:  # the common case: nothing to blame, nothing to track
+            self.blame.clear()
+            return None
+        for family, working in (("transients", sign.transient_px > 0), ("pixels", sign.rejected_px > 0),
+                                ("focus", sign.focus != 0.0), ("light", sign.free_light or sign.field)):
+            self.blame[family] = running(self.blame.get(family), float(working), WINDOW)
+        if self.kept >= KEPT_LIMIT or sign.chi2_suspect:
+            return None  # holding; or χ² sees the change itself, and its watch reads the residual's shape
+        family, share = max(self.blame.items(), key=lambda item: item[1])
+        return family if share > 0.1 else "geometry"
+
+
+def make(tracker) -> BoundWatch | None:
+    model = tracker.model
+    lo, hi = model.stroke_range_mm
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        return None
+    step = model.period_mm / GRID_PER_PERIOD
+    grid = np.arange(lo - model.period_mm, hi + model.period_mm + step, step)
+    values, slopes = tracker.evaluator.evaluate(grid)
+    if tracker.signal_dependent:
+        weights = model.inverse_variance(values.reshape((grid.size,) + (model.n_rows, model.n_pixels)))
+        weights = weights.reshape(grid.size, -1)
+    else:
+        weights = tracker.static_weights
+    information = np.sum(weights * slopes * slopes, axis=1)
+    return BoundWatch(float(grid[0]), step, information)

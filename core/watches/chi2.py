@@ -1,0 +1,63 @@
+"""The running χ² against calibration's level: the images have left what the model describes.
+
+χ² says *that* the model no longer fits, not why; while the running χ² is above its own spread
+the watch asks each frame's residual which family's shapes it has (core/attribution.py) and names
+the family that explains most of it on average. Samples that carry the residual from frame to
+frame at the same places are ``pixels``; ones that move (a glint riding on the print, passing
+dust) are ``transients``.
+"""
+
+from __future__ import annotations
+
+from graytrack.core.attribution import Consistency, named
+from graytrack.core.validity import FrameSign, running
+
+WINDOW = 20  # frames over which the shares are averaged
+# frames over which the coefficients must hold still: a mimicry's coefficients turn with the
+# print's phase and its noise, a light's stay put (a stage at rest cannot tell them apart, and the
+# light, the commoner cause, keeps its credit). Longer windows let a slow sweep's mimicry pass.
+STILL_WINDOW = 20
+EXPLAIN_EVERY = 5  # once stale, the residual is looked at every this many frames (it costs an evaluation)
+
+
+class ChiSquareWatch:
+    family = "geometry"
+
+    def __init__(self) -> None:
+        self.shares: dict[str, float] = {}
+        self.persistence: float | None = None  # overlap of the largest samples with the last frame's
+        self._top: set[int] | None = None
+        self._count = 0
+        self.consistency: dict[str, Consistency] = {}
+
+    def observe(self, sign: FrameSign) -> str | None:
+        if not sign.chi2_suspect:
+            self.shares, self.persistence, self._top, self._count, self.consistency = {}, None, None, 0, {}
+            return None
+        self._count += 1
+        if sign.explain is not None and (not sign.chi2_stale or self._count % EXPLAIN_EVERY == 0 or not self.shares):
+            self._learn(sign.explain())
+        if not sign.chi2_stale:
+            return None
+        family = named(self.shares)
+        if family == "pixels" and self.persistence is not None and self.persistence < 0.5:
+            return "transients"
+        return family
+
+    def _learn(self, found: dict) -> None:
+        for family, coefficients in found.get("coefficients", {}).items():
+            self.consistency.setdefault(family, Consistency(STILL_WINDOW)).add(coefficients)
+        for family, share in found.get("shares", {}).items():
+            still = self.consistency[family].value if family in self.consistency else 1.0
+            self.shares[family] = running(self.shares.get(family), share * still, WINDOW)
+        top = found.get("top")
+        if top is not None:
+            top = set(top)
+            if self._top is not None and top:
+                overlap = len(top & self._top) / len(top)
+                self.persistence = running(self.persistence, overlap, WINDOW)
+            self._top = top
+
+
+def make(tracker) -> ChiSquareWatch:
+    return ChiSquareWatch()

@@ -1,0 +1,111 @@
+"""The focus watch: has the blur moved away from the one the model was calibrated at?
+
+The tracker solves a change of focus δ (blur variance on the target, px²) when a frame's evidence
+asks for it, and keeps x at its bound with δ profiled out; χ² then stays at the calibration's
+level, so only δ itself can tell that the optics changed. One frame's δ is noisy (on a one-row
+line its standard error is about the size of a half-pixel blur change), so the watch takes the
+median of the last frames' estimates, each weighted by its precision, and blames ``focus`` while it is
+both many of its standard errors away from zero (not noise) and larger than a change that
+matters physically (not a statistically real but harmless drift on a long, precise run), and only
+while the estimates hold still and the focus explains the frames: a light changing shape or a
+print the model does not know also move the focus term a little, and are not a blur.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+
+from graytrack.core.validity import FrameSign
+
+FOCUS_WINDOW = 50  # frames of focus estimates averaged
+FOCUS_MIN_FRAMES = FOCUS_WINDOW  # estimates before the watch says anything: a sustained change
+FOCUS_Z = 5.0  # standard errors of the window's mean beyond zero: a real change
+# The window's location is its precision-weighted median (one wild frame, a glint or a lost lock,
+# moves it by nothing); its standard error is the mean's times √(π/2), the median's efficiency.
+MEDIAN_EFFICIENCY = math.sqrt(math.pi / 2.0)
+# A blur holds still from frame to frame: its estimates scatter about their median as their errors
+# say (χ²/dof ≈ 1). Another change the focus term only mimics (a light changing shape, a print the
+# model does not know) gives estimates that wander with x: beyond this the watch abstains.
+FOCUS_SCATTER_LIMIT = 3.0
+# ... and leaves the frames' χ² above the calibration's level even with the focus solved: beyond
+# five spreads of one frame's χ², the focus does not explain the frames and the watch abstains.
+FOCUS_FIT_SPREADS = 5.0
+# Half a pixel of blur σ added to a sharp image is a variance of 0.25 px²: a change below that is
+# within the smoothing the pixel's own footprint (variance 1/12 px²) and the print already do.
+FOCUS_MIN_CHANGE_PX2 = 0.25
+
+
+@dataclass
+class FocusWatch:
+    """``observe(sign) -> "focus" | None``: the window's precision-weighted median focus change is
+    beyond ``z`` of its standard errors and beyond ``min_change_px2`` outside the range the model
+    was calibrated over (``calibrated_px2``: a model calibrated with the focus effect saw the
+    focus move by that much and is right over it). Frames with no estimate (the focus term was
+    not needed) add nothing; after a whole window of them, the watch forgets."""
+
+    window: int = FOCUS_WINDOW
+    min_frames: int = FOCUS_MIN_FRAMES
+    z: float = FOCUS_Z
+    min_change_px2: float = FOCUS_MIN_CHANGE_PX2
+    calibrated_px2: tuple[float, float] = (0.0, 0.0)
+    chi2_limit: float = math.inf  # a frame's χ² (with the focus solved) beyond which it is not explained
+    family: str = "focus"
+    _estimates: deque = field(default_factory=deque)  # (δ, 1/σ²)
+    _missing: int = 0
+    change_px2: float = float("nan")  # the window's median change, as last judged
+    change_sigma_px2: float = float("nan")
+
+    def observe(self, sign: FrameSign) -> str | None:
+        sigma = sign.focus_sigma
+        if math.isfinite(sigma) and sigma > 0.0 and math.isfinite(sign.focus):
+            self._estimates.append((sign.focus, 1.0 / (sigma * sigma), sign.chi2))
+            if len(self._estimates) > self.window:
+                self._estimates.popleft()
+            self._missing = 0
+        else:
+            self._missing += 1
+            # the tracker's evidence took a light field over the focus: the estimates were mimicry
+            if self._missing >= self.window or sign.field:
+                self._estimates.clear()
+        if len(self._estimates) < self.min_frames:
+            self.change_px2 = self.change_sigma_px2 = float("nan")
+            return None
+        ordered = sorted(self._estimates)
+        precision = sum(p for _, p, _ in ordered)
+        half, running = 0.5 * precision, 0.0
+        for delta, p, _ in ordered:
+            running += p
+            if running >= half:
+                self.change_px2 = delta
+                break
+        self.change_sigma_px2 = MEDIAN_EFFICIENCY / math.sqrt(precision)
+        low, high = self.calibrated_px2
+        beyond = max(low - self.change_px2, self.change_px2 - high)
+        moved = abs(self.change_px2) > self.z * self.change_sigma_px2 and beyond > self.min_change_px2
+        return self.family if moved and self._a_blur() else None
+
+    def _a_blur(self) -> bool:
+        """The window's estimates hold still (scatter about their median as their errors say) and
+        the focus explains the frames (their median χ² within the limit)."""
+        n = len(self._estimates)
+        scatter = sum(p * (d - self.change_px2) ** 2 for d, p, _ in self._estimates) / max(n - 1, 1)
+        chi2 = sorted(c for _, _, c in self._estimates)[n // 2]
+        return scatter < FOCUS_SCATTER_LIMIT and not chi2 > self.chi2_limit
+
+    @classmethod
+    def for_model(cls, model, chi2_calibration: float = math.nan) -> "FocusWatch":
+        """The watch for a calibrated model: the range of focus its calibration saw, if it fitted
+        one, and the χ² its frames should come back to with the focus solved."""
+        seen = model.info.get("calibration_focus_range_px2")
+        limit = chi2_calibration * (1.0 + FOCUS_FIT_SPREADS * math.sqrt(2.0 / (model.n_rows * model.n_pixels)))
+        return cls(calibrated_px2=(float(seen[0]), float(seen[1])) if seen else (0.0, 0.0),
+                   chi2_limit=limit if math.isfinite(limit) else math.inf)
+
+
+def make(tracker) -> FocusWatch | None:
+    """The monitor's focus watch: only a tracker that solves a focus term has estimates to watch."""
+    if not getattr(tracker, "focus_capable", False):
+        return None
+    return FocusWatch.for_model(tracker.model, tracker.chi2_calibration)

@@ -1,0 +1,50 @@
+"""The camera against the grating, frame by frame: when both are read, their difference is the
+error the instrument makes, whatever the images look like. A model can fit every frame (χ² at its
+calibration level, the light re-solved each frame) and still place them tens of bounds off, when
+calibration absorbed something the run does not repeat (a camera's gain hunting during the sweep
+bent the model). The scale watch follows a drift that is a line along the stroke; this one the
+scatter: the windowed spread of camera − grating beyond ``LIMIT`` times the frames' own bound.
+It says nothing of the cause: it blames ``geometry`` (the model does not describe the rig), and a
+watch that reads the cause in the images names a more specific family over it.
+"""
+
+from __future__ import annotations
+
+import math
+
+from graytrack.core.validity import FrameSign, running
+
+WINDOW = 200  # frames: the spread's relative noise is √(2/200) = 10 %, its ratio's 5 %
+LIMIT = 2.2  # spread over bound beyond which the run is off (the 2× of the acceptance, plus that noise)
+SETTLE = 30  # frames with a grating reading before the spread is trusted (at 1.3x a run is then still far below LIMIT)
+
+
+class GratingWatch:
+    family = "geometry"
+
+    def __init__(self) -> None:
+        self.mean: float | None = None  # camera − grating, mm
+        self.square: float | None = None
+        self.bound2: float | None = None  # the frames' Cramér–Rao variance, mm²
+        self.count = 0
+
+    def observe(self, sign: FrameSign) -> str | None:
+        if sign.placed and math.isfinite(sign.reference_mm) and math.isfinite(sign.x_mm) and sign.information > 0:
+            difference = sign.x_mm - sign.reference_mm
+            self.count += 1
+            # a plain mean until the window is full, then the running one: the first readings do not
+            # outweigh the next hundred
+            window = min(self.count, WINDOW)
+            self.mean = running(self.mean, difference, window)
+            self.square = running(self.square, difference * difference, window)
+            self.bound2 = running(self.bound2, 1.0 / sign.information, window)
+        if self.count < SETTLE or not self.bound2:
+            return None
+        spread2 = max(self.square - self.mean * self.mean, 0.0)
+        if spread2 <= LIMIT * LIMIT * self.bound2:
+            return None
+        return self.family
+
+
+def make(tracker) -> GratingWatch:
+    return GratingWatch()

@@ -1,0 +1,56 @@
+"""The ``scale`` watch: the camera against the grating, when frames come with a grating reading.
+
+The model can fit every image perfectly while the target itself has grown or the camera has moved
+along the axis: only an outside ruler sees that. This watch feeds each frame's position, grating
+reading and bound to a :class:`~graytrack.core.reference_monitor.ReferenceMonitor` and blames
+``scale`` while the monitor finds the line camera − grating drifted beyond its uncertainty.
+
+With an online trim (the daemon's ``[daemon] trim``) the trim's owner drives its own monitor and
+hands the tracker a watch reading it (``tracker.scale_watch``): a frame is counted once, and drift
+is then measured against the trim in force.
+"""
+
+from __future__ import annotations
+
+import math
+
+from graytrack.core.reference_monitor import ReferenceMonitor, scale_tells
+from graytrack.core.validity import FrameSign
+
+
+class ScaleWatch:
+    """``observe(sign) -> "scale" | None`` from ``sign.x_mm``, ``sign.reference_mm``, ``sign.information``."""
+
+    family = "scale"
+
+    def __init__(self, monitor: ReferenceMonitor, feeds: bool = True) -> None:
+        self.monitor = monitor
+        self.feeds = feeds
+
+    @classmethod
+    def for_model(cls, model, reference_resolution_mm: float = 0.0, **options) -> "ScaleWatch":
+        """A watch centred on the model's calibrated stroke (its scale is measured about the centre,
+        its floor over the whole stroke); ``reference_resolution_mm``: the grating's step, if known."""
+        return cls(ReferenceMonitor.for_model(model, reference_resolution_mm, **options))
+
+    def observe(self, sign: FrameSign) -> str | None:
+        # While χ² says the images changed, a disagreement with the grating is its consequence, not a
+        # scale: those frames are not fed. But a disagreement already found stays a flag: the camera
+        # is off the grating and the images are not the calibration's, so the model does not describe
+        # the rig (geometry), even while χ² has not yet crossed its own stale limit.
+        if sign.chi2_suspect:
+            return "geometry" if self.monitor.stale else None
+        if self.feeds and sign.placed:
+            bound = 1.0 / math.sqrt(sign.information) if sign.information > 0 else float("nan")
+            self.monitor.observe(sign.x_mm, sign.reference_mm, bound)
+        return self.family if self.monitor.stale else None
+
+
+
+def make(tracker) -> "ScaleWatch | object | None":
+    """The tracker's scale watch: the one its owner handed it (``scale_watch``), else one of its own;
+    none for a model already off its bound on its own calibration (the adequacy watch has it)."""
+    if not scale_tells(tracker.model):
+        return None
+    shared = getattr(tracker, "scale_watch", None)
+    return shared if shared is not None else ScaleWatch.for_model(tracker.model)

@@ -1,0 +1,120 @@
+"""The camera-against-grating line: recovered with honest uncertainty, flagged only on evidence."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from graytrack.core.reference_monitor import ReferenceMonitor, Trimmer, follow
+from graytrack.core.validity import FrameSign, Monitor
+from graytrack.core.watches.scale import ScaleWatch
+
+BOUND_MM = 1.5e-3
+
+
+def _sweep(n: int, scale_ppm: float = 0.0, offset_um: float = 0.0, extra_um: float = 0.0, seed: int = 0,
+           still_at: float | None = None):
+    rng = np.random.default_rng(seed)
+    ref = np.full(n, still_at) if still_at is not None else np.linspace(0.0, 10.0, n)
+    err_um = offset_um + scale_ppm * 1e-3 * (ref - 5.0) + rng.normal(0, BOUND_MM * 1e3, n) + extra_um * rng.normal(size=n)
+    return ref + err_um * 1e-3, ref
+
+
+def _monitor(**options) -> ReferenceMonitor:
+    return ReferenceMonitor(5.0, 5.0, **options)
+
+
+def test_the_line_is_recovered_within_its_stated_uncertainty():
+    pulls = []
+    for seed in range(20):
+        x, ref = _sweep(500, scale_ppm=-250.0, offset_um=0.4, seed=seed)
+        monitor = _monitor()
+        for xi, ri in zip(x, ref):
+            monitor.observe(xi, ri, BOUND_MM)
+        line = monitor.estimate
+        pulls.append(((line.scale_ppm + 250.0) / line.scale_sigma_ppm, (line.offset_um - 0.4) / line.offset_sigma_um))
+        assert monitor.stale
+    pulls = np.array(pulls)
+    assert line.scale_sigma_ppm == pytest.approx(1.5 / (np.sqrt(500) * 10.0 / np.sqrt(12)) * 1e3, rel=0.1)
+    assert np.all(np.abs(pulls) < 4) and 0.5 < pulls.std() < 1.5
+
+
+def test_scatter_beyond_the_bounds_widens_the_uncertainty_instead_of_faking_evidence():
+    flagged = 0
+    for seed in range(20):  # the grating (or a vibration) adds 3 µm rms the bounds do not know
+        x, ref = _sweep(2000, extra_um=3.0, seed=seed)
+        monitor = _monitor()
+        flagged += sum(monitor.observe(xi, ri, BOUND_MM) for xi, ri in zip(x, ref))
+        assert monitor.estimate.scale_sigma_ppm > 2.0 * 1.5 / (np.sqrt(500) * 10.0 / np.sqrt(12)) * 1e3
+    assert flagged == 0
+
+
+def test_a_resting_stage_shows_the_offset_only_and_half_a_grating_step_is_no_evidence():
+    x, ref = _sweep(600, offset_um=0.2, still_at=2.0)
+    monitor = _monitor(resolution_mm=0.5e-3)
+    flags = [monitor.observe(xi, ri, BOUND_MM) for xi, ri in zip(x, ref)]
+    assert not any(flags)  # 0.2 µm, 4 σ of the mean here, is less than half the 0.5 µm step
+    assert abs(monitor.estimate.scale_ppm) < 5.0  # the prior holds the unobservable scale
+    x, ref = _sweep(600, offset_um=1.0, still_at=2.0)
+    monitor = _monitor(resolution_mm=0.5e-3)
+    assert any(monitor.observe(xi, ri, BOUND_MM) for xi, ri in zip(x, ref))
+
+
+def test_outliers_are_left_out_and_a_real_jump_restarts_the_window():
+    x, ref = _sweep(800, seed=2)
+    x[300:305] += 0.05  # a few frames 50 µm off (glints)
+    monitor = _monitor()
+    assert not any(monitor.observe(xi, ri, BOUND_MM) for xi, ri in zip(x, ref))
+    x, ref = _sweep(800, seed=3)
+    x[400:] += 0.02  # the camera knocked 20 µm along the axis
+    monitor = _monitor()
+    flags = [monitor.observe(xi, ri, BOUND_MM) for xi, ri in zip(x, ref)]
+    assert not any(flags[:400]) and any(flags[400:500]) and flags[-1]  # 25 outliers, then a fresh window
+
+
+def test_the_trim_waits_for_evidence_then_removes_the_drift_and_can_be_cleared():
+    x, ref = _sweep(1500, seed=4)
+    assert not follow(_monitor(), x, ref, np.full(x.size, BOUND_MM), trim=True).events
+    x, ref = _sweep(1500, scale_ppm=400.0, offset_um=-2.0, seed=5)
+    followed = follow(_monitor(), x, ref, np.full(x.size, BOUND_MM), trim=True)
+    first = followed.events[0][0]
+    assert np.all(followed.trim_um[:first] == 0) and followed.trim_um[first] != 0
+    late = slice(1000, None)
+    residual = (followed.x_mm[late] - ref[late]) * 1e3
+    assert np.std(residual) < 1.05 * BOUND_MM * 1e3
+    assert abs(np.mean(residual)) < 3 * np.mean(followed.trim_sigma_um[late]) < 1.0  # within the trim's own σ
+    assert followed.stale[late].sum() == 0
+    trimmer = Trimmer(_monitor())
+    for xi, ri in zip(x, ref):
+        trimmer.observe(xi, ri, BOUND_MM)
+    assert trimmer.trim is not None
+    cleared = trimmer.clear("calibrated")
+    assert cleared.kind == "trim_cleared" and trimmer.trim is None and trimmer.step(3.0) == (3.0, 0.0)
+
+
+def test_the_watch_blames_scale_through_the_validity_monitor():
+    x, ref = _sweep(400, offset_um=3.0, seed=6)
+    monitor = Monitor([ScaleWatch(_monitor())])
+    verdicts = [monitor.observe(FrameSign(k, information=BOUND_MM ** -2, x_mm=xi, reference_mm=ri))
+                for k, (xi, ri) in enumerate(zip(x, ref))]
+    assert verdicts[-1].stale and verdicts[-1].reason == "scale"
+    assert not any(v.stale for v in verdicts[:29])  # fewer frames than the window needs
+    unread = Monitor([ScaleWatch(_monitor())])
+    assert not any(unread.observe(FrameSign(k, information=BOUND_MM ** -2, x_mm=xi)).stale
+                   for k, xi in enumerate(x))  # no grating reading: nothing to say
+
+
+def test_a_stage_resting_at_two_places_does_not_take_the_gratings_rounding_for_a_scale():
+    rng = np.random.default_rng(7)
+    step = 1e-3  # a 1 µm grating: each resting place reads up to ±0.5 µm off, the same in every frame
+    true = np.repeat([2.0004, 8.0006, 2.0004, 8.0006], 300)  # read 0.4 µm low, then 0.4 µm high
+    ref = np.round(true / step) * step
+    x = true + rng.normal(0, 0.38e-3, true.size)  # a 16-row strip's bound
+    rounding = ReferenceMonitor(5.0, 5.0, reference_sigma_mm=step / np.sqrt(12), resolution_mm=step,
+                                calibration_frames=1000, calibration_x_std_mm=3.0)
+    naive = ReferenceMonitor(5.0, 5.0, reference_sigma_mm=0.0, resolution_mm=step,
+                             calibration_frames=1000, calibration_x_std_mm=3.0)
+    flags = [rounding.observe(xi, ri, 0.38e-3) for xi, ri in zip(x, ref)]
+    naive_flags = [naive.observe(xi, ri, 0.38e-3) for xi, ri in zip(x, ref)]
+    assert any(naive_flags)  # what it guards against: 0.8 µm of rounding across 6 mm seen as 130 ppm
+    assert not any(flags)

@@ -1,0 +1,92 @@
+"""The daemon's camera-against-grating watch and online trim: on evidence only, shown, reversible."""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+from fastapi.testclient import TestClient
+
+from graytrack.core.tracking import LiveFix
+from graytrack.service.daemon.acquisition import fix_message
+from graytrack.service.daemon.app import create_app
+from graytrack.service.daemon.trim import ReferenceTrim
+from tests.service.helpers import fast_settings, wait_for, wait_state
+
+STROKE = SimpleNamespace(stroke_range_mm=(0.0, 10.0))  # all the monitor needs of a model
+BOUND_MM = 1.5e-3
+
+
+def _frames(n: int, offset_um: float, scale_ppm: float, seed: int = 0):
+    rng = np.random.default_rng(seed)
+    ref = 5.0 + 4.0 * np.sin(np.arange(n) / 40.0)  # the stage going to and fro
+    x = ref + (offset_um + scale_ppm * 1e-3 * (ref - 5.0) + rng.normal(0, BOUND_MM * 1e3, n)) * 1e-3
+    return x, ref
+
+
+def _feed(trim: ReferenceTrim, x, ref) -> list[LiveFix]:
+    return [trim.apply(LiveFix(xi, True, 0.7, BOUND_MM, None), ri) for xi, ri in zip(x, ref)]
+
+
+def test_without_the_setting_a_drift_is_an_event_and_the_positions_are_left_alone():
+    events: list[tuple[str, str]] = []
+    trim = ReferenceTrim(False, lambda kind, message: events.append((kind, message)))
+    trim.install(STROKE)
+    x, ref = _frames(300, offset_um=4.0, scale_ppm=-300.0)
+    fixes = _feed(trim, x, ref)
+    assert [kind for kind, _ in events] == ["scale_drift"]
+    assert trim.watch().observe(None) == "scale"  # what the validity monitor is told
+    assert [f.x_mm for f in fixes] == list(x)
+    status = trim.status()
+    assert status["enabled"] is False and status["active"] is False and status["drift"] is True
+    assert abs(status["window"]["offset_um"] - 4.0) < 5 * status["window"]["offset_sigma_um"]
+
+
+def test_the_trim_needs_evidence_corrects_the_stream_and_is_cleared_by_reset_and_by_a_new_model():
+    events: list[tuple[str, str]] = []
+    trim = ReferenceTrim(True, lambda kind, message: events.append((kind, message)))
+    trim.install(STROKE)
+    steady_x, steady_ref = _frames(600, 0.0, 0.0, seed=1)
+    assert all(f.x_mm == xi for f, xi in zip(_feed(trim, steady_x, steady_ref), steady_x)) and not events
+    x, ref = _frames(1500, offset_um=4.0, scale_ppm=-300.0, seed=2)
+    fixes = _feed(trim, x, ref)
+    kinds = [kind for kind, _ in events]
+    assert kinds[:2] == ["scale_drift", "trim_applied"] and set(kinds) == {"scale_drift", "trim_applied"}
+    assert len(kinds) < 20  # refined in a few steps, not every frame
+    late = np.array([f.x_mm for f in fixes[-500:]]) - ref[-500:]
+    assert abs(np.mean(late)) * 1e3 < 0.3 and np.std(late) * 1e3 < 1.1 * BOUND_MM * 1e3
+    status = trim.status()
+    assert status["active"] and abs(status["scale_ppm"] + 300.0) < 5 * status["scale_sigma_ppm"]
+    assert abs(status["offset_um"] - 4.0) < 5 * status["offset_sigma_um"] and status["frames"] >= 30
+    message = fix_message(1, SimpleNamespace(t=0.0, reference_mm=ref[-1], frame=SimpleNamespace(frame_id=1)),
+                          fixes[-1], 0)
+    trim.annotate(message, fixes[-1])
+    assert math.isfinite(message["trim_um"]) and message["trim_sigma_um"] > 0
+    assert trim.reset() and events[-1][0] == "trim_cleared" and not trim.status()["active"]
+    assert not trim.reset()  # nothing left to clear
+    _feed(trim, x[:100], ref[:100])
+    assert trim.status()["active"]  # the drift is still there: fresh evidence re-applies it
+    trim.install(STROKE)  # a calibration
+    assert events[-1] == ("trim_cleared", "trim cleared (a new model is installed)")
+
+
+def test_a_daemon_on_a_growing_print_flags_it_trims_it_shows_it_and_resets_it(tmp_path) -> None:
+    # the print keeps growing, 10 ppm per simulated second (100 per wall second at the fast clock),
+    # about its end: calibration catches one moment of it, tracking sees the camera leave the grating
+    growing = {"camera": {"effects": "target_growth:ppm=20000:at=0:ramp_s=2000"}}
+    app = create_app(fast_settings(tmp_path, growing, trim=True))
+    with TestClient(app) as client:
+        wait_state(client, "tracking", 60.0)  # generous: a loaded machine's sweep; the wait ends when it is there
+        assert client.get("/api/status").json()["trim"]["enabled"] is True
+        trim = wait_for(lambda: (doc := client.get("/api/status").json()["trim"]) and doc["active"] and doc,
+                        60.0, "a trim applied")
+        # the stage rests: the line is known where it stands, and there it is beyond 5 of its σ
+        assert trim["frames"] >= 30 and abs(trim["at_mean_um"]) > 5 * trim["at_mean_sigma_um"]
+        kinds = [event["kind"] for event in client.get("/api/events").json()]
+        assert kinds.index("scale_drift") < kinds.index("trim_applied")
+        assert client.post("/api/trim/reset").status_code == 401
+        token = {"Authorization": f"Bearer {client.app.state.storage.token_path.read_text().strip()}"}
+        answer = client.post("/api/trim/reset", headers=token).json()
+        assert answer["cleared"] is True and answer["trim"]["active"] is False
+        assert "trim_cleared" in [event["kind"] for event in client.get("/api/events").json()]
