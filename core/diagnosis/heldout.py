@@ -14,7 +14,7 @@ import numpy as np
 
 from graytrack.core.calibration_data import CalibrationData
 from graytrack.core.models.fourier import FourierModel
-from graytrack.core.noise import crlb_mm
+from graytrack.core.noise import crlb_mm, pooled_bound
 from graytrack.core.regression import weighted_affine
 from graytrack.core.timing import runs
 from graytrack.core.tracking import Tracker, TrackResult, track
@@ -126,7 +126,7 @@ def figures(model: FourierModel, data: CalibrationData, fit: Fit | None = None) 
     if model.pixel_noise is not None and model.pixel_noise.signal_dependent:
         bound_mm = np.where(np.isfinite(bound_mm), curve_bound_mm(model, data, fit), np.nan)
     mean = float(np.mean(error[finite])) if finite.any() else float("nan")  # no frame placed: no mean (not 0)
-    return Figures(model.describe(), fit.rmse_gray, spread, worst, mean, _median_um(bound_mm), error, data.x_mm, tracked)
+    return Figures(model.describe(), fit.rmse_gray, spread, worst, mean, pooled_bound(bound_mm) * 1e3, error, data.x_mm, tracked)
 
 
 def curve_bound_mm(model: FourierModel, data: CalibrationData, fit: Fit) -> np.ndarray:
@@ -137,12 +137,6 @@ def curve_bound_mm(model: FourierModel, data: CalibrationData, fit: Fit) -> np.n
     variance = model.pixel_noise.variance(predicted) / model.rows_averaged(data.frames.shape[1])
     nuisance = np.stack([predicted, np.ones_like(predicted)], axis=-1) if model.common_mode else None
     return crlb_mm(fit.slope, 1.0, nuisance, variance)
-
-
-def _median_um(values_mm: np.ndarray) -> float:
-    """Median of the finite values in µm; NaN when the tracker placed no frame at all."""
-    finite = values_mm[np.isfinite(values_mm)]
-    return float(np.median(finite) * 1e3) if finite.size else float("nan")
 
 
 @dataclass

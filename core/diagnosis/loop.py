@@ -28,7 +28,7 @@ from graytrack.core.diagnosis.evidence import Evidence, all_evidence
 from graytrack.core.diagnosis.heldout import Figures, Stage, figures, fit_on, interleaved_split
 from graytrack.core.adequacy import assessed
 from graytrack.core.models.fourier import FourierModel
-from graytrack.core.noise import reference_resolution_mm
+from graytrack.core.noise import pooled_bound, reference_resolution_mm
 from graytrack.core.recording import Recording
 
 Progress = Callable[[float, str], None]
@@ -79,7 +79,7 @@ class DiagnosisResult:
         slope = np.broadcast_to(fit.slope, fit.data.frames.shape) * fit.usable
         bound_mm = bound_with_quantisation_mm(slope, fit.data.sigma_gray**2, self.compression.table)
         return {"kind": "jpeg", "quality": self.compression.quality, "score": round(self.compression.score, 3),
-                "crlb_um": round(float(np.median(bound_mm)) * 1e3, 4)}
+                "crlb_um": round(pooled_bound(bound_mm) * 1e3, 4)}
 
     @property
     def refused(self) -> bool:

@@ -102,6 +102,7 @@ def _track_model(rec_path: Path, option: str | None) -> Path:
 
 
 def _track(rec: Recording, job: Job) -> dict[str, Any]:
+    from graytrack.core.noise import pooled_bound
     from graytrack.service.commands.track import oriented, result_columns, solve
     from graytrack.service.tables import write_csv
 
@@ -113,7 +114,7 @@ def _track(rec: Recording, job: Job) -> dict[str, Any]:
     placed = np.isfinite(error)
     return {**_geometry(model), "rmse_gray": float(np.nanmedian(result.rms_gray)) if result.locked.any() else None,
             "error_std_after_um": float(np.nanstd(error)) if placed.sum() > 1 else None,
-            "crlb_after_um": float(np.nanmedian(result.crlb_mm) * 1e3) if result.locked.any() else None,
+            "crlb_after_um": pooled_bound(result.crlb_mm) * 1e3 if result.locked.any() else None,
             "locked": int(result.locked.sum()), "lock_events": len(result.events)}
 
 

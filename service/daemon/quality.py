@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from graytrack.core.calibration import calibrate
+from graytrack.core.noise import pooled_bound
 from graytrack.core.recording import Recording
 from graytrack.core.tracking import track
 
@@ -45,7 +46,7 @@ def held_out_quality(recording: Recording, block_frames: int) -> dict[str, Any] 
     placed = np.isfinite(error)
     if placed.sum() < 2:
         return None
-    return {"error_std_um": float(np.std(error[placed])), "bound_um": float(np.median(bound[placed])),
+    return {"error_std_um": float(np.std(error[placed])), "bound_um": pooled_bound(bound[placed]),
             "frames": int(placed.sum()), "method": "two-fold by block, paper model"}
 
 

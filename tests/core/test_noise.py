@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from graytrack.core.noise import crlb_mm, estimate_sigma
+from graytrack.core.noise import crlb_mm, estimate_sigma, pooled_bound
 from graytrack.core.tracking import track
 from tests.conftest import paper_recording
 
@@ -82,3 +82,14 @@ def test_step_and_settle_floor_comes_from_the_grating_not_the_stops(grating_um, 
     step = reference_resolution_mm(recording.reference[at_rest])
     assert np.diff(np.unique(recording.reference[at_rest])).max() > 0.2  # the stops are there
     assert any(step == pytest.approx(value, abs=1e-9) for value in expected_mm), step
+
+
+def test_the_pooled_bound_is_the_spread_of_frames_each_at_its_own_bound() -> None:
+    """Half the frames with dust in view (bound 0.5 µm), half without (1.5 µm): errors drawn at
+    those bounds spread as the pooled bound says, not as the median of either half."""
+    rng = np.random.default_rng(3)
+    bounds = np.r_[np.full(20_000, 0.5), np.full(20_001, 1.5), np.nan]
+    errors = rng.normal(0.0, np.nan_to_num(bounds))
+    assert pooled_bound(bounds) == pytest.approx(np.std(errors[:-1]), rel=0.02)
+    assert np.nanmedian(bounds) == 1.5 and pooled_bound(bounds) == pytest.approx(np.sqrt(1.25), rel=1e-4)
+    assert np.isnan(pooled_bound(np.array([np.nan, np.inf])))

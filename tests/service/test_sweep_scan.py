@@ -66,5 +66,7 @@ def test_every_pass_frame_carries_the_position_at_its_mid_exposure(scanned) -> N
 def test_the_closed_loop_calibrates_on_the_scan_near_its_bound(scanned) -> None:
     status, job, _, _ = scanned
     held_out = job["report"]["held_out"]
-    assert held_out["error_std_um"] <= 1.6 * held_out["bound_um"], held_out
+    # the bound pooled over the held-out frames (rms): with dust in view on some frames only it is
+    # bimodal along the stroke, and a median swung 0.65–1.69 µm between runs of this very rig
+    assert 0.6 * held_out["bound_um"] <= held_out["error_std_um"] <= 1.6 * held_out["bound_um"], held_out
     assert status["active_calibration"]["id"] == job["id"]
