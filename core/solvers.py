@@ -523,6 +523,9 @@ class GeneralBatch:
                          wv @ y, ws @ y], axis=1)
 
     def moments(self, k: int, x_mm: float) -> list[float]:
+        kernel = getattr(self.evaluator, "moments", None)  # the compiled kernel of a model's frame tables
+        if kernel is not None:
+            return kernel(x_mm, self.frames[k], self.weights(k))
         return self.grid_moments(k, np.array([x_mm]))[0].tolist()
 
     def residuals(self, k: int, x_mm: float, gain: float, offset: float,

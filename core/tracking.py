@@ -23,10 +23,12 @@ from typing import Callable
 
 import numpy as np
 
-from graytrack.core import attribution, effects, repeats, transients
+from graytrack.core import attribution, repeats, transients
 from graytrack.core.errors import TrackingError
 from graytrack.core.geometry_check import refusal
-from graytrack.core.evaluation import ClippedHarmonics, FastHarmonics, GeneralHarmonics, TrigTables
+from graytrack.core.kernels import TableEvaluator
+from graytrack.core.evaluation import FastHarmonics, TrigTables
+from graytrack.core.frame_tables import FrameTables
 from graytrack.core.focus_solve import CurvatureTable, FocusPrior, focus_solve, general_focus_solve
 from graytrack.core.models.fourier import TWO_PI, FourierModel
 from graytrack.core.recording import Recording
@@ -201,10 +203,14 @@ class Tracker:
         self.sustained_limit = self.chi2_calibration * (1.0 + 5.0 * average_spread)
         self.stale_limit = self.chi2_calibration * (STALE_RATIO + 5.0 * average_spread)
         # Model-level work, done once: live tracking reduces one frame at a time.
-        evaluator = FastHarmonics(model) if model.target_map is None else GeneralHarmonics(model)
-        self.fast_path = not effects.needs_general_path(model)
-        self.tables = TrigTables(evaluator, model) if self.fast_path else None
-        self.evaluator = evaluator if model.clip_gray is None else ClippedHarmonics(evaluator, model)
+        # Every model is the same expression of per-pixel tables (core/frame_tables.py), evaluated by
+        # one compiled kernel. When every pixel is a trig polynomial in x (no stroke drift, target
+        # map or clipping) the solver's moments also reduce to tables in z: a frame is then reduced
+        # once and its iterations never touch a pixel again.
+        self.frame_tables = FrameTables.of(model)
+        self.evaluator = TableEvaluator(self.frame_tables)
+        self.fast_path = self.frame_tables.trig_polynomial
+        self.tables = TrigTables(FastHarmonics(model), model) if self.fast_path else None
         noise = model.noise()
         self.signal_dependent = noise.signal_dependent
         self.static_weights = model.inverse_variance(np.zeros((model.n_rows, model.n_pixels))).reshape(1, -1)

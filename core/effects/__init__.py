@@ -5,7 +5,9 @@ An effect bundles everything graytrack needs to know about one physical cause:
 - ``grow(spec, argument)``: what it adds to a :class:`~graytrack.core.structure.ModelSpec`;
 - ``prepare_data`` / ``fit_step`` / ``finish``: how calibration handles it (a data correction, a
   step of the alternation around the smooth model, what the fitted model keeps);
-- ``needs_general_path(model)``: what tracking needs from it.
+- ``frame_part``: what it puts into the tables every tracked frame is solved with
+  (:data:`graytrack.core.frame_tables.FRAME_PARTS`); an effect that names none is refused by
+  the registry's test, so no model ever leaves the fast path.
 
 Modules are found by name (every public module here that defines ``EFFECT``), so adding an
 effect is adding one module: nothing else lists effects. Discovery is lazy because effect modules
@@ -79,6 +81,7 @@ class Effect:
     bilinear: bool = False  # fitted by alternation with the smooth model (switched off for geometry fits)
     search_pitch: bool = False  # growing it needs α·d to a fraction of a defect: search it again
     refits_geometry: bool = False  # its layer, unknown in the first round, would pull τ_w: refine it again after
+    frame_part: str = ""  # its entry in core/frame_tables.FRAME_PARTS: how tracking holds what it adds
 
     def describe(self) -> dict[str, str]:
         return {"effect": self.name, "family": self.family, "adds": self.adds, "fitted": self.fitted}
@@ -116,12 +119,6 @@ class Effect:
     def report(self, setting: Any) -> Any:
         """What report.json lists for this setting beyond the step (e.g. the pixels masked); None: nothing."""
         return None
-
-    # ----------------------------------------------------------------- tracking
-    def needs_general_path(self, model: "FourierModel") -> bool:
-        """True when the tracker's fast path (x-independent coefficients, plain least squares)
-        cannot represent what this effect put into ``model``."""
-        return False
 
 
 _REGISTRY: dict[str, Effect] = {}
@@ -165,7 +162,3 @@ def screened(spec: "ModelSpec", data: "CalibrationData") -> "ModelSpec":
             spec = effect.grow(spec, setting) or spec
     return spec
 
-
-def needs_general_path(model: "FourierModel") -> bool:
-    """True when some effect in ``model`` needs the tracker's general solver."""
-    return any(effect.needs_general_path(model) for effect in registry().values())

@@ -124,6 +124,7 @@ def mask(findings: Any, shape: tuple[int, int]) -> np.ndarray:
 
 class BadPixels(Effect):
     name = "bad_pixels"
+    frame_part = "mask"  # core/frame_tables.py: what tracking reads of it
     family = "pixels that do not see the target (stuck, dead, hot, noisy, a defect that does not follow the light)"
     adds = "weight 0 for those pixels in calibration and tracking; their indices and reasons in the report"
     fitted = ("model-free tests of each pixel's time series (spread, offset from its neighbours, noise against the "

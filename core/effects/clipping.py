@@ -11,6 +11,7 @@ MIN_SHARE = 0.002  # a continuous signal plus noise almost never repeats its ext
 
 class Clipping(Effect):
     name = "clipping"
+    frame_part = "clip"  # core/frame_tables.py: what tracking reads of it
     family = "sensor saturation or a black clip"
     adds = "the clip limits: clipped samples carry no position"
     fitted = "clipped samples get zero weight in calibration and zero slope in tracking"
@@ -44,9 +45,6 @@ class Clipping(Effect):
     def prepare_data(self, setting, data):
         lo, hi = setting
         return data.with_weights(data.weights * ((data.frames > lo) & (data.frames < hi)))
-
-    def needs_general_path(self, model):
-        return model.clip_gray is not None
 
 
 EFFECT = Clipping()

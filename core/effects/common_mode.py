@@ -10,6 +10,7 @@ from graytrack.core.regression import weighted_affine
 
 class CommonMode(Effect):
     name = "common_mode"
+    frame_part = "per-frame unknowns"  # core/frame_tables.py: what tracking reads of it
     family = "light or exposure changing from frame to frame (flicker, auto-exposure, drift)"
     adds = "a gain and an offset per frame"
     fitted = "alternating least squares in calibration; solved with x in tracking"

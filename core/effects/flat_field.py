@@ -17,6 +17,7 @@ def rough_part(values: np.ndarray, basis: np.ndarray) -> np.ndarray:
 
 class FlatField(Effect):
     name = "flat_field"
+    frame_part = "response"  # core/frame_tables.py: what tracking reads of it
     family = "pixel-to-pixel response (PRNU gain, DSNU offset, dust on the sensor)"
     adds = "a gain and an offset per pixel (the part the pixel polynomials cannot hold)"
     fitted = "alternating least squares with the smooth part"

@@ -46,6 +46,7 @@ FOCUS_INFO = "focus_per_frame"  # the model's info flag: calibrated with a chang
 
 class Focus(Effect):
     name = "focus"
+    frame_part = "per-frame unknowns"  # core/frame_tables.py: what tracking reads of it
     family = "focus changing during the calibration (a lens mount warming up, a camera breathing)"
     adds = "a change of blur per frame, δ·∂S/∂δ (each harmonic m attenuated by exp(−2π²δ(m/τ)²))"
     fitted = "alternating least squares with the smooth model; measured per frame again in tracking"

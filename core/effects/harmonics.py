@@ -24,6 +24,7 @@ def harmonic_basis(fit: Any) -> np.ndarray:
 
 class Harmonics(Effect):
     name = "harmonics"
+    frame_part = "coefficients"  # core/frame_tables.py: what tracking reads of it
     family = "target profile not a pure sine (print gamma, print harmonics, sensor gamma, defocus)"
     adds = "two more Fourier orders of the target phase"
     fitted = "linear coefficients, inside the variable projection"

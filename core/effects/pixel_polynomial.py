@@ -24,6 +24,7 @@ def pixel_polynomial_basis(fit: Any) -> np.ndarray:
 
 class PixelPolynomial(Effect):
     name = "pixel_polynomial"
+    frame_part = "coefficients"  # core/frame_tables.py: what tracking reads of it
     family = "smooth variation across the field (vignetting, lens distortion, field-dependent blur)"
     adds = "two more polynomial degrees in the pixel index"
     fitted = "linear coefficients, inside the variable projection"

@@ -13,6 +13,7 @@ MIN_FRAMES = 10
 
 class ReferenceTiming(Effect):
     name = "reference_timing"
+    frame_part = "calibration only"  # core/frame_tables.py: what tracking reads of it
     family = "grating read at another instant than the exposure (latch skew, readout latency)"
     adds = ("the reference moved to mid-exposure: x(t) = ref(t) − v·δ (a correction of the data, kept in "
             "model.json as info.reference_skew_s)")

@@ -9,6 +9,7 @@ from graytrack.core.effects import Effect
 
 class Rows(Effect):
     name = "rows"
+    frame_part = "coefficients"  # core/frame_tables.py: what tracking reads of it
     family = "rows of the strip that disagree (camera tilt against the axis, row shading)"
     adds = "one model per row: a target shift per row and row-dependent coefficients"
     fitted = "row shift inside the variable projection, row polynomials linear"

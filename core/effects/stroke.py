@@ -22,6 +22,7 @@ def stroke_basis(fit: Any) -> np.ndarray:
 
 class Stroke(Effect):
     name = "stroke"
+    frame_part = "stroke"  # core/frame_tables.py: what tracking reads of it
     family = ("non-periodic variation along the stroke (illumination fixed to the target, print density, "
               "pitch error and chirp)")
     adds = "coefficients that are polynomials of the stroke position (two more degrees)"
@@ -37,9 +38,6 @@ class Stroke(Effect):
     def grow(self, spec, argument):
         degree = spec.stroke_degree + 2
         return spec.with_changes(stroke_degree=degree) if degree <= MAX_STROKE_DEGREE else None
-
-    def needs_general_path(self, model):
-        return model.stroke_degree > 0
 
 
 EFFECT = Stroke()

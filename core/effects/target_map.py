@@ -49,6 +49,7 @@ def fit_target_map(model: FourierModel, x_mm: np.ndarray, lit: np.ndarray, smoot
 
 class TargetMap(Effect):
     name = "target_map"
+    frame_part = "target map"  # core/frame_tables.py: what tracking reads of it
     family = "local defects fixed to the target (dust, scratches, print flaws)"
     adds = ("a relative reflectance map on a half-pixel grid along the target (its periodic part left to the "
             "Fourier terms)")
@@ -98,9 +99,6 @@ class TargetMap(Effect):
     def finish(self, setting, state, model):
         keys = ("target_map", "target_map_origin_mm", "target_map_step_mm")
         return model.with_changes(coeffs=model.coeffs, **{key: state.found[key] for key in keys})
-
-    def needs_general_path(self, model):
-        return model.target_map is not None
 
 
 EFFECT = TargetMap()

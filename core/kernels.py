@@ -1,0 +1,154 @@
+"""The compiled kernel of the per-frame solve: a model's values, slopes and the solver's seven
+moments at one position, for any model :class:`~graytrack.core.frame_tables.FrameTables` holds.
+
+numba compiles it on first use (cached on disk next to this file); without numba, or with
+``GRAYTRACK_KERNEL=numpy`` in the environment, :class:`TableEvaluator` uses the tables' numpy
+evaluation, which gives the same numbers (tests/core/test_kernels.py holds them to 1e-9 µm).
+Pixels are the innermost, contiguous loop so that the compiler vectorises across them.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+
+import numpy as np
+
+from graytrack.core.frame_tables import FrameTables
+
+try:  # numba is a dependency; its absence (an exotic platform) costs speed, never numbers
+    import numba
+except ImportError:  # pragma: no cover - exercised through GRAYTRACK_KERNEL=numpy
+    numba = None
+
+COMPILED = numba is not None and os.environ.get("GRAYTRACK_KERNEL", "").lower() != "numpy"
+
+
+def _evaluate_into(x: float, omega: float, c_re: np.ndarray, c_im: np.ndarray, offset: np.ndarray,
+                   lo: float, hi: float, table: np.ndarray, origin: float, step: float, target_offset: np.ndarray,
+                   clip_lo: float, clip_hi: float, values: np.ndarray, slopes: np.ndarray,
+                   smooth: np.ndarray) -> None:
+    """values, slopes (P,) at x; ``smooth`` is scratch (P,). Coefficients are (M+1, L, P)."""
+    n_orders, n_stroke, n_values = c_re.shape
+    z_re = np.empty(n_orders)
+    z_im = np.empty(n_orders)
+    for h in range(n_orders):
+        angle = omega * (x * h)
+        z_re[h] = math.cos(angle)
+        z_im[h] = math.sin(angle)
+    legendre = np.ones(n_stroke)
+    dlegendre = np.zeros(n_stroke)
+    if n_stroke > 1:
+        s = (2.0 * x - (lo + hi)) * (1.0 / (hi - lo)) if hi > lo else 0.0
+        legendre[1], dlegendre[1] = s, 1.0
+        for n in range(2, n_stroke):
+            legendre[n] = ((2 * n - 1) * s * legendre[n - 1] - (n - 1) * legendre[n - 2]) / n
+            dlegendre[n] = n * legendre[n - 1] + s * dlegendre[n - 1]
+        scale = 2.0 / (hi - lo) if hi > lo else 0.0
+        for n in range(n_stroke):
+            dlegendre[n] *= scale
+    for p in range(n_values):
+        smooth[p] = 0.0
+        slopes[p] = 0.0
+    for n in range(n_stroke):
+        b, db = legendre[n], dlegendre[n]
+        for h in range(n_orders):
+            zr, zi, turn = z_re[h], z_im[h], omega * h
+            row_re, row_im = c_re[h, n], c_im[h, n]
+            for p in range(n_values):
+                series = row_re[p] * zr - row_im[p] * zi
+                smooth[p] += b * series
+                slopes[p] += db * series - b * turn * (row_re[p] * zi + row_im[p] * zr)
+    last = table.size - 1
+    for p in range(n_values):
+        factor, dfactor = 1.0, 0.0
+        if last > 0:
+            position = (x + target_offset[p] - origin) / step
+            cell = math.floor(position)
+            if 0 <= cell < last:
+                at = int(cell)
+                rise = table[at + 1] - table[at]
+                factor = 1.0 + table[at] + (position - at) * rise
+                dfactor = rise / step
+            elif position == last:
+                factor = 1.0 + table[last]
+        value = smooth[p] * factor + offset[p]
+        slope = slopes[p] * factor + smooth[p] * dfactor
+        if value <= clip_lo:
+            value, slope = clip_lo, 0.0
+        elif value >= clip_hi:
+            value, slope = clip_hi, 0.0
+        values[p] = value
+        slopes[p] = slope
+
+
+def _moments(x: float, y: np.ndarray, w: np.ndarray, omega: float, c_re: np.ndarray, c_im: np.ndarray,
+             offset: np.ndarray, lo: float, hi: float, table: np.ndarray, origin: float, step: float,
+             target_offset: np.ndarray, clip_lo: float, clip_hi: float, scratch: np.ndarray,
+             out: np.ndarray) -> None:
+    """The seven moments (as FrameTables.moments) into ``out``; ``scratch`` is (3, P)."""
+    values, slopes = scratch[0], scratch[1]
+    _evaluate_into(x, omega, c_re, c_im, offset, lo, hi, table, origin, step, target_offset, clip_lo, clip_hi,
+                   values, slopes, scratch[2])
+    ff = fdf = dfdf = f1 = df1 = yf = ydf = 0.0
+    for p in range(values.size):
+        wv, ws = w[p] * values[p], w[p] * slopes[p]
+        ff += wv * values[p]
+        fdf += ws * values[p]
+        dfdf += ws * slopes[p]
+        f1 += wv
+        df1 += ws
+        yf += wv * y[p]
+        ydf += ws * y[p]
+    out[0], out[1], out[2], out[3], out[4], out[5], out[6] = ff, fdf, dfdf, f1, df1, yf, ydf
+
+
+def _evaluate_many(x_mm: np.ndarray, omega: float, c_re: np.ndarray, c_im: np.ndarray, offset: np.ndarray,
+                   lo: float, hi: float, table: np.ndarray, origin: float, step: float, target_offset: np.ndarray,
+                   clip_lo: float, clip_hi: float, values: np.ndarray, slopes: np.ndarray,
+                   smooth: np.ndarray) -> None:
+    """values, slopes (G, P) at each of ``x_mm`` (G,)."""
+    for g in range(x_mm.size):
+        _evaluate_into(x_mm[g], omega, c_re, c_im, offset, lo, hi, table, origin, step, target_offset,
+                       clip_lo, clip_hi, values[g], slopes[g], smooth)
+
+
+if COMPILED:
+    _evaluate_into = numba.njit(cache=True, nogil=True, error_model="numpy")(_evaluate_into)
+    _evaluate_many = numba.njit(cache=True, nogil=True, error_model="numpy")(_evaluate_many)
+    _moments = numba.njit(cache=True, nogil=True, error_model="numpy")(_moments)
+
+
+class TableEvaluator:
+    """Values, slopes and moments of a model from its frame tables: compiled, or numpy where
+    numba is missing, the same numbers either way."""
+
+    def __init__(self, tables: FrameTables):
+        self.tables = tables
+        n_values = tables.n_values
+        self._re = np.ascontiguousarray(tables.coefficients.real)
+        self._im = np.ascontiguousarray(tables.coefficients.imag)
+        lo, hi = tables.stroke_range_mm
+        self._args = (tables.omega, self._re, self._im, tables.offset, lo, hi, tables.target_map,
+                      tables.map_origin_mm, tables.map_step_mm, tables.target_offset_mm, *tables.clip_gray)
+        self._scratch = np.empty((3, n_values))
+        self._out = np.empty(7)
+
+    def evaluate(self, x_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Values and slopes ``(G, P)`` at positions ``x_mm`` ``(G,)``."""
+        x_mm = np.atleast_1d(np.asarray(x_mm, dtype=np.float64))
+        if not COMPILED:
+            return self.tables.evaluate(x_mm)
+        values, slopes = np.empty((x_mm.size, self.tables.n_values)), np.empty((x_mm.size, self.tables.n_values))
+        if x_mm.size == 1:
+            _evaluate_into(float(x_mm[0]), *self._args, values[0], slopes[0], self._scratch[2])
+        else:
+            _evaluate_many(x_mm, *self._args, values, slopes, self._scratch[2])
+        return values, slopes
+
+    def moments(self, x_mm: float, y: np.ndarray, w: np.ndarray) -> list[float]:
+        """The solver's seven moments at ``x_mm`` for frame ``y`` under weights ``w`` (both ``(P,)``)."""
+        if not COMPILED:
+            return self.tables.moments(x_mm, y, w).tolist()
+        _moments(float(x_mm), y, w, *self._args, self._scratch, self._out)
+        return self._out.tolist()

@@ -1,0 +1,131 @@
+"""One fast path for every model: each effect the closed loop can add is held by the frame tables,
+and the compiled kernel, the tables' numpy evaluation and the model's own ``predict`` agree.
+
+Per effect of the registry: a model grown with it is fitted on a virtual-rig recording whose
+images carry a physical cause of that family, and its frames are tracked twice, on the fast path
+and with every evaluation done by ``model.predict`` (the direct evaluation): the positions agree to
+1e-9 µm. An effect that declares no ``frame_part`` is refused here, not left to a slow path."""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+import pytest
+
+from graytrack.core import effects, kernels
+from graytrack.core.calibration_data import calibration_data
+from graytrack.core.evaluation import GeneralHarmonics
+from graytrack.core.frame_tables import FRAME_PARTS, FrameTables
+from graytrack.core.kernels import TableEvaluator
+from graytrack.core.structure import ModelSpec, fit_spec
+from graytrack.core.tracking import Tracker, track
+from graytrack.drivers.sim.scenarios import build_rig
+
+# the rig's cause of each effect's family (nobody tells the fit about it)
+RIG_EFFECTS = {
+    "bad_pixels": ("paper", "bad_pixels:stuck=1:dead=1:hot=1"),
+    "clipping": ("paper", "saturation:gain=1.3,quantize:bits=8"),
+    "common_mode": ("paper", "flicker:mains_hz=50:depth=0.05"),
+    "flat_field": ("paper", "prnu:sigma=0.03,dsnu:sigma=2"),
+    "focus": ("paper", "defocus:sigma_um=200"),
+    "harmonics": ("paper", "print_gamma:gamma=1.4,harmonics:h2=0.05:h3=0.02"),
+    "pixel_polynomial": ("paper", "distortion:k1=0.02,vignetting:edge=0.15"),
+    "reference_timing": ("paper", "grating_latency:ms=2"),
+    "rows": ("strip16", "tilt:deg=2"),
+    "stroke": ("paper", "pitch_scale:ppm=500,gradient:per_10mm=0.08"),
+    "target_map": ("paper", "dust:count=6,scratches:count=3"),
+}
+# what the closed loop's probe would hand to ``grow`` (others: the effect's own screen of the data, or nothing)
+GROW_ARGUMENTS = {"clipping": (0.0, 255.0), "reference_timing": 0.002}
+MICROMETRE_TOLERANCE = 1e-9
+# what a model shows of the table parts that change the expression itself (the others change coefficients)
+PART_SEEN = {
+    "target map": lambda model: model.target_map is not None,
+    "stroke": lambda model: model.stroke_degree > 0,
+    "clip": lambda model: model.clip_gray is not None,
+    "response": lambda model: model.pixel_gain is not None and model.pixel_offset is not None,
+    "mask": lambda model: model.pixel_weight is not None and bool((model.pixel_weight == 0).any()),
+}
+
+
+def test_every_effect_names_its_part_of_the_frame_tables() -> None:
+    for name, effect in effects.registry().items():
+        assert effect.frame_part in FRAME_PARTS, (
+            f"effect {name!r} does not say how tracking holds what it adds (frame_part "
+            f"{effect.frame_part!r}; one of {sorted(FRAME_PARTS)}): add it to core/frame_tables.py first")
+
+
+def test_every_effect_has_a_rig_cause_here() -> None:
+    assert set(RIG_EFFECTS) == set(effects.registry()), "a new effect needs its rig cause in RIG_EFFECTS"
+
+
+@lru_cache(maxsize=None)
+def _fitted(name: str):
+    scenario, rig_effects = RIG_EFFECTS[name]
+    seconds = 4.0 if scenario == "paper" else 2.0
+    calibration, _ = build_rig(scenario, rig_effects, seed=5).record(seconds)
+    run, _ = build_rig(scenario, rig_effects, seed=5, run=1).record(1.0)
+    effect = effects.registry()[name]
+    data = calibration_data(calibration)
+    spec = effect.grow(ModelSpec(), GROW_ARGUMENTS.get(name, effect.screen(data)))
+    assert spec is not None and spec != ModelSpec(), f"{name}: nothing to grow on its rig cause"
+    data = effects.prepare_data(spec, data)
+    meta = calibration.meta
+    model = fit_spec(spec, data, meta["period_mm"], meta["pixel_pitch_mm"], rounds=2).model
+    seen = PART_SEEN.get(effect.frame_part)
+    assert seen is None or seen(model), f"{name}: the fitted model does not carry its {effect.frame_part}"
+    return model, run
+
+
+def _direct(model, **options) -> Tracker:
+    """A tracker whose every evaluation is the model's own predict, on the general moments."""
+    tracker = Tracker(model, **options)
+    tracker.evaluator = GeneralHarmonics(model)
+    tracker.fast_path, tracker.tables = False, None
+    return tracker
+
+
+@pytest.mark.parametrize("name", sorted(RIG_EFFECTS))
+def test_kernel_tables_and_predict_agree(name: str) -> None:
+    model, run = _fitted(name)
+    x_mm = np.linspace(*model.stroke_range_mm, 37)
+    expected_values, expected_slopes = model.predict(x_mm, with_derivative=True)
+    expected_values = expected_values.reshape(len(x_mm), -1)
+    expected_slopes = expected_slopes.reshape(len(x_mm), -1)
+    tables = FrameTables.of(model)
+    kernel = TableEvaluator(tables)
+    one_by_one = [kernel.evaluate(np.array([x])) for x in x_mm]  # the live path: one position a call
+    singles = (np.concatenate([v for v, _ in one_by_one]), np.concatenate([s for _, s in one_by_one]))
+    for values, slopes in (tables.evaluate(x_mm), kernel.evaluate(x_mm), singles):
+        assert np.max(np.abs(values - expected_values)) < 1e-9 * max(1.0, np.abs(expected_values).max())
+        assert np.max(np.abs(slopes - expected_slopes)) < 1e-9 * max(1.0, np.abs(expected_slopes).max())
+    y = model.prepare(run.frames[:1]).reshape(-1)
+    w = np.ones_like(y)
+    for x in x_mm[::9]:
+        direct = tables.moments(float(x), y, w)
+        assert np.allclose(kernel.moments(float(x), y, w), direct, rtol=1e-12, atol=1e-9)
+
+
+@pytest.mark.parametrize("name", sorted(RIG_EFFECTS))
+def test_the_fast_path_tracks_as_the_direct_evaluation(name: str) -> None:
+    model, run = _fitted(name)
+    options = {"light": "auto", "robust": True}
+    fast = track(model, run, tracker=Tracker(model, **options))
+    direct = track(model, run, tracker=_direct(model, **options))
+    placed = np.isfinite(direct.x_mm)
+    assert placed.mean() > 0.9
+    assert np.array_equal(np.isfinite(fast.x_mm), placed)
+    assert np.max(np.abs(fast.x_mm[placed] - direct.x_mm[placed])) * 1e3 < MICROMETRE_TOLERANCE
+    assert np.allclose(fast.crlb_mm[placed], direct.crlb_mm[placed], rtol=1e-9)
+
+
+def test_the_numpy_fallback_gives_the_kernel_numbers(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Without numba (GRAYTRACK_KERNEL=numpy) every evaluation is the tables' numpy one."""
+    model, run = _fitted("target_map")
+    compiled = track(model, run, light="auto", robust=True)
+    monkeypatch.setattr(kernels, "COMPILED", False)
+    fallback = track(model, run, light="auto", robust=True)
+    placed = np.isfinite(compiled.x_mm)
+    assert np.array_equal(np.isfinite(fallback.x_mm), placed)
+    assert np.max(np.abs(compiled.x_mm[placed] - fallback.x_mm[placed])) * 1e3 < MICROMETRE_TOLERANCE
