@@ -133,6 +133,10 @@ class TableEvaluator:
                       tables.map_origin_mm, tables.map_step_mm, tables.target_offset_mm, *tables.clip_gray)
         self._scratch = np.empty((3, n_values))
         self._out = np.empty(7)
+        if COMPILED:  # compiled (or loaded from the disk cache) now, at model install, not on a live frame
+            self.moments(0.0, np.zeros(n_values), np.zeros(n_values))
+            self.evaluate(np.zeros(1))
+            self.evaluate(np.zeros(2))
 
     def evaluate(self, x_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Values and slopes ``(G, P)`` at positions ``x_mm`` ``(G,)``."""

@@ -671,10 +671,9 @@ class LiveTracker:
         self.state = SequentialState(x_prev=x0_mm)
         # The lean path: a one-row model without pixel weights reads a frame (or its row mean) into
         # one preallocated line and reloads one batch in place; anything else goes through prepare.
-        self._lean = model.n_rows == 1 and model.pixel_weight is None and self.tracker.fast_path \
-            and not self.tracker.signal_dependent
+        self._lean = model.n_rows == 1 and model.pixel_weight is None and not self.tracker.signal_dependent
         self._line = np.empty((1, model.n_pixels))
-        self._batches: dict[int, TrigPolyBatch] = {}  # by rows averaged
+        self._batches: dict[int, TrigPolyBatch | GeneralBatch] = {}  # by rows averaged
         self._last_frame: np.ndarray | None = None  # to tell a driver's repeated image from a new one
 
     @property
@@ -707,7 +706,7 @@ class LiveTracker:
                        self.state.stale_reason, solution.transient_px,
                        solution.focus if math.isfinite(solution.focus_sigma) else float("nan"), solution.focus_sigma)
 
-    def _lean_batch(self, frame: np.ndarray, rows: int) -> TrigPolyBatch | None:
+    def _lean_batch(self, frame: np.ndarray, rows: int) -> TrigPolyBatch | GeneralBatch | None:
         """The frame's batch by one reduction into the preallocated line (None: not this path)."""
         if not self._lean or frame.shape[-1] != self.model.n_pixels or frame.ndim not in (1, 2):
             return None

@@ -19,7 +19,7 @@ from graytrack.core.evaluation import GeneralHarmonics
 from graytrack.core.frame_tables import FRAME_PARTS, FrameTables
 from graytrack.core.kernels import TableEvaluator
 from graytrack.core.structure import ModelSpec, fit_spec
-from graytrack.core.tracking import Tracker, track
+from graytrack.core.tracking import LiveTracker, Tracker, track
 from graytrack.drivers.sim.scenarios import build_rig
 
 # the rig's cause of each effect's family (nobody tells the fit about it)
@@ -129,3 +129,17 @@ def test_the_numpy_fallback_gives_the_kernel_numbers(monkeypatch: pytest.MonkeyP
     placed = np.isfinite(compiled.x_mm)
     assert np.array_equal(np.isfinite(fallback.x_mm), placed)
     assert np.max(np.abs(compiled.x_mm[placed] - fallback.x_mm[placed])) * 1e3 < MICROMETRE_TOLERANCE
+
+
+@pytest.mark.parametrize("name", ["target_map", "stroke", "clipping"])
+def test_live_tracking_reloads_one_buffer_and_tracks_as_the_batch(name: str) -> None:
+    """The daemon's frame-at-a-time path (one preallocated batch reloaded per frame) gives the
+    batch solver's positions on a model off the trig-polynomial tables."""
+    model, run = _fitted(name)
+    batch = track(model, run, x0_mm=float(run.reference[0]), light="auto", robust=True)
+    live = LiveTracker(model, x0_mm=float(run.reference[0]))
+    assert live._lean and not live.tracker.fast_path
+    positions = np.array([live.update(frame).x_mm for frame in run.frames])
+    placed = np.isfinite(batch.x_mm)
+    assert placed.mean() > 0.9 and np.array_equal(np.isfinite(positions), placed)
+    assert np.max(np.abs(positions[placed] - batch.x_mm[placed])) * 1e3 < MICROMETRE_TOLERANCE

@@ -24,7 +24,7 @@ def test_generated_requests_get_no_server_error_and_match_the_schema(tmp_path: P
              "--header", f"Authorization: {token}", "--max-examples", str(EXAMPLES_PER_OPERATION),
              "--checks", CHECKS, "--generation-deterministic", "--phases", "examples,coverage,fuzzing",
              "--request-timeout", "20", "--no-color"],
-            capture_output=True, text=True, timeout=600)
+            capture_output=True, text=True, timeout=600, cwd=tmp_path)  # its example database stays there
         alive = daemon.status()
     report = run.stdout[-6000:] + run.stderr[-2000:]
     assert run.returncode == 0, report
