@@ -1,6 +1,6 @@
 """Maps the repository's top-level folders onto the ``graytrack`` import namespace.
 
-DESIGN.md keeps ``core/``, ``drivers/``, ``service/`` and ``web/`` as top-level folders while the
+The design keeps ``core/``, ``drivers/``, ``service/`` and ``web/`` as top-level folders while the
 installed names are ``graytrack.core`` and so on; setuptools' ``package_dir`` does that mapping for
 regular and editable installs alike. Subpackages are discovered so nobody has to list them here.
 """

@@ -1,4 +1,4 @@
-"""The recording file: one run of the rig as one ``.npz`` (DESIGN.md, "recording files").
+"""The recording file: one run of the rig as one ``.npz`` (docs/contracts.md, "recording files").
 
 A recording is what every other part trades in (the virtual rig writes it, calibration and the
 closed loop read it, the daemon stores it), so the reader is strict: anything malformed is

@@ -583,7 +583,8 @@ def profiled_step(jacobian: np.ndarray, weighted: np.ndarray, weights: np.ndarra
     numerator = float(jacobian @ (yw - weighted @ theta))
     slope_norm = float(jacobian @ (jacobian * weights))
     information = slope_norm - float(cross @ np.linalg.solve(held, cross))
-    fisher = np.block([[np.array([[slope_norm]]), cross[None]], [cross[:, None], normal]])
+    fisher = np.empty((cross.size + 1, cross.size + 1))
+    fisher[0, 0], fisher[0, 1:], fisher[1:, 0], fisher[1:, 1:] = slope_norm, cross, cross, normal
     step = numerator / information if information > 0.0 else 0.0
     return min(max(step, -max_step_mm), max_step_mm), information, fisher
 

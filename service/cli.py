@@ -1,4 +1,4 @@
-"""``graytrack`` command line (DESIGN.md, "command line").
+"""``graytrack`` command line (docs/contracts.md, "command line").
 
 Every subcommand lives in ``graytrack.service.commands.<name>`` and registers itself; this module
 only dispatches and turns expected failures into a one-line reason with exit status 2, so that bad

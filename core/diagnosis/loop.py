@@ -91,7 +91,7 @@ class DiagnosisResult:
             raise GeometryError(self.geometry)
 
     def report(self) -> dict[str, Any]:
-        """report.json (DESIGN.md contract, with extra keys that explain the decisions). A figure that
+        """report.json (docs/contracts.md contract, with extra keys that explain the decisions). A figure that
         does not exist (no frame placed, no bound) is null, never NaN: JSON carries no NaN."""
         return finite_or_none({
             "geometry": None if self.geometry is None else self.geometry.as_dict(),

@@ -60,7 +60,7 @@ class Roi:
     """A strip of the sensor: ``rows`` rows from ``row``, ``cols`` pixels from ``col``.
 
     ``cols=None`` means "to the right edge of the sensor". Increasing column is increasing target
-    coordinate (DESIGN.md's pixel index u).
+    coordinate (docs/contracts.md's pixel index u).
     """
 
     row: int = 0
@@ -118,7 +118,7 @@ class CameraSettings:
     # the older ones in order (see backlog.py). 0 = newest only.
     max_lag_s: float = DEFAULT_MAX_LAG_S
     # Reverse the pixel axis of every frame handed out: a camera mounted the other way round (its
-    # column index running against the target coordinate, which DESIGN.md's u must follow).
+    # column index running against the target coordinate, which docs/contracts.md's u must follow).
     flip: bool = False
 
 

@@ -8,13 +8,16 @@ not told about and runs the closed loop on it.
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
+DEFAULT_OUT = "out/demo"
 UNDECLARED_EFFECTS = "gradient:per_10mm=0.05,prnu:sigma=0.015,flicker:mains_hz=60:depth=0.02"
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser("demo", help="offline end-to-end run on the virtual rig (no hardware)")
-    parser.add_argument("--out", default="out/demo", help="folder for recordings, models and the loop's report")
+    parser.add_argument("--out", default=DEFAULT_OUT,
+                        help=f"folder for recordings, models and the loop's report (default {DEFAULT_OUT}, created)")
     parser.add_argument("--seed", type=int, default=0)
     parser.set_defaults(func=run)
 
@@ -28,6 +31,8 @@ def run(args: argparse.Namespace) -> int:
     from graytrack.service.outputs import output_folder
     from graytrack.service.report import write_report
 
+    if args.out == DEFAULT_OUT:  # the demo's own place, made on a fresh clone; a folder you name must exist
+        Path(DEFAULT_OUT).mkdir(parents=True, exist_ok=True)
     out = output_folder(args.out)
     rig = build_rig("paper", seed=args.seed)
     cal, _ = rig.record(20.0)

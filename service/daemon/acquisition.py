@@ -72,7 +72,7 @@ def _finite(value: float) -> float | None:
 
 
 def fix_message(seq: int, sample: Sample, fix: LiveFix, dropped: int) -> dict[str, Any]:
-    """The stream message of one tracked frame (DESIGN.md; ``t_unix`` and ``age_ms`` are added at send)."""
+    """The stream message of one tracked frame (docs/contracts.md; ``t_unix`` and ``age_ms`` are added at send)."""
     x = _finite(fix.x_mm)
     message: dict[str, Any] = {
         "seq": seq,

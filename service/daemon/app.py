@@ -1,4 +1,4 @@
-"""The daemon's HTTP interface (DESIGN.md, "the daemon's interface") as a FastAPI app.
+"""The daemon's HTTP interface (docs/contracts.md, "the daemon's interface") as a FastAPI app.
 
 Reads are open; every request that changes state needs ``Authorization: Bearer <token>``,
 checked before its body is read (:mod:`api.security`). Errors are always JSON
@@ -122,7 +122,14 @@ def create_app(settings: Settings, factory: HardwareFactory = default_factory) -
     @app.exception_handler(RequestValidationError)
     async def validation_error(request: Request, exc: RequestValidationError) -> JSONResponse:
         errors = [{k: v for k, v in e.items() if k in ("type", "loc", "msg")} for e in exc.errors()]
-        return _error(422, _describe_validation(errors), detail=errors)
+        message = _describe_validation(errors)
+        declared = request.headers.get("content-type", "")
+        if request.method in ("POST", "PUT", "PATCH") and not declared.startswith("application/json") \
+                and any(e.get("loc", ("",))[0] == "body" for e in errors):
+            # curl -d without -H sends application/x-www-form-urlencoded: the body was never read as JSON
+            message = (f"the body must be JSON sent with the header Content-Type: application/json "
+                       f"(got {declared or 'no Content-Type'}); {message}")
+        return _error(422, message, detail=errors)
 
     @app.exception_handler(DaemonError)
     async def daemon_error(request: Request, exc: DaemonError) -> JSONResponse:

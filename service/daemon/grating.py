@@ -3,7 +3,7 @@
 Why a separate thread: a serial transaction can block for the link timeout when the controller
 or its USB adapter misbehaves, and the camera loop must not stall (or drop frames) because of it.
 
-Why pairing this way (DESIGN.md: the reference must be read for the same instant as the
+Why pairing this way (docs/contracts.md: the reference must be read for the same instant as the
 exposure): a reading is the midpoint of its request and reply on the host clock, a frame's time
 is mid-exposure on the same clock. A frame gets a reference only when it can be *known*:
 

@@ -346,8 +346,8 @@ class Rig:
                 raise NotFound(f"no finished calibration {calibration_id!r}")
             model = load_model(self.storage.calibration_dir(calibration_id) / "model.json")
             mismatch = self._flip_mismatch(model)
-            if mismatch is not None:
-                raise NotReady(mismatch)
+            if mismatch is not None:  # a conflict with the camera's configuration, not a wait: retrying will not help
+                raise Busy(mismatch)
             self.storage.set_active(calibration_id)
             self.storage.copy_model_of(calibration_id)
             self.install(model)

@@ -17,7 +17,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from graytrack.drivers.config import ConfigError, HardwareConfig, describe_validation_error, load_toml, parse_hardware
 from graytrack.drivers.realtime import DEFAULT_LEVEL
 
-DEFAULT_HOST = "127.0.0.1"  # DESIGN.md: loopback unless told otherwise
+DEFAULT_HOST = "127.0.0.1"  # docs/contracts.md: loopback unless told otherwise
 DEFAULT_PORT = 8000
 
 

@@ -1,4 +1,4 @@
-"""The daemon's HTTP and WebSocket contract (DESIGN.md) against the real app on the virtual rig."""
+"""The daemon's HTTP and WebSocket contract (docs/contracts.md) against the real app on the virtual rig."""
 
 from __future__ import annotations
 

@@ -163,3 +163,12 @@ def test_an_unforeseen_error_is_json_with_the_security_headers(tmp_path, monkeyp
 def test_a_velocity_the_controller_cannot_take_is_422_naming_the_limit(daemon: LiveServer, velocity, limit) -> None:
     answer = daemon.post("/api/stage/velocity", json={"velocity_mm_s": velocity}, headers=daemon.auth())
     assert answer.status_code == 422 and limit in answer.json()["error"], answer.text
+
+
+def test_a_json_body_without_its_content_type_is_told_which_header_is_missing(daemon: LiveServer) -> None:
+    """What `curl -d '{"target_mm": 5}'` sends without -H: a form-encoded body."""
+    reply = daemon.post("/api/stage/move", content=b'{"target_mm": 5.0}', headers={
+        **daemon.auth(), "Content-Type": "application/x-www-form-urlencoded"})
+    assert reply.status_code == 422
+    assert "Content-Type: application/json" in reply.json()["error"], reply.json()
+    assert "x-www-form-urlencoded" in reply.json()["error"]
