@@ -32,6 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from graytrack.core import small_linalg
 from graytrack.core.evaluation import TrigTables, _trig_coefficients
 from graytrack.core.solvers import FrameSolution, SolverSettings, TrigPolyBatch, profiled_step
 
@@ -122,7 +123,7 @@ def focus_solve(source: TrigPolyBatch, k: int, curvature: CurvatureTable, start:
         projected = np.array([m[5], 0.5 * m[6], moments.y1])
         held, held_projected = _with_prior(normal, projected, prior, theta[0])
         try:
-            theta = np.linalg.solve(held, held_projected)
+            theta = small_linalg.solve(held, held_projected)
         except np.linalg.LinAlgError:
             break
         g, h = theta[0], 0.5 * theta[1]  # J = g·F′ + h·F‴ (B′ = ½F‴, h·B′ = θ₁·½·F‴)
@@ -130,7 +131,7 @@ def focus_solve(source: TrigPolyBatch, k: int, curvature: CurvatureTable, start:
         cross = np.array([g * m[7] + h * m[8], 0.5 * (g * m[9] + h * m[10]), g * m[11] + h * m[12]])
         jj = g * g * m[13] + 2.0 * g * h * m[14]
         numerator = g * m[15] + h * m[16] - float(theta @ cross)
-        information = jj - float(cross @ np.linalg.solve(held, cross))
+        information = jj - float(cross @ small_linalg.solve(held, cross))
         dx = numerator / information if information > 0.0 else 0.0
         dx = min(max(dx, -settings.max_step_mm), settings.max_step_mm)
         x += dx
@@ -166,7 +167,7 @@ def general_focus_solve(evaluator, y: np.ndarray, weights: np.ndarray, start: Fr
         normal, projected = weighted.T @ design, weighted.T @ y
         held, held_projected = _with_prior(normal, projected, prior, theta[0])
         try:
-            theta = np.linalg.solve(held, held_projected)
+            theta = small_linalg.solve(held, held_projected)
         except np.linalg.LinAlgError:
             break
         cost = yy - 2.0 * float(projected @ theta) + float(theta @ normal @ theta)
@@ -207,7 +208,7 @@ def _own(normal: np.ndarray, projected: np.ndarray, fallback: np.ndarray) -> np.
     """The frame's own (g, h, o) at the final x, without a prior: the independent estimate the
     focus watch and the next frames' prior average."""
     try:
-        return np.linalg.solve(normal, projected)
+        return small_linalg.solve(normal, projected)
     except np.linalg.LinAlgError:
         return fallback
 
@@ -222,7 +223,7 @@ def _solution(x: float, theta: np.ndarray, own: np.ndarray, cost: float, informa
     gain, offset = float(theta[0]), float(theta[2])
     own_gain, blur = float(own[0]), float(own[1])
     try:
-        blur_variance = float(np.linalg.inv(fisher)[2, 2])
+        blur_variance = float(small_linalg.inv(fisher)[2, 2])
     except np.linalg.LinAlgError:
         blur_variance = float("inf")
     footprint = pixel_pitch_mm * pixel_pitch_mm

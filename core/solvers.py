@@ -24,7 +24,7 @@ from typing import Protocol
 
 import numpy as np
 
-from graytrack.core import transients
+from graytrack.core import small_linalg, transients
 from graytrack.core.evaluation import ClippedHarmonics, FastHarmonics, GeneralHarmonics, TrigTables
 
 CORE_SIGMA, CUT_SIGMA = 3.5, 7.0  # redescending weight: full inside the core, none beyond the cut (robust σ)
@@ -582,7 +582,7 @@ def profiled_step(jacobian: np.ndarray, weighted: np.ndarray, weights: np.ndarra
     cross = weighted.T @ jacobian
     numerator = float(jacobian @ (yw - weighted @ theta))
     slope_norm = float(jacobian @ (jacobian * weights))
-    information = slope_norm - float(cross @ np.linalg.solve(held, cross))
+    information = slope_norm - float(cross @ small_linalg.solve(held, cross))
     fisher = np.empty((cross.size + 1, cross.size + 1))
     fisher[0, 0], fisher[0, 1:], fisher[1:, 0], fisher[1:, 1:] = slope_norm, cross, cross, normal
     step = numerator / information if information > 0.0 else 0.0
@@ -623,7 +623,7 @@ def field_solve(evaluator: "FastHarmonics | GeneralHarmonics | ClippedHarmonics"
         weighted = design * weights[:, None]
         normal, projected = weighted.T @ design, weighted.T @ y
         try:
-            theta = np.linalg.solve(normal, projected)
+            theta = small_linalg.solve(normal, projected)
         except np.linalg.LinAlgError:
             break
         cost = yy - float(projected @ theta)
@@ -635,7 +635,7 @@ def field_solve(evaluator: "FastHarmonics | GeneralHarmonics | ClippedHarmonics"
             break
     chi2 = max(cost, 0.0) / max(n_used - theta.size - 1, 1.0)
     try:
-        shape_precision = np.linalg.inv(np.linalg.inv(fisher)[2:-1, 2:-1])
+        shape_precision = small_linalg.inv(small_linalg.inv(fisher)[2:-1, 2:-1])
     except np.linalg.LinAlgError:
         shape_precision = np.zeros((n_basis - 1, n_basis - 1))
     return FrameSolution(x, settings.sigma_gray * math.sqrt(chi2), information, iterations, float(theta[0]),

@@ -13,7 +13,7 @@ from functools import lru_cache
 import numpy as np
 import pytest
 
-from graytrack.core import effects, kernels
+from graytrack.core import effects, kernels, small_linalg
 from graytrack.core.calibration_data import calibration_data
 from graytrack.core.evaluation import GeneralHarmonics
 from graytrack.core.frame_tables import FRAME_PARTS, FrameTables
@@ -143,3 +143,14 @@ def test_live_tracking_reloads_one_buffer_and_tracks_as_the_batch(name: str) -> 
     placed = np.isfinite(batch.x_mm)
     assert placed.mean() > 0.9 and np.array_equal(np.isfinite(positions), placed)
     assert np.max(np.abs(positions[placed] - batch.x_mm[placed])) * 1e3 < MICROMETRE_TOLERANCE
+
+
+def test_the_small_solver_gives_numpy_s_answer_and_refuses_a_singular_system() -> None:
+    rng = np.random.default_rng(7)
+    for size in (2, 3, 4, 6):
+        design = rng.normal(size=(3 * size, size))
+        normal, projected = design.T @ design, rng.normal(size=size)
+        assert np.allclose(small_linalg.solve(normal, projected), np.linalg.solve(normal, projected), rtol=1e-12)
+        assert np.allclose(small_linalg.inv(normal), np.linalg.inv(normal), rtol=1e-10, atol=1e-12)
+    with pytest.raises(np.linalg.LinAlgError):
+        small_linalg.solve(np.ones((3, 3)), np.ones(3))
