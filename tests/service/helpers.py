@@ -53,12 +53,26 @@ def wait_for(predicate: Callable[[], Any], timeout_s: float = 10.0, what: str = 
     raise AssertionError(f"timed out after {timeout_s:g} s waiting for {what}")
 
 
-def wait_state(client: TestClient, state: str, timeout_s: float = 10.0) -> dict[str, Any]:
-    def check() -> dict[str, Any] | None:
-        status = client.get("/api/status").json()
-        return status if status["state"] == state else None
+def _state_waiter(read: Callable[[], dict[str, Any] | None], state: str, timeout_s: float,
+                  what: str) -> dict[str, Any]:
+    """Wait for ``state``; on a timeout the message says where the daemon was instead (its state,
+    reason, faults and calibration progress), not only that time ran out."""
+    seen: list[dict[str, Any] | None] = [None]
 
-    return wait_for(check, timeout_s, f"state {state!r}")
+    def check() -> dict[str, Any] | None:
+        status = seen[0] = read()
+        return status if status is not None and status["state"] == state else None
+
+    try:
+        return wait_for(check, timeout_s, what)
+    except AssertionError as timeout:
+        last = seen[0] or {}
+        where = {key: last.get(key) for key in ("state", "reason", "faults", "calibration", "model_stale") if key in last}
+        raise AssertionError(f"{timeout}; last seen: {where or 'no answer'}") from None
+
+
+def wait_state(client: TestClient, state: str, timeout_s: float = 10.0) -> dict[str, Any]:
+    return _state_waiter(lambda: client.get("/api/status").json(), state, timeout_s, f"state {state!r}")
 
 
 class GatedCamera(Camera):
@@ -158,8 +172,7 @@ class ServeProcess:
             return None
 
     def wait_state(self, state: str, timeout_s: float = 30.0) -> dict[str, Any]:
-        return wait_for(lambda: (s := self.status()) is not None and s["state"] == state and s, timeout_s,
-                        f"the daemon to reach {state!r}")
+        return _state_waiter(self.status, state, timeout_s, f"the daemon to reach {state!r}")
 
     def auth(self) -> dict[str, str]:
         return {"Authorization": f"Bearer {(self.folder / 'data' / 'token').read_text().strip()}"}
@@ -214,7 +227,7 @@ class LiveServer:
         return self.get("/api/status").json()
 
     def wait_state(self, state: str, timeout_s: float = 20.0) -> dict[str, Any]:
-        return wait_for(lambda: (s := self.status())["state"] == state and s, timeout_s, f"state {state!r}")
+        return _state_waiter(self.status, state, timeout_s, f"state {state!r}")
 
     def __enter__(self) -> "LiveServer":
         self.thread.start()
