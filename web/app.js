@@ -205,10 +205,13 @@ async function refreshHistory() {
       button.dataset.active = String(c.active);
       button.textContent = c.active ? "active" : "Activate";
       button.disabled = c.active;
-      button.addEventListener("click", () => act((r) => `calibration ${r.active} is active`, () =>
-        api("POST", `/api/calibrations/${c.id}/activate`)));
+      button.addEventListener("click", () => {
+        // Activating changes the model every position comes from: ask first.
+        if (!window.confirm(`Track with the model of calibration ${c.id} (${quality}) from now on?`)) return;
+        act((r) => `calibration ${r.active} is active`, () => api("POST", `/api/calibrations/${c.id}/activate`));
+      });
       actions.append(button);
-      tr.append(actions);
+      tr.prepend(actions); // first, so a narrow screen never has to scroll to reach it
       return tr;
     }));
   } catch (err) {

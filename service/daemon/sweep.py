@@ -301,8 +301,10 @@ class Sweep:
             after = report["after"]
             report["held_out"] = {"error_std_um": after["error_std_um"], "bound_um": report["noise"]["crlb_um"],
                                   "method": "closed loop (graytrack diagnose)"}
+            added = ", ".join(step["effect"].replace("_", " ") for step in report["steps"])
             report["summary"] = (f"closed loop: held-out error {shown(after['error_std_um'], 2, 'µm')} "
-                                 f"(bound {shown(report['noise']['crlb_um'], 2, 'µm')}) after {len(report['steps'])} step(s)"
+                                 f"(bound {shown(report['noise']['crlb_um'], 2, 'µm')}); "
+                                 + (f"added {added}" if added else "nothing added: the seed paper's model holds")
                                  + _doubts(result.geometry))
         else:
             result = calibrate(recording, "paper", progress=progress)

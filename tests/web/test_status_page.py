@@ -90,8 +90,14 @@ def test_page_shows_live_position_and_runs_a_calibration(page) -> None:
     # rolling back to the first calibration changes the model in use, and says so
     first = history.nth(1)
     first_id = first.get_attribute("data-id")
+    browser_page.once("dialog", lambda dialog: dialog.dismiss())  # asked first; "cancel" changes nothing
+    first.locator("button.activate").click()
+    assert daemon.status()["active_calibration"]["id"] == job_id
+    asked: list[str] = []
+    browser_page.once("dialog", lambda dialog: (asked.append(dialog.message), dialog.accept()))
     first.locator("button.activate").click()
     expect(browser_page.locator("#message")).to_have_text(f"calibration {first_id} is active")
+    assert asked and first_id in asked[0], asked
     assert daemon.status()["active_calibration"]["id"] == first_id
     expect(history.nth(1)).to_have_class(re.compile("active"), timeout=5_000)
     expect(browser_page.locator("#events")).to_contain_text(f"model of calibration {first_id} activated")
@@ -162,8 +168,18 @@ def test_the_line_view_shows_the_frame_with_the_model_following_it(tmp_path: Pat
         expect(browser_page.locator("#moving")).to_have_text("moving → 3 mm", timeout=5_000)
         wait_for(lambda: abs((daemon.status()["position_mm"] or 0) - 3.0) < 0.01, 20.0, "the move")
         assert float(canvas.get_attribute("data-residual-rms")) < 1.5 * float(canvas.get_attribute("data-noise"))
-        # usable at 390 px: nothing wider than the screen
+        # usable at 390 px: nothing wider than the screen, the history's actions reachable without
+        # scrolling sideways, and the answer to an action in sight at the top of the page
         assert browser_page.evaluate("document.documentElement.scrollWidth") <= 390
+        expect(browser_page.locator("#history tbody tr")).to_have_count(1, timeout=10_000)
+        table = browser_page.locator("#history")
+        assert table.evaluate("t => t.scrollWidth <= t.parentElement.clientWidth"), "the history scrolls sideways"
+        button_right = table.locator("button.activate").first.evaluate("b => b.getBoundingClientRect().right")
+        assert button_right <= 390, button_right
+        browser_page.evaluate("window.scrollTo(0, 0)")
+        browser_page.click("#calibrate")
+        expect(browser_page.locator("#message")).to_contain_text("missing bearer token")
+        expect(browser_page.locator("#message")).to_be_in_viewport()
         assert console == [], console
 
 
