@@ -12,6 +12,7 @@ import io
 import json
 import os
 from pathlib import Path
+from typing import Any
 
 import matplotlib
 
@@ -213,10 +214,14 @@ th{{background:#f3f3f3}}.big{{font-size:20px}}</style></head><body>
 """
 
 
-def write_report(result: DiagnosisResult, folder: str | os.PathLike[str]) -> dict[str, Path]:
+def write_report(result: DiagnosisResult, folder: str | os.PathLike[str],
+                 report: dict[str, Any] | None = None) -> dict[str, Path]:
+    """report.json, report.html and model.json of a closed-loop run in ``folder``. ``report``: the
+    report to write when the caller added to ``result.report()`` (the daemon's summary and held-out
+    figures), so that the file is what the caller keeps, never read back."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    report = result.report()
+    report = result.report() if report is None else report
     paths = {"json": folder / "report.json", "html": folder / "report.html", "model": folder / "model.json"}
     if result.refused:  # a model of a wrongly set-up rig is not written, and an older one not left to look current
         paths.pop("model").unlink(missing_ok=True)

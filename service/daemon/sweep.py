@@ -294,10 +294,7 @@ class Sweep:
 
             result = diagnose(recording, progress=progress)
             result.final_model.info["camera_flip"] = self._camera_flip(recording)
-            paths = write_report(result, folder)
-            self.job.files.update({name: str(p) for name, p in paths.items()})
-            result.raise_if_refused()  # the report says why; the job fails with the cause and its fix
-            model, report = result.final_model, json.loads(paths["json"].read_text())
+            model, report = result.final_model, result.report()
             after = report["after"]
             report["held_out"] = {"error_std_um": after["error_std_um"], "bound_um": report["noise"]["crlb_um"],
                                   "method": "closed loop (graytrack diagnose)"}
@@ -306,6 +303,9 @@ class Sweep:
                                  f"(bound {shown(report['noise']['crlb_um'], 2, 'µm')}); "
                                  + (f"added {added}" if added else "nothing added: the seed paper's model holds")
                                  + _doubts(result.geometry))
+            paths = write_report(result, folder, report)  # the file is the job's report, not read back
+            self.job.files.update({name: str(p) for name, p in paths.items()})
+            result.raise_if_refused()  # the report says why; the job fails with the cause and its fix
         else:
             result = calibrate(recording, "paper", progress=progress)
             model = result.model

@@ -4,6 +4,9 @@ along the stroke, and the closed loop's model fitted on it."""
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -70,3 +73,5 @@ def test_the_closed_loop_calibrates_on_the_scan_near_its_bound(scanned) -> None:
     # bimodal along the stroke, and a median swung 0.65–1.69 µm between runs of this very rig
     assert 0.6 * held_out["bound_um"] <= held_out["error_std_um"] <= 1.6 * held_out["bound_um"], held_out
     assert status["active_calibration"]["id"] == job["id"]
+    # the report the job keeps is the file on disk, summary and held-out figures included
+    assert json.loads(Path(job["files"]["json"]).read_text()) == job["report"]
