@@ -455,7 +455,6 @@ def follow(monitor: ReferenceMonitor, x_mm: np.ndarray, reference_mm: np.ndarray
             monitor.observe(x, ref, bound)
         flagged = monitor.stale
         if flagged and not was:
-            line = monitor.estimate
             events.append((k, drift_message(monitor)))
         was = flagged
         stale[k] = flagged

@@ -24,6 +24,7 @@ from graytrack.core.diagnosis.loop import DiagnosisResult, Stage  # noqa: E402
 from graytrack.core.files import write_atomic  # noqa: E402
 from graytrack.core.models import save_model  # noqa: E402
 from graytrack.core.pixel_noise import PixelNoise  # noqa: E402
+from graytrack.core.transients import summary_line  # noqa: E402
 from graytrack.service.figures import MISSING, is_number, positive, shown  # noqa: E402
 
 
@@ -170,9 +171,8 @@ def _transients(found: dict | None) -> str:
                     for e in found.get("events", []))
     more = int(found["count"]) - len(found.get("events", []))
     tail = f"<li>and {more} more</li>" if more > 0 else ""
-    return (f"<p>{int(found['count'])} transient(s) (glints, reflections, passing dust) in {shown(found.get('frames'), 0)} "
-            f"frame(s): {shown(found.get('samples'), 0)} samples set aside in the frames they lasted, their pixels kept:</p>"
-            f"<ul>{items}{tail}</ul>")
+    sentence = summary_line(found)
+    return f"<p>{html.escape(sentence[0].upper() + sentence[1:])}:</p><ul>{items}{tail}</ul>"
 
 
 def render_html(result: DiagnosisResult, report: dict) -> str:

@@ -9,7 +9,8 @@ from __future__ import annotations
 import html
 from typing import Any
 
-from graytrack.service.figures import is_number, shown
+from graytrack.core.transients import summary_line
+from graytrack.service.figures import shown
 
 
 def _row(label: str, value: Any) -> str:
@@ -53,8 +54,6 @@ def render(calibration_id: str, report: dict[str, Any]) -> str:
 
 
 def _transients(found: dict[str, Any] | None) -> str:
-    """Glints and passing dust the calibration set aside, sample by sample (their pixels kept)."""
-    if not found or not is_number(found.get("count")) or not found.get("count"):
-        return "none found"
-    return (f"{int(found['count'])} (glints, reflections, passing dust) in {shown(found.get('frames'), 0)} frame(s): "
-            f"{shown(found.get('samples'), 0)} samples set aside, their pixels kept")
+    """Glints and passing dust the calibration set aside, sample by sample (their pixels kept):
+    the sentence the command line prints, so the page and the terminal say the same."""
+    return summary_line(found).removeprefix("transients: ")

@@ -165,7 +165,7 @@ def test_calibrate_and_diagnose_name_the_transients(tmp_path, capsys):
     first = found["events"][0]
     assert touched[first["frames"][0]].any() and 0 <= first["pixel"] < 100
     html = (tmp_path / "d" / "report.html").read_text()
-    assert f"{found['count']} transient(s)" in html and f"pixel {first['pixel']}" in html
+    assert f"Transients: {found['count']} (glints" in html and f"pixel {first['pixel']}" in html
 
 
 def test_on_a_strip_a_glint_costs_its_rows_not_whole_columns():
