@@ -155,10 +155,10 @@ def check_geometry(data: CalibrationData, model: FourierModel, rmse_gray: float 
         where_text = f"{where} see no period" if where else "most pixels were set aside"
         return replace(base, status="refused", cause="roi_off_target", message=(
             f"the model can use {usable:.0%} of the ROI's pixels ({where_text}): the ROI is off the target; "
-            f"move it onto the print ([camera] roi)"))
+            f"move it onto the print ([camera.roi])"))
     if share >= OFF_TARGET_SHARE:
         findings.append(("roi_off_target", f"{where} ({share:.0%} of the ROI) see no period: the ROI is partly off "
-                                           f"the target; move it onto the print ([camera] roi)"))
+                                           f"the target; move it onto the print ([camera.roi])"))
     findings.extend(nominal)
     if far:
         residual = f"the residual is {ratio:.1f}x the noise"
