@@ -34,7 +34,7 @@ WARM_FRAMES = 20
 CASES = [  # (label, scenario, rig effects, seconds of calibration)
     ("paper 1x100, dust and scratches", "paper", "dust:count=6,scratches:count=3", 20.0),
     ("paper 1x100, flicker", "paper", "flicker:mains_hz=50:depth=0.05", 20.0),
-    ("strip 16x100, shot noise, tilt", "strip16", "shot_noise,tilt:deg=2", 10.0),
+    ("strip 16x100, shot noise, tilt, PRNU", "strip16", "shot_noise,tilt:deg=2,prnu:sigma=0.02", 10.0),
     ("lab 16x128, 12 bit, vibration, PRNU, gradient, dust", "lab",
      "photon_transfer:full_well=20000:read_e=6:bits=12:black_gray=4,vibration:um=1:hz=120,prnu:sigma=0.01,"
      "gradient:per_10mm=0.05,dust:count=6", 3.0),
