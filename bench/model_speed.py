@@ -8,7 +8,10 @@ daemon does, one frame at a time, interleaved frame by frame between the models)
 ratios are what to read on a shared machine. The first frames of each tracker (model install,
 compilation) are not counted.
 
-    .venv/bin/python bench/model_speed.py [SCENARIO-SUBSTRING]
+    .venv/bin/python bench/model_speed.py [SUBSTRING]   (of a scenario's label or an effect's name)
+
+Then every effect family alone (drivers/sim/causes.py): a model grown with just that effect
+against the seed paper's model on the same recording.
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ from graytrack.core import kernels  # noqa: E402
 from graytrack.core.calibration import calibrate  # noqa: E402
 from graytrack.core.diagnosis import diagnose  # noqa: E402
 from graytrack.core.tracking import LiveTracker, track  # noqa: E402
+from graytrack.drivers.sim.causes import EFFECT_CAUSES, model_with  # noqa: E402
 from graytrack.drivers.sim.scenarios import build_rig  # noqa: E402
 
 CLOCK = time.thread_time
@@ -95,5 +99,24 @@ def main(selection: str = "") -> None:
               flush=True)
 
 
+def per_effect(selection: str = "") -> None:
+    """Every effect family alone: a model grown with it, against the seed paper's model fitted on
+    the same recording of its cause, live and batch (drivers/sim/causes.py)."""
+    print(f"\n{'effect (its cause on the rig)':62} {'live p50 plain/effect µs':>25} {'ratio':>6} "
+          f"{'track plain/effect µs':>22} {'ratio':>6}")
+    for name, cause in EFFECT_CAUSES.items():
+        if selection not in name:
+            continue
+        model, run, calibration = model_with(name, seconds=8.0 if cause.scenario == "paper" else 4.0)
+        models = {"plain": calibrate(calibration, "paper").model, "effect": model}
+        live = live_costs(models, run.frames, run.reference)
+        p50 = {key: float(np.median(values)) for key, values in live.items()}
+        batch = {key: batch_cost(m, run.frames, run.reference) for key, m in models.items()}
+        print(f"{name + ' (' + cause.effects + ')':62.62} {p50['plain']:12.1f} /{p50['effect']:9.1f} "
+              f"{p50['effect'] / p50['plain']:6.2f} {batch['plain']:10.1f} /{batch['effect']:9.1f} "
+              f"{batch['effect'] / batch['plain']:6.2f}", flush=True)
+
+
 if __name__ == "__main__":
     main(sys.argv[1] if len(sys.argv) > 1 else "")
+    per_effect(sys.argv[1] if len(sys.argv) > 1 else "")

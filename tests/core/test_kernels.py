@@ -14,30 +14,12 @@ import numpy as np
 import pytest
 
 from graytrack.core import effects, kernels, small_linalg
-from graytrack.core.calibration_data import calibration_data
 from graytrack.core.evaluation import GeneralHarmonics
 from graytrack.core.frame_tables import FRAME_PARTS, FrameTables
 from graytrack.core.kernels import TableEvaluator
-from graytrack.core.structure import ModelSpec, fit_spec
 from graytrack.core.tracking import LiveTracker, Tracker, track
-from graytrack.drivers.sim.scenarios import build_rig
+from graytrack.drivers.sim.causes import EFFECT_CAUSES, model_with
 
-# the rig's cause of each effect's family (nobody tells the fit about it)
-RIG_EFFECTS = {
-    "bad_pixels": ("paper", "bad_pixels:stuck=1:dead=1:hot=1"),
-    "clipping": ("paper", "saturation:gain=1.3,quantize:bits=8"),
-    "common_mode": ("paper", "flicker:mains_hz=50:depth=0.05"),
-    "flat_field": ("paper", "prnu:sigma=0.03,dsnu:sigma=2"),
-    "focus": ("paper", "defocus:sigma_um=200"),
-    "harmonics": ("paper", "print_gamma:gamma=1.4,harmonics:h2=0.05:h3=0.02"),
-    "pixel_polynomial": ("paper", "distortion:k1=0.02,vignetting:edge=0.15"),
-    "reference_timing": ("paper", "grating_latency:ms=2"),
-    "rows": ("strip16", "tilt:deg=2"),
-    "stroke": ("paper", "pitch_scale:ppm=500,gradient:per_10mm=0.08"),
-    "target_map": ("paper", "dust:count=6,scratches:count=3"),
-}
-# what the closed loop's probe would hand to ``grow`` (others: the effect's own screen of the data, or nothing)
-GROW_ARGUMENTS = {"clipping": (0.0, 255.0), "reference_timing": 0.002}
 MICROMETRE_TOLERANCE = 1e-9
 # what a model shows of the table parts that change the expression itself (the others change coefficients)
 PART_SEEN = {
@@ -56,23 +38,14 @@ def test_every_effect_names_its_part_of_the_frame_tables() -> None:
             f"{effect.frame_part!r}; one of {sorted(FRAME_PARTS)}): add it to core/frame_tables.py first")
 
 
-def test_every_effect_has_a_rig_cause_here() -> None:
-    assert set(RIG_EFFECTS) == set(effects.registry()), "a new effect needs its rig cause in RIG_EFFECTS"
+def test_every_effect_has_a_rig_cause() -> None:
+    assert set(EFFECT_CAUSES) == set(effects.registry()), "a new effect needs its cause in drivers/sim/causes.py"
 
 
 @lru_cache(maxsize=None)
 def _fitted(name: str):
-    scenario, rig_effects = RIG_EFFECTS[name]
-    seconds = 4.0 if scenario == "paper" else 2.0
-    calibration, _ = build_rig(scenario, rig_effects, seed=5).record(seconds)
-    run, _ = build_rig(scenario, rig_effects, seed=5, run=1).record(1.0)
+    model, run, _ = model_with(name)
     effect = effects.registry()[name]
-    data = calibration_data(calibration)
-    spec = effect.grow(ModelSpec(), GROW_ARGUMENTS.get(name, effect.screen(data)))
-    assert spec is not None and spec != ModelSpec(), f"{name}: nothing to grow on its rig cause"
-    data = effects.prepare_data(spec, data)
-    meta = calibration.meta
-    model = fit_spec(spec, data, meta["period_mm"], meta["pixel_pitch_mm"], rounds=2).model
     seen = PART_SEEN.get(effect.frame_part)
     assert seen is None or seen(model), f"{name}: the fitted model does not carry its {effect.frame_part}"
     return model, run
@@ -86,7 +59,7 @@ def _direct(model, **options) -> Tracker:
     return tracker
 
 
-@pytest.mark.parametrize("name", sorted(RIG_EFFECTS))
+@pytest.mark.parametrize("name", sorted(EFFECT_CAUSES))
 def test_kernel_tables_and_predict_agree(name: str) -> None:
     model, run = _fitted(name)
     x_mm = np.linspace(*model.stroke_range_mm, 37)
@@ -107,7 +80,7 @@ def test_kernel_tables_and_predict_agree(name: str) -> None:
         assert np.allclose(kernel.moments(float(x), y, w), direct, rtol=1e-12, atol=1e-9)
 
 
-@pytest.mark.parametrize("name", sorted(RIG_EFFECTS))
+@pytest.mark.parametrize("name", sorted(EFFECT_CAUSES))
 def test_the_fast_path_tracks_as_the_direct_evaluation(name: str) -> None:
     model, run = _fitted(name)
     options = {"light": "auto", "robust": True}

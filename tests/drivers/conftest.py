@@ -10,7 +10,9 @@ from graytrack.drivers.stage.axis_model import TrapezoidAxis
 from graytrack.drivers.stage.gcs_stage import GCSStage
 from graytrack.drivers.stage.sim_controller import SimGCSController
 
-TIMEOUT_S = 0.15  # short, so fault tests that must time out stay fast
+# Short, so fault tests that must time out stay fast, yet long enough that a reply on a 2-core machine
+# at load 8 is never taken for silence (0.15 s was: a plain ERR? timed out in CI-like load).
+TIMEOUT_S = 0.5
 
 
 @pytest.fixture

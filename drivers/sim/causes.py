@@ -1,0 +1,52 @@
+"""For each effect the closed loop can add to a model, a physical cause of its family on the virtual
+rig: what the tests and benchmarks record to get a model carrying that effect, without telling the
+fit about it. A new effect in core/effects/ needs its cause here (tests/core/test_kernels.py checks)."""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+
+class Cause(NamedTuple):
+    scenario: str  # drivers/sim/scenarios.py
+    effects: str  # the rig's effects (drivers/sim/effects.py spec)
+    argument: Any = None  # what the closed loop's probe hands to the effect's grow (None: its screen of the data)
+
+
+EFFECT_CAUSES: dict[str, Cause] = {
+    "bad_pixels": Cause("paper", "bad_pixels:stuck=1:dead=1:hot=1"),
+    "clipping": Cause("paper", "saturation:gain=1.3,quantize:bits=8", (0.0, 255.0)),
+    "common_mode": Cause("paper", "flicker:mains_hz=50:depth=0.05"),
+    "flat_field": Cause("paper", "prnu:sigma=0.03,dsnu:sigma=2"),
+    "focus": Cause("paper", "defocus:sigma_um=200"),
+    "harmonics": Cause("paper", "print_gamma:gamma=1.4,harmonics:h2=0.05:h3=0.02"),
+    "pixel_polynomial": Cause("paper", "distortion:k1=0.02,vignetting:edge=0.15"),
+    "reference_timing": Cause("paper", "grating_latency:ms=2", 0.002),
+    "rows": Cause("strip16", "tilt:deg=2"),
+    "stroke": Cause("paper", "pitch_scale:ppm=500,gradient:per_10mm=0.08"),
+    "target_map": Cause("paper", "dust:count=6,scratches:count=3"),
+}
+
+
+def model_with(name: str, seed: int = 5, seconds: float | None = None) -> tuple[Any, Any, Any]:
+    """(a model grown with effect ``name`` and fitted on a recording of its cause, a second run of
+    the same rig to track, the calibration recording). The structure is the effect's growth from
+    the seed paper's; the fit is the calibration's own (two alternation rounds)."""
+    from graytrack.core import effects
+    from graytrack.core.calibration_data import calibration_data
+    from graytrack.core.structure import ModelSpec, fit_spec
+    from graytrack.drivers.sim.scenarios import build_rig
+
+    cause = EFFECT_CAUSES[name]
+    seconds = seconds if seconds is not None else (4.0 if cause.scenario == "paper" else 2.0)
+    calibration, _ = build_rig(cause.scenario, cause.effects, seed=seed).record(seconds)
+    run, _ = build_rig(cause.scenario, cause.effects, seed=seed, run=1).record(seconds / 4)
+    effect = effects.registry()[name]
+    data = calibration_data(calibration)
+    argument = cause.argument if cause.argument is not None else effect.screen(data)
+    spec = effect.grow(ModelSpec(), argument)
+    if spec is None or spec == ModelSpec():
+        raise ValueError(f"effect {name!r}: nothing to grow on its cause {cause.effects!r}")
+    data = effects.prepare_data(spec, data)
+    meta = calibration.meta
+    return fit_spec(spec, data, meta["period_mm"], meta["pixel_pitch_mm"], rounds=2).model, run, calibration
