@@ -9,11 +9,17 @@ that stage's true position), so that combination is required.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from graytrack.drivers.camera.base import Camera
 from graytrack.drivers.clock import REAL_TIME, ScaledClock
 from graytrack.drivers.config import CameraConfig, ConfigError, HardwareConfig, StageConfig
 from graytrack.drivers.stage.gcs_stage import GCSStage
+
+if TYPE_CHECKING:
+    from graytrack.drivers.sim.rig import VirtualRig
+    from graytrack.drivers.sim.stage import SimStage
+    from graytrack.drivers.stage.sim_controller import SimGCSController
 
 
 @dataclass
@@ -81,15 +87,28 @@ def open_hardware(config: HardwareConfig, clock: ScaledClock = REAL_TIME) -> Har
     return hardware
 
 
-def _simulated(config: HardwareConfig, clock: ScaledClock) -> Hardware:
-    from graytrack.drivers.camera.sim import SimCamera
-    from graytrack.drivers.sim.scenarios import build_rig
+def virtual_rig_controller(rig: VirtualRig, clock: ScaledClock = REAL_TIME, path: str | None = None
+                           ) -> tuple[SimStage, SimGCSController]:
+    """The virtual rig's stage (its true motion) and a simulated PI controller driving it, not yet started.
+
+    The controller reports the rig's grating, as on the bench; ``path`` is where its pty is linked
+    (a private temporary folder when None). What the daemon's virtual rig and
+    ``graytrack sim-controller`` both run.
+    """
     from graytrack.drivers.stage.sim_axis import SimStageAxis
     from graytrack.drivers.stage.sim_controller import SimGCSController
 
-    rig = build_rig(config.camera.scenario, config.camera.effects, seed=config.camera.seed)
     truth = rig.make_stage(t_s=clock.now())
-    controller = SimGCSController(SimStageAxis(truth, rig.make_grating(truth)), clock=clock.now).start()
+    return truth, SimGCSController(SimStageAxis(truth, rig.make_grating(truth)), path=path, clock=clock.now)
+
+
+def _simulated(config: HardwareConfig, clock: ScaledClock) -> Hardware:
+    from graytrack.drivers.camera.sim import SimCamera
+    from graytrack.drivers.sim.scenarios import build_rig
+
+    rig = build_rig(config.camera.scenario, config.camera.effects, seed=config.camera.seed)
+    truth, controller = virtual_rig_controller(rig, clock)
+    controller.start()
     stage = make_gcs_stage(config.stage, port=controller.path)
     camera = SimCamera(rig, truth, config.camera.to_settings(), clock=clock) if config.camera.kind == "sim" else make_real_camera(config.camera)
     return Hardware(camera, stage, controller, rig)

@@ -9,7 +9,9 @@ Wire rules used here:
   ends with a plain LF (the framing GCS uses for multi-line answers such as ``HLP?`` or ``POS?``
   over several axes);
 - axis values come as ``AXIS=VALUE``;
-- set commands never answer; their success is read back with ``ERR?`` (an integer, 0 = fine).
+- set commands never answer; their success is read back with ``ERR?`` (an integer, 0 = fine);
+- single-character commands are one control byte with no line end (``#5`` is ``chr(5)``); a
+  controller acts on them the moment they arrive, even in the middle of a text line.
 """
 
 from __future__ import annotations
@@ -78,6 +80,38 @@ class ReplyFramer:
     def clear(self) -> None:
         self._buffer.clear()
         self._lines = []
+
+
+class CommandFramer:
+    """The controller's side of the wire: cuts received bytes into commands, in arrival order.
+
+    A command is either a text line (``str``, without its line end, surrounding blanks removed)
+    or a single-character command (``int``, the control byte: 5 for ``#5``). Control bytes are
+    taken out of the stream wherever they fall, so ``#5`` sent while a line is half received
+    neither ends nor corrupts that line: it is what PIPython's ``IsMoving`` relies on.
+    """
+
+    def __init__(self) -> None:
+        self._line = bytearray()
+
+    def feed(self, data: bytes) -> list[str | int]:
+        commands: list[str | int] = []
+        for byte in data:
+            if byte == _LF_BYTE:
+                commands.append(bytes(self._line).decode("ascii", errors="replace").strip())
+                self._line.clear()
+            elif byte < 0x20 and byte not in _LINE_WHITESPACE:
+                commands.append(byte)
+            else:
+                self._line.append(byte)
+        return commands
+
+    def clear(self) -> None:
+        self._line.clear()
+
+
+_LF_BYTE = LF[0]
+_LINE_WHITESPACE = frozenset(b"\r\t")
 
 
 def parse_axis_value(line: str, axis: str) -> str:

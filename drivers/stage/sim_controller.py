@@ -6,6 +6,10 @@ disappearance reproducible: :meth:`vanish` closes the pty and removes the link (
 on the driver's side fail with EIO, reopening fails with ENOENT), :meth:`reappear` creates a new
 pty behind the same path. The axis state survives, as it does on a controller that stayed powered.
 
+Received bytes are cut into text lines and single-character commands (``#5`` is the byte 05h,
+sent without a line end) by :class:`~.gcs_protocol.CommandFramer`; the latter are logged in
+:attr:`SimGCSController.received` as ``#5``.
+
 Faults are queued with :meth:`inject` and consumed by the next command they match: line noise
 before a reply, a reply cut short, a reply never sent, a reply sent late, or a command refused
 with a given GCS error number.
@@ -140,7 +144,7 @@ class SimGCSController:
 
     # -- serving ---------------------------------------------------------------------------
     def _serve(self) -> None:
-        buffer = bytearray()
+        framer = gcs.CommandFramer()
         while not self._stopping.is_set():
             with self._lock:
                 master, generation = self._master, self._generation
@@ -155,13 +159,10 @@ class SimGCSController:
                 continue
             data = self._read(master, generation)
             if data is None:
-                buffer.clear()
+                framer.clear()
                 continue
-            buffer.extend(data)
-            while (end := buffer.find(gcs.LF)) >= 0:
-                line = bytes(buffer[:end]).decode("ascii", errors="replace").strip()
-                del buffer[: end + 1]
-                self._handle(line, generation)
+            for command in framer.feed(data):
+                self._handle(command, generation)
 
     def _read(self, master: int, generation: int) -> bytes | None:
         with self._lock:
@@ -172,18 +173,24 @@ class SimGCSController:
             except OSError:
                 return None
 
-    def _handle(self, line: str, generation: int) -> None:
+    def _handle(self, command: str | int, generation: int) -> None:
+        """A text line, or a single-character command (its control byte, logged as ``#5``)."""
+        line = command if isinstance(command, str) else f"#{command}"
         with self._lock:
             self.received.append(line)
             fault = self._take_fault(line)
             if fault is not None and fault.kind == "error":
                 self.interpreter.fail(fault.code)
                 return
-            reply = self.interpreter.execute(line)
+            if isinstance(command, str):
+                reply = self.interpreter.execute(command)
+            else:
+                reply = self.interpreter.execute_single(command)
         if reply is None:
             return
-        data = b"".join(text.encode("ascii") + gcs.CONTINUATION for text in reply[:-1])
-        data += reply[-1].encode("ascii") + gcs.LF
+        # latin-1: #7 answers the single byte B1h/B0h; everything else is ASCII
+        data = b"".join(text.encode("latin-1") + gcs.CONTINUATION for text in reply[:-1])
+        data += reply[-1].encode("latin-1") + gcs.LF
         if fault is not None:
             data = self._apply(fault, data)
         if data:

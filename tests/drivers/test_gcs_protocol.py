@@ -53,3 +53,11 @@ def test_error_codes_and_booleans() -> None:
     assert gcs.parse_axis_bool("1=1", "1") is True
     with pytest.raises(ValueError):
         gcs.parse_axis_bool("1=2", "1")
+
+
+def test_command_framer_takes_single_character_commands_out_of_a_half_received_line() -> None:
+    framer = gcs.CommandFramer()
+    assert framer.feed(b"\x05") == [5]  # #5 needs no line end
+    assert framer.feed(b"*ID") == []
+    assert framer.feed(b"N\x07?\r\nPOS? 1\n\x18") == [7, "*IDN?", "POS? 1", 24]
+    assert framer.feed(b"MOV 1\t2\n") == ["MOV 1\t2"], "tab and CR are blanks of a line, not commands"
