@@ -12,7 +12,7 @@ ARRIVED_MM = 0.005  # within 5 µm of the target counts as there
 MAX_AGE_MS = 100.0  # a position older than this at send time is not used for control
 
 
-def main(url: str, data_dir: str, targets: tuple[float, ...] = TARGETS_MM) -> int:
+def main(url: str, data_dir: str, targets: tuple[float, ...] = TARGETS_MM, max_age_ms: float = MAX_AGE_MS) -> int:
     with Client(url, data_dir=data_dir) as daemon:
         if not daemon.status().calibrated:
             daemon.calibrate(progress=lambda fraction, message: print(f"calibrating {fraction:4.0%} {message}"))
@@ -23,9 +23,10 @@ def main(url: str, data_dir: str, targets: tuple[float, ...] = TARGETS_MM) -> in
                     for p in positions:
                         if p.gap:
                             print(f"missed {p.gap} messages before seq {p.seq}")
-                        if not p.locked or p.stale or p.x_mm is None or (p.age_ms or 0.0) > MAX_AGE_MS:
+                        if not p.locked or p.stale or p.x_mm is None or (p.age_ms or 0.0) > max_age_ms:
                             daemon.stop()
-                            print(f"position not usable at seq {p.seq} (locked {p.locked}, stale {p.stale}): stopped")
+                            print(f"seq {p.seq} not usable (locked {p.locked}, model stale: {p.stale_reason}, "
+                                  f"age {p.age_ms} ms): stopped")
                             return 1
                         if abs(p.x_mm - target) < ARRIVED_MM:
                             print(f"at {target:g} mm: measured {p.x_mm:.4f} mm ± {p.crlb_um:.1f} µm")

@@ -41,7 +41,8 @@ class Position:
     x_mm: float | None  # None when the frame could not be placed
     locked: bool
     crlb_um: float | None
-    stale: bool  # the daemon's validity monitor says the model no longer holds (``stale_reason`` in raw)
+    stale: bool  # the daemon's validity monitor says the model no longer holds: recalibrate
+    stale_reason: str | None  # while stale: the family of causes (transients, pixels, light, focus, scale, geometry)
     age_ms: float | None  # send time minus mid-exposure, in the daemon
     t_unix: float | None
     frame_id: int | None
@@ -69,7 +70,8 @@ def ws_url(base: str, max_rate: float | None) -> str:
 def _message(document: dict[str, Any], gap: int, reconnected: bool, restarted: bool) -> Position:
     get = document.get
     return Position(seq=document["seq"], t=document["t"], x_mm=get("x_mm"), locked=bool(get("locked")),
-                    crlb_um=get("crlb_um"), stale=bool(get("stale", False)), age_ms=get("age_ms"),
+                    crlb_um=get("crlb_um"), stale=bool(get("stale", False)), stale_reason=get("stale_reason"),
+                    age_ms=get("age_ms"),
                     t_unix=get("t_unix"), frame_id=get("frame_id"), dropped=get("dropped", 0),
                     reference_mm=get("reference_mm"), error_um=get("error_um"), gap=gap, reconnected=reconnected,
                     restarted=restarted, raw=document)
