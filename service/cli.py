@@ -15,7 +15,8 @@ from typing import Sequence
 from graytrack import __version__
 
 # Order here is the order in `graytrack --help`.
-COMMAND_MODULES = ("simulate", "calibrate", "track", "diagnose", "batch", "history", "serve", "demo", "sim_controller")
+COMMAND_MODULES = ("simulate", "calibrate", "track", "diagnose", "batch", "history", "serve", "demo", "sim_controller",
+                   "epics")
 
 EXIT_BAD_INPUT = 2
 
