@@ -14,6 +14,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, Coroutine
 
+import bluesky.plan_stubs as bps
 import bluesky.plans as bp
 import pytest
 from bluesky import RunEngine
@@ -24,8 +25,7 @@ from graytrack.bluesky import GraytrackEncoder, GraytrackStage
 from graytrack.service.daemon.app import create_app
 from tests.service.helpers import LiveServer, fast_settings, free_port
 
-AT_REST_MM = 0.005  # frames of a resting stage against the daemon's newest figure
-TRACKS_MM = 0.01
+TRACKS_MM = 0.01  # a frame against the daemon's figure or the setpoint (the first frames after a move may lag by µm)
 
 
 def test_mocked_encoder_reads_what_was_set_with_dtypes_and_units() -> None:
@@ -111,16 +111,18 @@ def _events(engine: RunEngine, plan: Any) -> list[dict[str, Any]]:
 
 def test_count_records_fresh_frames_that_agree_with_the_status(
         daemon: LiveServer, engine: RunEngine, devices: tuple[GraytrackEncoder, GraytrackStage]) -> None:
-    encoder, _ = devices
+    encoder, stage = devices
+    engine(bps.mv(stage, 5.0))  # at rest where the test says, whatever the calibration left
     events = _events(engine, bp.count([encoder], num=5))
     status = daemon.status()
     assert len(events) == 5
     seqs = [e["encoder-seq"] for e in events]
     assert seqs == sorted(set(seqs)), f"each trigger waits for a new frame: {seqs}"
     assert status["position_mm"] is not None and not status["moving"]
+    assert abs(status["position_mm"] - 5.0) < TRACKS_MM
     for e in events:
         assert e["encoder-locked"] is True and e["encoder-stale"] is False
-        assert abs(e["encoder-position"] - status["position_mm"]) < AT_REST_MM
+        assert abs(e["encoder-position"] - status["position_mm"]) < TRACKS_MM, (e, status["position_mm"])
         assert 0 < e["encoder-crlb"] < 5.0  # µm: the sim rig tracks to about a micrometre
     assert abs(status["crlb_um"] - events[-1]["encoder-crlb"]) < 0.5 * status["crlb_um"]
 
