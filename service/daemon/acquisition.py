@@ -193,7 +193,7 @@ class Acquisition(Worker):
         stats = self.stats
         stats.frames += 1
         stats.last_frame_wall = now
-        self.rate.arrive(now)
+        self.rate.arrive(frame.t_host)  # exposure times: a host stall and its backlog are no outage
         if self._last_id is not None and frame.frame_id > self._last_id + 1:
             stats.dropped += frame.frame_id - self._last_id - 1
         self._last_id = frame.frame_id

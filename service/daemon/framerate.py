@@ -5,7 +5,10 @@ silent for a while the same window straddles the silence: 200 frames at 50 Hz pl
 as 21 Hz for the four seconds the window takes to refill. So an arrival after a gap much longer
 than the window's own frame period (or after :meth:`FrameRate.restart`, which the frame loop calls
 when it reopens the camera) starts a new window: the rate after a recovery is the rate since the
-recovery. Times come from the caller (``time.monotonic()`` in the daemon), so tests need no sleeps.
+recovery. Times come from the caller, so tests need no sleeps: the daemon passes each frame's
+mid-exposure on ``time.monotonic()`` (``Frame.t_host``), not the moment the loop got it, so a loop
+stalled for a moment and then draining the camera's backlog neither restarts the window nor reads
+the burst as a rate of thousands.
 """
 
 from __future__ import annotations
@@ -28,6 +31,8 @@ class FrameRate:
     def arrive(self, t: float) -> None:
         """One frame arrived at ``t``; a gap far beyond the window's frame period restarts the window."""
         arrivals = self._arrivals
+        if arrivals and t <= arrivals[-1]:
+            return  # a repeated frame (same exposure) adds no interval
         if len(arrivals) >= 2:
             period = (arrivals[-1] - arrivals[0]) / (len(arrivals) - 1)
             if period > 0 and t - arrivals[-1] > self.outage_periods * period:

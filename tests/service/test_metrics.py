@@ -94,6 +94,8 @@ def test_a_dropped_frame_or_jitter_does_not_restart_the_window_but_a_reopen_does
         rate.arrive(k * 0.02 + (0.004 if k % 2 else 0.0))  # 50 Hz with 4 ms of jitter
     rate.arrive(99 * 0.02 + 3 * 0.02)  # two frames lost
     assert rate.hz(2.04, 1.0) == pytest.approx(100 / 2.04), "one window over 2.04 s: 101 arrivals"
+    rate.arrive(2.04)  # the same frame again (a repeated exposure)
+    assert rate.hz(2.04, 1.0) == pytest.approx(100 / 2.04)
     rate.restart()
     assert rate.hz(2.04, 1.0) == 0.0
     rate.arrive(2.1), rate.arrive(2.125)
