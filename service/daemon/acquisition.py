@@ -22,7 +22,6 @@ import math
 import queue
 import threading
 import time
-from collections import deque
 from dataclasses import dataclass
 from typing import Any, Callable
 
@@ -32,6 +31,7 @@ from graytrack.core.models.fourier import FourierModel
 from graytrack.core.tracking import LiveFix, LiveTracker
 from graytrack.core.validity import ADVICE
 from graytrack.drivers.camera.base import Camera, CameraError, CameraTimeout, Frame
+from graytrack.service.daemon.framerate import FrameRate
 from graytrack.service.daemon.grating import Readings
 from graytrack.service.daemon.trim import ReferenceTrim
 from graytrack.drivers.realtime import raise_thread_priority
@@ -39,7 +39,6 @@ from graytrack.service.daemon.worker import Worker, describe
 
 log = logging.getLogger("graytrack.daemon")
 READ_TIMEOUT_S = 0.25  # short, so stop requests and fault timing are honoured promptly
-RATE_WINDOW = 200
 LIVEFIX_EXTRAS = ("gain", "offset_gray", "rejected_px", "transient_px", "chi2", "focus", "stale", "stale_reason")  # LiveFix fields the stream passes on when present
 
 
@@ -119,7 +118,7 @@ class Acquisition(Worker):
         self._pending: tuple[FourierModel, float | None] | None = None
         self._subscribers: list[queue.Queue[Sample]] = []
         self._lock = threading.Lock()
-        self._arrivals: deque[float] = deque(maxlen=RATE_WINDOW)
+        self.rate = FrameRate()  # restarts after an outage (service/daemon/framerate.py)
         self._seq = 0
         self._last_id: int | None = None
         self._stale: str | None = None  # the family the model is stale for (None: it holds)
@@ -152,11 +151,9 @@ class Acquisition(Worker):
         return self._stale
 
     def frame_rate_hz(self, stale_after_s: float) -> float:
-        """Frames per second over the last few hundred frames; 0 when the newest is older than ``stale_after_s``."""
-        arrivals = list(self._arrivals)
-        if len(arrivals) < 2 or arrivals[-1] <= arrivals[0] or time.monotonic() - arrivals[-1] > stale_after_s:
-            return 0.0
-        return (len(arrivals) - 1) / (arrivals[-1] - arrivals[0])
+        """Frames per second since the last outage (at most a few hundred frames); 0 when the newest is older
+        than ``stale_after_s``."""
+        return self.rate.hz(time.monotonic(), stale_after_s)
 
     def seconds_since_frame(self) -> float:
         return time.monotonic() - self.stats.last_frame_wall
@@ -196,7 +193,7 @@ class Acquisition(Worker):
         stats = self.stats
         stats.frames += 1
         stats.last_frame_wall = now
-        self._arrivals.append(now)
+        self.rate.arrive(frame.t_host)  # exposure times: a host stall and its backlog are no outage
         if self._last_id is not None and frame.frame_id > self._last_id + 1:
             stats.dropped += frame.frame_id - self._last_id - 1
         self._last_id = frame.frame_id
@@ -208,6 +205,7 @@ class Acquisition(Worker):
         """Close, wait, open again; failures leave the fault standing for the next round."""
         self.camera.close()
         self._last_id = None
+        self.rate.restart()
         if self._stop.wait(self.reopen_interval_s):
             return
         try:

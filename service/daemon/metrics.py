@@ -1,29 +1,88 @@
 """``GET /metrics``: the daemon's counters and gauges in the Prometheus text format (v0.0.4).
 
 Hand-written because the set is small and fixed, and the rig has no business pulling in a
-client library for it. Names follow Prometheus conventions (``_total`` counters, base units).
+client library for it (the tests parse it with ``prometheus_client``'s own parser). The rules
+kept here, which docs/daemon.md lists family by family:
+
+* base units in names and values: a position is ``_meters`` (the API's mm × 1e-3), a bound too;
+* counters end in ``_total``; a rate is left to ``rate()`` over a counter (``graytrack_frames_total``),
+  the ``graytrack_frame_rate_hertz`` gauge is the daemon's own windowed figure, for the status page's peers;
+* every family has HELP and TYPE and is present in every scrape, whatever the state: a figure
+  that does not exist now (no fresh frame, no fit) is NaN, never a missing line, and a labelled
+  family has every label value from the first scrape (calibration outcomes, states, causes);
+* label values and HELP text are escaped.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Iterable
+from typing import Iterable, Mapping
 
 from graytrack.core.validity import FAMILIES
 from graytrack.service.daemon import status as rig_status
 from graytrack.service.daemon.broadcast import Broadcaster
+from graytrack.service.daemon.jobs import FINAL
 from graytrack.service.daemon.rig import Rig
 
 STATES = ("starting", "idle", "calibrating", "tracking", "fault", "stopping")
 CONTENT_TYPE = "text/plain; version=0.0.4; charset=utf-8"
+NAN = float("nan")
+
+# the tracker's per-frame fit figures (status["fit"]): key, family, help
+FIT_FAMILIES = (
+    ("chi2", "graytrack_fit_chi2", "reduced chi-square of the newest frame's fit (NaN: no fresh fit)"),
+    ("rejected_px", "graytrack_fit_rejected_pixels", "pixels the newest frame's fit rejected (NaN: no fresh fit)"),
+    ("transient_px", "graytrack_fit_transient_pixels",
+     "samples of the newest frame set aside as a transient, glint or dust (NaN: no fresh fit)"),
+    ("focus", "graytrack_fit_focus_square_pixels",
+     "change of blur variance since calibration in square pixels (NaN: not estimated)"),
+    ("stale", "graytrack_fit_stale", "1 when the tracker flags the model as stale: recalibrate (NaN: no fresh fit)"),
+)
+
+Sample = tuple[Mapping[str, str], float | int | bool | None]
 
 
-def _metric(name: str, kind: str, help_text: str, samples: Iterable[tuple[str, float]]) -> list[str]:
-    lines = [f"# HELP {name} {help_text}", f"# TYPE {name} {kind}"]
+def escape_label(value: str) -> str:
+    """A label value as the text format wants it: backslash, double quote and newline escaped."""
+    return value.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n")
+
+
+def escape_help(text: str) -> str:
+    """HELP text escapes backslash and newline (a quote is literal there)."""
+    return text.replace("\\", "\\\\").replace("\n", "\\n")
+
+
+def number(value: float | int | bool | None) -> str:
+    """A sample value: None and NaN are ``NaN``, infinities ``+Inf``/``-Inf``, anything else a float."""
+    value = NAN if value is None else float(value)
+    if math.isnan(value):
+        return "NaN"
+    if math.isinf(value):
+        return "+Inf" if value > 0 else "-Inf"
+    return repr(value)
+
+
+def family(name: str, kind: str, help_text: str, samples: Iterable[Sample]) -> list[str]:
+    """One family's HELP, TYPE and sample lines; a counter's name must end in ``_total``."""
+    if kind == "counter" and not name.endswith("_total"):
+        raise ValueError(f"counter {name} must end in _total")
+    lines = [f"# HELP {name} {escape_help(help_text)}", f"# TYPE {name} {kind}"]
     for labels, value in samples:
-        text = "NaN" if value is None or (isinstance(value, float) and math.isnan(value)) else repr(float(value))
-        lines.append(f"{name}{labels} {text}")
+        text = ",".join(f'{key}="{escape_label(str(label))}"' for key, label in labels.items())
+        lines.append(f"{name}{{{text}}} {number(value)}" if text else f"{name} {number(value)}")
     return lines
+
+
+def gauge(name: str, help_text: str, value: float | int | bool | None) -> list[str]:
+    return family(name, "gauge", help_text, [({}, value)])
+
+
+def counter(name: str, help_text: str, value: int) -> list[str]:
+    return family(name, "counter", help_text, [({}, value)])
+
+
+def _scaled(value: float | None, factor: float) -> float:
+    return NAN if value is None else value * factor
 
 
 def render(rig: Rig, broadcaster: Broadcaster) -> str:
@@ -33,61 +92,53 @@ def render(rig: Rig, broadcaster: Broadcaster) -> str:
     hardware = rig.hardware
     camera = hardware.camera.stats if hardware is not None else None
     link = hardware.stage.link.stats if hardware is not None else None
-    position = status["position_mm"]
-    out: list[str] = []
-    out += _metric("graytrack_state", "gauge", "1 for the daemon's current state",
-                   [(f'{{state="{s}"}}', float(status["state"] == s)) for s in STATES])
-    out += _metric("graytrack_calibrated", "gauge", "1 when a model is installed", [("", float(status["calibrated"]))])
-    out += _metric("graytrack_position_mm", "gauge", "last tracked position",
-                   [("", float("nan") if position is None else position)])
-    out += _metric("graytrack_crlb_um", "gauge", "Cramer-Rao bound of the last tracked frame",
-                   [("", float("nan") if status["crlb_um"] is None else status["crlb_um"])])
-    out += _metric("graytrack_frame_rate_hz", "gauge", "frames per second over the last frames (0 when stale)",
-                   [("", status["frame_rate_hz"])])
-    out += _metric("graytrack_stale", "gauge", "1 when the newest tracked frame is older than stale_after_s",
-                   [("", float(status["stale"]))])
-    out += _metric("graytrack_healthy", "gauge", "1 when frames are being tracked now (/healthz 200)",
-                   [("", float(rig_status.tracking_fresh(rig)))])
-    out += _metric("graytrack_frames_total", "counter", "camera frames received", [("", stats.frames if stats else 0)])
-    out += _metric("graytrack_frames_tracked_total", "counter", "frames tracked", [("", stats.tracked if stats else 0)])
-    out += _metric("graytrack_frames_unplaced_total", "counter", "tracked frames that could not be placed",
-                   [("", stats.unplaced if stats else 0)])
-    out += _metric("graytrack_lock_events_total", "counter", "lock losses and re-acquisitions",
-                   [("", stats.lock_events if stats else 0)])
-    out += _metric("graytrack_camera_dropped_frames_total", "counter", "frames the camera lost or skipped",
-                   [("", camera.dropped if camera else 0)])
-    out += _metric("graytrack_frames_dropped_total", "counter", "gaps in the camera's frame_id sequence (the stream's dropped)",
-                   [("", stats.dropped if stats else 0)])
-    out += _metric("graytrack_tracking_errors_total", "counter", "frames the tracker raised on",
-                   [("", stats.tracking_errors if stats else 0)])
-    out += _metric("graytrack_worker_crashes_total", "counter", "worker loops restarted after an exception",
-                   [("", (acquisition.crashes if acquisition else 0) + (grating.crashes if grating else 0))])
-    out += _metric("graytrack_camera_errors_total", "counter", "camera errors other than timeouts",
-                   [("", stats.camera_errors if stats else 0)])
-    out += _metric("graytrack_grating_reads_total", "counter", "POS? readings", [("", grating.reads if grating else 0)])
-    out += _metric("graytrack_grating_errors_total", "counter", "failed POS? readings",
-                   [("", grating.errors if grating else 0)])
-    out += _metric("graytrack_stage_reconnects_total", "counter", "serial port reopened",
-                   [("", link.reconnects if link else 0)])
-    out += _metric("graytrack_faults_total", "counter", "faults raised", [("", rig.faults.raised)])
-    out += _metric("graytrack_calibrations_total", "counter", "calibration sweeps finished by outcome",
-                   [(f'{{outcome="{k}"}}', v) for k, v in sorted(rig.calibrations_finished.items())])
-    out += _metric("graytrack_websocket_clients", "gauge", "connected /ws/position clients",
-                   [("", broadcaster.clients)])
-    out += _metric("graytrack_websocket_messages_total", "counter", "position messages sent",
-                   [("", broadcaster.sent)])
-    out += _metric("graytrack_websocket_dropped_total", "counter", "messages dropped for slow clients",
-                   [("", broadcaster.dropped)])
-    out += _metric("graytrack_model_stale", "gauge", "1 for the family of causes the model is stale for (all 0: it holds)",
-                   [(f'{{reason="{family}"}}', float(status.get("stale_reason") == family)) for family in FAMILIES])
     fit = status.get("fit") or {}
-    for key, help_text in (("chi2", "reduced chi-square of the newest frame's fit"),
-                           ("rejected_px", "pixels the newest frame's fit rejected"),
-                           ("transient_px", "samples of the newest frame set aside as a transient (glint, dust)"),
-                           ("focus", "change of blur variance since calibration, px^2 (NaN: not estimated)"),
-                           ("stale", "1 when the tracker flags the model as stale (recalibrate)")):
-        if key in fit:
-            out += _metric(f"graytrack_fit_{key}", "gauge", help_text,
-                           [("", float("nan") if fit[key] is None else float(fit[key]))])
-    out += _metric("graytrack_uptime_seconds", "gauge", "seconds since start", [("", status["uptime_s"])])
+    out: list[str] = []
+    out += family("graytrack_state", "gauge", "1 for the daemon's current state",
+                  [({"state": s}, status["state"] == s) for s in STATES])
+    out += gauge("graytrack_calibrated", "1 when a model is installed", status["calibrated"])
+    out += gauge("graytrack_position_meters", "last tracked position (NaN when stale or not placed)",
+                 _scaled(status["position_mm"], 1e-3))
+    out += gauge("graytrack_crlb_meters", "Cramer-Rao bound of the last tracked frame (NaN when stale)",
+                 _scaled(status["crlb_um"], 1e-6))
+    out += gauge("graytrack_locked", "1 when the tracker is locked on the last tracked frame (NaN when stale)",
+                 status["locked"])
+    out += gauge("graytrack_frame_rate_hertz",
+                 "frames per second since the last outage, over up to 200 frames (0 when stale); "
+                 "Prometheus graphs rate(graytrack_frames_total)",
+                 status["frame_rate_hz"])
+    out += gauge("graytrack_stale", "1 when the newest tracked frame is older than stale_after_s", status["stale"])
+    out += gauge("graytrack_healthy", "1 when frames are being tracked now (/healthz 200 unless the model is stale)",
+                 rig_status.tracking_fresh(rig))
+    out += counter("graytrack_frames_total", "camera frames received", stats.frames if stats else 0)
+    out += counter("graytrack_frames_tracked_total", "frames tracked", stats.tracked if stats else 0)
+    out += counter("graytrack_frames_unplaced_total", "tracked frames that could not be placed",
+                   stats.unplaced if stats else 0)
+    out += counter("graytrack_lock_events_total", "lock losses and re-acquisitions", stats.lock_events if stats else 0)
+    out += counter("graytrack_camera_dropped_frames_total", "frames the camera lost or skipped",
+                   camera.dropped if camera else 0)
+    out += counter("graytrack_frames_dropped_total", "gaps in the camera's frame_id sequence (the stream's dropped)",
+                   stats.dropped if stats else 0)
+    out += counter("graytrack_tracking_errors_total", "frames the tracker raised on",
+                   stats.tracking_errors if stats else 0)
+    out += counter("graytrack_worker_crashes_total", "worker loops restarted after an exception",
+                   (acquisition.crashes if acquisition else 0) + (grating.crashes if grating else 0))
+    out += counter("graytrack_camera_errors_total", "camera errors other than timeouts",
+                   stats.camera_errors if stats else 0)
+    out += counter("graytrack_grating_reads_total", "POS? readings", grating.reads if grating else 0)
+    out += counter("graytrack_grating_errors_total", "failed POS? readings", grating.errors if grating else 0)
+    out += counter("graytrack_stage_reconnects_total", "serial port reopened", link.reconnects if link else 0)
+    out += counter("graytrack_faults_total", "faults raised", rig.faults.raised)
+    out += family("graytrack_calibrations_total", "counter",
+                  "calibrations ended, by outcome (interrupted: found unfinished at start-up)",
+                  [({"outcome": outcome}, rig.calibrations_finished.get(outcome, 0)) for outcome in FINAL])
+    out += gauge("graytrack_websocket_clients", "connected /ws/position clients", broadcaster.clients)
+    out += counter("graytrack_websocket_messages_total", "position messages sent", broadcaster.sent)
+    out += counter("graytrack_websocket_dropped_total", "messages dropped for slow clients", broadcaster.dropped)
+    out += family("graytrack_model_stale", "gauge",
+                  "1 for the family of causes the model is stale for (all 0: it holds)",
+                  [({"reason": cause}, status.get("stale_reason") == cause) for cause in FAMILIES])
+    for key, name, help_text in FIT_FAMILIES:
+        out += gauge(name, help_text, fit.get(key))
+    out += gauge("graytrack_uptime_seconds", "seconds since start", status["uptime_s"])
     return "\n".join(out) + "\n"

@@ -41,7 +41,7 @@ from graytrack.service.daemon.acquisition import Acquisition
 from graytrack.service.daemon.trim import ReferenceTrim
 from graytrack.service.daemon.errors import Busy, InsufficientStorage, NotFound, NotReady, OutOfLimits
 from graytrack.service.daemon.grating import GratingPoller, Readings
-from graytrack.service.daemon.jobs import CalibrationJob, JobRunner, calibration_row, mark_interrupted, reconcile
+from graytrack.service.daemon.jobs import FINAL, CalibrationJob, JobRunner, calibration_row, mark_interrupted, reconcile
 from graytrack.service.daemon.record import Record
 from graytrack.service.daemon.settings import Settings
 from graytrack.service.daemon.storage import Storage
@@ -77,7 +77,9 @@ class Rig:
         self.model: FourierModel | None = None
         self.jobs: dict[str, CalibrationJob] = {}
         self.job: CalibrationJob | None = None
-        self.calibrations_finished: dict[str, int] = {"done": 0, "failed": 0, "aborted": 0}
+        # every end state from the start (a counter that appears late breaks rate()); interrupted ones are the
+        # jobs found unfinished at start-up, counted when found
+        self.calibrations_finished: dict[str, int] = dict.fromkeys(FINAL, 0)
         self.closing = threading.Event()
         self.started_at = time.monotonic()
         self._sweep_thread: threading.Thread | None = None
@@ -137,6 +139,7 @@ class Rig:
 
     def _bring_up(self) -> None:
         interrupted = mark_interrupted(self.storage)
+        self.calibrations_finished["interrupted"] += len(interrupted)
         for job_id in interrupted:
             self.event("calibration_interrupted", f"calibration {job_id} was interrupted by the last shutdown",
                        calibration=job_id)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 import stat
 
 import numpy as np
@@ -103,9 +102,9 @@ def test_metrics_are_prometheus_text(tracking: TestClient) -> None:
             name, value = line.rsplit(" ", 1)
             values[name] = float(value)
     assert values['graytrack_state{state="tracking"}'] == 1.0
-    assert values["graytrack_frames_tracked_total"] > 0 and values["graytrack_frame_rate_hz"] > 100
+    assert values["graytrack_frames_tracked_total"] > 0 and values["graytrack_frame_rate_hertz"] > 100
     assert values['graytrack_calibrations_total{outcome="done"}'] >= 1
-    assert math.isfinite(values["graytrack_position_mm"])
+    assert 0.0 <= values["graytrack_position_meters"] <= 10.46e-3
 
 
 def test_calibration_on_request_shows_progress_and_stop_aborts_it(tmp_path) -> None:

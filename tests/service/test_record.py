@@ -147,7 +147,7 @@ def test_the_trackers_fit_figures_and_stale_model_flags_reach_status_metrics_and
         health = daemon.get("/healthz")
         assert health.status_code == 503 and "focus" in health.json()["reason"], "a stale model is not healthy"
         metrics = daemon.get("/metrics").text
-        assert "graytrack_fit_stale 1.0" in metrics and "graytrack_fit_rejected_px 2.0" in metrics
+        assert "graytrack_fit_stale 1.0" in metrics and "graytrack_fit_rejected_pixels 2.0" in metrics
         assert 'graytrack_model_stale{reason="focus"} 1.0' in metrics
         assert 'graytrack_model_stale{reason="light"} 0.0' in metrics
         stale_event = [e for e in daemon.get("/api/events").json() if e["kind"] == "model_stale"][0]
