@@ -32,9 +32,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from graytrack.core import small_linalg
+from graytrack.core import kernels, small_linalg
 from graytrack.core.evaluation import TrigTables, _trig_coefficients
-from graytrack.core.solvers import FrameSolution, SolverSettings, TrigPolyBatch, profiled_step
+from graytrack.core.solvers import FrameSolution, SolverSettings, TrigPolyBatch
 
 FOCUS_UNKNOWNS = 3  # gain, blur and offset: what the frame's χ² loses degrees of freedom to
 FOCUS_STEP_PERIODS = 1e-3  # finite-difference step of the general path's F″, F‴, in periods
@@ -145,40 +145,125 @@ def focus_solve(source: TrigPolyBatch, k: int, curvature: CurvatureTable, start:
 def general_focus_solve(evaluator, y: np.ndarray, weights: np.ndarray, start: FrameSolution,
                         settings: SolverSettings, period_mm: float, pixel_pitch_mm: float,
                         prior: FocusPrior | None = None) -> FrameSolution:
-    """:func:`focus_solve` for models the fast path cannot hold (stroke-dependent coefficients, a
-    target map, clipping): B = ½F″ and B′ = ½F‴ by central differences of the model's slopes
+    """:func:`focus_solve` for models off the trig-polynomial tables (stroke-dependent coefficients,
+    a target map, clipping): B = ½F″ and B′ = ½F‴ by central differences of the model's slopes
     (a step of a thousandth of a period: relative error ~(2πM·10⁻³)²/6, far below the noise), the
-    same (g, h, o) least squares and Schur complement, with dense arrays."""
+    same (g, h, o) least squares and Schur complement. Each iteration reads the pixels once, into
+    the sums of :func:`focus_sums`; the rest is algebra on 3×3 matrices."""
     step = FOCUS_STEP_PERIODS * period_mm
     if start.rejected:
         weights = weights * ~start.rejected_mask
     x = float(start.x_mm)
-    yw = y * weights
-    yy, n_used = float(yw @ y), float(np.count_nonzero(weights))
+    y = np.ascontiguousarray(y, dtype=np.float64)
+    weights = np.ascontiguousarray(weights, dtype=np.float64)
+    yy, n_used = float((y * weights) @ y), float(np.count_nonzero(weights))
     theta = np.array([start.gain, 0.0, start.offset])
     information, cost, iterations = 0.0, float("inf"), 0
-    fisher = np.eye(4)
+    normal, projected, fisher = np.eye(3), np.zeros(3), np.eye(4)
+    sums = np.empty(_FOCUS_SUMS)
     for iterations in range(1, settings.max_iterations + 1):
         values, slopes = evaluator.evaluate(np.array([x - step, x, x + step]))
-        blur = 0.25 * (slopes[2] - slopes[0]) / step  # ½F″
-        blur_slope = 0.5 * (slopes[2] - 2.0 * slopes[1] + slopes[0]) / (step * step)  # ½F‴
-        design = np.stack((values[1], blur, np.ones(y.size)), axis=1)
-        weighted = design * weights[:, None]
-        normal, projected = weighted.T @ design, weighted.T @ y
+        focus_sums(values, slopes, y, weights, step, sums)
+        normal, projected, design_slope, design_turn, (ys, yt, ss, st, tt) = _unpack(sums)
         held, held_projected = _with_prior(normal, projected, prior, theta[0])
         try:
             theta = small_linalg.solve(held, held_projected)
         except np.linalg.LinAlgError:
             break
         cost = yy - 2.0 * float(projected @ theta) + float(theta @ normal @ theta)
-        jacobian = theta[0] * slopes[1] + theta[1] * blur_slope
-        dx, information, fisher = profiled_step(jacobian, weighted, weights, yw, theta, held, normal,
-                                                settings.max_step_mm)
+        # the Jacobian in x is J = g·F′ + h·B′: its products with the design, y and itself are linear
+        # (quadratic) in the sums, so the step is the profiled one of solvers.profiled_step
+        g, h = float(theta[0]), float(theta[1])
+        cross = g * design_slope + h * design_turn
+        numerator = g * ys + h * yt - float(cross @ theta)
+        slope_norm = g * g * ss + 2.0 * g * h * st + h * h * tt
+        information = slope_norm - float(cross @ small_linalg.solve(held, cross))
+        fisher = np.empty((4, 4))
+        fisher[0, 0], fisher[0, 1:], fisher[1:, 0], fisher[1:, 1:] = slope_norm, cross, cross, normal
+        dx = numerator / information if information > 0.0 else 0.0
+        dx = min(max(dx, -settings.max_step_mm), settings.max_step_mm)
         x += dx
         if abs(dx) < settings.tolerance_mm:
             break
     return _solution(x, theta, _own(normal, projected, theta), cost, information, fisher, n_used, iterations, start,
                      settings, pixel_pitch_mm)
+
+
+_FOCUS_SUMS = 20
+
+
+def _focus_sums(values: np.ndarray, slopes: np.ndarray, y: np.ndarray, w: np.ndarray, step: float,
+                out: np.ndarray) -> None:
+    """One pass over the pixels: with F = values[1], B = ½F″, S = F′ = slopes[1], T = ½F‴ and the
+    design (F, B, 1), the weighted sums (into ``out``) FF, FB, F1, BB, B1, 11, Fy, By, 1y,
+    FS, BS, 1S, FT, BT, 1T, Sy, Ty, SS, ST, TT."""
+    for k in range(out.size):
+        out[k] = 0.0
+    half_over_step = 0.25 / step
+    turn_scale = 0.5 / (step * step)
+    for p in range(y.size):
+        wp = w[p]
+        if wp == 0.0:
+            continue
+        f = values[1, p]
+        b = half_over_step * (slopes[2, p] - slopes[0, p])
+        s = slopes[1, p]
+        t = turn_scale * (slopes[2, p] - 2.0 * slopes[1, p] + slopes[0, p])
+        yp = y[p]
+        wf, wb = wp * f, wp * b
+        out[0] += wf * f
+        out[1] += wf * b
+        out[2] += wf
+        out[3] += wb * b
+        out[4] += wb
+        out[5] += wp
+        out[6] += wf * yp
+        out[7] += wb * yp
+        out[8] += wp * yp
+        out[9] += wf * s
+        out[10] += wb * s
+        out[11] += wp * s
+        out[12] += wf * t
+        out[13] += wb * t
+        out[14] += wp * t
+        out[15] += wp * s * yp
+        out[16] += wp * t * yp
+        out[17] += wp * s * s
+        out[18] += wp * s * t
+        out[19] += wp * t * t
+
+
+def _focus_sums_numpy(values: np.ndarray, slopes: np.ndarray, y: np.ndarray, w: np.ndarray, step: float,
+                      out: np.ndarray) -> None:
+    """:func:`_focus_sums` by numpy products (where numba is missing: a Python loop over pixels is not)."""
+    f, s = values[1], slopes[1]
+    b = (0.25 / step) * (slopes[2] - slopes[0])
+    t = (0.5 / (step * step)) * (slopes[2] - 2.0 * slopes[1] + slopes[0])
+    columns = np.stack([f, b, np.ones_like(f)])
+    weighted = columns * w
+    normal = weighted @ columns.T
+    out[:] = [normal[0, 0], normal[0, 1], normal[0, 2], normal[1, 1], normal[1, 2], normal[2, 2],
+              *(weighted @ y), *(weighted @ s), *(weighted @ t),
+              (w * s) @ y, (w * t) @ y, (w * s) @ s, (w * s) @ t, (w * t) @ t]
+
+
+_compiled_focus_sums = kernels.numba.njit(cache=True, nogil=True)(_focus_sums) if kernels.numba is not None else None
+
+
+def focus_sums(values: np.ndarray, slopes: np.ndarray, y: np.ndarray, w: np.ndarray, step: float,
+               out: np.ndarray) -> None:
+    """The sums of one focus iteration (:func:`_focus_sums`), compiled where numba is."""
+    if kernels.COMPILED:
+        _compiled_focus_sums(values, slopes, y, w, step, out)
+    else:
+        _focus_sums_numpy(values, slopes, y, w, step, out)
+
+
+def _unpack(sums: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, tuple[float, ...]]:
+    """(normal, projected, design·F′, design·B′, (F′y, B′y, F′F′, F′B′, B′B′)) from :func:`focus_sums`."""
+    ff, fb, f1, bb, b1, n1, fy, by, y1, fs, bs, s1, ft, bt, t1, sy, ty, ss, st, tt = sums.tolist()
+    normal = np.array([[ff, fb, f1], [fb, bb, b1], [f1, b1, n1]])
+    return normal, np.array([fy, by, y1]), np.array([fs, bs, s1]), np.array([ft, bt, t1]), (sy, ty, ss, st, tt)
 
 
 @dataclass(frozen=True)

@@ -127,3 +127,17 @@ def test_the_small_solver_gives_numpy_s_answer_and_refuses_a_singular_system() -
         assert np.allclose(small_linalg.inv(normal), np.linalg.inv(normal), rtol=1e-10, atol=1e-12)
     with pytest.raises(np.linalg.LinAlgError):
         small_linalg.solve(np.ones((3, 3)), np.ones(3))
+
+
+def test_the_focus_sums_compiled_and_in_numpy_agree() -> None:
+    """The one pass over the pixels of a focus iteration off the trig tables (core/focus_solve.py)."""
+    from graytrack.core import focus_solve
+
+    rng = np.random.default_rng(11)
+    values, slopes = rng.normal(size=(3, 300)), rng.normal(size=(3, 300))
+    y, w = rng.normal(size=300), rng.uniform(0.0, 2.0, 300)
+    w[::7] = 0.0  # masked pixels
+    compiled, numpy_sums = np.empty(20), np.empty(20)
+    focus_solve._compiled_focus_sums(values, slopes, y, w, 1e-3, compiled)
+    focus_solve._focus_sums_numpy(values, slopes, y, w, 1e-3, numpy_sums)
+    assert np.allclose(compiled, numpy_sums, rtol=1e-12, atol=1e-9)
