@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 from fastapi.testclient import TestClient
 
 from graytrack.service.daemon.app import create_app
-from tests.service.helpers import fast_settings, wait_state
+from tests.service.helpers import LiveServer, fast_settings, wait_state
 
 
 @pytest.fixture(scope="module")
@@ -24,3 +25,17 @@ def tracking(tmp_path_factory: pytest.TempPathFactory) -> Iterator[TestClient]:
 def token(tracking: TestClient) -> dict[str, str]:
     storage = tracking.app.state.storage
     return {"Authorization": f"Bearer {storage.token_path.read_text().strip()}"}
+
+
+@pytest.fixture(scope="module")
+def data_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The data directory of :func:`daemon` (its token is ``data_dir / "data" / "token"``)."""
+    return tmp_path_factory.mktemp("live")
+
+
+@pytest.fixture(scope="module")
+def daemon(data_dir: Path) -> Iterator[LiveServer]:
+    """The daemon on a real uvicorn server (a client connects over the network), tracking."""
+    with LiveServer(create_app(fast_settings(data_dir))) as server:
+        server.wait_state("tracking", 40.0)
+        yield server

@@ -22,8 +22,7 @@ from ophyd_async.core import NotConnectedError, set_mock_value
 from ophyd_async.plan_stubs import ensure_connected
 
 from graytrack.bluesky import GraytrackEncoder, GraytrackStage
-from graytrack.service.daemon.app import create_app
-from tests.service.helpers import LiveServer, fast_settings, free_port
+from tests.service.helpers import LiveServer, free_port
 
 TRACKS_MM = 0.01  # a frame against the daemon's figure or the setpoint (the first frames after a move may lag by µm)
 
@@ -71,16 +70,6 @@ def test_a_real_connection_to_no_daemon_is_one_not_connected_error() -> None:
 
 # -- against a live daemon ----------------------------------------------------------------
 
-@pytest.fixture(scope="module")
-def data_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return tmp_path_factory.mktemp("bluesky")
-
-
-@pytest.fixture(scope="module")
-def daemon(data_dir: Path) -> Iterator[LiveServer]:
-    with LiveServer(create_app(fast_settings(data_dir))) as server:
-        server.wait_state("tracking", 40.0)
-        yield server
 
 
 @pytest.fixture(scope="module")

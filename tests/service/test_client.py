@@ -21,23 +21,12 @@ import pytest
 from graytrack.client import (AsyncClient, AuthError, CalibrationFailed, Client, Conflict, GraytrackClientError,
                               Invalid, NotFound, Position, StreamSilent, Unreachable)
 from graytrack.client.stream import Link
-from graytrack.service.daemon.app import create_app
-from tests.service.helpers import LiveServer, fast_settings, wait_for
+from tests.service.helpers import LiveServer, wait_for
 
 ROOT = Path(__file__).resolve().parents[2]
 ARRIVED_MM = 0.005
 
 
-@pytest.fixture(scope="module")
-def data_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return tmp_path_factory.mktemp("client")
-
-
-@pytest.fixture(scope="module")
-def daemon(data_dir: Path) -> Iterator[LiveServer]:
-    with LiveServer(create_app(fast_settings(data_dir))) as server:
-        server.wait_state("tracking", 40.0)
-        yield server
 
 
 @pytest.fixture
