@@ -8,6 +8,8 @@ the daemon's ``dropped`` count (camera frames missing from the stream). The daem
 from /proc. All figures come from the same run, so they compare with each other on a shared machine.
 
 Run: .venv/bin/python bench/stream_latency.py [--seconds 5] [--rates 200,500,1000,1500] [--clients 1,4]
+     [--models auto,paper] [--effects dust:count=6,prnu:sigma=0.02]  (the closed loop's model against the
+                            seed paper's, side by side, on a rig with those effects)
      [--polls 0.005,0.02]   (grating poll periods compared side by side)
      [--deflate 0,1]        (the WebSocket's permessage-deflate off and on, side by side)
      [--priority 0,10]      (the daemon's realtime_priority, and the clients': normal or SCHED_FIFO 10, side by side)
@@ -63,11 +65,16 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def config(folder: Path, rate: float, poll_s: float = 0.005, deflate: bool = False, priority: int = 0) -> Path:
-    path = folder / f"rate{rate:g}-poll{poll_s:g}-deflate{int(deflate)}-prio{priority}.toml"
+def config(folder: Path, rate: float, poll_s: float = 0.005, deflate: bool = False, priority: int = 0,
+           model: str = "auto", effects: str = "") -> Path:
+    """The daemon's configuration; each model kind (and rig) keeps its own data directory, so its one
+    calibration (made at the first start) serves every run of that kind."""
+    path = folder / f"{model}-rate{rate:g}-poll{poll_s:g}-deflate{int(deflate)}-prio{priority}.toml"
     exposure_us = min(1000.0, 0.5e6 / rate)  # the rig's 1 ms exposure fits up to 1000 frames/s
     path.write_text(f'[camera]\nkind = "sim"\nframe_rate_hz = {rate}\nexposure_us = {exposure_us}\n'
-                    f'[daemon]\ndata_dir = "{folder / "data"}"\nlog_level = "warning"\ngrating_poll_s = {poll_s}\n'
+                    f'effects = "{effects}"\n'
+                    f'[sweep]\nmodel = "{model}"\n'
+                    f'[daemon]\ndata_dir = "{folder / ("data-" + model)}"\nlog_level = "warning"\ngrating_poll_s = {poll_s}\n'
                     f'ws_compression = {str(deflate).lower()}\nrealtime_priority = {priority}\n')
     return path
 
@@ -77,26 +84,30 @@ def cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def wait_tracking(base: str, timeout_s: float = 120.0) -> None:
+def wait_tracking(base: str, timeout_s: float = 300.0) -> dict:
+    """The daemon's status once it tracks (a model it calls stale still streams: latency is measured
+    all the same, and the row says so)."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         try:
-            if httpx.get(f"{base}/healthz", timeout=2).status_code == 200:
-                return
-        except httpx.TransportError:
+            status = httpx.get(f"{base}/api/status", timeout=2).json()
+            if status.get("state") == "tracking":
+                return status
+        except (httpx.TransportError, ValueError):
             pass
         time.sleep(0.2)
     raise SystemExit(f"the daemon at {base} did not start tracking within {timeout_s:g} s")
 
 
 def run(folder: Path, rate: float, clients: int, seconds: float, poll_s: float = 0.005,
-        deflate: bool = False, priority: int = 0) -> dict[str, float]:
+        deflate: bool = False, priority: int = 0, model: str = "auto", effects: str = "") -> dict[str, float]:
     port = free_port()
-    log = (folder / f"serve-{rate:g}-{clients}.log").open("w")
-    daemon = subprocess.Popen([sys.executable, "-m", "graytrack", "serve", "--config", str(config(folder, rate, poll_s, deflate, priority)),
+    log = (folder / f"serve-{model}-{rate:g}-{clients}.log").open("w")
+    daemon = subprocess.Popen([sys.executable, "-m", "graytrack", "serve", "--config",
+                               str(config(folder, rate, poll_s, deflate, priority, model, effects)),
                                "--port", str(port)], stderr=log)
     try:
-        wait_tracking(f"http://127.0.0.1:{port}")
+        status = wait_tracking(f"http://127.0.0.1:{port}")
         time.sleep(0.5)
         cpu0, wall0 = cpu_seconds(daemon.pid), time.monotonic()
         # the clients get the daemon's priority: a motion controller that waits for a core measures its own delay
@@ -117,7 +128,8 @@ def run(folder: Path, rate: float, clients: int, seconds: float, poll_s: float =
     return {"rate": rate, "clients": clients, "msgs_s": np.mean([len(out) for out in outs]) / seconds,
             "missing": missing, "dropped": dropped, "p50": np.percentile(latency, 50),
             "p99": np.percentile(latency, 99), "max": latency.max(), "cpu": 100 * cpu,
-            "client_cpu": 100 * measured["cpu"], "enc50": np.percentile(encoded, 50), "enc99": np.percentile(encoded, 99)}
+            "client_cpu": 100 * measured["cpu"], "enc50": np.percentile(encoded, 50), "enc99": np.percentile(encoded, 99),
+            "stale": status.get("stale_reason") or "-" if status.get("model_stale") else "-"}
 
 
 def load_average() -> str:
@@ -133,23 +145,30 @@ def main() -> None:
     parser.add_argument("--polls", default="0.005", help="grating poll periods (s) to compare, side by side")
     parser.add_argument("--priority", default="0", help="the daemon's realtime_priority values to compare, side by side")
     parser.add_argument("--load", type=int, default=0, help="busy-looping processes to run meanwhile")
+    parser.add_argument("--models", default="auto", help="the sweep's model kinds to compare, side by side "
+                        "(auto: the closed loop's model, what the daemon installs by default; paper)")
+    parser.add_argument("--effects", default="", help="the virtual rig's effects (what the closed loop then models), "
+                        "e.g. dust:count=6,prnu:sigma=0.02")
     args = parser.parse_args()
     folder = Path(tempfile.mkdtemp(prefix="graytrack-bench-"))
     burners = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(args.load)]
     try:
-        # one calibration (the daemon calibrates itself at the first start), its model reused by every run
-        run(folder, 200, 1, 0.5)
+        # one calibration per model kind (the daemon calibrates itself at the first start), reused by every run
+        models = args.models.split(",")
+        for model in models:
+            run(folder, 200, 1, 0.5, model=model, effects=args.effects)
         print(f"machine: {os.cpu_count()} cores, load average {load_average()} at start, "
               f"{args.load} busy-looping processes meanwhile")
-        print(f"{'prio':>4} {'deflate':>7} {'poll ms':>7} {'frames/s':>8} {'clients':>7} {'msgs/s':>8} {'missing':>7} {'dropped':>7} "
-              f"{'p50 ms':>7} {'p99 ms':>7} {'max ms':>7} {'CPU %':>6} {'cl CPU':>6} {'enc p50':>7} {'enc p99':>7}")
+        print(f"{'model':>6} {'prio':>4} {'deflate':>7} {'poll ms':>7} {'frames/s':>8} {'clients':>7} {'msgs/s':>8} {'missing':>7} {'dropped':>7} "
+              f"{'p50 ms':>7} {'p99 ms':>7} {'max ms':>7} {'CPU %':>6} {'cl CPU':>6} {'enc p50':>7} {'enc p99':>7} {'stale':>9}")
         for rate in (float(r) for r in args.rates.split(",")):
             for clients in (int(c) for c in args.clients.split(",")):
-                for poll, deflate, prio in ((float(p), d == "1", int(q)) for p in args.polls.split(",")
-                                            for d in args.deflate.split(",") for q in args.priority.split(",")):
-                    r = run(folder, rate, clients, args.seconds, poll, deflate, prio)
-                    print(f"{prio:4d} {'on' if deflate else 'off':>7} {poll * 1e3:7.1f} {r['rate']:8.0f} {r['clients']:7d} {r['msgs_s']:8.0f} {r['missing']:7d} {r['dropped']:7d} "
-                          f"{r['p50']:7.2f} {r['p99']:7.2f} {r['max']:7.2f} {r['cpu']:6.0f} {r['client_cpu']:6.0f} {r['enc50']:7.2f} {r['enc99']:7.2f}",
+                for model, poll, deflate, prio in ((m, float(p), d == "1", int(q)) for m in models
+                                                   for p in args.polls.split(",") for d in args.deflate.split(",")
+                                                   for q in args.priority.split(",")):
+                    r = run(folder, rate, clients, args.seconds, poll, deflate, prio, model, args.effects)
+                    print(f"{model:>6} {prio:4d} {'on' if deflate else 'off':>7} {poll * 1e3:7.1f} {r['rate']:8.0f} {r['clients']:7d} {r['msgs_s']:8.0f} {r['missing']:7d} {r['dropped']:7d} "
+                          f"{r['p50']:7.2f} {r['p99']:7.2f} {r['max']:7.2f} {r['cpu']:6.0f} {r['client_cpu']:6.0f} {r['enc50']:7.2f} {r['enc99']:7.2f} {r['stale']:>9}",
                           flush=True)
         print(f"load average {load_average()} at the end")
     finally:
