@@ -1,7 +1,10 @@
-"""Writing the closed loop's report: ``report.json``, ``report.html`` with plots, ``model.json``.
+"""``report.html`` of any calibration (the closed loop's, the seed paper's or the ideal model's),
+with plots where a reader would rather look than read.
 
-The HTML is one self-contained file (plots embedded as PNG data), because it is read on rigs
-without network access and mailed around as it is.
+One renderer for every kind: the sections a report's keys call for (the loop's before, steps and
+after; a plain fit's figures), all from the report ``service/calibration_run.py`` writes. The
+HTML is one self-contained file (plots embedded as PNG data, no script), because it is read on
+rigs without network access, served by the daemon's history and mailed around as it is.
 """
 
 from __future__ import annotations
@@ -9,10 +12,7 @@ from __future__ import annotations
 import base64
 import html
 import io
-import json
-import os
-from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import matplotlib
 
@@ -21,11 +21,12 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from graytrack.core.diagnosis.loop import DiagnosisResult, Stage  # noqa: E402
-from graytrack.core.files import write_atomic  # noqa: E402
-from graytrack.core.models import save_model  # noqa: E402
 from graytrack.core.pixel_noise import PixelNoise  # noqa: E402
 from graytrack.core.transients import summary_line  # noqa: E402
 from graytrack.service.figures import MISSING, is_number, positive, shown  # noqa: E402
+
+if TYPE_CHECKING:
+    from graytrack.service.calibration_run import CalibrationRun
 
 
 def _png(figure: plt.Figure) -> str:
@@ -70,19 +71,31 @@ def residual_spread(result: DiagnosisResult) -> str:
     return _png(fig)
 
 
-def error_plot(result: DiagnosisResult) -> str:
-    """Fig. 5: displacement error against the grating, before and after, with the noise floor."""
-    fig, axes = plt.subplots(2, 1, figsize=(11, 5.5), sharex=True)
-    for ax, stage, title in zip(axes, (result.before, result.after), ("before", "after")):
-        figs = stage.figures
-        ax.plot(figs.x_mm, figs.error_um, ".", ms=2)
-        ax.fill_between(np.sort(figs.x_mm), -figs.crlb_um, figs.crlb_um, color="0.8", label="±1 CRLB")
+Panel = tuple[str, np.ndarray, np.ndarray, float]  # title, position (mm), error (µm), bound (µm)
+
+
+def error_plot(panels: list[Panel]) -> str:
+    """Fig. 5: displacement error against the grating on held-out frames, with the noise floor."""
+    fig, axes = plt.subplots(len(panels), 1, figsize=(11, 2.75 * len(panels) + 0.5), sharex=True, squeeze=False)
+    for ax, (title, x_mm, error_um, bound_um) in zip(axes[:, 0], panels):
+        placed = np.isfinite(error_um)
+        ax.plot(x_mm, error_um, ".", ms=2)
+        ax.fill_between(np.sort(x_mm), -bound_um, bound_um, color="0.8", label="±1 CRLB")
         ax.set_ylabel("error (µm)")
-        ax.set_title(f"{title}: std {shown(figs.error_std_um, 3, 'µm')}, noise floor {shown(figs.crlb_um, 3, 'µm')}"
-                     f"{_lost(figs.error_um)}", fontsize=10)
+        spread = float(np.std(error_um[placed])) if placed.sum() > 1 else float("nan")
+        ax.set_title(f"{title}: std {shown(spread, 3, 'µm')}, noise floor {shown(bound_um, 3, 'µm')}"
+                     f"{_lost(error_um)}", fontsize=10)
         ax.legend(loc="upper right")
-    axes[-1].set_xlabel("grating position (mm)")
+    axes[-1, 0].set_xlabel("grating position (mm)")
     return _png(fig)
+
+
+def _panels(run: "CalibrationRun") -> list[Panel]:
+    if run.diagnosis is not None:
+        return [(title, stage.figures.x_mm, stage.figures.error_um, stage.figures.crlb_um)
+                for stage, title in ((run.diagnosis.before, "before"), (run.diagnosis.after, "after"))]
+    held = run.held_out
+    return [] if held is None else [(f"held out ({held.method})", held.x_mm, held.error_um, held.bound_um)]
 
 
 def _lost(error_um: np.ndarray) -> str:
@@ -110,7 +123,7 @@ def _findings(report: dict) -> str:
                     f"{html.escape(str(item.get('reason', '')))}</li>" for item in bad)
     pixels = (f"<p>{len(bad)} pixel(s) set aside (masked in model.json):</p><ul>{items}</ul>" if bad
               else "<p>No pixel set aside: every pixel sees the target as the others do.</p>")
-    curve = report["noise"].get("pixel_noise") or {}
+    curve = (report.get("noise") or {}).get("pixel_noise") or {}
     fields = PixelNoise.__dataclass_fields__
     if curve.get("signal_dependent") and all(key in curve and curve[key] is not None for key in fields):
         model = PixelNoise(**{key: curve[key] for key in fields})
@@ -120,7 +133,7 @@ def _findings(report: dict) -> str:
                  f"gray²; σ = {sigmas} gray. Calibration and tracking weight each sample by 1/σ²(y), and the bound "
                  "uses it.</p>")
     else:
-        noise = f"<p>Noise is one σ = {shown(report['noise'].get('gray'), 3)} gray for every gray level.</p>"
+        noise = f"<p>Noise is one σ = {shown((report.get('noise') or {}).get('gray'), 3)} gray for every gray level.</p>"
     chi2 = curve.get("calibration_chi2")
     level = (f"<p>Calibration χ² per sample: {shown(chi2, 3)} (1 when the model and the noise model hold).</p>"
              if chi2 is not None else "")
@@ -135,7 +148,7 @@ def _compression(report: dict) -> str:
         return ""
     return (f"<p>The frames come from a JPEG (MJPEG) stream at quality ≈ {shown(found.get('quality'), 0)}: the "
             f"quantisation of its 8×8 blocks is an error the model cannot know; with it the bound on the held-out "
-            f"frames is {shown(found.get('crlb_um'), 3, 'µm')}, not the {shown(report['noise'].get('crlb_um'), 3, 'µm')} "
+            f"frames is {shown(found.get('crlb_um'), 3, 'µm')}, not the {shown((report.get('noise') or {}).get('crlb_um'), 3, 'µm')} "
             "of the sensor's noise alone. Stream uncompressed frames (a raw pixel format) to reach the latter.</p>")
 
 
@@ -175,58 +188,87 @@ def _transients(found: dict | None) -> str:
     return f"<p>{html.escape(sentence[0].upper() + sentence[1:])}:</p><ul>{items}{tail}</ul>"
 
 
-def render_html(result: DiagnosisResult, report: dict) -> str:
-    before, after, noise = report["before"], report["after"], report["noise"]
-    images = {"maps": residual_maps(result), "spread": residual_spread(result), "error": error_plot(result)}
+def _figures_table(report: dict) -> str:
+    """The loop's before and after; a plain fit's figures in gray levels and its geometry."""
+    if "before" in report and "after" in report:
+        def figures_row(label: str, entry: dict) -> str:
+            return ("<tr>" + _cell(label) + _cell(str(entry.get("model", ""))) + _cell(shown(entry.get("rmse_gray"), 4))
+                    + "".join(_cell(shown(entry.get(key), 3)) for key in ("error_std_um", "error_max_um", "error_mean_um"))
+                    + _cell(shown(entry.get("lost_frames"), 0)) + "</tr>")
+
+        return ("<table><tr><th></th><th>model</th><th>rmse (gray)</th><th>error std (µm)</th><th>error max (µm)</th>"
+                "<th>mean (µm)</th><th>frames not placed</th></tr>"
+                f"{figures_row('before', report['before'])}{figures_row('after', report['after'])}</table>"
+                + _missing_note(report["before"], report["after"]))
+    rows = [("model", report.get("model", "")),
+            ("fit rms / noise", f"{shown(report.get('rmse_gray'), 3)} / {shown(report.get('sigma_gray'), 3)} gray"),
+            ("frames", shown(report.get("frames"), 0)), ("stroke", shown(report.get("stroke_mm"), 3, "mm")),
+            ("period τ", shown(report.get("period_mm"), 5, "mm")),
+            ("pixel pitch α·d", shown(report.get("pixel_pitch_mm"), 6, "mm")),
+            ("iterations", shown(report.get("iterations"), 0))]
+    return "<table>" + "".join(f"<tr><th>{html.escape(label)}</th>{_cell(str(value))}</tr>" for label, value in rows) + "</table>"
+
+
+def _headline(report: dict) -> str:
+    """The figure a reader acts on first: the held-out error in µm next to its bound."""
+    noise, held = report.get("noise") or {}, report.get("held_out") or {}
+    sigma = f"; per-pixel noise σ = {shown(noise.get('gray'), 3, 'gray')}"
+    if "before" in report and "after" in report:
+        return (f"<p class=\"big\">held-out error std <b>{shown(report['before'].get('error_std_um'), 3, 'µm')}</b> → "
+                f"<b>{shown(report['after'].get('error_std_um'), 3, 'µm')}</b> (noise floor, Cramér–Rao: "
+                f"{shown(noise.get('crlb_um'), 3, 'µm')}{sigma})</p>")
+    if not held:
+        return f"<p class=\"big\">held-out error: not measured (too few stops to hold half of them out){sigma}</p>"
+    return (f"<p class=\"big\">held-out error std <b>{shown(held.get('error_std_um'), 3, 'µm')}</b> "
+            f"(noise floor, Cramér–Rao: {shown(held.get('bound_um'), 3, 'µm')}; {html.escape(str(held.get('method')))}"
+            f"{sigma})</p>")
+
+
+TITLES = {"auto": "graytrack closed loop", "paper": "graytrack calibration: seed paper's model",
+          "ideal": "graytrack calibration: ideal sine"}
+
+
+def render_html(run: "CalibrationRun", name: str = "") -> str:
+    """The report page of a calibration: every section its report has the keys for. ``name``: the
+    calibration's id, in the title (the daemon's history opens many)."""
+    report = run.report
+    noise = report.get("noise") or {}
+    images = {"error": error_plot(panels)} if (panels := _panels(run)) else {}
+    if run.diagnosis is not None:
+        images = {"maps": residual_maps(run.diagnosis), "spread": residual_spread(run.diagnosis), **images}
     reference_line = (f"<p>The grating readout comes in steps of {shown(noise['reference_resolution_um'], 3, 'µm')}: "
                       f"against it no sensor can show less than {shown(noise.get('floor_um'), 3, 'µm')}.</p>"
                       if positive(noise.get("reference_resolution_um")) else "")
-    remaining = "".join(f"<li>{html.escape(str(item.get('text')))} (z = {shown(item.get('z'), 1)})</li>"
+    held_out = (f"<p>Held out: {html.escape(str(report['heldout']))}. Final model (model.json): "
+                f"{html.escape(str(report.get('final_model')))}.</p>" if "heldout" in report else "")
+    steps = ("<h2>Effects tried, in order</h2><table><tr><th>effect</th><th>physical family</th><th>evidence in the "
+             f"residual</th><th>rmse</th><th>error std</th><th>decision</th></tr>{_rows(report)}</table>"
+             if "steps" in report else "")
+    plots = "".join(f"<h2>{title}</h2><img alt=\"{title}\" src=\"data:image/png;base64,{images[key]}\">"
+                    for key, title in (("maps", "Residual over position and pixel"),
+                                       ("spread", "Residual spread per pixel"),
+                                       ("error", "Displacement error against the grating")) if key in images)
+    remaining = ""
+    if "remaining_evidence" in report:
+        items = "".join(f"<li>{html.escape(str(item.get('text')))} (z = {shown(item.get('z'), 1)})</li>"
                         for item in report["remaining_evidence"])
-
-    def figures_row(label: str, entry: dict) -> str:
-        return ("<tr>" + _cell(label) + _cell(str(entry.get("model", ""))) + _cell(shown(entry.get("rmse_gray"), 4))
-                + "".join(_cell(shown(entry.get(key), 3)) for key in ("error_std_um", "error_max_um", "error_mean_um"))
-                + _cell(shown(entry.get("lost_frames"), 0)) + "</tr>")
-
+        remaining = f"<h2>Structure still in the residual</h2><ul>{items or '<li>none beyond noise</li>'}</ul>"
+    title = TITLES.get(run.kind, "graytrack calibration") + (f" — {name}" if name else "")
     return f"""<!doctype html>
-<html lang="en"><head><meta charset="utf-8"><title>graytrack diagnosis</title>
+<html lang="en"><head><meta charset="utf-8"><title>{html.escape(title)}</title>
 <style>body{{font-family:system-ui,sans-serif;max-width:1150px;margin:2em auto;color:#222}}
 table{{border-collapse:collapse;width:100%}}td,th{{border:1px solid #ccc;padding:4px 6px;font-size:13px;vertical-align:top}}
-th{{background:#f3f3f3}}.big{{font-size:20px}}</style></head><body>
-<h1>graytrack closed loop</h1>
+th{{background:#f3f3f3;text-align:left}}.big{{font-size:20px}}img{{max-width:100%}}</style></head><body>
+<h1>{html.escape(title)}</h1>
 {geometry_banner(report)}
-<p class="big">held-out error std <b>{shown(before.get('error_std_um'), 3, 'µm')}</b> → <b>{shown(after.get('error_std_um'), 3, 'µm')}</b>
-(noise floor, Cramér–Rao: {shown(noise.get('crlb_um'), 3, 'µm')}; per-pixel noise σ = {shown(noise.get('gray'), 3, 'gray')})</p>
-<table><tr><th></th><th>model</th><th>rmse (gray)</th><th>error std (µm)</th><th>error max (µm)</th><th>mean (µm)</th><th>frames not placed</th></tr>
-{figures_row('before', before)}
-{figures_row('after', after)}</table>
-{_missing_note(before, after)}{reference_line}<p>Held out: {html.escape(str(report['heldout']))}. Final model (model.json): {html.escape(str(report['final_model']))}.</p>
+{_headline(report)}
+{_figures_table(report)}
+{reference_line}{held_out}
+<p>Summary: {html.escape(str(report.get('summary', '')))}</p>
 {_findings(report)}
-<h2>Effects tried, in order</h2>
-<table><tr><th>effect</th><th>physical family</th><th>evidence in the residual</th><th>rmse</th><th>error std</th><th>decision</th></tr>
-{_rows(report)}</table>
-<h2>Residual over position and pixel</h2><img alt="residual maps" src="data:image/png;base64,{images['maps']}">
-<h2>Residual spread per pixel</h2><img alt="residual spread" src="data:image/png;base64,{images['spread']}">
-<h2>Displacement error against the grating</h2><img alt="error" src="data:image/png;base64,{images['error']}">
-<h2>Structure still in the residual</h2><ul>{remaining or '<li>none beyond noise</li>'}</ul>
+{steps}
+{plots}
+{remaining}
+<p style="color:#666">Files: <a href="report.json">report.json</a> · <a href="model.json">model.json</a></p>
 </body></html>
 """
-
-
-def write_report(result: DiagnosisResult, folder: str | os.PathLike[str],
-                 report: dict[str, Any] | None = None) -> dict[str, Path]:
-    """report.json, report.html and model.json of a closed-loop run in ``folder``. ``report``: the
-    report to write when the caller added to ``result.report()`` (the daemon's summary and held-out
-    figures), so that the file is what the caller keeps, never read back."""
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    report = result.report() if report is None else report
-    paths = {"json": folder / "report.json", "html": folder / "report.html", "model": folder / "model.json"}
-    if result.refused:  # a model of a wrongly set-up rig is not written, and an older one not left to look current
-        paths.pop("model").unlink(missing_ok=True)
-    else:
-        save_model(result.final_model, paths["model"])
-    write_atomic(paths["json"], json.dumps(report, indent=1, allow_nan=False, default=float))
-    write_atomic(paths["html"], render_html(result, report))
-    return paths

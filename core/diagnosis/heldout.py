@@ -8,13 +8,14 @@ held-out frames cover the whole stroke and the whole recording time.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
-from graytrack.core.calibration_data import CalibrationData
+from graytrack.core.calibration_data import CalibrationData, calibration_data
 from graytrack.core.models.fourier import FourierModel
 from graytrack.core.noise import crlb_mm, pooled_bound
+from graytrack.core.recording import Recording
 from graytrack.core.regression import weighted_affine
 from graytrack.core.timing import runs
 from graytrack.core.tracking import Tracker, TrackResult, track
@@ -83,6 +84,7 @@ class Figures:
     error_um: np.ndarray
     x_mm: np.ndarray
     tracked: TrackResult
+    bound_mm: np.ndarray | None = None  # per frame (the noise curve's when signal-dependent); None: the tracker's
 
     def as_dict(self) -> dict[str, float | str | int | None]:
         """JSON-safe figures; a figure that does not exist (frames the tracker lost) is null."""
@@ -126,7 +128,8 @@ def figures(model: FourierModel, data: CalibrationData, fit: Fit | None = None) 
     if model.pixel_noise is not None and model.pixel_noise.signal_dependent:
         bound_mm = np.where(np.isfinite(bound_mm), curve_bound_mm(model, data, fit), np.nan)
     mean = float(np.mean(error[finite])) if finite.any() else float("nan")  # no frame placed: no mean (not 0)
-    return Figures(model.describe(), fit.rmse_gray, spread, worst, mean, pooled_bound(bound_mm) * 1e3, error, data.x_mm, tracked)
+    return Figures(model.describe(), fit.rmse_gray, spread, worst, mean, pooled_bound(bound_mm) * 1e3, error, data.x_mm, tracked,
+                   bound_mm)
 
 
 def curve_bound_mm(model: FourierModel, data: CalibrationData, fit: Fit) -> np.ndarray:
@@ -149,3 +152,57 @@ class Stage:
     train: Fit
     val: Fit
     figures: Figures
+
+
+MIN_BLOCKS_PER_FOLD = 4
+
+
+@dataclass
+class HeldOut:
+    """Held-out position error of a calibration, next to the bound of the same frames: the figure
+    a user judges a calibration by. Per frame too (``x_mm``, ``error_um``, ``bound_um``) for plots."""
+
+    error_std_um: float
+    bound_um: float
+    method: str
+    x_mm: np.ndarray
+    error_um: np.ndarray
+    bound_um_per_frame: np.ndarray
+
+    @property
+    def frames(self) -> int:
+        return int(np.isfinite(self.error_um).sum())
+
+    def as_dict(self) -> dict[str, float | int | str | None]:
+        """JSON-safe: a figure that does not exist (no frame placed) is null."""
+        def number(value: float) -> float | None:
+            return round(float(value), 4) if np.isfinite(value) else None
+
+        return {"error_std_um": number(self.error_std_um), "bound_um": number(self.bound_um),
+                "frames": self.frames, "method": self.method}
+
+    @classmethod
+    def of(cls, parts: list[Figures], method: str) -> "HeldOut":
+        """One figure from held-out parts: their frames pooled."""
+        error = np.concatenate([part.error_um for part in parts])
+        bound = np.concatenate([(part.tracked.crlb_mm if part.bound_mm is None else part.bound_mm) * 1e3 for part in parts])
+        placed = np.isfinite(error)
+        spread = float(np.std(error[placed])) if placed.sum() > 1 else float("nan")
+        pooled = pooled_bound(bound[placed]) if placed.any() else float("nan")
+        return cls(spread, pooled, method, np.concatenate([part.x_mm for part in parts]), error, bound)
+
+
+def two_fold_by_block(recording: Recording, block_frames: int,
+                      fit: Callable[[Recording], FourierModel]) -> list[Figures]:
+    """Fit on the even blocks and measure on the odd ones, then the other way round: every frame is
+    held out once. A block is a stop of a step-and-settle sweep (its frames share one reference:
+    holding out frames within a stop would flatter the model) or a stretch of a scan. [] when the
+    sweep has too few blocks to split."""
+    block = np.arange(recording.n_frames) // max(1, block_frames)
+    if int(block.max()) + 1 < 2 * MIN_BLOCKS_PER_FOLD:
+        return []
+    parts = []
+    for fold in (0, 1):
+        model = fit(recording.subset(block % 2 != fold))
+        parts.append(figures(model, calibration_data(recording.subset(block % 2 == fold))))
+    return parts

@@ -66,29 +66,36 @@ def _spread(rec: Recording) -> dict[str, Any]:
 
 
 def _calibrate(rec: Recording, job: Job) -> dict[str, Any]:
-    from graytrack.core.calibration import calibrate
+    from graytrack.service.calibration_run import calibrate_recording, write_files
 
     kind = job.options.get("model", "paper")
+    run = calibrate_recording(rec, kind)
     if kind == "auto":
-        return _diagnose(rec, job, write_all=False)
-    result = calibrate(rec, kind)
-    save_model(result.model, job.folder / "model.json")
-    return {**_geometry(result.model), "rmse_gray": result.rmse_gray, "noise_gray": result.sigma_gray, **_spread(rec)}
+        return _loop_row(run, rec, job, write_all=False)
+    write_files(run, job.folder)
+    return {**_geometry(run.model), "rmse_gray": run.report["rmse_gray"], "noise_gray": run.report["sigma_gray"],
+            **_spread(rec)}
 
 
-def _diagnose(rec: Recording, job: Job, write_all: bool = True) -> dict[str, Any]:
-    from graytrack.core.diagnosis import diagnose
-    from graytrack.service.report import write_report
+def _diagnose(rec: Recording, job: Job) -> dict[str, Any]:
+    from graytrack.service.calibration_run import calibrate_recording
 
-    result = diagnose(rec)
-    report = result.report()
+    return _loop_row(calibrate_recording(rec, "auto"), rec, job)
+
+
+def _loop_row(run: Any, rec: Recording, job: Job, write_all: bool = True) -> dict[str, Any]:
+    """The closed loop's row: its report and model written (only the model for ``calibrate
+    --model auto``); a refused geometry fails the row with its cause, after the report says more."""
+    from graytrack.service.calibration_run import write_files
+
+    report = run.report
     if write_all:
-        write_report(result, job.folder)
-    result.raise_if_refused()  # the row fails with the geometry's cause (the report, when written, says more)
+        write_files(run, job.folder)
+    run.raise_if_refused()
     if not write_all:
-        save_model(result.final_model, job.folder / "model.json")
+        save_model(run.model, job.folder / "model.json")
     before, after = report["before"], report["after"]
-    return {**_geometry(result.final_model), "rmse_gray": after["rmse_gray"], "noise_gray": report["noise"]["gray"],
+    return {**_geometry(run.model), "rmse_gray": after["rmse_gray"], "noise_gray": report["noise"]["gray"],
             "error_std_before_um": before["error_std_um"], "crlb_before_um": report["noise"]["crlb_before_um"],
             "error_std_after_um": after["error_std_um"], "crlb_after_um": report["noise"]["crlb_um"],
             "effects": ";".join(step["effect"] for step in report["steps"]), **_spread(rec)}

@@ -54,13 +54,6 @@ def mark_flip(model, flip: bool) -> None:
         model.info["flip"] = True
 
 
-def print_geometry_warnings(geometry) -> None:
-    """A doubtful geometry check (core/geometry_check.py): each likely cause on stderr."""
-    if geometry is not None and geometry.status == "doubtful":
-        for text in geometry.warnings:
-            print(f"warning: {text}", file=sys.stderr)
-
-
 def model_size_limits(recording: "Recording", pixel_degree: int) -> tuple[int, str, int, str]:
     """The largest harmonics and pixel degree this recording can support, each with its reason."""
     import numpy as np
@@ -102,57 +95,21 @@ def check_model_size(recording: "Recording", harmonics: int | None, pixel_degree
 
 
 def run(args: argparse.Namespace) -> int:
-    from graytrack.core.calibration import calibrate
     from graytrack.core.models import save_model
     from graytrack.core.recording import load
+    from graytrack.service.calibration_run import calibrate_recording
     from graytrack.service.progress import ProgressBar
 
     out = output_file(args.out)
     recording = flip_for_calibration(load(args.recording), args.flip)
     check_model_size(recording, args.harmonics, args.pixel_degree)
-    if args.model == "auto":
-        return run_auto(recording, str(out), args.flip)
-    result = calibrate(recording, args.model, harmonics=args.harmonics, pixel_degree=args.pixel_degree,
-                       rows=args.rows, progress=ProgressBar("calibrate"))
-    mark_flip(result.model, args.flip)
-    path = save_model(result.model, out)
-    print(f"model   {result.model.describe()}")
-    print(f"rmse    {result.rmse_gray:.4f} gray (noise sigma {result.sigma_gray:.4f} gray from the data)")
-    print_geometry_warnings(result.geometry)
-    if result.model.info.get("transients"):
-        from graytrack.core.transients import summary_line
-
-        print(f"data    {summary_line(result.model.info['transients'])}")
-    print(f"wrote   {path}", file=sys.stdout)
-    warning = adequacy_warning(result.model)
-    if warning:
-        print(warning, file=sys.stderr)
-    return 0
-
-
-def adequacy_warning(model) -> str | None:
-    """One line for stderr when the model errs beyond its bound on its own calibration frames."""
-    from graytrack.core.adequacy import INADEQUATE_RATIO
-
-    ratio = model.info.get("calibration_error_ratio")
-    if ratio is None or ratio <= INADEQUATE_RATIO:
-        return None
-    return (f"warning: this model places its own calibration frames {ratio:.1f}x as far off as their noise floor: "
-            f"it does not describe this rig, and every position it gives will be flagged stale (geometry); "
-            f"use --model auto (the closed loop) or graytrack diagnose for the cause")
-
-
-def run_auto(recording, out: str, flip: bool = False) -> int:
-    """The closed loop's final model, with its held-out figures as the summary."""
-    from graytrack.core.diagnosis import diagnose
-    from graytrack.core.models import save_model
-    from graytrack.service.commands.diagnose import summary_lines
-    from graytrack.service.progress import ProgressBar
-
-    result = diagnose(recording, progress=ProgressBar("calibrate auto"))
-    result.raise_if_refused()
-    mark_flip(result.final_model, flip)
-    path = save_model(result.final_model, out)
-    print("\n".join(summary_lines(result.report())))
+    label = "calibrate auto" if args.model == "auto" else "calibrate"
+    run_ = calibrate_recording(recording, args.model, harmonics=args.harmonics, pixel_degree=args.pixel_degree,
+                               rows=args.rows, info={"flip": True} if args.flip else None, progress=ProgressBar(label))
+    run_.raise_if_refused()
+    path = save_model(run_.model, out)
+    print("\n".join(run_.lines()))
     print(f"wrote   {path}")
+    for line in run_.warnings():
+        print(line, file=sys.stderr)
     return 0

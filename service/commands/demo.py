@@ -23,13 +23,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from graytrack.core.diagnosis import diagnose
     from graytrack.core.recording import save
     from graytrack.core.seed_table import seed_table
     from graytrack.drivers.sim.scenarios import build_rig
-    from graytrack.service.commands.diagnose import summary_lines
+    from graytrack.service.calibration_run import calibrate_recording, write_files
     from graytrack.service.outputs import output_folder
-    from graytrack.service.report import write_report
 
     if args.out == DEFAULT_OUT:  # the demo's own place, made on a fresh clone; a folder you name must exist
         Path(DEFAULT_OUT).mkdir(parents=True, exist_ok=True)
@@ -48,8 +46,8 @@ def run(args: argparse.Namespace) -> int:
     effects_rig = build_rig("paper", UNDECLARED_EFFECTS, seed=args.seed)
     recording, _ = effects_rig.record(20.0)
     save(recording, out / "effects_cal.npz")
-    result = diagnose(recording)
-    paths = write_report(result, out / "diagnosis")
-    print("\n".join("  " + line for line in summary_lines(result.report())))
+    run_ = calibrate_recording(recording, "auto")
+    paths = write_files(run_, out / "diagnosis")
+    print("\n".join("  " + line for line in run_.lines()))
     print(f"report: {paths['html']}")
     return 0

@@ -27,7 +27,6 @@ first, so a failed fit still leaves the data behind for ``graytrack diagnose``.
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 import queue
@@ -37,20 +36,14 @@ from typing import Any, Callable
 
 import numpy as np
 
-from graytrack.core.calibration import calibrate
 from graytrack.core.errors import GraytrackError
-from graytrack.core.models import save_model
 from graytrack.core.models.fourier import FourierModel
 from graytrack.core.recording import PIXEL_AXIS_REVERSED, Recording, save
-from graytrack.core.files import write_atomic
 from graytrack.drivers.stage.base import Stage
 from graytrack.service.daemon.acquisition import Acquisition, Sample
 from graytrack.service.daemon.settings import SweepConfig
-from graytrack.core.jsonable import finite_or_none
-from graytrack.service.daemon import report_page
-from graytrack.service.figures import shown
+from graytrack.service.calibration_run import calibrate_recording, write_files
 from graytrack.service.daemon.jobs import JobRunner
-from graytrack.service.daemon.quality import held_out_quality
 from graytrack.service.daemon.storage import Storage
 
 log = logging.getLogger("graytrack.daemon")
@@ -61,13 +54,6 @@ PAIRING_MARGIN = 0.5  # the pass's velocity uses half the pairing tolerance for 
 HELD_OUT_BLOCKS = 40
 MAX_ROUND_TRIPS = 3  # a scan goes up and down again while it has fewer than ENOUGH_SHARE of its frames
 ENOUGH_SHARE = 0.8  # a scan is cut into this many blocks for the two-fold held-out error
-
-
-def _doubts(geometry: Any) -> str:
-    """A doubtful geometry check's causes, appended to the job's summary (and so to its event)."""
-    if geometry is None or geometry.status != "doubtful":
-        return ""
-    return "; geometry doubtful: " + "; ".join(geometry.warnings)
 
 
 class SweepError(GraytrackError):
@@ -281,60 +267,17 @@ class Sweep:
         return bool(recording.meta.get(PIXEL_AXIS_REVERSED, False))
 
     def fit(self, recording: Recording) -> FourierModel:
-        """The model of the job's kind, saved with its report in the calibration's folder."""
+        """The model of the job's kind, written with its report in the calibration's folder."""
         self.runner.enter("fitting", SWEEP_SHARE, f"fitting the {self.job.model} model on {recording.n_frames} frames")
-        folder = self.storage.calibration_dir(self.job.id)
 
         def progress(fraction: float, label: str) -> None:
             self.runner.update(SWEEP_SHARE + (1 - SWEEP_SHARE) * min(max(fraction, 0.0), 0.99), label)
 
-        if self.job.model == "auto":
-            from graytrack.core.diagnosis import diagnose
-            from graytrack.service.report import write_report
-
-            result = diagnose(recording, progress=progress)
-            result.final_model.info["camera_flip"] = self._camera_flip(recording)
-            model, report = result.final_model, result.report()
-            after = report["after"]
-            report["held_out"] = {"error_std_um": after["error_std_um"], "bound_um": report["noise"]["crlb_um"],
-                                  "method": "closed loop (graytrack diagnose)"}
-            added = ", ".join(step["effect"].replace("_", " ") for step in report["steps"])
-            report["summary"] = (f"closed loop: held-out error {shown(after['error_std_um'], 2, 'µm')} "
-                                 f"(bound {shown(report['noise']['crlb_um'], 2, 'µm')}); "
-                                 + (f"added {added}" if added else "nothing added: the seed paper's model holds")
-                                 + _doubts(result.geometry))
-            paths = write_report(result, folder, report)  # the file is the job's report, not read back
-            self.job.files.update({name: str(p) for name, p in paths.items()})
-            result.raise_if_refused()  # the report says why; the job fails with the cause and its fix
-        else:
-            result = calibrate(recording, "paper", progress=progress)
-            model = result.model
-            model.info["camera_flip"] = self._camera_flip(recording)
-            self.runner.update(SWEEP_SHARE + 0.5 * (1 - SWEEP_SHARE), "held-out error: two-fold by block")
-            held_out = held_out_quality(recording, held_out_block(self.config, recording.n_frames))
-            quality = ("" if held_out is None else
-                       f"held-out error {shown(held_out['error_std_um'], 2, 'µm')} "
-                       f"(bound {shown(held_out['bound_um'], 2, 'µm')}), ")
-            report = {
-                "model": model.describe(),
-                "rmse_gray": result.rmse_gray,
-                "sigma_gray": result.sigma_gray,
-                "iterations": result.iterations,
-                "frames": recording.n_frames,
-                "stroke_mm": float(np.ptp(recording.reference)),
-                "period_mm": model.period_mm,
-                "pixel_pitch_mm": model.pixel_pitch_mm,
-                "held_out": held_out,
-                "geometry": result.geometry.as_dict(),
-                "summary": f"paper model: {quality}rms {shown(result.rmse_gray, 3)} gray "
-                           f"(noise {shown(result.sigma_gray, 3)} gray)"
-                           + _doubts(result.geometry),
-                "findings": {"transients": model.info.get("transients") or {"count": 0, "frames": 0, "samples": 0,
-                                                                              "events": []}},
-            }
-            report = finite_or_none(report)
-            self.job.files["model"] = str(save_model(model, folder / "model.json"))
-            self.job.files["report"] = str(write_atomic(folder / "report.json", json.dumps(report, indent=1)))
-            self.job.files["html"] = str(write_atomic(folder / "report.html", report_page.render(self.job.id, report)))
-        self.job.report = report
-        return model
+        run = calibrate_recording(recording, self.job.model, progress=progress,
+                                  held_out_block=held_out_block(self.config, recording.n_frames),
+                                  info={"camera_flip": self._camera_flip(recording)})
+        paths = write_files(run, self.storage.calibration_dir(self.job.id), self.job.id)  # the job keeps what was written
+        self.job.files.update({name: str(path) for name, path in paths.items()})
+        self.job.report = run.report
+        run.raise_if_refused()  # the report says why; the job fails with the cause and its fix
+        return run.model

@@ -19,7 +19,7 @@ from graytrack.core.validity import FrameSign
 from graytrack.core.watches.geometry import GeometryWatch
 from graytrack.drivers.sim.scenarios import build_rig
 from graytrack.service.cli import main
-from graytrack.service.report import write_report
+from graytrack.service.calibration_run import CalibrationRun, write_files
 
 
 def _figures(model, run):
@@ -75,7 +75,7 @@ def test_the_closed_loop_stops_on_a_mirrored_camera_and_reports_it_first(mirrore
     assert result.refused and result.steps == []  # no degree-9 polynomial, no period bent 12 %
     report = result.report()
     assert report["geometry"]["status"] == "refused" and report["geometry"]["cause"] == "pixel_direction"
-    write_report(result, tmp_path)
+    write_files(CalibrationRun.of_diagnosis(result), tmp_path)
     assert not (tmp_path / "model.json").exists()
     page = (tmp_path / "report.html").read_text()
     assert page.index("Refused: the pixel axis looks reversed") < page.index("held-out error std")

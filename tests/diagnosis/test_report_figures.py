@@ -21,9 +21,8 @@ from graytrack.core.noise import reference_resolution_mm
 from graytrack.core.recording import Recording
 from graytrack.drivers.sim import paper
 from graytrack.drivers.sim.scenarios import build_rig
-from graytrack.service.commands.diagnose import summary_lines
-from graytrack.service.daemon import report_page
-from graytrack.service.report import render_html, write_report
+from graytrack.service.calibration_run import CalibrationRun, loop_lines, write_files
+from graytrack.service.report import render_html
 from tests.conftest import paper_recording
 
 PERCENT = re.compile(r"(-?\d+(?:\.\d+)?)\s*%")
@@ -63,30 +62,34 @@ def test_a_loop_that_placed_no_frame_writes_its_report_with_dashes(lost_everythi
         assert report["before"][key] is None and report["after"][key] is None
     assert report["noise"]["gray"] is None and report["noise"]["crlb_um"] is None
     assert report["noise"]["floor_um"] is None  # √(bound² + step²/12) with no bound: no floor either
-    json.dumps(report, allow_nan=False)  # what write_report does: no NaN reaches the file
+    json.dumps(report, allow_nan=False)  # what write_files does: no NaN reaches the file
 
-    paths = write_report(lost_everything, tmp_path)
+    paths = write_files(CalibrationRun.of_diagnosis(lost_everything), tmp_path)
     page = paths["html"].read_text()
     assert "—" in page and "frames not placed" in page
     assert not NOT_A_FIGURE.search(page.split("<h2>Residual over")[0])  # the text, not the PNGs' base64
-    lines = "\n".join(summary_lines(report))
+    lines = "\n".join(loop_lines(report))
     assert "n/a" in lines and not NOT_A_FIGURE.search(lines)
 
 
 @pytest.mark.parametrize("missing", [None, math.nan])
 def test_every_number_of_a_report_may_be_missing(lost_everything, missing):
-    """Both HTML pages and the command line's summary, on a report whose every number is gone."""
-    report = _every_number(lost_everything.report(), missing)
-    page = render_html(lost_everything, report)
+    """The report page of the loop and of a plain fit, and the command line's summaries, on reports
+    whose every number is gone."""
+    run = CalibrationRun.of_diagnosis(lost_everything)
+    run.report = report = _every_number(run.report, missing)
+    page = render_html(run)
     assert page.count("—") >= 8
     assert not NOT_A_FIGURE.search(page.split("<h2>Residual over")[0])
-    assert not NOT_A_FIGURE.search("\n".join(summary_lines(report)))
+    assert not NOT_A_FIGURE.search("\n".join(loop_lines(report)))
 
     daemon = {"model": "paper (M=5, P=3)", "rmse_gray": missing, "sigma_gray": missing, "iterations": missing,
               "frames": missing, "stroke_mm": missing, "period_mm": missing, "pixel_pitch_mm": missing,
               "held_out": {"error_std_um": missing, "bound_um": missing, "frames": missing, "method": "two-fold"}}
-    page = report_page.render("c1", daemon)
+    plain = CalibrationRun("paper", lost_everything.final_model, daemon, None, None)
+    page = render_html(plain)
     assert page.count("—") >= 8 and not NOT_A_FIGURE.search(page)
+    assert not NOT_A_FIGURE.search("\n".join(plain.lines()))
 
 
 def _stop_sweep(step_um: float = 256.5, stops: int = 41, per_stop: int = 5, seed: int = 9) -> Recording:
@@ -115,7 +118,7 @@ def test_a_stop_sweeps_diagnosis_claims_no_readout_floor():
     noise = result.report()["noise"]
     assert noise["reference_resolution_um"] == 0.0
     assert noise["floor_um"] == pytest.approx(noise["crlb_um"])
-    assert "comes in steps" not in render_html(result, result.report())
+    assert "comes in steps" not in render_html(CalibrationRun.of_diagnosis(result))
 
 
 def test_a_coarse_grating_under_stops_is_still_found():
@@ -159,7 +162,7 @@ def test_frames_of_a_jpeg_stream_are_named_with_the_bound_they_allow(tmp_path):
     found = report["findings"]["compression"]
     assert found["kind"] == "jpeg" and abs(found["quality"] - 75) <= 2
     assert found["crlb_um"] > 1.8 * report["noise"]["crlb_um"]
-    assert "JPEG (MJPEG) stream" in render_html(result, report)
-    assert any("JPEG stream" in line for line in summary_lines(report))
+    assert "JPEG (MJPEG) stream" in render_html(CalibrationRun.of_diagnosis(result))
+    assert any("JPEG stream" in line for line in loop_lines(report))
     plain, _ = build_rig("lab", seed=3).record(1.5)
     assert "compression" not in diagnose(plain, max_steps=0).report()["findings"]

@@ -1,0 +1,252 @@
+"""One calibration pipeline: a recording in; the model, its held-out error next to the bound of the
+same frames, the report and its files out.
+
+`graytrack calibrate`, `graytrack diagnose`, `graytrack batch` and the daemon's sweep all calibrate
+through :func:`calibrate_recording` and write through :func:`write_files`, so a calibration reads
+the same (``report.json`` keys, ``report.html``, the terminal's lines) wherever it was made, and
+what is written is what the caller holds: nothing is read back.
+
+``report.json`` of every kind carries ``kind``, ``model``, ``summary`` (one sentence: the job's
+message and the history's row), ``held_out`` (``error_std_um``, ``bound_um``, ``frames``, ``method``,
+or null when the data cannot be split), ``noise`` (``gray``, ``crlb_um``), ``geometry`` and
+``findings``; the closed loop adds its contract's ``before``, ``steps`` and ``after``
+(docs/contracts.md), the seed paper's and ideal models their fit in gray levels.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Callable
+
+import numpy as np
+
+from graytrack.core.files import write_atomic
+from graytrack.core.jsonable import finite_or_none
+from graytrack.service.figures import positive, shown
+
+if TYPE_CHECKING:
+    from graytrack.core.diagnosis.heldout import HeldOut
+    from graytrack.core.diagnosis.loop import DiagnosisResult
+    from graytrack.core.geometry_check import GeometryCheck
+    from graytrack.core.models.fourier import FourierModel
+    from graytrack.core.recording import Recording
+
+KINDS = ("ideal", "paper", "auto")
+Progress = Callable[[float, str], None]
+NO_TRANSIENTS = {"count": 0, "frames": 0, "samples": 0, "events": []}
+
+
+@dataclass
+class CalibrationRun:
+    """A finished calibration: what every caller keeps, installs or prints."""
+
+    kind: str
+    model: "FourierModel"
+    report: dict[str, Any]  # report.json, exactly as written
+    held_out: "HeldOut | None"
+    geometry: "GeometryCheck | None"
+    diagnosis: "DiagnosisResult | None" = None  # the closed loop's stages (its plots), for kind "auto"
+    files: dict[str, Path] = field(default_factory=dict)
+
+    @property
+    def refused(self) -> bool:
+        """The rig's geometry is at fault (a reversed pixel axis, a wrong period): no model to keep."""
+        return self.geometry is not None and self.geometry.refused
+
+    def raise_if_refused(self) -> None:
+        if self.refused:
+            from graytrack.core.geometry_check import GeometryError
+
+            raise GeometryError(self.geometry)
+
+    @property
+    def summary(self) -> str:
+        return str(self.report.get("summary", ""))
+
+    def lines(self) -> list[str]:
+        """What the terminal prints (ASCII), the report's figures in short."""
+        return loop_lines(self.report) if self.kind == "auto" else fit_lines(self.report)
+
+    def warnings(self) -> list[str]:
+        """Lines for stderr: a doubtful geometry's causes, a model that errs on its own calibration."""
+        check = self.report.get("geometry") or {}
+        lines = [f"warning: {text}" for text in check.get("warnings") or []] if check.get("status") == "doubtful" else []
+        from graytrack.core.adequacy import INADEQUATE_RATIO
+
+        ratio = self.model.info.get("calibration_error_ratio")
+        if ratio is not None and ratio > INADEQUATE_RATIO:
+            lines.append(f"warning: this model places its own calibration frames {ratio:.1f}x as far off as their "
+                         "noise floor: it does not describe this rig, and every position it gives will be flagged "
+                         "stale (geometry); use --model auto (the closed loop) or graytrack diagnose for the cause")
+        return lines
+
+    @classmethod
+    def of_diagnosis(cls, result: "DiagnosisResult") -> "CalibrationRun":
+        """A closed-loop result as a calibration: its report gains the keys every kind carries."""
+        from graytrack.core.diagnosis.heldout import HeldOut
+
+        report = result.report()
+        after = result.after.figures
+        held_out = HeldOut.of([after], f"closed loop, {report['heldout']}")
+        added = ", ".join(step["effect"].replace("_", " ") for step in report["steps"])
+        report.update(finite_or_none({
+            "kind": "auto", "model": result.final_model.describe(), "held_out": held_out.as_dict(),
+            "summary": (f"closed loop: held-out error {shown(report['after']['error_std_um'], 2, 'µm')} "
+                        f"(bound {shown(report['noise']['crlb_um'], 2, 'µm')}); "
+                        + (f"added {added}" if added else "nothing added: the seed paper's model holds")
+                        + _doubts(report.get("geometry")))}))
+        return cls("auto", result.final_model, report, held_out, result.geometry, result)
+
+
+def calibrate_recording(recording: "Recording", kind: str = "paper", *, validation: "Recording | None" = None,
+                        harmonics: int | None = None, pixel_degree: int | None = None, rows: str = "auto",
+                        held_out_block: int | None = None, info: dict[str, Any] | None = None,
+                        progress: Progress | None = None) -> CalibrationRun:
+    """Calibrate ``recording`` with the model ``kind`` (``ideal``, ``paper``, or ``auto``: the closed loop).
+
+    ``held_out_block``: frames per block of the two-fold held-out error of ``ideal`` and ``paper``
+    (a sweep's stop; None: no held-out figure); the closed loop measures on its own held-out
+    frames, or on ``validation``. ``info`` is added to the model's info before anything is
+    written (the daemon's camera orientation, ``--flip``). A refused geometry raises
+    :class:`GeometryError` for ``ideal``/``paper``; the closed loop returns the run with
+    ``refused`` set, so that its report can still be written.
+    """
+    if kind not in KINDS:
+        from graytrack.core.errors import CalibrationError
+
+        raise CalibrationError(f"unknown model kind {kind!r} (expected one of {', '.join(KINDS)})")
+    if kind == "auto":
+        from graytrack.core.diagnosis import diagnose
+
+        run = CalibrationRun.of_diagnosis(diagnose(recording, validation, progress=progress))
+    else:
+        run = _fit(recording, kind, harmonics, pixel_degree, rows, held_out_block, progress)
+    run.model.info.update(info or {})
+    return run
+
+
+def _fit(recording: "Recording", kind: str, harmonics: int | None, pixel_degree: int | None, rows: str,
+         held_out_block: int | None, progress: Progress | None) -> CalibrationRun:
+    """The ideal or seed paper's model, with its held-out error two-fold by block when asked."""
+    from graytrack.core.calibration import calibrate
+    from graytrack.core.diagnosis.heldout import HeldOut, two_fold_by_block
+
+    share = 1.0 if held_out_block is None else 0.6
+    scaled = None if progress is None else (lambda f, label: progress(share * f, label))
+    result = calibrate(recording, kind, harmonics=harmonics, pixel_degree=pixel_degree, rows=rows, progress=scaled)
+    model, held_out = result.model, None
+    if held_out_block is not None:
+        if progress:
+            progress(share, "held-out error: two-fold by block")
+
+        def fit(part: "Recording") -> "FourierModel":
+            return calibrate(part, kind, harmonics=harmonics, pixel_degree=pixel_degree, rows=rows).model
+
+        parts = two_fold_by_block(recording, held_out_block, fit)
+        held_out = HeldOut.of(parts, f"two-fold by block, {kind} model") if parts else None
+    held = held_out.as_dict() if held_out is not None else None
+    quality = "" if held is None else (f"held-out error {shown(held['error_std_um'], 2, 'µm')} "
+                                       f"(bound {shown(held['bound_um'], 2, 'µm')}), ")
+    report = finite_or_none({
+        "kind": kind, "model": model.describe(), "rmse_gray": result.rmse_gray, "sigma_gray": result.sigma_gray,
+        "iterations": result.iterations, "frames": recording.n_frames,
+        "stroke_mm": float(np.ptp(recording.reference[np.isfinite(recording.reference)])),
+        "period_mm": model.period_mm, "pixel_pitch_mm": model.pixel_pitch_mm,
+        "noise": {"gray": result.sigma_gray, "crlb_um": None if held is None else held["bound_um"]},
+        "held_out": held,
+        "geometry": result.geometry.as_dict(),
+        "summary": (f"{kind} model: {quality}rms {shown(result.rmse_gray, 3)} gray "
+                    f"(noise {shown(result.sigma_gray, 3)} gray)" + _doubts(result.geometry.as_dict())),
+        "findings": {"transients": model.info.get("transients") or NO_TRANSIENTS},
+    })
+    if progress:
+        progress(1.0, "done")
+    return CalibrationRun(kind, model, report, held_out, result.geometry)
+
+
+def _doubts(geometry: dict[str, Any] | None) -> str:
+    """A doubtful geometry check's causes, appended to the summary (and so to the job's event)."""
+    if not geometry or geometry.get("status") != "doubtful":
+        return ""
+    return "; geometry doubtful: " + "; ".join(geometry.get("warnings") or [])
+
+
+def write_files(run: CalibrationRun, folder: str | os.PathLike[str], name: str = "") -> dict[str, Path]:
+    """``model.json`` (not for a refused geometry: an older one is removed rather than left to look
+    current), ``report.json`` and ``report.html`` in ``folder``; the paths by name, also kept in
+    ``run.files``. ``name``: the calibration's id, in the page's title."""
+    from graytrack.core.models import save_model
+    from graytrack.service.report import render_html
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = {"model": folder / "model.json", "json": folder / "report.json", "html": folder / "report.html"}
+    if run.refused:
+        paths.pop("model").unlink(missing_ok=True)
+    else:
+        save_model(run.model, paths["model"])
+    write_atomic(paths["json"], json.dumps(run.report, indent=1, allow_nan=False, default=float))
+    write_atomic(paths["html"], render_html(run, name))
+    run.files.update(paths)
+    return paths
+
+
+# ----------------------------------------------------------------------------- terminal lines
+def _figure(value: float | None, digits: int) -> str:
+    return shown(value, digits, missing="n/a")  # the terminal gets ASCII
+
+
+def _figures(entry: dict) -> str:
+    lost = f", {_figure(entry['lost_frames'], 0)} frame(s) not tracked" if entry.get("lost_frames") else ""
+    return f"rmse {_figure(entry['rmse_gray'], 4)} gray, error std {_figure(entry['error_std_um'], 3)} um{lost}"
+
+
+def geometry_lines(report: dict) -> list[str]:
+    """The geometry check first: a refusal, or the likely causes of a doubt."""
+    check = report.get("geometry") or {}
+    if check.get("status") == "refused":
+        return [f"REFUSED {check['message']} (the loop stopped; no model written)"]
+    return [f"warning {text}" for text in check.get("warnings") or []] if check.get("status") == "doubtful" else []
+
+
+def _transient_line(report: dict) -> list[str]:
+    transients = (report.get("findings") or {}).get("transients")
+    if not (transients and transients.get("count")):
+        return []
+    from graytrack.core.transients import summary_line
+
+    return [f"data    {summary_line(transients)}"]
+
+
+def loop_lines(report: dict) -> list[str]:
+    """The closed loop's figures: before, each step, after, the bound and what limits it."""
+    before, after, noise = report["before"], report["after"], report["noise"]
+    lines = geometry_lines(report) + [f"before  {before['model']}: {_figures(before)}"]
+    for step in report["steps"]:
+        lines.append(f"  + {step['effect']:<16} {step['evidence']}")
+        lines.append(f"    {'':<16} {_figures(step)}")
+    lines.append(f"after   {after['model']}: {_figures(after)}")
+    lines.append(f"noise   sigma {_figure(noise['gray'], 4)} gray, Cramer-Rao bound {_figure(noise['crlb_um'], 3)} um")
+    compression = (report.get("findings") or {}).get("compression")
+    if compression:
+        lines.append(f"        frames from a JPEG stream (quality ~{_figure(compression.get('quality'), 0)}): "
+                     f"with its quantisation the bound is {_figure(compression.get('crlb_um'), 3)} um")
+    if positive(noise.get("reference_resolution_um")):
+        lines.append(f"        grating readout in steps of {_figure(noise['reference_resolution_um'], 3)} um: "
+                     f"floor against it {_figure(noise['floor_um'], 3)} um")
+    return lines + _transient_line(report)
+
+
+def fit_lines(report: dict) -> list[str]:
+    """An ideal or paper fit: the model, its fit against the noise, its held-out error when measured."""
+    lines = [f"model   {report['model']}",
+             f"rmse    {_figure(report.get('rmse_gray'), 4)} gray "
+             f"(noise sigma {_figure(report.get('sigma_gray'), 4)} gray from the data)"]
+    held = report.get("held_out")
+    if held:
+        lines.append(f"held    error std {_figure(held.get('error_std_um'), 3)} um on {_figure(held.get('frames'), 0)} held-out "
+                     f"frames, Cramer-Rao bound {_figure(held.get('bound_um'), 3)} um ({held.get('method')})")
+    return lines + _transient_line(report)
