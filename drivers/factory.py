@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 from graytrack.drivers.camera.base import Camera
 from graytrack.drivers.clock import REAL_TIME, ScaledClock
 from graytrack.drivers.config import CameraConfig, ConfigError, HardwareConfig, StageConfig
+from graytrack.drivers.stage.base import Stage
 from graytrack.drivers.stage.gcs_stage import GCSStage
 
 if TYPE_CHECKING:
@@ -25,7 +26,7 @@ if TYPE_CHECKING:
 @dataclass
 class Hardware:
     camera: Camera
-    stage: GCSStage
+    stage: Stage
     controller: object | None = None  # SimGCSController when simulated
     rig: object | None = None  # VirtualRig when simulated
 

@@ -66,6 +66,11 @@ class Stage(Device):
         return None
 
     @abc.abstractmethod
+    def reference(self, timeout_s: float = 30.0) -> None:
+        """Find the axis's reference mark and wait until it is found. This moves the stage (over
+        its whole travel on some axes): the daemon does it only when asked (``POST /api/stage/reference``)."""
+
+    @abc.abstractmethod
     def limits(self) -> tuple[float, float]:
         """The range moves are allowed in: soft limits intersected with the controller's travel."""
 
