@@ -17,6 +17,7 @@ the caller's business (``map_chunks``), so this module knows nothing of Dask.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field, replace
 from typing import Callable, Sequence
 
@@ -32,8 +33,8 @@ DEFAULT_OVERLAP = 32
 # the Gauss–Newton tolerance. Anything beyond this is a different solution, not rounding.
 AGREE_MM = 1e-5
 
-PER_FRAME = ("x_mm", "locked", "rms_gray", "crlb_mm", "iterations", "gain", "offset", "chi2", "rejected_px", "stale",
-             "stale_reason", "transient_px", "focus", "focus_sigma")
+PER_FRAME = tuple(f.name for f in dataclasses.fields(TrackResult)
+                  if f.name not in ("events", "chi2_calibration"))  # one array per frame each
 
 
 @dataclass(frozen=True)
@@ -160,7 +161,7 @@ def track_chunked(model: FourierModel, frames: np.ndarray, reference: np.ndarray
                            stale_reason=np.full(n_frames, "", dtype=f"<U{max(map(len, FAMILIES))}"),
                            transient_px=np.zeros(n_frames, dtype=np.int64),
                            chi2_calibration=results[0].chi2_calibration if results else float("nan"),
-                           focus=nan(), focus_sigma=nan())
+                           focus_px2=nan(), focus_sigma_px2=nan(), repeated=np.zeros(n_frames, dtype=bool))
     report = StitchReport(len(chunks))
     for index, (chunk, result) in enumerate(zip(chunks, results)):
         shift = 0.0

@@ -80,13 +80,15 @@ class LockEvent:
 
 @dataclass
 class TrackResult:
+    """Every frame's record (core/frame_record.py) as one array per quantity, and the lock events."""
+
     x_mm: np.ndarray
     locked: np.ndarray
     rms_gray: np.ndarray
     crlb_mm: np.ndarray
     iterations: np.ndarray
     gain: np.ndarray
-    offset: np.ndarray
+    offset_gray: np.ndarray
     events: list[LockEvent] = field(default_factory=list)
     chi2: np.ndarray | None = None  # weighted residual per pixel against the noise model (≈ 1: model right)
     rejected_px: np.ndarray | None = None  # pixels the robust reweighting gave zero weight
@@ -95,8 +97,8 @@ class TrackResult:
     repeated: np.ndarray | None = None  # the image repeats the frame before bit for bit (given no position)
     stale_reason: np.ndarray | None = None  # the family blamed while stale ("" when not): core/validity.py
     transient_px: np.ndarray | None = None  # samples set aside as a compact transient (glint, passing dust)
-    focus: np.ndarray | None = None  # change of blur variance since calibration, px² (NaN: not estimated)
-    focus_sigma: np.ndarray | None = None  # its standard error, px²
+    focus_px2: np.ndarray | None = None  # change of blur variance since calibration (NaN: not estimated)
+    focus_sigma_px2: np.ndarray | None = None  # its standard error
 
     def error_um(self, reference: np.ndarray) -> np.ndarray:
         """Position minus reference in µm (NaN where either is missing)."""
@@ -643,7 +645,8 @@ def track(model: FourierModel, source: Recording | np.ndarray, reference: np.nda
 
 @dataclass
 class LiveFix:
-    """One frame's answer in live tracking (the daemon's position stream)."""
+    """One frame's answer in live tracking (the daemon's position stream): its record
+    (core/frame_record.py), the fields named as there."""
 
     x_mm: float  # NaN when the frame could not be placed
     locked: bool
@@ -657,8 +660,9 @@ class LiveFix:
     stale: bool = False  # the model no longer describes the images: recalibrate
     stale_reason: str | None = None  # the family of causes blamed while stale (core/validity.py)
     transient_px: int = 0  # samples set aside as a compact transient (a glint, passing dust)
-    focus: float = float("nan")  # change of blur variance since calibration, px² (NaN: not estimated)
-    focus_sigma: float = float("nan")
+    focus_px2: float = float("nan")  # change of blur variance since calibration (NaN: not estimated)
+    focus_sigma_px2: float = float("nan")
+    iterations: int = 0
 
 
 class LiveTracker:
@@ -704,7 +708,8 @@ class LiveTracker:
         return LiveFix(solution.x_mm if ok else float("nan"), locked, solution.rms_gray, crlb, event,
                        solution.chi2, solution.rejected, solution.gain, solution.offset, self.state.stale,
                        self.state.stale_reason, solution.transient_px,
-                       solution.focus if math.isfinite(solution.focus_sigma) else float("nan"), solution.focus_sigma)
+                       solution.focus if math.isfinite(solution.focus_sigma) else float("nan"), solution.focus_sigma,
+                       solution.iterations if ok else 0)
 
     def _lean_batch(self, frame: np.ndarray, rows: int) -> TrigPolyBatch | GeneralBatch | None:
         """The frame's batch by one reduction into the preallocated line (None: not this path)."""

@@ -109,7 +109,7 @@ def track_runs(model: FourierModel, data: CalibrationData) -> TrackResult:
     tracker = Tracker(model, robust=robust)  # model-level work (folded weights, Gram polynomials) once for all runs
     parts = [track(model, data.frames[run], reference=data.x_mm[run], tracker=tracker) for run in runs(data.t_s)]
     joined = {key: np.concatenate([getattr(part, key) for part in parts])
-              for key in ("x_mm", "locked", "rms_gray", "crlb_mm", "iterations", "gain", "offset")}
+              for key in ("x_mm", "locked", "rms_gray", "crlb_mm", "iterations", "gain", "offset_gray")}
     return TrackResult(**joined, events=[event for part in parts for event in part.events])
 
 

@@ -18,6 +18,7 @@ if TYPE_CHECKING:  # the parser is built for every command: only `run` imports t
 
 CSV_COLUMNS = ("t", "x_mm", "locked", "rms_gray", "crlb_um", "reference_mm", "error_um", "chi2", "rejected_px",
                "gain", "offset_gray", "stale", "stale_reason", "transient_px", "focus_px2", "focus_sigma_px2")
+CSV_TAIL = CSV_COLUMNS[7:]  # the frame record's fit figures, after the grating and the error (new ones at the end)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -57,13 +58,14 @@ def oriented(recording: Recording, model: FourierModel, flip: bool) -> Recording
 
 
 def result_columns(t: np.ndarray, result: TrackResult, reference: np.ndarray) -> dict[str, np.ndarray]:
-    return {
-        "t": t, "x_mm": result.x_mm, "locked": result.locked.astype(int), "rms_gray": result.rms_gray,
-        "crlb_um": result.crlb_mm * 1e3, "reference_mm": reference, "error_um": result.error_um(reference),
-        "chi2": result.chi2, "rejected_px": result.rejected_px, "gain": result.gain, "offset_gray": result.offset,
-        "stale": result.stale.astype(int), "stale_reason": result.stale_reason,
-        "transient_px": result.transient_px, "focus_px2": result.focus, "focus_sigma_px2": result.focus_sigma,
-    }
+    """The CSV's columns (docs/contracts.md): time, the frame record's quantities in the contract's
+    order, the grating and the error against it."""
+    from graytrack.core import frame_record
+
+    record = frame_record.columns(result)
+    head = {"t": t, **{name: record[name] for name in ("x_mm", "locked", "rms_gray", "crlb_um")},
+            "reference_mm": reference, "error_um": result.error_um(reference)}
+    return {**head, **{name: record[name] for name in CSV_TAIL}}
 
 
 def summary(result: TrackResult, reference: np.ndarray) -> list[str]:

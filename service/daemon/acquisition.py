@@ -34,12 +34,12 @@ from graytrack.drivers.camera.base import Camera, CameraError, CameraTimeout, Fr
 from graytrack.service.daemon.framerate import FrameRate
 from graytrack.service.daemon.grating import Readings
 from graytrack.service.daemon.trim import ReferenceTrim
+from graytrack.core import frame_record
 from graytrack.drivers.realtime import raise_thread_priority
 from graytrack.service.daemon.worker import Worker, describe
 
 log = logging.getLogger("graytrack.daemon")
 READ_TIMEOUT_S = 0.25  # short, so stop requests and fault timing are honoured promptly
-LIVEFIX_EXTRAS = ("gain", "offset_gray", "rejected_px", "transient_px", "chi2", "focus", "stale", "stale_reason")  # LiveFix fields the stream passes on when present
 
 
 @dataclass(frozen=True)
@@ -66,27 +66,13 @@ class AcquisitionStats:
     last_tracked_wall: float = -math.inf
 
 
-def _finite(value: float) -> float | None:
-    return value if math.isfinite(value) else None
-
-
 def fix_message(seq: int, sample: Sample, fix: LiveFix, dropped: int) -> dict[str, Any]:
     """The stream message of one tracked frame (docs/contracts.md; ``t_unix`` and ``age_ms`` are added at send)."""
-    x = _finite(fix.x_mm)
-    message: dict[str, Any] = {
-        "seq": seq,
-        "t": sample.t,
-        "x_mm": x,
-        "locked": bool(fix.locked),
-        "frame_id": sample.frame.frame_id,
-        "dropped": dropped,
-        "rms_gray": _finite(fix.rms_gray),
-        "crlb_um": _finite(fix.crlb_mm * 1e3),
-    }
-    for name in LIVEFIX_EXTRAS:
-        value = getattr(fix, name, None)
-        if value is not None:
-            message[name] = value if isinstance(value, (bool, int, str)) else _finite(float(value))
+    record = frame_record.of_frame(fix)  # every quantity named and typed as in the CSV and /api/status
+    x = record["x_mm"]
+    message: dict[str, Any] = {"seq": seq, "t": sample.t, "x_mm": x, "locked": record["locked"],
+                               "frame_id": sample.frame.frame_id, "dropped": dropped}
+    message.update((name, value) for name, value in record.items() if name not in message)
     if sample.reference_mm == sample.reference_mm:  # not NaN
         message["reference_mm"] = sample.reference_mm
         if x is not None:

@@ -34,7 +34,7 @@ FIT_FAMILIES = (
     ("rejected_px", "graytrack_fit_rejected_pixels", "pixels the newest frame's fit rejected (NaN: no fresh fit)"),
     ("transient_px", "graytrack_fit_transient_pixels",
      "samples of the newest frame set aside as a transient, glint or dust (NaN: no fresh fit)"),
-    ("focus", "graytrack_fit_focus_square_pixels",
+    ("focus_px2", "graytrack_fit_focus_square_pixels",
      "change of blur variance since calibration in square pixels (NaN: not estimated)"),
     ("stale", "graytrack_fit_stale", "1 when the tracker flags the model as stale: recalibrate (NaN: no fresh fit)"),
 )

@@ -11,7 +11,7 @@ import time
 from typing import TYPE_CHECKING, Any
 
 from graytrack import __version__
-from graytrack.service.daemon.acquisition import LIVEFIX_EXTRAS
+from graytrack.core.frame_record import FIT
 from graytrack.service.daemon.supervision import sentence
 
 if TYPE_CHECKING:
@@ -56,8 +56,8 @@ def status(rig: "Rig") -> dict[str, Any]:
         "position_mm": last["x_mm"] if fresh else None,
         "locked": bool(last["locked"]) if fresh else None,
         "crlb_um": last.get("crlb_um") if fresh else None,
-        # the tracker's per-frame fit figures (gain, offset, rejected pixels, chi², stale model)
-        "fit": {key: last[key] for key in LIVEFIX_EXTRAS if key in last} if fresh else None,
+        # the tracker's per-frame fit figures (core/frame_record.py: gain, offset, rejected samples, χ², stale model)
+        "fit": {key: last[key] for key in FIT if key in last} if fresh else None,
         "stale": last is not None and not fresh,
         "model_stale": model_stale is not None,
         "stale_reason": model_stale,

@@ -49,7 +49,7 @@ def watched(result) -> np.ndarray:
     """The focus watch's verdict on every frame of a tracked run."""
     watch = FocusWatch()
     return np.array([watch.observe(FrameSign(k, focus=f, focus_sigma=s)) == "focus"
-                     for k, (f, s) in enumerate(zip(result.focus, result.focus_sigma))])
+                     for k, (f, s) in enumerate(zip(result.focus_px2, result.focus_sigma_px2))])
 
 
 def without_focus(model) -> Tracker:
@@ -73,9 +73,9 @@ def test_focus_drift_after_calibration_is_measured_at_the_bound(models, scenario
     assert ratio <= 1.2  # measured at the bound (flagged or not)
     if scenario == "strip16":
         # 16 rows see the blur change on every frame: it is solved, physically right, and flagged
-        estimated = np.isfinite(result.focus)
+        estimated = np.isfinite(result.focus_px2)
         assert estimated[-len(error) // 2:].mean() > 0.9
-        focus, sigma = result.focus[estimated], result.focus_sigma[estimated]
+        focus, sigma = result.focus_px2[estimated], result.focus_sigma_px2[estimated]
         mean = float(np.sum(focus / sigma**2) / np.sum(sigma**-2))
         truth = true_change_px2(scenario, px)
         assert mean == pytest.approx(truth, rel=0.15)
@@ -185,8 +185,8 @@ def test_live_tracking_carries_the_focus(models):
     live = LiveTracker(model, x0_mm=float(run.reference[0]))
     fixes = [live.update(frame, float(reference)) for frame, reference in zip(run.frames, run.reference)]
     batch = track(model, run, light="auto", robust=True)
-    focus = np.array([fix.focus for fix in fixes])
-    np.testing.assert_allclose(focus, batch.focus, rtol=1e-6, atol=1e-9, equal_nan=True)
+    focus = np.array([fix.focus_px2 for fix in fixes])
+    np.testing.assert_allclose(focus, batch.focus_px2, rtol=1e-6, atol=1e-9, equal_nan=True)
     assert np.isfinite(focus[-50:]).all()
     np.testing.assert_allclose([fix.x_mm for fix in fixes], batch.x_mm, atol=1e-9, rtol=0)
 

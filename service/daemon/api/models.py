@@ -4,7 +4,9 @@ from __future__ import annotations
 
 from typing import Annotated, Any
 
-from pydantic import BaseModel, ConfigDict, Field, Strict
+from pydantic import BaseModel, ConfigDict, Field, Strict, create_model
+
+from graytrack.core import frame_record
 
 
 class ErrorBody(BaseModel):
@@ -39,6 +41,15 @@ class JobSummary(BaseModel):
     error: str | None = None
 
 
+# The tracker's fit of a frame, one field per quantity of the frame record (core/frame_record.py):
+# the same names and types as the stream's messages and the `track` CSV.
+FitFigures = create_model(
+    "FitFigures", __config__=ConfigDict(extra="allow"),
+    **{q.name: (q.kind | None, Field(None, description=q.description))
+       for q in frame_record.QUANTITIES if q.fit},
+)
+
+
 class Status(BaseModel):
     model_config = ConfigDict(extra="allow")  # later additions stay visible to clients
     state: str = Field(description="starting, idle, calibrating, tracking, fault or stopping")
@@ -46,9 +57,7 @@ class Status(BaseModel):
     position_mm: float | None = Field(description="null when no fresh tracked frame (older than stale_after_s)")
     locked: bool | None
     crlb_um: float | None
-    fit: dict[str, float | int | bool | str | None] | None = Field(
-        None, description="the tracker's fit of the newest frame: gain, offset_gray, rejected_px, chi2, stale, "
-                          "stale_reason")
+    fit: FitFigures | None = Field(None, description="the tracker's fit of the newest frame (null when not fresh)")
     stale: bool = Field(description="the newest figures are older than stale_after_s (withdrawn)")
     model_stale: bool = Field(False, description="the validity monitor says the model no longer holds: recalibrate")
     stale_reason: str | None = Field(
