@@ -92,7 +92,7 @@ def test_an_unexpected_error_in_a_calibration_fails_the_job_and_restores_the_dae
         if isinstance(failure, OSError):  # the disk fills while the new model is installed
             monkeypatch.setattr(daemon.rig.storage, "copy_model_of", lambda job_id: (_ for _ in ()).throw(failure))
         else:
-            monkeypatch.setattr(sweep, "calibrate", lambda *a, **k: (_ for _ in ()).throw(failure))
+            monkeypatch.setattr(sweep, "calibrate_recording", lambda *a, **k: (_ for _ in ()).throw(failure))
         job_id = daemon.post("/api/calibration", headers=daemon.auth()).json()["id"]
         job = wait_for(lambda: (j := daemon.get(f"/api/calibration/{job_id}").json())["state"] in ("failed", "done") and j,
                        what="the job to end")
@@ -112,14 +112,14 @@ def test_an_unexpected_error_in_a_calibration_fails_the_job_and_restores_the_dae
 
 
 def test_a_shutdown_during_the_fit_aborts_the_job_and_installs_nothing(tmp_path, monkeypatch: pytest.MonkeyPatch) -> None:
-    real_calibrate, fitting = sweep.calibrate, []
+    real_calibrate, fitting = sweep.calibrate_recording, []
 
     def slow_fit(*args, **kwargs):  # a fit that is still running when the shutdown comes
         fitting.append(True)
         wait_for(lambda: daemon.rig.job.abort.is_set(), 20.0, "the shutdown to reach the job")
         return real_calibrate(*args, **kwargs)
 
-    monkeypatch.setattr(sweep, "calibrate", slow_fit)
+    monkeypatch.setattr(sweep, "calibrate_recording", slow_fit)
     with LiveServer(create_app(fast_settings(tmp_path))) as daemon:
         job_id = wait_for(lambda: daemon.rig.job and fitting and daemon.rig.job.id, 20.0, "the fit")
     on_disk = json.loads((tmp_path / "calibrations" / job_id / "status.json").read_text())
