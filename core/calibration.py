@@ -20,7 +20,7 @@ from graytrack.core.geometry import initial_geometry
 from graytrack.core.geometry_check import MIN_SEEN_SHARE, GeometryError, check_geometry
 from graytrack.core.models.fourier import FourierModel
 from graytrack.core.recording import Recording
-from graytrack.core.reference_monitor import record_calibration_line
+from graytrack.core.calibration_line import record_calibration_line
 from graytrack.core.structure import ModelSpec, fit_spec
 
 Progress = Callable[[float, str], None]

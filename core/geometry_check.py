@@ -31,6 +31,7 @@ from graytrack.core.errors import CalibrationError, GraytrackError
 from graytrack.core.geometry import estimate_period, fundamental_phase, initial_geometry, phase_rate_mm
 from graytrack.core.models.fourier import FourierModel
 from graytrack.core.recording import PIXEL_AXIS_REVERSED, Recording
+from graytrack.core.structure import ModelSpec, fit_spec
 
 STATUSES = ("ok", "doubtful", "refused")
 CAUSES = ("pixel_direction", "roi_off_target", "period", "pitch", "residual")
@@ -243,8 +244,6 @@ def orientation_gain(data: CalibrationData) -> float | None:
     Both fits see the same subsample of the row-mean line, so the cost is two small fits however
     large the sweep; a factor between them is what matters, not either figure. None when either
     fit is refused by the data (too few frames, no period)."""
-    from graytrack.core.structure import ModelSpec, fit_spec  # structure imports calibration_data, not this
-
     line = data.frames.mean(axis=1, keepdims=True)
     usable = data.weights.min(axis=1, keepdims=True)
     small = replace(data, frames=line, weights=usable, pixel_noise=None)

@@ -13,7 +13,7 @@ reading, a weighted line is fitted to ``camera − grating`` over a sliding wind
 - the grating's rounding is fixed wherever the stage rests: it averages down with the number of
   places read, not of frames (a stage resting at two places does not make a scale of it);
 - drift is measured from the calibration's own line: the calibration recording tracked by the
-  model it produced (:func:`record_calibration_line`, kept in the model's info as
+  model it produced (:func:`~graytrack.core.calibration_line.record_calibration_line`, kept in the model's info as
   ``reference_line``), with its uncertainty. A model need not agree with its grating exactly (a
   closed-loop model on a rig with 3 % PRNU was
   seen 220 ppm off its own calibration run); what changed since is the news.
@@ -45,6 +45,8 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from graytrack.core.adequacy import INADEQUATE_RATIO
 
 DEFAULT_WINDOW = 500  # frames in the sliding window
 MIN_FRAMES = 30  # frames before the window says anything
@@ -473,41 +475,8 @@ def scale_tells(model) -> bool:
     that errs beyond its bound on its own calibration frames (core/adequacy.py): its positions are
     off by its own structure, which a window's line would take for a drift, and they are flagged
     for ``geometry`` already."""
-    from graytrack.core.adequacy import INADEQUATE_RATIO
-
     ratio = (getattr(model, "info", None) or {}).get("calibration_error_ratio")
     return ratio is None or not ratio > INADEQUATE_RATIO
-
-
-def record_calibration_line(model, recording) -> Line | None:
-    """Track the calibration ``recording`` with the ``model`` fitted to it, as tracking will, and keep
-    the line camera − grating in ``model.info["reference_line"]``: the agreement drift is measured
-    from. None (and nothing kept) when the recording has no grating reading or too few frames."""
-    from graytrack.core.noise import reference_resolution_mm
-    from graytrack.core.tracking import track
-
-    reference = np.asarray(recording.reference, dtype=np.float64)
-    if np.isfinite(reference).sum() < MIN_FRAMES:
-        return None
-    result = track(model, recording, light="auto", robust=True)
-    step = float(recording.meta.get("grating_resolution_mm", 0.0) or 0.0) or reference_resolution_mm(reference)
-    lo, hi = model.stroke_range_mm
-    monitor = ReferenceMonitor(0.5 * (lo + hi), 0.5 * (hi - lo), window=max(reference.size, MIN_FRAMES),
-                               reference_sigma_mm=step / math.sqrt(12.0), resolution_mm=step)
-    for x, ref, bound, locked in zip(result.x_mm.tolist(), reference.tolist(), result.crlb_mm.tolist(),
-                                     result.locked.tolist()):
-        if locked:
-            monitor.observe(x, ref, bound)
-    if monitor.frames >= MIN_FRAMES:
-        monitor._update()  # the fit of every frame (observe fits every few)
-    line = monitor.estimate
-    if line is not None:
-        model.info["reference_line"] = line.as_dict()
-        usable = result.locked & np.isfinite(result.x_mm) & np.isfinite(reference)
-        model.info["reference_structure_um"] = round(structure_um(
-            reference[usable], (result.x_mm[usable] - reference[usable]) * 1e3 - line.at_um(reference[usable]),
-            result.crlb_mm[usable] * 1e3), 4)
-    return line
 
 
 def structure_um(x_mm: np.ndarray, residual_um: np.ndarray, bound_um: np.ndarray, bins: int = 16) -> float:

@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Callable
 import numpy as np
 
 from graytrack.core.calibration_data import CalibrationData, calibration_data
+from graytrack.core.effects.focus import FOCUS_INFO, with_frame_focus
 from graytrack.core.models.fourier import FourierModel
 from graytrack.core.noise import crlb_mm, pooled_bound
 from graytrack.core.recording import Recording
@@ -64,7 +65,6 @@ def fit_on(model: FourierModel, data: CalibrationData) -> Fit:
     if model.common_mode:
         gain, offset = weighted_affine(data.frames, values, usable, axis=(1, 2))
         values = gain[:, None, None] * values + offset[:, None, None]
-    from graytrack.core.effects.focus import FOCUS_INFO, with_frame_focus  # effects use this module: on use
 
     if model.info.get(FOCUS_INFO):  # calibrated with a focus per frame: each held-out frame has its own
         values = with_frame_focus(model, data.x_mm, data.frames, np.asarray(values), usable)

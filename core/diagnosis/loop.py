@@ -15,7 +15,7 @@ from typing import Any, Callable
 import numpy as np
 
 from graytrack.core.calibration import KIND_SPECS
-from graytrack.core.reference_monitor import record_calibration_line
+from graytrack.core.calibration_line import record_calibration_line
 from graytrack.core.calibration_data import CalibrationData, calibration_data
 from graytrack.core.compression import JpegFinding, bound_with_quantisation_mm, find_jpeg
 from graytrack.core.errors import CalibrationError
@@ -24,7 +24,7 @@ from graytrack.core.geometry_check import GeometryCheck, GeometryError, check_ge
 from graytrack.core.jsonable import finite_or_none
 from graytrack.core import effects
 from graytrack.core.structure import ModelSpec, fit_spec, fit_spec_pitch_search
-from graytrack.core.diagnosis.evidence import Evidence, all_evidence
+from graytrack.core.evidence import Evidence
 from graytrack.core.diagnosis.heldout import Figures, Stage, figures, fit_on, interleaved_split
 from graytrack.core.adequacy import assessed
 from graytrack.core.models.fourier import FourierModel
@@ -158,6 +158,17 @@ def _at_noise_floor(stage: Stage) -> bool:
     n = float(stage.val.usable.sum())
     residual_ok = stage.figures.rmse_gray**2 <= sigma2 * (1.0 + 4.0 * np.sqrt(2.0 / n))
     return residual_ok and stage.figures.error_std_um <= NOISE_FLOOR_MARGIN * stage.figures.crlb_um
+
+
+def all_evidence(stage: Stage) -> list[Evidence]:
+    """Every effect's probe on ``stage``: data-quality findings first (in the registry's order),
+    then model terms by how much of the held-out residual they explain."""
+    found = [(effect, effect.probe(stage)) for effect in effects.registry().values()]
+    found = [(effect, evidence) for effect, evidence in found if evidence is not None]
+    quality = [evidence for effect, evidence in found if effect.data_quality]
+    terms = sorted((evidence for effect, evidence in found if not effect.data_quality),
+                   key=lambda ev: ev.explained_gray2, reverse=True)
+    return quality + terms
 
 
 def _candidates(stage: Stage) -> list[Evidence]:

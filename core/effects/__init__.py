@@ -25,7 +25,7 @@ if TYPE_CHECKING:
     import numpy as np
 
     from graytrack.core.calibration_data import CalibrationData
-    from graytrack.core.diagnosis.evidence import Evidence
+    from graytrack.core.evidence import Evidence
     from graytrack.core.diagnosis.heldout import Stage
     from graytrack.core.models.fourier import FourierModel
     from graytrack.core.structure import ModelSpec

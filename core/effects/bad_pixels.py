@@ -19,6 +19,7 @@ from scipy.ndimage import median_filter
 from graytrack.core.effects import Effect
 from graytrack.core.noise import temporal_differences
 from graytrack.core.regression import weighted_affine
+from graytrack.core.evidence import Evidence
 
 STUCK_SHARE = 0.05  # temporal spread below this share of a typical pixel's: the pixel does not see the light
 OUTLIER_Z = 10.0  # robust z-score (MAD) beyond which a pixel stands out from the others
@@ -133,7 +134,6 @@ class BadPixels(Effect):
     data_quality = True
 
     def probe(self, stage):
-        from graytrack.core.diagnosis.evidence import Evidence
 
         train, val = stage.train, stage.val
         known = {(r, u) for r, u, _ in stage.spec.get(self.name, ())}

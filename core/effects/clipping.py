@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from graytrack.core.effects import Effect
+from graytrack.core.evidence import Evidence
 
 MIN_SHARE = 0.002  # a continuous signal plus noise almost never repeats its extreme value this often
 
@@ -20,7 +21,6 @@ class Clipping(Effect):
 
     def probe(self, stage):
         """Samples piled up at the top or bottom of the gray range (masked pixels left out)."""
-        from graytrack.core.diagnosis.evidence import Evidence
 
         train = stage.train
         if train.model.clip_gray is not None:

@@ -6,6 +6,7 @@ import numpy as np
 
 from graytrack.core.effects import Effect
 from graytrack.core.regression import weighted_affine
+from graytrack.core.evidence import Evidence, explains, share_above_noise, z_beyond_noise
 
 
 class CommonMode(Effect):
@@ -19,7 +20,6 @@ class CommonMode(Effect):
 
     def probe(self, stage):
         """A gain and offset per frame, fitted on the held-out frames themselves (charged per parameter)."""
-        from graytrack.core.diagnosis.evidence import Evidence, explains, share_above_noise, z_beyond_noise
 
         train, val = stage.train, stage.val
         if train.model.common_mode:

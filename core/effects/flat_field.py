@@ -6,6 +6,7 @@ import numpy as np
 
 from graytrack.core.effects import Effect
 from graytrack.core.regression import weighted_affine
+from graytrack.core.evidence import Evidence, explains, share_above_noise
 
 
 def rough_part(values: np.ndarray, basis: np.ndarray) -> np.ndarray:
@@ -26,7 +27,6 @@ class FlatField(Effect):
 
     def probe(self, stage):
         """A gain and offset per pixel, fitted on training frames, applied to held-out ones."""
-        from graytrack.core.diagnosis.evidence import Evidence, explains, share_above_noise
 
         train, val = stage.train, stage.val
         slope, intercept = weighted_affine(train.residual, train.predicted, train.usable, axis=(0,))

@@ -19,6 +19,7 @@ import numpy as np
 
 from graytrack.core.effects import Effect
 from graytrack.core.models.fourier import TWO_PI, FourierModel
+from graytrack.core.evidence import Evidence, explains, share_above_noise, z_beyond_noise
 
 
 def blur_direction(model: FourierModel, x_mm: np.ndarray) -> np.ndarray:
@@ -61,7 +62,6 @@ class Focus(Effect):
         along the train model's blur direction. A blur mostly lowers the contrast, which a gain and
         offset per frame also explain with twice the unknowns: the loop tries both and keeps what
         tracks best."""
-        from graytrack.core.diagnosis.evidence import Evidence, explains, share_above_noise, z_beyond_noise
 
         train, val = stage.train, stage.val
         if stage.spec.get(self.name) is not None:

@@ -8,6 +8,7 @@ import numpy as np
 
 from graytrack.core.basis import trig_basis
 from graytrack.core.effects import Effect
+from graytrack.core.evidence import cross_validated_evidence, trig_times_pixel
 
 MAX_HARMONICS = 13
 PROBE_ORDERS = 4  # orders beyond the model's that the probe looks at
@@ -15,7 +16,6 @@ PROBE_ORDERS = 4  # orders beyond the model's that the probe looks at
 
 def harmonic_basis(fit: Any) -> np.ndarray:
     """Harmonics above the model's order, times the first two pixel polynomials."""
-    from graytrack.core.diagnosis.evidence import trig_times_pixel
 
     model = fit.model
     trig = trig_basis(model.phase(fit.data.x_mm), model.harmonics + PROBE_ORDERS)[..., 2 * model.harmonics + 1:]
@@ -31,7 +31,6 @@ class Harmonics(Effect):
     order = 10
 
     def probe(self, stage):
-        from graytrack.core.diagnosis.evidence import cross_validated_evidence
 
         m = stage.train.model.harmonics
         return cross_validated_evidence(self.name, "target phase", stage, harmonic_basis,

@@ -8,13 +8,13 @@ import numpy as np
 
 from graytrack.core.basis import legendre_basis, scaled, trig_basis
 from graytrack.core.effects import Effect
+from graytrack.core.evidence import cross_validated_evidence, trig_times_pixel
 
 MAX_PIXEL_DEGREE = 9
 
 
 def pixel_polynomial_basis(fit: Any) -> np.ndarray:
     """The model's trig terms times the next three pixel polynomials."""
-    from graytrack.core.diagnosis.evidence import trig_times_pixel
 
     model = fit.model
     u = np.arange(model.n_pixels, dtype=np.float64)
@@ -31,7 +31,6 @@ class PixelPolynomial(Effect):
     order = 11
 
     def probe(self, stage):
-        from graytrack.core.diagnosis.evidence import cross_validated_evidence
 
         return cross_validated_evidence(self.name, "pixel index (smooth)", stage, pixel_polynomial_basis,
                                         f"pixel dependence beyond degree {stage.train.model.pixel_degree}")

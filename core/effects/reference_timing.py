@@ -6,6 +6,7 @@ import numpy as np
 
 from graytrack.core.effects import Effect
 from graytrack.core.timing import at_exposure, velocity_mm_s
+from graytrack.core.evidence import Evidence
 
 MIN_SHARE = 0.2  # velocity must explain this share of the error variance to count as a timing fault
 MIN_FRAMES = 10
@@ -23,7 +24,6 @@ class ReferenceTiming(Effect):
 
     def probe(self, stage):
         """Tracking error proportional to velocity; the argument is the skew δ (s) that −v·δ fits."""
-        from graytrack.core.diagnosis.evidence import Evidence
 
         val, error_um = stage.val, stage.figures.error_um
         velocity = velocity_mm_s(val.data.t_s, val.data.x_mm)

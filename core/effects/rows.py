@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from graytrack.core.effects import Effect
+from graytrack.core.evidence import Evidence, explains, share_above_noise
 
 
 class Rows(Effect):
@@ -21,7 +22,6 @@ class Rows(Effect):
         The basis is block-diagonal in the row, so each row's three coefficients are solved on
         their own: a batch of 3×3 systems instead of one large least-squares problem.
         """
-        from graytrack.core.diagnosis.evidence import Evidence, explains, share_above_noise
 
         train, val = stage.train, stage.val
         if val.data.frames.shape[1] < 2 or train.model.n_rows > 1:

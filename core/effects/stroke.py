@@ -7,13 +7,13 @@ from typing import Any
 import numpy as np
 
 from graytrack.core.effects import Effect
+from graytrack.core.evidence import cross_validated_evidence, stroke_poly
 
 MAX_STROKE_DEGREE = 8
 
 
 def stroke_basis(fit: Any) -> np.ndarray:
     """Gain, offset and phase drifting along the stroke: [F, 1, F′] × P_j(x), j = 1..4."""
-    from graytrack.core.diagnosis.evidence import stroke_poly
 
     poly = stroke_poly(fit)[:, None, None, :]
     parts = [fit.smooth[..., None] * poly, np.ones_like(fit.smooth)[..., None] * poly, fit.slope[..., None] * poly]
@@ -30,7 +30,6 @@ class Stroke(Effect):
     order = 12
 
     def probe(self, stage):
-        from graytrack.core.diagnosis.evidence import cross_validated_evidence
 
         return cross_validated_evidence(self.name, "stroke position", stage, stroke_basis,
                                         "gain, offset or phase drifting along the stroke")

@@ -10,6 +10,7 @@ from scipy.linalg import solveh_banded
 from graytrack.core.basis import trig_basis
 from graytrack.core.effects import Effect
 from graytrack.core.models.fourier import TWO_PI, FourierModel
+from graytrack.core.evidence import Evidence, explains, model_rows, share_above_noise
 
 DEFAULT_MAP_STEPS = 2  # half a pixel footprint: finer grids are noisier, coarser ones blur dust
 MAX_MAP_STEPS = 4  # a quarter of a pixel footprint, for defects narrower than a pixel (scratches)
@@ -62,7 +63,6 @@ class TargetMap(Effect):
     def probe(self, stage):
         """A fine map along the target coordinate, learnt from training frames, predicts the
         held-out residual wherever the same spot is seen."""
-        from graytrack.core.diagnosis.evidence import Evidence, explains, model_rows, share_above_noise
 
         train, val = stage.train, stage.val
         model = train.model

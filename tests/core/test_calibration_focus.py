@@ -10,7 +10,7 @@ import pytest
 
 from graytrack.core.calibration import calibrate, calibration_data
 from graytrack.core.diagnosis import diagnose
-from graytrack.core.diagnosis.evidence import all_evidence
+from graytrack.core.diagnosis.loop import all_evidence
 from graytrack.core.structure import ModelSpec, fit_spec
 from graytrack.core.tracking import track
 from graytrack.drivers.sim.optics import blur_sigma_mm

@@ -14,7 +14,7 @@ import pytest
 from graytrack.core.calibration import KIND_SPECS
 from graytrack.core.calibration_data import calibration_data
 from graytrack.core.diagnosis import diagnose, loop
-from graytrack.core.diagnosis.evidence import all_evidence
+from graytrack.core.diagnosis.loop import all_evidence
 from graytrack.core.diagnosis.heldout import interleaved_split
 from graytrack.core.geometry import initial_geometry
 from graytrack.core.noise import reference_resolution_mm

@@ -11,13 +11,14 @@ units of that noise, so they compare across probes of different size.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
-from graytrack.core import effects
 from graytrack.core.basis import legendre_basis, scaled
-from graytrack.core.diagnosis.heldout import Fit, Stage
+
+if TYPE_CHECKING:  # a leaf module: effects and the loop import it, it imports neither
+    from graytrack.core.diagnosis.heldout import Fit, Stage
 
 
 @dataclass
@@ -51,7 +52,7 @@ def stroke_poly(fit: Fit, degree: int = 4) -> np.ndarray:
     return legendre_basis(scaled(fit.data.x_mm, lo, hi), degree)[:, 1:]  # (K, degree)
 
 
-Basis = Callable[[Fit], np.ndarray]  # -> (K, Rm, n, p) in the model's row layout
+Basis = Callable[["Fit"], np.ndarray]  # -> (K, Rm, n, p) in the model's row layout
 
 
 def trig_times_pixel(trig: np.ndarray, pixel: np.ndarray) -> np.ndarray:
@@ -120,14 +121,3 @@ def cross_validated_evidence(effect: str, axis: str, stage: Stage, basis: Basis,
     z = explained / sigma2 / np.sqrt(2.0 * p)
     share = share_above_noise(explained, train, val)
     return Evidence(effect, axis, explained, z, share, f"{label} {explains(share)}")
-
-
-def all_evidence(stage: Stage) -> list[Evidence]:
-    """Every effect's probe on ``stage``: data-quality findings first (in the registry's order),
-    then model terms by how much of the held-out residual they explain."""
-    found = [(effect, effect.probe(stage)) for effect in effects.registry().values()]
-    found = [(effect, evidence) for effect, evidence in found if evidence is not None]
-    quality = [evidence for effect, evidence in found if effect.data_quality]
-    terms = sorted((evidence for effect, evidence in found if not effect.data_quality),
-                   key=lambda ev: ev.explained_gray2, reverse=True)
-    return quality + terms

@@ -1,0 +1,43 @@
+"""The line camera − grating on the calibration's own run, kept in the model: what drift is
+measured from while tracking (core/reference_monitor.py, core/watches/scale.py).
+
+A calibration-time step, apart from the monitor so that the monitor, which tracking uses, does
+not import tracking."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from graytrack.core.noise import reference_resolution_mm
+from graytrack.core.reference_monitor import MIN_FRAMES, Line, ReferenceMonitor, structure_um
+from graytrack.core.tracking import track
+
+
+def record_calibration_line(model, recording) -> Line | None:
+    """Track the calibration ``recording`` with the ``model`` fitted to it, as tracking will, and keep
+    the line camera − grating in ``model.info["reference_line"]``: the agreement drift is measured
+    from. None (and nothing kept) when the recording has no grating reading or too few frames."""
+    reference = np.asarray(recording.reference, dtype=np.float64)
+    if np.isfinite(reference).sum() < MIN_FRAMES:
+        return None
+    result = track(model, recording, light="auto", robust=True)
+    step = float(recording.meta.get("grating_resolution_mm", 0.0) or 0.0) or reference_resolution_mm(reference)
+    lo, hi = model.stroke_range_mm
+    monitor = ReferenceMonitor(0.5 * (lo + hi), 0.5 * (hi - lo), window=max(reference.size, MIN_FRAMES),
+                               reference_sigma_mm=step / math.sqrt(12.0), resolution_mm=step)
+    for x, ref, bound, locked in zip(result.x_mm.tolist(), reference.tolist(), result.crlb_mm.tolist(),
+                                     result.locked.tolist()):
+        if locked:
+            monitor.observe(x, ref, bound)
+    if monitor.frames >= MIN_FRAMES:
+        monitor._update()  # the fit of every frame (observe fits every few)
+    line = monitor.estimate
+    if line is not None:
+        model.info["reference_line"] = line.as_dict()
+        usable = result.locked & np.isfinite(result.x_mm) & np.isfinite(reference)
+        model.info["reference_structure_um"] = round(structure_um(
+            reference[usable], (result.x_mm[usable] - reference[usable]) * 1e3 - line.at_um(reference[usable]),
+            result.crlb_mm[usable] * 1e3), 4)
+    return line
