@@ -11,7 +11,7 @@ are doing::
     tracking     a model is installed (frames tracked: /healthz says whether they are, now)
     idle         hardware open, no model yet (POST /api/calibration to get one)
 
-Who does what: :mod:`supervision` (faults, bring-up with retries, the watchdog), :mod:`jobs`
+Who does what: :mod:`stage_control` (moves asked for over the API), :mod:`supervision` (faults, bring-up with retries, the watchdog), :mod:`jobs`
 (the calibration state machine), :mod:`status` (the status document), :mod:`acquisition` and
 :mod:`grating` (the two workers). Hardware that fails to open is retried every
 ``reopen_interval_s``, so a daemon started before its camera is plugged in comes up by itself.
@@ -20,7 +20,6 @@ Who does what: :mod:`supervision` (faults, bring-up with retries, the watchdog),
 from __future__ import annotations
 
 import logging
-import math
 import shutil
 import sqlite3
 import threading
@@ -35,15 +34,15 @@ from graytrack.core.models.fourier import FourierModel
 from graytrack.core.recording import PIXEL_AXIS_REVERSED
 from graytrack.drivers.clock import REAL_TIME, ScaledClock
 from graytrack.drivers.factory import Hardware, open_hardware
-from graytrack.drivers.stage.errors import StageError, StageLimitError
 from graytrack.service.daemon import status as status_doc
 from graytrack.service.daemon.acquisition import Acquisition
 from graytrack.service.daemon.trim import ReferenceTrim
-from graytrack.service.daemon.errors import Busy, InsufficientStorage, NotFound, NotReady, OutOfLimits
+from graytrack.service.daemon.errors import Busy, InsufficientStorage, NotFound, NotReady
 from graytrack.service.daemon.grating import GratingPoller, Readings
 from graytrack.service.daemon.jobs import FINAL, CalibrationJob, JobRunner, calibration_row, mark_interrupted, reconcile
 from graytrack.service.daemon.record import Record
 from graytrack.service.daemon.settings import Settings
+from graytrack.service.daemon.stage_control import StageControl
 from graytrack.service.daemon.storage import Storage
 from graytrack.service.daemon.supervision import Faults, Supervisor, sentence
 from graytrack.service.daemon.sweep import Sweep
@@ -51,7 +50,6 @@ from graytrack.service.daemon.worker import describe
 
 log = logging.getLogger("graytrack.daemon")
 HardwareFactory = Callable[[Settings, ScaledClock], Hardware]
-MAX_VELOCITY_MM_S = 100.0
 ROOM_MARGIN_BYTES = 16 * 2**20  # model, report, status and the record's growth
 
 
@@ -83,9 +81,9 @@ class Rig:
         self.closing = threading.Event()
         self.started_at = time.monotonic()
         self._sweep_thread: threading.Thread | None = None
-        self.target_mm: float | None = None  # the last commanded target (the page's moving indicator)
-        self.velocity_mm_s: float | None = None
-        self.velocity_limit_mm_s: float | None = None
+        self.stage = StageControl(lambda: self._ready()[0], self._active_job_id, self._abort_active_job,
+                                  self.readings, lambda: self.grating.latest_mm() if self.grating else None,
+                                  self.event)
         self._lock = threading.RLock()
         self.supervisor = Supervisor(self._bring_up, self._watch, self.faults, daemon.reopen_interval_s)
         self.faults.listeners.append(self._fault_event)
@@ -169,8 +167,7 @@ class Rig:
                 hardware.close()
                 return
             self.hardware = hardware
-            self.velocity_mm_s = hardware.stage.velocity()
-            self.velocity_limit_mm_s = hardware.stage.velocity_limit()  # asked once: it is the controller's
+            self.stage.attached(hardware)
             self.grating = self._new_grating()
             self.acquisition = self._new_acquisition()
         log.info("hardware open: %s camera, %s stage, limits %s mm", self.settings.hardware.camera.kind,
@@ -263,6 +260,17 @@ class Rig:
         return status_doc.status(self)
 
     # -- requests --------------------------------------------------------------------------
+    def _active_job_id(self) -> str | None:
+        job = self.job
+        return job.id if job is not None and job.active else None
+
+    def _abort_active_job(self, reason: str) -> str | None:
+        job = self.job
+        if job is None or not job.active:
+            return None
+        job.request_abort(reason)
+        return job.id
+
     def _ready(self) -> tuple[Hardware, Acquisition]:
         if self.closing.is_set():
             raise NotReady("the daemon is shutting down")
@@ -398,81 +406,3 @@ class Rig:
         if latest is None:
             raise NotFound("no calibration has been run yet")
         return self.calibration(latest)
-
-    def move(self, target_mm: float) -> dict[str, Any]:
-        hardware = self._idle_stage()
-        low, high = hardware.stage.limits()
-        if not (math.isfinite(target_mm) and low <= target_mm <= high):
-            raise OutOfLimits(f"target_mm {target_mm:g} is outside the soft limits [{low:g}, {high:g}] mm")
-        self.readings.note_command(time.monotonic())
-        try:
-            hardware.stage.move_to(target_mm)
-        except StageLimitError as exc:
-            raise OutOfLimits(str(exc)) from None
-        except StageError as exc:
-            raise NotReady(f"stage: {exc}") from None
-        self.target_mm = target_mm
-        self.event("move", f"move to {target_mm:g} mm", target_mm=target_mm)
-        return {"target_mm": target_mm, "limits_mm": [low, high]}
-
-    def _idle_stage(self) -> Hardware:
-        hardware, _ = self._ready()
-        if self.job is not None and self.job.active:
-            raise Busy(f"calibration {self.job.id} is moving the stage; POST /api/stage/stop aborts it")
-        return hardware
-
-    def jog(self, step_mm: float) -> dict[str, Any]:
-        """A relative move by ``step_mm`` from where the grating says the stage is."""
-        position = self.grating.latest_mm() if self.grating is not None else None
-        if position is None:
-            raise NotReady("no grating reading yet: the stage position is unknown")
-        if not math.isfinite(step_mm) or step_mm == 0:
-            raise OutOfLimits("step_mm must be a non-zero finite number")
-        return self.move(round(position + step_mm, 6))
-
-    def home(self) -> dict[str, Any]:
-        """The reference move (``FRF``): the controller finds its reference mark again."""
-        hardware = self._idle_stage()
-        self.readings.note_command(time.monotonic())
-        self.target_mm = None
-        try:
-            hardware.stage.reference()
-        except StageError as exc:
-            raise NotReady(f"stage: {exc}") from None
-        self.event("home", "reference move done")
-        return {"referenced": True}
-
-    def set_velocity(self, velocity_mm_s: float) -> dict[str, Any]:
-        hardware = self._idle_stage()
-        controller = self.velocity_limit_mm_s
-        highest = MAX_VELOCITY_MM_S if controller is None else min(MAX_VELOCITY_MM_S, controller)
-        if not (math.isfinite(velocity_mm_s) and 0 < velocity_mm_s <= highest):
-            whose = "the controller's limit" if controller is not None and controller < MAX_VELOCITY_MM_S else "the limit"
-            raise OutOfLimits(f"velocity_mm_s {velocity_mm_s:g} is outside (0, {highest:g}] mm/s ({whose})")
-        try:
-            hardware.stage.set_velocity(velocity_mm_s)
-            self.velocity_mm_s = hardware.stage.velocity()
-        except StageLimitError as exc:  # refused for its value (422), not because the stage is not ready (503)
-            raise OutOfLimits(str(exc)) from None
-        except StageError as exc:
-            raise NotReady(f"stage: {exc}") from None
-        self.event("velocity", f"velocity set to {self.velocity_mm_s:g} mm/s")
-        return {"velocity_mm_s": self.velocity_mm_s}
-
-    def stop(self) -> dict[str, Any]:
-        """Stop the stage now; an active calibration is aborted first (it would move it again).
-
-        The abort is requested before anything can fail, so a stop always ends a job.
-        """
-        job = self.job
-        aborted = job is not None and job.active
-        if aborted and job is not None:
-            job.request_abort("calibration aborted by a stop request")
-        hardware, _ = self._ready()
-        self.readings.note_command(time.monotonic())
-        try:
-            hardware.stage.stop()
-        except StageError as exc:
-            raise NotReady(f"stage: {exc}") from None
-        self.event("stop", "stage stopped" + (f", calibration {job.id} aborted" if aborted and job is not None else ""))
-        return {"stopped": True, "aborted_calibration": job.id if aborted and job is not None else None}

@@ -66,8 +66,8 @@ def status(rig: "Rig") -> dict[str, Any]:
         "grating_age_ms": round(silent * 1e3, 1) if grating is not None and (silent := grating.silent_s()) is not None
         else None,
         "moving": rig.readings.moving() if grating is not None else None,
-        "target_mm": rig.target_mm,
-        "velocity_mm_s": rig.velocity_mm_s,
+        "target_mm": rig.stage.target_mm,
+        "velocity_mm_s": rig.stage.velocity_mm_s,
         "reason": sentence(faults),
         "faults": faults,
         "model": rig.model.describe() if rig.model is not None else None,

@@ -17,26 +17,26 @@ router = APIRouter(prefix="/api/stage", tags=["stage"], dependencies=AUTHORIZED)
 
 @router.post("/move", status_code=202, response_model=Moved, responses=errors(401, 409, 413, 422, 503))
 def move(request: MoveRequest, rig: Rig = Depends(get_rig)) -> Any:
-    return rig.move(request.target_mm)
+    return rig.stage.move(request.target_mm)
 
 
 @router.post("/stop", response_model=Stopped, responses=errors(401, 413, 503))
 def stop(rig: Rig = Depends(get_rig)) -> Any:
-    return rig.stop()
+    return rig.stage.stop()
 
 
 @router.post("/jog", status_code=202, response_model=Moved, responses=errors(401, 409, 413, 422, 503))
 def jog(request: JogRequest, rig: Rig = Depends(get_rig)) -> Any:
     """Move by ``step_mm`` from the current grating position (within the soft limits)."""
-    return rig.jog(request.step_mm)
+    return rig.stage.jog(request.step_mm)
 
 
 @router.post("/home", response_model=Homed, responses=errors(401, 409, 413, 503))
 def home(rig: Rig = Depends(get_rig)) -> Any:
     """The reference move; answers when the axis is referenced again."""
-    return rig.home()
+    return rig.stage.home()
 
 
 @router.post("/velocity", response_model=Velocity, responses=errors(401, 409, 413, 422, 503))
 def velocity(request: VelocityRequest, rig: Rig = Depends(get_rig)) -> Any:
-    return rig.set_velocity(request.velocity_mm_s)
+    return rig.stage.set_velocity(request.velocity_mm_s)
