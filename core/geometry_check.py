@@ -66,6 +66,12 @@ class GeometryError(CalibrationError):
         self.check = check
 
 
+def raise_if_refused(check: "GeometryCheck | None") -> None:
+    """:class:`GeometryError` with the cause and its fix when ``check`` refused the rig."""
+    if check is not None and check.refused:
+        raise GeometryError(check)
+
+
 @dataclass(frozen=True)
 class GeometryCheck:
     """The verdict on a fit's geometry, with the figures it rests on (JSON-ready)."""

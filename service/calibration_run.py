@@ -57,10 +57,9 @@ class CalibrationRun:
         return self.geometry is not None and self.geometry.refused
 
     def raise_if_refused(self) -> None:
-        if self.refused:
-            from graytrack.core.geometry_check import GeometryError
+        from graytrack.core.geometry_check import raise_if_refused
 
-            raise GeometryError(self.geometry)
+        raise_if_refused(self.geometry)
 
     @property
     def summary(self) -> str:

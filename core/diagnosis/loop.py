@@ -20,7 +20,7 @@ from graytrack.core.calibration_data import CalibrationData, calibration_data
 from graytrack.core.compression import JpegFinding, bound_with_quantisation_mm, find_jpeg
 from graytrack.core.errors import CalibrationError
 from graytrack.core.geometry import initial_geometry
-from graytrack.core.geometry_check import GeometryCheck, GeometryError, check_geometry
+from graytrack.core.geometry_check import GeometryCheck, check_geometry, raise_if_refused
 from graytrack.core.jsonable import finite_or_none
 from graytrack.core import effects
 from graytrack.core.structure import ModelSpec, fit_spec, fit_spec_pitch_search
@@ -87,8 +87,7 @@ class DiagnosisResult:
         return self.geometry is not None and self.geometry.refused
 
     def raise_if_refused(self) -> None:
-        if self.refused:
-            raise GeometryError(self.geometry)
+        raise_if_refused(self.geometry)
 
     def report(self) -> dict[str, Any]:
         """report.json (docs/contracts.md contract, with extra keys that explain the decisions). A figure that
