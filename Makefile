@@ -17,7 +17,7 @@ RUN_STAMP  := $(VENV)/.run-installed$(subst $(comma),-,$(ARAVIS_EXTRA))
 PREFIX ?= /opt/graytrack
 PYTEST_WORKERS ?= 2
 
-.PHONY: run test bench clean install service-venv docs-images
+.PHONY: run test unit bench clean install service-venv docs-images
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -55,6 +55,10 @@ test: $(STAMP)
 	$(BIN)/python -m pytest -n 0 -m alone $(PYTEST_ARGS); alone=$$?; \
 	[ $$alone -eq 5 ] && alone=0; \
 	[ $$first -eq 0 ] && [ $$alone -eq 0 ]  # 5: no alone test selected
+
+# The unit tests alone (numerics and files, no daemon, browser or device): the quick check while editing.
+unit: $(STAMP)
+	$(BIN)/python -m pytest -n $(PYTEST_WORKERS) -m unit $(PYTEST_ARGS)
 
 bench: $(STAMP)
 	for script in bench/*.py; do echo "== $$script"; $(BIN)/python $$script || exit 1; done

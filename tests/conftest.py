@@ -1,4 +1,11 @@
-"""Shared fixtures: the seed paper's rig rendered from Table 2 (NOTES.md), seeded."""
+"""Shared fixtures: the seed paper's rig rendered from Table 2 (NOTES.md), seeded; and the
+``unit`` / ``system`` marks.
+
+A *system* test runs real parts together on the wall clock: a daemon process or its app with live
+threads, a browser, a pseudo-terminal or a GigE Vision camera on loopback (tests/service,
+tests/web, and the driver tests that open devices). Everything else is a *unit* test: numerics
+and files only, seeded, fast. ``pytest -m unit`` is the quick check while editing the core.
+"""
 
 from __future__ import annotations
 
@@ -8,6 +15,16 @@ import pytest
 from graytrack.core.calibration import calibrate
 from graytrack.core.recording import Recording
 from graytrack.drivers.sim import paper
+
+SYSTEM_FOLDERS = ("service", "web", "drivers")
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    for item in items:
+        parts = item.path.relative_to(config.rootpath).parts
+        system = len(parts) > 2 and parts[0] == "tests" and parts[1] in SYSTEM_FOLDERS
+        item.add_marker(pytest.mark.system if system else pytest.mark.unit)
+
 
 PAPER_META = {"pixel_pitch_mm": paper.PIXEL_PITCH_MM, "period_mm": 8.6, "source": "tests: Table 2 field"}
 
