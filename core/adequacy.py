@@ -42,8 +42,21 @@ def error_ratio(model: FourierModel, data: CalibrationData) -> float:
     usable = np.linalg.det(fisher) > 0
     if not usable.any():
         return float("nan")
-    shift = np.linalg.solve(fisher[usable], score[usable][..., None])[:, 0, 0]
-    bound2 = np.linalg.inv(fisher[usable])[:, 0, 0]  # x with the gain and offset profiled out
+    fisher, score, weights, residual, slopes = fisher[usable], score[usable], weights[usable], residual[usable], \
+        slopes[usable]
+    free_shift = np.linalg.solve(fisher, score[..., None])[:, 0, 0]
+    free_bound2 = np.linalg.inv(fisher)[:, 0, 0]  # x with the gain and offset profiled out
+    # As the tracker solves a frame (Tracker.solve): the light held at calibration unless the model
+    # has a per-frame common mode or the frame's χ² with the light held asks for it. A per-frame
+    # offset too small to ask (row banding on one row) then moves the position, and must count here.
+    held_shift = score[:, 0] / fisher[:, 0, 0]
+    held_residual = residual - held_shift[:, None] * slopes
+    chi2 = np.einsum("kp,kp->k", weights, held_residual**2) / np.maximum((weights > 0).sum(axis=1), 1)
+    calibration_chi2 = float(model.info.get("calibration_chi2") or 1.0)
+    limit = calibration_chi2 * (1.0 + 5.0 * np.sqrt(2.0 / (model.n_rows * model.n_pixels)))
+    free = np.full(chi2.shape, bool(model.common_mode)) | (chi2 > limit)
+    shift = np.where(free, free_shift, held_shift)
+    bound2 = np.where(free, free_bound2, 1.0 / fisher[:, 0, 0])
     return float(np.sqrt(np.mean(shift * shift)) / np.sqrt(np.mean(bound2)))
 
 
