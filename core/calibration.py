@@ -17,7 +17,7 @@ from graytrack.core.adequacy import assessed
 from graytrack.core.calibration_data import Calibration, CalibrationData, calibration_data
 from graytrack.core.errors import CalibrationError
 from graytrack.core.geometry import initial_geometry
-from graytrack.core.geometry_check import MIN_SEEN_SHARE, GeometryError, check_geometry
+from graytrack.core.geometry_check import MIN_SEEN_SHARE, GeometryError, check_geometry, dark_pixels
 from graytrack.core.models.fourier import FourierModel
 from graytrack.core.recording import Recording
 from graytrack.core.calibration_line import record_calibration_line
@@ -81,7 +81,11 @@ def calibrate(rec: Recording, model: str = "paper", *, harmonics: int | None = N
     n_rows = data.frames.shape[1]
     # Whole rows set aside (off the print) blind the row mean at every column: only rows of their own see.
     blind = float(np.mean(result.model.seen())) < MIN_SEEN_SHARE
-    if n_rows > 1 and (rows == "each" or (rows == "auto" and (blind or rows_disagree(result.model, data)))):
+    # A ROI that sees the print on fewer pixels than any model may use is refused whatever models its
+    # rows: the geometry check says so below, without a row-by-row fit that cannot help.
+    hopeless = n_rows > 1 and 1.0 - float(dark_pixels(data, result.model.period_mm).mean()) < MIN_SEEN_SHARE
+    if n_rows > 1 and not hopeless and (rows == "each" or (rows == "auto" and (
+            blind or rows_disagree(result.model, data)))):
         geometry = result.model
         result = fit_spec(spec.with_changes(per_row=True), data, geometry.period_mm, geometry.pixel_pitch_mm,
                           row_shift, progress)

@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
+import shutil
 from collections.abc import Iterator
 from pathlib import Path
 
+import httpx
 import pytest
 from fastapi.testclient import TestClient
 
 from graytrack.service.daemon.app import create_app
-from tests.service.helpers import LiveServer, fast_settings, wait_state
+from tests.service.helpers import LiveServer, ServeProcess, fast_settings, wait_for, wait_state
 
 
 @pytest.fixture(scope="module")
@@ -39,3 +41,27 @@ def daemon(data_dir: Path) -> Iterator[LiveServer]:
     with LiveServer(create_app(fast_settings(data_dir))) as server:
         server.wait_state("tracking", 40.0)
         yield server
+
+
+@pytest.fixture(scope="session")
+def _two_calibrations(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[str]]:
+    folder = tmp_path_factory.mktemp("two-calibrations")
+    with ServeProcess(folder, daemon={"auto_calibrate": "never"}) as first:
+        first.wait_state("idle")
+        done: list[str] = []
+        for _ in range(2):
+            job = httpx.post(f"{first.base}/api/calibration", headers=first.auth(), timeout=5).json()["id"]
+            wait_for(lambda: httpx.get(f"{first.base}/api/calibration/{job}", timeout=5).json()["state"] == "done",
+                     60.0, "a calibration")
+            done.append(job)
+        assert first.terminate() == 0
+    return folder / "data", done
+
+
+@pytest.fixture
+def two_calibrations(_two_calibrations: tuple[Path, list[str]], tmp_path: Path) -> list[str]:
+    """``tmp_path / "data"``: a data directory with two calibrations a real ``graytrack serve`` made
+    and finished (made once per test process, copied for each test); their ids, oldest first."""
+    data, done = _two_calibrations
+    shutil.copytree(data, tmp_path / "data")
+    return list(done)

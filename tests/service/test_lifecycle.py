@@ -4,11 +4,9 @@ per data directory, and a bad address or a busy port is one line and exit status
 from __future__ import annotations
 
 import json
-import signal
 import socket
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import httpx
@@ -145,20 +143,12 @@ def test_a_directory_or_token_others_can_write_is_refused_with_the_fix(
     assert os.stat(data).st_mode & 0o022 == 0
 
 
-def _crash_mid_install(tmp_path: Path, step: int) -> tuple[str, str]:
-    """Two calibrations done through a real daemon, then the data directory as a kill -9 after
-    ``step`` of a third one's install leaves it: 0 = the job's model written, 1 = the pointer
+def _crash_mid_install(tmp_path: Path, ids: list[str], step: int) -> tuple[str, str]:
+    """The data directory of two calibrations done through a real daemon (``ids``), as a kill -9
+    after ``step`` of a third one's install leaves it: 0 = the job's model written, 1 = the pointer
     switched, 2 = the copy in DATA written (its status still says ``installing``)."""
     import shutil
 
-    with ServeProcess(tmp_path, daemon={"auto_calibrate": "never"}) as daemon:
-        daemon.wait_state("idle")
-        ids = []
-        for _ in range(2):
-            response = httpx.post(f"{daemon.base}/api/calibration", headers=daemon.auth(), timeout=5)
-            ids.append(response.json()["id"])
-            wait_for(lambda: _job_state(daemon, ids[-1]) == "done", 60.0, "a calibration")
-        assert daemon.terminate() == 0
     data = tmp_path / "data"
     first, second = ids
     third = second[:9] + "235959" + second[15:]  # a later id of the same day
@@ -174,8 +164,9 @@ def _crash_mid_install(tmp_path: Path, step: int) -> tuple[str, str]:
 
 
 @pytest.mark.parametrize("step", [0, 1, 2])
-def test_a_crash_anywhere_in_an_install_leaves_the_pointer_and_the_model_agreeing(tmp_path: Path, step: int) -> None:
-    before, crashed = _crash_mid_install(tmp_path, step)
+def test_a_crash_anywhere_in_an_install_leaves_the_pointer_and_the_model_agreeing(
+        tmp_path: Path, step: int, two_calibrations: list[str]) -> None:
+    before, crashed = _crash_mid_install(tmp_path, two_calibrations, step)
     data = tmp_path / "data"
     with ServeProcess(tmp_path, daemon={"auto_calibrate": "never"}) as daemon:
         status = daemon.wait_state("tracking")

@@ -172,16 +172,9 @@ def _damage(database: Path, how: str) -> None:
 
 
 @pytest.mark.parametrize("how", ["header", "truncated", "empty", "missing"])
-def test_a_damaged_record_is_set_aside_and_rebuilt_from_the_calibration_folders(tmp_path: Path, how: str) -> None:
-    with ServeProcess(tmp_path, daemon={"auto_calibrate": "never"}) as first:
-        first.wait_state("idle")
-        done = []
-        for _ in range(2):
-            job = httpx.post(f"{first.base}/api/calibration", headers=first.auth(), timeout=5).json()["id"]
-            wait_for(lambda: httpx.get(f"{first.base}/api/calibration/{job}", timeout=5).json()["state"] == "done",
-                     60.0, "a calibration")
-            done.append(job)
-        assert first.terminate() == 0
+def test_a_damaged_record_is_set_aside_and_rebuilt_from_the_calibration_folders(
+        tmp_path: Path, how: str, two_calibrations: list[str]) -> None:
+    done = two_calibrations
     database = tmp_path / "data" / "record.sqlite"
     for suffix in ("-wal", "-shm"):
         database.with_name(database.name + suffix).unlink(missing_ok=True)
