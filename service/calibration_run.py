@@ -161,8 +161,8 @@ def _fit(recording: "Recording", kind: str, harmonics: int | None, pixel_degree:
                     f"(noise {shown(result.sigma_gray, 3)} gray)" + _doubts(result.geometry.as_dict())),
         "findings": {"transients": model.info.get("transients") or NO_TRANSIENTS},
     })
-    if progress:
-        progress(1.0, "done")
+    if progress and held_out_block is not None:  # (without it, calibrate said "done" itself)
+        progress(1.0, f"done, held-out error {shown(held['error_std_um'] if held else None, 2, 'µm')}")
     return CalibrationRun(kind, model, report, held_out, result.geometry)
 
 
