@@ -224,8 +224,11 @@ def test_the_async_client_reads_status_moves_and_streams(daemon: LiveServer, dat
     state, seen, grating = asyncio.run(scenario())
     assert state == "tracking" and grating == pytest.approx(6.0, abs=0.001)
     assert seen[-1].reconnected and seen[-1].gap == seen[-1].seq - seen[-2].seq - 1
-    placed = [p.x_mm for p in seen if p.x_mm is not None]
-    assert placed and all(abs(x - 6.0) < ARRIVED_MM for x in placed)
+    placed = [p for p in seen if p.x_mm is not None]
+    # at the target within the frames' own noise: a 63-frame paper model's bound is ~1.5 µm, so a fixed
+    # 5 µm (about 3.5 bounds, with the model's own error on top) failed about one run in 15
+    assert placed and all(abs(p.x_mm - 6.0) < max(ARRIVED_MM, 5e-3 * (p.crlb_um or 0.0)) for p in placed), \
+        [(p.x_mm, p.crlb_um) for p in placed]
 
 
 def test_the_example_motion_loop_visits_its_targets_or_stops_on_the_daemons_word(
