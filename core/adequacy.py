@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from graytrack.core.calibration_data import CalibrationData
+from graytrack.core.compression import bound_factor, find_jpeg, stream_bound_factor
 from graytrack.core.models.fourier import FourierModel
 
 MAX_FRAMES = 400  # frames looked at (evenly spread): the ratio is a statistic, not a census
@@ -60,8 +61,38 @@ def error_ratio(model: FourierModel, data: CalibrationData) -> float:
     return float(np.sqrt(np.mean(shift * shift)) / np.sqrt(np.mean(bound2)))
 
 
+def inadequacy(info: dict) -> str | None:
+    """Why a model cannot measure at its bound, as a family of core/validity.py (None: it can).
+
+    ``geometry``: its own calibration frames are placed beyond :data:`INADEQUATE_RATIO` times
+    their bound, the images are not what the model describes. ``pixels``: they are, once the
+    bound carries a JPEG stream's quantisation; the pixel values are not the sensor's, and an
+    uncompressed pixel format, not another model, is the cure.
+    """
+    ratio = info.get("calibration_error_ratio")
+    if ratio is None or ratio <= INADEQUATE_RATIO:
+        return None
+    return "pixels" if ratio / stream_bound_factor(info) <= INADEQUATE_RATIO else "geometry"
+
+
 def assessed(model: FourierModel, data: CalibrationData) -> FourierModel:
-    """The model with ``info["calibration_error_ratio"]`` set."""
+    """The model with ``info["calibration_error_ratio"]`` set, and ``info["stream"]`` when its
+    frames came through JPEG (an MJPEG camera): what the quantisation costs every bound."""
     ratio = error_ratio(model, data)
     model.info["calibration_error_ratio"] = round(ratio, 3) if np.isfinite(ratio) else None
+    model.info.pop("stream", None)
+    if (finding := find_jpeg(data.frames)) is not None:
+        factor = stream_factor(model, data, finding.table)
+        model.info["stream"] = {"kind": "jpeg", "quality": finding.quality, "bound_factor": round(factor, 3)}
     return model
+
+
+def stream_factor(model: FourierModel, data: CalibrationData, table: np.ndarray) -> float:
+    """The quantisation's widening of the bound over the calibration frames (compression.bound_factor),
+    on the frames' own rows: JPEG blocks are cut from the image the camera sent, not the row mean."""
+    n_frames = data.frames.shape[0]
+    picked = np.unique(np.linspace(0, n_frames - 1, min(n_frames, MAX_FRAMES)).astype(int))
+    values, slopes = model.predict(data.x_mm[picked], with_derivative=True)
+    shape = (picked.size,) + data.frames.shape[1:]
+    sigma2 = model.noise().variance(values)
+    return bound_factor(np.broadcast_to(slopes, shape), np.broadcast_to(sigma2, shape), table)

@@ -46,7 +46,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from graytrack.core.adequacy import INADEQUATE_RATIO
+from graytrack.core.adequacy import inadequacy
 
 DEFAULT_WINDOW = 500  # frames in the sliding window
 MIN_FRAMES = 30  # frames before the window says anything
@@ -475,8 +475,7 @@ def scale_tells(model) -> bool:
     that errs beyond its bound on its own calibration frames (core/adequacy.py): its positions are
     off by its own structure, which a window's line would take for a drift, and they are flagged
     for ``geometry`` already."""
-    ratio = (getattr(model, "info", None) or {}).get("calibration_error_ratio")
-    return ratio is None or not ratio > INADEQUATE_RATIO
+    return inadequacy(getattr(model, "info", None) or {}) is None
 
 
 def structure_um(x_mm: np.ndarray, residual_um: np.ndarray, bound_um: np.ndarray, bins: int = 16) -> float:

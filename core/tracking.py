@@ -24,6 +24,7 @@ from typing import Callable
 import numpy as np
 
 from graytrack.core import attribution, repeats, transients
+from graytrack.core.compression import stream_bound_factor
 from graytrack.core.errors import TrackingError
 from graytrack.core.geometry_check import refusal
 from graytrack.core.kernels import TableEvaluator
@@ -637,7 +638,7 @@ def track(model: FourierModel, source: Recording | np.ndarray, reference: np.nda
             progress(k / n_frames, f"frame {k}/{n_frames}")
     if progress:
         progress(1.0, f"{n_frames} frames, {len(state.events)} lock event(s)")
-    crlb = 1.0 / np.sqrt(np.where(out["info"] > 0, out["info"], np.nan))
+    crlb = stream_bound_factor(model.info) / np.sqrt(np.where(out["info"] > 0, out["info"], np.nan))
     return TrackResult(out["x"], locked, out["rms"], crlb, iterations, out["gain"], out["offset"], state.events,
                        out["chi2"], rejected, stale, tracker.chi2_calibration, repeated, stale_reason, transient,
                        out["focus"], out["focus_sigma"])
@@ -673,6 +674,7 @@ class LiveTracker:
         self.model = model
         self.tracker = Tracker(model, light=light, robust=robust)
         self.state = SequentialState(x_prev=x0_mm)
+        self._bound_factor = stream_bound_factor(model.info)  # a JPEG stream's quantisation widens every bound
         # The lean path: a one-row model without pixel weights reads a frame (or its row mean) into
         # one preallocated line and reloads one batch in place; anything else goes through prepare.
         self._lean = model.n_rows == 1 and model.pixel_weight is None and not self.tracker.signal_dependent
@@ -704,7 +706,7 @@ class LiveTracker:
         events_before = len(self.state.events)
         solution, ok, locked = self.state.advance(self.tracker, batch, 0, float(reference_mm))
         event = self.state.events[-1] if len(self.state.events) > events_before else None
-        crlb = 1.0 / math.sqrt(solution.information) if solution.information > 0 else float("nan")
+        crlb = self._bound_factor / math.sqrt(solution.information) if solution.information > 0 else float("nan")
         return LiveFix(solution.x_mm if ok else float("nan"), locked, solution.rms_gray, crlb, event,
                        solution.chi2, solution.rejected, solution.gain, solution.offset, self.state.stale,
                        self.state.stale_reason, solution.transient_px,

@@ -73,10 +73,20 @@ class CalibrationRun:
         """Lines for stderr: a doubtful geometry's causes, a model that errs on its own calibration."""
         check = self.report.get("geometry") or {}
         lines = [f"warning: {text}" for text in check.get("warnings") or []] if check.get("status") == "doubtful" else []
-        from graytrack.core.adequacy import INADEQUATE_RATIO
+        from graytrack.core.adequacy import inadequacy
 
-        ratio = self.model.info.get("calibration_error_ratio")
-        if ratio is not None and ratio > INADEQUATE_RATIO:
+        info = self.model.info
+        stream = info.get("stream")
+        if stream:
+            lines.append(f"warning: the frames come from a JPEG stream (quality ~{stream['quality']}): its quantisation "
+                         f"widens every position's bound {stream['bound_factor']:.1f}x (tracking reports the wider "
+                         "bound); set the camera to an uncompressed pixel format (Mono8, Mono12) for the sensor's own")
+        if inadequacy(info) == "pixels":
+            lines.append(f"warning: this model places its own calibration frames {info['calibration_error_ratio']:.1f}x "
+                         "as far off as the sensor's noise floor, which the stream's quantisation accounts for: every "
+                         "position it gives will be flagged stale (pixels)")
+        elif inadequacy(info) == "geometry":
+            ratio = info["calibration_error_ratio"]
             lines.append(f"warning: this model places its own calibration frames {ratio:.1f}x as far off as their "
                          "noise floor: it does not describe this rig, and every position it gives will be flagged "
                          "stale (geometry); use --model auto (the closed loop) or graytrack diagnose for the cause")

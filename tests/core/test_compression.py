@@ -5,8 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from graytrack.core.compression import bound_with_quantisation_mm, find_jpeg, quantisation_table
+from graytrack.core.calibration import calibrate
+from graytrack.core.compression import bound_with_quantisation_mm, find_jpeg, quantisation_table, stream_bound_factor
+from graytrack.core.tracking import track
+from graytrack.core.validity import ADVICE
 from graytrack.drivers.sim.scenarios import build_rig
+from graytrack.service.calibration_run import CalibrationRun
 
 
 @pytest.mark.parametrize("quality", [50, 75])
@@ -30,3 +34,41 @@ def test_the_bound_with_quantisation_is_the_white_one_without_it_and_larger_with
     np.testing.assert_allclose(bound_with_quantisation_mm(slope, sigma2, np.full((8, 8), 1e-6)), white, rtol=1e-9)
     with_q75 = bound_with_quantisation_mm(slope, sigma2, quantisation_table(75))
     assert np.all(with_q75 > 2.0 * white)  # white slopes: most of their energy sits where q75 steps are coarse
+
+
+def test_a_strip_whose_rows_the_stream_made_identical_is_found():
+    """16 rows seeing the same print: quality 75 zeroes the vertical noise, every block's rows agree
+    exactly and the decoder's rounding adds up down the columns (a wider tolerance, two steps)."""
+    frames, _ = build_rig("strip16", "mjpeg:quality=75", seed=3).record(1.0)
+    found = find_jpeg(frames.frames)
+    assert found is not None and abs(found.quality - 75) <= 2
+
+
+def _tracked(effects: str):
+    calibration, _ = build_rig("strip16", effects, seed=3).record(8.0)
+    run, _ = build_rig("strip16", effects, seed=3, run=1).record(3.0)
+    model = calibrate(calibration, "paper").model
+    result = track(model, run, light="auto", robust=True)
+    error = np.nanstd(result.error_um(run.reference))
+    bound = float(np.sqrt(np.nanmean(np.square(result.crlb_mm * 1e3))))
+    return model, result, error, bound
+
+
+def test_positions_from_a_jpeg_stream_carry_the_bound_its_quantisation_leaves_and_say_why():
+    """The sensor's white-noise bound promises ~6x what MJPEG frames hold: the calibration measures
+    what the quantisation costs, every position's bound carries it, and the frames are flagged for
+    `pixels` (not a model that misreads the rig) with advice that names the stream."""
+    model, result, error, bound = _tracked("mjpeg:quality=75")
+    stream = model.info["stream"]
+    assert stream["kind"] == "jpeg" and abs(stream["quality"] - 75) <= 2 and stream["bound_factor"] > 2.0
+    assert error <= 1.5 * bound  # held to the bound the stream allows ...
+    assert error > 3.0 * bound / stream["bound_factor"]  # ... which the sensor's alone would have missed
+    assert result.stale.all() and set(result.stale_reason) == {"pixels"}
+    assert "MJPEG" in ADVICE["pixels"]
+    assert any("JPEG stream" in line for line in CalibrationRun("paper", model, {}, None, None).warnings())
+
+
+def test_raw_frames_keep_the_sensors_bound():
+    model, result, error, bound = _tracked("")
+    assert "stream" not in model.info and stream_bound_factor(model.info) == 1.0
+    assert error <= 1.2 * bound and not result.stale.any()
