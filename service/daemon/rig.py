@@ -12,7 +12,8 @@ are doing::
     idle         hardware open, no model yet (POST /api/calibration to get one)
 
 Who does what: :mod:`stage_control` (moves asked for over the API), :mod:`supervision` (faults, bring-up with retries, the watchdog), :mod:`jobs`
-(the calibration state machine), :mod:`status` (the status document), :mod:`acquisition` and
+(the calibration state machine), :mod:`snapshot` (the parts read at one instant) and :mod:`status`
+(the status document made from it), :mod:`acquisition` and
 :mod:`grating` (the two workers). Hardware that fails to open is retried every
 ``reopen_interval_s``, so a daemon started before its camera is plugged in comes up by itself.
 """
@@ -34,6 +35,7 @@ from graytrack.core.models.fourier import FourierModel
 from graytrack.core.recording import PIXEL_AXIS_REVERSED
 from graytrack.drivers.clock import REAL_TIME, ScaledClock
 from graytrack.drivers.factory import Hardware, open_hardware
+from graytrack.service.daemon import snapshot as parts
 from graytrack.service.daemon import status as status_doc
 from graytrack.service.daemon.acquisition import Acquisition
 from graytrack.service.daemon.trim import ReferenceTrim
@@ -252,12 +254,30 @@ class Rig:
         self.acquisition.install_model(model, self.grating.latest_mm() if self.grating else None)
 
     # -- state -----------------------------------------------------------------------------
+    def snapshot(self) -> parts.RigSnapshot:
+        """The parts read once, at this instant (what status, health and metrics are made from)."""
+        stale_after = self.settings.daemon.stale_after_s
+        acquisition, grating, hardware, model, job = self.acquisition, self.grating, self.hardware, self.model, self.job
+        return parts.RigSnapshot(
+            closing=self.closing.is_set(), faults=self.faults.snapshot(), faults_raised=self.faults.raised,
+            devices=parts.read_devices(hardware.camera, hardware.stage) if hardware is not None else None,
+            frame_loop=parts.read_frame_loop(acquisition, stale_after) if acquisition is not None else None,
+            grating=parts.read_grating(grating, self.readings.moving(), stale_after) if grating is not None else None,
+            model=model.describe() if model is not None else None,
+            job=parts.job_summary(job.to_dict()) if job is not None else None,
+            job_active=job is not None and job.active,
+            active_calibration=self.active_calibration(),
+            target_mm=self.stage.target_mm, velocity_mm_s=self.stage.velocity_mm_s,
+            calibrations_finished=dict(self.calibrations_finished), simulated=self.settings.simulated,
+            stale_after_s=stale_after, uptime_s=time.monotonic() - self.started_at)
+
     @property
     def state(self) -> str:
-        return status_doc.state(self)
+        return self.snapshot().state
 
     def status(self) -> dict[str, Any]:
-        return status_doc.status(self)
+        """The ``GET /api/status`` document of this instant."""
+        return status_doc.document(self.snapshot())
 
     # -- requests --------------------------------------------------------------------------
     def _active_job_id(self) -> str | None:
