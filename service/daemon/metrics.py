@@ -88,7 +88,8 @@ def _scaled(value: float | None, factor: float) -> float:
 def render(snapshot: RigSnapshot, broadcaster: Broadcaster) -> str:
     """The scrape of one instant: the status document and the counters of the same snapshot."""
     status = status_doc.document(snapshot)
-    stats, grating, devices = snapshot.frame_loop, snapshot.grating, snapshot.devices
+    loop, grating, devices = snapshot.frame_loop, snapshot.grating, snapshot.devices
+    stats = loop.counters if loop is not None else None
     fit = status.get("fit") or {}
     out: list[str] = []
     out += family("graytrack_state", "gauge", "1 for the daemon's current state",
@@ -119,7 +120,7 @@ def render(snapshot: RigSnapshot, broadcaster: Broadcaster) -> str:
     out += counter("graytrack_tracking_errors_total", "frames the tracker raised on",
                    stats.tracking_errors if stats else 0)
     out += counter("graytrack_worker_crashes_total", "worker loops restarted after an exception",
-                   (stats.crashes if stats else 0) + (grating.crashes if grating else 0))
+                   (loop.crashes if loop else 0) + (grating.crashes if grating else 0))
     out += counter("graytrack_camera_errors_total", "camera errors other than timeouts",
                    stats.camera_errors if stats else 0)
     out += counter("graytrack_grating_reads_total", "POS? readings", grating.reads if grating else 0)

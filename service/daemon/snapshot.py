@@ -12,23 +12,15 @@ it, nothing more), so a new figure is a field here and a line in the part's ``re
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Any, Mapping, Protocol
+from dataclasses import dataclass, field, fields
+from typing import TYPE_CHECKING, Any, Mapping, Protocol
 
 from graytrack.service.daemon.supervision import sentence
 
+if TYPE_CHECKING:
+    from graytrack.service.daemon.acquisition import AcquisitionStats
+
 JOB_FIELDS = ("id", "state", "progress", "message", "error")
-
-
-class AcquisitionStatsPart(Protocol):
-    frames: int
-    tracked: int
-    unplaced: int
-    lock_events: int
-    camera_errors: int
-    tracking_errors: int
-    dropped: int
-    last_message: dict[str, Any] | None
 
 
 class TrimPart(Protocol):
@@ -38,7 +30,7 @@ class TrimPart(Protocol):
 class AcquisitionPart(Protocol):
     """What the snapshot reads of the frame loop (:class:`~graytrack.service.daemon.acquisition.Acquisition`)."""
 
-    stats: AcquisitionStatsPart
+    stats: "AcquisitionStats"
     crashes: int
     trim: TrimPart
 
@@ -66,6 +58,23 @@ class GratingPart(Protocol):
 
 
 @dataclass(frozen=True)
+class Counters:
+    """The frame loop's counters since start (``/metrics`` families, ``frames`` and ``dropped`` in the status)."""
+
+    frames: int
+    tracked: int
+    unplaced: int  # tracked frames the solver could not place
+    lock_events: int
+    camera_errors: int
+    tracking_errors: int
+    dropped: int  # gaps in the camera's frame_id sequence
+
+    @classmethod
+    def of(cls, stats: "AcquisitionStats") -> "Counters":
+        return cls(**{counter.name: getattr(stats, counter.name) for counter in fields(cls)})
+
+
+@dataclass(frozen=True)
 class FrameLoop:
     """The frame loop's figures: the newest tracked frame's record and its age, the counters."""
 
@@ -74,13 +83,7 @@ class FrameLoop:
     frame_rate_hz: float
     tracker_ready: bool
     model_stale: str | None  # the family of causes the tracker's model is stale for (None: it holds)
-    frames: int
-    tracked: int
-    unplaced: int
-    lock_events: int
-    camera_errors: int
-    tracking_errors: int
-    dropped: int
+    counters: Counters
     crashes: int
     trim: Mapping[str, Any]
 
@@ -177,9 +180,7 @@ def read_frame_loop(acquisition: AcquisitionPart, stale_after_s: float) -> Frame
         seconds_since_tracked=acquisition.seconds_since_tracked(),
         frame_rate_hz=acquisition.frame_rate_hz(stale_after_s),
         tracker_ready=acquisition.tracker is not None, model_stale=acquisition.model_stale,
-        frames=stats.frames, tracked=stats.tracked, unplaced=stats.unplaced, lock_events=stats.lock_events,
-        camera_errors=stats.camera_errors, tracking_errors=stats.tracking_errors, dropped=stats.dropped,
-        crashes=acquisition.crashes, trim=acquisition.trim.status())
+        counters=Counters.of(stats), crashes=acquisition.crashes, trim=acquisition.trim.status())
 
 
 def read_grating(grating: GratingPart, moving: bool | None, stale_after_s: float) -> Grating:

@@ -44,8 +44,8 @@ def document(snapshot: RigSnapshot) -> dict[str, Any]:
         "model": snapshot.model,
         "limits_mm": list(devices.limits_mm) if devices is not None else None,
         "frame_rate_hz": round(loop.frame_rate_hz, 2) if loop is not None else 0.0,
-        "frames": loop.frames if loop is not None else 0,
-        "dropped": loop.dropped if loop is not None else 0,
+        "frames": loop.counters.frames if loop is not None else 0,
+        "dropped": loop.counters.dropped if loop is not None else 0,
         "calibration": dict(snapshot.job) if snapshot.job is not None else None,
         "active_calibration": dict(snapshot.active_calibration) if snapshot.active_calibration is not None else None,
         "trim": dict(loop.trim) if loop is not None else None,  # camera against grating
