@@ -9,7 +9,6 @@ from fastapi.responses import JSONResponse, PlainTextResponse
 
 from graytrack.core.validity import ADVICE
 from graytrack.service.daemon import metrics
-from graytrack.service.daemon import status as status_doc
 from graytrack.service.daemon.api.deps import rig as get_rig
 from graytrack.service.daemon.api.models import Health, Status, errors
 from graytrack.service.daemon.rig import Rig
@@ -36,7 +35,8 @@ def healthz(rig: Rig = Depends(get_rig)) -> Any:
 
 @router.get("/api/status", response_model=Status)
 def status(rig: Rig = Depends(get_rig)) -> Any:
-    return status_doc.document(rig.snapshot())
+    """The status document of this instant (one snapshot of the rig, ``service/daemon/status.py``)."""
+    return rig.status()
 
 
 @router.get("/metrics", response_class=PlainTextResponse)
