@@ -23,6 +23,8 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     for item in items:
         parts = item.path.relative_to(config.rootpath).parts
         system = len(parts) > 2 and parts[0] == "tests" and parts[1] in SYSTEM_FOLDERS
+        if item.get_closest_marker("unit") is not None:
+            continue
         item.add_marker(pytest.mark.system if system else pytest.mark.unit)
 
 

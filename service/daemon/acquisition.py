@@ -21,7 +21,6 @@ import logging
 import math
 import queue
 import threading
-import time
 from dataclasses import dataclass
 from typing import Any, Callable
 
@@ -31,6 +30,7 @@ from graytrack.core.models.fourier import FourierModel
 from graytrack.core.tracking import LiveFix, LiveTracker
 from graytrack.core.validity import ADVICE
 from graytrack.drivers.camera.base import Camera, CameraError, CameraTimeout, Frame
+from graytrack.service.daemon.clock import HOST_CLOCK, Clock
 from graytrack.service.daemon.framerate import FrameRate
 from graytrack.service.daemon.grating import Readings
 from graytrack.service.daemon.trim import ReferenceTrim
@@ -87,8 +87,9 @@ class Acquisition(Worker):
                  publish: Callable[[dict[str, Any]], None], faults: Callable[[str, str | None], None],
                  fault_after_s: float, reopen_interval_s: float,
                  on_event: Callable[[str, str], None] = lambda kind, message: None, priority: int = 0,
-                 trim: ReferenceTrim | None = None) -> None:
+                 trim: ReferenceTrim | None = None, clock: Clock = HOST_CLOCK) -> None:
         super().__init__("acquisition", lambda reason: faults("acquisition", reason))
+        self.clock = clock  # what silence, rates and the reopen pause are measured on (service/daemon/clock.py)
         self.on_event = on_event  # lock losses, re-acquisitions, stale-model flags: the event log
         self.priority = priority  # SCHED_FIFO level of the frame loop (realtime.py), 0 = normal
         self.trim = trim or ReferenceTrim(False, on_event)  # camera against grating (service/daemon/trim.py)
@@ -98,7 +99,7 @@ class Acquisition(Worker):
         self.faults = faults
         self.fault_after_s = fault_after_s
         self.reopen_interval_s = reopen_interval_s
-        self.stats = AcquisitionStats(last_frame_wall=time.monotonic())
+        self.stats = AcquisitionStats(last_frame_wall=clock.now())
         self.latest: tuple[Sample, LiveFix | None] | None = None  # the line view reads it (no copy)
         self._tracker: LiveTracker | None = None
         self._pending: tuple[FourierModel, float | None] | None = None
@@ -139,13 +140,13 @@ class Acquisition(Worker):
     def frame_rate_hz(self, stale_after_s: float) -> float:
         """Frames per second since the last outage (at most a few hundred frames); 0 when the newest is older
         than ``stale_after_s``."""
-        return self.rate.hz(time.monotonic(), stale_after_s)
+        return self.rate.hz(self.clock.now(), stale_after_s)
 
     def seconds_since_frame(self) -> float:
-        return time.monotonic() - self.stats.last_frame_wall
+        return self.clock.now() - self.stats.last_frame_wall
 
     def seconds_since_tracked(self) -> float:
-        return time.monotonic() - self.stats.last_tracked_wall
+        return self.clock.now() - self.stats.last_tracked_wall
 
     # -- the loop --------------------------------------------------------------------------
     def _run(self) -> None:
@@ -175,7 +176,7 @@ class Acquisition(Worker):
             self.faults("camera", f"camera error: {exc}")
             self._reopen()
             return None
-        now = time.monotonic()
+        now = self.clock.now()
         stats = self.stats
         stats.frames += 1
         stats.last_frame_wall = now
@@ -192,7 +193,7 @@ class Acquisition(Worker):
         self.camera.close()
         self._last_id = None
         self.rate.restart()
-        if self._stop.wait(self.reopen_interval_s):
+        if self.clock.wait(self._stop, self.reopen_interval_s):
             return
         try:
             self.camera.open()
@@ -237,7 +238,7 @@ class Acquisition(Worker):
         fix = self.trim.apply(fix, sample.reference_mm)
         stats = self.stats
         stats.tracked += 1
-        stats.last_tracked_wall = time.monotonic()
+        stats.last_tracked_wall = self.clock.now()
         if fix.x_mm != fix.x_mm:
             stats.unplaced += 1
         if fix.event is not None:

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import logging
 import threading
-import time
 from pathlib import Path
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
@@ -23,6 +22,7 @@ from typing import Any, Callable, Protocol
 
 from graytrack.core.models import load_model
 from graytrack.core.models.fourier import FourierModel
+from graytrack.service.daemon.clock import HOST_CLOCK, Clock
 from graytrack.service.daemon.storage import Storage
 from graytrack.service.daemon.worker import describe
 
@@ -87,8 +87,9 @@ class JobRunner:
     """Runs one job through its states on the calling thread and persists every change."""
 
     def __init__(self, job: CalibrationJob, storage: Storage, install: Callable[[FourierModel, CalibrationJob], None],
-                 on_finish: Callable[[CalibrationJob], None]) -> None:
+                 on_finish: Callable[[CalibrationJob], None], clock: Clock = HOST_CLOCK) -> None:
         self.job, self.storage, self.install, self.on_finish = job, storage, install, on_finish
+        self.clock = clock  # the job's duration is measured on it (service/daemon/clock.py)
 
     def enter(self, state: str, progress: float | None = None, message: str | None = None) -> None:
         job = self.job
@@ -103,7 +104,7 @@ class JobRunner:
         self.storage.write_status(self.job.id, self.job.to_dict())
 
     def run(self, steps: Steps) -> None:
-        job, started = self.job, time.monotonic()
+        job, started = self.job, self.clock.now()
         outcome: dict[str, Any]
         try:
             recording = steps.sweep()
@@ -121,7 +122,7 @@ class JobRunner:
                 reason = describe(exc)
                 outcome = {"state": "failed", "error": reason, "message": f"failed: {reason}"}
                 log.error("calibration %s failed: %s", job.id, reason, exc_info=not _expected(exc))
-        outcome.update(finished=utc_now(), duration_s=round(time.monotonic() - started, 3))
+        outcome.update(finished=utc_now(), duration_s=round(self.clock.now() - started, 3))
         # on disk first, then in memory: whoever sees the job ended finds its status.json ended too
         try:
             self.storage.write_status(job.id, {**job.to_dict(), **outcome})

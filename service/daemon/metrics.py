@@ -19,10 +19,10 @@ import math
 from typing import Iterable, Mapping
 
 from graytrack.core.validity import FAMILIES
-from graytrack.service.daemon import status as rig_status
+from graytrack.service.daemon import status as status_doc
 from graytrack.service.daemon.broadcast import Broadcaster
 from graytrack.service.daemon.jobs import FINAL
-from graytrack.service.daemon.rig import Rig
+from graytrack.service.daemon.snapshot import RigSnapshot
 
 STATES = ("starting", "idle", "calibrating", "tracking", "fault", "stopping")
 CONTENT_TYPE = "text/plain; version=0.0.4; charset=utf-8"
@@ -85,13 +85,11 @@ def _scaled(value: float | None, factor: float) -> float:
     return NAN if value is None else value * factor
 
 
-def render(rig: Rig, broadcaster: Broadcaster) -> str:
-    status = rig.status()
-    acquisition, grating = rig.acquisition, rig.grating
-    stats = acquisition.stats if acquisition is not None else None
-    hardware = rig.hardware
-    camera = hardware.camera.stats if hardware is not None else None
-    link = hardware.stage.link.stats if hardware is not None else None
+def render(snapshot: RigSnapshot, broadcaster: Broadcaster) -> str:
+    """The scrape of one instant: the status document and the counters of the same snapshot."""
+    status = status_doc.document(snapshot)
+    loop, grating, devices = snapshot.frame_loop, snapshot.grating, snapshot.devices
+    stats = loop.counters if loop is not None else None
     fit = status.get("fit") or {}
     out: list[str] = []
     out += family("graytrack_state", "gauge", "1 for the daemon's current state",
@@ -109,29 +107,29 @@ def render(rig: Rig, broadcaster: Broadcaster) -> str:
                  status["frame_rate_hz"])
     out += gauge("graytrack_stale", "1 when the newest tracked frame is older than stale_after_s", status["stale"])
     out += gauge("graytrack_healthy", "1 when frames are being tracked now (/healthz 200 unless the model is stale)",
-                 rig_status.tracking_fresh(rig))
+                 snapshot.tracking_fresh)
     out += counter("graytrack_frames_total", "camera frames received", stats.frames if stats else 0)
     out += counter("graytrack_frames_tracked_total", "frames tracked", stats.tracked if stats else 0)
     out += counter("graytrack_frames_unplaced_total", "tracked frames that could not be placed",
                    stats.unplaced if stats else 0)
     out += counter("graytrack_lock_events_total", "lock losses and re-acquisitions", stats.lock_events if stats else 0)
     out += counter("graytrack_camera_dropped_frames_total", "frames the camera lost or skipped",
-                   camera.dropped if camera else 0)
+                   devices.camera_dropped if devices else 0)
     out += counter("graytrack_frames_dropped_total", "gaps in the camera's frame_id sequence (the stream's dropped)",
                    stats.dropped if stats else 0)
     out += counter("graytrack_tracking_errors_total", "frames the tracker raised on",
                    stats.tracking_errors if stats else 0)
     out += counter("graytrack_worker_crashes_total", "worker loops restarted after an exception",
-                   (acquisition.crashes if acquisition else 0) + (grating.crashes if grating else 0))
+                   (loop.crashes if loop else 0) + (grating.crashes if grating else 0))
     out += counter("graytrack_camera_errors_total", "camera errors other than timeouts",
                    stats.camera_errors if stats else 0)
     out += counter("graytrack_grating_reads_total", "POS? readings", grating.reads if grating else 0)
     out += counter("graytrack_grating_errors_total", "failed POS? readings", grating.errors if grating else 0)
-    out += counter("graytrack_stage_reconnects_total", "serial port reopened", link.reconnects if link else 0)
-    out += counter("graytrack_faults_total", "faults raised", rig.faults.raised)
+    out += counter("graytrack_stage_reconnects_total", "serial port reopened", devices.stage_reconnects if devices else 0)
+    out += counter("graytrack_faults_total", "faults raised", snapshot.faults_raised)
     out += family("graytrack_calibrations_total", "counter",
                   "calibrations ended, by outcome (interrupted: found unfinished at start-up)",
-                  [({"outcome": outcome}, rig.calibrations_finished.get(outcome, 0)) for outcome in FINAL])
+                  [({"outcome": outcome}, snapshot.calibrations_finished.get(outcome, 0)) for outcome in FINAL])
     out += gauge("graytrack_websocket_clients", "connected /ws/position clients", broadcaster.clients)
     out += counter("graytrack_websocket_messages_total", "position messages sent", broadcaster.sent)
     out += counter("graytrack_websocket_dropped_total", "messages dropped for slow clients", broadcaster.dropped)

@@ -12,7 +12,8 @@ are doing::
     idle         hardware open, no model yet (POST /api/calibration to get one)
 
 Who does what: :mod:`stage_control` (moves asked for over the API), :mod:`supervision` (faults, bring-up with retries, the watchdog), :mod:`jobs`
-(the calibration state machine), :mod:`status` (the status document), :mod:`acquisition` and
+(the calibration state machine), :mod:`snapshot` (the parts read at one instant) and :mod:`status`
+(the status document made from it), :mod:`acquisition` and
 :mod:`grating` (the two workers). Hardware that fails to open is retried every
 ``reopen_interval_s``, so a daemon started before its camera is plugged in comes up by itself.
 """
@@ -34,8 +35,10 @@ from graytrack.core.models.fourier import FourierModel
 from graytrack.core.recording import PIXEL_AXIS_REVERSED
 from graytrack.drivers.clock import REAL_TIME, ScaledClock
 from graytrack.drivers.factory import Hardware, open_hardware
+from graytrack.service.daemon import snapshot as parts
 from graytrack.service.daemon import status as status_doc
 from graytrack.service.daemon.acquisition import Acquisition
+from graytrack.service.daemon.api.models import Activated, ActiveCalibration, Calibration
 from graytrack.service.daemon.trim import ReferenceTrim
 from graytrack.service.daemon.errors import Busy, InsufficientStorage, NotFound, NotReady
 from graytrack.service.daemon.grating import GratingPoller, Readings
@@ -252,12 +255,30 @@ class Rig:
         self.acquisition.install_model(model, self.grating.latest_mm() if self.grating else None)
 
     # -- state -----------------------------------------------------------------------------
+    def snapshot(self) -> parts.RigSnapshot:
+        """The parts read once, at this instant (what status, health and metrics are made from)."""
+        stale_after = self.settings.daemon.stale_after_s
+        acquisition, grating, hardware, model, job = self.acquisition, self.grating, self.hardware, self.model, self.job
+        return parts.RigSnapshot(
+            closing=self.closing.is_set(), faults=self.faults.snapshot(), faults_raised=self.faults.raised,
+            devices=parts.read_devices(hardware.camera, hardware.stage) if hardware is not None else None,
+            frame_loop=parts.read_frame_loop(acquisition, stale_after) if acquisition is not None else None,
+            grating=parts.read_grating(grating, self.readings.moving(), stale_after) if grating is not None else None,
+            model=model.describe() if model is not None else None,
+            job=parts.job_summary(job.to_dict()) if job is not None else None,
+            job_active=job is not None and job.active,
+            active_calibration=active.model_dump() if (active := self.active_calibration()) is not None else None,
+            target_mm=self.stage.target_mm, velocity_mm_s=self.stage.velocity_mm_s,
+            calibrations_finished=dict(self.calibrations_finished), simulated=self.settings.simulated,
+            stale_after_s=stale_after, uptime_s=time.monotonic() - self.started_at)
+
     @property
     def state(self) -> str:
-        return status_doc.state(self)
+        return self.snapshot().state
 
     def status(self) -> dict[str, Any]:
-        return status_doc.status(self)
+        """The ``GET /api/status`` document of this instant."""
+        return status_doc.document(self.snapshot())
 
     # -- requests --------------------------------------------------------------------------
     def _active_job_id(self) -> str | None:
@@ -346,7 +367,7 @@ class Rig:
         log.info("calibration %s %s in %.1f s: %s", job.id, job.state, job.duration_s or 0.0, job.message)
         self.event(f"calibration_{job.state}", f"calibration {job.id} {job.state}: {job.message}", calibration=job.id)
 
-    def activate(self, calibration_id: str) -> dict[str, Any]:
+    def activate(self, calibration_id: str) -> Activated:
         """Roll back (or forward) to the model of an earlier calibration that finished ``done``."""
         with self._lock:
             self._ready()
@@ -364,15 +385,17 @@ class Rig:
             self.install(model)
         self.event("model_installed", f"model of calibration {calibration_id} activated: {model.describe()}",
                    calibration=calibration_id)
-        return {"active": calibration_id, "model": model.describe()}
+        return Activated(active=calibration_id, model=model.describe())
 
-    def active_calibration(self) -> dict[str, Any] | None:
+    def active_calibration(self) -> ActiveCalibration | None:
+        """The calibration whose model is tracked now (None: no model, or one not from a calibration)."""
         active = self.storage.active_id()
         if active is None or self.model is None:
             return None
         row = self.record.calibration(active)
-        return {"id": active} if row is None else {key: row[key] for key in
-                                                   ("id", "finished", "model", "error_std_um", "bound_um")}
+        if row is None:
+            return ActiveCalibration(id=active)
+        return ActiveCalibration.model_validate({key: row[key] for key in ActiveCalibration.model_fields})
 
     def _flip_mismatch(self, model: FourierModel) -> str | None:
         """Why ``model`` cannot track this camera's frames: calibrated with the other ``[camera] flip``."""
@@ -394,14 +417,15 @@ class Rig:
                 meta[key] = value
         return meta
 
-    def calibration(self, calibration_id: str) -> dict[str, Any]:
+    def calibration(self, calibration_id: str) -> Calibration:
+        """A job of this run (from memory, as it is now) or of an earlier one (its ``status.json``)."""
         job = self.jobs.get(calibration_id)
         document = job.to_dict() if job is not None else self.storage.read_status(calibration_id)
         if document is None:
             raise NotFound(f"no calibration {calibration_id!r}")
-        return document
+        return Calibration.model_validate(document)
 
-    def latest_calibration(self) -> dict[str, Any]:
+    def latest_calibration(self) -> Calibration:
         latest = self.storage.latest_calibration_id()
         if latest is None:
             raise NotFound("no calibration has been run yet")

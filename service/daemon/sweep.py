@@ -30,7 +30,6 @@ from __future__ import annotations
 import logging
 import math
 import queue
-import time
 from collections import deque
 from typing import Any, Callable
 
@@ -41,6 +40,7 @@ from graytrack.core.models.fourier import FourierModel
 from graytrack.core.recording import PIXEL_AXIS_REVERSED, Recording, save
 from graytrack.drivers.stage.base import Stage
 from graytrack.service.daemon.acquisition import Acquisition, Sample
+from graytrack.service.daemon.clock import HOST_CLOCK, Clock
 from graytrack.service.daemon.settings import SweepConfig
 from graytrack.service.calibration_run import calibrate_recording, write_files
 from graytrack.service.daemon.jobs import JobRunner
@@ -106,7 +106,7 @@ class Sweep:
 
     def __init__(self, runner: JobRunner, stage: Stage, acquisition: Acquisition, storage: Storage,
                  config: SweepConfig, meta: dict[str, Any],
-                 on_command: Callable[[float], None], clock_scale: float = 1.0) -> None:
+                 on_command: Callable[[float], None], clock_scale: float = 1.0, clock: Clock = HOST_CLOCK) -> None:
         self.runner = runner
         self.job = runner.job
         self.stage = stage
@@ -116,6 +116,7 @@ class Sweep:
         self.meta = meta
         self.on_command = on_command  # the pairing must not assume rest across a commanded move
         self.clock_scale = clock_scale  # the stage's seconds per wall second (the virtual rig may run fast)
+        self.clock = clock  # deadlines and waits for frames (host seconds, service/daemon/clock.py)
 
     def sweep(self) -> Recording:
         """Record the stroke; the recording is saved before the fit (a failed fit keeps the data)."""
@@ -140,7 +141,7 @@ class Sweep:
 
     def _stop_at(self, feed: "queue.Queue[Sample]", target: float, gathered: _Frames) -> None:
         self.job.check_abort()
-        self.on_command(time.monotonic())
+        self.on_command(self.clock.now())
         self.stage.move_to(target)
         settled = self.stage.wait_on_target(self.config.settle_timeout_s).t  # host time, as frames
         self.job.check_abort()
@@ -204,17 +205,17 @@ class Sweep:
         paired = seen = 0
         wall_s = abs(end - start) / velocity / self.clock_scale
         allowed_s = 2.0 * wall_s + self.config.settle_timeout_s
-        deadline = time.monotonic() + allowed_s
+        deadline = self.clock.now() + allowed_s
         self.runner.update(SWEEP_SHARE * share[0], f"pass to {end:.3f} mm at {velocity:.3g} mm/s")
         self.stage.set_velocity(velocity)
         try:
-            self.on_command(time.monotonic())
+            self.on_command(self.clock.now())
             self.stage.move_to(end)
-            next_check = time.monotonic() + ON_TARGET_CHECK_S
+            next_check = self.clock.now() + ON_TARGET_CHECK_S
             while True:
                 self.job.check_abort()
                 try:
-                    waiting.append(feed.get(timeout=0.02))
+                    waiting.append(self.clock.get(feed, 0.02))
                 except queue.Empty:
                     pass
                 latest = readings.latest()
@@ -228,16 +229,16 @@ class Sweep:
                     if reference == reference:
                         gathered.add(sample, reference)
                         paired += 1
-                if time.monotonic() < next_check:
+                if self.clock.now() < next_check:
                     continue
-                next_check = time.monotonic() + ON_TARGET_CHECK_S
+                next_check = self.clock.now() + ON_TARGET_CHECK_S
                 if latest is not None:
                     done = min(max((latest[1] - start) / (end - start), 0.0), 1.0)
                     self.runner.update(SWEEP_SHARE * (share[0] + (share[1] - share[0]) * done),
                                        f"pass at {latest[1]:.3f} mm, {paired} frames")
                 if self.stage.on_target() and abs(self.stage.position().position_mm - end) < 1e-3:
                     return paired
-                if time.monotonic() > deadline:
+                if self.clock.now() > deadline:
                     raise SweepError(f"the pass did not reach {end:.3f} mm within {allowed_s:.0f} s")
         finally:
             self.stage.set_velocity(previous)
@@ -245,13 +246,13 @@ class Sweep:
     def _settled_samples(self, feed: "queue.Queue[Sample]", settled_t: float) -> list[Sample]:
         """The next ``frames_per_position`` frames exposed entirely after ``settled_t``."""
         wanted, taken = self.config.frames_per_position, []
-        deadline = time.monotonic() + self.config.frame_timeout_s
+        deadline = self.clock.now() + self.config.frame_timeout_s
         while len(taken) < wanted:
             self.job.check_abort()
             try:
-                sample = feed.get(timeout=max(0.0, min(0.25, deadline - time.monotonic())))
+                sample = self.clock.get(feed, max(0.0, min(0.25, deadline - self.clock.now())))
             except queue.Empty:
-                if time.monotonic() >= deadline:
+                if self.clock.now() >= deadline:
                     raise SweepError(f"the camera delivered {len(taken)} of {wanted} frames "
                                      f"within {self.config.frame_timeout_s:g} s") from None
                 continue

@@ -11,7 +11,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from graytrack.service.daemon.app import create_app
-from tests.service.helpers import LiveServer, ServeProcess, fast_settings, wait_for, wait_state
+from tests.service.helpers import LiveServer, ServeProcess, fast_settings, wait_job, wait_state
 
 
 @pytest.fixture(scope="module")
@@ -51,8 +51,7 @@ def _two_calibrations(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, l
         done: list[str] = []
         for _ in range(2):
             job = httpx.post(f"{first.base}/api/calibration", headers=first.auth(), timeout=5).json()["id"]
-            wait_for(lambda: httpx.get(f"{first.base}/api/calibration/{job}", timeout=5).json()["state"] == "done",
-                     60.0, "a calibration")
+            wait_job(first.get, job, "done", 60.0)
             done.append(job)
         assert first.terminate() == 0
     return folder / "data", done

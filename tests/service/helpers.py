@@ -43,36 +43,75 @@ def fast_settings(data_dir: Path, tables: dict[str, dict[str, Any]] | None = Non
     return parse_settings(merged)
 
 
-def wait_for(predicate: Callable[[], Any], timeout_s: float = 10.0, what: str = "condition") -> Any:
+LAST_SEEN_CHARS = 400  # of the last value a timed-out wait reports
+
+
+def wait_for(predicate: Callable[[], Any], timeout_s: float = 10.0, what: str = "condition",
+             show: Callable[[], Any] | None = None) -> Any:
+    """The first truthy value of ``predicate()``, polled on the wall clock (a system test's wait: real
+    threads and devices move at their own pace). On a timeout the message says what was seen last,
+    ``show()`` when given (a predicate that returns a bare True/False says nothing), else the
+    predicate's last value: a timeout on a loaded machine then shows where it was stuck."""
     deadline = time.monotonic() + timeout_s
+    value: Any = None
     while time.monotonic() < deadline:
         value = predicate()
         if value:
             return value
         time.sleep(0.02)
-    raise AssertionError(f"timed out after {timeout_s:g} s waiting for {what}")
+    seen = show() if show is not None else value
+    text = repr(seen)
+    if len(text) > LAST_SEEN_CHARS:
+        text = text[:LAST_SEEN_CHARS] + "…"
+    raise AssertionError(f"timed out after {timeout_s:g} s waiting for {what}; last seen: {text}")
+
+
+def _document_waiter(read: Callable[[], dict[str, Any] | None], accept: Callable[[dict[str, Any]], bool],
+                     keys: tuple[str, ...], timeout_s: float, what: str) -> dict[str, Any]:
+    """Wait until ``accept(read())``; on a timeout the message gives ``keys`` of the last document read
+    (where the daemon or the job was instead), not only that time ran out."""
+    seen: list[dict[str, Any] | None] = [None]
+
+    def check() -> dict[str, Any] | None:
+        document = seen[0] = read()
+        return document if document is not None and accept(document) else None
+
+    def where() -> Any:
+        last = seen[0] or {}
+        return {key: last.get(key) for key in keys if key in last} or "no answer"
+
+    return wait_for(check, timeout_s, what, show=where)
+
+
+STATUS_KEYS = ("state", "reason", "faults", "calibration", "model_stale")
+JOB_KEYS = ("id", "state", "progress", "message", "error")
 
 
 def _state_waiter(read: Callable[[], dict[str, Any] | None], state: str, timeout_s: float,
                   what: str) -> dict[str, Any]:
-    """Wait for ``state``; on a timeout the message says where the daemon was instead (its state,
-    reason, faults and calibration progress), not only that time ran out."""
-    seen: list[dict[str, Any] | None] = [None]
-
-    def check() -> dict[str, Any] | None:
-        status = seen[0] = read()
-        return status if status is not None and status["state"] == state else None
-
-    try:
-        return wait_for(check, timeout_s, what)
-    except AssertionError as timeout:
-        last = seen[0] or {}
-        where = {key: last.get(key) for key in ("state", "reason", "faults", "calibration", "model_stale") if key in last}
-        raise AssertionError(f"{timeout}; last seen: {where or 'no answer'}") from None
+    """Wait for the daemon's ``state``; a timeout says its state, reason, faults and calibration progress."""
+    return _document_waiter(read, lambda status: status["state"] == state, STATUS_KEYS, timeout_s, what)
 
 
 def wait_state(client: TestClient, state: str, timeout_s: float = 10.0) -> dict[str, Any]:
     return _state_waiter(lambda: client.get("/api/status").json(), state, timeout_s, f"state {state!r}")
+
+
+def wait_job(get: Callable[[str], Any], job_id: str, states: str | tuple[str, ...] = "done",
+             timeout_s: float = 30.0) -> dict[str, Any]:
+    """The document of calibration ``job_id`` once its state is one of ``states``; ``get(path)`` is the
+    client's GET (TestClient, LiveServer or httpx on a base URL). A timeout says where the job was
+    (its state, progress and message), or that the daemon did not answer."""
+    wanted = (states,) if isinstance(states, str) else states
+
+    def read() -> dict[str, Any] | None:
+        try:
+            return get(f"/api/calibration/{job_id}").json()
+        except httpx.TransportError:
+            return None
+
+    return _document_waiter(read, lambda job: job.get("state") in wanted, JOB_KEYS, timeout_s,
+                            f"calibration {job_id} to be {' or '.join(wanted)}")
 
 
 class GatedCamera(Camera):
@@ -173,6 +212,9 @@ class ServeProcess:
 
     def wait_state(self, state: str, timeout_s: float = 30.0) -> dict[str, Any]:
         return _state_waiter(self.status, state, timeout_s, f"the daemon to reach {state!r}")
+
+    def get(self, path: str, **kwargs: Any) -> httpx.Response:
+        return httpx.get(self.base + path, timeout=5.0, **kwargs)
 
     def auth(self) -> dict[str, str]:
         return {"Authorization": f"Bearer {(self.folder / 'data' / 'token').read_text().strip()}"}

@@ -11,7 +11,7 @@ from fastapi.testclient import TestClient
 from graytrack.core.models import load_model
 from graytrack.core.recording import load
 from graytrack.service.daemon.app import create_app
-from tests.service.helpers import fast_settings, wait_for, wait_state
+from tests.service.helpers import fast_settings, wait_for, wait_job, wait_state
 
 
 def test_status_and_health_follow_the_contract(tracking: TestClient) -> None:
@@ -123,14 +123,12 @@ def test_calibration_on_request_shows_progress_and_stop_aborts_it(tmp_path) -> N
         wait_for(lambda: client.get(f"/api/calibration/{job_id}").json()["progress"] > 0.1, what="progress")
         assert client.get("/api/status").json()["state"] == "calibrating"
         assert client.post("/api/stage/stop", headers=auth).json()["aborted_calibration"] == job_id
-        job = wait_for(lambda: (j := client.get(f"/api/calibration/{job_id}").json())["state"] != "sweeping" and j,
-                       what="the sweep to end")
+        job = wait_job(client.get, job_id, ("aborted", "failed", "done", "fitting", "installing"), 10.0)  # not sweeping
         assert job["state"] == "aborted" and job["report"] is None
         assert wait_state(client, "idle")["calibrated"] is False
 
         again = client.post("/api/calibration", headers=auth).json()["id"]
-        done = wait_for(lambda: (j := client.get(f"/api/calibration/{again}").json())["state"] == "done" and j,
-                        timeout_s=20.0, what="the second calibration")
+        done = wait_job(client.get, again, "done", 20.0)
         assert done["report"]["rmse_gray"] < 1.0
         assert client.get("/api/calibration/latest").json()["id"] == again
         assert wait_state(client, "tracking")["calibrated"] is True

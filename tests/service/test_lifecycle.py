@@ -13,7 +13,7 @@ import httpx
 import pytest
 
 from graytrack.service.cli import main
-from tests.service.helpers import ServeProcess, wait_for
+from tests.service.helpers import ServeProcess, wait_job
 
 # no automatic calibration, and a fit long enough to be caught in the act
 SLOW_FIT = {"daemon": {"auto_calibrate": "never"}, "sweep": {"positions": 41, "frames_per_position": 6}}
@@ -26,13 +26,6 @@ def _start_calibration(daemon: ServeProcess) -> str:
     return response.json()["id"]
 
 
-def _job_state(daemon: ServeProcess, job_id: str) -> str | None:
-    try:
-        return httpx.get(f"{daemon.base}/api/calibration/{job_id}", timeout=2).json()["state"]
-    except httpx.TransportError:
-        return None
-
-
 def _status_file(folder: Path, job_id: str) -> dict:
     return json.loads((folder / "data" / "calibrations" / job_id / "status.json").read_text())
 
@@ -40,7 +33,7 @@ def _status_file(folder: Path, job_id: str) -> dict:
 def test_sigterm_during_the_fit_leaves_no_done_job_without_its_model(tmp_path: Path) -> None:
     with ServeProcess(tmp_path, **SLOW_FIT) as daemon:
         job_id = _start_calibration(daemon)
-        wait_for(lambda: _job_state(daemon, job_id) == "fitting", 30.0, "the fit")
+        wait_job(daemon.get, job_id, "fitting", 30.0)
         assert daemon.terminate() == 0, daemon.stderr
     on_disk = _status_file(tmp_path, job_id)
     installed = tmp_path / "data" / "model.json"
@@ -66,7 +59,7 @@ def test_kill_9_in_the_sweep_or_the_fit_leaves_the_job_interrupted_at_the_next_s
             if phase is None:
                 break
             job_id = _start_calibration(daemon)
-            wait_for(lambda: _job_state(daemon, job_id) == phase, 30.0, phase)
+            wait_job(daemon.get, job_id, phase, 30.0)
             daemon.process.kill()
             daemon.process.wait()
         assert _status_file(tmp_path, job_id)["state"] == phase, "kill -9 left it active on disk"

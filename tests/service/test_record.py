@@ -12,12 +12,12 @@ import httpx
 import pytest
 
 from graytrack.service.daemon.app import create_app
-from tests.service.helpers import LiveServer, ServeProcess, fast_settings, wait_for
+from tests.service.helpers import LiveServer, ServeProcess, fast_settings, wait_for, wait_job
 
 
 def _calibrate(daemon: LiveServer) -> str:
     job_id = daemon.post("/api/calibration", headers=daemon.auth()).json()["id"]
-    wait_for(lambda: daemon.get(f"/api/calibration/{job_id}").json()["state"] == "done", 30.0, f"calibration {job_id}")
+    wait_job(daemon.get, job_id, "done", 30.0)
     return job_id
 
 
@@ -99,11 +99,9 @@ def test_history_survives_a_restart_and_a_kill_9(tmp_path: Path) -> None:
     with ServeProcess(tmp_path, daemon={"auto_calibrate": "never"}) as first:
         first.wait_state("idle")
         done = httpx.post(f"{first.base}/api/calibration", headers=first.auth(), timeout=5).json()["id"]
-        wait_for(lambda: httpx.get(f"{first.base}/api/calibration/{done}", timeout=5).json()["state"] == "done", 30.0,
-                 "the calibration")
+        wait_job(first.get, done, "done", 30.0)
         unfinished = httpx.post(f"{first.base}/api/calibration", headers=first.auth(), timeout=5).json()["id"]
-        wait_for(lambda: httpx.get(f"{first.base}/api/calibration/{unfinished}", timeout=5).json()["state"] == "sweeping",
-                 30.0, "the second sweep")
+        wait_job(first.get, unfinished, "sweeping", 30.0)
         first.process.kill()
         first.process.wait()
     database = tmp_path / "data" / "record.sqlite"

@@ -10,7 +10,7 @@ import pytest
 
 from graytrack.service.daemon import grating, sweep
 from graytrack.service.daemon.app import create_app
-from tests.service.helpers import GatedFactory, LiveServer, fast_settings, wait_for
+from tests.service.helpers import GatedFactory, LiveServer, fast_settings, wait_for, wait_job
 
 
 def test_frames_of_another_width_are_a_tracking_fault_not_a_dead_loop(tmp_path) -> None:
@@ -94,8 +94,7 @@ def test_an_unexpected_error_in_a_calibration_fails_the_job_and_restores_the_dae
         else:
             monkeypatch.setattr(sweep, "calibrate_recording", lambda *a, **k: (_ for _ in ()).throw(failure))
         job_id = daemon.post("/api/calibration", headers=daemon.auth()).json()["id"]
-        job = wait_for(lambda: (j := daemon.get(f"/api/calibration/{job_id}").json())["state"] in ("failed", "done") and j,
-                       what="the job to end")
+        job = wait_job(daemon.get, job_id, ("failed", "done"), 10.0)
         assert job["state"] == "failed" and job["error"] == reason, job
         on_disk = json.loads((tmp_path / "calibrations" / job_id / "status.json").read_text())
         assert on_disk["state"] == "failed"
@@ -106,8 +105,7 @@ def test_an_unexpected_error_in_a_calibration_fails_the_job_and_restores_the_dae
         monkeypatch.undo()
         again = daemon.post("/api/calibration", headers=daemon.auth())
         assert again.status_code == 202
-        done = wait_for(lambda: (j := daemon.get(f"/api/calibration/{again.json()['id']}").json())["state"] == "done" and j,
-                        what="a calibration after the failure")
+        done = wait_job(daemon.get, again.json()["id"], "done", 10.0)
         assert done["progress"] == 1.0
 
 

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from typing import Any
-
 from fastapi import APIRouter, Depends
 
 from graytrack.service.daemon.api.deps import AUTHORIZED
@@ -16,17 +14,17 @@ router = APIRouter(prefix="/api/calibration", tags=["calibration"])
 
 @router.post("", status_code=202, dependencies=AUTHORIZED, response_model=CalibrationStarted,
              responses=errors(401, 409, 413, 503, 507))
-def start_calibration(rig: Rig = Depends(get_rig)) -> Any:
+def start_calibration(rig: Rig = Depends(get_rig)) -> CalibrationStarted:
     """Start the sweep; follow it at ``url``."""
     job = rig.start_calibration()
-    return {**job.to_dict(), "url": f"/api/calibration/{job.id}"}
+    return CalibrationStarted.model_validate({**job.to_dict(), "url": f"/api/calibration/{job.id}"})
 
 
 @router.get("/latest", response_model=Calibration, responses=errors(404))
-def latest_calibration(rig: Rig = Depends(get_rig)) -> Any:
+def latest_calibration(rig: Rig = Depends(get_rig)) -> Calibration:
     return rig.latest_calibration()
 
 
 @router.get("/{calibration_id}", response_model=Calibration, responses=errors(404))
-def calibration(calibration_id: str, rig: Rig = Depends(get_rig)) -> Any:
+def calibration(calibration_id: str, rig: Rig = Depends(get_rig)) -> Calibration:
     return rig.calibration(calibration_id)

@@ -22,20 +22,24 @@ FILES = {"report.html": "text/html", "report.json": "application/json", "model.j
 
 @router.get("/api/calibrations", response_model=CalibrationPage)
 def calibrations(limit: int = Query(20, ge=1, le=500), offset: int = Query(0, ge=0, le=MAX_ROW_ID),
-                 rig: Rig = Depends(get_rig)) -> Any:
+                 rig: Rig = Depends(get_rig)) -> CalibrationPage:
     """Calibrations that finished ``done``, newest first."""
     items, total = rig.record.calibrations(limit, offset)
     active = rig.storage.active_id()
-    return {"items": [{**item, "active": item["id"] == active} for item in items], "total": total,
-            "limit": limit, "offset": offset}
+    return CalibrationPage(items=[_row(item, active) for item in items], total=total, limit=limit, offset=offset)
+
+
+def _row(row: dict[str, Any], active: str | None) -> CalibrationRow:
+    """A record's row as the API shows it, marked when its model is the one in use."""
+    return CalibrationRow.model_validate({**row, "active": row["id"] == active})
 
 
 @router.get("/api/calibrations/{calibration_id}", response_model=CalibrationRow, responses=errors(404))
-def calibration_row(calibration_id: str, rig: Rig = Depends(get_rig)) -> Any:
+def calibration_row(calibration_id: str, rig: Rig = Depends(get_rig)) -> CalibrationRow:
     row = rig.record.calibration(calibration_id)
     if row is None:
         raise NotFound(f"no finished calibration {calibration_id!r}")
-    return {**row, "active": row["id"] == rig.storage.active_id()}
+    return _row(row, rig.storage.active_id())
 
 
 @router.get("/api/calibrations/{calibration_id}/files/{name}", response_class=FileResponse, responses=errors(404))
@@ -57,19 +61,19 @@ def calibration_file(calibration_id: str, name: str, rig: Rig = Depends(get_rig)
 
 @router.post("/api/calibrations/{calibration_id}/activate", dependencies=AUTHORIZED, response_model=Activated,
              responses=errors(401, 404, 409, 413, 503))
-def activate(calibration_id: str, rig: Rig = Depends(get_rig)) -> Any:
+def activate(calibration_id: str, rig: Rig = Depends(get_rig)) -> Activated:
     """Track with that calibration's model from now on (and after restarts)."""
     return rig.activate(calibration_id)
 
 
 @router.get("/api/events", response_model=list[Event], responses=errors(422))
 def events(since: str = Query("0", description="an event id (the last one seen) or an ISO 8601 time"),
-           limit: int = Query(200, ge=1, le=500), rig: Rig = Depends(get_rig)) -> Any:
+           limit: int = Query(200, ge=1, le=500), rig: Rig = Depends(get_rig)) -> list[Event]:
     """Events after ``since``, oldest first."""
     if since.isascii() and since.isdigit():  # ASCII digits only: "²" is a digit to str.isdigit
         if int(since) > MAX_ROW_ID:
             raise Invalid(f"since={since}: event ids are below 2^63")
-        return rig.record.events(since_id=int(since), limit=limit)
+        return _events(rig.record.events(since_id=int(since), limit=limit))
     try:
         moment = datetime.fromisoformat(since.replace("Z", "+00:00"))
         if moment.tzinfo is None:
@@ -77,4 +81,8 @@ def events(since: str = Query("0", description="an event id (the last one seen) 
         since_unix = moment.timestamp()
     except (ValueError, OverflowError, OSError):  # not a time, or one the platform cannot place (year 1)
         raise Invalid(f"since={since!r}: give an event id or an ISO 8601 time after 1970") from None
-    return rig.record.events(since_unix=since_unix, limit=limit)
+    return _events(rig.record.events(since_unix=since_unix, limit=limit))
+
+
+def _events(rows: list[dict[str, Any]]) -> list[Event]:
+    return [Event.model_validate(row) for row in rows]

@@ -50,6 +50,16 @@ FitFigures = create_model(
 )
 
 
+class ActiveCalibration(BaseModel):
+    """The calibration whose model is in use, as the record has it (only ``id`` known when its row is missing)."""
+
+    id: str
+    finished: str | None = None
+    model: str | None = None
+    error_std_um: float | None = Field(None, description="held-out position error std (µm)")
+    bound_um: float | None = Field(None, description="Cramér–Rao bound of the same frames (µm)")
+
+
 class Status(BaseModel):
     model_config = ConfigDict(extra="allow")  # later additions stay visible to clients
     state: str = Field(description="starting, idle, calibrating, tracking, fault or stopping")
@@ -75,7 +85,7 @@ class Status(BaseModel):
     frames: int
     dropped: int
     calibration: JobSummary | None
-    active_calibration: dict[str, Any] | None = Field(description="the calibration whose model is in use")
+    active_calibration: ActiveCalibration | None = Field(description="the calibration whose model is in use")
     simulated: bool
     uptime_s: float
     version: str

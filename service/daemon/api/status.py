@@ -9,7 +9,6 @@ from fastapi.responses import JSONResponse, PlainTextResponse
 
 from graytrack.core.validity import ADVICE
 from graytrack.service.daemon import metrics
-from graytrack.service.daemon import status as rig_status
 from graytrack.service.daemon.api.deps import rig as get_rig
 from graytrack.service.daemon.api.models import Health, Status, errors
 from graytrack.service.daemon.rig import Rig
@@ -20,14 +19,13 @@ router = APIRouter(tags=["status"])
 @router.get("/healthz", response_model=Health, responses=errors(503))
 def healthz(rig: Rig = Depends(get_rig)) -> Any:
     """200 while frames are being tracked now; 503 otherwise (starting, idle, fault, stale), with the reason."""
-    fresh = rig_status.tracking_fresh(rig)
-    state = rig.state
-    stale = rig.acquisition.model_stale if fresh and rig.acquisition is not None else None
+    snapshot = rig.snapshot()
+    fresh, state = snapshot.tracking_fresh, snapshot.state
+    stale = snapshot.model_stale if fresh else None
     body = {"ok": fresh and stale is None, "state": state, "reason": None}
     if not fresh:
-        status = rig.status()
-        body["reason"] = status["reason"] or ("frames are not being tracked" if state != "idle"
-                                              else "no model installed: calibrate first")
+        body["reason"] = snapshot.reason or ("frames are not being tracked" if state != "idle"
+                                             else "no model installed: calibrate first")
         return JSONResponse(body, status_code=503)
     if stale is not None:
         body["reason"] = f"the model is stale (cause: {stale}): {ADVICE[stale]}"
@@ -37,11 +35,12 @@ def healthz(rig: Rig = Depends(get_rig)) -> Any:
 
 @router.get("/api/status", response_model=Status)
 def status(rig: Rig = Depends(get_rig)) -> Any:
+    """The status document of this instant (one snapshot of the rig, ``service/daemon/status.py``)."""
     return rig.status()
 
 
 @router.get("/metrics", response_class=PlainTextResponse)
 def prometheus(request: Request) -> PlainTextResponse:
     """Counters and gauges in the Prometheus text format."""
-    return PlainTextResponse(metrics.render(request.app.state.rig, request.app.state.broadcaster),
+    return PlainTextResponse(metrics.render(request.app.state.rig.snapshot(), request.app.state.broadcaster),
                              media_type=metrics.CONTENT_TYPE)
