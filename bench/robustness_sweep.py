@@ -65,6 +65,7 @@ CASES = [
     ("strip16", "row_banding:gray=1,telegraph_pixels:count=6", ""),
     ("lab", "gain_hunting:depth=0.05,duplicate_frames:p=0.03", ""),
     ("lab", "mjpeg:quality=75", ""),
+    ("strip16", "mjpeg:quality=75", ""),
     ("paper", "", LATER_GROWTH),
     ("strip16", "", LATER_GROWTH),
     ("paper", "glints:p=0.05", "glints:p=0.15"),  # the later spec replaces the rate: 5 % → 15 % of frames

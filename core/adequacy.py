@@ -62,29 +62,60 @@ def error_ratio(model: FourierModel, data: CalibrationData) -> float:
 
 
 def inadequacy(info: dict) -> str | None:
-    """Why a model cannot measure at its bound, as a family of core/validity.py (None: it can).
+    """``geometry`` when a model places its own calibration frames beyond :data:`INADEQUATE_RATIO`
+    times their bound (the images are not what it describes), else None.
 
-    ``geometry``: its own calibration frames are placed beyond :data:`INADEQUATE_RATIO` times
-    their bound, the images are not what the model describes. ``pixels``: they are, once the
-    bound carries a JPEG stream's quantisation; the pixel values are not the sensor's, and an
-    uncompressed pixel format, not another model, is the cure.
+    The bound is the one its frames allow: for a JPEG stream, the sensor's widened by the
+    quantisation (``info["stream"]``). Such a stream measured at that bound is no fault of the
+    model; its positions carry the wider bound instead, and the calibration says why.
     """
     ratio = info.get("calibration_error_ratio")
-    if ratio is None or ratio <= INADEQUATE_RATIO:
+    if ratio is None or ratio / stream_bound_factor(info) <= INADEQUATE_RATIO:
         return None
-    return "pixels" if ratio / stream_bound_factor(info) <= INADEQUATE_RATIO else "geometry"
+    return "geometry"
 
 
 def assessed(model: FourierModel, data: CalibrationData) -> FourierModel:
     """The model with ``info["calibration_error_ratio"]`` set, and ``info["stream"]`` when its
     frames came through JPEG (an MJPEG camera): what the quantisation costs every bound."""
-    ratio = error_ratio(model, data)
-    model.info["calibration_error_ratio"] = round(ratio, 3) if np.isfinite(ratio) else None
     model.info.pop("stream", None)
     if (finding := find_jpeg(data.frames)) is not None:
         factor = stream_factor(model, data, finding.table)
         model.info["stream"] = {"kind": "jpeg", "quality": finding.quality, "bound_factor": round(factor, 3)}
+        model.info["calibration_chi2"] = chi2_as_tracked(model, data)
+    ratio = error_ratio(model, data)
+    model.info["calibration_error_ratio"] = round(ratio, 3) if np.isfinite(ratio) else None
     return model
+
+
+def chi2_as_tracked(model: FourierModel, data: CalibrationData) -> float:
+    """The calibration frames' χ² per used sample as the tracker measures a frame's (the light
+    solved per frame): the level its running χ² is held against.
+
+    The fit's own figure counts every sample of every row. A model that sees the row mean is
+    judged on the row mean, where a residual the rows share does not average down as the noise
+    does: a JPEG stream's quantisation of a strip whose rows agree is such a residual, and
+    counted sample by sample it sets the level up to R times too low, so that every frame of
+    the run looks changed.
+    """
+    n_frames = data.frames.shape[0]
+    picked = np.unique(np.linspace(0, n_frames - 1, min(n_frames, MAX_FRAMES)).astype(int))
+    frames = model.prepare(data.frames[picked]).reshape(picked.size, -1)
+    values = model.predict(data.x_mm[picked]).reshape(picked.size, -1)
+    usable = np.broadcast_to(data.weights, data.frames.shape)[picked]
+    if model.n_rows == 1:
+        usable = usable.min(axis=1, keepdims=True)
+    weights = model.inverse_variance(values.reshape((picked.size,) + usable.shape[1:])).reshape(picked.size, -1)
+    weights = weights * (model.prepare(usable).reshape(picked.size, -1) > 0) * model.rows_averaged(data.frames.shape[1])
+    basis = np.stack([values, np.ones_like(values)], axis=2)  # the frame's gain and offset
+    fisher = np.einsum("kp,kpi,kpj->kij", weights, basis, basis)
+    score = np.einsum("kp,kpi,kp->ki", weights, basis, frames)
+    solvable = np.linalg.det(fisher) > 0
+    gain_offset = np.zeros((picked.size, 2))
+    gain_offset[solvable] = np.linalg.solve(fisher[solvable], score[solvable][..., None])[..., 0]
+    residual = frames - np.einsum("kpi,ki->kp", basis, gain_offset)
+    used = (weights > 0)[solvable].sum()
+    return float(np.einsum("kp,kp->", weights[solvable], residual[solvable] ** 2) / max(used, 1))
 
 
 def stream_factor(model: FourierModel, data: CalibrationData, table: np.ndarray) -> float:

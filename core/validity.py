@@ -28,8 +28,7 @@ RANK = {family: rank for rank, family in enumerate(FAMILIES)}
 # What to do about each family of causes, one line each (the CLI, the daemon's events and page).
 ADVICE = {
     "transients": "glints or passing dust keep hitting the line: shade the target or move the ROI",
-    "pixels": "pixels went bad since calibration, or the camera compresses its frames (MJPEG): recalibrate "
-              "(the new calibration masks bad pixels), or set the camera to an uncompressed format (Mono8/Mono12)",
+    "pixels": "pixels went bad since calibration: recalibrate (the new calibration masks them)",
     "light": "the light changed beyond what the model can follow at its precision: fix the light or recalibrate",
     "focus": "the focus moved since calibration: check the lens and its mount, then recalibrate",
     "scale": "the target's scale against the grating drifted (paper growth, temperature): recalibrate",

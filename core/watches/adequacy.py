@@ -1,7 +1,6 @@
 """A model that errs beyond its bound on its own calibration frames (core/adequacy.py) cannot
-measure at its bound on any run: every position it gives is flagged from the first frame on, for
-the family :func:`graytrack.core.adequacy.inadequacy` names (``geometry``, or ``pixels`` for a
-JPEG stream whose quantisation accounts for the excess)."""
+measure at its bound on any run: every position it gives is flagged, for ``geometry`` (the images
+are not what the model describes), from the first frame on."""
 
 from __future__ import annotations
 
@@ -10,15 +9,12 @@ from graytrack.core.validity import FrameSign
 
 
 class AdequacyWatch:
+    family = "geometry"
     decisive = True
 
-    def __init__(self, family: str) -> None:
-        self.family = family
-
     def observe(self, sign: FrameSign) -> str | None:
-        return self.family
+        return "geometry"
 
 
 def make(tracker) -> AdequacyWatch | None:
-    family = inadequacy(tracker.model.info)
-    return None if family is None else AdequacyWatch(family)
+    return AdequacyWatch() if inadequacy(tracker.model.info) else None

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 
+from graytrack.core.compression import stream_bound_factor
 from graytrack.core.validity import FrameSign, running
 
 WINDOW = 200  # frames: the spread's relative noise is √(2/200) = 10 %, its ratio's 5 %
@@ -22,7 +23,8 @@ SETTLE = 30  # frames with a grating reading before the spread is trusted (at 1.
 class GratingWatch:
     family = "geometry"
 
-    def __init__(self) -> None:
+    def __init__(self, bound_scale2: float = 1.0) -> None:
+        self.bound_scale2 = bound_scale2  # the frames' variance over the sensor's (a JPEG stream's quantisation)
         self.mean: float | None = None  # camera − grating, mm
         self.square: float | None = None
         self.bound2: float | None = None  # the frames' Cramér–Rao variance, mm²
@@ -37,7 +39,7 @@ class GratingWatch:
             window = min(self.count, WINDOW)
             self.mean = running(self.mean, difference, window)
             self.square = running(self.square, difference * difference, window)
-            self.bound2 = running(self.bound2, 1.0 / sign.information, window)
+            self.bound2 = running(self.bound2, self.bound_scale2 / sign.information, window)
         if self.count < SETTLE or not self.bound2:
             return None
         spread2 = max(self.square - self.mean * self.mean, 0.0)
@@ -47,4 +49,4 @@ class GratingWatch:
 
 
 def make(tracker) -> GratingWatch:
-    return GratingWatch()
+    return GratingWatch(stream_bound_factor(tracker.model.info) ** 2)

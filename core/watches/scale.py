@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 
+from graytrack.core.compression import stream_bound_factor
 from graytrack.core.reference_monitor import ReferenceMonitor, scale_tells
 from graytrack.core.validity import FrameSign
 
@@ -23,15 +24,17 @@ class ScaleWatch:
 
     family = "scale"
 
-    def __init__(self, monitor: ReferenceMonitor, feeds: bool = True) -> None:
+    def __init__(self, monitor: ReferenceMonitor, feeds: bool = True, bound_scale: float = 1.0) -> None:
         self.monitor = monitor
         self.feeds = feeds
+        self.bound_scale = bound_scale  # the frames' bound over the sensor's (a JPEG stream's quantisation)
 
     @classmethod
     def for_model(cls, model, reference_resolution_mm: float = 0.0, **options) -> "ScaleWatch":
         """A watch centred on the model's calibrated stroke (its scale is measured about the centre,
         its floor over the whole stroke); ``reference_resolution_mm``: the grating's step, if known."""
-        return cls(ReferenceMonitor.for_model(model, reference_resolution_mm, **options))
+        return cls(ReferenceMonitor.for_model(model, reference_resolution_mm, **options),
+                   bound_scale=stream_bound_factor(model.info))
 
     def observe(self, sign: FrameSign) -> str | None:
         # While χ² says the images changed, a disagreement with the grating is its consequence, not a
@@ -41,7 +44,7 @@ class ScaleWatch:
         if sign.chi2_suspect:
             return "geometry" if self.monitor.stale else None
         if self.feeds and sign.placed:
-            bound = 1.0 / math.sqrt(sign.information) if sign.information > 0 else float("nan")
+            bound = self.bound_scale / math.sqrt(sign.information) if sign.information > 0 else float("nan")
             self.monitor.observe(sign.x_mm, sign.reference_mm, bound)
         return self.family if self.monitor.stale else None
 
