@@ -178,9 +178,14 @@ class SimStage:
 
     # ----- queries (vectorised) -------------------------------------------------------------
     def position(self, t_s: ArrayLike) -> np.ndarray:
-        """Actual (servo) position in mm at time(s) ``t_s``."""
-        p, _, e, _ = self._evaluate(t_s)
-        return p + e
+        """Actual (servo) position in mm at time(s) ``t_s``. Only what the position needs is
+        evaluated: a live camera asks for it three times per frame, at 1 kHz."""
+        arr, omega, zeta = self._arrays, self._omega(), self._zeta()  # one plan, whatever a command replaces meanwhile
+        idx, tau = _locate(arr, t_s)
+        a, v0 = arr["a"][idx], arr["v0"][idx]
+        damped = np.exp(-zeta * omega * tau) * (arr["A"][idx] * np.cos(omega * math.sqrt(1 - zeta * zeta) * tau)
+                                                + arr["B"][idx] * np.sin(omega * math.sqrt(1 - zeta * zeta) * tau))
+        return arr["p0"][idx] + v0 * tau + 0.5 * a * tau * tau + arr["c0"][idx] + arr["c1"][idx] * tau + damped
 
     def velocity(self, t_s: ArrayLike) -> np.ndarray:
         """Actual velocity in mm/s at time(s) ``t_s``."""
@@ -269,11 +274,9 @@ class SimStage:
         self._arrays = _segment_arrays(self._segments, self._omega(), self._zeta(), self.config)
 
     def _evaluate(self, t_s: ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        t = np.asarray(t_s, dtype=np.float64)
-        t0 = self._arrays["t0"]
-        idx = np.clip(np.searchsorted(t0, t, side="right") - 1, 0, t0.size - 1)
-        tau = np.maximum(t - t0[idx], 0.0)
-        return _eval_segments(self._arrays, idx, tau, self._omega(), self._zeta())
+        arr = self._arrays
+        idx, tau = _locate(arr, t_s)
+        return _eval_segments(arr, idx, tau, self._omega(), self._zeta())
 
 
 def _plan(p: float, v: float, target: float, vmax: float, acc: float) -> list[tuple[float, float]]:
@@ -317,6 +320,14 @@ def _segment_arrays(segments: list[_Segment], omega: float, zeta: float, cfg: St
         "t0": t0, "p0": p0, "v0": v0, "a": a, "c0": c0, "c1": c1,
         "A": h0, "B": (hd0 + zeta * omega * h0) / omega_d,
     }
+
+
+def _locate(arr: dict[str, np.ndarray], t_s: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+    """The segment of the plan ``arr`` each instant falls in, and the time into it."""
+    t = np.asarray(t_s, dtype=np.float64)
+    t0 = arr["t0"]
+    idx = np.clip(np.searchsorted(t0, t, side="right") - 1, 0, t0.size - 1)
+    return idx, np.maximum(t - t0[idx], 0.0)
 
 
 def _eval_segments(arr: dict[str, np.ndarray], idx: np.ndarray, tau: np.ndarray, omega: float, zeta: float):
