@@ -29,35 +29,30 @@ import os
 
 import numpy as np
 
-from graytrack.core import kernels
 from graytrack.drivers.sim import illumination as illum
 from graytrack.drivers.sim.rig import VirtualRig
 
 
-def _exposure_basis(x: np.ndarray, omega: np.ndarray, out: np.ndarray) -> None:
+def _exposure_basis(x: list[float], omega: list[float], out: np.ndarray) -> None:
     """The exposure-averaged real basis ``[1, cos ωx, sin ωx]`` into ``out`` ``(2M+1,)`` for the
-    piecewise-linear motion through positions ``x`` ``(S,)``: each piece (mid-point m, half-length h)
-    averages ``e^{jωx}`` to ``e^{jωm}·sinc(ωh/π)`` exactly (the rig's own formula). Scalar loops: a
-    dozen numbers, where numpy's per-call cost would be most of the frame (compiled when numba is)."""
-    m = omega.size
-    pieces = max(x.size - 1, 1)
-    out[0] = 1.0
-    for i in range(1, 2 * m + 1):
-        out[i] = 0.0
-    for p in range(pieces):
-        if x.size == 1:
-            mid, half = x[0], 0.0
-        else:
-            mid, half = 0.5 * (x[p + 1] + x[p]), 0.5 * (x[p + 1] - x[p])
-        for i in range(m):
-            wh = omega[i] * half
+    piecewise-linear motion through positions ``x`` (S of them): each piece (mid-point m, half-length
+    h) averages ``e^{jωx}`` to ``e^{jωm}·sinc(ωh/π)`` exactly (the rig's own formula). Scalar Python
+    on a dozen numbers, where numpy's per-call cost would be most of the frame; not compiled, so the
+    first frame is not held up by a compilation (the frame clock runs on meanwhile)."""
+    m = len(omega)
+    cos_sum, sin_sum = [0.0] * m, [0.0] * m
+    pieces = [(x[0], 0.0)] if len(x) == 1 else [(0.5 * (b + a), 0.5 * (b - a)) for a, b in zip(x[:-1], x[1:])]
+    for mid, half in pieces:
+        for i, w in enumerate(omega):
+            wh = w * half
             damp = 1.0 if wh == 0.0 else math.sin(wh) / wh
-            out[1 + i] += math.cos(omega[i] * mid) * damp / pieces
-            out[1 + m + i] += math.sin(omega[i] * mid) * damp / pieces
-
-
-if kernels.COMPILED:
-    _exposure_basis = kernels.numba.njit(cache=True, nogil=True)(_exposure_basis)
+            cos_sum[i] += math.cos(w * mid) * damp
+            sin_sum[i] += math.sin(w * mid) * damp
+    scale = 1.0 / len(pieces)
+    out[0] = 1.0
+    out[1:m + 1] = cos_sum
+    out[m + 1:] = sin_sum
+    out[1:] *= scale
 
 
 def tabulable(rig: VirtualRig) -> str | None:
@@ -84,7 +79,7 @@ class FrameRenderer:
     def __init__(self, rig: VirtualRig) -> None:
         self.rig = rig
         self.fallback = tabulable(rig)
-        self._omega = rig._kappa * rig._orders[1:].astype(np.float64)  # (M,) angular frequency of each order
+        self._omega = (rig._kappa * rig._orders[1:].astype(np.float64)).tolist()  # angular frequency of each order
         self._matrix = rig._matrix  # (2M+1, R·n): target × blur × vignetting, pixel offsets folded in
         self._shape = (1, rig.n_rows, rig.n_pixels)
         icfg = rig.config.illumination
@@ -98,7 +93,7 @@ class FrameRenderer:
         """Noise-free light ``(1, R, n)`` (float64) of one exposure: ``x_mm`` ``(S,)`` are the stage's
         positions at S instants evenly spaced over it (S = 1: still), as :meth:`VirtualRig.render`
         takes them. Only for rigs with ``fallback`` None."""
-        _exposure_basis(np.asarray(x_mm, dtype=np.float64).reshape(-1), self._omega, self._basis)
+        _exposure_basis(np.asarray(x_mm, dtype=np.float64).reshape(-1).tolist(), self._omega, self._basis)
         light = (self._basis @ self._matrix).reshape(self._shape)
         if self._glare is not None:
             light += self._glare
