@@ -341,7 +341,8 @@ def _servo_positions(arr: dict[str, np.ndarray], t: np.ndarray, omega: float, ze
     ten times more than the numbers (tested against it). No compiled kernel: its first compilation
     would stall the simulated controller's first reply past the serial timeout."""
     omega_d = omega * math.sqrt(1 - zeta * zeta)
-    idx = np.clip(np.searchsorted(arr["t0"], t, side="right") - 1, 0, arr["t0"].size - 1)
+    idx = np.searchsorted(arr["t0"], t, side="right") - 1  # at most the last segment; np.clip costs more than the rest
+    np.maximum(idx, 0, out=idx)
     out = np.empty(t.size)
     for k, (tk, row) in enumerate(zip(t.tolist(), arr["rows"][idx].tolist())):
         t0, p0, v0, a, c0, c1, big_a, big_b = row
