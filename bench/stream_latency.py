@@ -14,6 +14,9 @@ Run: .venv/bin/python bench/stream_latency.py [--seconds 5] [--rates 200,500,100
      [--deflate 0,1]        (the WebSocket's permessage-deflate off and on, side by side)
      [--priority 0,10]      (the daemon's realtime_priority, and the clients': normal or SCHED_FIFO 10, side by side)
      [--load 2]             (that many busy-looping processes run meanwhile: a machine with other work)
+     [--scenario strip16 --rows 16]  (the virtual rig's scenario and the ROI's rows: a 16-row strip)
+     [--renders fast,direct] (the virtual camera's one-frame renderer against the rig's direct render,
+                            side by side: GRAYTRACK_SIM_RENDER, drivers/sim/frame_render.py)
 
 Besides the receipt latency it prints ``enc``: mid-exposure to the message's encoding in the daemon
 (its ``age_ms``), so a tail can be placed before (frame thread) or after (event loop, send, client) it,
@@ -66,15 +69,15 @@ def free_port() -> int:
 
 
 def config(folder: Path, rate: float, poll_s: float = 0.005, deflate: bool = False, priority: int = 0,
-           model: str = "auto", effects: str = "") -> Path:
+           model: str = "auto", effects: str = "", scenario: str = "paper", rows: int = 1) -> Path:
     """The daemon's configuration; each model kind (and rig) keeps its own data directory, so its one
     calibration (made at the first start) serves every run of that kind."""
-    path = folder / f"{model}-rate{rate:g}-poll{poll_s:g}-deflate{int(deflate)}-prio{priority}.toml"
+    path = folder / f"{model}-{scenario}-rows{rows}-rate{rate:g}-poll{poll_s:g}-deflate{int(deflate)}-prio{priority}.toml"
     exposure_us = min(1000.0, 0.5e6 / rate)  # the rig's 1 ms exposure fits up to 1000 frames/s
     path.write_text(f'[camera]\nkind = "sim"\nframe_rate_hz = {rate}\nexposure_us = {exposure_us}\n'
-                    f'effects = "{effects}"\n'
+                    f'effects = "{effects}"\nscenario = "{scenario}"\n[camera.roi]\nrows = {rows}\n'
                     f'[sweep]\nmodel = "{model}"\n'
-                    f'[daemon]\ndata_dir = "{folder / ("data-" + model)}"\nlog_level = "warning"\ngrating_poll_s = {poll_s}\n'
+                    f'[daemon]\ndata_dir = "{folder / ("data-" + model + "-" + scenario + str(rows))}"\nlog_level = "warning"\ngrating_poll_s = {poll_s}\n'
                     f'ws_compression = {str(deflate).lower()}\nrealtime_priority = {priority}\n')
     return path
 
@@ -100,12 +103,13 @@ def wait_tracking(base: str, timeout_s: float = 300.0) -> dict:
 
 
 def run(folder: Path, rate: float, clients: int, seconds: float, poll_s: float = 0.005,
-        deflate: bool = False, priority: int = 0, model: str = "auto", effects: str = "") -> dict[str, float]:
+        deflate: bool = False, priority: int = 0, model: str = "auto", effects: str = "", scenario: str = "paper",
+        rows: int = 1, render: str = "fast") -> dict[str, float]:
     port = free_port()
     log = (folder / f"serve-{model}-{rate:g}-{clients}.log").open("w")
     daemon = subprocess.Popen([sys.executable, "-m", "graytrack", "serve", "--config",
-                               str(config(folder, rate, poll_s, deflate, priority, model, effects)),
-                               "--port", str(port)], stderr=log)
+                               str(config(folder, rate, poll_s, deflate, priority, model, effects, scenario, rows)),
+                               "--port", str(port)], stderr=log, env={**os.environ, "GRAYTRACK_SIM_RENDER": render})
     try:
         status = wait_tracking(f"http://127.0.0.1:{port}")
         time.sleep(0.5)
@@ -149,6 +153,10 @@ def main() -> None:
                         "(auto: the closed loop's model, what the daemon installs by default; paper)")
     parser.add_argument("--effects", default="", help="the virtual rig's effects (what the closed loop then models), "
                         "e.g. dust:count=6,prnu:sigma=0.02")
+    parser.add_argument("--scenario", default="paper", help="the virtual rig's scenario (strip16, highspeed: 16 rows)")
+    parser.add_argument("--rows", type=int, default=1, help="rows of the camera's ROI (16 for a 16-row model)")
+    parser.add_argument("--renders", default="fast", help="the virtual camera's renderer(s) to compare, side by side: "
+                        "fast (one frame, precomputed) and/or direct (VirtualRig.render)")
     args = parser.parse_args()
     folder = Path(tempfile.mkdtemp(prefix="graytrack-bench-"))
     burners = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(args.load)]
@@ -156,18 +164,20 @@ def main() -> None:
         # one calibration per model kind (the daemon calibrates itself at the first start), reused by every run
         models = args.models.split(",")
         for model in models:
-            run(folder, 200, 1, 0.5, model=model, effects=args.effects)
+            run(folder, 200, 1, 0.5, model=model, effects=args.effects, scenario=args.scenario, rows=args.rows)
         print(f"machine: {os.cpu_count()} cores, load average {load_average()} at start, "
-              f"{args.load} busy-looping processes meanwhile")
-        print(f"{'model':>6} {'prio':>4} {'deflate':>7} {'poll ms':>7} {'frames/s':>8} {'clients':>7} {'msgs/s':>8} {'missing':>7} {'dropped':>7} "
+              f"{args.load} busy-looping processes meanwhile; scenario {args.scenario}, {args.rows} row(s)")
+        print(f"{'render':>6} {'model':>6} {'prio':>4} {'deflate':>7} {'poll ms':>7} {'frames/s':>8} {'clients':>7} {'msgs/s':>8} {'missing':>7} {'dropped':>7} "
               f"{'p50 ms':>7} {'p99 ms':>7} {'max ms':>7} {'CPU %':>6} {'cl CPU':>6} {'enc p50':>7} {'enc p99':>7} {'stale':>9}")
         for rate in (float(r) for r in args.rates.split(",")):
             for clients in (int(c) for c in args.clients.split(",")):
-                for model, poll, deflate, prio in ((m, float(p), d == "1", int(q)) for m in models
-                                                   for p in args.polls.split(",") for d in args.deflate.split(",")
-                                                   for q in args.priority.split(",")):
-                    r = run(folder, rate, clients, args.seconds, poll, deflate, prio, model, args.effects)
-                    print(f"{model:>6} {prio:4d} {'on' if deflate else 'off':>7} {poll * 1e3:7.1f} {r['rate']:8.0f} {r['clients']:7d} {r['msgs_s']:8.0f} {r['missing']:7d} {r['dropped']:7d} "
+                for render, model, poll, deflate, prio in ((e, m, float(p), d == "1", int(q))
+                                                           for e in args.renders.split(",") for m in models
+                                                           for p in args.polls.split(",") for d in args.deflate.split(",")
+                                                           for q in args.priority.split(",")):
+                    r = run(folder, rate, clients, args.seconds, poll, deflate, prio, model, args.effects,
+                            args.scenario, args.rows, render)
+                    print(f"{render:>6} {model:>6} {prio:4d} {'on' if deflate else 'off':>7} {poll * 1e3:7.1f} {r['rate']:8.0f} {r['clients']:7d} {r['msgs_s']:8.0f} {r['missing']:7d} {r['dropped']:7d} "
                           f"{r['p50']:7.2f} {r['p99']:7.2f} {r['max']:7.2f} {r['cpu']:6.0f} {r['client_cpu']:6.0f} {r['enc50']:7.2f} {r['enc99']:7.2f} {r['stale']:>9}",
                           flush=True)
         print(f"load average {load_average()} at the end")

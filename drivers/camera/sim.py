@@ -5,7 +5,8 @@ Frames come on a fixed frame clock like a free-running camera (slot k is exposed
 the oldest such frame not handed out yet within the lag budget (``settings.max_lag_s``) of the
 newest, waiting for the next one if none is ready: the buffer pool of a real camera, and the same
 read policy as the other drivers. The stage's true positions at the start, middle
-and end of the exposure go to :meth:`VirtualRig.render`, so a moving stage blurs the strip as
+and end of the exposure go to the rig's renderer (:class:`FrameRenderer`, the same frames as
+:meth:`VirtualRig.render` at a fraction of the cost per frame), so a moving stage blurs the strip as
 it would on the bench, and the controller's ``POS?`` (the grating) stays a separate, imperfect
 measurement of the same motion.
 
@@ -24,6 +25,7 @@ import numpy as np
 from graytrack.drivers.camera.backlog import first_slot
 from graytrack.drivers.camera.base import Camera, CameraSettingError, CameraSettings, CameraTimeout, Frame
 from graytrack.drivers.clock import REAL_TIME, ScaledClock
+from graytrack.drivers.sim.frame_render import FrameRenderer
 from graytrack.drivers.sim.rig import VirtualRig
 from graytrack.drivers.sim.stage import Trajectory
 
@@ -38,6 +40,7 @@ class SimCamera(Camera):
     ) -> None:
         super().__init__(settings)
         self.rig = rig
+        self.renderer = FrameRenderer(rig)  # one frame at a time, the fixed part precomputed (frame_render.py)
         self.stage = stage
         self.clock = clock
         self._t0 = 0.0
@@ -87,8 +90,7 @@ class SimCamera(Camera):
         t_mid = self._slot_mid(slot)
         half = 0.5 * self.exposure_s
         instants = np.array([t_mid - half, t_mid, t_mid + half]) if half > 0 else np.array([t_mid])
-        x = np.asarray(self.stage.position(instants), dtype=np.float64)[None, :]
-        strip = self.rig.render(x, np.array([t_mid]))[0]
+        strip = self.renderer.render(self.stage.position(instants), t_mid, self.exposure_s)
         pixels = np.ascontiguousarray(self.settings.roi.crop(strip))
         # Physics ran on the simulated clock; what leaves the camera is host time (the contract).
         return Frame(pixels, slot, self.clock.to_host(t_mid), t_device=t_mid,

@@ -141,3 +141,19 @@ def test_grating_latency_reports_an_earlier_position():
     t = np.linspace(0.5, 1.0, 11)  # cruising
     np.testing.assert_allclose(grating.read(t), stage.position(t - 0.003), atol=1e-12)
     np.testing.assert_allclose(grating.read(t) - stage.position(t), -stage.velocity(t) * 0.003, atol=1e-6)
+
+
+def test_position_kernel_matches_the_numpy_path():
+    """The compiled per-instant position (what a live camera asks three times a frame) is the numpy
+    path's ``p + e`` through moves, settling and rest, for numbers, rows and grids of instants."""
+    stage = SimStage(StageConfig(damping=0.3), position_mm=1.0, t_s=0.0)  # a servo that rings after each move
+    stage.move_to(6.0, 0.1)
+    stage.move_to(2.5, 2.0)
+    t = np.concatenate([np.linspace(-0.5, 5.0, 4001), [0.1, 2.0]])
+    p, _, e, _ = stage._evaluate(t)
+    assert np.max(np.abs(stage.position(t) - (p + e))) <= 1e-12
+    grid = t[:4000].reshape(40, 100)
+    assert stage.position(grid).shape == (40, 100)
+    p1, _, e1, _ = stage._evaluate(1.25)
+    assert np.ndim(stage.position(1.25)) == 0
+    assert abs(stage.position(1.25) - (p1 + e1)) <= 1e-12
