@@ -251,7 +251,8 @@ class Tracker:
         rows is set aside on those rows only (:meth:`_rows_refined`)."""
         weights, shared = self.weights(prepared, frame_rows)
         if not self.fast_path:
-            batch: GeneralBatch | TrigPolyBatch = GeneralBatch(self.evaluator, prepared, weights)
+            batch: GeneralBatch | TrigPolyBatch = GeneralBatch(self.evaluator, prepared, weights) \
+                if prepared.shape[0] > 1 else GeneralBatch.one(self.evaluator, prepared.reshape(1, -1), weights)
         elif not shared:
             batch = TrigPolyBatch(self.tables, prepared, weights)
         else:
@@ -329,7 +330,7 @@ class Tracker:
         if self.fast_path:
             single: GeneralBatch | TrigPolyBatch = TrigPolyBatch(self.tables, mean[None], weights[None])
         else:
-            single = GeneralBatch(self.evaluator, mean[None], weights[None])
+            single = GeneralBatch.one(self.evaluator, mean[None], weights[None])
         start = FrameSolution(line.x_mm, float("nan"), 0.0, 0, line.gain, line.offset)
         solution = robust_solve(single, 0, start, line.free_light, self.settings, None, self.chi2_limit, self.layout)
         solution.transient_px = int(blob.sum())
