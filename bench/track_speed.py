@@ -7,11 +7,23 @@ clock also counts other processes' turns; the ratios are what to read.
 Two kinds of tracked frames: clean (the common case: the light and the pixels as calibrated) and
 disturbed (light 20 % dimmer with 10 gray of ambient light, one pixel stuck at 255: every frame
 then needs the light re-solved and a pixel set aside).
-Run: .venv/bin/python bench/track_speed.py
+Then every model (``models``): each effect family alone (a model grown with it on a recording of its
+cause, drivers/sim/causes.py) and the closed loop's model of every virtual-rig scenario, each
+against the seed paper's model fitted on the same recording and a plain-numpy Gauss–Newton loop
+on the same frames: batch ``track`` per frame, ``LiveTracker.update`` p50 (the two models
+interleaved frame by frame), and ``graytrack track`` end to end (the CLI in this process: load,
+track, χ², validity monitor, scale check, CSV) in frames/s, best of a few interleaved runs.
+
+Run: .venv/bin/python bench/track_speed.py [plain|models] [SUBSTRING of a model's label]
 """
 
 from __future__ import annotations
 
+import contextlib
+import io
+import os
+import sys
+import tempfile
 import time
 from typing import Callable
 
@@ -81,10 +93,10 @@ def live_us(model: FourierModel, frames: np.ndarray, x0: float) -> np.ndarray:
     return times * 1e6
 
 
-def best_times(jobs: dict[str, Callable[[], object]]) -> dict[str, float]:
-    """Best-of-REPEATS wall time of each job, the jobs interleaved within each repeat."""
+def best_times(jobs: dict[str, Callable[[], object]], repeats: int = REPEATS) -> dict[str, float]:
+    """Best-of-``repeats`` CPU time of each job, the jobs interleaved within each repeat."""
     best = {name: float("inf") for name in jobs}
-    for _ in range(REPEATS):
+    for _ in range(repeats):
         for name, job in jobs.items():
             start = CLOCK()
             job()
@@ -107,11 +119,15 @@ def main() -> None:
         jobs["disturbed gain/offset + robust (auto)"] = lambda: track(model, bad, reference=val.reference,
                                                                       light="auto", robust=True)
         jobs["clean     plain numpy GN"] = lambda: plain_numpy_track(model, val.frames, x0)
+        folder = tempfile.TemporaryDirectory()
+        jobs["clean     graytrack track (CLI, all of it)"] = cli_seconds(model, val, folder.name, "paper")
+        jobs["clean     graytrack track (CLI, all of it)"]()  # its imports and compilations before the clock
         best = best_times(jobs)
+        folder.cleanup()
         plain = best["clean     plain (calibrated light)"]
         print(f"\n{n_rows} row(s): calibration {calib_s:.2f} s")
         for name, seconds in best.items():
-            print(f"  {name:40s} {N_FRAMES / seconds:9.0f} frames/s  {seconds / N_FRAMES * 1e6:6.1f} us/frame"
+            print(f"  {name:42s} {N_FRAMES / seconds:9.0f} frames/s  {seconds / N_FRAMES * 1e6:6.1f} us/frame"
                   f"  {seconds / plain:5.2f}x plain")
         live = min((live_us(model, frames, x0) for frames in (val.frames,) * 3), key=lambda t: np.percentile(t, 50))
         live_bad = min((live_us(model, frames, x0) for frames in (bad,) * 3), key=lambda t: np.percentile(t, 50))
@@ -127,5 +143,102 @@ def main() -> None:
               f" vs bound {np.nanmean(dist.crlb_mm) * 1e3:.3f} um")
 
 
+SCENARIO_SECONDS = {"paper": 10.0, "clean": 10.0, "strip16": 6.0, "lab": 3.0, "highspeed": 1.0}  # of calibration
+MODEL_REPEATS = 3
+RUN_FRAMES = 1000  # frames of each tracked run (the CLI's fixed costs spread as over a real recording)
+LIVE_WARM = 20  # frames of each live tracker not counted (model install, first acquisition)
+
+
+def every_model(selection: str = "") -> list[tuple[str, FourierModel, FourierModel, Recording]]:
+    """(label, model, the seed paper's model fitted on the same calibration, a run to track) for
+    each effect family and each virtual-rig scenario's closed-loop model."""
+    from graytrack.core.diagnosis import diagnose
+    from graytrack.drivers.sim.causes import EFFECT_CAUSES, model_with
+    from graytrack.drivers.sim.scenarios import build_rig, list_scenarios
+
+    def run_of(scenario: str, effects: str, seed: int) -> Recording:
+        rig = build_rig(scenario, effects, seed=seed, run=1)
+        rec, _ = rig.record(RUN_FRAMES / rig.frame_rate_hz)
+        return Recording(rec.frames[:RUN_FRAMES], rec.t[:RUN_FRAMES], rec.reference[:RUN_FRAMES], rec.meta)
+
+    cases = []
+    for name, cause in EFFECT_CAUSES.items():
+        label = f"effect {name} ({cause.scenario}: {cause.effects})"
+        if selection in label:
+            model, _, calibration = model_with(name, seconds=8.0 if cause.scenario == "paper" else 4.0)
+            cases.append((label, model, calibrate(calibration, "paper").model, run_of(cause.scenario, cause.effects, 5)))
+    for scenario in list_scenarios():
+        seconds = SCENARIO_SECONDS.get(scenario, 3.0)
+        calibration, _ = build_rig(scenario, seed=3).record(seconds)
+        loop = diagnose(calibration) if selection in f"closed loop {scenario}" else None
+        if loop is None:
+            continue
+        added = ",".join(step.effect for step in loop.steps) or "nothing"
+        cases.append((f"closed loop {scenario} (adds {added})", loop.final_model,
+                      calibrate(calibration, "paper").model, run_of(scenario, "", 3)))
+    return cases
+
+
+def cli_seconds(model: FourierModel, run: Recording, folder: str, name: str) -> Callable[[], float]:
+    """A job running ``graytrack track`` on ``run`` with ``model`` in this process (its output muted)."""
+    from graytrack.core.models.io import save_model
+    from graytrack.core.recording import save
+    from graytrack.service.cli import main as cli
+
+    recording, model_path = os.path.join(folder, "run.npz"), os.path.join(folder, f"{name}.json")
+    if not os.path.exists(recording):
+        save(run, recording)
+    save_model(model, model_path)
+    argv = ["track", recording, "--model", model_path, "--out", os.path.join(folder, f"{name}.csv")]
+
+    def job() -> None:
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+            cli(argv)
+    return job
+
+
+def live_p50(models: dict[str, FourierModel], run: Recording) -> dict[str, float]:
+    """p50 CPU µs of each model's LiveTracker.update, the models interleaved frame by frame."""
+    trackers = {name: LiveTracker(model, x0_mm=float(run.reference[0])) for name, model in models.items()}
+    costs: dict[str, list[float]] = {name: [] for name in models}
+    for k, (frame, grating) in enumerate(zip(run.frames, run.reference)):
+        for name, tracker in trackers.items():
+            start = CLOCK()
+            tracker.update(frame, grating)
+            if k >= LIVE_WARM:
+                costs[name].append(CLOCK() - start)
+    return {name: float(np.median(values)) * 1e6 for name, values in costs.items()}
+
+
+def models_main(selection: str = "") -> None:
+    print(f"\nevery model against the seed paper's model on the same frames (CPU µs per frame; CLI frames/s; "
+          f"best of {MODEL_REPEATS}, interleaved)")
+    print(f"{'model':78} {'rows':>4} {'track plain/model':>18} {'ratio':>6} {'live p50 plain/model':>21} "
+          f"{'ratio':>6} {'CLI frames/s plain/model':>25} {'numpy GN':>9} {'model/numpy':>11}")
+    for label, model, plain, run in every_model(selection):
+        n = run.n_frames
+        x0 = float(run.reference[0])
+        with tempfile.TemporaryDirectory() as folder:
+            jobs = {
+                "track plain": lambda: track(plain, run, light="auto", robust=True),
+                "track model": lambda: track(model, run, light="auto", robust=True),
+                "cli plain": cli_seconds(plain, run, folder, "plain"),
+                "cli model": cli_seconds(model, run, folder, "model"),
+                "numpy": lambda: plain_numpy_track(plain, run.frames, x0),
+            }
+            jobs["cli plain"](), jobs["cli model"]()  # compiled and cached before the clock runs
+            best = {name: seconds / n * 1e6 for name, seconds in best_times(jobs, MODEL_REPEATS).items()}
+        live = live_p50({"plain": plain, "model": model}, run)
+        rows = 1 if run.frames.ndim == 2 else run.frames.shape[1]
+        print(f"{label:78.78} {rows:4d} {best['track plain']:8.1f} /{best['track model']:8.1f} "
+              f"{best['track model'] / best['track plain']:6.2f} {live['plain']:10.1f} /{live['model']:8.1f} "
+              f"{live['model'] / live['plain']:6.2f} {1e6 / best['cli plain']:12.0f} /{1e6 / best['cli model']:10.0f} "
+              f"{best['numpy']:9.1f} {best['track model'] / best['numpy']:11.2f}", flush=True)
+
+
 if __name__ == "__main__":
-    main()
+    part = sys.argv[1] if len(sys.argv) > 1 else ""
+    if part in ("", "plain"):
+        main()
+    if part in ("", "models"):
+        models_main(sys.argv[2] if len(sys.argv) > 2 else "")

@@ -86,10 +86,16 @@ def _moments(x: float, y: np.ndarray, w: np.ndarray, omega: float, c_re: np.ndar
              offset: np.ndarray, lo: float, hi: float, table: np.ndarray, origin: float, step: float,
              target_offset: np.ndarray, clip_lo: float, clip_hi: float, scratch: np.ndarray,
              out: np.ndarray) -> None:
-    """The seven moments (as FrameTables.moments) into ``out``; ``scratch`` is (3, P)."""
+    """The seven moments (as FrameTables.moments) into ``out``; ``scratch`` is (3, P): the values and
+    slopes at x are left in its first two rows."""
     values, slopes = scratch[0], scratch[1]
     _evaluate_into(x, omega, c_re, c_im, offset, lo, hi, table, origin, step, target_offset, clip_lo, clip_hi,
                    values, slopes, scratch[2])
+    _reduce(values, slopes, y, w, out)
+
+
+def _reduce(values: np.ndarray, slopes: np.ndarray, y: np.ndarray, w: np.ndarray, out: np.ndarray) -> None:
+    """The seven moments of values and slopes already evaluated (``_moments`` without the evaluation)."""
     ff = fdf = dfdf = f1 = df1 = yf = ydf = 0.0
     for p in range(values.size):
         wv, ws = w[p] * values[p], w[p] * slopes[p]
@@ -116,12 +122,17 @@ def _evaluate_many(x_mm: np.ndarray, omega: float, c_re: np.ndarray, c_im: np.nd
 if COMPILED:
     _evaluate_into = numba.njit(cache=True, nogil=True, error_model="numpy")(_evaluate_into)
     _evaluate_many = numba.njit(cache=True, nogil=True, error_model="numpy")(_evaluate_many)
+    _reduce = numba.njit(cache=True, nogil=True, error_model="numpy")(_reduce)
     _moments = numba.njit(cache=True, nogil=True, error_model="numpy")(_moments)
 
 
 class TableEvaluator:
     """Values, slopes and moments of a model from its frame tables: compiled, or numpy where
-    numba is missing, the same numbers either way."""
+    numba is missing, the same numbers either way.
+
+    The model at the last position evaluated is kept: a robust solve reads a frame's residuals at
+    x and then solves again from that same x, and the moments there need only its reduction
+    (the same numbers: the kept values are those the evaluation gives)."""
 
     def __init__(self, tables: FrameTables):
         self.tables = tables
@@ -132,27 +143,39 @@ class TableEvaluator:
         self._args = (tables.omega, self._re, self._im, tables.offset, lo, hi, tables.target_map,
                       tables.map_origin_mm, tables.map_step_mm, tables.target_offset_mm, *tables.clip_gray)
         self._scratch = np.empty((3, n_values))
+        self._at = float("nan")  # the position whose values and slopes _scratch[0], _scratch[1] hold
         self._out = np.empty(7)
         if COMPILED:  # compiled (or loaded from the disk cache) now, at model install, not on a live frame
-            self.moments(0.0, np.zeros(n_values), np.zeros(n_values))
+            for _ in range(2):  # evaluated, then read again at the same position
+                self.moments(0.0, np.zeros(n_values), np.zeros(n_values))
+            self._at = float("nan")
             self.evaluate(np.zeros(1))
             self.evaluate(np.zeros(2))
+            self._at = float("nan")
 
     def evaluate(self, x_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Values and slopes ``(G, P)`` at positions ``x_mm`` ``(G,)``."""
         x_mm = np.atleast_1d(np.asarray(x_mm, dtype=np.float64))
         if not COMPILED:
             return self.tables.evaluate(x_mm)
-        values, slopes = np.empty((x_mm.size, self.tables.n_values)), np.empty((x_mm.size, self.tables.n_values))
         if x_mm.size == 1:
-            _evaluate_into(float(x_mm[0]), *self._args, values[0], slopes[0], self._scratch[2])
-        else:
-            _evaluate_many(x_mm, *self._args, values, slopes, self._scratch[2])
+            x = float(x_mm[0])
+            if x != self._at:  # (NaN: never kept)
+                _evaluate_into(x, *self._args, self._scratch[0], self._scratch[1], self._scratch[2])
+                self._at = x
+            return self._scratch[0][None].copy(), self._scratch[1][None].copy()
+        values, slopes = np.empty((x_mm.size, self.tables.n_values)), np.empty((x_mm.size, self.tables.n_values))
+        _evaluate_many(x_mm, *self._args, values, slopes, self._scratch[2])
         return values, slopes
 
     def moments(self, x_mm: float, y: np.ndarray, w: np.ndarray) -> list[float]:
         """The solver's seven moments at ``x_mm`` for frame ``y`` under weights ``w`` (both ``(P,)``)."""
         if not COMPILED:
             return self.tables.moments(x_mm, y, w).tolist()
-        _moments(float(x_mm), y, w, *self._args, self._scratch, self._out)
+        x = float(x_mm)
+        if x == self._at:
+            _reduce(self._scratch[0], self._scratch[1], y, w, self._out)
+        else:
+            _moments(x, y, w, *self._args, self._scratch, self._out)
+            self._at = x
         return self._out.tolist()

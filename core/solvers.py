@@ -555,7 +555,20 @@ class GeneralBatch:
         return residual if pixels is None else residual[pixels]
 
     def reweighted(self, k: int, weights: np.ndarray) -> "GeneralBatch":
-        return GeneralBatch(self.evaluator, self.frames[k:k + 1], weights[None])
+        return GeneralBatch.one(self.evaluator, self.frames[k:k + 1], weights[None])
+
+    @classmethod
+    def one(cls, evaluator: "FastHarmonics | GeneralHarmonics | ClippedHarmonics", frame: np.ndarray,
+            weights: np.ndarray) -> "GeneralBatch":
+        """A batch of one frame ``(1, P)`` under its own weights ``(1, P)`` (a frame solved again with
+        samples set aside or tapered: several times a frame): the scalars of :meth:`__init__` by the
+        same reductions, without the stacking a batch of many frames needs."""
+        batch = cls.__new__(cls)
+        batch.frames, batch.n_frames, batch.evaluator, batch._weights = frame, 1, evaluator, weights
+        weighted = weights * frame
+        batch._scalars = [[float(np.einsum("kp,kp->k", weighted, frame)[0]), float(weighted.sum(axis=1)[0]),
+                           float(weights.sum(axis=1)[0]), float(np.count_nonzero(weights > 0))]]
+        return batch
 
     def without(self, k: int, rejected: np.ndarray) -> "GeneralBatch":
         return self.reweighted(k, self.weights(k) * ~rejected)

@@ -252,7 +252,8 @@ class Tracker:
         rows is set aside on those rows only (:meth:`_rows_refined`)."""
         weights, shared = self.weights(prepared, frame_rows)
         if not self.fast_path:
-            batch: GeneralBatch | TrigPolyBatch = GeneralBatch(self.evaluator, prepared, weights)
+            batch: GeneralBatch | TrigPolyBatch = GeneralBatch(self.evaluator, prepared, weights) \
+                if prepared.shape[0] > 1 else GeneralBatch.one(self.evaluator, prepared.reshape(1, -1), weights)
         elif not shared:
             batch = TrigPolyBatch(self.tables, prepared, weights)
         else:
@@ -330,7 +331,7 @@ class Tracker:
         if self.fast_path:
             single: GeneralBatch | TrigPolyBatch = TrigPolyBatch(self.tables, mean[None], weights[None])
         else:
-            single = GeneralBatch(self.evaluator, mean[None], weights[None])
+            single = GeneralBatch.one(self.evaluator, mean[None], weights[None])
         start = FrameSolution(line.x_mm, float("nan"), 0.0, 0, line.gain, line.offset)
         solution = robust_solve(single, 0, start, line.free_light, self.settings, None, self.chi2_limit, self.layout)
         solution.transient_px = int(blob.sum())
@@ -520,6 +521,9 @@ class SequentialState:
     stale_reason: str | None = None  # the family it blames
     monitor: Monitor | None = None  # made from the tracker at the first frame
     rows_averaged: int = 1  # raw rows behind each model row
+    # Batch tracking: the frames' signs wait here, and the monitor takes them a chunk at a time
+    # (:meth:`verdicts`); None: each frame is shown to the monitor as it is solved (live).
+    pending: list | None = None
 
     def advance(self, tracker: "Tracker", batch: GeneralBatch | TrigPolyBatch, k: int,
                 reference: float) -> tuple[FrameSolution, bool, bool]:
@@ -541,18 +545,46 @@ class SequentialState:
                         solution: FrameSolution, placed: bool, reference: float) -> None:
         if self.monitor is None:
             self.monitor = monitor_for(tracker)
+        explain = (lambda: tracker.explain(batch, k, solution)) if placed and self.chi2_suspect else None
+        average = self.chi2_average if self.chi2_average is not None else float("nan")
+        if self.pending is not None:
+            self.pending.append((self.frame - 1, solution, reference, placed, self.rows_averaged, average,
+                                 self.chi2_suspect, self.chi2_stale, explain))
+            return
         sign = FrameSign(
             self.frame - 1, solution.chi2, solution.information, gain=solution.gain, offset_gray=solution.offset,
-            focus=getattr(solution, "focus", 0.0), focus_sigma=getattr(solution, "focus_sigma", float("nan")),
-            rejected_px=solution.rejected, transient_px=getattr(solution, "transient_px", 0),
-            transient_at=getattr(solution, "transient_at", float("nan")),
+            focus=solution.focus, focus_sigma=solution.focus_sigma, rejected_px=solution.rejected,
+            transient_px=solution.transient_px, transient_at=solution.transient_at,
             x_mm=solution.x_mm, reference_mm=reference, placed=placed, rows_averaged=self.rows_averaged,
-            free_light=solution.free_light, field=solution.field,
-            chi2_average=self.chi2_average if self.chi2_average is not None else float("nan"),
-            chi2_suspect=self.chi2_suspect, chi2_stale=self.chi2_stale,
-            explain=(lambda: tracker.explain(batch, k, solution)) if placed and self.chi2_suspect else None)
+            free_light=solution.free_light, field=solution.field, chi2_average=average,
+            chi2_suspect=self.chi2_suspect, chi2_stale=self.chi2_stale, explain=explain)
         verdict = self.monitor.observe(sign)
         self.stale, self.stale_reason = verdict.stale, verdict.reason
+
+    def verdicts(self) -> list[str | None]:
+        """The monitor's reason (None: not stale) for each frame waiting in :attr:`pending`, in order,
+        the monitor taking them all at once (:meth:`Monitor.observe_many`); the state's verdict is
+        then the last one's. The frames' batch must still be the one they were solved in (a
+        suspect frame's residual is read from it)."""
+        pending, self.pending = self.pending or [], []
+        if not pending:
+            return []
+        solutions = [entry[1] for entry in pending]
+        columns = {
+            "frame": [entry[0] for entry in pending],
+            "chi2": [s.chi2 for s in solutions], "information": [s.information for s in solutions],
+            "information_calibrated": [float("nan")] * len(pending),
+            "gain": [s.gain for s in solutions], "offset_gray": [s.offset for s in solutions],
+            "focus": [s.focus for s in solutions], "focus_sigma": [s.focus_sigma for s in solutions],
+            "rejected_px": [s.rejected for s in solutions], "transient_px": [s.transient_px for s in solutions],
+            "transient_at": [s.transient_at for s in solutions], "x_mm": [s.x_mm for s in solutions],
+            "free_light": [s.free_light for s in solutions], "field": [s.field for s in solutions]}
+        for index, name in enumerate(("reference_mm", "placed", "rows_averaged", "chi2_average", "chi2_suspect",
+                                      "chi2_stale", "explain"), start=2):
+            columns[name] = [entry[index] for entry in pending]
+        reasons = self.monitor.observe_many(columns)
+        self.stale, self.stale_reason = self.monitor.verdict.stale, self.monitor.verdict.reason
+        return reasons
 
     def repeat(self) -> None:
         """The frame repeats the image before it (a driver's double delivery): it shows where the stage
@@ -612,11 +644,13 @@ def track(model: FourierModel, source: Recording | np.ndarray, reference: np.nda
     repeated = repeats.repeated(frames, model.noise_gray or 0.0)
     state = SequentialState(x_prev=x0_mm if x0_mm is not None else (
         reference[0] if n_frames and np.isfinite(reference[0]) else None),
-        rows_averaged=model.rows_averaged(frame_rows))
+        rows_averaged=model.rows_averaged(frame_rows), pending=[])
     report_every = max(n_frames // 100, 1)
     batch = None
     for k in range(n_frames):
         if k % BATCH_CHUNK == 0:
+            if k:
+                _judge(state, repeated, stale, stale_reason, k - BATCH_CHUNK, k)
             chunk = frames[k:k + BATCH_CHUNK]
             batch = tracker.batch(model.prepare(chunk), frame_rows, raw=chunk if frames.ndim == 3 else None)
         if not repeated[k]:
@@ -628,20 +662,34 @@ def track(model: FourierModel, source: Recording | np.ndarray, reference: np.nda
         else:
             state.repeat()
             ok = False
-        stale[k] = state.stale
-        stale_reason[k] = state.stale_reason or ""
         if ok:
             out["x"][k], out["rms"][k], out["info"][k] = solution.x_mm, solution.rms_gray, solution.information
             out["gain"][k], out["offset"][k] = solution.gain, solution.offset
             iterations[k] = solution.iterations
         if progress and k % report_every == 0:
             progress(k / n_frames, f"frame {k}/{n_frames}")
+    if n_frames:
+        _judge(state, repeated, stale, stale_reason, (n_frames - 1) // BATCH_CHUNK * BATCH_CHUNK, n_frames)
     if progress:
         progress(1.0, f"{n_frames} frames, {len(state.events)} lock event(s)")
     crlb = stream_bound_factor(model.info) / np.sqrt(np.where(out["info"] > 0, out["info"], np.nan))
     return TrackResult(out["x"], locked, out["rms"], crlb, iterations, out["gain"], out["offset"], state.events,
                        out["chi2"], rejected, stale, tracker.chi2_calibration, repeated, stale_reason, transient,
                        out["focus"], out["focus_sigma"])
+
+
+def _judge(state: SequentialState, repeated: np.ndarray, stale: np.ndarray, stale_reason: np.ndarray,
+           start: int, stop: int) -> None:
+    """The validity monitor's verdicts on frames ``start:stop`` (one chunk, solved, its batch still
+    at hand) into ``stale`` and ``stale_reason``: a repeated image, shown to no watch, keeps the
+    verdict of the frame before it, as in live tracking."""
+    before = (bool(stale[start - 1]), str(stale_reason[start - 1]) or None) if start else (False, None)
+    reasons = iter(state.verdicts())
+    reason = before[1]
+    for k in range(start, stop):
+        if not repeated[k]:
+            reason = next(reasons)
+        stale[k], stale_reason[k] = reason is not None, reason or ""
 
 
 @dataclass

@@ -66,8 +66,16 @@ class FrameSign:
     explain: Callable[[], dict[str, Any]] | None = None
 
 
+SIGN_FIELDS = tuple(FrameSign.__slots__)
+
+
 class Watch(Protocol):
-    """One look at the model's validity; keeps its own running state."""
+    """One look at the model's validity; keeps its own running state.
+
+    A watch may also name the fields of :class:`FrameSign` it reads (``reads``) and take them as
+    arguments of ``step``: the monitor then feeds it many frames from columns without building a
+    sign per frame (:meth:`Monitor.observe_many`, batch tracking); ``observe(sign)`` is ``step``
+    on one sign's fields, so both give the same verdicts."""
 
     family: str
     # A verdict on the model itself (refused or inadequate at calibration) outranks whatever a
@@ -100,6 +108,39 @@ class Monitor:
         if reason != self.verdict.reason:
             self.verdict = Verdict(reason is not None, reason)
         return self.verdict
+
+    def observe_many(self, columns: dict[str, list]) -> list[str | None]:
+        """:meth:`observe` of consecutive frames given as columns (one list per field of
+        :class:`FrameSign`, all of one length): each watch takes all of them in turn (its state
+        runs frame by frame as in :meth:`observe`; the watches share none), then each frame's
+        reason is chosen as :meth:`observe` chooses it. Returns the reason of every frame (None:
+        not stale); the verdict is left at the last frame's."""
+        n = len(columns["frame"])
+        reasons: list[str | None] = [None] * n
+        ranks = [len(FAMILIES)] * n
+        for watch in self.watches:
+            families = _observe_all(watch, columns, n)
+            if not any(families):
+                continue
+            decisive = getattr(watch, "decisive", False)
+            for i, family in enumerate(families):
+                if family is not None and (RANK[family] < ranks[i] or decisive):
+                    reasons[i], ranks[i] = family, -1 if decisive else RANK[family]
+        if n and reasons[-1] != self.verdict.reason:
+            self.verdict = Verdict(reasons[-1] is not None, reasons[-1])
+        return reasons
+
+
+def _observe_all(watch: Watch, columns: dict[str, list], n: int) -> list[str | None]:
+    """One watch over ``n`` frames of columns: by its ``step`` on the fields it reads, else sign by sign."""
+    reads = getattr(watch, "reads", None)
+    if reads is None:
+        return [watch.observe(FrameSign(**dict(zip(SIGN_FIELDS, row))))
+                for row in zip(*(columns[name] for name in SIGN_FIELDS))]
+    step = watch.step
+    if not reads:
+        return [step() for _ in range(n)]
+    return [step(*row) for row in zip(*(columns[name] for name in reads))]
 
 
 def monitor_for(tracker: Any) -> Monitor:

@@ -11,8 +11,12 @@ from graytrack.core.validity import FrameSign
 class AdequacyWatch:
     family = "geometry"
     decisive = True
+    reads = ()
 
     def observe(self, sign: FrameSign) -> str | None:
+        return "geometry"
+
+    def step(self) -> str | None:
         return "geometry"
 
 

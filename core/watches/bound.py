@@ -26,35 +26,43 @@ GRID_PER_PERIOD = 64
 
 class BoundWatch:
     family = "light"
+    reads = ("placed", "information", "x_mm", "rows_averaged", "gain", "free_light", "transient_px", "rejected_px",
+             "focus", "field", "chi2_suspect")
 
     def __init__(self, grid_start: float, grid_step: float, information: np.ndarray):
-        self.start, self.step, self.table = grid_start, grid_step, information.tolist()
+        self.start, self.grid_step, self.table = grid_start, grid_step, information.tolist()
         self.kept: float | None = None
         self.blame: dict[str, float] = {}
 
     def calibrated(self, x_mm: float) -> float:
         """Information per model row on x at ``x_mm`` with the calibrated light and every sample."""
-        position = (x_mm - self.start) / self.step
+        position = (x_mm - self.start) / self.grid_step
         index = min(max(int(position), 0), len(self.table) - 2)
         fraction = min(max(position - index, 0.0), 1.0)
         return self.table[index] + fraction * (self.table[index + 1] - self.table[index])
 
     def observe(self, sign: FrameSign) -> str | None:
-        if not (sign.placed and math.isfinite(sign.information) and math.isfinite(sign.x_mm)):
+        return self.step(sign.placed, sign.information, sign.x_mm, sign.rows_averaged, sign.gain, sign.free_light,
+                         sign.transient_px, sign.rejected_px, sign.focus, sign.field, sign.chi2_suspect)
+
+    def step(self, placed: bool, information: float, x_mm: float, rows_averaged: int, gain: float, free_light: bool,
+             transient_px: int, rejected_px: int, focus: float, field: bool, chi2_suspect: bool) -> str | None:
+        if not (placed and math.isfinite(information) and math.isfinite(x_mm)):
             return None
-        reference = self.calibrated(sign.x_mm) * sign.rows_averaged
+        reference = self.calibrated(x_mm) * rows_averaged
         if reference <= 0:
             return None
-        light = sign.gain * sign.gain if sign.free_light else 1.0
-        kept = min(sign.information / (reference * light), 2.0)
+        light = gain * gain if free_light else 1.0
+        kept = min(information / (reference * light), 2.0)
         self.kept = running(self.kept, kept, WINDOW)
         if self.kept > SUSPECT:  # the common case: nothing to blame, nothing to track
-            self.blame.clear()
+            if self.blame:
+                self.blame.clear()
             return None
-        for family, working in (("transients", sign.transient_px > 0), ("pixels", sign.rejected_px > 0),
-                                ("focus", sign.focus != 0.0), ("light", sign.free_light or sign.field)):
+        for family, working in (("transients", transient_px > 0), ("pixels", rejected_px > 0),
+                                ("focus", focus != 0.0), ("light", free_light or field)):
             self.blame[family] = running(self.blame.get(family), float(working), WINDOW)
-        if self.kept >= KEPT_LIMIT or sign.chi2_suspect:
+        if self.kept >= KEPT_LIMIT or chi2_suspect:
             return None  # holding; or χ² sees the change itself, and its watch reads the residual's shape
         family, share = max(self.blame.items(), key=lambda item: item[1])
         return family if share > 0.1 else "geometry"

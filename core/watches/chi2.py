@@ -22,6 +22,7 @@ EXPLAIN_EVERY = 5  # once stale, the residual is looked at every this many frame
 
 class ChiSquareWatch:
     family = "geometry"
+    reads = ("chi2_suspect", "chi2_stale", "explain")
 
     def __init__(self) -> None:
         self.shares: dict[str, float] = {}
@@ -31,13 +32,17 @@ class ChiSquareWatch:
         self.consistency: dict[str, Consistency] = {}
 
     def observe(self, sign: FrameSign) -> str | None:
-        if not sign.chi2_suspect:
-            self.shares, self.persistence, self._top, self._count, self.consistency = {}, None, None, 0, {}
+        return self.step(sign.chi2_suspect, sign.chi2_stale, sign.explain)
+
+    def step(self, chi2_suspect: bool, chi2_stale: bool, explain) -> str | None:
+        if not chi2_suspect:
+            if self._count:  # (what a suspect frame learns comes after its count: at 0 all is reset)
+                self.shares, self.persistence, self._top, self._count, self.consistency = {}, None, None, 0, {}
             return None
         self._count += 1
-        if sign.explain is not None and (not sign.chi2_stale or self._count % EXPLAIN_EVERY == 0 or not self.shares):
-            self._learn(sign.explain())
-        if not sign.chi2_stale:
+        if explain is not None and (not chi2_stale or self._count % EXPLAIN_EVERY == 0 or not self.shares):
+            self._learn(explain())
+        if not chi2_stale:
             return None
         family = named(self.shares)
         if family == "pixels" and self.persistence is not None and self.persistence < 0.5:

@@ -56,18 +56,21 @@ class FocusWatch:
     _missing: int = 0
     change_px2: float = float("nan")  # the window's median change, as last judged
     change_sigma_px2: float = float("nan")
+    reads = ("focus", "focus_sigma", "chi2", "field")  # (a class attribute: not a field)
 
     def observe(self, sign: FrameSign) -> str | None:
-        sigma = sign.focus_sigma
-        if math.isfinite(sigma) and sigma > 0.0 and math.isfinite(sign.focus):
-            self._estimates.append((sign.focus, 1.0 / (sigma * sigma), sign.chi2))
+        return self.step(sign.focus, sign.focus_sigma, sign.chi2, sign.field)
+
+    def step(self, focus: float, sigma: float, chi2: float, field: bool) -> str | None:
+        if math.isfinite(sigma) and sigma > 0.0 and math.isfinite(focus):
+            self._estimates.append((focus, 1.0 / (sigma * sigma), chi2))
             if len(self._estimates) > self.window:
                 self._estimates.popleft()
             self._missing = 0
         else:
             self._missing += 1
             # the tracker's evidence took a light field over the focus: the estimates were mimicry
-            if self._missing >= self.window or sign.field:
+            if self._missing >= self.window or field:
                 self._estimates.clear()
         if len(self._estimates) < self.min_frames:
             self.change_px2 = self.change_sigma_px2 = float("nan")

@@ -32,7 +32,12 @@ class GeometryWatch:
     def __init__(self, model: FourierModel) -> None:
         self.reason = refusal(model)
 
+    reads = ()
+
     def observe(self, sign: FrameSign) -> str | None:
+        return self.step()
+
+    def step(self) -> str | None:
         return self.family if self.reason is not None else None
 
 

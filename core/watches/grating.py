@@ -22,6 +22,7 @@ SETTLE = 30  # frames with a grating reading before the spread is trusted (at 1.
 
 class GratingWatch:
     family = "geometry"
+    reads = ("placed", "reference_mm", "x_mm", "information")
 
     def __init__(self, bound_scale2: float = 1.0) -> None:
         self.bound_scale2 = bound_scale2  # the frames' variance over the sensor's (a JPEG stream's quantisation)
@@ -31,15 +32,18 @@ class GratingWatch:
         self.count = 0
 
     def observe(self, sign: FrameSign) -> str | None:
-        if sign.placed and math.isfinite(sign.reference_mm) and math.isfinite(sign.x_mm) and sign.information > 0:
-            difference = sign.x_mm - sign.reference_mm
+        return self.step(sign.placed, sign.reference_mm, sign.x_mm, sign.information)
+
+    def step(self, placed: bool, reference_mm: float, x_mm: float, information: float) -> str | None:
+        if placed and math.isfinite(reference_mm) and math.isfinite(x_mm) and information > 0:
+            difference = x_mm - reference_mm
             self.count += 1
             # a plain mean until the window is full, then the running one: the first readings do not
             # outweigh the next hundred
             window = min(self.count, WINDOW)
             self.mean = running(self.mean, difference, window)
             self.square = running(self.square, difference * difference, window)
-            self.bound2 = running(self.bound2, self.bound_scale2 / sign.information, window)
+            self.bound2 = running(self.bound2, self.bound_scale2 / information, window)
         if self.count < SETTLE or not self.bound2:
             return None
         spread2 = max(self.square - self.mean * self.mean, 0.0)

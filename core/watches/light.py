@@ -12,15 +12,19 @@ GAIN_RANGE = (0.5, 2.0)
 
 class LightWatch:
     family = "light"
+    reads = ("placed", "free_light", "gain")
 
     def __init__(self) -> None:
         self.gain: float | None = None
 
     def observe(self, sign: FrameSign) -> str | None:
-        if not (sign.placed and sign.free_light):
+        return self.step(sign.placed, sign.free_light, sign.gain)
+
+    def step(self, placed: bool, free_light: bool, gain: float) -> str | None:
+        if not (placed and free_light):
             self.gain = running(self.gain, 1.0, WINDOW) if self.gain is not None else None
             return None
-        self.gain = running(self.gain, sign.gain, WINDOW)
+        self.gain = running(self.gain, gain, WINDOW)
         return None if GAIN_RANGE[0] < self.gain < GAIN_RANGE[1] else "light"
 
 

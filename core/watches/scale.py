@@ -23,6 +23,7 @@ class ScaleWatch:
     """``observe(sign) -> "scale" | None`` from ``sign.x_mm``, ``sign.reference_mm``, ``sign.information``."""
 
     family = "scale"
+    reads = ("chi2_suspect", "placed", "x_mm", "reference_mm", "information")
 
     def __init__(self, monitor: ReferenceMonitor, feeds: bool = True, bound_scale: float = 1.0) -> None:
         self.monitor = monitor
@@ -37,15 +38,19 @@ class ScaleWatch:
                    bound_scale=stream_bound_factor(model.info))
 
     def observe(self, sign: FrameSign) -> str | None:
+        return self.step(sign.chi2_suspect, sign.placed, sign.x_mm, sign.reference_mm, sign.information)
+
+    def step(self, chi2_suspect: bool, placed: bool, x_mm: float, reference_mm: float,
+             information: float) -> str | None:
         # While χ² says the images changed, a disagreement with the grating is its consequence, not a
         # scale: those frames are not fed. But a disagreement already found stays a flag: the camera
         # is off the grating and the images are not the calibration's, so the model does not describe
         # the rig (geometry), even while χ² has not yet crossed its own stale limit.
-        if sign.chi2_suspect:
+        if chi2_suspect:
             return "geometry" if self.monitor.stale else None
-        if self.feeds and sign.placed:
-            bound = self.bound_scale / math.sqrt(sign.information) if sign.information > 0 else float("nan")
-            self.monitor.observe(sign.x_mm, sign.reference_mm, bound)
+        if self.feeds and placed:
+            bound = self.bound_scale / math.sqrt(information) if information > 0 else float("nan")
+            self.monitor.observe(x_mm, reference_mm, bound)
         return self.family if self.monitor.stale else None
 
 

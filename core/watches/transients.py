@@ -35,16 +35,19 @@ class TransientWatch:
     place: float | None = None  # running mean of where the blobs sit (pixel) …
     place_sq: float | None = None  # … and of its square: their spread
     blamed: str | None = None  # the family blamed now
+    reads = ("placed", "transient_px", "transient_at", "frame")  # (a class attribute: not a field)
 
     def observe(self, sign: FrameSign) -> str | None:
-        if not sign.placed and sign.transient_px == 0:
+        return self.step(sign.placed, sign.transient_px, sign.transient_at, sign.frame)
+
+    def step(self, placed: bool, transient_px: int, at: float, frame: int) -> str | None:
+        if not placed and transient_px == 0:
             return self.blamed
-        self.share = running(self.share, 1.0 if sign.transient_px > 0 else 0.0, WINDOW)
-        at = getattr(sign, "transient_at", float("nan"))
-        if sign.transient_px > 0 and math.isfinite(at):
+        self.share = running(self.share, 1.0 if transient_px > 0 else 0.0, WINDOW)
+        if transient_px > 0 and math.isfinite(at):
             self.place = running(self.place, at, WINDOW)
             self.place_sq = running(self.place_sq, at * at, WINDOW)
-        if sign.frame >= WINDOW // 4:
+        if frame >= WINDOW // 4:
             frequent = self.share > SHARE_STALE or (self.blamed is not None and self.share > SHARE_CLEAR)
             self.blamed = None if not frequent else (self.family if self.wandering else "light")
         return self.blamed

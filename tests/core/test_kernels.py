@@ -141,3 +141,25 @@ def test_the_focus_sums_compiled_and_in_numpy_agree() -> None:
     focus_solve._compiled_focus_sums(values, slopes, y, w, 1e-3, compiled)
     focus_solve._focus_sums_numpy(values, slopes, y, w, 1e-3, numpy_sums)
     assert np.allclose(compiled, numpy_sums, rtol=1e-12, atol=1e-9)
+
+
+@pytest.mark.parametrize("name", ["target_map", "stroke", "rows"])
+def test_the_position_kept_gives_a_fresh_evaluation_s_numbers(name: str) -> None:
+    """The evaluator keeps the model at the last position (a robust solve reads the residuals at x,
+    then solves again from that x): the moments and values read from it are, to the bit, those
+    of an evaluator that never saw the frame, and what a caller does to its copies changes nothing."""
+    model, run = _fitted(name)
+    tables = FrameTables.of(model)
+    kept = TableEvaluator(tables)
+    y = model.prepare(run.frames[:1]).reshape(-1)
+    w = np.linspace(0.5, 1.5, y.size)
+    for x in np.linspace(*model.stroke_range_mm, 5):
+        values, slopes = kept.evaluate(np.array([x]))
+        read = kept.moments(float(x), y, w)
+        values[:], slopes[:] = 0.0, 0.0
+        again = kept.evaluate(np.array([x]))
+        fresh = TableEvaluator(tables)
+        assert read == fresh.moments(float(x), y, w)
+        fresh_values, fresh_slopes = TableEvaluator(tables).evaluate(np.array([x]))
+        assert np.array_equal(again[0], fresh_values) and np.array_equal(again[1], fresh_slopes)
+        assert kept.moments(float(x) + 1e-3, y, w) == TableEvaluator(tables).moments(float(x) + 1e-3, y, w)

@@ -147,3 +147,35 @@ def test_a_model_the_run_does_not_repeat_is_flagged_by_the_grating():
     # held unless a frame asks), the calibration frames themselves sit beyond twice their bound.
     assert model.info["calibration_error_ratio"] > 2.0
     assert without.stale.mean() >= 0.9 and set(without.stale_reason[without.stale]) == {"geometry"}
+
+
+def _frame_by_frame(monitor, columns):
+    """The monitor shown one sign per frame, as live tracking does (the reference for observe_many)."""
+    from graytrack.core.validity import SIGN_FIELDS
+
+    return [monitor.observe(FrameSign(**dict(zip(SIGN_FIELDS, row)))).reason
+            for row in zip(*(columns[name] for name in SIGN_FIELDS))]
+
+
+@pytest.mark.parametrize("later", ["glare:gray=20", "light_change:gain=0.4:start_s=2", "defocus:sigma_um=400",
+                                   "bad_pixels:stuck=1:dead=0:hot=0:row=0:pixel=40:start_s=2.5",
+                                   "glints:p=0.6", "pitch_scale:ppm=300", "smudge"])
+def test_batch_tracking_flags_what_the_monitor_flags_frame_by_frame(model, later, monkeypatch):
+    """Batch tracking shows the monitor a chunk of frames at once (each watch over columns): the
+    same frames stale, for the same reasons, as when every frame's sign is shown on its own;
+    across chunk boundaries and repeated images (which keep the verdict before them)."""
+    import graytrack.core.tracking as tracking
+
+    run, _ = build_rig("paper", later, seed=3, run=1).record(8.0)
+    frames = run.frames.copy()
+    frames[[50, 51, 130, 200]] = frames[[49, 50, 129, 199]]  # a driver's double deliveries
+    monkeypatch.setattr(tracking, "BATCH_CHUNK", 64)
+    batched = track(model, frames, reference=run.reference, light="auto", robust=True)
+    monkeypatch.setattr(Monitor, "observe_many", _frame_by_frame)
+    single = track(model, frames, reference=run.reference, light="auto", robust=True)
+    assert batched.repeated.sum() >= 3
+    np.testing.assert_array_equal(batched.stale, single.stale)
+    np.testing.assert_array_equal(batched.stale_reason, single.stale_reason)
+    np.testing.assert_array_equal(batched.x_mm, single.x_mm)
+    if later.startswith(("glare", "light_change", "defocus")):
+        assert batched.stale.mean() > 0.5
