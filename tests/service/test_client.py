@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import importlib.util
 import math
+import re
 import socket
 import time
 from collections.abc import Iterator
@@ -252,7 +253,11 @@ def test_the_example_motion_loop_visits_its_targets_or_stops_on_the_daemons_word
         assert [line.split()[1] for line in lines if line.startswith("at ")] == ["3", "8"]
         assert "stop" not in events
     else:  # a loaded machine can make the daemon flag its model (seen: "scale") or re-acquire mid-move
-        assert code == 1 and len([line for line in lines if "not usable" in line]) == 1, lines
+        stops = [line for line in lines if "not usable" in line]
+        assert code == 1 and len(stops) == 1 and "stop" in events, (lines, events)
+        age_ms = re.search(r"age ([0-9.]+) ms", stops[0])
+        if age_ms and float(age_ms.group(1)) > 2000.0:
+            return  # the daemon's frame thread waited for a core: stale by age, no event to say so
         # a frame with a lock event (lost, re-acquired, repeated) is sent with locked false
         unusable = {"model_stale", "lock_lost", "lock_reacquired", "frame_repeated"}
-        assert events & unusable and "stop" in events, f"stopped on what the daemon said: {events}"
+        assert events & unusable, f"stopped on what the daemon said: {events}, {stops[0]}"
