@@ -174,7 +174,10 @@ def check_geometry(data: CalibrationData, model: FourierModel, rmse_gray: float 
             cause, text = faults[0]
             return replace(base, status="refused", cause=cause, message=f"{residual}: {text}",
                            warnings=tuple(t for c, t in findings if (c, t) != faults[0]))
-        findings.append(("residual", f"{residual}: the model misses much of what the images show "
+        stream = model.info.get("stream")
+        findings.append(("residual", f"{residual}: the frames' JPEG quantisation (quality ~{stream['quality']}), "
+                                     "which no model describes" if stream else
+                                     f"{residual}: the model misses much of what the images show "
                                      f"(graytrack diagnose looks for what)"))
     if not findings:
         return base

@@ -64,6 +64,8 @@ def test_positions_from_a_jpeg_stream_carry_the_bound_its_quantisation_leaves_an
     assert error > 3.0 * bound / stream["bound_factor"]  # ... which the sensor's alone would have missed
     assert model.info["calibration_error_ratio"] > 2.0 and not result.stale.any()  # > 2 against the sensor alone
     assert any("JPEG stream" in line for line in CalibrationRun("paper", model, {}, None, None).warnings())
+    residual = [text for text in model.info["geometry"]["warnings"] if text.startswith("the residual")]
+    assert residual and all("JPEG quantisation" in text for text in residual)  # not "the model misses much"
 
 
 def test_raw_frames_keep_the_sensors_bound():
