@@ -19,10 +19,40 @@ from graytrack.core.models.fourier import FourierModel
 
 MAX_FRAMES = 400  # frames looked at (evenly spread): the ratio is a statistic, not a census
 INADEQUATE_RATIO = 2.0  # beyond this, every position the model gives is flagged (core/watches/adequacy.py)
+PROFILE_FRAMES = 25  # calibration frames per stretch of the stroke in the local error profile (its ratio to ~15 %)
 
 
-def error_ratio(model: FourierModel, data: CalibrationData) -> float:
-    """rms of the per-frame position bias the residual implies over the rms of the frames' bounds."""
+def error_ratio(errors: tuple[np.ndarray, np.ndarray, np.ndarray] | None) -> float:
+    """rms of the per-frame position bias the residual implies over the rms of the frames' bounds
+    (``errors``: :func:`frame_errors`)."""
+    return float("nan") if errors is None else float(np.sqrt(np.mean(errors[1] ** 2) / np.mean(errors[2])))
+
+
+def error_profile(x_mm: np.ndarray, error_mm: np.ndarray, bound2_mm2: np.ndarray) -> dict[str, list[float]] | None:
+    """rms error over rms bound, stretch by stretch along the stroke (equal numbers of frames,
+    :data:`PROFILE_FRAMES` each): ``{"edges_mm": [B + 1], "ratio": [B]}``; None for too few frames.
+
+    A model can be at its bound over most of the stroke and far off where the print has what it
+    lacks (a scratch the Fourier terms cannot follow): a ratio over the whole stroke averages that
+    away, the frames there are wrong all the same, and on every run (core/watches/adequacy.py
+    flags them). The calibration's own frames tracked as tracking will are what to measure it on
+    (core/calibration_line.py): their errors come out as a run's do.
+    """
+    if x_mm.size < 2 * PROFILE_FRAMES:
+        return None
+    order = np.argsort(x_mm)
+    x, error, bound2 = x_mm[order], error_mm[order], bound2_mm2[order]
+    stretches = np.array_split(np.arange(x.size), x.size // PROFILE_FRAMES)
+    ratio = [float(np.sqrt(np.mean(error[s] ** 2) / np.mean(bound2[s]))) for s in stretches]
+    # each stretch reaches half-way to its neighbours' frames; the ends, the calibrated stroke's
+    inner = [0.5 * (x[s[-1]] + x[t[0]]) for s, t in zip(stretches[:-1], stretches[1:])]
+    edges = [float(x[0])] + [float(v) for v in inner] + [float(x[-1])]
+    return {"edges_mm": [round(v, 6) for v in edges], "ratio": [round(v, 3) for v in ratio]}
+
+
+def frame_errors(model: FourierModel, data: CalibrationData) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """(x mm, position bias mm, bound² mm²) of the calibration frames looked at (up to
+    :data:`MAX_FRAMES`, evenly spread) that the model can place; None when it places none."""
     n_frames = data.frames.shape[0]
     picked = np.unique(np.linspace(0, n_frames - 1, min(n_frames, MAX_FRAMES)).astype(int))
     x = data.x_mm[picked]
@@ -42,9 +72,10 @@ def error_ratio(model: FourierModel, data: CalibrationData) -> float:
     score = np.einsum("kp,kpi,kp->ki", weights, basis, residual)
     usable = np.linalg.det(fisher) > 0
     if not usable.any():
-        return float("nan")
+        return None
     fisher, score, weights, residual, slopes = fisher[usable], score[usable], weights[usable], residual[usable], \
         slopes[usable]
+    x = x[usable]
     free_shift = np.linalg.solve(fisher, score[..., None])[:, 0, 0]
     free_bound2 = np.linalg.inv(fisher)[:, 0, 0]  # x with the gain and offset profiled out
     # As the tracker solves a frame (Tracker.solve): the light held at calibration unless the model
@@ -58,7 +89,7 @@ def error_ratio(model: FourierModel, data: CalibrationData) -> float:
     free = np.full(chi2.shape, bool(model.common_mode)) | (chi2 > limit)
     shift = np.where(free, free_shift, held_shift)
     bound2 = np.where(free, free_bound2, 1.0 / fisher[:, 0, 0])
-    return float(np.sqrt(np.mean(shift * shift)) / np.sqrt(np.mean(bound2)))
+    return x, shift, bound2
 
 
 def inadequacy(info: dict) -> str | None:
@@ -83,7 +114,8 @@ def assessed(model: FourierModel, data: CalibrationData) -> FourierModel:
         factor = stream_factor(model, data, finding.table)
         model.info["stream"] = {"kind": "jpeg", "quality": finding.quality, "bound_factor": round(factor, 3)}
         model.info["calibration_chi2"] = chi2_as_tracked(model, data)
-    ratio = error_ratio(model, data)
+    errors = frame_errors(model, data)
+    ratio = error_ratio(errors)
     model.info["calibration_error_ratio"] = round(ratio, 3) if np.isfinite(ratio) else None
     return model
 

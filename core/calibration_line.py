@@ -10,6 +10,7 @@ import math
 
 import numpy as np
 
+from graytrack.core.adequacy import error_profile
 from graytrack.core.noise import reference_resolution_mm
 from graytrack.core.reference_monitor import MIN_FRAMES, Line, ReferenceMonitor, structure_um
 from graytrack.core.tracking import track
@@ -18,7 +19,8 @@ from graytrack.core.tracking import track
 def record_calibration_line(model, recording) -> Line | None:
     """Track the calibration ``recording`` with the ``model`` fitted to it, as tracking will, and keep
     the line camera − grating in ``model.info["reference_line"]``: the agreement drift is measured
-    from. None (and nothing kept) when the recording has no grating reading or too few frames."""
+    from; and how far off the line its frames are, stretch by stretch along the stroke, against their
+    bound (``calibration_error_profile``: where the model cannot measure at its bound). None (and nothing kept) when the recording has no grating reading or too few frames."""
     reference = np.asarray(recording.reference, dtype=np.float64)
     if np.isfinite(reference).sum() < MIN_FRAMES:
         return None
@@ -37,7 +39,12 @@ def record_calibration_line(model, recording) -> Line | None:
     if line is not None:
         model.info["reference_line"] = line.as_dict()
         usable = result.locked & np.isfinite(result.x_mm) & np.isfinite(reference)
-        model.info["reference_structure_um"] = round(structure_um(
-            reference[usable], (result.x_mm[usable] - reference[usable]) * 1e3 - line.at_um(reference[usable]),
-            result.crlb_mm[usable] * 1e3), 4)
+        off_line_um = (result.x_mm[usable] - reference[usable]) * 1e3 - line.at_um(reference[usable])
+        model.info["reference_structure_um"] = round(structure_um(reference[usable], off_line_um,
+                                                                  result.crlb_mm[usable] * 1e3), 4)
+        # the error about its mean, as a run's error is judged: a line would take in part of a model's error
+        # that is no line (a scratch's stretch), and hide it
+        error_mm = result.x_mm[usable] - reference[usable]
+        bound2 = result.crlb_mm[usable] ** 2 + monitor.reference_sigma_mm**2  # the grating's rounding is in the error
+        model.info["calibration_error_profile"] = error_profile(reference[usable], error_mm - error_mm.mean(), bound2)
     return line

@@ -49,7 +49,12 @@ import numpy as np
 from graytrack.core.adequacy import inadequacy
 
 DEFAULT_WINDOW = 500  # frames in the sliding window
-MIN_FRAMES = 30  # frames before the window says anything
+# frames before the window says anything: its test (χ² beyond z_on², the covariance scaled up by the
+# window's own scatter) holds its false alarms at a few frames too, and every frame waited for is a
+# frame a grown print places unflagged (a 16-row strip 250 ppm off: 3.6 bounds each, the first 29
+# frames made the trimmed run 1.41× its bound, the first 5 make it 1.19×)
+MIN_FRAMES = 6
+JUMP_FRAMES = 15  # outliers in a row that say the line itself jumped (a glint lasts a few frames: more than that)
 Z_ON, Z_OFF = 5.0, 3.0  # drift significance (σ) to raise and to clear the flag
 FLOOR_UM = 0.2  # the smallest error over the stroke worth a flag (below a grating ruler's certified accuracy)
 PRIOR_SCALE_PPM = 1000.0  # standard deviation of the prior on the scale: unobservable while the stage rests
@@ -218,7 +223,7 @@ class ReferenceMonitor:
             self._outliers = 0
             return False
         self._outliers += 1
-        if self._outliers < max(self.min_frames // 2, 3):
+        if self._outliers < JUMP_FRAMES:
             return True
         baseline, stale = self.baseline, self.stale
         self.reset()  # a jump: the old window no longer describes the line

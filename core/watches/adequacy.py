@@ -1,11 +1,26 @@
 """A model that errs beyond its bound on its own calibration frames (core/adequacy.py) cannot
 measure at its bound on any run: every position it gives is flagged, for ``geometry`` (the images
-are not what the model describes), from the first frame on."""
+are not what the model describes), from the first frame on.
+
+The same holds stretch by stretch along the stroke (``calibration_error_profile``): a model at its
+bound over most of the stroke may err several bounds where the print has what it lacks (a
+scratch, a flaw of the print the Fourier terms cannot follow). Its frames there are flagged on
+every run, since the model will err there again: the global ratio would average them away.
+"""
 
 from __future__ import annotations
 
-from graytrack.core.adequacy import inadequacy
+import bisect
+import math
+
+from graytrack.core.adequacy import INADEQUATE_RATIO, PROFILE_FRAMES, inadequacy
+from graytrack.core.compression import stream_bound_factor
 from graytrack.core.validity import FrameSign
+
+# a stretch is flagged beyond the global limit plus the ratio's own noise over its frames (an
+# rms of ~PROFILE_FRAMES errors at the bound scatters by 1/√(2n)): a model at its bound is not
+# flagged on the stretch its noise happened to lift
+LOCAL_LIMIT = INADEQUATE_RATIO * (1.0 + 1.0 / math.sqrt(2.0 * PROFILE_FRAMES))
 
 
 class AdequacyWatch:
@@ -20,5 +35,36 @@ class AdequacyWatch:
         return "geometry"
 
 
-def make(tracker) -> AdequacyWatch | None:
-    return AdequacyWatch() if inadequacy(tracker.model.info) else None
+class LocalAdequacyWatch:
+    """Flags the frames placed in a stretch of the stroke where the calibration erred beyond
+    :data:`LOCAL_LIMIT` times its bound."""
+
+    family = "geometry"
+    reads = ("placed", "x_mm")
+
+    def __init__(self, edges_mm: list[float], off: list[bool]) -> None:
+        self.edges, self.off = edges_mm, off
+
+    def observe(self, sign: FrameSign) -> str | None:
+        return self.step(sign.placed, sign.x_mm)
+
+    def step(self, placed: bool, x_mm: float) -> str | None:
+        if not placed or not self.edges[0] <= x_mm <= self.edges[-1]:  # (NaN fails both)
+            return None
+        stretch = min(bisect.bisect_right(self.edges, x_mm) - 1, len(self.off) - 1)
+        return self.family if self.off[stretch] else None
+
+
+def make(tracker) -> AdequacyWatch | LocalAdequacyWatch | None:
+    info = tracker.model.info
+    if inadequacy(info):
+        return AdequacyWatch()
+    profile = info.get("calibration_error_profile")
+    if not isinstance(profile, dict):
+        return None
+    limit = LOCAL_LIMIT * stream_bound_factor(info)
+    off = [ratio is not None and ratio > limit for ratio in profile.get("ratio", [])]
+    edges = profile.get("edges_mm", [])
+    if not any(off) or len(edges) != len(off) + 1:
+        return None
+    return LocalAdequacyWatch([float(v) for v in edges], off)

@@ -319,6 +319,7 @@ class VirtualRig:
         acc = np.zeros((xs.shape[0], R, n))
         tcfg, icfg = self.config.target, self.config.illumination
         blur = self.config.optics.defocus_sigma_mm
+        aperture = self.pixel_pitch_mm  # a pixel's footprint on the target (fill factor 1)
         t_frame = t[:, None, None] if tcfg.growths else None
         for q in range(points.shape[1]):
             xq = points[:, q]
@@ -341,7 +342,7 @@ class VirtualRig:
             if tcfg.defects:  # printed on the target: they move with it when it grows
                 x_print = tgt.printed_coordinate(tcfg, x_w, t_frame)
                 for r in range(R):
-                    light[:, r] *= tgt.defect_gain(tcfg.defects, x_print[:, r], float(self._row_y[r]), blur)
+                    light[:, r] *= tgt.defect_gain(tcfg.defects, x_print[:, r], float(self._row_y[r]), blur, aperture)
             acc += light
         return acc / points.shape[1]
 

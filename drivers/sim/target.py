@@ -188,27 +188,42 @@ def _apply_gamma(coeffs: np.ndarray, gamma: float, n_orders: int) -> np.ndarray:
     return out
 
 
-def defect_gain(defects: list[Defect], x_w: np.ndarray, y_mm: float, blur_sigma_mm: float = 0.0) -> np.ndarray:
-    """Multiplicative gain of the defects along a line of constant y (the row's y on the target).
+def defect_gain(defects: list[Defect], x_w: np.ndarray, y_mm: float, blur_sigma_mm: float = 0.0,
+                aperture_mm: float = 0.0) -> np.ndarray:
+    """Multiplicative gain of the defects along a line of constant y (the row's y on the target),
+    as a pixel of footprint ``aperture_mm`` (square, on the target) centred at each ``x_w`` sees it.
 
     Optical blur (defocus) widens each Gaussian defect and lowers its peak exactly as a Gaussian
-    convolution does: σ² → σ² + σ_b², depth × σ/σ' per blurred dimension.
+    convolution does: σ² → σ² + σ_b², depth × σ/σ' per blurred dimension. A pixel then averages the
+    light over its footprint: a defect narrower than a pixel is a box-smoothed step in x_w, never a
+    spike its centre alone would see (a real sensor has no point pixels; a model would otherwise be
+    asked for detail no camera delivers).
     """
     gain = np.ones_like(x_w, dtype=np.float64)
+    half = 0.5 * max(float(aperture_mm), 0.0)
     for d in defects:
         s = math.hypot(d.size_mm, blur_sigma_mm)
         shrink = d.size_mm / s
         if d.kind == "dust":
-            depth = d.depth * shrink**2 * math.exp(-((y_mm - d.y_mm) ** 2) / (2 * s * s))
+            depth = d.depth * shrink**2 * _box_mean(y_mm - d.y_mm, s, half)
             x_centre, sx = d.x_mm, s
         elif d.kind == "scratch":
             depth = d.depth * shrink
             x_centre, sx = d.x_mm + (y_mm - d.y_mm) * math.tan(d.angle_rad), s / math.cos(d.angle_rad)
         else:
             raise ValueError(f"unknown defect kind {d.kind!r}")
-        # a Gaussian is nil beyond 8σ: evaluate only the pixels near the defect
-        near = np.abs(x_w - x_centre) < 8 * sx
+        # a Gaussian is nil beyond 8σ (and half a footprint): evaluate only the pixels near the defect
+        near = np.abs(x_w - x_centre) < 8 * sx + half
         if depth and near.any():
-            dx = x_w[near] - x_centre
-            gain[near] *= 1 - depth * np.exp(-(dx * dx) / (2 * sx * sx))
+            gain[near] *= 1 - depth * _box_mean(x_w[near] - x_centre, sx, half)
     return gain
+
+
+def _box_mean(offset, sigma: float, half: float):
+    """The mean of ``exp(−u²/2σ²)`` over ``u ∈ offset ± half`` (``half = 0``: the value at ``offset``)."""
+    if half <= 0.0:
+        return np.exp(-np.square(offset) / (2 * sigma * sigma))
+    from scipy.special import ndtr
+
+    scale = sigma * math.sqrt(2 * math.pi) / (2 * half)
+    return scale * (ndtr((np.asarray(offset) + half) / sigma) - ndtr((np.asarray(offset) - half) / sigma))

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from graytrack.core.reference_monitor import ReferenceMonitor, Trimmer, follow
+from graytrack.core.reference_monitor import MIN_FRAMES, ReferenceMonitor, Trimmer, follow
 from graytrack.core.validity import FrameSign, Monitor
 from graytrack.core.watches.scale import ScaleWatch
 
@@ -98,7 +98,8 @@ def test_the_watch_blames_scale_through_the_validity_monitor():
     verdicts = [monitor.observe(FrameSign(k, information=BOUND_MM ** -2, x_mm=xi, reference_mm=ri))
                 for k, (xi, ri) in enumerate(zip(x, ref))]
     assert verdicts[-1].stale and verdicts[-1].reason == "scale"
-    assert not any(v.stale for v in verdicts[:29])  # fewer frames than the window needs
+    assert not any(v.stale for v in verdicts[:MIN_FRAMES - 1])  # fewer frames than the window needs
+    assert any(v.stale for v in verdicts[:3 * MIN_FRAMES])  # 3 µm at a 1.5 µm bound: evident within a few frames
     unread = Monitor([ScaleWatch(_monitor())])
     assert not any(unread.observe(FrameSign(k, information=BOUND_MM ** -2, x_mm=xi)).stale
                    for k, xi in enumerate(x))  # no grating reading: nothing to say

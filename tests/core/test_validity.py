@@ -149,6 +149,44 @@ def test_a_model_the_run_does_not_repeat_is_flagged_by_the_grating():
     assert without.stale.mean() >= 0.9 and set(without.stale_reason[without.stale]) == {"geometry"}
 
 
+def test_a_model_off_on_a_stretch_of_its_own_calibration_flags_positions_there():
+    """Scratches the seed paper's model cannot follow: over the whole stroke its calibration frames
+    sit within twice their bound, but on the stretches near the scratches several bounds off. The
+    calibration keeps that profile; every run is flagged there (``geometry``) and not elsewhere,
+    and the closed loop's model, which maps the scratches, is flagged nowhere."""
+    from graytrack.core.diagnosis import diagnose
+    from graytrack.core.watches.adequacy import LOCAL_LIMIT
+
+    calibration, _ = build_rig("paper", "scratches:count=3", seed=3).record(20.0)
+    run, _ = build_rig("paper", "scratches:count=3", seed=3, run=1).record(10.0)
+    plain = calibrate(calibration, "paper").model
+    assert plain.info["calibration_error_ratio"] < 2.0
+    profile = plain.info["calibration_error_profile"]
+    edges, ratio = np.array(profile["edges_mm"]), np.array(profile["ratio"])
+    assert ratio.max() > 1.5 * LOCAL_LIMIT and ratio.min() < 1.2
+    result = track(plain, run, light="auto", robust=True)
+    stretch = np.clip(np.searchsorted(edges, result.x_mm, side="right") - 1, 0, ratio.size - 1)
+    off = ratio[stretch] > LOCAL_LIMIT
+    assert off.mean() > 0.3
+    assert result.stale[off].all() and set(result.stale_reason[off]) == {"geometry"}
+    error = result.error_um(run.reference)
+    assert np.nanstd(error) > 2 * np.sqrt(np.nanmean(np.square(result.crlb_mm * 1e3)))
+    assert result.stale.mean() >= 0.9
+    loop = diagnose(calibration).final_model
+    assert max(loop.info["calibration_error_profile"]["ratio"]) < LOCAL_LIMIT
+    assert track(loop, run, light="auto", robust=True).stale.mean() < 0.01
+
+
+def test_the_local_watch_flags_only_the_stretches_beyond_its_limit():
+    from graytrack.core.watches.adequacy import LocalAdequacyWatch
+
+    watch = LocalAdequacyWatch([0.0, 1.0, 2.0, 3.0], [False, True, False])
+    steps = [watch.step(True, x) for x in (-0.5, 0.0, 0.99, 1.0, 1.5, 2.0, 3.0, 3.5, float("nan"))]
+    assert steps == [None, None, None, "geometry", "geometry", None, None, None, None]
+    assert watch.step(False, 1.5) is None
+    assert watch.observe(FrameSign(0, x_mm=1.5)) == "geometry"
+
+
 def _frame_by_frame(monitor, columns):
     """The monitor shown one sign per frame, as live tracking does (the reference for observe_many)."""
     from graytrack.core.validity import SIGN_FIELDS

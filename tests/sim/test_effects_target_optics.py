@@ -100,6 +100,32 @@ def test_scratches_are_bright_lines_at_an_angle_across_rows():
     assert slope == pytest.approx(math.tan(math.radians(30)), rel=0.03)
 
 
+def test_a_defect_narrower_than_a_pixel_is_averaged_over_the_pixel_footprint():
+    """A pixel integrates the light over its footprint: a 15 µm scratch seen by 62 µm pixels is a
+    box-smoothed dip whose area (depth × σ√2π) is the scratch's own, its peak lowered to that area
+    over the footprint; the scratch's centre at the pixel's centre or at its edge changes the
+    reading continuously, never the spike a point sample would give."""
+    from graytrack.drivers.sim.target import Defect, defect_gain
+
+    sigma, depth, footprint = 0.015, 0.5, 0.062
+    scratch = [Defect("scratch", 0.0, 0.0, sigma, depth)]
+    x = np.linspace(-0.3, 0.3, 6001)
+    point = defect_gain(scratch, x, 0.0)
+    pixel = defect_gain(scratch, x, 0.0, aperture_mm=footprint)
+    area = depth * sigma * math.sqrt(2 * math.pi)
+    dx = x[1] - x[0]
+    assert np.sum(1 - point) * dx == pytest.approx(area, rel=1e-4)
+    assert np.sum(1 - pixel) * dx == pytest.approx(area, rel=1e-4)
+    assert 1 - point.min() == pytest.approx(depth, rel=1e-6)
+    assert 1 - pixel.min() == pytest.approx(area / footprint * math.erf(footprint / 2 / sigma / math.sqrt(2)),
+                                            rel=1e-4)
+    # half a footprint off the scratch, the pixel sees half of the scratch; a point sample far less
+    edge = np.argmin(np.abs(x - footprint / 2))
+    assert 1 - pixel[edge] == pytest.approx(0.5 * area / footprint * math.erf(footprint / sigma / math.sqrt(2)),
+                                            rel=1e-3)
+    assert 1 - point[edge] < 0.5 * (1 - pixel[edge])
+
+
 def test_defocus_attenuates_harmonic_i_by_gaussian_mtf():
     sigma, tau = 0.3, paper.PERIOD_MM
     amps = harmonic_amplitudes(one_period(quiet_rig(effects=["harmonics:h2=0.1:h3=0", f"defocus:sigma_um={sigma * 1e3}"])))
