@@ -119,3 +119,21 @@ def test_a_stage_resting_at_two_places_does_not_take_the_gratings_rounding_for_a
     naive_flags = [naive.observe(xi, ri, 0.38e-3) for xi, ri in zip(x, ref)]
     assert any(naive_flags)  # what it guards against: 0.8 µm of rounding across 6 mm seen as 130 ppm
     assert not any(flags)
+
+
+def test_the_trim_follows_every_clear_improvement_but_logs_only_large_ones():
+    """A trim taken on the first frames of a sweep extrapolates its scale over the stroke it has not
+    seen: it is refined quietly whenever a window knows the line clearly better, and only the
+    large steps are events (the daemon's log is not a trace)."""
+    x, ref = _sweep(500, scale_ppm=-250.0, offset_um=3.0, seed=4)
+    trimmer = Trimmer(_monitor())
+    events, trims = [], []
+    for xi, ri in zip(x, ref):
+        if trimmer.observe(xi, ri, BOUND_MM) is not None:
+            events.append(trimmer.trim)
+        if trimmer.trim is not None and (not trims or trims[-1] is not trimmer.trim):
+            trims.append(trimmer.trim)
+    assert events and len(trims) > 2 * len(events)
+    final = trimmer.trim
+    assert abs(final.scale_ppm + 250.0) < 4 * final.scale_sigma_ppm
+    assert final.scale_sigma_ppm < trimmer.logged.scale_sigma_ppm / 0.95 or final is trimmer.logged
