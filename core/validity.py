@@ -116,6 +116,7 @@ class Monitor:
         reason is chosen as :meth:`observe` chooses it. Returns the reason of every frame (None:
         not stale); the verdict is left at the last frame's."""
         n = len(columns["frame"])
+        columns = columns if isinstance(columns, Columns) else Columns(columns)
         reasons: list[str | None] = [None] * n
         ranks = [len(FAMILIES)] * n
         for watch in self.watches:
@@ -131,8 +132,35 @@ class Monitor:
         return reasons
 
 
+class Columns(dict):
+    """Frames' signs as columns (one list per field of :class:`FrameSign`), each also as a numpy
+    array once a watch asks for it (:meth:`array`), made once for every watch that reads it."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._arrays: dict[str, Any] = {}
+
+    def array(self, name: str, dtype: Any = None) -> Any:
+        import numpy as np
+
+        key = f"{name}:{dtype}"
+        value = self._arrays.get(key)
+        if value is None:
+            value = self._arrays[key] = np.asarray(self[name], dtype=dtype)
+        return value
+
+
 def _observe_all(watch: Watch, columns: dict[str, list], n: int) -> list[str | None]:
-    """One watch over ``n`` frames of columns: by its ``step`` on the fields it reads, else sign by sign."""
+    """One watch over ``n`` frames of columns: by its ``step_many`` when it has one and takes
+    these frames at once (returns None when it does not), else by its ``step`` on the fields it
+    reads, else sign by sign. ``step_many`` gives what ``step`` gives frame by frame."""
+    many = getattr(watch, "step_many", None)
+    if many is not None and n:
+        if not isinstance(columns, Columns):
+            columns = Columns(columns)
+        families = many(columns, n)
+        if families is not None:
+            return families
     reads = getattr(watch, "reads", None)
     if reads is None:
         return [watch.observe(FrameSign(**dict(zip(SIGN_FIELDS, row))))

@@ -271,7 +271,8 @@ def _transient_run(state, placed, transient_px, at, frame, window, start_frame, 
                 blamed = 1 if wandering else 2
         out[i] = blamed
     state[0], state[1], state[2] = share, place, place_sq
-    state[3], state[4], state[5], state[6] = float(has_share), float(has_place), float(has_sq), float(blamed)
+    state[3], state[4], state[5] = 1.0 if has_share else 0.0, 1.0 if has_place else 0.0, 1.0 if has_sq else 0.0
+    state[6] = blamed
 
 
 def _bound_run(state, blame, table, start, grid_step, placed, information, x, rows_averaged, gain, free_light,
@@ -312,7 +313,7 @@ def _bound_run(state, blame, table, start, grid_step, placed, information, x, ro
             if blame[f] > blame[best]:
                 best = f
         out[i] = best if blame[best] > 0.1 else 4
-    state[0], state[1], state[2] = float(has_kept), kept_avg, float(has_blame)
+    state[0], state[1], state[2] = 1.0 if has_kept else 0.0, kept_avg, 1.0 if has_blame else 0.0
 
 
 if COMPILED:

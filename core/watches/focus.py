@@ -89,6 +89,22 @@ class FocusWatch:
         moved = abs(self.change_px2) > self.z * self.change_sigma_px2 and beyond > self.min_change_px2
         return self.family if moved and self._a_blur() else None
 
+    def step_many(self, columns, n: int) -> list[str | None] | None:
+        """:meth:`step` of ``n`` frames at once when none brings an estimate and the window holds
+        too few to judge (the common case: the focus was not solved); else None: frame by frame."""
+        import numpy as np
+
+        if len(self._estimates) >= self.min_frames:
+            return None
+        sigma, focus = columns.array("focus_sigma", np.float64), columns.array("focus", np.float64)
+        if (np.isfinite(sigma) & (sigma > 0.0) & np.isfinite(focus)).any():
+            return None
+        if self._estimates and (self._missing + n >= self.window or columns.array("field", bool).any()):
+            self._estimates.clear()
+        self._missing += n
+        self.change_px2 = self.change_sigma_px2 = float("nan")
+        return [None] * n
+
     def _a_blur(self) -> bool:
         """The window's estimates hold still (scatter about their median as their errors say) and
         the focus explains the frames (their median χ² within the limit)."""

@@ -73,3 +73,91 @@ def test_follow_without_trim_as_frame_by_frame(monkeypatch):
     assert fast.final == slow.final
     for name in ("stale", "x_mm", "trim_um", "trim_sigma_um"):
         assert np.array_equal(getattr(fast, name), getattr(slow, name))
+
+
+def sign_columns(n: int, seed: int) -> dict[str, list]:
+    """Frames' signs that make every watch speak somewhere: a dimmed light solved, transients that
+    wander then stay put, information lost, the camera scattering off the grating, gaps, suspect χ²."""
+    from graytrack.core.validity import SIGN_FIELDS
+
+    rng = np.random.default_rng(seed)
+    k = np.arange(n)
+    stretch = lambda a, b: (k >= a * n) & (k < b * n)  # noqa: E731
+    x = 2.0 + 6.0 * (k / n) + rng.normal(size=n) * 1e-4
+    reference = x + rng.normal(size=n) * np.where(stretch(0.6, 0.8), 2e-3, 1e-4)
+    reference[rng.random(n) < 0.03] = np.nan
+    x = x + np.where(k > 0.8 * n, 1e-3 * (x - 5.0) + 2e-3, 0.0)  # a scale drift at the end
+    information = 1e8 * (1.0 + 0.1 * rng.random(n)) * np.where(stretch(0.3, 0.5), 0.3, 1.0)
+    information[rng.random(n) < 0.01] = np.nan
+    transient = np.where(stretch(0.1, 0.3) & (rng.random(n) < 0.8), rng.integers(1, 9, n), 0)
+    at = np.where(stretch(0.1, 0.2), rng.uniform(0, 100, n), 40.0 + rng.normal(size=n))
+    columns = {
+        "frame": k.tolist(), "chi2": (1.0 + rng.random(n)).tolist(), "information": information.tolist(),
+        "information_calibrated": [float("nan")] * n,
+        "gain": np.where(stretch(0.4, 0.7), 0.4, 1.0 + 0.01 * rng.normal(size=n)).tolist(),
+        "offset_gray": [0.0] * n, "focus": np.where(rng.random(n) < 0.1, 0.3, 0.0).tolist(),
+        "focus_sigma": [float("nan")] * n, "rejected_px": np.where(stretch(0.35, 0.45), 2, 0).tolist(),
+        "transient_px": transient.tolist(), "transient_at": np.where(transient > 0, at, np.nan).tolist(),
+        "x_mm": x.tolist(), "reference_mm": reference.tolist(), "placed": (rng.random(n) > 0.02).tolist(),
+        "rows_averaged": [1] * n, "free_light": (stretch(0.35, 0.75) | (rng.random(n) < 0.05)).tolist(),
+        "field": (rng.random(n) < 0.02).tolist(), "chi2_average": [1.0] * n,
+        "chi2_suspect": stretch(0.45, 0.47).tolist(), "chi2_stale": [False] * n, "explain": [None] * n}
+    assert set(columns) == set(SIGN_FIELDS)
+    return columns
+
+
+def watches():
+    from graytrack.core.watches.bound import BoundWatch
+    from graytrack.core.watches.chi2 import ChiSquareWatch
+    from graytrack.core.watches.focus import FocusWatch
+    from graytrack.core.watches.grating import GratingWatch
+    from graytrack.core.watches.light import LightWatch
+    from graytrack.core.watches.scale import ScaleWatch
+    from graytrack.core.watches.transients import TransientWatch
+
+    table = 1e8 * (1.0 + 0.5 * np.sin(np.linspace(0.0, 20.0, 700)) ** 2)
+    return {"bound": lambda: BoundWatch(1.0, 10.0 / 699, table), "chi2": ChiSquareWatch, "focus": FocusWatch,
+            "grating": lambda: GratingWatch(1.3), "light": LightWatch, "transients": TransientWatch,
+            "scale": lambda: ScaleWatch(ReferenceMonitor(5.0, 4.0, window=100, floor_um=0.01))}
+
+
+@pytest.mark.parametrize("name", sorted(watches()))
+def test_each_watch_many_frames_at_once_as_frame_by_frame(name):
+    """``step_many`` (chunk by chunk, as batch tracking calls it) gives ``step``'s families and state."""
+    from graytrack.core.validity import Columns, _observe_all
+
+    n = 3000
+    columns = sign_columns(n, 11)
+    make = watches()[name]
+    at_once, stepped = make(), make()
+    families = []
+    for start, stop in ((0, 1000), (1000, 1001), (1001, n)):
+        part = Columns({key: values[start:stop] for key, values in columns.items()})
+        families += _observe_all(at_once, part, stop - start)
+    expected = [stepped.step(*row) for row in zip(*(columns[field] for field in stepped.reads))]
+    assert families == expected
+    assert any(families) or name in ("chi2", "focus")
+    inner = lambda w: w.monitor if name == "scale" else w  # noqa: E731
+    assert vars(inner(at_once)).keys() == vars(inner(stepped)).keys()
+    for key, value in vars(inner(at_once)).items():
+        if key in ("_array",):
+            continue
+        other = vars(inner(stepped))[key]
+        assert value == other or (value != value and other != other), key
+
+
+def test_batch_tracking_gives_the_same_flags_compiled_or_stepped(monkeypatch, paper_models, paper_val):
+    """The whole validity monitor in batch ``track``: a dimmed light with a stuck pixel, then a scale
+    drift against the grating (flags for ``scale`` and more), the same compiled as frame by frame."""
+    from graytrack.core.tracking import track
+
+    model = paper_models["paper"].model
+    frames = paper_val.frames * np.float32(0.8) + np.float32(10.0)
+    frames[..., 37] = 255.0
+    reference = paper_val.reference * (1.0 + 4e-4 * (np.arange(paper_val.n_frames) > 300))
+    fast = track(model, frames, reference=reference, light="auto", robust=True)
+    monkeypatch.setattr(_kernels, "COMPILED", False)
+    slow = track(model, frames, reference=reference, light="auto", robust=True)
+    assert fast.stale.any() and set(fast.stale_reason[fast.stale]) >= {"scale"}
+    for name in ("x_mm", "crlb_mm", "locked", "chi2", "stale", "stale_reason", "rejected_px", "gain"):
+        assert np.array_equal(getattr(fast, name), getattr(slow, name), equal_nan=getattr(fast, name).dtype.kind == "f")
