@@ -161,3 +161,37 @@ def test_batch_tracking_gives_the_same_flags_compiled_or_stepped(monkeypatch, pa
     assert fast.stale.any() and set(fast.stale_reason[fast.stale]) >= {"scale"}
     for name in ("x_mm", "crlb_mm", "locked", "chi2", "stale", "stale_reason", "rejected_px", "gain"):
         assert np.array_equal(getattr(fast, name), getattr(slow, name), equal_nan=getattr(fast, name).dtype.kind == "f")
+
+
+def test_repeated_frames_keep_the_verdict_before_them_chunk_by_chunk():
+    """tracking._judge (vectorised) as the frame-by-frame rule: a shown frame takes the monitor's
+    reason, a repeated one the verdict of the frame before it (across chunks too)."""
+    from graytrack.core import tracking
+
+    def frame_by_frame(reasons, repeated, stale, stale_reason, start, stop):
+        reason = (str(stale_reason[start - 1]) or None) if start else None
+        reasons = iter(reasons)
+        for k in range(start, stop):
+            if not repeated[k]:
+                reason = next(reasons)
+            stale[k], stale_reason[k] = reason is not None, reason or ""
+
+    class Pending:
+        def __init__(self, reasons):
+            self.reasons = reasons
+
+        def verdicts(self):
+            return self.reasons
+
+    rng = np.random.default_rng(0)
+    for _ in range(300):
+        n = int(rng.integers(1, 40))
+        repeated = rng.random(n) < rng.choice([0.0, 0.3, 0.9, 1.0])
+        edges = sorted({0, n, *rng.integers(0, n, 3).tolist()})
+        expected = np.zeros(n, bool), np.full(n, "", "<U10")
+        got = np.zeros(n, bool), np.full(n, "", "<U10")
+        for start, stop in zip(edges[:-1], edges[1:]):
+            reasons = [rng.choice([None, "light", "scale"]) for _ in range(int((~repeated[start:stop]).sum()))]
+            frame_by_frame(reasons, repeated, *expected, start, stop)
+            tracking._judge(Pending(reasons), repeated, *got, start, stop)
+        assert np.array_equal(expected[0], got[0]) and np.array_equal(expected[1], got[1])
