@@ -282,7 +282,7 @@ class ReferenceMonitor:
             self.estimate = Line(e[0], e[1], (e[2], e[3], e[4]), e[5], int(e[6]), e[7])
         else:
             self.estimate = None
-        self._rows = [tuple(row) for row in rows.tolist()]
+        self._rows = list(map(tuple, rows.tolist()))
 
     def _is_outlier(self, d: float, r: float, var: float) -> bool:
         """A frame far off the window's line (a glint, a lost period): left out, unless a run of them
