@@ -195,3 +195,28 @@ def test_repeated_frames_keep_the_verdict_before_them_chunk_by_chunk():
             frame_by_frame(reasons, repeated, *expected, start, stop)
             tracking._judge(Pending(reasons), repeated, *got, start, stop)
         assert np.array_equal(expected[0], got[0]) and np.array_equal(expected[1], got[1])
+
+
+@pytest.mark.parametrize("share", [0.0, 0.01, 0.03, 0.5])
+def test_the_focus_watch_many_frames_at_once_as_frame_by_frame(share):
+    """Estimates on a few frames (the window never fills: taken at once, gaps and clearings as
+    frame by frame) or on many (judged frame by frame): the families and the window as ``step``'s."""
+    from graytrack.core.validity import Columns, _observe_all
+    from graytrack.core.watches.focus import FocusWatch
+
+    n = 3000
+    columns = sign_columns(n, 5)
+    rng = np.random.default_rng(5)
+    estimated = rng.random(n) < share
+    columns["focus_sigma"] = np.where(estimated, 0.05 + 0.01 * rng.random(n), np.nan).tolist()
+    columns["focus"] = np.where(estimated, 0.6 + 0.05 * rng.normal(size=n), 0.0).tolist()
+    at_once, stepped = FocusWatch(), FocusWatch()
+    families = []
+    for start, stop in ((0, 700), (700, 701), (701, 2000), (2000, n)):
+        part = Columns({key: values[start:stop] for key, values in columns.items()})
+        families += _observe_all(at_once, part, stop - start)
+    expected = [stepped.step(*row) for row in zip(*(columns[field] for field in stepped.reads))]
+    assert families == expected
+    assert list(at_once._estimates) == list(stepped._estimates) and at_once._missing == stepped._missing
+    if share == 0.5:
+        assert "focus" in families
