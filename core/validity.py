@@ -75,7 +75,11 @@ class Watch(Protocol):
     A watch may also name the fields of :class:`FrameSign` it reads (``reads``) and take them as
     arguments of ``step``: the monitor then feeds it many frames from columns without building a
     sign per frame (:meth:`Monitor.observe_many`, batch tracking); ``observe(sign)`` is ``step``
-    on one sign's fields, so both give the same verdicts."""
+    on one sign's fields, so both give the same verdicts. A watch may also take a whole chunk of
+    frames at once, ``step_many(columns, n) -> list of families`` (``columns`` a :class:`Columns`,
+    numpy arrays on request; core/watches/_kernels.py holds compiled loops), returning None for
+    frames it leaves to ``step``: it must give what ``step`` gives frame by frame, state included
+    (tests/core/test_watch_kernels.py holds each watch to that)."""
 
     family: str
     # A verdict on the model itself (refused or inadequate at calibration) outranks whatever a
