@@ -237,7 +237,8 @@ def orientation_mismatch(model: FourierModel, rec: Recording, frames_used: int =
     if valid.size < 10 or rec.n_pixels != model.n_pixels:
         return None
     pick = valid[np.linspace(0, valid.size - 1, min(frames_used, valid.size)).round().astype(int)]
-    strip = rec.strip()[pick]
+    picked = rec.frames[pick].astype(np.float64)  # only the frames used, as Recording.strip() gives them
+    strip = picked[:, None, :] if picked.ndim == 2 else picked
     predicted = model.predict(rec.reference[pick])
     seen = model.seen()  # masked pixels left out (broadcast over frames and rows)
 

@@ -44,9 +44,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from typing import Callable
+
 import numpy as np
 
 from graytrack.core.adequacy import inadequacy
+from graytrack.core.watches import _kernels
 
 DEFAULT_WINDOW = 500  # frames in the sliding window
 # frames before the window says anything: its test (χ² beyond z_on², the covariance scaled up by the
@@ -208,10 +211,87 @@ class ReferenceMonitor:
         new_place = not abs(reference_mm - self._last_reference) < max(self.resolution_mm, 1e-12)
         self._last_reference = reference_mm
         self._add(1.0 / var, d, r, float(new_place))
+        if self._since_recompute >= RECOMPUTE_EVERY:
+            self._recompute()
+        return self._added()
+
+    def _added(self) -> bool:
+        """A frame was added to the window: the line is fitted and tested again every few frames."""
         self._fed += 1
         if self._fed % UPDATE_EVERY == 0 or self._count == self.min_frames or self.stale:
             self._update()
         return self.stale
+
+    def observe_many(self, x_mm: np.ndarray, reference_mm: np.ndarray, bound_mm: np.ndarray, feed: np.ndarray,
+                     on_rise: Callable[[int], None] | None = None) -> np.ndarray:
+        """:meth:`observe` of each frame where ``feed`` is set, in order: the flag after every frame
+        (fed or not). ``on_rise(k)`` is called when the flag rises at frame k, the monitor then as
+        it stood after that frame. Compiled (core/watches/_kernels.py): the same numbers as
+        :meth:`observe` frame by frame, which it is without numba."""
+        n = len(x_mm)
+        stale = np.zeros(n, dtype=bool)
+        if not _kernels.COMPILED:
+            for k in range(n):
+                before = self.stale
+                if feed[k]:
+                    self.observe(float(x_mm[k]), float(reference_mm[k]), float(bound_mm[k]))
+                stale[k] = self.stale
+                if on_rise is not None and self.stale and not before:
+                    on_rise(k)
+            return stale
+        x, ref, bound = (np.ascontiguousarray(v, dtype=np.float64) for v in (x_mm, reference_mm, bound_mm))
+        feed = np.ascontiguousarray(feed, dtype=np.bool_)
+        ip, p, ist, fst, est, rows = self._packed()
+        start = 0
+        while start < n:
+            start, stop = _kernels._reference_run(ip, p, ist, fst, est, rows, x, ref, bound, feed, stale, start,
+                                                  on_rise is not None)
+            if stop == _kernels.DONE:
+                break
+            self._unpack(ist, fst, est, rows)
+            if stop == _kernels.RECOMPUTE:  # frame `start` was added; numpy re-sums the window, then it is finished
+                before = self.stale
+                self._recompute()
+                stale[start] = self._added()
+                if on_rise is not None and self.stale and not before:
+                    on_rise(start)
+                start += 1
+            else:
+                on_rise(start - 1)
+            ip, p, ist, fst, est, rows = self._packed()
+        self._unpack(ist, fst, est, rows)
+        return stale
+
+    def _packed(self) -> tuple[np.ndarray, ...]:
+        """The state as the compiled loop takes it (core/watches/_kernels.py names each slot)."""
+        def line(value: Line | None) -> list[float]:
+            return [1.0, value.offset_um, value.scale_ppm, *value.covariance] if value is not None else [0.0] * 6
+        ip = np.array([self.window, self.min_frames, max(self.min_frames // 2, 3), self.calibration_frames,
+                       RECOMPUTE_EVERY, UPDATE_EVERY], dtype=np.int64)
+        p = np.array([self.center_mm, self.half_stroke_mm, self.reference_sigma_mm, max(self.resolution_mm, 1e-12),
+                      max(self.floor_um, 0.5 * self.resolution_mm * 1e3), self.z_on ** 2, self.z_off ** 2,
+                      self._prior_weight(), 1.0 / self._prior_weight(), (self.reference_sigma_mm * 1e3) ** 2,
+                      self.calibration_structure_um ** 2, self.calibration_x_std_mm,
+                      *line(self.baseline), *line(self.calibration)], dtype=np.float64)
+        estimate = self.estimate
+        ist = np.array([self._count, self._next, self._since_recompute, self._outliers, self._fed, self.stale,
+                        estimate is not None], dtype=np.int64)
+        fst = np.array([*self._sums, self._places, self._scatter, self._last_reference, self.significance])
+        est = np.array([estimate.offset_um, estimate.scale_ppm, *estimate.covariance, estimate.center_mm,
+                        estimate.frames, estimate.mean_mm] if estimate is not None else [0.0] * 8)
+        return ip, p, ist, fst, est, np.array(self._rows, dtype=np.float64)
+
+    def _unpack(self, ist: np.ndarray, fst: np.ndarray, est: np.ndarray, rows: np.ndarray) -> None:
+        self._count, self._next, self._since_recompute, self._outliers, self._fed = (int(v) for v in ist[:5])
+        self.stale = bool(ist[5])
+        values = fst.tolist()
+        self._sums, (self._places, self._scatter, self._last_reference, self.significance) = values[:6], values[6:]
+        if ist[6]:
+            e = est.tolist()
+            self.estimate = Line(e[0], e[1], (e[2], e[3], e[4]), e[5], int(e[6]), e[7])
+        else:
+            self.estimate = None
+        self._rows = list(map(tuple, rows.tolist()))
 
     def _is_outlier(self, d: float, r: float, var: float) -> bool:
         """A frame far off the window's line (a glint, a lost period): left out, unless a run of them
@@ -223,7 +303,8 @@ class ReferenceMonitor:
         dd = d * 1e-3  # ppm·mm → µm
         var_o, cov, var_s = line.covariance
         spread = var * scatter + var_o + 2 * dd * cov + dd * dd * var_s
-        if (r - line.offset_um - line.scale_ppm * dd) ** 2 <= GATE * GATE * spread:
+        error = r - line.offset_um - line.scale_ppm * dd
+        if error * error <= GATE * GATE * spread:
             self._outliers = 0
             return False
         self._outliers += 1
@@ -260,11 +341,13 @@ class ReferenceMonitor:
         self._rows[slot] = (w, d, r, new_place)
         self._next = (slot + 1) % self.window
         self._since_recompute += 1
-        if self._since_recompute >= RECOMPUTE_EVERY:
-            rows = np.array(self._rows[: self._count] if self._count < self.window else self._rows)
-            self._sums = [float(v) for v in _terms(rows[:, 0], rows[:, 1], rows[:, 2], total=True)]
-            self._places = float(rows[:, 3].sum())
-            self._since_recompute = 0
+
+    def _recompute(self) -> None:
+        """The window's sums afresh (every RECOMPUTE_EVERY frames added: bounds their rounding drift)."""
+        rows = np.array(self._rows[: self._count] if self._count < self.window else self._rows)
+        self._sums = [float(v) for v in _terms(rows[:, 0], rows[:, 1], rows[:, 2], total=True)]
+        self._places = float(rows[:, 3].sum())
+        self._since_recompute = 0
 
     def _update(self) -> None:
         if self._count < self.min_frames:
@@ -319,7 +402,8 @@ class ReferenceMonitor:
         if sigma2 == 0.0:
             return 0.0, 0.0, 0.0
         sw, swd, swdd = self._sums[0], self._sums[1], self._sums[2]
-        half2 = 3.0 * max(swdd / sw - (swd / sw) ** 2, 0.0)  # (half-span)² of an even spread with that variance
+        mean = swd / sw
+        half2 = 3.0 * max(swdd / sw - mean * mean, 0.0)  # (half-span)² of an even spread with that variance
         var_s = min(sigma2 / half2 if half2 > 0 else math.inf, 1.0 / self._prior_weight())  # (µm/mm)²
         return sigma2, 0.0, var_s * 1e6
 
@@ -465,10 +549,15 @@ def follow(monitor: ReferenceMonitor, x_mm: np.ndarray, reference_mm: np.ndarray
     """
     n = len(x_mm)
     usable = np.ones(n, dtype=bool) if usable is None else np.asarray(usable, dtype=bool)
+    if not trim and not monitor.stale:  # the flag alone: the frames at once (observe_many), a message where it rises
+        events: list[tuple[int, TrimEvent | str]] = []
+        flags = monitor.observe_many(x_mm, reference_mm, bound_mm, usable,
+                                     on_rise=lambda k: events.append((k, drift_message(monitor))))
+        return Followed(flags, np.array(x_mm, dtype=np.float64), np.zeros(n), np.zeros(n), events, monitor.estimate)
     trimmer = Trimmer(monitor)
     stale = np.zeros(n, dtype=bool)
     out, corr, sigma = np.array(x_mm, dtype=np.float64), np.zeros(n), np.zeros(n)
-    events: list[tuple[int, TrimEvent | str]] = []
+    events = []
     was = False
     for k in range(n):
         x, ref, bound = float(x_mm[k]), float(reference_mm[k]), float(bound_mm[k])

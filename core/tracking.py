@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import operator
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -503,6 +504,17 @@ class Tracker:
         return None
 
 
+# A pending frame's entry (SequentialState._watch_validity), slot by slot, and the fields of its
+# solution each sign field is read from.
+PENDING_SLOTS = ("frame", "solution", "reference_mm", "placed", "rows_averaged", "chi2_average", "chi2_suspect",
+                 "chi2_stale", "explain")
+SOLUTION_SIGNS = {"chi2": "chi2", "information": "information", "gain": "gain", "offset_gray": "offset",
+                  "focus": "focus", "focus_sigma": "focus_sigma", "rejected_px": "rejected",
+                  "transient_px": "transient_px", "transient_at": "transient_at", "x_mm": "x_mm",
+                  "free_light": "free_light", "field": "field"}
+_solution_signs = operator.attrgetter(*SOLUTION_SIGNS.values())
+
+
 @dataclass
 class SequentialState:
     """What carries from one frame to the next: the last position, its velocity, the lock, the
@@ -569,19 +581,11 @@ class SequentialState:
         pending, self.pending = self.pending or [], []
         if not pending:
             return []
-        solutions = [entry[1] for entry in pending]
-        columns = {
-            "frame": [entry[0] for entry in pending],
-            "chi2": [s.chi2 for s in solutions], "information": [s.information for s in solutions],
-            "information_calibrated": [float("nan")] * len(pending),
-            "gain": [s.gain for s in solutions], "offset_gray": [s.offset for s in solutions],
-            "focus": [s.focus for s in solutions], "focus_sigma": [s.focus_sigma for s in solutions],
-            "rejected_px": [s.rejected for s in solutions], "transient_px": [s.transient_px for s in solutions],
-            "transient_at": [s.transient_at for s in solutions], "x_mm": [s.x_mm for s in solutions],
-            "free_light": [s.free_light for s in solutions], "field": [s.field for s in solutions]}
-        for index, name in enumerate(("reference_mm", "placed", "rows_averaged", "chi2_average", "chi2_suspect",
-                                      "chi2_stale", "explain"), start=2):
-            columns[name] = [entry[index] for entry in pending]
+        entries = list(zip(*pending))  # one tuple per slot of a pending entry
+        columns = dict(zip(PENDING_SLOTS, map(list, entries)))
+        del columns["solution"]
+        columns.update(zip(SOLUTION_SIGNS, map(list, zip(*map(_solution_signs, entries[1])))))
+        columns["information_calibrated"] = [float("nan")] * len(pending)
         reasons = self.monitor.observe_many(columns)
         self.stale, self.stale_reason = self.monitor.verdict.stale, self.monitor.verdict.reason
         return reasons
@@ -683,13 +687,15 @@ def _judge(state: SequentialState, repeated: np.ndarray, stale: np.ndarray, stal
     """The validity monitor's verdicts on frames ``start:stop`` (one chunk, solved, its batch still
     at hand) into ``stale`` and ``stale_reason``: a repeated image, shown to no watch, keeps the
     verdict of the frame before it, as in live tracking."""
-    before = (bool(stale[start - 1]), str(stale_reason[start - 1]) or None) if start else (False, None)
-    reasons = iter(state.verdicts())
-    reason = before[1]
-    for k in range(start, stop):
-        if not repeated[k]:
-            reason = next(reasons)
-        stale[k], stale_reason[k] = reason is not None, reason or ""
+    reasons = state.verdicts()
+    shown = ~repeated[start:stop]
+    chunk = stale_reason[start:stop]  # a view: written in place
+    chunk[shown] = [reason or "" for reason in reasons]
+    if not shown.all():  # a repeated image keeps the verdict of the frame before it
+        before = stale_reason[start - 1] if start else ""
+        last = np.maximum.accumulate(np.where(shown, np.arange(stop - start), -1))[~shown]
+        chunk[~shown] = np.where(last >= 0, chunk[np.maximum(last, 0)], before)
+    stale[start:stop] = stale_reason[start:stop] != ""
 
 
 @dataclass

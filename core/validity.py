@@ -75,7 +75,11 @@ class Watch(Protocol):
     A watch may also name the fields of :class:`FrameSign` it reads (``reads``) and take them as
     arguments of ``step``: the monitor then feeds it many frames from columns without building a
     sign per frame (:meth:`Monitor.observe_many`, batch tracking); ``observe(sign)`` is ``step``
-    on one sign's fields, so both give the same verdicts."""
+    on one sign's fields, so both give the same verdicts. A watch may also take a whole chunk of
+    frames at once, ``step_many(columns, n) -> list of families`` (``columns`` a :class:`Columns`,
+    numpy arrays on request; core/watches/_kernels.py holds compiled loops), returning None for
+    frames it leaves to ``step``: it must give what ``step`` gives frame by frame, state included
+    (tests/core/test_watch_kernels.py holds each watch to that)."""
 
     family: str
     # A verdict on the model itself (refused or inadequate at calibration) outranks whatever a
@@ -116,6 +120,7 @@ class Monitor:
         reason is chosen as :meth:`observe` chooses it. Returns the reason of every frame (None:
         not stale); the verdict is left at the last frame's."""
         n = len(columns["frame"])
+        columns = columns if isinstance(columns, Columns) else Columns(columns)
         reasons: list[str | None] = [None] * n
         ranks = [len(FAMILIES)] * n
         for watch in self.watches:
@@ -131,8 +136,35 @@ class Monitor:
         return reasons
 
 
+class Columns(dict):
+    """Frames' signs as columns (one list per field of :class:`FrameSign`), each also as a numpy
+    array once a watch asks for it (:meth:`array`), made once for every watch that reads it."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._arrays: dict[str, Any] = {}
+
+    def array(self, name: str, dtype: Any = None) -> Any:
+        import numpy as np
+
+        key = f"{name}:{dtype}"
+        value = self._arrays.get(key)
+        if value is None:
+            value = self._arrays[key] = np.asarray(self[name], dtype=dtype)
+        return value
+
+
 def _observe_all(watch: Watch, columns: dict[str, list], n: int) -> list[str | None]:
-    """One watch over ``n`` frames of columns: by its ``step`` on the fields it reads, else sign by sign."""
+    """One watch over ``n`` frames of columns: by its ``step_many`` when it has one and takes
+    these frames at once (returns None when it does not), else by its ``step`` on the fields it
+    reads, else sign by sign. ``step_many`` gives what ``step`` gives frame by frame."""
+    many = getattr(watch, "step_many", None)
+    if many is not None and n:
+        if not isinstance(columns, Columns):
+            columns = Columns(columns)
+        families = many(columns, n)
+        if families is not None:
+            return families
     reads = getattr(watch, "reads", None)
     if reads is None:
         return [watch.observe(FrameSign(**dict(zip(SIGN_FIELDS, row))))

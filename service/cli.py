@@ -21,15 +21,21 @@ COMMAND_MODULES = ("simulate", "calibrate", "track", "diagnose", "batch", "histo
 EXIT_BAD_INPUT = 2
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The parser of every subcommand; with ``command`` (one of :data:`COMMAND_MODULES`) only that
+    one's is registered: its arguments, usage, help and errors are the same, and a run of one
+    command (a ``track`` of a short recording) does not pay for building all the others'."""
     parser = argparse.ArgumentParser(
         prog="graytrack",
         description="Camera + printed sine target as a displacement sensor: simulate, calibrate, track, diagnose, serve.",
     )
     parser.add_argument("--version", action="version", version=f"graytrack {__version__}")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for name in COMMAND_MODULES:
+    alone = command in COMMAND_MODULES
+    for name in (command,) if alone else COMMAND_MODULES:
         importlib.import_module(f"graytrack.service.commands.{name}").register(subparsers)
+    if alone and command not in subparsers.choices:  # a module whose command is spelt otherwise: all of them
+        return build_parser()
     return parser
 
 
@@ -50,7 +56,10 @@ def reason(exc: BaseException) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    # the command named first (the usual call) needs only its own parser; anything else (--help,
+    # --version, a typo) gets them all
+    parser = build_parser(argv[0] if argv and argv[0] in COMMAND_MODULES else None)
     args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)

@@ -63,3 +63,16 @@ def test_building_the_parser_imports_no_numerics_or_server():
     help_run = subprocess.run([sys.executable, "-m", "graytrack", "track", "--help"], capture_output=True, text=True,
                               timeout=60)
     assert help_run.returncode == 0 and "--model" in help_run.stdout
+
+
+def test_a_named_command_parses_as_with_every_command_registered():
+    """``main`` registers only the command named first: its parse and its help are the full parser's."""
+    from graytrack.service.cli import build_parser
+
+    argv = ["track", "rec.npz", "--model", "m.json", "--out", "o.csv", "--light", "free", "--trim"]
+    alone, full = build_parser("track").parse_args(argv), build_parser().parse_args(argv)
+    assert {k: v for k, v in vars(alone).items() if k != "func"} == {k: v for k, v in vars(full).items() if k != "func"}
+    assert alone.func is full.func
+    assert build_parser("track")._subparsers._group_actions[0].choices["track"].format_help() == \
+        build_parser()._subparsers._group_actions[0].choices["track"].format_help()
+    assert "sim-controller" in build_parser("sim_controller")._subparsers._group_actions[0].choices

@@ -22,6 +22,7 @@ WINDOW = 100  # frames
 KEPT_LIMIT = 0.5  # information kept, averaged over the window, below which the model is stale
 SUSPECT = 0.8  # above this the nuisances cost little: which one works is not followed
 GRID_PER_PERIOD = 64
+BLAMED = ("transients", "pixels", "focus", "light")  # the nuisances a loss is blamed on, in this order
 
 
 class BoundWatch:
@@ -33,6 +34,7 @@ class BoundWatch:
         self.start, self.grid_step, self.table = grid_start, grid_step, information.tolist()
         self.kept: float | None = None
         self.blame: dict[str, float] = {}
+        self._array: np.ndarray | None = None  # the table as the compiled loop reads it
 
     def calibrated(self, x_mm: float) -> float:
         """Information per model row on x at ``x_mm`` with the calibrated light and every sample."""
@@ -59,13 +61,37 @@ class BoundWatch:
             if self.blame:
                 self.blame.clear()
             return None
-        for family, working in (("transients", transient_px > 0), ("pixels", rejected_px > 0),
-                                ("focus", focus != 0.0), ("light", free_light or field)):
+        for family, working in zip(BLAMED, (transient_px > 0, rejected_px > 0, focus != 0.0, free_light or field)):
             self.blame[family] = running(self.blame.get(family), float(working), WINDOW)
         if self.kept >= KEPT_LIMIT or chi2_suspect:
             return None  # holding; or χ² sees the change itself, and its watch reads the residual's shape
         family, share = max(self.blame.items(), key=lambda item: item[1])
         return family if share > 0.1 else "geometry"
+
+    def step_many(self, columns, n: int) -> list[str | None] | None:
+        """:meth:`step` of ``n`` frames at once (compiled: core/watches/_kernels.py)."""
+        from graytrack.core.watches import _kernels
+
+        if not _kernels.COMPILED:
+            return None
+        if self._array is None:
+            self._array = np.asarray(self.table, dtype=np.float64)
+        known = bool(self.blame)
+        state = np.array([self.kept is not None, self.kept or 0.0, known], dtype=np.float64)
+        blame = np.array([self.blame[family] for family in BLAMED] if known else [0.0] * len(BLAMED))
+        out = np.empty(n, dtype=np.int64)
+        _kernels._bound_run(state, blame, self._array, self.start, self.grid_step, columns.array("placed", bool),
+                            columns.array("information", np.float64), columns.array("x_mm", np.float64),
+                            columns.array("rows_averaged", np.float64), columns.array("gain", np.float64),
+                            columns.array("free_light", bool), columns.array("transient_px", np.int64),
+                            columns.array("rejected_px", np.int64), columns.array("focus", np.float64),
+                            columns.array("field", bool), columns.array("chi2_suspect", bool), WINDOW, SUSPECT,
+                            KEPT_LIMIT, out)
+        self.kept = float(state[1]) if state[0] else None
+        self.blame = dict(zip(BLAMED, blame.tolist())) if state[2] else {}
+        if not (out >= 0).any():
+            return [None] * n
+        return np.array((*BLAMED, "geometry", None), dtype=object)[out].tolist()
 
 
 def make(tracker) -> BoundWatch | None:

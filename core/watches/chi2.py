@@ -49,6 +49,15 @@ class ChiSquareWatch:
             return "transients"
         return family
 
+    def step_many(self, columns, n: int) -> list[str | None] | None:
+        """:meth:`step` of ``n`` frames at once while none is suspect (the common case: nothing to
+        learn, a suspect run before forgotten); else None: frame by frame."""
+        if columns.array("chi2_suspect", bool).any():
+            return None
+        if self._count:
+            self.shares, self.persistence, self._top, self._count, self.consistency = {}, None, None, 0, {}
+        return [None] * n
+
     def _learn(self, found: dict) -> None:
         for family, coefficients in found.get("coefficients", {}).items():
             self.consistency.setdefault(family, Consistency(STILL_WINDOW)).add(coefficients)

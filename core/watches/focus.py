@@ -89,6 +89,36 @@ class FocusWatch:
         moved = abs(self.change_px2) > self.z * self.change_sigma_px2 and beyond > self.min_change_px2
         return self.family if moved and self._a_blur() else None
 
+    def step_many(self, columns, n: int) -> list[str | None] | None:
+        """:meth:`step` of ``n`` frames at once while the window cannot reach ``min_frames`` estimates
+        within them (the common case: the focus solved on a few frames, or on none): nothing is
+        judged, and the window's estimates, gaps and clearings follow as frame by frame. Else None:
+        frame by frame."""
+        import numpy as np
+
+        sigma, focus = columns.array("focus_sigma", np.float64), columns.array("focus", np.float64)
+        valid = np.isfinite(sigma) & (sigma > 0.0) & np.isfinite(focus)
+        count = int(valid.sum())
+        if len(self._estimates) + count >= self.min_frames or self.min_frames > self.window:
+            return None
+        frames = np.arange(n)
+        last = np.maximum.accumulate(np.where(valid, frames, -1))  # the last frame with an estimate, so far
+        missing = np.where(last >= 0, frames - last, self._missing + frames + 1)  # (on frames without one)
+        cleared = ~valid & ((missing >= self.window) | columns.array("field", bool))
+        if cleared.any():
+            self._estimates.clear()
+            start = int(np.flatnonzero(cleared)[-1]) + 1
+        else:
+            start = 0
+        if count:
+            chi2 = columns.array("chi2", np.float64)
+            kept = np.flatnonzero(valid[start:]) + start
+            self._estimates.extend(zip(focus[kept].tolist(), (1.0 / (sigma[kept] * sigma[kept])).tolist(),
+                                       chi2[kept].tolist()))
+        self._missing = int(missing[-1]) if not valid[-1] else 0
+        self.change_px2 = self.change_sigma_px2 = float("nan")
+        return [None] * n
+
     def _a_blur(self) -> bool:
         """The window's estimates hold still (scatter about their median as their errors say) and
         the focus explains the frames (their median χ² within the limit)."""

@@ -51,6 +51,27 @@ class GratingWatch:
             return None
         return self.family
 
+    def step_many(self, columns, n: int) -> list[str | None] | None:
+        """:meth:`step` of ``n`` frames at once (compiled: core/watches/_kernels.py)."""
+        import numpy as np
+
+        from graytrack.core.watches import _kernels
+
+        if not _kernels.COMPILED:
+            return None
+        state = np.array([self.mean or 0.0, self.square or 0.0, self.bound2 or 0.0, self.count], dtype=np.float64)
+        has = np.array([self.mean is not None, self.square is not None, self.bound2 is not None])
+        out = np.zeros(n, dtype=bool)
+        _kernels._grating_run(state, has, columns.array("placed", bool), columns.array("reference_mm", np.float64),
+                              columns.array("x_mm", np.float64), columns.array("information", np.float64),
+                              self.bound_scale2, WINDOW, SETTLE, LIMIT * LIMIT, out)
+        values = state.tolist()
+        self.mean, self.square, self.bound2 = (value if known else None for value, known in zip(values, has.tolist()))
+        self.count = int(values[3])
+        if not out.any():
+            return [None] * n
+        return np.where(out, self.family, None).tolist()
+
 
 def make(tracker) -> GratingWatch:
     return GratingWatch(stream_bound_factor(tracker.model.info) ** 2)

@@ -27,6 +27,26 @@ class LightWatch:
         self.gain = running(self.gain, gain, WINDOW)
         return None if GAIN_RANGE[0] < self.gain < GAIN_RANGE[1] else "light"
 
+    def step_many(self, columns, n: int) -> list[str | None] | None:
+        """:meth:`step` of ``n`` frames at once (compiled: core/watches/_kernels.py)."""
+        import numpy as np
+
+        from graytrack.core.watches import _kernels
+
+        placed, free = columns.array("placed", bool), columns.array("free_light", bool)
+        if self.gain is None and not (placed & free).any():
+            return [None] * n  # nothing solved the light, and nothing to forget
+        if not _kernels.COMPILED:
+            return None
+        state = np.array([self.gain is not None, self.gain or 0.0], dtype=np.float64)
+        out = np.zeros(n, dtype=bool)
+        _kernels._light_run(state, placed, free, columns.array("gain", np.float64), WINDOW, GAIN_RANGE[0],
+                            GAIN_RANGE[1], out)
+        self.gain = float(state[1]) if state[0] else None
+        if not out.any():
+            return [None] * n
+        return np.where(out, "light", None).tolist()
+
 
 def make(tracker) -> LightWatch:
     return LightWatch()

@@ -53,6 +53,23 @@ class ScaleWatch:
             self.monitor.observe(x_mm, reference_mm, bound)
         return self.family if self.monitor.stale else None
 
+    def step_many(self, columns, n: int) -> list[str | None]:
+        """:meth:`step` of ``n`` frames at once (the monitor's :meth:`~ReferenceMonitor.observe_many`)."""
+        import numpy as np
+
+        suspect = columns.array("chi2_suspect", bool)
+        information = columns.array("information", np.float64)
+        feed = columns.array("placed", bool) & ~suspect if self.feeds else np.zeros(n, dtype=bool)
+        positive = information > 0
+        bound = np.where(positive, self.bound_scale / np.sqrt(np.where(positive, information, 1.0)), np.nan)
+        stale = self.monitor.observe_many(columns.array("x_mm", np.float64), columns.array("reference_mm", np.float64),
+                                          bound, feed)
+        if not stale.any():
+            return [None] * n
+        families = np.full(n, None, dtype=object)
+        families[stale & ~suspect] = self.family
+        families[stale & suspect] = "geometry"
+        return families.tolist()
 
 
 def make(tracker) -> "ScaleWatch | object | None":

@@ -57,7 +57,32 @@ class TransientWatch:
         """The blobs do not keep to the same pixels (unknown places count as wandering)."""
         if self.place is None or self.place_sq is None:
             return True
-        return math.sqrt(max(self.place_sq - self.place**2, 0.0)) > FIXED_SPREAD_PX
+        return math.sqrt(max(self.place_sq - self.place * self.place, 0.0)) > FIXED_SPREAD_PX
+
+    def step_many(self, columns, n: int) -> list[str | None] | None:
+        """:meth:`step` of ``n`` frames at once (compiled: core/watches/_kernels.py)."""
+        import numpy as np
+
+        from graytrack.core.watches import _kernels
+
+        if not _kernels.COMPILED:
+            return None
+        codes = {None: 0, self.family: 1, "light": 2}
+        state = np.array([self.share or 0.0, self.place or 0.0, self.place_sq or 0.0, self.share is not None,
+                          self.place is not None, self.place_sq is not None, codes[self.blamed]], dtype=np.float64)
+        out = np.zeros(n, dtype=np.int64)
+        _kernels._transient_run(state, columns.array("placed", bool), columns.array("transient_px", np.int64),
+                                columns.array("transient_at", np.float64), columns.array("frame", np.int64), WINDOW,
+                                WINDOW // 4, SHARE_STALE, SHARE_CLEAR, FIXED_SPREAD_PX, out)
+        values = state.tolist()
+        self.share = values[0] if values[3] else None
+        self.place = values[1] if values[4] else None
+        self.place_sq = values[2] if values[5] else None
+        names = (None, self.family, "light")
+        self.blamed = names[int(values[6])]
+        if not out.any():
+            return [None] * n
+        return np.array(names, dtype=object)[out].tolist()
 
 
 def make(tracker) -> TransientWatch | None:

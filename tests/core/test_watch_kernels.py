@@ -1,0 +1,222 @@
+"""The watches' compiled loops (core/watches/_kernels.py) against their Python ``step``, frame by
+frame: the same flags and the same state, bit for bit."""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+
+import numpy as np
+import pytest
+
+from graytrack.core.reference_monitor import Line, ReferenceMonitor, follow
+from graytrack.core.watches import _kernels
+
+pytestmark = pytest.mark.skipif(not _kernels.COMPILED, reason="numba missing: the watches step in Python")
+
+
+def drifting_run(n: int, seed: int, resolution_mm: float = 0.0):
+    """Positions against a grating: noise, a scale drift from mid-run, outliers, a jump, gaps."""
+    rng = np.random.default_rng(seed)
+    reference = 5.0 + 4.0 * np.sin(np.linspace(0.0, 6.0, n))
+    if resolution_mm:
+        reference = np.round(reference / resolution_mm) * resolution_mm
+    bound = 1e-4 * (1.0 + rng.random(n))
+    drift = np.where(np.arange(n) > n // 2, 400e-6 * (reference - 5.0), 0.0)
+    x = reference + rng.normal(size=n) * bound + drift
+    x[rng.random(n) < 0.01] += 0.05  # outliers
+    x[int(0.7 * n):int(0.7 * n) + 40] += 0.003  # a jump for a while: the window restarts
+    reference[rng.random(n) < 0.02] = np.nan
+    bound[rng.random(n) < 0.01] = 0.0
+    feed = rng.random(n) < 0.95
+    return x, reference, bound, feed
+
+
+MONITORS = {
+    "plain": lambda: ReferenceMonitor(5.0, 4.0),
+    "small window": lambda: ReferenceMonitor(5.0, 4.0, window=60, min_frames=30, floor_um=0.05),
+    "calibrated": lambda: ReferenceMonitor(5.0, 4.0, reference_sigma_mm=1e-3 / 12 ** 0.5, resolution_mm=1e-3,
+                                           calibration_frames=300, calibration_x_std_mm=2.0,
+                                           calibration_structure_um=0.1,
+                                           calibration=Line(0.1, 20.0, (0.01, 0.001, 100.0), 5.0, 300, 5.2)),
+    "trimmed": lambda: ReferenceMonitor(5.0, 4.0, calibration_frames=2, baseline=Line(-0.2, -50.0, (0.02, 0.0, 50.0), 5.0)),
+}
+
+
+def state(monitor: ReferenceMonitor) -> dict:
+    return copy.deepcopy({f.name: getattr(monitor, f.name) for f in dataclasses.fields(monitor)})
+
+
+@pytest.mark.parametrize("name", MONITORS)
+@pytest.mark.parametrize("n", [5, 3000, 9000])
+def test_reference_monitor_many_frames_at_once_as_frame_by_frame(monkeypatch, name, n):
+    x, reference, bound, feed = drifting_run(n, n, resolution_mm=1e-3 if name == "calibrated" else 0.0)
+    compiled, stepped = MONITORS[name](), MONITORS[name]()
+    rises_compiled, rises_stepped = [], []
+    flags = compiled.observe_many(x, reference, bound, feed, on_rise=lambda k: rises_compiled.append((k, state(compiled))))
+    monkeypatch.setattr(_kernels, "COMPILED", False)
+    expected = stepped.observe_many(x, reference, bound, feed, on_rise=lambda k: rises_stepped.append((k, state(stepped))))
+    assert np.array_equal(flags, expected)
+    assert state(compiled) == state(stepped)
+    assert [k for k, _ in rises_compiled] == [k for k, _ in rises_stepped]
+    assert all(a == b for (_, a), (_, b) in zip(rises_compiled, rises_stepped))
+    if n == 9000 and name in ("plain", "small window"):
+        assert flags.any()  # the drift was seen: the comparison covered flagged frames
+
+
+def test_follow_without_trim_as_frame_by_frame(monkeypatch):
+    x, reference, bound, feed = drifting_run(4000, 7)
+    fast = follow(ReferenceMonitor(5.0, 4.0), x, reference, bound, feed)
+    monkeypatch.setattr(_kernels, "COMPILED", False)
+    slow = follow(ReferenceMonitor(5.0, 4.0), x, reference, bound, feed)
+    assert fast.events and fast.events == slow.events
+    assert fast.final == slow.final
+    for name in ("stale", "x_mm", "trim_um", "trim_sigma_um"):
+        assert np.array_equal(getattr(fast, name), getattr(slow, name))
+
+
+def sign_columns(n: int, seed: int) -> dict[str, list]:
+    """Frames' signs that make every watch speak somewhere: a dimmed light solved, transients that
+    wander then stay put, information lost, the camera scattering off the grating, gaps, suspect χ²."""
+    from graytrack.core.validity import SIGN_FIELDS
+
+    rng = np.random.default_rng(seed)
+    k = np.arange(n)
+    stretch = lambda a, b: (k >= a * n) & (k < b * n)  # noqa: E731
+    x = 2.0 + 6.0 * (k / n) + rng.normal(size=n) * 1e-4
+    reference = x + rng.normal(size=n) * np.where(stretch(0.6, 0.8), 2e-3, 1e-4)
+    reference[rng.random(n) < 0.03] = np.nan
+    x = x + np.where(k > 0.8 * n, 1e-3 * (x - 5.0) + 2e-3, 0.0)  # a scale drift at the end
+    information = 1e8 * (1.0 + 0.1 * rng.random(n)) * np.where(stretch(0.3, 0.5), 0.3, 1.0)
+    information[rng.random(n) < 0.01] = np.nan
+    transient = np.where(stretch(0.1, 0.3) & (rng.random(n) < 0.8), rng.integers(1, 9, n), 0)
+    at = np.where(stretch(0.1, 0.2), rng.uniform(0, 100, n), 40.0 + rng.normal(size=n))
+    columns = {
+        "frame": k.tolist(), "chi2": (1.0 + rng.random(n)).tolist(), "information": information.tolist(),
+        "information_calibrated": [float("nan")] * n,
+        "gain": np.where(stretch(0.4, 0.7), 0.4, 1.0 + 0.01 * rng.normal(size=n)).tolist(),
+        "offset_gray": [0.0] * n, "focus": np.where(rng.random(n) < 0.1, 0.3, 0.0).tolist(),
+        "focus_sigma": [float("nan")] * n, "rejected_px": np.where(stretch(0.35, 0.45), 2, 0).tolist(),
+        "transient_px": transient.tolist(), "transient_at": np.where(transient > 0, at, np.nan).tolist(),
+        "x_mm": x.tolist(), "reference_mm": reference.tolist(), "placed": (rng.random(n) > 0.02).tolist(),
+        "rows_averaged": [1] * n, "free_light": (stretch(0.35, 0.75) | (rng.random(n) < 0.05)).tolist(),
+        "field": (rng.random(n) < 0.02).tolist(), "chi2_average": [1.0] * n,
+        "chi2_suspect": stretch(0.45, 0.47).tolist(), "chi2_stale": [False] * n, "explain": [None] * n}
+    assert set(columns) == set(SIGN_FIELDS)
+    return columns
+
+
+def watches():
+    from graytrack.core.watches.bound import BoundWatch
+    from graytrack.core.watches.chi2 import ChiSquareWatch
+    from graytrack.core.watches.focus import FocusWatch
+    from graytrack.core.watches.grating import GratingWatch
+    from graytrack.core.watches.light import LightWatch
+    from graytrack.core.watches.scale import ScaleWatch
+    from graytrack.core.watches.transients import TransientWatch
+
+    table = 1e8 * (1.0 + 0.5 * np.sin(np.linspace(0.0, 20.0, 700)) ** 2)
+    return {"bound": lambda: BoundWatch(1.0, 10.0 / 699, table), "chi2": ChiSquareWatch, "focus": FocusWatch,
+            "grating": lambda: GratingWatch(1.3), "light": LightWatch, "transients": TransientWatch,
+            "scale": lambda: ScaleWatch(ReferenceMonitor(5.0, 4.0, window=100, floor_um=0.01))}
+
+
+@pytest.mark.parametrize("name", sorted(watches()))
+def test_each_watch_many_frames_at_once_as_frame_by_frame(name):
+    """``step_many`` (chunk by chunk, as batch tracking calls it) gives ``step``'s families and state."""
+    from graytrack.core.validity import Columns, _observe_all
+
+    n = 3000
+    columns = sign_columns(n, 11)
+    make = watches()[name]
+    at_once, stepped = make(), make()
+    families = []
+    for start, stop in ((0, 1000), (1000, 1001), (1001, n)):
+        part = Columns({key: values[start:stop] for key, values in columns.items()})
+        families += _observe_all(at_once, part, stop - start)
+    expected = [stepped.step(*row) for row in zip(*(columns[field] for field in stepped.reads))]
+    assert families == expected
+    assert any(families) or name in ("chi2", "focus")
+    inner = lambda w: w.monitor if name == "scale" else w  # noqa: E731
+    assert vars(inner(at_once)).keys() == vars(inner(stepped)).keys()
+    for key, value in vars(inner(at_once)).items():
+        if key in ("_array",):
+            continue
+        other = vars(inner(stepped))[key]
+        assert value == other or (value != value and other != other), key
+
+
+def test_batch_tracking_gives_the_same_flags_compiled_or_stepped(monkeypatch, paper_models, paper_val):
+    """The whole validity monitor in batch ``track``: a dimmed light with a stuck pixel, then a scale
+    drift against the grating (flags for ``scale`` and more), the same compiled as frame by frame."""
+    from graytrack.core.tracking import track
+
+    model = paper_models["paper"].model
+    frames = paper_val.frames * np.float32(0.8) + np.float32(10.0)
+    frames[..., 37] = 255.0
+    reference = paper_val.reference * (1.0 + 4e-4 * (np.arange(paper_val.n_frames) > 300))
+    fast = track(model, frames, reference=reference, light="auto", robust=True)
+    monkeypatch.setattr(_kernels, "COMPILED", False)
+    slow = track(model, frames, reference=reference, light="auto", robust=True)
+    assert fast.stale.any() and set(fast.stale_reason[fast.stale]) >= {"scale"}
+    for name in ("x_mm", "crlb_mm", "locked", "chi2", "stale", "stale_reason", "rejected_px", "gain"):
+        assert np.array_equal(getattr(fast, name), getattr(slow, name), equal_nan=getattr(fast, name).dtype.kind == "f")
+
+
+def test_repeated_frames_keep_the_verdict_before_them_chunk_by_chunk():
+    """tracking._judge (vectorised) as the frame-by-frame rule: a shown frame takes the monitor's
+    reason, a repeated one the verdict of the frame before it (across chunks too)."""
+    from graytrack.core import tracking
+
+    def frame_by_frame(reasons, repeated, stale, stale_reason, start, stop):
+        reason = (str(stale_reason[start - 1]) or None) if start else None
+        reasons = iter(reasons)
+        for k in range(start, stop):
+            if not repeated[k]:
+                reason = next(reasons)
+            stale[k], stale_reason[k] = reason is not None, reason or ""
+
+    class Pending:
+        def __init__(self, reasons):
+            self.reasons = reasons
+
+        def verdicts(self):
+            return self.reasons
+
+    rng = np.random.default_rng(0)
+    for _ in range(300):
+        n = int(rng.integers(1, 40))
+        repeated = rng.random(n) < rng.choice([0.0, 0.3, 0.9, 1.0])
+        edges = sorted({0, n, *rng.integers(0, n, 3).tolist()})
+        expected = np.zeros(n, bool), np.full(n, "", "<U10")
+        got = np.zeros(n, bool), np.full(n, "", "<U10")
+        for start, stop in zip(edges[:-1], edges[1:]):
+            reasons = [rng.choice([None, "light", "scale"]) for _ in range(int((~repeated[start:stop]).sum()))]
+            frame_by_frame(reasons, repeated, *expected, start, stop)
+            tracking._judge(Pending(reasons), repeated, *got, start, stop)
+        assert np.array_equal(expected[0], got[0]) and np.array_equal(expected[1], got[1])
+
+
+@pytest.mark.parametrize("share", [0.0, 0.01, 0.03, 0.5])
+def test_the_focus_watch_many_frames_at_once_as_frame_by_frame(share):
+    """Estimates on a few frames (the window never fills: taken at once, gaps and clearings as
+    frame by frame) or on many (judged frame by frame): the families and the window as ``step``'s."""
+    from graytrack.core.validity import Columns, _observe_all
+    from graytrack.core.watches.focus import FocusWatch
+
+    n = 3000
+    columns = sign_columns(n, 5)
+    rng = np.random.default_rng(5)
+    estimated = rng.random(n) < share
+    columns["focus_sigma"] = np.where(estimated, 0.05 + 0.01 * rng.random(n), np.nan).tolist()
+    columns["focus"] = np.where(estimated, 0.6 + 0.05 * rng.normal(size=n), 0.0).tolist()
+    at_once, stepped = FocusWatch(), FocusWatch()
+    families = []
+    for start, stop in ((0, 700), (700, 701), (701, 2000), (2000, n)):
+        part = Columns({key: values[start:stop] for key, values in columns.items()})
+        families += _observe_all(at_once, part, stop - start)
+    expected = [stepped.step(*row) for row in zip(*(columns[field] for field in stepped.reads))]
+    assert families == expected
+    assert list(at_once._estimates) == list(stepped._estimates) and at_once._missing == stepped._missing
+    if share == 0.5:
+        assert "focus" in families
