@@ -266,7 +266,7 @@ class ReferenceMonitor:
         """The state as the compiled loop takes it (core/watches/_kernels.py names each slot)."""
         def line(value: Line | None) -> list[float]:
             return [1.0, value.offset_um, value.scale_ppm, *value.covariance] if value is not None else [0.0] * 6
-        ip = np.array([self.window, self.min_frames, max(self.min_frames // 2, 3), self.calibration_frames,
+        ip = np.array([self.window, self.min_frames, JUMP_FRAMES, self.calibration_frames,
                        RECOMPUTE_EVERY, UPDATE_EVERY], dtype=np.int64)
         p = np.array([self.center_mm, self.half_stroke_mm, self.reference_sigma_mm, max(self.resolution_mm, 1e-12),
                       max(self.floor_um, 0.5 * self.resolution_mm * 1e3), self.z_on ** 2, self.z_off ** 2,

@@ -48,6 +48,17 @@ class LocalAdequacyWatch:
     def observe(self, sign: FrameSign) -> str | None:
         return self.step(sign.placed, sign.x_mm)
 
+    def step_many(self, columns, n: int) -> list[str | None]:
+        """:meth:`step` of ``n`` frames at once (it keeps no state)."""
+        import numpy as np
+
+        x = columns.array("x_mm", np.float64)
+        edges = np.asarray(self.edges)
+        inside = columns.array("placed", bool) & (x >= edges[0]) & (x <= edges[-1])
+        stretch = np.minimum(np.searchsorted(edges, np.where(inside, x, edges[0]), side="right") - 1, len(self.off) - 1)
+        flagged = inside & np.asarray(self.off)[stretch]
+        return [self.family if f else None for f in flagged.tolist()]
+
     def step(self, placed: bool, x_mm: float) -> str | None:
         if not placed or not self.edges[0] <= x_mm <= self.edges[-1]:  # (NaN fails both)
             return None

@@ -185,6 +185,11 @@ def test_the_local_watch_flags_only_the_stretches_beyond_its_limit():
     assert steps == [None, None, None, "geometry", "geometry", None, None, None, None]
     assert watch.step(False, 1.5) is None
     assert watch.observe(FrameSign(0, x_mm=1.5)) == "geometry"
+    from graytrack.core.validity import Columns
+
+    xs = [-0.5, 0.0, 0.99, 1.0, 1.5, 2.0, 3.0, 3.5, float("nan"), 1.5]
+    placed = [True] * 9 + [False]
+    assert watch.step_many(Columns(x_mm=xs, placed=placed), len(xs)) == [watch.step(p, x) for p, x in zip(placed, xs)]
 
 
 def _frame_by_frame(monitor, columns):
