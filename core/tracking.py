@@ -23,7 +23,7 @@ from typing import Callable
 
 import numpy as np
 
-from graytrack.core import attribution, repeats, transients
+from graytrack.core import attribution, frame_kernel, repeats, transients
 from graytrack.core.compression import stream_bound_factor
 from graytrack.core.errors import TrackingError
 from graytrack.core.geometry_check import refusal
@@ -212,6 +212,7 @@ class Tracker:
         # once and its iterations never touch a pixel again.
         self.frame_tables = FrameTables.of(model)
         self.evaluator = TableEvaluator(self.frame_tables)
+        frame_kernel.warm(self.evaluator)  # the per-frame solve compiled (or loaded) now, not on a live frame
         self.fast_path = self.frame_tables.trig_polynomial
         self.tables = TrigTables(FastHarmonics(model), model) if self.fast_path else None
         noise = model.noise()
@@ -255,12 +256,12 @@ class Tracker:
             batch: GeneralBatch | TrigPolyBatch = GeneralBatch(self.evaluator, prepared, weights) \
                 if prepared.shape[0] > 1 else GeneralBatch.one(self.evaluator, prepared.reshape(1, -1), weights)
         elif not shared:
-            batch = TrigPolyBatch(self.tables, prepared, weights)
+            batch = TrigPolyBatch(self.tables, prepared, weights, evaluator=self.evaluator)
         else:
             static = self._static.get(frame_rows)
             if static is None:
                 static = self._static[frame_rows] = StaticWeights.of(self.tables, weights)
-            batch = TrigPolyBatch(self.tables, prepared, static.weights, static)
+            batch = TrigPolyBatch(self.tables, prepared, static.weights, static, self.evaluator)
         if raw is not None and self.model.n_rows == 1 and frame_rows > 1:
             batch.raw = np.asarray(raw)
         return batch
@@ -329,7 +330,8 @@ class Tracker:
         weights = keep.sum(axis=0)  # the information of the kept rows' mean
         mean = np.where(weights > 0, (keep * raw).sum(axis=0) / np.maximum(weights, 1e-300), 0.0)
         if self.fast_path:
-            single: GeneralBatch | TrigPolyBatch = TrigPolyBatch(self.tables, mean[None], weights[None])
+            single: GeneralBatch | TrigPolyBatch = TrigPolyBatch(self.tables, mean[None], weights[None],
+                                                                  evaluator=self.evaluator)
         else:
             single = GeneralBatch.one(self.evaluator, mean[None], weights[None])
         start = FrameSolution(line.x_mm, float("nan"), 0.0, 0, line.gain, line.offset)
