@@ -26,6 +26,7 @@ import types
 import numpy as np
 
 from graytrack.core import kernels, transients
+from graytrack.core.pixel_noise import _MIN_VARIANCE_GRAY2 as _MIN_VARIANCE
 
 CORE_SIGMA, CUT_SIGMA = 3.5, 7.0  # redescending weight: full inside the core, none beyond the cut (robust σ)
 ROBUST_ITERATIONS = 6
@@ -274,21 +275,48 @@ def _robust(y: np.ndarray, w: np.ndarray, x: float, gain: float, offset: float, 
     out[13] = at
 
 
+def _sample_weights(y: np.ndarray, fixed_var: float, shot_gain: float, dark_gray: float, floor_var: float,
+                    pixel_weight: np.ndarray, rows: float, lo: float, hi: float, out: np.ndarray) -> bool:
+    """1/σ² of samples ``y`` (any frames, flattened, ``pixel_weight`` tiled to them) under the
+    photon-transfer model (core/pixel_noise.py, ``fixed_var`` = read + quantisation variance), times
+    the pixel's weight and the rows averaged, 0 at the sensor's limits ``lo``/``hi``, into ``out``;
+    True when no sample is at a limit. The numbers of ``model.inverse_variance(y) * rows``."""
+    signal = np.maximum(y - dark_gray, 0.0)
+    weights = 1.0 / np.maximum(fixed_var + shot_gain * signal, floor_var) * pixel_weight * rows
+    if not lo < hi:  # no limits to check (NaN: none given)
+        out[:] = weights
+        return True
+    inside = (y > lo) & (y < hi)
+    shared = bool(inside.all())
+    if shared:
+        out[:] = weights
+    else:
+        out[:] = weights * inside
+    return shared
+
+
+def python_twin(function: types.FunctionType, **names) -> types.FunctionType:
+    """``function`` run as Python with some of the names it calls bound otherwise (``names``): the
+    same control logic, on numpy primitives instead of compiled loops."""
+    bound = dict(function.__globals__)
+    bound.update(names)
+    return types.FunctionType(function.__code__, bound, function.__name__, function.__defaults__,
+                              function.__closure__)
+
+
 def _python_twin(function: types.FunctionType) -> types.FunctionType:
     """``function`` run as Python, its primitives (and the control functions it calls) bound to
     their numpy forms: the fallback, the same control logic with numpy's arithmetic underneath."""
-    names = dict(function.__globals__)
-    names.update(_model_at=_numpy_model_at, _moments_of=_numpy_moments_of, _scalars_of=_numpy_scalars_of,
+    names = dict(_model_at=_numpy_model_at, _moments_of=_numpy_moments_of, _scalars_of=_numpy_scalars_of,
                  _blob_samples=_numpy_blob_samples)
     if "_gauss_newton" in _PY:
         names["_gauss_newton"] = _PY["_gauss_newton"]
-    return types.FunctionType(function.__code__, names, function.__name__, function.__defaults__,
-                              function.__closure__)
+    return python_twin(function, **names)
 
 
 _PY: dict[str, types.FunctionType] = {}
 _PY["_gauss_newton"] = _python_twin(_gauss_newton)
-for _name in ("_solve_into", "_robust"):
+for _name in ("_solve_into", "_robust", "_sample_weights"):
     _PY[_name] = _python_twin(globals()[_name])
 
 if kernels.numba is not None:  # compiled where numba is (GRAYTRACK_KERNEL=numpy chooses the twin at call time)
@@ -305,6 +333,7 @@ if kernels.numba is not None:  # compiled where numba is (GRAYTRACK_KERNEL=numpy
     _gauss_newton = _jit(_gauss_newton)
     _solve_into = _jit(_solve_into)
     _robust = _jit(_robust)
+    _sample_weights = _jit(_sample_weights)
 
 
 # --------------------------------------------------------------------------- the calls the solvers make
@@ -371,6 +400,21 @@ def robust(evaluator, y: np.ndarray, w: np.ndarray, x: float, gain: float, offse
     if compiled:
         evaluator._at = work.out[13]
     return work.out, mask
+
+
+def sample_weights(y: np.ndarray, noise, pixel_weight: np.ndarray, rows: float,
+                   limits: tuple[float, float] | None) -> tuple[np.ndarray, bool]:
+    """:func:`_sample_weights` of ``y`` ``(K, P)`` (``pixel_weight`` ``(P,)``): the weights ``(K, P)`` and
+    whether no sample sits at the sensor's limits."""
+    y = _contiguous(y)
+    out = np.empty(y.shape)
+    function = _sample_weights if kernels.COMPILED and kernels.numba is not None else _PY["_sample_weights"]
+    lo, hi = limits if limits is not None else (math.nan, math.nan)
+    flat = y.reshape(-1)
+    tiled = pixel_weight if flat.size == pixel_weight.size else np.tile(pixel_weight, y.shape[0])
+    shared = function(flat, noise.read_var + noise.quant_var, noise.shot_gain, noise.dark_gray, _MIN_VARIANCE,
+                      _contiguous(tiled), float(rows), float(lo), float(hi), out.reshape(-1))
+    return out, shared
 
 
 def warm(evaluator) -> None:

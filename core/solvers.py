@@ -428,25 +428,23 @@ class GeneralBatch:
         self.n_frames = self.frames.shape[0]
         self.evaluator = evaluator
         self._weights = weights
-        weighted = weights * self.frames
-        self._scalars = np.stack(np.broadcast_arrays(
-            np.einsum("kp,kp->k", weighted, self.frames), weighted.sum(axis=1), weights.sum(axis=1),
-            (weights > 0).sum(axis=1)), axis=1).tolist()
+        self._scalars: list[list[float]] | None = None  # on first use: the solves reduce their frame themselves
 
     def reload(self, frame: np.ndarray) -> "GeneralBatch":
-        """This one-frame batch with weights every frame shares, for the next ``frame`` ``(1, P)``:
-        the frame's two weighted sums, the weights' own (their total and count) kept."""
+        """This one-frame batch with weights every frame shares, for the next ``frame`` ``(1, P)``."""
         if self.n_frames != 1 or self._weights.shape[0] != 1:
             raise ValueError("only a one-frame batch with shared weights reloads")
-        if not hasattr(self, "_weighted"):
-            self._weighted = np.empty_like(self.frames)
         np.copyto(self.frames, frame.reshape(self.frames.shape))
-        weighted = np.multiply(self._weights, self.frames, out=self._weighted)
-        row = self._scalars[0]
-        self._scalars = [[float(weighted[0] @ self.frames[0]), float(weighted.sum()), row[2], row[3]]]
+        self._scalars = None
         return self
 
     def scalars(self, k: int) -> list[float]:
+        """Σw·y², Σw·y, Σw and the samples used of frame ``k`` (the moment solver's and the grid's)."""
+        if self._scalars is None:
+            weighted = self._weights * self.frames
+            self._scalars = np.stack(np.broadcast_arrays(
+                np.einsum("kp,kp->k", weighted, self.frames), weighted.sum(axis=1), self._weights.sum(axis=1),
+                (self._weights > 0).sum(axis=1)), axis=1).tolist()
         return self._scalars[k]
 
     def weights(self, k: int) -> np.ndarray:
@@ -477,14 +475,11 @@ class GeneralBatch:
     @classmethod
     def one(cls, evaluator: "FastHarmonics | GeneralHarmonics | ClippedHarmonics", frame: np.ndarray,
             weights: np.ndarray) -> "GeneralBatch":
-        """A batch of one frame ``(1, P)`` under its own weights ``(1, P)`` (a frame solved again with
-        samples set aside or tapered: several times a frame): the scalars of :meth:`__init__` by the
-        same reductions, without the stacking a batch of many frames needs."""
+        """A batch of one frame ``(1, P)`` under its own weights ``(1, P)`` (a live frame, or a frame
+        solved again with samples set aside), built without a reduction: its scalars on first use."""
         batch = cls.__new__(cls)
         batch.frames, batch.n_frames, batch.evaluator, batch._weights = frame, 1, evaluator, weights
-        weighted = weights * frame
-        batch._scalars = [[float(np.einsum("kp,kp->k", weighted, frame)[0]), float(weighted.sum(axis=1)[0]),
-                           float(weights.sum(axis=1)[0]), float(np.count_nonzero(weights > 0))]]
+        batch._scalars = None
         return batch
 
     def without(self, k: int, rejected: np.ndarray) -> "GeneralBatch":

@@ -218,6 +218,8 @@ class Tracker:
         noise = model.noise()
         self.signal_dependent = noise.signal_dependent
         self.static_weights = model.inverse_variance(np.zeros((model.n_rows, model.n_pixels))).reshape(1, -1)
+        self._pixel_weight = np.ones(n_values) if model.pixel_weight is None else \
+            np.ascontiguousarray(model.pixel_weight, dtype=np.float64).reshape(-1)
         self._static: dict[int, StaticWeights] = {}  # by rows averaged: what every frame shares
         # Robust tracking also sets aside samples stuck at the sensor's floor or ceiling (the
         # closed loop's plain tracking leaves them to its clipping effect, which models them).
@@ -237,9 +239,12 @@ class Tracker:
         calibration: they say nothing about x). The flag is True when these are the weights every frame shares, ``(1, P)``."""
         rows = self.model.rows_averaged(frame_rows)
         n_frames = prepared.shape[0]
-        shared = not self.signal_dependent
-        weights = self.static_weights * rows if shared else \
-            self.model.inverse_variance(prepared).reshape(n_frames, -1) * rows
+        if self.signal_dependent:  # one fused pass (core/frame_kernel.py), the numbers of inverse_variance
+            weights, _ = frame_kernel.sample_weights(prepared.reshape(n_frames, -1), self.model.pixel_noise,
+                                                     self._pixel_weight, rows, self.sensor_range)
+            return weights, False
+        shared = True
+        weights = self.static_weights * rows
         if self.sensor_range is not None:
             flat = prepared.reshape(n_frames, -1)
             inside = (flat > self.sensor_range[0]) & (flat < self.sensor_range[1])
@@ -740,8 +745,13 @@ class LiveTracker:
     def update(self, frame: np.ndarray, reference_mm: float = float("nan")) -> LiveFix:
         """Solve one frame ``(n,)`` or ``(R, n)``; ``reference_mm`` is the grating at that instant, if read."""
         frame = np.asarray(frame)
-        last, self._last_frame = self._last_frame, frame.copy()
-        if last is not None and repeats.repeated(frame[None], self.model.noise_gray or 0.0, last)[0]:
+        last = self._last_frame
+        same = last is not None and last.shape == frame.shape and bool((last == frame).all())
+        if last is None or last.shape != frame.shape or last.dtype != frame.dtype:
+            self._last_frame = frame.copy()
+        elif not same:
+            np.copyto(last, frame)  # the kept image, refreshed in place
+        if same and repeats.repeated(frame[None], self.model.noise_gray or 0.0, last)[0]:
             self.state.repeat()
             return LiveFix(float("nan"), False, float("nan"), float("nan"), self.state.events[-1],
                            stale=self.state.stale, stale_reason=self.state.stale_reason)
