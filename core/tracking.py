@@ -239,12 +239,14 @@ class Tracker:
         calibration: they say nothing about x). The flag is True when these are the weights every frame shares, ``(1, P)``."""
         rows = self.model.rows_averaged(frame_rows)
         n_frames = prepared.shape[0]
-        if self.signal_dependent:  # one fused pass (core/frame_kernel.py), the numbers of inverse_variance
+        if self.signal_dependent and n_frames == 1:  # a live frame: one fused pass (core/frame_kernel.py),
+            # the numbers of inverse_variance below (numpy's own passes are cheaper over a long batch)
             weights, _ = frame_kernel.sample_weights(prepared.reshape(n_frames, -1), self.model.pixel_noise,
                                                      self._pixel_weight, rows, self.sensor_range)
             return weights, False
-        shared = True
-        weights = self.static_weights * rows
+        shared = not self.signal_dependent
+        weights = self.static_weights * rows if shared else \
+            self.model.inverse_variance(prepared).reshape(n_frames, -1) * rows
         if self.sensor_range is not None:
             flat = prepared.reshape(n_frames, -1)
             inside = (flat > self.sensor_range[0]) & (flat < self.sensor_range[1])

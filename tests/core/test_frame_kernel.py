@@ -135,3 +135,23 @@ def test_the_general_focus_solve_compiled_and_as_python() -> None:
         assert a.iterations == b.iterations
         for field in ("information", "gain", "offset", "chi2", "focus", "focus_sigma", "cost"):
             assert getattr(a, field) == pytest.approx(getattr(b, field), rel=1e-9, abs=1e-12), field
+
+
+def test_the_fused_sample_weights_are_inverse_variance(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A live frame's weights in one compiled pass: 1/σ²(y) of the photon-transfer model times the
+    pixel's weight and the rows averaged, zero at the sensor's limits, bit for bit numpy's."""
+    from graytrack.core.pixel_noise import PixelNoise
+
+    rng = np.random.default_rng(5)
+    noise = PixelNoise(read_var=2.0, shot_gain=0.2, dark_gray=40.0, quant_var=1 / 12)
+    y = rng.uniform(0.0, 4095.0, size=(1, 300))
+    y[0, :3] = (0.0, 4095.0, 30.0)
+    pixel_weight = (rng.uniform(size=300) > 0.1).astype(float)
+    expected = 1.0 / noise.variance(y) * pixel_weight * 4
+    inside = (y > 0.0) & (y < 4095.0)
+    for compiled in (True, False):
+        monkeypatch.setattr(kernels, "COMPILED", compiled)
+        weights, shared = frame_kernel.sample_weights(y, noise, pixel_weight, 4, None)
+        assert shared and np.array_equal(weights, expected)
+        weights, shared = frame_kernel.sample_weights(y, noise, pixel_weight, 4, (0.0, 4095.0))
+        assert not shared and np.array_equal(weights, expected * inside)
