@@ -137,14 +137,6 @@ def grid_cost(source: MomentSource, k: int, grid: np.ndarray, free: bool) -> np.
     return yy - explained + np.where(gain > 0.0, 0.0, np.inf)
 
 
-def redescending(u: np.ndarray) -> np.ndarray:
-    """Weight of a pixel whose residual is ``u`` robust σ: 1 inside ``CORE_SIGMA``, Tukey's
-    biweight taper to 0 at ``CUT_SIGMA`` and beyond. Honest pixels keep their full weight (no
-    efficiency lost to the noise), gross outliers (dust, glints, stuck pixels) get none."""
-    t = np.clip((np.abs(u) - CORE_SIGMA) / (CUT_SIGMA - CORE_SIGMA), 0.0, 1.0)
-    return (1.0 - t * t) ** 2
-
-
 def robust_solve(source: MomentSource, k: int, start: FrameSolution, free: bool, settings: SolverSettings,
                  rejected: np.ndarray | None = None, chi2_limit: float = -1.0,
                  layout: tuple[int, int] | None = None) -> FrameSolution:
@@ -154,7 +146,8 @@ def robust_solve(source: MomentSource, k: int, start: FrameSolution, free: bool,
     and, when given, the pixels the previous frame rejected (when the others then fit, χ² within
     ``chi2_limit``, and those are still beyond the cut, that is the answer: a bad pixel that stays
     bad costs one solve per frame); scales the residuals by their median
-    absolute value (never below the noise model), weighs them by :func:`redescending` and solves
+    absolute value (never below the noise model), weighs them by a redescending weight (1 inside
+    ``CORE_SIGMA``, Tukey's biweight taper to 0 at ``CUT_SIGMA``) and solves
     again, until the set of rejected pixels settles. The bound comes with the weights used: that
     of the pixels kept. When no pixel sits in the taper (the usual case) the weights are a mask.
 
