@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from graytrack.core import kernels, small_linalg
+from graytrack.core import frame_kernel, kernels, small_linalg
 from graytrack.core.evaluation import TrigTables, _trig_coefficients
 from graytrack.core.solvers import FrameSolution, SolverSettings, TrigPolyBatch
 
@@ -149,44 +149,128 @@ def general_focus_solve(evaluator, y: np.ndarray, weights: np.ndarray, start: Fr
     a target map, clipping): B = ½F″ and B′ = ½F‴ by central differences of the model's slopes
     (a step of a thousandth of a period: relative error ~(2πM·10⁻³)²/6, far below the noise), the
     same (g, h, o) least squares and Schur complement. Each iteration reads the pixels once, into
-    the sums of :func:`focus_sums`; the rest is algebra on 3×3 matrices."""
-    step = FOCUS_STEP_PERIODS * period_mm
+    the sums of :func:`focus_sums`; the rest is algebra on 3×3 matrices. The whole solve is one
+    call of :func:`_general_focus` (compiled on a table kernel, its Python twin otherwise)."""
     if start.rejected:
         weights = weights * ~start.rejected_mask
-    x = float(start.x_mm)
     y = np.ascontiguousarray(y, dtype=np.float64)
     weights = np.ascontiguousarray(weights, dtype=np.float64)
-    yy, n_used = float((y * weights) @ y), float(np.count_nonzero(weights))
-    theta = np.array([start.gain, 0.0, start.offset])
-    information, cost, iterations = 0.0, float("inf"), 0
+    compiled = kernels.COMPILED and isinstance(evaluator, kernels.TableEvaluator)
+    model = evaluator._args if compiled else (evaluator,)
+    work = np.empty((2, 3, y.size))
+    out = np.empty(_FOCUS_OUT)
+    has_prior = prior is not None and prior.variance_mm4 > 0.0
+    (_general_focus if compiled else _general_focus_twin)(
+        y, weights, float(start.x_mm), float(start.gain), float(start.offset), FOCUS_STEP_PERIODS * period_mm,
+        has_prior, prior.delta_mm2 if has_prior else 0.0, prior.variance_mm4 if has_prior else 0.0,
+        settings.max_iterations, settings.tolerance_mm, settings.max_step_mm, model, work[0], work[1],
+        np.empty(y.size), out)
+    x, iterations, information, cost, n_used, blur_variance = out[:6].tolist()
+    return _answer(x, out[6:9], out[9:12], cost, information, blur_variance, n_used, int(iterations), start,
+                   settings, pixel_pitch_mm)
+
+
+_FOCUS_OUT = 12  # x, iterations, information, cost, samples used, blur variance, θ (3), own θ (3)
+
+
+def _model_many(x_mm: np.ndarray, model: tuple, values: np.ndarray, slopes: np.ndarray, smooth: np.ndarray) -> None:
+    kernels._evaluate_many(x_mm, *model, values, slopes, smooth)
+
+
+def _numpy_model_many(x_mm: np.ndarray, model: tuple, values: np.ndarray, slopes: np.ndarray,
+                      smooth: np.ndarray) -> None:
+    values[:], slopes[:] = model[0].evaluate(x_mm.copy())  # a new array: a model's caches key on its identity
+
+
+def _numpy_eliminate(a: np.ndarray, b: np.ndarray) -> bool:
+    """numpy's solve of ``a x = b`` into ``b`` ``(n, m)``; False when ``a`` is singular."""
+    try:
+        b[:] = np.linalg.solve(a, b)
+    except np.linalg.LinAlgError:
+        return False
+    return True
+
+
+def _solve3(a: np.ndarray, b: np.ndarray, x: np.ndarray) -> bool:
+    """``x`` = a⁻¹b for a small system, ``a`` and ``b`` left as they were; False when singular."""
+    work = a.copy()
+    rhs = b.reshape((b.size, 1)).copy()
+    if not _eliminate(work, rhs):
+        return False
+    x[:] = rhs[:, 0]
+    return True
+
+
+def _general_focus(y: np.ndarray, w: np.ndarray, x: float, gain: float, offset: float, step: float,
+                   has_prior: bool, prior_delta: float, prior_variance: float, max_iterations: int,
+                   tolerance: float, max_step: float, model: tuple, values: np.ndarray, slopes: np.ndarray,
+                   smooth: np.ndarray, out: np.ndarray) -> None:
+    """The solve of :func:`general_focus_solve` into ``out`` (see :data:`_FOCUS_OUT`)."""
+    yy = 0.0
+    n_used = 0.0
+    for p in range(y.size):
+        yy += (y[p] * w[p]) * y[p]
+        if w[p] != 0.0:
+            n_used += 1.0
+    theta = np.array([gain, 0.0, offset])
+    information, cost, iterations = 0.0, math.inf, 0
     normal, projected, fisher = np.eye(3), np.zeros(3), np.eye(4)
     sums = np.empty(_FOCUS_SUMS)
-    for iterations in range(1, settings.max_iterations + 1):
-        values, slopes = evaluator.evaluate(np.array([x - step, x, x + step]))
-        focus_sums(values, slopes, y, weights, step, sums)
-        normal, projected, design_slope, design_turn, (ys, yt, ss, st, tt) = _unpack(sums)
-        held, held_projected = _with_prior(normal, projected, prior, theta[0])
-        try:
-            theta = small_linalg.solve(held, held_projected)
-        except np.linalg.LinAlgError:
+    positions = np.empty(3)
+    held, held_projected = np.empty((3, 3)), np.empty(3)
+    solved, cross = np.empty(3), np.empty(3)
+    for iterations in range(1, max_iterations + 1):
+        positions[0], positions[1], positions[2] = x - step, x, x + step
+        _model_many(positions, model, values, slopes, smooth)
+        _focus_sums_of(values, slopes, y, w, step, sums)
+        ff, fb, f1, bb, b1, n1, fy, by, y1, fs, bs, s1, ft, bt, t1, sy, ty, ss, st, tt = (
+            sums[0], sums[1], sums[2], sums[3], sums[4], sums[5], sums[6], sums[7], sums[8], sums[9], sums[10],
+            sums[11], sums[12], sums[13], sums[14], sums[15], sums[16], sums[17], sums[18], sums[19])
+        normal = np.array([[ff, fb, f1], [fb, bb, b1], [f1, b1, n1]])
+        projected = np.array([fy, by, y1])
+        held[:, :] = normal
+        held_projected[:] = projected
+        if has_prior:  # the prior on h = g·δ, g at its last value
+            variance = theta[0] * theta[0] * prior_variance
+            held[1, 1] += 1.0 / variance
+            held_projected[1] += theta[0] * prior_delta / variance
+        if not _solve3(held, held_projected, solved):
             break
-        cost = yy - 2.0 * float(projected @ theta) + float(theta @ normal @ theta)
+        theta = solved.copy()
+        explained = projected[0] * theta[0] + projected[1] * theta[1] + projected[2] * theta[2]
+        quadratic = 0.0
+        for i in range(3):
+            row = theta[0] * normal[0, i] + theta[1] * normal[1, i] + theta[2] * normal[2, i]
+            quadratic += row * theta[i]
+        cost = yy - 2.0 * explained + quadratic
         # the Jacobian in x is J = g·F′ + h·B′: its products with the design, y and itself are linear
         # (quadratic) in the sums, so the step is the profiled one of solvers.profiled_step
-        g, h = float(theta[0]), float(theta[1])
-        cross = g * design_slope + h * design_turn
-        numerator = g * ys + h * yt - float(cross @ theta)
+        g, h = theta[0], theta[1]
+        cross[0], cross[1], cross[2] = g * fs + h * ft, g * bs + h * bt, g * s1 + h * t1
+        numerator = g * sy + h * ty - (cross[0] * theta[0] + cross[1] * theta[1] + cross[2] * theta[2])
         slope_norm = g * g * ss + 2.0 * g * h * st + h * h * tt
-        information = slope_norm - float(cross @ small_linalg.solve(held, cross))
-        fisher = np.empty((4, 4))
-        fisher[0, 0], fisher[0, 1:], fisher[1:, 0], fisher[1:, 1:] = slope_norm, cross, cross, normal
-        dx = numerator / information if information > 0.0 else 0.0
-        dx = min(max(dx, -settings.max_step_mm), settings.max_step_mm)
-        x += dx
-        if abs(dx) < settings.tolerance_mm:
+        if not _solve3(held, cross, solved):
             break
-    return _solution(x, theta, _own(normal, projected, theta), cost, information, fisher, n_used, iterations, start,
-                     settings, pixel_pitch_mm)
+        information = slope_norm - (cross[0] * solved[0] + cross[1] * solved[1] + cross[2] * solved[2])
+        fisher = np.empty((4, 4))
+        fisher[0, 0] = slope_norm
+        fisher[0, 1:] = cross
+        fisher[1:, 0] = cross
+        fisher[1:, 1:] = normal
+        dx = numerator / information if information > 0.0 else 0.0
+        dx = min(max(dx, -max_step), max_step)
+        x += dx
+        if abs(dx) < tolerance:
+            break
+    own = theta.copy()  # the frame's own (g, h, o) at the final x, without the prior
+    _solve3(normal, projected, own)
+    inverse = np.eye(4)
+    blur_variance = math.inf
+    if _eliminate(fisher.copy(), inverse):
+        blur_variance = inverse[2, 2]
+    out[0], out[1], out[2], out[3], out[4], out[5] = x, iterations, information, cost, n_used, blur_variance
+    out[6:9] = theta
+    out[9:12] = own
 
 
 _FOCUS_SUMS = 20
@@ -259,13 +343,6 @@ def focus_sums(values: np.ndarray, slopes: np.ndarray, y: np.ndarray, w: np.ndar
         _focus_sums_numpy(values, slopes, y, w, step, out)
 
 
-def _unpack(sums: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, tuple[float, ...]]:
-    """(normal, projected, design·F′, design·B′, (F′y, B′y, F′F′, F′B′, B′B′)) from :func:`focus_sums`."""
-    ff, fb, f1, bb, b1, n1, fy, by, y1, fs, bs, s1, ft, bt, t1, sy, ty, ss, st, tt = sums.tolist()
-    normal = np.array([[ff, fb, f1], [fb, bb, b1], [f1, b1, n1]])
-    return normal, np.array([fy, by, y1]), np.array([fs, bs, s1]), np.array([ft, bt, t1]), (sy, ty, ss, st, tt)
-
-
 @dataclass(frozen=True)
 class FocusPrior:
     """What the last frames say about the focus (δ in mm² and its variance): a focus drifts slowly,
@@ -304,16 +381,37 @@ def _solution(x: float, theta: np.ndarray, own: np.ndarray, cost: float, informa
     """The frame's answer with the focus term: x, gain and offset as solved (``theta``); δ = h/g in
     px² and its standard error from the frame's own estimate (``own``) and the Fisher matrix of
     (x, g, h, o)."""
-    chi2 = max(cost, 0.0) / max(n_used - FOCUS_UNKNOWNS - 1, 1.0)
-    gain, offset = float(theta[0]), float(theta[2])
-    own_gain, blur = float(own[0]), float(own[1])
     try:
         blur_variance = float(small_linalg.inv(fisher)[2, 2])
     except np.linalg.LinAlgError:
         blur_variance = float("inf")
+    return _answer(x, theta, own, cost, information, blur_variance, n_used, iterations, start, settings,
+                   pixel_pitch_mm)
+
+
+def _answer(x: float, theta: np.ndarray, own: np.ndarray, cost: float, information: float, blur_variance: float,
+            n_used: float, iterations: int, start: FrameSolution, settings: SolverSettings,
+            pixel_pitch_mm: float) -> FrameSolution:
+    """:func:`_solution` given the blur coefficient's variance (the Fisher matrix inverted)."""
+    chi2 = max(cost, 0.0) / max(n_used - FOCUS_UNKNOWNS - 1, 1.0)
+    gain, offset = float(theta[0]), float(theta[2])
+    own_gain, blur = float(own[0]), float(own[1])
     footprint = pixel_pitch_mm * pixel_pitch_mm
     focus = blur / own_gain / footprint if own_gain else float("nan")
     focus_sigma = math.sqrt(max(blur_variance, 0.0)) / abs(own_gain) / footprint if own_gain else float("nan")
     return FrameSolution(x, settings.sigma_gray * math.sqrt(chi2), information, iterations, gain, offset, chi2,
                          start.rejected, True, 0.0, cost, start.rejected_mask, start.rejected_weights_exact,
                          focus=focus, focus_sigma=focus_sigma, focus_solved=True)
+
+
+_eliminate = small_linalg._eliminate  # compiled where numba is
+_focus_sums_of = _compiled_focus_sums if _compiled_focus_sums is not None else _focus_sums_numpy
+_general_focus_twin = frame_kernel.python_twin(_general_focus, _model_many=_numpy_model_many,
+                                               _focus_sums_of=_focus_sums_numpy, _eliminate=_numpy_eliminate,
+                                               _solve3=None)
+_general_focus_twin.__globals__["_solve3"] = frame_kernel.python_twin(_solve3, _eliminate=_numpy_eliminate)
+if kernels.numba is not None:
+    _jit = kernels.numba.njit(cache=True, nogil=True, error_model="numpy")
+    _model_many = _jit(_model_many)
+    _solve3 = _jit(_solve3)
+    _general_focus = _jit(_general_focus)

@@ -122,7 +122,8 @@ def _evaluate_many(x_mm: np.ndarray, omega: float, c_re: np.ndarray, c_im: np.nd
 if COMPILED:
     _evaluate_into = numba.njit(cache=True, nogil=True, error_model="numpy")(_evaluate_into)
     _evaluate_many = numba.njit(cache=True, nogil=True, error_model="numpy")(_evaluate_many)
-    _reduce = numba.njit(cache=True, nogil=True, error_model="numpy")(_reduce)
+    # the seven sums may be reassociated (vectorised): the same numbers to rounding, ~2x faster
+    _reduce = numba.njit(cache=True, nogil=True, error_model="numpy", fastmath={"reassoc"})(_reduce)
     _moments = numba.njit(cache=True, nogil=True, error_model="numpy")(_moments)
 
 

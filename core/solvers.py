@@ -24,17 +24,14 @@ from typing import Protocol
 
 import numpy as np
 
-from graytrack.core import small_linalg, transients
+from graytrack.core import frame_kernel, small_linalg, transients
 from graytrack.core.evaluation import ClippedHarmonics, FastHarmonics, GeneralHarmonics, TrigTables
+# the robust solve's constants live with its control logic (core/frame_kernel.py)
+from graytrack.core.frame_kernel import (CORE_SIGMA, CUT_SIGMA, MAD_TO_SIGMA, ROBUST_ITERATIONS,  # noqa: F401
+                                         TRANSIENT_MAX_WIDTH_SHARE)
 
-CORE_SIGMA, CUT_SIGMA = 3.5, 7.0  # redescending weight: full inside the core, none beyond the cut (robust σ)
 MASK_CACHE_SIZE = 64  # masks of rejected pixels whose moment tables are kept (one bad pixel: one mask)
-ROBUST_ITERATIONS = 6
 SET_ASIDE_BLOCK = 64  # frames whose moments lose a set-aside pixel's share in one vectorised step
-MAD_TO_SIGMA = 1.4826
-# A blob up to half the line wide is still set aside as one transient in tracking (the frame is then
-# unlocked when it loses too much, with the transient as the reason); a wider change is the light's.
-TRANSIENT_MAX_WIDTH_SHARE = 0.5
 
 
 @dataclass
@@ -90,36 +87,20 @@ class SolverSettings:
     sigma_gray: float  # the model's σ, to report χ² as an equivalent rms in gray
 
 
-def _light(m: list[float], s: list[float]) -> tuple[float, float, float]:
-    """Least-squares gain and offset at fixed x from the moments, and the 2×2 determinant."""
-    ff, f1, yf = m[0], m[3], m[5]
-    _, y1, s11 = s[0], s[1], s[2]
-    det = ff * s11 - f1 * f1
-    if det <= 0.0:
-        return 1.0, 0.0, 0.0
-    return (yf * s11 - f1 * y1) / det, (ff * y1 - f1 * yf) / det, det
-
-
 def _step(m: list[float], s: list[float], free: bool) -> tuple[float, float, float, float, float]:
-    """(numerator, information, gain, offset, cost) of the Gauss–Newton step in x at these moments.
-
-    With free light the gain and offset are profiled out (their LS values at this x) and the
-    information is the Schur complement: what is left for x once g and o are estimated too.
-    """
-    ff, fdf, dfdf, f1, df1, yf, ydf = m
-    yy, y1, s11 = s[0], s[1], s[2]
-    gain, offset, det = _light(m, s) if free else (1.0, 0.0, 0.0)
-    numerator = gain * (ydf - gain * fdf - offset * df1)
-    information = gain * gain * dfdf
-    if det > 0.0:
-        a, b = gain * fdf, gain * df1
-        information -= (a * a * s11 - 2.0 * a * b * f1 + b * b * ff) / det
-    cost = yy - 2.0 * gain * yf - 2.0 * offset * y1 + gain * gain * ff + 2.0 * gain * offset * f1 + offset * offset * s11
-    return numerator, information, gain, offset, cost
+    """(numerator, information, gain, offset, cost) of the Gauss–Newton step in x at these moments
+    (core/frame_kernel.py :func:`light_step`, the compiled solve's own algebra)."""
+    return frame_kernel.light_step(m[0], m[1], m[2], m[3], m[4], m[5], m[6], s[0], s[1], s[2], free)
 
 
 def gauss_newton(source: MomentSource, k: int, x_start: float, free: bool, settings: SolverSettings) -> FrameSolution:
-    """Weighted Gauss–Newton on frame ``k`` from ``x_start``; gain/offset profiled when ``free``."""
+    """Weighted Gauss–Newton on frame ``k`` from ``x_start``; gain/offset profiled when ``free``.
+    A source that evaluates its model pixel by pixel (:class:`GeneralBatch`) is solved in one call
+    of core/frame_kernel.py; a source of moment tables (the trig-polynomial fast path) here."""
+    if isinstance(source, GeneralBatch):
+        return _solution(frame_kernel.solve(source.evaluator, source.frames[k], source.weights(k), x_start, free,
+                                            settings.max_iterations, settings.tolerance_mm, settings.max_step_mm),
+                         free, settings)
     scalars = source.scalars(k)
     x, iterations = float(x_start), 0
     max_step, tolerance = settings.max_step_mm, settings.tolerance_mm
@@ -156,14 +137,6 @@ def grid_cost(source: MomentSource, k: int, grid: np.ndarray, free: bool) -> np.
     return yy - explained + np.where(gain > 0.0, 0.0, np.inf)
 
 
-def redescending(u: np.ndarray) -> np.ndarray:
-    """Weight of a pixel whose residual is ``u`` robust σ: 1 inside ``CORE_SIGMA``, Tukey's
-    biweight taper to 0 at ``CUT_SIGMA`` and beyond. Honest pixels keep their full weight (no
-    efficiency lost to the noise), gross outliers (dust, glints, stuck pixels) get none."""
-    t = np.clip((np.abs(u) - CORE_SIGMA) / (CUT_SIGMA - CORE_SIGMA), 0.0, 1.0)
-    return (1.0 - t * t) ** 2
-
-
 def robust_solve(source: MomentSource, k: int, start: FrameSolution, free: bool, settings: SolverSettings,
                  rejected: np.ndarray | None = None, chi2_limit: float = -1.0,
                  layout: tuple[int, int] | None = None) -> FrameSolution:
@@ -173,7 +146,8 @@ def robust_solve(source: MomentSource, k: int, start: FrameSolution, free: bool,
     and, when given, the pixels the previous frame rejected (when the others then fit, χ² within
     ``chi2_limit``, and those are still beyond the cut, that is the answer: a bad pixel that stays
     bad costs one solve per frame); scales the residuals by their median
-    absolute value (never below the noise model), weighs them by :func:`redescending` and solves
+    absolute value (never below the noise model), weighs them by a redescending weight (1 inside
+    ``CORE_SIGMA``, Tukey's biweight taper to 0 at ``CUT_SIGMA``) and solves
     again, until the set of rejected pixels settles. The bound comes with the weights used: that
     of the pixels kept. When no pixel sits in the taper (the usual case) the weights are a mask.
 
@@ -181,83 +155,26 @@ def robust_solve(source: MomentSource, k: int, start: FrameSolution, free: bool,
     passing dust: core/transients.py) takes its whole support with it, tails down to
     ``transients.GROW_Z`` and a pixel beyond: the tails of a glint bright enough to reject sit
     below the cut and would otherwise pull the position (``transient_px`` counts those samples).
+
+    The whole solve is one call of core/frame_kernel.py on the source's model evaluator (compiled
+    on a table kernel, its Python twin otherwise).
     """
-    x, gain, offset = start.x_mm, start.gain, start.offset
-    solution, rejected_before = start, None
-    if rejected is not None:
-        solution = _solve_weighted(source, k, x, free, settings, rejected)
-        x, gain, offset, rejected_before = solution.x_mm, solution.gain, solution.offset, rejected
-        if solution.chi2 <= chi2_limit:  # the kept pixels fit: are the ones set aside still outliers?
-            if min(source.set_aside_residuals(k, x, gain, offset, rejected), default=CUT_SIGMA) >= CUT_SIGMA:
-                return solution  # a bad pixel that stays bad: one masked solve, nothing else
-    base = source.weights(k)
-    root = np.sqrt(base)
-    used = base > 0.0
-    masked_pixels = not used.all()
-    for _ in range(ROBUST_ITERATIONS):
-        size = np.abs(source.residuals(k, x, gain, offset) * root)
-        size *= 1.0 / max(1.0, MAD_TO_SIGMA * _middle(size[used] if masked_pixels else size))
-        rejected = size >= CUT_SIGMA
-        blob = None
-        if layout is not None and _may_be_blob(rejected, size, layout):
-            blob = transients.compact_blobs(size.reshape((1,) + layout), CUT_SIGMA,
-                                            max_width_share=TRANSIENT_MAX_WIDTH_SHARE).reshape(-1)
-            rejected |= blob
-        if masked_pixels:
-            rejected &= used
-        beyond_core = size > CORE_SIGMA
-        tapered = bool(beyond_core.any()) and bool((beyond_core & ~rejected).any())
-        if not tapered and rejected_before is not None and solution.rejected_weights_exact \
-                and not (rejected ^ rejected_before).any():
-            _mark_transient(solution, None if blob is None else blob & rejected, layout)
-            break  # the last solve already used these weights
-        factor = None
-        if tapered:
-            factor = redescending(size)
-            factor[rejected] = 0.0  # a blob's tails too, not only what is beyond the cut
-        solution = _solve_weighted(source, k, x, free, settings, rejected, factor)
-        _mark_transient(solution, None if blob is None else blob & rejected, layout)
-        # Tapered weights follow the residuals, which follow x: the same set out and x still within
-        # the solver's tolerance is the fixed point (on thousands of samples a few sit in the taper
-        # by chance alone, and the iterations would otherwise run to their cap on every frame).
-        settled = rejected_before is not None and not (rejected ^ rejected_before).any() \
-            and abs(solution.x_mm - x) < settings.tolerance_mm
-        x, gain, offset, rejected_before = solution.x_mm, solution.gain, solution.offset, rejected
-        if settled:
-            break
-    return solution
+    out, mask = frame_kernel.robust(source.evaluator, source.frames[k], source.weights(k), start.x_mm, start.gain,
+                                    start.offset, free, rejected, chi2_limit, layout, settings.max_iterations,
+                                    settings.tolerance_mm, settings.max_step_mm)
+    return _solution(out, free, settings, mask)
 
 
-def _mark_transient(solution: FrameSolution, samples: np.ndarray | None, layout: tuple[int, int] | None) -> None:
-    """Count the samples set aside as a transient on ``solution``, their share and mean column."""
-    count = 0 if samples is None else int(np.count_nonzero(samples))
-    solution.transient_px = count
-    solution.transient_share = count / samples.size if count else 0.0
-    solution.transient_at = float(np.flatnonzero(samples).mean() % layout[1]) if count and layout else float("nan")
-    if count and layout and layout[0] > 1:
-        solution.transient_at = float(np.nonzero(samples.reshape(layout))[1].mean())
-
-
-def _may_be_blob(rejected: np.ndarray, size: np.ndarray, layout: tuple[int, int]) -> bool:
-    """A rejected sample with a neighbour beyond the blob threshold: the blob search may find one
-    (a lone stuck pixel, the usual rejection, skips it)."""
-    if not rejected.any():
-        return False
-    near = (size > transients.GROW_Z).reshape(layout)
-    out = rejected.reshape(layout)
-    if (out[:, :-1] & near[:, 1:]).any() or (out[:, 1:] & near[:, :-1]).any():
-        return True
-    return layout[0] > 1 and bool((out[:-1] & near[1:]).any() or (out[1:] & near[:-1]).any())
-
-
-def _solve_weighted(source: MomentSource, k: int, x_start: float, free: bool, settings: SolverSettings,
-                    rejected: np.ndarray, factor: np.ndarray | None = None) -> FrameSolution:
-    """Gauss–Newton with the base weights times ``factor``, or without the ``rejected`` pixels when
-    there is no factor (a mask: its share of the moments can be kept from frame to frame)."""
-    source_k = source.without(k, rejected) if factor is None else source.reweighted(k, source.weights(k) * factor)
-    solution = gauss_newton(source_k, 0, x_start, free, settings)
-    solution.rejected, solution.rejected_mask, solution.rejected_weights_exact = int(np.count_nonzero(rejected)), \
-        rejected, factor is None
+def _solution(out: np.ndarray, free: bool, settings: SolverSettings, mask: np.ndarray | None = None) -> FrameSolution:
+    """A solve's row of core/frame_kernel.py FIELDS as a :class:`FrameSolution`."""
+    (x, iterations, information, gain, offset, cost, chi2, excess, rejected, exact, transient_px, transient_share,
+     transient_at, _, masked) = out.tolist()
+    solution = FrameSolution(x, settings.sigma_gray * math.sqrt(chi2), information, int(iterations), gain, offset,
+                             chi2, int(rejected), free, excess, cost=cost)
+    if masked:
+        solution.rejected_mask, solution.rejected_weights_exact = mask, bool(exact)
+        solution.transient_px, solution.transient_share, solution.transient_at = \
+            int(transient_px), transient_share, transient_at
     return solution
 
 
@@ -266,15 +183,6 @@ def _set_aside_residuals(source: MomentSource, k: int, x_mm: float, gain: float,
     """|residual|·√w of the ``rejected`` pixels, from any source."""
     pixels = np.flatnonzero(rejected)
     return (np.abs(source.residuals(k, x_mm, gain, offset, pixels)) * np.sqrt(source.weights(k)[pixels])).tolist()
-
-
-def _middle(values: np.ndarray) -> float:
-    """The (upper) median by one partial sort: a scale estimate needs no more, and np.median's
-    generality costs more than the rest of a robust iteration."""
-    if not values.size:
-        return 0.0
-    half = values.size // 2
-    return float(np.partition(values, half)[half])
 
 
 # --------------------------------------------------------------------------- moment sources
@@ -360,9 +268,11 @@ class TrigPolyBatch:
     raw: np.ndarray | None = None  # (K, R, n) the strip rows a row-averaged batch was made of, when kept
 
     def __init__(self, tables: TrigTables, frames: np.ndarray, weights: np.ndarray,
-                 static: StaticWeights | None = None):
+                 static: StaticWeights | None = None, evaluator=None):
         frames = frames.reshape(frames.shape[0], -1)
         self.tables, self.frames, self.n_frames = tables, frames, frames.shape[0]
+        # what the robust solve evaluates the model with, pixel by pixel (the tracker's table kernel)
+        self.evaluator = evaluator if evaluator is not None else tables.fast
         self._weights = weights  # (K, P) or (1, P) when every frame shares them
         self._static = static
         self._set_aside_block: SetAsideBlock | None = None  # the last block :meth:`without` built
@@ -420,7 +330,7 @@ class TrigPolyBatch:
         return y - gain * self.tables.values_at(x_mm, pixels) - offset
 
     def reweighted(self, k: int, weights: np.ndarray) -> "TrigPolyBatch":
-        return TrigPolyBatch(self.tables, self.frames[k:k + 1], weights[None])
+        return TrigPolyBatch(self.tables, self.frames[k:k + 1], weights[None], evaluator=self.evaluator)
 
     def without(self, k: int, rejected: np.ndarray) -> "TrigPolyBatch | FrameMoments":
         """Frame ``k`` with the ``rejected`` pixels set aside. With weights every frame shares, the
@@ -511,25 +421,23 @@ class GeneralBatch:
         self.n_frames = self.frames.shape[0]
         self.evaluator = evaluator
         self._weights = weights
-        weighted = weights * self.frames
-        self._scalars = np.stack(np.broadcast_arrays(
-            np.einsum("kp,kp->k", weighted, self.frames), weighted.sum(axis=1), weights.sum(axis=1),
-            (weights > 0).sum(axis=1)), axis=1).tolist()
+        self._scalars: list[list[float]] | None = None  # on first use: the solves reduce their frame themselves
 
     def reload(self, frame: np.ndarray) -> "GeneralBatch":
-        """This one-frame batch with weights every frame shares, for the next ``frame`` ``(1, P)``:
-        the frame's two weighted sums, the weights' own (their total and count) kept."""
+        """This one-frame batch with weights every frame shares, for the next ``frame`` ``(1, P)``."""
         if self.n_frames != 1 or self._weights.shape[0] != 1:
             raise ValueError("only a one-frame batch with shared weights reloads")
-        if not hasattr(self, "_weighted"):
-            self._weighted = np.empty_like(self.frames)
         np.copyto(self.frames, frame.reshape(self.frames.shape))
-        weighted = np.multiply(self._weights, self.frames, out=self._weighted)
-        row = self._scalars[0]
-        self._scalars = [[float(weighted[0] @ self.frames[0]), float(weighted.sum()), row[2], row[3]]]
+        self._scalars = None
         return self
 
     def scalars(self, k: int) -> list[float]:
+        """Σw·y², Σw·y, Σw and the samples used of frame ``k`` (the moment solver's and the grid's)."""
+        if self._scalars is None:
+            weighted = self._weights * self.frames
+            self._scalars = np.stack(np.broadcast_arrays(
+                np.einsum("kp,kp->k", weighted, self.frames), weighted.sum(axis=1), self._weights.sum(axis=1),
+                (self._weights > 0).sum(axis=1)), axis=1).tolist()
         return self._scalars[k]
 
     def weights(self, k: int) -> np.ndarray:
@@ -560,14 +468,11 @@ class GeneralBatch:
     @classmethod
     def one(cls, evaluator: "FastHarmonics | GeneralHarmonics | ClippedHarmonics", frame: np.ndarray,
             weights: np.ndarray) -> "GeneralBatch":
-        """A batch of one frame ``(1, P)`` under its own weights ``(1, P)`` (a frame solved again with
-        samples set aside or tapered: several times a frame): the scalars of :meth:`__init__` by the
-        same reductions, without the stacking a batch of many frames needs."""
+        """A batch of one frame ``(1, P)`` under its own weights ``(1, P)`` (a live frame, or a frame
+        solved again with samples set aside), built without a reduction: its scalars on first use."""
         batch = cls.__new__(cls)
         batch.frames, batch.n_frames, batch.evaluator, batch._weights = frame, 1, evaluator, weights
-        weighted = weights * frame
-        batch._scalars = [[float(np.einsum("kp,kp->k", weighted, frame)[0]), float(weighted.sum(axis=1)[0]),
-                           float(weights.sum(axis=1)[0]), float(np.count_nonzero(weights > 0))]]
+        batch._scalars = None
         return batch
 
     def without(self, k: int, rejected: np.ndarray) -> "GeneralBatch":

@@ -24,7 +24,7 @@ from typing import Callable
 
 import numpy as np
 
-from graytrack.core import attribution, repeats, transients
+from graytrack.core import attribution, frame_kernel, repeats, transients
 from graytrack.core.compression import stream_bound_factor
 from graytrack.core.errors import TrackingError
 from graytrack.core.geometry_check import refusal
@@ -213,11 +213,14 @@ class Tracker:
         # once and its iterations never touch a pixel again.
         self.frame_tables = FrameTables.of(model)
         self.evaluator = TableEvaluator(self.frame_tables)
+        frame_kernel.warm(self.evaluator)  # the per-frame solve compiled (or loaded) now, not on a live frame
         self.fast_path = self.frame_tables.trig_polynomial
         self.tables = TrigTables(FastHarmonics(model), model) if self.fast_path else None
         noise = model.noise()
         self.signal_dependent = noise.signal_dependent
         self.static_weights = model.inverse_variance(np.zeros((model.n_rows, model.n_pixels))).reshape(1, -1)
+        self._pixel_weight = np.ones(n_values) if model.pixel_weight is None else \
+            np.ascontiguousarray(model.pixel_weight, dtype=np.float64).reshape(-1)
         self._static: dict[int, StaticWeights] = {}  # by rows averaged: what every frame shares
         # Robust tracking also sets aside samples stuck at the sensor's floor or ceiling (the
         # closed loop's plain tracking leaves them to its clipping effect, which models them).
@@ -237,6 +240,11 @@ class Tracker:
         calibration: they say nothing about x). The flag is True when these are the weights every frame shares, ``(1, P)``."""
         rows = self.model.rows_averaged(frame_rows)
         n_frames = prepared.shape[0]
+        if self.signal_dependent and n_frames == 1:  # a live frame: one fused pass (core/frame_kernel.py),
+            # the numbers of inverse_variance below (numpy's own passes are cheaper over a long batch)
+            weights, _ = frame_kernel.sample_weights(prepared.reshape(n_frames, -1), self.model.pixel_noise,
+                                                     self._pixel_weight, rows, self.sensor_range)
+            return weights, False
         shared = not self.signal_dependent
         weights = self.static_weights * rows if shared else \
             self.model.inverse_variance(prepared).reshape(n_frames, -1) * rows
@@ -256,12 +264,12 @@ class Tracker:
             batch: GeneralBatch | TrigPolyBatch = GeneralBatch(self.evaluator, prepared, weights) \
                 if prepared.shape[0] > 1 else GeneralBatch.one(self.evaluator, prepared.reshape(1, -1), weights)
         elif not shared:
-            batch = TrigPolyBatch(self.tables, prepared, weights)
+            batch = TrigPolyBatch(self.tables, prepared, weights, evaluator=self.evaluator)
         else:
             static = self._static.get(frame_rows)
             if static is None:
                 static = self._static[frame_rows] = StaticWeights.of(self.tables, weights)
-            batch = TrigPolyBatch(self.tables, prepared, static.weights, static)
+            batch = TrigPolyBatch(self.tables, prepared, static.weights, static, self.evaluator)
         if raw is not None and self.model.n_rows == 1 and frame_rows > 1:
             batch.raw = np.asarray(raw)
         return batch
@@ -330,7 +338,8 @@ class Tracker:
         weights = keep.sum(axis=0)  # the information of the kept rows' mean
         mean = np.where(weights > 0, (keep * raw).sum(axis=0) / np.maximum(weights, 1e-300), 0.0)
         if self.fast_path:
-            single: GeneralBatch | TrigPolyBatch = TrigPolyBatch(self.tables, mean[None], weights[None])
+            single: GeneralBatch | TrigPolyBatch = TrigPolyBatch(self.tables, mean[None], weights[None],
+                                                                  evaluator=self.evaluator)
         else:
             single = GeneralBatch.one(self.evaluator, mean[None], weights[None])
         start = FrameSolution(line.x_mm, float("nan"), 0.0, 0, line.gain, line.offset)
@@ -744,8 +753,13 @@ class LiveTracker:
     def update(self, frame: np.ndarray, reference_mm: float = float("nan")) -> LiveFix:
         """Solve one frame ``(n,)`` or ``(R, n)``; ``reference_mm`` is the grating at that instant, if read."""
         frame = np.asarray(frame)
-        last, self._last_frame = self._last_frame, frame.copy()
-        if last is not None and repeats.repeated(frame[None], self.model.noise_gray or 0.0, last)[0]:
+        last = self._last_frame
+        same = last is not None and last.shape == frame.shape and bool((last == frame).all())
+        if last is None or last.shape != frame.shape or last.dtype != frame.dtype:
+            self._last_frame = frame.copy()
+        elif not same:
+            np.copyto(last, frame)  # the kept image, refreshed in place
+        if same and repeats.repeated(frame[None], self.model.noise_gray or 0.0, last)[0]:
             self.state.repeat()
             return LiveFix(float("nan"), False, float("nan"), float("nan"), self.state.events[-1],
                            stale=self.state.stale, stale_reason=self.state.stale_reason)
