@@ -10,6 +10,11 @@ and end of the exposure go to the rig's renderer (:class:`FrameRenderer`, the sa
 it would on the bench, and the controller's ``POS?`` (the grating) stays a separate, imperfect
 measurement of the same motion.
 
+The rig may run in a process of its own (``source``, a :class:`RigProcess`: the stage's true motion,
+its controller and the rendering out of the daemon's interpreter, drivers/sim/process.py); the frames
+are the same. A rig process that dies is a camera error naming its exit status, one that stops
+answering a timeout (a camera that stops delivering); the camera cannot be reopened while it is gone.
+
 Time: the exposure slots and the stage's motion live on the simulated clock (which may run
 faster than wall time); a frame's ``t_host`` is that slot's mid-exposure mapped to the host's
 ``time.monotonic`` and ``t_device`` is the simulated instant. The mapping is exact, so the
@@ -23,9 +28,10 @@ import math
 import numpy as np
 
 from graytrack.drivers.camera.backlog import first_slot
-from graytrack.drivers.camera.base import Camera, CameraSettingError, CameraSettings, CameraTimeout, Frame
+from graytrack.drivers.camera.base import Camera, CameraError, CameraSettingError, CameraSettings, CameraTimeout, Frame
 from graytrack.drivers.clock import REAL_TIME, ScaledClock
 from graytrack.drivers.sim.frame_render import FrameRenderer
+from graytrack.drivers.sim.process import RigProcess, RigProcessError, RigProcessTimeout
 from graytrack.drivers.sim.rig import VirtualRig
 from graytrack.drivers.sim.stage import Trajectory
 
@@ -34,13 +40,18 @@ class SimCamera(Camera):
     def __init__(
         self,
         rig: VirtualRig,
-        stage: Trajectory,
+        stage: Trajectory | None,
         settings: CameraSettings | None = None,
         clock: ScaledClock = REAL_TIME,
+        source: RigProcess | None = None,
     ) -> None:
         super().__init__(settings)
+        if (stage is None) == (source is None):
+            raise ValueError("SimCamera renders either a stage's motion in process or a rig process's frames")
         self.rig = rig
-        self.renderer = FrameRenderer(rig)  # one frame at a time, the fixed part precomputed (frame_render.py)
+        self.source = source  # the rig in its own process (drivers/sim/process.py), or None: rendered here
+        # one frame at a time, the fixed part precomputed (frame_render.py)
+        self.renderer = FrameRenderer(rig) if source is None else None
         self.stage = stage
         self.clock = clock
         self._t0 = 0.0
@@ -56,6 +67,8 @@ class SimCamera(Camera):
         return self.rig.exposure_s if us is None else us * 1e-6
 
     def _open_device(self) -> None:
+        if self.source is not None and not self.source.alive:
+            raise CameraError(self.source.describe() or "the virtual rig's process is not running")
         self._apply_settings()
         self._t0 = self.clock.now()
         self._last_slot = -1
@@ -90,7 +103,17 @@ class SimCamera(Camera):
         t_mid = self._slot_mid(slot)
         half = 0.5 * self.exposure_s
         instants = np.array([t_mid - half, t_mid, t_mid + half]) if half > 0 else np.array([t_mid])
-        strip = self.renderer.render(self.stage.position(instants), t_mid, self.exposure_s)
+        if self.source is not None:
+            try:
+                strip = self.source.render(instants, t_mid, self.exposure_s, max(timeout_s, 0.05))
+            except RigProcessTimeout as exc:
+                self.stats.timeouts += 1
+                raise CameraTimeout(str(exc)) from exc
+            except RigProcessError as exc:
+                raise CameraError(str(exc)) from exc
+        else:
+            assert self.renderer is not None and self.stage is not None
+            strip = self.renderer.render(self.stage.position(instants), t_mid, self.exposure_s)
         pixels = np.ascontiguousarray(self.settings.roi.crop(strip))
         # Physics ran on the simulated clock; what leaves the camera is host time (the contract).
         return Frame(pixels, slot, self.clock.to_host(t_mid), t_device=t_mid,
