@@ -88,12 +88,12 @@ class RigProcess:
             if not self._conn.poll(START_TIMEOUT_S):
                 raise RigProcessTimeout(f"the virtual rig's process did not start within {START_TIMEOUT_S:g} s")
             kind, *rest = pickle.loads(self._conn.recv_bytes())
-        except (EOFError, OSError) as exc:
-            self.stop()
-            raise RigProcessDied(f"the virtual rig's process ended while starting: {self._death()}") from exc
         except RigProcessError:
             self.stop()
             raise
+        except (EOFError, OSError) as exc:
+            self.stop()
+            raise RigProcessDied(f"the virtual rig's process ended while starting: {self._death()}") from exc
         if kind != "ready":
             self.stop()
             raise RigProcessError(f"the virtual rig's process could not start: {rest[0]}")
@@ -166,6 +166,8 @@ class RigProcess:
                     got, status, dtype = _REPLY.unpack_from(reply)
                     if got == seq:
                         break  # older replies: frames given up on after a timeout
+            except RigProcessTimeout:  # a TimeoutError, so an OSError: not a death
+                raise
             except (EOFError, OSError) as exc:
                 raise RigProcessDied(f"the virtual rig's process {self._death()}") from exc
             if status:
