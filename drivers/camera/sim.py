@@ -97,21 +97,22 @@ class SimCamera(Camera):
         if self.clock.duration_to_host(ready_at - now) > timeout_s:
             self.stats.timeouts += 1
             raise CameraTimeout(f"no simulated frame within {timeout_s:g} s")
-        self.clock.sleep(ready_at - now)
         self.stats.dropped += slot - self._last_slot - 1 if self._last_slot >= 0 else 0
         self._last_slot = slot
         t_mid = self._slot_mid(slot)
         half = 0.5 * self.exposure_s
         instants = np.array([t_mid - half, t_mid, t_mid + half]) if half > 0 else np.array([t_mid])
-        if self.source is not None:
+        if self.source is not None:  # the rig process waits for the exposure's end itself: one request, one reply
             try:
-                strip = self.source.render(instants, t_mid, self.exposure_s, max(timeout_s, 0.05))
+                strip = self.source.render(instants, t_mid, self.exposure_s,
+                                           self.clock.duration_to_host(ready_at - now) + max(timeout_s, 0.05))
             except RigProcessTimeout as exc:
                 self.stats.timeouts += 1
                 raise CameraTimeout(str(exc)) from exc
             except RigProcessError as exc:
                 raise CameraError(str(exc)) from exc
         else:
+            self.clock.sleep(ready_at - now)
             assert self.renderer is not None and self.stage is not None
             strip = self.renderer.render(self.stage.position(instants), t_mid, self.exposure_s)
         pixels = np.ascontiguousarray(self.settings.roi.crop(strip))
