@@ -71,7 +71,8 @@ class RigProcessTimeout(RigProcessError, TimeoutError):
 
 
 class RigProcess:
-    """The parent's side: start, ``render`` frames, ``stop``. ``path`` is the controller's pty."""
+    """The parent's side: ``start``, ``configure`` the frame clock, take frames (``next_frame``), ``stop``.
+    ``path`` is the controller's pty."""
 
     def __init__(self, rig: Any, clock: Any, link: str | None = None) -> None:
         self.rig = rig
@@ -126,6 +127,10 @@ class RigProcess:
         """End the child (EOF on its socket, then SIGKILL if it lingers); safe to call twice."""
         sock, self._sock = self._sock, None
         if sock is not None:
+            try:
+                sock.shutdown(socket.SHUT_RDWR)  # EOF for the child, and a reader blocked on it wakes now
+            except OSError:
+                pass
             sock.close()
         process = self.process
         if process is not None and process.poll() is None:
