@@ -70,6 +70,11 @@ class SimCamera(Camera):
         us = self.settings.exposure_us
         return self.rig.exposure_s if us is None else us * 1e-6
 
+    def read(self, timeout_s: float = 1.0) -> Frame:
+        if self.source is not None and not self.is_open and not self.source.alive:
+            raise CameraError(self.source.describe())  # why it cannot be opened, not only that it is not
+        return super().read(timeout_s)
+
     def raise_priority(self, level: int) -> None:
         """Expose at SCHED_FIFO ``level`` where the exposures run apart (the rig process): the frame loop's own."""
         self.priority = level
