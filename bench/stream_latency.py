@@ -17,6 +17,11 @@ Run: .venv/bin/python bench/stream_latency.py [--seconds 5] [--rates 200,500,100
      [--scenario strip16 --rows 16]  (the virtual rig's scenario and the ROI's rows: a 16-row strip)
      [--renders fast,direct] (the virtual camera's one-frame renderer against the rig's direct render,
                             side by side: GRAYTRACK_SIM_RENDER, drivers/sim/frame_render.py)
+     [--rig-process 0,1]    (the virtual rig in the daemon's process against in its own, side by side:
+                            [camera] rig_process, drivers/sim/process.py)
+
+``CPU %`` is the daemon's process, ``rig %`` the virtual rig's process when it has one (its stage,
+controller and rendering: what real hardware does outside the host).
 
 Besides the receipt latency it prints ``enc``: mid-exposure to the message's encoding in the daemon
 (its ``age_ms``), so a tail can be placed before (frame thread) or after (event loop, send, client) it,
@@ -69,13 +74,14 @@ def free_port() -> int:
 
 
 def config(folder: Path, rate: float, poll_s: float = 0.005, deflate: bool = False, priority: int = 0,
-           model: str = "auto", effects: str = "", scenario: str = "paper", rows: int = 1) -> Path:
+           model: str = "auto", effects: str = "", scenario: str = "paper", rows: int = 1, rig_process: bool = True) -> Path:
     """The daemon's configuration; each model kind (and rig) keeps its own data directory, so its one
     calibration (made at the first start) serves every run of that kind."""
-    path = folder / f"{model}-{scenario}-rows{rows}-rate{rate:g}-poll{poll_s:g}-deflate{int(deflate)}-prio{priority}.toml"
+    path = folder / f"{model}-{scenario}-rows{rows}-rate{rate:g}-poll{poll_s:g}-deflate{int(deflate)}-prio{priority}-rp{int(rig_process)}.toml"
     exposure_us = min(1000.0, 0.5e6 / rate)  # the rig's 1 ms exposure fits up to 1000 frames/s
     path.write_text(f'[camera]\nkind = "sim"\nframe_rate_hz = {rate}\nexposure_us = {exposure_us}\n'
-                    f'effects = "{effects}"\nscenario = "{scenario}"\n[camera.roi]\nrows = {rows}\n'
+                    f'effects = "{effects}"\nscenario = "{scenario}"\nrig_process = {str(rig_process).lower()}\n'
+                    f'[camera.roi]\nrows = {rows}\n'
                     f'[sweep]\nmodel = "{model}"\n'
                     f'[daemon]\ndata_dir = "{folder / ("data-" + model + "-" + scenario + str(rows))}"\nlog_level = "warning"\ngrating_poll_s = {poll_s}\n'
                     f'ws_compression = {str(deflate).lower()}\nrealtime_priority = {priority}\n')
@@ -85,6 +91,17 @@ def config(folder: Path, rate: float, poll_s: float = 0.005, deflate: bool = Fal
 def cpu_seconds(pid: int) -> float:
     fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def children(pid: int) -> list[int]:
+    """The direct child processes of ``pid`` (the virtual rig's, when it runs apart)."""
+    found = []
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        try:
+            found += [int(c) for c in (task / "children").read_text().split()]
+        except OSError:
+            pass
+    return found
 
 
 def wait_tracking(base: str, timeout_s: float = 300.0) -> dict:
@@ -104,21 +121,24 @@ def wait_tracking(base: str, timeout_s: float = 300.0) -> dict:
 
 def run(folder: Path, rate: float, clients: int, seconds: float, poll_s: float = 0.005,
         deflate: bool = False, priority: int = 0, model: str = "auto", effects: str = "", scenario: str = "paper",
-        rows: int = 1, render: str = "fast") -> dict[str, float]:
+        rows: int = 1, render: str = "fast", rig_process: bool = True) -> dict[str, float]:
     port = free_port()
     log = (folder / f"serve-{model}-{rate:g}-{clients}.log").open("w")
     daemon = subprocess.Popen([sys.executable, "-m", "graytrack", "serve", "--config",
-                               str(config(folder, rate, poll_s, deflate, priority, model, effects, scenario, rows)),
+                               str(config(folder, rate, poll_s, deflate, priority, model, effects, scenario, rows, rig_process)),
                                "--port", str(port)], stderr=log, env={**os.environ, "GRAYTRACK_SIM_RENDER": render})
     try:
         status = wait_tracking(f"http://127.0.0.1:{port}")
         time.sleep(0.5)
-        cpu0, wall0 = cpu_seconds(daemon.pid), time.monotonic()
+        rigs = children(daemon.pid)
+        cpu0, rig0, wall0 = cpu_seconds(daemon.pid), sum(map(cpu_seconds, rigs)), time.monotonic()
         # the clients get the daemon's priority: a motion controller that waits for a core measures its own delay
         raise_client = (lambda: os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))) if priority else None
         result = subprocess.run([sys.executable, "-c", CLIENT, f"ws://127.0.0.1:{port}/ws/position", str(clients),
                                  str(seconds)], capture_output=True, text=True, check=True, preexec_fn=raise_client)
-        cpu = (cpu_seconds(daemon.pid) - cpu0) / (time.monotonic() - wall0)
+        wall = time.monotonic() - wall0
+        cpu = (cpu_seconds(daemon.pid) - cpu0) / wall
+        rig_cpu = (sum(map(cpu_seconds, rigs)) - rig0) / wall
     finally:
         daemon.terminate()
         daemon.wait(timeout=30)
@@ -131,7 +151,7 @@ def run(folder: Path, rate: float, clients: int, seconds: float, poll_s: float =
     dropped = max(out[-1][2] - out[0][2] for out in outs)
     return {"rate": rate, "clients": clients, "msgs_s": np.mean([len(out) for out in outs]) / seconds,
             "missing": missing, "dropped": dropped, "p50": np.percentile(latency, 50),
-            "p99": np.percentile(latency, 99), "max": latency.max(), "cpu": 100 * cpu,
+            "p99": np.percentile(latency, 99), "max": latency.max(), "cpu": 100 * cpu, "rig_cpu": 100 * rig_cpu,
             "client_cpu": 100 * measured["cpu"], "enc50": np.percentile(encoded, 50), "enc99": np.percentile(encoded, 99),
             "stale": status.get("stale_reason") or "-" if status.get("model_stale") else "-"}
 
@@ -157,6 +177,8 @@ def main() -> None:
     parser.add_argument("--rows", type=int, default=1, help="rows of the camera's ROI (16 for a 16-row model)")
     parser.add_argument("--renders", default="fast", help="the virtual camera's renderer(s) to compare, side by side: "
                         "fast (one frame, precomputed) and/or direct (VirtualRig.render)")
+    parser.add_argument("--rig-process", default="1", help="the virtual rig in its own process (1) or the daemon's (0), "
+                        "side by side: 0,1")
     args = parser.parse_args()
     folder = Path(tempfile.mkdtemp(prefix="graytrack-bench-"))
     burners = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(args.load)]
@@ -167,18 +189,19 @@ def main() -> None:
             run(folder, 200, 1, 0.5, model=model, effects=args.effects, scenario=args.scenario, rows=args.rows)
         print(f"machine: {os.cpu_count()} cores, load average {load_average()} at start, "
               f"{args.load} busy-looping processes meanwhile; scenario {args.scenario}, {args.rows} row(s)")
-        print(f"{'render':>6} {'model':>6} {'prio':>4} {'deflate':>7} {'poll ms':>7} {'frames/s':>8} {'clients':>7} {'msgs/s':>8} {'missing':>7} {'dropped':>7} "
-              f"{'p50 ms':>7} {'p99 ms':>7} {'max ms':>7} {'CPU %':>6} {'cl CPU':>6} {'enc p50':>7} {'enc p99':>7} {'stale':>9}")
+        print(f"{'rig':>4} {'render':>6} {'model':>6} {'prio':>4} {'deflate':>7} {'poll ms':>7} {'frames/s':>8} {'clients':>7} {'msgs/s':>8} {'missing':>7} {'dropped':>7} "
+              f"{'p50 ms':>7} {'p99 ms':>7} {'max ms':>7} {'CPU %':>6} {'rig %':>6} {'cl CPU':>6} {'enc p50':>7} {'enc p99':>7} {'stale':>9}")
         for rate in (float(r) for r in args.rates.split(",")):
             for clients in (int(c) for c in args.clients.split(",")):
-                for render, model, poll, deflate, prio in ((e, m, float(p), d == "1", int(q))
+                for apart, render, model, poll, deflate, prio in ((a == "1", e, m, float(p), d == "1", int(q))
+                                                           for a in args.rig_process.split(",")
                                                            for e in args.renders.split(",") for m in models
                                                            for p in args.polls.split(",") for d in args.deflate.split(",")
                                                            for q in args.priority.split(",")):
                     r = run(folder, rate, clients, args.seconds, poll, deflate, prio, model, args.effects,
-                            args.scenario, args.rows, render)
-                    print(f"{render:>6} {model:>6} {prio:4d} {'on' if deflate else 'off':>7} {poll * 1e3:7.1f} {r['rate']:8.0f} {r['clients']:7d} {r['msgs_s']:8.0f} {r['missing']:7d} {r['dropped']:7d} "
-                          f"{r['p50']:7.2f} {r['p99']:7.2f} {r['max']:7.2f} {r['cpu']:6.0f} {r['client_cpu']:6.0f} {r['enc50']:7.2f} {r['enc99']:7.2f} {r['stale']:>9}",
+                            args.scenario, args.rows, render, apart)
+                    print(f"{'own' if apart else 'in':>4} {render:>6} {model:>6} {prio:4d} {'on' if deflate else 'off':>7} {poll * 1e3:7.1f} {r['rate']:8.0f} {r['clients']:7d} {r['msgs_s']:8.0f} {r['missing']:7d} {r['dropped']:7d} "
+                          f"{r['p50']:7.2f} {r['p99']:7.2f} {r['max']:7.2f} {r['cpu']:6.0f} {r['rig_cpu']:6.0f} {r['client_cpu']:6.0f} {r['enc50']:7.2f} {r['enc99']:7.2f} {r['stale']:>9}",
                           flush=True)
         print(f"load average {load_average()} at the end")
     finally:

@@ -64,6 +64,9 @@ class CameraConfig(_Strict):
     effects: str = Field("", description="sim: effects the virtual rig has besides its scenario's, as "
                                          "`graytrack simulate --effects` takes them (e.g. \"dust:count=6,flicker\")")
     seed: int = 0
+    rig_process: bool = Field(True, description="sim: run the virtual rig (the stage's motion, the simulated controller "
+                                                "and the camera's rendering) in a process of its own, out of the "
+                                                "daemon's interpreter; the same frames either way")
 
     @model_validator(mode="after")
     def _rig_exists(self) -> "CameraConfig":

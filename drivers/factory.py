@@ -108,8 +108,26 @@ def _simulated(config: HardwareConfig, clock: ScaledClock) -> Hardware:
     from graytrack.drivers.sim.scenarios import build_rig
 
     rig = build_rig(config.camera.scenario, config.camera.effects, seed=config.camera.seed)
+    if config.camera.kind == "sim" and config.camera.rig_process:
+        # the stage's motion, its controller and the rendering in a process of their own (drivers/sim/process.py)
+        from graytrack.drivers.sim.process import RigProcess
+
+        source = RigProcess(rig, clock).start()  # RigProcessError says why it cannot
+        assert source.path is not None
+        return Hardware(SimCamera(rig, None, config.camera.to_settings(), clock=clock, source=source),
+                        make_gcs_stage(config.stage, port=source.path), _Stopper(source), rig)
     truth, controller = virtual_rig_controller(rig, clock)
     controller.start()
     stage = make_gcs_stage(config.stage, port=controller.path)
     camera = SimCamera(rig, truth, config.camera.to_settings(), clock=clock) if config.camera.kind == "sim" else make_real_camera(config.camera)
     return Hardware(camera, stage, controller, rig)
+
+
+class _Stopper:
+    """``Hardware.controller`` for a rig process: ``stop()`` ends it (its controller goes with it)."""
+
+    def __init__(self, process: object) -> None:
+        self.process = process
+
+    def stop(self) -> None:
+        self.process.stop()  # type: ignore[attr-defined]

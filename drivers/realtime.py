@@ -1,4 +1,6 @@
-"""Real-time scheduling for the two threads a position stream waits on: the frame loop and the event loop.
+"""Real-time scheduling for the threads a position stream waits on: the frame loop and the event loop,
+and the grating poller, which holds the interpreter lock they need (a poller preempted while holding
+it made the raised threads wait behind ordinary work: a priority inversion).
 
 On a shared machine a thread that should run when a frame is ready can wait a millisecond or more
 for a core (measured here: a plain process sleeping 1 ms wakes over 1 ms late about once a second

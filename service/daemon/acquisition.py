@@ -150,7 +150,13 @@ class Acquisition(Worker):
 
     # -- the loop --------------------------------------------------------------------------
     def _run(self) -> None:
-        raise_thread_priority(self.priority, "frame loop")
+        if raise_thread_priority(self.priority, "frame loop"):
+            raise_parts = getattr(self.camera, "raise_priority", None)  # a camera that exposes in a process of its own
+            if raise_parts is not None:  # (the virtual rig's, drivers/sim/process.py): its exposures too
+                try:
+                    raise_parts(self.priority)
+                except CameraError as exc:
+                    self.faults("camera", f"camera error: {exc}")
         while not self._stop.is_set():
             frame = self._next_frame()
             if frame is None:

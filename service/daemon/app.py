@@ -31,6 +31,7 @@ from graytrack.drivers.realtime import raise_thread_priority
 from graytrack.service.daemon.rig import HardwareFactory, Rig, default_factory
 from graytrack.service.daemon.settings import Settings
 from graytrack.service.daemon.storage import Storage
+from graytrack.service.daemon.ws_protocol import StreamProtocol
 
 log = logging.getLogger("graytrack.daemon")
 ROUTERS = (status.router, calibration.router, history.router, profile.router, stage.router, stream.router,
@@ -45,8 +46,10 @@ def server_options(settings: Settings) -> dict[str, Any]:
     """How uvicorn serves this app (``graytrack serve`` and the tests use the same). No permessage-deflate
     unless configured: the stream encodes each message once for all clients, and deflate would compress it
     again per client on the event loop (~100 us a message; at 1 kHz x 4 clients that was the loop's largest
-    cost and the stream's latency tail) to save bytes on ~300-byte messages that pages receive decimated."""
-    return {"ws": "websockets-sansio", "ws_per_message_deflate": settings.daemon.ws_compression, "lifespan": "on"}
+    cost and the stream's latency tail) to save bytes on ~300-byte messages that pages receive decimated.
+    The protocol is uvicorn's websockets-sansio one that also takes pre-framed messages (ws_protocol.py):
+    without deflate, each message is framed once and the same bytes are written to every client."""
+    return {"ws": StreamProtocol, "ws_per_message_deflate": settings.daemon.ws_compression, "lifespan": "on"}
 
 
 def resolve_token(settings: Settings, storage: Storage) -> tuple[str, str]:

@@ -2,10 +2,16 @@
 
 The acquisition thread must never wait for a slow client. Each message is encoded once, for all
 clients, on the acquisition thread (adding ``t_unix`` and ``age_ms``, the send-time figures), and
-handed to the event loop with one ``call_soon_threadsafe``. Every client has a bounded queue: a
-client that falls behind loses its oldest messages (counted), not the others' nor the tracker's.
-A client may ask for at most ``max_rate`` messages per second (pages do): the others are skipped
-for it at delivery, before they cost it a send.
+framed once as a WebSocket text frame (:func:`ws_protocol.text_frame`); both are handed to the event
+loop with one ``call_soon_threadsafe``. On the loop, a client whose connection takes pre-framed bytes
+(:class:`ws_protocol.StreamProtocol`) and has nothing queued gets them written to its transport right
+there: the same bytes object for every client, no task switch, no per-client encoding. Any other
+client (a connection with permessage-deflate, a server without that protocol, a transport above its
+high-water mark) has the message queued for its own sending task (``api/stream.py``).
+
+Every client has a bounded queue: a client that falls behind loses its oldest messages (counted),
+not the others' nor the tracker's. A client may ask for at most ``max_rate`` messages per second
+(pages do): the others are skipped for it at delivery, before they cost it a send.
 """
 
 from __future__ import annotations
@@ -18,35 +24,49 @@ from collections import deque
 from typing import Any
 
 from graytrack.service.daemon.timebase import WallClock
+from graytrack.service.daemon.ws_protocol import text_frame
 
 CLIENT_QUEUE = 2000
 
 
 class Client:
-    """One connection's queue and decimation."""
+    """One connection's queue and decimation, and its pre-framed writer when it has one.
 
-    __slots__ = ("queue", "min_interval_s", "last_t", "dropped")
+    ``writer`` (set by the stream route) is the connection's :class:`StreamProtocol` when it takes
+    pre-framed bytes; ``busy`` is True while the client's sending task holds a message it took from
+    the queue, so a direct write never overtakes it (messages stay in order)."""
+
+    __slots__ = ("queue", "min_interval_s", "last_t", "dropped", "writer", "busy", "direct")
 
     def __init__(self, max_rate_hz: float | None) -> None:
-        self.queue: asyncio.Queue[str] = asyncio.Queue(CLIENT_QUEUE)
+        self.queue: asyncio.Queue[tuple[str, bytes]] = asyncio.Queue(CLIENT_QUEUE)
         self.min_interval_s = 1.0 / max_rate_hz if max_rate_hz else 0.0
         self.last_t = -1e18
         self.dropped = 0
+        self.writer: Any = None
+        self.busy = False
+        self.direct = 0  # messages written straight to the transport at delivery
 
-    def offer(self, text: str, t: float) -> bool:
-        """Queue ``text`` (frame time ``t``) unless decimated; False when the oldest had to go."""
+    def offer(self, text: str, frame: bytes, t: float) -> int:
+        """Deliver ``text`` (``frame``: the same as a WebSocket frame; frame time ``t``) unless decimated:
+        1 when written to the transport now, 0 when queued (or skipped), -1 when queued and the oldest
+        queued message had to go."""
         if self.min_interval_s:
             if t - self.last_t < self.min_interval_s:
-                return True
+                return 0
             self.last_t = t
         q = self.queue
+        writer = self.writer
+        if writer is not None and not self.busy and q.empty() and writer.write_frame(frame):
+            self.direct += 1
+            return 1
         if q.full():
             q.get_nowait()
             self.dropped += 1
-            q.put_nowait(text)
-            return False
-        q.put_nowait(text)
-        return True
+            q.put_nowait((text, frame))
+            return -1
+        q.put_nowait((text, frame))
+        return 0
 
 
 class Broadcaster:
@@ -55,7 +75,7 @@ class Broadcaster:
         self._clients: tuple[Client, ...] = ()
         self._lock = threading.Lock()
         self._wall = WallClock()
-        self._handover: deque[tuple[str, float]] = deque()
+        self._handover: deque[tuple[str, bytes, float]] = deque()
         self._scheduled = False
         self.published = 0
         self.sent = 0
@@ -69,8 +89,10 @@ class Broadcaster:
     def clients(self) -> int:
         return len(self._clients)
 
-    def subscribe(self, max_rate_hz: float | None = None) -> Client:
+    def subscribe(self, max_rate_hz: float | None = None, writer: Any = None) -> Client:
+        """A new client; ``writer`` is its connection's :class:`StreamProtocol` when it takes pre-framed bytes."""
         client = Client(max_rate_hz)
+        client.writer = writer
         with self._lock:
             self._clients = self._clients + (client,)
         return client
@@ -93,7 +115,8 @@ class Broadcaster:
         loop = self._loop
         if loop is None or not self._clients or loop.is_closed():
             return
-        self._handover.append((self.encode(message), message["t"]))  # the acquisition thread is done with it
+        text = self.encode(message)
+        self._handover.append((text, text_frame(text.encode()), message["t"]))  # the frame thread is done with it
         if self._scheduled:
             return  # a delivery is pending on the loop: it will take this message too
         self._scheduled = True
@@ -107,8 +130,12 @@ class Broadcaster:
         appended while this runs is either taken here or schedules the next delivery (never stranded)."""
         self._scheduled = False
         handover = self._handover
+        clients = self._clients  # an immutable tuple: no lock on the hot path
         while handover:
-            text, t = handover.popleft()
-            for client in self._clients:  # an immutable tuple: no lock on the hot path
-                if not client.offer(text, t):
+            text, frame, t = handover.popleft()
+            for client in clients:
+                outcome = client.offer(text, frame, t)
+                if outcome > 0:
+                    self.sent += 1
+                elif outcome < 0:
                     self.dropped += 1

@@ -218,7 +218,7 @@ class Rig:
     def _new_grating(self) -> GratingPoller:
         assert self.hardware is not None
         return GratingPoller(self.hardware.stage, self.settings.daemon.grating_poll_s, self.readings,
-                             self.faults.reporter("stage")).start()
+                             self.faults.reporter("stage"), self.settings.daemon.realtime_priority).start()
 
     def _new_acquisition(self) -> Acquisition:
         assert self.hardware is not None

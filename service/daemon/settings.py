@@ -49,8 +49,8 @@ class DaemonConfig(_Strict):
                                  "but one zlib compression per message and client on the event loop (at 1 kHz the "
                                  "stream's largest loop cost and its latency tail)")
     api_docs: bool = Field(False, description="serve the interactive API docs at /api/docs (loads scripts from a CDN)")
-    realtime_priority: int = Field(DEFAULT_LEVEL, ge=0, le=99, description="SCHED_FIFO priority of the frame loop and the event "
-                                   "loop (1-99; needs LimitRTPRIO or CAP_SYS_NICE): the stream's latency tail on a busy machine. "
+    realtime_priority: int = Field(DEFAULT_LEVEL, ge=0, le=99, description="SCHED_FIFO priority of the frame loop, the event "
+                                   "loop and the grating poller (1-99; needs LimitRTPRIO or CAP_SYS_NICE): the stream's latency tail on a busy machine. "
                                    "0 = normal scheduling")
     trim: bool = Field(False, description="correct the streamed position's scale and offset against the grating "
                        "(an online trim, only on evidence of a drift since calibration; POST /api/trim/reset clears it, "

@@ -141,7 +141,7 @@ def _fifo_allowed(level: int) -> bool:
     return allowed[0]
 
 
-def test_realtime_priority_raises_the_frame_loop_and_the_event_loop_only(daemon: LiveServer, tmp_path) -> None:
+def test_realtime_priority_raises_the_frame_loop_the_event_loop_and_the_poller_only(daemon: LiveServer, tmp_path) -> None:
     shutil.copy(daemon.rig.storage.model_path, tmp_path / "model.json")
     settings = fast_settings(tmp_path, realtime_priority=3, auto_calibrate="never")
     with LiveServer(create_app(settings)) as rig:
@@ -149,9 +149,27 @@ def test_realtime_priority_raises_the_frame_loop_and_the_event_loop_only(daemon:
         acquisition, grating = rig.rig.acquisition, rig.rig.grating
         frame_loop = _policy(acquisition._thread.native_id)
         event_loop = _policy(rig.thread.native_id)
-        poller = _policy(grating._thread.native_id)
+        poller = _policy(grating._thread.native_id)  # it holds the interpreter lock the raised ones need
+        supervisor = _policy(rig.rig.supervisor.thread.native_id)
         received = _collect(rig, 20)
-    assert poller == os.SCHED_OTHER, "threads the raised ones start are ordinary (SCHED_RESET_ON_FORK)"
+    assert supervisor == os.SCHED_OTHER, "threads the raised ones start are ordinary (SCHED_RESET_ON_FORK)"
     expected = os.SCHED_FIFO if _fifo_allowed(3) else os.SCHED_OTHER  # refused (no CAP_SYS_NICE): normal, said once
-    assert frame_loop == event_loop == expected
+    assert frame_loop == event_loop == poller == expected
     assert len(received) == 20, "the stream runs either way"
+
+
+def test_clients_get_the_same_preframed_message_text(daemon: LiveServer) -> None:
+    # the broadcaster frames each message once and writes those bytes to every connection
+    # (service/daemon/ws_protocol.py): what a client reads is the text send_text would have sent
+    broadcaster = daemon.app.state.broadcaster
+    with connect(f"ws://127.0.0.1:{daemon.port}/ws/position", open_timeout=5, compression=None) as a, \
+            connect(f"ws://127.0.0.1:{daemon.port}/ws/position", open_timeout=5, compression=None) as b:
+        texts_a = [a.recv(timeout=5) for _ in range(100)]
+        texts_b = [b.recv(timeout=5) for _ in range(100)]
+        clients = broadcaster._clients
+        assert len(clients) == 2 and all(c.writer is not None and c.direct > 0 for c in clients)
+    assert all(isinstance(t, str) for t in texts_a + texts_b), "text frames, as before"
+    by_seq = {json.loads(t)["seq"]: t for t in texts_a}
+    common = [t for t in texts_b if json.loads(t)["seq"] in by_seq]
+    assert len(common) > 50
+    assert all(by_seq[json.loads(t)["seq"]] == t for t in common), "byte for byte the same message"

@@ -1,7 +1,10 @@
 """``WS /ws/position``: one message per tracked frame (or at most ``?max_rate=`` per second).
 
 Two tasks per connection, not per message: one sends what the broadcaster queued, one waits for
-the client to go away. The handshake is checked by :class:`WebPolicy` (Host, Origin, token).
+the client to go away. A connection served by :class:`StreamProtocol` without extensions is written
+to by the broadcaster itself, pre-framed bytes shared by every client (``broadcast.py``); its sending
+task only handles what had to be queued (a transport above its high-water mark). The handshake is
+checked by :class:`WebPolicy` (Host, Origin, token).
 """
 
 from __future__ import annotations
@@ -12,6 +15,7 @@ import math
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 
 from graytrack.service.daemon.broadcast import Broadcaster, Client
+from graytrack.service.daemon.ws_protocol import EXTENSION
 
 router = APIRouter()
 POLICY_VIOLATION = 1008
@@ -29,7 +33,8 @@ async def positions(websocket: WebSocket) -> None:
         return
     await websocket.accept()
     broadcaster: Broadcaster = websocket.app.state.broadcaster
-    client = broadcaster.subscribe(max_rate or None)
+    writer = websocket.scope.get("extensions", {}).get(EXTENSION)
+    client = broadcaster.subscribe(max_rate or None, writer if writer is not None and writer.preframed else None)
     sender = asyncio.create_task(_pump(websocket, client, broadcaster))
     closed = asyncio.create_task(_until_closed(websocket))
     try:
@@ -51,10 +56,21 @@ def _max_rate(text: str | None) -> float | None | bool:
 
 
 async def _pump(websocket: WebSocket, client: Client, broadcaster: Broadcaster) -> None:
-    queue = client.queue
+    queue, writer = client.queue, client.writer
     try:
         while True:
-            await websocket.send_text(await queue.get())
+            text, frame = await queue.get()
+            if writer is None:
+                await websocket.send_text(text)
+            else:
+                client.busy = True  # the broadcaster writes nothing directly until this one is out
+                written = writer.write_frame(frame)
+                while written is False:  # above the high-water mark: wait for the transport to drain
+                    await writer.writable.wait()
+                    written = writer.write_frame(frame)
+                client.busy = False
+                if written is None:
+                    return  # closing or closed
             broadcaster.sent += 1
     except (WebSocketDisconnect, RuntimeError):
         return
