@@ -155,12 +155,11 @@ class ReferenceMonitor:
     estimate: Line | None = None  # the window's line, once it has min_frames
     # Per frame in plain floats (numpy's per-call cost would dominate a six-number update at 1 kHz)
     _rows: list[tuple[float, float, float, float]] = field(init=False, repr=False)  # ring: (w, d, r, new place)
-    _sums: list[float] = field(init=False, repr=False)  # Σw, Σwd, Σwd², Σwr, Σwrd, Σwr²
+    _sums: list[float] = field(init=False, repr=False)  # Σw, Σwd, Σwd², Σwr, Σwrd, Σwr², frames at a new place
     _count: int = field(default=0, init=False)
     _next: int = field(default=0, init=False)
     _since_recompute: int = field(default=0, init=False)
     _outliers: int = field(default=0, init=False)
-    _places: float = field(default=0.0, init=False)  # frames in the window read at a new grating value
     _fed: int = field(default=0, init=False)  # frames added since the start
     _scatter: float = field(default=1.0, init=False)  # the last fit's χ² per dof (at least 1)
     _last_reference: float = field(default=math.nan, init=False)
@@ -169,7 +168,7 @@ class ReferenceMonitor:
         if self.window < max(self.min_frames, 3):
             raise ValueError(f"window must hold at least {max(self.min_frames, 3)} frames, got {self.window}")
         self._rows = [(0.0, 0.0, 0.0, 0.0)] * self.window
-        self._sums = [0.0] * 6
+        self._sums = [0.0] * 7
 
     @classmethod
     def for_model(cls, model, reference_resolution_mm: float = 0.0, **options) -> "ReferenceMonitor":
@@ -193,8 +192,8 @@ class ReferenceMonitor:
     def reset(self) -> None:
         """Forget the window (a new model: the line starts again from its calibration)."""
         self._rows = [(0.0, 0.0, 0.0, 0.0)] * self.window
-        self._sums = [0.0] * 6
-        self._places, self._last_reference, self._scatter = 0.0, math.nan, 1.0
+        self._sums = [0.0] * 7
+        self._last_reference, self._scatter = math.nan, 1.0
         self._count = self._next = self._since_recompute = self._outliers = 0
         self.estimate, self.stale, self.significance, self.baseline = None, False, 0.0, None
 
@@ -276,7 +275,7 @@ class ReferenceMonitor:
         estimate = self.estimate
         ist = np.array([self._count, self._next, self._since_recompute, self._outliers, self._fed, self.stale,
                         estimate is not None], dtype=np.int64)
-        fst = np.array([*self._sums, self._places, self._scatter, self._last_reference, self.significance])
+        fst = np.array([*self._sums, self._scatter, self._last_reference, self.significance])
         est = np.array([estimate.offset_um, estimate.scale_ppm, *estimate.covariance, estimate.center_mm,
                         estimate.frames, estimate.mean_mm] if estimate is not None else [0.0] * 8)
         return ip, p, ist, fst, est, np.array(self._rows, dtype=np.float64)
@@ -285,7 +284,7 @@ class ReferenceMonitor:
         self._count, self._next, self._since_recompute, self._outliers, self._fed = (int(v) for v in ist[:5])
         self.stale = bool(ist[5])
         values = fst.tolist()
-        self._sums, (self._places, self._scatter, self._last_reference, self.significance) = values[:6], values[6:]
+        self._sums, (self._scatter, self._last_reference, self.significance) = values[:7], values[7:]
         if ist[6]:
             e = est.tolist()
             self.estimate = Line(e[0], e[1], (e[2], e[3], e[4]), e[5], int(e[6]), e[7])
@@ -317,27 +316,11 @@ class ReferenceMonitor:
 
     def _add(self, w: float, d: float, r: float, new_place: float) -> None:
         slot = self._next
-        sums = self._sums
-        wd, wr = w * d, w * r
         if self._count == self.window:  # the oldest frame leaves as this one comes in
-            ow, od, o_r, o_place = self._rows[slot]
-            owd, owr = ow * od, ow * o_r
-            sums[0] += w - ow
-            sums[1] += wd - owd
-            sums[2] += wd * d - owd * od
-            sums[3] += wr - owr
-            sums[4] += wr * d - owr * od
-            sums[5] += wr * r - owr * o_r
-            self._places += new_place - o_place
+            _kernels.slide_window_python(self._sums, w, d, r, new_place, *self._rows[slot])
         else:
             self._count += 1
-            sums[0] += w
-            sums[1] += wd
-            sums[2] += wd * d
-            sums[3] += wr
-            sums[4] += wr * d
-            sums[5] += wr * r
-            self._places += new_place
+            _kernels.slide_window_python(self._sums, w, d, r, new_place, 0.0, 0.0, 0.0, 0.0)
         self._rows[slot] = (w, d, r, new_place)
         self._next = (slot + 1) % self.window
         self._since_recompute += 1
@@ -345,8 +328,7 @@ class ReferenceMonitor:
     def _recompute(self) -> None:
         """The window's sums afresh (every RECOMPUTE_EVERY frames added: bounds their rounding drift)."""
         rows = np.array(self._rows[: self._count] if self._count < self.window else self._rows)
-        self._sums = [float(v) for v in _terms(rows[:, 0], rows[:, 1], rows[:, 2], total=True)]
-        self._places = float(rows[:, 3].sum())
+        self._sums = [float(v) for v in _terms(rows[:, 0], rows[:, 1], rows[:, 2], total=True)] + [float(rows[:, 3].sum())]
         self._since_recompute = 0
 
     def _update(self) -> None:
@@ -364,7 +346,7 @@ class ReferenceMonitor:
 
     def _fit(self) -> Line:
         """The weighted line with the scale's prior, its covariance scaled by the observed scatter."""
-        sw, swd, swdd, swr, swrd, _ = self._sums
+        sw, swd, swdd, swr, swrd, _, _ = self._sums
         prior = self._prior_weight()
         base_scale = (self.baseline.scale_ppm if self.baseline else 0.0) * 1e-3  # µm/mm
         # normal equations in (offset µm, scale µm/mm)
@@ -388,7 +370,7 @@ class ReferenceMonitor:
         if sigma2 == 0.0:
             return 0.0, 0.0, 0.0
         sw, swd, swdd = self._sums[0], self._sums[1], self._sums[2]
-        places = max(self._places, 1.0)
+        places = max(self._sums[6], 1.0)
         mean = swd / sw
         spread2 = max(swdd / sw - mean * mean, 0.0)
         var_s = sigma2 / (places * spread2) if spread2 > 0 else math.inf
@@ -421,7 +403,7 @@ class ReferenceMonitor:
 
     def _chi2_per_dof(self, a: float, b: float) -> float:
         """The window's weighted χ² per degree of freedom about the line ``a + b·d`` (µm, µm/mm)."""
-        sw, swd, swdd, swr, swrd, swrr = self._sums
+        sw, swd, swdd, swr, swrd, swrr, _ = self._sums
         chi2 = swrr - 2 * a * swr - 2 * b * swrd + a * a * sw + 2 * a * b * swd + b * b * swdd
         return max(chi2, 0.0) / max(self._count - 2, 1)
 

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 
 from graytrack.core.kernels import COMPILED, numba
 
@@ -40,6 +39,26 @@ def _running(average: float, has: bool, value: float, window: float) -> float:
 
 
 # ---------------------------------------------------------------- the reference monitor (scale)
+def slide_window(sums, w: float, d: float, r: float, new_place: float, ow: float, od: float, o_r: float,
+                 o_place: float) -> None:
+    """One frame (weight, place, residual, new grating place) into the window's sums
+    [Σw, Σwd, Σwd², Σwr, Σwrd, Σwr², places] and the frame (ow, od, o_r, o_place) out of them (all
+    zero while none leaves: the same sums to the bit). A list for the monitor frame by frame, an
+    array in the compiled run: one arithmetic for both."""
+    wd, wr = w * d, w * r
+    owd, owr = ow * od, ow * o_r
+    sums[0] += w - ow
+    sums[1] += wd - owd
+    sums[2] += wd * d - owd * od
+    sums[3] += wr - owr
+    sums[4] += wr * d - owr * od
+    sums[5] += wr * r - owr * o_r
+    sums[6] += new_place - o_place
+
+
+slide_window_python = slide_window  # the monitor's frame-by-frame path (a list; the compiled one takes arrays)
+
+
 # ip: window, min_frames, outlier run that restarts the window, calibration_frames, recompute every,
 #     update every
 # p: center_mm, half_stroke_mm, reference_sigma_mm, place tolerance, floor (µm), z_on², z_off², prior
@@ -173,26 +192,11 @@ def _reference_run(ip, p, ist, fst, est, rows, x, ref, bound, feed, stale, start
                 # _add
                 w = 1.0 / var
                 slot = ist[1]
-                wd, wr = w * d, w * r
                 if ist[0] == window:
-                    ow, od, o_r, o_place = rows[slot, 0], rows[slot, 1], rows[slot, 2], rows[slot, 3]
-                    owd, owr = ow * od, ow * o_r
-                    fst[0] += w - ow
-                    fst[1] += wd - owd
-                    fst[2] += wd * d - owd * od
-                    fst[3] += wr - owr
-                    fst[4] += wr * d - owr * od
-                    fst[5] += wr * r - owr * o_r
-                    fst[6] += new_place - o_place
+                    slide_window(fst, w, d, r, new_place, rows[slot, 0], rows[slot, 1], rows[slot, 2], rows[slot, 3])
                 else:
                     ist[0] += 1
-                    fst[0] += w
-                    fst[1] += wd
-                    fst[2] += wd * d
-                    fst[3] += wr
-                    fst[4] += wr * d
-                    fst[5] += wr * r
-                    fst[6] += new_place
+                    slide_window(fst, w, d, r, new_place, 0.0, 0.0, 0.0, 0.0)
                 rows[slot, 0], rows[slot, 1], rows[slot, 2], rows[slot, 3] = w, d, r, new_place
                 ist[1] = (slot + 1) % window
                 ist[2] += 1
@@ -318,7 +322,7 @@ def _bound_run(state, blame, table, start, grid_step, placed, information, x, ro
 
 if COMPILED:
     _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
-    _max, _min, _running = _jit(_max), _jit(_min), _jit(_running)
+    _max, _min, _running, slide_window = _jit(_max), _jit(_min), _jit(_running), _jit(slide_window)
     _chi2_per_dof, _update, _reset = _jit(_chi2_per_dof), _jit(_update), _jit(_reset)
     _reference_run = _jit(_reference_run)
     _grating_run, _light_run, _transient_run, _bound_run = (_jit(_grating_run), _jit(_light_run),
