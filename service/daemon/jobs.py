@@ -92,16 +92,24 @@ class JobRunner:
         self.clock = clock  # the job's duration is measured on it (service/daemon/clock.py)
 
     def enter(self, state: str, progress: float | None = None, message: str | None = None) -> None:
-        job = self.job
-        job.state = state
-        self.update(progress, message)
+        self._commit(state, progress, message)
 
     def update(self, progress: float | None = None, message: str | None = None) -> None:
+        self._commit(None, progress, message)
+
+    def _commit(self, state: str | None, progress: float | None, message: str | None) -> None:
+        """On disk first, then in memory: whoever saw the job in a state (the API, a kill -9 right
+        after) finds its status.json there too."""
+        changes: dict[str, Any] = {}
+        if state is not None:
+            changes["state"] = state
         if progress is not None:
-            self.job.progress = round(float(progress), 4)
+            changes["progress"] = round(float(progress), 4)
         if message is not None:
-            self.job.message = message
-        self.storage.write_status(self.job.id, self.job.to_dict())
+            changes["message"] = message
+        self.storage.write_status(self.job.id, {**self.job.to_dict(), **changes})
+        for key, value in changes.items():
+            setattr(self.job, key, value)
 
     def run(self, steps: Steps) -> None:
         job, started = self.job, self.clock.now()
