@@ -173,6 +173,18 @@ def general_focus_solve(evaluator, y: np.ndarray, weights: np.ndarray, start: Fr
 _FOCUS_OUT = 12  # x, iterations, information, cost, samples used, blur variance, θ (3), own θ (3)
 
 
+def warm(evaluator, period_mm: float) -> None:
+    """Compile (or load from the disk cache) the general focus solve now, at model install: the first blurred frame must not wait for the compiler (~40 ms from the
+    cache, seconds on a fresh install)."""
+    if not (kernels.COMPILED and isinstance(evaluator, kernels.TableEvaluator)):
+        return
+    n_values = evaluator.tables.n_values
+    settings = SolverSettings(1, 1.0, 1.0, 1.0)
+    general_focus_solve(evaluator, np.zeros(n_values), np.ones(n_values), FrameSolution(0.0, 0.0, 0.0, 0),
+                        settings, period_mm, 1.0)
+    evaluator._at = math.nan
+
+
 def _model_many(x_mm: np.ndarray, model: tuple, values: np.ndarray, slopes: np.ndarray, smooth: np.ndarray) -> None:
     kernels._evaluate_many(x_mm, *model, values, slopes, smooth)
 

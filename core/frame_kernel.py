@@ -25,7 +25,7 @@ import types
 
 import numpy as np
 
-from graytrack.core import kernels, transients
+from graytrack.core import kernels, small_linalg, transients
 from graytrack.core.pixel_noise import _MIN_VARIANCE_GRAY2 as _MIN_VARIANCE
 
 CORE_SIGMA, CUT_SIGMA = 3.5, 7.0  # redescending weight: full inside the core, none beyond the cut (robust σ)
@@ -427,4 +427,6 @@ def warm(evaluator) -> None:
     solve(evaluator, y, w, 0.0, True, 1, 1.0, 1.0)
     for start in (None, np.zeros(n_values, dtype=bool)):
         robust(evaluator, y, w, 0.0, 1.0, 0.0, True, start, 1.0, (1, n_values), 1, 1.0, 1.0)
+    _sample_weights(y, 1.0, 0.0, 0.0, 1.0, w, 1.0, math.nan, math.nan, np.empty(n_values))
+    small_linalg.warm()
     evaluator._at = math.nan

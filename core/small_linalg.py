@@ -65,3 +65,9 @@ def solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def inv(a: np.ndarray) -> np.ndarray:
     """``numpy.linalg.inv`` of one small matrix."""
     return solve(a, np.eye(np.shape(a)[0]))
+
+
+def warm() -> None:
+    """Compile (or load from numba's cache) the elimination now: a tracker's first light-field or
+    focus frame must not wait for the compiler."""
+    inv(np.eye(3))

@@ -32,6 +32,7 @@ from graytrack.core.kernels import TableEvaluator
 from graytrack.core.evaluation import FastHarmonics, TrigTables
 from graytrack.core.frame_tables import FrameTables
 from graytrack.core.focus_solve import CurvatureTable, FocusPrior, focus_solve, general_focus_solve
+from graytrack.core.focus_solve import warm as focus_warm
 from graytrack.core.models.fourier import TWO_PI, FourierModel
 from graytrack.core.recording import Recording
 from graytrack.core.validity import FAMILIES, FrameSign, Monitor, monitor_for
@@ -228,10 +229,16 @@ class Tracker:
         self.sensor_range = None if limits is None else (float(limits[0]), float(limits[1]))
         self.field_basis = field_basis(model.n_rows, model.n_pixels) if light == "auto" else None
         self.layout = (model.n_rows, model.n_pixels)  # a prepared frame's samples: blobs are compact in it
-        # The focus term lives on the fast path's moments (its one extra table built on first use),
-        # or on the model evaluated at x for the others.
+        # The focus term lives on the fast path's moments (its one extra table), or on the model
+        # evaluated at x for the others; both are ready before the first frame, so the first
+        # blurred frame waits for neither a table nor the compiler.
         self.focus_capable = light == "auto"
         self._curvature: CurvatureTable | None = None
+        if self.focus_capable:
+            if self.fast_path:
+                self._curvature = CurvatureTable(self.tables, model.period_mm)
+            else:
+                focus_warm(self.evaluator, model.period_mm)
 
     def weights(self, prepared: np.ndarray, frame_rows: int) -> tuple[np.ndarray, bool]:
         """1/σ² per sample ``(K|1, P)``: the noise model at the observed gray level (the variance of
@@ -389,7 +396,7 @@ class Tracker:
             focused = general_focus_solve(self.evaluator, batch.frames[k], batch.weights(k), uniform, self.settings,
                                           model.period_mm, model.pixel_pitch_mm, prior)
         else:
-            if self._curvature is None:
+            if self._curvature is None:  # (a solver built without the focus term: light given)
                 self._curvature = CurvatureTable(self.tables, model.period_mm)
             focused = focus_solve(batch, k, self._curvature, uniform, self.settings, model.pixel_pitch_mm, prior)
         footprint = model.pixel_pitch_mm**2

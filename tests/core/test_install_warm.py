@@ -1,0 +1,60 @@
+"""A live tracker compiles and builds everything at model install: no live frame waits for the
+compiler or a table (a first blurred frame once stalled the daemon ~40 ms loading the general focus
+solve from numba's cache, seconds on a fresh install with no cache).
+
+Each case runs in a fresh interpreter, where numba's dispatchers start with no compiled signature:
+in this process other tests have compiled them already, and the check could not fail."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+SCRIPT = textwrap.dedent("""
+    import json, sys
+    from numba.core.registry import CPUDispatcher
+    from graytrack.core.calibration import calibrate
+    from graytrack.core.tracking import LiveTracker
+    from graytrack.drivers.sim.causes import model_with
+    from graytrack.drivers.sim.scenarios import build_rig
+
+    kind = sys.argv[1]
+    trouble = "defocus:sigma_um=200,focus_drift:px=1:start_s=0.1,glints:p=0.3,bad_pixels,light_change:start_s=0.2"
+    if kind == "plain":
+        calibration, _ = build_rig("paper", "defocus:sigma_um=200", seed=4).record(2.0)
+        model = calibrate(calibration, "paper").model
+    else:
+        model = model_with("stroke", seconds=1.0)[0]
+    run, _ = build_rig("paper", trouble, seed=4, run=1).record(0.5)
+
+    def compiled():
+        return {f"{module.__name__}.{name}": len(value.signatures)
+                for module in list(sys.modules.values()) if getattr(module, "__name__", "").startswith("graytrack")
+                for name, value in list(vars(module).items()) if isinstance(value, CPUDispatcher)}
+
+    tracker = LiveTracker(model, x0_mm=float(run.reference[0]))
+    installed = compiled()
+    focused = placed = 0
+    for frame, grating in zip(run.frames, run.reference):
+        fix = tracker.update(frame, grating)
+        placed += fix.x_mm == fix.x_mm
+        focused += fix.focus_sigma_px2 == fix.focus_sigma_px2
+    after = compiled()
+    print(json.dumps({"fast_path": bool(tracker.tracker.fast_path), "frames": len(run.frames), "placed": int(placed),
+                      "focused": int(focused), "late": {k: v for k, v in after.items() if v != installed.get(k, 0)}}))
+""")
+
+
+@pytest.mark.parametrize("kind, fast_path", [("plain", True), ("stroke", False)])
+def test_a_live_tracker_compiles_nothing_on_a_live_frame(kind: str, fast_path: bool) -> None:
+    done = subprocess.run([sys.executable, "-c", SCRIPT, kind], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    report = json.loads(done.stdout.strip().splitlines()[-1])
+    assert report["fast_path"] is fast_path
+    assert report["focused"] > 0, "the frames must reach the focus solve, or the check proves nothing"
+    assert report["placed"] > report["frames"] // 2
+    assert report["late"] == {}, f"compiled on a live frame: {report['late']}"
