@@ -104,6 +104,10 @@ class TrigTables:
         values, slopes = fast.evaluate(x)  # (N, P)
         squares = [_trig_coefficients(sampled, self.degree) for sampled in (values**2, slopes**2)]
         self._gram = np.concatenate([squares[0], squares[1], line], axis=1)  # (P, 3·(D+1))
+        # The same table as real and imaginary parts, one row each: real weights fold in by a real
+        # product over contiguous rows (a complex one would first turn the weights complex and do
+        # 4x the work; 59 -> 35 µs a 16 x 128 frame, rows contiguous 24 µs).
+        self._gram_rows = np.ascontiguousarray(np.ascontiguousarray(self._gram).view(np.float64).T)  # (6·(D+1), P)
 
     def values_at(self, x_mm: float, pixels: np.ndarray | None = None) -> np.ndarray:
         """F(x) at one position, of every pixel ``(P,)`` or of ``pixels``: M powers of z times the
@@ -120,7 +124,8 @@ class TrigTables:
     def weighted_gram(self, weights: np.ndarray) -> np.ndarray:
         """``(K, 5, D+1)``: coefficients of F·F, F′·F, F′·F′, F·1, F′·1 under weights ``(K, P)``."""
         width = self.degree + 1
-        folded = (weights @ self._gram).reshape(weights.shape[0], 3, width)
+        parts = self._gram_rows @ np.asarray(weights, dtype=np.float64).T  # (6·(D+1), K)
+        folded = np.ascontiguousarray(parts.T).view(complex).reshape(weights.shape[0], 3, width)
         out = np.empty((weights.shape[0], 5, width), dtype=complex)
         out[:, 0] = folded[:, 0]
         out[:, 1] = 0.5 * folded[:, 0] * self.phase_orders  # F′·F = ½ d(F·F)/dx
