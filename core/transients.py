@@ -98,10 +98,12 @@ def _flood_blobs(z: np.ndarray, core_z: float, grow_z: float, max_width: float, 
     stack = np.empty(n_rows * n_cols, dtype=np.int64)
     members = np.empty(n_rows * n_cols, dtype=np.int64)
     kept = np.zeros((n_rows, n_cols), dtype=np.bool_)
+    order = np.empty(n_rows * n_cols, dtype=np.int64)  # the kept samples, then each margin step's new ones
     for k in range(n_frames):
         label[:, :] = 0
         kept[:, :] = False
         current = 0
+        n_kept = 0
         for r0 in range(n_rows):
             for c0 in range(n_cols):
                 if label[r0, c0] != 0 or not z[k, r0, c0] > grow_z:
@@ -129,20 +131,21 @@ def _flood_blobs(z: np.ndarray, core_z: float, grow_z: float, max_width: float, 
                 if peak > core_z and count >= min_samples and high - low + 1 <= max_width:
                     for i in range(count):
                         kept[members[i] // n_cols, members[i] % n_cols] = True
-        grown = kept.copy()
+                        order[n_kept] = members[i]
+                        n_kept += 1
+        # The margin: each step adds the 4-neighbours of the samples the step before added (those of
+        # older ones are in already), so only the blobs' borders are visited, not the frame.
+        start = 0
         for _ in range(margin):
-            for r in range(n_rows):
-                for c in range(n_cols):
-                    if kept[r, c]:
-                        if r > 0:
-                            grown[r - 1, c] = True
-                        if r < n_rows - 1:
-                            grown[r + 1, c] = True
-                        if c > 0:
-                            grown[r, c - 1] = True
-                        if c < n_cols - 1:
-                            grown[r, c + 1] = True
-            kept[:, :] = grown
+            end = n_kept
+            for i in range(start, end):
+                r, c = order[i] // n_cols, order[i] % n_cols
+                for rr, cc in ((r - 1, c), (r + 1, c), (r, c - 1), (r, c + 1)):
+                    if 0 <= rr < n_rows and 0 <= cc < n_cols and not kept[rr, cc]:
+                        kept[rr, cc] = True
+                        order[n_kept] = rr * n_cols + cc
+                        n_kept += 1
+            start = end
         out[k] = kept
 
 
