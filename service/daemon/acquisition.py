@@ -102,7 +102,9 @@ class Acquisition(Worker):
         self.stats = AcquisitionStats(last_frame_wall=clock.now())
         self.latest: tuple[Sample, LiveFix | None] | None = None  # the line view reads it (no copy)
         self._tracker: LiveTracker | None = None
-        self._pending: tuple[FourierModel, float | None] | None = None
+        # (model, its tracker or None, why it cannot be used): built off the frame loop, taken at a frame
+        self._pending: tuple[FourierModel, LiveTracker | None, str | None] | None = None
+        self._generation = 0  # of the last install asked for: an older build that finishes later is dropped
         self._subscribers: list[queue.Queue[Sample]] = []
         self._lock = threading.Lock()
         self.rate = FrameRate()  # restarts after an outage (service/daemon/framerate.py)
@@ -112,9 +114,25 @@ class Acquisition(Worker):
 
     # -- control (any thread) --------------------------------------------------------------
     def install_model(self, model: FourierModel, x0_mm: float | None = None) -> None:
-        """Track with ``model`` from the next frame on (started near ``x0_mm`` when given)."""
+        """Track with ``model`` from a coming frame on (started near the grating's reading then, or
+        ``x0_mm``). Its tracker (tables, the compiled solves loaded: 40–500 ms, seconds with no
+        compiler cache) is built on a thread of its own: the frame loop keeps every frame meanwhile,
+        tracked with the model it has, and switches between two frames."""
         with self._lock:
-            self._pending = (model, x0_mm)
+            self._generation += 1
+            generation = self._generation
+        threading.Thread(target=self._build, args=(model, x0_mm, generation), name="tracker-build",
+                         daemon=True).start()
+
+    def _build(self, model: FourierModel, x0: float | None, generation: int) -> None:
+        try:
+            built: tuple[FourierModel, LiveTracker | None, str | None] = (
+                model, LiveTracker(model, x0 if x0 is not None and math.isfinite(x0) else None), None)
+        except Exception as exc:  # noqa: BLE001 - an unusable model: said at the switch, frames still read
+            built = (model, None, describe(exc))
+        with self._lock:
+            if generation == self._generation:
+                self._pending = built
 
     @property
     def tracker(self) -> LiveTracker | None:
@@ -228,7 +246,7 @@ class Acquisition(Worker):
             with self._lock:
                 pending, self._pending = self._pending, None
             if pending is not None:
-                self._start_tracker(*pending)
+                self._switch(*pending, sample.reference_mm)
         tracker = self._tracker
         if tracker is None:
             self.latest = (sample, None)
@@ -270,10 +288,15 @@ class Acquisition(Worker):
         self.latest = (sample, fix)
         self.publish(message)
 
-    def _start_tracker(self, model: FourierModel, x0: float | None) -> None:
-        try:
-            self._tracker = LiveTracker(model, x0 if x0 is not None and math.isfinite(x0) else None)
-            self.trim.install(model, self._tracker.tracker)
-        except Exception as exc:  # noqa: BLE001 - an unusable model: say so, keep reading frames
+    def _switch(self, model: FourierModel, tracker: LiveTracker | None, error: str | None,
+                reference_mm: float) -> None:
+        """Track with ``tracker`` from this frame on, started at the grating's reading when there is
+        one (the stage may have moved while it was built)."""
+        if tracker is None:
             self._tracker = None
-            self.faults("tracking", f"cannot track with this model: {describe(exc)}")
+            self.faults("tracking", f"cannot track with this model: {error}")
+            return
+        if math.isfinite(reference_mm):
+            tracker.state.x_prev = reference_mm
+        self._tracker = tracker
+        self.trim.install(model, tracker.tracker)

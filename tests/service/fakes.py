@@ -35,9 +35,11 @@ class ClockCamera(Camera):
         self.opens = 0
         self._frames: queue.Queue[Frame] = queue.Queue()
 
-    def deliver(self, frame_id: int, t: float | None = None, exposure_s: float = 0.0) -> Frame:
+    def deliver(self, frame_id: int, t: float | None = None, exposure_s: float = 0.0,
+                pixels: np.ndarray | None = None) -> Frame:
         """A frame exposed (mid-exposure) at ``t``, now by default, and wake the reader."""
-        frame = Frame(np.zeros((1, self.width)), frame_id, self.clock.now() if t is None else t, exposure_s=exposure_s)
+        image = np.zeros((1, self.width)) if pixels is None else pixels
+        frame = Frame(image, frame_id, self.clock.now() if t is None else t, exposure_s=exposure_s)
         self.clock.put(self._frames, frame)
         return frame
 

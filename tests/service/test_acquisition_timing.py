@@ -6,10 +6,14 @@ the outcome cannot depend on how busy the machine is.
 
 from __future__ import annotations
 
+import threading
+import time
 from collections.abc import Iterator
 
+import numpy as np
 import pytest
 
+from graytrack.service.daemon import acquisition as acquisition_module
 from graytrack.service.daemon.acquisition import READ_TIMEOUT_S, Acquisition
 from graytrack.service.daemon.grating import Readings
 from graytrack.service.daemon.manual_clock import ManualClock
@@ -35,8 +39,8 @@ class Loop:
         self.clock.advance(seconds)
         self.clock.settle()
 
-    def deliver(self, frame_id: int, t: float | None = None) -> None:
-        self.camera.deliver(frame_id, t)
+    def deliver(self, frame_id: int, t: float | None = None, pixels: np.ndarray | None = None) -> None:
+        self.camera.deliver(frame_id, t, pixels=pixels)
         self.clock.settle()
 
 
@@ -93,3 +97,83 @@ def test_a_camera_error_closes_the_camera_and_reopens_it_after_reopen_interval_s
     assert loop.acquisition.stats.camera_reopens == 1 and loop.acquisition.stats.camera_errors == 1
     loop.deliver(1)
     assert loop.faults.now == {}
+
+
+def _sine_model(dc: float):
+    """A small model of the camera's 8 pixels (a frame of it is its prediction)."""
+    from graytrack.core.models.fourier import FourierModel
+
+    model = FourierModel(8.0, 0.06, 8)
+    coefficients = np.zeros(model.coeff_shape)
+    coefficients[0, 0], coefficients[1, 0], coefficients[2, 0] = dc, 80.0, 30.0
+    return model.with_changes(coeffs=coefficients, noise_gray=0.7)
+
+
+def _wait_for(condition, what: str, timeout_s: float = 60.0) -> None:
+    """Wait on a thread that computes (a tracker build), not on time: poll until ``condition``."""
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        assert time.monotonic() < deadline, f"{what} did not happen within {timeout_s:g} s"
+        time.sleep(0.002)
+
+
+def test_a_new_model_is_built_off_the_frame_loop_which_tracks_every_frame_meanwhile(
+        loop: Loop, monkeypatch: pytest.MonkeyPatch) -> None:
+    old, new = _sine_model(128.0), _sine_model(120.0)
+    gate = threading.Event()  # holds the new model's build: a build that takes as long as the test wants
+
+    class HeldTracker(acquisition_module.LiveTracker):
+        def __init__(self, model, *args, **kwargs):
+            if model is new:
+                assert gate.wait(60.0)
+            super().__init__(model, *args, **kwargs)
+
+    monkeypatch.setattr(acquisition_module, "LiveTracker", HeldTracker)
+
+    def image(model, frame_id: int) -> np.ndarray:  # the stage 1 µm further each frame (a repeat is no fix)
+        return model.predict(np.array([2.0 + 1e-3 * frame_id]))[0].reshape(1, -1)
+
+    acquisition = loop.acquisition
+    acquisition.install_model(old, 2.0)
+    _wait_for(lambda: acquisition._pending is not None, "the first model's build")
+    loop.deliver(1, pixels=image(old, 1))
+    assert acquisition.tracker is not None and acquisition.tracker.model is old
+    try:
+        acquisition.install_model(new, 2.0)
+        for frame_id in range(2, 12):  # the new tracker is still being built: the old one tracks every frame
+            loop.deliver(frame_id, pixels=image(old, frame_id))
+        assert acquisition.stats.tracked == 11 and acquisition.stats.dropped == 0
+        assert acquisition.tracker.model is old and len(loop.published) == 11
+        assert loop.published[-1]["x_mm"] == pytest.approx(2.011, abs=1e-9)
+    finally:
+        gate.set()
+    _wait_for(lambda: acquisition._pending is not None, "the new model's build")
+    loop.deliver(12, pixels=image(new, 12))
+    assert acquisition.tracker.model is new and acquisition.stats.tracked == 12
+    assert loop.published[-1]["x_mm"] == pytest.approx(2.012, abs=1e-9)
+    assert loop.faults.now == {}
+
+
+def test_a_build_overtaken_by_a_later_install_is_dropped(loop: Loop, monkeypatch: pytest.MonkeyPatch) -> None:
+    first, second = _sine_model(128.0), _sine_model(120.0)
+    gate = threading.Event()
+
+    class HeldTracker(acquisition_module.LiveTracker):
+        def __init__(self, model, *args, **kwargs):
+            if model is first:
+                assert gate.wait(60.0)
+            super().__init__(model, *args, **kwargs)
+
+    monkeypatch.setattr(acquisition_module, "LiveTracker", HeldTracker)
+    acquisition = loop.acquisition
+    acquisition.install_model(first)
+    try:
+        acquisition.install_model(second)  # asked for later, built first
+        _wait_for(lambda: acquisition._pending is not None, "the second model's build")
+    finally:
+        gate.set()
+    _wait_for(lambda: not any(t.name == "tracker-build" for t in threading.enumerate()), "the first build's end")
+    loop.deliver(1, pixels=second.predict(np.array([1.0]))[0].reshape(1, -1))
+    assert acquisition.tracker.model is second
+    loop.deliver(2, pixels=second.predict(np.array([1.0]))[0].reshape(1, -1))
+    assert acquisition.tracker.model is second  # the older build, finished last, never replaces it
