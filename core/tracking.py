@@ -220,7 +220,8 @@ class Tracker:
         noise = model.noise()
         self.signal_dependent = noise.signal_dependent
         self.static_weights = model.inverse_variance(np.zeros((model.n_rows, model.n_pixels))).reshape(1, -1)
-        self._pixel_weight = np.ones(n_values) if model.pixel_weight is None else \
+        # each sample's weight beyond its noise (0: masked), flattened as the frame solves read it
+        self.pixel_weight = np.ones(n_values) if model.pixel_weight is None else \
             np.ascontiguousarray(model.pixel_weight, dtype=np.float64).reshape(-1)
         self._static: dict[int, StaticWeights] = {}  # by rows averaged: what every frame shares
         # Robust tracking also sets aside samples stuck at the sensor's floor or ceiling (the
@@ -250,7 +251,7 @@ class Tracker:
         if self.signal_dependent and n_frames == 1:  # a live frame: one fused pass (core/frame_kernel.py),
             # the numbers of inverse_variance below (numpy's own passes are cheaper over a long batch)
             weights, _ = frame_kernel.sample_weights(prepared.reshape(n_frames, -1), self.model.pixel_noise,
-                                                     self._pixel_weight, rows, self.sensor_range)
+                                                     self.pixel_weight, rows, self.sensor_range)
             return weights, False
         shared = not self.signal_dependent
         weights = self.static_weights * rows if shared else \
@@ -744,6 +745,9 @@ class LiveTracker:
         self.model = model
         self.tracker = Tracker(model, light=light, robust=robust)
         self.state = SequentialState(x_prev=x0_mm)
+        # The validity monitor now, not at the first frame: its tables (the bound over the stroke:
+        # the model at a few hundred positions, ~50 ms on a 16-row model) are model install's work.
+        self.state.monitor = monitor_for(self.tracker)
         self._bound_factor = stream_bound_factor(model.info)  # a JPEG stream's quantisation widens every bound
         # The lean path: a one-row model without pixel weights reads a frame (or its row mean) into
         # one preallocated line and reloads one batch in place; anything else goes through prepare.

@@ -16,6 +16,7 @@ import math
 
 import numpy as np
 
+from graytrack.core import frame_kernel
 from graytrack.core.validity import FrameSign, running
 
 WINDOW = 100  # frames
@@ -102,9 +103,8 @@ def make(tracker) -> BoundWatch | None:
     step = model.period_mm / GRID_PER_PERIOD
     grid = np.arange(lo - model.period_mm, hi + model.period_mm + step, step)
     values, slopes = tracker.evaluator.evaluate(grid)
-    if tracker.signal_dependent:
-        weights = model.inverse_variance(values.reshape((grid.size,) + (model.n_rows, model.n_pixels)))
-        weights = weights.reshape(grid.size, -1)
+    if tracker.signal_dependent:  # the model's inverse variance at each grid position, in one compiled pass
+        weights, _ = frame_kernel.sample_weights(values, model.pixel_noise, tracker.pixel_weight, 1.0, None)
     else:
         weights = tracker.static_weights
     information = np.sum(weights * slopes * slopes, axis=1)

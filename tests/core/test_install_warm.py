@@ -1,5 +1,5 @@
 """A live tracker compiles and builds everything at model install: no live frame waits for the
-compiler or a table (a first blurred frame once stalled the daemon ~40 ms loading the general focus
+compiler, a table or the validity monitor (a first blurred frame once stalled the daemon ~40 ms loading the general focus
 solve from numba's cache, seconds on a fresh install with no cache).
 
 Each case runs in a fresh interpreter, where numba's dispatchers start with no compiled signature:
@@ -38,6 +38,7 @@ SCRIPT = textwrap.dedent("""
 
     tracker = LiveTracker(model, x0_mm=float(run.reference[0]))
     installed = compiled()
+    monitor_ready = tracker.state.monitor is not None
     focused = placed = 0
     for frame, grating in zip(run.frames, run.reference):
         fix = tracker.update(frame, grating)
@@ -45,7 +46,7 @@ SCRIPT = textwrap.dedent("""
         focused += fix.focus_sigma_px2 == fix.focus_sigma_px2
     after = compiled()
     print(json.dumps({"fast_path": bool(tracker.tracker.fast_path), "frames": len(run.frames), "placed": int(placed),
-                      "focused": int(focused), "late": {k: v for k, v in after.items() if v != installed.get(k, 0)}}))
+                      "focused": int(focused), "monitor_ready": monitor_ready, "late": {k: v for k, v in after.items() if v != installed.get(k, 0)}}))
 """)
 
 
@@ -58,3 +59,4 @@ def test_a_live_tracker_compiles_nothing_on_a_live_frame(kind: str, fast_path: b
     assert report["focused"] > 0, "the frames must reach the focus solve, or the check proves nothing"
     assert report["placed"] > report["frames"] // 2
     assert report["late"] == {}, f"compiled on a live frame: {report['late']}"
+    assert report["monitor_ready"], "the validity monitor's tables are model install's work, not the first frame's"
