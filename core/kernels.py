@@ -53,12 +53,14 @@ def _evaluate_into(x: float, omega: float, c_re: np.ndarray, c_im: np.ndarray, o
     for n in range(n_stroke):
         b, db = legendre[n], dlegendre[n]
         for h in range(n_orders):
+            # value: Re(c·b·zʰ); slope: Re(c·(db + i·b·ωh)·zʰ): two products a coefficient, folded
             zr, zi, turn = z_re[h], z_im[h], omega * h
+            vr, vi = b * zr, b * zi
+            sr, si = db * zr - b * turn * zi, db * zi + b * turn * zr
             row_re, row_im = c_re[h, n], c_im[h, n]
             for p in range(n_values):
-                series = row_re[p] * zr - row_im[p] * zi
-                smooth[p] += b * series
-                slopes[p] += db * series - b * turn * (row_re[p] * zi + row_im[p] * zr)
+                smooth[p] += row_re[p] * vr - row_im[p] * vi
+                slopes[p] += row_re[p] * sr - row_im[p] * si
     last = table.size - 1
     for p in range(n_values):
         factor, dfactor = 1.0, 0.0
