@@ -238,8 +238,7 @@ class Tracker:
         if self.focus_capable:
             if self.fast_path:
                 self._curvature = CurvatureTable(self.tables, model.period_mm)
-            else:
-                focus_warm(self.evaluator, model.period_mm)
+            focus_warm(self.evaluator, model.period_mm)
 
     def weights(self, prepared: np.ndarray, frame_rows: int) -> tuple[np.ndarray, bool]:
         """1/σ² per sample ``(K|1, P)``: the noise model at the observed gray level (the variance of

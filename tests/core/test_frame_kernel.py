@@ -4,6 +4,8 @@ positions, bounds and flags to 1e-9 µm, on frames with each effect family the c
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -135,6 +137,34 @@ def test_the_general_focus_solve_compiled_and_as_python() -> None:
         assert a.iterations == b.iterations
         for field in ("information", "gain", "offset", "chi2", "focus", "focus_sigma", "cost"):
             assert getattr(a, field) == pytest.approx(getattr(b, field), rel=1e-9, abs=1e-12), field
+
+
+def test_the_trig_path_focus_solve_compiled_and_as_python() -> None:
+    """The focus nuisance on the fast path's moments (the seed paper's model on a blurred frame),
+    with and without the last frames' prior: position, light, δ and its error, and the bound agree."""
+    from graytrack.core.focus_solve import CurvatureTable, FocusPrior, focus_solve
+    from graytrack.core.solvers import FrameSolution
+
+    model, run = _fitted("focus")
+    tracker = Tracker(model, light="auto", robust=True)
+    assert tracker.fast_path
+    batch = tracker.batch(model.prepare(run.frames[:1]))
+    curvature = CurvatureTable(tracker.tables, model.period_mm)
+    start = FrameSolution(float(run.reference[0]) + 1e-3, float("nan"), 0.0, 0, 1.02, -0.5)
+    for prior in (None, FocusPrior(1e-5, 1e-10)):
+        answers = []
+        for compiled in (True, False):
+            kernels.COMPILED = compiled
+            try:
+                answers.append(focus_solve(batch, 0, curvature, start, tracker.settings, model.pixel_pitch_mm, prior))
+            finally:
+                kernels.COMPILED = True
+        a, b = answers
+        assert abs(a.x_mm - b.x_mm) * 1e3 < MICROMETRE_TOLERANCE
+        assert a.iterations == b.iterations > 1
+        for field in ("information", "gain", "offset", "chi2", "focus", "focus_sigma", "cost"):
+            assert getattr(a, field) == pytest.approx(getattr(b, field), rel=1e-9, abs=1e-12), field
+        assert math.isfinite(a.focus) and a.focus_sigma > 0
 
 
 def test_the_fused_sample_weights_are_inverse_variance(monkeypatch: pytest.MonkeyPatch) -> None:
