@@ -67,9 +67,10 @@ class CurvatureTable:
 
 @dataclass(frozen=True)
 class FocusMoments:
-    """One frame's inner products of the blur solve as trig polynomials, one row each."""
+    """One frame's inner products of the blur solve: the five trig polynomials the seventeen rows
+    of :func:`_trig_focus` derive from, and the frame's scalars."""
 
-    rows: np.ndarray  # (17, D+1) complex, see :func:`focus_moments`
+    base: np.ndarray  # (5, D+1) complex: F·F, F′·F′, F·1, y·F and F″·F″
     yy: float
     y1: float
     ones: float  # Σ w
@@ -79,28 +80,50 @@ class FocusMoments:
 
 def focus_moments(source: TrigPolyBatch, k: int, curvature: CurvatureTable,
                   rejected: np.ndarray | None) -> FocusMoments:
-    """The rows of frame ``k`` (pixels ``rejected`` set aside), derived from the fast path's seven.
-
-    With P = iωm (a derivative) and the identities F·F″ = ½(F·F)″ − F′·F′, F′·F″ = ½(F′·F′)′:
-    FF, FF″, F″F″, F1, F″1, yF, yF″ (the normal equations of g, h, o) and FF′, FF‴, F″F′,
-    F″F‴, F′1, F‴1, F′F′, F′F‴, yF′, yF‴ (those of the x Jacobian)."""
+    """The base rows of frame ``k`` (pixels ``rejected`` set aside), from the fast path's seven and
+    the curvature table (the one product that is not a derivative of those)."""
     weights = source.weights(k)
     if rejected is not None and rejected.any():
         weights = weights * ~rejected
         source, k = source.reweighted(k, weights), 0
     ff, _, dd, f1, _, yf, _ = source.rows[k]
     scalars = source.scalars(k)
-    p = source.tables.phase_orders
-    p2, p3 = p * p, p * p * p
-    cc = curvature.weighted(weights)
-    fc = 0.5 * p2 * ff - dd  # F·F″
-    dc = 0.5 * p * dd  # F′·F″
-    rows = np.stack([
-        ff, fc, cc, f1, p2 * f1, yf, p2 * yf,  # normal equations
-        0.5 * p * ff, p * fc - dc, dc, 0.5 * p * cc, p * f1, p3 * f1,  # F, F″, 1 against F′ and F‴
-        dd, p * dc - cc, p * yf, p3 * yf,  # F′ against F′ and F‴, y against F′ and F‴
-    ])
-    return FocusMoments(rows, scalars[0], scalars[1], scalars[2], scalars[3], p)
+    base = np.stack([ff, dd, f1, yf, curvature.weighted(weights)])
+    return FocusMoments(base, scalars[0], scalars[1], scalars[2], scalars[3], source.tables.phase_orders)
+
+
+def _focus_rows(base: np.ndarray, orders: np.ndarray, x: float, m: np.ndarray) -> None:
+    """The seventeen moments at ``x`` into ``m``, each Re Σ_j row_j·e^{P_j x}, the rows derived from
+    the base ones with P = iωm (a derivative) and the identities F·F″ = ½(F·F)″ − F′·F′,
+    F′·F″ = ½(F′·F′)′: FF, FF″, F″F″, F1, F″1, yF, yF″ (the normal equations of g, h, o) and FF′,
+    FF‴, F″F′, F″F‴, F′1, F‴1, F′F′, F′F‴, yF′, yF‴ (those of the x Jacobian)."""
+    for k in range(17):
+        m[k] = 0.0
+    for j in range(orders.size):
+        p = orders[j]
+        z = np.exp(p * x)
+        p2 = p * p
+        p3 = p2 * p
+        ff, dd, f1, yf, cc = base[0, j] * z, base[1, j] * z, base[2, j] * z, base[3, j] * z, base[4, j] * z
+        fc = 0.5 * p2 * ff - dd  # F·F″
+        dc = 0.5 * p * dd  # F′·F″
+        m[0] += ff.real
+        m[1] += fc.real
+        m[2] += cc.real
+        m[3] += f1.real
+        m[4] += (p2 * f1).real
+        m[5] += yf.real
+        m[6] += (p2 * yf).real
+        m[7] += (0.5 * p * ff).real
+        m[8] += (p * fc - dc).real
+        m[9] += dc.real
+        m[10] += (0.5 * p * cc).real
+        m[11] += (p * f1).real
+        m[12] += (p3 * f1).real
+        m[13] += dd.real
+        m[14] += (p * dc - cc).real
+        m[15] += (p * yf).real
+        m[16] += (p3 * yf).real
 
 
 def focus_solve(source: TrigPolyBatch, k: int, curvature: CurvatureTable, start: FrameSolution,
@@ -114,7 +137,7 @@ def focus_solve(source: TrigPolyBatch, k: int, curvature: CurvatureTable, start:
     out = np.empty(_TRIG_OUT)
     compiled = kernels.COMPILED and kernels.numba is not None
     (_trig_focus if compiled else _trig_focus_twin)(
-        np.ascontiguousarray(moments.rows), np.ascontiguousarray(moments.phase_orders), moments.yy, moments.y1,
+        np.ascontiguousarray(moments.base), np.ascontiguousarray(moments.phase_orders), moments.yy, moments.y1,
         moments.ones, float(start.x_mm), float(start.gain), float(start.offset), has_prior,
         prior.delta_mm2 if has_prior else 0.0, prior.variance_mm4 if has_prior else 0.0,
         settings.max_iterations, settings.tolerance_mm, settings.max_step_mm, out)
@@ -128,23 +151,18 @@ def focus_solve(source: TrigPolyBatch, k: int, curvature: CurvatureTable, start:
 _TRIG_OUT = 35  # x, iterations, information, cost, θ (3), normal (3×3), projected (3), Fisher (4×4)
 
 
-def _trig_focus(rows: np.ndarray, orders: np.ndarray, yy: float, y1: float, ones: float, x: float, gain: float,
+def _trig_focus(base: np.ndarray, orders: np.ndarray, yy: float, y1: float, ones: float, x: float, gain: float,
                 offset: float, has_prior: bool, prior_delta: float, prior_variance: float, max_iterations: int,
                 tolerance: float, max_step: float, out: np.ndarray) -> None:
-    """The iterations of :func:`focus_solve` on a frame's 17 moment rows, into ``out`` (see
+    """The iterations of :func:`focus_solve` on a frame's base moment rows, into ``out`` (see
     :data:`_TRIG_OUT`): one compiled call instead of some fifteen small numpy ones an iteration."""
-    n_rows, width = rows.shape
-    m = np.empty(n_rows)
+    m = np.empty(17)
     theta = np.array([gain, 0.0, offset])
     normal, projected, cross = np.eye(3), np.zeros(3), np.zeros(3)
     held, held_projected, solved = np.empty((3, 3)), np.empty(3), np.empty(3)
     information, cost, jj, iterations = 0.0, math.inf, 0.0, 0
     for iterations in range(1, max_iterations + 1):
-        for k in range(n_rows):
-            acc = 0.0
-            for j in range(width):
-                acc += (rows[k, j] * np.exp(orders[j] * x)).real
-            m[k] = acc
+        _focus_rows(base, orders, x, m)
         normal = np.array([[m[0], 0.5 * m[1], m[3]], [0.5 * m[1], 0.25 * m[2], 0.5 * m[4]],
                            [m[3], 0.5 * m[4], ones]])
         projected = np.array([m[5], 0.5 * m[6], y1])
@@ -221,7 +239,7 @@ def warm(evaluator, period_mm: float) -> None:
     """Compile (or load from the disk cache) the focus solves now, at model install: the first blurred frame must not wait for the compiler (~40 ms from the
     cache, seconds on a fresh install)."""
     if kernels.COMPILED and kernels.numba is not None:  # the fast path's (trig-polynomial) focus solve
-        _trig_focus(np.ones((17, 3), dtype=complex), np.ones(3, dtype=complex), 1.0, 1.0, 1.0, 0.0, 1.0, 0.0,
+        _trig_focus(np.ones((5, 3), dtype=complex), np.ones(3, dtype=complex), 1.0, 1.0, 1.0, 0.0, 1.0, 0.0,
                     False, 0.0, 0.0, 1, 1.0, 1.0, np.empty(_TRIG_OUT))
     if not (kernels.COMPILED and isinstance(evaluator, kernels.TableEvaluator)):
         return
@@ -475,4 +493,5 @@ if kernels.numba is not None:
     _model_many = _jit(_model_many)
     _solve3 = _jit(_solve3)
     _general_focus = _jit(_general_focus)
+    _focus_rows = _jit(_focus_rows)
     _trig_focus = _jit(_trig_focus)

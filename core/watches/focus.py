@@ -14,7 +14,10 @@ print the model does not know also move the focus term a little, and are not a b
 from __future__ import annotations
 
 import math
+from bisect import bisect_left
 from collections import deque
+from itertools import accumulate
+from operator import itemgetter
 from dataclasses import dataclass, field
 
 from graytrack.core.validity import FrameSign
@@ -76,13 +79,9 @@ class FocusWatch:
             self.change_px2 = self.change_sigma_px2 = float("nan")
             return None
         ordered = sorted(self._estimates)
-        precision = sum(p for _, p, _ in ordered)
-        half, running = 0.5 * precision, 0.0
-        for delta, p, _ in ordered:
-            running += p
-            if running >= half:
-                self.change_px2 = delta
-                break
+        cumulative = list(accumulate(map(itemgetter(1), ordered)))  # (C-level: this runs every focus frame)
+        precision = cumulative[-1]
+        self.change_px2 = ordered[bisect_left(cumulative, 0.5 * precision)][0]  # the precision-weighted median
         self.change_sigma_px2 = MEDIAN_EFFICIENCY / math.sqrt(precision)
         low, high = self.calibrated_px2
         beyond = max(low - self.change_px2, self.change_px2 - high)
