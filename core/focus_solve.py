@@ -151,6 +151,29 @@ def focus_solve(source: TrigPolyBatch, k: int, curvature: CurvatureTable, start:
 _TRIG_OUT = 35  # x, iterations, information, cost, θ (3), normal (3×3), projected (3), Fisher (4×4)
 
 
+def _light_and_blur(normal: np.ndarray, projected: np.ndarray, theta: np.ndarray, has_prior: bool,
+                    prior_delta: float, prior_variance: float, yy: float, held: np.ndarray,
+                    held_projected: np.ndarray) -> float:
+    """One focus iteration's (g, h, o): the normal equations with the prior on h = g·δ added (g at
+    its last value, ``theta`` on entry), solved into ``theta``; the weighted residual cost there, or
+    NaN (``theta`` untouched) when the equations are singular. ``held``, ``held_projected``: work."""
+    held[:, :] = normal
+    held_projected[:] = projected
+    if has_prior:
+        variance = theta[0] * theta[0] * prior_variance
+        held[1, 1] += 1.0 / variance
+        held_projected[1] += theta[0] * prior_delta / variance
+    solved = np.empty(3)
+    if not _solve3(held, held_projected, solved):
+        return math.nan
+    theta[:] = solved
+    explained = projected[0] * theta[0] + projected[1] * theta[1] + projected[2] * theta[2]
+    quadratic = 0.0
+    for i in range(3):
+        quadratic += (theta[0] * normal[0, i] + theta[1] * normal[1, i] + theta[2] * normal[2, i]) * theta[i]
+    return yy - 2.0 * explained + quadratic
+
+
 def _trig_focus(base: np.ndarray, orders: np.ndarray, yy: float, y1: float, ones: float, x: float, gain: float,
                 offset: float, has_prior: bool, prior_delta: float, prior_variance: float, max_iterations: int,
                 tolerance: float, max_step: float, out: np.ndarray) -> None:
@@ -166,21 +189,11 @@ def _trig_focus(base: np.ndarray, orders: np.ndarray, yy: float, y1: float, ones
         normal = np.array([[m[0], 0.5 * m[1], m[3]], [0.5 * m[1], 0.25 * m[2], 0.5 * m[4]],
                            [m[3], 0.5 * m[4], ones]])
         projected = np.array([m[5], 0.5 * m[6], y1])
-        held[:, :] = normal
-        held_projected[:] = projected
-        if has_prior:  # the prior on h = g·δ, g at its last value
-            variance = theta[0] * theta[0] * prior_variance
-            held[1, 1] += 1.0 / variance
-            held_projected[1] += theta[0] * prior_delta / variance
-        if not _solve3(held, held_projected, solved):
+        cost = _light_and_blur(normal, projected, theta, has_prior, prior_delta, prior_variance, yy, held,
+                               held_projected)
+        if cost != cost:
             break
-        theta = solved.copy()
         g, h = theta[0], 0.5 * theta[1]  # J = g·F′ + h·F‴ (B′ = ½F‴, h·B′ = θ₁·½·F‴)
-        explained = projected[0] * theta[0] + projected[1] * theta[1] + projected[2] * theta[2]
-        quadratic = 0.0
-        for i in range(3):
-            quadratic += (theta[0] * normal[0, i] + theta[1] * normal[1, i] + theta[2] * normal[2, i]) * theta[i]
-        cost = yy - 2.0 * explained + quadratic
         cross[0], cross[1], cross[2] = g * m[7] + h * m[8], 0.5 * (g * m[9] + h * m[10]), g * m[11] + h * m[12]
         jj = g * g * m[13] + 2.0 * g * h * m[14]
         numerator = g * m[15] + h * m[16] - (theta[0] * cross[0] + theta[1] * cross[1] + theta[2] * cross[2])
@@ -305,21 +318,10 @@ def _general_focus(y: np.ndarray, w: np.ndarray, x: float, gain: float, offset: 
             sums[11], sums[12], sums[13], sums[14], sums[15], sums[16], sums[17], sums[18], sums[19])
         normal = np.array([[ff, fb, f1], [fb, bb, b1], [f1, b1, n1]])
         projected = np.array([fy, by, y1])
-        held[:, :] = normal
-        held_projected[:] = projected
-        if has_prior:  # the prior on h = g·δ, g at its last value
-            variance = theta[0] * theta[0] * prior_variance
-            held[1, 1] += 1.0 / variance
-            held_projected[1] += theta[0] * prior_delta / variance
-        if not _solve3(held, held_projected, solved):
+        cost = _light_and_blur(normal, projected, theta, has_prior, prior_delta, prior_variance, yy, held,
+                               held_projected)
+        if cost != cost:
             break
-        theta = solved.copy()
-        explained = projected[0] * theta[0] + projected[1] * theta[1] + projected[2] * theta[2]
-        quadratic = 0.0
-        for i in range(3):
-            row = theta[0] * normal[0, i] + theta[1] * normal[1, i] + theta[2] * normal[2, i]
-            quadratic += row * theta[i]
-        cost = yy - 2.0 * explained + quadratic
         # the Jacobian in x is J = g·F′ + h·B′: its products with the design, y and itself are linear
         # (quadratic) in the sums, so the step is the profiled one of solvers.profiled_step
         g, h = theta[0], theta[1]
@@ -483,15 +485,17 @@ def _answer(x: float, theta: np.ndarray, own: np.ndarray, cost: float, informati
 
 _eliminate = small_linalg._eliminate  # compiled where numba is
 _focus_sums_of = _compiled_focus_sums if _compiled_focus_sums is not None else _focus_sums_numpy
+_solve3_twin = frame_kernel.python_twin(_solve3, _eliminate=_numpy_eliminate)
+_light_and_blur_twin = frame_kernel.python_twin(_light_and_blur, _solve3=_solve3_twin)
 _general_focus_twin = frame_kernel.python_twin(_general_focus, _model_many=_numpy_model_many,
                                                _focus_sums_of=_focus_sums_numpy, _eliminate=_numpy_eliminate,
-                                               _solve3=None)
-_general_focus_twin.__globals__["_solve3"] = frame_kernel.python_twin(_solve3, _eliminate=_numpy_eliminate)
-_trig_focus_twin = frame_kernel.python_twin(_trig_focus, _solve3=_general_focus_twin.__globals__["_solve3"])
+                                               _solve3=_solve3_twin, _light_and_blur=_light_and_blur_twin)
+_trig_focus_twin = frame_kernel.python_twin(_trig_focus, _solve3=_solve3_twin, _light_and_blur=_light_and_blur_twin)
 if kernels.numba is not None:
     _jit = kernels.numba.njit(cache=True, nogil=True, error_model="numpy")
     _model_many = _jit(_model_many)
     _solve3 = _jit(_solve3)
+    _light_and_blur = _jit(_light_and_blur)
     _general_focus = _jit(_general_focus)
     _focus_rows = _jit(_focus_rows)
     _trig_focus = _jit(_trig_focus)

@@ -112,51 +112,17 @@ def test_one_robust_call_compiled_and_as_python() -> None:
         assert np.array_equal(mask_a, mask_b) and mask_a[40] and mask_a[10:14].all()
 
 
-def test_the_general_focus_solve_compiled_and_as_python() -> None:
-    """The focus nuisance off the trig tables (a target map), with and without the last frames' prior:
-    position, light, δ and its error, and the bound agree."""
-    from graytrack.core.focus_solve import FocusPrior, general_focus_solve
-    from graytrack.core.solvers import FrameSolution
+def _focus_solves_agree(solve) -> None:
+    """``solve(prior)`` compiled and as Python, with and without the last frames' prior: position,
+    light, δ and its error, and the bound agree."""
+    from graytrack.core.focus_solve import FocusPrior
 
-    model, run = _fitted("target_map")
-    tracker = Tracker(model, light="auto", robust=True)
-    y = model.prepare(run.frames[:1]).reshape(-1)
-    w = tracker.static_weights[0]
-    start = FrameSolution(float(run.reference[0]) + 1e-3, float("nan"), 0.0, 0, 1.02, -0.5)
     for prior in (None, FocusPrior(1e-5, 1e-10)):
         answers = []
         for compiled in (True, False):
             kernels.COMPILED = compiled
             try:
-                answers.append(general_focus_solve(tracker.evaluator, y, w, start, tracker.settings, model.period_mm,
-                                                   model.pixel_pitch_mm, prior))
-            finally:
-                kernels.COMPILED = True
-        a, b = answers
-        assert abs(a.x_mm - b.x_mm) * 1e3 < MICROMETRE_TOLERANCE
-        assert a.iterations == b.iterations
-        for field in ("information", "gain", "offset", "chi2", "focus", "focus_sigma", "cost"):
-            assert getattr(a, field) == pytest.approx(getattr(b, field), rel=1e-9, abs=1e-12), field
-
-
-def test_the_trig_path_focus_solve_compiled_and_as_python() -> None:
-    """The focus nuisance on the fast path's moments (the seed paper's model on a blurred frame),
-    with and without the last frames' prior: position, light, δ and its error, and the bound agree."""
-    from graytrack.core.focus_solve import CurvatureTable, FocusPrior, focus_solve
-    from graytrack.core.solvers import FrameSolution
-
-    model, run = _fitted("focus")
-    tracker = Tracker(model, light="auto", robust=True)
-    assert tracker.fast_path
-    batch = tracker.batch(model.prepare(run.frames[:1]))
-    curvature = CurvatureTable(tracker.tables, model.period_mm)
-    start = FrameSolution(float(run.reference[0]) + 1e-3, float("nan"), 0.0, 0, 1.02, -0.5)
-    for prior in (None, FocusPrior(1e-5, 1e-10)):
-        answers = []
-        for compiled in (True, False):
-            kernels.COMPILED = compiled
-            try:
-                answers.append(focus_solve(batch, 0, curvature, start, tracker.settings, model.pixel_pitch_mm, prior))
+                answers.append(solve(prior))
             finally:
                 kernels.COMPILED = True
         a, b = answers
@@ -165,6 +131,37 @@ def test_the_trig_path_focus_solve_compiled_and_as_python() -> None:
         for field in ("information", "gain", "offset", "chi2", "focus", "focus_sigma", "cost"):
             assert getattr(a, field) == pytest.approx(getattr(b, field), rel=1e-9, abs=1e-12), field
         assert math.isfinite(a.focus) and a.focus_sigma > 0
+
+
+def _start(run) -> "FrameSolution":
+    from graytrack.core.solvers import FrameSolution
+
+    return FrameSolution(float(run.reference[0]) + 1e-3, float("nan"), 0.0, 0, 1.02, -0.5)
+
+
+def test_the_general_focus_solve_compiled_and_as_python() -> None:
+    """The focus nuisance off the trig tables (a target map)."""
+    from graytrack.core.focus_solve import general_focus_solve
+
+    model, run = _fitted("target_map")
+    tracker = Tracker(model, light="auto", robust=True)
+    y = model.prepare(run.frames[:1]).reshape(-1)
+    _focus_solves_agree(lambda prior: general_focus_solve(tracker.evaluator, y, tracker.static_weights[0], _start(run),
+                                                          tracker.settings, model.period_mm, model.pixel_pitch_mm,
+                                                          prior))
+
+
+def test_the_trig_path_focus_solve_compiled_and_as_python() -> None:
+    """The focus nuisance on the fast path's moments (the seed paper's model on a blurred frame)."""
+    from graytrack.core.focus_solve import CurvatureTable, focus_solve
+
+    model, run = _fitted("focus")
+    tracker = Tracker(model, light="auto", robust=True)
+    assert tracker.fast_path
+    batch = tracker.batch(model.prepare(run.frames[:1]))
+    curvature = CurvatureTable(tracker.tables, model.period_mm)
+    _focus_solves_agree(lambda prior: focus_solve(batch, 0, curvature, _start(run), tracker.settings,
+                                                  model.pixel_pitch_mm, prior))
 
 
 def test_the_fused_sample_weights_are_inverse_variance(monkeypatch: pytest.MonkeyPatch) -> None:

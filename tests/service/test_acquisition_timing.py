@@ -117,18 +117,25 @@ def _wait_for(condition, what: str, timeout_s: float = 60.0) -> None:
         time.sleep(0.002)
 
 
+def _held_tracker(held_model, gate: threading.Event) -> type:
+    """The real LiveTracker, whose build for ``held_model`` waits for ``gate``: a build that takes
+    as long as the test wants."""
+
+    class HeldTracker(acquisition_module.LiveTracker):
+        def __init__(self, model, *args, **kwargs):
+            if model is held_model:
+                assert gate.wait(60.0)
+            super().__init__(model, *args, **kwargs)
+
+    return HeldTracker
+
+
 def test_a_new_model_is_built_off_the_frame_loop_which_tracks_every_frame_meanwhile(
         loop: Loop, monkeypatch: pytest.MonkeyPatch) -> None:
     old, new = _sine_model(128.0), _sine_model(120.0)
     gate = threading.Event()  # holds the new model's build: a build that takes as long as the test wants
 
-    class HeldTracker(acquisition_module.LiveTracker):
-        def __init__(self, model, *args, **kwargs):
-            if model is new:
-                assert gate.wait(60.0)
-            super().__init__(model, *args, **kwargs)
-
-    monkeypatch.setattr(acquisition_module, "LiveTracker", HeldTracker)
+    monkeypatch.setattr(acquisition_module, "LiveTracker", _held_tracker(new, gate))
 
     def image(model, frame_id: int) -> np.ndarray:  # the stage 1 µm further each frame (a repeat is no fix)
         return model.predict(np.array([2.0 + 1e-3 * frame_id]))[0].reshape(1, -1)
@@ -158,13 +165,7 @@ def test_a_build_overtaken_by_a_later_install_is_dropped(loop: Loop, monkeypatch
     first, second = _sine_model(128.0), _sine_model(120.0)
     gate = threading.Event()
 
-    class HeldTracker(acquisition_module.LiveTracker):
-        def __init__(self, model, *args, **kwargs):
-            if model is first:
-                assert gate.wait(60.0)
-            super().__init__(model, *args, **kwargs)
-
-    monkeypatch.setattr(acquisition_module, "LiveTracker", HeldTracker)
+    monkeypatch.setattr(acquisition_module, "LiveTracker", _held_tracker(first, gate))
     acquisition = loop.acquisition
     acquisition.install_model(first)
     try:

@@ -241,7 +241,12 @@ def test_the_example_motion_loop_visits_its_targets_or_stops_on_the_daemons_word
     with Client(daemon.base, data_dir=data_dir) as c:
         # at the test rig's 20 mm/s a frame moves 1 mm (20 frames/s) and lock can drop mid-move: 5 mm/s here
         c.set_velocity(5.0)
-        first = c.events(since=0)[-1].id
+        history = c.events(since=0)
+        first = history[-1].id
+        # a model flagged stale before this test began (by an earlier test's moves) says so in an
+        # event before ``first``: the stream's first message is then already not usable
+        stale_at_start = next((e.kind == "model_stale" for e in reversed(history)
+                               if e.kind in ("model_stale", "model_fresh")), False)
         try:
             # the age limit of a shared test machine, where the daemon's frame thread may wait 100 ms for a core
             code = example.main(daemon.base, str(data_dir), (3.0, 8.0), max_age_ms=2000.0)
@@ -260,4 +265,5 @@ def test_the_example_motion_loop_visits_its_targets_or_stops_on_the_daemons_word
             return  # the daemon's frame thread waited for a core: stale by age, no event to say so
         # a frame with a lock event (lost, re-acquired, repeated) is sent with locked false
         unusable = {"model_stale", "lock_lost", "lock_reacquired", "frame_repeated"}
-        assert events & unusable, f"stopped on what the daemon said: {events}, {stops[0]}"
+        assert events & unusable or (stale_at_start and "model stale" in stops[0]), \
+            f"stopped on what the daemon said: {events}, {stops[0]}"
