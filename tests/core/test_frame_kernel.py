@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from graytrack.core import frame_kernel, kernels
+from graytrack.core.solvers import FrameSolution
 from graytrack.core.tracking import LiveTracker, Tracker, track
 from graytrack.drivers.sim.causes import EFFECT_CAUSES
 from tests.core.test_kernels import MICROMETRE_TOLERANCE, _fitted
@@ -133,9 +134,7 @@ def _focus_solves_agree(solve) -> None:
         assert math.isfinite(a.focus) and a.focus_sigma > 0
 
 
-def _start(run) -> "FrameSolution":
-    from graytrack.core.solvers import FrameSolution
-
+def _start(run) -> FrameSolution:
     return FrameSolution(float(run.reference[0]) + 1e-3, float("nan"), 0.0, 0, 1.02, -0.5)
 
 
