@@ -49,6 +49,7 @@ class Position:
     dropped: int  # camera frames missing so far (frame_id gaps)
     reference_mm: float | None  # the grating at t, when known
     error_um: float | None
+    calibration: str | None = None  # the id of the calibration whose model placed the frame
     gap: int = 0
     reconnected: bool = False
     restarted: bool = False
@@ -73,7 +74,8 @@ def _message(document: dict[str, Any], gap: int, reconnected: bool, restarted: b
                     crlb_um=get("crlb_um"), stale=bool(get("stale", False)), stale_reason=get("stale_reason"),
                     age_ms=get("age_ms"),
                     t_unix=get("t_unix"), frame_id=get("frame_id"), dropped=get("dropped", 0),
-                    reference_mm=get("reference_mm"), error_um=get("error_um"), gap=gap, reconnected=reconnected,
+                    reference_mm=get("reference_mm"), error_um=get("error_um"), calibration=get("calibration"),
+                    gap=gap, reconnected=reconnected,
                     restarted=restarted, raw=document)
 
 

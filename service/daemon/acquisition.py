@@ -66,12 +66,15 @@ class AcquisitionStats:
     last_tracked_wall: float = -math.inf
 
 
-def fix_message(seq: int, sample: Sample, fix: LiveFix, dropped: int) -> dict[str, Any]:
-    """The stream message of one tracked frame (docs/contracts.md; ``t_unix`` and ``age_ms`` are added at send)."""
+def fix_message(seq: int, sample: Sample, fix: LiveFix, dropped: int, calibration: str | None = None) -> dict[str, Any]:
+    """The stream message of one tracked frame (docs/contracts.md; ``t_unix`` and ``age_ms`` are added at send).
+    ``calibration``: the id of the calibration whose model placed the frame, when it has one."""
     record = frame_record.of_frame(fix)  # every quantity named and typed as in the CSV and /api/status
     x = record["x_mm"]
     message: dict[str, Any] = {"seq": seq, "t": sample.t, "x_mm": x, "locked": record["locked"],
                                "frame_id": sample.frame.frame_id, "dropped": dropped}
+    if calibration is not None:
+        message["calibration"] = calibration
     message.update((name, value) for name, value in record.items() if name not in message)
     if sample.reference_mm == sample.reference_mm:  # not NaN
         message["reference_mm"] = sample.reference_mm
@@ -102,8 +105,10 @@ class Acquisition(Worker):
         self.stats = AcquisitionStats(last_frame_wall=clock.now())
         self.latest: tuple[Sample, LiveFix | None] | None = None  # the line view reads it (no copy)
         self._tracker: LiveTracker | None = None
-        # (model, its tracker or None, why it cannot be used): built off the frame loop, taken at a frame
-        self._pending: tuple[FourierModel, LiveTracker | None, str | None] | None = None
+        # (model, its tracker or None, why it cannot be used, its calibration's id): built off the
+        # frame loop, taken at a frame
+        self._pending: tuple[FourierModel, LiveTracker | None, str | None, str | None] | None = None
+        self._calibration: str | None = None  # the calibration of the model tracking now (each message names it)
         self._generation = 0  # of the last install asked for: an older build that finishes later is dropped
         self._subscribers: list[queue.Queue[Sample]] = []
         self._lock = threading.Lock()
@@ -113,23 +118,24 @@ class Acquisition(Worker):
         self._stale: str | None = None  # the family the model is stale for (None: it holds)
 
     # -- control (any thread) --------------------------------------------------------------
-    def install_model(self, model: FourierModel, x0_mm: float | None = None) -> None:
-        """Track with ``model`` from a coming frame on (started near the grating's reading then, or
-        ``x0_mm``). Its tracker (tables, the compiled solves loaded: 40–500 ms, seconds with no
-        compiler cache) is built on a thread of its own: the frame loop keeps every frame meanwhile,
-        tracked with the model it has, and switches between two frames."""
+    def install_model(self, model: FourierModel, x0_mm: float | None = None, calibration: str | None = None) -> None:
+        """Track with ``model`` (of calibration ``calibration``) from a coming frame on (started near
+        the grating's reading then, or ``x0_mm``). Its tracker (tables, the compiled solves loaded:
+        40–500 ms, seconds with no compiler cache) is built on a thread of its own: the frame loop
+        keeps every frame meanwhile, tracked with the model it has, and switches between two frames;
+        each message names the calibration whose model placed it."""
         with self._lock:
             self._generation += 1
             generation = self._generation
-        threading.Thread(target=self._build, args=(model, x0_mm, generation), name="tracker-build",
+        threading.Thread(target=self._build, args=(model, x0_mm, generation, calibration), name="tracker-build",
                          daemon=True).start()
 
-    def _build(self, model: FourierModel, x0: float | None, generation: int) -> None:
+    def _build(self, model: FourierModel, x0: float | None, generation: int, calibration: str | None) -> None:
         try:
-            built: tuple[FourierModel, LiveTracker | None, str | None] = (
-                model, LiveTracker(model, x0 if x0 is not None and math.isfinite(x0) else None), None)
+            built: tuple[FourierModel, LiveTracker | None, str | None, str | None] = (
+                model, LiveTracker(model, x0 if x0 is not None and math.isfinite(x0) else None), None, calibration)
         except Exception as exc:  # noqa: BLE001 - an unusable model: said at the switch, frames still read
-            built = (model, None, describe(exc))
+            built = (model, None, describe(exc), calibration)
         with self._lock:
             if generation == self._generation:
                 self._pending = built
@@ -282,16 +288,17 @@ class Acquisition(Worker):
             else:
                 self.on_event("model_fresh", "the model holds again")
         self._seq += 1
-        message = fix_message(self._seq, sample, fix, stats.dropped)
+        message = fix_message(self._seq, sample, fix, stats.dropped, self._calibration)
         self.trim.annotate(message, fix)
         stats.last_message = message
         self.latest = (sample, fix)
         self.publish(message)
 
-    def _switch(self, model: FourierModel, tracker: LiveTracker | None, error: str | None,
+    def _switch(self, model: FourierModel, tracker: LiveTracker | None, error: str | None, calibration: str | None,
                 reference_mm: float) -> None:
         """Track with ``tracker`` from this frame on, started at the grating's reading when there is
         one (the stage may have moved while it was built)."""
+        self._calibration = calibration
         if tracker is None:
             self._tracker = None
             self.faults("tracking", f"cannot track with this model: {error}")

@@ -76,6 +76,7 @@ class Rig:
         self.grating: GratingPoller | None = None
         self.acquisition: Acquisition | None = None
         self.model: FourierModel | None = None
+        self.calibration: str | None = None  # the id of the calibration whose model is installed
         self.jobs: dict[str, CalibrationJob] = {}
         self.job: CalibrationJob | None = None
         # every end state from the start (a counter that appears late breaks rate()); interrupted ones are the
@@ -192,7 +193,7 @@ class Rig:
             self.event("geometry", mismatch)
         elif model is not None:
             log.info("tracking with the saved model %s", model.describe())
-            self.install(model)
+            self.install(model, self.storage.active_id())
         elif daemon.auto_calibrate == "always" or (daemon.auto_calibrate == "sim" and self.settings.simulated):
             log.info("no saved model: calibrating (auto_calibrate = %s)", daemon.auto_calibrate)
             try:
@@ -227,7 +228,8 @@ class Rig:
                                   daemon.camera_fault_after_s, daemon.reopen_interval_s, self._stream_event,
                                   priority=daemon.realtime_priority, trim=ReferenceTrim(daemon.trim, self._stream_event))
         if self.model is not None:
-            acquisition.install_model(self.model, self.grating.latest_mm() if self.grating else None)
+            acquisition.install_model(self.model, self.grating.latest_mm() if self.grating else None,
+                                      self.calibration)
         return acquisition.start()
 
     def _watch(self) -> None:
@@ -247,12 +249,14 @@ class Rig:
                 # within the camera's time (the poller clears it with its next good reading)
                 self.faults.set("stage", f"the controller has not answered POS? for {silent:.1f} s")
 
-    def install(self, model: FourierModel) -> None:
-        """Track with ``model`` from the next frame on, starting near the grating's position."""
+    def install(self, model: FourierModel, calibration: str | None = None) -> None:
+        """Track with ``model`` (of calibration ``calibration``) from a coming frame on, starting near
+        the grating's position."""
         assert self.acquisition is not None
         self.model = model
+        self.calibration = calibration
         self.faults.set("model", None)
-        self.acquisition.install_model(model, self.grating.latest_mm() if self.grating else None)
+        self.acquisition.install_model(model, self.grating.latest_mm() if self.grating else None, calibration)
 
     # -- state -----------------------------------------------------------------------------
     def snapshot(self) -> parts.RigSnapshot:
@@ -358,7 +362,7 @@ class Rig:
         except BaseException:  # a full disk: the pointer goes back, the old model stays what is tracked
             self.storage.restore_active(previous)
             raise
-        self.install(model)
+        self.install(model, job.id)
         self.record.add_calibration(calibration_row(job, model))
         self.event("model_installed", f"model of calibration {job.id} installed: {model.describe()}", calibration=job.id)
 
@@ -382,7 +386,7 @@ class Rig:
                 raise Busy(mismatch)
             self.storage.set_active(calibration_id)
             self.storage.copy_model_of(calibration_id)
-            self.install(model)
+            self.install(model, calibration_id)
         self.event("model_installed", f"model of calibration {calibration_id} activated: {model.describe()}",
                    calibration=calibration_id)
         return Activated(active=calibration_id, model=model.describe())

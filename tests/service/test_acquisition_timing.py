@@ -130,7 +130,7 @@ def _held_tracker(held_model, gate: threading.Event) -> type:
     return HeldTracker
 
 
-def test_a_new_model_is_built_off_the_frame_loop_which_tracks_every_frame_meanwhile(
+def test_a_new_model_is_built_off_the_frame_loop_which_tracks_every_frame_meanwhile_and_says_with_which(
         loop: Loop, monkeypatch: pytest.MonkeyPatch) -> None:
     old, new = _sine_model(128.0), _sine_model(120.0)
     gate = threading.Event()  # holds the new model's build: a build that takes as long as the test wants
@@ -141,23 +141,26 @@ def test_a_new_model_is_built_off_the_frame_loop_which_tracks_every_frame_meanwh
         return model.predict(np.array([2.0 + 1e-3 * frame_id]))[0].reshape(1, -1)
 
     acquisition = loop.acquisition
-    acquisition.install_model(old, 2.0)
+    acquisition.install_model(old, 2.0, calibration="20261124T000001000001Z")
     _wait_for(lambda: acquisition._pending is not None, "the first model's build")
     loop.deliver(1, pixels=image(old, 1))
     assert acquisition.tracker is not None and acquisition.tracker.model is old
     try:
-        acquisition.install_model(new, 2.0)
+        acquisition.install_model(new, 2.0, calibration="20261124T000002000002Z")
         for frame_id in range(2, 12):  # the new tracker is still being built: the old one tracks every frame
             loop.deliver(frame_id, pixels=image(old, frame_id))
         assert acquisition.stats.tracked == 11 and acquisition.stats.dropped == 0
         assert acquisition.tracker.model is old and len(loop.published) == 11
         assert loop.published[-1]["x_mm"] == pytest.approx(2.011, abs=1e-9)
+        # each message names the calibration whose model placed it: the old one until the switch
+        assert {message["calibration"] for message in loop.published} == {"20261124T000001000001Z"}
     finally:
         gate.set()
     _wait_for(lambda: acquisition._pending is not None, "the new model's build")
     loop.deliver(12, pixels=image(new, 12))
     assert acquisition.tracker.model is new and acquisition.stats.tracked == 12
     assert loop.published[-1]["x_mm"] == pytest.approx(2.012, abs=1e-9)
+    assert loop.published[-1]["calibration"] == "20261124T000002000002Z"
     assert loop.faults.now == {}
 
 

@@ -72,6 +72,8 @@ def test_a_move_is_seen_converging_in_the_stream(client: Client) -> None:
     assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs), "seq only increases"
     assert sum(p.gap for p in seen) == seqs[-1] - seqs[0] - (len(seqs) - 1), "gaps account for every skipped seq"
     assert seen[-1].crlb_um is not None and 0 < seen[-1].crlb_um < 20
+    active = client.status().active_calibration
+    assert active is not None and seen[-1].calibration == active.id, "a position names the calibration behind it"
     # move(wait=True) returns once the grating rests at the target
     back = 5.0
     client.move(back, wait=True, tolerance_mm=0.001)

@@ -50,6 +50,9 @@ def test_messages_carry_host_time_wall_time_and_age(daemon: LiveServer) -> None:
     dropped = np.array([m["dropped"] for _, m in received])
     # every camera frame not in the stream is counted: frame_id gaps add up to the dropped counter
     assert (ids[-1] - ids[0]) - (len(ids) - 1) == dropped[-1] - dropped[0]
+    # each message names the calibration whose model placed it: the one in use
+    active = daemon.status()["active_calibration"]["id"]
+    assert {m["calibration"] for _, m in received[-20:]} == {active}
 
 
 def test_a_page_asks_for_a_decimated_stream(daemon: LiveServer) -> None:
