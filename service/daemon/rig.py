@@ -76,7 +76,7 @@ class Rig:
         self.grating: GratingPoller | None = None
         self.acquisition: Acquisition | None = None
         self.model: FourierModel | None = None
-        self.calibration: str | None = None  # the id of the calibration whose model is installed
+        self.installed_calibration: str | None = None  # the id of the calibration whose model is installed
         self.jobs: dict[str, CalibrationJob] = {}
         self.job: CalibrationJob | None = None
         # every end state from the start (a counter that appears late breaks rate()); interrupted ones are the
@@ -229,7 +229,7 @@ class Rig:
                                   priority=daemon.realtime_priority, trim=ReferenceTrim(daemon.trim, self._stream_event))
         if self.model is not None:
             acquisition.install_model(self.model, self.grating.latest_mm() if self.grating else None,
-                                      self.calibration)
+                                      self.installed_calibration)
         return acquisition.start()
 
     def _watch(self) -> None:
@@ -254,7 +254,7 @@ class Rig:
         the grating's position."""
         assert self.acquisition is not None
         self.model = model
-        self.calibration = calibration
+        self.installed_calibration = calibration
         self.faults.set("model", None)
         self.acquisition.install_model(model, self.grating.latest_mm() if self.grating else None, calibration)
 
