@@ -67,6 +67,7 @@ FIELD_BEYOND_FOCUS = FOCUS_KEEP
 # One frame's χ² gain counts at most this much (a garbage frame cannot flip the average); the same
 # cap for the field and the focus, or the comparison of their averages would be the caps'.
 EVIDENCE_CAP = 10.0 * FIELD_KEEP
+BLUR_LOOK_SPREADS = 3.0  # a free-light χ² average this many spreads high: the focus term is tried
 FOCUS_PRIOR_FRAMES = 5  # frames of focus estimates before they hold the next frame's focus
 BATCH_CHUNK = 4096  # frames reduced at a time (bounds memory on long recordings)
 
@@ -130,6 +131,8 @@ class LightMemory:
     # (``field`` is this class's own attribute here, hence dataclasses.field)
     field_over_focus: float = 1.0  # running average of the χ² the field gains over the focus term (from
     # the mean of χ²(1), the field's one extra unknown, when the focus explains the frames)
+    free_level: float = 1.0  # average χ² of the last free-light frames, in the calibration's level
+    free_frames: int = 0  # how many frames that average holds (up to FIELD_WINDOW)
 
 
 @dataclass
@@ -207,6 +210,14 @@ class Tracker:
         average_spread = np.sqrt(2.0 / (STALE_WINDOW * n_values))
         self.sustained_limit = self.chi2_calibration * (1.0 + 5.0 * average_spread)
         self.stale_limit = self.chi2_calibration * (STALE_RATIO + 5.0 * average_spread)
+        # A blur too small for one frame's χ² to ask for shows in the average χ² of the frames solved
+        # with a free light (which the light cannot lower further). One frame's χ² alone passes the
+        # running average's limit on a third of the frames and would have the focus solved for
+        # nothing; the average of the last frames (up to FIELD_WINDOW), beyond three of its
+        # spreads, asks for it. One frame counts at most the single-frame limit: a glint's frame
+        # cannot hold the average up.
+        self.free_frame_spread = float(np.sqrt(2.0 / n_values))
+        self.free_frame_cap = self.chi2_limit / self.chi2_calibration
         # Model-level work, done once: live tracking reduces one frame at a time.
         # Every model is the same expression of per-pixel tables (core/frame_tables.py), evaluated by
         # one compiled kernel. When every pixel is a trig polynomial in x (no stroke drift, target
@@ -311,7 +322,11 @@ class Tracker:
         memory.free = self.light == "auto" and solution.free_light and solution.light_excess > LIGHT_RETURN_CHI2
         memory.gain, memory.offset = solution.gain, solution.offset
         memory.rejected = solution.rejected_mask if solution.rejected else None
-        if self.focus_capable and (asked or (solution.free_light and solution.chi2 > self.sustained_limit)):
+        if solution.free_light and math.isfinite(solution.chi2):
+            memory.free_frames = min(memory.free_frames + 1, FIELD_WINDOW)
+            level = min(solution.chi2 / self.chi2_calibration, self.free_frame_cap)
+            memory.free_level += (level - memory.free_level) / memory.free_frames
+        if self.focus_capable and (asked or (solution.free_light and self._blur_suspected(memory))):
             memory.focus = True  # the frame did not fit as at calibration: a blur is one cheap unknown away
         tried_field = memory.field and self.field_basis is not None
         tried_focus = memory.focus and self.focus_capable
@@ -320,6 +335,11 @@ class Tracker:
         if not tried_focus:
             memory.focus_track.wait()
         return solution
+
+    def _blur_suspected(self, memory: LightMemory) -> bool:
+        """The free-light frames' average χ² beyond three of its spreads above the calibration's."""
+        spread = self.free_frame_spread / math.sqrt(memory.free_frames)
+        return memory.free_level > 1.0 + BLUR_LOOK_SPREADS * spread
 
     def _rows_refined(self, batch: GeneralBatch | TrigPolyBatch, k: int, line: FrameSolution) -> FrameSolution:
         """A transient found in the row mean of a strip, set aside row by row: a glint on 4 rows of
