@@ -226,7 +226,7 @@ def _nominal_findings(data: CalibrationData, model: FourierModel, rate: float | 
     return findings, data_period, None
 
 
-def orientation_mismatch(model: FourierModel, rec: Recording, frames_used: int = 200) -> float | None:
+def orientation_mismatch(model: FourierModel, rec: Recording, frames_used: int = 64) -> float | None:
     """rms of a recording's frames against the model at the grating's positions, as given over
     reversed: ≫ 1 when the frames run the other way than the model's (a camera remounted since
     calibration, ReverseX toggled, ``--flip`` given twice or forgotten). None without a reference.
