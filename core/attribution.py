@@ -23,6 +23,8 @@ the part of its share its coefficients hold still.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 LIGHT_DEGREE = 2  # gain and offset across the line up to quadratic in the pixel index
@@ -32,18 +34,41 @@ SHARE_TO_NAME = 0.5  # a family that explains at least this share of the excess 
 PRINT_MARGIN = 0.1
 
 
+@functools.lru_cache(maxsize=8)
+def _smooth_basis(n_pixels: int, n_rows: int) -> np.ndarray:
+    """Legendre polynomials up to :data:`LIGHT_DEGREE` across the line, tiled over the rows, one
+    shape per row ``(3, P)``: the same for every frame of a model, so computed once (read-only)."""
+    u = np.tile(np.linspace(-1.0, 1.0, n_pixels), n_rows)
+    smooth = np.ascontiguousarray(np.polynomial.legendre.legvander(u, LIGHT_DEGREE).T)
+    smooth.flags.writeable = False
+    return smooth
+
+
+def _harmonic_rows(phase: np.ndarray, harmonics: int) -> np.ndarray:
+    """cos(h·phase) for h = 1..H, then sin(h·phase), one shape per row ``(2H, P)``: one cosine and
+    one sine of the phase, the higher harmonics by the angle-addition recurrence (a frame's shapes
+    cost no more trigonometry as the model's harmonics grow)."""
+    out = np.empty((2 * harmonics, phase.size))
+    cos1, sin1 = out[0], out[harmonics]
+    np.cos(phase, out=cos1)
+    np.sin(phase, out=sin1)
+    for h in range(1, harmonics):
+        c, s = out[h - 1], out[harmonics + h - 1]
+        out[h] = c * cos1 - s * sin1
+        out[harmonics + h] = s * cos1 + c * sin1
+    return out
+
+
 def shapes(values: np.ndarray, slopes: np.ndarray, curvature: np.ndarray, n_rows: int,
            phase: np.ndarray | None = None, harmonics: int = 0) -> dict[str, np.ndarray]:
     """The columns ``(P, k)`` each family can add to a frame's model at one position; ``phase``
-    ``(P,)`` is the target phase each sample sees (2π·target coordinate / period)."""
-    n_pixels = values.size // n_rows
-    u = np.tile(np.linspace(-1.0, 1.0, n_pixels), n_rows)
-    smooth = np.polynomial.legendre.legvander(u, LIGHT_DEGREE)  # (P, 3)
-    light = np.concatenate([smooth * values[:, None], smooth], axis=1)
-    columns = {"light": light, "focus": 0.5 * curvature[:, None], "shift": slopes[:, None]}
+    ``(P,)`` is the target phase each sample sees (2π·target coordinate / period). (Each is the
+    transpose of a row-per-shape array: :func:`shares` reads the shapes along the samples.)"""
+    smooth = _smooth_basis(values.size // n_rows, n_rows)
+    light = np.concatenate([smooth * values, smooth])
+    columns = {"light": light.T, "focus": 0.5 * curvature[:, None], "shift": slopes[:, None]}
     if phase is not None and harmonics > 0:
-        turns = phase[:, None] * np.arange(1, harmonics + 1)
-        columns["print"] = np.concatenate([np.cos(turns), np.sin(turns)], axis=1)
+        columns["print"] = _harmonic_rows(np.asarray(phase, dtype=np.float64), harmonics).T
     return columns
 
 
@@ -54,10 +79,13 @@ def shares(residual: np.ndarray, weights: np.ndarray,
 
     ``pixels`` is the share of the largest few samples (2 % of them, at least 2); the others are
     least-squares projections onto the family's columns (together with the shift in x, which the
-    solve already took out, so that a family is not credited with a position error)."""
+    solve already took out, so that a family is not credited with a position error). A family's
+    shapes can include the shift itself (a print's harmonics span the model's slope): the
+    minimum-norm solution then stands for the family, as the frames' consistency reads it."""
     used = weights > 0
-    root = np.sqrt(weights[used])
-    z = residual[used] * root
+    every = bool(used.all())  # (numpy's boolean indexing is slower than compress)
+    root = np.sqrt(weights if every else weights.compress(used))
+    z = (residual if every else residual.compress(used)) * root
     total = float(z @ z)
     excess = total - z.size
     if z.size < 8 or excess <= 0:
@@ -67,9 +95,9 @@ def shares(residual: np.ndarray, weights: np.ndarray,
     n_top = max(2, z.size // 50)
     top = np.partition(z * z, z.size - n_top)[-n_top:]
     out["pixels"] = float(np.clip((top.sum() - n_top) / excess, 0.0, 1.0))
-    shift = columns["shift"][used] * root[:, None]
     for family in (name for name in ("light", "focus", "print") if name in columns):
-        basis = np.concatenate([columns[family][used] * root[:, None], shift], axis=1)
+        basis = np.concatenate([columns[family], columns["shift"]], axis=1)
+        basis = (basis if every else basis.compress(used, axis=0)) * root[:, None]
         coefficients, *_ = np.linalg.lstsq(basis, z, rcond=None)
         explained = float(np.sum((basis @ coefficients) ** 2))
         out[family] = float(np.clip((explained - basis.shape[1]) / excess, 0.0, 1.0))

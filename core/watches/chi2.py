@@ -17,7 +17,10 @@ WINDOW = 20  # frames over which the shares are averaged
 # print's phase and its noise, a light's stay put (a stage at rest cannot tell them apart, and the
 # light, the commoner cause, keeps its credit). Longer windows let a slow sweep's mimicry pass.
 STILL_WINDOW = 20
-EXPLAIN_EVERY = 5  # once stale, the residual is looked at every this many frames (it costs an evaluation)
+# The residual of every this many suspect frames is looked at (it costs an evaluation and a
+# projection, ~1 ms on a 16-row strip): a slightly raised χ² can last for most of a run on a real
+# rig, and the shares are running averages, which a sample of the frames serves as well.
+EXPLAIN_EVERY = 5
 
 
 class ChiSquareWatch:
@@ -40,7 +43,7 @@ class ChiSquareWatch:
                 self.shares, self.persistence, self._top, self._count, self.consistency = {}, None, None, 0, {}
             return None
         self._count += 1
-        if explain is not None and (not chi2_stale or self._count % EXPLAIN_EVERY == 0 or not self.shares):
+        if explain is not None and ((self._count - 1) % EXPLAIN_EVERY == 0 or (chi2_stale and not self.shares)):
             self._learn(explain())
         if not chi2_stale:
             return None
