@@ -30,7 +30,7 @@ from graytrack.core import kernels  # noqa: E402
 from graytrack.core.calibration import calibrate  # noqa: E402
 from graytrack.core.diagnosis import diagnose  # noqa: E402
 from graytrack.core.tracking import LiveTracker, track  # noqa: E402
-from graytrack.drivers.sim.causes import EFFECT_CAUSES, model_with  # noqa: E402
+from graytrack.drivers.sim.causes import EVERY_FORM, model_with  # noqa: E402
 from graytrack.drivers.sim.scenarios import build_rig  # noqa: E402
 
 CLOCK = time.thread_time
@@ -125,7 +125,7 @@ def per_effect(selection: str = "") -> None:
     the same recording of its cause, live and batch (drivers/sim/causes.py)."""
     print(f"\n{'effect (its cause on the rig)':62} {'live p50 plain/effect µs':>25} {'ratio':>6} "
           f"{'track plain/effect µs':>22} {'ratio':>6}")
-    for name, cause in EFFECT_CAUSES.items():
+    for name, cause in EVERY_FORM.items():
         if selection not in name:
             continue
         model, _, calibration = model_with(name, seconds=8.0 if cause.scenario == "paper" else 4.0)

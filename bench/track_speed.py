@@ -153,7 +153,7 @@ def every_model(selection: str = "") -> list[tuple[str, FourierModel, FourierMod
     """(label, model, the seed paper's model fitted on the same calibration, a run to track) for
     each effect family and each virtual-rig scenario's closed-loop model."""
     from graytrack.core.diagnosis import diagnose
-    from graytrack.drivers.sim.causes import EFFECT_CAUSES, model_with
+    from graytrack.drivers.sim.causes import EVERY_FORM, model_with
     from graytrack.drivers.sim.scenarios import build_rig, list_scenarios
 
     def run_of(scenario: str, effects: str, seed: int) -> Recording:
@@ -162,7 +162,7 @@ def every_model(selection: str = "") -> list[tuple[str, FourierModel, FourierMod
         return Recording(rec.frames[:RUN_FRAMES], rec.t[:RUN_FRAMES], rec.reference[:RUN_FRAMES], rec.meta)
 
     cases = []
-    for name, cause in EFFECT_CAUSES.items():
+    for name, cause in EVERY_FORM.items():
         label = f"effect {name} ({cause.scenario}: {cause.effects})"
         if selection in label:
             model, _, calibration = model_with(name, seconds=8.0 if cause.scenario == "paper" else 4.0)

@@ -6,7 +6,7 @@ Every model the closed loop can produce is, pixel by pixel, the same expression:
 
 with the pixel's phase, its flat-field gain and its mask folded into the complex coefficients c,
 the stroke drift as Legendre polynomials P_l of the scaled stage position, a target map m
-(piecewise linear along the target, 0 where the map ends), a per-pixel offset o and the sensor's
+(piecewise linear along the target, 0 where the map ends; one for all rows or one per row), a per-pixel offset o and the sensor's
 clipping limits. Each effect states which of these tables it fills (``Effect.frame_part``), so a
 new effect either fits this expression or is refused by the effect registry's test instead of
 falling to a slow general path.
@@ -21,12 +21,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from graytrack.core.models.fourier import TWO_PI, FourierModel
+from graytrack.core.models.fourier import TWO_PI, FourierModel, map_lookup
 
 FRAME_PARTS = {
     "coefficients": "per-pixel Fourier coefficients (pixel and row polynomials, harmonics, geometry)",
     "stroke": "Legendre polynomials of the stage position multiplying the coefficients",
-    "target map": "a piecewise-linear reflectance table along the target, read at each pixel's target coordinate",
+    "target map": "a piecewise-linear reflectance table along the target (one, or one per row), read at each "
+                  "pixel's target coordinate",
     "response": "per-pixel gain and offset (flat field) folded into the coefficients",
     "mask": "per-pixel weights: masked pixels carry no information",
     "clip": "the sensor's limits: saturated samples stick at the limit with no slope",
@@ -43,7 +44,9 @@ class FrameTables:
     coefficients: np.ndarray  # (M+1, L, P) complex: Re Σ_h c zʰ per stroke polynomial
     offset: np.ndarray  # (P,)
     stroke_range_mm: tuple[float, float]  # the span the stroke polynomials are scaled over
-    target_map: np.ndarray  # (S,) relative reflectance on the map's grid; empty without a map
+    target_map: np.ndarray  # (rows·S,) relative reflectance on the map's grid, row after row; empty without a map
+    map_size: int  # S: nodes of one map row
+    map_base: np.ndarray  # (P,) int64: where each pixel's map row starts in ``target_map`` (0: one shared map)
     map_origin_mm: float
     map_step_mm: float
     target_offset_mm: np.ndarray  # (P,) where on the target each pixel looks, relative to x
@@ -65,13 +68,18 @@ class FrameTables:
         folded = (cos_c - 1j * sin_c) * (shift * gain[..., None])[..., None]
         coefficients[1:] = folded.reshape(n_values, model.harmonics, -1).transpose(1, 2, 0)
         has_map = model.target_map is not None
+        map_rows = model.map_rows
+        map_size = model.target_map.shape[1] if has_map else 0
+        map_row = np.arange(model.n_rows) if map_rows > 1 else np.zeros(model.n_rows, dtype=np.int64)
         return cls(
             omega=omega,
             coefficients=np.ascontiguousarray(coefficients),
             offset=np.ascontiguousarray(np.broadcast_to(np.asarray(offset, dtype=np.float64),
                                                         weights.shape[:2]).reshape(-1)),
             stroke_range_mm=(float(model.stroke_range_mm[0]), float(model.stroke_range_mm[1])),
-            target_map=np.asarray(model.target_map if has_map else np.zeros(0), dtype=np.float64),
+            target_map=np.ascontiguousarray(model.target_map.reshape(-1) if has_map else np.zeros(0), dtype=np.float64),
+            map_size=map_size,
+            map_base=np.repeat(map_row.astype(np.int64) * map_size, model.n_pixels),
             map_origin_mm=float(model.target_map_origin_mm) if has_map else 0.0,
             map_step_mm=float(model.target_map_step_mm) if has_map else 1.0,
             target_offset_mm=np.ascontiguousarray(target_offset.reshape(-1), dtype=np.float64),
@@ -107,17 +115,12 @@ class FrameTables:
 
     def map_factor(self, x_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(G, P)``: 1 + m at each pixel's target coordinate and its d/dx (1 and 0 off the map)."""
-        table = self.target_map
-        if table.size == 0:
+        if self.target_map.size == 0:
             return np.ones((1, 1)), np.zeros((1, 1))
         position = (x_mm[:, None] + self.target_offset_mm[None] - self.map_origin_mm) / self.map_step_mm
-        cell = np.floor(position).astype(np.int64)
-        inside = (cell >= 0) & (cell < table.size - 1)
-        at = np.clip(cell, 0, table.size - 2)
-        rise = table[at + 1] - table[at]
-        factor = np.where(inside, table[at] + (position - at) * rise, 0.0)
-        factor = np.where(position == table.size - 1, table[-1], factor)  # the map's last node itself
-        return 1.0 + factor, np.where(inside, rise / self.map_step_mm, 0.0)
+        table = self.target_map.reshape(-1, self.map_size)
+        factor, rise = map_lookup(table, self.map_base // self.map_size, position)
+        return factor, rise / self.map_step_mm
 
     def evaluate(self, x_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Values and slopes ``(G, P)`` at positions ``x_mm`` ``(G,)``."""

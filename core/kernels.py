@@ -25,10 +25,12 @@ COMPILED = numba is not None and os.environ.get("GRAYTRACK_KERNEL", "").lower() 
 
 
 def _evaluate_into(x: float, omega: float, c_re: np.ndarray, c_im: np.ndarray, offset: np.ndarray,
-                   lo: float, hi: float, table: np.ndarray, origin: float, step: float, target_offset: np.ndarray,
+                   lo: float, hi: float, table: np.ndarray, map_base: np.ndarray, map_size: int, origin: float, step: float,
+                   target_offset: np.ndarray,
                    clip_lo: float, clip_hi: float, values: np.ndarray, slopes: np.ndarray,
                    smooth: np.ndarray) -> None:
-    """values, slopes (P,) at x; ``smooth`` is scratch (P,). Coefficients are (M+1, L, P)."""
+    """values, slopes (P,) at x; ``smooth`` is scratch (P,). Coefficients are (M+1, L, P); pixel p
+    reads the map row starting at ``table[map_base[p]]`` (``map_size`` nodes a row)."""
     n_orders, n_stroke, n_values = c_re.shape
     z_re = np.empty(n_orders)
     z_im = np.empty(n_orders)
@@ -61,19 +63,20 @@ def _evaluate_into(x: float, omega: float, c_re: np.ndarray, c_im: np.ndarray, o
             for p in range(n_values):
                 smooth[p] += row_re[p] * vr - row_im[p] * vi
                 slopes[p] += row_re[p] * sr - row_im[p] * si
-    last = table.size - 1
+    last = map_size - 1
     for p in range(n_values):
         factor, dfactor = 1.0, 0.0
         if last > 0:
             position = (x + target_offset[p] - origin) / step
             cell = math.floor(position)
+            base = map_base[p]
             if 0 <= cell < last:
                 at = int(cell)
-                rise = table[at + 1] - table[at]
-                factor = 1.0 + table[at] + (position - at) * rise
+                rise = table[base + at + 1] - table[base + at]
+                factor = 1.0 + table[base + at] + (position - at) * rise
                 dfactor = rise / step
             elif position == last:
-                factor = 1.0 + table[last]
+                factor = 1.0 + table[base + last]
         value = smooth[p] * factor + offset[p]
         slope = slopes[p] * factor + smooth[p] * dfactor
         if value <= clip_lo:
@@ -85,14 +88,14 @@ def _evaluate_into(x: float, omega: float, c_re: np.ndarray, c_im: np.ndarray, o
 
 
 def _moments(x: float, y: np.ndarray, w: np.ndarray, omega: float, c_re: np.ndarray, c_im: np.ndarray,
-             offset: np.ndarray, lo: float, hi: float, table: np.ndarray, origin: float, step: float,
-             target_offset: np.ndarray, clip_lo: float, clip_hi: float, scratch: np.ndarray,
+             offset: np.ndarray, lo: float, hi: float, table: np.ndarray, map_base: np.ndarray, map_size: int,
+             origin: float, step: float, target_offset: np.ndarray, clip_lo: float, clip_hi: float, scratch: np.ndarray,
              out: np.ndarray) -> None:
     """The seven moments (as FrameTables.moments) into ``out``; ``scratch`` is (3, P): the values and
     slopes at x are left in its first two rows."""
     values, slopes = scratch[0], scratch[1]
-    _evaluate_into(x, omega, c_re, c_im, offset, lo, hi, table, origin, step, target_offset, clip_lo, clip_hi,
-                   values, slopes, scratch[2])
+    _evaluate_into(x, omega, c_re, c_im, offset, lo, hi, table, map_base, map_size, origin, step, target_offset,
+                   clip_lo, clip_hi, values, slopes, scratch[2])
     _reduce(values, slopes, y, w, out)
 
 
@@ -112,13 +115,14 @@ def _reduce(values: np.ndarray, slopes: np.ndarray, y: np.ndarray, w: np.ndarray
 
 
 def _evaluate_many(x_mm: np.ndarray, omega: float, c_re: np.ndarray, c_im: np.ndarray, offset: np.ndarray,
-                   lo: float, hi: float, table: np.ndarray, origin: float, step: float, target_offset: np.ndarray,
+                   lo: float, hi: float, table: np.ndarray, map_base: np.ndarray, map_size: int, origin: float, step: float,
+                   target_offset: np.ndarray,
                    clip_lo: float, clip_hi: float, values: np.ndarray, slopes: np.ndarray,
                    smooth: np.ndarray) -> None:
     """values, slopes (G, P) at each of ``x_mm`` (G,)."""
     for g in range(x_mm.size):
-        _evaluate_into(x_mm[g], omega, c_re, c_im, offset, lo, hi, table, origin, step, target_offset,
-                       clip_lo, clip_hi, values[g], slopes[g], smooth)
+        _evaluate_into(x_mm[g], omega, c_re, c_im, offset, lo, hi, table, map_base, map_size, origin, step,
+                       target_offset, clip_lo, clip_hi, values[g], slopes[g], smooth)
 
 
 if COMPILED:
@@ -143,8 +147,8 @@ class TableEvaluator:
         self._re = np.ascontiguousarray(tables.coefficients.real)
         self._im = np.ascontiguousarray(tables.coefficients.imag)
         lo, hi = tables.stroke_range_mm
-        self._args = (tables.omega, self._re, self._im, tables.offset, lo, hi, tables.target_map,
-                      tables.map_origin_mm, tables.map_step_mm, tables.target_offset_mm, *tables.clip_gray)
+        self._args = (tables.omega, self._re, self._im, tables.offset, lo, hi, tables.target_map, tables.map_base,
+                      tables.map_size, tables.map_origin_mm, tables.map_step_mm, tables.target_offset_mm, *tables.clip_gray)
         self._scratch = np.empty((3, n_values))
         self._at = float("nan")  # the position whose values and slopes _scratch[0], _scratch[1] hold
         self._out = np.empty(7)

@@ -97,15 +97,15 @@ class Figures:
                 "lost_frames": int((~np.isfinite(self.error_um)).sum())}
 
 
-def track_runs(model: FourierModel, data: CalibrationData) -> TrackResult:
+def track_runs(model: FourierModel, data: CalibrationData, robust: bool = False) -> TrackResult:
     """Track each run of consecutive frames from its own first reference.
 
     Held-out blocks are separated by the frames the fit used; a rig tracks continuously, and
-    tracking across those gaps would test re-acquisition, not the model.
+    tracking across those gaps would test re-acquisition, not the model. Frames with transients
+    (glints) are always tracked robustly: a glint says nothing about the model, and a plain solve
+    would lose those frames and blame it.
     """
-    # Frames with transients (glints) are tracked as the instrument tracks them, robustly: a glint
-    # says nothing about the model, and a plain solve would lose those frames and blame it.
-    robust = data.transients is not None and bool(data.transients.any())
+    robust = robust or (data.transients is not None and bool(data.transients.any()))
     tracker = Tracker(model, robust=robust)  # model-level work (folded weights, Gram polynomials) once for all runs
     parts = [track(model, data.frames[run], reference=data.x_mm[run], tracker=tracker) for run in runs(data.t_s)]
     joined = {key: np.concatenate([getattr(part, key) for part in parts])
@@ -113,14 +113,29 @@ def track_runs(model: FourierModel, data: CalibrationData) -> TrackResult:
     return TrackResult(**joined, events=[event for part in parts for event in part.events])
 
 
-def figures(model: FourierModel, data: CalibrationData, fit: Fit | None = None) -> Figures:
-    """Residual and tracking error of ``model`` on held-out ``data`` (tracked frame by frame)."""
-    fit = fit or fit_on(model, data)
-    tracked = track_runs(model, data)
+def _spread(tracked: TrackResult, data: CalibrationData) -> tuple[int, float]:
+    """(frames lost, error std in µm) of a held-out tracking: what makes one tracking worse than another."""
     error = tracked.error_um(data.x_mm)
     finite = np.isfinite(error)
-    lost = int((~finite).sum())
-    spread = float(np.std(error[finite])) if finite.any() else float("inf")
+    return int((~finite).sum()), float(np.std(error[finite])) if finite.any() else float("inf")
+
+
+def figures(model: FourierModel, data: CalibrationData, fit: Fit | None = None) -> Figures:
+    """Residual and tracking error of ``model`` on held-out ``data`` (tracked frame by frame).
+
+    The frames are tracked plainly and robustly (as the instrument tracks them: a frame whose χ²
+    is beyond the noise has its worst samples set aside), and the worse of the two is the model's
+    figure. A model that holds a defect only in part (a map the rows share, of a spot only some
+    rows see) leaves samples the robust solve sets aside, and what it keeps then pulls the
+    position: the plain solve's figure alone hid that (0.58 µm held out, 1.47 µm on the
+    instrument, for such a map of a 16-row lab strip).
+    """
+    fit = fit or fit_on(model, data)
+    tracked = max((track_runs(model, data, robust) for robust in (False, True)),
+                  key=lambda result: _spread(result, data))
+    error = tracked.error_um(data.x_mm)
+    finite = np.isfinite(error)
+    lost, spread = _spread(tracked, data)
     worst = float(np.max(np.abs(error[finite]))) if finite.any() else float("inf")
     if lost:  # a frame the tracker could not place counts as the worst error there is
         worst = float("inf")

@@ -18,7 +18,9 @@ term is something the closed loop may add when the data ask for it:
 - ``common_mode``: a gain and offset per frame (flicker, exposure drift), solved with x;
 - ``clip_gray``: the sensor's floor and ceiling; a clipped pixel says nothing about x;
 - ``target_map``: a relative reflectance change fixed to the target, on a fine grid along it
-  (dust, scratches, print defects): S·(1 + m(x_w)), neither periodic nor smooth.
+  (dust, scratches, print defects): S·(1 + m(x_w)), neither periodic nor smooth; one map for all
+  rows, or one per row of a per-row model (a dust spot is round: rows a few pixels apart see it
+  differently, and a map shared by the rows holds their mean, wrong on every row).
 
 Two fields say how much each sample is worth rather than what it should read:
 - ``pixel_weight`` ``(R, n)``: 0 for a pixel found bad (stuck, dead, hot, noisy), 1 otherwise;
@@ -51,6 +53,21 @@ def _positions(x_mm: Any) -> np.ndarray:
     if isinstance(x_mm, np.ndarray) and x_mm.ndim == 1 and x_mm.dtype == np.float64:
         return x_mm
     return np.asarray(x_mm, dtype=np.float64).reshape(-1)
+
+
+def map_lookup(table: np.ndarray, map_row: np.ndarray, position: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """1 + m and dm per grid step at ``position`` (in grid steps from the map's origin) on row
+    ``map_row`` of a piecewise-linear map ``(rows, S)``; 1 and 0 off the map. The compiled kernel
+    (core/kernels.py) reads the map by the same rule, node for node."""
+    last = table.shape[1] - 1
+    cell = np.floor(position).astype(np.int64)
+    inside = (cell >= 0) & (cell < last)
+    at = np.clip(cell, 0, last - 1)
+    low = table[map_row, at]
+    rise = table[map_row, at + 1] - low
+    factor = np.where(inside, low + (position - at) * rise, 0.0)
+    factor = np.where(position == last, table[map_row, last], factor)  # the map's last node itself
+    return 1.0 + factor, np.where(inside, rise, 0.0)
 
 
 @dataclass
@@ -101,9 +118,12 @@ class FourierModel:
             if self.coeffs.shape != self.coeff_shape:
                 raise ModelError(f"coefficients have shape {self.coeffs.shape}, the model needs {self.coeff_shape}")
         if self.target_map is not None:
-            self.target_map = np.asarray(self.target_map, dtype=np.float64).reshape(-1)
-            if self.target_map.size < 2 or not self.target_map_step_mm > 0:
-                raise ModelError("target_map needs at least 2 values and a positive step")
+            self.target_map = np.atleast_2d(np.asarray(self.target_map, dtype=np.float64))
+            if self.target_map.ndim != 2 or self.target_map.shape[1] < 2 or not self.target_map_step_mm > 0:
+                raise ModelError("target_map needs at least 2 values a row and a positive step")
+            if self.target_map.shape[0] not in (1, self.n_rows):
+                raise ModelError(f"target_map has {self.target_map.shape[0]} rows; the model has {self.n_rows} "
+                                 "(one map for all rows, or one per row)")
         for label in ("pixel_gain", "pixel_offset", "pixel_weight"):
             value = getattr(self, label)
             if value is not None:
@@ -264,14 +284,16 @@ class FourierModel:
         return _positions(x_mm)[:, None, None] + self.target_offset()[None]
 
     def target_factor(self, x_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """1 + m(x_w) and its derivative along x (piecewise linear; 1 outside the mapped range)."""
-        grid = self.target_map_origin_mm + self.target_map_step_mm * np.arange(self.target_map.size)
-        x_w = self.target_coordinate(x_mm)
-        factor = 1.0 + np.interp(x_w, grid, self.target_map, left=0.0, right=0.0)
-        slopes = np.diff(self.target_map) / self.target_map_step_mm
-        cell = np.floor((x_w - grid[0]) / self.target_map_step_mm).astype(np.int64)
-        inside = (cell >= 0) & (cell < slopes.size)
-        return factor, np.where(inside, slopes[np.clip(cell, 0, slopes.size - 1)], 0.0)
+        """``(K, R, n)``: 1 + m(x_w) and its derivative along x (piecewise linear; 1 outside the mapped range)."""
+        position = (self.target_coordinate(x_mm) - self.target_map_origin_mm) / self.target_map_step_mm
+        map_row = np.arange(self.target_map.shape[0])[:, None]  # (R|1, 1): a row's own map, or the one map
+        factor, rise = map_lookup(self.target_map, map_row, position)
+        return factor, rise / self.target_map_step_mm
+
+    @property
+    def map_rows(self) -> int:
+        """Rows of the target map: 1 (shared by the rows), ``n_rows`` (one per row), 0 without a map."""
+        return 0 if self.target_map is None else self.target_map.shape[0]
 
     def clip(self, values: np.ndarray) -> np.ndarray:
         return values if self.clip_gray is None else np.clip(values, *self.clip_gray)
@@ -319,7 +341,8 @@ class FourierModel:
         if self.common_mode:
             parts.append("per-frame gain/offset")
         if self.target_map is not None:
-            parts.append(f"target map {self.target_map.size} × {self.target_map_step_mm * 1e3:.0f} µm")
+            per_row = f"{self.map_rows} rows × " if self.map_rows > 1 else ""
+            parts.append(f"target map {per_row}{self.target_map.shape[1]} × {self.target_map_step_mm * 1e3:.0f} µm")
         if self.pixel_weight is not None and (self.pixel_weight == 0).any():
             parts.append(f"{int((self.pixel_weight == 0).sum())} pixel(s) masked")
         if self.clip_gray is not None:

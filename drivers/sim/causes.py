@@ -11,6 +11,7 @@ class Cause(NamedTuple):
     scenario: str  # drivers/sim/scenarios.py
     effects: str  # the rig's effects (drivers/sim/effects.py spec)
     argument: Any = None  # what the closed loop's probe hands to the effect's grow (None: its screen of the data)
+    per_row: bool = False  # the effect grown on a per-row model (rows fitted apart)
 
 
 EFFECT_CAUSES: dict[str, Cause] = {
@@ -26,26 +27,32 @@ EFFECT_CAUSES: dict[str, Cause] = {
     "stroke": Cause("paper", "pitch_scale:ppm=500,gradient:per_10mm=0.08"),
     "target_map": Cause("paper", "dust:count=6,scratches:count=3"),
 }
+# Further forms of an effect than its first growth, named effect:form: tested as the effects are.
+EFFECT_VARIANTS: dict[str, Cause] = {
+    "target_map:rows": Cause("strip16", "dust:count=8:size_um=60", per_row=True),  # a map a row
+}
+EVERY_FORM: dict[str, Cause] = {**EFFECT_CAUSES, **EFFECT_VARIANTS}  # what tests and benchmarks run through
 
 
 def model_with(name: str, seed: int = 5, seconds: float | None = None) -> tuple[Any, Any, Any]:
-    """(a model grown with effect ``name`` and fitted on a recording of its cause, a second run of
-    the same rig to track, the calibration recording). The structure is the effect's growth from
-    the seed paper's; the fit is the calibration's own (two alternation rounds)."""
+    """(a model grown with effect ``name`` (or a variant of one, ``effect:form``) and fitted on a
+    recording of its cause, a second run of the same rig to track, the calibration recording). The
+    structure is the effect's growth from the seed paper's; the fit is the calibration's own (two
+    alternation rounds)."""
     from graytrack.core import effects
     from graytrack.core.calibration_data import calibration_data
     from graytrack.core.structure import ModelSpec, fit_spec
     from graytrack.drivers.sim.scenarios import build_rig
 
-    cause = EFFECT_CAUSES[name]
+    cause = EVERY_FORM[name]
     seconds = seconds if seconds is not None else (4.0 if cause.scenario == "paper" else 2.0)
     calibration, _ = build_rig(cause.scenario, cause.effects, seed=seed).record(seconds)
     run, _ = build_rig(cause.scenario, cause.effects, seed=seed, run=1).record(seconds / 4)
-    effect = effects.registry()[name]
+    effect = effects.registry()[name.split(":")[0]]
     data = calibration_data(calibration)
     argument = cause.argument if cause.argument is not None else effect.screen(data)
-    spec = effect.grow(ModelSpec(), argument)
-    if spec is None or spec == ModelSpec():
+    spec = effect.grow(ModelSpec(per_row=cause.per_row), argument)
+    if spec is None or spec == ModelSpec(per_row=cause.per_row):
         raise ValueError(f"effect {name!r}: nothing to grow on its cause {cause.effects!r}")
     data = effects.prepare_data(spec, data)
     meta = calibration.meta

@@ -18,7 +18,7 @@ from graytrack.core.evaluation import GeneralHarmonics
 from graytrack.core.frame_tables import FRAME_PARTS, FrameTables
 from graytrack.core.kernels import TableEvaluator
 from graytrack.core.tracking import LiveTracker, Tracker, track
-from graytrack.drivers.sim.causes import EFFECT_CAUSES, model_with
+from graytrack.drivers.sim.causes import EFFECT_CAUSES, EVERY_FORM, model_with
 
 MICROMETRE_TOLERANCE = 1e-9
 # what a model shows of the table parts that change the expression itself (the others change coefficients)
@@ -45,9 +45,11 @@ def test_every_effect_has_a_rig_cause() -> None:
 @lru_cache(maxsize=None)
 def _fitted(name: str):
     model, run, _ = model_with(name)
-    effect = effects.registry()[name]
+    effect = effects.registry()[name.split(":")[0]]
     seen = PART_SEEN.get(effect.frame_part)
     assert seen is None or seen(model), f"{name}: the fitted model does not carry its {effect.frame_part}"
+    if name == "target_map:rows":
+        assert model.map_rows == model.n_rows > 1, "the variant's model has no map of its own on each row"
     return model, run
 
 
@@ -59,7 +61,7 @@ def _direct(model, **options) -> Tracker:
     return tracker
 
 
-@pytest.mark.parametrize("name", sorted(EFFECT_CAUSES))
+@pytest.mark.parametrize("name", sorted(EVERY_FORM))  # each effect, and its further forms (a map a row)
 def test_kernel_tables_and_predict_agree(name: str) -> None:
     model, run = _fitted(name)
     x_mm = np.linspace(*model.stroke_range_mm, 37)
@@ -80,7 +82,7 @@ def test_kernel_tables_and_predict_agree(name: str) -> None:
         assert np.allclose(kernel.moments(float(x), y, w), direct, rtol=1e-12, atol=1e-9)
 
 
-@pytest.mark.parametrize("name", sorted(EFFECT_CAUSES))
+@pytest.mark.parametrize("name", sorted(EVERY_FORM))  # each effect, and its further forms (a map a row)
 def test_the_fast_path_tracks_as_the_direct_evaluation(name: str) -> None:
     model, run = _fitted(name)
     options = {"light": "auto", "robust": True}
@@ -93,9 +95,10 @@ def test_the_fast_path_tracks_as_the_direct_evaluation(name: str) -> None:
     assert np.allclose(fast.crlb_mm[placed], direct.crlb_mm[placed], rtol=1e-9)
 
 
-def test_the_numpy_fallback_gives_the_kernel_numbers(monkeypatch: pytest.MonkeyPatch) -> None:
+@pytest.mark.parametrize("name", ["target_map", "target_map:rows"])
+def test_the_numpy_fallback_gives_the_kernel_numbers(name: str, monkeypatch: pytest.MonkeyPatch) -> None:
     """Without numba (GRAYTRACK_KERNEL=numpy) every evaluation is the tables' numpy one."""
-    model, run = _fitted("target_map")
+    model, run = _fitted(name)
     compiled = track(model, run, light="auto", robust=True)
     monkeypatch.setattr(kernels, "COMPILED", False)
     fallback = track(model, run, light="auto", robust=True)
@@ -104,14 +107,14 @@ def test_the_numpy_fallback_gives_the_kernel_numbers(monkeypatch: pytest.MonkeyP
     assert np.max(np.abs(compiled.x_mm[placed] - fallback.x_mm[placed])) * 1e3 < MICROMETRE_TOLERANCE
 
 
-@pytest.mark.parametrize("name", ["target_map", "stroke", "clipping"])
+@pytest.mark.parametrize("name", ["target_map", "target_map:rows", "stroke", "clipping"])
 def test_live_tracking_reloads_one_buffer_and_tracks_as_the_batch(name: str) -> None:
-    """The daemon's frame-at-a-time path (one preallocated batch reloaded per frame) gives the
-    batch solver's positions on a model off the trig-polynomial tables."""
+    """The daemon's frame-at-a-time path (for a one-row model, one preallocated batch reloaded per
+    frame) gives the batch solver's positions on a model off the trig-polynomial tables."""
     model, run = _fitted(name)
     batch = track(model, run, x0_mm=float(run.reference[0]), light="auto", robust=True)
     live = LiveTracker(model, x0_mm=float(run.reference[0]))
-    assert live._lean and not live.tracker.fast_path
+    assert live._lean == (model.n_rows == 1) and not live.tracker.fast_path  # (a strip model: prepare's path)
     positions = np.array([live.update(frame).x_mm for frame in run.frames])
     placed = np.isfinite(batch.x_mm)
     assert placed.mean() > 0.9 and np.array_equal(np.isfinite(positions), placed)
@@ -143,7 +146,7 @@ def test_the_focus_sums_compiled_and_in_numpy_agree() -> None:
     assert np.allclose(compiled, numpy_sums, rtol=1e-12, atol=1e-9)
 
 
-@pytest.mark.parametrize("name", ["target_map", "stroke", "rows"])
+@pytest.mark.parametrize("name", ["target_map", "target_map:rows", "stroke", "rows"])
 def test_the_position_kept_gives_a_fresh_evaluation_s_numbers(name: str) -> None:
     """The evaluator keeps the model at the last position (a robust solve reads the residuals at x,
     then solves again from that x): the moments and values read from it are, to the bit, those

@@ -96,7 +96,8 @@ def test_a_child_that_dies_is_a_camera_error_naming_it_and_the_camera_cannot_reo
             os.kill(process.pid, signal.SIGKILL)
             process.process.wait(5.0)
             with pytest.raises(CameraError, match="killed by SIGKILL") as died:
-                camera.read(5.0)
+                for _ in range(16):  # frames the child had rendered before it died are still delivered (a busy machine)
+                    camera.read(5.0)
             assert not isinstance(died.value, CameraTimeout)
         with pytest.raises(CameraError, match="virtual rig's process .*killed by SIGKILL"):
             camera.open()

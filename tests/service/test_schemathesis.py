@@ -13,9 +13,17 @@ from tests.service.helpers import ServeProcess
 
 EXAMPLES_PER_OPERATION = 40
 CHECKS = "not_a_server_error,response_schema_conformance,content_type_conformance"
+# /healthz answers 503 by design while the rig is not tracking or its model is stale (the fuzzed
+# moves can make it so on a busy machine): its body is checked against the schema, not its status.
+CONFIG = """
+[[operations]]
+include-path = "/healthz"
+checks.not_a_server_error.enabled = false
+"""
 
 
 def test_generated_requests_get_no_server_error_and_match_the_schema(tmp_path: Path) -> None:
+    (tmp_path / "schemathesis.toml").write_text(CONFIG)
     with ServeProcess(tmp_path) as daemon:
         daemon.wait_state("tracking", timeout_s=120)
         token = daemon.auth()["Authorization"]

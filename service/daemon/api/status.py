@@ -10,13 +10,14 @@ from fastapi.responses import JSONResponse, PlainTextResponse
 from graytrack.core.validity import ADVICE
 from graytrack.service.daemon import metrics
 from graytrack.service.daemon.api.deps import rig as get_rig
-from graytrack.service.daemon.api.models import Health, Status, errors
+from graytrack.service.daemon.api.models import Health, Status
 from graytrack.service.daemon.rig import Rig
 
 router = APIRouter(tags=["status"])
 
 
-@router.get("/healthz", response_model=Health, responses=errors(503))
+@router.get("/healthz", response_model=Health,
+            responses={503: {"model": Health, "description": "not tracking now, or the model is stale: the reason says"}})
 def healthz(rig: Rig = Depends(get_rig)) -> Any:
     """200 while frames are being tracked now; 503 otherwise (starting, idle, fault, stale), with the reason."""
     snapshot = rig.snapshot()
