@@ -113,7 +113,8 @@ def assessed(model: FourierModel, data: CalibrationData) -> FourierModel:
     if (finding := find_jpeg(data.frames)) is not None:
         factor = stream_factor(model, data, finding.table)
         model.info["stream"] = {"kind": "jpeg", "quality": finding.quality, "bound_factor": round(factor, 3)}
-        model.info["calibration_chi2"] = chi2_as_tracked(model, data)
+        model.info["calibration_chi2"] = model.out_of_sample(chi2_as_tracked(model, data),
+                                                             data.frames.shape[0] * model.n_rows * model.n_pixels)
     errors = frame_errors(model, data)
     ratio = error_ratio(errors)
     model.info["calibration_error_ratio"] = round(ratio, 3) if np.isfinite(ratio) else None

@@ -141,7 +141,10 @@ def fit_spec(spec: ModelSpec, data: CalibrationData, period_mm: float, pitch_mm:
         info["sensor_range_gray"] = list(limits)
     model = model.with_changes(noise_gray=data.sigma_gray, coeffs=model.coeffs, pixel_noise=noise, info=info)
     chi2 = float((residual2 * model.inverse_variance(fitted)).sum() / max(usable.sum(), 1.0))
-    model.info["calibration_chi2"] = chi2
+    # the level a new frame's χ² is held against: a model with many numbers fitted (a map a row)
+    # fits its own frames closer than it will fit any other, and every frame would look changed
+    # (counted as the model sees them: a model of the rows' mean fits one sample where R were read)
+    model.info["calibration_chi2"] = model.out_of_sample(chi2, float(usable.sum()) * model.n_rows / usable.shape[1])
     return Calibration(model, rmse, data.sigma_gray, iterations, history)
 
 

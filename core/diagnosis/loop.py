@@ -37,6 +37,7 @@ CANDIDATES_PER_STEP = 3
 CONTENDERS_PER_STEP = 2  # effects that pass the held-out test, compared before one is kept
 MIN_Z = 5.0  # evidence weaker than this many noise standard deviations is noise
 NOISE_FLOOR_MARGIN = 1.1  # error std within this factor of the bound: nothing left worth chasing
+MAJOR_RESIDUAL_GAIN = 0.5  # a structure removing this share of the held-out residual power is no fluke
 _NO_TRANSIENTS = {"count": 0, "frames": 0, "samples": 0, "share_of_frames": 0.0, "events": []}
 
 
@@ -137,15 +138,23 @@ def _stage(spec: ModelSpec, train: CalibrationData, val: CalibrationData, geomet
 
 
 def _better(new: Figures, old: Figures, n_samples: int) -> tuple[bool, str]:
-    """Keep an effect only when held-out figures improve by more than their sampling noise."""
+    """Keep an effect only when held-out figures improve by more than their sampling noise.
+
+    The residual is measured on every held-out sample, the error std on one number a frame: a
+    few hundred frames give it a standard error of √(1/2n) of itself. A structure that removes a
+    large share of the residual (a map a row, of dust the rows see differently: 68 % of the lab
+    strip's) may cost the error up to two of those standard errors; a smaller gain only 3 %.
+    """
     if not np.isfinite(new.error_max_um) and np.isfinite(old.error_max_um):
         return False, "rejected: the tracker lost frames it held before"
     residual_gain = 1.0 - (new.rmse_gray / old.rmse_gray) ** 2
     error_gain = 1.0 - (new.error_std_um / old.error_std_um) ** 2
     chance = 4.0 * np.sqrt(2.0 / n_samples)
+    error_noise = 2.0 / np.sqrt(2.0 * max(len(old.error_um), 1))
+    allowed = 1.0 + (error_noise if residual_gain > MAJOR_RESIDUAL_GAIN else 0.03)
     figures_text = (f"held-out rmse {old.rmse_gray:.3f} → {new.rmse_gray:.3f} gray, "
                     f"error std {old.error_std_um:.3f} → {new.error_std_um:.3f} µm")
-    if residual_gain > chance and new.error_std_um <= 1.03 * old.error_std_um:
+    if residual_gain > chance and new.error_std_um <= allowed * old.error_std_um:
         return True, "kept: " + figures_text
     if error_gain > 0.10 and new.rmse_gray <= 1.01 * old.rmse_gray:
         return True, "kept: " + figures_text
