@@ -20,6 +20,7 @@ core/solvers.py, and tests/core/test_frame_kernel.py holds both modes to the sam
 
 from __future__ import annotations
 
+import cmath
 import math
 import types
 
@@ -265,11 +266,55 @@ def _gauss_newton(y: np.ndarray, w: np.ndarray, x: float, free: bool, max_iterat
         x += dx
         if abs(dx) < tolerance:
             break
-    # χ², information and light at the last evaluated point: the final step is below tolerance.
+    chi2, excess = _fit_figures(cost, count, free, yy, moments)
+    return x, iterations, information, gain, offset, cost, chi2, excess, at
+
+
+def _fit_figures(cost: float, count: float, free: bool, yy: float, moments: np.ndarray) -> tuple[float, float]:
+    """(χ² per degree of freedom, the χ² the free light gained) at the last evaluated point: the
+    final step is below tolerance."""
     n_used = max(count - (2.0 if free else 0.0) - 1.0, 1.0)
     chi2 = max(cost, 0.0) / n_used
     excess = yy - 2.0 * moments[5] + moments[0] - cost if free else 0.0
-    return x, iterations, information, gain, offset, cost, chi2, excess, at
+    return chi2, excess
+
+
+def _row_moments(rows: np.ndarray, orders: np.ndarray, x: float, out: np.ndarray) -> None:
+    """The seven moments of a moment-table source (the trig-polynomial fast path, core/solvers.py):
+    Re Σ_j rows[:, j]·e^{orders_j·x}, with ``orders`` = iωj."""
+    for i in range(7):
+        out[i] = 0.0
+    for j in range(orders.size):
+        z = cmath.exp(orders[j] * x)
+        for i in range(7):
+            out[i] += (rows[i, j] * z).real
+
+
+def _numpy_row_moments(rows: np.ndarray, orders: np.ndarray, x: float, out: np.ndarray) -> None:
+    out[:] = rows.dot(np.exp(orders * x)).real
+
+
+def _rows_solve_into(rows: np.ndarray, orders: np.ndarray, yy: float, y1: float, s11: float, count: float,
+                     x: float, free: bool, max_iterations: int, tolerance: float, max_step: float,
+                     moments: np.ndarray, out: np.ndarray) -> None:
+    """:func:`_gauss_newton` on a frame's moment rows ``(7, D+1)`` and scalars (Σw·y², Σw·y, Σw, samples
+    used) instead of its pixels, the answer in ``out`` (:data:`FIELDS`): one call a frame where the
+    Python loop spent ~10 µs on small numpy products."""
+    information, gain, offset, cost = 0.0, 1.0, 0.0, math.inf
+    iterations = 0
+    for iterations in range(1, max_iterations + 1):
+        _row_moments(rows, orders, x, moments)
+        numerator, information, gain, offset, cost = _light_step(
+            moments[0], moments[1], moments[2], moments[3], moments[4], moments[5], moments[6], yy, y1, s11, free)
+        dx = numerator / information if information > 0.0 else 0.0
+        dx = min(max(dx, -max_step), max_step)
+        x += dx
+        if abs(dx) < tolerance:
+            break
+    chi2, excess = _fit_figures(cost, count, free, yy, moments)
+    out[0], out[1], out[2], out[3], out[4], out[5], out[6], out[7] = \
+        x, iterations, information, gain, offset, cost, chi2, excess
+    out[8], out[9], out[10], out[11], out[12], out[13], out[14] = 0.0, 1.0, 0.0, 0.0, math.nan, math.nan, 0.0
 
 
 def _solve_into(y: np.ndarray, w: np.ndarray, x: float, free: bool, max_iterations: int, tolerance: float,
@@ -423,6 +468,25 @@ def _sample_weights(y: np.ndarray, fixed_var: float, shot_gain: float, dark_gray
     return shared
 
 
+def _sample_weights_loop(y: np.ndarray, fixed_var: float, shot_gain: float, dark_gray: float, floor_var: float,
+                         pixel_weight: np.ndarray, rows: float, lo: float, hi: float, out: np.ndarray) -> bool:
+    """:func:`_sample_weights` as one pass over the samples (compiled: the array form allocated five
+    temporaries a frame, 19 µs on a 16 × 128 frame); the same operations in the same order, the same
+    numbers bit for bit (a NaN sample stays NaN, as ``np.maximum`` keeps it)."""
+    check = lo < hi
+    outside = 0
+    for p in range(y.size):  # branch-free (selects), so that the compiler vectorises it
+        signal = y[p] - dark_gray
+        signal = 0.0 if signal < 0.0 else signal
+        variance = fixed_var + shot_gain * signal
+        variance = floor_var if variance < floor_var else variance
+        weight = 1.0 / variance * pixel_weight[p] * rows
+        inside = (y[p] > lo) & (y[p] < hi)
+        outside += not inside
+        out[p] = weight * (1.0 if inside or not check else 0.0)
+    return not check or outside == 0
+
+
 def python_twin(function: types.FunctionType, **names) -> types.FunctionType:
     """``function`` run as Python with some of the names it calls bound otherwise (``names``): the
     same control logic, on numpy primitives instead of compiled loops."""
@@ -438,7 +502,8 @@ def _python_twin(function: types.FunctionType) -> types.FunctionType:
     names = dict(_model_at=_numpy_model_at, _moments_of=_numpy_moments_of, _scalars_of=_numpy_scalars_of,
                  _blob_samples=_numpy_blob_samples, _sizes=_numpy_sizes, _upper_median=_numpy_upper_median,
                  _normalise_and_cut=_numpy_normalise_and_cut, _settle_classes=_numpy_settle_classes,
-                 _robust_weights=_numpy_robust_weights, _may_be_blob=_numpy_may_be_blob)
+                 _robust_weights=_numpy_robust_weights, _may_be_blob=_numpy_may_be_blob,
+                 _row_moments=_numpy_row_moments)
     if "_gauss_newton" in _PY:
         names["_gauss_newton"] = _PY["_gauss_newton"]
     return python_twin(function, **names)
@@ -446,7 +511,7 @@ def _python_twin(function: types.FunctionType) -> types.FunctionType:
 
 _PY: dict[str, types.FunctionType] = {}
 _PY["_gauss_newton"] = _python_twin(_gauss_newton)
-for _name in ("_solve_into", "_robust", "_sample_weights"):
+for _name in ("_solve_into", "_robust", "_sample_weights", "_rows_solve_into"):
     _PY[_name] = _python_twin(globals()[_name])
 
 if kernels.numba is not None:  # compiled where numba is (GRAYTRACK_KERNEL=numpy chooses the twin at call time)
@@ -467,10 +532,13 @@ if kernels.numba is not None:  # compiled where numba is (GRAYTRACK_KERNEL=numpy
     _robust_weights = _jit(_robust_weights)
     _may_be_blob = _jit(_may_be_blob)
     _mark_transient = _jit(_mark_transient)
+    _fit_figures = _jit(_fit_figures)
     _gauss_newton = _jit(_gauss_newton)
+    _row_moments = _jit(_row_moments)
+    _rows_solve_into = _jit(_rows_solve_into)
     _solve_into = _jit(_solve_into)
     _robust = _jit(_robust)
-    _sample_weights = _jit(_sample_weights)
+    _sample_weights = _jit(_sample_weights_loop)
 
 
 # --------------------------------------------------------------------------- the calls the solvers make
@@ -519,6 +587,17 @@ def solve(evaluator, y: np.ndarray, w: np.ndarray, x: float, free: bool, max_ite
     return work.out
 
 
+def solve_rows(rows: np.ndarray, orders: np.ndarray, scalars: list[float], x: float, free: bool,
+               max_iterations: int, tolerance: float, max_step: float) -> np.ndarray:
+    """Gauss–Newton on a frame's moment rows ``(7, D+1)`` (complex) and its four scalars: the
+    :data:`FIELDS` row (a new array)."""
+    out = np.empty(N_FIELDS)
+    function = _rows_solve_into if kernels.COMPILED and kernels.numba is not None else _PY["_rows_solve_into"]
+    function(rows, orders, float(scalars[0]), float(scalars[1]), float(scalars[2]), float(scalars[3]), float(x),
+             bool(free), int(max_iterations), float(tolerance), float(max_step), np.empty(7), out)
+    return out
+
+
 def robust(evaluator, y: np.ndarray, w: np.ndarray, x: float, gain: float, offset: float, free: bool,
            start_mask: np.ndarray | None, chi2_limit: float, layout: tuple[int, int] | None, max_iterations: int,
            tolerance: float, max_step: float) -> tuple[np.ndarray, np.ndarray]:
@@ -557,6 +636,8 @@ def sample_weights(y: np.ndarray, noise, pixel_weight: np.ndarray, rows: float,
 def warm(evaluator) -> None:
     """Compile (or load from the disk cache) the solves for this evaluator's tables now, at model
     install, not on a live frame."""
+    if kernels.COMPILED and kernels.numba is not None:  # the trig path's solve, whatever the evaluator
+        solve_rows(np.zeros((7, 2), dtype=complex), 1j * np.arange(2.0), [0.0, 0.0, 1.0, 1.0], 0.0, True, 1, 1.0, 1.0)
     if not (kernels.COMPILED and isinstance(evaluator, kernels.TableEvaluator)):
         return
     n_values = evaluator.tables.n_values

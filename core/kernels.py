@@ -4,7 +4,8 @@ moments at one position, for any model :class:`~graytrack.core.frame_tables.Fram
 numba compiles it on first use (cached on disk next to this file); without numba, or with
 ``GRAYTRACK_KERNEL=numpy`` in the environment, :class:`TableEvaluator` uses the tables' numpy
 evaluation, which gives the same numbers (tests/core/test_kernels.py holds them to 1e-9 µm).
-Pixels are the innermost, contiguous loop so that the compiler vectorises across them.
+Pixels are the innermost, contiguous loop so that the compiler vectorises across them, in blocks
+whose sums stay in the first-level cache.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ except ImportError:  # pragma: no cover - exercised through GRAYTRACK_KERNEL=num
     numba = None
 
 COMPILED = numba is not None and os.environ.get("GRAYTRACK_KERNEL", "").lower() != "numpy"
+BLOCK = 64  # pixels whose sums the kernel keeps together (1 KB: the first-level cache holds them)
 
 
 def _evaluate_into(x: float, omega: float, c_re: np.ndarray, c_im: np.ndarray, offset: np.ndarray,
@@ -29,9 +31,11 @@ def _evaluate_into(x: float, omega: float, c_re: np.ndarray, c_im: np.ndarray, o
                    target_offset: np.ndarray,
                    clip_lo: float, clip_hi: float, values: np.ndarray, slopes: np.ndarray,
                    smooth: np.ndarray) -> None:
-    """values, slopes (P,) at x; ``smooth`` is scratch (P,). Coefficients are (M+1, L, P); pixel p
-    reads the map row starting at ``table[map_base[p]]`` (``map_size`` nodes a row)."""
-    n_orders, n_stroke, n_values = c_re.shape
+    """values, slopes (P,) at x; ``smooth`` is scratch (P,). Coefficients are in pixel blocks,
+    (blocks, M+1, L, BLOCK) (:func:`blocked`); pixel p reads the map row starting at
+    ``table[map_base[p]]`` (``map_size`` nodes a row)."""
+    n_blocks, n_orders, n_stroke, block = c_re.shape
+    n_values = offset.size
     z_re = np.empty(n_orders)
     z_im = np.empty(n_orders)
     for h in range(n_orders):
@@ -49,36 +53,57 @@ def _evaluate_into(x: float, omega: float, c_re: np.ndarray, c_im: np.ndarray, o
         scale = 2.0 / (hi - lo) if hi > lo else 0.0
         for n in range(n_stroke):
             dlegendre[n] *= scale
-    for p in range(n_values):
-        smooth[p] = 0.0
-        slopes[p] = 0.0
+    # value: Re(c·b·zʰ); slope: Re(c·(db + i·b·ωh)·zʰ): two products a coefficient, folded
+    value_re = np.empty((n_stroke, n_orders))
+    value_im = np.empty((n_stroke, n_orders))
+    slope_re = np.empty((n_stroke, n_orders))
+    slope_im = np.empty((n_stroke, n_orders))
     for n in range(n_stroke):
         b, db = legendre[n], dlegendre[n]
         for h in range(n_orders):
-            # value: Re(c·b·zʰ); slope: Re(c·(db + i·b·ωh)·zʰ): two products a coefficient, folded
             zr, zi, turn = z_re[h], z_im[h], omega * h
-            vr, vi = b * zr, b * zi
-            sr, si = db * zr - b * turn * zi, db * zi + b * turn * zr
-            row_re, row_im = c_re[h, n], c_im[h, n]
-            for p in range(n_values):
-                smooth[p] += row_re[p] * vr - row_im[p] * vi
-                slopes[p] += row_re[p] * sr - row_im[p] * si
+            value_re[n, h], value_im[n, h] = b * zr, b * zi
+            slope_re[n, h], slope_im[n, h] = db * zr - b * turn * zi, db * zi + b * turn * zr
+    # A block's sums stay in the first-level cache while every coefficient of the block streams
+    # past once (the coefficients of a 16-row model outgrow the second-level cache: pixel by pixel
+    # over each coefficient row, the sums went back and forth to it, twice as slow).
+    acc = np.empty(block)
+    dacc = np.empty(block)
+    for k in range(n_blocks):
+        for q in range(block):
+            acc[q] = 0.0
+            dacc[q] = 0.0
+        for h in range(n_orders):
+            for n in range(n_stroke):
+                vr, vi, sr, si = value_re[n, h], value_im[n, h], slope_re[n, h], slope_im[n, h]
+                row_re, row_im = c_re[k, h, n], c_im[k, h, n]
+                for q in range(block):
+                    acc[q] += row_re[q] * vr - row_im[q] * vi
+                    dacc[q] += row_re[q] * sr - row_im[q] * si
+        first = k * block
+        for q in range(min(block, n_values - first)):
+            smooth[first + q] = acc[q]
+            slopes[first + q] = dacc[q]
     last = map_size - 1
-    for p in range(n_values):
-        factor, dfactor = 1.0, 0.0
-        if last > 0:
+    if last > 0:  # the map's factor onto the sums, branch-free (selects): the compiler vectorises it
+        for p in range(n_values):
+            # (the numpy evaluation's own rounding: a node lands in the same cell, the same slope)
             position = (x + target_offset[p] - origin) / step
             cell = math.floor(position)
+            inside = (cell >= 0.0) & (cell < last)
+            at = int(cell) if inside else 0
             base = map_base[p]
-            if 0 <= cell < last:
-                at = int(cell)
-                rise = table[base + at + 1] - table[base + at]
-                factor = 1.0 + table[base + at] + (position - at) * rise
-                dfactor = rise / step
-            elif position == last:
-                factor = 1.0 + table[base + last]
-        value = smooth[p] * factor + offset[p]
-        slope = slopes[p] * factor + smooth[p] * dfactor
+            low = table[base + at]
+            rise = table[base + at + 1] - low
+            on_last = position == last
+            factor = 1.0 + low + (position - at) * rise if inside else (
+                1.0 + table[base + last] if on_last else 1.0)
+            dfactor = rise / step if inside else 0.0
+            slopes[p] = slopes[p] * factor + smooth[p] * dfactor
+            smooth[p] = smooth[p] * factor
+    for p in range(n_values):
+        value = smooth[p] + offset[p]
+        slope = slopes[p]
         if value <= clip_lo:
             value, slope = clip_lo, 0.0
         elif value >= clip_hi:
@@ -133,6 +158,16 @@ if COMPILED:
     _moments = numba.njit(cache=True, nogil=True, error_model="numpy")(_moments)
 
 
+def blocked(coefficients: np.ndarray) -> np.ndarray:
+    """``(M+1, L, P)`` coefficients as ``(blocks, M+1, L, BLOCK)``: each block of pixels' coefficients
+    contiguous, the last block padded with zeros."""
+    n_orders, n_stroke, n_values = coefficients.shape
+    n_blocks = -(-n_values // BLOCK)
+    padded = np.zeros((n_orders, n_stroke, n_blocks * BLOCK))
+    padded[..., :n_values] = coefficients
+    return np.ascontiguousarray(padded.reshape(n_orders, n_stroke, n_blocks, BLOCK).transpose(2, 0, 1, 3))
+
+
 class TableEvaluator:
     """Values, slopes and moments of a model from its frame tables: compiled, or numpy where
     numba is missing, the same numbers either way.
@@ -144,8 +179,8 @@ class TableEvaluator:
     def __init__(self, tables: FrameTables):
         self.tables = tables
         n_values = tables.n_values
-        self._re = np.ascontiguousarray(tables.coefficients.real)
-        self._im = np.ascontiguousarray(tables.coefficients.imag)
+        self._re = blocked(tables.coefficients.real)
+        self._im = blocked(tables.coefficients.imag)
         lo, hi = tables.stroke_range_mm
         self._args = (tables.omega, self._re, self._im, tables.offset, lo, hi, tables.target_map, tables.map_base,
                       tables.map_size, tables.map_origin_mm, tables.map_step_mm, tables.target_offset_mm, *tables.clip_gray)

@@ -67,6 +67,7 @@ class MomentSource(Protocol):
     n_frames: int
 
     def moments(self, k: int, x_mm: float) -> list[float]: ...
+    def moment_rows(self, k: int) -> tuple[np.ndarray, np.ndarray]: ...
     def grid_moments(self, k: int, grid: np.ndarray) -> np.ndarray: ...
     def scalars(self, k: int) -> list[float]: ...
     def residuals(self, k: int, x_mm: float, gain: float, offset: float,
@@ -87,39 +88,18 @@ class SolverSettings:
     sigma_gray: float  # the model's σ, to report χ² as an equivalent rms in gray
 
 
-def _step(m: list[float], s: list[float], free: bool) -> tuple[float, float, float, float, float]:
-    """(numerator, information, gain, offset, cost) of the Gauss–Newton step in x at these moments
-    (core/frame_kernel.py :func:`light_step`, the compiled solve's own algebra)."""
-    return frame_kernel.light_step(m[0], m[1], m[2], m[3], m[4], m[5], m[6], s[0], s[1], s[2], free)
-
-
 def gauss_newton(source: MomentSource, k: int, x_start: float, free: bool, settings: SolverSettings) -> FrameSolution:
     """Weighted Gauss–Newton on frame ``k`` from ``x_start``; gain/offset profiled when ``free``.
     A source that evaluates its model pixel by pixel (:class:`GeneralBatch`) is solved in one call
-    of core/frame_kernel.py; a source of moment tables (the trig-polynomial fast path) here."""
+    of core/frame_kernel.py on its pixels; a source of moment tables (the trig-polynomial fast
+    path) in one call on its frame's moment rows."""
     if isinstance(source, GeneralBatch):
         return _solution(frame_kernel.solve(source.evaluator, source.frames[k], source.weights(k), x_start, free,
                                             settings.max_iterations, settings.tolerance_mm, settings.max_step_mm),
                          free, settings)
-    scalars = source.scalars(k)
-    x, iterations = float(x_start), 0
-    max_step, tolerance = settings.max_step_mm, settings.tolerance_mm
-    numerator, information, gain, offset, cost = 0.0, 0.0, 1.0, 0.0, float("inf")
-    m: list[float] = []
-    for iterations in range(1, settings.max_iterations + 1):
-        m = source.moments(k, x)
-        numerator, information, gain, offset, cost = _step(m, scalars, free)
-        dx = numerator / information if information > 0.0 else 0.0
-        dx = min(max(dx, -max_step), max_step)
-        x += dx
-        if abs(dx) < tolerance:
-            break
-    # χ², information and light at the last evaluated point: the final step is below tolerance.
-    n_used = max(scalars[3] - (2 if free else 0) - 1, 1.0)
-    chi2 = max(cost, 0.0) / n_used
-    excess = scalars[0] - 2.0 * m[5] + m[0] - cost if free else 0.0
-    return FrameSolution(x, settings.sigma_gray * math.sqrt(chi2), information, iterations, gain, offset, chi2,
-                         0, free, excess, cost=cost)
+    rows, orders = source.moment_rows(k)
+    return _solution(frame_kernel.solve_rows(rows, orders, source.scalars(k), x_start, free, settings.max_iterations,
+                                             settings.tolerance_mm, settings.max_step_mm), free, settings)
 
 
 def grid_cost(source: MomentSource, k: int, grid: np.ndarray, free: bool) -> np.ndarray:
@@ -317,6 +297,10 @@ class TrigPolyBatch:
     def moments(self, k: int, x_mm: float) -> list[float]:
         return self.rows[k].dot(np.exp(self.tables.phase_orders * x_mm)).real.tolist()
 
+    def moment_rows(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """Frame ``k``'s moment rows ``(7, D+1)`` and their orders iωj (moments = Re rows·e^{orders·x})."""
+        return self.rows[k], self.tables.phase_orders
+
     def grid_moments(self, k: int, grid: np.ndarray) -> np.ndarray:
         return (np.exp(np.outer(grid, self.tables.phase_orders)) @ self.rows[k].T).real
 
@@ -408,6 +392,9 @@ class FrameMoments:
 
     def moments(self, k: int, x_mm: float) -> list[float]:
         return self.rows.dot(np.exp(self.phase_orders * x_mm)).real.tolist()
+
+    def moment_rows(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        return self.rows, self.phase_orders
 
 
 class GeneralBatch:

@@ -784,7 +784,7 @@ class LiveTracker:
         """Solve one frame ``(n,)`` or ``(R, n)``; ``reference_mm`` is the grating at that instant, if read."""
         frame = np.asarray(frame)
         last = self._last_frame
-        same = last is not None and last.shape == frame.shape and bool((last == frame).all())
+        same = last is not None and last.shape == frame.shape and _identical(last, frame)
         if last is None or last.shape != frame.shape or last.dtype != frame.dtype:
             self._last_frame = frame.copy()
         elif not same:
@@ -828,6 +828,13 @@ class LiveTracker:
         if batch is None:
             batch = self._batches[rows] = self.tracker.batch(line.reshape(1, 1, -1).copy(), rows)
         return batch.reload(line)
+
+
+def _identical(kept: np.ndarray, frame: np.ndarray) -> bool:
+    """Bit for bit the same image (a driver that handed the last frame again)? A few samples
+    tell a new image at once (noise moves every one); only the rare match is compared whole."""
+    head_kept, head_new = kept.reshape(-1)[:8], frame.reshape(-1)[:8]
+    return bool((head_kept == head_new).all()) and bool((kept == frame).all())
 
 
 def _solve_frame(tracker: Tracker, batch: GeneralBatch | TrigPolyBatch, k: int, state: SequentialState,

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from graytrack.core import kernels
 from graytrack.core.calibration import calibrate
 from graytrack.core.evaluation import FastHarmonics
 from graytrack.core.noise import crlb_mm
@@ -45,9 +46,12 @@ def rms(values: np.ndarray) -> float:
 
 
 # ----------------------------------------------------------------- the fast path stays exact
-def test_fast_path_matches_direct_evaluation_with_weights_and_free_light(paper_rig):
+@pytest.mark.parametrize("compiled", [True, False], ids=["compiled", "numpy"])
+def test_fast_path_matches_direct_evaluation_with_weights_and_free_light(paper_rig, compiled, monkeypatch):
     """Per-frame weights fold into the trig-polynomial reductions exactly: the same solution,
-    information and χ² as evaluating the model at x and weighting the pixels directly."""
+    information and χ² as evaluating the model at x and weighting the pixels directly, whether the
+    moment rows' solve runs compiled or as its numpy twin."""
+    monkeypatch.setattr(kernels, "COMPILED", compiled and kernels.numba is not None)
     rig, model = paper_rig
     frames, x_true = run_of(rig, 12, light_gain=np.linspace(0.7, 1.3, 12), light_offset=np.linspace(-20, 20, 12))
     prepared = model.prepare(frames)
@@ -68,10 +72,12 @@ def test_fast_path_matches_direct_evaluation_with_weights_and_free_light(paper_r
         np.testing.assert_allclose(grid_cost(fast, 3, grid, free), grid_cost(direct, 3, grid, free), rtol=1e-8)
 
 
-def test_set_aside_pixels_match_a_direct_masked_solve(paper_rig):
+@pytest.mark.parametrize("compiled", [True, False], ids=["compiled", "numpy"])
+def test_set_aside_pixels_match_a_direct_masked_solve(paper_rig, compiled, monkeypatch):
     """Setting pixels aside by subtracting their share of the frame's moments (a block of frames
     at once, or one live frame) gives the solve of the kept pixels evaluated directly, and their
     residuals as the model gives them."""
+    monkeypatch.setattr(kernels, "COMPILED", compiled and kernels.numba is not None)
     rig, model = paper_rig
     frames, x_true = run_of(rig, 70, light_gain=0.8, light_offset=10.0)
     frames = frames.copy()
