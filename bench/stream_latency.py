@@ -75,15 +75,15 @@ def free_port() -> int:
 
 def config(folder: Path, rate: float, poll_s: float = 0.005, deflate: bool = False, priority: int = 0,
            model: str = "auto", effects: str = "", scenario: str = "paper", rows: int = 1, rig_process: bool = True) -> Path:
-    """The daemon's configuration; each model kind (and rig) keeps its own data directory, so its one
-    calibration (made at the first start) serves every run of that kind."""
+    """The daemon's configuration; each model kind (and rig, and exposure) keeps its own data
+    directory, so its one calibration (made at the first start) serves every run of that kind."""
     path = folder / f"{model}-{scenario}-rows{rows}-rate{rate:g}-poll{poll_s:g}-deflate{int(deflate)}-prio{priority}-rp{int(rig_process)}.toml"
     exposure_us = min(1000.0, 0.5e6 / rate)  # the rig's 1 ms exposure fits up to 1000 frames/s
     path.write_text(f'[camera]\nkind = "sim"\nframe_rate_hz = {rate}\nexposure_us = {exposure_us}\n'
                     f'effects = "{effects}"\nscenario = "{scenario}"\nrig_process = {str(rig_process).lower()}\n'
                     f'[camera.roi]\nrows = {rows}\n'
                     f'[sweep]\nmodel = "{model}"\n'
-                    f'[daemon]\ndata_dir = "{folder / ("data-" + model + "-" + scenario + str(rows))}"\nlog_level = "warning"\ngrating_poll_s = {poll_s}\n'
+                    f'[daemon]\ndata_dir = "{folder / ("data-" + model + "-" + scenario + str(rows) + f"-{exposure_us:g}us")}"\nlog_level = "warning"\ngrating_poll_s = {poll_s}\n'
                     f'ws_compression = {str(deflate).lower()}\nrealtime_priority = {priority}\n')
     return path
 
@@ -183,10 +183,13 @@ def main() -> None:
     folder = Path(tempfile.mkdtemp(prefix="graytrack-bench-"))
     burners = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(args.load)]
     try:
-        # one calibration per model kind (the daemon calibrates itself at the first start), reused by every run
+        # one calibration per model kind and exposure (the daemon calibrates itself at the first start), reused
+        # by every run at that exposure: a model calibrated at another exposure sees other images (motion
+        # blur, light) and rightly works harder on every frame, which is not what a lab running one rate pays
         models = args.models.split(",")
         for model in models:
-            run(folder, 200, 1, 0.5, model=model, effects=args.effects, scenario=args.scenario, rows=args.rows)
+            for rate in {min(1000.0, 0.5e6 / float(r)): float(r) for r in args.rates.split(",")}.values():
+                run(folder, rate, 1, 0.5, model=model, effects=args.effects, scenario=args.scenario, rows=args.rows)
         print(f"machine: {os.cpu_count()} cores, load average {load_average()} at start, "
               f"{args.load} busy-looping processes meanwhile; scenario {args.scenario}, {args.rows} row(s)")
         print(f"{'rig':>4} {'render':>6} {'model':>6} {'prio':>4} {'deflate':>7} {'poll ms':>7} {'frames/s':>8} {'clients':>7} {'msgs/s':>8} {'missing':>7} {'dropped':>7} "

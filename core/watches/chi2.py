@@ -21,6 +21,12 @@ STILL_WINDOW = 20
 # projection, ~1 ms on a 16-row strip): a slightly raised χ² can last for most of a run on a real
 # rig, and the shares are running averages, which a sample of the frames serves as well.
 EXPLAIN_EVERY = 5
+# ... at first: a run that stays suspect without going stale is looked at half as often after each
+# WINDOW frames learnt, down to one in this many. At 1,000 frames/s a steady χ² a few per cent
+# above calibration's (suspect for the whole run, never stale) had the daemon's frame loop explain
+# 200 frames a second, a third of its time, and drop camera frames; the averages need no more
+# than a window of recent looks. Once stale, every EXPLAIN_EVERY-th frame again.
+EXPLAIN_EVERY_LONGEST = 80
 
 
 class ChiSquareWatch:
@@ -33,6 +39,7 @@ class ChiSquareWatch:
         self._top: set[int] | None = None
         self._count = 0
         self.consistency: dict[str, Consistency] = {}
+        self._interval, self._next, self._learnt = EXPLAIN_EVERY, 1, 0  # the explain cadence (see above)
 
     def observe(self, sign: FrameSign) -> str | None:
         return self.step(sign.chi2_suspect, sign.chi2_stale, sign.explain)
@@ -40,11 +47,18 @@ class ChiSquareWatch:
     def step(self, chi2_suspect: bool, chi2_stale: bool, explain) -> str | None:
         if not chi2_suspect:
             if self._count:  # (what a suspect frame learns comes after its count: at 0 all is reset)
-                self.shares, self.persistence, self._top, self._count, self.consistency = {}, None, None, 0, {}
+                self._reset()
             return None
         self._count += 1
-        if explain is not None and ((self._count - 1) % EXPLAIN_EVERY == 0 or (chi2_stale and not self.shares)):
+        backed_off = self._interval > EXPLAIN_EVERY
+        if explain is not None and (self._count >= self._next or (chi2_stale and (not self.shares or backed_off))):
             self._learn(explain())
+            self._learnt += 1
+            if chi2_stale:
+                self._interval = EXPLAIN_EVERY
+            elif self._learnt % WINDOW == 0:
+                self._interval = min(2 * self._interval, EXPLAIN_EVERY_LONGEST)
+            self._next = self._count + self._interval
         if not chi2_stale:
             return None
         family = named(self.shares)
@@ -58,8 +72,13 @@ class ChiSquareWatch:
         if columns.array("chi2_suspect", bool).any():
             return None
         if self._count:
-            self.shares, self.persistence, self._top, self._count, self.consistency = {}, None, None, 0, {}
+            self._reset()
         return [None] * n
+
+    def _reset(self) -> None:
+        """A suspect run ended: what it learnt is forgotten and the next one is looked at closely."""
+        self.shares, self.persistence, self._top, self._count, self.consistency = {}, None, None, 0, {}
+        self._interval, self._next, self._learnt = EXPLAIN_EVERY, 1, 0
 
     def _learn(self, found: dict) -> None:
         for family, coefficients in found.get("coefficients", {}).items():

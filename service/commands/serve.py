@@ -65,6 +65,9 @@ def run(args: argparse.Namespace) -> int:
     if not 0 <= settings.daemon.port <= 65535:
         raise CliError(f"--port {settings.daemon.port}: must be 0..65535")
     daemon = settings.daemon
+    from graytrack.service.blas import single_threaded_blas
+
+    single_threaded_blas()  # the frame loop's small products on one core (service/blas.py)
     logging.basicConfig(level=daemon.log_level.upper(), stream=sys.stderr,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     try:

@@ -159,6 +159,9 @@ def run(args: argparse.Namespace) -> int:
     from graytrack.service.commands.track_scale import check
     from graytrack.service.tables import write_csv
 
+    from graytrack.service.blas import single_threaded_blas
+
+    single_threaded_blas()  # frame-sized products: a second BLAS thread only spins (service/blas.py)
     chunks = chunk_options(args)
     output_file(args.out)
     recording = load(args.recording)

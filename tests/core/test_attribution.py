@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from graytrack.core import attribution
+from graytrack.core.watches import chi2 as chi2_watch
 from graytrack.core.watches.chi2 import EXPLAIN_EVERY, ChiSquareWatch
 
 
@@ -71,3 +72,38 @@ def test_a_long_suspect_run_is_explained_on_a_sample_of_its_frames():
     assert watch.step(True, True, explain) == "light"  # named from the sample when the model goes stale
     watch.step(False, False, explain)
     assert watch.shares == {}  # a suspect run over: what it learnt is forgotten
+
+
+def test_a_run_suspect_for_long_is_looked_at_ever_less_often_until_it_goes_stale():
+    """A window of looks every EXPLAIN_EVERY frames, then half as often after each window learnt,
+    down to one in EXPLAIN_EVERY_LONGEST; every EXPLAIN_EVERY-th again once stale, and from the
+    start in the next suspect run."""
+    watch = ChiSquareWatch()
+    asked: list[int] = []
+    frame = 0
+
+    def explain():
+        asked.append(frame)
+        return {"shares": {"light": 0.9}, "coefficients": {"light": np.ones(6)}, "top": [1]}
+
+    def run(frames: int, stale: bool = False) -> list[int]:
+        nonlocal frame
+        start = len(asked)
+        for _ in range(frames):
+            frame += 1
+            watch.step(True, stale, explain)
+        return np.diff(asked[start - 1 if start else 0:]).tolist()
+
+    gaps = run(5000)
+    window = chi2_watch.WINDOW
+    assert gaps[: window - 1] == [EXPLAIN_EVERY] * (window - 1)
+    assert gaps[window - 1: 2 * window - 1] == [2 * EXPLAIN_EVERY] * window
+    assert max(gaps) == chi2_watch.EXPLAIN_EVERY_LONGEST == gaps[-1]
+    assert len(asked) < 5000 / EXPLAIN_EVERY / 5  # ~115 looks in 5,000 frames instead of 1,000
+    before = frame
+    stale_gaps = run(50, stale=True)
+    assert asked[-len(stale_gaps)] == before + 1  # the first stale frame is looked at at once
+    assert set(stale_gaps[1:]) == {EXPLAIN_EVERY}  # and then closely again
+    watch.step(False, False, explain)
+    asked.clear()
+    assert run(30) == [EXPLAIN_EVERY] * 5  # a new suspect run starts at the first cadence
