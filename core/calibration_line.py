@@ -11,6 +11,7 @@ import math
 import numpy as np
 
 from graytrack.core.adequacy import error_profile
+from graytrack.core.chi2_curve import measured as measured_chi2_curve
 from graytrack.core.noise import reference_resolution_mm
 from graytrack.core.reference_monitor import MIN_FRAMES, Line, ReferenceMonitor, structure_um
 from graytrack.core.tracking import track
@@ -25,6 +26,13 @@ def record_calibration_line(model, recording) -> Line | None:
     if np.isfinite(reference).sum() < MIN_FRAMES:
         return None
     result = track(model, recording, light="auto", robust=True)
+    # the χ² level along the stroke, as tracking will see it: what a run's χ² is held against (core/chi2_curve.py)
+    curve = measured_chi2_curve(result.x_mm[result.locked], result.chi2[result.locked]) \
+        if result.chi2 is not None else None
+    if curve is not None:
+        model.info["calibration_chi2_curve"] = curve.as_dict()
+    else:
+        model.info.pop("calibration_chi2_curve", None)
     step = float(recording.meta.get("grating_resolution_mm", 0.0) or 0.0) or reference_resolution_mm(reference)
     lo, hi = model.stroke_range_mm
     monitor = ReferenceMonitor(0.5 * (lo + hi), 0.5 * (hi - lo), window=max(reference.size, MIN_FRAMES),

@@ -25,6 +25,7 @@ from typing import Callable
 import numpy as np
 
 from graytrack.core import attribution, frame_kernel, repeats, transients
+from graytrack.core.chi2_curve import Chi2Curve
 from graytrack.core.compression import stream_bound_factor
 from graytrack.core.errors import TrackingError
 from graytrack.core.geometry_check import refusal
@@ -197,6 +198,7 @@ class Tracker:
         self.refused = refusal(model)
         self.quarter_period_mm = model.period_mm / 4.0
         sigma = model.noise_gray or 1.0
+        self.chi2_curve = Chi2Curve.from_info(model.info)  # the level along the stroke (None: flat)
         self.settings = SolverSettings(max_iterations, tolerance_mm, self.quarter_period_mm, sigma)
         calibration_rmse = float(model.info.get("calibration_rmse_gray", sigma))
         self.residual_limit_gray = residual_limit_gray or 3.0 * calibration_rmse + 1.0
@@ -304,12 +306,14 @@ class Tracker:
         free = self.light == "free" or (self.light == "auto" and (memory.free or self.model.common_mode))
         robust_first = self.robust and memory.rejected is not None
         solution = self._attempt(batch, k, x_start, memory, free, robust_first)
-        asked = solution.chi2 > self.chi2_limit
-        if solution.chi2 > self.chi2_limit and self.light == "auto" and not free:
+        here = self.chi2_level(solution.x_mm)
+        limit = self.chi2_limit * here
+        asked = solution.chi2 > limit
+        if solution.chi2 > limit and self.light == "auto" and not free:
             free = True
             solution = self._attempt(batch, k, x_start, memory, free, robust_first)
         freed_here = free and self.light == "auto" and not (memory.free or self.model.common_mode)
-        if solution.chi2 > self.chi2_limit and self.robust and not robust_first:
+        if solution.chi2 > limit and self.robust and not robust_first:
             solution = self._attempt(batch, k, x_start, memory, free, True)
         if freed_here and solution.rejected and solution.free_light and solution.light_excess <= LIGHT_RETURN_CHI2:
             # The light was freed for samples that turned out to be outliers (a glint): with them out the
@@ -324,17 +328,23 @@ class Tracker:
         memory.rejected = solution.rejected_mask if solution.rejected else None
         if solution.free_light and math.isfinite(solution.chi2):
             memory.free_frames = min(memory.free_frames + 1, FIELD_WINDOW)
-            level = min(solution.chi2 / self.chi2_calibration, self.free_frame_cap)
+            level = min(solution.chi2 / (self.chi2_calibration * here), self.free_frame_cap)
             memory.free_level += (level - memory.free_level) / memory.free_frames
         if self.focus_capable and (asked or (solution.free_light and self._blur_suspected(memory))):
             memory.focus = True  # the frame did not fit as at calibration: a blur is one cheap unknown away
         tried_field = memory.field and self.field_basis is not None
         tried_focus = memory.focus and self.focus_capable
         if tried_field or tried_focus:
-            solution = self._changed(batch, k, solution, memory, tried_field, tried_focus)
+            solution = self._changed(batch, k, solution, memory, tried_field, tried_focus, here)
         if not tried_focus:
             memory.focus_track.wait()
         return solution
+
+    def chi2_level(self, x_mm: float) -> float:
+        """The calibration's χ² level where a frame was placed, relative to its mean (1 without a
+        curve, or off the map): a frame's χ² is held against it (core/chi2_curve.py)."""
+        curve = self.chi2_curve
+        return 1.0 if curve is None or not math.isfinite(x_mm) else curve.at(x_mm)
 
     def _blur_suspected(self, memory: LightMemory) -> bool:
         """The free-light frames' average χ² beyond three of its spreads above the calibration's."""
@@ -377,17 +387,19 @@ class Tracker:
         return solution
 
     def _changed(self, batch: GeneralBatch | TrigPolyBatch, k: int, uniform: FrameSolution, memory: LightMemory,
-                 tried_field: bool, tried_focus: bool) -> FrameSolution:
+                 tried_field: bool, tried_focus: bool, here: float = 1.0) -> FrameSolution:
         """The frame solved with a light field and/or a focus change as well as with the uniform
         light, and the answer the evidence asks for. Each is taken only while the uniform light's
         own χ² stays above the calibration's level and its χ² gain, averaged over the last frames,
         is beyond what its extra unknowns gain by chance. Both can follow a blur (the field by
         trading its shape against x): the field is taken only when it explains more than the focus
         by more than its one extra unknown, and its shape holds still. The focus estimate rides on
-        whichever answer is taken, for the focus watch."""
+        whichever answer is taken, for the focus watch. ``here``: the calibration's χ² level where the
+        frame is (core/chi2_curve.py), what the uniform light's χ² is held against."""
+        uniform_chi2 = uniform.chi2 / here
         if memory.field_shape is None and memory.focus_gain <= FOCUS_KEEP:  # neither has built up evidence yet
-            memory.uniform_chi2 = uniform.chi2
-        memory.uniform_chi2 += (uniform.chi2 - memory.uniform_chi2) / STALE_WINDOW
+            memory.uniform_chi2 = uniform_chi2
+        memory.uniform_chi2 += (uniform_chi2 - memory.uniform_chi2) / STALE_WINDOW
         wanted = memory.uniform_chi2 > self.sustained_limit
         shaped = self._field(batch, k, uniform, memory) if tried_field else None
         focused = self._focus(batch, k, uniform, memory) if tried_focus else None
@@ -585,7 +597,8 @@ class SequentialState:
         self.locked, self.frame = locked, self.frame + 1
         # with a focus term solved, the model as calibrated is what the running χ² watches
         focus_free = solution.chi2_calibrated_focus
-        self._watch_model(tracker, focus_free if math.isfinite(focus_free) else solution.chi2)
+        chi2 = focus_free if math.isfinite(focus_free) else solution.chi2
+        self._watch_model(tracker, chi2 / tracker.chi2_level(solution.x_mm))  # against the level where it was taken
         self._watch_validity(tracker, batch, k, solution, ok, reference)
         return solution, ok, locked and tracker.refused is None
 
