@@ -25,8 +25,9 @@ DEFAULT_LEVEL = 10  # the daemon's default: asked for everywhere, so a refusal o
 _said: set[str] = set()
 
 
-def raise_thread_priority(level: int, thread: str) -> bool:
-    """The calling thread to ``SCHED_FIFO`` at ``level`` (1–99; 0 leaves it alone). True when it took effect."""
+def raise_thread_priority(level: int, thread: str, native_id: int = 0) -> bool:
+    """The calling thread (or the thread of ``native_id``: one that holds a lock the raised ones
+    need) to ``SCHED_FIFO`` at ``level`` (1–99; 0 leaves it alone). True when it took effect."""
     if level <= 0:
         return False
     policy = getattr(os, "SCHED_FIFO", None)
@@ -34,7 +35,7 @@ def raise_thread_priority(level: int, thread: str) -> bool:
         _say_once(log.info, "realtime_priority: this platform has no SCHED_FIFO; the daemon runs at normal priority")
         return False
     try:
-        os.sched_setscheduler(0, policy | getattr(os, "SCHED_RESET_ON_FORK", 0), os.sched_param(level))
+        os.sched_setscheduler(native_id, policy | getattr(os, "SCHED_RESET_ON_FORK", 0), os.sched_param(level))
     except OSError as exc:
         say = log.info if level == DEFAULT_LEVEL else log.warning
         _say_once(say, f"realtime_priority = {level} refused ({exc.strerror or exc}): the {thread} and the others run "

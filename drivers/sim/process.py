@@ -35,6 +35,7 @@ as a camera error, the controller's pty closes and the stage reports its own fau
 
 from __future__ import annotations
 
+import gc
 import os
 import math
 import pickle
@@ -51,6 +52,7 @@ import numpy as np
 
 START_TIMEOUT_S = 60.0  # the child imports numpy and the rig (seconds on a loaded machine)
 STOP_TIMEOUT_S = 2.0
+SWITCH_INTERVAL_S = 0.0005  # the child's interpreter lock handed over within half a frame at 1 kHz
 MAX_MESSAGE = 1 << 22  # bytes of one frame at most (a 16-row strip of 100 float32 pixels: 6.4 kB)
 # the frame clock: epoch, origin, rate, exposure, lag budget (rig clock), SCHED_FIFO level of the child (0: normal)
 _CONFIG = struct.Struct("!qddddi")
@@ -242,6 +244,11 @@ def _serve(sock: socket.socket) -> None:
     except Exception as exc:  # noqa: BLE001 - said to the parent, which raises it
         sock.send(pickle.dumps(("error", f"{type(exc).__name__}: {exc}")))
         return
+    # Two threads share this interpreter (the exposures here, the controller's): a thread wanting the
+    # lock waits up to the switch interval, 5 ms by default, five frame periods at 1 kHz. The heap
+    # built so far lives as long as the process: full collections need not walk it (service/heap.py).
+    sys.setswitchinterval(SWITCH_INTERVAL_S)
+    gc.freeze()
     try:
         sock.send(pickle.dumps(("ready", controller.path, (rig.n_rows, rig.n_pixels))))
         config: tuple[int, float, float, float, float, int] | None = None
@@ -266,6 +273,9 @@ def _serve(sock: socket.socket) -> None:
                     return  # the daemon closed its end (or died): done
                 config, last = _CONFIG.unpack(message), -1
                 raise_thread_priority(config[5], "virtual rig's camera")
+                # the controller's thread takes the interpreter lock the exposures need: at normal
+                # priority, preempted while holding it, it held a raised camera 4–6 ms (an inversion)
+                raise_thread_priority(config[5], "virtual rig's controller", controller.native_id or 0)
                 continue
             if config is None or wait:
                 continue  # woken early: look at the clock again

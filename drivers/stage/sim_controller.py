@@ -93,6 +93,12 @@ class SimGCSController:
         self._thread.start()
         return self
 
+    @property
+    def native_id(self) -> int | None:
+        """The serving thread's kernel id (None before it runs): what a process that raises its
+        camera's priority raises too, the serving thread taking the interpreter lock the camera needs."""
+        return self._thread.native_id if self._thread is not None else None
+
     def stop(self) -> None:
         self._stopping.set()
         os.write(self._wake_w, b"x")

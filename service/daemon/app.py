@@ -26,6 +26,7 @@ from graytrack.service.daemon.api.pages import WEB_DIR
 from graytrack.service.daemon.api.security import WebGuard, WebPolicy
 from graytrack.service.daemon.broadcast import Broadcaster
 from graytrack.service.daemon.errors import DaemonError
+from graytrack.service.heap import freeze_long_lived, thaw
 from graytrack.service.daemon.record import open_record
 from graytrack.drivers.realtime import raise_thread_priority
 from graytrack.service.daemon.rig import HardwareFactory, Rig, default_factory
@@ -100,10 +101,12 @@ def create_app(settings: Settings, factory: HardwareFactory = default_factory) -
         sys.setswitchinterval(SWITCH_INTERVAL_S)
         raise_thread_priority(settings.daemon.realtime_priority, "event loop")  # before the rig's threads: they start normal
         rig.start()
+        freeze_long_lived()  # full collections walk what the frames leave, not the daemon (service/heap.py)
         try:
             yield
         finally:
             await asyncio.to_thread(rig.close)
+            thaw()
             sys.setswitchinterval(previous)
             record.close()
             storage.unlock()

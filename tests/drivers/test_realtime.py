@@ -37,6 +37,27 @@ def test_the_raised_thread_runs_fifo_and_the_threads_it_starts_do_not() -> None:
     assert _policy() == (os.SCHED_OTHER, 0), "the caller's thread is left alone"
 
 
+def test_another_thread_is_raised_by_its_kernel_id_and_the_caller_is_left_alone() -> None:
+    """The virtual rig's process raises its controller's thread, which holds the lock its camera needs."""
+    ready, done, seen = threading.Event(), threading.Event(), []
+
+    def holder():
+        ready.set()
+        done.wait(5.0)
+        seen.append(_policy())
+
+    thread = threading.Thread(target=holder)
+    thread.start()
+    ready.wait(5.0)
+    took = realtime.raise_thread_priority(3, "test holder", thread.native_id)
+    done.set()
+    thread.join()
+    if not took:
+        pytest.skip("this machine refuses SCHED_FIFO (no CAP_SYS_NICE or RLIMIT_RTPRIO)")
+    assert seen == [(os.SCHED_FIFO, 3)]
+    assert _policy() == (os.SCHED_OTHER, 0)
+
+
 def test_level_zero_changes_nothing() -> None:
     assert _in_thread(lambda: (realtime.raise_thread_priority(0, "t"), _policy())) == (False, (os.SCHED_OTHER, 0))
 
