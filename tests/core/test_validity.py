@@ -222,3 +222,26 @@ def test_batch_tracking_flags_what_the_monitor_flags_frame_by_frame(model, later
     np.testing.assert_array_equal(batched.x_mm, single.x_mm)
     if later.startswith(("glare", "light_change", "defocus")):
         assert batched.stale.mean() > 0.5
+
+
+@pytest.mark.parametrize("live", [True, False])
+def test_a_wrong_model_at_rest_is_flagged_by_the_grating_while_its_chi2_is_only_suspect(model, live):
+    """A period 5 % off, the stage resting mid-stroke: the running χ² sits about the stale line
+    (suspect on every frame, stale now and then) and no line is fitted while it is suspect; the
+    camera is ~200 bounds off the grating all the while, and every frame after the watch's
+    window says so."""
+    from graytrack.core.tracking import LiveTracker
+    from graytrack.drivers.sim.stage import oscillation
+
+    wrong = model.with_changes(period_mm=model.period_mm * 1.05, coeffs=model.coeffs)
+    run, _ = build_rig("paper", "", seed=3, run=1).record(4.0, trajectory=oscillation(5.0, 0.0, 1.0))
+    if live:
+        tracker = LiveTracker(wrong, x0_mm=float(run.reference[0]))
+        stale = np.array([tracker.update(frame, reference).stale for frame, reference in zip(run.frames, run.reference)])
+        x = None
+    else:
+        result = track(wrong, run, light="auto", robust=True)
+        stale, x = result.stale, result.x_mm
+    if x is not None:
+        assert np.nanmean(np.abs(x - run.reference)) > 0.1  # the positions are indeed far off
+    assert stale[25:].mean() > 0.95, stale.mean()
