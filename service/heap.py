@@ -6,15 +6,24 @@ the GIL held, on whichever thread happens to allocate. At 1,000 frames/s that is
 70 late frames every few seconds, the stream's p99. The objects alive once the daemon has started
 (modules, the app, the drivers) live as long as the process: moved into the permanent
 generation, full passes walk only what came after. Reference counting still frees them; only a
-cycle among them would outlive its use, and they are built once. (A model install's tables are
-left to the collector: frozen from the builder thread, they changed when a wrong model's stale
-flag was seen to flicker in tests/service/test_metrics.py, a timing the freeze should not touch;
-not understood yet, so not done.)
+cycle among them would outlive its use, and they are built once.
+
+The first model install used to bring most of the heap with it: numba builds its typing
+registries and loads the compiled kernels on first use, ~50,000 objects that live as long as the
+process, and a full pass over them took 15–25 ms (over 100 ms seen with the cores busy) on the
+event loop's thread in the middle of the stream. :func:`warm_tracking` runs a small synthetic
+model through a live tracker before the freeze, so they are frozen with the rest; a model
+installed later then leaves ~600 objects to the collector (full pass ~0.2 ms). A model's own
+tables are not frozen: a replaced model caught in a cycle would never be freed.
 """
 
 from __future__ import annotations
 
 import gc
+
+import numpy as np
+
+WARM_FRAMES = 40  # frames of the synthetic run: acquisition, the sequential solve and every watch's first steps
 
 
 def freeze_long_lived() -> int:
@@ -27,3 +36,23 @@ def freeze_long_lived() -> int:
 def thaw() -> None:
     """Back into the oldest generation (a daemon shut down inside a longer-lived process: tests)."""
     gc.unfreeze()
+
+
+def warm_tracking() -> None:
+    """Track a synthetic sine target with a synthetic model, frame by frame as the daemon does:
+    what tracking loads on first use is loaded now (from numba's disk cache: ~0.5 s; compiled on a
+    fresh install: tens of seconds, which the first model install would otherwise pay)."""
+    from graytrack.core.models.fourier import FourierModel
+    from graytrack.core.tracking import LiveTracker
+
+    model = FourierModel(period_mm=0.5, pixel_pitch_mm=0.01, n_pixels=64, harmonics=1, pixel_degree=0,
+                         noise_gray=1.0, name="warm-up")
+    coeffs = np.zeros(model.coeff_shape)
+    coeffs[0], coeffs[2] = 100.0, 50.0  # offset and the fundamental's cosine
+    model = model.with_changes(coeffs=coeffs)
+    noise = np.random.default_rng(0).normal(0.0, 1.0, (WARM_FRAMES, model.n_pixels))
+    x_mm = np.linspace(0.1, 0.3, WARM_FRAMES)
+    frames = model.predict(x_mm)[:, 0] + noise
+    tracker = LiveTracker(model, x0_mm=float(x_mm[0]))
+    for frame, x in zip(frames, x_mm):
+        tracker.update(frame, float(x))

@@ -26,7 +26,7 @@ from graytrack.service.daemon.api.pages import WEB_DIR
 from graytrack.service.daemon.api.security import WebGuard, WebPolicy
 from graytrack.service.daemon.broadcast import Broadcaster
 from graytrack.service.daemon.errors import DaemonError
-from graytrack.service.heap import freeze_long_lived, thaw
+from graytrack.service.heap import freeze_long_lived, thaw, warm_tracking
 from graytrack.service.daemon.record import open_record
 from graytrack.drivers.realtime import raise_thread_priority
 from graytrack.service.daemon.rig import HardwareFactory, Rig, default_factory
@@ -100,6 +100,10 @@ def create_app(settings: Settings, factory: HardwareFactory = default_factory) -
         previous = sys.getswitchinterval()
         sys.setswitchinterval(SWITCH_INTERVAL_S)
         raise_thread_priority(settings.daemon.realtime_priority, "event loop")  # before the rig's threads: they start normal
+        try:
+            warm_tracking()  # what tracking loads on first use, loaded before the freeze (service/heap.py)
+        except Exception:  # noqa: BLE001 - a slower first install and longer collections, not a daemon that cannot start
+            log.exception("tracking could not be warmed up before the heap freeze")
         rig.start()
         freeze_long_lived()  # full collections walk what the frames leave, not the daemon (service/heap.py)
         try:
