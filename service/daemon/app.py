@@ -39,8 +39,10 @@ ROUTERS = (status.router, calibration.router, history.router, profile.router, st
            pages.router, trim.router)
 # The frame thread and the event loop share the GIL. A thread that computes for long (a calibration
 # fit, a status document) holds it for Python's default 5 ms switch interval before the stream's
-# thread gets a turn: five frames at 1 kHz. 0.5 ms bounds that wait to half a frame.
-SWITCH_INTERVAL_S = 0.0005
+# thread gets a turn: five frames at 1 kHz. 0.1 ms bounds that wait to a tenth of a frame (against
+# 0.5 ms, the 16-row closed-loop stream's p99 at 1 kHz × 4 clients was lower in each of four
+# interleaved pairs of runs of bench/stream_latency.py, median 7.4 against 10.7 ms over 12 runs each).
+SWITCH_INTERVAL_S = 0.0001
 
 
 def server_options(settings: Settings) -> dict[str, Any]:
