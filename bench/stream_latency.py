@@ -19,6 +19,10 @@ Run: .venv/bin/python bench/stream_latency.py [--seconds 5] [--rates 200,500,100
                             side by side: GRAYTRACK_SIM_RENDER, drivers/sim/frame_render.py)
      [--rig-process 0,1]    (the virtual rig in the daemon's process against in its own, side by side:
                             [camera] rig_process, drivers/sim/process.py)
+     [--pin 0,1]            (the daemon on a core of its own, [daemon] cpu_cores, the rig's process and the
+                            clients on the others, against unpinned, side by side)
+     [--client websockets,socket] (the websockets library's asyncio clients against a selector on raw
+                            sockets that stamps each read as it returns, side by side)
 
 ``CPU %`` is the daemon's process, ``rig %`` the virtual rig's process when it has one (its stage,
 controller and rendering: what real hardware does outside the host).
@@ -67,6 +71,89 @@ asyncio.run(main(sys.argv[1], int(sys.argv[2]), float(sys.argv[3])))
 """
 
 
+# The same measurement with the receipt stamped at the socket: one thread reads the N connections
+# through a selector, stamps each read when it returns, then parses the WebSocket frames it holds
+# (a server's frames are unmasked; pings answered). A motion controller in C, or on another host,
+# pays no Python WebSocket library per message; this client's own per-message cost stays out of
+# the stamps of the messages that arrived with it.
+SOCKET_CLIENT = r"""
+import base64, json, os, selectors, socket, struct, sys, time
+from urllib.parse import urlparse
+
+def connect(url):
+    u = urlparse(url)
+    sock = socket.create_connection((u.hostname, u.port))
+    key = base64.b64encode(os.urandom(16)).decode()
+    sock.sendall((f"GET {u.path} HTTP/1.1\r\nHost: {u.hostname}:{u.port}\r\nUpgrade: websocket\r\n"
+                  f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n\r\n").encode())
+    head = b""
+    while b"\r\n\r\n" not in head:
+        head += sock.recv(4096)
+    head, rest = head.split(b"\r\n\r\n", 1)
+    if b" 101 " not in head.split(b"\r\n")[0]:
+        raise SystemExit(f"no WebSocket upgrade: {head[:200]!r}")
+    sock.setblocking(False)
+    return sock, rest
+
+def masked(opcode, payload):
+    mask = os.urandom(4)
+    body = bytes(b ^ mask[i % 4] for i, b in enumerate(payload))
+    return bytes([0x80 | opcode, 0x80 | len(payload)]) + mask + body
+
+def frames(buffer):
+    # complete frames in buffer: (opcode, payload) list and the bytes left over
+    out, at = [], 0
+    while len(buffer) - at >= 2:
+        opcode, size = buffer[at] & 0x0F, buffer[at + 1] & 0x7F
+        start = at + 2
+        if size == 126:
+            if len(buffer) - start < 2: break
+            size, start = struct.unpack_from("!H", buffer, start)[0], start + 2
+        elif size == 127:
+            if len(buffer) - start < 8: break
+            size, start = struct.unpack_from("!Q", buffer, start)[0], start + 8
+        if len(buffer) - start < size: break
+        out.append((opcode, buffer[start:start + size]))
+        at = start + size
+    return out, buffer[at:]
+
+def main(url, n, seconds):
+    selector = selectors.DefaultSelector()
+    outs, buffers = [[] for _ in range(n)], {}
+    for k in range(n):
+        sock, rest = connect(url)
+        buffers[sock] = (k, rest)
+        selector.register(sock, selectors.EVENT_READ)
+    cpu0, wall0 = time.process_time(), time.monotonic()
+    end = wall0 + seconds
+    while time.monotonic() < end:
+        for key, _ in selector.select(timeout=0.1):
+            sock = key.fileobj
+            data = sock.recv(1 << 20)
+            now = time.monotonic()
+            k, held = buffers[sock]
+            found, held = frames(held + data)
+            buffers[sock] = (k, held)
+            for opcode, payload in found:
+                if opcode == 1:
+                    m = json.loads(payload)
+                    outs[k].append((now - m["t"], m["seq"], m["dropped"], m["age_ms"]))
+                elif opcode == 9:
+                    sock.setblocking(True); sock.sendall(masked(10, payload)); sock.setblocking(False)
+    for sock in list(buffers):
+        sock.setblocking(True)
+        sock.sendall(masked(8, struct.pack("!H", 1000)))
+        sock.close()
+    print(json.dumps({"outs": outs, "cpu": (time.process_time() - cpu0) / (time.monotonic() - wall0)}))
+
+main(sys.argv[1], int(sys.argv[2]), float(sys.argv[3]))
+"""
+CLIENTS = {"websockets": CLIENT, "socket": SOCKET_CLIENT}
+
+
+CORES = sorted(os.sched_getaffinity(0))
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -74,17 +161,19 @@ def free_port() -> int:
 
 
 def config(folder: Path, rate: float, poll_s: float = 0.005, deflate: bool = False, priority: int = 0,
-           model: str = "auto", effects: str = "", scenario: str = "paper", rows: int = 1, rig_process: bool = True) -> Path:
+           model: str = "auto", effects: str = "", scenario: str = "paper", rows: int = 1, rig_process: bool = True,
+           pin: bool = False) -> Path:
     """The daemon's configuration; each model kind (and rig, and exposure) keeps its own data
     directory, so its one calibration (made at the first start) serves every run of that kind."""
-    path = folder / f"{model}-{scenario}-rows{rows}-rate{rate:g}-poll{poll_s:g}-deflate{int(deflate)}-prio{priority}-rp{int(rig_process)}.toml"
+    path = folder / f"{model}-{scenario}-rows{rows}-rate{rate:g}-poll{poll_s:g}-deflate{int(deflate)}-prio{priority}-rp{int(rig_process)}-pin{int(pin)}.toml"
     exposure_us = min(1000.0, 0.5e6 / rate)  # the rig's 1 ms exposure fits up to 1000 frames/s
     path.write_text(f'[camera]\nkind = "sim"\nframe_rate_hz = {rate}\nexposure_us = {exposure_us}\n'
                     f'effects = "{effects}"\nscenario = "{scenario}"\nrig_process = {str(rig_process).lower()}\n'
                     f'[camera.roi]\nrows = {rows}\n'
                     f'[sweep]\nmodel = "{model}"\n'
                     f'[daemon]\ndata_dir = "{folder / ("data-" + model + "-" + scenario + str(rows) + f"-{exposure_us:g}us")}"\nlog_level = "warning"\ngrating_poll_s = {poll_s}\n'
-                    f'ws_compression = {str(deflate).lower()}\nrealtime_priority = {priority}\n')
+                    f'ws_compression = {str(deflate).lower()}\nrealtime_priority = {priority}\n'
+                    f'cpu_cores = {CORES[-1:] if pin else []}\n')
     return path
 
 
@@ -121,11 +210,12 @@ def wait_tracking(base: str, timeout_s: float = 300.0) -> dict:
 
 def run(folder: Path, rate: float, clients: int, seconds: float, poll_s: float = 0.005,
         deflate: bool = False, priority: int = 0, model: str = "auto", effects: str = "", scenario: str = "paper",
-        rows: int = 1, render: str = "fast", rig_process: bool = True) -> dict[str, float]:
+        rows: int = 1, render: str = "fast", rig_process: bool = True, client: str = "websockets",
+        pin: bool = False) -> dict[str, float]:
     port = free_port()
     log = (folder / f"serve-{model}-{rate:g}-{clients}.log").open("w")
     daemon = subprocess.Popen([sys.executable, "-m", "graytrack", "serve", "--config",
-                               str(config(folder, rate, poll_s, deflate, priority, model, effects, scenario, rows, rig_process)),
+                               str(config(folder, rate, poll_s, deflate, priority, model, effects, scenario, rows, rig_process, pin)),
                                "--port", str(port)], stderr=log, env={**os.environ, "GRAYTRACK_SIM_RENDER": render})
     try:
         status = wait_tracking(f"http://127.0.0.1:{port}")
@@ -133,8 +223,12 @@ def run(folder: Path, rate: float, clients: int, seconds: float, poll_s: float =
         rigs = children(daemon.pid)
         cpu0, rig0, wall0 = cpu_seconds(daemon.pid), sum(map(cpu_seconds, rigs)), time.monotonic()
         # the clients get the daemon's priority: a motion controller that waits for a core measures its own delay
-        raise_client = (lambda: os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))) if priority else None
-        result = subprocess.run([sys.executable, "-c", CLIENT, f"ws://127.0.0.1:{port}/ws/position", str(clients),
+        def raise_client() -> None:
+            if priority:
+                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+            if pin:  # beside the daemon's core, as the rig's process (a client on another host, as it were)
+                os.sched_setaffinity(0, CORES[:-1])
+        result = subprocess.run([sys.executable, "-c", CLIENTS[client], f"ws://127.0.0.1:{port}/ws/position", str(clients),
                                  str(seconds)], capture_output=True, text=True, check=True, preexec_fn=raise_client)
         wall = time.monotonic() - wall0
         cpu = (cpu_seconds(daemon.pid) - cpu0) / wall
@@ -177,6 +271,12 @@ def main() -> None:
     parser.add_argument("--rows", type=int, default=1, help="rows of the camera's ROI (16 for a 16-row model)")
     parser.add_argument("--renders", default="fast", help="the virtual camera's renderer(s) to compare, side by side: "
                         "fast (one frame, precomputed) and/or direct (VirtualRig.render)")
+    parser.add_argument("--client", default="websockets", help="the clients compared, side by side: websockets (the "
+                        "websockets library's asyncio client) and/or socket (a selector on raw sockets, the receipt "
+                        "stamped as the read returns)")
+    parser.add_argument("--pin", default="0", help="the daemon on a core of its own ([daemon] cpu_cores: the last), the "
+                        "rig's process and the clients on the others (1), or where the kernel puts them (0); side by "
+                        "side: 0,1")
     parser.add_argument("--rig-process", default="1", help="the virtual rig in its own process (1) or the daemon's (0), "
                         "side by side: 0,1")
     args = parser.parse_args()
@@ -192,18 +292,20 @@ def main() -> None:
                 run(folder, rate, 1, 0.5, model=model, effects=args.effects, scenario=args.scenario, rows=args.rows)
         print(f"machine: {os.cpu_count()} cores, load average {load_average()} at start, "
               f"{args.load} busy-looping processes meanwhile; scenario {args.scenario}, {args.rows} row(s)")
-        print(f"{'rig':>4} {'render':>6} {'model':>6} {'prio':>4} {'deflate':>7} {'poll ms':>7} {'frames/s':>8} {'clients':>7} {'msgs/s':>8} {'missing':>7} {'dropped':>7} "
+        print(f"{'pin':>3} {'client':>10} {'rig':>4} {'render':>6} {'model':>6} {'prio':>4} {'deflate':>7} {'poll ms':>7} {'frames/s':>8} {'clients':>7} {'msgs/s':>8} {'missing':>7} {'dropped':>7} "
               f"{'p50 ms':>7} {'p99 ms':>7} {'max ms':>7} {'CPU %':>6} {'rig %':>6} {'cl CPU':>6} {'enc p50':>7} {'enc p99':>7} {'stale':>9}")
         for rate in (float(r) for r in args.rates.split(",")):
             for clients in (int(c) for c in args.clients.split(",")):
-                for apart, render, model, poll, deflate, prio in ((a == "1", e, m, float(p), d == "1", int(q))
-                                                           for a in args.rig_process.split(",")
-                                                           for e in args.renders.split(",") for m in models
-                                                           for p in args.polls.split(",") for d in args.deflate.split(",")
+                for pin, client, apart, render, model, poll, deflate, prio in (
+                        (n == "1", c, a == "1", e, m, float(p), d == "1", int(q)) for n in args.pin.split(",")
+                        for c in args.client.split(",")
+                        for a in args.rig_process.split(",")
+                        for e in args.renders.split(",") for m in models
+                        for p in args.polls.split(",") for d in args.deflate.split(",")
                                                            for q in args.priority.split(",")):
                     r = run(folder, rate, clients, args.seconds, poll, deflate, prio, model, args.effects,
-                            args.scenario, args.rows, render, apart)
-                    print(f"{'own' if apart else 'in':>4} {render:>6} {model:>6} {prio:4d} {'on' if deflate else 'off':>7} {poll * 1e3:7.1f} {r['rate']:8.0f} {r['clients']:7d} {r['msgs_s']:8.0f} {r['missing']:7d} {r['dropped']:7d} "
+                            args.scenario, args.rows, render, apart, client, pin)
+                    print(f"{'yes' if pin else 'no':>3} {client:>10} {'own' if apart else 'in':>4} {render:>6} {model:>6} {prio:4d} {'on' if deflate else 'off':>7} {poll * 1e3:7.1f} {r['rate']:8.0f} {r['clients']:7d} {r['msgs_s']:8.0f} {r['missing']:7d} {r['dropped']:7d} "
                           f"{r['p50']:7.2f} {r['p99']:7.2f} {r['max']:7.2f} {r['cpu']:6.0f} {r['rig_cpu']:6.0f} {r['client_cpu']:6.0f} {r['enc50']:7.2f} {r['enc99']:7.2f} {r['stale']:>9}",
                           flush=True)
         print(f"load average {load_average()} at the end")

@@ -18,7 +18,8 @@ from __future__ import annotations
 
 import logging
 import os
-from typing import Callable
+from pathlib import Path
+from typing import Callable, Sequence
 
 log = logging.getLogger("graytrack.realtime")
 DEFAULT_LEVEL = 10  # the daemon's default: asked for everywhere, so a refusal of it is information, not a warning
@@ -51,3 +52,59 @@ def _say_once(say: Callable[[str], None], message: str) -> None:
     if kind not in _said:
         _said.add(kind)
         say(message)
+
+
+# -- cores ------------------------------------------------------------------------------------
+# The daemon's threads share one interpreter lock, so they never run Python on two cores at once.
+# Spread over the machine they hand the lock across cores (a wake-up on the other core each time)
+# and other processes' threads preempt the one holding it; pinned to a core of their own they run
+# in turn there and the rest of the machine (the virtual rig's process, clients) runs beside them.
+
+
+def pin_process(cores: Sequence[int]) -> set[int] | None:
+    """Every thread of this process onto ``cores`` (threads started later inherit it). Returns the
+    cores it could run on before (to give back with :func:`restore_process`); None when nothing was
+    pinned: no cores asked, a platform without affinity, or cores this process may not use (said in
+    the log: the daemon runs unpinned rather than not at all)."""
+    if not cores:
+        return None
+    if not hasattr(os, "sched_setaffinity"):
+        _say_once(log.info, "cpu_cores: this platform cannot pin threads; the daemon runs on every core")
+        return None
+    allowed = os.sched_getaffinity(0)
+    wanted = set(cores)
+    if not wanted <= allowed:
+        _say_once(log.warning, f"cpu_cores {sorted(wanted)} refused (this process may run on {sorted(allowed)} "
+                               "only): the daemon runs on every core it may use")
+        return None
+    _set_every_thread(wanted)
+    _spare.clear()
+    _spare.update(allowed - wanted)
+    log.info("the daemon's threads run on core(s) %s", sorted(wanted))
+    return allowed
+
+
+def restore_process(previous: set[int] | None) -> None:
+    """Every thread back onto the cores :func:`pin_process` found (None: it pinned nothing)."""
+    if previous is not None:
+        _set_every_thread(previous)
+        _spare.clear()
+
+
+def spare_cores() -> set[int]:
+    """The cores :func:`pin_process` took this process off (empty when it is not pinned): where a
+    process standing in for separate hardware (the virtual rig's) belongs."""
+    return set(_spare)
+
+
+_spare: set[int] = set()
+
+
+def _set_every_thread(cores: set[int]) -> None:
+    tasks = Path("/proc/self/task")
+    ids = [int(task.name) for task in tasks.iterdir()] if tasks.is_dir() else [0]
+    for native_id in ids:
+        try:
+            os.sched_setaffinity(native_id, cores)
+        except OSError:  # a thread that ended meanwhile
+            pass

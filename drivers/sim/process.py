@@ -50,6 +50,8 @@ from typing import Any
 
 import numpy as np
 
+from graytrack.drivers.realtime import spare_cores
+
 START_TIMEOUT_S = 60.0  # the child imports numpy and the rig (seconds on a loaded machine)
 STOP_TIMEOUT_S = 2.0
 SWITCH_INTERVAL_S = 0.0005  # the child's interpreter lock handed over within half a frame at 1 kHz
@@ -91,8 +93,10 @@ class RigProcess:
     def start(self) -> "RigProcess":
         ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
         try:
+            # the daemon pinned to cores of its own: this process stands in for separate hardware, beside it
+            cores = ",".join(map(str, sorted(spare_cores())))
             self.process = subprocess.Popen(
-                [sys.executable, "-m", "graytrack.drivers.sim.process", str(theirs.fileno())],
+                [sys.executable, "-m", "graytrack.drivers.sim.process", str(theirs.fileno()), cores],
                 pass_fds=(theirs.fileno(),), stdin=subprocess.PIPE, close_fds=True)
         except OSError as exc:
             ours.close()
@@ -299,7 +303,12 @@ def _serve(sock: socket.socket) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
-    fd = int((argv if argv is not None else sys.argv[1:])[0])
+    """``process.py FD [CORES]``: serve the rig on the socket FD; CORES (``"2,3"``): the cores to run
+    on, set before anything starts a thread (the daemon's spare ones when it is pinned)."""
+    args = argv if argv is not None else sys.argv[1:]
+    fd = int(args[0])
+    if len(args) > 1 and args[1]:
+        os.sched_setaffinity(0, {int(core) for core in args[1].split(",")})
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # a Ctrl-C to the daemon's terminal: the daemon stops us
     sock = socket.socket(fileno=fd)
     try:

@@ -28,7 +28,7 @@ from graytrack.service.daemon.broadcast import Broadcaster
 from graytrack.service.daemon.errors import DaemonError
 from graytrack.service.heap import freeze_long_lived, thaw, warm_tracking
 from graytrack.service.daemon.record import open_record
-from graytrack.drivers.realtime import raise_thread_priority
+from graytrack.drivers.realtime import pin_process, raise_thread_priority, restore_process
 from graytrack.service.daemon.rig import HardwareFactory, Rig, default_factory
 from graytrack.service.daemon.settings import Settings
 from graytrack.service.daemon.storage import Storage
@@ -101,6 +101,7 @@ def create_app(settings: Settings, factory: HardwareFactory = default_factory) -
         broadcaster.bind(asyncio.get_running_loop())
         previous = sys.getswitchinterval()
         sys.setswitchinterval(SWITCH_INTERVAL_S)
+        pinned_from = pin_process(settings.daemon.cpu_cores)  # before the rig's threads and process start
         raise_thread_priority(settings.daemon.realtime_priority, "event loop")  # before the rig's threads: they start normal
         try:
             warm_tracking()  # what tracking loads on first use, loaded before the freeze (service/heap.py)
@@ -114,6 +115,7 @@ def create_app(settings: Settings, factory: HardwareFactory = default_factory) -
             await asyncio.to_thread(rig.close)
             thaw()
             sys.setswitchinterval(previous)
+            restore_process(pinned_from)
             record.close()
             storage.unlock()
 

@@ -12,7 +12,7 @@ import os
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, NonNegativeInt, ValidationError
 
 from graytrack.drivers.config import ConfigError, HardwareConfig, describe_validation_error, load_toml, parse_hardware
 from graytrack.drivers.realtime import DEFAULT_LEVEL
@@ -52,6 +52,11 @@ class DaemonConfig(_Strict):
     realtime_priority: int = Field(DEFAULT_LEVEL, ge=0, le=99, description="SCHED_FIFO priority of the frame loop, the event "
                                    "loop and the grating poller (1-99; needs LimitRTPRIO or CAP_SYS_NICE): the stream's latency tail on a busy machine. "
                                    "0 = normal scheduling")
+    cpu_cores: list[NonNegativeInt] = Field(default_factory=list, description="cores the daemon's threads run on (empty: "
+                                 "wherever the kernel puts them). One core of its own: its threads share one "
+                                 "interpreter lock anyway, and pinned they stop handing it across cores and being "
+                                 "preempted by other processes while they hold it; the virtual rig's process then "
+                                 "runs on the others. Cores this process may not use are refused in the log")
     trim: bool = Field(False, description="correct the streamed position's scale and offset against the grating "
                        "(an online trim, only on evidence of a drift since calibration; POST /api/trim/reset clears it, "
                        "a new calibration too)")

@@ -77,3 +77,61 @@ def test_a_refusal_is_said_once_and_leaves_normal_scheduling(monkeypatch: pytest
     assert len(lines) == 1 and lines[0].levelno == logging.WARNING
     assert "realtime_priority = 7 refused (Operation not permitted)" in lines[0].getMessage()
     assert "LimitRTPRIO" in lines[0].getMessage()
+
+
+PINNING = r"""
+import json, os, threading
+from pathlib import Path
+from graytrack.drivers import realtime
+from graytrack.drivers.clock import ScaledClock
+from graytrack.drivers.sim.process import RigProcess
+from graytrack.drivers.sim.scenarios import build_rig
+
+def threads(pid="self"):
+    return sorted({tuple(sorted(os.sched_getaffinity(int(t.name)))) for t in Path(f"/proc/{pid}/task").iterdir()})
+
+allowed = sorted(os.sched_getaffinity(0))
+stop = threading.Event()
+earlier = threading.Thread(target=stop.wait)  # a thread started before the pinning goes along too
+earlier.start()
+refused = realtime.pin_process([max(allowed) + 1000])
+previous = realtime.pin_process(allowed[:1])
+pinned, spare = threads(), sorted(realtime.spare_cores())
+rig = RigProcess(build_rig("paper", seed=0), ScaledClock(5.0)).start()
+try:
+    child = threads(rig.pid)
+finally:
+    rig.stop()
+realtime.restore_process(previous)
+stop.set()
+earlier.join()
+print(json.dumps({"allowed": allowed, "refused": refused is None, "previous": sorted(previous), "pinned": pinned,
+                  "spare": spare, "child": child, "restored": threads(), "spare_after": sorted(realtime.spare_cores())}))
+"""
+
+
+@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="pinning needs a second core to leave")
+def test_the_daemon_pins_every_thread_and_the_virtual_rig_runs_on_the_cores_it_left() -> None:
+    # in a process of its own: pinning the test runner's threads would slow every other test
+    import json
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-c", PINNING], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    seen = json.loads(done.stdout.strip().splitlines()[-1])
+    allowed = seen["allowed"]
+    assert seen["refused"]  # a core this process may not use: nothing pinned, said in the log
+    assert seen["previous"] == allowed
+    assert seen["pinned"] == [allowed[:1]]  # every thread, the one started before included
+    assert seen["spare"] == allowed[1:]
+    assert seen["child"] == [allowed[1:]]  # the rig's process beside the daemon, every thread of it
+    assert seen["restored"] == [allowed]
+    assert seen["spare_after"] == []
+
+
+def test_no_cores_asked_pins_nothing() -> None:
+    before = os.sched_getaffinity(0)
+    assert realtime.pin_process([]) is None
+    assert os.sched_getaffinity(0) == before
+    assert realtime.spare_cores() == set()

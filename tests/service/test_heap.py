@@ -1,12 +1,15 @@
-"""The daemon moves its long-lived heap out of the collector's full passes while it runs, and back
-when it stops (a daemon inside a longer-lived process, as in these tests, frees what it built)."""
+"""The daemon's process-wide settings while it runs (its long-lived heap frozen out of the collector's
+full passes, the cores it runs on), given back when it stops (a daemon inside a longer-lived
+process, as in these tests)."""
 
 from __future__ import annotations
 
 import gc
+import os
 import subprocess
 import sys
 
+import pytest
 from fastapi.testclient import TestClient
 
 from graytrack.service.daemon.app import create_app
@@ -62,3 +65,18 @@ def test_the_warm_up_leaves_a_first_model_install_a_small_heap_for_the_collector
     cold, warm = _left_to_the_collector("cold"), _left_to_the_collector("warm")
     assert cold > 20_000
     assert warm < 3_000
+
+
+@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="pinning needs a second core to leave")
+def test_the_daemon_runs_on_its_configured_core_and_gives_the_others_back_at_shutdown(tmp_path) -> None:
+    allowed = os.sched_getaffinity(0)
+    core = min(allowed)
+    with TestClient(create_app(fast_settings(tmp_path, auto_calibrate="never", cpu_cores=[core]))) as client:
+        assert client.get("/healthz").status_code in (200, 503)
+        assert os.sched_getaffinity(0) == {core}  # this thread too: every thread of the process
+    assert os.sched_getaffinity(0) == allowed
+
+
+def test_a_negative_core_is_refused_with_the_setting_named(tmp_path) -> None:
+    with pytest.raises(ValueError, match="cpu_cores"):
+        fast_settings(tmp_path, cpu_cores=[-1])
