@@ -19,6 +19,7 @@ Run: .venv/bin/python bench/stream_latency.py [--seconds 5] [--rates 200,500,100
                             side by side: GRAYTRACK_SIM_RENDER, drivers/sim/frame_render.py)
      [--rig-process 0,1]    (the virtual rig in the daemon's process against in its own, side by side:
                             [camera] rig_process, drivers/sim/process.py)
+     [--repeat 5]           (rounds of every configuration, interleaved; medians at the end)
      [--pin 0,1]            (the daemon on a core of its own, [daemon] cpu_cores, the rig's process and the
                             clients on the others, against unpinned, side by side)
      [--client websockets,socket] (the websockets library's asyncio clients against a selector on raw
@@ -274,6 +275,8 @@ def main() -> None:
     parser.add_argument("--client", default="websockets", help="the clients compared, side by side: websockets (the "
                         "websockets library's asyncio client) and/or socket (a selector on raw sockets, the receipt "
                         "stamped as the read returns)")
+    parser.add_argument("--repeat", type=int, default=1, help="rounds of every configuration, interleaved, with "
+                        "the medians at the end (one run's p99 swings several-fold on a shared machine)")
     parser.add_argument("--pin", default="0", help="the daemon on a core of its own ([daemon] cpu_cores: the last), the "
                         "rig's process and the clients on the others (1), or where the kernel puts them (0); side by "
                         "side: 0,1")
@@ -294,20 +297,30 @@ def main() -> None:
               f"{args.load} busy-looping processes meanwhile; scenario {args.scenario}, {args.rows} row(s)")
         print(f"{'pin':>3} {'client':>10} {'rig':>4} {'render':>6} {'model':>6} {'prio':>4} {'deflate':>7} {'poll ms':>7} {'frames/s':>8} {'clients':>7} {'msgs/s':>8} {'missing':>7} {'dropped':>7} "
               f"{'p50 ms':>7} {'p99 ms':>7} {'max ms':>7} {'CPU %':>6} {'rig %':>6} {'cl CPU':>6} {'enc p50':>7} {'enc p99':>7} {'stale':>9}")
-        for rate in (float(r) for r in args.rates.split(",")):
-            for clients in (int(c) for c in args.clients.split(",")):
-                for pin, client, apart, render, model, poll, deflate, prio in (
-                        (n == "1", c, a == "1", e, m, float(p), d == "1", int(q)) for n in args.pin.split(",")
-                        for c in args.client.split(",")
-                        for a in args.rig_process.split(",")
-                        for e in args.renders.split(",") for m in models
-                        for p in args.polls.split(",") for d in args.deflate.split(",")
-                                                           for q in args.priority.split(",")):
-                    r = run(folder, rate, clients, args.seconds, poll, deflate, prio, model, args.effects,
-                            args.scenario, args.rows, render, apart, client, pin)
-                    print(f"{'yes' if pin else 'no':>3} {client:>10} {'own' if apart else 'in':>4} {render:>6} {model:>6} {prio:4d} {'on' if deflate else 'off':>7} {poll * 1e3:7.1f} {r['rate']:8.0f} {r['clients']:7d} {r['msgs_s']:8.0f} {r['missing']:7d} {r['dropped']:7d} "
-                          f"{r['p50']:7.2f} {r['p99']:7.2f} {r['max']:7.2f} {r['cpu']:6.0f} {r['rig_cpu']:6.0f} {r['client_cpu']:6.0f} {r['enc50']:7.2f} {r['enc99']:7.2f} {r['stale']:>9}",
-                          flush=True)
+        configurations = [(rate, clients, n == "1", c, a == "1", e, m, float(p), d == "1", int(q))
+                          for rate in (float(r) for r in args.rates.split(",")) for clients in
+                          (int(c) for c in args.clients.split(",")) for n in args.pin.split(",")
+                          for c in args.client.split(",") for a in args.rig_process.split(",")
+                          for e in args.renders.split(",") for m in models for p in args.polls.split(",")
+                          for d in args.deflate.split(",") for q in args.priority.split(",")]
+        results: dict[tuple, list[dict[str, float]]] = {}
+        for _ in range(args.repeat):  # the configurations interleaved, round after round
+            for setup in configurations:
+                rate, clients, pin, client, apart, render, model, poll, deflate, prio = setup
+                r = run(folder, rate, clients, args.seconds, poll, deflate, prio, model, args.effects,
+                        args.scenario, args.rows, render, apart, client, pin)
+                results.setdefault(setup, []).append(r)
+                print(f"{'yes' if pin else 'no':>3} {client:>10} {'own' if apart else 'in':>4} {render:>6} {model:>6} {prio:4d} {'on' if deflate else 'off':>7} {poll * 1e3:7.1f} {r['rate']:8.0f} {r['clients']:7d} {r['msgs_s']:8.0f} {r['missing']:7d} {r['dropped']:7d} "
+                      f"{r['p50']:7.2f} {r['p99']:7.2f} {r['max']:7.2f} {r['cpu']:6.0f} {r['rig_cpu']:6.0f} {r['client_cpu']:6.0f} {r['enc50']:7.2f} {r['enc99']:7.2f} {r['stale']:>9}",
+                      flush=True)
+        if args.repeat > 1:
+            print(f"\nmedians over {args.repeat} rounds (p99: its median and range; runs with no camera frame dropped)")
+            for (rate, clients, pin, client, apart, *_), runs in results.items():
+                p99 = np.array([r["p99"] for r in runs])
+                print(f"{'yes' if pin else 'no':>3} {client:>10} {'own' if apart else 'in':>4} {rate:8.0f} frames/s "
+                      f"{clients} clients: p50 {np.median([r['p50'] for r in runs]):.2f} ms, p99 {np.median(p99):.2f} ms "
+                      f"({p99.min():.2f}-{p99.max():.2f}), CPU {np.median([r['cpu'] for r in runs]):.0f} %, "
+                      f"{sum(r['dropped'] == 0 for r in runs)} of {len(runs)} runs without a drop")
         print(f"load average {load_average()} at the end")
     finally:
         for burner in burners:
