@@ -5,6 +5,13 @@ along the axis: only an outside ruler sees that. This watch feeds each frame's p
 reading and bound to a :class:`~graytrack.core.reference_monitor.ReferenceMonitor` and blames
 ``scale`` while the monitor finds the line camera − grating drifted beyond its uncertainty.
 
+Besides the line, a running mean of camera − grating over the last ``SUSPECT_WINDOW`` frames is
+judged against its standard error on every frame: an episode of tens of frames placed several
+bounds off the grating (a smudge coming into view, whose core the robust solve sets aside and
+whose wings bend the fit while the frame's χ² stays within its noise) is too short for the line,
+whose outlier gate leaves such frames out, and too short for the spread over 200 frames
+(core/watches/grating.py). While χ² is suspect it blames ``geometry``, else ``scale``.
+
 With an online trim (the daemon's ``[daemon] trim``) the trim's owner drives its own monitor and
 hands the tracker a watch reading it (``tracker.scale_watch``): a frame is counted once, and drift
 is then measured against the trim in force.
@@ -14,19 +21,21 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from graytrack.core.compression import stream_bound_factor
 from graytrack.core.reference_monitor import ReferenceMonitor, scale_tells
 from graytrack.core.validity import FrameSign
 
 
-# While χ² is suspect no line is fitted, but a camera that disagrees with the grating by this many
-# standard errors (of the frames' bounds, the grating's rounding, the calibration line and the
+# While χ² is suspect no line is fitted, and with χ² quiet the line leaves far frames out as outliers;
+# but a camera that disagrees with the grating by this many standard errors (of the frames' bounds, the grating's rounding, the calibration line and the
 # model's own structure along the stroke), averaged over SUSPECT_WINDOW frames, places its frames
 # off whatever the cause: a model 5 % off in period, seen at rest mid-stroke, had its running χ²
 # hover at the stale line (1.2026 against 1.2023) and its positions 285 µm (~200 bounds) off,
 # called fresh on 94 % of the frames.
 SUSPECT_WINDOW = 20
-SUSPECT_LIMIT = 10.0
+SUSPECT_LIMIT = 6.0
 
 
 class ScaleWatch:
@@ -57,66 +66,84 @@ class ScaleWatch:
         # scale: those frames are not fed. But a disagreement already found stays a flag: the camera
         # is off the grating and the images are not the calibration's, so the model does not describe
         # the rig (geometry), even while χ² has not yet crossed its own stale limit.
+        # A run of frames off the grating by many of their bounds is judged on every frame: with χ²
+        # quiet the line's outlier gate would leave such frames out until it calls them a jump.
+        bound = self.bound_scale / math.sqrt(information) if placed and information > 0 else float("nan")
+        far = self._off.add(x_mm, reference_mm, bound)
         if chi2_suspect:
-            bound = self.bound_scale / math.sqrt(information) if placed and information > 0 else float("nan")
-            far = self._off.add(x_mm, reference_mm, bound)
             return "geometry" if self.monitor.stale or far else None
-        self._off.clear()
         if self.feeds and placed:
-            bound = self.bound_scale / math.sqrt(information) if information > 0 else float("nan")
             self.monitor.observe(x_mm, reference_mm, bound)
-        return self.family if self.monitor.stale else None
+        return self.family if self.monitor.stale or far else None
 
     def step_many(self, columns, n: int) -> list[str | None]:
         """:meth:`step` of ``n`` frames at once (the monitor's :meth:`~ReferenceMonitor.observe_many`)."""
-        import numpy as np
-
         suspect = columns.array("chi2_suspect", bool)
         if suspect.any():
-            return None  # frame by frame: the disagreement is judged along a suspect run (step)
-        self._off.clear()
+            return None  # frame by frame: the verdict along a suspect run reads the monitor's (step)
         information = columns.array("information", np.float64)
-        feed = columns.array("placed", bool) & ~suspect if self.feeds else np.zeros(n, dtype=bool)
-        positive = information > 0
+        placed = columns.array("placed", bool)
+        feed = placed if self.feeds else np.zeros(n, dtype=bool)
+        positive = placed & (information > 0)
         bound = np.where(positive, self.bound_scale / np.sqrt(np.where(positive, information, 1.0)), np.nan)
-        stale = self.monitor.observe_many(columns.array("x_mm", np.float64), columns.array("reference_mm", np.float64),
-                                          bound, feed)
+        x_mm, reference_mm = columns.array("x_mm", np.float64), columns.array("reference_mm", np.float64)
+        far = self._off.add_many(x_mm, reference_mm, bound)
+        stale = self.monitor.observe_many(x_mm, reference_mm, bound, feed) | far
         if not stale.any():
             return [None] * n
-        families = np.full(n, None, dtype=object)
-        families[stale & ~suspect] = self.family
-        families[stale & suspect] = "geometry"
-        return families.tolist()
+        return np.where(stale, self.family, None).tolist()
 
 
 class _Disagreement:
-    """Camera − grating against the calibration's line, a running mean over the frames of a
-    suspect run, judged against its standard error: far beyond it, the positions are off."""
+    """Camera − grating against the line in force (the trim's, else the calibration's), a running
+    mean over the last ``SUSPECT_WINDOW`` placed frames, judged against its standard error: far
+    beyond it, the positions are off. A new line (a trim applied) starts the mean again."""
 
     def __init__(self, monitor: ReferenceMonitor) -> None:
         self.monitor = monitor
+        self._line = None
         self.clear()
 
     def clear(self) -> None:
-        self.count, self.mean_um, self.variance_um2 = 0, 0.0, 0.0
+        # running means of residual/σ² and 1/σ²: their ratio weighs each frame by its bound, so that
+        # frames whose bound a transient set aside widened count for as little as they know
+        self.count, self.weighted_per_um, self.precision_per_um2 = 0, 0.0, 0.0
+
+    @property
+    def mean_um(self) -> float:
+        return self.weighted_per_um / self.precision_per_um2 if self.precision_per_um2 > 0 else 0.0
 
     def add(self, x_mm: float, reference_mm: float, bound_mm: float) -> bool:
-        """One frame of a suspect run; True while the run's mean disagreement is beyond its limit."""
+        """One frame (skipped unless all three are finite); True while the mean disagreement is beyond its limit."""
         monitor = self.monitor
         if math.isfinite(x_mm) and math.isfinite(reference_mm) and math.isfinite(bound_mm) and bound_mm > 0:
             line = monitor.baseline or monitor.calibration
+            if line is not self._line:
+                self._line = line
+                self.clear()
             expected = float(line.at_um(reference_mm)) if line is not None else 0.0
             known2 = float(line.sigma_um(reference_mm)) ** 2 if line is not None else 0.0
             residual = (x_mm - reference_mm) * 1e3 - expected
             variance = (bound_mm * 1e3) ** 2 + (monitor.reference_sigma_mm * 1e3) ** 2
             self.count = min(self.count + 1, SUSPECT_WINDOW)
-            self.mean_um += (residual - self.mean_um) / self.count
-            self.variance_um2 += (variance - self.variance_um2) / self.count
+            self.weighted_per_um += (residual / variance - self.weighted_per_um) / self.count
+            self.precision_per_um2 += (1.0 / variance - self.precision_per_um2) / self.count
             self._known2 = known2
+        return self._far()
+
+    def add_many(self, x_mm: np.ndarray, reference_mm: np.ndarray, bound_mm: np.ndarray) -> np.ndarray:
+        """:meth:`add` of each frame in order: whether the mean is beyond its limit after each."""
+        far = np.zeros(len(x_mm), dtype=bool)
+        for k, (x, reference, bound) in enumerate(zip(x_mm.tolist(), reference_mm.tolist(), bound_mm.tolist())):
+            far[k] = self.add(x, reference, bound)
+        return far
+
+    def _far(self) -> bool:
+        monitor = self.monitor
         if self.count < SUSPECT_WINDOW:
             return False
         # the mean's noise (frames averaged: at most the window's worth) and what no averaging removes
-        sigma2 = self.variance_um2 / SUSPECT_WINDOW + self._known2 + monitor.calibration_structure_um ** 2 \
+        sigma2 = 1.0 / (SUSPECT_WINDOW * self.precision_per_um2) + self._known2 + monitor.calibration_structure_um ** 2 \
             + (monitor.reference_sigma_mm * 1e3) ** 2
         floor = max(monitor.floor_um, 0.5 * monitor.resolution_mm * 1e3)
         return abs(self.mean_um) > max(SUSPECT_LIMIT * math.sqrt(sigma2), floor)

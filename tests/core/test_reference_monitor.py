@@ -105,6 +105,33 @@ def test_the_watch_blames_scale_through_the_validity_monitor():
                    for k, xi in enumerate(x))  # no grating reading: nothing to say
 
 
+def test_an_episode_of_frames_off_the_grating_is_flagged_while_chi2_stays_quiet():
+    """Forty frames placed 4 bounds off (a smudge coming into view: its wings bend the fit, the frames'
+    χ² within their noise): the line's outlier gate leaves them out, yet the camera is off the
+    grating; the running mean of camera − grating catches the episode within a window of frames,
+    and frames with a wide bound (a transient set aside) weigh as little as they know."""
+    from graytrack.core.watches.scale import SUSPECT_WINDOW
+
+    rng = np.random.default_rng(11)
+    n, start, stop = 400, 300, 340
+    ref = np.linspace(0.0, 10.0, n)
+    bound_um = np.full(n, BOUND_MM * 1e3)
+    bound_um[start + 10:start + 20] = 20.0  # frames whose bound a transient widened, off the other way
+    err_um = rng.normal(0.0, 1.0, n) * bound_um
+    err_um[start:stop] += np.where(bound_um[start:stop] > 10.0, 30.0, -4.0 * BOUND_MM * 1e3)
+    x = ref + err_um * 1e-3
+    watch = ScaleWatch(_monitor())
+    flags = [watch.step(False, True, xi, ri, (b * 1e-3) ** -2) for xi, ri, b in zip(x, ref, bound_um)]
+    assert not any(flags[:start])  # 300 steady frames at their bound: nothing to say
+    episode = flags[start:stop]
+    assert set(episode) <= {"scale", None} and episode.count("scale") >= stop - start - SUSPECT_WINDOW // 2
+    assert all(episode[-15:])  # flagged to its end (the wide frames thinned the window's information for a while)
+    again = ScaleWatch(_monitor())  # χ² suspect over the episode: the same disagreement is called geometry
+    suspect = [again.step(start <= k < stop, True, xi, ri, (b * 1e-3) ** -2)
+               for k, (xi, ri, b) in enumerate(zip(x, ref, bound_um))]
+    assert suspect[stop - 1] == "geometry" and not any(suspect[:start])
+
+
 def test_a_stage_resting_at_two_places_does_not_take_the_gratings_rounding_for_a_scale():
     rng = np.random.default_rng(7)
     step = 1e-3  # a 1 µm grating: each resting place reads up to ±0.5 µm off, the same in every frame
