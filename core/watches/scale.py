@@ -121,8 +121,11 @@ class _Disagreement:
             if line is not self._line:
                 self._line = line
                 self.clear()
-            expected = float(line.at_um(reference_mm)) if line is not None else 0.0
-            known2 = float(line.sigma_um(reference_mm)) ** 2 if line is not None else 0.0
+            expected = known2 = 0.0
+            if line is not None:  # the line's value and variance here, in scalars: this runs on every frame
+                d = (reference_mm - line.center_mm) * 1e-3  # ppm·mm → µm
+                var_o, cov, var_s = line.covariance
+                expected, known2 = line.offset_um + line.scale_ppm * d, max(var_o + 2.0 * d * cov + d * d * var_s, 0.0)
             residual = (x_mm - reference_mm) * 1e3 - expected
             variance = (bound_mm * 1e3) ** 2 + (monitor.reference_sigma_mm * 1e3) ** 2
             self.count = min(self.count + 1, SUSPECT_WINDOW)
