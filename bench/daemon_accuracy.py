@@ -3,7 +3,7 @@
 Starts ``graytrack serve`` on a virtual rig (its own process, wall-clock speed), lets it calibrate
 itself (the configured sweep and model), then moves the stage to a list of positions and, at each,
 reads stream messages and prints the mean and std of ``error_um`` (tracked minus grating) next to the
-mean Cramér–Rao bound and χ². A model that is right has a mean error near 0 everywhere and a std
+mean Cramér–Rao bound, χ² and the share of messages flagged ``stale`` (with the reasons given). A model that is right has a mean error near 0 everywhere and a std
 near the bound; a calibration that missed something fixed to the print shows as a mean error that
 changes from position to position.
 
@@ -68,7 +68,7 @@ def main() -> None:
               f"{time.monotonic() - started:.0f} s; {status['calibration']['message']}")
         print(f"model: {status['model']}")
         auth = {"Authorization": f"Bearer {(folder / 'data' / 'token').read_text().strip()}"}
-        print(f"{'position mm':>11} {'mean error µm':>13} {'std µm':>7} {'bound µm':>8} {'chi2':>5}")
+        print(f"{'position mm':>11} {'mean error µm':>13} {'std µm':>7} {'bound µm':>8} {'chi2':>5} {'stale %':>7}  reasons")
         means = []
         for target in POSITIONS_MM:
             httpx.post(f"{base}/api/stage/move", json={"target_mm": target}, headers=auth, timeout=5)
@@ -78,8 +78,11 @@ def main() -> None:
             error = np.array([m.get("error_um", np.nan) for m in messages], dtype=float)
             bound = np.nanmean([m["crlb_um"] for m in messages])
             chi2 = np.nanmean([m.get("chi2", np.nan) for m in messages])
+            stale = [m for m in messages if m.get("stale")]
+            reasons = sorted({str(m.get("stale_reason")) for m in stale})
             means.append(np.nanmean(error))
-            print(f"{target:11.2f} {means[-1]:13.2f} {np.nanstd(error):7.2f} {bound:8.2f} {chi2:5.2f}", flush=True)
+            print(f"{target:11.2f} {means[-1]:13.2f} {np.nanstd(error):7.2f} {bound:8.2f} {chi2:5.2f} "
+                  f"{100 * len(stale) / len(messages):7.1f}  {','.join(reasons) or '-'}", flush=True)
         print(f"mean error over the positions: {min(means):+.2f} … {max(means):+.2f} µm")
     finally:
         daemon.terminate()
