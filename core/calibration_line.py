@@ -50,6 +50,12 @@ def record_calibration_line(model, recording) -> Line | None:
         off_line_um = (result.x_mm[usable] - reference[usable]) * 1e3 - line.at_um(reference[usable])
         model.info["reference_structure_um"] = round(structure_um(reference[usable], off_line_um,
                                                                   result.crlb_mm[usable] * 1e3), 4)
+        # At a place the model was not fitted to, its coefficients' noise leaves an error of about the
+        # bound × √(coefficients / frames), fixed there: what the in-sample structure above cannot
+        # see (the model was fitted to these very frames) and a stage parked for long measures.
+        mean_bound2_um2 = float(np.mean(np.square(result.crlb_mm[usable] * 1e3)))
+        model.info["reference_place_sigma_um"] = round(
+            math.sqrt(mean_bound2_um2 * model.n_coeffs / max(int(usable.sum()), 1)), 4)
         # the error about its mean, as a run's error is judged: a line would take in part of a model's error
         # that is no line (a scratch's stretch), and hide it
         error_mm = result.x_mm[usable] - reference[usable]

@@ -11,7 +11,12 @@ reading, a weighted line is fitted to ``camera − grating`` over a sliding wind
   window's χ² per degree of freedom when that exceeds 1), so a noisy grating or a vibration the
   camera and the grating see differently widens the uncertainty instead of faking evidence;
 - the grating's rounding is fixed wherever the stage rests: it averages down with the number of
-  places read, not of frames (a stage resting at two places does not make a scale of it);
+  places read, not of frames (a stage resting at two places does not make a scale of it); so is the
+  error the model makes at a place it was not fitted to (``reference_place_sigma_um``: its
+  coefficients' noise, about the calibration's bound × √(coefficients / frames)). A stage parked
+  for a thousand frames measures that place's offset to a fraction of it, and without this term
+  an error at the bound read as a drift (the `lab` rig at rest: `scale` at 8 of 15 positions
+  whose errors were 0.2–0.5 of a bound);
 - drift is measured from the calibration's own line: the calibration recording tracked by the
   model it produced (:func:`~graytrack.core.calibration_line.record_calibration_line`, kept in the model's info as
   ``reference_line``), with its uncertainty. A model need not agree with its grating exactly (a
@@ -149,6 +154,7 @@ class ReferenceMonitor:
     calibration_x_std_mm: float = 0.0  # the spread of their positions
     calibration: Line | None = None  # the calibration run's own line (None: zero, see above)
     calibration_structure_um: float = 0.0  # rms of the calibration run's camera − grating about that line, in stretches
+    place_sigma_um: float = 0.0  # the model's error at a place it was not fitted to: fixed there, like the rounding
     baseline: Line | None = None  # the trim in force, which drift is then measured against
     stale: bool = False
     significance: float = 0.0  # χ² (2 dof) of the latest drift against its uncertainty and the reference line's
@@ -182,6 +188,7 @@ class ReferenceMonitor:
         if isinstance(info.get("reference_line"), dict):
             options.setdefault("calibration", Line.from_dict(info["reference_line"]))
             options.setdefault("calibration_structure_um", float(info.get("reference_structure_um") or 0.0))
+        options.setdefault("place_sigma_um", float(info.get("reference_place_sigma_um") or 0.0))
         return cls(0.5 * (lo + hi), 0.5 * (hi - lo), reference_sigma_mm=step / math.sqrt(12.0), resolution_mm=step,
                    **options)
 
@@ -269,7 +276,7 @@ class ReferenceMonitor:
                        RECOMPUTE_EVERY, UPDATE_EVERY], dtype=np.int64)
         p = np.array([self.center_mm, self.half_stroke_mm, self.reference_sigma_mm, max(self.resolution_mm, 1e-12),
                       max(self.floor_um, 0.5 * self.resolution_mm * 1e3), self.z_on ** 2, self.z_off ** 2,
-                      self._prior_weight(), 1.0 / self._prior_weight(), (self.reference_sigma_mm * 1e3) ** 2,
+                      self._prior_weight(), 1.0 / self._prior_weight(), self._place_variance_um2(),
                       self.calibration_structure_um ** 2, self.calibration_x_std_mm,
                       *line(self.baseline), *line(self.calibration)], dtype=np.float64)
         estimate = self.estimate
@@ -363,10 +370,11 @@ class ReferenceMonitor:
                     self.center_mm + swd / sw)
 
     def _rounding_covariance(self) -> tuple[float, float, float]:
-        """The grating's rounding, fixed wherever the stage rests: independent only between the
-        places the window was read at, so it averages down with their number, not the frames'.
+        """The grating's rounding and the model's error at a place, fixed wherever the stage rests:
+        independent only between the places the window was read at, so they average down with
+        their number, not the frames'.
         In (µm², µm²/mm, µm²/mm²) about the centre."""
-        sigma2 = (self.reference_sigma_mm * 1e3) ** 2
+        sigma2 = self._place_variance_um2()
         if sigma2 == 0.0:
             return 0.0, 0.0, 0.0
         sw, swd, swdd = self._sums[0], self._sums[1], self._sums[2]
@@ -376,6 +384,11 @@ class ReferenceMonitor:
         var_s = sigma2 / (places * spread2) if spread2 > 0 else math.inf
         var_s = min(var_s, 1.0 / self._prior_weight())
         return sigma2 / places + mean * mean * var_s, -mean * var_s, var_s
+
+    def _place_variance_um2(self) -> float:
+        """What a place read adds, the same for every frame there: the grating's rounding and the
+        model's own error at that place (µm²)."""
+        return (self.reference_sigma_mm * 1e3) ** 2 + self.place_sigma_um ** 2
 
     def _structure_covariance(self) -> tuple[float, float, float]:
         """The model's own structure along the stroke (``calibration_structure_um``): a window over a

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from graytrack.core.reference_monitor import MIN_FRAMES, ReferenceMonitor, Trimmer, follow
+from graytrack.core.reference_monitor import MIN_FRAMES, Line, ReferenceMonitor, Trimmer, follow
 from graytrack.core.validity import FrameSign, Monitor
 from graytrack.core.watches.scale import ScaleWatch
 
@@ -146,6 +146,29 @@ def test_a_stage_resting_at_two_places_does_not_take_the_gratings_rounding_for_a
     naive_flags = [naive.observe(xi, ri, 0.38e-3) for xi, ri in zip(x, ref)]
     assert any(naive_flags)  # what it guards against: 0.8 µm of rounding across 6 mm seen as 130 ppm
     assert not any(flags)
+
+
+def test_a_stage_parked_where_the_model_errs_within_its_bound_is_not_taken_for_a_drift():
+    """A model calibrated on 1,200 frames with 132 coefficients leaves ~1 µm of its own error at a
+    place it was not fitted to (bound 3 µm): parked there for 1,000 frames the window measures that
+    offset to 0.1 µm. Fixed at the place, like the grating's rounding, it is no drift; a print that
+    grows 400 ppm while the stage moves is still one."""
+    rng = np.random.default_rng(5)
+    bound_mm, place_um = 3e-3, 3.0 * np.sqrt(132 / 1200)
+    calibration = Line(0.0, 0.0, (0.01, 0.0, 4.0), 5.0, 1200, 5.0)
+
+    def monitor(place_sigma_um: float) -> ReferenceMonitor:
+        return ReferenceMonitor(5.0, 5.0, calibration=calibration, calibration_frames=1200, calibration_x_std_mm=3.0,
+                                place_sigma_um=place_sigma_um)
+
+    parked = np.full(1000, 4.0)
+    x = parked + (-1.2 + rng.normal(0.0, bound_mm * 1e3, parked.size)) * 1e-3  # 0.4 of a bound off there
+    naive, honest = monitor(0.0), monitor(place_um)
+    assert any(naive.observe(xi, ri, bound_mm) for xi, ri in zip(x, parked))  # what it guards against
+    assert not any(honest.observe(xi, ri, bound_mm) for xi, ri in zip(x, parked))
+    grown, ref = _sweep(600, scale_ppm=400.0, seed=8)
+    moving = monitor(place_um)
+    assert any(moving.observe(xi, ri, BOUND_MM) for xi, ri in zip(grown, ref))
 
 
 def test_the_trim_follows_every_clear_improvement_but_logs_only_large_ones():
