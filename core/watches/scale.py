@@ -46,7 +46,7 @@ class ScaleWatch:
 
     def __init__(self, monitor: ReferenceMonitor, feeds: bool = True, bound_scale: float = 1.0) -> None:
         self.monitor = monitor
-        self._off = _Disagreement(monitor)
+        self._off = Disagreement(monitor)
         self.feeds = feeds
         self.bound_scale = bound_scale  # the frames' bound over the sensor's (a JPEG stream's quantisation)
 
@@ -94,7 +94,7 @@ class ScaleWatch:
         return np.where(stale, self.family, None).tolist()
 
 
-class _Disagreement:
+class Disagreement:
     """Camera − grating against the line in force (the trim's, else the calibration's), a running
     mean over the last ``SUSPECT_WINDOW`` placed frames, judged against its standard error: far
     beyond it, the positions are off. A new line (a trim applied) starts the mean again."""

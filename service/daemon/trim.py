@@ -21,9 +21,11 @@ import math
 import threading
 from typing import Any, Callable
 
+from graytrack.core.compression import stream_bound_factor
 from graytrack.core.models.fourier import FourierModel
 from graytrack.core.reference_monitor import ReferenceMonitor, Trimmer, drift_message, scale_tells
 from graytrack.core.tracking import LiveFix
+from graytrack.core.watches.scale import Disagreement
 
 EventSink = Callable[[str, str], None]
 
@@ -36,6 +38,7 @@ class ReferenceTrim:
         self.resolution_mm = reference_resolution_mm
         self.monitor_options = monitor_options
         self._trimmer: Trimmer | None = None  # None: no model, or one the grating cannot check (scale_tells)
+        self.bound_scale = 1.0  # the frames' bound over the sensor's (a JPEG stream's quantisation)
         self._flagged = False
         self._lock = threading.Lock()
 
@@ -44,6 +47,7 @@ class ReferenceTrim:
         ``tracker`` (the live one's :class:`~graytrack.core.tracking.Tracker`) gets this monitor's
         watch, so its validity monitor blames ``scale`` from here and honours the trim."""
         trimmer = None
+        self.bound_scale = stream_bound_factor(getattr(model, "info", None) or {})
         if scale_tells(model):  # else its positions are off by its own structure: nothing to learn here
             trimmer = Trimmer(ReferenceMonitor.for_model(model, self.resolution_mm, **self.monitor_options))
             if tracker is not None:
@@ -136,14 +140,29 @@ class _Trimmed(LiveFix):
 
 
 class TrimWatch:
-    """``observe(sign) -> "scale" | None`` from the daemon's own camera-against-grating monitor."""
+    """``observe(sign) -> "scale" | None`` from the daemon's own camera-against-grating monitor, and,
+    as batch tracking's scale watch does (core/watches/scale.py), the running mean of camera −
+    grating against the line in force: an episode of frames several bounds off (a smudge coming into
+    view) that the line's outlier gate leaves out."""
 
     family = "scale"
 
     def __init__(self, trim: ReferenceTrim) -> None:
         self.trim = trim
+        self._off: Disagreement | None = None
 
     def observe(self, sign: Any) -> str | None:
+        far = self._disagrees(sign)
         if getattr(sign, "chi2_suspect", False):  # the images changed: off the grating as well, the
-            return "geometry" if self.trim.drifting else None  # model does not describe the rig
-        return self.family if self.trim.drifting else None
+            return "geometry" if self.trim.drifting or far else None  # model does not describe the rig
+        return self.family if self.trim.drifting or far else None
+
+    def _disagrees(self, sign: Any) -> bool:
+        trimmer = self.trim._trimmer
+        if trimmer is None or sign is None:
+            return False
+        if self._off is None or self._off.monitor is not trimmer.monitor:  # a new model: a new line
+            self._off = Disagreement(trimmer.monitor)
+        information = sign.information
+        bound = self.trim.bound_scale / math.sqrt(information) if sign.placed and information > 0 else math.nan
+        return self._off.add(sign.x_mm, sign.reference_mm, bound)

@@ -10,6 +10,7 @@ from fastapi.testclient import TestClient
 
 from graytrack.core.reference_monitor import MIN_FRAMES
 from graytrack.core.tracking import LiveFix
+from graytrack.core.validity import FrameSign
 from graytrack.service.daemon.acquisition import fix_message
 from graytrack.service.daemon.app import create_app
 from graytrack.service.daemon.trim import ReferenceTrim
@@ -42,6 +43,27 @@ def test_without_the_setting_a_drift_is_an_event_and_the_positions_are_left_alon
     status = trim.status()
     assert status["enabled"] is False and status["active"] is False and status["drift"] is True
     assert abs(status["window"]["offset_um"] - 4.0) < 5 * status["window"]["offset_sigma_um"]
+
+
+def test_the_daemons_watch_flags_an_episode_of_frames_off_the_grating_as_batch_tracking_does():
+    """40 frames placed 4 bounds off while χ² stays quiet (a smudge coming into view): the daemon's
+    watch, which reads the trim's monitor, keeps the running mean of camera − grating as batch
+    tracking's scale watch does, and flags the episode long before the line (fed the same frames) would."""
+    trim = ReferenceTrim(False)
+    trim.install(STROKE)
+    watch = trim.watch()
+    rng = np.random.default_rng(4)
+    n, start, stop = 300, 200, 240
+    ref = np.linspace(0.0, 10.0, n)
+    err_um = rng.normal(0.0, BOUND_MM * 1e3, n)
+    err_um[start:stop] -= 4.0 * BOUND_MM * 1e3
+    x = ref + err_um * 1e-3
+    flags = []
+    for k, (xi, ri) in enumerate(zip(x, ref)):
+        trim.apply(LiveFix(xi, True, 0.7, BOUND_MM, None), ri)
+        flags.append(watch.observe(FrameSign(k, information=BOUND_MM ** -2, x_mm=xi, reference_mm=ri)))
+    assert not any(flags[:start])
+    assert set(flags[start + 15:stop]) == {"scale"}
 
 
 def test_the_trim_needs_evidence_corrects_the_stream_and_is_cleared_by_reset_and_by_a_new_model():
