@@ -143,10 +143,13 @@ class Disagreement:
 
     def _far(self) -> bool:
         monitor = self.monitor
-        if self.count < SUSPECT_WINDOW:
+        if self.count == 0:
             return False
-        # the mean's noise (frames averaged: at most the window's worth) and what no averaging removes
-        sigma2 = 1.0 / (SUSPECT_WINDOW * self.precision_per_um2) + self._known2 + monitor.calibration_structure_um ** 2 \
+        # The mean's noise (the frames averaged so far, at most the window's worth) and what no
+        # averaging removes. Judged from the first frame on: a run that starts 20-40 bounds off the
+        # grating (a print grown, a camera moved, a sensor's response changed since calibration)
+        # had its first 5-15 frames called fresh while the window filled.
+        sigma2 = 1.0 / (self.count * self.precision_per_um2) + self._known2 + monitor.calibration_structure_um ** 2 \
             + (monitor.reference_sigma_mm * 1e3) ** 2
         floor = max(monitor.floor_um, 0.5 * monitor.resolution_mm * 1e3)
         return abs(self.mean_um) > max(SUSPECT_LIMIT * math.sqrt(sigma2), floor)
