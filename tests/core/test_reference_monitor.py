@@ -132,6 +132,24 @@ def test_an_episode_of_frames_off_the_grating_is_flagged_while_chi2_stays_quiet(
     assert suspect[stop - 1] == "geometry" and not any(suspect[:start])
 
 
+def test_a_run_that_starts_off_the_grating_is_flagged_from_its_first_frame():
+    """A camera that disagrees with the grating by 10 of its bounds from the start (a print grown,
+    a camera moved since calibration) is off on its first frame already: the running mean is
+    judged on the frames seen so far, not once its window has filled (until 2026-11-26 the first
+    5-15 frames of such runs were called fresh). Steady starts are not flagged by that."""
+    for seed in range(5):
+        x, ref = _sweep(30, offset_um=10.0 * BOUND_MM * 1e3, seed=seed)
+        watch = ScaleWatch(_monitor())
+        flags = [watch.step(False, True, xi, ri, BOUND_MM ** -2) for xi, ri in zip(x, ref)]
+        assert all(flag == "scale" for flag in flags)
+    early = 0
+    for seed in range(200):  # 200 starts at the bound: 4,000 first frames
+        x, ref = _sweep(20, seed=100 + seed)
+        watch = ScaleWatch(_monitor())
+        early += sum(watch.step(False, True, xi, ri, BOUND_MM ** -2) is not None for xi, ri in zip(x, ref))
+    assert early == 0
+
+
 def test_a_stage_resting_at_two_places_does_not_take_the_gratings_rounding_for_a_scale():
     rng = np.random.default_rng(7)
     step = 1e-3  # a 1 µm grating: each resting place reads up to ±0.5 µm off, the same in every frame
