@@ -46,6 +46,12 @@ ACQUIRE_GRID_PER_PERIOD = 64
 AMBIGUITY_CHI2 = 25.0  # a rival start within this χ² of the best one (5σ): the image cannot tell them apart
 LIGHT_MODES = ("fixed", "auto", "free")
 LIGHT_RETURN_CHI2 = 13.8  # χ² (2 dof, 99.9 %) above which the calibrated light (gain 1, offset 0) is refused
+# Frames in a row on which the calibrated light fits before it is taken back. One frame was enough
+# until 2026-11-26: under row banding (an offset of its own each frame, 1 gray rms) the light went
+# back whenever one frame's offset happened to be small, and the next frames' offsets moved their
+# positions (1.31x the bound, 8 of 500 frames 4-6 bounds off, nothing flagged: each frame's χ² within
+# its own limit). A light that jitters fits by chance on one frame in a few, not on ten in a row.
+LIGHT_RETURN_FRAMES = 10
 GAIN_RANGE = (0.2, 5.0)  # a solved light gain outside this is not the target seen under other light
 MAX_REJECTED_FRACTION = 0.25  # a frame needing more pixels rejected than this is not trusted
 STALE_WINDOW = 100  # frames: the χ² average that must rise for the model to be called stale
@@ -116,6 +122,7 @@ class LightMemory:
     and the pixels it rejected (then the next frame starts robust, without them)."""
 
     free: bool = False
+    fitted: int = 0  # free-light frames in a row on which the calibrated light fitted
     gain: float = 1.0
     offset: float = 0.0
     rejected: np.ndarray | None = None  # the pixels the last frame set aside
@@ -329,7 +336,9 @@ class Tracker:
                                     self.layout)
         if solution.transient_px and batch.raw is not None:
             solution = self._rows_refined(batch, k, solution)
-        memory.free = self.light == "auto" and solution.free_light and solution.light_excess > LIGHT_RETURN_CHI2
+        returned = solution.free_light and solution.light_excess <= LIGHT_RETURN_CHI2
+        memory.fitted = memory.fitted + 1 if returned else 0
+        memory.free = self.light == "auto" and solution.free_light and memory.fitted < LIGHT_RETURN_FRAMES
         memory.gain, memory.offset = solution.gain, solution.offset
         memory.rejected = solution.rejected_mask if solution.rejected else None
         if solution.free_light and math.isfinite(solution.chi2):

@@ -297,3 +297,21 @@ def test_general_path_follows_light_and_rejects_a_pixel(paper_rig):
     assert result.locked.all() and (result.rejected_px[30:] == 1).all()
     np.testing.assert_allclose(result.x_mm, fast.x_mm, atol=1e-6)
     np.testing.assert_allclose(result.crlb_mm, fast.crlb_mm, rtol=1e-4)
+
+
+def test_a_light_that_jitters_frame_to_frame_is_kept_solved(paper_rig):
+    """Row banding that appeared after calibration: each frame an offset of its own (1 gray rms),
+    too small for most frames' χ² to ask for the light but moving the position when it is held.
+    Once freed, the light stays solved until it fits on LIGHT_RETURN_FRAMES frames in a row; a
+    jittering light fits by chance on one frame in a few (when it went back after one such frame,
+    the run was 1.31x its bound with 8 of 500 frames 4-6 bounds off, none flagged)."""
+    _, model = paper_rig
+    run, _ = build_rig("paper", "row_banding:gray=1", seed=3, run=1).record(10.0)
+    result = track(model, run, light="auto", robust=True)
+    pull = result.error_um(run.reference) / (result.crlb_mm * 1e3)
+    assert np.nanstd(pull) < 1.15
+    assert np.sum(np.abs(pull) > 4.0) == 0
+    assert (result.gain != 1.0).mean() > 0.9  # the light solved on nearly every frame
+    steady, _ = build_rig("paper", "", seed=3, run=1).record(10.0)
+    held = track(model, steady, light="auto", robust=True)
+    assert (held.gain == 1.0).all()  # a steady light is never freed by this
