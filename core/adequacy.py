@@ -15,6 +15,7 @@ import numpy as np
 
 from graytrack.core.calibration_data import CalibrationData
 from graytrack.core.compression import bound_factor, find_jpeg, stream_bound_factor
+from graytrack.core.light_return import replay
 from graytrack.core.models.fourier import FourierModel
 
 MAX_FRAMES = 400  # frames looked at (evenly spread): the ratio is a statistic, not a census
@@ -76,20 +77,28 @@ def frame_errors(model: FourierModel, data: CalibrationData) -> tuple[np.ndarray
     fisher, score, weights, residual, slopes = fisher[usable], score[usable], weights[usable], residual[usable], \
         slopes[usable]
     x = x[usable]
-    free_shift = np.linalg.solve(fisher, score[..., None])[:, 0, 0]
+    step = free_score(fisher, score)
+    free_shift = step[:, 0]
     free_bound2 = np.linalg.inv(fisher)[:, 0, 0]  # x with the gain and offset profiled out
     # As the tracker solves a frame (Tracker.solve): the light held at calibration unless the model
-    # has a per-frame common mode or the frame's χ² with the light held asks for it. A per-frame
-    # offset too small to ask (row banding on one row) then moves the position, and must count here.
+    # has a per-frame common mode, or the frame's χ² with the light held asks for it, or the frames
+    # before left it free (core/light_return.py, replayed over these frames in order). A per-frame
+    # offset too small to ask then moves a held frame's position, and must count here.
     held_shift = score[:, 0] / fisher[:, 0, 0]
     held_residual = residual - held_shift[:, None] * slopes
     chi2 = np.einsum("kp,kp->k", weights, held_residual**2) / np.maximum((weights > 0).sum(axis=1), 1)
     calibration_chi2 = float(model.info.get("calibration_chi2") or 1.0)
     limit = calibration_chi2 * (1.0 + 5.0 * np.sqrt(2.0 / (model.n_rows * model.n_pixels)))
-    free = np.full(chi2.shape, bool(model.common_mode)) | (chi2 > limit)
+    gained = np.einsum("ki,ki->k", score, step) - score[:, 0] ** 2 / fisher[:, 0, 0]  # χ² the free light gains
+    free = np.full(chi2.shape, True) if model.common_mode else replay(chi2 > limit, gained)
     shift = np.where(free, free_shift, held_shift)
     bound2 = np.where(free, free_bound2, 1.0 / fisher[:, 0, 0])
     return x, shift, bound2
+
+
+def free_score(fisher: np.ndarray, score: np.ndarray) -> np.ndarray:
+    """``(K, 3)``: each frame's least-squares step in (x, gain, offset)."""
+    return np.linalg.solve(fisher, score[..., None])[..., 0]
 
 
 def inadequacy(info: dict) -> str | None:

@@ -29,6 +29,7 @@ from graytrack.core.chi2_curve import Chi2Curve
 from graytrack.core.compression import stream_bound_factor
 from graytrack.core.errors import TrackingError
 from graytrack.core.geometry_check import refusal
+from graytrack.core.light_return import LIGHT_RETURN_CHI2, after_frame
 from graytrack.core.kernels import TableEvaluator
 from graytrack.core.evaluation import FastHarmonics, TrigTables
 from graytrack.core.frame_tables import FrameTables
@@ -45,13 +46,6 @@ Progress = Callable[[float, str], None]
 ACQUIRE_GRID_PER_PERIOD = 64
 AMBIGUITY_CHI2 = 25.0  # a rival start within this χ² of the best one (5σ): the image cannot tell them apart
 LIGHT_MODES = ("fixed", "auto", "free")
-LIGHT_RETURN_CHI2 = 13.8  # χ² (2 dof, 99.9 %) above which the calibrated light (gain 1, offset 0) is refused
-# Frames in a row on which the calibrated light fits before it is taken back. One frame was enough
-# until 2026-11-26: under row banding (an offset of its own each frame, 1 gray rms) the light went
-# back whenever one frame's offset happened to be small, and the next frames' offsets moved their
-# positions (1.31x the bound, 8 of 500 frames 4-6 bounds off, nothing flagged: each frame's χ² within
-# its own limit). A light that jitters fits by chance on one frame in a few, not on ten in a row.
-LIGHT_RETURN_FRAMES = 10
 GAIN_RANGE = (0.2, 5.0)  # a solved light gain outside this is not the target seen under other light
 MAX_REJECTED_FRACTION = 0.25  # a frame needing more pixels rejected than this is not trusted
 STALE_WINDOW = 100  # frames: the χ² average that must rise for the model to be called stale
@@ -322,7 +316,10 @@ class Tracker:
         here = self.chi2_level(solution.x_mm)
         limit = self.chi2_limit * here
         asked = solution.chi2 > limit
-        if solution.chi2 > limit and self.light == "auto" and not free:
+        # The light is asked for beyond the calibration's mean level even where its own frames fitted
+        # worse: a seed model calibrated under a hunting gain has its level 100x at the stroke's start,
+        # and frames there at 134x held the light, 4-13 bounds off.
+        if solution.chi2 > self.chi2_limit * min(here, 1.0) and self.light == "auto" and not free:
             free = True
             solution = self._attempt(batch, k, x_start, memory, free, robust_first)
         freed_here = free and self.light == "auto" and not (memory.free or self.model.common_mode)
@@ -336,9 +333,8 @@ class Tracker:
                                     self.layout)
         if solution.transient_px and batch.raw is not None:
             solution = self._rows_refined(batch, k, solution)
-        returned = solution.free_light and solution.light_excess <= LIGHT_RETURN_CHI2
-        memory.fitted = memory.fitted + 1 if returned else 0
-        memory.free = self.light == "auto" and solution.free_light and memory.fitted < LIGHT_RETURN_FRAMES
+        stays, memory.fitted = after_frame(memory.fitted, solution.free_light, solution.light_excess)
+        memory.free = self.light == "auto" and stays
         memory.gain, memory.offset = solution.gain, solution.offset
         memory.rejected = solution.rejected_mask if solution.rejected else None
         if solution.free_light and math.isfinite(solution.chi2):

@@ -143,23 +143,23 @@ def test_a_model_off_on_its_own_calibration_flags_every_position():
     assert track(loop, run, light="auto", robust=True).stale.mean() < 0.01
 
 
-def test_a_model_the_run_does_not_repeat_is_flagged_by_the_grating():
-    """The camera's gain hunted during the calibration sweep and bent the seed model: every run
-    fits as well as the calibration did (χ² at its level, the light re-solved) yet sits off the
-    grating; the spread of camera − grating flags it. (Until the light was held free while it
-    jitters, LIGHT_RETURN_FRAMES, the run sat 24x its bound off; now 1.6x, still flagged.)"""
+def test_a_seed_model_calibrated_under_a_hunting_gain_tracks_near_its_bound_with_the_light_solved():
+    """The camera's gain hunted during the calibration sweep and bent the seed model (its χ² level
+    along the stroke 100x at the start). Until 2026-11-26 every run sat 24x its bound off, flagged:
+    the light went back to the calibrated one whenever one frame fitted, and where the calibration's
+    own level was high no frame's χ² asked for it. Now the light stays solved until it fits on ten
+    frames in a row and is asked for against the calibration's mean level: the run is within 1.3x
+    its bound, and the model, judged at calibration as tracking will solve it, is no longer called
+    inadequate (its calibration frames within 1.3x their bound)."""
     calibration, _ = build_rig("paper", "gain_hunting:depth=0.05", seed=3).record(20.0)
     run, _ = build_rig("paper", "gain_hunting:depth=0.05", seed=3, run=1).record(10.0)
-    result = track(calibrate(calibration, "paper").model, run, light="auto", robust=True)
-    error, bound = result.error_um(run.reference), np.sqrt(np.nanmean(np.square(result.crlb_mm * 1e3)))
-    assert np.nanstd(error) > 1.4 * bound
-    assert result.stale.mean() >= 0.9
     model = calibrate(calibration, "paper").model
-    without = track(model, run.frames, light="auto", robust=True)
-    # Without the grating the images alone say it too: solved as the tracker solves them (the light
-    # held unless a frame asks), the calibration frames themselves sit beyond twice their bound.
-    assert model.info["calibration_error_ratio"] > 2.0
-    assert without.stale.mean() >= 0.9 and set(without.stale_reason[without.stale]) == {"geometry"}
+    result = track(model, run, light="auto", robust=True)
+    error, bound = result.error_um(run.reference), np.sqrt(np.nanmean(np.square(result.crlb_mm * 1e3)))
+    assert np.nanstd(error) < 1.35 * bound
+    assert np.sum(np.abs(error) > 4.0 * result.crlb_mm * 1e3) <= 5  # the first frames, before the light is asked for
+    assert (result.gain != 1.0).mean() > 0.95
+    assert model.info["calibration_error_ratio"] < 1.5
 
 
 def test_a_model_off_on_a_stretch_of_its_own_calibration_flags_positions_there():
