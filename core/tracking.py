@@ -205,6 +205,10 @@ class Tracker:
         self.residual_limit_gray = residual_limit_gray or 3.0 * calibration_rmse + 1.0
         n_values = model.n_rows * model.n_pixels
         self.chi2_calibration = float(model.info.get("calibration_chi2", (calibration_rmse / sigma) ** 2))
+        if not (math.isfinite(self.chi2_calibration) and self.chi2_calibration > 0):
+            # every flag reads χ² against this level: NaN would call every frame fresh
+            raise TrackingError(f"the model's calibration χ² is {self.chi2_calibration:g}: it cannot tell a frame "
+                                "that fits from one that does not (every pixel masked, or no sample left); recalibrate")
         # beyond 5 standard deviations of one frame's χ² at the calibration's level: the frame asks
         self.chi2_limit = self.chi2_calibration * (1.0 + 5.0 * np.sqrt(2.0 / n_values))
         # The running average's own spread is ≈ √(2/(window·pixels)) of the level; beyond five of

@@ -127,10 +127,14 @@ def _curve(model: FourierModel) -> dict[str, Any]:
 
 
 def _stage(spec: ModelSpec, train: CalibrationData, val: CalibrationData, geometry: tuple[float, float, float],
-           refine_geometry: bool = False, search_pitch: bool = False) -> Stage:
+           refine_geometry: bool = False, search_pitch: bool = False, searched: dict[str, float] | None = None) -> Stage:
+    """The model of structure ``spec`` fitted on ``train``, with its figures on ``val``. With
+    ``search_pitch``, α·d is searched, near the one the loop's last search found (``searched``, updated)."""
     train, val = effects.prepare_data(spec, train), effects.prepare_data(spec, val)
     if search_pitch:
-        model = fit_spec_pitch_search(spec, train, *geometry).model
+        searched = {} if searched is None else searched
+        model = fit_spec_pitch_search(spec, train, *geometry, found_mm=searched.get("pitch")).model
+        searched["pitch"] = model.pixel_pitch_mm
     else:
         model = fit_spec(spec, train, *geometry, refine_geometry=refine_geometry).model
     train_fit, val_fit = fit_on(model, train), fit_on(model, val)
@@ -201,7 +205,8 @@ def _held_out(calibration: Recording, validation: Recording | None) -> tuple[Cal
 
 
 def _next_step(current: Stage, train: CalibrationData, val: CalibrationData, rejected: list[Step],
-               row_shift_guess_mm: float, say: Progress, fraction: float) -> Step | None:
+               row_shift_guess_mm: float, say: Progress, fraction: float,
+               searched: dict[str, float] | None = None) -> Step | None:
     """Try the effects the residual points to; of those that pass the held-out test, the one that
     tracks best (the strongest evidence is not always the right cause: a flexible term can soak
     up what a simpler physical one explains). A fault of the data (bad pixels, clipping, a skewed
@@ -215,7 +220,7 @@ def _next_step(current: Stage, train: CalibrationData, val: CalibrationData, rej
         if spec is None:
             continue
         say(fraction, f"trying {evidence.effect}")
-        trial = _stage(spec, train, val, geometry, search_pitch=effect.search_pitch)
+        trial = _stage(spec, train, val, geometry, search_pitch=effect.search_pitch, searched=searched)
         keep, reason = _better(trial.figures, current.figures, int(current.val.usable.sum()))
         record = Step(evidence.effect, evidence, trial, keep, reason)
         if not keep:
@@ -248,12 +253,13 @@ def diagnose(calibration: Recording, validation: Recording | None = None, progre
         return DiagnosisResult(before, before, [], [], before.model, val.sigma_gray, holdout,
                                readout_step_mm(calibration if validation is None else validation), [],
                                geometry=verdict)
+    searched: dict[str, float] = {}  # α·d where the last search found it: a later search starts there
     for step_index in range(max_steps):
         if _at_noise_floor(current):
             break
         say(0.05 + 0.85 * step_index / max_steps, f"step {step_index + 1}: probing the residual")
         accepted = _next_step(current, train, val, rejected, geometry[2], say,
-                              0.05 + 0.85 * (step_index + 0.5) / max_steps)
+                              0.05 + 0.85 * (step_index + 0.5) / max_steps, searched)
         if accepted is None:
             break
         steps.append(accepted)

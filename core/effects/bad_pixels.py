@@ -27,6 +27,10 @@ HOT_MIN_SIGMAS = 10.0  # an offset must also exceed this many noise σ to count
 NOISY_RATIO = 4.0  # temporal variance this many times what the noise curve allows
 FOLLOW_RATIO = 9.0  # residual variance this many times the noise: the pixel does not follow the target
 NEIGHBOURS = 7
+# More of the line than this failing is no pixel defect but the print, the light or the optics (dust
+# across a 16-row strip had 476 of its 1,600 pixels "not follow the target", in every one of its 100
+# columns): a mask would leave the model blind, with a calibration χ² of 0, and its trial tracked nothing.
+MAX_MASKED_SHARE = 0.2
 
 Finding = tuple[int, int, str]  # (row, pixel, reason)
 
@@ -115,6 +119,14 @@ def find_bad_pixels(data: Any, residual: np.ndarray | None = None, predicted: np
     return sorted(found)
 
 
+def masked_share(findings: Any, shape: tuple[int, int], per_row: bool) -> float:
+    """The share of what a model sees that ``findings`` would mask: pixels of a per-row model,
+    columns of a shared one (it averages the rows, and a bad pixel takes its column)."""
+    if per_row:
+        return len({(r, u) for r, u, _ in findings}) / float(shape[0] * shape[1])
+    return len({u for _, u, _ in findings}) / float(shape[1])
+
+
 def mask(findings: Any, shape: tuple[int, int]) -> np.ndarray:
     """``(R, n)``: 0 at the listed pixels, 1 elsewhere."""
     weights = np.ones(shape)
@@ -138,8 +150,14 @@ class BadPixels(Effect):
         train, val = stage.train, stage.val
         known = {(r, u) for r, u, _ in stage.spec.get(self.name, ())}
         residual = train.data.frames - np.broadcast_to(train.predicted, train.data.frames.shape)
-        found = [f for f in find_bad_pixels(train.data, residual, train.predicted, train.usable) if f[:2] not in known]
-        if not found:
+        model_free = [f for f in find_bad_pixels(train.data) if f[:2] not in known]
+        taken = known | {f[:2] for f in model_free}
+        found = sorted(model_free + [f for f in residual_bad_pixels(residual, train.predicted, train.usable,
+                                                                     train.data.sigma_gray) if f[:2] not in taken])
+        shape = train.data.frames.shape[1:]
+        if masked_share(found, shape, stage.spec.per_row) > MAX_MASKED_SHARE:
+            found = model_free  # the residual's findings are a pattern of the scene, not of pixels
+        if not found or masked_share(found, shape, stage.spec.per_row) > MAX_MASKED_SHARE:
             return None
         shape = val.data.frames.shape[1:]
         spoiled = 1.0 - mask(found, shape)

@@ -85,3 +85,28 @@ def test_a_pixel_that_does_not_follow_the_target_is_found_from_the_residual():
 
 def _truth_places(rig) -> set[tuple[int, int]]:
     return {(b.row, b.pixel) for b in rig.config.sensor.bad_pixels}
+
+
+def test_dust_across_a_strip_is_no_pixel_defect():
+    """Dust on the print, seen through a 16-row strip, leaves a residual in pixels of every column.
+    Those pixels follow the target's dust, not a defect of their own: masking them (a shared model
+    loses a bad pixel's whole column) left a model with no pixel at all and a calibration χ² of 0,
+    whose tracker called every frame fresh. The probe names only what the pixels' own time series
+    show, and never a mask of more than a share of the line."""
+    from graytrack.core.calibration import KIND_SPECS
+    from graytrack.core.diagnosis.loop import _held_out, _stage
+    from graytrack.core.effects.bad_pixels import EFFECT, MAX_MASKED_SHARE, masked_share, residual_bad_pixels
+    from graytrack.core.geometry import initial_geometry
+
+    recording, _ = build_rig("strip16", "dust", seed=3).record(8.0)
+    _, train, val, _ = _held_out(recording, None)
+    seed = _stage(KIND_SPECS["paper"], train, val, initial_geometry(train), refine_geometry=True)
+    residual = train.frames - np.broadcast_to(seed.train.predicted, train.frames.shape)
+    following = residual_bad_pixels(residual, seed.train.predicted, seed.train.usable, train.sigma_gray)
+    assert masked_share(following, train.frames.shape[1:], False) > MAX_MASKED_SHARE  # the premise: dust everywhere
+    evidence = EFFECT.probe(seed)
+    if evidence is not None:
+        assert masked_share(evidence.argument, train.frames.shape[1:], seed.spec.per_row) <= MAX_MASKED_SHARE
+        grown = EFFECT.grow(seed.spec, evidence.argument)
+        trial = _stage(grown, train, val, initial_geometry(train))
+        assert trial.model.info["calibration_chi2"] > 0
