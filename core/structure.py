@@ -89,6 +89,14 @@ def fit_spec(spec: ModelSpec, data: CalibrationData, period_mm: float, pitch_mm:
     residual, where Gauss–Newton steps zig-zag, so α·d is found by a scan and a bounded search
     instead. τ_w is then refined with the full model.
 
+    τ_w is refined again in the second alternation round (the only one of a spec without bilinear
+    layers), whatever ``refine_geometry`` says. The geometry a seed model fixed is pulled by every
+    layer it lacked: stray light from a reflection in the lens moved a 16-row strip's τ_w 280 ppm,
+    and held there, the model the loop grew around it (flat field, rows) fitted every image to its
+    noise yet placed the frames at twice their bound, the stroke's ends 1.4 µm off the grating (the
+    flat field was even rejected on an 8 s sweep: 0.66 → 0.77 µm; with τ_w refined, 0.43 µm).
+    Only stroke terms turn the phase along the stroke as τ_w does: a spec with them keeps its τ_w.
+
     ``searching``: one point of a search over the geometry (:func:`fit_spec_pitch_search`), whose
     only use is its residual. The row shift is held as given (the search found it once) and the
     photon-transfer weights are not refitted: in a 16-row lab strip with its rows, flat field and
@@ -114,11 +122,13 @@ def fit_spec(spec: ModelSpec, data: CalibrationData, period_mm: float, pitch_mm:
     elif template.n_rows > 1 and not searching:
         row_names = ("row_shift_mm",)
     names = (geometry_names if refine_geometry else ()) + row_names
+    # τ_w once more after the first round, its layers known (see the docstring)
+    late_names = ("period_mm",) if spec.stroke_degree == 0 and not searching else ()
     steps = [(effect, setting) for effect, setting in effects.active(spec) if effect.bilinear]
     state = effects.Alternation(data.x_mm, raw, weights, template, np.ones(raw.shape[0]), np.zeros(raw.shape[0]),
                                 np.ones(raw.shape[1:]), np.zeros(raw.shape[1:]), found={})
     n_rounds = (rounds or ALTERNATION_ROUNDS) if steps else 1
-    iterations, history = _alternate(state, steps, n_rounds, names, progress)
+    iterations, history = _alternate(state, steps, n_rounds, names, progress, late_names)
     model = _finished(spec, state)
     noise = data.pixel_noise
     if noise is not None and noise.signal_dependent and not searching:
@@ -160,17 +170,21 @@ def _row_shift(spec: ModelSpec, data: CalibrationData, period_mm: float, pitch_m
 
 
 def _alternate(state: effects.Alternation, steps: list[tuple[effects.Effect, Any]], n_rounds: int,
-               names: tuple[str, ...], progress: Progress | None) -> tuple[int, list[dict[str, float]]]:
-    """Rounds of the smooth fit (geometry too in the first, when ``names`` are given) and of every
-    bilinear effect's step."""
+               names: tuple[str, ...], progress: Progress | None,
+               late_names: tuple[str, ...] = ()) -> tuple[int, list[dict[str, float]]]:
+    """Rounds of the smooth fit (geometry too in the first, when ``names`` are given, and
+    ``late_names`` in the second, or the only one) and of every bilinear effect's step."""
     iterations, history = 0, []
     for round_index in range(n_rounds):
         lit = state.lit / state.map_factor
         # an effect whose layer the geometry would otherwise absorb has the geometry refined again
         # once its layer is known (the second round)
         again = round_index == 1 and any(effect.refits_geometry for effect, _ in steps)
-        if (round_index == 0 or again) and names:
-            state.model, iterations, history = fit_geometry(state.model, state.x_mm, lit, state.weights, names,
+        fitted = names if round_index == 0 or again else ()
+        if round_index == min(1, n_rounds - 1):
+            fitted = fitted + tuple(name for name in late_names if name not in fitted)
+        if fitted:
+            state.model, iterations, history = fit_geometry(state.model, state.x_mm, lit, state.weights, fitted,
                                                             progress=progress)
         else:
             state.model, _ = fit_coefficients(state.model, state.x_mm, lit, state.weights)
