@@ -31,6 +31,11 @@ controller and rendering: what real hardware does outside the host).
 Besides the receipt latency it prints ``enc``: mid-exposure to the message's encoding in the daemon
 (its ``age_ms``), so a tail can be placed before (frame thread) or after (event loop, send, client) it,
 and the client process's own CPU (it shares the machine's cores with the daemon).
+
+``host99``/``hostmax``/``steal%``: the host's own floor in the same seconds (bench/host_floor.py: a
+thread one SCHED_FIFO level above the daemon's, on the daemon's core, sleeping 1 ms; its lateness is
+the kernel's and the hypervisor's, which no thread of the run can cause), and the time the host ran
+other guests. A message's p99 cannot beat its pipeline's median by less than that floor's p99.
 """
 
 from __future__ import annotations
@@ -229,8 +234,13 @@ def run(folder: Path, rate: float, clients: int, seconds: float, poll_s: float =
                 os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
             if pin:  # beside the daemon's core, as the rig's process (a client on another host, as it were)
                 os.sched_setaffinity(0, CORES[:-1])
+        # the host's own floor in the same seconds, on the daemon's core, above every thread of the run
+        floor = subprocess.Popen([sys.executable, str(Path(__file__).with_name("host_floor.py")), "--json",
+                                  "--seconds", str(seconds), "--core", str(CORES[-1]),
+                                  "--priority", str(priority + 1 if priority else 0)], stdout=subprocess.PIPE, text=True)
         result = subprocess.run([sys.executable, "-c", CLIENTS[client], f"ws://127.0.0.1:{port}/ws/position", str(clients),
                                  str(seconds)], capture_output=True, text=True, check=True, preexec_fn=raise_client)
+        host = json.loads(floor.communicate(timeout=seconds + 30)[0])
         wall = time.monotonic() - wall0
         cpu = (cpu_seconds(daemon.pid) - cpu0) / wall
         rig_cpu = (sum(map(cpu_seconds, rigs)) - rig0) / wall
@@ -248,7 +258,8 @@ def run(folder: Path, rate: float, clients: int, seconds: float, poll_s: float =
             "missing": missing, "dropped": dropped, "p50": np.percentile(latency, 50),
             "p99": np.percentile(latency, 99), "max": latency.max(), "cpu": 100 * cpu, "rig_cpu": 100 * rig_cpu,
             "client_cpu": 100 * measured["cpu"], "enc50": np.percentile(encoded, 50), "enc99": np.percentile(encoded, 99),
-            "stale": status.get("stale_reason") or "-" if status.get("model_stale") else "-"}
+            "stale": status.get("stale_reason") or "-" if status.get("model_stale") else "-",
+            "host99": host["p99"], "host_max": host["max"], "steal": host["steal_pct"]}
 
 
 def load_average() -> str:
@@ -296,7 +307,7 @@ def main() -> None:
         print(f"machine: {os.cpu_count()} cores, load average {load_average()} at start, "
               f"{args.load} busy-looping processes meanwhile; scenario {args.scenario}, {args.rows} row(s)")
         print(f"{'pin':>3} {'client':>10} {'rig':>4} {'render':>6} {'model':>6} {'prio':>4} {'deflate':>7} {'poll ms':>7} {'frames/s':>8} {'clients':>7} {'msgs/s':>8} {'missing':>7} {'dropped':>7} "
-              f"{'p50 ms':>7} {'p99 ms':>7} {'max ms':>7} {'CPU %':>6} {'rig %':>6} {'cl CPU':>6} {'enc p50':>7} {'enc p99':>7} {'stale':>9}")
+              f"{'p50 ms':>7} {'p99 ms':>7} {'max ms':>7} {'CPU %':>6} {'rig %':>6} {'cl CPU':>6} {'enc p50':>7} {'enc p99':>7} {'host99':>6} {'hostmax':>7} {'steal%':>6} {'stale':>9}")
         configurations = [(rate, clients, n == "1", c, a == "1", e, m, float(p), d == "1", int(q))
                           for rate in (float(r) for r in args.rates.split(",")) for clients in
                           (int(c) for c in args.clients.split(",")) for n in args.pin.split(",")
@@ -311,7 +322,7 @@ def main() -> None:
                         args.scenario, args.rows, render, apart, client, pin)
                 results.setdefault(setup, []).append(r)
                 print(f"{'yes' if pin else 'no':>3} {client:>10} {'own' if apart else 'in':>4} {render:>6} {model:>6} {prio:4d} {'on' if deflate else 'off':>7} {poll * 1e3:7.1f} {r['rate']:8.0f} {r['clients']:7d} {r['msgs_s']:8.0f} {r['missing']:7d} {r['dropped']:7d} "
-                      f"{r['p50']:7.2f} {r['p99']:7.2f} {r['max']:7.2f} {r['cpu']:6.0f} {r['rig_cpu']:6.0f} {r['client_cpu']:6.0f} {r['enc50']:7.2f} {r['enc99']:7.2f} {r['stale']:>9}",
+                      f"{r['p50']:7.2f} {r['p99']:7.2f} {r['max']:7.2f} {r['cpu']:6.0f} {r['rig_cpu']:6.0f} {r['client_cpu']:6.0f} {r['enc50']:7.2f} {r['enc99']:7.2f} {r['host99']:6.2f} {r['host_max']:7.2f} {r['steal']:6.2f} {r['stale']:>9}",
                       flush=True)
         if args.repeat > 1:
             print(f"\nmedians over {args.repeat} rounds (p99: its median and range; runs with no camera frame dropped)")
@@ -320,7 +331,8 @@ def main() -> None:
                 print(f"{'yes' if pin else 'no':>3} {client:>10} {'own' if apart else 'in':>4} {rate:8.0f} frames/s "
                       f"{clients} clients: p50 {np.median([r['p50'] for r in runs]):.2f} ms, p99 {np.median(p99):.2f} ms "
                       f"({p99.min():.2f}-{p99.max():.2f}), CPU {np.median([r['cpu'] for r in runs]):.0f} %, "
-                      f"{sum(r['dropped'] == 0 for r in runs)} of {len(runs)} runs without a drop")
+                      f"{sum(r['dropped'] == 0 for r in runs)} of {len(runs)} runs without a drop; the host's own "
+                      f"wake-up p99 (bench/host_floor.py) {np.median([r['host99'] for r in runs]):.2f} ms")
         print(f"load average {load_average()} at the end")
     finally:
         for burner in burners:

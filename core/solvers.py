@@ -207,7 +207,7 @@ class SetAside:
     removed: np.ndarray  # pixel indices
     kept: StaticWeights  # the weights with these pixels at zero, and their moment tables
     weights: np.ndarray  # (R,) their base weights
-    linear: np.ndarray  # (R, 2·(D+1)+1) complex: their y·F, y·F′, y·1 coefficients per unit y
+    linear: np.ndarray  # (R, M+2) complex: their y·F and y·1 coefficients per unit y (TrigTables.linear)
     roots: list[float]  # √weight, to normalise their residuals
     lines: list[list[complex]]  # F of each as coefficients of z^0..z^M
     omega_i: complex  # iω: z = exp(iω·x)
@@ -258,11 +258,11 @@ class TrigPolyBatch:
         self._set_aside_block: SetAsideBlock | None = None  # the last block :meth:`without` built
         width = tables.degree + 1
         weighted = weights * frames
-        linear = (weighted @ tables.linear).view(complex)  # y·F, y·F′ coefficients, and y·1
+        linear = (weighted @ tables.linear).view(complex)  # y·F coefficients, and y·1
         gram = static.gram if static is not None else tables.weighted_gram(weights)
-        if gram.shape[0] != self.n_frames:
-            gram = np.broadcast_to(gram, (self.n_frames,) + gram.shape[1:])
-        self.rows = np.concatenate((gram, linear[:, : 2 * width].reshape(-1, 2, width)), axis=1)  # (K, 7, D+1)
+        self.rows = np.zeros((self.n_frames, 7, width), dtype=complex)  # (K, 7, D+1)
+        self.rows[:, :5] = gram
+        tables.linear_rows(linear, out=self.rows[:, 5:])
         y_norm = (weighted * frames).sum(axis=1).tolist()
         y_sum = linear[:, -1].real.tolist()
         if static is not None:
@@ -280,12 +280,11 @@ class TrigPolyBatch:
         if not hasattr(self, "_buffers"):
             self._buffers = (np.empty_like(self.frames), np.empty((1, self.tables.linear.shape[1])))
         weighted, linear = self._buffers
-        width = self.tables.degree + 1
         self.frames = frame
         np.multiply(self._weights, frame, out=weighted)
         np.matmul(weighted, self.tables.linear, out=linear)
         coefficients = linear.view(complex)[0]
-        self.rows[0, 5:] = coefficients[: 2 * width].reshape(2, width)
+        self.tables.linear_rows(linear.view(complex), out=self.rows[:, 5:])
         np.multiply(weighted, frame, out=weighted)
         self._scalars = [[float(weighted.sum()), coefficients[-1].real, self._static.total, self._static.count]]
         self._set_aside_block = None
@@ -346,17 +345,17 @@ class TrigPolyBatch:
         pixel usually stays bad for many frames, so its share is subtracted for a block at once."""
         y = self.frames[start:stop, plan.removed]
         wy = y * plan.weights
-        share = wy @ plan.linear  # (B, 2·(D+1)+1)
-        width = self.tables.degree + 1
+        share = wy @ plan.linear  # (B, M+2)
+        lines = self.tables.linear_rows(share)  # (B, 2, D+1)
         kept = plan.kept
         if stop - start == 1:  # live tracking: one frame, no lists to build
             rows = np.empty((1,) + self.rows.shape[1:], dtype=complex)
             rows[0, :5] = kept.gram[0]
-            np.subtract(self.rows[start, 5:], share[0, : 2 * width].reshape(2, width), out=rows[0, 5:])
+            np.subtract(self.rows[start, 5:], lines[0], out=rows[0, 5:])
             y_norm, y_sum = self._scalars[start][:2]
             scalars = [[y_norm - float(wy[0] @ y[0]), y_sum - share[0, -1].real, kept.total, kept.count]]
             return SetAsideBlock(plan, start, stop, rows, scalars, y.tolist())
-        linear = self.rows[start:stop, 5:] - share[:, : 2 * width].reshape(-1, 2, width)
+        linear = self.rows[start:stop, 5:] - lines
         rows = np.concatenate((np.broadcast_to(kept.gram, (stop - start,) + kept.gram.shape[1:]), linear), axis=1)
         y_norm = [item[0] for item in self._scalars[start:stop]] - (wy * y).sum(axis=1)
         y_sum = [item[1] for item in self._scalars[start:stop]] - share[:, -1].real

@@ -107,17 +107,27 @@ def test_the_numpy_fallback_gives_the_kernel_numbers(name: str, monkeypatch: pyt
     assert np.max(np.abs(compiled.x_mm[placed] - fallback.x_mm[placed])) * 1e3 < MICROMETRE_TOLERANCE
 
 
-@pytest.mark.parametrize("name", ["target_map", "target_map:rows", "stroke", "clipping"])
+@pytest.mark.parametrize("name", sorted(EVERY_FORM))
 def test_live_tracking_reloads_one_buffer_and_tracks_as_the_batch(name: str) -> None:
-    """The daemon's frame-at-a-time path (for a one-row model, one preallocated batch reloaded per
-    frame) gives the batch solver's positions on a model off the trig-polynomial tables."""
+    """The daemon's frame-at-a-time path (one preallocated batch reloaded per frame, a strip's
+    frame or its row mean, for every model whose weights do not follow the signal) gives the batch
+    solver's positions, and the positions and verdicts of prepare's route, frame by frame."""
     model, run = _fitted(name)
     batch = track(model, run, x0_mm=float(run.reference[0]), light="auto", robust=True)
     live = LiveTracker(model, x0_mm=float(run.reference[0]))
-    assert live._lean == (model.n_rows == 1) and not live.tracker.fast_path  # (a strip model: prepare's path)
-    positions = np.array([live.update(frame).x_mm for frame in run.frames])
-    placed = np.isfinite(batch.x_mm)
-    assert placed.mean() > 0.9 and np.array_equal(np.isfinite(positions), placed)
+    assert live._lean == (not live.tracker.signal_dependent)
+    prepared = LiveTracker(model, x0_mm=float(run.reference[0]))
+    prepared._lean = False
+    fixes = [live.update(frame, grating) for frame, grating in zip(run.frames, run.reference)]
+    again = [prepared.update(frame, grating) for frame, grating in zip(run.frames, run.reference)]
+    positions = np.array([fix.x_mm for fix in fixes])
+    placed = np.isfinite(positions)
+    assert placed.mean() > 0.9 and np.array_equal(np.isfinite([fix.x_mm for fix in again]), placed)
+    assert np.max(np.abs(positions[placed] - np.array([fix.x_mm for fix in again])[placed])) * 1e3 < MICROMETRE_TOLERANCE
+    assert [(f.locked, f.stale_reason, f.rejected_px, f.transient_px) for f in fixes] == \
+        [(f.locked, f.stale_reason, f.rejected_px, f.transient_px) for f in again]
+    batch_placed = np.isfinite(batch.x_mm)
+    assert np.array_equal(batch_placed, placed)
     assert np.max(np.abs(positions[placed] - batch.x_mm[placed])) * 1e3 < MICROMETRE_TOLERANCE
 
 
@@ -166,3 +176,25 @@ def test_the_position_kept_gives_a_fresh_evaluation_s_numbers(name: str) -> None
         fresh_values, fresh_slopes = TableEvaluator(tables).evaluate(np.array([x]))
         assert np.array_equal(again[0], fresh_values) and np.array_equal(again[1], fresh_slopes)
         assert kept.moments(float(x) + 1e-3, y, w) == TableEvaluator(tables).moments(float(x) + 1e-3, y, w)
+
+
+def test_a_masked_pixel_at_the_sensor_limit_leaves_the_weights_every_frame_shares() -> None:
+    """A dead pixel reads the sensor's floor on every frame; masked, it carries no weight anyway.
+    Counted as a sample at the limit it had every frame built with weights of its own (the slow
+    route, no reloaded batch); a pixel in view at the limit still loses its weight on that frame."""
+    model, run = _fitted("bad_pixels")
+    model = model.with_changes(info={**model.info, "sensor_range_gray": [0.0, 255.0]})
+    tracker = Tracker(model, robust=True)
+    masked = tracker.pixel_weight == 0
+    frame = np.asarray(run.frames[:1], dtype=np.float64)
+    at_limit = (frame.reshape(-1) <= 0.0) | (frame.reshape(-1) >= 255.0)
+    assert at_limit[masked].any() and not at_limit[~masked].any()
+    weights, shared = tracker.weights(model.prepare(frame), 1)
+    assert shared and np.array_equal(weights[0] > 0, ~masked)
+    saturated = frame.copy()
+    pixel = int(np.flatnonzero(~masked)[0])
+    saturated.reshape(-1)[pixel] = 255.0
+    weights, shared = tracker.weights(model.prepare(saturated), 1)
+    assert not shared and weights[0, pixel] == 0 and (weights[0] > 0).sum() == (~masked).sum() - 1
+    live = LiveTracker(model, x0_mm=float(run.reference[0]))
+    assert live._lean_batch(run.frames[0], 1) is not None and live._lean_batch(saturated[0], 1) is None
