@@ -262,6 +262,18 @@ def run(folder: Path, rate: float, clients: int, seconds: float, poll_s: float =
             "host99": host["p99"], "host_max": host["max"], "steal": host["steal_pct"]}
 
 
+def host_summary(runs: list[dict[str, float]], quiet_steal_pct: float = 0.5) -> str:
+    """How the tail follows the host: the rank correlation of p99 with the time the host ran other
+    guests, over every run, and the runs in which it ran them for less than ``quiet_steal_pct``."""
+    p99, steal = np.array([r["p99"] for r in runs]), np.array([r["steal"] for r in runs])
+    ranks = [np.argsort(np.argsort(values)) for values in (p99, steal)]
+    rho = float(np.corrcoef(*ranks)[0, 1])
+    quiet = [r for r in runs if r["steal"] < quiet_steal_pct]
+    said = ", ".join(f"p99 {r['p99']:.2f} ms ({r['dropped']} dropped)" for r in quiet) or "none"
+    return (f"p99 against the host's steal over {len(runs)} runs: rank correlation {rho:+.2f}; "
+            f"runs with steal < {quiet_steal_pct:g} %: {said}")
+
+
 def load_average() -> str:
     return Path("/proc/loadavg").read_text().split()[0]
 
@@ -333,6 +345,9 @@ def main() -> None:
                       f"({p99.min():.2f}-{p99.max():.2f}), CPU {np.median([r['cpu'] for r in runs]):.0f} %, "
                       f"{sum(r['dropped'] == 0 for r in runs)} of {len(runs)} runs without a drop; the host's own "
                       f"wake-up p99 (bench/host_floor.py) {np.median([r['host99'] for r in runs]):.2f} ms")
+        every = [r for runs in results.values() for r in runs]
+        if len(every) > 2:
+            print(host_summary(every))
         print(f"load average {load_average()} at the end")
     finally:
         for burner in burners:
