@@ -13,6 +13,8 @@ Run: .venv/bin/python bench/stream_latency.py [--seconds 5] [--rates 200,500,100
      [--polls 0.005,0.02]   (grating poll periods compared side by side)
      [--deflate 0,1]        (the WebSocket's permessage-deflate off and on, side by side)
      [--priority 0,10]      (the daemon's realtime_priority, and the clients': normal or SCHED_FIFO 10, side by side)
+     [--client-offsets 0,1] (the clients' SCHED_FIFO level against the daemon's: the same, or one above, so
+                            that their wake-up preempts the virtual rig's renderer on their core; side by side)
      [--load 2]             (that many busy-looping processes run meanwhile: a machine with other work)
      [--scenario strip16 --rows 16]  (the virtual rig's scenario and the ROI's rows: a 16-row strip)
      [--renders fast,direct] (the virtual camera's one-frame renderer against the rig's direct render,
@@ -217,7 +219,7 @@ def wait_tracking(base: str, timeout_s: float = 300.0) -> dict:
 def run(folder: Path, rate: float, clients: int, seconds: float, poll_s: float = 0.005,
         deflate: bool = False, priority: int = 0, model: str = "auto", effects: str = "", scenario: str = "paper",
         rows: int = 1, render: str = "fast", rig_process: bool = True, client: str = "websockets",
-        pin: bool = False) -> dict[str, float]:
+        pin: bool = False, client_offset: int = 0) -> dict[str, float]:
     port = free_port()
     log = (folder / f"serve-{model}-{rate:g}-{clients}.log").open("w")
     daemon = subprocess.Popen([sys.executable, "-m", "graytrack", "serve", "--config",
@@ -231,7 +233,7 @@ def run(folder: Path, rate: float, clients: int, seconds: float, poll_s: float =
         # the clients get the daemon's priority: a motion controller that waits for a core measures its own delay
         def raise_client() -> None:
             if priority:
-                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority + client_offset))
             if pin:  # beside the daemon's core, as the rig's process (a client on another host, as it were)
                 os.sched_setaffinity(0, CORES[:-1])
         # the host's own floor in the same seconds, on the daemon's core, above every thread of the run
@@ -286,6 +288,8 @@ def main() -> None:
     parser.add_argument("--deflate", default="0", help="permessage-deflate off/on (0,1) to compare, side by side")
     parser.add_argument("--polls", default="0.005", help="grating poll periods (s) to compare, side by side")
     parser.add_argument("--priority", default="0", help="the daemon's realtime_priority values to compare, side by side")
+    parser.add_argument("--client-offsets", default="0", help="the clients' SCHED_FIFO level over the daemon's "
+                        "(with --priority above 0), side by side: 0,1")
     parser.add_argument("--load", type=int, default=0, help="busy-looping processes to run meanwhile")
     parser.add_argument("--models", default="auto", help="the sweep's model kinds to compare, side by side "
                         "(auto: the closed loop's model, what the daemon installs by default; paper)")
@@ -318,31 +322,32 @@ def main() -> None:
                 run(folder, rate, 1, 0.5, model=model, effects=args.effects, scenario=args.scenario, rows=args.rows)
         print(f"machine: {os.cpu_count()} cores, load average {load_average()} at start, "
               f"{args.load} busy-looping processes meanwhile; scenario {args.scenario}, {args.rows} row(s)")
-        print(f"{'pin':>3} {'client':>10} {'rig':>4} {'render':>6} {'model':>6} {'prio':>4} {'deflate':>7} {'poll ms':>7} {'frames/s':>8} {'clients':>7} {'msgs/s':>8} {'missing':>7} {'dropped':>7} "
+        print(f"{'pin':>3} {'client':>10} {'rig':>4} {'render':>6} {'model':>6} {'prio':>4} {'deflate':>7} {'poll ms':>7} {'frames/s':>8} {'clients':>7} {'cl+':>3} {'msgs/s':>8} {'missing':>7} {'dropped':>7} "
               f"{'p50 ms':>7} {'p99 ms':>7} {'max ms':>7} {'CPU %':>6} {'rig %':>6} {'cl CPU':>6} {'enc p50':>7} {'enc p99':>7} {'host99':>6} {'hostmax':>7} {'steal%':>6} {'stale':>9}")
-        configurations = [(rate, clients, n == "1", c, a == "1", e, m, float(p), d == "1", int(q))
+        configurations = [(rate, clients, n == "1", c, a == "1", e, m, float(p), d == "1", int(q), int(o))
                           for rate in (float(r) for r in args.rates.split(",")) for clients in
                           (int(c) for c in args.clients.split(",")) for n in args.pin.split(",")
                           for c in args.client.split(",") for a in args.rig_process.split(",")
                           for e in args.renders.split(",") for m in models for p in args.polls.split(",")
-                          for d in args.deflate.split(",") for q in args.priority.split(",")]
+                          for d in args.deflate.split(",") for q in args.priority.split(",")
+                          for o in args.client_offsets.split(",")]
         results: dict[tuple, list[dict[str, float]]] = {}
         for _ in range(args.repeat):  # the configurations interleaved, round after round
             for setup in configurations:
-                rate, clients, pin, client, apart, render, model, poll, deflate, prio = setup
+                rate, clients, pin, client, apart, render, model, poll, deflate, prio, offset = setup
                 r = run(folder, rate, clients, args.seconds, poll, deflate, prio, model, args.effects,
-                        args.scenario, args.rows, render, apart, client, pin)
+                        args.scenario, args.rows, render, apart, client, pin, offset)
                 results.setdefault(setup, []).append(r)
-                print(f"{'yes' if pin else 'no':>3} {client:>10} {'own' if apart else 'in':>4} {render:>6} {model:>6} {prio:4d} {'on' if deflate else 'off':>7} {poll * 1e3:7.1f} {r['rate']:8.0f} {r['clients']:7d} {r['msgs_s']:8.0f} {r['missing']:7d} {r['dropped']:7d} "
+                print(f"{'yes' if pin else 'no':>3} {client:>10} {'own' if apart else 'in':>4} {render:>6} {model:>6} {prio:4d} {'on' if deflate else 'off':>7} {poll * 1e3:7.1f} {r['rate']:8.0f} {r['clients']:7d} {offset:3d} {r['msgs_s']:8.0f} {r['missing']:7d} {r['dropped']:7d} "
                       f"{r['p50']:7.2f} {r['p99']:7.2f} {r['max']:7.2f} {r['cpu']:6.0f} {r['rig_cpu']:6.0f} {r['client_cpu']:6.0f} {r['enc50']:7.2f} {r['enc99']:7.2f} {r['host99']:6.2f} {r['host_max']:7.2f} {r['steal']:6.2f} {r['stale']:>9}",
                       flush=True)
         if args.repeat > 1:
             print(f"\nmedians over {args.repeat} rounds (p99: its median and range; runs with no camera frame dropped)")
-            for (rate, clients, pin, client, apart, *_), runs in results.items():
+            for (rate, clients, pin, client, apart, *_, prio, offset), runs in results.items():
                 p99 = np.array([r["p99"] for r in runs])
                 print(f"{'yes' if pin else 'no':>3} {client:>10} {'own' if apart else 'in':>4} {rate:8.0f} frames/s "
-                      f"{clients} clients: p50 {np.median([r['p50'] for r in runs]):.2f} ms, p99 {np.median(p99):.2f} ms "
-                      f"({p99.min():.2f}-{p99.max():.2f}), CPU {np.median([r['cpu'] for r in runs]):.0f} %, "
+                      f"prio {prio}, clients +{offset}: {clients} clients: p50 {np.median([r['p50'] for r in runs]):.2f} ms, p99 {np.median(p99):.2f} ms "
+                      f"({p99.min():.2f}-{p99.max():.2f}), enc p99 {np.median([r['enc99'] for r in runs]):.2f} ms, CPU {np.median([r['cpu'] for r in runs]):.0f} %, "
                       f"{sum(r['dropped'] == 0 for r in runs)} of {len(runs)} runs without a drop; the host's own "
                       f"wake-up p99 (bench/host_floor.py) {np.median([r['host99'] for r in runs]):.2f} ms")
         every = [r for runs in results.values() for r in runs]
