@@ -20,6 +20,7 @@ from __future__ import annotations
 import logging
 import math
 import queue
+import dataclasses
 import threading
 from dataclasses import dataclass
 from typing import Any, Callable
@@ -109,6 +110,7 @@ class Acquisition(Worker):
         # frame loop, taken at a frame
         self._pending: tuple[FourierModel, LiveTracker | None, str | None, str | None] | None = None
         self._calibration: str | None = None  # the calibration of the model tracking now (each message names it)
+        self._skew_s = 0.0  # its grating latch against the exposure (reference_skew_s): taken out of the pairing
         self._generation = 0  # of the last install asked for: an older build that finishes later is dropped
         self._subscribers: list[queue.Queue[Sample]] = []
         self._lock = threading.Lock()
@@ -257,6 +259,9 @@ class Acquisition(Worker):
         if tracker is None:
             self.latest = (sample, None)
             return
+        if self._skew_s:  # the grating at the exposure, as the model's calibration found it read (subscribers,
+            # the sweep's recorder among them, keep the raw pairing: the next calibration measures the skew again)
+            sample = dataclasses.replace(sample, reference_mm=self.readings.at(sample.t, self._skew_s))
         try:
             fix = tracker.update(np.asarray(sample.frame.pixels), sample.reference_mm)
         except Exception as exc:  # noqa: BLE001 - a frame or model the tracker cannot use: a fault, not a dead loop
@@ -299,6 +304,8 @@ class Acquisition(Worker):
         """Track with ``tracker`` from this frame on, started at the grating's reading when there is
         one (the stage may have moved while it was built)."""
         self._calibration = calibration
+        skew = float(model.info.get("reference_skew_s", 0.0) or 0.0)
+        self._skew_s = skew if math.isfinite(skew) else 0.0
         if tracker is None:
             self._tracker = None
             self.faults("tracking", f"cannot track with this model: {error}")

@@ -87,8 +87,11 @@ class Readings:
         """A move or stop was sent at host time ``t``: rest seen before it proves nothing after it."""
         self.command_t = t
 
-    def at(self, t: float) -> float:
-        """The grating position at host time ``t``, or NaN when it cannot be known (see module doc)."""
+    def at(self, t: float, skew_s: float = 0.0) -> float:
+        """The grating position at host time ``t``, or NaN when it cannot be known (see module doc).
+        ``skew_s``: the readout's latch against the exposure, as the closed loop measured it
+        (``reference_skew_s`` of the model: a reading stamped t describes the stage at t + skew),
+        taken back out while moving: the reading minus skew · v, as `graytrack track` compares."""
         with self._lock:
             n = len(self._t)
             if n == 0:
@@ -100,10 +103,10 @@ class Readings:
             if i < 0:
                 return NAN
             if i < n - 1:
-                return self._bracketed(i, t)
+                return self._bracketed(i, t, skew_s)
             return self._at_rest(t)
 
-    def _bracketed(self, i: int, t: float) -> float:
+    def _bracketed(self, i: int, t: float, skew_s: float = 0.0) -> float:
         ts, xs = self._t, self._x
         ta, tb, xa, xb = ts[i], ts[i + 1], xs[i], xs[i + 1]
         span = tb - ta
@@ -119,7 +122,8 @@ class Readings:
             return NAN  # accelerating (or nothing to tell): the straight line may be wrong
         if abs(v) * 0.5 * max(self._latency[i], self._latency[i + 1]) > self.tolerance_mm:
             return NAN  # moving, and the readings' instants are too loosely known
-        return xa + (xb - xa) * (t - ta) / span
+        value = xa + (xb - xa) * (t - ta) / span
+        return value - skew_s * v if skew_s else value
 
     def _at_rest(self, t: float) -> float:
         ts, xs = self._t, self._x

@@ -181,3 +181,30 @@ def test_a_build_overtaken_by_a_later_install_is_dropped(loop: Loop, monkeypatch
     assert acquisition.tracker.model is second
     loop.deliver(2, pixels=second.predict(np.array([1.0]))[0].reshape(1, -1))
     assert acquisition.tracker.model is second  # the older build, finished last, never replaces it
+
+
+def test_a_models_grating_skew_is_taken_out_of_the_pairing_while_moving_and_left_in_for_recorders(
+        loop: Loop) -> None:
+    """A model whose calibration found the grating latched off mid-exposure (``reference_skew_s``,
+    the closed loop's reference_timing) is compared with the grating at the exposure, as `graytrack
+    track` compares it; the samples handed to subscribers (the sweep's recorder) keep the raw pairing,
+    so that the next calibration measures the skew again instead of finding none."""
+    skew_s, speed_mm_s = 0.002, 10.0
+    model = _sine_model(128.0)
+    model = model.with_changes(info={**model.info, "reference_skew_s": skew_s})
+    acquisition = loop.acquisition
+    recorder = acquisition.subscribe()
+    acquisition.install_model(model, 2.0, calibration="20261126T000001000001Z")
+    _wait_for(lambda: acquisition._pending is not None, "the model's build")
+    for k in range(12):  # the stage at 10 mm/s, each reading stamped t describing it at t + skew
+        t = 0.005 * k
+        acquisition.readings.append(t, 2.0 + speed_mm_s * (t + skew_s), latency_s=1e-5)
+    exposed = [0.0126, 0.0313, 0.0472]
+    for frame_id, t in enumerate(exposed, start=1):
+        loop.deliver(frame_id, t=t, pixels=model.predict(np.array([2.0 + speed_mm_s * t]))[0].reshape(1, -1))
+    assert len(loop.published) == len(exposed)
+    for message, t in zip(loop.published, exposed):
+        assert message["reference_mm"] == pytest.approx(2.0 + speed_mm_s * t, abs=1e-9)
+        assert abs(message["error_um"]) < 1e-3  # 20 µm (v · skew) with the raw pairing
+    raw = [recorder.get_nowait().reference_mm for _ in exposed]
+    assert raw == pytest.approx([2.0 + speed_mm_s * (t + skew_s) for t in exposed], abs=1e-9)
