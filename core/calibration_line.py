@@ -14,6 +14,7 @@ from graytrack.core.adequacy import error_profile
 from graytrack.core.chi2_curve import measured as measured_chi2_curve
 from graytrack.core.noise import reference_resolution_mm
 from graytrack.core.reference_monitor import MIN_FRAMES, Line, ReferenceMonitor, structure_um
+from graytrack.core.timing import model_reference
 from graytrack.core.tracking import track
 
 
@@ -22,10 +23,11 @@ def record_calibration_line(model, recording) -> Line | None:
     the line camera − grating in ``model.info["reference_line"]``: the agreement drift is measured
     from; and how far off the line its frames are, stretch by stretch along the stroke, against their
     bound (``calibration_error_profile``: where the model cannot measure at its bound). None (and nothing kept) when the recording has no grating reading or too few frames."""
-    reference = np.asarray(recording.reference, dtype=np.float64)
+    # the grating at the exposure: a latch the calibration found is no error of the model's
+    reference = model_reference(model, recording.t, recording.reference)
     if np.isfinite(reference).sum() < MIN_FRAMES:
         return None
-    result = track(model, recording, light="auto", robust=True)
+    result = track(model, recording, reference=reference, light="auto", robust=True)
     # the χ² level along the stroke, as tracking will see it: what a run's χ² is held against (core/chi2_curve.py)
     curve = measured_chi2_curve(result.x_mm[result.locked], result.chi2[result.locked]) \
         if result.chi2 is not None else None

@@ -36,3 +36,14 @@ def at_exposure(t_s: np.ndarray, reference_mm: np.ndarray, skew_s: float) -> np.
     if skew_s == 0.0:
         return reference_mm
     return reference_mm - skew_s * velocity_mm_s(t_s, reference_mm)
+
+
+def model_reference(model, t_s: np.ndarray, reference_mm: np.ndarray) -> np.ndarray:
+    """The grating at the exposure, as the ``model``'s calibration found it latched
+    (``info["reference_skew_s"]``, the closed loop's ``reference_timing``).
+
+    Everything that holds a model's positions against the grating must take this skew out, or it
+    reads the latch as the model's error: at 66 mm/s a 0.3 ms latch is 20 µm, and a model that
+    measures at its bound would be judged 36× off on its own calibration frames."""
+    skew_s = float((getattr(model, "info", None) or {}).get("reference_skew_s", 0.0) or 0.0)
+    return at_exposure(t_s, np.asarray(reference_mm, dtype=np.float64), skew_s)

@@ -265,16 +265,19 @@ def diagnose(calibration: Recording, validation: Recording | None = None, progre
         steps.append(accepted)
         current = accepted.stage
     final_model = current.model
+    # the data as the final structure reads it (the grating at the exposure, unusable samples out):
+    # what the model is judged on, as it was fitted to it
+    corrected = effects.prepare_data(current.spec, data)
     if validation is None:
         say(0.92, "refitting the final structure on all calibration frames")
         m = current.model
-        final_model = fit_spec(current.spec, effects.prepare_data(current.spec, data), m.period_mm,
-                               m.pixel_pitch_mm, m.row_shift_mm, refine_geometry=False).model
-    assessed(final_model, data)
+        final_model = fit_spec(current.spec, corrected, m.period_mm, m.pixel_pitch_mm, m.row_shift_mm,
+                               refine_geometry=False).model
+    assessed(final_model, corrected)
     record_calibration_line(final_model, calibration)  # camera against grating: drift is measured from it
     remaining = _candidates(current)
     if steps:  # the final model's own residual and geometry (the seed model's doubts may be gone)
-        verdict = check_geometry(effects.prepare_data(current.spec, data), final_model)
+        verdict = check_geometry(corrected, final_model)
     say(1.0, f"{len(steps)} effect(s) added")
     return DiagnosisResult(before, current, steps, rejected, final_model, val.sigma_gray, holdout,
                            readout_step_mm(calibration if validation is None else validation), remaining,

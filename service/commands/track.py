@@ -136,14 +136,14 @@ def solve(recording: Recording, model: FourierModel, no_reference: bool = False,
                             f"{mismatch:.0f}x better reversed; track with --flip, or without it when the frames were "
                             f"reversed already (model calibrated with --flip: {bool(model.info.get('flip'))})")
 
-    from graytrack.core.timing import at_exposure
+    from graytrack.core.timing import model_reference
     from graytrack.core.tracking import track
     from graytrack.service.batch.chunks import track_in_chunks
 
     grating = recording.reference
     skew_s = float(model.info.get("reference_skew_s", 0.0))
     if skew_s:  # the closed loop found the grating latched off mid-exposure: compare at the exposure
-        grating = at_exposure(recording.t, grating, skew_s)
+        grating = model_reference(model, recording.t, grating)
         print(f"grating reference moved to mid-exposure ({skew_s * 1e3:+.3f} ms, from the model)")
     reference = np.full(recording.n_frames, np.nan) if no_reference else grating
     if chunks is not None:
