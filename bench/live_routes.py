@@ -64,7 +64,7 @@ def main() -> None:
     cases = [(f"strip16 {STRIP_EFFECTS}: closed loop ({added})", loop.final_model, run),
              (f"strip16 {STRIP_EFFECTS}: seed paper's model", calibrate(calibration, "paper").model, run)]
     for name in FAMILIES:
-        model, _, _ = model_with(name)
+        model, _, _ = model_with(name, pitch_search=True)
         cause = EVERY_FORM[name]
         family_run, _ = build_rig(cause.scenario, cause.effects, seed=5, run=1).record(4.0)
         cases.append((f"effect {name} ({cause.effects})", model, family_run))

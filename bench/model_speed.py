@@ -128,7 +128,7 @@ def per_effect(selection: str = "") -> None:
     for name, cause in EVERY_FORM.items():
         if selection not in name:
             continue
-        model, _, calibration = model_with(name, seconds=8.0 if cause.scenario == "paper" else 4.0)
+        model, _, calibration = model_with(name, seconds=8.0 if cause.scenario == "paper" else 4.0, pitch_search=True)
         # a run long enough that a frame's cost stands out of the run's set-up (the set-up is left out)
         run, _ = build_rig(cause.scenario, cause.effects, seed=5, run=2).record(RUN_SECONDS[cause.scenario])
         models = {"plain": calibrate(calibration, "paper").model, "effect": model}

@@ -110,3 +110,30 @@ def test_dust_across_a_strip_is_no_pixel_defect():
         grown = EFFECT.grow(seed.spec, evidence.argument)
         trial = _stage(grown, train, val, initial_geometry(train))
         assert trial.model.info["calibration_chi2"] > 0
+
+
+@pytest.mark.parametrize("scenario", ["paper", "strip16"])
+def test_a_roi_partly_off_the_print_is_masked_by_the_loop_as_by_calibrate(scenario):
+    """The last 30 % of the line's columns look past the print's edge at a plain surface: stuck, each
+    on its own time series. `calibrate` masked them (its screen has no share limit) and placed the
+    run at its bound; the loop's probe refused a mask of more than a fifth of the line, grew three
+    pixel polynomials and a flat field around the step instead, and its model (20× its bound on its
+    own frames, every frame flagged) placed the strip's run 9.5× its bound with 153 frames lost.
+    Findings of the pixels' own time series are masked however many, while the model keeps the
+    share of the line a model needs (core/geometry_check.py)."""
+    spec = "off_target:share=0.3"
+    recording, _ = build_rig(scenario, spec, seed=3).record(12.0)
+    result = diagnose(recording)
+    report = result.report()
+    assert report["steps"][0]["effect"] == "bad_pixels"
+    masked_columns = {p["pixel"] for p in report["findings"]["bad_pixels"]}
+    assert masked_columns == set(range(70, 100))
+    assert report["after"]["lost_frames"] == 0
+    assert report["after"]["error_std_um"] <= 1.3 * report["noise"]["crlb_um"]
+    assert result.final_model.info["calibration_error_ratio"] < 1.5
+    run, _ = build_rig(scenario, spec, seed=3, run=1).record(4.0)
+    loop_run = track(result.final_model, run, light="auto", robust=True)
+    plain_run = track(calibrate(recording, "paper").model, run, light="auto", robust=True)
+    loop_error, plain_error = (np.nanstd(tracked.error_um(run.reference)) for tracked in (loop_run, plain_run))
+    assert np.isfinite(loop_run.x_mm).all() and not loop_run.stale.any()
+    assert loop_error <= 1.1 * plain_error
