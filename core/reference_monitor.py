@@ -299,6 +299,12 @@ class ReferenceMonitor:
             self.estimate = None
         self._rows = list(map(tuple, rows.tolist()))
 
+    @property
+    def scatter(self) -> float:
+        """The window's χ² per degree of freedom about its line (at least 1): how much wider than their
+        bounds camera − grating scatters (a vibration the two see differently, a noisy grating)."""
+        return self._scatter
+
     def _is_outlier(self, d: float, r: float, var: float) -> bool:
         """A frame far off the window's line (a glint, a lost period): left out, unless a run of them
         says the line itself jumped (a camera knocked, a stage re-homed): then the window restarts."""

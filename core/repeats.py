@@ -49,7 +49,17 @@ def repeated(frames: np.ndarray, sigma_gray: float, before: np.ndarray | None = 
     if before is not None and np.shape(before) == frames.shape[1:]:
         same[0] = bool(np.array_equal(frames[0], before))
     if same.any():  # the chance only matters for the rare identical pair (cheap for live frames)
-        n_samples = int(np.prod(frames.shape[1:]))
-        if chance_log10(n_samples, sigma_gray, number_step(frames)) > CHANCE_LIMIT_LOG10:
-            same[:] = False
+        step = number_step(frames)
+        for k in np.flatnonzero(same).tolist():
+            if chance_log10(noisy_samples(frames[k]), sigma_gray, step) > CHANCE_LIMIT_LOG10:
+                same[k] = False
     return same
+
+
+def noisy_samples(image: np.ndarray) -> int:
+    """Samples of ``image`` whose noise can show: those strictly between its lowest and highest
+    value. A sample at either may be clipped (the digitiser's floor with the light off, full scale
+    on a flash) and reads the same however noisy the sensor: two black frames in a row are no
+    frame delivered twice, and were called one (with the driver blamed) for a light gone out."""
+    low, high = image.min(), image.max()
+    return int(np.count_nonzero((image > low) & (image < high)))

@@ -53,9 +53,9 @@ class Worker:
                 self._run()
                 return
             except Exception as exc:  # noqa: BLE001 - any failure: report, log, restart
-                self.crashes += 1
                 log.exception("%s crashed; restarting", self.name)
                 self.on_crash(f"{self.name} crashed: {describe(exc)}")
+                self.crashes += 1  # counted once reported: whoever sees the count finds the fault
                 if self._stop.wait(RESTART_PAUSE_S):
                     return
                 try:

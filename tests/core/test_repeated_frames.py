@@ -68,3 +68,23 @@ def test_live_tracking_gives_a_repeated_image_no_position(paper_models, paper_va
     assert [np.isfinite(f.x_mm) for f in fixes] == [True, True, False, True]
     assert "repeats frame 1" in fixes[2].event.reason and fixes[3].event is None
     assert abs(fixes[3].x_mm - paper_val.reference[2]) < 0.01
+
+
+def test_black_or_saturated_frames_in_a_row_are_no_driver_repeat(paper_models, paper_val):
+    """Light gone out for 20 frames (every sample at the digitiser's floor), then a flash (every
+    sample at full scale): identical images that no noise could have told apart. They are frames
+    without a position for want of light, not frames the driver delivered twice; an image clipped
+    only in part and delivered twice is still a repeat."""
+    frames = paper_val.frames.copy()
+    frames[100:120] = 0.0
+    frames[150:155] = 255.0
+    flags = repeated(frames, 0.7)
+    assert not flags[100:120].any() and not flags[150:155].any()
+    clipped = paper_val.frames[200].copy()
+    clipped[:40] = 255.0
+    assert repeated(np.stack([clipped, clipped]), 0.7).tolist() == [False, True]
+    result = track(paper_models["paper"].model, frames, reference=paper_val.reference, light="auto", robust=True)
+    assert not result.repeated[100:155].any()
+    assert not result.locked[100:120].any() and not result.locked[150:155].any()
+    assert np.isnan(result.x_mm[100:120]).all()
+    assert result.locked[130:145].all() and result.locked[160:].all()  # and found again after each

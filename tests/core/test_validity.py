@@ -259,3 +259,40 @@ def test_a_wrong_model_at_rest_is_flagged_by_the_grating_while_its_chi2_is_only_
     if x is not None:
         assert np.nanmean(np.abs(x - run.reference)) > 0.1  # the positions are indeed far off
     assert stale[25:].mean() > 0.95, stale.mean()
+
+
+@pytest.mark.parametrize("live", [True, False])
+def test_a_grating_reading_gone_wrong_flags_its_own_frame_and_no_other(model, live):
+    """One grating reading 0.5 mm off (a missed count, a garbled reply): that frame's camera and
+    grating disagree and it is flagged; the frames after it agree again and are not. The windowed
+    spread and the running mean had taken the reading in and flagged the next 200 frames. A run
+    of such frames is a jump, not a glitch, and stays flagged (tests/core/test_watch_kernels.py)."""
+    from graytrack.core.tracking import LiveTracker
+
+    run, _ = build_rig("paper", "", seed=3, run=1).record(8.0)
+    reference = run.reference.copy()
+    glitches = [150, 300]
+    reference[glitches] += 0.5
+    if live:
+        tracker = LiveTracker(model, x0_mm=float(reference[0]))
+        stale = np.array([tracker.update(frame, grating).stale for frame, grating in zip(run.frames, reference)])
+    else:
+        stale = track(model, run.frames, reference=reference, light="auto", robust=True).stale
+    assert stale[glitches].all()
+    assert np.flatnonzero(stale).tolist() == glitches
+
+
+@pytest.mark.parametrize("live", [True, False])
+def test_the_camera_jumping_off_the_grating_for_good_stays_flagged(model, live):
+    """The counterpart: from frame 200 on the grating reads 0.5 mm further (a stage re-homed, a
+    camera knocked): no single reading gone wrong, and every frame from there on is flagged."""
+    from graytrack.core.tracking import LiveTracker
+
+    run, _ = build_rig("paper", "", seed=3, run=1).record(8.0)
+    reference = run.reference + np.where(np.arange(run.n_frames) >= 200, 0.5, 0.0)
+    if live:
+        tracker = LiveTracker(model, x0_mm=float(reference[0]))
+        stale = np.array([tracker.update(frame, grating).stale for frame, grating in zip(run.frames, reference)])
+    else:
+        stale = track(model, run.frames, reference=reference, light="auto", robust=True).stale
+    assert not stale[:200].any() and stale[200:].all()

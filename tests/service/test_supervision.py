@@ -45,6 +45,7 @@ def test_a_crashing_frame_loop_is_reported_and_restarted(tmp_path, monkeypatch: 
         reasons = []
         daemon.rig.faults.listeners.append(lambda source, reason, previous, seconds: reasons.append((source, reason)))
         wait_for(lambda: daemon.rig.acquisition.crashes == 1, what="the crash")
+        # reported before it is counted (a busy machine had the count seen before the report)
         assert ("acquisition", "acquisition crashed: RuntimeError: injected") in reasons
         daemon.wait_state("tracking")
         metrics = daemon.get("/metrics").text
