@@ -492,6 +492,13 @@ def _jitter(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) 
     config.timing.trigger_jitter_s = _positive("jitter", "us", v["us"], True) * 1e-6
 
 
+@effect("rolling_shutter", "timing", "A rolling shutter: each row is exposed `line_us` after the row above (the "
+        "rows centred on the frame's mid-exposure), so in motion row r sees the print v·line_us·r further on.",
+        line_us=(20.0, "time between successive rows' exposures, µs"))
+def _rolling_shutter(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    config.timing.line_time_s = _positive("rolling_shutter", "line_us", v["line_us"], True) * 1e-6
+
+
 @effect("timestamp_jitter", "timing", "Recorded frame times noisy about the true exposure (image and reference agree).",
         us=(200.0, "timestamp noise standard deviation, µs"))
 def _timestamp_jitter(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:

@@ -69,6 +69,8 @@ def tabulable(rig: VirtualRig) -> str | None:
         return "a drifting focus"
     if rig._glints is not None:
         return "glints"
+    if cfg.timing.line_time_s and rig.n_rows > 1:
+        return "a rolling shutter (every row exposed at its own time)"
     return None
 
 

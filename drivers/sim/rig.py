@@ -240,23 +240,36 @@ class VirtualRig:
         if x.ndim != 2 or t.shape[0] != x.shape[0]:
             raise ValueError(f"x_mm_samples must be (K,) or (K, S) and t_s (K,), got {x.shape} and {t.shape}")
         R, n = self.n_rows, self.n_pixels
+        exposure = self.exposure_s if exposure_s is None else float(exposure_s)
         out = np.empty((x.shape[0], R, n))
         step = max(1, CHUNK_ELEMENTS // (R * n))
         for k0 in range(0, x.shape[0], step):
             k1 = min(k0 + step, x.shape[0])
-            xs = x[k0:k1]
             focus = focus_attenuation(self.config.optics, self._orders[1:], self.config.target.true_period_mm, t[k0:k1])
-            light = self._light_slow(xs, t[k0:k1], focus) if self._slow else self._light_fast(xs, focus)
-            out[k0:k1] = light.reshape(k1 - k0, R, n)
+            for rows, xs in self._row_exposures(x[k0:k1], exposure):
+                light = self._light_slow(xs, t[k0:k1], focus) if self._slow else self._light_fast(xs, focus)
+                out[k0:k1, rows] = light.reshape(k1 - k0, R, n)[:, rows]
         if self.config.illumination.glare_gray:
             out += self._glare  # the lamp's stray light: it dims and flickers with the lamp
         if self._glints is not None:  # the lamp mirrored by the print: it dims and flickers with it too
             self._glints.add_light(out, t, x.mean(axis=1), self.geometry.x_mm, self.pixel_pitch_mm)
-        exposure = self.exposure_s if exposure_s is None else float(exposure_s)
         gain, ambient = illum.level_change(self.config.illumination, t)
         out *= (illum.flicker_gain(self.config.illumination, t, exposure) * gain)[:, None, None]
         out += ambient[:, None, None]
         return out
+
+    def _row_exposures(self, xs: np.ndarray, exposure_s: float):
+        """(rows, positions ``(K, S)`` during their exposure) for each group of rows exposed together:
+        all rows at once, or under a rolling shutter each row ``line_time_s`` after the one above
+        (centred on the frame's mid-exposure), its positions those of the frame's motion moved on by
+        the frame's velocity × its delay (the samples span the exposure: exact at constant velocity)."""
+        line = self.config.timing.line_time_s
+        if not line or self.n_rows == 1 or xs.shape[1] < 2 or not exposure_s > 0:
+            yield slice(None), xs
+            return
+        velocity = (xs[:, -1] - xs[:, 0]) / exposure_s
+        for r in range(self.n_rows):
+            yield slice(r, r + 1), xs + (velocity * (r - 0.5 * (self.n_rows - 1)) * line)[:, None]
 
     def _basis(self, theta: np.ndarray) -> np.ndarray:
         """Real basis ``[1, cos iθ, sin iθ]`` ``(K, 2M+1)`` for fundamental phases θ ``(K,)``."""

@@ -29,6 +29,7 @@ class TimingConfig:
     drop_probability: float = 0.0  # chance that a frame never arrives
     duplicate_probability: float = 0.0  # chance that the driver delivers the previous image again
     clock_ppm: float = 0.0  # the camera's clock runs fast by this against the reference's
+    line_time_s: float = 0.0  # a rolling shutter: each row exposed this much after the one above
 
 
 @dataclass

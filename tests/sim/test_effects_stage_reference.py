@@ -157,3 +157,19 @@ def test_position_kernel_matches_the_numpy_path():
     p1, _, e1, _ = stage._evaluate(1.25)
     assert np.ndim(stage.position(1.25)) == 0
     assert abs(stage.position(1.25) - (p1 + e1)) <= 1e-12
+
+
+def test_rolling_shutter_exposes_each_row_later_and_so_further_along_in_motion():
+    """Row r of a moving frame sees the print where the stage is (r − 7.5)·line later than mid-frame
+    (16 rows): each row equals a global-shutter row at its own delayed positions; at rest nothing changes."""
+    rolling, global_shutter = build_rig("highspeed", "rolling_shutter:line_us=50"), build_rig("highspeed")
+    exposure = rolling.exposure_s
+    moving = np.array([[5.0, 5.001, 5.002]])  # 10 mm/s over the 0.2 ms exposure
+    velocity = 0.002 / exposure
+    light = rolling.render_light(moving, np.array([0.1]))
+    for r in range(rolling.n_rows):
+        delayed = moving + velocity * (r - 7.5) * 50e-6
+        assert np.allclose(light[0, r], global_shutter.render_light(delayed, np.array([0.1]))[0, r], rtol=0, atol=1e-9)
+    assert not np.allclose(light, global_shutter.render_light(moving, np.array([0.1])), rtol=0, atol=1e-3)
+    still = np.array([[5.0]])
+    assert np.array_equal(rolling.render_light(still, np.array([0.1])), global_shutter.render_light(still, np.array([0.1])))
