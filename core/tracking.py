@@ -286,6 +286,30 @@ class Tracker:
                 weights, shared = weights * inside, False
         return weights, shared
 
+    def prepare(self, frames: np.ndarray) -> np.ndarray:
+        """Raw frames ``(K, n)`` or ``(K, R, n)`` in the model's row layout (``model.prepare``). When
+        tracking robustly, a row mean over a sample at the sensor's floor or ceiling is that limit
+        itself, and so set aside with the samples stuck there: a mean over a clipped sample is biased
+        by the clip, and calibration used no such column (the row mean is usable only where every
+        row is). A 16-row strip saturating on some rows had the shared model 2-5x off its bound."""
+        prepared = self.model.prepare(frames)
+        if self.sensor_range is None or self.model.n_rows != 1 or np.ndim(frames) != 3 or np.shape(frames)[1] == 1:
+            return prepared
+        lo, hi = self.sensor_range
+        high = (frames >= hi).any(axis=1, keepdims=True)
+        low = (frames <= lo).any(axis=1, keepdims=True)
+        if high.any() or low.any():
+            prepared = np.where(high, hi, np.where(low, lo, prepared))
+        return prepared
+
+    def clipped_rows(self, frame: np.ndarray) -> bool:
+        """Whether a strip frame ``(R, n)`` that a one-row model averages has a sample at the sensor's
+        limits (:meth:`prepare` then sets its column aside)."""
+        if self.sensor_range is None or self.model.n_rows != 1 or frame.ndim != 2 or frame.shape[0] == 1:
+            return False
+        lo, hi = self.sensor_range
+        return bool(frame.max() >= hi or frame.min() <= lo)
+
     def inside_range(self, flat: np.ndarray) -> np.ndarray:
         """Samples ``(K, P)`` inside the sensor's range, or masked (they read 0 and carry no weight
         anyway: a masked dead pixel must not cost every frame the weights all frames share)."""
@@ -738,7 +762,7 @@ def track(model: FourierModel, source: Recording | np.ndarray, reference: np.nda
             if k:
                 _judge(state, repeated, stale, stale_reason, k - BATCH_CHUNK, k)
             chunk = frames[k:k + BATCH_CHUNK]
-            batch = tracker.batch(model.prepare(chunk), frame_rows, raw=chunk if frames.ndim == 3 else None)
+            batch = tracker.batch(tracker.prepare(chunk), frame_rows, raw=chunk if frames.ndim == 3 else None)
         if not repeated[k]:
             solution, ok, locked[k] = state.advance(tracker, batch, k % BATCH_CHUNK, reference[k])
             out["chi2"][k], rejected[k] = solution.chi2, solution.rejected
@@ -846,7 +870,7 @@ class LiveTracker:
         self.state.rows_averaged = self.model.rows_averaged(rows)
         batch = self._lean_batch(frame, rows)
         if batch is None:
-            batch = self.tracker.batch(self.model.prepare(frame.reshape((1,) + frame.shape)), rows,
+            batch = self.tracker.batch(self.tracker.prepare(frame.reshape((1,) + frame.shape)), rows,
                                        raw=frame[None] if frame.ndim == 2 else None)
         elif rows > 1 and self.model.n_rows == 1:
             batch.raw = frame[None]  # a transient on a few rows of the mean is set aside on those rows only
@@ -865,6 +889,8 @@ class LiveTracker:
         model = self.model
         if not self._lean or frame.shape[-1] != model.n_pixels or frame.ndim not in (1, 2):
             return None
+        if self.tracker.clipped_rows(frame):
+            return None  # a row at the sensor's limits: the general route sets its column aside
         line = self._line
         if model.n_rows > 1:
             if frame.ndim != 2 or frame.shape[0] != model.n_rows:
