@@ -213,36 +213,34 @@ def _reference_run(ip, p, ist, fst, est, rows, x, ref, bound, feed, stale, start
 
 # ---------------------------------------------------------------- the small watches
 
-def _grating_run(state, has, placed, reference, x, information, scale2, window_max, settle, limit2, gate2, jump,
-                 out):
-    """GratingWatch.step over frames: state (mean, square, bound², count, outliers in a row), has
-    (mean, square, bound²)."""
-    mean, square, bound2, count, outliers = state[0], state[1], state[2], int(state[3]), int(state[4])
+def _grating_run(state, has, placed, reference, x, information, scale2, window_max, settle, limit2, gate2, out):
+    """GratingWatch.step over frames: state (mean, square, bound², count), has (mean, square, bound²)."""
+    mean, square, bound2, count = state[0], state[1], state[2], int(state[3])
     for i in range(x.size):
         if placed[i] and math.isfinite(reference[i]) and math.isfinite(x[i]) and information[i] > 0:
             difference = x[i] - reference[i]
-            if count >= settle and has[2] and bound2 != 0.0:  # GratingWatch._outlier
+            beyond = False
+            if count >= settle and has[2] and bound2 != 0.0:  # GratingWatch._gated
                 deviation = difference - mean
-                if deviation * deviation <= gate2 * (_max(_max(square - mean * mean, 0.0), bound2)
-                                                     + scale2 / information[i]):
-                    outliers = 0
-                else:
-                    outliers += 1
-                    if outliers < jump:
-                        out[i] = True
-                        continue
+                gate = gate2 * (_max(_max(square - mean * mean, 0.0), bound2) + scale2 / information[i])
+                if not deviation * deviation <= gate:
+                    difference = mean + (math.sqrt(gate) if deviation > 0 else -math.sqrt(gate))
+                    beyond = True
             count += 1
             window = count if count < window_max else window_max
             mean = _running(mean, has[0], difference, window)
             square = _running(square, has[1], difference * difference, window)
             bound2 = _running(bound2, has[2], scale2 / information[i], window)
             has[0] = has[1] = has[2] = True
+            if beyond:
+                out[i] = True
+                continue
         if count < settle or not has[2] or bound2 == 0.0:
             out[i] = False
             continue
         spread2 = _max(square - mean * mean, 0.0)
         out[i] = not spread2 <= limit2 * bound2
-    state[0], state[1], state[2], state[3], state[4] = mean, square, bound2, count, outliers
+    state[0], state[1], state[2], state[3] = mean, square, bound2, count
 
 
 def _light_run(state, placed, free_light, gain, window, lo, hi, out):

@@ -13,16 +13,17 @@ from __future__ import annotations
 import math
 
 from graytrack.core.compression import stream_bound_factor
-from graytrack.core.reference_monitor import GATE, JUMP_FRAMES
+from graytrack.core.reference_monitor import GATE
 from graytrack.core.validity import FrameSign, running
 
 WINDOW = 200  # frames: the spread's relative noise is √(2/200) = 10 %, its ratio's 5 %
 LIMIT = 2.2  # spread over bound beyond which the run is off (the 2× of the acceptance, plus that noise)
 SETTLE = 30  # frames with a grating reading before the spread is trusted (at 1.3x a run is then still far below LIMIT)
 # A difference beyond GATE of its σ (the window's spread, at least the frames' bound, and the frame's own)
-# is one reading gone wrong, the grating's or the camera's: that frame is flagged, and kept out of the
-# window, unless JUMP_FRAMES of them in a row say the difference itself moved. A single grating reading
-# 0.5 mm off had lifted the spread for 156 frames and flagged every one of them.
+# flags its own frame and enters the window clipped to the gate: one reading gone wrong (the grating's
+# or the camera's) then lifts the spread by a few per cent, where a single grating reading 0.5 mm off
+# had lifted it for 156 frames and flagged every one; a difference that stays beyond moves the window
+# a gate's worth a frame, each of those frames flagged on its own.
 GATE2 = GATE * GATE
 
 
@@ -36,16 +37,13 @@ class GratingWatch:
         self.square: float | None = None
         self.bound2: float | None = None  # the frames' Cramér–Rao variance, mm²
         self.count = 0
-        self.outliers = 0  # frames in a row beyond the gate
 
     def observe(self, sign: FrameSign) -> str | None:
         return self.step(sign.placed, sign.reference_mm, sign.x_mm, sign.information)
 
     def step(self, placed: bool, reference_mm: float, x_mm: float, information: float) -> str | None:
         if placed and math.isfinite(reference_mm) and math.isfinite(x_mm) and information > 0:
-            difference = x_mm - reference_mm
-            if self._outlier(difference, self.bound_scale2 / information):
-                return self.family
+            difference, beyond = self._gated(x_mm - reference_mm, self.bound_scale2 / information)
             self.count += 1
             # a plain mean until the window is full, then the running one: the first readings do not
             # outweigh the next hundred
@@ -53,6 +51,8 @@ class GratingWatch:
             self.mean = running(self.mean, difference, window)
             self.square = running(self.square, difference * difference, window)
             self.bound2 = running(self.bound2, self.bound_scale2 / information, window)
+            if beyond:
+                return self.family
         if self.count < SETTLE or not self.bound2:
             return None
         spread2 = max(self.square - self.mean * self.mean, 0.0)
@@ -60,17 +60,16 @@ class GratingWatch:
             return None
         return self.family
 
-    def _outlier(self, difference: float, frame_bound2: float) -> bool:
-        """Whether this difference is one far off the window's (kept out of it), counting those in a row."""
+    def _gated(self, difference: float, frame_bound2: float) -> tuple[float, bool]:
+        """(the difference as the window takes it, whether it was beyond the gate)."""
         if self.count < SETTLE or not self.bound2:
-            return False
+            return difference, False
         spread2 = max(self.square - self.mean * self.mean, 0.0)
         deviation = difference - self.mean
-        if deviation * deviation <= GATE2 * (max(spread2, self.bound2) + frame_bound2):
-            self.outliers = 0
-            return False
-        self.outliers += 1
-        return self.outliers < JUMP_FRAMES
+        gate2 = GATE2 * (max(spread2, self.bound2) + frame_bound2)
+        if deviation * deviation <= gate2:
+            return difference, False
+        return self.mean + (math.sqrt(gate2) if deviation > 0 else -math.sqrt(gate2)), True
 
     def step_many(self, columns, n: int) -> list[str | None] | None:
         """:meth:`step` of ``n`` frames at once (compiled: core/watches/_kernels.py)."""
@@ -80,16 +79,15 @@ class GratingWatch:
 
         if not _kernels.COMPILED:
             return None
-        state = np.array([self.mean or 0.0, self.square or 0.0, self.bound2 or 0.0, self.count, self.outliers],
-                         dtype=np.float64)
+        state = np.array([self.mean or 0.0, self.square or 0.0, self.bound2 or 0.0, self.count], dtype=np.float64)
         has = np.array([self.mean is not None, self.square is not None, self.bound2 is not None])
         out = np.zeros(n, dtype=bool)
         _kernels._grating_run(state, has, columns.array("placed", bool), columns.array("reference_mm", np.float64),
                               columns.array("x_mm", np.float64), columns.array("information", np.float64),
-                              self.bound_scale2, WINDOW, SETTLE, LIMIT * LIMIT, GATE2, JUMP_FRAMES, out)
+                              self.bound_scale2, WINDOW, SETTLE, LIMIT * LIMIT, GATE2, out)
         values = state.tolist()
         self.mean, self.square, self.bound2 = (value if known else None for value, known in zip(values, has.tolist()))
-        self.count, self.outliers = int(values[3]), int(values[4])
+        self.count = int(values[3])
         if not out.any():
             return [None] * n
         return np.where(out, self.family, None).tolist()

@@ -24,7 +24,7 @@ import math
 import numpy as np
 
 from graytrack.core.compression import stream_bound_factor
-from graytrack.core.reference_monitor import GATE, JUMP_FRAMES, ReferenceMonitor, scale_tells
+from graytrack.core.reference_monitor import GATE, ReferenceMonitor, scale_tells
 from graytrack.core.validity import FrameSign
 
 
@@ -108,7 +108,6 @@ class Disagreement:
         # running means of residual/σ² and 1/σ²: their ratio weighs each frame by its bound, so that
         # frames whose bound a transient set aside widened count for as little as they know
         self.count, self.weighted_per_um, self.precision_per_um2 = 0, 0.0, 0.0
-        self.outliers = 0  # frames in a row beyond the gate
 
     @property
     def mean_um(self) -> float:
@@ -129,29 +128,29 @@ class Disagreement:
                 expected, known2 = line.offset_um + line.scale_ppm * d, max(var_o + 2.0 * d * cov + d * d * var_s, 0.0)
             residual = (x_mm - reference_mm) * 1e3 - expected
             variance = (bound_mm * 1e3) ** 2 + (monitor.reference_sigma_mm * 1e3) ** 2
-            if self._outlier(residual, variance):
-                return True
+            residual, beyond = self._gated(residual, variance)
             self.count = min(self.count + 1, SUSPECT_WINDOW)
             self.weighted_per_um += (residual / variance - self.weighted_per_um) / self.count
             self.precision_per_um2 += (1.0 / variance - self.precision_per_um2) / self.count
             self._known2 = known2
+            if beyond:
+                return True
         return self._far()
 
-    def _outlier(self, residual_um: float, variance_um2: float) -> bool:
-        """Whether this frame is one far off the running mean (the monitor's gate, its scatter): that
-        frame is off the grating and says so, but it is kept out of the mean, unless a run of them
-        says the difference itself moved. A single grating reading 0.5 mm off had held the mean
-        beyond its limit, and every frame flagged, for the next 20 frames."""
-        monitor = self.monitor
+    def _gated(self, residual_um: float, variance_um2: float) -> tuple[float, bool]:
+        """(the frame's residual as the mean takes it, whether it was beyond the gate). Beyond
+        :data:`GATE` of its σ from the running mean (the monitor's scatter), the frame is off the
+        grating and says so, and it enters the mean clipped to the gate: a single grating reading
+        0.5 mm off had held the mean beyond its limit, and every frame flagged, for the next 20
+        frames; clipped, it moves the mean a third of its limit. An episode that stays beyond moves
+        it a gate's worth a frame, each of its frames flagged on its own."""
         if self.count == 0:
-            return False
+            return residual_um, False
         deviation = residual_um - self.mean_um
-        spread = variance_um2 * monitor.scatter + 1.0 / (self.count * self.precision_per_um2)
-        if deviation * deviation <= GATE * GATE * spread:
-            self.outliers = 0
-            return False
-        self.outliers += 1
-        return self.outliers < JUMP_FRAMES
+        gate2 = GATE * GATE * (variance_um2 * self.monitor.scatter + 1.0 / (self.count * self.precision_per_um2))
+        if deviation * deviation <= gate2:
+            return residual_um, False
+        return self.mean_um + (math.sqrt(gate2) if deviation > 0 else -math.sqrt(gate2)), True
 
     def add_many(self, x_mm: np.ndarray, reference_mm: np.ndarray, bound_mm: np.ndarray) -> np.ndarray:
         """:meth:`add` of each frame in order: whether the mean is beyond its limit after each."""

@@ -86,8 +86,8 @@ def sign_columns(n: int, seed: int) -> dict[str, list]:
     x = 2.0 + 6.0 * (k / n) + rng.normal(size=n) * 1e-4
     reference = x + rng.normal(size=n) * np.where(stretch(0.6, 0.8), 2e-3, 1e-4)
     reference[rng.random(n) < 0.03] = np.nan
-    reference[rng.random(n) < 0.005] += 0.5  # single readings gone wrong: kept out of the windows
-    reference[int(0.55 * n):int(0.55 * n) + 25] += 0.01  # more of them in a row than a glitch: a jump
+    reference[rng.random(n) < 0.005] += 0.5  # single readings gone wrong: clipped at the gates
+    reference[int(0.55 * n):int(0.55 * n) + 25] += 0.01  # a run of them: a jump
     x = x + np.where(k > 0.8 * n, 1e-3 * (x - 5.0) + 2e-3, 0.0)  # a scale drift at the end
     information = 1e8 * (1.0 + 0.1 * rng.random(n)) * np.where(stretch(0.3, 0.5), 0.3, 1.0)
     information[rng.random(n) < 0.01] = np.nan
