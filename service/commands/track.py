@@ -109,7 +109,17 @@ def stale_warning(result: TrackResult) -> str | None:
 
     if not result.stale.any():
         return None
-    first = int(np.argmax(result.stale))
+    stale = result.stale
+    alone = stale & ~np.concatenate([[False], stale[:-1]]) & ~np.concatenate([stale[1:], [False]])
+    if (stale == alone).all() and stale.sum() <= max(3, 0.01 * stale.size):
+        # A few frames flagged one at a time, each between unflagged ones: no model gone stale, but
+        # single frames on which camera and grating (or the image) disagreed; a family's advice
+        # (recalibrate) would be the wrong one
+        frames = np.flatnonzero(stale)
+        listed = ", ".join(str(k) for k in frames[:8]) + (f" and {frames.size - 8} more" if frames.size > 8 else "")
+        return (f"warning: {frames.size} single frame(s) flagged, each between unflagged ones (frame {listed}): "
+                f"a grating reading gone wrong or a frame placed wrong there (see stale_reason), not the model")
+    first = int(np.argmax(stale))
     families, counts = np.unique(result.stale_reason[result.stale], return_counts=True)
     causes = ", ".join(f"{family} ({count} frames)" for family, count in sorted(zip(families, counts),
                                                                                key=lambda item: -item[1]))

@@ -43,3 +43,20 @@ def test_track_command_follows_changed_light_and_reports_validity(tmp_path, caps
     assert main(args) == 0
     err = capsys.readouterr().err
     assert "model stale on" in err and "recalibrate" in err and "for geometry" in err  # a print the model does not know
+
+
+def test_single_frames_off_the_grating_are_named_not_blamed_on_the_model(tmp_path, capsys):
+    """Two grating readings gone wrong in a clean run: those two frames are flagged, and the line
+    on stderr names them as single frames instead of advising a recalibration."""
+    rig = build_rig("paper", seed=7)
+    cal, _ = rig.record(seconds=12.0)
+    save_model(calibrate(cal, "paper").model, tmp_path / "m.json")
+    run, _ = build_rig("paper", seed=7, run=1).record(6.0)
+    reference = run.reference.copy()
+    reference[[120, 200]] += 0.5
+    save(Recording(run.frames, run.t, reference, run.meta), tmp_path / "run.npz")
+    assert main(["track", str(tmp_path / "run.npz"), "--model", str(tmp_path / "m.json"),
+                 "--out", str(tmp_path / "t.csv")]) == 0
+    err = capsys.readouterr().err
+    assert "2 single frame(s) flagged" in err and "frame 120, 200" in err and "recalibrate" not in err
+    assert np.flatnonzero(read_columns(tmp_path / "t.csv")["stale"]).tolist() == [120, 200]
