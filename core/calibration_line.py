@@ -13,7 +13,7 @@ import numpy as np
 from graytrack.core.adequacy import error_profile
 from graytrack.core.chi2_curve import measured as measured_chi2_curve
 from graytrack.core.noise import reference_resolution_mm
-from graytrack.core.reference_monitor import MIN_FRAMES, Line, ReferenceMonitor, structure_um
+from graytrack.core.reference_monitor import MIN_FRAMES, Line, ReferenceMonitor, structure_profile, structure_um
 from graytrack.core.timing import model_reference
 from graytrack.core.tracking import track
 
@@ -52,6 +52,12 @@ def record_calibration_line(model, recording) -> Line | None:
         off_line_um = (result.x_mm[usable] - reference[usable]) * 1e3 - line.at_um(reference[usable])
         model.info["reference_structure_um"] = round(structure_um(reference[usable], off_line_um,
                                                                   result.crlb_mm[usable] * 1e3), 4)
+        # ... and where along the stroke it is, to take out of a run's camera − grating (fixed in position)
+        profile = structure_profile(reference[usable], off_line_um, result.crlb_mm[usable] * 1e3)
+        if profile is not None:
+            model.info["reference_structure_profile"] = profile.as_dict()
+        else:
+            model.info.pop("reference_structure_profile", None)
         # At a place the model was not fitted to, its coefficients' noise leaves an error of about the
         # bound × √(coefficients / frames), fixed there: what the in-sample structure above cannot
         # see (the model was fitted to these very frames) and a stage parked for long measures.

@@ -31,7 +31,9 @@ ADVICE = {
     "pixels": "pixels went bad since calibration: recalibrate (the new calibration masks them)",
     "light": "the light changed beyond what the model can follow at its precision: fix the light or recalibrate",
     "focus": "the focus moved since calibration: check the lens and its mount, then recalibrate",
-    "scale": "the target's scale against the grating drifted (paper growth, temperature): recalibrate",
+    "scale": "camera and grating drifted apart beyond their bounds: the target's scale (paper growth, "
+             "temperature), the camera's place on the stage, or the grating read at another instant than the "
+             "exposure (its latency shows as an offset that follows the speed): recalibrate",
     "geometry": "the images are no longer what the model describes: recalibrate "
                 "(graytrack diagnose names the cause)",
 }

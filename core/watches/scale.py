@@ -126,6 +126,8 @@ class Disagreement:
                 d = (reference_mm - line.center_mm) * 1e-3  # ppm·mm → µm
                 var_o, cov, var_s = line.covariance
                 expected, known2 = line.offset_um + line.scale_ppm * d, max(var_o + 2.0 * d * cov + d * d * var_s, 0.0)
+            if monitor.structure is not None:  # the model's own error at this place, as the monitor takes it out
+                x_mm = x_mm - float(monitor.structure.at_um(reference_mm)) * 1e-3
             residual = (x_mm - reference_mm) * 1e3 - expected
             variance = (bound_mm * 1e3) ** 2 + (monitor.reference_sigma_mm * 1e3) ** 2
             residual, beyond = self._gated(residual, variance)
@@ -167,8 +169,9 @@ class Disagreement:
         # averaging removes. Judged from the first frame on: a run that starts 20-40 bounds off the
         # grating (a print grown, a camera moved, a sensor's response changed since calibration)
         # had its first 5-15 frames called fresh while the window filled.
+        noise = monitor.structure.noise_um if monitor.structure is not None else 0.0  # the correction's, fixed per place
         sigma2 = 1.0 / (self.count * self.precision_per_um2) + self._known2 + monitor.calibration_structure_um ** 2 \
-            + (monitor.reference_sigma_mm * 1e3) ** 2
+            + (monitor.reference_sigma_mm * 1e3) ** 2 + noise ** 2
         floor = max(monitor.floor_um, 0.5 * monitor.resolution_mm * 1e3)
         return abs(self.mean_um) > max(SUSPECT_LIMIT * math.sqrt(sigma2), floor)
 

@@ -29,11 +29,11 @@ import numpy as np
 
 from graytrack.core.models.fourier import FourierModel
 from graytrack.core.tracking import LiveFix, LiveTracker
-from graytrack.core.validity import ADVICE
 from graytrack.drivers.camera.base import Camera, CameraError, CameraTimeout, Frame
 from graytrack.service.daemon.clock import HOST_CLOCK, Clock
 from graytrack.service.daemon.framerate import FrameRate
 from graytrack.service.daemon.grating import Readings
+from graytrack.service.daemon.stale_log import StaleLog
 from graytrack.service.daemon.trim import ReferenceTrim
 from graytrack.core import frame_record
 from graytrack.drivers.realtime import raise_thread_priority
@@ -117,7 +117,7 @@ class Acquisition(Worker):
         self.rate = FrameRate()  # restarts after an outage (service/daemon/framerate.py)
         self._seq = 0
         self._last_id: int | None = None
-        self._stale: str | None = None  # the family the model is stale for (None: it holds)
+        self._stale = StaleLog(on_event)  # the flag's events: a model gone stale, or a single frame
 
     # -- control (any thread) --------------------------------------------------------------
     def install_model(self, model: FourierModel, x0_mm: float | None = None, calibration: str | None = None) -> None:
@@ -161,7 +161,7 @@ class Acquisition(Worker):
     @property
     def model_stale(self) -> str | None:
         """The family of causes the tracker's model is stale for (None: it holds)."""
-        return self._stale
+        return self._stale.family
 
     def frame_rate_hz(self, stale_after_s: float) -> float:
         """Frames per second since the last outage (at most a few hundred frames); 0 when the newest is older
@@ -285,13 +285,8 @@ class Acquisition(Worker):
                 self.on_event("lock_reacquired" if event.reacquired else "lock_lost",
                               f"{'lock re-acquired' if event.reacquired else 'lock lost'} at frame "
                               f"{sample.frame.frame_id}: {event.reason}")
-        stale = getattr(fix, "stale_reason", None) if getattr(fix, "stale", False) else None
-        if stale != self._stale:
-            self._stale = stale
-            if stale:
-                self.on_event("model_stale", f"the model no longer holds (stale, cause: {stale}): {ADVICE[stale]}")
-            else:
-                self.on_event("model_fresh", "the model holds again")
+        self._stale.observe(sample.frame.frame_id,
+                            getattr(fix, "stale_reason", None) if getattr(fix, "stale", False) else None)
         self._seq += 1
         message = fix_message(self._seq, sample, fix, stats.dropped, self._calibration)
         self.trim.annotate(message, fix)

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from graytrack.core.reference_monitor import MIN_FRAMES, Line, ReferenceMonitor, Trimmer, follow
+from graytrack.core.reference_monitor import (MIN_FRAMES, Line, ReferenceMonitor, StructureProfile, Trimmer, follow,
+                                             structure_profile)
 from graytrack.core.validity import FrameSign, Monitor
 from graytrack.core.watches.scale import ScaleWatch
 
@@ -205,3 +206,18 @@ def test_the_trim_follows_every_clear_improvement_but_logs_only_large_ones():
     final = trimmer.trim
     assert abs(final.scale_ppm + 250.0) < 4 * final.scale_sigma_ppm
     assert final.scale_sigma_ppm < trimmer.logged.scale_sigma_ppm / 0.95 or final is trimmer.logged
+
+
+def test_the_structure_profile_keeps_a_models_error_along_the_stroke_and_drops_mere_noise():
+    rng = np.random.default_rng(5)
+    x_mm = np.linspace(0.0, 10.0, 1000)
+    bound_um = np.full(x_mm.size, 1.5)
+    noise_only = structure_profile(x_mm, rng.normal(0.0, 1.5, x_mm.size), bound_um)
+    assert noise_only is None  # its means are their own noise: allowed for, not subtracted
+    structure = 1.0 * np.sin(2 * np.pi * x_mm / 8.6)  # an error of the model's at the print's period
+    profile = structure_profile(x_mm, structure + rng.normal(0.0, 1.5, x_mm.size), bound_um)
+    assert profile is not None
+    assert profile.noise_um == pytest.approx(1.5 / np.sqrt(1000 / 16), rel=0.3)
+    assert np.sqrt(np.mean((profile.at_um(x_mm) - structure) ** 2)) < 2.0 * profile.noise_um
+    assert profile.residual_um < 0.5 * np.sqrt(np.mean(structure ** 2))
+    assert StructureProfile.from_dict(profile.as_dict()).at_um(5.0) == pytest.approx(profile.at_um(5.0), abs=1e-3)
