@@ -46,6 +46,7 @@ would otherwise be taken for a line it is not.
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass, field
 
@@ -155,6 +156,17 @@ class StructureProfile:
         end values beyond them."""
         return np.interp(reference_mm, self.centers_mm, self.values_um)
 
+    def at_one_um(self, reference_mm: float) -> float:
+        """:meth:`at_um` of one reading in plain floats (a tracked frame's: np.interp costs 2 µs a call)."""
+        centers, values = self.centers_mm, self.values_um
+        k = bisect.bisect_right(centers, reference_mm)
+        if k == 0:
+            return values[0]
+        if k == len(centers):
+            return values[-1]
+        slope = (values[k] - values[k - 1]) / (centers[k] - centers[k - 1])  # as np.interp rounds it
+        return slope * (reference_mm - centers[k - 1]) + values[k - 1]
+
     def as_dict(self) -> dict:
         return {"centers_mm": [round(v, 6) for v in self.centers_mm], "values_um": [round(v, 4) for v in self.values_um],
                 "noise_um": round(self.noise_um, 4), "residual_um": round(self.residual_um, 4)}
@@ -247,7 +259,7 @@ class ReferenceMonitor:
         if not (math.isfinite(x_mm) and math.isfinite(reference_mm) and math.isfinite(bound_mm) and bound_mm > 0):
             return self.stale
         if self.structure is not None:  # the model's own error here is no drift (as observe_many takes it out)
-            x_mm = x_mm - float(self.structure.at_um(reference_mm)) * 1e-3
+            x_mm = x_mm - self.structure.at_one_um(reference_mm) * 1e-3
         d = reference_mm - self.center_mm
         r = (x_mm - reference_mm) * 1e3
         var = (bound_mm * bound_mm + self.reference_sigma_mm * self.reference_sigma_mm) * 1e6

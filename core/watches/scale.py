@@ -127,7 +127,7 @@ class Disagreement:
                 var_o, cov, var_s = line.covariance
                 expected, known2 = line.offset_um + line.scale_ppm * d, max(var_o + 2.0 * d * cov + d * d * var_s, 0.0)
             if monitor.structure is not None:  # the model's own error at this place, as the monitor takes it out
-                x_mm = x_mm - float(monitor.structure.at_um(reference_mm)) * 1e-3
+                x_mm = x_mm - monitor.structure.at_one_um(reference_mm) * 1e-3
             residual = (x_mm - reference_mm) * 1e3 - expected
             variance = (bound_mm * 1e3) ** 2 + (monitor.reference_sigma_mm * 1e3) ** 2
             residual, beyond = self._gated(residual, variance)

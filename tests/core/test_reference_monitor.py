@@ -221,3 +221,6 @@ def test_the_structure_profile_keeps_a_models_error_along_the_stroke_and_drops_m
     assert np.sqrt(np.mean((profile.at_um(x_mm) - structure) ** 2)) < 2.0 * profile.noise_um
     assert profile.residual_um < 0.5 * np.sqrt(np.mean(structure ** 2))
     assert StructureProfile.from_dict(profile.as_dict()).at_um(5.0) == pytest.approx(profile.at_um(5.0), abs=1e-3)
+    readings = np.concatenate([rng.uniform(-1.0, 11.0, 2000), profile.centers_mm])
+    # the per-frame form, bit for bit (the compiled batch loop reads the array form)
+    assert [profile.at_one_um(float(r)) for r in readings] == profile.at_um(readings).tolist()
