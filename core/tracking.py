@@ -126,6 +126,7 @@ class LightMemory:
     field_shape: np.ndarray | None = None  # running average of the field's shape
     field_scatter: float = 1.0  # running average of each frame's shape against it, per dof in its noise
     uniform_chi2: float = 0.0  # running average of the uniform light's χ² while the field or focus is tried
+    field_chi2: float | None = None  # running average of the field's own χ² (in the calibration's level)
     focus: bool = False  # a change of focus (blur) is solved alongside the uniform light
     focus_gain: float = 1.0  # running average of the χ² the focus term gains over the uniform light
     # (from the mean of χ²(1), what a steady focus leaves it)
@@ -447,7 +448,7 @@ class Tracker:
             memory.uniform_chi2 = uniform_chi2
         memory.uniform_chi2 += (uniform_chi2 - memory.uniform_chi2) / STALE_WINDOW
         wanted = memory.uniform_chi2 > self.sustained_limit
-        shaped = self._field(batch, k, uniform, memory) if tried_field else None
+        shaped = self._field(batch, k, uniform, memory, here) if tried_field else None
         focused = self._focus(batch, k, uniform, memory) if tried_focus else None
         answer = uniform
         if shaped is not None and focused is not None:
@@ -455,8 +456,13 @@ class Tracker:
             beyond = min(max(beyond, -EVIDENCE_CAP), EVIDENCE_CAP) if math.isfinite(beyond) else 0.0
             memory.field_over_focus += (beyond - memory.field_over_focus) / FIELD_WINDOW
         field_over_focus = focused is None or memory.field_over_focus > FIELD_BEYOND_FOCUS
+        # ... and only a field that describes the images: one that leaves χ² above the calibration's
+        # level explains some other change and trades its shape against x (a lamp dimmed on a model
+        # whose per-pixel offsets the light gain then scaled too: the field's answers 2× their
+        # sevenfold bound, 14 µm off on a 16-row strip at 0.41 µm, none flagged)
+        explains = shaped is not None and memory.field_chi2 is not None and memory.field_chi2 <= self.sustained_limit
         if shaped is not None and memory.field and wanted and memory.field_scatter < FIELD_SCATTER_LIMIT \
-                and field_over_focus and self.untrusted(shaped) is None:
+                and field_over_focus and explains and self.untrusted(shaped) is None:
             answer = shaped
         elif focused is not None and memory.focus and wanted and self.untrusted(focused) is None:
             answer = focused
@@ -486,7 +492,7 @@ class Tracker:
         return focused
 
     def _field(self, batch: GeneralBatch | TrigPolyBatch, k: int, uniform: FrameSolution,
-               memory: LightMemory) -> FrameSolution:
+               memory: LightMemory, here: float = 1.0) -> FrameSolution:
         """The frame solved with a light field, and the running evidence for it: its χ² gain over
         the uniform light and how still its shape holds. Once the gain falls back, the field
         stops being solved."""
@@ -501,6 +507,9 @@ class Tracker:
         gained = min(max(gained, 0.0), EVIDENCE_CAP)
         memory.field_gain += (gained - memory.field_gain) / FIELD_WINDOW
         memory.field = memory.field_gain > FIELD_KEEP
+        level_chi2 = shaped.chi2 / here if math.isfinite(shaped.chi2) else math.inf  # as the uniform light's
+        memory.field_chi2 = level_chi2 if memory.field_chi2 is None else \
+            memory.field_chi2 + (min(level_chi2, 3.0 * self.stale_limit) - memory.field_chi2) / FIELD_WINDOW
         if memory.field_shape is None:
             memory.field_shape, memory.field_scatter = shaped.shape.copy(), 1.0
         deviation = shaped.shape - memory.field_shape
