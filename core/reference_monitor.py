@@ -144,7 +144,7 @@ class StructureProfile:
     grating before the line is fitted. Without it the monitor could only allow for it: a window over
     the whole stroke was given a scale uncertainty of that structure over the half-stroke (0.84 µm
     of structure: 160 ppm), and a print grown 400 ppm read by a seed model on a rig with fixed
-    pattern noise went unflagged with 42 frames 4+ bounds off."""
+    pattern noise went unflagged, 1.46× its bound against the truth, 6 frames 4+ bounds off."""
 
     centers_mm: tuple[float, ...]  # bin centres, increasing (bins with too few frames left out)
     values_um: tuple[float, ...]  # mean camera − grating − line there

@@ -301,8 +301,8 @@ def test_the_camera_jumping_off_the_grating_for_good_stays_flagged(model, live):
 def test_a_print_grown_under_a_seed_model_with_an_error_of_its_own_along_the_stroke_is_flagged():
     """A fixed offset pattern (DSNU) the seed model lacks leaves it an error along the stroke of half
     its bound; the monitor takes that error out where it was calibrated instead of allowing for it
-    (as a 160 ppm uncertainty of the scale it hid a print grown 400 ppm: 42 frames 4+ bounds off, none
-    flagged). The same rig unchanged is not flagged."""
+    (as a 160 ppm uncertainty of the scale it hid a print grown 400 ppm: 1.46× its bound, 6 frames 4+
+    bounds off, none flagged). The same rig unchanged is not flagged."""
     calibration, _ = build_rig("paper", "dsnu:sigma=1.5", seed=3).record(20.0)
     model = calibrate(calibration, "paper").model
     assert model.info["reference_structure_um"] > 0.5
