@@ -55,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
 
     from graytrack.drivers.config import ConfigError
     from graytrack.service.daemon.app import create_app
-    from graytrack.service.daemon.errors import DataDirInUse, UnsafeDataDir
+    from graytrack.service.daemon.errors import DataDirInUse, InsufficientStorage, UnsafeDataDir
     from graytrack.service.daemon.settings import load_settings
 
     try:
@@ -72,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     try:
         app = create_app(settings)
-    except (DataDirInUse, UnsafeDataDir) as exc:
+    except (DataDirInUse, UnsafeDataDir, InsufficientStorage) as exc:  # a full or read-only disk too: one line
         raise CliError(str(exc)) from None
     except OSError as exc:
         raise CliError(f"data directory {settings.data_path()}: {exc.strerror or exc}") from None

@@ -27,6 +27,7 @@ from graytrack.service.daemon.api.security import WebGuard, WebPolicy
 from graytrack.service.daemon.broadcast import Broadcaster
 from graytrack.service.daemon.errors import DaemonError
 from graytrack.service.heap import freeze_long_lived, thaw, warm_tracking
+from graytrack.service.daemon.datadir import require_room
 from graytrack.service.daemon.record import open_record
 from graytrack.drivers.realtime import pin_process, raise_thread_priority, restore_process
 from graytrack.service.daemon.rig import HardwareFactory, Rig, default_factory
@@ -81,6 +82,7 @@ def _describe_validation(errors: list[dict[str, Any]]) -> str:
 def create_app(settings: Settings, factory: HardwareFactory = default_factory) -> FastAPI:
     """The app on ``settings``; holds the data directory's lock from here until its shutdown."""
     storage = Storage(settings.data_path())
+    require_room(storage.root)  # a full or read-only disk: refused before anything is locked, opened or renamed
     storage.lock()
     try:
         token, token_source = resolve_token(settings, storage)
@@ -88,13 +90,15 @@ def create_app(settings: Settings, factory: HardwareFactory = default_factory) -
         storage.unlock()
         raise
     broadcaster = Broadcaster()
-    record, damaged = open_record(storage.root / "record.sqlite")
+    try:
+        record, rebuilt = open_record(storage.root / "record.sqlite")
+    except BaseException:
+        storage.unlock()
+        raise
     rig = Rig(settings, storage, record, broadcaster.publish, factory)
-    if damaged is not None:
-        log.error("the record %s could not be read: set aside as %s, a new one started", record.path, damaged)
-        rig.event("record_rebuilt", f"the record could not be read: the damaged file was kept as {damaged.name} and "
-                                    "a new record started; the calibrations come back from their folders",
-                  damaged=str(damaged))
+    if rebuilt is not None:
+        log.error("%s", rebuilt)
+        rig.event("record_rebuilt", rebuilt)
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:

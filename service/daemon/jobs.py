@@ -23,6 +23,7 @@ from typing import Any, Callable, Protocol
 from graytrack.core.models import load_model
 from graytrack.core.models.fourier import FourierModel
 from graytrack.service.daemon.clock import HOST_CLOCK, Clock
+from graytrack.service.daemon.datadir import DataDirHealth
 from graytrack.service.daemon.storage import Storage
 from graytrack.service.daemon.worker import describe
 
@@ -87,9 +88,11 @@ class JobRunner:
     """Runs one job through its states on the calling thread and persists every change."""
 
     def __init__(self, job: CalibrationJob, storage: Storage, install: Callable[[FourierModel, CalibrationJob], None],
-                 on_finish: Callable[[CalibrationJob], None], clock: Clock = HOST_CLOCK) -> None:
+                 on_finish: Callable[[CalibrationJob], None], clock: Clock = HOST_CLOCK,
+                 health: DataDirHealth | None = None) -> None:
         self.job, self.storage, self.install, self.on_finish = job, storage, install, on_finish
         self.clock = clock  # the job's duration is measured on it (service/daemon/clock.py)
+        self.health = health  # a full or vanished data directory: the cause it names, the final status kept
 
     def enter(self, state: str, progress: float | None = None, message: str | None = None) -> None:
         self._commit(state, progress, message)
@@ -127,15 +130,21 @@ class JobRunner:
             if job.abort.is_set():  # a stop request interrupted a move or a settle
                 outcome = {"state": "aborted", "error": describe(exc), "message": job.abort_reason}
             else:
-                reason = describe(exc)
+                refused = self.health.failed(exc) if self.health is not None else None
+                reason = str(refused) if refused is not None else describe(exc)
                 outcome = {"state": "failed", "error": reason, "message": f"failed: {reason}"}
                 log.error("calibration %s failed: %s", job.id, reason, exc_info=not _expected(exc))
         outcome.update(finished=utc_now(), duration_s=round(self.clock.now() - started, 3))
         # on disk first, then in memory: whoever sees the job ended finds its status.json ended too
+        final = {**job.to_dict(), **outcome}
         try:
-            self.storage.write_status(job.id, {**job.to_dict(), **outcome})
-        except Exception:  # noqa: BLE001 - a full disk: the job is over anyway, say it in the log
-            log.exception("calibration %s: cannot write its final status", job.id)
+            self.storage.write_status(job.id, final)
+        except Exception as exc:  # noqa: BLE001 - a full disk: the job is over anyway; its end is kept for later
+            if self.health is not None and self.health.failed(exc) is not None:
+                self.health.defer(f"calibration {job.id}'s final status ({outcome['state']})",
+                                  lambda: self.storage.write_status(job.id, final))
+            else:
+                log.exception("calibration %s: cannot write its final status", job.id)
         for key, value in outcome.items():
             setattr(job, key, value)
         self.on_finish(job)

@@ -14,6 +14,8 @@ ended ``done`` without a row get one (a record truncated, replaced or rebuilt).
 The record is never a single point of failure: a file SQLite cannot read (a bad header, a
 truncated or damaged page) is set aside under a name of its own, kept for inspection, and a new
 one is started; the calibrations come back from their folders, and an event says what happened.
+A full or read-only disk is not damage (:mod:`datadir`): nothing is set aside, the start is refused.
+The event log is bounded (``compact``): by age and by count, keeping the newest event of each kind.
 """
 
 from __future__ import annotations
@@ -24,6 +26,9 @@ import threading
 import time
 from pathlib import Path
 from typing import Any
+
+from graytrack.service.daemon.datadir import START_ROOM_BYTES, corrupt, room_problem
+from graytrack.service.daemon.errors import InsufficientStorage
 
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS calibrations (
@@ -53,24 +58,46 @@ CALIBRATION_COLUMNS = ("id", "started", "finished", "model_kind", "model", "erro
 MAX_PAGE = 500
 
 
-def open_record(path: Path) -> tuple["Record", Path | None]:
-    """The record at ``path``, or a new one when that file is damaged: ``(record, where the damaged
-    file was moved)``."""
+def open_record(path: Path) -> tuple["Record", str | None]:
+    """The record at ``path``: ``(record, what was rebuilt and why)``, the second None when it opened as it was.
+
+    Only damage sets a file aside: SQLite's "file is not a database" or "malformed", or a page that
+    does not read back. A 0-byte file (what a start on a full disk used to leave) is said, not
+    taken silently for an empty history. A full or read-only disk raises :class:`InsufficientStorage`
+    with nothing renamed and nothing created: it is not the record's fault, and freeing space fixes it.
+    """
     path = Path(path)
+    existed = path.exists()
+    empty = existed and path.stat().st_size == 0
+    record = None
     try:
         record = Record(path)
         record.check()
-        return record, None
-    except sqlite3.DatabaseError:
-        pass
-    if "record" in locals():
-        record.close()
-    aside = path.with_name(f"{path.name}.damaged-{time.strftime('%Y%m%dT%H%M%S')}")
-    for suffix in ("", "-wal", "-shm"):
-        companion = path.with_name(path.name + suffix)
-        if companion.exists():
-            companion.replace(aside.with_name(aside.name + suffix))
-    return Record(path), aside
+    except sqlite3.Error as exc:
+        if record is not None:
+            record.close()
+        if not (isinstance(exc, Damaged) or corrupt(exc)):
+            if not existed:
+                for suffix in ("", "-wal", "-shm"):  # nothing left behind by the attempt
+                    path.with_name(path.name + suffix).unlink(missing_ok=True)
+            problem = room_problem(path.parent, START_ROOM_BYTES)
+            raise InsufficientStorage(f"the record {path} cannot be opened ({exc}): "
+                                      f"{problem or 'check its permissions and the free space of its disk'}") from None
+        aside = path.with_name(f"{path.name}.damaged-{time.strftime('%Y%m%dT%H%M%S')}")
+        for suffix in ("", "-wal", "-shm"):
+            companion = path.with_name(path.name + suffix)
+            if companion.exists():
+                companion.replace(aside.with_name(aside.name + suffix))
+        return Record(path), (f"the record could not be read ({exc}): the damaged file was kept as {aside.name} and a "
+                              f"new record started; the calibrations come back from their folders")
+    if empty:
+        return record, ("the record was an empty file (0 bytes: its history was lost before this start): a new "
+                        "record started; the calibrations come back from their folders")
+    return record, None
+
+
+class Damaged(sqlite3.DatabaseError):
+    """A page of the record does not read back (``PRAGMA quick_check``)."""
 
 
 class Record:
@@ -92,18 +119,32 @@ class Record:
             self._db.execute("SELECT COUNT(*) FROM events").fetchone()
             self._db.execute("SELECT COUNT(*) FROM calibrations").fetchone()
         if verdict != "ok":
-            raise sqlite3.DatabaseError(f"{self.path}: {verdict}")
+            raise Damaged(f"{self.path}: {verdict}")
 
     def close(self) -> None:
         with self._lock:
             self._db.close()
 
     # -- events ------------------------------------------------------------------------------
-    def event(self, kind: str, message: str, **details: Any) -> int:
+    def event(self, kind: str, message: str, t_unix: float | None = None, **details: Any) -> int:
+        """One event (at ``t_unix``, default now: an event kept while the disk was full keeps its time)."""
         with self._lock:
             cursor = self._db.execute("INSERT INTO events (t_unix, kind, message, details) VALUES (?, ?, ?, ?)",
-                                      (time.time(), kind, message, json.dumps(details, default=str)))
+                                      (time.time() if t_unix is None else t_unix, kind, message,
+                                       json.dumps(details, default=str)))
             return int(cursor.lastrowid)
+
+    def compact(self, max_age_s: float, max_count: int, now: float | None = None) -> int:
+        """Delete events older than ``max_age_s`` or beyond the newest ``max_count``, except the newest of
+        each kind (the last fault, start, calibration... stay readable however old); how many went.
+        The freed pages are reused by the next events, so the file stops growing."""
+        cutoff = (time.time() if now is None else now) - max_age_s
+        with self._lock:
+            cursor = self._db.execute(
+                "DELETE FROM events WHERE (t_unix < ? OR id <= COALESCE("
+                "(SELECT id FROM events ORDER BY id DESC LIMIT 1 OFFSET ?), -1)) "
+                "AND id NOT IN (SELECT MAX(id) FROM events GROUP BY kind)", (cutoff, max_count))
+            return int(cursor.rowcount)
 
     def events(self, since_id: int = 0, since_unix: float | None = None, limit: int = 200) -> list[dict[str, Any]]:
         """Events after ``since_id`` (and at or after ``since_unix``), oldest first."""

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import logging
 import shutil
-import sqlite3
 import threading
 import time
 
@@ -43,7 +42,10 @@ from graytrack.service.daemon.trim import ReferenceTrim
 from graytrack.service.daemon.errors import Busy, InsufficientStorage, NotFound, NotReady
 from graytrack.service.daemon.grating import GratingPoller, Readings
 from graytrack.service.daemon.jobs import FINAL, CalibrationJob, JobRunner, calibration_row, mark_interrupted, reconcile
+from graytrack.service.daemon.datadir import DataDirHealth
+from graytrack.service.daemon.event_log import EventLog
 from graytrack.service.daemon.record import Record
+from graytrack.service.daemon.switch import Switch
 from graytrack.service.daemon.settings import Settings
 from graytrack.service.daemon.stage_control import StageControl
 from graytrack.service.daemon.storage import Storage
@@ -54,6 +56,7 @@ from graytrack.service.daemon.worker import describe
 log = logging.getLogger("graytrack.daemon")
 HardwareFactory = Callable[[Settings, ScaledClock], Hardware]
 ROOM_MARGIN_BYTES = 16 * 2**20  # model, report, status and the record's growth
+SWITCH_MARGIN_BYTES = 8 * 1024  # the pointer's block and the record's growth, besides the model's copy
 
 
 def default_factory(settings: Settings, clock: ScaledClock) -> Hardware:
@@ -71,6 +74,9 @@ class Rig:
         self.factory = factory
         self.clock = ScaledClock(daemon.sim_clock_scale) if settings.simulated else REAL_TIME
         self.faults = Faults()
+        self.health = DataDirHealth(storage.root, storage.home, self.faults.reporter("storage"))
+        self.events = EventLog(record, self.health.moved, self.faults.reporter("record"), daemon.events_max_age_days,
+                               daemon.events_max_count)
         self.readings = Readings(daemon.pair_window_s, daemon.pair_tolerance_um * 1e-3, daemon.pair_rest_s)
         self.hardware: Hardware | None = None
         self.grating: GratingPoller | None = None
@@ -114,19 +120,14 @@ class Rig:
             thread.join(timeout=10.0)
         self.supervisor.stop()
         self._detach()
+        self.health.probe()  # the writes kept while the disk was full, if there is room now
         self.event("shutdown", "daemon stopped")
 
     def event(self, kind: str, message: str, **details: Any) -> None:
         """One line in the event log (``GET /api/events``); the record failing never stops the rig,
-        but it is a fault (``record``) for as long as it fails: a history that silently stops is a lie."""
-        try:
-            self.record.event(kind, message, **details)
-        except sqlite3.Error as exc:
-            log.error("cannot record the event %r: %s", message, exc)
-            self.faults.set("record", f"the event log {self.record.path.name} cannot be written ({exc}): "
-                                      f"events are only in the daemon's log until it is fixed")
-            return
-        self.faults.set("record", None)
+        but it is a fault (``record``) for as long as it fails, and the event is kept until it can be
+        written (:mod:`event_log`): a history that silently stops is a lie."""
+        self.events.write(kind, message, **details)
 
     def _fault_event(self, source: str, reason: str | None, previous: str | None, seconds: float) -> None:
         if reason is None:
@@ -140,6 +141,7 @@ class Rig:
         self.event(kind, message)
 
     def _bring_up(self) -> None:
+        self.events.compact()
         interrupted = mark_interrupted(self.storage)
         self.calibrations_finished["interrupted"] += len(interrupted)
         for job_id in interrupted:
@@ -233,7 +235,10 @@ class Rig:
         return acquisition.start()
 
     def _watch(self) -> None:
-        """The watchdog: a worker thread that is gone (it should never be) is a fault, and is replaced."""
+        """The watchdog: a worker thread that is gone (it should never be) is a fault, and is replaced; the
+        data directory is looked at (full, read-only, removed: :mod:`datadir`) and what waited for it written."""
+        self.health.probe()
+        self.events.flush()
         with self._lock:
             if self.closing.is_set() or self.hardware is None:
                 return
@@ -310,6 +315,7 @@ class Rig:
             hardware, acquisition = self._ready()
             if self.job is not None and self.job.active:
                 raise Busy(f"calibration {self.job.id} is already running")
+            self.health.refuse()
             blocking = self.faults.blocking_calibration()
             if blocking:
                 raise NotReady(f"cannot calibrate during a fault: {sentence(blocking)}")
@@ -325,7 +331,7 @@ class Rig:
                 raise InsufficientStorage(f"cannot write to the data directory: {describe(exc)}") from None
             self.jobs[job.id] = job
             self.job = job
-            runner = JobRunner(job, self.storage, self._install_calibration, self._finished)
+            runner = JobRunner(job, self.storage, self._install_calibration, self._finished, health=self.health)
             sweep = Sweep(runner, hardware.stage, acquisition, self.storage, config, self._meta(hardware),
                           self.readings.note_command, self.clock.scale)
             self._sweep_thread = threading.Thread(target=runner.run, args=(sweep,), name="sweep", daemon=True)
@@ -353,17 +359,17 @@ class Rig:
             raise InsufficientStorage(message)
 
     def _install_calibration(self, model: FourierModel, job: CalibrationJob) -> None:
-        """The job's ``installing`` step: the pointer to the job's own model (the one atomic switch a
-        crash cannot split), the copy in the data directory, the tracker, then the record's row."""
-        previous = self.storage.active_id()
-        self.storage.set_active(job.id)
+        """The job's ``installing`` step: the pointer and the copy of the model (one switch with its undo,
+        :mod:`switch`), the record's row (the switch undone if it cannot be written), then the tracker:
+        the tracker only ever gets a model the data directory already names."""
+        switch = self._switch_model(job.id)
         try:
-            self.storage.copy_model_of(job.id)
-        except BaseException:  # a full disk: the pointer goes back, the old model stays what is tracked
-            self.storage.restore_active(previous)
-            raise
+            self.record.add_calibration(calibration_row(job, model))
+        except BaseException as exc:  # a full disk: both files back, the old model stays what is tracked
+            switch.undo()
+            raise (self.health.failed(exc) or exc) from None
+        switch.commit()
         self.install(model, job.id)
-        self.record.add_calibration(calibration_row(job, model))
         self.event("model_installed", f"model of calibration {job.id} installed: {model.describe()}", calibration=job.id)
 
     def _finished(self, job: CalibrationJob) -> None:
@@ -384,12 +390,21 @@ class Rig:
             mismatch = self._flip_mismatch(model)
             if mismatch is not None:  # a conflict with the camera's configuration, not a wait: retrying will not help
                 raise Busy(mismatch)
-            self.storage.set_active(calibration_id)
-            self.storage.copy_model_of(calibration_id)
+            self._switch_model(calibration_id).commit()  # both files or neither: a 507 changes nothing
             self.install(model, calibration_id)
         self.event("model_installed", f"model of calibration {calibration_id} activated: {model.describe()}",
                    calibration=calibration_id)
         return Activated(active=calibration_id, model=model.describe())
+
+    def _switch_model(self, calibration_id: str) -> Switch:
+        """``DATA/active`` and ``DATA/model.json`` to that calibration's, as one step with its undo; a full,
+        read-only or vanished data directory is the ``storage`` fault and a 507 naming it, nothing changed."""
+        needed = (self.storage.calibration_dir(calibration_id) / "model.json").stat().st_size + SWITCH_MARGIN_BYTES
+        self.health.refuse(needed)
+        try:
+            return self.storage.switch_model(calibration_id)
+        except OSError as exc:
+            raise (self.health.failed(exc, needed) or exc) from None
 
     def active_calibration(self) -> ActiveCalibration | None:
         """The calibration whose model is tracked now (None: no model, or one not from a calibration)."""

@@ -60,6 +60,10 @@ class DaemonConfig(_Strict):
     trim: bool = Field(False, description="correct the streamed position's scale and offset against the grating "
                        "(an online trim, only on evidence of a drift since calibration; POST /api/trim/reset clears it, "
                        "a new calibration too)")
+    events_max_age_days: float = Field(90.0, gt=0, description="the event log keeps events this long (the newest "
+                                       "of each kind always)")
+    events_max_count: int = Field(100_000, ge=10, description="and at most this many (about 140 bytes each), "
+                                  "besides the newest of each kind")
     sim_clock_scale: float = Field(1.0, gt=0, description="virtual rig only: simulated seconds per wall second")
     log_level: Literal["debug", "info", "warning", "error"] = "info"
 

@@ -30,7 +30,9 @@ from graytrack.core.errors import GraytrackError
 from graytrack.core.files import write_atomic
 from graytrack.core.models import load_model, save_model
 from graytrack.core.models.fourier import FourierModel
+from graytrack.service.daemon.datadir import identity, require_room
 from graytrack.service.daemon.errors import DataDirInUse, UnsafeDataDir
+from graytrack.service.daemon.switch import Switch
 
 log = logging.getLogger("graytrack.daemon")
 CALIBRATION_ID = re.compile(r"^\d{8}T\d{6}\d{6}Z$")
@@ -55,6 +57,7 @@ class Storage:
         private(self.root, "data directory", 0o022, f"chmod go-w {self.root}")
         self.calibrations = self.root / "calibrations"
         self.calibrations.mkdir(exist_ok=True)
+        self.home = identity(self.root)  # the directory opened, whatever its path leads to later (datadir.py)
         self._last_time: datetime | None = None
         self._lock_fd: int | None = None
 
@@ -142,6 +145,24 @@ class Storage:
         """``model.json`` becomes a byte-for-byte copy of that calibration's model."""
         write_atomic(self.model_path, (self.calibration_dir(calibration_id) / "model.json").read_bytes())
 
+    def switch_model(self, calibration_id: str) -> Switch:
+        """``active`` and ``model.json`` become that calibration's, both or neither (:mod:`switch`): the
+        pointer first, then the copy. The returned switch is applied; ``undo()`` takes both back
+        without needing space (until ``commit()``)."""
+        self.check_home()
+        source = (self.calibration_dir(calibration_id) / "model.json").read_bytes()
+        return Switch([(self.active_path, (calibration_id + "\n").encode()), (self.model_path, source)]).apply()
+
+    def check_home(self) -> None:
+        """Raise when the path no longer leads to the directory opened at start (removed, replaced): no
+        write goes into a deleted directory or a stranger's."""
+        try:
+            same = identity(self.root) == self.home
+        except FileNotFoundError:
+            same = False
+        if not same:
+            raise FileNotFoundError(errno.ENOENT, "the data directory was removed or replaced", str(self.root))
+
     def reconcile_model(self) -> tuple[FourierModel | None, str | None]:
         """The model to track with, and what was set right when the directory disagreed with itself.
 
@@ -181,13 +202,6 @@ class Storage:
         """The calibration whose model ``model.json`` holds (written after the model, atomically)."""
         write_atomic(self.active_path, calibration_id + "\n")
 
-    def restore_active(self, calibration_id: str | None) -> None:
-        """Point back at ``calibration_id`` (None: no calibration) after an install that failed."""
-        if calibration_id is None:
-            self.active_path.unlink(missing_ok=True)
-        else:
-            self.set_active(calibration_id)
-
     def active_id(self) -> str | None:
         try:
             value = self.active_path.read_text().strip()
@@ -210,6 +224,7 @@ class Storage:
         return self.calibrations / calibration_id
 
     def write_status(self, calibration_id: str, document: dict[str, Any]) -> None:
+        self.check_home()
         write_atomic(self.calibration_dir(calibration_id) / "status.json", json.dumps(document, indent=1, default=float))
 
     def read_status(self, calibration_id: str) -> dict[str, Any] | None:
