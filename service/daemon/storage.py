@@ -32,7 +32,7 @@ from graytrack.core.models import load_model, save_model
 from graytrack.core.models.fourier import FourierModel
 from graytrack.service.daemon.datadir import identity, require_room
 from graytrack.service.daemon.errors import DataDirInUse, UnsafeDataDir
-from graytrack.service.daemon.switch import Switch
+from graytrack.service.daemon.switch import Switch, leftovers
 
 log = logging.getLogger("graytrack.daemon")
 CALIBRATION_ID = re.compile(r"^\d{8}T\d{6}\d{6}Z$")
@@ -172,6 +172,8 @@ class Storage:
         that did not (the install never completed: back to the newest calibration that did). A
         ``DATA/model.json`` with no calibration behind it (placed by hand) is used as it is.
         """
+        for path in leftovers(self.root, (self.active_path.name, self.model_path.name)):  # a switch killed half-way
+            path.unlink(missing_ok=True)
         done = [i for i in self.calibration_ids()
                 if (self.read_status(i) or {}).get("state") == "done" and (self.calibration_dir(i) / "model.json").is_file()]
         active = self.active_id()

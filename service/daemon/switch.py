@@ -28,6 +28,11 @@ def _write_synced(path: Path, data: bytes) -> None:
         os.close(fd)
 
 
+def leftovers(folder: Path, names: tuple[str, ...]) -> list[Path]:
+    """What a switch killed half-way (kill -9, power) left of ``names`` in ``folder`` (removed at the next start)."""
+    return [p for name in names for p in folder.glob(f".{name}.*.*") if p.suffix in (".new", ".old")]
+
+
 class Switch:
     """Replace ``targets`` (in order) by ``contents``; ``commit()`` forgets the old files, ``undo()`` restores them."""
 

@@ -252,3 +252,74 @@ def test_serve_on_a_full_or_read_only_disk_says_so_in_one_line_and_touches_nothi
     lines = serve()
     assert len(lines) == 1 and "read-only" in lines[0] and "remount it read-write" in lines[0], lines
     assert digest(data) == before
+
+
+def test_a_switch_on_a_full_disk_changes_nothing_and_its_undo_needs_no_space(tmp_path: Path) -> None:
+    from graytrack.service.daemon.switch import Switch, leftovers
+
+    disk = tmp_path / "disk"
+    mount_tmpfs(disk, "1m")
+    try:
+        active, model = disk / "active", disk / "model.json"
+        active.write_text("B\n")
+        model.write_bytes(b"B" * 3000)
+        filler = fill(disk)
+        with pytest.raises(OSError) as refused:
+            Switch([(active, b"A\n"), (model, b"A" * 3000)])
+        assert refused.value.errno == errno.ENOSPC
+        assert (active.read_text(), model.read_bytes()) == ("B\n", b"B" * 3000) and not leftovers(disk, NAMES)
+        filler.unlink()
+        switch = Switch([(active, b"A\n"), (model, b"A" * 3000)]).apply()
+        assert (active.read_text(), model.read_bytes()) == ("A\n", b"A" * 3000)
+        filler = fill(disk)  # the record's row cannot be written now: the undo is renames only
+        switch.undo()
+        assert (active.read_text(), model.read_bytes()) == ("B\n", b"B" * 3000) and not leftovers(disk, NAMES)
+        filler.unlink()
+        Switch([(active, b"A\n"), (model, None)]).apply().commit()
+        assert active.read_text() == "A\n" and not model.exists() and not leftovers(disk, NAMES)
+    finally:
+        unmount(disk)
+
+
+NAMES = ("active", "model.json")
+
+
+def test_an_activate_killed_between_its_steps_is_completed_or_taken_back_at_the_next_start(
+        tmp_path: Path, two_calibrations: list[str]) -> None:
+    """kill -9 after the pointer moved and before the model's copy (the state the switch's order allows,
+    made here by hand), then kill -9 at a seeded instant among rapid activations: after each restart the
+    status, the list, ``DATA/active``, ``DATA/model.json`` and the tracker name one calibration."""
+    import random
+    import threading
+
+    older, newer = two_calibrations
+    data = tmp_path / "data"
+    (data / "active").write_text(older + "\n")  # the model.json is still the newer one's
+    (data / ".model.json.1.0000.new").write_bytes((data / "calibrations" / older / "model.json").read_bytes())
+    os.link(data / "model.json", data / ".active.1.0000.old")
+    with ServeProcess(tmp_path, **SERVE) as daemon:
+        daemon.wait_state("tracking")
+        assert_one_calibration(daemon, data, older)
+        assert not list(data.glob(".*.new")) + list(data.glob(".*.old")), "what the killed switch left is removed"
+        stop = threading.Event()
+
+        def activate() -> None:
+            with httpx.Client(base_url=daemon.base, headers=daemon.auth(), timeout=5) as client:
+                for i in range(10_000):
+                    if stop.is_set():
+                        return
+                    try:
+                        client.post(f"/api/calibrations/{two_calibrations[i % 2]}/activate")
+                    except httpx.TransportError:
+                        return
+
+        worker = threading.Thread(target=activate)
+        worker.start()
+        time.sleep(random.Random(38).uniform(0.3, 0.8))
+        daemon.process.kill()
+        daemon.process.wait()
+        stop.set()
+        worker.join()
+    with ServeProcess(tmp_path, **SERVE) as again:
+        again.wait_state("tracking")
+        assert_one_calibration(again, data, (data / "active").read_text().strip())

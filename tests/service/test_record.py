@@ -187,6 +187,9 @@ def test_a_damaged_record_is_set_aside_and_rebuilt_from_the_calibration_folders(
                           timeout=5).status_code == 200
         kinds = [e["kind"] for e in httpx.get(f"{second.base}/api/events", timeout=5).json()]
         assert "record_restored" in kinds
+        if how == "empty":  # a 0-byte record is said, not silently taken as an empty history
+            rebuilt = [e for e in httpx.get(f"{second.base}/api/events", timeout=5).json() if e["kind"] == "record_rebuilt"]
+            assert len(rebuilt) == 1 and "empty file (0 bytes" in rebuilt[0]["message"], rebuilt
         if how in ("header", "truncated"):
             assert "record_rebuilt" in kinds
             kept = [p.name for p in database.parent.iterdir() if ".damaged-" in p.name]
@@ -206,3 +209,23 @@ def test_an_event_log_that_cannot_be_written_is_a_fault_not_a_line_on_stderr(tmp
         record._db = real_db
         daemon.rig.event("test", "written again")
         assert "record" not in daemon.status()["faults"]
+
+
+def test_the_event_log_is_compacted_by_age_and_count_keeping_the_newest_of_each_kind(tmp_path: Path) -> None:
+    from graytrack.service.daemon.record import Record
+
+    record = Record(tmp_path / "record.sqlite")
+    day = 86_400.0
+    record.event("start", "daemon started", t_unix=0.0)
+    record.event("fault", "camera: no frame", t_unix=1.0 * day)
+    for i in range(30):
+        record.event("move", f"move to {i} mm", t_unix=2.0 * day + i)
+    assert record.compact(max_age_s=10 * day, max_count=1000, now=5.0 * day) == 0
+    assert record.compact(max_age_s=10 * day, max_count=10, now=5.0 * day) == 20  # by count
+    kept = record.events(limit=100)
+    assert [e["kind"] for e in kept] == ["start", "fault"] + ["move"] * 10, "the newest of each kind stays"
+    assert kept[-1]["message"] == "move to 29 mm"
+    assert record.compact(max_age_s=1.0 * day, max_count=1000, now=3.0 * day + 25) == 5  # by age: 2 d + 0..24 s
+    assert [e["message"] for e in record.events(limit=100)][-5:] == [f"move to {i} mm" for i in range(25, 30)]
+    assert [e["kind"] for e in record.events(limit=100)][:2] == ["start", "fault"]
+    record.close()
