@@ -60,7 +60,7 @@ def calibration_file(calibration_id: str, name: str, rig: Rig = Depends(get_rig)
 
 
 @router.post("/api/calibrations/{calibration_id}/activate", dependencies=AUTHORIZED, response_model=Activated,
-             responses=errors(401, 404, 409, 413, 503))
+             responses=errors(401, 404, 409, 413, 503, 507))
 def activate(calibration_id: str, rig: Rig = Depends(get_rig)) -> Activated:
     """Track with that calibration's model from now on (and after restarts)."""
     return rig.activate(calibration_id)
