@@ -82,6 +82,12 @@ def full_message(root: Path, free: int, needed: int) -> str:
             f"free some space on its file system or move [daemon] data_dir")
 
 
+def unexplained_full(root: Path, exc: BaseException) -> str:
+    """A write refused for space while the file system shows free space: its inodes, a quota."""
+    return (f"disk full: a write to the data directory {root} failed ({exc}) with {size(free_bytes(root))} free: "
+            f"out of inodes or over a quota? free some space on its file system or move [daemon] data_dir")
+
+
 def read_only_message(root: Path) -> str:
     return (f"read-only: the data directory {root} cannot be written (a read-only file system or its permissions): "
             f"remount it read-write or make it writable by this user")
@@ -93,7 +99,12 @@ def room_problem(root: Path, needed: int) -> str | None:
     if vfs.f_flag & os.ST_RDONLY or not os.access(root, os.W_OK):
         return read_only_message(root)
     free = vfs.f_bavail * vfs.f_frsize
-    return full_message(root, free, needed) if free < needed else None
+    if free < needed:
+        return full_message(root, free, needed)
+    if vfs.f_files and not vfs.f_favail:  # every inode used: no new file, whatever the free bytes
+        return (f"disk full: the data directory {root} has {size(free)} free but no free inode (a new file "
+                f"cannot be made): remove files on its file system or move [daemon] data_dir")
+    return None
 
 
 def require_room(root: Path, needed: int = START_ROOM_BYTES) -> None:
@@ -131,7 +142,8 @@ class DataDirHealth:
         return self.moved() or room_problem(self.root, self._needed)
 
     def probe(self) -> bool:
-        """Look now: raise, update or clear the fault; on clearing, make the writes that were kept. True when healthy."""
+        """Look now: raise, update or clear the fault; on clearing, make the writes that were kept.
+        True when healthy."""
         reason = self.problem()
         self.reason = reason
         self.report(reason)
@@ -153,7 +165,7 @@ class DataDirHealth:
             return None
         self._needed = max(self.min_free_bytes, needed)
         reason = moved or self.problem() or (read_only_message(self.root) if kind == READ_ONLY else
-                                    full_message(self.root, free_bytes(self.root), self._needed))
+                                    unexplained_full(self.root, exc))
         self.reason = reason
         self.report(reason)
         return InsufficientStorage(reason)

@@ -383,6 +383,7 @@ class Rig:
             self._ready()
             if self.job is not None and self.job.active:
                 raise Busy(f"calibration {self.job.id} is running; stop it first")
+            self.health.refuse()  # a vanished or read-only directory: 507 before its files are read
             row = self.record.calibration(calibration_id)
             if row is None:
                 raise NotFound(f"no finished calibration {calibration_id!r}")

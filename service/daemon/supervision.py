@@ -1,10 +1,11 @@
 """Faults by source and the supervisor that brings the hardware up and watches the workers.
 
 Sources: ``hardware`` (cannot open), ``startup`` (the bring-up itself failed), ``camera``,
-``stage`` (the grating readout), ``tracking`` (frames or model the tracker cannot use) and
+``stage`` (the grating readout), ``tracking`` (frames or model the tracker cannot use),
 ``acquisition`` / ``grating-poller`` (a worker crashed or died), ``storage`` (the data directory
-full, read-only, removed or replaced: :mod:`datadir`) and ``record`` (the event log cannot be written). The rig's state is derived from
-this table, so it cannot say "tracking" while a part is failing.
+full, read-only, removed or replaced: :mod:`datadir`) and ``record`` (the event log cannot be
+written). The rig's state is derived from this table, so it cannot say "tracking" while a part is
+failing.
 """
 
 from __future__ import annotations

@@ -14,6 +14,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import httpx
@@ -25,17 +26,21 @@ from tests.service.helpers import ServeProcess, wait_for, wait_job, write_config
 SERVE = {"daemon": {"auto_calibrate": "never", "events_max_count": 60}}
 
 
-def mount_tmpfs(where: Path, size: str) -> None:
+@contextmanager
+def small_disk(where: Path, size: str, data: Path | None = None) -> Iterator[Path]:
+    """A tmpfs of ``size`` mounted at ``where`` (with a copy of the data directory ``data`` in it), unmounted after."""
     where.mkdir()
     done = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size},mode=0700", "tmpfs", str(where)],
                           capture_output=True, text=True)
     if done.returncode != 0:
         pytest.skip(f"cannot mount a tmpfs here ({done.stderr.strip() or done.returncode}): these tests need a real "
                     f"small file system (run as root, as .ci/run does with sudo)")
-
-
-def unmount(where: Path) -> None:
-    subprocess.run(["umount", "-l", str(where)], capture_output=True)
+    try:
+        if data is not None:
+            shutil.copytree(data, where / "data")
+        yield where
+    finally:
+        subprocess.run(["umount", "-l", str(where)], capture_output=True)
 
 
 def fill(disk: Path, leave: int = 0) -> Path:
@@ -95,13 +100,8 @@ def assert_one_calibration(daemon: ServeProcess, data: Path, expected: str) -> N
 @pytest.fixture(scope="module")
 def disk(tmp_path_factory: pytest.TempPathFactory, _two_calibrations: tuple[Path, list[str]]) -> Iterator[Path]:
     """A 24 MiB tmpfs holding a data directory with two finished calibrations (room for one more sweep)."""
-    where = tmp_path_factory.mktemp("small-disk") / "disk"
-    mount_tmpfs(where, "24m")
-    try:
-        shutil.copytree(_two_calibrations[0], where / "data")
+    with small_disk(tmp_path_factory.mktemp("small-disk") / "disk", "24m", _two_calibrations[0]) as where:
         yield where
-    finally:
-        unmount(where)
 
 
 @pytest.fixture(scope="module")
@@ -222,13 +222,8 @@ def test_a_data_directory_made_read_only_moved_away_or_replaced_is_a_fault_and_n
 
 @pytest.fixture
 def tiny_disk(tmp_path: Path, _two_calibrations: tuple[Path, list[str]]) -> Iterator[Path]:
-    where = tmp_path / "disk"
-    mount_tmpfs(where, "1m")
-    try:
-        shutil.copytree(_two_calibrations[0], where / "data")
+    with small_disk(tmp_path / "disk", "1m", _two_calibrations[0]) as where:
         yield where
-    finally:
-        unmount(where)
 
 
 def test_serve_on_a_full_or_read_only_disk_says_so_in_one_line_and_touches_nothing(tiny_disk: Path) -> None:
@@ -257,9 +252,7 @@ def test_serve_on_a_full_or_read_only_disk_says_so_in_one_line_and_touches_nothi
 def test_a_switch_on_a_full_disk_changes_nothing_and_its_undo_needs_no_space(tmp_path: Path) -> None:
     from graytrack.service.daemon.switch import Switch, leftovers
 
-    disk = tmp_path / "disk"
-    mount_tmpfs(disk, "1m")
-    try:
+    with small_disk(tmp_path / "disk", "1m") as disk:
         active, model = disk / "active", disk / "model.json"
         active.write_text("B\n")
         model.write_bytes(b"B" * 3000)
@@ -277,8 +270,6 @@ def test_a_switch_on_a_full_disk_changes_nothing_and_its_undo_needs_no_space(tmp
         filler.unlink()
         Switch([(active, b"A\n"), (model, None)]).apply().commit()
         assert active.read_text() == "A\n" and not model.exists() and not leftovers(disk, NAMES)
-    finally:
-        unmount(disk)
 
 
 NAMES = ("active", "model.json")

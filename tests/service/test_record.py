@@ -188,7 +188,8 @@ def test_a_damaged_record_is_set_aside_and_rebuilt_from_the_calibration_folders(
         kinds = [e["kind"] for e in httpx.get(f"{second.base}/api/events", timeout=5).json()]
         assert "record_restored" in kinds
         if how == "empty":  # a 0-byte record is said, not silently taken as an empty history
-            rebuilt = [e for e in httpx.get(f"{second.base}/api/events", timeout=5).json() if e["kind"] == "record_rebuilt"]
+            events = httpx.get(f"{second.base}/api/events", timeout=5).json()
+            rebuilt = [e for e in events if e["kind"] == "record_rebuilt"]
             assert len(rebuilt) == 1 and "empty file (0 bytes" in rebuilt[0]["message"], rebuilt
         if how in ("header", "truncated"):
             assert "record_rebuilt" in kinds
