@@ -314,3 +314,24 @@ def test_an_activate_killed_between_its_steps_is_completed_or_taken_back_at_the_
     with ServeProcess(tmp_path, **SERVE) as again:
         again.wait_state("tracking")
         assert_one_calibration(again, data, (data / "active").read_text().strip())
+
+
+def test_an_install_whose_record_row_cannot_be_written_is_undone_whole(
+        tmp_path: Path, two_calibrations: list[str], monkeypatch: pytest.MonkeyPatch) -> None:
+    """The install's last disk step fails (SQLite: "database or disk is full"): the pointer and the model's
+    copy, already switched, go back; the job fails with the cause; the tracker keeps the old model."""
+    from graytrack.service.daemon.app import create_app
+    from tests.service.helpers import LiveServer, fast_settings
+
+    data = tmp_path / "data"
+    with LiveServer(create_app(fast_settings(data, auto_calibrate="never"))) as daemon:
+        daemon.wait_state("tracking")
+        record = daemon.rig.record
+        monkeypatch.setattr(record, "add_calibration",
+                            lambda row: (_ for _ in ()).throw(sqlite3.OperationalError("database or disk is full")))
+        job_id = daemon.post("/api/calibration", headers=daemon.auth()).json()["id"]
+        job = wait_job(daemon.get, job_id, ("failed", "done"), 30.0)
+        assert job["state"] == "failed" and job["error"].startswith("disk full:") and "disk is full" in job["error"]
+        assert not list(data.glob(".*.new")) + list(data.glob(".*.old"))
+        daemon.wait_state("tracking", 10.0)
+        assert_one_calibration(daemon, data, two_calibrations[-1])
