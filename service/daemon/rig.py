@@ -120,7 +120,10 @@ class Rig:
             thread.join(timeout=10.0)
         self.supervisor.stop()
         self._detach()
-        self.health.probe()  # the writes kept while the disk was full, if there is room now
+        if not self.health.probe() and self.health.pending:  # the writes kept while the disk was full: room now?
+            log.error("%d write(s) kept while the data directory could not be written are lost with this shutdown "
+                      "(%s); a calibration whose end was among them reads 'interrupted' at the next start",
+                      self.health.pending, self.health.reason)
         self.event("shutdown", "daemon stopped")
 
     def event(self, kind: str, message: str, **details: Any) -> None:
