@@ -26,21 +26,35 @@ from tests.service.helpers import ServeProcess, wait_for, wait_job, write_config
 SERVE = {"daemon": {"auto_calibrate": "never", "events_max_count": 60}}
 
 
+def as_root(*command: str) -> list[str]:
+    """``command`` as root: itself when this is root, else through ``sudo -n`` (CI runs as a user with sudo)."""
+    return list(command) if os.geteuid() == 0 else ["sudo", "-n", *command]
+
+
+def mount(*arguments: str) -> None:
+    subprocess.run(as_root("mount", *arguments), check=True, capture_output=True)
+
+
 @contextmanager
 def small_disk(where: Path, size: str, data: Path | None = None) -> Iterator[Path]:
-    """A tmpfs of ``size`` mounted at ``where`` (with a copy of the data directory ``data`` in it), unmounted after."""
+    """A tmpfs of ``size`` mounted at ``where`` (with a copy of the data directory ``data`` in it), unmounted after;
+    owned by this user, so the daemon under test writes it as it would its own directory."""
     where.mkdir()
-    done = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size},mode=0700", "tmpfs", str(where)],
-                          capture_output=True, text=True)
+    options = f"size={size},mode=0700,uid={os.geteuid()},gid={os.getegid()}"
+    try:
+        done = subprocess.run(as_root("mount", "-t", "tmpfs", "-o", options, "tmpfs", str(where)),
+                              capture_output=True, text=True)
+    except FileNotFoundError as exc:  # no mount or no sudo on this machine
+        done = subprocess.CompletedProcess(exc.filename, 127, "", str(exc))
     if done.returncode != 0:
         pytest.skip(f"cannot mount a tmpfs here ({done.stderr.strip() or done.returncode}): these tests need a real "
-                    f"small file system (run as root, as .ci/run does with sudo)")
+                    f"small file system (root, or sudo without a password)")
     try:
         if data is not None:
             shutil.copytree(data, where / "data")
         yield where
     finally:
-        subprocess.run(["umount", "-l", str(where)], capture_output=True)
+        subprocess.run(as_root("umount", "-l", str(where)), capture_output=True)
 
 
 def fill(disk: Path, leave: int = 0) -> Path:
@@ -185,16 +199,16 @@ def test_a_data_directory_made_read_only_moved_away_or_replaced_is_a_fault_and_n
     headers = served.auth()
     # read-only over the daemon's open files: a read-only bind mount of the directory on itself (a remount
     # of the whole file system is refused while files are open for writing)
-    subprocess.run(["mount", "--bind", str(data), str(data)], check=True)
+    mount("--bind", str(data), str(data))
     try:
-        subprocess.run(["mount", "-o", "remount,bind,ro", str(data)], check=True)
+        mount("-o", "remount,bind,ro", str(data))
         status = served.wait_state("fault", 10.0)
         assert status["faults"]["storage"].startswith(f"read-only: the data directory {data}"), status
         assert served.get("/healthz").status_code == 503
         refused = httpx.post(f"{served.base}/api/calibration", headers=headers, timeout=10)
         assert refused.status_code == 507 and "read-only" in refused.json()["error"]
     finally:
-        subprocess.run(["umount", str(data)], check=True)
+        subprocess.run(as_root("umount", str(data)), check=True)
     served.wait_state("tracking", 10.0)
 
     os.rename(data, away)  # the directory leaves its path: the record there must not be written
@@ -243,7 +257,7 @@ def test_serve_on_a_full_or_read_only_disk_says_so_in_one_line_and_touches_nothi
                                                    f"directory {data} has 0 B free"), lines
     assert "free some space" in lines[0]
     assert digest(data) == before, "nothing renamed, truncated or created"
-    subprocess.run(["mount", "-o", "remount,ro", str(tiny_disk)], check=True)
+    mount("-o", "remount,ro", str(tiny_disk))
     lines = serve()
     assert len(lines) == 1 and "read-only" in lines[0] and "remount it read-write" in lines[0], lines
     assert digest(data) == before
