@@ -26,6 +26,7 @@ from graytrack.service.daemon.api.pages import WEB_DIR
 from graytrack.service.daemon.api.security import WebGuard, WebPolicy
 from graytrack.service.daemon.broadcast import Broadcaster
 from graytrack.service.daemon.errors import DaemonError
+from graytrack.service.daemon.limits import ConnectionLimits, server_protocols
 from graytrack.service.heap import freeze_long_lived, thaw, warm_tracking
 from graytrack.service.daemon.record import open_record
 from graytrack.drivers.realtime import pin_process, raise_thread_priority, restore_process
@@ -45,14 +46,16 @@ ROUTERS = (status.router, calibration.router, history.router, profile.router, st
 SWITCH_INTERVAL_S = 0.0001
 
 
-def server_options(settings: Settings) -> dict[str, Any]:
+def server_options(settings: Settings, limits: ConnectionLimits) -> dict[str, Any]:
     """How uvicorn serves this app (``graytrack serve`` and the tests use the same). No permessage-deflate
     unless configured: the stream encodes each message once for all clients, and deflate would compress it
     again per client on the event loop (~100 us a message; at 1 kHz x 4 clients that was the loop's largest
     cost and the stream's latency tail) to save bytes on ~300-byte messages that pages receive decimated.
     The protocol is uvicorn's websockets-sansio one that also takes pre-framed messages (ws_protocol.py):
-    without deflate, each message is framed once and the same bytes are written to every client."""
-    return {"ws": StreamProtocol, "ws_per_message_deflate": settings.daemon.ws_compression, "lifespan": "on"}
+    without deflate, each message is framed once and the same bytes are written to every client. Both
+    protocols enforce ``limits`` (limits.py: connections, request time, head and frame sizes)."""
+    return {**server_protocols(limits, StreamProtocol), "ws_per_message_deflate": settings.daemon.ws_compression,
+            "lifespan": "on"}
 
 
 def resolve_token(settings: Settings, storage: Storage) -> tuple[str, str]:
@@ -125,7 +128,8 @@ def create_app(settings: Settings, factory: HardwareFactory = default_factory) -
                   description="Camera displacement sensor daemon. State changes need a bearer token.")
     app.state.rig, app.state.storage, app.state.broadcaster = rig, storage, broadcaster
     app.state.token_source = token_source
-    app.state.server_options = server_options(settings)
+    app.state.limits = ConnectionLimits(settings.daemon)
+    app.state.server_options = server_options(settings, app.state.limits)
     app.state.policy = WebPolicy(settings.daemon, token)
     app.add_middleware(WebGuard, policy=app.state.policy)
 
