@@ -23,6 +23,7 @@ from starlette.exceptions import HTTPException
 
 from graytrack.service.daemon.api import calibration, history, pages, profile, stage, status, stream, trim
 from graytrack.service.daemon.api.pages import WEB_DIR
+from graytrack.service.daemon.api.schema import strict_openapi
 from graytrack.service.daemon.api.security import WebGuard, WebPolicy
 from graytrack.service.daemon.broadcast import Broadcaster
 from graytrack.service.daemon.errors import DaemonError
@@ -68,9 +69,27 @@ def resolve_token(settings: Settings, storage: Storage) -> tuple[str, str]:
     return token, str(storage.token_path)
 
 
-def _error(status: int, message: str, **extra: Any) -> JSONResponse:
-    headers = {"WWW-Authenticate": "Bearer"} if status == 401 else None
-    return JSONResponse({"error": message, **extra}, status_code=status, headers=headers)
+def _error(status: int, message: str, headers: dict[str, str] | None = None, **extra: Any) -> JSONResponse:
+    headers = {**(headers or {}), **({"WWW-Authenticate": "Bearer"} if status == 401 else {})}
+    return JSONResponse({"error": message, **extra}, status_code=status, headers=headers or None)
+
+
+def _unreadable_body(exc: HTTPException) -> str | None:
+    """Why a JSON body could not be read, when FastAPI's 400 came from decoding it (bytes that are not
+    UTF-8, nesting beyond the parser's depth, an integer beyond Python's digit limit): the contract
+    answers every body it cannot take with 422, as it does for malformed JSON."""
+    cause = exc.__cause__
+    if exc.status_code != 400:
+        return None
+    if isinstance(cause, UnicodeDecodeError):
+        return f"request body is not valid JSON: not UTF-8 (byte {cause.object[cause.start]:#04x} at {cause.start})"
+    if isinstance(cause, RecursionError):
+        return "request body is not valid JSON for this daemon: nested too deeply"
+    if isinstance(cause, ValueError) and "digits" in str(cause):
+        return f"request body is not valid JSON for this daemon: an integer over {sys.get_int_max_str_digits()} digits"
+    if isinstance(cause, ValueError):
+        return f"request body is not valid JSON for this daemon: {cause}"
+    return None
 
 
 def _describe_validation(errors: list[dict[str, Any]]) -> str:
@@ -132,10 +151,14 @@ def create_app(settings: Settings, factory: HardwareFactory = default_factory) -
     app.state.server_options = server_options(settings, app.state.limits)
     app.state.policy = WebPolicy(settings.daemon, token)
     app.add_middleware(WebGuard, policy=app.state.policy)
+    app.openapi = strict_openapi(app, settings)  # type: ignore[method-assign]  # the rig's limits filled in
 
     @app.exception_handler(HTTPException)
     async def http_error(request: Request, exc: HTTPException) -> JSONResponse:
-        return _error(exc.status_code, str(exc.detail))
+        unreadable = _unreadable_body(exc)
+        if unreadable is not None:
+            return _error(422, unreadable)
+        return _error(exc.status_code, str(exc.detail), headers=exc.headers)  # a 405's Allow among them
 
     @app.exception_handler(RequestValidationError)
     async def validation_error(request: Request, exc: RequestValidationError) -> JSONResponse:
