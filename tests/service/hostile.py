@@ -11,6 +11,7 @@ import base64
 import json
 import os
 import resource
+import selectors
 import socket
 import struct
 import threading
@@ -143,34 +144,39 @@ class Slowloris:
 
     def run(self, give_up_s: float) -> None:
         head = f"GET /api/status HTTP/1.1\r\nHost: 127.0.0.1:{self.port}\r\nX-Slow: ".encode()
-        socks, opened = [], []
-        for _ in range(self.n):
+        selector = selectors.DefaultSelector()
+        opened: list[float] = []
+        self.closed_after_s = [None] * self.n
+        self.answers = [b""] * self.n
+        socks = []
+        for i in range(self.n):
             s = socket.create_connection(("127.0.0.1", self.port), timeout=5)
             s.sendall(head)
             s.setblocking(False)
             socks.append(s)
             opened.append(time.monotonic())
-        self.closed_after_s = [None] * self.n
-        self.answers = [b""] * self.n
+            selector.register(s, selectors.EVENT_READ, i)
         deadline = time.monotonic() + give_up_s
-        while time.monotonic() < deadline and any(c is None for c in self.closed_after_s):
-            for i, s in enumerate(socks):
-                if self.closed_after_s[i] is not None:
-                    continue
+        next_byte = time.monotonic() + self.interval_s
+        while time.monotonic() < deadline and selector.get_map():
+            for key, _ in selector.select(timeout=max(0.0, next_byte - time.monotonic())):
+                i = key.data
                 try:
-                    chunk = s.recv(4096)
-                    if chunk:
-                        self.answers[i] += chunk
-                        continue
-                    self.closed_after_s[i] = time.monotonic() - opened[i]
-                except BlockingIOError:
-                    try:
-                        s.send(b"a")
-                    except OSError:
-                        self.closed_after_s[i] = time.monotonic() - opened[i]
+                    chunk = socks[i].recv(4096)
                 except OSError:
+                    chunk = b""
+                self.answers[i] += chunk
+                if not chunk:  # closed by the server: when, to the select's resolution
                     self.closed_after_s[i] = time.monotonic() - opened[i]
-            time.sleep(self.interval_s)
+                    selector.unregister(socks[i])
+            if time.monotonic() >= next_byte:
+                next_byte += self.interval_s
+                for key in list(selector.get_map().values()):
+                    try:
+                        socks[key.data].send(b"a")
+                    except OSError:
+                        pass  # closed: the select sees it
+        selector.close()
         for s in socks:
             s.close()
 

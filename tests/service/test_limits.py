@@ -8,6 +8,7 @@ closed), and slowloris or idle connections were never closed: each test here fai
 from __future__ import annotations
 
 import json
+import socket
 import time
 from pathlib import Path
 
@@ -91,11 +92,29 @@ def test_slowloris_connections_are_answered_408_within_the_timeout(daemon: Serve
     attack.run(give_up_s=REQUEST_TIMEOUT_S + 5)
     assert all(t is not None and t < REQUEST_TIMEOUT_S + 0.5 for t in attack.closed_after_s), attack.closed_after_s
     assert all(a.startswith(b"HTTP/1.1 408") and b"request_timeout_s" in a for a in attack.answers), attack.answers[:2]
+    scrape = httpx.get(f"{daemon.base}/metrics", timeout=5).text  # what the limits did, counted
+    timed_out = next(line for line in scrape.splitlines() if line.startswith('graytrack_connections_refused_total{why="timed_out"}'))
+    assert float(timed_out.split()[-1]) >= 20
 
 
-def test_a_request_head_over_16_kib_is_431(daemon: ServeProcess) -> None:
+def test_a_request_head_over_16_kib_is_431_whole_or_trickled(daemon: ServeProcess) -> None:
     answer = httpx.get(f"{daemon.base}/api/status", headers={"X-Big": "a" * 20_000}, timeout=5)
     assert answer.status_code == 431 and "16384 bytes" in answer.json()["error"]
+    with socket.create_connection(("127.0.0.1", daemon.port), timeout=5) as sock:  # headers without end
+        sock.sendall(f"GET /api/status HTTP/1.1\r\nHost: 127.0.0.1:{daemon.port}\r\n".encode())
+        reply = b""
+        try:
+            for i in range(40):
+                sock.sendall(f"X-{i}: {'b' * 1000}\r\n".encode())
+                time.sleep(0.005)
+        except OSError:
+            pass  # closed by the daemon once over the limit
+        try:
+            while chunk := sock.recv(4096):
+                reply += chunk
+        except ConnectionResetError:  # what was sent past the limit was never read: the reply came first
+            pass
+    assert reply.startswith(b"HTTP/1.1 431") and b"16384 bytes" in reply, reply[:200]
 
 
 def test_beyond_the_limit_a_request_gets_503_and_a_websocket_1013_with_the_reason(daemon: ServeProcess) -> None:
