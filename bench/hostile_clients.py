@@ -24,8 +24,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the tests' daemo
 import numpy as np  # noqa: E402
 
 from tests.service.helpers import ServeProcess  # noqa: E402
-from tests.service.hostile import (Slowloris, StreamReader, big_frame_clients, close_code, gaps,  # noqa: E402
-                                   idle_sockets, raise_fd_limit, rss_mb)
+from tests.service.hostile import (Slowloris, StreamReader, big_frame_clients, close_code,  # noqa: E402
+                                   close_counting_open, gaps, idle_sockets, raise_fd_limit, rss_mb)
 
 SETTLE_S = 2.0
 WINDOW_S = 5.0
@@ -44,8 +44,9 @@ def big_frames(daemon: ServeProcess, n: int) -> None:
         c.close()
     time.sleep(SETTLE_S)
     after = rss_mb(pid)
-    print(f"{n} WebSockets declaring 15 MiB frames: RSS {before:.0f} MB before, {during:.0f} during (+{during - before:.1f}), "
-          f"{after:.0f} after closing (+{after - before:.1f}); each sent {sent.min():.2f}-{sent.max():.2f} MiB "
+    print(f"{n} WebSockets declaring 15 MiB frames: RSS {before:.0f} MB before, "
+          f"{during:.0f} during (+{during - before:.1f}), {after:.0f} after closing (+{after - before:.1f}); "
+          f"each sent {sent.min():.2f}-{sent.max():.2f} MiB "
           f"before the daemon cut it off ({took:.1f} s for all); close frames seen: {sorted(codes, key=str)}")
 
 
@@ -62,17 +63,7 @@ def idle(daemon: ServeProcess, n: int) -> None:
         time.sleep(WINDOW_S)
         loaded, loaded_rate = reader.window(opened_at, time.monotonic())
         during = rss_mb(daemon.process.pid)
-        still_open = 0
-        for s in socks:
-            s.setblocking(False)
-            try:
-                still_open += s.recv(1) != b""
-            except BlockingIOError:
-                still_open += 1
-            except OSError:
-                pass
-        for s in socks:
-            s.close()
+        still_open = close_counting_open(socks)
     print(f"stream alone: {quiet_rate:.1f} messages/s, {gaps(quiet)} seq gaps over {len(quiet)} messages")
     print(f"with {len(socks)} idle connections opened in {opened - opened_at:.1f} s: {loaded_rate:.1f} messages/s, "
           f"{gaps(loaded)} seq gaps over {len(loaded)} messages (reader error: {reader.error}); RSS {before:.0f} -> "

@@ -131,6 +131,21 @@ def idle_sockets(port: int, n: int) -> list[socket.socket]:
     return socks
 
 
+def close_counting_open(socks: list[socket.socket]) -> int:
+    """Close ``socks``; how many of them the server had not closed (no EOF, no reset yet)."""
+    still_open = 0
+    for s in socks:
+        s.setblocking(False)
+        try:
+            still_open += s.recv(1) != b""
+        except BlockingIOError:
+            still_open += 1
+        except OSError:
+            pass
+        s.close()
+    return still_open
+
+
 @dataclass
 class Slowloris:
     """Connections that trickle a request head a byte every ``interval_s`` and never finish it; records when

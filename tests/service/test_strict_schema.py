@@ -69,7 +69,8 @@ def test_the_schema_refuses_what_the_server_refuses_and_takes_what_it_takes(daem
     low, high = daemon.status()["limits_mm"]
     rows = daemon.get("/api/profile").json()["rows"]
     since, row = _parameter(document, "/api/events", "since"), _parameter(document, "/api/profile", "row")
-    queries = [(since, "/api/events", {"since": ""}, 422), (since, "/api/events", {"since": "1970-01-01T00:00:00Z"}, 200),
+    queries = [(since, "/api/events", {"since": ""}, 422),
+               (since, "/api/events", {"since": "1970-01-01T00:00:00Z"}, 200),
                (row, "/api/profile", {"row": rows}, 422), (row, "/api/profile", {"row": rows - 1}, 200)]
     for schema, path, params, status in queries:
         value = next(iter(params.values()))
