@@ -81,7 +81,9 @@ def test_idle_connections_do_not_disturb_the_stream_and_are_closed(daemon: Serve
 def test_slowloris_connections_are_answered_408_within_the_timeout(daemon: ServeProcess) -> None:
     attack = Slowloris(daemon.port, 20, interval_s=0.05)
     attack.run(give_up_s=REQUEST_TIMEOUT_S + 5)
-    assert all(t is not None and t < REQUEST_TIMEOUT_S + 0.5 for t in attack.closed_after_s), attack.closed_after_s
+    # closed by the deadline (not before it), within the event loop's latency on a loaded machine
+    assert all(t is not None and REQUEST_TIMEOUT_S - 0.05 < t < REQUEST_TIMEOUT_S + 1.0
+               for t in attack.closed_after_s), attack.closed_after_s
     assert all(a.startswith(b"HTTP/1.1 408") and b"request_timeout_s" in a for a in attack.answers), attack.answers[:2]
     scrape = httpx.get(f"{daemon.base}/metrics", timeout=5).text  # what the limits did, counted
     name = 'graytrack_connections_refused_total{why="timed_out"}'
