@@ -50,7 +50,7 @@ def big_frames(daemon: ServeProcess, n: int) -> None:
           f"before the daemon cut it off ({took:.1f} s for all); close frames seen: {sorted(codes, key=str)}")
 
 
-def idle(daemon: ServeProcess, n: int) -> None:
+def idle(daemon: ServeProcess, n: int, timeout_s: float) -> None:
     with StreamReader(daemon.port) as reader:
         time.sleep(1.0)
         t0 = time.monotonic()
@@ -63,16 +63,19 @@ def idle(daemon: ServeProcess, n: int) -> None:
         time.sleep(WINDOW_S)
         loaded, loaded_rate = reader.window(opened_at, time.monotonic())
         during = rss_mb(daemon.process.pid)
+        time.sleep(max(0.0, opened_at + timeout_s + 1.0 - time.monotonic()))
         still_open = close_counting_open(socks)
     print(f"stream alone: {quiet_rate:.1f} messages/s, {gaps(quiet)} seq gaps over {len(quiet)} messages")
     print(f"with {len(socks)} idle connections opened in {opened - opened_at:.1f} s: {loaded_rate:.1f} messages/s, "
           f"{gaps(loaded)} seq gaps over {len(loaded)} messages (reader error: {reader.error}); RSS {before:.0f} -> "
-          f"{during:.0f} MB; {still_open} of them still open after {WINDOW_S:g} s")
+          f"{during:.0f} MB; {still_open} of them still open {timeout_s + 1:g} s after they opened")
 
 
 def slowloris(daemon: ServeProcess, n: int, timeout_s: float) -> None:
     attack = Slowloris(daemon.port, n, interval_s=0.5)
+    before = rss_mb(daemon.process.pid)
     attack.run(give_up_s=3 * timeout_s + 10)
+    after = rss_mb(daemon.process.pid)
     times = np.array([t for t in attack.closed_after_s if t is not None])
     answered = sum(a.startswith(b"HTTP/1.1 408") for a in attack.answers)
     refused = sum(a.startswith(b"HTTP/1.1 503") for a in attack.answers)
@@ -80,7 +83,7 @@ def slowloris(daemon: ServeProcess, n: int, timeout_s: float) -> None:
     if len(times):
         print(f"{n} slowloris connections (request_timeout_s = {timeout_s:g}): {len(times)} closed, after "
               f"{times.min():.2f}-{times.max():.2f} s (median {np.median(times):.2f}); {answered} answered 408, "
-              f"{refused} 503; {never} still open after {3 * timeout_s + 10:g} s")
+              f"{refused} 503; {never} still open after {3 * timeout_s + 10:g} s; RSS {before:.0f} -> {after:.0f} MB")
     else:
         print(f"{n} slowloris connections: none closed in {3 * timeout_s + 10:g} s")
 
@@ -99,7 +102,7 @@ def main() -> None:
         daemon.wait_state("tracking", timeout_s=120)
         time.sleep(SETTLE_S)
         big_frames(daemon, args.big)
-        idle(daemon, args.idle)
+        idle(daemon, args.idle, args.timeout)
         slowloris(daemon, args.slow, args.timeout)
         print(f"daemon still answering: {daemon.status() is not None}")
 
