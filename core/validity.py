@@ -31,11 +31,12 @@ ADVICE = {
     "pixels": "pixels went bad since calibration: recalibrate (the new calibration masks them)",
     "light": "the light changed beyond what the model can follow at its precision: fix the light or recalibrate",
     "focus": "the focus moved since calibration: check the lens and its mount, then recalibrate",
-    "scale": "camera and grating drifted apart beyond their bounds: the target's scale (paper growth, "
-             "temperature), the camera's place on the stage, or the grating read at another instant than the "
-             "exposure (its latency shows as an offset that follows the speed): recalibrate",
-    "geometry": "the images are no longer what the model describes: recalibrate "
-                "(graytrack diagnose names the cause)",
+    "scale": "camera and grating disagree beyond their bounds: far off (a hundred bounds and more), the model's "
+             "period or pitch does not match this rig (a model of another target or lens); drifting apart, the "
+             "target's scale (paper growth, temperature), the camera's place on the stage, or the grating read at "
+             "another instant than the exposure (its latency shows as an offset that follows the speed): recalibrate",
+    "geometry": "the images are no longer what the model describes (the model's period or pitch does not match "
+                "this rig, the camera moved, the print changed): recalibrate (graytrack diagnose names the cause)",
 }
 
 

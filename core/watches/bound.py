@@ -95,7 +95,9 @@ class BoundWatch:
         return np.array((*BLAMED, "geometry", None), dtype=object)[out].tolist()
 
 
-def make(tracker) -> BoundWatch | None:
+def calibrated_information(tracker) -> tuple[float, float, np.ndarray] | None:
+    """The information per model row on x with the calibrated light and every sample, on a grid over the
+    stroke: (grid start, grid step, values); None when the model has no stroke range."""
     model = tracker.model
     lo, hi = model.stroke_range_mm
     if not (math.isfinite(lo) and math.isfinite(hi)):
@@ -107,5 +109,9 @@ def make(tracker) -> BoundWatch | None:
         weights, _ = frame_kernel.sample_weights(values, model.pixel_noise, tracker.pixel_weight, 1.0, None)
     else:
         weights = tracker.static_weights
-    information = np.sum(weights * slopes * slopes, axis=1)
-    return BoundWatch(float(grid[0]), step, information)
+    return float(grid[0]), step, np.sum(weights * slopes * slopes, axis=1)
+
+
+def make(tracker) -> BoundWatch | None:
+    table = calibrated_information(tracker)
+    return None if table is None else BoundWatch(*table)

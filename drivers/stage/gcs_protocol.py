@@ -24,6 +24,7 @@ CONTINUATION = b" \n"
 
 _AXIS_VALUE = re.compile(r"^([A-Za-z0-9_]+)=(\S+)$")
 _INTEGER = re.compile(r"^-?\d+$")
+SMALLEST_NUMBER = 1e-9  # the smallest positive value format_number writes (9 decimals)
 
 
 def format_number(value: float) -> str:

@@ -23,9 +23,11 @@ from starlette.exceptions import HTTPException
 
 from graytrack.service.daemon.api import calibration, history, pages, profile, stage, status, stream, trim
 from graytrack.service.daemon.api.pages import WEB_DIR
+from graytrack.service.daemon.api.schema import strict_openapi
 from graytrack.service.daemon.api.security import WebGuard, WebPolicy
 from graytrack.service.daemon.broadcast import Broadcaster
 from graytrack.service.daemon.errors import DaemonError
+from graytrack.service.daemon.limits import ConnectionLimits, server_protocols
 from graytrack.service.heap import freeze_long_lived, thaw, warm_tracking
 from graytrack.service.daemon.datadir import require_room
 from graytrack.service.daemon.record import open_record
@@ -46,14 +48,16 @@ ROUTERS = (status.router, calibration.router, history.router, profile.router, st
 SWITCH_INTERVAL_S = 0.0001
 
 
-def server_options(settings: Settings) -> dict[str, Any]:
+def server_options(settings: Settings, limits: ConnectionLimits) -> dict[str, Any]:
     """How uvicorn serves this app (``graytrack serve`` and the tests use the same). No permessage-deflate
     unless configured: the stream encodes each message once for all clients, and deflate would compress it
     again per client on the event loop (~100 us a message; at 1 kHz x 4 clients that was the loop's largest
     cost and the stream's latency tail) to save bytes on ~300-byte messages that pages receive decimated.
     The protocol is uvicorn's websockets-sansio one that also takes pre-framed messages (ws_protocol.py):
-    without deflate, each message is framed once and the same bytes are written to every client."""
-    return {"ws": StreamProtocol, "ws_per_message_deflate": settings.daemon.ws_compression, "lifespan": "on"}
+    without deflate, each message is framed once and the same bytes are written to every client. Both
+    protocols enforce ``limits`` (limits.py: connections, request time, head and frame sizes)."""
+    return {**server_protocols(limits, StreamProtocol), "ws_per_message_deflate": settings.daemon.ws_compression,
+            "lifespan": "on"}
 
 
 def resolve_token(settings: Settings, storage: Storage) -> tuple[str, str]:
@@ -66,9 +70,27 @@ def resolve_token(settings: Settings, storage: Storage) -> tuple[str, str]:
     return token, str(storage.token_path)
 
 
-def _error(status: int, message: str, **extra: Any) -> JSONResponse:
-    headers = {"WWW-Authenticate": "Bearer"} if status == 401 else None
-    return JSONResponse({"error": message, **extra}, status_code=status, headers=headers)
+def _error(status: int, message: str, headers: dict[str, str] | None = None, **extra: Any) -> JSONResponse:
+    headers = {**(headers or {}), **({"WWW-Authenticate": "Bearer"} if status == 401 else {})}
+    return JSONResponse({"error": message, **extra}, status_code=status, headers=headers or None)
+
+
+def _unreadable_body(exc: HTTPException) -> str | None:
+    """Why a JSON body could not be read, when FastAPI's 400 came from decoding it (bytes that are not
+    UTF-8, nesting beyond the parser's depth, an integer beyond Python's digit limit): the contract
+    answers every body it cannot take with 422, as it does for malformed JSON."""
+    cause = exc.__cause__
+    if exc.status_code != 400:
+        return None
+    if isinstance(cause, UnicodeDecodeError):
+        return f"request body is not valid JSON: not UTF-8 (byte {cause.object[cause.start]:#04x} at {cause.start})"
+    if isinstance(cause, RecursionError):
+        return "request body is not valid JSON for this daemon: nested too deeply"
+    if isinstance(cause, ValueError) and "digits" in str(cause):
+        return f"request body is not valid JSON for this daemon: an integer over {sys.get_int_max_str_digits()} digits"
+    if isinstance(cause, ValueError):
+        return f"request body is not valid JSON for this daemon: {cause}"
+    return None
 
 
 def _describe_validation(errors: list[dict[str, Any]]) -> str:
@@ -129,13 +151,18 @@ def create_app(settings: Settings, factory: HardwareFactory = default_factory) -
                   description="Camera displacement sensor daemon. State changes need a bearer token.")
     app.state.rig, app.state.storage, app.state.broadcaster = rig, storage, broadcaster
     app.state.token_source = token_source
-    app.state.server_options = server_options(settings)
+    app.state.limits = ConnectionLimits(settings.daemon)
+    app.state.server_options = server_options(settings, app.state.limits)
     app.state.policy = WebPolicy(settings.daemon, token)
     app.add_middleware(WebGuard, policy=app.state.policy)
+    app.openapi = strict_openapi(app, settings)  # type: ignore[method-assign]  # the rig's limits filled in
 
     @app.exception_handler(HTTPException)
     async def http_error(request: Request, exc: HTTPException) -> JSONResponse:
-        return _error(exc.status_code, str(exc.detail))
+        unreadable = _unreadable_body(exc)
+        if unreadable is not None:
+            return _error(422, unreadable)
+        return _error(exc.status_code, str(exc.detail), headers=exc.headers)  # a 405's Allow among them
 
     @app.exception_handler(RequestValidationError)
     async def validation_error(request: Request, exc: RequestValidationError) -> JSONResponse:

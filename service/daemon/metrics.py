@@ -22,6 +22,7 @@ from graytrack.core.validity import FAMILIES
 from graytrack.service.daemon import status as status_doc
 from graytrack.service.daemon.broadcast import Broadcaster
 from graytrack.service.daemon.jobs import FINAL
+from graytrack.service.daemon.limits import ConnectionLimits
 from graytrack.service.daemon.snapshot import RigSnapshot
 
 STATES = ("starting", "idle", "calibrating", "tracking", "fault", "stopping")
@@ -85,7 +86,7 @@ def _scaled(value: float | None, factor: float) -> float:
     return NAN if value is None else value * factor
 
 
-def render(snapshot: RigSnapshot, broadcaster: Broadcaster) -> str:
+def render(snapshot: RigSnapshot, broadcaster: Broadcaster, limits: ConnectionLimits) -> str:
     """The scrape of one instant: the status document and the counters of the same snapshot."""
     status = status_doc.document(snapshot)
     loop, grating, devices = snapshot.frame_loop, snapshot.grating, snapshot.devices
@@ -133,6 +134,11 @@ def render(snapshot: RigSnapshot, broadcaster: Broadcaster) -> str:
     out += gauge("graytrack_websocket_clients", "connected /ws/position clients", broadcaster.clients)
     out += counter("graytrack_websocket_messages_total", "position messages sent", broadcaster.sent)
     out += counter("graytrack_websocket_dropped_total", "messages dropped for slow clients", broadcaster.dropped)
+    out += family("graytrack_connections_refused_total", "counter",
+                  "connections and requests the resource limits refused, by why: refused (503/1013 beyond "
+                  "max_connections), dropped (closed at once beyond twice it), timed_out (408, request_timeout_s), "
+                  "oversized (431, or a WebSocket message closed 1009)",
+                  [({"why": why}, value) for why, value in limits.counters().items()])
     out += family("graytrack_model_stale", "gauge",
                   "1 for the family of causes the model is stale for (all 0: it holds)",
                   [({"reason": cause}, status.get("stale_reason") == cause) for cause in FAMILIES])

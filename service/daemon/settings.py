@@ -48,6 +48,14 @@ class DaemonConfig(_Strict):
     ws_compression: bool = Field(False, description="permessage-deflate on WebSockets: fewer bytes on a slow link, "
                                  "but one zlib compression per message and client on the event loop (at 1 kHz the "
                                  "stream's largest loop cost and its latency tail)")
+    max_connections: int = Field(256, ge=1, le=100_000, description="open HTTP and WebSocket connections served at "
+                                 "once; beyond it a request gets 503 and a WebSocket is closed 1013, both with the "
+                                 "reason (each open connection costs a file descriptor and some memory)")
+    request_timeout_s: float = Field(10.0, gt=0, le=3600, description="a request (head and body) must arrive whole "
+                                     "within this of its first byte, a new connection send one within this: else "
+                                     "408 and closed (slow or idle clients cannot hold connections)")
+    keep_alive_s: float = Field(5.0, gt=0, le=3600, description="an idle connection between requests is closed "
+                                "after this")
     api_docs: bool = Field(False, description="serve the interactive API docs at /api/docs (loads scripts from a CDN)")
     realtime_priority: int = Field(DEFAULT_LEVEL, ge=0, le=99, description="SCHED_FIFO priority of the frame loop, the event "
                                    "loop and the grating poller (1-99; needs LimitRTPRIO or CAP_SYS_NICE): the stream's latency tail on a busy machine. "

@@ -46,7 +46,9 @@ def private(path: Path, what: str, forbidden_mode: int, fix: str) -> None:
         raise UnsafeDataDir(f"{what} {path} is owned by uid {info.st_uid}, not by this user (uid {os.geteuid()}): "
                             f"use a directory of your own (--data-dir) or chown it")
     if info.st_mode & forbidden_mode:
-        raise UnsafeDataDir(f"{what} {path} has mode {info.st_mode & 0o777:o}: other users could change it; "
+        given = info.st_mode & forbidden_mode
+        could = " and ".join(verb for verb, bits in (("read", 0o044), ("change", 0o022)) if given & bits) or "use"
+        raise UnsafeDataDir(f"{what} {path} has mode {info.st_mode & 0o777:o}: other users could {could} it; "
                             f"fix: {fix}")
 
 

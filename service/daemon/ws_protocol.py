@@ -14,6 +14,10 @@ connection: such a connection, and any server without this protocol, such as Sta
 client, is sent to through ``send_text`` as before). Back-pressure is kept: a transport above its
 high-water mark (``writable`` cleared by ``pause_writing``) is not written to; the broadcaster queues
 for that client instead.
+
+The connection limit (``limits.py``) is decided here for upgraded connections, once the handshake is
+in: a connection beyond ``max_connections`` carries its refusal in ``scope["extensions"][REFUSAL]``,
+and the route accepts it only to close it ``1013`` with that reason (a close code needs a handshake).
 """
 
 from __future__ import annotations
@@ -24,7 +28,10 @@ from typing import Any
 from uvicorn.protocols.websockets.websockets_sansio_impl import WebSocketsSansIOProtocol
 from websockets.protocol import State
 
+from graytrack.service.daemon.limits import ConnectionLimits
+
 EXTENSION = "graytrack.preframed"
+REFUSAL = "graytrack.refusal"
 
 
 def text_frame(payload: bytes) -> bytes:
@@ -39,13 +46,23 @@ def text_frame(payload: bytes) -> bytes:
 
 
 class StreamProtocol(WebSocketsSansIOProtocol):
-    """uvicorn's websockets-sansio protocol whose connections accept pre-framed text frames."""
+    """uvicorn's websockets-sansio protocol whose connections accept pre-framed text frames and carry the
+    connection limit's verdict. Built by uvicorn through :func:`limits.server_protocols` (``limits`` bound there)."""
+
+    def __init__(self, *args: Any, limits: ConnectionLimits, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.limits = limits
 
     def handle_connect(self, event: Any) -> None:
         super().handle_connect(event)
         scope = getattr(self, "scope", None)  # absent when the handshake was refused
-        if scope is not None:
-            scope["extensions"][EXTENSION] = self  # the ASGI task starts later: it sees this
+        if scope is not None:  # the ASGI task starts later: it sees these
+            scope["extensions"][EXTENSION] = self
+            refusal = self.limits.over(len(self.connections))  # this connection included
+            if refusal is not None:
+                self.limits.refused += 1
+                self.limits.note_refusal("a WebSocket closed 1013")
+                scope["extensions"][REFUSAL] = refusal
 
     @property
     def preframed(self) -> bool:

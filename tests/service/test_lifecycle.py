@@ -109,9 +109,11 @@ def test_the_token_is_created_whole_by_concurrent_first_starts(tmp_path: Path) -
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".token")], "no temporary file left"
 
 
-@pytest.mark.parametrize("planted", ["directory", "token"])
+@pytest.mark.parametrize("planted, mode, could", [("directory", 0o777, "could change it"),
+                                                   ("token", 0o666, "could read and change it"),
+                                                   ("token", 0o644, "could read it")])
 def test_a_directory_or_token_others_can_write_is_refused_with_the_fix(
-        tmp_path: Path, capsys: pytest.CaptureFixture[str], planted: str) -> None:
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], planted: str, mode: int, could: str) -> None:
     """A world-writable data directory lets another user plant DATA/token before the first start
     (that token would then move the stage); a token file others can read or write leaks or plants it."""
     import os
@@ -119,15 +121,15 @@ def test_a_directory_or_token_others_can_write_is_refused_with_the_fix(
     data = tmp_path / "data"
     data.mkdir()
     if planted == "directory":
-        data.chmod(0o777)
+        data.chmod(mode)
         fix = f"chmod go-w {data}"
     else:
         (data / "token").write_text("planted-by-another-user-0123456789\n")
-        (data / "token").chmod(0o666)
+        (data / "token").chmod(mode)
         fix = f"chmod 600 {data / 'token'}"
     assert main(["serve", "--data-dir", str(data), "--port", "0"]) == 2
     line = capsys.readouterr().err.strip()
-    assert "\n" not in line and "other users could change it" in line and line.endswith(fix)
+    assert "\n" not in line and f"other users {could}" in line and line.endswith(fix)  # 644: read, not change
     assert not (data / "lock").exists() or planted == "token"  # refused before anything was written
     (data if planted == "directory" else data / "token").chmod(0o700 if planted == "directory" else 0o600)
     from graytrack.service.daemon.storage import Storage

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from datetime import datetime
 from typing import Any
 
@@ -66,21 +67,30 @@ def activate(calibration_id: str, rig: Rig = Depends(get_rig)) -> Activated:
     return rig.activate(calibration_id)
 
 
+EVENT_ID = re.compile(r"[0-9]{1,18}")  # ASCII digits only ("²" is a digit to str.isdigit); below 2^63
+FIRST_YEAR = 1970  # times are Unix times in the record: none before
+SINCE_SCHEMA = {"anyOf": [{"pattern": f"^{EVENT_ID.pattern}$"},
+                          {"format": "date-time", "pattern": "^(19[7-9][0-9]|[2-9][0-9]{3})-"}]}
+
+
 @router.get("/api/events", response_model=list[Event], responses=errors(422))
-def events(since: str = Query("0", description="an event id (the last one seen) or an ISO 8601 time"),
+def events(since: str = Query("0", description=f"an event id (the last one seen, at most 18 digits) or an ISO 8601 "
+                                               f"time from {FIRST_YEAR} on; anything else is 422",
+                              json_schema_extra=SINCE_SCHEMA),
            limit: int = Query(200, ge=1, le=500), rig: Rig = Depends(get_rig)) -> list[Event]:
     """Events after ``since``, oldest first."""
-    if since.isascii() and since.isdigit():  # ASCII digits only: "²" is a digit to str.isdigit
-        if int(since) > MAX_ROW_ID:
-            raise Invalid(f"since={since}: event ids are below 2^63")
+    if EVENT_ID.fullmatch(since):
         return _events(rig.record.events(since_id=int(since), limit=limit))
+    wrong = f"since={since[:40]!r}: give an event id (at most 18 digits) or an ISO 8601 time from {FIRST_YEAR} on"
     try:
         moment = datetime.fromisoformat(since.replace("Z", "+00:00"))
+        if moment.year < FIRST_YEAR:  # the year as written, as the schema's pattern reads it
+            raise Invalid(wrong)
         if moment.tzinfo is None:
             moment = moment.astimezone()
         since_unix = moment.timestamp()
-    except (ValueError, OverflowError, OSError):  # not a time, or one the platform cannot place (year 1)
-        raise Invalid(f"since={since!r}: give an event id or an ISO 8601 time after 1970") from None
+    except (ValueError, OverflowError, OSError):  # not a time, or one the platform cannot place
+        raise Invalid(wrong) from None
     return _events(rig.record.events(since_unix=since_unix, limit=limit))
 
 

@@ -4,9 +4,10 @@ from __future__ import annotations
 
 from typing import Annotated, Any
 
-from pydantic import BaseModel, ConfigDict, Field, Strict, create_model
+from pydantic import BaseModel, ConfigDict, Field, Strict, create_model, field_validator
 
 from graytrack.core import frame_record
+from graytrack.drivers.stage.gcs_protocol import SMALLEST_NUMBER
 
 
 class ErrorBody(BaseModel):
@@ -115,18 +116,32 @@ class CalibrationStarted(Calibration):
 class MoveRequest(BaseModel):
     model_config = ConfigDict(extra="forbid")
     # strict: a JSON number only (true is not 1 mm, "5" is not 5 mm)
-    target_mm: Annotated[float, Strict()] = Field(allow_inf_nan=False,
-                                                  description="absolute target within the soft limits")
+    target_mm: Annotated[float, Strict()] = Field(
+        allow_inf_nan=False, description="absolute target within the soft limits in force (the document's minimum "
+                                         "and maximum, filled in from the running stage), else 422")
 
 
 class JogRequest(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    step_mm: Annotated[float, Strict()] = Field(allow_inf_nan=False, description="relative move from the grating position")
+    step_mm: Annotated[float, Strict()] = Field(
+        allow_inf_nan=False, json_schema_extra={"not": {"const": 0}},
+        description="relative move from the grating position, not 0; the target (the grating position plus the "
+                    "step) must lie within the soft limits (GET /api/status limits_mm), else 422")
+
+    @field_validator("step_mm")
+    @classmethod
+    def _moves(cls, value: float) -> float:
+        if value == 0:
+            raise ValueError("a jog of 0 mm moves nothing")
+        return value
 
 
 class VelocityRequest(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    velocity_mm_s: Annotated[float, Strict()] = Field(allow_inf_nan=False, gt=0)
+    velocity_mm_s: Annotated[float, Strict()] = Field(
+        allow_inf_nan=False, ge=SMALLEST_NUMBER,
+        description=f"from {SMALLEST_NUMBER:g} mm/s (the smallest number the GCS protocol writes) up to the "
+                    "controller's limit (the document's maximum, filled in from the running controller), else 422")
 
 
 class Homed(BaseModel):

@@ -176,7 +176,8 @@ class WebGuard:
 
     async def _bounded_body(self, headers: dict[str, str], receive: Receive,
                             send: Send) -> Callable[[], Awaitable[Message]] | None:
-        """The whole body (at most ``max_body`` bytes) replayed to the app; None after answering 413."""
+        """The whole body (at most ``max_body`` bytes) replayed to the app; None after answering 413 or when
+        the client left before sending all of it."""
         too_large = {"error": f"request body over {self.max_body // 1024} KiB"}
         declared = headers.get("content-length")
         if declared is not None and (not declared.isdigit() or int(declared) > self.max_body):
@@ -186,7 +187,7 @@ class WebGuard:
         while True:
             message = await receive()
             if message["type"] == "http.disconnect":
-                break
+                return None  # gone before its body was whole (or timed out, limits.py): nothing runs on a part
             chunk = message.get("body", b"")
             size += len(chunk)
             if size > self.max_body:

@@ -43,5 +43,6 @@ def status(rig: Rig = Depends(get_rig)) -> Any:
 @router.get("/metrics", response_class=PlainTextResponse)
 def prometheus(request: Request) -> PlainTextResponse:
     """Counters and gauges in the Prometheus text format."""
-    return PlainTextResponse(metrics.render(request.app.state.rig.snapshot(), request.app.state.broadcaster),
+    return PlainTextResponse(metrics.render(request.app.state.rig.snapshot(), request.app.state.broadcaster,
+                                             request.app.state.limits),
                              media_type=metrics.CONTENT_TYPE)

@@ -4,7 +4,9 @@ Two tasks per connection, not per message: one sends what the broadcaster queued
 the client to go away. A connection served by :class:`StreamProtocol` without extensions is written
 to by the broadcaster itself, pre-framed bytes shared by every client (``broadcast.py``); its sending
 task only handles what had to be queued (a transport above its high-water mark). The handshake is
-checked by :class:`WebPolicy` (Host, Origin, token).
+checked by :class:`WebPolicy` (Host, Origin, token). A connection beyond the connection limit is
+accepted only to be closed 1013 with the reason; a client message over a small control size closes
+the connection 1009 (the stream reads nothing from its clients; limits.py).
 """
 
 from __future__ import annotations
@@ -15,7 +17,8 @@ import math
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 
 from graytrack.service.daemon.broadcast import Broadcaster, Client
-from graytrack.service.daemon.ws_protocol import EXTENSION
+from graytrack.service.daemon.limits import WS_CONTROL_BYTES, WS_MESSAGE_TOO_BIG, WS_TRY_AGAIN_LATER, ConnectionLimits
+from graytrack.service.daemon.ws_protocol import EXTENSION, REFUSAL
 
 router = APIRouter()
 POLICY_VIOLATION = 1008
@@ -32,11 +35,15 @@ async def positions(websocket: WebSocket) -> None:
         await websocket.close(code=POLICY_VIOLATION, reason="max_rate must be a positive number (messages/s)")
         return
     await websocket.accept()
+    extensions = websocket.scope.get("extensions", {})
+    if REFUSAL in extensions:
+        await websocket.close(code=WS_TRY_AGAIN_LATER, reason=extensions[REFUSAL][:120])
+        return
     broadcaster: Broadcaster = websocket.app.state.broadcaster
-    writer = websocket.scope.get("extensions", {}).get(EXTENSION)
+    writer = extensions.get(EXTENSION)
     client = broadcaster.subscribe(max_rate or None, writer if writer is not None and writer.preframed else None)
     sender = asyncio.create_task(_pump(websocket, client, broadcaster))
-    closed = asyncio.create_task(_until_closed(websocket))
+    closed = asyncio.create_task(_until_closed(websocket, websocket.app.state.limits))
     try:
         await asyncio.wait({sender, closed}, return_when=asyncio.FIRST_COMPLETED)
     finally:
@@ -76,12 +83,19 @@ async def _pump(websocket: WebSocket, client: Client, broadcaster: Broadcaster) 
         return
 
 
-async def _until_closed(websocket: WebSocket) -> None:
-    """Returns when the client goes away (clients have nothing to say on this socket)."""
+async def _until_closed(websocket: WebSocket, limits: ConnectionLimits) -> None:
+    """Returns when the client goes away, or after closing it 1009 for a message over the control size
+    (clients have nothing to say on this socket; a small one, a page's keepalive, is ignored)."""
     try:
         while True:
             message = await websocket.receive()
             if message["type"] == "websocket.disconnect":
+                return
+            size = len(message.get("bytes") or b"") + len((message.get("text") or "").encode())
+            if size > WS_CONTROL_BYTES:
+                limits.oversized += 1
+                await websocket.close(code=WS_MESSAGE_TOO_BIG, reason=f"a message of {size} bytes: this stream "
+                                                                       f"reads none over {WS_CONTROL_BYTES}")
                 return
     except (WebSocketDisconnect, RuntimeError):
         return

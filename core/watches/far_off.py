@@ -1,0 +1,73 @@
+"""The camera far off the grating: the model's scale is not this rig's.
+
+A model whose period or pixel pitch is wrong for the rig (one calibrated on another target or
+lens, installed here) still fits every frame after a fashion: the per-frame light and focus terms
+bend to absorb the mismatch, so the light and focus watches fire and, being the more specific
+families, named the cause. Their advice pointed the wrong way. Tracked with the paper rig's model
+5 % off in period, the camera sat 357 µm (~250 bounds) off the grating at rest and 380 µm in a
+sweep, and the frames were flagged ``light`` and ``focus``; 1 % off, 62-86 µm, flagged mostly
+``geometry``, ``light`` and ``focus``.
+
+Nothing a light or focus change does moves the positions by tens of bounds while the images still
+fit: a camera that far from the grating, frame after frame, is the model's scale. So this watch is
+decisive (it outranks what the nuisances suggest) and names ``scale``, whose advice says the
+model's period or pitch does not match the rig. It judges the median of camera − grating over the
+last :data:`WINDOW` frames (one grating reading gone wrong moves a median by nothing) against
+:data:`FAR_BOUNDS` times the bound of the calibrated light (the model's own precision: a wrong model
+makes the tracker solve a light field, whose frames' bound then rose from 2.2 to 17 µm at 1 % off),
+and against the median's own noise under the frames' bound as solved, so noise is never "far".
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+from collections import deque
+
+import numpy as np
+
+from graytrack.core.compression import stream_bound_factor
+from graytrack.core.validity import FrameSign, running
+from graytrack.core.watches.bound import calibrated_information
+
+WINDOW = 20  # frames with a grating reading: the median of camera - grating over these
+FAR_BOUNDS = 100.0  # |median| beyond this many calibrated bounds: further than a light or focus change moved any
+NOISE_LIMIT = 6.0  # ... and beyond this many standard errors of the median (of the frames' bounds as solved)
+MEDIAN_SE = math.sqrt(math.pi / 2.0 / WINDOW)  # a median's standard error over the noise's σ
+
+
+class FarOffWatch:
+    family = "scale"
+    decisive = True
+    reads = ("placed", "reference_mm", "x_mm", "information", "rows_averaged")
+
+    def __init__(self, calibrated_information: float, bound_scale2: float = 1.0) -> None:
+        self.calibrated_information = calibrated_information  # per model row, the stroke's median (1/mm²)
+        self.bound_scale2 = bound_scale2  # the frames' variance over the sensor's (a JPEG stream's quantisation)
+        self.differences: deque[float] = deque(maxlen=WINDOW)  # camera - grating, mm
+        self.bound2: float | None = None  # running Cramér–Rao variance of the frames as solved, mm²
+        self.calibrated2: float | None = None  # ... with the calibrated light and every sample
+
+    def observe(self, sign: FrameSign) -> str | None:
+        return self.step(sign.placed, sign.reference_mm, sign.x_mm, sign.information, sign.rows_averaged)
+
+    def step(self, placed: bool, reference_mm: float, x_mm: float, information: float,
+             rows_averaged: int) -> str | None:
+        if placed and math.isfinite(reference_mm) and math.isfinite(x_mm) and information > 0:
+            self.differences.append(x_mm - reference_mm)
+            self.bound2 = running(self.bound2, self.bound_scale2 / information, WINDOW)
+            calibrated = self.calibrated_information * rows_averaged
+            self.calibrated2 = running(self.calibrated2, self.bound_scale2 / calibrated, WINDOW)
+        if len(self.differences) < WINDOW or not self.bound2 or not self.calibrated2:
+            return None
+        offset2 = statistics.median(self.differences) ** 2
+        far = offset2 > FAR_BOUNDS * FAR_BOUNDS * self.calibrated2
+        return self.family if far and offset2 > (NOISE_LIMIT * MEDIAN_SE) ** 2 * self.bound2 else None
+
+
+def make(tracker) -> FarOffWatch | None:
+    """The watch for ``tracker``'s model (validity.monitor_for); None when the model has no stroke range."""
+    table = calibrated_information(tracker)
+    if table is None:
+        return None
+    return FarOffWatch(float(np.median(table[2])), stream_bound_factor(tracker.model.info) ** 2)
