@@ -227,21 +227,13 @@ def _grating_run(state, has, placed, reference, x, information, chi2, suspect, c
                 if not deviation * deviation <= gate:
                     difference = mean + (math.sqrt(gate) if deviation > 0 else -math.sqrt(gate))
                     beyond = True
-            if suspect[i] or (beyond and chi2[i] > chi2_limit):  # the images judge this frame
-                if beyond:
-                    out[i] = True
-                    continue
-                if count < settle or not has[2] or bound2 == 0.0:
-                    out[i] = False
-                    continue
-                out[i] = not _max(square - mean * mean, 0.0) <= limit2 * bound2
-                continue
-            count += 1
-            window = count if count < window_max else window_max
-            mean = _running(mean, has[0], difference, window)
-            square = _running(square, has[1], difference * difference, window)
-            bound2 = _running(bound2, has[2], scale2 / information[i], window)
-            has[0] = has[1] = has[2] = True
+            if not (suspect[i] or (beyond and chi2[i] > chi2_limit)):  # else the images judge this frame
+                count += 1
+                window = count if count < window_max else window_max
+                mean = _running(mean, has[0], difference, window)
+                square = _running(square, has[1], difference * difference, window)
+                bound2 = _running(bound2, has[2], scale2 / information[i], window)
+                has[0] = has[1] = has[2] = True
             if beyond:
                 out[i] = True
                 continue

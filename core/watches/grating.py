@@ -8,11 +8,12 @@ It says nothing of the cause: it blames ``geometry`` (the model does not describ
 watch that reads the cause in the images names a more specific family over it.
 
 Its window holds the frames the images cannot judge (as the bound watch's, only while χ² is at
-its calibration level): a frame while the running χ² is suspect, or one beyond the gate whose own χ²
-is beyond three of its spreads, is one the images already say the model does not describe; it is
-held against the gate (flagged when beyond) without entering the window. Taken in, a cable's shadow across the field (40 frames hundreds of µm off, clipped at the
-gate, or inside it with a light field's sevenfold bound) lifted the spread for the 300 frames
-after it, each flagged though at its bound.
+its calibration level): a frame while the running χ² is suspect, or one beyond the gate whose own
+χ² is beyond three of its spreads, is one the images already say the model does not describe; it
+is held against the gate (flagged when beyond) without entering the window. Taken in, a cable's
+shadow across the field (40 frames hundreds of µm off, clipped at the gate, or inside it with a
+light field's sevenfold bound) lifted the spread for the 300 frames after it, each flagged though
+at its bound.
 """
 
 from __future__ import annotations
