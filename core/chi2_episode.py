@@ -40,9 +40,9 @@ class RecentChi2:
     def ended(self, running: float, calibration: float, limits: list[float]) -> float | None:
         """The recent frames' mean when the episode that holds ``running`` up has ended (None: it
         has not). ``limits``: the sustained χ² limit by the number of frames averaged (from 1)."""
-        if len(self.values) < RECENT:
-            return None
-        recent = sum(self.values) / RECENT
         margin = limits[RECENT - 1] - calibration  # five spreads of a RECENT-frame mean
+        if running - calibration <= margin or len(self.values) < RECENT:
+            return None  # (the common case, one comparison a frame: nothing holds the average up)
+        recent = sum(self.values) / RECENT
         return recent if recent <= limits[RECENT - 1] and running - recent > margin else None
 
