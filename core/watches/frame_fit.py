@@ -1,4 +1,4 @@
-"""One frame that says itself it is not described, while the running χ² has begun to rise.
+"""One frame that says itself the model does not describe it, before the running χ² says so.
 
 The running χ² (over about a hundred frames) takes a few frames to rise beyond the stale limit
 when a change comes into view, and those first frames are the ones a change bends most: a cable's
@@ -11,11 +11,13 @@ flagged without a grating. A frame is flagged on its own evidence when
   the noise model says, a strip with row banding, is not flagged frame after frame for it);
 - or, while the running χ² is beyond its own spread (suspect), its own χ² is beyond three spreads
   (one frame in 700 by chance, and only while the average already says something changed);
-- or, while suspect, its answer is a light field's (``light``): a field taken while χ² is still
-  rising is one whose shape has not been seen to hold still, and it trades that shape against x.
+- or, while suspect, its answer is a light field's: a field taken while χ² is still rising is one
+  whose shape has not been seen to hold still, and it trades that shape against x.
 
-A frame flagged for its χ² is named by the shapes in its residual (core/attribution.py) when the
-monitor has them (while suspect), ``geometry`` otherwise.
+It blames ``geometry`` (the images are not what the model describes), the least specific family:
+a watch that reads the cause over frames (the χ² watch's residual shapes, held to what stays still)
+names it over this one. One frame's residual cannot: on a line shorter than a period the light's
+shapes mimic a changed print too, which named ``light`` frame by frame.
 
 A model whose χ² level varies along the stroke (core/chi2_curve.py) holds each frame against its
 own level, which this watch does not know: there only the light-field rule applies.
@@ -25,7 +27,6 @@ from __future__ import annotations
 
 import math
 
-from graytrack.core.attribution import named
 from graytrack.core.validity import FrameSign
 
 SUSPECT_SPREADS, ALONE_SPREADS = 3.0, 5.0
@@ -34,7 +35,7 @@ WINDOW = 100  # frames over which the frames' own χ² scatter is followed
 
 class FrameFitWatch:
     family = "geometry"
-    reads = ("placed", "chi2", "field", "chi2_suspect", "explain")
+    reads = ("placed", "chi2", "field", "chi2_suspect")
 
     def __init__(self, calibration: float = math.inf, spread: float = 0.0) -> None:
         self.suspect_limit = calibration * (1.0 + SUSPECT_SPREADS * spread)  # inf: no χ² rule (see above)
@@ -44,19 +45,19 @@ class FrameFitWatch:
             self.mean, self.square = calibration, (calibration * spread) ** 2 + calibration**2
 
     def observe(self, sign: FrameSign) -> str | None:
-        return self.step(sign.placed, sign.chi2, sign.field, sign.chi2_suspect, sign.explain)
+        return self.step(sign.placed, sign.chi2, sign.field, sign.chi2_suspect)
 
-    def step(self, placed: bool, chi2: float, field: bool, chi2_suspect: bool, explain) -> str | None:
+    def step(self, placed: bool, chi2: float, field: bool, chi2_suspect: bool) -> str | None:
         if not placed:
             return None
         if chi2_suspect and field:
-            return "light"
+            return self.family
         if not (math.isfinite(chi2) and math.isfinite(self.alone_limit)):
             return None
         scatter = math.sqrt(max(self.square - self.mean * self.mean, 0.0))
         alone = chi2 > self.alone_limit and chi2 > self.mean + ALONE_SPREADS * scatter
         if alone or (chi2_suspect and chi2 > self.suspect_limit):
-            return named(explain()["shares"]) if explain is not None else self.family
+            return self.family
         self.mean += (chi2 - self.mean) / WINDOW  # the frames that fit feed the scatter
         self.square += (chi2 * chi2 - self.square) / WINDOW
         return None
