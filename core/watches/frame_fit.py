@@ -8,7 +8,8 @@ flagged without a grating. A frame is flagged on its own evidence when
 
 - its own χ² is beyond five of its spreads above the calibration's level, and beyond five of the
   spreads the last frames' χ² actually show above their mean (a rig whose frames scatter more than
-  the noise model says, a strip with row banding, is not flagged frame after frame for it);
+  the noise model says, a strip with row banding, is not flagged frame after frame for it; at four,
+  the steady 16-row strip with row banding had 3 of 500 frames flagged);
 - or, while the running χ² is beyond its own spread (suspect), its own χ² is beyond three spreads
   (one frame in 700 by chance, and only while the average already says something changed);
 - or, while suspect, its answer is a light field's: a field taken while χ² is still rising is one
