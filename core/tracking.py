@@ -26,6 +26,7 @@ import numpy as np
 
 from graytrack.core import attribution, frame_kernel, repeats, transients
 from graytrack.core.chi2_curve import Chi2Curve
+from graytrack.core.chi2_episode import RECENT, RecentChi2
 from graytrack.core.compression import stream_bound_factor
 from graytrack.core.errors import TrackingError
 from graytrack.core.geometry_check import refusal
@@ -644,6 +645,7 @@ class SequentialState:
     # Batch tracking: the frames' signs wait here, and the monitor takes them a chunk at a time
     # (:meth:`verdicts`); None: each frame is shown to the monitor as it is solved (live).
     pending: list | None = None
+    recent: RecentChi2 = field(default_factory=RecentChi2)  # the last frames' χ²: has an episode ended?
 
     def advance(self, tracker: "Tracker", batch: GeneralBatch | TrigPolyBatch, k: int,
                 reference: float) -> tuple[FrameSolution, bool, bool]:
@@ -658,7 +660,8 @@ class SequentialState:
         # with a focus term solved, the model as calibrated is what the running χ² watches
         focus_free = solution.chi2_calibrated_focus
         chi2 = focus_free if math.isfinite(focus_free) else solution.chi2
-        self._watch_model(tracker, chi2 / tracker.chi2_level(solution.x_mm))  # against the level where it was taken
+        self._watch_model(tracker, chi2 / tracker.chi2_level(solution.x_mm),  # against the level where it was taken
+                          not solution.field)
         self._watch_validity(tracker, batch, k, solution, ok, reference)
         return solution, ok, locked and tracker.refused is None
 
@@ -708,10 +711,11 @@ class SequentialState:
                                      lost=False))
         self.frame += 1
 
-    def _watch_model(self, tracker: "Tracker", chi2: float) -> None:
+    def _watch_model(self, tracker: "Tracker", chi2: float, plain: bool = True) -> None:
         """A running χ² average (one frame's contribution capped, so that once the average has
         frames behind it a single garbage frame cannot flip it) above the stale limit: the images
-        have left what the model describes."""
+        have left what the model describes. ``plain``: the answer needed no light field (a focus
+        term's answer is watched by the uniform light's χ² already)."""
         if not math.isfinite(chi2):
             return
         capped = min(chi2, 3.0 * tracker.stale_limit)
@@ -720,6 +724,14 @@ class SequentialState:
         self.chi2_average += (capped - self.chi2_average) / STALE_WINDOW
         frames = self.chi2_frames = min(self.chi2_frames + 1, STALE_WINDOW)
         self.chi2_mean += (capped - self.chi2_mean) / frames
+        # an episode that came and went (a shadow passing) is forgotten once it has left (core/chi2_episode.py)
+        self.recent.add(capped, plain)
+        limits = (tracker.chi2_calibration, tracker.sustained_limits)
+        if (recent := self.recent.ended(self.chi2_mean, *limits)) is not None:
+            self.chi2_mean, frames = recent, min(self.chi2_frames, RECENT)
+            self.chi2_frames = frames
+        if self.recent.ended(self.chi2_average, *limits) is not None:  # the light control starts again, as at
+            self.chi2_average = self.memory.uniform_chi2 = tracker.chi2_calibration  # the run's start
         self.chi2_suspect = self.chi2_mean > tracker.sustained_limits[frames - 1]
         self.chi2_stale = self.chi2_mean > tracker.stale_limits[frames - 1]
         # The light control keeps the average started at calibration's level: a first frame's χ²

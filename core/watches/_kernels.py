@@ -213,7 +213,8 @@ def _reference_run(ip, p, ist, fst, est, rows, x, ref, bound, feed, stale, start
 
 # ---------------------------------------------------------------- the small watches
 
-def _grating_run(state, has, placed, reference, x, information, scale2, window_max, settle, limit2, gate2, out):
+def _grating_run(state, has, placed, reference, x, information, chi2, suspect, chi2_limit, scale2, window_max, settle,
+                 limit2, gate2, out):
     """GratingWatch.step over frames: state (mean, square, bound², count), has (mean, square, bound²)."""
     mean, square, bound2, count = state[0], state[1], state[2], int(state[3])
     for i in range(x.size):
@@ -226,12 +227,13 @@ def _grating_run(state, has, placed, reference, x, information, scale2, window_m
                 if not deviation * deviation <= gate:
                     difference = mean + (math.sqrt(gate) if deviation > 0 else -math.sqrt(gate))
                     beyond = True
-            count += 1
-            window = count if count < window_max else window_max
-            mean = _running(mean, has[0], difference, window)
-            square = _running(square, has[1], difference * difference, window)
-            bound2 = _running(bound2, has[2], scale2 / information[i], window)
-            has[0] = has[1] = has[2] = True
+            if not (suspect[i] or (beyond and chi2[i] > chi2_limit)):  # else the images judge this frame
+                count += 1
+                window = count if count < window_max else window_max
+                mean = _running(mean, has[0], difference, window)
+                square = _running(square, has[1], difference * difference, window)
+                bound2 = _running(bound2, has[2], scale2 / information[i], window)
+                has[0] = has[1] = has[2] = True
             if beyond:
                 out[i] = True
                 continue

@@ -6,6 +6,14 @@ bent the model). The scale watch follows a drift that is a line along the stroke
 scatter: the windowed spread of camera − grating beyond ``LIMIT`` times the frames' own bound.
 It says nothing of the cause: it blames ``geometry`` (the model does not describe the rig), and a
 watch that reads the cause in the images names a more specific family over it.
+
+Its window holds the frames the images cannot judge (as the bound watch's, only while χ² is at
+its calibration level): a frame while the running χ² is suspect, or one beyond the gate whose own
+χ² is beyond three of its spreads, is one the images already say the model does not describe; it
+is held against the gate (flagged when beyond) without entering the window. Taken in, a cable's
+shadow across the field (40 frames hundreds of µm off, clipped at the gate, or inside it with a
+light field's sevenfold bound) lifted the spread for the 300 frames after it, each flagged though
+at its bound.
 """
 
 from __future__ import annotations
@@ -29,21 +37,25 @@ GATE2 = GATE * GATE
 
 class GratingWatch:
     family = "geometry"
-    reads = ("placed", "reference_mm", "x_mm", "information")
+    reads = ("placed", "reference_mm", "x_mm", "information", "chi2", "chi2_suspect")
 
-    def __init__(self, bound_scale2: float = 1.0) -> None:
+    def __init__(self, bound_scale2: float = 1.0, chi2_limit: float = math.inf) -> None:
         self.bound_scale2 = bound_scale2  # the frames' variance over the sensor's (a JPEG stream's quantisation)
+        self.chi2_limit = chi2_limit  # a frame beyond the gate with its own χ² beyond this: the images' (above)
         self.mean: float | None = None  # camera − grating, mm
         self.square: float | None = None
         self.bound2: float | None = None  # the frames' Cramér–Rao variance, mm²
         self.count = 0
 
     def observe(self, sign: FrameSign) -> str | None:
-        return self.step(sign.placed, sign.reference_mm, sign.x_mm, sign.information)
+        return self.step(sign.placed, sign.reference_mm, sign.x_mm, sign.information, sign.chi2, sign.chi2_suspect)
 
-    def step(self, placed: bool, reference_mm: float, x_mm: float, information: float) -> str | None:
+    def step(self, placed: bool, reference_mm: float, x_mm: float, information: float, chi2: float = 0.0,
+             chi2_suspect: bool = False) -> str | None:
         if placed and math.isfinite(reference_mm) and math.isfinite(x_mm) and information > 0:
             difference, beyond = self._gated(x_mm - reference_mm, self.bound_scale2 / information)
+            if chi2_suspect or (beyond and chi2 > self.chi2_limit):  # the images judge this frame
+                return self.family if beyond else self._verdict()
             self.count += 1
             # a plain mean until the window is full, then the running one: the first readings do not
             # outweigh the next hundred
@@ -53,6 +65,10 @@ class GratingWatch:
             self.bound2 = running(self.bound2, self.bound_scale2 / information, window)
             if beyond:
                 return self.family
+        return self._verdict()
+
+    def _verdict(self) -> str | None:
+        """The window's own verdict: its spread beyond LIMIT times the frames' bound."""
         if self.count < SETTLE or not self.bound2:
             return None
         spread2 = max(self.square - self.mean * self.mean, 0.0)
@@ -84,6 +100,7 @@ class GratingWatch:
         out = np.zeros(n, dtype=bool)
         _kernels._grating_run(state, has, columns.array("placed", bool), columns.array("reference_mm", np.float64),
                               columns.array("x_mm", np.float64), columns.array("information", np.float64),
+                              columns.array("chi2", np.float64), columns.array("chi2_suspect", bool), self.chi2_limit,
                               self.bound_scale2, WINDOW, SETTLE, LIMIT * LIMIT, GATE2, out)
         values = state.tolist()
         self.mean, self.square, self.bound2 = (value if known else None for value, known in zip(values, has.tolist()))
@@ -94,4 +111,7 @@ class GratingWatch:
 
 
 def make(tracker) -> GratingWatch:
-    return GratingWatch(stream_bound_factor(tracker.model.info) ** 2)
+    # a model whose χ² level varies along the stroke holds each frame against its own level, not this watch
+    spread = math.sqrt(2.0 / (tracker.model.n_rows * tracker.model.n_pixels))
+    limit = tracker.chi2_calibration * (1.0 + 3.0 * spread) if tracker.chi2_curve is None else math.inf
+    return GratingWatch(stream_bound_factor(tracker.model.info) ** 2, limit)

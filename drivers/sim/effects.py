@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING, Callable, Mapping, Sequence
 import numpy as np
 
 from graytrack.drivers.sim.sensor import FULL_SCALE_GRAY, BadPixel
+from graytrack.drivers.sim.shadow import ShadowConfig
 from graytrack.drivers.sim.target import Defect, Growth
 
 if TYPE_CHECKING:
@@ -286,6 +287,25 @@ def _light_change(config: "RigConfig", v: dict[str, float], rng: np.random.Gener
     ill.ambient_gray = v["ambient_gray"]
     ill.level_start_s = v["start_s"]
     ill.level_ramp_s = _positive("light_change", "ramp_s", v["ramp_s"], True)
+
+
+@effect("moving_shadow", "illumination", "A cable's shadow swinging across the field between the lamp and the print "
+        "(fixed to neither camera nor print): a band `width_mm` wide with soft edges (penumbra σ `edge_mm`), "
+        "`depth` of the light lost in its core, crossing the field in `pass_s`, `passes` times (back and forth) "
+        "every `period_s` from `start_s` on.",
+        depth=(0.33, "relative light lost in the band's core"), width_mm=(3.0, "band width on the print plane, mm"),
+        edge_mm=(1.0, "softness of each edge (penumbra σ), mm"), pass_s=(1.0, "time of one pass across the field, s"),
+        passes=(3.0, "number of passes"), period_s=(4.0, "time between passes, s"),
+        start_s=(1.0, "when the first pass begins, s"))
+def _moving_shadow(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    if not 0 <= v["depth"] < 1:
+        raise EffectError("effect 'moving_shadow': depth must be in [0, 1)")
+    pass_s = _positive("moving_shadow", "pass_s", v["pass_s"])
+    if v["period_s"] < pass_s:
+        raise EffectError("effect 'moving_shadow': period_s must be at least pass_s (one pass at a time)")
+    width, edge = (_positive("moving_shadow", key, v[key]) for key in ("width_mm", "edge_mm"))
+    passes = _count("moving_shadow", "passes", v["passes"], 0, 10000)
+    config.illumination.shadow = ShadowConfig(v["depth"], width, edge, pass_s, passes, v["period_s"], v["start_s"])
 
 
 # ----- optics ----------------------------------------------------------------------------------

@@ -11,7 +11,8 @@ frame, so it is done once here, when the renderer is built:
 - the exposure's motion blur is linear in the basis, so the pieces of the motion are averaged into
   one basis row first (``2M+1`` numbers, scalar work) and the matrix is applied once;
 - the glare (fixed to the camera) is one precomputed ``(R, n)`` array, added when present; the
-  flicker and a changing room light are per-frame scalars, evaluated only when configured.
+  flicker and a changing room light are per-frame scalars, evaluated only when configured; a moving
+  shadow is one ``(R, n)`` gain per frame, likewise.
 
 The sensor (fixed patterns, shot and read noise, gamma, quantisation) is the rig's own
 :meth:`Sensor.expose` with the rig's own noise stream, so a frame is statistically — and, draw for
@@ -89,6 +90,7 @@ class FrameRenderer:
         self._glare = rig._glare if icfg.glare_gray else None
         self._flicker = icfg.flicker_depth != 0.0
         self._level = icfg.level_gain != 1.0 or icfg.ambient_gray != 0.0
+        self._shadow = icfg.shadow if icfg.shadow.active else None
         self._basis = np.empty(self._matrix.shape[0])  # reused: the frame's only allocation is its light
 
     def light(self, x_mm: np.ndarray, t_mid_s: float, exposure_s: float) -> np.ndarray:
@@ -97,6 +99,8 @@ class FrameRenderer:
         takes them. Only for rigs with ``fallback`` None."""
         _exposure_basis(np.asarray(x_mm, dtype=np.float64).reshape(-1).tolist(), self._omega, self._basis)
         light = (self._basis @ self._matrix).reshape(self._shape)
+        if self._shadow is not None:  # a shadow sweeping across the field, as the rig renders it
+            light *= self._shadow.gain(np.array([t_mid_s]), self.rig.geometry.x_mm)
         if self._glare is not None:
             light += self._glare
         if self._flicker or self._level:

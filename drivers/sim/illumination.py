@@ -14,9 +14,11 @@ Three physically different things, told apart by what they follow:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
+
+from graytrack.drivers.sim.shadow import ShadowConfig
 
 
 @dataclass
@@ -37,6 +39,7 @@ class IlluminationConfig:
     glare_gray: float = 0.0  # stray light of a bright blob fixed to the camera, at its centre (gray)
     glare_center: tuple[float, float] = (0.5, 0.5)  # (pixel, row) of its centre, as fractions of the ROI
     glare_sigma_px: float = 10.0  # its size, pixels
+    shadow: ShadowConfig = field(default_factory=ShadowConfig)  # a shadow sweeping across the field (shadow.py)
 
     @property
     def has_target_field(self) -> bool:

@@ -249,6 +249,8 @@ class VirtualRig:
             for rows, xs in self._row_exposures(x[k0:k1], exposure):
                 light = self._light_slow(xs, t[k0:k1], focus) if self._slow else self._light_fast(xs, focus)
                 out[k0:k1, rows] = light.reshape(k1 - k0, R, n)[:, rows]
+        if self.config.illumination.shadow.active:  # a cable's shadow on the print: the lamp's light there only
+            out *= self.config.illumination.shadow.gain(t, self.geometry.x_mm)
         if self.config.illumination.glare_gray:
             out += self._glare  # the lamp's stray light: it dims and flickers with the lamp
         if self._glints is not None:  # the lamp mirrored by the print: it dims and flickers with it too

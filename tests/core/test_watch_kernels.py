@@ -103,7 +103,8 @@ def sign_columns(n: int, seed: int) -> dict[str, list]:
         "x_mm": x.tolist(), "reference_mm": reference.tolist(), "placed": (rng.random(n) > 0.02).tolist(),
         "rows_averaged": [1] * n, "free_light": (stretch(0.35, 0.75) | (rng.random(n) < 0.05)).tolist(),
         "field": (rng.random(n) < 0.02).tolist(), "chi2_average": [1.0] * n,
-        "chi2_suspect": stretch(0.45, 0.47).tolist(), "chi2_stale": [False] * n, "explain": [None] * n}
+        "chi2_suspect": (stretch(0.45, 0.47) | stretch(0.62, 0.66)).tolist(), "chi2_stale": [False] * n,
+        "explain": [None] * n}
     assert set(columns) == set(SIGN_FIELDS)
     return columns
 
@@ -119,7 +120,7 @@ def watches():
 
     table = 1e8 * (1.0 + 0.5 * np.sin(np.linspace(0.0, 20.0, 700)) ** 2)
     return {"bound": lambda: BoundWatch(1.0, 10.0 / 699, table), "chi2": ChiSquareWatch, "focus": FocusWatch,
-            "grating": lambda: GratingWatch(1.3), "light": LightWatch, "transients": TransientWatch,
+            "grating": lambda: GratingWatch(1.3, 1.9), "light": LightWatch, "transients": TransientWatch,
             "scale": lambda: ScaleWatch(ReferenceMonitor(5.0, 4.0, window=100, floor_um=0.01))}
 
 
