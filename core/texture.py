@@ -32,15 +32,16 @@ from __future__ import annotations
 
 import math
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from graytrack.core.effects.target_map import MAX_MAP_STEPS
 from graytrack.core.frame_kernel import CUT_SIGMA
-from graytrack.core.models.fourier import FourierModel, map_lookup
+from graytrack.core.models.fourier import FourierModel
 from graytrack.core.solvers import FrameSolution, GeneralBatch, TrigPolyBatch, robust_solve
+from graytrack.core.texture_mark import FIELDS, PRIOR_SIGMA, Grid, Mark, scale_chi2
 
 STEPS_PER_PIXEL = MAX_MAP_STEPS  # a quarter of a pixel footprint: specks narrower than a pixel keep their shape
 MARGIN_PX = 1.5  # a candidate's stretch beyond the samples set aside (a speck's faint tails)
@@ -49,131 +50,20 @@ MIN_FRAMES = 10  # frames that saw a candidate before it may be learned
 MIN_TRAVEL_PX = 1.5  # pixels the print moved under it: every node seen by two pixels, a pixel's defect shown up
 SIGNIFICANT_Z = 6.0  # its deepest node this many of its own σ from 0
 MOVES_CHI2 = 25.0  # χ² by which fixed-to-the-print beats fixed-to-the-pixels (5σ)
-CONSISTENT_SPREADS = 5.0  # χ² within this many of its spreads of its degrees of freedom ...
-# ... plus this share of the mark's own signal (Σ w r²): the grid's misfit of a speck's shape (a
-# quarter-pixel hat basis leaves a few % of a sharp speck's edges). A glint that came and went, a
-# pixel gone bad seen by the print's other pixels, leave most of their signal unexplained.
-MISFIT_SHARE = 0.1
-PRIOR_SIGMA = 0.5  # a mark changes the light by less than about half: what holds a node few frames saw
 GIVE_UP_TRAVEL_PX = 8.0  # a candidate not learned after the print moved this far under it: dropped
 GIVE_UP_FRAMES = 400  # ... or after this many frames that saw it (a stage standing still)
 MAX_CANDIDATES = 64  # open candidates at most (the oldest dropped first)
 REFIT_EVERY = 5  # frames that saw a mark between two fits of it
 REFUSED_FRAMES = 100  # pixels whose candidate followed the camera open none for this long
+PASSES = 3  # solves of a corrected frame at most before the tracker's own (each reads the marks where the last put it)
+HELD_STILL_MM = 1e-4  # a pass that moved the frame less than this: the marks are read where it is
+GRATING_WINDOW = 20  # frames the camera's offset from the grating is averaged over (it follows a latency's v·Δt)
+GRATING_AGREES_PX = 0.1  # the grating vouches for a frame's place only within this of the frame's own
+SCALE_EVERY = 50  # frames between two searches of the pixels' footprint on the print (from the marks learned)
+SCALE_TRAVEL_PX = 10.0  # marks seen over this much travel say what the footprint is
+SCALE_RANGE = 0.03  # the footprint searched within this of the model's (relative)
+SCALE_CHI2 = 25.0  # a footprint the marks prefer by this much χ² (5σ) is taken
 CHANGED_FRAMES = 3  # frames in a row with samples beyond a learned mark's cut: it changed (more dust landed on it)
-
-
-@dataclass
-class Mark:
-    """One stretch of the target (nodes ``first``..``first + size − 1`` of the grid, every model
-    row) and the normal equations of its relative reflectance, frame by frame."""
-
-    first: int
-    size: int
-    rows: int
-    opened: int  # frame number that opened it
-    diag: np.ndarray = field(init=False)
-    off: np.ndarray = field(init=False)
-    rhs: np.ndarray = field(init=False)
-    sum_rr: float = 0.0  # Σ w r² over its observations
-    samples: int = 0
-    frames: int = 0
-    pixel_aa: dict[int, float] = field(default_factory=dict)  # the camera-fixed alternative: Σ w a² per sample
-    pixel_ar: dict[int, float] = field(default_factory=dict)  # ... and Σ w a r
-    low_px: float = math.inf  # pixel columns its centre was seen at
-    high_px: float = -math.inf
-    last_seen: int = 0
-    since_fit: int = 0
-    learned_at: int = -1  # frame at which it was learned (−1: a candidate)
-    relearning: bool = False  # it changed (more dust landed on it): fresh evidence gathers while the old m applies
-    values: np.ndarray | None = None  # m per node (R, size), after a fit
-    sigma: np.ndarray | None = None  # its standard error (∞ where no frame saw the node)
-    applied: np.ndarray | None = None  # the m frames are corrected by (the last fit that was ready; None: a candidate)
-    applied_sigma: np.ndarray | None = None
-    chi2_dof: float = math.nan
-    moves_chi2: float = 0.0  # χ² the camera-fixed alternative leaves beyond this fit
-    peak_z: float = 0.0
-    outlying: int = 0  # frames in a row in which samples departed from the learned mark
-
-    def __post_init__(self) -> None:
-        self.reset()
-
-    def reset(self) -> None:
-        """Forget the evidence (a mark that changed starts again as a candidate on its stretch)."""
-        self.diag = np.zeros((self.rows, self.size))
-        self.off = np.zeros((self.rows, self.size - 1))
-        self.rhs = np.zeros((self.rows, self.size))
-        self.sum_rr, self.samples, self.frames, self.since_fit, self.outlying = 0.0, 0, 0, 0, 0
-        self.pixel_aa, self.pixel_ar = {}, {}
-        self.low_px, self.high_px = math.inf, -math.inf
-        self.values, self.sigma = None, None
-        self.chi2_dof, self.moves_chi2, self.peak_z = math.nan, 0.0, 0.0
-
-    @property
-    def learned(self) -> bool:
-        return self.applied is not None
-
-    @property
-    def travel_px(self) -> float:
-        return self.high_px - self.low_px if self.frames else 0.0
-
-    def extend(self, first: int, last: int) -> None:
-        """Grow the stretch to nodes ``first..last`` (the new nodes unseen so far)."""
-        low, high = min(first, self.first), max(last, self.first + self.size - 1)
-        if low == self.first and high == self.first + self.size - 1:
-            return
-        before, after = self.first - low, high - (self.first + self.size - 1)
-        pad = ((0, 0), (before, after))
-        self.diag, self.off, self.rhs = np.pad(self.diag, pad), np.pad(self.off, pad), np.pad(self.rhs, pad)
-        if self.values is not None:
-            self.values = np.pad(self.values, pad)
-            self.sigma = np.pad(self.sigma, pad, constant_values=np.inf)
-        if self.applied is not None:
-            self.applied = np.pad(self.applied, pad)
-            self.applied_sigma = np.pad(self.applied_sigma, pad, constant_values=PRIOR_SIGMA)
-        self.first, self.size = low, high - low + 1
-
-    def fit(self) -> None:
-        """m from the normal equations, row by row; its σ from their inverse, scaled by the spread of
-        the observations about the fit; the χ² the camera-fixed alternative leaves beyond it."""
-        values, sigma = np.zeros_like(self.rhs), np.full_like(self.rhs, np.inf)
-        explained, seen_nodes = 0.0, 0
-        variances = []
-        for r in range(self.rows):
-            seen = self.diag[r] > 0.0
-            if not seen.any():
-                continue
-            normal = np.diag(self.diag[r]) + np.diag(self.off[r], 1) + np.diag(self.off[r], -1)
-            normal[np.diag_indices(self.size)] += 1.0 / PRIOR_SIGMA**2
-            inverse = np.linalg.inv(normal)
-            values[r] = inverse @ self.rhs[r]
-            explained += float(values[r] @ self.rhs[r])
-            variances.append((r, seen, np.diag(inverse)))
-            seen_nodes += int(seen.sum())
-        dof = max(self.samples - seen_nodes, 1)
-        chi2 = max(self.sum_rr - explained, 0.0)
-        self.chi2_dof = chi2 / dof
-        inflate = max(1.0, self.chi2_dof)
-        for r, seen, variance in variances:
-            sigma[r, seen] = np.sqrt(np.maximum(variance[seen], 0.0) * inflate)
-        self.values, self.sigma = values, sigma
-        pixel_explained = sum(ar * ar / aa for p, (aa, ar) in
-                              ((p, (aa, self.pixel_ar[p])) for p, aa in self.pixel_aa.items()) if aa > 0.0)
-        pixel_chi2 = max(self.sum_rr - pixel_explained, 0.0)
-        self.moves_chi2 = pixel_chi2 - chi2 - (seen_nodes - len(self.pixel_aa))  # each side's unknowns allowed for
-        finite = np.isfinite(sigma) & (sigma > 0.0) & (sigma < 0.5 * PRIOR_SIGMA)  # nodes the frames tell
-        self.peak_z = float((np.abs(values[finite]) / sigma[finite]).max()) if finite.any() else 0.0
-        self.since_fit = 0
-
-    def consistent(self) -> bool:
-        """The frames agree on one shape at one target coordinate (what is left is noise and misfit)."""
-        dof = max(self.samples - int((self.diag > 0).sum()), 1)
-        return self.chi2_dof * dof <= dof + CONSISTENT_SPREADS * math.sqrt(2.0 * dof) + MISFIT_SHARE * self.sum_rr
-
-    def ready(self) -> bool:
-        """Seen enough, moving with the print, consistent and significant: learn it."""
-        return (self.frames >= MIN_FRAMES and self.travel_px >= MIN_TRAVEL_PX and self.consistent()
-                and self.moves_chi2 > MOVES_CHI2 and self.peak_z > SIGNIFICANT_Z)
 
 
 @dataclass
@@ -192,13 +82,14 @@ class Texture:
 
     def __init__(self, model: FourierModel):
         self.model = model
-        self.step_mm = model.pixel_pitch_mm / STEPS_PER_PIXEL
+        step = model.pixel_pitch_mm / STEPS_PER_PIXEL
         # on the grid of the model's own target map when it has one (a learned mark adds into it)
-        self.origin_mm = float(model.target_map_origin_mm) if model.target_map is not None else 0.0
+        origin = float(model.target_map_origin_mm) if model.target_map is not None else 0.0
         if model.target_map is not None:
-            ratio = model.target_map_step_mm / self.step_mm
+            ratio = model.target_map_step_mm / step
             if abs(ratio - round(ratio)) < 1e-9 and round(ratio) >= 1:
-                self.step_mm = model.target_map_step_mm / round(ratio)
+                step = model.target_map_step_mm / round(ratio)
+        self.grid = Grid(origin, step)
         offsets = model.target_offset()  # (R, n)
         self.offsets = offsets.reshape(-1)
         self.rows = model.n_rows
@@ -211,6 +102,8 @@ class Texture:
         self.refused_until = np.zeros(self.n_pixels, dtype=np.int64)
         self.refused = 0
         self.corrected_px = 0  # samples the last frame had corrected by a learned mark
+        self.grating_offset_mm, self.grating_frames = 0.0, 0  # the camera's recent mean offset from the grating
+        self.scaled_at = 0  # frame of the last search of the footprint
 
     # ------------------------------------------------------------------ the frame to solve
     def corrected(self, tracker, batch: GeneralBatch | TrigPolyBatch, k: int, x_guess: float,
@@ -222,19 +115,21 @@ class Texture:
         if not math.isfinite(x_guess) or not any(mark.learned for mark in self.marks):
             return batch, k
         y, w = batch.frames[k], batch.weights(k)
-        first = self._divided(y, w, x_guess)
-        if first is None:
+        x_at, divided = x_guess, self._divided(y, w, x_guess)
+        if divided is None:
             return batch, k
-        single = self._batch(tracker, first[0], first[1])
-        start = FrameSolution(x_guess, float("nan"), 0.0, 0, gain, offset)
-        trial = robust_solve(single, 0, start, free, tracker.settings, None, tracker.chi2_limit, tracker.layout)
-        x_at = trial.x_mm if math.isfinite(trial.x_mm) and abs(trial.x_mm - x_guess) < self.model.pixel_pitch_mm \
-            else x_guess
-        again = self._divided(y, w, x_at)
-        if again is None:
-            return batch, k
-        self.corrected_px = int(again[2])
-        return self._batch(tracker, again[0], again[1]), 0
+        for _ in range(PASSES):  # the marks read where the corrected frame puts it, until that holds still
+            start = FrameSolution(x_at, float("nan"), 0.0, 0, gain, offset)
+            trial = robust_solve(self._batch(tracker, divided[0], divided[1]), 0, start, free, tracker.settings, None,
+                                 tracker.chi2_limit, tracker.layout)
+            if not (math.isfinite(trial.x_mm) and abs(trial.x_mm - x_guess) < self.model.pixel_pitch_mm):
+                break
+            moved, x_at = abs(trial.x_mm - x_at), trial.x_mm
+            divided = self._divided(y, w, x_at) or divided
+            if moved < HELD_STILL_MM:
+                break
+        self.corrected_px = int(divided[2])
+        return self._batch(tracker, divided[0], divided[1]), 0
 
     def _divided(self, y: np.ndarray, w: np.ndarray, x_mm: float):
         """(y / (1 + m), its weights, samples corrected) at position ``x_mm``; None: no learned mark in view."""
@@ -271,11 +166,12 @@ class Texture:
 
     def _inside(self, mark: Mark, x_mm: float):
         """Samples whose target coordinate at ``x_mm`` lies on the mark's stretch: (samples, cell, frac)."""
-        lo = self.origin_mm + self.step_mm * mark.first
-        hi = lo + self.step_mm * (mark.size - 1)
-        if x_mm + self.view_mm[1] < lo or x_mm + self.view_mm[0] >= hi:
+        grid = self.grid
+        lo = grid.origin_mm + grid.step_mm * mark.first
+        hi = lo + grid.step_mm * (mark.size - 1)
+        if x_mm + grid.scale * self.view_mm[1] < lo or x_mm + grid.scale * self.view_mm[0] >= hi:
             return None
-        position = (x_mm + self.offsets - lo) / self.step_mm
+        position = grid.position(x_mm, self.offsets, mark.first)
         samples = np.flatnonzero((position >= 0.0) & (position < mark.size - 1))
         if not samples.size:
             return None
@@ -284,7 +180,7 @@ class Texture:
 
     # ------------------------------------------------------------------ evidence
     def observe(self, tracker, batch: GeneralBatch | TrigPolyBatch, k: int, solution: FrameSolution,
-                placed: bool, frame: int) -> None:
+                placed: bool, frame: int, reference_mm: float = math.nan) -> None:
         """Add frame ``k``'s residual (the frame as recorded, at its solution) to every mark it sees;
         open candidates where it set samples aside; learn, refine or drop marks. A frame not placed
         only for the share of its samples set aside (the marks not learned yet) still tells them:
@@ -292,7 +188,7 @@ class Texture:
         fits = solution.rms_gray <= tracker.residual_limit_gray and solution.iterations > 0
         if not math.isfinite(solution.x_mm) or not (placed or fits):
             return
-        x = solution.x_mm
+        x = self._vouched(solution.x_mm, reference_mm, placed)
         set_aside = solution.rejected > 0 or solution.transient_px > 0
         in_view = [mark for mark in self.marks if self._inside(mark, x) is not None]
         if not set_aside and not in_view:
@@ -307,51 +203,50 @@ class Texture:
             self._open(x, residual, w, solution, frame)
         self._review(frame)
 
+    def _vouched(self, x_mm: float, reference_mm: float, placed: bool) -> float:
+        """Where the frame saw the print, for the marks' evidence: the grating's reading in the
+        camera's frame of reference (the camera's recent mean offset from it added) where the grating
+        is read and agrees, else the frame's own position. The grating's reading is far less noisy
+        than one frame's position; a mark learned from the frames' own positions would be smeared by
+        their scatter, and would pull the next frames towards where the last ones were placed."""
+        if not math.isfinite(reference_mm):
+            return x_mm
+        if placed:
+            self.grating_frames = min(self.grating_frames + 1, GRATING_WINDOW)
+            self.grating_offset_mm += (x_mm - reference_mm - self.grating_offset_mm) / self.grating_frames
+        vouched = reference_mm + self.grating_offset_mm
+        agrees = abs(vouched - x_mm) < GRATING_AGREES_PX * self.model.pixel_pitch_mm
+        return vouched if self.grating_frames >= GRATING_WINDOW // 2 and agrees else x_mm
+
     def _add(self, mark: Mark, x: float, residual: np.ndarray, scale: np.ndarray, w: np.ndarray, frame: int) -> None:
+        """The frame's samples on the mark's stretch as its evidence, unless they depart from the
+        learned mark (a glint on top of it); samples departing frame after frame: it changed."""
         samples, cell, frac = self._inside(mark, x)
-        weights = w[samples]
-        r, a = residual[samples], scale[samples]
+        weights, r, a = w[samples], residual[samples], scale[samples]
         keep = weights > 0.0
-        if mark.learned and not mark.relearning:  # a transient on top of the mark (a glint) is no evidence of it
+        if mark.learned and not mark.relearning:
             rows = self.row_of[samples]
             applied, spread = mark.applied, mark.applied_sigma
             predicted = a * (applied[rows, cell] * (1.0 - frac) + applied[rows, cell + 1] * frac)
             allowance = np.abs(a) * np.maximum(spread[rows, cell], spread[rows, cell + 1])
             inside = np.abs(r - predicted) <= CUT_SIGMA * np.sqrt(1.0 / np.maximum(weights, 1e-300) + allowance**2)
-            departed = bool((keep & ~inside).any())
-            mark.outlying = mark.outlying + 1 if departed else 0
+            mark.outlying = mark.outlying + 1 if (keep & ~inside).any() else 0
             if mark.outlying >= CHANGED_FRAMES:  # the same stretch departs frame after frame: the mark changed
                 self.events.append(TextureEvent(frame, "changed", self.describe(mark)))
-                applied, applied_sigma, learned_at = mark.applied, mark.applied_sigma, mark.learned_at
                 mark.reset()  # fresh evidence from here on; the old m goes on correcting until it is ready
-                mark.applied, mark.applied_sigma, mark.learned_at, mark.relearning = \
-                    applied, applied_sigma, learned_at, True
+                mark.relearning = True
             else:
                 keep &= inside
-        samples, cell, frac, weights, r, a = (v[keep] for v in (samples, cell, frac, weights, r, a))
+        samples, weights, r, a = samples[keep], weights[keep], r[keep], a[keep]
         if not samples.size:
             return
-        rows = self.row_of[samples]
-        left, right = a * (1.0 - frac), a * frac
-        flat = rows * mark.size + cell
-        total = mark.rows * mark.size
-        mark.diag += (np.bincount(flat, weights * left * left, total)
-                      + np.bincount(flat + 1, weights * right * right, total)).reshape(mark.rows, mark.size)
-        off_flat = rows * (mark.size - 1) + cell
-        mark.off += np.bincount(off_flat, weights * left * right, mark.rows * (mark.size - 1)).reshape(
-            mark.rows, mark.size - 1)
-        mark.rhs += (np.bincount(flat, weights * left * r, total)
-                     + np.bincount(flat + 1, weights * right * r, total)).reshape(mark.rows, mark.size)
-        mark.sum_rr += float(weights @ (r * r))
-        mark.samples += samples.size
-        for p, aa, ar in zip(samples.tolist(), (weights * a * a).tolist(), (weights * a * r).tolist()):
-            mark.pixel_aa[p] = mark.pixel_aa.get(p, 0.0) + aa
-            mark.pixel_ar[p] = mark.pixel_ar.get(p, 0.0) + ar
-        centre = (self.origin_mm + self.step_mm * (mark.first + 0.5 * (mark.size - 1)) - x) / self.model.pixel_pitch_mm
-        mark.low_px, mark.high_px = min(mark.low_px, centre), max(mark.high_px, centre)
-        mark.frames += 1
-        mark.since_fit += 1
-        mark.last_seen = frame
+        part = np.stack(np.broadcast_arrays(x, self.offsets[samples], self.row_of[samples],
+                                            self.column_of[samples] + self.n_pixels * self.row_of[samples], r, a,
+                                            weights)).astype(np.float64)
+        grid = self.grid
+        centre = (grid.origin_mm + grid.step_mm * (mark.first + 0.5 * (mark.size - 1)) - x) / (
+            grid.scale * self.model.pixel_pitch_mm)
+        mark.add(part, centre, frame)
 
     def _open(self, x: float, residual: np.ndarray, w: np.ndarray, solution: FrameSolution, frame: int) -> None:
         """Candidates where the frame set samples aside (runs of neighbouring columns), unless a mark
@@ -371,36 +266,41 @@ class Texture:
         for start, stop in zip(edges[::2], edges[1::2]):
             if (stop - start) > MAX_SPAN_PX:
                 continue
-            lo = x + centre_row[start] - MARGIN_PX * pitch - self._row_reach()
-            hi = x + centre_row[stop - 1] + MARGIN_PX * pitch + self._row_reach()
-            first = int(math.floor((lo - self.origin_mm) / self.step_mm))
-            last = int(math.ceil((hi - self.origin_mm) / self.step_mm))
-            for mark in self.learned:  # a learned mark keeps its stretch (what lands on it, it relearns)
-                end = mark.first + mark.size - 1
-                if mark.first <= first and last <= end:
-                    first = last + 1
-                elif mark.first <= last <= end:
-                    last = mark.first
-                elif mark.first <= first <= end:
-                    first = end
-            if last - first < 2:
-                continue
-            overlapping = [m for m in self.marks if not m.learned and m.first <= last and first <= m.first + m.size - 1]
-            if overlapping:
-                keep = overlapping[0]
-                for other in overlapping[1:]:  # grown together: the older one holds the stretch
-                    keep.extend(other.first, other.first + other.size - 1)
-                    self.marks.remove(other)
-                keep.extend(first, last)
-                if keep.size * self.step_mm > MAX_SPAN_PX * pitch:
-                    self.marks.remove(keep)
-                continue
-            if len(self.marks) >= MAX_CANDIDATES:
-                oldest = next((m for m in self.marks if not m.learned), None)
-                if oldest is None:
-                    return
-                self.marks.remove(oldest)
-            self.marks.append(Mark(first, last - first + 1, self.rows, frame, last_seen=frame))
+            lo = x + self.grid.scale * centre_row[start] - MARGIN_PX * pitch - self._row_reach()
+            hi = x + self.grid.scale * centre_row[stop - 1] + MARGIN_PX * pitch + self._row_reach()
+            first = int(math.floor((lo - self.grid.origin_mm) / self.grid.step_mm))
+            last = int(math.ceil((hi - self.grid.origin_mm) / self.grid.step_mm))
+            for first, last in self._outside_learned(first, last):
+                self._candidate(first, last, frame)
+
+    def _outside_learned(self, first: int, last: int) -> list[tuple[int, int]]:
+        """The parts of nodes ``first..last`` no learned mark holds (a learned mark keeps its stretch:
+        what lands on it, it relearns), at least three nodes long."""
+        pieces = [(first, last)]
+        for mark in self.learned:
+            end = mark.last
+            pieces = [part for low, high in pieces
+                      for part in ((low, min(high, mark.first)), (max(low, end), high)) if part[1] > part[0]]
+        return [(low, high) for low, high in pieces if high - low >= 2]
+
+    def _candidate(self, first: int, last: int, frame: int) -> None:
+        """A candidate on nodes ``first..last``, grown into the candidates it meets."""
+        overlapping = [m for m in self.marks if not m.learned and m.first <= last and first <= m.last]
+        if overlapping:
+            keep = overlapping[0]
+            for other in overlapping[1:]:  # grown together: the older one holds the stretch
+                keep.extend(other.first, other.last)
+                self.marks.remove(other)
+            keep.extend(first, last)
+            if keep.size * self.grid.step_mm > MAX_SPAN_PX * self.model.pixel_pitch_mm:
+                self.marks.remove(keep)
+            return
+        if len(self.marks) >= MAX_CANDIDATES:
+            oldest = next((m for m in self.marks if not m.learned), None)
+            if oldest is None:
+                return
+            self.marks.remove(oldest)
+        self.marks.append(Mark(first, last - first + 1, self.rows, frame, last_seen=frame))
 
     def _row_reach(self) -> float:
         """How far the rows' views of one point differ along the target (a tilted strip)."""
@@ -409,56 +309,99 @@ class Texture:
 
     def _review(self, frame: int) -> None:
         """Refit the marks that saw enough new frames; learn the candidates that are ready, drop the
-        hopeless ones and the learned ones that stopped fitting."""
+        hopeless ones and the learned ones that stopped fitting; now and then, the footprint."""
+        if frame - self.scaled_at >= SCALE_EVERY:
+            self._rescale(frame)
         for mark in list(self.marks):
             due = mark.since_fit >= REFIT_EVERY or (not mark.learned and mark.frames >= MIN_FRAMES and mark.since_fit)
             if due and mark.frames:
-                mark.fit()
-                if mark.learned and not mark.relearning:
-                    if mark.consistent():
-                        mark.applied, mark.applied_sigma = mark.values, mark.sigma  # refined by the new frames
-                    else:
-                        self.marks.remove(mark)
-                        self.events.append(TextureEvent(frame, "dropped", self.describe(mark)))
-                elif mark.ready():
-                    mark.applied, mark.applied_sigma, mark.relearning = mark.values, mark.sigma, False
-                    mark.learned_at = frame
-                    self.events.append(TextureEvent(frame, "learned", self.describe(mark)))
+                self._judge(mark, mark.refit(self.grid), frame)
+            if mark not in self.marks:
+                continue
+            hopeless = mark.travel_px > GIVE_UP_TRAVEL_PX or mark.frames > GIVE_UP_FRAMES
             if mark.learned:
-                if mark.relearning and (mark.travel_px > GIVE_UP_TRAVEL_PX or mark.frames > GIVE_UP_FRAMES):
+                if mark.relearning and hopeless:
                     self.marks.remove(mark)  # what landed on it cannot be told apart: it is no mark any more
                     self.events.append(TextureEvent(frame, "dropped", self.describe(mark)))
-                continue
-            if mark.travel_px > GIVE_UP_TRAVEL_PX or mark.frames > GIVE_UP_FRAMES:
+            elif hopeless:
                 self.marks.remove(mark)
-                if mark.values is not None and mark.moves_chi2 < 0.0:  # it followed the camera: a pixel's defect
+                if mark.fit is not None and mark.fit.moves_chi2 < 0.0:  # it followed the camera: a pixel's defect
                     self._refuse(mark, frame)
             elif frame - mark.last_seen > GIVE_UP_FRAMES:
                 self.marks.remove(mark)
 
+    def _judge(self, mark: Mark, fit, frame: int) -> None:
+        """A fresh fit: a learned mark is refined by it (or dropped when the frames stop agreeing);
+        a candidate (or a mark relearning) that is ready is learned."""
+        if mark.learned and not mark.relearning:
+            if fit.consistent():
+                mark.applied, mark.applied_sigma = fit.values, fit.sigma
+            else:
+                self.marks.remove(mark)
+                self.events.append(TextureEvent(frame, "dropped", self.describe(mark)))
+        elif (mark.frames >= MIN_FRAMES and mark.travel_px >= MIN_TRAVEL_PX and fit.consistent()
+              and fit.moves_chi2 > MOVES_CHI2 and fit.peak_z > SIGNIFICANT_Z):
+            mark.applied, mark.applied_sigma, mark.relearning = fit.values, fit.sigma, False
+            mark.learned_at = frame
+            self.events.append(TextureEvent(frame, "learned", self.describe(mark)))
+
+    def _rescale(self, frame: int) -> None:
+        """The pixels' footprint on the print, from the learned marks seen over a long travel: the
+        scale at which their frames agree best (a coarse then a fine search), taken when it beats the
+        present one by ``SCALE_CHI2``; every mark is then moved and refitted at it."""
+        self.scaled_at = frame
+        telling = [mark for mark in self.learned if mark.travel_px >= SCALE_TRAVEL_PX]
+        if not telling:
+            return
+        grid = self.grid
+        now = scale_chi2(telling, grid, grid.scale)
+        best, best_chi2 = grid.scale, now
+        for spacing in (SCALE_RANGE / 6.0, SCALE_RANGE / 60.0):
+            centre = best
+            for scale in centre * (1.0 + spacing * np.arange(-6, 7)):
+                chi2 = scale_chi2(telling, grid, float(scale))
+                if chi2 < best_chi2:
+                    best, best_chi2 = float(scale), chi2
+        if now - best_chi2 < SCALE_CHI2:
+            return
+        for mark in self.marks:
+            mark.shift(int(round((best - grid.scale) * mark.centre_offset() / grid.step_mm)))
+        grid.scale = best
+        self.events.append(TextureEvent(frame, "footprint", {"scale": round(best, 5),
+                                                             "chi2_gain": round(now - best_chi2, 1)}))
+        for mark in list(self.marks):
+            if mark.frames:
+                self._judge(mark, mark.refit(grid), frame)
+
     def _refuse(self, mark: Mark, frame: int) -> None:
         """The pixels that carried a candidate's residual open no candidate for a while."""
-        worst = max(mark.pixel_aa, key=lambda p: abs(mark.pixel_ar[p]) / math.sqrt(mark.pixel_aa[p])
-                    if mark.pixel_aa[p] > 0 else 0.0)
-        column = int(self.column_of[worst])
+        samples = mark.samples()
+        pixels = samples[FIELDS.index("pixel")].astype(np.int64)
+        weight, scale, residual = (samples[FIELDS.index(name)] for name in ("weight", "scale", "residual"))
+        aa = np.bincount(pixels, weight * scale * scale)
+        ar = np.bincount(pixels, weight * scale * residual)
+        worst = int(np.argmax(np.where(aa > 0, np.abs(ar) / np.sqrt(np.maximum(aa, 1e-300)), 0.0)))
+        column = worst % self.n_pixels
         self.refused_until[max(column - 1, 0):column + 2] = frame + REFUSED_FRAMES
         self.refused += 1
 
     # ------------------------------------------------------------------ what was learned
     def describe(self, mark: Mark) -> dict[str, Any]:
         """Where a mark is, how deep, how sure: its deepest node and its stretch along the target."""
-        values, sigma = (mark.applied, mark.applied_sigma) if mark.learned else (mark.values, mark.sigma)
+        fit = mark.fit
+        values, sigma = (mark.applied, mark.applied_sigma) if mark.learned else (
+            (fit.values, fit.sigma) if fit is not None else (None, None))
         if values is None:
             values, sigma = np.zeros((mark.rows, mark.size)), np.full((mark.rows, mark.size), np.inf)
         r, j = np.unravel_index(int(np.argmax(np.abs(values))), values.shape)
-        nodes = self.origin_mm + self.step_mm * (mark.first + np.arange(mark.size))
+        grid = self.grid
+        nodes = grid.origin_mm + grid.step_mm * (mark.first + np.arange(mark.size))
         weight = np.abs(values).sum(axis=0)
         centre = float((weight @ nodes) / weight.sum()) if weight.sum() > 0 else float(nodes.mean())
         return {"x_mm": round(centre, 4), "from_mm": round(float(nodes[0]), 4), "to_mm": round(float(nodes[-1]), 4),
                 "depth": round(-float(values[r, j]), 4), "depth_sigma": round(float(sigma[r, j]), 4),
                 "row": int(r), "frames": mark.frames, "travel_px": round(mark.travel_px, 2),
-                "chi2_dof": round(mark.chi2_dof, 3) if math.isfinite(mark.chi2_dof) else None,
-                "learned_at": mark.learned_at}
+                "chi2_dof": round(fit.chi2_dof, 3) if fit is not None else None, "learned_at": mark.learned_at}
 
     @property
     def learned(self) -> list[Mark]:
@@ -468,36 +411,13 @@ class Texture:
         """What a run learned: the marks (where, how deep, how sure), the candidates still open, the
         candidates refused as following the camera, and the learn/drop events."""
         return {"learned": len(self.learned), "candidates": len(self.marks) - len(self.learned),
-                "refused": self.refused, "grid_step_mm": self.step_mm,
+                "refused": self.refused, "grid_step_mm": self.grid.step_mm, "footprint_scale": self.grid.scale,
                 "marks": [self.describe(mark) for mark in self.learned],
                 "events": [{"frame": e.frame, "what": e.what, **e.mark} for e in self.events]}
 
     def line(self) -> str:
         """One sentence for a command's output."""
         return summary_line(self.summary())
-
-    def as_target_map(self) -> dict[str, Any] | None:
-        """The learned marks as a target map's fields (core/effects/target_map.py), added into the
-        model's own map when it has one: what the model of record keeps. None: nothing learned."""
-        learned = self.learned
-        if not learned:
-            return None
-        model = self.model
-        low = min(mark.first for mark in learned)
-        high = max(mark.first + mark.size for mark in learned)
-        if model.target_map is not None:
-            ratio = int(round(model.target_map_step_mm / self.step_mm))
-            base_first = int(round((model.target_map_origin_mm - self.origin_mm) / self.step_mm))
-            low, high = min(low, base_first), max(high, base_first + ratio * (model.target_map.shape[1] - 1) + 1)
-        nodes = self.origin_mm + self.step_mm * np.arange(low, high)
-        table = np.zeros((self.rows, nodes.size))
-        if model.target_map is not None:
-            position = (nodes - model.target_map_origin_mm) / model.target_map_step_mm
-            rows = np.arange(model.target_map.shape[0])[:, None]
-            table += map_lookup(model.target_map, rows, np.broadcast_to(position, (rows.size, nodes.size)))[0] - 1.0
-        for mark in learned:
-            table[:, mark.first - low:mark.first - low + mark.size] += mark.applied
-        return {"target_map": table, "target_map_origin_mm": float(nodes[0]), "target_map_step_mm": self.step_mm}
 
 
 def summary_line(summary: dict[str, Any] | None) -> str:

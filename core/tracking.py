@@ -675,7 +675,7 @@ class SequentialState:
         self._watch_model(tracker, chi2 / tracker.chi2_level(solution.x_mm))  # against the level where it was taken
         self._watch_validity(tracker, solved, at, solution, ok, reference)
         if texture is not None:
-            texture.observe(tracker, batch, k, solution, ok, self.frame - 1)
+            texture.observe(tracker, batch, k, solution, ok, self.frame - 1, reference)
         return solution, ok, locked and tracker.refused is None
 
     def _watch_validity(self, tracker: "Tracker", batch: GeneralBatch | TrigPolyBatch, k: int,
