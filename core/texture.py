@@ -400,7 +400,7 @@ class Texture:
         centre = float((weight @ nodes) / weight.sum()) if weight.sum() > 0 else float(nodes.mean())
         return {"x_mm": round(centre, 4), "from_mm": round(float(nodes[0]), 4), "to_mm": round(float(nodes[-1]), 4),
                 "depth": round(-float(values[r, j]), 4), "depth_sigma": round(float(sigma[r, j]), 4),
-                "row": int(r), "frames": mark.frames, "travel_px": round(mark.travel_px, 2),
+                "row": int(r), "frames": mark.frames, "travel_px": round(float(mark.travel_px), 2),
                 "chi2_dof": round(fit.chi2_dof, 3) if fit is not None else None, "learned_at": mark.learned_at}
 
     @property
