@@ -101,6 +101,7 @@ class Texture:
         self.events: list[TextureEvent] = []
         self.refused_until = np.zeros(self.n_pixels, dtype=np.int64)
         self.refused = 0
+        self.opened = 0  # candidates opened over the run
         self.corrected_px = 0  # samples the last frame had corrected by a learned mark
         self.grating_offset_mm, self.grating_frames = 0.0, 0  # the camera's recent mean offset from the grating
         self.scaled_at = 0  # frame of the last search of the footprint
@@ -132,29 +133,31 @@ class Texture:
         return self._batch(tracker, divided[0], divided[1]), 0
 
     def _divided(self, y: np.ndarray, w: np.ndarray, x_mm: float):
-        """(y / (1 + m), its weights, samples corrected) at position ``x_mm``; None: no learned mark in view."""
-        factor, variance = np.ones_like(y), np.zeros_like(y)
+        """(y / (1 + m), its weights, samples corrected) at position ``x_mm``; None: no learned mark in
+        view. A corrected sample's variance: its noise's, that noise's share the mark's fit left
+        unexplained (its misfit), and the mark's own uncertainty times the light it darkens."""
+        factor, variance, misfit = np.ones_like(y), np.zeros_like(y), np.zeros_like(y)
         touched = 0
-        for mark in self.marks:
-            if not mark.learned:
-                continue
+        for mark in self.learned:
             where = self._inside(mark, x_mm)
             if where is None:
                 continue
             samples, cell, frac = where
             rows = self.row_of[samples]
-            m = mark.applied[rows, cell] * (1.0 - frac) + mark.applied[rows, cell + 1] * frac
-            s2 = np.square(mark.applied_sigma[rows, cell]) * (1.0 - frac) + \
-                np.square(mark.applied_sigma[rows, cell + 1]) * frac
-            factor[samples] *= 1.0 + m
-            variance[samples] += s2
+
+            def read(table: np.ndarray) -> np.ndarray:
+                return table[rows, cell] * (1.0 - frac) + table[rows, cell + 1] * frac
+
+            factor[samples] *= 1.0 + read(mark.applied)
+            variance[samples] += read(np.square(mark.applied_sigma))
+            misfit[samples] += read(mark.applied_misfit)
             touched += samples.size
         if not touched:
             return None
         factor = np.maximum(factor, 0.05)  # a mark never darkens a sample to nothing
         corrected = y / factor
         with np.errstate(divide="ignore", invalid="ignore"):
-            noise = np.where(w > 0.0, 1.0 / np.where(w > 0.0, w, 1.0) / (factor * factor), np.inf)
+            noise = np.where(w > 0.0, (1.0 + misfit) / np.where(w > 0.0, w, 1.0) / (factor * factor), np.inf)
             weights = np.where(w > 0.0, 1.0 / (noise + corrected * corrected * variance), 0.0)
         return corrected, np.nan_to_num(weights, nan=0.0, posinf=0.0), touched
 
@@ -301,6 +304,7 @@ class Texture:
                 return
             self.marks.remove(oldest)
         self.marks.append(Mark(first, last - first + 1, self.rows, frame, last_seen=frame))
+        self.opened += 1
 
     def _row_reach(self) -> float:
         """How far the rows' views of one point differ along the target (a tilted strip)."""
@@ -335,13 +339,14 @@ class Texture:
         a candidate (or a mark relearning) that is ready is learned."""
         if mark.learned and not mark.relearning:
             if fit.consistent():
-                mark.applied, mark.applied_sigma = fit.values, fit.sigma
+                mark.apply(fit)
             else:
                 self.marks.remove(mark)
                 self.events.append(TextureEvent(frame, "dropped", self.describe(mark)))
         elif (mark.frames >= MIN_FRAMES and mark.travel_px >= MIN_TRAVEL_PX and fit.consistent()
               and fit.moves_chi2 > MOVES_CHI2 and fit.peak_z > SIGNIFICANT_Z):
-            mark.applied, mark.applied_sigma, mark.relearning = fit.values, fit.sigma, False
+            mark.apply(fit)
+            mark.relearning = False
             mark.learned_at = frame
             self.events.append(TextureEvent(frame, "learned", self.describe(mark)))
 
@@ -411,7 +416,7 @@ class Texture:
         """What a run learned: the marks (where, how deep, how sure), the candidates still open, the
         candidates refused as following the camera, and the learn/drop events."""
         return {"learned": len(self.learned), "candidates": len(self.marks) - len(self.learned),
-                "refused": self.refused, "grid_step_mm": self.grid.step_mm, "footprint_scale": self.grid.scale,
+                "opened": self.opened, "refused": self.refused, "grid_step_mm": self.grid.step_mm, "footprint_scale": self.grid.scale,
                 "marks": [self.describe(mark) for mark in self.learned],
                 "events": [{"frame": e.frame, "what": e.what, **e.mark} for e in self.events]}
 

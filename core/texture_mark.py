@@ -49,6 +49,7 @@ class Fit:
 
     values: np.ndarray
     sigma: np.ndarray
+    misfit: np.ndarray  # (R, size): the samples' spread about the fit beyond their noise, in units of its variance
     chi2: float
     samples: int
     seen_nodes: int
@@ -86,6 +87,7 @@ class Mark:
     fit: Fit | None = None  # the last fit
     applied: np.ndarray | None = None  # the m frames are corrected by (the last fit that was ready; None: a candidate)
     applied_sigma: np.ndarray | None = None
+    applied_misfit: np.ndarray | None = None
     outlying: int = 0  # frames in a row in which samples departed from the learned mark
 
     def reset(self) -> None:
@@ -128,11 +130,16 @@ class Mark:
         if self.applied is not None:
             self.applied = np.pad(self.applied, pad)
             self.applied_sigma = np.pad(self.applied_sigma, pad, constant_values=PRIOR_SIGMA)
+            self.applied_misfit = np.pad(self.applied_misfit, pad)
         self.first, self.size = low, high - low + 1
 
     def shift(self, nodes: int) -> None:
         """The stretch moved by ``nodes`` (the grid's scale changed under it)."""
         self.first += nodes
+
+    def apply(self, fit: Fit) -> None:
+        """Correct frames by this fit from now on."""
+        self.applied, self.applied_sigma, self.applied_misfit = fit.values, fit.sigma, fit.misfit
 
     def refit(self, grid: Grid) -> Fit:
         """Fit the mark at the grid's scale and keep the fit."""
@@ -203,7 +210,8 @@ def fit_samples(samples: np.ndarray, grid: Grid, first: int, size: int, rows: in
     moves_chi2 = pixel_chi2 - chi2 - (seen_nodes - int(used.sum()))  # each side's unknowns allowed for
     told = np.isfinite(sigma) & (sigma > 0.0) & (sigma < 0.5 * PRIOR_SIGMA)  # nodes the frames tell
     peak_z = float((np.abs(values[told]) / sigma[told]).max()) if told.any() else 0.0
-    return Fit(values, sigma, chi2, n, seen_nodes, signal, moves_chi2, peak_z)
+    misfit = np.where(seen, np.maximum(local - 1.0, 0.0), 0.0)
+    return Fit(values, sigma, misfit, chi2, n, seen_nodes, signal, moves_chi2, peak_z)
 
 
 def scale_chi2(marks: list[Mark], grid: Grid, scale: float) -> float:
