@@ -113,7 +113,7 @@ class Texture:
         batch itself when no learned mark is in view). The marks are read at the predicted position,
         then at the position a first solve of the corrected frame gives."""
         self.corrected_px = 0
-        if not math.isfinite(x_guess) or not any(mark.learned for mark in self.marks):
+        if not math.isfinite(x_guess) or not self.marks:
             return batch, k
         y, w = batch.frames[k], batch.weights(k)
         x_at, divided = x_guess, self._divided(y, w, x_guess)
@@ -133,16 +133,20 @@ class Texture:
         return self._batch(tracker, divided[0], divided[1]), 0
 
     def _divided(self, y: np.ndarray, w: np.ndarray, x_mm: float):
-        """(y / (1 + m), its weights, samples corrected) at position ``x_mm``; None: no learned mark in
-        view. A corrected sample's variance: its noise's, that noise's share the mark's fit left
+        """(y / (1 + m), its weights, samples corrected) at position ``x_mm``; None: no mark in view.
+        The samples of a candidate in view are set aside (a speck just landed pulls the position with
+        the tails the robust solve leaves in, until it is learned). A corrected sample's variance: its noise's, that noise's share the mark's fit left
         unexplained (its misfit), and the mark's own uncertainty times the light it darkens."""
         factor, variance, misfit = np.ones_like(y), np.zeros_like(y), np.zeros_like(y)
-        touched = 0
-        for mark in self.learned:
+        touched, pending = 0, np.zeros(y.shape, dtype=bool)
+        for mark in self.marks:
             where = self._inside(mark, x_mm)
             if where is None:
                 continue
             samples, cell, frac = where
+            if not mark.learned:  # a candidate's samples wait, set aside, until it is learned or dropped
+                pending[samples] = True
+                continue
             rows = self.row_of[samples]
 
             def read(table: np.ndarray) -> np.ndarray:
@@ -152,9 +156,10 @@ class Texture:
             variance[samples] += read(np.square(mark.applied_sigma))
             misfit[samples] += read(mark.applied_misfit)
             touched += samples.size
-        if not touched:
+        if not touched and not pending.any():
             return None
         factor = np.maximum(factor, 0.05)  # a mark never darkens a sample to nothing
+        w = np.where(pending, 0.0, w)
         corrected = y / factor
         with np.errstate(divide="ignore", invalid="ignore"):
             noise = np.where(w > 0.0, (1.0 + misfit) / np.where(w > 0.0, w, 1.0) / (factor * factor), np.inf)
