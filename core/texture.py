@@ -55,8 +55,6 @@ GIVE_UP_FRAMES = 400  # ... or after this many frames that saw it (a stage stand
 MAX_CANDIDATES = 64  # open candidates at most (the oldest dropped first)
 REFIT_EVERY = 5  # frames that saw a mark between two fits of it
 REFUSED_FRAMES = 100  # pixels whose candidate followed the camera open none for this long
-PASSES = 3  # solves of a corrected frame at most before the tracker's own (each reads the marks where the last put it)
-HELD_STILL_MM = 1e-4  # a pass that moved the frame less than this: the marks are read where it is
 GRATING_WINDOW = 20  # frames the camera's offset from the grating is averaged over (it follows a latency's v·Δt)
 GRATING_AGREES_PX = 0.1  # the grating vouches for a frame's place only within this of the frame's own
 SCALE_EVERY = 50  # frames between two searches of the pixels' footprint on the print (from the marks learned)
@@ -110,33 +108,51 @@ class Texture:
     def corrected(self, tracker, batch: GeneralBatch | TrigPolyBatch, k: int, x_guess: float,
                   free: bool, gain: float, offset: float) -> tuple[GeneralBatch | TrigPolyBatch, int]:
         """Batch frame ``k`` with the learned marks in view divided out, as a one-frame batch (or the
-        batch itself when no learned mark is in view). The marks are read at the predicted position,
-        then at the position a first solve of the corrected frame gives."""
+        batch itself when no mark is in view).
+
+        The marks are read where the print alone places the frame: solved first with every sample
+        of a mark set aside (near the predicted position), then divided out there. A mark's edge is
+        far steeper than the print (a speck's edge darkens the light by 25 % over 20 µm, the print's
+        fundamental by 1 % over 20 µm): read a micrometre off, it would pull the frame harder than
+        the print holds it, so each corrected sample also carries the variance of its mark read at
+        an uncertain place, (y·m′·σ_x)², and an edge counts for little while a speck's flat middle
+        gives the print's information back."""
         self.corrected_px = 0
         if not math.isfinite(x_guess) or not self.marks:
             return batch, k
         y, w = batch.frames[k], batch.weights(k)
-        x_at, divided = x_guess, self._divided(y, w, x_guess)
+        under = self._under_marks(x_guess)
+        if under is None:
+            return batch, k
+        start = FrameSolution(x_guess, float("nan"), 0.0, 0, gain, offset)
+        alone = robust_solve(self._batch(tracker, y, np.where(under, 0.0, w)), 0, start, free, tracker.settings, None,
+                             tracker.chi2_limit, tracker.layout)
+        placed = math.isfinite(alone.x_mm) and abs(alone.x_mm - x_guess) < self.model.pixel_pitch_mm \
+            and alone.information > 0.0
+        x_at = alone.x_mm if placed else x_guess
+        sigma_x = 1.0 / math.sqrt(alone.information) if placed else self.model.pixel_pitch_mm
+        divided = self._divided(y, w, x_at, sigma_x)
         if divided is None:
             return batch, k
-        for _ in range(PASSES):  # the marks read where the corrected frame puts it, until that holds still
-            start = FrameSolution(x_at, float("nan"), 0.0, 0, gain, offset)
-            trial = robust_solve(self._batch(tracker, divided[0], divided[1]), 0, start, free, tracker.settings, None,
-                                 tracker.chi2_limit, tracker.layout)
-            if not (math.isfinite(trial.x_mm) and abs(trial.x_mm - x_guess) < self.model.pixel_pitch_mm):
-                break
-            moved, x_at = abs(trial.x_mm - x_at), trial.x_mm
-            divided = self._divided(y, w, x_at) or divided
-            if moved < HELD_STILL_MM:
-                break
         self.corrected_px = int(divided[2])
         return self._batch(tracker, divided[0], divided[1]), 0
 
-    def _divided(self, y: np.ndarray, w: np.ndarray, x_mm: float):
-        """(y / (1 + m), its weights, samples corrected) at position ``x_mm``; None: no mark in view.
-        The samples of a candidate in view are set aside (a speck just landed pulls the position with
-        the tails the robust solve leaves in, until it is learned). A corrected sample's variance: its noise's, that noise's share the mark's fit left
-        unexplained (its misfit), and the mark's own uncertainty times the light it darkens."""
+    def _under_marks(self, x_mm: float) -> np.ndarray | None:
+        """Samples on any mark's stretch at ``x_mm`` (None: none)."""
+        under = np.zeros(self.offsets.size, dtype=bool)
+        for mark in self.marks:
+            where = self._inside(mark, x_mm)
+            if where is not None:
+                under[where[0]] = True
+        return under if under.any() else None
+
+    def _divided(self, y: np.ndarray, w: np.ndarray, x_mm: float, sigma_x_mm: float):
+        """(y / (1 + m), its weights, samples corrected) at position ``x_mm`` known to ``sigma_x_mm``;
+        None: no mark in view. The samples of a candidate in view are set aside (a speck just landed
+        pulls the position with the tails the robust solve leaves in, until it is learned), and so
+        are those of a mark relearning. A corrected sample's variance: its noise's, the share of it
+        the mark's fit left unexplained there (its misfit), and the mark's own uncertainty and its
+        slope times the position's, times the light it darkens."""
         factor, variance, misfit = np.ones_like(y), np.zeros_like(y), np.zeros_like(y)
         touched, pending = 0, np.zeros(y.shape, dtype=bool)
         for mark in self.marks:
@@ -144,7 +160,7 @@ class Texture:
             if where is None:
                 continue
             samples, cell, frac = where
-            if not mark.learned:  # a candidate's samples wait, set aside, until it is learned or dropped
+            if not mark.learned or mark.relearning:  # its samples wait, set aside, until it is (re)learned
                 pending[samples] = True
                 continue
             rows = self.row_of[samples]
@@ -152,8 +168,9 @@ class Texture:
             def read(table: np.ndarray) -> np.ndarray:
                 return table[rows, cell] * (1.0 - frac) + table[rows, cell + 1] * frac
 
+            slope = (mark.applied[rows, cell + 1] - mark.applied[rows, cell]) / self.grid.step_mm
             factor[samples] *= 1.0 + read(mark.applied)
-            variance[samples] += read(np.square(mark.applied_sigma))
+            variance[samples] += read(np.square(mark.applied_sigma)) + np.square(slope * sigma_x_mm)
             misfit[samples] += read(mark.applied_misfit)
             touched += samples.size
         if not touched and not pending.any():
