@@ -438,7 +438,8 @@ class Texture:
         """What a run learned: the marks (where, how deep, how sure), the candidates still open, the
         candidates refused as following the camera, and the learn/drop events."""
         return {"learned": len(self.learned), "candidates": len(self.marks) - len(self.learned),
-                "opened": self.opened, "refused": self.refused, "grid_step_mm": self.grid.step_mm, "footprint_scale": self.grid.scale,
+                "opened": self.opened, "refused": self.refused, "grid_step_mm": self.grid.step_mm,
+                "footprint_scale": self.grid.scale,
                 "marks": [self.describe(mark) for mark in self.learned],
                 "events": [{"frame": e.frame, "what": e.what, **e.mark} for e in self.events]}
 

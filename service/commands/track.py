@@ -59,13 +59,15 @@ def oriented(recording: Recording, model: FourierModel, flip: bool) -> Recording
 
 def result_columns(t: np.ndarray, result: TrackResult, reference: np.ndarray) -> dict[str, np.ndarray]:
     """The CSV's columns (docs/contracts.md): time, the frame record's quantities in the contract's
-    order, the grating and the error against it."""
+    order, the grating and the error against it; with learning on, the samples a mark learned on
+    the print corrected (``texture_px``, core/texture.py)."""
     from graytrack.core import frame_record
 
     record = frame_record.columns(result)
     head = {"t": t, **{name: record[name] for name in ("x_mm", "locked", "rms_gray", "crlb_um")},
             "reference_mm": reference, "error_um": result.error_um(reference)}
-    return {**head, **{name: record[name] for name in CSV_TAIL}}
+    learned = {"texture_px": result.texture_px} if result.texture is not None else {}
+    return {**head, **{name: record[name] for name in CSV_TAIL}, **learned}
 
 
 def summary(result: TrackResult, reference: np.ndarray) -> list[str]:
@@ -197,8 +199,7 @@ def run(args: argparse.Namespace) -> int:
     result, grating = solve(recording, model, args.no_reference, ProgressBar("track"), chunks, args.light,
                             not args.no_robust)
     scale = check(recording, model, result, grating if not args.no_reference else grating * float("nan"), args.trim)
-    learned = {"texture_px": result.texture_px} if result.texture_px is not None else {}
-    path = write_csv(args.out, {**result_columns(recording.t, result, grating), **scale.columns, **learned})
+    path = write_csv(args.out, {**result_columns(recording.t, result, grating), **scale.columns})
     print("\n".join(summary(result, grating) + scale.lines + texture_lines(result, args.out)))
     from graytrack.core.geometry_check import refusal
 
