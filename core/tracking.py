@@ -854,16 +854,20 @@ class LiveFix:
     focus_px2: float = float("nan")  # change of blur variance since calibration (NaN: not estimated)
     focus_sigma_px2: float = float("nan")
     iterations: int = 0
+    texture_px: int = 0  # samples a mark learned on the print corrected (core/texture.py)
 
 
 class LiveTracker:
     """Frame-by-frame tracking for a running rig: the same solver and lock logic as :func:`track`,
-    with the light re-solved when it changes and bad pixels set aside (both on by default)."""
+    with the light re-solved when it changes, bad pixels set aside and marks that land on the print
+    learned (core/texture.py; all on by default)."""
 
-    def __init__(self, model: FourierModel, x0_mm: float | None = None, light: str = "auto", robust: bool = True):
+    def __init__(self, model: FourierModel, x0_mm: float | None = None, light: str = "auto", robust: bool = True,
+                 learn: bool = True):
         self.model = model
         self.tracker = Tracker(model, light=light, robust=robust)
-        self.state = SequentialState(x_prev=x0_mm)
+        # what it learns on the print lives as long as this tracker: a model installed anew starts without it
+        self.state = SequentialState(x_prev=x0_mm, texture=Texture(model) if learn else None)
         # The validity monitor now, not at the first frame: its tables (the bound over the stroke:
         # the model at a few hundred positions, ~50 ms on a 16-row model) are model install's work.
         self.state.monitor = monitor_for(self.tracker)
@@ -912,7 +916,8 @@ class LiveTracker:
                        solution.chi2, solution.rejected, solution.gain, solution.offset, self.state.stale,
                        self.state.stale_reason, solution.transient_px,
                        solution.focus if math.isfinite(solution.focus_sigma) else float("nan"), solution.focus_sigma,
-                       solution.iterations if ok else 0)
+                       solution.iterations if ok else 0,
+                       self.state.texture.corrected_px if self.state.texture is not None else 0)
 
     def _lean_batch(self, frame: np.ndarray, rows: int) -> TrigPolyBatch | GeneralBatch | None:
         """The frame's batch by one reduction into the preallocated line (None: not this path)."""
