@@ -78,8 +78,11 @@ class Texture:
     by the marks' uncertainty); ``observe`` takes the solved frame's evidence. Both cost nothing
     while there is no mark and no sample is set aside."""
 
-    def __init__(self, model: FourierModel):
+    def __init__(self, model: FourierModel, max_set_aside: float = 1.0):
+        """``max_set_aside``: the share of a frame's samples the tracker trusts a frame without (its
+        candidates' samples are set aside only within it)."""
         self.model = model
+        self.max_set_aside = max_set_aside
         step = model.pixel_pitch_mm / STEPS_PER_PIXEL
         # on the grid of the model's own target map when it has one (a learned mark adds into it)
         origin = float(model.target_map_origin_mm) if model.target_map is not None else 0.0
@@ -173,6 +176,8 @@ class Texture:
             variance[samples] += read(np.square(mark.applied_sigma)) + np.square(slope * sigma_x_mm)
             misfit[samples] += read(mark.applied_misfit)
             touched += samples.size
+        if pending.mean() > self.max_set_aside:  # more than a frame may lose: left to the robust solve, which
+            pending[:] = False  # refuses such a frame rather than place it on what is left
         if not touched and not pending.any():
             return None
         factor = np.maximum(factor, 0.05)  # a mark never darkens a sample to nothing

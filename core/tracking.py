@@ -781,7 +781,8 @@ def track(model: FourierModel, source: Recording | np.ndarray, reference: np.nda
     repeated = repeats.repeated(frames, model.noise_gray or 0.0)
     state = SequentialState(x_prev=x0_mm if x0_mm is not None else (
         reference[0] if n_frames and np.isfinite(reference[0]) else None),
-        rows_averaged=model.rows_averaged(frame_rows), pending=[], texture=Texture(model) if learn else None)
+        rows_averaged=model.rows_averaged(frame_rows), pending=[],
+        texture=Texture(model, MAX_REJECTED_FRACTION) if learn else None)
     texture_px = np.zeros(n_frames, dtype=np.int64)
     report_every = max(n_frames // 100, 1)
     batch = None
@@ -867,7 +868,7 @@ class LiveTracker:
         self.model = model
         self.tracker = Tracker(model, light=light, robust=robust)
         # what it learns on the print lives as long as this tracker: a model installed anew starts without it
-        self.state = SequentialState(x_prev=x0_mm, texture=Texture(model) if learn else None)
+        self.state = SequentialState(x_prev=x0_mm, texture=Texture(model, MAX_REJECTED_FRACTION) if learn else None)
         # The validity monitor now, not at the first frame: its tables (the bound over the stroke:
         # the model at a few hundred positions, ~50 ms on a 16-row model) are model install's work.
         self.state.monitor = monitor_for(self.tracker)
