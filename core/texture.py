@@ -121,7 +121,7 @@ class Texture:
         an uncertain place, (y·m′·σ_x)², and an edge counts for little while a speck's flat middle
         gives the print's information back."""
         self.corrected_px = 0
-        if not math.isfinite(x_guess) or not self.marks:
+        if not math.isfinite(x_guess) or not any(mark.learned for mark in self.marks):
             return batch, k
         y, w = batch.frames[k], batch.weights(k)
         under = self._under_marks(x_guess)
@@ -143,7 +143,7 @@ class Texture:
     def _under_marks(self, x_mm: float) -> np.ndarray | None:
         """Samples on any mark's stretch at ``x_mm`` (None: none)."""
         under = np.zeros(self.offsets.size, dtype=bool)
-        for mark in self.marks:
+        for mark in self.learned:
             where = self._inside(mark, x_mm)
             if where is not None:
                 under[where[0]] = True
@@ -163,7 +163,9 @@ class Texture:
             if where is None:
                 continue
             samples, cell, frac = where
-            if not mark.learned or mark.relearning:  # its samples wait, set aside, until it is (re)learned
+            if not mark.learned:
+                continue  # a candidate's samples are the robust solve's business, as any other's
+            if mark.relearning:  # its correction is wrong where more landed: its samples wait until relearnt
                 pending[samples] = True
                 continue
             rows = self.row_of[samples]
