@@ -20,18 +20,21 @@ enough travel of the print across the pixels, that fit is
   pixel's response would (a pixel gone bad follows the camera, not the print);
 - significant: its deepest node is beyond ``SIGNIFICANT_Z`` of its own uncertainty.
 
-A learned mark's samples count again: each frame that sees it is divided by 1 + m at its
-predicted position (and again at the position that gives), and those samples' variance grows by
-the mark's own, (y·σ_m)², from its fit's covariance scaled by the spread of its observations. The
-mark goes on being refined by every frame that sees it; one that stops fitting (blown off the
-print) is dropped again. Steady runs open a candidate only where a frame sets samples aside and
-learn nothing (the false-learning rate is measured in docs/robustness.md).
+A learned mark's samples count again. Each frame that sees one is solved first with every learned
+mark's samples set aside (the print alone places it), the marks are divided out there, and each
+corrected sample's variance grows by its mark's: the fit's σ (its covariance, scaled node by node by
+the spread of the samples about it), that spread itself, and the mark's slope times the position's
+uncertainty (a speck's edge is some 70x steeper than the paper print: read a micrometre off, it
+would pull the frame harder than the print holds it). A mark is refined by every frame that sees
+it; one more dust lands on is relearnt (its samples set aside meanwhile), one that stops fitting
+(blown off the print) is dropped. The marks also tell the pixels' footprint on the print, which a
+model may carry off the rig's (core/texture_mark.py). Steady runs open a candidate only where a
+frame sets samples aside and learn nothing (the false-learning rate: docs/robustness.md).
 """
 
 from __future__ import annotations
 
 import math
-
 from dataclasses import dataclass
 from typing import Any
 
@@ -67,7 +70,7 @@ CHANGED_FRAMES = 3  # frames in a row with samples beyond a learned mark's cut: 
 @dataclass
 class TextureEvent:
     frame: int
-    what: str  # "learned" or "dropped"
+    what: str  # "learned", "changed", "dropped" or "footprint"
     mark: dict[str, Any]
 
 
@@ -79,12 +82,12 @@ class Texture:
     while there is no mark and no sample is set aside."""
 
     def __init__(self, model: FourierModel, max_set_aside: float = 1.0):
-        """``max_set_aside``: the share of a frame's samples the tracker trusts a frame without (its
-        candidates' samples are set aside only within it)."""
+        """``max_set_aside``: the share of a frame's samples the tracker trusts a frame without (the
+        samples of marks relearning are set aside only within it)."""
         self.model = model
         self.max_set_aside = max_set_aside
         step = model.pixel_pitch_mm / STEPS_PER_PIXEL
-        # on the grid of the model's own target map when it has one (a learned mark adds into it)
+        # on the grid of the model's own target map when it has one (a learned mark is what it would hold)
         origin = float(model.target_map_origin_mm) if model.target_map is not None else 0.0
         if model.target_map is not None:
             ratio = model.target_map_step_mm / step
