@@ -61,6 +61,7 @@ REFUSED_FRAMES = 100  # pixels whose candidate followed the camera open none for
 GRATING_WINDOW = 20  # frames the camera's offset from the grating is averaged over (it follows a latency's v·Δt)
 GRATING_AGREES_PX = 0.1  # the grating vouches for a frame's place only within this of the frame's own
 SCALE_EVERY = 50  # frames between two searches of the pixels' footprint on the print (from the marks learned)
+SCALE_EVERY_LONGEST = 800  # ... up to this, while the marks keep agreeing with the footprint found
 SCALE_TRAVEL_PX = 10.0  # marks seen over this much travel say what the footprint is
 SCALE_RANGE = 0.03  # the footprint searched within this of the model's (relative)
 SCALE_CHI2 = 25.0  # a footprint the marks prefer by this much χ² (5σ) is taken
@@ -109,6 +110,7 @@ class Texture:
         self.corrected_px = 0  # samples the last frame had corrected by a learned mark
         self.grating_offset_mm, self.grating_frames = 0.0, 0  # the camera's recent mean offset from the grating
         self.scaled_at = 0  # frame of the last search of the footprint
+        self.scale_every = SCALE_EVERY  # frames to the next one (doubled each time a search keeps the footprint)
 
     # ------------------------------------------------------------------ the frame to solve
     def corrected(self, tracker, batch: GeneralBatch | TrigPolyBatch, k: int, x_guess: float,
@@ -346,10 +348,12 @@ class Texture:
     def _review(self, frame: int) -> None:
         """Refit the marks that saw enough new frames; learn the candidates that are ready, drop the
         hopeless ones and the learned ones that stopped fitting; now and then, the footprint."""
-        if frame - self.scaled_at >= SCALE_EVERY:
+        if frame - self.scaled_at >= self.scale_every:
             self._rescale(frame)
         for mark in list(self.marks):
-            due = mark.since_fit >= REFIT_EVERY or (not mark.learned and mark.frames >= MIN_FRAMES and mark.since_fit)
+            # a learned mark's fit moves less with each frame: refitted after a tenth more of them
+            every = max(REFIT_EVERY, mark.frames // 10) if mark.learned else REFIT_EVERY
+            due = mark.since_fit >= every or (not mark.learned and mark.frames >= MIN_FRAMES and mark.since_fit)
             if due and mark.frames:
                 self._judge(mark, mark.refit(self.grid), frame)
             if mark not in self.marks:
@@ -400,7 +404,9 @@ class Texture:
                 if chi2 < best_chi2:
                     best, best_chi2 = float(scale), chi2
         if now - best_chi2 < SCALE_CHI2:
+            self.scale_every = min(2 * self.scale_every, SCALE_EVERY_LONGEST)
             return
+        self.scale_every = SCALE_EVERY
         for mark in self.marks:
             mark.shift(int(round((best - grid.scale) * mark.centre_offset() / grid.step_mm)))
         grid.scale = best
