@@ -9,16 +9,18 @@ places. Printed: frames lost, rms error over the clean run's bound, frames flagg
 rows (no dust) give the false-learning rate: marks learned where nothing landed.
 
     .venv/bin/python bench/texture_learning.py [CASE-SUBSTRING]
+    .venv/bin/python bench/texture_learning.py live     (the live tracker's time a frame, learning or not)
 """
 
 from __future__ import annotations
 
 import sys
+import time
 
 import numpy as np
 
 from graytrack.core.calibration import calibrate
-from graytrack.core.tracking import track
+from graytrack.core.tracking import LiveTracker, track
 from graytrack.drivers.sim.scenarios import build_rig
 
 SEEDS = (3, 4, 5, 6, 7)
@@ -65,5 +67,26 @@ def main(selection: str = "") -> None:
                   flush=True)
 
 
+def live_cost(seed: int = 3) -> None:
+    """The daemon's tracker (LiveTracker) frame by frame on a steady and a dust-settling paper run,
+    learning and not: the best of three passes, µs a frame."""
+    calibration, _ = build_rig("paper", "", seed=seed).record(20.0)
+    model = calibrate(calibration, "paper").model
+    for later in ("", "dust_settling"):
+        run, _ = build_rig("paper", later, seed=seed, run=1).record(10.0)
+        for learn in (False, True):
+            best = np.inf
+            for _ in range(3):
+                tracker = LiveTracker(model, x0_mm=float(run.reference[0]), learn=learn)
+                started = time.perf_counter()
+                for frame, reference in zip(run.frames, run.reference):
+                    tracker.update(frame, float(reference))
+                best = min(best, (time.perf_counter() - started) / run.n_frames)
+            print(f"paper {later or 'steady':14} learn={learn!s:5} {best * 1e6:7.0f} us a frame", flush=True)
+
+
 if __name__ == "__main__":
-    main(sys.argv[1] if len(sys.argv) > 1 else "")
+    if sys.argv[1:] == ["live"]:
+        live_cost()
+    else:
+        main(sys.argv[1] if len(sys.argv) > 1 else "")
