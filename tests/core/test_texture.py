@@ -90,3 +90,26 @@ def test_a_speck_fixed_to_the_print_fits_one_shape_a_pixel_defect_does_not():
     x_w = 1.0 + 0.021 * 20 + 0.062 * 40  # where the dark pixel looked on the 20th frame
     fit = fit_samples(samples, grid, int((x_w - 0.15) / grid.step_mm), 21, 1)
     assert not (fit.consistent() and fit.moves_chi2 > 25.0)
+
+
+def test_track_command_reports_what_it_learned(tmp_path, capsys):
+    """`graytrack track` learns by default: a line saying what, the marks beside the CSV, and each
+    frame's corrected samples in the CSV."""
+    import json
+
+    from graytrack.core.recording import save
+    from graytrack.service.cli import main
+    from tests.tables import read_columns
+
+    calibration, _ = build_rig("paper", "", seed=SEED).record(20.0)
+    run, _ = build_rig("paper", "dust_settling:start_s=0.2:over_s=2", seed=SEED, run=1).record(5.0)
+    save(calibration, tmp_path / "cal.npz")
+    save(run, tmp_path / "run.npz")
+    assert main(["calibrate", str(tmp_path / "cal.npz"), "--model", "paper", "--out", str(tmp_path / "m.json")]) == 0
+    assert main(["track", str(tmp_path / "run.npz"), "--model", str(tmp_path / "m.json"),
+                 "--out", str(tmp_path / "t.csv")]) == 0
+    said = capsys.readouterr().out
+    learned = json.loads((tmp_path / "t.texture.json").read_text())
+    assert learned["learned"] >= 3 and f"texture: {learned['learned']} mark(s) learned on the print at x_w = " in said
+    columns = read_columns(tmp_path / "t.csv")
+    assert columns["texture_px"].max() > 0 and np.isfinite(columns["x_mm"]).all()
