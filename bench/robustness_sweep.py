@@ -33,6 +33,7 @@ LATER_FOCUS = "focus_drift:px=0.5"  # the blur σ grows by half a pixel after ca
 LATER_SHARPER = "focus_drift:px=-0.5"
 LATER_SMUDGE = "smudge:depth=0.35"  # a smudge on the print after calibration (a finger), coming into view mid-run
 LATER_SHADOW = "moving_shadow:passes=2:period_s=4:start_s=2"  # a cable's shadow swinging across the field, twice
+LATER_DUST = "dust_settling"  # 30 specks landing on the print one by one during the run (learned: core/texture.py)
 
 SECONDS = {"lab": 6.0}  # the lab rig runs at 200 frames/s with 16 × 128 pixels
 
@@ -80,6 +81,7 @@ CASES = [
     ("strip16", "defocus:sigma_um=200", LATER_SHARPER),
     ("paper", "", LATER_SMUDGE),
     ("paper", "", LATER_SHADOW),
+    ("paper", "", LATER_DUST),
     # a lab strip with most of what the issues named at once (12 bits, vibration, PRNU, a gradient,
     # glints), the focus drifting and the glints more frequent in the measured run
     ("lab", "photon_transfer:full_well=20000:read_e=6:bits=12:black_gray=4,vibration:um=1:hz=120,prnu:sigma=0.01,"
@@ -96,7 +98,7 @@ def measured(model, run, trim: bool = False) -> tuple[int, float, float, int, in
 
     Flagged: by the model's χ² or by the camera against the grating (as `graytrack track` warns);
     ``trim``: positions trimmed against the grating as `graytrack track --trim` does."""
-    result = track(model, run, light="auto", robust=True)
+    result = track(model, run, light="auto", robust=True, learn=True)
     scale_stale = check(run, model, result, run.reference, trim).columns["scale_stale"] == 1  # as `track` does
     error = result.error_um(run.reference)
     bound = float(np.sqrt(np.nanmean(np.square(result.crlb_mm * 1e3))))
@@ -139,7 +141,8 @@ def main(selection: str = "") -> None:
         changed = " ".join(word for word, key in (("light", "light_change"), ("pixel", "start_s=2.5"),
                                                        ("growth", "target_growth"), ("glints", "glints"),
                                                        ("blur+0.5px", "px=0.5"), ("blur-0.5px", "px=-0.5"),
-                                                       ("smudge", "smudge"), ("shadow", "moving_shadow"))
+                                                       ("smudge", "smudge"), ("shadow", "moving_shadow"),
+                                                       ("dust", "dust_settling"))
                            if key in later)
         print(f"{scenario:9} {rig_effects or '-':52.52} {changed or '-':12}"
               f" {cells[0]:>30} {cells[1]:>30}  {added} ({time.perf_counter() - started:.0f} s)", flush=True)

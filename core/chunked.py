@@ -34,7 +34,7 @@ DEFAULT_OVERLAP = 32
 AGREE_MM = 1e-5
 
 PER_FRAME = tuple(f.name for f in dataclasses.fields(TrackResult)
-                  if f.name not in ("events", "chi2_calibration"))  # one array per frame each
+                  if f.name not in ("events", "chi2_calibration", "texture"))  # one array per frame each
 
 
 @dataclass(frozen=True)
@@ -88,9 +88,11 @@ def chunk_task(model: FourierModel, frames: np.ndarray, reference: np.ndarray, c
 
 
 def track_chunk(task: ChunkTask) -> TrackResult:
-    """Track one chunk from a cold start (or from ``x0_mm``, the previous frame's position)."""
+    """Track one chunk from a cold start (or from ``x0_mm``, the previous frame's position), learning
+    nothing on the print: marks learned over one chunk and not the next would part their answers
+    over the overlap, where the stitching holds them to agree."""
     return track(task.model, task.frames, reference=task.reference, x0_mm=task.x0_mm, light=task.light,
-                 robust=task.robust)
+                 robust=task.robust, learn=False)
 
 
 def is_periodic(model: FourierModel) -> bool:
@@ -161,7 +163,8 @@ def track_chunked(model: FourierModel, frames: np.ndarray, reference: np.ndarray
                            stale_reason=np.full(n_frames, "", dtype=f"<U{max(map(len, FAMILIES))}"),
                            transient_px=np.zeros(n_frames, dtype=np.int64),
                            chi2_calibration=results[0].chi2_calibration if results else float("nan"),
-                           focus_px2=nan(), focus_sigma_px2=nan(), repeated=np.zeros(n_frames, dtype=bool))
+                           focus_px2=nan(), focus_sigma_px2=nan(), repeated=np.zeros(n_frames, dtype=bool),
+                           texture_px=np.zeros(n_frames, dtype=np.int64))
     report = StitchReport(len(chunks))
     for index, (chunk, result) in enumerate(zip(chunks, results)):
         shift = 0.0

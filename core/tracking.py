@@ -38,6 +38,7 @@ from graytrack.core.focus_solve import CurvatureTable, FocusPrior, focus_solve, 
 from graytrack.core.focus_solve import warm as focus_warm
 from graytrack.core.models.fourier import TWO_PI, FourierModel
 from graytrack.core.recording import Recording
+from graytrack.core.texture import Texture
 from graytrack.core.validity import FAMILIES, FrameSign, Monitor, monitor_for
 from graytrack.core.solvers import (CUT_SIGMA, TRANSIENT_MAX_WIDTH_SHARE, FrameSolution, GeneralBatch, SolverSettings,
                                     StaticWeights, TrigPolyBatch, field_basis, field_solve, gauss_newton, grid_cost,
@@ -105,6 +106,8 @@ class TrackResult:
     transient_px: np.ndarray | None = None  # samples set aside as a compact transient (glint, passing dust)
     focus_px2: np.ndarray | None = None  # change of blur variance since calibration (NaN: not estimated)
     focus_sigma_px2: np.ndarray | None = None  # its standard error
+    texture_px: np.ndarray | None = None  # samples a mark learned on the print corrected (core/texture.py)
+    texture: dict | None = None  # what the run learned on the print (Texture.summary; None: not learning)
 
     def error_um(self, reference: np.ndarray) -> np.ndarray:
         """Position minus reference in µm (NaN where either is missing)."""
@@ -347,7 +350,7 @@ class Tracker:
         (what the last frame needed, then the light solved, then the robust solve)."""
         # A model fitted with a gain and offset per frame knows the light moves from frame to frame
         # (flicker, auto-exposure, row banding): "auto" then solves it in every frame, as calibration did.
-        free = self.light == "free" or (self.light == "auto" and (memory.free or self.model.common_mode))
+        free = self.free_light(memory)
         robust_first = self.robust and memory.rejected is not None
         solution = self._attempt(batch, k, x_start, memory, free, robust_first)
         here = self.chi2_level(solution.x_mm)
@@ -387,6 +390,10 @@ class Tracker:
         if not tried_focus:
             memory.focus_track.wait()
         return solution
+
+    def free_light(self, memory: LightMemory) -> bool:
+        """Whether the next frame solves the light's gain and offset with x."""
+        return self.light == "free" or (self.light == "auto" and (memory.free or self.model.common_mode))
 
     def chi2_level(self, x_mm: float) -> float:
         """The calibration's χ² level where a frame was placed, relative to its mean (1 without a
@@ -646,12 +653,19 @@ class SequentialState:
     # (:meth:`verdicts`); None: each frame is shown to the monitor as it is solved (live).
     pending: list | None = None
     recent: RecentChi2 = field(default_factory=RecentChi2)  # the last frames' χ²: has an episode ended?
+    texture: Texture | None = None  # marks learned on the print in this run (core/texture.py); None: not learning
 
     def advance(self, tracker: "Tracker", batch: GeneralBatch | TrigPolyBatch, k: int,
                 reference: float) -> tuple[FrameSolution, bool, bool]:
         """Solve batch frame ``k`` as the next frame of the sequence: (solution, placed, locked)."""
         events_before = len(self.events)
-        solution, ok = _solve_frame(tracker, batch, k, self, reference)
+        texture, solved, at = self.texture, batch, k
+        if texture is not None:  # the learned marks divided out of the frame where it should be
+            guess = self.x_prev + self.velocity if self.locked else reference
+            memory = self.memory
+            solved, at = texture.corrected(tracker, batch, k, guess, tracker.free_light(memory), memory.gain,
+                                           memory.offset)
+        solution, ok = _solve_frame(tracker, solved, at, self, reference)
         locked = ok and len(self.events) == events_before
         self.velocity = solution.x_mm - self.x_prev if locked and self.locked and self.x_prev is not None else 0.0
         if ok:
@@ -662,7 +676,9 @@ class SequentialState:
         chi2 = focus_free if math.isfinite(focus_free) else solution.chi2
         self._watch_model(tracker, chi2 / tracker.chi2_level(solution.x_mm),  # against the level where it was taken
                           not solution.field)
-        self._watch_validity(tracker, batch, k, solution, ok, reference)
+        self._watch_validity(tracker, solved, at, solution, ok, reference)
+        if texture is not None:
+            texture.observe(tracker, batch, k, solution, ok, self.frame - 1, reference)
         return solution, ok, locked and tracker.refused is None
 
     def _watch_validity(self, tracker: "Tracker", batch: GeneralBatch | TrigPolyBatch, k: int,
@@ -745,12 +761,14 @@ class SequentialState:
 
 def track(model: FourierModel, source: Recording | np.ndarray, reference: np.ndarray | None = None,
           x0_mm: float | None = None, progress: Progress | None = None, tracker: Tracker | None = None,
-          light: str | None = None, robust: bool = False) -> TrackResult:
+          light: str | None = None, robust: bool = False, learn: bool = False) -> TrackResult:
     """Track every frame of a recording (or a frame array) sequentially.
 
     Starts from ``x0_mm``, else from the first finite reference, else acquires on its own over
     the calibrated stroke. Frames that cannot be placed on a period are NaN, never a guess.
     ``light`` and ``robust`` as for :class:`Tracker` (ignored when a ``tracker`` is given).
+    ``learn``: marks fixed to the print that arrive during the run are learned and their samples
+    count again (core/texture.py).
     """
     if isinstance(source, Recording):
         frames, reference = source.frames, source.reference if reference is None else reference
@@ -775,7 +793,9 @@ def track(model: FourierModel, source: Recording | np.ndarray, reference: np.nda
     repeated = repeats.repeated(frames, model.noise_gray or 0.0)
     state = SequentialState(x_prev=x0_mm if x0_mm is not None else (
         reference[0] if n_frames and np.isfinite(reference[0]) else None),
-        rows_averaged=model.rows_averaged(frame_rows), pending=[])
+        rows_averaged=model.rows_averaged(frame_rows), pending=[],
+        texture=Texture(model, MAX_REJECTED_FRACTION) if learn else None)
+    texture_px = np.zeros(n_frames, dtype=np.int64)
     report_every = max(n_frames // 100, 1)
     batch = None
     for k in range(n_frames):
@@ -788,6 +808,7 @@ def track(model: FourierModel, source: Recording | np.ndarray, reference: np.nda
             solution, ok, locked[k] = state.advance(tracker, batch, k % BATCH_CHUNK, reference[k])
             out["chi2"][k], rejected[k] = solution.chi2, solution.rejected
             transient[k] = solution.transient_px
+            texture_px[k] = state.texture.corrected_px if state.texture is not None else 0
             if math.isfinite(solution.focus_sigma):
                 out["focus"][k], out["focus_sigma"][k] = solution.focus, solution.focus_sigma
         else:
@@ -806,7 +827,8 @@ def track(model: FourierModel, source: Recording | np.ndarray, reference: np.nda
     crlb = stream_bound_factor(model.info) / np.sqrt(np.where(out["info"] > 0, out["info"], np.nan))
     return TrackResult(out["x"], locked, out["rms"], crlb, iterations, out["gain"], out["offset"], state.events,
                        out["chi2"], rejected, stale, tracker.chi2_calibration, repeated, stale_reason, transient,
-                       out["focus"], out["focus_sigma"])
+                       out["focus"], out["focus_sigma"], texture_px,
+                       state.texture.summary() if state.texture is not None else None)
 
 
 def _judge(state: SequentialState, repeated: np.ndarray, stale: np.ndarray, stale_reason: np.ndarray,
@@ -845,16 +867,20 @@ class LiveFix:
     focus_px2: float = float("nan")  # change of blur variance since calibration (NaN: not estimated)
     focus_sigma_px2: float = float("nan")
     iterations: int = 0
+    texture_px: int = 0  # samples a mark learned on the print corrected (core/texture.py)
 
 
 class LiveTracker:
     """Frame-by-frame tracking for a running rig: the same solver and lock logic as :func:`track`,
-    with the light re-solved when it changes and bad pixels set aside (both on by default)."""
+    with the light re-solved when it changes, bad pixels set aside and marks that land on the print
+    learned (core/texture.py; all on by default)."""
 
-    def __init__(self, model: FourierModel, x0_mm: float | None = None, light: str = "auto", robust: bool = True):
+    def __init__(self, model: FourierModel, x0_mm: float | None = None, light: str = "auto", robust: bool = True,
+                 learn: bool = True):
         self.model = model
         self.tracker = Tracker(model, light=light, robust=robust)
-        self.state = SequentialState(x_prev=x0_mm)
+        # what it learns on the print lives as long as this tracker: a model installed anew starts without it
+        self.state = SequentialState(x_prev=x0_mm, texture=Texture(model, MAX_REJECTED_FRACTION) if learn else None)
         # The validity monitor now, not at the first frame: its tables (the bound over the stroke:
         # the model at a few hundred positions, ~50 ms on a 16-row model) are model install's work.
         self.state.monitor = monitor_for(self.tracker)
@@ -903,7 +929,8 @@ class LiveTracker:
                        solution.chi2, solution.rejected, solution.gain, solution.offset, self.state.stale,
                        self.state.stale_reason, solution.transient_px,
                        solution.focus if math.isfinite(solution.focus_sigma) else float("nan"), solution.focus_sigma,
-                       solution.iterations if ok else 0)
+                       solution.iterations if ok else 0,
+                       self.state.texture.corrected_px if self.state.texture is not None else 0)
 
     def _lean_batch(self, frame: np.ndarray, rows: int) -> TrigPolyBatch | GeneralBatch | None:
         """The frame's batch by one reduction into the preallocated line (None: not this path)."""

@@ -236,6 +236,29 @@ def _dust(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) ->
         config.target.defects.append(Defect("dust", rng.uniform(lo, hi), rng.uniform(ylo, yhi), size, v["depth"]))
 
 
+@effect("dust_settling", "target", "Dust settling on the print during the run: dark specks from narrower than a "
+        "pixel to a little wider, landing one by one at random places and times between start_s and start_s + over_s, "
+        "then fixed to the print (they move with it past the camera).",
+        count=(30.0, "specks on the field seen over the stroke by the end"),
+        size_min_px=(0.2, "smallest speck sigma, pixel footprints"), size_max_px=(0.6, "largest, pixel footprints"),
+        depth=(0.5, "relative darkening at a speck's centre"), start_s=(0.5, "when the first may land, s"),
+        over_s=(8.0, "the span of time over which they land, s"))
+def _dust_settling(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    pitch = config.optics.pixel_pitch_mm
+    low = _positive("dust_settling", "size_min_px", v["size_min_px"]) * pitch
+    high = _positive("dust_settling", "size_max_px", v["size_max_px"]) * pitch
+    if high < low:
+        raise EffectError("effect 'dust_settling': need size_min_px ≤ size_max_px")
+    count = _count("dust_settling", "count", v["count"], 0, 10_000)
+    lo, hi = _field_span(config)
+    ylo, yhi = _defect_y_range(config, low)
+    landed = np.sort(_positive("dust_settling", "start_s", v["start_s"], True)
+                     + rng.uniform(0.0, _positive("dust_settling", "over_s", v["over_s"], True), count))
+    for when in landed:
+        config.target.defects.append(Defect("dust", rng.uniform(lo, hi), rng.uniform(ylo, yhi), rng.uniform(low, high),
+                                            v["depth"], 0.0, float(when)))
+
+
 @effect("scratches", "target", "Scratches across the target: thin lines (bright when depth<0) at a small angle to y.",
         count=(2.0, "number of scratches"), width_um=(15.0, "line sigma, µm"), depth=(-0.25, "relative darkening (<0 brightens)"),
         angle_deg=(5.0, "angle from the target's y axis"))

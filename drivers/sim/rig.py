@@ -357,7 +357,8 @@ class VirtualRig:
             if tcfg.defects:  # printed on the target: they move with it when it grows
                 x_print = tgt.printed_coordinate(tcfg, x_w, t_frame)
                 for r in range(R):
-                    light[:, r] *= tgt.defect_gain(tcfg.defects, x_print[:, r], float(self._row_y[r]), blur, aperture)
+                    light[:, r] *= tgt.defect_gain(tcfg.defects, x_print[:, r], float(self._row_y[r]), blur, aperture,
+                                                   t)
             acc += light
         return acc / points.shape[1]
 

@@ -40,7 +40,8 @@ class Defect:
 
     ``kind="dust"`` is a round spot of standard deviation ``size_mm`` centred at (x, y);
     ``kind="scratch"`` is a line through (x, y) at ``angle_rad`` from the target's y axis with
-    Gaussian cross-section of standard deviation ``size_mm``.
+    Gaussian cross-section of standard deviation ``size_mm``. ``start_s``: the run time from which
+    it is on the print (dust settling during a run); before it the print there is clean.
     """
 
     kind: str
@@ -49,6 +50,7 @@ class Defect:
     size_mm: float
     depth: float
     angle_rad: float = 0.0
+    start_s: float = 0.0
 
 
 @dataclass
@@ -189,7 +191,7 @@ def _apply_gamma(coeffs: np.ndarray, gamma: float, n_orders: int) -> np.ndarray:
 
 
 def defect_gain(defects: list[Defect], x_w: np.ndarray, y_mm: float, blur_sigma_mm: float = 0.0,
-                aperture_mm: float = 0.0) -> np.ndarray:
+                aperture_mm: float = 0.0, t_s: np.ndarray | None = None) -> np.ndarray:
     """Multiplicative gain of the defects along a line of constant y (the row's y on the target),
     as a pixel of footprint ``aperture_mm`` (square, on the target) centred at each ``x_w`` sees it.
 
@@ -197,7 +199,8 @@ def defect_gain(defects: list[Defect], x_w: np.ndarray, y_mm: float, blur_sigma_
     convolution does: σ² → σ² + σ_b², depth × σ/σ' per blurred dimension. A pixel then averages the
     light over its footprint: a defect narrower than a pixel is a box-smoothed step in x_w, never a
     spike its centre alone would see (a real sensor has no point pixels; a model would otherwise be
-    asked for detail no camera delivers).
+    asked for detail no camera delivers). ``t_s`` (one time per frame, the first axis of ``x_w``):
+    a defect is there only on the frames from its ``start_s`` on (without times: always).
     """
     gain = np.ones_like(x_w, dtype=np.float64)
     half = 0.5 * max(float(aperture_mm), 0.0)
@@ -214,6 +217,9 @@ def defect_gain(defects: list[Defect], x_w: np.ndarray, y_mm: float, blur_sigma_
             raise ValueError(f"unknown defect kind {d.kind!r}")
         # a Gaussian is nil beyond 8σ (and half a footprint): evaluate only the pixels near the defect
         near = np.abs(x_w - x_centre) < 8 * sx + half
+        if d.start_s > 0.0 and t_s is not None:
+            arrived = np.asarray(t_s, dtype=np.float64) >= d.start_s
+            near &= arrived.reshape(arrived.shape + (1,) * (near.ndim - arrived.ndim))
         if depth and near.any():
             gain[near] *= 1 - depth * _box_mean(x_w[near] - x_centre, sx, half)
     return gain

@@ -59,13 +59,15 @@ def oriented(recording: Recording, model: FourierModel, flip: bool) -> Recording
 
 def result_columns(t: np.ndarray, result: TrackResult, reference: np.ndarray) -> dict[str, np.ndarray]:
     """The CSV's columns (docs/contracts.md): time, the frame record's quantities in the contract's
-    order, the grating and the error against it."""
+    order, the grating and the error against it; with learning on, the samples a mark learned on
+    the print corrected (``texture_px``, core/texture.py)."""
     from graytrack.core import frame_record
 
     record = frame_record.columns(result)
     head = {"t": t, **{name: record[name] for name in ("x_mm", "locked", "rms_gray", "crlb_um")},
             "reference_mm": reference, "error_um": result.error_um(reference)}
-    return {**head, **{name: record[name] for name in CSV_TAIL}}
+    learned = {"texture_px": result.texture_px} if result.texture is not None else {}
+    return {**head, **{name: record[name] for name in CSV_TAIL}, **learned}
 
 
 def summary(result: TrackResult, reference: np.ndarray) -> list[str]:
@@ -128,6 +130,22 @@ def stale_warning(result: TrackResult) -> str | None:
 
 
 
+def texture_lines(result: TrackResult, out: str) -> list[str]:
+    """What the run learned on the print (core/texture.py): a line, and the marks as JSON beside
+    the CSV (``TRACK.texture.json``: where each mark is, how deep, how sure, and the events)."""
+    import json
+    from pathlib import Path
+
+    from graytrack.core.jsonable import finite_or_none
+    from graytrack.core.texture import summary_line
+
+    if result.texture is None:
+        return []
+    path = Path(out).with_suffix(".texture.json")
+    path.write_text(json.dumps(finite_or_none(result.texture), indent=1, allow_nan=False) + "\n")
+    return [f"{summary_line(result.texture)} ({path})"]
+
+
 def solve(recording: Recording, model: FourierModel, no_reference: bool = False,
           progress: ProgressBar | None = None, chunks: ChunkOptions | None = None, light: str = "auto",
           robust: bool = True) -> tuple[TrackResult, np.ndarray]:
@@ -158,7 +176,8 @@ def solve(recording: Recording, model: FourierModel, no_reference: bool = False,
     reference = np.full(recording.n_frames, np.nan) if no_reference else grating
     if chunks is not None:
         return track_in_chunks(model, recording.frames, reference, chunks, light, robust), grating
-    return track(model, recording.frames, reference=reference, progress=progress, light=light, robust=robust), grating
+    return track(model, recording.frames, reference=reference, progress=progress, light=light, robust=robust,
+                 learn=robust), grating
 
 
 def run(args: argparse.Namespace) -> int:
@@ -181,7 +200,7 @@ def run(args: argparse.Namespace) -> int:
                             not args.no_robust)
     scale = check(recording, model, result, grating if not args.no_reference else grating * float("nan"), args.trim)
     path = write_csv(args.out, {**result_columns(recording.t, result, grating), **scale.columns})
-    print("\n".join(summary(result, grating) + scale.lines))
+    print("\n".join(summary(result, grating) + scale.lines + texture_lines(result, args.out)))
     from graytrack.core.geometry_check import refusal
 
     if refusal(model):

@@ -34,6 +34,7 @@ from graytrack.service.daemon.clock import HOST_CLOCK, Clock
 from graytrack.service.daemon.framerate import FrameRate
 from graytrack.service.daemon.grating import Readings
 from graytrack.service.daemon.stale_log import StaleLog
+from graytrack.service.daemon.texture_log import TextureLog
 from graytrack.service.daemon.trim import ReferenceTrim
 from graytrack.core import frame_record
 from graytrack.drivers.realtime import raise_thread_priority
@@ -118,6 +119,7 @@ class Acquisition(Worker):
         self._seq = 0
         self._last_id: int | None = None
         self._stale = StaleLog(on_event)  # the flag's events: a model gone stale, or a single frame
+        self._texture = TextureLog(on_event)  # what the tracker learns on the print (core/texture.py)
 
     # -- control (any thread) --------------------------------------------------------------
     def install_model(self, model: FourierModel, x0_mm: float | None = None, calibration: str | None = None) -> None:
@@ -287,6 +289,7 @@ class Acquisition(Worker):
                               f"{sample.frame.frame_id}: {event.reason}")
         self._stale.observe(sample.frame.frame_id,
                             getattr(fix, "stale_reason", None) if getattr(fix, "stale", False) else None)
+        self._texture.observe(tracker.state.texture)
         self._seq += 1
         message = fix_message(self._seq, sample, fix, stats.dropped, self._calibration)
         self.trim.annotate(message, fix)
@@ -298,6 +301,7 @@ class Acquisition(Worker):
                 reference_mm: float) -> None:
         """Track with ``tracker`` from this frame on, started at the grating's reading when there is
         one (the stage may have moved while it was built)."""
+        self._texture.replaced(f"calibration {calibration} installed" if calibration else "a model installed")
         self._calibration = calibration
         skew = float(model.info.get("reference_skew_s", 0.0) or 0.0)
         self._skew_s = skew if math.isfinite(skew) else 0.0

@@ -193,3 +193,26 @@ def test_motion_blur_loses_amplitude_as_sinc(extra):
     np.testing.assert_allclose(ratio, math.sin(math.pi * blur) / (math.pi * blur), rtol=2e-4)
     still, _ = rig.record(0.05, trajectory=constant_velocity(0.5, 0.0))
     np.testing.assert_allclose(_frame_amplitudes(still.frames, rig), 80.0, rtol=1e-6)
+
+
+def test_dust_settles_one_speck_at_a_time_and_stays_on_the_print():
+    """``dust_settling``: specks land at their own times between start_s and start_s + over_s, sizes
+    within the range given (in pixel footprints); before its time a speck's place is clean, after
+    it the speck darkens the print there whatever the frame's position."""
+    from graytrack.drivers.sim.effects import apply_effects
+    from graytrack.drivers.sim.scenarios import build_config
+    from graytrack.drivers.sim.target import defect_gain
+
+    config = build_config("paper")
+    apply_effects(config, "dust_settling:count=12:start_s=1:over_s=4:size_min_px=0.2:size_max_px=0.5", seed=2)
+    specks = config.target.defects
+    times = np.array([d.start_s for d in specks])
+    assert len(specks) == 12 and np.all(np.diff(times) >= 0) and 1.0 <= times.min() and times.max() <= 5.0
+    sizes = np.array([d.size_mm for d in specks]) / config.optics.pixel_pitch_mm
+    assert np.all((sizes >= 0.2) & (sizes <= 0.5))
+    speck = specks[5]
+    at = np.array([[speck.x_mm]])
+    before, after = (defect_gain([speck], at, speck.y_mm, t_s=np.array([t])) for t in (speck.start_s - 0.01,
+                                                                                       speck.start_s + 0.01))
+    assert before[0, 0] == 1.0 and after[0, 0] == pytest.approx(1.0 - speck.depth)
+    assert defect_gain([speck], at, speck.y_mm)[0, 0] == pytest.approx(1.0 - speck.depth)  # no time: all landed
