@@ -24,7 +24,7 @@ from graytrack.core.calibration import calibrate
 from graytrack.core.diagnosis import diagnose
 from graytrack.core.tracking import track
 from graytrack.drivers.sim.scenarios import build_rig
-from graytrack.service.commands.track_scale import check
+from graytrack.service.commands.track_scale import check, scale_watch
 
 LATER_LIGHT = "light_change:gain=0.85:ambient_gray=8:start_s=2"
 LATER_PIXEL = "bad_pixels:stuck=1:dead=0:hot=0:row=0:pixel=40:start_s=2.5"
@@ -94,8 +94,9 @@ def measured(model, run, trim: bool = False) -> tuple[int, float, float, int, in
 
     Flagged: by the model's χ² or by the camera against the grating (as `graytrack track` warns);
     ``trim``: positions trimmed against the grating as `graytrack track --trim` does."""
-    result = track(model, run, light="auto", robust=True)
-    scale_stale = check(run, model, result, run.reference, trim).columns["scale_stale"] == 1  # as `track` does
+    watch = scale_watch(run, model, run.reference, trim)  # as `track` does: the tracker's scale watch, its trim
+    result = track(model, run, light="auto", robust=True, watches=[watch] if watch else [])
+    scale_stale = check(run, model, result, trim, watch).columns["scale_stale"] == 1
     error = result.error_um(run.reference)
     bound = float(np.sqrt(np.nanmean(np.square(result.crlb_mm * 1e3))))
     repeated = result.repeated

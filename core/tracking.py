@@ -20,7 +20,7 @@ import dataclasses
 import math
 import operator
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -37,7 +37,7 @@ from graytrack.core.focus_solve import CurvatureTable, FocusPrior, focus_solve, 
 from graytrack.core.focus_solve import warm as focus_warm
 from graytrack.core.models.fourier import TWO_PI, FourierModel
 from graytrack.core.recording import Recording
-from graytrack.core.validity import FAMILIES, FrameSign, Monitor, monitor_for
+from graytrack.core.validity import FAMILIES, FrameSign, Monitor, Watch, monitor_for
 from graytrack.core.solvers import (CUT_SIGMA, TRANSIENT_MAX_WIDTH_SHARE, FrameSolution, GeneralBatch, SolverSettings,
                                     StaticWeights, TrigPolyBatch, field_basis, field_solve, gauss_newton, grid_cost,
                                     robust_solve)
@@ -733,12 +733,13 @@ class SequentialState:
 
 def track(model: FourierModel, source: Recording | np.ndarray, reference: np.ndarray | None = None,
           x0_mm: float | None = None, progress: Progress | None = None, tracker: Tracker | None = None,
-          light: str | None = None, robust: bool = False) -> TrackResult:
+          light: str | None = None, robust: bool = False, watches: Sequence[Watch] = ()) -> TrackResult:
     """Track every frame of a recording (or a frame array) sequentially.
 
     Starts from ``x0_mm``, else from the first finite reference, else acquires on its own over
     the calibrated stroke. Frames that cannot be placed on a period are NaN, never a guess.
-    ``light`` and ``robust`` as for :class:`Tracker` (ignored when a ``tracker`` is given).
+    ``light`` and ``robust`` as for :class:`Tracker` (ignored when a ``tracker`` is given);
+    ``watches`` as for :class:`LiveTracker` (``track --trim``'s scale watch and its trim).
     """
     if isinstance(source, Recording):
         frames, reference = source.frames, source.reference if reference is None else reference
@@ -763,7 +764,7 @@ def track(model: FourierModel, source: Recording | np.ndarray, reference: np.nda
     repeated = repeats.repeated(frames, model.noise_gray or 0.0)
     state = SequentialState(x_prev=x0_mm if x0_mm is not None else (
         reference[0] if n_frames and np.isfinite(reference[0]) else None),
-        rows_averaged=model.rows_averaged(frame_rows), pending=[])
+        rows_averaged=model.rows_averaged(frame_rows), pending=[], monitor=monitor_for(tracker, watches))
     report_every = max(n_frames // 100, 1)
     batch = None
     for k in range(n_frames):
@@ -839,13 +840,15 @@ class LiveTracker:
     """Frame-by-frame tracking for a running rig: the same solver and lock logic as :func:`track`,
     with the light re-solved when it changes and bad pixels set aside (both on by default)."""
 
-    def __init__(self, model: FourierModel, x0_mm: float | None = None, light: str = "auto", robust: bool = True):
+    def __init__(self, model: FourierModel, x0_mm: float | None = None, light: str = "auto", robust: bool = True,
+                 watches: Sequence[Watch] = ()):
         self.model = model
         self.tracker = Tracker(model, light=light, robust=robust)
         self.state = SequentialState(x_prev=x0_mm)
         # The validity monitor now, not at the first frame: its tables (the bound over the stroke:
         # the model at a few hundred positions, ~50 ms on a 16-row model) are model install's work.
-        self.state.monitor = monitor_for(self.tracker)
+        # ``watches``: the owner's (the daemon's scale watch with its trim), in place of the defaults.
+        self.state.monitor = monitor_for(self.tracker, watches)
         self._bound_factor = stream_bound_factor(model.info)  # a JPEG stream's quantisation widens every bound
         # The lean path: a frame (a strip's row mean for a one-row model) is read into one
         # preallocated line, masked pixels zeroed as prepare does, and one batch is reloaded in

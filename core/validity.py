@@ -20,7 +20,7 @@ import importlib
 import math
 import pkgutil
 from dataclasses import dataclass, field
-from typing import Any, Callable, Protocol
+from typing import Any, Callable, Protocol, Sequence
 
 FAMILIES = ("transients", "pixels", "light", "focus", "scale", "geometry")
 RANK = {family: rank for rank, family in enumerate(FAMILIES)}
@@ -177,19 +177,25 @@ def _observe_all(watch: Watch, columns: dict[str, list], n: int) -> list[str | N
     return [step(*row) for row in zip(*(columns[name] for name in reads))]
 
 
-def monitor_for(tracker: Any) -> Monitor:
-    """A monitor with every watch of ``core/watches/`` that applies to ``tracker``'s model."""
-    from graytrack.core import watches  # the watches read the tracker's model: imported on use
+def monitor_for(tracker: Any, watches: Sequence[Watch] = ()) -> Monitor:
+    """A monitor with every watch of ``core/watches/`` that applies to ``tracker``'s model; a watch
+    handed in (``watches``: its owner's, e.g. the scale watch that carries the daemon's trim) takes
+    the place of the one its module would make, so a frame is judged once, by the watch in force."""
+    from graytrack.core import watches as found  # the watches read the tracker's model: imported on use
 
+    given = {type(watch).__module__: watch for watch in watches}
     made = []
-    for info in pkgutil.iter_modules(watches.__path__):
+    for info in pkgutil.iter_modules(found.__path__):
         if info.name.startswith("_"):
             continue
-        module = importlib.import_module(f"{watches.__name__}.{info.name}")
-        make = getattr(module, "make", None)
+        name = f"{found.__name__}.{info.name}"
+        if name in given:
+            made.append(given.pop(name))
+            continue
+        make = getattr(importlib.import_module(name), "make", None)
         if make is not None and (watch := make(tracker)) is not None:
             made.append(watch)
-    return Monitor(made)
+    return Monitor(made + list(given.values()))
 
 
 def running(average: float | None, value: float, window: int) -> float:
