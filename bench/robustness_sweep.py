@@ -31,6 +31,8 @@ LATER_PIXEL = "bad_pixels:stuck=1:dead=0:hot=0:row=0:pixel=40:start_s=2.5"
 LATER_GROWTH = "target_growth:ppm=250"  # the paper print grew (humidity) between calibration and the run
 LATER_FOCUS = "focus_drift:px=0.5"  # the blur σ grows by half a pixel after calibration (a lens mount warming up)
 LATER_SHARPER = "focus_drift:px=-0.5"
+LATER_MAGNIFICATION = "magnification_drift:ppm=1500:ramp_s=10"  # the lens warming up: 0.15 % over the run
+LATER_CYCLE = "magnification_drift:ppm=1500:cycle_s=6"  # a temperature cycle: the magnification comes and goes
 LATER_SMUDGE = "smudge:depth=0.35"  # a smudge on the print after calibration (a finger), coming into view mid-run
 
 SECONDS = {"lab": 6.0}  # the lab rig runs at 200 frames/s with 16 × 128 pixels
@@ -78,6 +80,9 @@ CASES = [
     ("strip16", "defocus:sigma_um=200", LATER_FOCUS),
     ("strip16", "defocus:sigma_um=200", LATER_SHARPER),
     ("paper", "", LATER_SMUDGE),
+    ("paper", "", LATER_MAGNIFICATION),
+    ("strip16", "", LATER_MAGNIFICATION),
+    ("strip16", "", LATER_CYCLE),
     # a lab strip with most of what the issues named at once (12 bits, vibration, PRNU, a gradient,
     # glints), the focus drifting and the glints more frequent in the measured run
     ("lab", "photon_transfer:full_well=20000:read_e=6:bits=12:black_gray=4,vibration:um=1:hz=120,prnu:sigma=0.01,"
@@ -131,14 +136,14 @@ def main(selection: str = "") -> None:
             far_frames[0] += far
             far_frames[1] += silent
         added = ",".join(step.effect for step in loop.steps) or "-"
-        if "target_growth" in later:  # what the online trim makes of it (paper model, --trim)
+        if "target_growth" in later or "magnification_drift" in later:  # what the online trim makes of it (--trim)
             _, spread, bound, stale, *_ = measured(calibrate(calibration, "paper").model, run, trim=True)
             added += f"; paper --trim: {spread:.3f}/{bound:.3f}={spread / bound:.2f}, {stale} stale"
         added += f", {repeated} repeated images set aside" if repeated else ""
         changed = " ".join(word for word, key in (("light", "light_change"), ("pixel", "start_s=2.5"),
                                                        ("growth", "target_growth"), ("glints", "glints"),
                                                        ("blur+0.5px", "px=0.5"), ("blur-0.5px", "px=-0.5"),
-                                                       ("smudge", "smudge")) if key in later)
+                                                       ("smudge", "smudge"), ("magnif.", "magnification")) if key in later)
         print(f"{scenario:9} {rig_effects or '-':52.52} {changed or '-':12}"
               f" {cells[0]:>30} {cells[1]:>30}  {added} ({time.perf_counter() - started:.0f} s)", flush=True)
     print(never_silently_wrong(verdicts))
