@@ -37,6 +37,7 @@ from graytrack.core.focus_solve import CurvatureTable, FocusPrior, focus_solve, 
 from graytrack.core.focus_solve import warm as focus_warm
 from graytrack.core.models.fourier import TWO_PI, FourierModel
 from graytrack.core.recording import Recording
+from graytrack.core.stretch import frame_stretch
 from graytrack.core.validity import FAMILIES, FrameSign, Monitor, Watch, monitor_for
 from graytrack.core.solvers import (CUT_SIGMA, TRANSIENT_MAX_WIDTH_SHARE, FrameSolution, GeneralBatch, SolverSettings,
                                     StaticWeights, TrigPolyBatch, field_basis, field_solve, gauss_newton, grid_cost,
@@ -610,7 +611,7 @@ class Tracker:
 # A pending frame's entry (SequentialState._watch_validity), slot by slot, and the fields of its
 # solution each sign field is read from.
 PENDING_SLOTS = ("frame", "solution", "reference_mm", "placed", "rows_averaged", "chi2_average", "chi2_suspect",
-                 "chi2_stale", "explain")
+                 "chi2_stale", "explain", "stretch")
 SOLUTION_SIGNS = {"chi2": "chi2", "information": "information", "gain": "gain", "offset_gray": "offset",
                   "focus": "focus", "focus_sigma": "focus_sigma", "rejected_px": "rejected",
                   "transient_px": "transient_px", "transient_at": "transient_at", "x_mm": "x_mm",
@@ -667,10 +668,11 @@ class SequentialState:
         if self.monitor is None:
             self.monitor = monitor_for(tracker)
         explain = (lambda: tracker.explain(batch, k, solution)) if placed and self.chi2_suspect else None
+        stretched = (lambda: frame_stretch(tracker, batch, k, solution)) if placed else None  # core/stretch.py
         average = self.chi2_average if self.chi2_average is not None else float("nan")
         if self.pending is not None:
             self.pending.append((self.frame - 1, solution, reference, placed, self.rows_averaged, average,
-                                 self.chi2_suspect, self.chi2_stale, explain))
+                                 self.chi2_suspect, self.chi2_stale, explain, stretched))
             return
         sign = FrameSign(
             self.frame - 1, solution.chi2, solution.information, gain=solution.gain, offset_gray=solution.offset,
@@ -678,7 +680,7 @@ class SequentialState:
             transient_px=solution.transient_px, transient_at=solution.transient_at,
             x_mm=solution.x_mm, reference_mm=reference, placed=placed, rows_averaged=self.rows_averaged,
             free_light=solution.free_light, field=solution.field, chi2_average=average,
-            chi2_suspect=self.chi2_suspect, chi2_stale=self.chi2_stale, explain=explain)
+            chi2_suspect=self.chi2_suspect, chi2_stale=self.chi2_stale, explain=explain, stretch=stretched)
         verdict = self.monitor.observe(sign)
         self.stale, self.stale_reason = verdict.stale, verdict.reason
 

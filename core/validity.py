@@ -5,7 +5,8 @@ line can mimic a blur, a robust solve can hide a growing defect. So besides the 
 monitor watches what the nuisances cost and how far they moved (the frame's bound against the
 calibration's, the light gain, a focus term, the pixels set aside, transients, the camera against
 the grating). Each watch answers in its own family, so a stale flag always comes with a reason a
-person can act on: ``light``, ``focus``, ``pixels``, ``transients``, ``scale`` or ``geometry``.
+person can act on: ``light``, ``focus``, ``pixels``, ``transients``, ``magnification``, ``scale`` or
+``geometry``.
 
 A watch is one small class with ``observe(sign) -> family | None`` in a module of
 ``core/watches/`` that defines ``make(tracker) -> Watch | None``: the monitor finds them by name,
@@ -22,7 +23,7 @@ import pkgutil
 from dataclasses import dataclass, field
 from typing import Any, Callable, Protocol, Sequence
 
-FAMILIES = ("transients", "pixels", "light", "focus", "scale", "geometry")
+FAMILIES = ("transients", "pixels", "light", "focus", "magnification", "scale", "geometry")
 RANK = {family: rank for rank, family in enumerate(FAMILIES)}
 
 # What to do about each family of causes, one line each (the CLI, the daemon's events and page).
@@ -31,6 +32,9 @@ ADVICE = {
     "pixels": "pixels went bad since calibration: recalibrate (the new calibration masks them)",
     "light": "the light changed beyond what the model can follow at its precision: fix the light or recalibrate",
     "focus": "the focus moved since calibration: check the lens and its mount, then recalibrate",
+    "magnification": "the lens's magnification moved since calibration (the image stretches across the pixels, and "
+                     "slides with it unless the optical axis is on the ROI): let the lens reach its temperature, "
+                     "track with the grating and --trim, or recalibrate",
     "scale": "camera and grating drifted apart beyond their bounds: the target's scale (paper growth, "
              "temperature), the camera's place on the stage, or the grating read at another instant than the "
              "exposure (its latency shows as an offset that follows the speed): recalibrate",
@@ -66,6 +70,8 @@ class FrameSign:
     # What the frame's residual looks like, computed only when a watch asks (it costs an evaluation):
     # the share of its excess χ² each family's shapes explain (see core/watches/attribution.py).
     explain: Callable[[], dict[str, Any]] | None = None
+    # The frame's stretch across the pixels (m, its σ: core/stretch.py), computed when a watch asks.
+    stretch: Callable[[], tuple[float, float]] | None = None
 
 
 SIGN_FIELDS = tuple(FrameSign.__slots__)
