@@ -57,15 +57,12 @@ def measured(model, run, truth, trim: bool, reference: bool) -> dict:
 
 
 def main(selection: str = "") -> None:
-    for scenario, drift, seed in CASES:
-        label = f"{scenario} {drift} seed={seed}"
-        if selection not in label:
-            continue
+    chosen = [case for case in CASES if selection in f"{case[0]} {case[1]} seed={case[2]}"]
+    for scenario, drift, seed in chosen:
         started = time.perf_counter()
-        calibration, _ = build_rig(scenario, "", seed=seed).record(20.0)
+        model = calibrate(build_rig(scenario, "", seed=seed).record(20.0)[0], "paper").model  # the rig before
         run, truth = build_rig(scenario, drift, seed=seed, run=1).record(10.0)
-        model = calibrate(calibration, "paper").model
-        cells = []
+        label, cells = f"{scenario} {drift} seed={seed}", []
         for mode, options in MODES.items():
             m = measured(model, run, truth, **options)
             cells.append(f"{mode}: {m['ratio']:.2f}x (rms {m['rms_ratio']:.2f}x) flagged {100 * m['flagged']:.0f} % "

@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-MEMORY = 40  # frames: the line's time constant (σ of its value now ≈ 2 bounds/√MEMORY)
+MEMORY = 20  # frames: the line's time constant (σ of its value now ≈ 2 bounds/√MEMORY)
 # the correction is applied once the level is this many of its σ from zero, and dropped below
 # CLEAR (hysteresis): a steady run leaves it off, so its positions carry no added noise
 APPLY_Z, CLEAR_Z = 3.0, 1.5

@@ -115,8 +115,8 @@ class ScaleWatch:
         elif drifted or far or behind:
             verdict = self.family
         if self.log is not None:
-            self.log.append(dataclasses.replace(self.last, flagged=verdict is not None)
-                            if trimmer is not None else Applied(x_mm, flagged=verdict is not None))
+            self.log.append(dataclasses.replace(self.last, flagged=verdict is not None, drifted=drifted)
+                            if trimmer is not None else Applied(x_mm, flagged=verdict is not None, drifted=drifted))
         return verdict
 
     def step_many(self, columns, n: int) -> list[str | None]:
@@ -148,6 +148,7 @@ class Applied:
     trim_um: float = 0.0
     sigma_um: float = 0.0
     flagged: bool = False
+    drifted: bool = False  # the line camera − grating drifted (not a single frame off it)
 
 
 class Disagreement:

@@ -80,8 +80,9 @@ def check(recording: "Recording", model: "FourierModel", result: "TrackResult", 
         lines.append(f"scale   last window: {final.describe()}; frames flagged {int(flagged.sum())}")
     for k, event in watch.events[:10]:
         lines.append(f"  frame {k}: {event.message}")
-    if flagged.any():
-        first = int(np.argmax(flagged))
+    drifted = np.array([applied.drifted for applied in watch.log])
+    if drifted.any():  # the line moved (single frames off it are the stale warning's)
+        first = int(np.argmax(drifted))
         remedy = "trimmed (--trim)" if trim else "recalibrate, or track with --trim to correct against the grating"
         warning = (f"warning: scale: from frame {first} on, {drift_message(watch.monitor)}: the target or the camera "
                    f"moved along the axis since calibration; {remedy}")

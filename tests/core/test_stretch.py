@@ -51,12 +51,13 @@ def test_the_watch_names_magnification_on_a_drift_and_stays_quiet_on_a_steady_ru
     weights = np.full(OFFSETS.size, NOISE ** -2)
 
     def run(m_of_k, n: int) -> list[str | None]:
-        watch = MagnificationWatch()
+        watch = MagnificationWatch(PERIOD)
         verdicts = []
         for k in range(n):
-            values, slopes, residual = _frame(float(rng.uniform(0, 50)), m_of_k(k), rng)
-            verdicts.append(watch.observe(FrameSign(k, stretch=lambda: stretch(values, slopes, residual, weights,
-                                                                              OFFSETS))))
+            x = float(rng.uniform(0, 50))
+            values, slopes, residual = _frame(x, m_of_k(k), rng)
+            measured = stretch(values, slopes, residual, weights, OFFSETS)
+            verdicts.append(watch.observe(FrameSign(k, x_mm=x, stretch=lambda: measured)))
         return verdicts
 
     assert not any(run(lambda k: 0.0, 600))

@@ -103,7 +103,8 @@ def sign_columns(n: int, seed: int) -> dict[str, list]:
         "x_mm": x.tolist(), "reference_mm": reference.tolist(), "placed": (rng.random(n) > 0.02).tolist(),
         "rows_averaged": [1] * n, "free_light": (stretch(0.35, 0.75) | (rng.random(n) < 0.05)).tolist(),
         "field": (rng.random(n) < 0.02).tolist(), "chi2_average": [1.0] * n,
-        "chi2_suspect": stretch(0.45, 0.47).tolist(), "chi2_stale": [False] * n, "explain": [None] * n}
+        "chi2_suspect": stretch(0.45, 0.47).tolist(), "chi2_stale": [False] * n, "explain": [None] * n,
+        "stretch": [None] * n}
     assert set(columns) == set(SIGN_FIELDS)
     return columns
 
