@@ -22,11 +22,13 @@ OUTLIER_Z = 4.0  # a sample this many of its σ off the model is left out of the
 
 
 def stretch(values: np.ndarray, slopes: np.ndarray, residual: np.ndarray, weights: np.ndarray,
-            offsets_mm: np.ndarray) -> tuple[float, float]:
+            offsets_mm: np.ndarray, curvature: np.ndarray | None = None) -> tuple[float, float]:
     """(m, its standard error), dimensionless, from one frame: the model's ``values`` and ``slopes``
     (∂F/∂x, gray/mm) at the solved position, the frame's ``residual`` and information ``weights``
-    (1/σ², 0 for a sample set aside), and each sample's target offset ``offsets_mm``. (nan, inf)
-    when the frame cannot tell (too few samples, a stretch its other shapes explain)."""
+    (1/σ², 0 for a sample set aside), and each sample's target offset ``offsets_mm``; with its
+    ``curvature`` (∂²F/∂x²) a change of focus is fitted too (a blur spreads as ½Δσ²·F'', which on
+    a line shorter than a period partly looks like a stretch: a focus drift of half a pixel read as
+    a steady stretch on a quarter of its frames). (nan, inf) when the frame cannot tell."""
     # a sample far beyond its noise (a pixel gone bad that the solve kept, a glint's edge) is no stretch:
     # one stuck pixel off the centre, the same on every frame, read as a steady 300 ppm on a 16-row strip
     w = np.where(residual * residual * weights > OUTLIER_Z * OUTLIER_Z, 0.0, weights)
@@ -34,7 +36,10 @@ def stretch(values: np.ndarray, slopes: np.ndarray, residual: np.ndarray, weight
     if not total > 0:
         return math.nan, math.inf
     centred = offsets_mm - float(w @ offsets_mm) / total
-    shapes = np.stack([slopes * centred, slopes, values, np.ones_like(values)])  # (4, P)
+    columns = [slopes * centred, slopes, values, np.ones_like(values)]
+    if curvature is not None:
+        columns.append(curvature)
+    shapes = np.stack(columns)  # (4 or 5, P)
     weighted = shapes * w
     normal = weighted @ shapes.T
     try:
@@ -50,9 +55,11 @@ def stretch(values: np.ndarray, slopes: np.ndarray, residual: np.ndarray, weight
 
 def frame_stretch(tracker, batch, k: int, solution) -> tuple[float, float]:
     """:func:`stretch` of batch frame ``k`` at its solution (one evaluation of the model there)."""
-    values, slopes = tracker.evaluator.evaluate(np.array([solution.x_mm]))
+    step = tracker.model.period_mm * 1e-3  # the curvature by the slopes a thousandth of a period apart
+    values, slopes = tracker.evaluator.evaluate(np.array([solution.x_mm - step, solution.x_mm, solution.x_mm + step]))
     weights = batch.weights(k)
     if solution.rejected_mask is not None:
         weights = weights * ~solution.rejected_mask
     residual = batch.residuals(k, solution.x_mm, solution.gain, solution.offset)
-    return stretch(values[0], slopes[0], residual, weights, tracker.model.target_offset().reshape(-1))
+    return stretch(values[1], slopes[1], residual, weights, tracker.model.target_offset().reshape(-1),
+                   (slopes[2] - slopes[0]) / (2.0 * step))

@@ -32,9 +32,10 @@ ADVICE = {
     "pixels": "pixels went bad since calibration: recalibrate (the new calibration masks them)",
     "light": "the light changed beyond what the model can follow at its precision: fix the light or recalibrate",
     "focus": "the focus moved since calibration: check the lens and its mount, then recalibrate",
-    "magnification": "the lens's magnification moved since calibration (the image stretches across the pixels, and "
-                     "slides with it unless the optical axis is on the ROI): let the lens reach its temperature, "
-                     "track with the grating and --trim, or recalibrate",
+    "magnification": "the image stretches across the pixels since calibration: the lens's magnification moved "
+                     "(warming up; the image slides with it unless the optical axis is on the ROI) or the print "
+                     "itself grew: let the lens reach its temperature, track with the grating and --trim, or "
+                     "recalibrate",
     "scale": "camera and grating drifted apart beyond their bounds: the target's scale (paper growth, "
              "temperature), the camera's place on the stage, or the grating read at another instant than the "
              "exposure (its latency shows as an offset that follows the speed): recalibrate",

@@ -30,7 +30,7 @@ MIN_FRAMES = 10  # frames (decayed count) before it says anything
 Z_ON, Z_OFF = 4.0, 2.5
 STRUCTURE_PPM = 40.0  # what a calibrated model's own structure reads as a stretch, in a mean of MEMORY frames
 PRIOR_PPM = 20000.0  # the prior's σ on each phase harmonic: keeps the turning fit defined while the stage stands
-PROFILE_BINS = 8  # stretches of the stroke the calibration's own stretch is kept for
+PROFILE_BINS = 16  # stretches of the stroke the calibration's own stretch is kept for
 TURNING_CHI2 = 36.0  # the turning part (4 harmonic terms) is significant beyond this χ² (p ≈ 3e-7)
 
 
@@ -142,7 +142,8 @@ class StretchProfile:
         spread2 = float(np.mean(means * means))
         shrink = max(1.0 - float(np.mean(noise2)) / max(spread2, 1e-300), 0.0)
         # what is left at a place: the kept mean's noise, or the part of the structure shrunk away
-        left = shrink * math.sqrt(float(np.mean(noise2))) + (1.0 - shrink) * math.sqrt(spread2)
+        beyond = math.sqrt(max(spread2 - float(np.mean(noise2)), 0.0))  # the structure beyond the means' noise
+        left = shrink * math.sqrt(float(np.mean(noise2))) + (1.0 - shrink) * beyond
         return cls(tuple(centers.tolist()), tuple((means * shrink).tolist()), left)
 
 
