@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 MEMORY = 50  # frames: the mean's time constant
-MIN_FRAMES = 10  # frames (decayed count) before it says anything
+MIN_FRAMES = 20  # frames (decayed count) before it says anything
 Z_ON, Z_OFF = 4.0, 2.5
 STRUCTURE_PPM = 40.0  # what a calibrated model's own structure reads as a stretch, in a mean of MEMORY frames
 PRIOR_PPM = 20000.0  # the prior's σ on each phase harmonic: keeps the turning fit defined while the stage stands
