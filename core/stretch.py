@@ -55,11 +55,16 @@ def stretch(values: np.ndarray, slopes: np.ndarray, residual: np.ndarray, weight
 
 def frame_stretch(tracker, batch, k: int, solution) -> tuple[float, float]:
     """:func:`stretch` of batch frame ``k`` at its solution (one evaluation of the model there)."""
-    step = tracker.model.period_mm * 1e-3  # the curvature by the slopes a thousandth of a period apart
-    values, slopes = tracker.evaluator.evaluate(np.array([solution.x_mm - step, solution.x_mm, solution.x_mm + step]))
     weights = batch.weights(k)
     if solution.rejected_mask is not None:
         weights = weights * ~solution.rejected_mask
     residual = batch.residuals(k, solution.x_mm, solution.gain, solution.offset)
-    return stretch(values[1], slopes[1], residual, weights, tracker.model.target_offset().reshape(-1),
-                   (slopes[2] - slopes[0]) / (2.0 * step))
+    offsets = tracker.model.target_offset().reshape(-1)
+    if not math.isfinite(solution.focus_sigma):  # the focus held: the stretch alone (its full power)
+        values, slopes = tracker.evaluator.evaluate(np.array([solution.x_mm]))
+        return stretch(values[0], slopes[0], residual, weights, offsets)
+    # the tracker solved a change of focus for this frame: the stretch beside it (the curvature by the
+    # slopes a thousandth of a period apart)
+    step = tracker.model.period_mm * 1e-3
+    values, slopes = tracker.evaluator.evaluate(np.array([solution.x_mm - step, solution.x_mm, solution.x_mm + step]))
+    return stretch(values[1], slopes[1], residual, weights, offsets, (slopes[2] - slopes[0]) / (2.0 * step))
