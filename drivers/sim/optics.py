@@ -13,7 +13,8 @@ Pixel ``(r, u)`` of the ROI sees target coordinate ``x_w = x_stage + s[r, u]``. 
 * a mirrored readout (the camera mounted the other way round, or its ReverseX on): the sensor's
   columns are read out in reverse, so increasing ROI column u sees *decreasing* target x. What the
   paper's field attaches to the readout column (its pixel polynomials) stays with u.
-* focus drift: σ changing during a run, σ(t) = max(σ₀ + Δσ·ramp(t), 0). The change is on σ (what a
+* focus drift: σ changing during a run, σ(t) = max(σ₀ + Δσ·ramp(t), 0), or coming and going
+  (a temperature cycle: ramp(t) = (1 − cos 2πt/T)/2). The change is on σ (what a
   person turning a focus ring sees), so a sharper image (Δσ < 0) needs a rig that had a blur to
   lose: from a sharp rig it clips at σ = 0 and nothing changes.
 
@@ -53,6 +54,9 @@ class OpticsConfig:
     focus_drift_mm: float = 0.0
     focus_start_s: float = 0.0
     focus_ramp_s: float = 0.0
+    # ... or coming and going (a lens mount warming and cooling): the change follows (1 − cos)/2 over
+    # cycles of focus_cycle_s from focus_start_s (0: no cycle, the ramp above).
+    focus_cycle_s: float = 0.0
 
     @property
     def full_width(self) -> int:
@@ -116,7 +120,10 @@ def defocus_attenuation(cfg: OpticsConfig, orders: np.ndarray, period_mm: float)
 def blur_sigma_mm(cfg: OpticsConfig, t_s: np.ndarray) -> np.ndarray:
     """Blur σ on the target (mm) at frame times ``t_s`` ``(K,)``: the base defocus, moved by the focus drift."""
     t = np.asarray(t_s, dtype=np.float64)
-    if cfg.focus_ramp_s > 0:
+    if cfg.focus_cycle_s > 0:
+        turn = 2.0 * math.pi * np.maximum(t - cfg.focus_start_s, 0.0) / cfg.focus_cycle_s
+        share = 0.5 * (1.0 - np.cos(turn))
+    elif cfg.focus_ramp_s > 0:
         share = np.clip((t - cfg.focus_start_s) / cfg.focus_ramp_s, 0.0, 1.0)
     else:
         share = (t >= cfg.focus_start_s).astype(np.float64)
