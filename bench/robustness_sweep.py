@@ -31,6 +31,8 @@ LATER_PIXEL = "bad_pixels:stuck=1:dead=0:hot=0:row=0:pixel=40:start_s=2.5"
 LATER_GROWTH = "target_growth:ppm=250"  # the paper print grew (humidity) between calibration and the run
 LATER_FOCUS = "focus_drift:px=0.5"  # the blur σ grows by half a pixel after calibration (a lens mount warming up)
 LATER_SHARPER = "focus_drift:px=-0.5"
+LATER_FOCUS_RAMP = "focus_drift:px=1:ramp_s=10"  # the blur σ 1.6 → 2.6 px over the run (bench/focus_drift.py)
+LATER_FOCUS_CYCLE = "focus_cycle:px=1.5:period_s=6"  # ... out by 1.5 px and back within 6 s (warming and cooling)
 LATER_SMUDGE = "smudge:depth=0.35"  # a smudge on the print after calibration (a finger), coming into view mid-run
 
 SECONDS = {"lab": 6.0}  # the lab rig runs at 200 frames/s with 16 × 128 pixels
@@ -78,6 +80,10 @@ CASES = [
     ("strip16", "defocus:sigma_um=200", LATER_FOCUS),
     ("strip16", "defocus:sigma_um=200", LATER_SHARPER),
     ("paper", "", LATER_SMUDGE),
+    ("paper", "defocus:sigma_um=100", LATER_FOCUS_RAMP),
+    ("strip16", "defocus:sigma_um=100", LATER_FOCUS_RAMP),
+    ("paper", "defocus:sigma_um=100", LATER_FOCUS_CYCLE),
+    ("strip16", "defocus:sigma_um=100", LATER_FOCUS_CYCLE),
     # a lab strip with most of what the issues named at once (12 bits, vibration, PRNU, a gradient,
     # glints), the focus drifting and the glints more frequent in the measured run
     ("lab", "photon_transfer:full_well=20000:read_e=6:bits=12:black_gray=4,vibration:um=1:hz=120,prnu:sigma=0.01,"
@@ -137,7 +143,8 @@ def main(selection: str = "") -> None:
         changed = " ".join(word for word, key in (("light", "light_change"), ("pixel", "start_s=2.5"),
                                                        ("growth", "target_growth"), ("glints", "glints"),
                                                        ("blur+0.5px", "px=0.5"), ("blur-0.5px", "px=-0.5"),
-                                                       ("smudge", "smudge")) if key in later)
+                                                       ("smudge", "smudge"), ("blur ramp", "ramp_s"),
+                                                       ("blur cycle", "focus_cycle")) if key in later)
         print(f"{scenario:9} {rig_effects or '-':52.52} {changed or '-':12}"
               f" {cells[0]:>30} {cells[1]:>30}  {added} ({time.perf_counter() - started:.0f} s)", flush=True)
     print(never_silently_wrong(verdicts))

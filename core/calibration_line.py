@@ -15,7 +15,7 @@ from graytrack.core.chi2_curve import measured as measured_chi2_curve
 from graytrack.core.noise import reference_resolution_mm
 from graytrack.core.reference_monitor import MIN_FRAMES, Line, ReferenceMonitor, structure_profile, structure_um
 from graytrack.core.timing import model_reference
-from graytrack.core.tracking import track
+from graytrack.core.tracking import Tracker, track
 
 
 def record_calibration_line(model, recording) -> Line | None:
@@ -27,7 +27,10 @@ def record_calibration_line(model, recording) -> Line | None:
     reference = model_reference(model, recording.t, recording.reference)
     if np.isfinite(reference).sum() < MIN_FRAMES:
         return None
-    result = track(model, recording, reference=reference, light="auto", robust=True)
+    # the focus is the model's by construction: estimates that move along the stroke are its own
+    # residue there, not a blur (core/focus_follow.py), and the frames are tracked as before
+    tracker = Tracker(model, light="auto", robust=True, follow_focus=False)
+    result = track(model, recording, reference=reference, tracker=tracker)
     # the χ² level along the stroke, as tracking will see it: what a run's χ² is held against (core/chi2_curve.py)
     curve = measured_chi2_curve(result.x_mm[result.locked], result.chi2[result.locked]) \
         if result.chi2 is not None else None

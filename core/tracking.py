@@ -150,10 +150,13 @@ class Tracker:
     converged frame), far below any bound. Default: ``"free"`` for a model with a
     per-frame common mode, else ``"fixed"``. ``robust``: frames whose χ² is beyond the noise are
     solved again by IRLS, so that a pixel gone bad in this run does not pull the position.
+    ``follow_focus``: the focus term is also taken when the frames' focus estimates move (False: only
+    when their χ² asks; the calibration's own run, whose focus is the model's by construction).
     """
 
     def __init__(self, model: FourierModel, max_iterations: int = 5, tolerance_mm: float = 1e-5,
-                 residual_limit_gray: float | None = None, light: str | None = None, robust: bool = False):
+                 residual_limit_gray: float | None = None, light: str | None = None, robust: bool = False,
+                 follow_focus: bool = True):
         if not model.is_calibrated:
             raise TrackingError("the model has no coefficients: calibrate it first")
         light = light or ("free" if model.common_mode else "fixed")
@@ -225,7 +228,8 @@ class Tracker:
         # evaluated at x for the others; both are ready before the first frame, so the first
         # blurred frame waits for neither a table nor the compiler.
         self.focus_capable = light == "auto"
-        self.focus_followed = self.focus_capable and followable(model.info)  # its estimates' move alone asks
+        # its estimates' move alone asks for the focus term (core/focus_follow.py)
+        self.focus_followed = self.focus_capable and follow_focus and followable(model.info)
         self._curvature: CurvatureTable | None = None
         if self.focus_capable:
             if self.fast_path:
@@ -434,7 +438,10 @@ class Tracker:
                 and self.untrusted(focused) is None:
             answer = focused
             focused.chi2_calibrated_focus = uniform.chi2
-        shown = measured is not None and memory.focus_track.shown(memory.focus or answer is focused)
+        # a model whose focus is followed shows its estimates a while after the term was dropped (the
+        # watch sees the focus come back); any other, as before, only those of the frames that tried it
+        showing = memory.focus_track.shown(tried_focus or memory.focus)
+        shown = measured is not None and (tried_focus or (showing and self.focus_followed))
         if shown and answer is uniform:  # under the field's answer the blur-only fit is no estimate
             answer.focus, answer.focus_sigma = measured.focus, measured.focus_sigma
         return answer
