@@ -33,7 +33,7 @@ from graytrack.core.light_return import LIGHT_RETURN_CHI2, after_frame
 from graytrack.core.kernels import TableEvaluator
 from graytrack.core.evaluation import FastHarmonics, TrigTables
 from graytrack.core.frame_tables import FrameTables
-from graytrack.core.focus_solve import CurvatureTable, FocusPrior, focus_solve, general_focus_solve
+from graytrack.core.focus_solve import CurvatureTable, focus_solve, general_focus_solve
 from graytrack.core.focus_solve import warm as focus_warm
 from graytrack.core.focus_follow import FocusFollow, followable
 from graytrack.core.models.fourier import TWO_PI, FourierModel

@@ -72,8 +72,8 @@ def test_a_focus_ramp_is_followed_at_the_bound(model, runs, reference):
 @pytest.mark.parametrize("reference", [True, False])
 def test_a_focus_cycle_leaves_no_frame_far_off_unflagged_and_no_stale_verdict(model, runs, reference):
     """Before: 1.42x the bound (1.12 now), and without the grating 14 frames 4+ bounds off the truth
-    without a flag, during the blur's rise. The verdict follows the focus back: unflagged from the instant it is back (the
-    watch's median over 50 frames lags the last 0.2 px² by 20 frames)."""
+    without a flag, during the blur's rise. The verdict follows the focus back: unflagged from the
+    instant it is back (the watch's median over 50 frames lags the last 0.2 px² by 20 frames)."""
     run, truth = runs["cycle"]
     ratio, _, silent, result = scored(model, run, truth, reference)
     assert silent <= 0.005 * run.n_frames
