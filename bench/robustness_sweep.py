@@ -33,6 +33,8 @@ LATER_FOCUS = "focus_drift:px=0.5"  # the blur σ grows by half a pixel after ca
 LATER_SHARPER = "focus_drift:px=-0.5"
 LATER_MAGNIFICATION = "magnification_drift:ppm=1500:ramp_s=10"  # the lens warming up: 0.15 % over the run
 LATER_CYCLE = "magnification_drift:ppm=1500:cycle_s=6"  # a temperature cycle: the magnification comes and goes
+LATER_FOCUS_RAMP = "focus_drift:px=1:ramp_s=10"  # the blur σ 1.6 → 2.6 px over the run (bench/focus_drift.py)
+LATER_FOCUS_CYCLE = "focus_cycle:px=1.5:period_s=6"  # ... out by 1.5 px and back within 6 s (warming and cooling)
 LATER_SMUDGE = "smudge:depth=0.35"  # a smudge on the print after calibration (a finger), coming into view mid-run
 LATER_SHADOW = "moving_shadow:passes=2:period_s=4:start_s=2"  # a cable's shadow swinging across the field, twice
 LATER_DUST = "dust_settling"  # 30 specks landing on the print one by one during the run (learned: core/texture.py)
@@ -87,6 +89,10 @@ CASES = [
     ("paper", "", LATER_MAGNIFICATION),
     ("strip16", "", LATER_MAGNIFICATION),
     ("strip16", "", LATER_CYCLE),
+    ("paper", "defocus:sigma_um=100", LATER_FOCUS_RAMP),
+    ("strip16", "defocus:sigma_um=100", LATER_FOCUS_RAMP),
+    ("paper", "defocus:sigma_um=100", LATER_FOCUS_CYCLE),
+    ("strip16", "defocus:sigma_um=100", LATER_FOCUS_CYCLE),
     # a lab strip with most of what the issues named at once (12 bits, vibration, PRNU, a gradient,
     # glints), the focus drifting and the glints more frequent in the measured run
     ("lab", "photon_transfer:full_well=20000:read_e=6:bits=12:black_gray=4,vibration:um=1:hz=120,prnu:sigma=0.01,"
@@ -149,7 +155,8 @@ def main(selection: str = "") -> None:
                                                        ("blur+0.5px", "px=0.5"), ("blur-0.5px", "px=-0.5"),
                                                        ("smudge", "smudge"), ("shadow", "moving_shadow"),
                                                        ("dust", "dust_settling"),
-                                                       ("magnif.", "magnification"))
+                                                       ("magnif.", "magnification"), ("blur ramp", "focus_drift:px=1:ramp_s"),
+                                                       ("blur cycle", "focus_cycle"))
                            if key in later)
         print(f"{scenario:9} {rig_effects or '-':52.52} {changed or '-':12}"
               f" {cells[0]:>30} {cells[1]:>30}  {added} ({time.perf_counter() - started:.0f} s)", flush=True)

@@ -15,7 +15,7 @@ from graytrack.core.chi2_curve import measured as measured_chi2_curve
 from graytrack.core.noise import reference_resolution_mm
 from graytrack.core.reference_monitor import MIN_FRAMES, Line, ReferenceMonitor, structure_profile, structure_um
 from graytrack.core.timing import model_reference
-from graytrack.core.tracking import track
+from graytrack.core.tracking import Tracker, track
 from graytrack.core.watches.magnification import MagnificationWatch, StretchProfile
 
 
@@ -29,7 +29,10 @@ def record_calibration_line(model, recording) -> Line | None:
     if np.isfinite(reference).sum() < MIN_FRAMES:
         return None
     own = MagnificationWatch(model.period_mm, record=True)  # the model's own stretch along the stroke
-    result = track(model, recording, reference=reference, light="auto", robust=True, watches=[own])
+    # the focus is the model's by construction: estimates that move along the stroke are its own
+    # residue there, not a blur (core/focus_follow.py), and the frames are tracked as before
+    tracker = Tracker(model, light="auto", robust=True, follow_focus=False)
+    result = track(model, recording, reference=reference, tracker=tracker, watches=[own])
     stretch = StretchProfile.measured(own.record or [])
     if stretch is not None:
         model.info["stretch_profile"] = stretch.as_dict()

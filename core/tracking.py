@@ -34,8 +34,9 @@ from graytrack.core.light_return import LIGHT_RETURN_CHI2, after_frame
 from graytrack.core.kernels import TableEvaluator
 from graytrack.core.evaluation import FastHarmonics, TrigTables
 from graytrack.core.frame_tables import FrameTables
-from graytrack.core.focus_solve import CurvatureTable, FocusPrior, focus_solve, general_focus_solve
+from graytrack.core.focus_solve import CurvatureTable, focus_solve, general_focus_solve
 from graytrack.core.focus_solve import warm as focus_warm
+from graytrack.core.focus_follow import FocusFollow, followable
 from graytrack.core.models.fourier import TWO_PI, FourierModel
 from graytrack.core.recording import Recording
 from graytrack.core.stretch import frame_stretch
@@ -72,7 +73,6 @@ FIELD_BEYOND_FOCUS = FOCUS_KEEP
 # cap for the field and the focus, or the comparison of their averages would be the caps'.
 EVIDENCE_CAP = 10.0 * FIELD_KEEP
 BLUR_LOOK_SPREADS = 3.0  # a free-light χ² average this many spreads high: the focus term is tried
-FOCUS_PRIOR_FRAMES = 5  # frames of focus estimates before they hold the next frame's focus
 BATCH_CHUNK = 4096  # frames reduced at a time (bounds memory on long recordings)
 
 
@@ -135,48 +135,13 @@ class LightMemory:
     focus: bool = False  # a change of focus (blur) is solved alongside the uniform light
     focus_gain: float = 1.0  # running average of the χ² the focus term gains over the uniform light
     # (from the mean of χ²(1), what a steady focus leaves it)
-    focus_track: "FocusTrack" = dataclasses.field(default_factory=lambda: FocusTrack())  # the last frames' focus
+    focus_track: FocusFollow = dataclasses.field(default_factory=FocusFollow)  # the last frames' focus
+    focus_chi2: float | None = None  # running average of the focus term's own χ² (in the calibration's level)
     # (``field`` is this class's own attribute here, hence dataclasses.field)
     field_over_focus: float = 1.0  # running average of the χ² the field gains over the focus term (from
     # the mean of χ²(1), the field's one extra unknown, when the focus explains the frames)
     free_level: float = 1.0  # average χ² of the last free-light frames, in the calibration's level
     free_frames: int = 0  # how many frames that average holds (up to FIELD_WINDOW)
-
-
-@dataclass
-class FocusTrack:
-    """The focus the last frames found, averaged by precision with a forgetting of FIELD_WINDOW
-    frames: the prior of the next frame's focus (a focus drifts slowly; each frame need not pay
-    for finding it alone). When the frames scatter more than their errors say (a fast drift), the
-    prior widens by that much; after a window with no estimate it is forgotten."""
-
-    precision: float = 0.0  # Σ λ^age / σ²
-    weighted: float = 0.0  # Σ λ^age δ / σ²
-    dispersion: float = 0.0  # Σ λ^age (δ − mean before)² / σ²
-    count: float = 0.0  # Σ λ^age
-    idle: int = 0  # frames since the last estimate
-
-    def prior(self) -> FocusPrior | None:
-        if self.count < FOCUS_PRIOR_FRAMES or self.precision <= 0.0:
-            return None
-        scatter = max(1.0, self.dispersion / self.count)
-        return FocusPrior(self.weighted / self.precision, scatter / self.precision)
-
-    def add(self, delta_mm2: float, sigma_mm2: float) -> None:
-        if not (math.isfinite(delta_mm2) and math.isfinite(sigma_mm2) and sigma_mm2 > 0.0):
-            return
-        keep, weight = 1.0 - 1.0 / FIELD_WINDOW, 1.0 / (sigma_mm2 * sigma_mm2)
-        if self.precision > 0.0:
-            self.dispersion = keep * self.dispersion + weight * (delta_mm2 - self.weighted / self.precision) ** 2
-        self.precision = keep * self.precision + weight
-        self.weighted = keep * self.weighted + weight * delta_mm2
-        self.count = keep * self.count + 1.0
-        self.idle = 0
-
-    def wait(self) -> None:
-        self.idle += 1
-        if self.idle > FIELD_WINDOW:
-            self.precision = self.weighted = self.dispersion = self.count = 0.0
 
 
 class Tracker:
@@ -190,10 +155,13 @@ class Tracker:
     converged frame), far below any bound. Default: ``"free"`` for a model with a
     per-frame common mode, else ``"fixed"``. ``robust``: frames whose χ² is beyond the noise are
     solved again by IRLS, so that a pixel gone bad in this run does not pull the position.
+    ``follow_focus``: the focus term is also taken when the frames' focus estimates move (False: only
+    when their χ² asks; the calibration's own run, whose focus is the model's by construction).
     """
 
     def __init__(self, model: FourierModel, max_iterations: int = 5, tolerance_mm: float = 1e-5,
-                 residual_limit_gray: float | None = None, light: str | None = None, robust: bool = False):
+                 residual_limit_gray: float | None = None, light: str | None = None, robust: bool = False,
+                 follow_focus: bool = True):
         if not model.is_calibrated:
             raise TrackingError("the model has no coefficients: calibrate it first")
         light = light or ("free" if model.common_mode else "fixed")
@@ -265,6 +233,8 @@ class Tracker:
         # evaluated at x for the others; both are ready before the first frame, so the first
         # blurred frame waits for neither a table nor the compiler.
         self.focus_capable = light == "auto"
+        # its estimates' move alone asks for the focus term (core/focus_follow.py)
+        self.focus_followed = self.focus_capable and follow_focus and followable(model.info)
         self._curvature: CurvatureTable | None = None
         if self.focus_capable:
             if self.fast_path:
@@ -386,10 +356,9 @@ class Tracker:
             memory.focus = True  # the frame did not fit as at calibration: a blur is one cheap unknown away
         tried_field = memory.field and self.field_basis is not None
         tried_focus = memory.focus and self.focus_capable
-        if tried_field or tried_focus:
+        # The focus is measured on every frame (core/focus_follow.py): a blur moves x before χ² shows it
+        if tried_field or self.focus_capable:
             solution = self._changed(batch, k, solution, memory, tried_field, tried_focus, here)
-        if not tried_focus:
-            memory.focus_track.wait()
         return solution
 
     def free_light(self, memory: LightMemory) -> bool:
@@ -458,7 +427,8 @@ class Tracker:
         memory.uniform_chi2 += (uniform_chi2 - memory.uniform_chi2) / STALE_WINDOW
         wanted = memory.uniform_chi2 > self.sustained_limit
         shaped = self._field(batch, k, uniform, memory, here) if tried_field else None
-        focused = self._focus(batch, k, uniform, memory) if tried_focus else None
+        measured = self._focus(batch, k, uniform, memory, here, tried_focus) if self.focus_capable else None
+        focused = measured if tried_focus else None  # the focus term competes once the frames asked for it
         answer = uniform
         if shaped is not None and focused is not None:
             beyond = (focused.cost - shaped.cost) / self.chi2_calibration
@@ -473,16 +443,22 @@ class Tracker:
         if shaped is not None and memory.field and wanted and memory.field_scatter < FIELD_SCATTER_LIMIT \
                 and field_over_focus and explains and self.untrusted(shaped) is None:
             answer = shaped
-        elif focused is not None and memory.focus and wanted and self.untrusted(focused) is None:
+        elif focused is not None and memory.focus and (wanted or self._focus_moved(memory)) \
+                and self.untrusted(focused) is None:
             answer = focused
             focused.chi2_calibrated_focus = uniform.chi2
-        if focused is not None and answer is uniform:  # under the field's answer the blur-only fit is no estimate
-            answer.focus, answer.focus_sigma = focused.focus, focused.focus_sigma
+        # a model whose focus is followed shows its estimates a while after the term was dropped (the
+        # watch sees the focus come back); any other, as before, only those of the frames that tried it
+        showing = memory.focus_track.shown(tried_focus or memory.focus)
+        shown = measured is not None and (tried_focus or (showing and self.focus_followed))
+        if shown and answer is uniform:  # under the field's answer the blur-only fit is no estimate
+            answer.focus, answer.focus_sigma = measured.focus, measured.focus_sigma
         return answer
 
     def _focus(self, batch: GeneralBatch | TrigPolyBatch, k: int, uniform: FrameSolution,
-               memory: LightMemory) -> FrameSolution:
-        """The frame with a change of focus profiled out, and the running evidence for it."""
+               memory: LightMemory, here: float = 1.0, tried: bool = True) -> FrameSolution:
+        """The frame with a change of focus profiled out, and the running evidence for it (``tried``:
+        the focus term competes for this frame's answer; else it is only measured)."""
         model = self.model
         prior = memory.focus_track.prior()
         if not self.fast_path:
@@ -494,11 +470,27 @@ class Tracker:
             focused = focus_solve(batch, k, self._curvature, uniform, self.settings, model.pixel_pitch_mm, prior)
         footprint = model.pixel_pitch_mm**2
         memory.focus_track.add(focused.focus * footprint, focused.focus_sigma * footprint)
+        level_chi2 = focused.chi2 / here if math.isfinite(focused.chi2) else math.inf
+        memory.focus_chi2 = level_chi2 if memory.focus_chi2 is None else \
+            memory.focus_chi2 + (min(level_chi2, 3.0 * self.stale_limit) - memory.focus_chi2) / FIELD_WINDOW
+        if not tried:  # measured only: the χ² it gains is counted once the frames ask (as before)
+            memory.focus = self._focus_moved(memory)
+            return focused
         gained = (uniform.cost - focused.cost) / self.chi2_calibration if math.isfinite(focused.cost) else 0.0
         gained = min(max(gained, 0.0), EVIDENCE_CAP)
         memory.focus_gain += (gained - memory.focus_gain) / FIELD_WINDOW
-        memory.focus = memory.focus_gain > FOCUS_KEEP
+        memory.focus = memory.focus_gain > FOCUS_KEEP or self._focus_moved(memory)
         return focused
+
+    def _focus_moved(self, memory: LightMemory) -> bool:
+        """The focus estimates have moved (core/focus_follow.py) and the focus term describes the
+        frames (its running χ² at the calibration's level): a blur, the focus term's answer whatever
+        the uniform light's χ² says. A model that misses something else (a sensor's fixed pattern,
+        stray light) leaves a residue part of which the blur direction takes: its estimates move
+        too, but its χ² stays up (the seed model under 2 gray of DSNU: 4.3x its bound, 7.8x had the
+        focus been taken)."""
+        return self.focus_followed and memory.focus_track.moved() and memory.focus_chi2 is not None and \
+            memory.focus_chi2 <= self.sustained_limit
 
     def _field(self, batch: GeneralBatch | TrigPolyBatch, k: int, uniform: FrameSolution,
                memory: LightMemory, here: float = 1.0) -> FrameSolution:

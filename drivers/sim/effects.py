@@ -353,10 +353,24 @@ def _defocus(config: "RigConfig", v: dict[str, float], rng: np.random.Generator)
         px=(0.5, "change of the blur σ, pixels"), start_s=(0.0, "when the change begins, s"),
         ramp_s=(0.0, "how long it takes, s (0: a step)"))
 def _focus_drift(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
-    optics = config.optics
-    optics.focus_drift_mm += v["px"] * optics.pixel_pitch_mm
-    optics.focus_start_s = v["start_s"]
-    optics.focus_ramp_s = _positive("focus_drift", "ramp_s", v["ramp_s"], True)
+    _move_focus(config, v)
+    config.optics.focus_ramp_s = _positive("focus_drift", "ramp_s", v["ramp_s"], True)
+
+
+def _move_focus(config: "RigConfig", v: dict[str, float]) -> None:
+    """The blur σ's change (px pixel footprints) and when it begins: what a drift and a cycle share."""
+    config.optics.focus_drift_mm += v["px"] * config.optics.pixel_pitch_mm
+    config.optics.focus_start_s = v["start_s"]
+
+
+@effect("focus_cycle", "optics", "Focus coming and going during the run (a lens mount warming and cooling with "
+        "the room or a duty cycle): from start_s the blur σ on the target moves by up to px pixel footprints and back, "
+        "as (1 − cos 2πt/period_s)/2: blurrier (px > 0) or sharper (px < 0, from a base defocus) and back again.",
+        px=(0.5, "largest change of the blur σ, pixels"), period_s=(10.0, "one cycle, s"),
+        start_s=(0.0, "when the first cycle begins, s"))
+def _focus_cycle(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    _move_focus(config, v)
+    config.optics.focus_cycle_s = _positive("focus_cycle", "period_s", v["period_s"])
 
 
 @effect("tilt", "optics", "Camera rows tilted against the axis of motion: row r sees the target shifted by −r·α·d·sin(angle).",

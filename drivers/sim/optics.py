@@ -17,7 +17,8 @@ Pixel ``(r, u)`` of the ROI sees target coordinate ``x_w = x_stage + s[r, u]``. 
   ROI, where the lens's centre is): pixel u then sees ``s_u + m(t)·(s_u − s_axis)``, an image that
   stretches across the line and slides as a whole by ``m(t)·(s_centre − s_axis)`` while the stage
   stands;
-* focus drift: σ changing during a run, σ(t) = max(σ₀ + Δσ·ramp(t), 0). The change is on σ (what a
+* focus drift: σ changing during a run, σ(t) = max(σ₀ + Δσ·ramp(t), 0), or coming and going
+  (a temperature cycle: ramp(t) = (1 − cos 2πt/T)/2). The change is on σ (what a
   person turning a focus ring sees), so a sharper image (Δσ < 0) needs a rig that had a blur to
   lose: from a sharp rig it clips at σ = 0 and nothing changes.
 
@@ -57,6 +58,9 @@ class OpticsConfig:
     focus_drift_mm: float = 0.0
     focus_start_s: float = 0.0
     focus_ramp_s: float = 0.0
+    # ... or coming and going (a lens mount warming and cooling): the change follows (1 − cos)/2 over
+    # cycles of focus_cycle_s from focus_start_s (0: no cycle, the ramp above).
+    focus_cycle_s: float = 0.0
     # Magnification drifting during a run (the lens warming up): the footprint of every pixel scales by
     # 1 + m(t) about the optical axis, which sits magnification_axis_mm (on the target) from the ROI's
     # centre; m(t) ramps or cycles to magnification_drift (magnification_change below).
@@ -128,7 +132,10 @@ def defocus_attenuation(cfg: OpticsConfig, orders: np.ndarray, period_mm: float)
 def blur_sigma_mm(cfg: OpticsConfig, t_s: np.ndarray) -> np.ndarray:
     """Blur σ on the target (mm) at frame times ``t_s`` ``(K,)``: the base defocus, moved by the focus drift."""
     t = np.asarray(t_s, dtype=np.float64)
-    if cfg.focus_ramp_s > 0:
+    if cfg.focus_cycle_s > 0:
+        turn = 2.0 * math.pi * np.maximum(t - cfg.focus_start_s, 0.0) / cfg.focus_cycle_s
+        share = 0.5 * (1.0 - np.cos(turn))
+    elif cfg.focus_ramp_s > 0:
         share = np.clip((t - cfg.focus_start_s) / cfg.focus_ramp_s, 0.0, 1.0)
     else:
         share = (t >= cfg.focus_start_s).astype(np.float64)

@@ -151,6 +151,21 @@ def test_focus_drift_moves_the_blur_sigma_by_pixels_from_its_start_and_never_bel
     np.testing.assert_allclose(light(sharp, x, after), light(quiet_rig("paper"), x), atol=1e-9)
 
 
+def test_focus_cycle_comes_and_goes_back_to_the_base_blur():
+    """A temperature cycle: from start_s the blur σ moves to σ₀ + px·α·d at half a period and is back
+    at σ₀ after a whole one (and again after two)."""
+    pitch = paper.PIXEL_PITCH_MM
+    x = np.linspace(0.0, 5.0, 5)
+    cycling = quiet_rig("paper", ["defocus:sigma_um=200", "focus_cycle:px=1:period_s=4:start_s=1"])
+    base = light(quiet_rig("paper", ["defocus:sigma_um=200"]), x)
+    for t in (0.5, 5.0, 9.0):  # before the first cycle, after one, after two
+        np.testing.assert_allclose(light(cycling, x, np.full(5, t)), base, atol=1e-9)
+    peak = light(quiet_rig("paper", [f"defocus:sigma_um={200.0 + 1000.0 * pitch}"]), x)
+    np.testing.assert_allclose(light(cycling, x, np.full(5, 3.0)), peak, atol=1e-9)
+    quarter = light(quiet_rig("paper", [f"defocus:sigma_um={200.0 + 500.0 * pitch}"]), x)
+    np.testing.assert_allclose(light(cycling, x, np.full(5, 2.0)), quarter, atol=1e-9)
+
+
 def test_tilt_shifts_the_phase_linearly_with_row():
     deg = 5.0
     rig = quiet_rig(effects=["rows:n=16", f"tilt:deg={deg}"])
