@@ -115,7 +115,7 @@ def _track(rec: Recording, job: Job) -> dict[str, Any]:
 
     model = load_model(_track_model(job.source.path, job.options.get("model")))
     rec = oriented(rec, model, False)  # a model calibrated with --flip reverses its camera's frames likewise
-    result, grating = solve(rec, model, bool(job.options.get("no_reference")))
+    result, grating, _ = solve(rec, model, bool(job.options.get("no_reference")))  # no trim: no watch to keep
     write_csv(job.folder / "track.csv", result_columns(rec.t, result, grating))
     error = result.error_um(grating)
     placed = np.isfinite(error)
