@@ -39,7 +39,8 @@ def learn(daemon: LiveServer, at_least: int = 3) -> dict:
     assert daemon.post("/api/stage/velocity", json={"velocity_mm_s": 0.5}, headers=daemon.auth()).status_code == 200
     for target in (8.0, 2.0, 8.0, 2.0, 8.0, 2.0):
         assert daemon.post("/api/stage/move", json={"target_mm": target}, headers=daemon.auth()).status_code == 202
-        wait_for(lambda: abs((daemon.status()["position_mm"] or -1.0) - target) < 0.01, 60.0, f"the move to {target}")
+        wait_for(lambda: abs((daemon.status()["grating_mm"] or -1.0) - target) < 0.01, 60.0, f"the move to {target}",
+                 show=lambda: {key: daemon.status()[key] for key in ("state", "grating_mm", "position_mm", "texture")})
         texture = daemon.status()["texture"]
         if texture["marks"] >= at_least and texture["saved"]:
             return texture
