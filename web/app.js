@@ -126,7 +126,8 @@ function textureLine(t) {
   if (t.marks === 0) return `nothing learned on the print${tail}`;
   const newest = t.newest[0];
   const sure = newest.depth_sigma === null ? "" : ` ± ${fmt(100 * newest.depth_sigma, 1)} %`;
-  return `${t.marks} mark${t.marks === 1 ? "" : "s"} learned on the print · newest at x_w = ${fmt(newest.x_mm, 3)} mm ` +
+  const where = `newest at x_w = ${fmt(newest.x_mm, 3)} mm`;
+  return `${t.marks} mark${t.marks === 1 ? "" : "s"} learned on the print · ${where} ` +
     `(${fmt(100 * newest.depth, 1)} %${sure} of the light, ${newest.frames} frames)${tail}`;
 }
 

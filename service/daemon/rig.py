@@ -266,7 +266,8 @@ class Rig:
                 # within the camera's time (the poller clears it with its next good reading)
                 self.faults.set("stage", f"the controller has not answered POS? for {silent:.1f} s")
 
-    def install(self, model: FourierModel, calibration: str | None = None, texture: dict[str, Any] | None = None) -> None:
+    def install(self, model: FourierModel, calibration: str | None = None,
+                texture: dict[str, Any] | None = None) -> None:
         """Track with ``model`` (of calibration ``calibration``) from a coming frame on, starting near
         the grating's position, with the marks ``texture`` learned on the print with it before."""
         assert self.acquisition is not None

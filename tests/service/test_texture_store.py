@@ -101,7 +101,8 @@ def test_a_model_switch_removes_the_texture_and_its_undo_puts_it_back(tmp_path: 
     switch = storage.switch_model("20260102T000000000000Z")
     assert not storage.texture_path.exists() and storage.active_id() == "20260102T000000000000Z"
     switch.undo()
-    assert json.loads(storage.texture_path.read_text())["calibration"] == storage.active_id() == "20260101T000000000000Z"
+    assert json.loads(storage.texture_path.read_text())["calibration"] == storage.active_id()
+    assert storage.active_id() == "20260101T000000000000Z"
     storage.switch_model("20260102T000000000000Z").commit()
     assert not storage.texture_path.exists()
 
