@@ -67,7 +67,9 @@ class TextureWatch:
             return
         self._frames += 1
         changed = texture is not self._texture or len(texture.events) != self._events
-        if not (changed or (self._frames >= REFRESH_FRAMES and texture.learned)):
+        if not changed and self._frames >= REFRESH_FRAMES and not texture.learned:
+            self._frames = 0  # nothing to refine: looked at again in REFRESH_FRAMES
+        if not (changed or self._frames >= REFRESH_FRAMES):
             return
         self._texture, self._events, self._frames = texture, len(texture.events), 0
         self.latest = TextureSnapshot(calibration, texture.state())
@@ -155,7 +157,10 @@ class TextureStore:
         with self.lock:
             if snapshot.calibration != self.storage.active_id():
                 return  # an old model's tracker, its file removed by the switch: nothing to keep
-            if not snapshot.state["marks"] and not self.path.exists():
+            written = self._written
+            unchanged = written is not None and written.calibration == snapshot.calibration and \
+                written.state == snapshot.state  # refined to the same figures: nothing to write
+            if unchanged or (not snapshot.state["marks"] and not self.path.exists()):
                 self._written = snapshot
                 return
             self._last_try = now

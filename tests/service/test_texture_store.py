@@ -151,6 +151,11 @@ def test_a_full_disk_keeps_the_texture_in_memory_raises_the_storage_fault_and_wr
         document = json.loads(storage.texture_path.read_text())
         assert document["calibration"] == calibration and len(document["texture"]["marks"]) == 2
         assert store.status(learned)["saved"] is True
+        written = storage.texture_path.stat().st_ino
+        clock.t += SAVE_EVERY_S
+        again = snapshot(calibration, 2)  # refined to the same figures: not written again
+        store.save(again)
+        assert storage.texture_path.stat().st_ino == written and store.status(again)["saved"] is True
 
 
 def test_a_texture_of_another_calibration_is_neither_written_nor_restored(tmp_path: Path) -> None:
