@@ -47,8 +47,9 @@ def learn(daemon: LiveServer, at_least: int = 3) -> dict:
     raise AssertionError(f"nothing learned on the dusty print: {daemon.status()['texture']}")
 
 
-def test_marks_the_daemon_learned_survive_a_restart_and_another_model_drops_them(tmp_path: Path) -> None:
+def test_marks_the_daemon_learned_survive_a_restart_and_a_rollback_drops_them(tmp_path: Path) -> None:
     data = tmp_path / "data"
+    kept = data / "texture.json"
     settings = fast_settings(data, tables=DUST)
     with LiveServer(create_app(settings)) as daemon:
         first = daemon.wait_state("tracking", 60.0)["active_calibration"]["id"]
@@ -59,11 +60,11 @@ def test_marks_the_daemon_learned_survive_a_restart_and_another_model_drops_them
             assert mark["from_mm"] <= mark["x_mm"] <= mark["to_mm"]
             assert 0.0 < mark["depth_sigma"] < abs(mark["depth"]) and mark["frames"] >= 10
         assert len(events(daemon, "texture_learned")) >= texture["marks"]
-        saved = json.loads((data / "texture.json").read_text())
+        saved = json.loads(kept.read_text())
         assert saved["calibration"] == first
         assert saved["model_sha256"] == hashlib.sha256((data / "model.json").read_bytes()).hexdigest()
         assert len(saved["texture"]["marks"]) >= 3
-    on_disk = len(json.loads((data / "texture.json").read_text())["texture"]["marks"])  # the shutdown's last write
+    on_disk = len(json.loads(kept.read_text())["texture"]["marks"])  # the shutdown's last write
 
     with LiveServer(create_app(settings)) as daemon:  # a restart on the same calibration: the marks come back
         assert daemon.wait_state("tracking", 60.0)["active_calibration"]["id"] == first
@@ -72,21 +73,30 @@ def test_marks_the_daemon_learned_survive_a_restart_and_another_model_drops_them
         assert any(f"{on_disk} mark(s) learned on the print for calibration {first} restored" in message
                    for message in events(daemon, "texture_restored"))
 
-        # another model takes over (a new calibration): what was learned with the old one goes with it
+        # a new calibration takes over: the file goes with the old model (or holds what the new one learns)
         job = daemon.post("/api/calibration", headers=daemon.auth()).json()["id"]
         wait_job(daemon.get, job, "done", 60.0)
         wait_for(lambda: (t := daemon.status()["texture"]) and t["calibration"] == job, 10.0, "the new tracker")
-        dropped = wait_for(lambda: [m for m in events(daemon, "texture_dropped") if "dropped with the model" in m],
-                           10.0, "the texture_dropped event of the switch")
-        assert re.match(rf"\d+ mark\(s\) learned on the print dropped .*\(calibration {job} installed\)$", dropped[-1])
-        kept = data / "texture.json"
-        assert not kept.exists() or json.loads(kept.read_text())["calibration"] == job  # (what the new one learns)
-
-        # and rolling back to the first calibration does not bring them back: they were dropped with it
+        assert not kept.exists() or json.loads(kept.read_text())["calibration"] == job
+        # rolled back to the first calibration: what it had learned was dropped, it starts from its print
         assert daemon.post(f"/api/calibrations/{first}/activate", headers=daemon.auth()).status_code == 200
         texture = wait_for(lambda: (t := daemon.status()["texture"]) and t["calibration"] == first and t, 10.0,
                            "the first calibration's tracker")
         assert texture["restored"] == 0 and not kept.exists()
+
+        # it learns again; activating the other calibration drops it, with the event, and removes the file
+        learned = learn(daemon)
+        assert learned["calibration"] == first and json.loads(kept.read_text())["calibration"] == first
+
+        def switch_drops() -> list[str]:
+            return [m for m in events(daemon, "texture_dropped") if f"(calibration {job} installed)" in m]
+
+        before = len(switch_drops())
+        assert daemon.post(f"/api/calibrations/{job}/activate", headers=daemon.auth()).status_code == 200
+        wait_for(lambda: (t := daemon.status()["texture"]) and t["calibration"] == job, 10.0, "the other tracker")
+        assert not kept.exists() or json.loads(kept.read_text())["calibration"] == job
+        dropped = wait_for(lambda: switch_drops()[before:], 10.0, "the texture_dropped event of the rollback")
+        assert re.match(r"\d+ mark\(s\) learned on the print dropped with the model", dropped[-1])
 
 
 def test_a_model_switch_removes_the_texture_and_its_undo_puts_it_back(tmp_path: Path) -> None:
