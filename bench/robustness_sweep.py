@@ -24,13 +24,15 @@ from graytrack.core.calibration import calibrate
 from graytrack.core.diagnosis import diagnose
 from graytrack.core.tracking import track
 from graytrack.drivers.sim.scenarios import build_rig
-from graytrack.service.commands.track_scale import check
+from graytrack.service.commands.track_scale import check, scale_watch
 
 LATER_LIGHT = "light_change:gain=0.85:ambient_gray=8:start_s=2"
 LATER_PIXEL = "bad_pixels:stuck=1:dead=0:hot=0:row=0:pixel=40:start_s=2.5"
 LATER_GROWTH = "target_growth:ppm=250"  # the paper print grew (humidity) between calibration and the run
 LATER_FOCUS = "focus_drift:px=0.5"  # the blur σ grows by half a pixel after calibration (a lens mount warming up)
 LATER_SHARPER = "focus_drift:px=-0.5"
+LATER_MAGNIFICATION = "magnification_drift:ppm=1500:ramp_s=10"  # the lens warming up: 0.15 % over the run
+LATER_CYCLE = "magnification_drift:ppm=1500:cycle_s=6"  # a temperature cycle: the magnification comes and goes
 LATER_SMUDGE = "smudge:depth=0.35"  # a smudge on the print after calibration (a finger), coming into view mid-run
 LATER_SHADOW = "moving_shadow:passes=2:period_s=4:start_s=2"  # a cable's shadow swinging across the field, twice
 LATER_DUST = "dust_settling"  # 30 specks landing on the print one by one during the run (learned: core/texture.py)
@@ -82,6 +84,9 @@ CASES = [
     ("paper", "", LATER_SMUDGE),
     ("paper", "", LATER_SHADOW),
     ("paper", "", LATER_DUST),
+    ("paper", "", LATER_MAGNIFICATION),
+    ("strip16", "", LATER_MAGNIFICATION),
+    ("strip16", "", LATER_CYCLE),
     # a lab strip with most of what the issues named at once (12 bits, vibration, PRNU, a gradient,
     # glints), the focus drifting and the glints more frequent in the measured run
     ("lab", "photon_transfer:full_well=20000:read_e=6:bits=12:black_gray=4,vibration:um=1:hz=120,prnu:sigma=0.01,"
@@ -98,8 +103,9 @@ def measured(model, run, trim: bool = False) -> tuple[int, float, float, int, in
 
     Flagged: by the model's χ² or by the camera against the grating (as `graytrack track` warns);
     ``trim``: positions trimmed against the grating as `graytrack track --trim` does."""
-    result = track(model, run, light="auto", robust=True, learn=True)
-    scale_stale = check(run, model, result, run.reference, trim).columns["scale_stale"] == 1  # as `track` does
+    watch = scale_watch(run, model, run.reference, trim)  # as `track` does: the tracker's scale watch, its trim
+    result = track(model, run, light="auto", robust=True, learn=True, watches=[watch] if watch else [])
+    scale_stale = check(run, model, result, trim, watch).columns["scale_stale"] == 1
     error = result.error_um(run.reference)
     bound = float(np.sqrt(np.nanmean(np.square(result.crlb_mm * 1e3))))
     repeated = result.repeated
@@ -134,7 +140,7 @@ def main(selection: str = "") -> None:
             far_frames[0] += far
             far_frames[1] += silent
         added = ",".join(step.effect for step in loop.steps) or "-"
-        if "target_growth" in later:  # what the online trim makes of it (paper model, --trim)
+        if "target_growth" in later or "magnification_drift" in later:  # what the online trim makes of it (--trim)
             _, spread, bound, stale, *_ = measured(calibrate(calibration, "paper").model, run, trim=True)
             added += f"; paper --trim: {spread:.3f}/{bound:.3f}={spread / bound:.2f}, {stale} stale"
         added += f", {repeated} repeated images set aside" if repeated else ""
@@ -142,7 +148,8 @@ def main(selection: str = "") -> None:
                                                        ("growth", "target_growth"), ("glints", "glints"),
                                                        ("blur+0.5px", "px=0.5"), ("blur-0.5px", "px=-0.5"),
                                                        ("smudge", "smudge"), ("shadow", "moving_shadow"),
-                                                       ("dust", "dust_settling"))
+                                                       ("dust", "dust_settling"),
+                                                       ("magnif.", "magnification"))
                            if key in later)
         print(f"{scenario:9} {rig_effects or '-':52.52} {changed or '-':12}"
               f" {cells[0]:>30} {cells[1]:>30}  {added} ({time.perf_counter() - started:.0f} s)", flush=True)

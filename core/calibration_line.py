@@ -16,6 +16,7 @@ from graytrack.core.noise import reference_resolution_mm
 from graytrack.core.reference_monitor import MIN_FRAMES, Line, ReferenceMonitor, structure_profile, structure_um
 from graytrack.core.timing import model_reference
 from graytrack.core.tracking import track
+from graytrack.core.watches.magnification import MagnificationWatch, StretchProfile
 
 
 def record_calibration_line(model, recording) -> Line | None:
@@ -27,7 +28,13 @@ def record_calibration_line(model, recording) -> Line | None:
     reference = model_reference(model, recording.t, recording.reference)
     if np.isfinite(reference).sum() < MIN_FRAMES:
         return None
-    result = track(model, recording, reference=reference, light="auto", robust=True)
+    own = MagnificationWatch(model.period_mm, record=True)  # the model's own stretch along the stroke
+    result = track(model, recording, reference=reference, light="auto", robust=True, watches=[own])
+    stretch = StretchProfile.measured(own.record or [])
+    if stretch is not None:
+        model.info["stretch_profile"] = stretch.as_dict()
+    else:
+        model.info.pop("stretch_profile", None)
     # the χ² level along the stroke, as tracking will see it: what a run's χ² is held against (core/chi2_curve.py)
     curve = measured_chi2_curve(result.x_mm[result.locked], result.chi2[result.locked]) \
         if result.chi2 is not None else None

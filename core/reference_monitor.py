@@ -55,6 +55,7 @@ from typing import Callable
 import numpy as np
 
 from graytrack.core.adequacy import inadequacy
+from graytrack.core.trim_follow import Follower, Following
 from graytrack.core.watches import _kernels
 
 DEFAULT_WINDOW = 500  # frames in the sliding window
@@ -522,18 +523,43 @@ class Trimmer:
     window knows the line clearly better (its scale or offset σ below :data:`REFINE` of the
     trim's: a first trim taken on a short stretch of the stroke is improved as the stage moves
     on, in a few logged steps rather than every frame), and cleared on
-    request (a new calibration clears it too). ``step`` applies the trim in force to a position and
-    gives the trim's own standard error there, to be added in quadrature to the frame's bound.
+    request (a new calibration clears it too). The window's line lags a drift in time by half the
+    window: a :class:`~graytrack.core.trim_follow.Follower` of what is left after the trim follows it
+    frame by frame (a correction on top of the line once it is significant, with its σ, and the lag
+    the frame still carries: drift rate × age of the evidence). ``step`` applies the trim in force
+    to a position and gives what it adds to the frame's bound (its σ and lag, in quadrature).
     """
 
     monitor: ReferenceMonitor
     trim: Line | None = None
     logged: Line | None = None  # the trim as last logged (quiet refinements since are not events)
+    follower: Follower = field(default_factory=Follower)
+    following: Following = field(default_factory=Following)  # the follower's word on the last frame fed
+    drifted: bool = False  # the monitor's flag as the last frame left it, before a trim took the drift up
+    _x_mm: float = field(default=math.nan, init=False)  # the last frame's position (where a new line is restated)
 
     def observe(self, x_mm: float, reference_mm: float, bound_mm: float) -> TrimEvent | None:
         """Feed one frame to the monitor and adopt or refine the trim; the event when it changed."""
-        self.monitor.observe(x_mm, reference_mm, bound_mm)
-        return self.consider()
+        return self.feed(x_mm, reference_mm, bound_mm, True)
+
+    def feed(self, x_mm: float, reference_mm: float, bound_mm: float, usable: bool) -> TrimEvent | None:
+        """One frame (fed to the monitor and the follower when ``usable``), then :meth:`consider`."""
+        self.follower.tick()
+        known = usable and math.isfinite(x_mm) and math.isfinite(reference_mm) and bound_mm > 0
+        if known:
+            self._x_mm = x_mm
+        if usable:
+            self.monitor.observe(x_mm, reference_mm, bound_mm)
+        self.drifted = self.monitor.stale
+        event = self.consider()
+        trim, monitor = self.trim, self.monitor
+        if trim is not None and known:
+            residual = (x_mm - reference_mm) * 1e3 - float(trim.at_um(x_mm))
+            if monitor.structure is not None:  # the model's own error here, as the monitor takes it out
+                residual -= monitor.structure.at_one_um(reference_mm)
+            self.follower.add(residual, (bound_mm ** 2 + monitor.reference_sigma_mm ** 2) * 1e6)
+        self.following = self.follower.now() if trim is not None else Following()
+        return event
 
     def consider(self) -> TrimEvent | None:
         """Adopt the monitor's line when it is evidence (or a clearly better estimate of the trim)."""
@@ -554,6 +580,11 @@ class Trimmer:
         return event
 
     def _adopt(self, line: Line, why: str) -> TrimEvent:
+        old, x = self.trim, self._x_mm
+        if old is None or not math.isfinite(x):
+            self.follower.reset()
+        else:  # what the follower kept is restated against the new line
+            self.follower.shift(float(line.at_um(x)) - float(old.at_um(x)))
         self.trim = self.logged = line
         self.monitor.baseline = line
         self.monitor.stale = False
@@ -566,15 +597,24 @@ class Trimmer:
         if self.trim is None:
             return None
         self.trim = self.logged = None
+        self.follower.reset()
+        self.following = Following()
         self.monitor.reset()  # fresh evidence for any new trim, not the frames the old one came from
         return TrimEvent("trim_cleared", f"trim cleared ({why})", None)
 
     def step(self, x_mm: float) -> tuple[float, float]:
-        """(the trimmed position in mm, the trim's standard error there in mm); no trim: (x, 0)."""
+        """(the trimmed position in mm, what the trim adds to its bound there in mm: the line's
+        standard error, the follower's correction's and the lag, in quadrature); no trim: (x, 0)."""
         trim = self.trim
         if trim is None or not math.isfinite(x_mm):
             return x_mm, 0.0
-        return x_mm - float(trim.at_um(x_mm)) * 1e-3, float(trim.sigma_um(x_mm)) * 1e-3
+        f = self.following
+        x = x_mm - (float(trim.at_um(x_mm)) + f.correction_um) * 1e-3
+        return x, math.sqrt(float(trim.sigma_um(x_mm)) ** 2 + f.sigma_um ** 2 + f.lag_um ** 2) * 1e-3
+
+    def behind(self, bound_mm: float) -> bool:
+        """The trim in force lags this frame by more than its bound (flagged: never silently behind)."""
+        return self.trim is not None and self.following.behind(bound_mm)
 
 
 def _better(line: Line, than: Line, ratio: float) -> bool:
@@ -615,15 +655,18 @@ def follow(monitor: ReferenceMonitor, x_mm: np.ndarray, reference_mm: np.ndarray
     was = False
     for k in range(n):
         x, ref, bound = float(x_mm[k]), float(reference_mm[k]), float(bound_mm[k])
-        if usable[k]:
-            monitor.observe(x, ref, bound)
-        flagged = monitor.stale
+        if not trim:
+            if usable[k]:
+                monitor.observe(x, ref, bound)
+            flagged = monitor.stale
+        else:  # the flag as the frame left the monitor, before the trim took it up
+            event = trimmer.feed(x, ref, bound, bool(usable[k]))
+            flagged = trimmer.drifted or trimmer.behind(bound)
         if flagged and not was:
             events.append((k, drift_message(monitor)))
         was = flagged
         stale[k] = flagged
         if trim:
-            event = trimmer.consider()
             if event is not None:
                 events.append((k, event))
                 was = monitor.stale

@@ -20,7 +20,7 @@ import dataclasses
 import math
 import operator
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -38,8 +38,9 @@ from graytrack.core.focus_solve import CurvatureTable, FocusPrior, focus_solve, 
 from graytrack.core.focus_solve import warm as focus_warm
 from graytrack.core.models.fourier import TWO_PI, FourierModel
 from graytrack.core.recording import Recording
+from graytrack.core.stretch import frame_stretch
 from graytrack.core.texture import Texture
-from graytrack.core.validity import FAMILIES, FrameSign, Monitor, monitor_for
+from graytrack.core.validity import FAMILIES, FrameSign, Monitor, Watch, monitor_for
 from graytrack.core.solvers import (CUT_SIGMA, TRANSIENT_MAX_WIDTH_SHARE, FrameSolution, GeneralBatch, SolverSettings,
                                     StaticWeights, TrigPolyBatch, field_basis, field_solve, gauss_newton, grid_cost,
                                     robust_solve)
@@ -618,7 +619,7 @@ class Tracker:
 # A pending frame's entry (SequentialState._watch_validity), slot by slot, and the fields of its
 # solution each sign field is read from.
 PENDING_SLOTS = ("frame", "solution", "reference_mm", "placed", "rows_averaged", "chi2_average", "chi2_suspect",
-                 "chi2_stale", "explain")
+                 "chi2_stale", "explain", "stretch")
 SOLUTION_SIGNS = {"chi2": "chi2", "information": "information", "gain": "gain", "offset_gray": "offset",
                   "focus": "focus", "focus_sigma": "focus_sigma", "rejected_px": "rejected",
                   "transient_px": "transient_px", "transient_at": "transient_at", "x_mm": "x_mm",
@@ -686,10 +687,11 @@ class SequentialState:
         if self.monitor is None:
             self.monitor = monitor_for(tracker)
         explain = (lambda: tracker.explain(batch, k, solution)) if placed and self.chi2_suspect else None
+        stretched = (lambda: frame_stretch(tracker, batch, k, solution)) if placed else None  # core/stretch.py
         average = self.chi2_average if self.chi2_average is not None else float("nan")
         if self.pending is not None:
             self.pending.append((self.frame - 1, solution, reference, placed, self.rows_averaged, average,
-                                 self.chi2_suspect, self.chi2_stale, explain))
+                                 self.chi2_suspect, self.chi2_stale, explain, stretched))
             return
         sign = FrameSign(
             self.frame - 1, solution.chi2, solution.information, gain=solution.gain, offset_gray=solution.offset,
@@ -697,7 +699,7 @@ class SequentialState:
             transient_px=solution.transient_px, transient_at=solution.transient_at,
             x_mm=solution.x_mm, reference_mm=reference, placed=placed, rows_averaged=self.rows_averaged,
             free_light=solution.free_light, field=solution.field, chi2_average=average,
-            chi2_suspect=self.chi2_suspect, chi2_stale=self.chi2_stale, explain=explain)
+            chi2_suspect=self.chi2_suspect, chi2_stale=self.chi2_stale, explain=explain, stretch=stretched)
         verdict = self.monitor.observe(sign)
         self.stale, self.stale_reason = verdict.stale, verdict.reason
 
@@ -761,12 +763,14 @@ class SequentialState:
 
 def track(model: FourierModel, source: Recording | np.ndarray, reference: np.ndarray | None = None,
           x0_mm: float | None = None, progress: Progress | None = None, tracker: Tracker | None = None,
-          light: str | None = None, robust: bool = False, learn: bool = False) -> TrackResult:
+          light: str | None = None, robust: bool = False, learn: bool = False,
+          watches: Sequence[Watch] = ()) -> TrackResult:
     """Track every frame of a recording (or a frame array) sequentially.
 
     Starts from ``x0_mm``, else from the first finite reference, else acquires on its own over
     the calibrated stroke. Frames that cannot be placed on a period are NaN, never a guess.
-    ``light`` and ``robust`` as for :class:`Tracker` (ignored when a ``tracker`` is given).
+    ``light`` and ``robust`` as for :class:`Tracker` (ignored when a ``tracker`` is given);
+    ``watches`` as for :class:`LiveTracker` (``track --trim``'s scale watch and its trim).
     ``learn``: marks fixed to the print that arrive during the run are learned and their samples
     count again (core/texture.py).
     """
@@ -793,7 +797,7 @@ def track(model: FourierModel, source: Recording | np.ndarray, reference: np.nda
     repeated = repeats.repeated(frames, model.noise_gray or 0.0)
     state = SequentialState(x_prev=x0_mm if x0_mm is not None else (
         reference[0] if n_frames and np.isfinite(reference[0]) else None),
-        rows_averaged=model.rows_averaged(frame_rows), pending=[],
+        rows_averaged=model.rows_averaged(frame_rows), pending=[], monitor=monitor_for(tracker, watches),
         texture=Texture(model, MAX_REJECTED_FRACTION) if learn else None)
     texture_px = np.zeros(n_frames, dtype=np.int64)
     report_every = max(n_frames // 100, 1)
@@ -876,7 +880,7 @@ class LiveTracker:
     learned (core/texture.py; all on by default)."""
 
     def __init__(self, model: FourierModel, x0_mm: float | None = None, light: str = "auto", robust: bool = True,
-                 learn: bool = True, texture: dict | None = None):
+                 learn: bool = True, watches: Sequence[Watch] = (), texture: dict | None = None):
         """``texture``: marks learned on the print by an earlier tracker of this model (Texture.state),
         kept with the model of record: learning goes on from them (ValueError: another model's)."""
         self.model = model
@@ -887,7 +891,8 @@ class LiveTracker:
         self.state = SequentialState(x_prev=x0_mm, texture=learned)
         # The validity monitor now, not at the first frame: its tables (the bound over the stroke:
         # the model at a few hundred positions, ~50 ms on a 16-row model) are model install's work.
-        self.state.monitor = monitor_for(self.tracker)
+        # ``watches``: the owner's (the daemon's scale watch with its trim), in place of the defaults.
+        self.state.monitor = monitor_for(self.tracker, watches)
         self._bound_factor = stream_bound_factor(model.info)  # a JPEG stream's quantisation widens every bound
         # The lean path: a frame (a strip's row mean for a one-row model) is read into one
         # preallocated line, masked pixels zeroed as prepare does, and one batch is reloaded in

@@ -5,7 +5,8 @@ line can mimic a blur, a robust solve can hide a growing defect. So besides the 
 monitor watches what the nuisances cost and how far they moved (the frame's bound against the
 calibration's, the light gain, a focus term, the pixels set aside, transients, the camera against
 the grating). Each watch answers in its own family, so a stale flag always comes with a reason a
-person can act on: ``light``, ``focus``, ``pixels``, ``transients``, ``scale`` or ``geometry``.
+person can act on: ``light``, ``focus``, ``pixels``, ``transients``, ``magnification``, ``scale`` or
+``geometry``.
 
 A watch is one small class with ``observe(sign) -> family | None`` in a module of
 ``core/watches/`` that defines ``make(tracker) -> Watch | None``: the monitor finds them by name,
@@ -20,9 +21,9 @@ import importlib
 import math
 import pkgutil
 from dataclasses import dataclass, field
-from typing import Any, Callable, Protocol
+from typing import Any, Callable, Protocol, Sequence
 
-FAMILIES = ("transients", "pixels", "light", "focus", "scale", "geometry")
+FAMILIES = ("transients", "pixels", "light", "focus", "magnification", "scale", "geometry")
 RANK = {family: rank for rank, family in enumerate(FAMILIES)}
 
 # What to do about each family of causes, one line each (the CLI, the daemon's events and page).
@@ -31,6 +32,10 @@ ADVICE = {
     "pixels": "pixels went bad since calibration: recalibrate (the new calibration masks them)",
     "light": "the light changed beyond what the model can follow at its precision: fix the light or recalibrate",
     "focus": "the focus moved since calibration: check the lens and its mount, then recalibrate",
+    "magnification": "the image stretches across the pixels since calibration: the lens's magnification moved "
+                     "(warming up; the image slides with it unless the optical axis is on the ROI) or the print "
+                     "itself grew: let the lens reach its temperature, track with the grating and --trim, or "
+                     "recalibrate",
     "scale": "camera and grating disagree beyond their bounds: far off (a hundred bounds and more), the model's "
              "period or pitch does not match this rig (a model of another target or lens); drifting apart, the "
              "target's scale (paper growth, temperature), the camera's place on the stage, or the grating read at "
@@ -67,6 +72,8 @@ class FrameSign:
     # What the frame's residual looks like, computed only when a watch asks (it costs an evaluation):
     # the share of its excess χ² each family's shapes explain (see core/watches/attribution.py).
     explain: Callable[[], dict[str, Any]] | None = None
+    # The frame's stretch across the pixels (m, its σ: core/stretch.py), computed when a watch asks.
+    stretch: Callable[[], tuple[float, float]] | None = None
 
 
 SIGN_FIELDS = tuple(FrameSign.__slots__)
@@ -178,19 +185,25 @@ def _observe_all(watch: Watch, columns: dict[str, list], n: int) -> list[str | N
     return [step(*row) for row in zip(*(columns[name] for name in reads))]
 
 
-def monitor_for(tracker: Any) -> Monitor:
-    """A monitor with every watch of ``core/watches/`` that applies to ``tracker``'s model."""
-    from graytrack.core import watches  # the watches read the tracker's model: imported on use
+def monitor_for(tracker: Any, watches: Sequence[Watch] = ()) -> Monitor:
+    """A monitor with every watch of ``core/watches/`` that applies to ``tracker``'s model; a watch
+    handed in (``watches``: its owner's, e.g. the scale watch that carries the daemon's trim) takes
+    the place of the one its module would make, so a frame is judged once, by the watch in force."""
+    from graytrack.core import watches as found  # the watches read the tracker's model: imported on use
 
+    given = {type(watch).__module__: watch for watch in watches}
     made = []
-    for info in pkgutil.iter_modules(watches.__path__):
+    for info in pkgutil.iter_modules(found.__path__):
         if info.name.startswith("_"):
             continue
-        module = importlib.import_module(f"{watches.__name__}.{info.name}")
-        make = getattr(module, "make", None)
+        name = f"{found.__name__}.{info.name}"
+        if name in given:
+            made.append(given.pop(name))
+            continue
+        make = getattr(importlib.import_module(name), "make", None)
         if make is not None and (watch := make(tracker)) is not None:
             made.append(watch)
-    return Monitor(made)
+    return Monitor(made + list(given.values()))
 
 
 def running(average: float | None, value: float, window: int) -> float:

@@ -12,19 +12,23 @@ whose wings bend the fit while the frame's χ² stays within its noise) is too s
 whose outlier gate leaves such frames out, and too short for the spread over 200 frames
 (core/watches/grating.py). While χ² is suspect it blames ``geometry``, else ``scale``.
 
-With an online trim (the daemon's ``[daemon] trim``) the trim's owner drives its own monitor and
-hands the tracker a watch reading it (``tracker.scale_watch``): a frame is counted once, and drift
-is then measured against the trim in force.
+With an online trim (``track --trim``, the daemon's ``[daemon] trim``) the watch owns the trim
+(:class:`~graytrack.core.reference_monitor.Trimmer`) and its owner hands it to the tracker through
+its constructor (``LiveTracker(..., watches=)``, ``track(..., watches=)``): a frame is counted once,
+drift is measured against the trim in force, and a frame the trim lags by more than its bound is
+flagged (core/trim_follow.py).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
 from graytrack.core.compression import stream_bound_factor
-from graytrack.core.reference_monitor import GATE, ReferenceMonitor, scale_tells
+from graytrack.core.reference_monitor import GATE, ReferenceMonitor, Trimmer, TrimEvent, scale_tells
 from graytrack.core.validity import FrameSign
 
 
@@ -39,23 +43,39 @@ SUSPECT_LIMIT = 6.0
 
 
 class ScaleWatch:
-    """``observe(sign) -> "scale" | None`` from ``sign.x_mm``, ``sign.reference_mm``, ``sign.information``."""
+    """``observe(sign) -> "scale" | None`` from ``sign.x_mm``, ``sign.reference_mm``, ``sign.information``.
+
+    With a ``trimmer`` (an online trim: ``track --trim``, the daemon's ``[daemon] trim``) the watch
+    feeds the trim's monitor itself, so a frame is counted once and drift is measured against the
+    trim in force; a frame is also blamed while the trim lags it by more than its bound. Its owner
+    reads what the trim did to each frame from :attr:`last` (live) or :attr:`log` (a recording)."""
 
     family = "scale"
     reads = ("chi2_suspect", "placed", "x_mm", "reference_mm", "information")
 
-    def __init__(self, monitor: ReferenceMonitor, feeds: bool = True, bound_scale: float = 1.0) -> None:
+    def __init__(self, monitor: ReferenceMonitor, feeds: bool = True, bound_scale: float = 1.0,
+                 trimmer: Trimmer | None = None, log: bool = False) -> None:
+        if trimmer is not None and trimmer.monitor is not monitor:
+            raise ValueError("a scale watch's trimmer must read the watch's own monitor")
         self.monitor = monitor
         self._off = Disagreement(monitor)
         self.feeds = feeds
         self.bound_scale = bound_scale  # the frames' bound over the sensor's (a JPEG stream's quantisation)
+        self.trimmer = trimmer
+        self.events: list[tuple[int, TrimEvent]] = []  # (frame, a change of the trim), for the owner to drain
+        self.last = Applied()  # what the trim did to the last frame
+        self.log: list[Applied] | None = [] if log else None  # ... to every frame, when asked for
+        self._frame = 0
 
     @classmethod
-    def for_model(cls, model, reference_resolution_mm: float = 0.0, **options) -> "ScaleWatch":
+    def for_model(cls, model, reference_resolution_mm: float = 0.0, trim: bool = False, log: bool = False,
+                  **options) -> "ScaleWatch":
         """A watch centred on the model's calibrated stroke (its scale is measured about the centre,
-        its floor over the whole stroke); ``reference_resolution_mm``: the grating's step, if known."""
-        return cls(ReferenceMonitor.for_model(model, reference_resolution_mm, **options),
-                   bound_scale=stream_bound_factor(model.info))
+        its floor over the whole stroke); ``reference_resolution_mm``: the grating's step, if known;
+        ``trim``: with an online trim of its own."""
+        monitor = ReferenceMonitor.for_model(model, reference_resolution_mm, **options)
+        return cls(monitor, bound_scale=stream_bound_factor(model.info), trimmer=Trimmer(monitor) if trim else None,
+                   log=log)
 
     def observe(self, sign: FrameSign) -> str | None:
         return self.step(sign.chi2_suspect, sign.placed, sign.x_mm, sign.reference_mm, sign.information)
@@ -69,18 +89,41 @@ class ScaleWatch:
         # A run of frames off the grating by many of their bounds is judged on every frame: with χ²
         # quiet the line's outlier gate would leave such frames out until it calls them a jump.
         bound = self.bound_scale / math.sqrt(information) if placed and information > 0 else float("nan")
-        far = self._off.add(x_mm, reference_mm, bound)
+        # a trim learns from every placed frame, as the daemon's always did: a drift that raises χ² (a
+        # stretch of the image) is what it has to follow
+        trimmer = self.trimmer
+        feed = self.feeds and placed and (trimmer is not None or not chi2_suspect)
+        behind = False
+        if trimmer is not None:
+            event = trimmer.feed(x_mm, reference_mm, bound, feed)
+            if event is not None:
+                self.events.append((self._frame, event))
+            drifted, behind = trimmer.drifted, trimmer.behind(bound)
+            trimmed, added = trimmer.step(x_mm)
+            # the running mean of camera − grating against the trim and what follows it
+            far = self._off.add(x_mm - trimmer.following.correction_um * 1e-3, reference_mm, math.hypot(bound, added))
+            self.last = Applied(trimmed, (x_mm - trimmed) * 1e3 if trimmer.trim is not None else 0.0, added * 1e3)
+        else:
+            far = self._off.add(x_mm, reference_mm, bound)
+            if feed:
+                self.monitor.observe(x_mm, reference_mm, bound)
+            drifted = self.monitor.stale
+        self._frame += 1
+        verdict = None
         if chi2_suspect:
-            return "geometry" if self.monitor.stale or far else None
-        if self.feeds and placed:
-            self.monitor.observe(x_mm, reference_mm, bound)
-        return self.family if self.monitor.stale or far else None
+            verdict = "geometry" if drifted or far else None
+        elif drifted or far or behind:
+            verdict = self.family
+        if self.log is not None:
+            self.log.append(dataclasses.replace(self.last, flagged=verdict is not None, drifted=drifted)
+                            if trimmer is not None else Applied(x_mm, flagged=verdict is not None, drifted=drifted))
+        return verdict
 
     def step_many(self, columns, n: int) -> list[str | None]:
         """:meth:`step` of ``n`` frames at once (the monitor's :meth:`~ReferenceMonitor.observe_many`)."""
         suspect = columns.array("chi2_suspect", bool)
-        if suspect.any():
-            return None  # frame by frame: the verdict along a suspect run reads the monitor's (step)
+        if suspect.any() or self.trimmer is not None or self.log is not None:
+            return None  # frame by frame: a suspect run reads the monitor's verdict, a trim follows each frame
         information = columns.array("information", np.float64)
         placed = columns.array("placed", bool)
         feed = placed if self.feeds else np.zeros(n, dtype=bool)
@@ -89,9 +132,23 @@ class ScaleWatch:
         x_mm, reference_mm = columns.array("x_mm", np.float64), columns.array("reference_mm", np.float64)
         far = self._off.add_many(x_mm, reference_mm, bound)
         stale = self.monitor.observe_many(x_mm, reference_mm, bound, feed) | far
+        self._frame += n
         if not stale.any():
             return [None] * n
         return np.where(stale, self.family, None).tolist()
+
+
+@dataclass(frozen=True)
+class Applied:
+    """What the scale watch's trim did to one frame: its position (trimmed while a trim is in force),
+    the correction taken off and what the trim adds to the frame's bound (µm), and whether the watch
+    blamed the frame."""
+
+    x_mm: float = float("nan")
+    trim_um: float = 0.0
+    sigma_um: float = 0.0
+    flagged: bool = False
+    drifted: bool = False  # the line camera − grating drifted (not a single frame off it)
 
 
 class Disagreement:
@@ -176,10 +233,9 @@ class Disagreement:
         return abs(self.mean_um) > max(SUSPECT_LIMIT * math.sqrt(sigma2), floor)
 
 
-def make(tracker) -> "ScaleWatch | object | None":
-    """The tracker's scale watch: the one its owner handed it (``scale_watch``), else one of its own;
+def make(tracker) -> "ScaleWatch | None":
+    """The tracker's scale watch (an owner with a trim hands its own in: ``monitor_for(..., watches=)``);
     none for a model already off its bound on its own calibration (the adequacy watch has it)."""
     if not scale_tells(tracker.model):
         return None
-    shared = getattr(tracker, "scale_watch", None)
-    return shared if shared is not None else ScaleWatch.for_model(tracker.model)
+    return ScaleWatch.for_model(tracker.model)

@@ -380,6 +380,26 @@ def _magnification(config: "RigConfig", v: dict[str, float], rng: np.random.Gene
     config.optics.magnification_error = (1 + config.optics.magnification_error) * (1 + v["percent"] / 100) - 1
 
 
+@effect("magnification_drift", "optics", "The lens's magnification drifting during the run (warming up, a "
+        "temperature cycle): every pixel's footprint scales by 1 + m(t) about the optical axis, axis_px pixel "
+        "footprints from the ROI's centre along the line, so the image stretches across the line and slides by "
+        "m·axis while the stage stands. m(t) reaches ppm over ramp_s from start_s (0: a step), or with cycle_s > 0 "
+        "comes and goes: ppm·(1 − cos 2π(t − start_s)/cycle_s)/2.",
+        ppm=(1500.0, "change of the footprint, parts per million (1500: 0.15 %)"),
+        axis_px=(300.0, "the optical axis's place from the ROI's centre, pixel footprints (> 0: towards larger u)"),
+        start_s=(0.0, "when the drift begins, s"), ramp_s=(10.0, "how long a ramp takes, s (0: a step)"),
+        cycle_s=(0.0, "a cycle's period, s (0: a ramp)"))
+def _magnification_drift(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    if not v["ppm"] > -1e6:
+        raise EffectError("effect 'magnification_drift': ppm must be above -1e6")
+    optics = config.optics
+    optics.magnification_drift = (1 + optics.magnification_drift) * (1 + v["ppm"] * 1e-6) - 1
+    optics.magnification_axis_mm = v["axis_px"] * optics.pixel_pitch_mm
+    optics.magnification_start_s = v["start_s"]
+    optics.magnification_ramp_s = _positive("magnification_drift", "ramp_s", v["ramp_s"], True)
+    optics.magnification_cycle_s = _positive("magnification_drift", "cycle_s", v["cycle_s"], True)
+
+
 @effect("off_target", "optics", "The ROI partly off the print: its last `share` of columns (and its first `rows` "
         "rows) look past the print's edge at a plain surface of `gray`.",
         share=(0.3, "share of the line's columns off the print, 0..1"), rows=(0.0, "rows off the print"),

@@ -13,6 +13,10 @@ Pixel ``(r, u)`` of the ROI sees target coordinate ``x_w = x_stage + s[r, u]``. 
 * a mirrored readout (the camera mounted the other way round, or its ReverseX on): the sensor's
   columns are read out in reverse, so increasing ROI column u sees *decreasing* target x. What the
   paper's field attaches to the readout column (its pixel polynomials) stays with u.
+* magnification drift: the footprint α·d scaling by 1 + m(t) about the optical axis (well off the
+  ROI, where the lens's centre is): pixel u then sees ``s_u + m(t)·(s_u − s_axis)``, an image that
+  stretches across the line and slides as a whole by ``m(t)·(s_centre − s_axis)`` while the stage
+  stands;
 * focus drift: σ changing during a run, σ(t) = max(σ₀ + Δσ·ramp(t), 0). The change is on σ (what a
   person turning a focus ring sees), so a sharper image (Δσ < 0) needs a rig that had a blur to
   lose: from a sharp rig it clips at σ = 0 and nothing changes.
@@ -53,6 +57,14 @@ class OpticsConfig:
     focus_drift_mm: float = 0.0
     focus_start_s: float = 0.0
     focus_ramp_s: float = 0.0
+    # Magnification drifting during a run (the lens warming up): the footprint of every pixel scales by
+    # 1 + m(t) about the optical axis, which sits magnification_axis_mm (on the target) from the ROI's
+    # centre; m(t) ramps or cycles to magnification_drift (magnification_change below).
+    magnification_drift: float = 0.0
+    magnification_axis_mm: float = 0.0
+    magnification_start_s: float = 0.0
+    magnification_ramp_s: float = 0.0
+    magnification_cycle_s: float = 0.0
 
     @property
     def full_width(self) -> int:
@@ -132,3 +144,27 @@ def focus_attenuation(cfg: OpticsConfig, orders: np.ndarray, period_mm: float, t
     change = blur_sigma_mm(cfg, t_s) ** 2 - cfg.defocus_sigma_mm**2
     f = np.asarray(orders, dtype=float) / period_mm
     return np.exp(-2 * math.pi**2 * change[:, None] * (f * f)[None, :])
+
+
+def magnification_change(cfg: OpticsConfig, t_s: np.ndarray) -> np.ndarray:
+    """m(t) ``(K,)``: the relative change of the footprint at frame times ``t_s``. A ramp reaches
+    ``magnification_drift`` linearly over ``magnification_ramp_s`` from ``magnification_start_s`` (0:
+    a step); with ``magnification_cycle_s`` > 0 it comes and goes instead (a temperature cycle):
+    ``drift·(1 − cos(2π(t − start)/cycle))/2`` from the start on."""
+    t = np.asarray(t_s, dtype=np.float64)
+    since = t - cfg.magnification_start_s
+    if cfg.magnification_cycle_s > 0:
+        share = np.where(since >= 0, 0.5 * (1.0 - np.cos(2 * math.pi * since / cfg.magnification_cycle_s)), 0.0)
+    elif cfg.magnification_ramp_s > 0:
+        share = np.clip(since / cfg.magnification_ramp_s, 0.0, 1.0)
+    else:
+        share = (since >= 0).astype(np.float64)
+    return cfg.magnification_drift * share
+
+
+def drifted_offsets(cfg: OpticsConfig, x_mm: np.ndarray, t_s: np.ndarray) -> np.ndarray:
+    """``(K, R, n)``: the target offsets ``x_mm`` ``(R, n)`` each pixel sees at frame times ``t_s``
+    under the magnification drift (the footprint scaled about the optical axis)."""
+    axis = float(np.mean(x_mm)) + cfg.magnification_axis_mm
+    m = magnification_change(cfg, t_s)
+    return x_mm[None] + m[:, None, None] * (x_mm - axis)[None]

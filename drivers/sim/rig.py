@@ -34,7 +34,8 @@ from graytrack.drivers.sim import target as tgt
 from graytrack.drivers.sim.glints import GlintConfig, Glints
 from graytrack.drivers.sim.grating import GratingConfig, GratingReadout
 from graytrack.drivers.sim.illumination import IlluminationConfig
-from graytrack.drivers.sim.optics import OpticsConfig, defocus_attenuation, focus_attenuation, off_target, pixel_geometry
+from graytrack.drivers.sim.optics import (OpticsConfig, defocus_attenuation, drifted_offsets, focus_attenuation,
+                                         off_target, pixel_geometry)
 from graytrack.drivers.sim.sensor import Sensor, SensorConfig
 from graytrack.drivers.sim.stage import SimStage, StageConfig, Trajectory, Vibrating, oscillation, sweep
 from graytrack.drivers.sim.target import TargetConfig
@@ -158,7 +159,7 @@ class VirtualRig:
         # a smooth (quadratic) light field fixed to the target stays on the fast path:
         # G(x + s) = G(x) + G'(x)·s + ½G''·s², one extra matrix per power of s
         self._matrix_s = [self._matrix * self.geometry.x_mm.reshape(1, -1) ** p for p in (1, 2)]
-        self._slow = (not tcfg.affine) or bool(tcfg.defects) or bool(tcfg.growths)
+        self._slow = (not tcfg.affine) or bool(tcfg.defects) or bool(tcfg.growths) or bool(opt.magnification_drift)
         self._row_y = self.geometry.y_mm.mean(axis=1)
         self._glare = illum.glare(config.illumination, opt.n_rows, opt.n_pixels)
         self._duplicate_rng = rng_for(seed, "duplicates") if run == 0 else rng_for(seed, "duplicates", f"run {run}")
@@ -336,22 +337,25 @@ class VirtualRig:
         blur = self.config.optics.defocus_sigma_mm
         aperture = self.pixel_pitch_mm  # a pixel's footprint on the target (fill factor 1)
         t_frame = t[:, None, None] if tcfg.growths else None
+        offsets = self.geometry.x_mm  # (R, n), or (K, R, n) while the magnification drifts
+        if self.config.optics.magnification_drift:
+            offsets = drifted_offsets(self.config.optics, offsets, t)
         for q in range(points.shape[1]):
             xq = points[:, q]
-            if tcfg.affine and not tcfg.growths:
+            if tcfg.affine and not tcfg.growths and offsets.ndim == 2:
                 basis = self._basis(self._kappa * xq)
                 if focus is not None:
                     basis[:, 1:] *= np.tile(focus, 2)
                 light = (basis @ self._matrix).reshape(-1, R, n)
             else:
-                theta = tgt.phase(tcfg, xq[:, None, None] + self.geometry.x_mm, t_frame)  # (K, R, n)
+                theta = tgt.phase(tcfg, xq[:, None, None] + offsets, t_frame)  # (K, R, n)
                 z = np.exp(1j * theta)
                 zi = np.ones_like(z)
                 light = np.broadcast_to(self._coeffs[0].real, z.shape).copy()
                 for i, c in enumerate(self._coeffs[1:]):
                     zi = zi * z
                     light += (c * zi).real if focus is None else (c * zi).real * focus[:, i, None, None]
-            x_w = xq[:, None, None] + self.geometry.x_mm
+            x_w = xq[:, None, None] + offsets
             if icfg.has_target_field:
                 light *= illum.target_field_gain(icfg, x_w)
             if tcfg.defects:  # printed on the target: they move with it when it grows

@@ -148,8 +148,9 @@ def texture_lines(result: TrackResult, out: str) -> list[str]:
 
 def solve(recording: Recording, model: FourierModel, no_reference: bool = False,
           progress: ProgressBar | None = None, chunks: ChunkOptions | None = None, light: str = "auto",
-          robust: bool = True) -> tuple[TrackResult, np.ndarray]:
-    """Track a recording as the command does: (result, the grating at the exposure instants).
+          robust: bool = True, trim: bool = False) -> tuple[TrackResult, np.ndarray, "ScaleWatch | None"]:
+    """Track a recording as the command does: (result, the grating at the exposure instants, the
+    tracker's scale watch: with ``trim``, it carries the online trim; see track_scale.py).
 
     ``recording`` is oriented already (:func:`oriented`); frames that fit the model far better
     reversed are refused here, before a run tracked millimetres off."""
@@ -173,11 +174,14 @@ def solve(recording: Recording, model: FourierModel, no_reference: bool = False,
     if skew_s:  # the closed loop found the grating latched off mid-exposure: compare at the exposure
         grating = model_reference(model, recording.t, grating)
         print(f"grating reference moved to mid-exposure ({skew_s * 1e3:+.3f} ms, from the model)")
+    from graytrack.service.commands.track_scale import scale_watch
+
     reference = np.full(recording.n_frames, np.nan) if no_reference else grating
-    if chunks is not None:
-        return track_in_chunks(model, recording.frames, reference, chunks, light, robust), grating
+    watch = scale_watch(recording, model, reference, trim)
+    if chunks is not None:  # the chunks' own trackers: the watch follows their positions afterwards (check)
+        return track_in_chunks(model, recording.frames, reference, chunks, light, robust), grating, watch
     return track(model, recording.frames, reference=reference, progress=progress, light=light, robust=robust,
-                 learn=robust), grating
+                 learn=robust, watches=[watch] if watch is not None else []), grating, watch
 
 
 def run(args: argparse.Namespace) -> int:
@@ -196,9 +200,9 @@ def run(args: argparse.Namespace) -> int:
     recording = load(args.recording)
     model = load_model(args.model)
     recording = oriented(recording, model, args.flip)
-    result, grating = solve(recording, model, args.no_reference, ProgressBar("track"), chunks, args.light,
-                            not args.no_robust)
-    scale = check(recording, model, result, grating if not args.no_reference else grating * float("nan"), args.trim)
+    result, grating, watch = solve(recording, model, args.no_reference, ProgressBar("track"), chunks, args.light,
+                                   not args.no_robust, args.trim)
+    scale = check(recording, model, result, args.trim, watch)
     path = write_csv(args.out, {**result_columns(recording.t, result, grating), **scale.columns})
     print("\n".join(summary(result, grating) + scale.lines + texture_lines(result, args.out)))
     from graytrack.core.geometry_check import refusal

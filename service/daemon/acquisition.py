@@ -37,6 +37,7 @@ from graytrack.service.daemon.grating import Readings
 from graytrack.service.daemon.stale_log import StaleLog
 from graytrack.service.daemon.texture_log import TextureLog
 from graytrack.service.daemon.texture_store import TextureWatch
+from graytrack.core.watches.scale import ScaleWatch
 from graytrack.service.daemon.trim import ReferenceTrim
 from graytrack.core import frame_record
 from graytrack.drivers.realtime import raise_thread_priority
@@ -111,7 +112,7 @@ class Acquisition(Worker):
         self._tracker: LiveTracker | None = None
         # (model, its tracker or None, why it cannot be used, its calibration's id): built off the
         # frame loop, taken at a frame
-        self._pending: tuple[FourierModel, LiveTracker | None, str | None, str | None] | None = None
+        self._pending: tuple[FourierModel, LiveTracker | None, str | None, str | None, ScaleWatch | None] | None = None
         self._calibration: str | None = None  # the calibration of the model tracking now (each message names it)
         self._skew_s = 0.0  # its grating latch against the exposure (reference_skew_s): taken out of the pairing
         self._generation = 0  # of the last install asked for: an older build that finishes later is dropped
@@ -150,11 +151,14 @@ class Acquisition(Worker):
             except ValueError as exc:
                 texture_refused(describe(exc))
                 texture = None
+        watch = None
         try:
-            built: tuple[FourierModel, LiveTracker | None, str | None, str | None] = (
-                model, LiveTracker(model, start, texture=texture), None, calibration)
+            watch = self.trim.watch_for(model)  # the tracker's scale watch, with the trim when enabled
+            built: tuple[FourierModel, LiveTracker | None, str | None, str | None, ScaleWatch | None] = (
+                model, LiveTracker(model, start, watches=[watch] if watch is not None else [], texture=texture),
+                None, calibration, watch)
         except Exception as exc:  # noqa: BLE001 - an unusable model: said at the switch, frames still read
-            built = (model, None, describe(exc), calibration)
+            built = (model, None, describe(exc), calibration, None)
         with self._lock:
             if generation == self._generation:
                 self._pending = built
@@ -280,7 +284,8 @@ class Acquisition(Worker):
             # the sweep's recorder among them, keep the raw pairing: the next calibration measures the skew again)
             sample = dataclasses.replace(sample, reference_mm=self.readings.at(sample.t, self._skew_s))
         try:
-            fix = tracker.update(np.asarray(sample.frame.pixels), sample.reference_mm)
+            with self.trim.lock:  # the tracker feeds the scale watch, which a reset may clear meanwhile
+                fix = tracker.update(np.asarray(sample.frame.pixels), sample.reference_mm)
         except Exception as exc:  # noqa: BLE001 - a frame or model the tracker cannot use: a fault, not a dead loop
             self.stats.tracking_errors += 1
             self.faults("tracking", f"frame {sample.frame.frame_id} cannot be tracked: {describe(exc)}")
@@ -314,7 +319,7 @@ class Acquisition(Worker):
         self.publish(message)
 
     def _switch(self, model: FourierModel, tracker: LiveTracker | None, error: str | None, calibration: str | None,
-                reference_mm: float) -> None:
+                watch: ScaleWatch | None, reference_mm: float) -> None:
         """Track with ``tracker`` from this frame on, started at the grating's reading when there is
         one (the stage may have moved while it was built)."""
         self._texture.replaced(f"calibration {calibration} installed" if calibration else "a model installed")
@@ -328,4 +333,4 @@ class Acquisition(Worker):
         if math.isfinite(reference_mm):
             tracker.state.x_prev = reference_mm
         self._tracker = tracker
-        self.trim.install(model, tracker.tracker)
+        self.trim.install(model, watch)

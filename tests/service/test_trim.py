@@ -16,7 +16,7 @@ from graytrack.service.daemon.app import create_app
 from graytrack.service.daemon.trim import ReferenceTrim
 from tests.service.helpers import fast_settings, wait_for, wait_state
 
-STROKE = SimpleNamespace(stroke_range_mm=(0.0, 10.0))  # all the monitor needs of a model
+STROKE = SimpleNamespace(stroke_range_mm=(0.0, 10.0), info={})  # all the monitor needs of a model
 BOUND_MM = 1.5e-3
 
 
@@ -27,18 +27,37 @@ def _frames(n: int, offset_um: float, scale_ppm: float, seed: int = 0):
     return x, ref
 
 
-def _feed(trim: ReferenceTrim, x, ref) -> list[LiveFix]:
-    return [trim.apply(LiveFix(xi, True, 0.7, BOUND_MM, None), ri) for xi, ri in zip(x, ref)]
+class _Live:
+    """The daemon's hand-off without a camera: the trim's watch, as the tracker's monitor feeds it
+    (one sign per frame), then the trim's ``apply`` on the frame's fix."""
+
+    def __init__(self, trim: ReferenceTrim) -> None:
+        self.trim = trim
+        self.install()
+
+    def install(self) -> None:
+        self.watch = self.trim.watch_for(STROKE)
+        self.trim.install(STROKE, self.watch)
+
+    def feed(self, x, ref) -> tuple[list[LiveFix], list[str | None]]:
+        fixes, flags = [], []
+        for xi, ri in zip(x, ref):
+            flags.append(self.watch.observe(FrameSign(0, information=BOUND_MM ** -2, x_mm=xi, reference_mm=ri)))
+            fixes.append(self.trim.apply(LiveFix(xi, True, 0.7, BOUND_MM, None), ri))
+        return fixes, flags
+
+
+def _feed(live: _Live, x, ref) -> list[LiveFix]:
+    return live.feed(x, ref)[0]
 
 
 def test_without_the_setting_a_drift_is_an_event_and_the_positions_are_left_alone():
     events: list[tuple[str, str]] = []
     trim = ReferenceTrim(False, lambda kind, message: events.append((kind, message)))
-    trim.install(STROKE)
     x, ref = _frames(300, offset_um=4.0, scale_ppm=-300.0)
-    fixes = _feed(trim, x, ref)
+    fixes, flags = _Live(trim).feed(x, ref)
     assert [kind for kind, _ in events] == ["scale_drift"]
-    assert trim.watch().observe(None) == "scale"  # what the validity monitor is told
+    assert flags[-1] == "scale"  # what the validity monitor is told
     assert [f.x_mm for f in fixes] == list(x)
     status = trim.status()
     assert status["enabled"] is False and status["active"] is False and status["drift"] is True
@@ -49,19 +68,14 @@ def test_the_daemons_watch_flags_an_episode_of_frames_off_the_grating_as_batch_t
     """40 frames placed 4 bounds off while χ² stays quiet (a smudge coming into view): the daemon's
     watch, which reads the trim's monitor, keeps the running mean of camera − grating as batch
     tracking's scale watch does, and flags the episode long before the line (fed the same frames) would."""
-    trim = ReferenceTrim(False)
-    trim.install(STROKE)
-    watch = trim.watch()
+    live = _Live(ReferenceTrim(False))
     rng = np.random.default_rng(4)
     n, start, stop = 300, 200, 240
     ref = np.linspace(0.0, 10.0, n)
     err_um = rng.normal(0.0, BOUND_MM * 1e3, n)
     err_um[start:stop] -= 4.0 * BOUND_MM * 1e3
     x = ref + err_um * 1e-3
-    flags = []
-    for k, (xi, ri) in enumerate(zip(x, ref)):
-        trim.apply(LiveFix(xi, True, 0.7, BOUND_MM, None), ri)
-        flags.append(watch.observe(FrameSign(k, information=BOUND_MM ** -2, x_mm=xi, reference_mm=ri)))
+    _, flags = live.feed(x, ref)
     assert not any(flags[:start])
     assert set(flags[start + 15:stop]) == {"scale"}
 
@@ -69,11 +83,11 @@ def test_the_daemons_watch_flags_an_episode_of_frames_off_the_grating_as_batch_t
 def test_the_trim_needs_evidence_corrects_the_stream_and_is_cleared_by_reset_and_by_a_new_model():
     events: list[tuple[str, str]] = []
     trim = ReferenceTrim(True, lambda kind, message: events.append((kind, message)))
-    trim.install(STROKE)
+    live = _Live(trim)
     steady_x, steady_ref = _frames(600, 0.0, 0.0, seed=1)
-    assert all(f.x_mm == xi for f, xi in zip(_feed(trim, steady_x, steady_ref), steady_x)) and not events
+    assert all(f.x_mm == xi for f, xi in zip(_feed(live, steady_x, steady_ref), steady_x)) and not events
     x, ref = _frames(1500, offset_um=4.0, scale_ppm=-300.0, seed=2)
-    fixes = _feed(trim, x, ref)
+    fixes = _feed(live, x, ref)
     kinds = [kind for kind, _ in events]
     assert kinds[:2] == ["scale_drift", "trim_applied"] and set(kinds) == {"scale_drift", "trim_applied"}
     assert len(kinds) < 20  # refined in a few steps, not every frame
@@ -88,9 +102,9 @@ def test_the_trim_needs_evidence_corrects_the_stream_and_is_cleared_by_reset_and
     assert math.isfinite(message["trim_um"]) and message["trim_sigma_um"] > 0
     assert trim.reset() and events[-1][0] == "trim_cleared" and not trim.status()["active"]
     assert not trim.reset()  # nothing left to clear
-    _feed(trim, x[:100], ref[:100])
+    _feed(live, x[:100], ref[:100])
     assert trim.status()["active"]  # the drift is still there: fresh evidence re-applies it
-    trim.install(STROKE)  # a calibration
+    live.install()  # a calibration
     assert events[-1] == ("trim_cleared", "trim cleared (a new model is installed)")
 
 

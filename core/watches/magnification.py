@@ -1,0 +1,154 @@
+"""The ``magnification`` watch: the image stretching across the pixels since calibration.
+
+A lens warming up changes its magnification by parts per thousand; with the optical axis off the
+ROI the image then also slides, tens of µm while the stage stands, which the tracker takes for a
+position and no image can tell from one. The stretch that comes with it can be told: each frame's
+residual has the shape ``m·F'_u·(s_u − s_c)`` (core/stretch.py); one frame of a 16-row strip knows m
+to ~400 ppm, an exponentially weighted mean over the last :data:`MEMORY` frames to ~60. The watch
+blames ``magnification`` while that mean is beyond :data:`Z_ON` of its standard error (the frames'
+noise, scaled up by their own scatter, and :data:`STRUCTURE_PPM`: a model's own error along the
+stroke reads as up to ~150 ppm over 50 frames of a steady strip), until it falls below
+:data:`Z_OFF`. It needs no grating: a rig tracked without one is named, not silently off.
+
+A magnification is the same m whatever part of the print is in view; a print that changed (a
+harmonic grown by 2 %) also leaves some of that shape in each frame, but one that turns with the
+print's phase under the line (it read as a steady 300 ppm on 145 of 300 frames). So the same frames
+are also fitted as that mean plus the first two harmonics of the phase, and a mean whose turning
+part is significant and larger than itself is not called a magnification (the χ² watch names the
+print's change).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+MEMORY = 50  # frames: the mean's time constant
+MIN_FRAMES = 20  # frames (decayed count) before it says anything
+Z_ON, Z_OFF = 4.0, 2.5
+STRUCTURE_PPM = 40.0  # what a calibrated model's own structure reads as a stretch, in a mean of MEMORY frames
+PRIOR_PPM = 20000.0  # the prior's σ on each phase harmonic: keeps the turning fit defined while the stage stands
+PROFILE_BINS = 16  # stretches of the stroke the calibration's own stretch is kept for
+TURNING_CHI2 = 36.0  # the turning part (4 harmonic terms) is significant beyond this χ² (p ≈ 3e-7)
+
+
+class MagnificationWatch:
+    """``step(placed, x_mm, stretch) -> "magnification" | None`` from each placed frame's stretch."""
+
+    family = "magnification"
+    reads = ("placed", "x_mm", "stretch")
+
+    def __init__(self, period_mm: float, profile: "StretchProfile | None" = None, record: bool = False) -> None:
+        self.period_mm = period_mm
+        self.profile = profile  # the model's own stretch along the stroke, from its calibration frames
+        self.allowance_ppm = max(STRUCTURE_PPM, profile.residual_ppm if profile is not None else 0.0)
+        self.record: list[tuple[float, float, float]] | None = [] if record else None  # (x, m, σ) per frame
+        self._decay = math.exp(-1.0 / MEMORY)
+        self._normal = np.zeros((5, 5))  # Σ dᵃ·w·b·bᵀ (a: a frame's age, b: 1 and the phase's harmonics)
+        self._noise = np.zeros((5, 5))  # Σ d²ᵃ·w·b·bᵀ: an estimate's noise is N⁻¹·this·N⁻¹
+        self._right = np.zeros(5)  # Σ dᵃ·w·b·m
+        self._squares = 0.0  # Σ dᵃ·w·m²
+        self._frames = 0.0  # Σ dᵃ
+        self._prior = np.diag([0.0] + [PRIOR_PPM ** -2] * 4)
+        self.flagged = False
+        self.mean_ppm, self.sigma_ppm, self.turning_ppm = 0.0, math.inf, 0.0
+
+    def observe(self, sign) -> str | None:
+        return self.step(sign.placed, sign.x_mm, sign.stretch)
+
+    def step(self, placed: bool, x_mm: float, stretch) -> str | None:
+        if placed and stretch is not None and math.isfinite(x_mm):
+            m, sigma = stretch()
+            if math.isfinite(m) and 0 < sigma < math.inf:
+                if self.record is not None:
+                    self.record.append((x_mm, m * 1e6, sigma * 1e6))
+                own = self.profile.at_ppm(x_mm) if self.profile is not None else 0.0
+                self._add(x_mm, m * 1e6 - own, sigma * 1e6)
+        return self.family if self.flagged else None
+
+    def _add(self, x_mm: float, m_ppm: float, sigma_ppm: float) -> None:
+        d, w = self._decay, 1.0 / (sigma_ppm * sigma_ppm)
+        theta = 2.0 * math.pi * x_mm / self.period_mm
+        b = np.array([1.0, math.cos(theta), math.sin(theta), math.cos(2 * theta), math.sin(2 * theta)])
+        outer = w * np.outer(b, b)
+        self._normal = d * self._normal + outer
+        self._noise = d * d * self._noise + outer
+        self._right = d * self._right + w * m_ppm * b
+        self._squares = d * self._squares + w * m_ppm * m_ppm
+        self._frames = d * self._frames + 1.0
+        if self._frames < MIN_FRAMES:
+            return
+        total = self._normal[0, 0]
+        mean = self._right[0] / total
+        scatter = max((self._squares - mean * self._right[0]) / max(self._frames - 1.0, 1.0), 1.0)
+        self.mean_ppm = float(mean)
+        self.sigma_ppm = math.sqrt(self._noise[0, 0] / (total * total) * scatter + self.allowance_ppm ** 2)
+        significant = abs(mean) >= (Z_OFF if self.flagged else Z_ON) * self.sigma_ppm
+        self.flagged = significant and not self._turning(mean)
+
+    def _turning(self, mean: float) -> bool:
+        """Whether the frames' stretch turns with the print's phase, significantly and by more than
+        its mean: a print's change, not a lens's."""
+        inverse = np.linalg.inv(self._normal + self._prior)
+        coef = inverse @ self._right
+        covariance = inverse @ self._noise @ inverse
+        turning = coef[1:]
+        chi2 = float(turning @ np.linalg.solve(covariance[1:, 1:], turning))
+        self.turning_ppm = math.sqrt(float(turning @ turning) / 2.0)
+        return chi2 > TURNING_CHI2 and self.turning_ppm > abs(mean)
+
+
+@dataclass(frozen=True)
+class StretchProfile:
+    """What a calibrated model reads as a stretch on its own calibration frames, stretch by stretch
+    of the stroke: its own error (a scratch it cannot follow, a pattern it lacks) is fixed in
+    position and shows again at the same places in every run, so it is taken out of a run's
+    estimates. ``residual_ppm``: what is left between the stretches beyond their noise (and the
+    profile's own noise), the watch's allowance."""
+
+    centers_mm: tuple[float, ...]
+    values_ppm: tuple[float, ...]
+    residual_ppm: float
+
+    def at_ppm(self, x_mm: float) -> float:
+        return float(np.interp(x_mm, self.centers_mm, self.values_ppm))
+
+    def as_dict(self) -> dict:
+        return {"centers_mm": [round(v, 6) for v in self.centers_mm],
+                "values_ppm": [round(v, 2) for v in self.values_ppm], "residual_ppm": round(self.residual_ppm, 2)}
+
+    @classmethod
+    def from_dict(cls, doc: dict) -> "StretchProfile":
+        return cls(tuple(map(float, doc["centers_mm"])), tuple(map(float, doc["values_ppm"])),
+                   float(doc["residual_ppm"]))
+
+    @classmethod
+    def measured(cls, record: list[tuple[float, float, float]], bins: int = PROFILE_BINS) -> "StretchProfile | None":
+        """From a calibration's frames (x, m, σ): weighted means in ``bins`` equal stretches of the
+        positions seen, shrunk towards zero as their noise bids (positive-part James–Stein)."""
+        if len(record) < 4 * bins:
+            return None
+        x, m, sigma = (np.array(column) for column in zip(*record))
+        edges = np.linspace(x.min(), x.max() + 1e-12, bins + 1)
+        which = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, bins - 1)
+        w = sigma ** -2
+        total = np.bincount(which, w, bins)
+        kept = np.flatnonzero(total > 0)
+        means = np.bincount(which, w * m, bins)[kept] / total[kept]
+        centers = np.bincount(which, w * x, bins)[kept] / total[kept]
+        noise2 = 1.0 / total[kept]
+        spread2 = float(np.mean(means * means))
+        shrink = max(1.0 - float(np.mean(noise2)) / max(spread2, 1e-300), 0.0)
+        # what is left at a place: the kept mean's noise, or the part of the structure shrunk away
+        beyond = math.sqrt(max(spread2 - float(np.mean(noise2)), 0.0))  # the structure beyond the means' noise
+        left = shrink * math.sqrt(float(np.mean(noise2))) + (1.0 - shrink) * beyond
+        return cls(tuple(centers.tolist()), tuple((means * shrink).tolist()), left)
+
+
+def make(tracker) -> MagnificationWatch:
+    """Every tracker's: the stretch is in the frames, with a grating or without; less what the model
+    read on its own calibration (``stretch_profile`` in its info, when it has one)."""
+    doc = (getattr(tracker.model, "info", None) or {}).get("stretch_profile")
+    return MagnificationWatch(tracker.model.period_mm, StretchProfile.from_dict(doc) if isinstance(doc, dict) else None)
