@@ -171,8 +171,8 @@ class TextureStore:
                 write_atomic(self.path, json.dumps(document, separators=(",", ":")))
             except OSError as exc:
                 failure = self.health.failed(exc)
-                log.warning("the print texture learned could not be saved (%s): kept in memory, tried again in %g s",
-                            failure or describe(exc), SAVE_EVERY_S)
+                then = "lost with this shutdown" if force else f"kept in memory, tried again in {SAVE_EVERY_S:g} s"
+                log.warning("the print texture learned could not be saved (%s): %s", failure or describe(exc), then)
                 return
             self._written = snapshot
 
