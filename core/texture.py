@@ -66,6 +66,7 @@ SCALE_TRAVEL_PX = 10.0  # marks seen over this much travel say what the footprin
 SCALE_RANGE = 0.03  # the footprint searched within this of the model's (relative)
 SCALE_CHI2 = 25.0  # a footprint the marks prefer by this much χ² (5σ) is taken
 CHANGED_FRAMES = 3  # frames in a row with samples beyond a learned mark's cut: it changed (more dust landed on it)
+STATE_VERSION = 1  # of :meth:`Texture.state`'s document
 
 
 @dataclass
@@ -351,9 +352,11 @@ class Texture:
         if frame - self.scaled_at >= self.scale_every:
             self._rescale(frame)
         for mark in list(self.marks):
-            # a learned mark's fit moves less with each frame: refitted after a tenth more of them
+            # a learned mark's fit moves less with each frame: refitted after a tenth more of them; a mark
+            # restored from a saved state keeps its saved fit until fresh evidence outweighs it
             every = max(REFIT_EVERY, mark.frames // 10) if mark.learned else REFIT_EVERY
             due = mark.since_fit >= every or (not mark.learned and mark.frames >= MIN_FRAMES and mark.since_fit)
+            due = due and (mark.relearning or mark.frames >= mark.seen_before)
             if due and mark.frames:
                 self._judge(mark, mark.refit(self.grid), frame)
             if mark not in self.marks:
@@ -443,7 +446,8 @@ class Texture:
         centre = float((weight @ nodes) / weight.sum()) if weight.sum() > 0 else float(nodes.mean())
         return {"x_mm": round(centre, 4), "from_mm": round(float(nodes[0]), 4), "to_mm": round(float(nodes[-1]), 4),
                 "depth": round(-float(values[r, j]), 4), "depth_sigma": round(float(sigma[r, j]), 4),
-                "row": int(r), "frames": mark.frames, "travel_px": round(float(mark.travel_px), 2),
+                "row": int(r), "frames": max(mark.frames, mark.seen_before),
+                "travel_px": round(float(mark.travel_px), 2),
                 "chi2_dof": round(fit.chi2_dof, 3) if fit is not None else None, "learned_at": mark.learned_at}
 
     @property
@@ -463,6 +467,42 @@ class Texture:
         """One sentence for a command's output."""
         return summary_line(self.summary())
 
+    # ------------------------------------------------------------------ kept between runs
+    def state(self) -> dict[str, Any]:
+        """The learned marks and the footprint as a JSON document (what the daemon keeps with its model
+        of record; ``from_state`` reads it back). Candidates and evidence stay with the run: a mark is
+        kept as its fit (the relative reflectance per node, its σ and misfit), not as the thousands of
+        samples behind it, and a mark restored from it corrects frames with that fit until as many
+        fresh frames have seen it."""
+        grid = self.grid
+        return {"version": STATE_VERSION, "rows": self.rows, "pixels": self.n_pixels,
+                "grid": {"origin_mm": grid.origin_mm, "step_mm": grid.step_mm, "scale": grid.scale},
+                "marks": [_mark_state(mark, self.describe(mark)) for mark in self.learned]}
+
+    @classmethod
+    def from_state(cls, model: FourierModel, state: dict[str, Any], max_set_aside: float = 1.0) -> "Texture":
+        """A texture for ``model`` holding the marks of ``state`` (:meth:`state`); ValueError when the
+        document is not one, or was written for another model's grid (its marks would sit elsewhere)."""
+        texture = cls(model, max_set_aside)
+        try:
+            if state.get("version") != STATE_VERSION:
+                raise ValueError(f"version {state.get('version')!r}, not {STATE_VERSION}")
+            grid, ours = state["grid"], texture.grid
+            if (int(state["rows"]), int(state["pixels"])) != (texture.rows, texture.n_pixels):
+                raise ValueError(f"{state['rows']} x {state['pixels']} pixels, the model has "
+                                 f"{texture.rows} x {texture.n_pixels}")
+            if not (math.isclose(float(grid["origin_mm"]), ours.origin_mm, abs_tol=1e-12)
+                    and math.isclose(float(grid["step_mm"]), ours.step_mm, rel_tol=1e-9)):
+                raise ValueError("its grid is not this model's")
+            scale = float(grid["scale"])
+            if not (math.isfinite(scale) and abs(scale - 1.0) <= 2 * SCALE_RANGE):
+                raise ValueError(f"footprint scale {scale!r}")
+            texture.grid.scale = scale
+            texture.marks = [_mark_of(item, texture.rows) for item in state["marks"]]
+        except (KeyError, TypeError, IndexError) as exc:
+            raise ValueError(f"not a texture state ({type(exc).__name__}: {exc})") from None
+        return texture
+
 
 def summary_line(summary: dict[str, Any] | None) -> str:
     """One sentence from :meth:`Texture.summary` (None: not learning)."""
@@ -477,3 +517,38 @@ def summary_line(summary: dict[str, Any] | None) -> str:
     return (f"texture: {len(marks)} mark(s) learned on the print at x_w = {where} mm (deepest "
             f"{100 * deepest['depth']:.1f} % ± {100 * deepest['depth_sigma']:.1f} % of the light){pending}; "
             "their samples count again")
+
+
+def _table(values: np.ndarray) -> list[list[float | None]]:
+    """A node table as JSON (∞, a node no frame saw, as null)."""
+    return [[float(v) if math.isfinite(v) else None for v in row] for row in np.asarray(values, dtype=np.float64)]
+
+
+def _array(rows: Any, shape: tuple[int, int], what: str) -> np.ndarray:
+    table = np.array([[np.inf if v is None else float(v) for v in row] for row in rows], dtype=np.float64)
+    if table.shape != shape:
+        raise ValueError(f"{what}: shape {table.shape}, not {shape}")
+    return table
+
+
+def _mark_state(mark: Mark, description: dict[str, Any]) -> dict[str, Any]:
+    """One learned mark as JSON: where (its nodes), its fit, and what :meth:`Texture.describe` says of it."""
+    return {"first": mark.first, "size": mark.size, "learned_at": mark.learned_at, "relearning": mark.relearning,
+            "frames": max(mark.frames, mark.seen_before), "m": _table(mark.applied),
+            "sigma": _table(mark.applied_sigma), "misfit": _table(mark.applied_misfit), "describe": description}
+
+
+def _mark_of(item: dict[str, Any], rows: int) -> Mark:
+    """A learned mark back from :func:`_mark_state` (its evidence empty: fresh frames gather it)."""
+    size = int(item["size"])
+    if size < 2:
+        raise ValueError(f"a mark of {size} node(s)")
+    shape = (rows, size)
+    mark = Mark(int(item["first"]), size, rows, opened=-1, learned_at=int(item["learned_at"]),
+                relearning=bool(item["relearning"]))
+    values, sigma, misfit = (_array(item[key], shape, key) for key in ("m", "sigma", "misfit"))
+    if not (np.isfinite(values).all() and np.isfinite(misfit).all() and (sigma > 0).all()):
+        raise ValueError("a mark's fit has non-finite values")
+    mark.applied, mark.applied_sigma, mark.applied_misfit = values, sigma, misfit
+    mark.seen_before = 0 if mark.relearning else int(item["frames"])
+    return mark

@@ -89,6 +89,7 @@ class Mark:
     applied_sigma: np.ndarray | None = None
     applied_misfit: np.ndarray | None = None
     outlying: int = 0  # frames in a row in which samples departed from the learned mark
+    seen_before: int = 0  # frames behind its fit when it was restored from a saved state (core/texture.py)
 
     def reset(self) -> None:
         """Forget the evidence (a mark that changed starts again on its stretch)."""

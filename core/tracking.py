@@ -872,11 +872,15 @@ class LiveTracker:
     learned (core/texture.py; all on by default)."""
 
     def __init__(self, model: FourierModel, x0_mm: float | None = None, light: str = "auto", robust: bool = True,
-                 learn: bool = True, watches: Sequence[Watch] = ()):
+                 learn: bool = True, watches: Sequence[Watch] = (), texture: dict | None = None):
+        """``texture``: marks learned on the print by an earlier tracker of this model (Texture.state),
+        kept with the model of record: learning goes on from them (ValueError: another model's)."""
         self.model = model
         self.tracker = Tracker(model, light=light, robust=robust)
         # what it learns on the print lives as long as this tracker: a model installed anew starts without it
-        self.state = SequentialState(x_prev=x0_mm, texture=Texture(model, MAX_REJECTED_FRACTION) if learn else None)
+        learned = None if not learn else Texture(model, MAX_REJECTED_FRACTION) if texture is None else \
+            Texture.from_state(model, texture, MAX_REJECTED_FRACTION)
+        self.state = SequentialState(x_prev=x0_mm, texture=learned)
         # The validity monitor now, not at the first frame: its tables (the bound over the stroke:
         # the model at a few hundred positions, ~50 ms on a 16-row model) are model install's work.
         # ``watches``: the owner's (the daemon's scale watch with its trim), in place of the defaults.

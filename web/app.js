@@ -117,6 +117,20 @@ function controlsReason(s) {
   return "";
 }
 
+// Marks learned on the print (dust settled on it), kept with the model in use: how many, the newest's
+// place on the target and how sure, restored at start or not yet saved.
+function textureLine(t) {
+  if (!t) return "not learning";
+  const notes = [t.restored ? `${t.restored} restored at start` : "", t.saved ? "" : "not saved yet"].filter(Boolean);
+  const tail = notes.length ? ` · ${notes.join(" · ")}` : "";
+  if (t.marks === 0) return `nothing learned on the print${tail}`;
+  const newest = t.newest[0];
+  const sure = newest.depth_sigma === null ? "" : ` ± ${fmt(100 * newest.depth_sigma, 1)} %`;
+  const where = `newest at x_w = ${fmt(newest.x_mm, 3)} mm`;
+  return `${t.marks} mark${t.marks === 1 ? "" : "s"} learned on the print · ${where} ` +
+    `(${fmt(100 * newest.depth, 1)} %${sure} of the light, ${newest.frames} frames)${tail}`;
+}
+
 function applyStatus(s) {
   status = s;
   const state = $("state");
@@ -133,6 +147,8 @@ function applyStatus(s) {
     ? `held-out error ${fmt(active.error_std_um, 2)} µm · bound ${fmt(active.bound_um, 2)} µm (calibration ${active.id})`
     : (active ? `calibration ${active.id}` : "");
   $("rate").textContent = fmt(s.frame_rate_hz, 1);
+  $("texture").textContent = textureLine(s.texture);
+  $("texture").dataset.marks = s.texture ? String(s.texture.marks) : "";
   if (s.position_mm === null) $("position").textContent = "—";
   if (s.limits_mm) {
     $("limits").textContent = `soft limits ${s.limits_mm[0]} … ${s.limits_mm[1]} mm`;

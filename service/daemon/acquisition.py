@@ -28,6 +28,7 @@ from typing import Any, Callable
 import numpy as np
 
 from graytrack.core.models.fourier import FourierModel
+from graytrack.core.texture import Texture
 from graytrack.core.tracking import LiveFix, LiveTracker
 from graytrack.drivers.camera.base import Camera, CameraError, CameraTimeout, Frame
 from graytrack.service.daemon.clock import HOST_CLOCK, Clock
@@ -35,6 +36,7 @@ from graytrack.service.daemon.framerate import FrameRate
 from graytrack.service.daemon.grating import Readings
 from graytrack.service.daemon.stale_log import StaleLog
 from graytrack.service.daemon.texture_log import TextureLog
+from graytrack.service.daemon.texture_store import TextureWatch
 from graytrack.core.watches.scale import ScaleWatch
 from graytrack.service.daemon.trim import ReferenceTrim
 from graytrack.core import frame_record
@@ -121,27 +123,40 @@ class Acquisition(Worker):
         self._last_id: int | None = None
         self._stale = StaleLog(on_event)  # the flag's events: a model gone stale, or a single frame
         self._texture = TextureLog(on_event)  # what the tracker learns on the print (core/texture.py)
+        self.texture = TextureWatch()  # ... and its newest state, for the model of record (texture_store.py)
 
     # -- control (any thread) --------------------------------------------------------------
-    def install_model(self, model: FourierModel, x0_mm: float | None = None, calibration: str | None = None) -> None:
+    def install_model(self, model: FourierModel, x0_mm: float | None = None, calibration: str | None = None,
+                      texture: dict[str, Any] | None = None,
+                      texture_refused: Callable[[str], None] = lambda reason: None) -> None:
         """Track with ``model`` (of calibration ``calibration``) from a coming frame on (started near
-        the grating's reading then, or ``x0_mm``). Its tracker (tables, the compiled solves loaded:
+        the grating's reading then, or ``x0_mm``), with the marks ``texture`` learned on the print by
+        an earlier tracker of it (``texture_refused(why)`` when they do not fit it: tracked without
+        them). Its tracker (tables, the compiled solves loaded:
         40–500 ms, seconds with no compiler cache) is built on a thread of its own: the frame loop
         keeps every frame meanwhile, tracked with the model it has, and switches between two frames;
         each message names the calibration whose model placed it."""
         with self._lock:
             self._generation += 1
             generation = self._generation
-        threading.Thread(target=self._build, args=(model, x0_mm, generation, calibration), name="tracker-build",
-                         daemon=True).start()
+        threading.Thread(target=self._build, args=(model, x0_mm, generation, calibration, texture, texture_refused),
+                         name="tracker-build", daemon=True).start()
 
-    def _build(self, model: FourierModel, x0: float | None, generation: int, calibration: str | None) -> None:
+    def _build(self, model: FourierModel, x0: float | None, generation: int, calibration: str | None,
+               texture: dict[str, Any] | None, texture_refused: Callable[[str], None]) -> None:
+        start = x0 if x0 is not None and math.isfinite(x0) else None
+        if texture is not None:
+            try:
+                Texture.from_state(model, texture)  # the saved marks fit this model's grid (else: without them)
+            except ValueError as exc:
+                texture_refused(describe(exc))
+                texture = None
         watch = None
         try:
             watch = self.trim.watch_for(model)  # the tracker's scale watch, with the trim when enabled
             built: tuple[FourierModel, LiveTracker | None, str | None, str | None, ScaleWatch | None] = (
-                model, LiveTracker(model, x0 if x0 is not None and math.isfinite(x0) else None,
-                                   watches=[watch] if watch is not None else []), None, calibration, watch)
+                model, LiveTracker(model, start, watches=[watch] if watch is not None else [], texture=texture),
+                None, calibration, watch)
         except Exception as exc:  # noqa: BLE001 - an unusable model: said at the switch, frames still read
             built = (model, None, describe(exc), calibration, None)
         with self._lock:
@@ -295,6 +310,7 @@ class Acquisition(Worker):
         self._stale.observe(sample.frame.frame_id,
                             getattr(fix, "stale_reason", None) if getattr(fix, "stale", False) else None)
         self._texture.observe(tracker.state.texture)
+        self.texture.observe(tracker.state.texture, self._calibration)
         self._seq += 1
         message = fix_message(self._seq, sample, fix, stats.dropped, self._calibration)
         self.trim.annotate(message, fix)

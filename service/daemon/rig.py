@@ -51,6 +51,7 @@ from graytrack.service.daemon.stage_control import StageControl
 from graytrack.service.daemon.storage import Storage
 from graytrack.service.daemon.supervision import Faults, Supervisor, sentence
 from graytrack.service.daemon.sweep import Sweep
+from graytrack.service.daemon.texture_store import TextureStore
 from graytrack.service.daemon.worker import describe
 
 log = logging.getLogger("graytrack.daemon")
@@ -77,6 +78,8 @@ class Rig:
         self.health = DataDirHealth(storage.root, storage.home, self.faults.reporter("storage"))
         self.events = EventLog(record, self.health.moved, self.faults.reporter("record"), daemon.events_max_age_days,
                                daemon.events_max_count)
+        # the marks learned on the print, kept with the model of record (texture_store.py)
+        self.texture_store = TextureStore(storage, self.health, self.clock.now, self.event)
         self.readings = Readings(daemon.pair_window_s, daemon.pair_tolerance_um * 1e-3, daemon.pair_rest_s)
         self.hardware: Hardware | None = None
         self.grating: GratingPoller | None = None
@@ -120,6 +123,8 @@ class Rig:
             thread.join(timeout=10.0)
         self.supervisor.stop()
         self._detach()
+        if self.acquisition is not None:  # what the tracker learned since the last write
+            self.texture_store.save(self.acquisition.texture.latest, force=True)
         if not self.health.probe() and self.health.pending:  # the writes kept while the disk was full: room now?
             log.error("%d write(s) kept while the data directory could not be written are lost with this shutdown "
                       "(%s); a calibration whose end was among them reads 'interrupted' at the next start",
@@ -198,7 +203,8 @@ class Rig:
             self.event("geometry", mismatch)
         elif model is not None:
             log.info("tracking with the saved model %s", model.describe())
-            self.install(model, self.storage.active_id())
+            active = self.storage.active_id()
+            self.install(model, active, self.texture_store.load(active))
         elif daemon.auto_calibrate == "always" or (daemon.auto_calibrate == "sim" and self.settings.simulated):
             log.info("no saved model: calibrating (auto_calibrate = %s)", daemon.auto_calibrate)
             try:
@@ -232,9 +238,9 @@ class Rig:
         acquisition = Acquisition(self.hardware.camera, self.readings, self.publish, self.faults.set,
                                   daemon.camera_fault_after_s, daemon.reopen_interval_s, self._stream_event,
                                   priority=daemon.realtime_priority, trim=ReferenceTrim(daemon.trim, self._stream_event))
-        if self.model is not None:
+        if self.model is not None:  # a frame loop restarted: with what the last one learned on the print
             acquisition.install_model(self.model, self.grating.latest_mm() if self.grating else None,
-                                      self.installed_calibration)
+                                      self.installed_calibration, self.texture_store.newest(self.installed_calibration))
         return acquisition.start()
 
     def _watch(self) -> None:
@@ -242,6 +248,9 @@ class Rig:
         data directory is looked at (full, read-only, removed: :mod:`datadir`) and what waited for it written."""
         self.health.probe()
         self.events.flush()
+        acquisition = self.acquisition
+        if acquisition is not None:
+            self.texture_store.save(acquisition.texture.latest)
         with self._lock:
             if self.closing.is_set() or self.hardware is None:
                 return
@@ -257,14 +266,16 @@ class Rig:
                 # within the camera's time (the poller clears it with its next good reading)
                 self.faults.set("stage", f"the controller has not answered POS? for {silent:.1f} s")
 
-    def install(self, model: FourierModel, calibration: str | None = None) -> None:
+    def install(self, model: FourierModel, calibration: str | None = None,
+                texture: dict[str, Any] | None = None) -> None:
         """Track with ``model`` (of calibration ``calibration``) from a coming frame on, starting near
-        the grating's position."""
+        the grating's position, with the marks ``texture`` learned on the print with it before."""
         assert self.acquisition is not None
         self.model = model
         self.installed_calibration = calibration
         self.faults.set("model", None)
-        self.acquisition.install_model(model, self.grating.latest_mm() if self.grating else None, calibration)
+        self.acquisition.install_model(model, self.grating.latest_mm() if self.grating else None, calibration,
+                                       texture, lambda reason: self.texture_store.ignored(calibration, reason))
 
     # -- state -----------------------------------------------------------------------------
     def snapshot(self) -> parts.RigSnapshot:
@@ -282,7 +293,8 @@ class Rig:
             active_calibration=active.model_dump() if (active := self.active_calibration()) is not None else None,
             target_mm=self.stage.target_mm, velocity_mm_s=self.stage.velocity_mm_s,
             calibrations_finished=dict(self.calibrations_finished), simulated=self.settings.simulated,
-            stale_after_s=stale_after, uptime_s=time.monotonic() - self.started_at)
+            stale_after_s=stale_after, uptime_s=time.monotonic() - self.started_at,
+            texture=self.texture_store.status(acquisition.texture.latest) if acquisition is not None else None)
 
     @property
     def state(self) -> str:
@@ -406,7 +418,8 @@ class Rig:
         needed = (self.storage.calibration_dir(calibration_id) / "model.json").stat().st_size + SWITCH_MARGIN_BYTES
         self.health.refuse(needed)
         try:
-            return self.storage.switch_model(calibration_id)
+            # the old model's marks go with it: no save of them slips in after the switch removed the file
+            return self.texture_store.switch(lambda: self.storage.switch_model(calibration_id))
         except OSError as exc:
             raise (self.health.failed(exc, needed) or exc) from None
 

@@ -130,6 +130,7 @@ class RigSnapshot:
     simulated: bool
     stale_after_s: float
     uptime_s: float
+    texture: Mapping[str, Any] | None = None  # the marks learned on the print (texture_store.py; None: no frame loop)
     reason: str | None = field(init=False)
 
     def __post_init__(self) -> None:

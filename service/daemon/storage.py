@@ -6,6 +6,7 @@ Layout::
     DATA/token                      bearer token, mode 0600, generated at first start
     DATA/model.json                 the model the daemon tracks with (loaded at start)
     DATA/active                     the id of the calibration that model came from
+    DATA/texture.json               marks the tracker learned on the print with that model (texture_store.py)
     DATA/calibrations/<id>/         one sweep: status.json, recording.npz, model.json, report.json(, report.html)
 
 Everything is written atomically (temporary file + rename), so a crash or a full disk never leaves
@@ -147,13 +148,18 @@ class Storage:
         """``model.json`` becomes a byte-for-byte copy of that calibration's model."""
         write_atomic(self.model_path, (self.calibration_dir(calibration_id) / "model.json").read_bytes())
 
+    @property
+    def texture_path(self) -> Path:
+        return self.root / "texture.json"
+
     def switch_model(self, calibration_id: str) -> Switch:
         """``active`` and ``model.json`` become that calibration's, both or neither (:mod:`switch`): the
-        pointer first, then the copy. The returned switch is applied; ``undo()`` takes both back
-        without needing space (until ``commit()``)."""
+        pointer first, then the copy; the print texture learned with the old model goes with it. The
+        returned switch is applied; ``undo()`` takes all back without needing space (until ``commit()``)."""
         self.check_home()
         source = (self.calibration_dir(calibration_id) / "model.json").read_bytes()
-        return Switch([(self.active_path, (calibration_id + "\n").encode()), (self.model_path, source)]).apply()
+        return Switch([(self.active_path, (calibration_id + "\n").encode()), (self.model_path, source),
+                       (self.texture_path, None)]).apply()
 
     def check_home(self) -> None:
         """Raise when the path no longer leads to the directory opened at start (removed, replaced): no

@@ -51,6 +51,51 @@ def test_dust_settling_is_learned_and_tracked_at_the_clean_bound(model, clean_bo
     assert result.texture_px.max() > 0
 
 
+def test_marks_learned_live_are_kept_as_json_and_a_tracker_restored_from_them_places_every_frame(model):
+    """What a live tracker learned (Texture.state, as the daemon keeps it with its model) restores into a
+    new tracker of the same model: the same marks, the same fits; on another run of the dusty rig, tracked
+    from frame 400 (every speck landed), the restored tracker places every frame where one starting from
+    the print as calibrated loses a tenth while it relearns (measured: 0 % against 10 % lost, 1.77 against
+    1.89 µm rms). Another model's grid is refused."""
+    import json
+
+    from graytrack.core.texture import Texture
+    from graytrack.core.tracking import LiveTracker
+
+    run, _ = build_rig("paper", "dust_settling", seed=SEED, run=1).record(10.0)
+    live = LiveTracker(model, x0_mm=float(run.reference[0]))
+    for frame, reference in zip(run.frames, run.reference):
+        live.update(frame, float(reference))
+    state = json.loads(json.dumps(live.state.texture.state()))  # through JSON, as on disk
+    restored = Texture.from_state(model, state)
+    assert len(restored.learned) == len(live.state.texture.learned) >= 8
+    assert restored.grid.scale == live.state.texture.grid.scale
+    for kept, mark in zip(restored.learned, live.state.texture.learned):
+        assert (kept.first, kept.size) == (mark.first, mark.size)
+        np.testing.assert_array_equal(kept.applied, mark.applied)
+        np.testing.assert_array_equal(kept.applied_sigma, mark.applied_sigma)
+        assert restored.describe(kept)["x_mm"] == live.state.texture.describe(mark)["x_mm"]
+
+    other, truth = build_rig("paper", "dust_settling", seed=SEED, run=2).record(10.0)
+    start = 400
+    errors = {}
+    for name, texture in (("restored", state), ("fresh", None)):
+        tracker = LiveTracker(model, x0_mm=float(other.reference[start]), texture=texture)
+        placed = [tracker.update(other.frames[k], float(other.reference[k])).x_mm
+                  for k in range(start, len(other.frames))]
+        errors[name] = (np.asarray(placed) - truth.x_mm[start:]) * 1e3
+    assert np.isfinite(errors["restored"]).all() and np.isfinite(errors["fresh"]).mean() < 0.97
+    assert np.sqrt(np.mean(errors["restored"] ** 2)) <= np.sqrt(np.nanmean(errors["fresh"] ** 2))
+
+    for change in ({"step_mm": state["grid"]["step_mm"] * 2}, {"origin_mm": state["grid"]["origin_mm"] + 0.01}):
+        with pytest.raises(ValueError, match="grid"):
+            Texture.from_state(model, {**state, "grid": {**state["grid"], **change}})
+    with pytest.raises(ValueError, match="pixels"):
+        Texture.from_state(model, {**state, "pixels": state["pixels"] + 1})
+    with pytest.raises(ValueError, match="not a texture state"):
+        Texture.from_state(model, {"version": 1})
+
+
 def test_transients_that_come_and_go_are_not_learned(model):
     """Glints pinned to a glossy spot of the print for 1-4 frames open candidates, never a mark."""
     run, truth = build_rig("paper", "glints:p=0.15", seed=SEED, run=1).record(6.0)

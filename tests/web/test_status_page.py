@@ -211,3 +211,29 @@ def test_a_fault_is_in_the_event_log_and_disables_the_controls_with_its_reason(t
                                                                                               timeout=5_000)
         expect(browser_page.locator("#move")).to_be_enabled()
         assert console == [], console
+
+
+def test_the_print_texture_learned_is_shown_where_and_how_sure(tmp_path: Path, browser) -> None:
+    """Dust settles on the print (the model was not told): the page's "Print texture" line says how many
+    marks the daemon learned, where the newest is on the target and how sure, from ``/api/status``."""
+    from playwright.sync_api import expect
+
+    from graytrack.service.daemon.app import create_app
+    from tests.service.test_texture_store import DUST, learn
+
+    with LiveServer(create_app(fast_settings(tmp_path, tables=DUST))) as daemon:
+        daemon.wait_state("tracking", 60.0)
+        browser_page = browser.new_page(viewport={"width": 390, "height": 844})
+        console = watch_console(browser_page)
+        browser_page.goto(daemon.base + "/")
+        line = browser_page.locator("#texture")
+        expect(line).to_have_attribute("data-marks", re.compile(r"^\d+$"), timeout=10_000)
+        texture = learn(daemon)
+        expect(line).not_to_have_attribute("data-marks", re.compile(r"^[012]$"), timeout=10_000)
+        expect(line).to_have_text(re.compile(r"^\d+ marks learned on the print · newest at x_w = \d+\.\d{3} mm "
+                                             r"\(\d+\.\d % ± \d+\.\d % of the light, \d+ frames\)"), timeout=10_000)
+        shown = daemon.status()["texture"]
+        assert int(line.get_attribute("data-marks")) >= texture["marks"] >= 3
+        assert f"x_w = {shown['newest'][0]['x_mm']:.3f} mm" in line.text_content() or shown["marks"] > texture["marks"]
+        assert browser_page.evaluate("document.documentElement.scrollWidth") <= 390
+        assert console == [], console

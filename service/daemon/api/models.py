@@ -61,6 +61,29 @@ class ActiveCalibration(BaseModel):
     bound_um: float | None = Field(None, description="Cramér–Rao bound of the same frames (µm)")
 
 
+class TextureMark(BaseModel):
+    """A mark learned on the print (core/texture.py): where on the target, how deep, how sure."""
+
+    x_mm: float = Field(description="its centre's target coordinate (mm)")
+    from_mm: float = Field(description="the stretch of the target it covers, from (mm)")
+    to_mm: float = Field(description="... to (mm)")
+    depth: float = Field(description="the light it takes at its deepest node (0.3 = 30 % darker)")
+    depth_sigma: float | None = Field(description="that depth's standard error (null: a node no frame saw)")
+    frames: int = Field(description="frames that saw it")
+    learned_at: int = Field(description="the tracker's frame at which it was learned")
+
+
+class TextureStatus(BaseModel):
+    """The print texture the tracker learned, part of the model of record (DATA/texture.json)."""
+
+    calibration: str | None = Field(description="the calibration whose model it was learned with")
+    marks: int = Field(description="marks learned on the print")
+    footprint_scale: float = Field(description="the pixels' footprint on the print, relative to the model's")
+    newest: list[TextureMark] = Field(description="the newest marks learned (at most 3)")
+    saved: bool = Field(description="this state is written to DATA/texture.json")
+    restored: int = Field(description="marks restored at this start from DATA/texture.json")
+
+
 class Status(BaseModel):
     model_config = ConfigDict(extra="allow")  # later additions stay visible to clients
     state: str = Field(description="starting, idle, calibrating, tracking, fault or stopping")
@@ -87,6 +110,8 @@ class Status(BaseModel):
     dropped: int
     calibration: JobSummary | None
     active_calibration: ActiveCalibration | None = Field(description="the calibration whose model is in use")
+    texture: TextureStatus | None = Field(None, description="marks the tracker learned on the print (null: no frame "
+                                                            "loop or not learning)")
     simulated: bool
     uptime_s: float
     version: str
