@@ -37,7 +37,7 @@ def _stream(model, run, enabled: bool) -> tuple[list[dict], list[tuple[str, str]
     trim = ReferenceTrim(enabled, lambda kind, message: events.append((kind, message)))
     acquisition = Acquisition(None, None, messages.append, lambda *fault: None, 1.0, 1.0,
                               on_event=lambda kind, message: events.append((kind, message)), trim=trim)
-    acquisition._build(model, float(run.reference[0]), 0, "calibration")  # what install_model's thread does
+    acquisition._build(model, float(run.reference[0]), 0, "calibration", None, lambda why: None)  # as install_model does
     for k in range(run.n_frames):
         frame = Frame(np.asarray(run.frames[k]), k, float(run.t[k]))
         acquisition._track(Sample(frame, float(run.t[k]), float(run.reference[k])))
