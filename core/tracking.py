@@ -37,6 +37,7 @@ from graytrack.core.frame_tables import FrameTables
 from graytrack.core.focus_solve import CurvatureTable, FocusPrior, focus_solve, general_focus_solve
 from graytrack.core.focus_solve import warm as focus_warm
 from graytrack.core.models.fourier import TWO_PI, FourierModel
+from graytrack.core.moving_light import MovingLight, follow
 from graytrack.core.recording import Recording
 from graytrack.core.validity import FAMILIES, FrameSign, Monitor, monitor_for
 from graytrack.core.solvers import (CUT_SIGMA, TRANSIENT_MAX_WIDTH_SHARE, FrameSolution, GeneralBatch, SolverSettings,
@@ -137,6 +138,7 @@ class LightMemory:
     # the mean of χ²(1), the field's one extra unknown, when the focus explains the frames)
     free_level: float = 1.0  # average χ² of the last free-light frames, in the calibration's level
     free_frames: int = 0  # how many frames that average holds (up to FIELD_WINDOW)
+    moving: MovingLight | None = None  # a light feature moving across the field (core/moving_light.py)
 
 
 @dataclass
@@ -342,9 +344,11 @@ class Tracker:
         """Noise of one model row when ``frame_rows`` raw rows feed the model (averaging lowers it)."""
         return (self.model.noise_gray or 1.0) / np.sqrt(self.model.rows_averaged(frame_rows))
 
-    def solve(self, batch: GeneralBatch | TrigPolyBatch, k: int, x_start: float, memory: LightMemory) -> FrameSolution:
+    def solve(self, batch: GeneralBatch | TrigPolyBatch, k: int, x_start: float, memory: LightMemory,
+              reference: float = math.nan) -> FrameSolution:
         """Frame ``k`` from ``x_start``: the light and robustness the frame asks for, cheapest first
-        (what the last frame needed, then the light solved, then the robust solve)."""
+        (what the last frame needed, then the light solved, then the robust solve). ``reference``:
+        the grating's reading, where a moving light's shape is learned (core/moving_light.py)."""
         # A model fitted with a gain and offset per frame knows the light moves from frame to frame
         # (flicker, auto-exposure, row banding): "auto" then solves it in every frame, as calibration did.
         free = self.light == "free" or (self.light == "auto" and (memory.free or self.model.common_mode))
@@ -386,6 +390,10 @@ class Tracker:
             solution = self._changed(batch, k, solution, memory, tried_field, tried_focus, here)
         if not tried_focus:
             memory.focus_track.wait()
+        if self.focus_capable:  # (light "auto")
+            if memory.moving is None:
+                memory.moving = MovingLight(self.model.n_rows, self.model.n_pixels, self.model.pixel_pitch_mm)
+            solution = follow(self, batch, k, x_start, solution, memory.moving, here, reference)
         return solution
 
     def chi2_level(self, x_mm: float) -> float:
@@ -963,7 +971,7 @@ def _solve_frame(tracker: Tracker, batch: GeneralBatch | TrigPolyBatch, k: int, 
         if frame > 0 or not ok:
             events.append(LockEvent(frame, "acquisition", float("nan"), solution.x_mm if ok else float("nan"), ok))
         return solution, ok
-    solution = tracker.solve(batch, k, x_prev + state.velocity, memory)
+    solution = tracker.solve(batch, k, x_prev + state.velocity, memory, reference)
     reason = tracker.lost_reason(solution, x_prev, reference)
     if reason is None:
         return solution, True
