@@ -43,7 +43,9 @@ SANE_BOUND = 10.0  # a joint bound beyond this many of the uniform light's: the 
 ITERATIONS = 6
 LIGHT_LAG = 5  # frames: the light the episode holds is the one this many frames before it started (a
 # feature's edge is felt a few frames before a frame asks, and a light solved on those frames had
-# traded against it: a gain 3 % low placed a shadow's frames 5-10 bounds off)
+# traded against it: a gain 3 % low placed a shadow's frames 5-10 bounds off), averaged over as many
+# frames before those as LIGHT_FRAMES (one frame's solved gain is ±0.5 %: 1.006 held placed 5 frames 4-7 bounds off)
+LIGHT_FRAMES = 20
 PARAMETERS = 2  # x, the place (and the depth, 3)
 
 
@@ -71,7 +73,7 @@ class MovingLight:
         self.kernel = kernel / kernel.sum()
         self.offset = (EXTENT // 2) * n_pixels  # grid index of column 0 when the feature is at c = 0
         self.columns = np.arange(n_pixels, dtype=np.float64)
-        self.lights: deque = deque(maxlen=LIGHT_LAG)  # the last frames' (gain, offset), before an episode
+        self.lights: deque = deque(maxlen=LIGHT_LAG + LIGHT_FRAMES)  # the last frames' (gain, offset), before an episode
         self.places: deque = deque(maxlen=LIGHT_LAG + 1)  # ... and their positions (NaN: not placed)
         self.reset()
 
@@ -138,7 +140,8 @@ class MovingLight:
         False (nothing learned) when the loss has no clear part in view: a feature with no edge in
         the field (a lamp dimmed, a new vignetting) is not one that moves, and its place is not measurable."""
         self.reset()
-        self.gain, self.offset_gray = self.lights[0] if self.lights else (1.0, 0.0)
+        held = list(self.lights)[:max(len(self.lights) - LIGHT_LAG, 1)]
+        self.gain, self.offset_gray = (float(v) for v in np.mean(held, axis=0)) if held else (1.0, 0.0)
         values = evaluator.evaluate(np.array([x_mm]))[0][0]
         loss, precision = self._columns(y, weights, values, 1.0)
         noise = 1.0 / np.sqrt(np.maximum(precision, 1e-300))
@@ -215,6 +218,9 @@ def follow(tracker, batch, k: int, x_start: float, uniform: FrameSolution, movin
     ``reference``: the grating's reading (NaN: none), where the shape is learned when read: a shape
     learned at the solved x would carry that x's error into every later frame."""
     limit = tracker.chi2_limit * here
+    if not math.isfinite(reference):  # no grating read: the frames' own x would trade into the shape
+        moving.reset()
+        return uniform
     if not moving.active and not (uniform.chi2 > limit and math.isfinite(x_start)):
         moving.lights.append((uniform.gain, uniform.offset) if uniform.free_light else (1.0, 0.0))
         moving.places.append(uniform.x_mm)
@@ -231,7 +237,8 @@ def follow(tracker, batch, k: int, x_start: float, uniform: FrameSolution, movin
             moving.places.clear()  # (a restart later in the episode starts from the last frame's place)
             if not moving.start(tracker.evaluator, y, weights, known):
                 return uniform
-        answer = moving.solve(tracker.evaluator, y, weights, x_start, tracker.settings.max_step_mm)
+        start = reference if math.isfinite(reference) else x_start  # (the grating, where read, is the nearer start)
+        answer = moving.solve(tracker.evaluator, y, weights, start, tracker.settings.max_step_mm)
         if _sane(answer, uniform, moving, tracker, limit, x_start):
             break
         moving.miss(); print("MISS", k, answer, uniform.chi2, limit, uniform.information, moving.centre, moving.rate, x_start) if __import__("os").environ.get("DBG") else None
