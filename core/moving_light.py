@@ -250,7 +250,7 @@ def follow(tracker, batch, k: int, x_start: float, uniform: FrameSolution, movin
                          ITERATIONS, moving.gain, moving.offset_gray, answer.chi2, uniform.rejected, False, 0.0,
                          answer.cost, uniform.rejected_mask, uniform.rejected_weights_exact,
                          transient_px=uniform.transient_px, transient_share=uniform.transient_share,
-                         transient_at=uniform.transient_at)
+                         transient_at=uniform.transient_at, moving=True)
 
 
 def _sane(answer: Follow | None, uniform: FrameSolution, moving: MovingLight, tracker, limit: float,

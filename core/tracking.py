@@ -378,6 +378,14 @@ class Tracker:
         memory.free = self.light == "auto" and stays
         memory.gain, memory.offset = solution.gain, solution.offset
         memory.rejected = solution.rejected_mask if solution.rejected else None
+        if self.focus_capable:  # (light "auto") a light feature moving across the field, followed: no
+            # evidence for a blur or a field of the frame's own (core/moving_light.py)
+            if memory.moving is None:
+                memory.moving = MovingLight(self.model.n_rows, self.model.n_pixels, self.model.pixel_pitch_mm)
+            followed = follow(self, batch, k, x_start, solution, memory.moving, here, reference)
+            if followed is not solution:
+                memory.focus_track.wait()
+                return followed
         if solution.free_light and math.isfinite(solution.chi2):
             memory.free_frames = min(memory.free_frames + 1, FIELD_WINDOW)
             level = min(solution.chi2 / (self.chi2_calibration * here), self.free_frame_cap)
@@ -390,10 +398,6 @@ class Tracker:
             solution = self._changed(batch, k, solution, memory, tried_field, tried_focus, here)
         if not tried_focus:
             memory.focus_track.wait()
-        if self.focus_capable:  # (light "auto")
-            if memory.moving is None:
-                memory.moving = MovingLight(self.model.n_rows, self.model.n_pixels, self.model.pixel_pitch_mm)
-            solution = follow(self, batch, k, x_start, solution, memory.moving, here, reference)
         return solution
 
     def chi2_level(self, x_mm: float) -> float:
@@ -623,7 +627,7 @@ PENDING_SLOTS = ("frame", "solution", "reference_mm", "placed", "rows_averaged",
 SOLUTION_SIGNS = {"chi2": "chi2", "information": "information", "gain": "gain", "offset_gray": "offset",
                   "focus": "focus", "focus_sigma": "focus_sigma", "rejected_px": "rejected",
                   "transient_px": "transient_px", "transient_at": "transient_at", "x_mm": "x_mm",
-                  "free_light": "free_light", "field": "field"}
+                  "free_light": "free_light", "field": "field", "moving": "moving"}
 _solution_signs = operator.attrgetter(*SOLUTION_SIGNS.values())
 
 
@@ -689,7 +693,7 @@ class SequentialState:
             transient_px=solution.transient_px, transient_at=solution.transient_at,
             x_mm=solution.x_mm, reference_mm=reference, placed=placed, rows_averaged=self.rows_averaged,
             free_light=solution.free_light, field=solution.field, chi2_average=average,
-            chi2_suspect=self.chi2_suspect, chi2_stale=self.chi2_stale, explain=explain)
+            chi2_suspect=self.chi2_suspect, chi2_stale=self.chi2_stale, explain=explain, moving=solution.moving)
         verdict = self.monitor.observe(sign)
         self.stale, self.stale_reason = verdict.stale, verdict.reason
 

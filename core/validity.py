@@ -67,6 +67,7 @@ class FrameSign:
     # What the frame's residual looks like, computed only when a watch asks (it costs an evaluation):
     # the share of its excess χ² each family's shapes explain (see core/watches/attribution.py).
     explain: Callable[[], dict[str, Any]] | None = None
+    moving: bool = False  # the answer followed a light feature moving across the field (core/moving_light.py)
 
 
 SIGN_FIELDS = tuple(FrameSign.__slots__)
