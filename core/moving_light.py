@@ -241,7 +241,7 @@ def follow(tracker, batch, k: int, x_start: float, uniform: FrameSolution, movin
         answer = moving.solve(tracker.evaluator, y, weights, start, tracker.settings.max_step_mm)
         if _sane(answer, uniform, moving, tracker, limit, x_start):
             break
-        moving.miss(); print("MISS", k, answer, uniform.chi2, limit, uniform.information, moving.centre, moving.rate, x_start) if __import__("os").environ.get("DBG") else None
+        moving.miss()
         if restart or not uniform.chi2 > limit:
             return uniform
         restart = True
