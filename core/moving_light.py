@@ -35,10 +35,12 @@ from graytrack.core.solvers import FrameSolution
 
 SMOOTH_MM = 0.15  # Gaussian σ of the smoothing of each frame's ratio (a shadow's penumbra is ~1 mm)
 EXTENT = 7  # the shape's grid spans this many fields (the feature slides in from either side and out across)
-CLEAR_SHARE = 0.2  # a feature's first frame must leave this share of the line unshadowed (an edge in view)
+CLEAR_SHARE = 0.2  # a feature's first frame must leave this share of the line's far end unshadowed
 SEEN_SIGMAS = 5.0  # the feature seen in a frame: its loss beyond this many of its own noise
 MISSES = 3  # frames in a row the feature does not explain before the episode ends
 JUMP_PX = 5.0  # the feature's place beyond this from where its motion carries it: not the feature followed
+MOVED_PX = 2.0  # the feature's answer is taken once it has moved this far: a light shape that holds still (a
+# lamp's vignetting) or a change of the print the shape merely mimics is not one that moves
 SANE_BOUND = 10.0  # a joint bound beyond this many of the uniform light's: the place and x no longer separate
 ITERATIONS = 6
 LIGHT_LAG = 5  # frames: the light the episode holds is the one this many frames before it started (a
@@ -145,8 +147,15 @@ class MovingLight:
         values = evaluator.evaluate(np.array([x_mm]))[0][0]
         loss, precision = self._columns(y, weights, values, 1.0)
         noise = 1.0 / np.sqrt(np.maximum(precision, 1e-300))
-        clear = np.abs(loss) < 3.0 * noise
-        if clear.mean() < CLEAR_SHARE or (np.abs(loss) > SEEN_SIGMAS * noise).sum() < 3:
+        seen = np.nonzero(np.abs(loss) > SEEN_SIGMAS * noise)[0]
+        if seen.size < 3:
+            return False
+        # a feature coming into view: seen from one end of the line, the far end clear (a light shape
+        # fixed to the camera shows at both ends or all along; a changed print or blur, all along)
+        far = max(int(CLEAR_SHARE * self.n_pixels), 1)
+        entering = (seen[0] == 0 and seen[-1] < self.n_pixels - far) or \
+            (seen[-1] == self.n_pixels - 1 and seen[0] >= far)
+        if not entering:
             return False
         self._learn(y, weights, values, 0.0, 1.0)
         self.active = True
@@ -246,6 +255,8 @@ def follow(tracker, batch, k: int, x_start: float, uniform: FrameSolution, movin
             return uniform
         restart = True
     moving.accept(tracker.evaluator, y, weights, answer, reference)
+    if abs(moving.centre) < MOVED_PX:  # (learned and followed, not yet seen to move: the uniform answer stands)
+        return uniform
     return FrameSolution(answer.x_mm, tracker.settings.sigma_gray * math.sqrt(answer.chi2), answer.information,
                          ITERATIONS, moving.gain, moving.offset_gray, answer.chi2, uniform.rejected, False, 0.0,
                          answer.cost, uniform.rejected_mask, uniform.rejected_weights_exact,
