@@ -39,8 +39,9 @@ CLEAR_SHARE = 0.2  # a feature's first frame must leave this share of the line's
 SEEN_SIGMAS = 5.0  # the feature seen in a frame: its loss beyond this many of its own noise
 MISSES = 3  # frames in a row the feature does not explain before the episode ends
 JUMP_PX = 5.0  # the feature's place beyond this from where its motion carries it: not the feature followed
-MOVED_PX = 2.0  # the feature's answer is taken once it has moved this far: a light shape that holds still (a
-# lamp's vignetting) or a change of the print the shape merely mimics is not one that moves
+MOVED_PX = 2.0  # the feature's answer is taken once it has moved this far, at SPEED_PX a frame or more on
+SPEED_PX = 1.0  # average: a light shape that holds still (a lamp's vignetting: its place wandered ±1.6 px, then
+# drifted past 2 px after 30 frames) or a change the shape merely mimics is not one that moves
 SANE_BOUND = 10.0  # a joint bound beyond this many of the uniform light's: the place and x no longer separate
 ITERATIONS = 6
 LIGHT_LAG = 5  # frames: the light the episode holds is the one this many frames before it started (a
@@ -255,7 +256,8 @@ def follow(tracker, batch, k: int, x_start: float, uniform: FrameSolution, movin
             return uniform
         restart = True
     moving.accept(tracker.evaluator, y, weights, answer, reference)
-    if abs(moving.centre) < MOVED_PX:  # (learned and followed, not yet seen to move: the uniform answer stands)
+    if abs(moving.centre) < max(MOVED_PX, SPEED_PX * moving.followed):  # (followed, not seen to move: the
+        # uniform answer stands)
         return uniform
     return FrameSolution(answer.x_mm, tracker.settings.sigma_gray * math.sqrt(answer.chi2), answer.information,
                          ITERATIONS, moving.gain, moving.offset_gray, answer.chi2, uniform.rejected, False, 0.0,
