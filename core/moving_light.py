@@ -80,11 +80,15 @@ class MovingLight:
         self.places: deque = deque(maxlen=LIGHT_LAG + 1)  # ... and their positions (NaN: not placed)
         self.reset()
 
-    def reset(self) -> None:
+    def reset(self, keep_motion: bool = False) -> None:
+        """Forget the feature (``keep_motion``: its shape and place only, learned again at once)."""
         size = EXTENT * self.n_pixels
         self.numerator, self.precision = np.zeros(size), np.zeros(size)
-        self.active, self.centre, self.rate, self.depth, self.misses = False, 0.0, 0.0, 1.0, 0
-        self.followed = 0  # frames the feature explained (its motion is known from the second on)
+        self.active, self.centre, self.depth, self.misses = False, 0.0, 1.0, 0
+        self.followed = 0  # frames the feature explained since its shape was learned
+        if not keep_motion:
+            self.rate = 0.0
+            self.travel, self.frames = 0.0, 0  # how far it moved (px) over how many frames, over restarts too
         self.gain, self.offset_gray = 1.0, 0.0
 
     # --- the shape -------------------------------------------------------------------------------
@@ -138,11 +142,12 @@ class MovingLight:
         return float(places[1] + (places[1] - places[0]) * places.size)
 
     # --- the frame -------------------------------------------------------------------------------
-    def start(self, evaluator, y: np.ndarray, weights: np.ndarray, x_mm: float) -> bool:
+    def start(self, evaluator, y: np.ndarray, weights: np.ndarray, x_mm: float, again: bool = False) -> bool:
         """Learn the shape from a frame the uniform light does not explain, at the predicted ``x_mm``.
         False (nothing learned) when the loss has no clear part in view: a feature with no edge in
-        the field (a lamp dimmed, a new vignetting) is not one that moves, and its place is not measurable."""
-        self.reset()
+        the field (a lamp dimmed, a new vignetting) is not one that moves, and its place is not measurable.
+        ``again``: a feature lost mid-episode, whose motion so far is kept."""
+        self.reset(keep_motion=again)
         held = list(self.lights)[:max(len(self.lights) - LIGHT_LAG, 1)]
         self.gain, self.offset_gray = (float(v) for v in np.mean(held, axis=0)) if held else (1.0, 0.0)
         values = evaluator.evaluate(np.array([x_mm]))[0][0]
@@ -210,9 +215,11 @@ class MovingLight:
         (at the grating's position when read)."""
         known = reference if math.isfinite(reference) else answer.x_mm
         values = evaluator.evaluate(np.array([known]))[0][0]
+        self.travel += answer.centre - self.centre if self.followed else self.rate  # (just learned again: as before)
         self.rate = answer.centre - self.centre
         self.centre, self.depth, self.misses = answer.centre, answer.depth, 0
         self.followed += 1
+        self.frames += 1
         self._learn(y, weights, values, answer.centre, answer.depth, not math.isfinite(reference))
 
     def miss(self) -> None:
@@ -240,12 +247,12 @@ def follow(tracker, batch, k: int, x_start: float, uniform: FrameSolution, movin
         weights = weights * ~uniform.rejected_mask
     weights = np.asarray(weights, dtype=np.float64).reshape(-1)
     y = np.asarray(batch.frames[k], dtype=np.float64).reshape(-1)
-    restart = not moving.active
+    restart = first = not moving.active
     for _ in range(2):  # a feature lost mid-episode (its place and x traded) is learned again at once
         if restart:
             known = reference if math.isfinite(reference) else moving.predicted(x_start)
             moving.places.clear()  # (a restart later in the episode starts from the last frame's place)
-            if not moving.start(tracker.evaluator, y, weights, known):
+            if not moving.start(tracker.evaluator, y, weights, known, again=not first):
                 return uniform
         start = reference if math.isfinite(reference) else x_start  # (the grating, where read, is the nearer start)
         answer = moving.solve(tracker.evaluator, y, weights, start, tracker.settings.max_step_mm)
@@ -256,7 +263,7 @@ def follow(tracker, batch, k: int, x_start: float, uniform: FrameSolution, movin
             return uniform
         restart = True
     moving.accept(tracker.evaluator, y, weights, answer, reference)
-    if abs(moving.centre) < max(MOVED_PX, SPEED_PX * moving.followed):  # (followed, not seen to move: the
+    if abs(moving.travel) < max(MOVED_PX, SPEED_PX * moving.frames):  # (followed, not seen to move: the
         # uniform answer stands)
         return uniform
     return FrameSolution(answer.x_mm, tracker.settings.sigma_gray * math.sqrt(answer.chi2), answer.information,
