@@ -89,6 +89,7 @@ class MovingLight:
         if not keep_motion:
             self.rate = 0.0
             self.travel, self.frames = 0.0, 0  # how far it moved (px) over how many frames, over restarts too
+            self.moved = False  # ... far and fast enough for its answers to be taken (MOVED_PX, SPEED_PX)
         self.gain, self.offset_gray = 1.0, 0.0
 
     # --- the shape -------------------------------------------------------------------------------
@@ -215,11 +216,13 @@ class MovingLight:
         (at the grating's position when read)."""
         known = reference if math.isfinite(reference) else answer.x_mm
         values = evaluator.evaluate(np.array([known]))[0][0]
-        self.travel += answer.centre - self.centre if self.followed else self.rate  # (just learned again: as before)
-        self.rate = answer.centre - self.centre
+        if self.followed:  # (a frame its shape was just learned on again tells no motion)
+            self.travel += answer.centre - self.centre
+            self.frames += 1
+            self.moved = self.moved or abs(self.travel) >= max(MOVED_PX, SPEED_PX * self.frames)
+            self.rate = answer.centre - self.centre
         self.centre, self.depth, self.misses = answer.centre, answer.depth, 0
         self.followed += 1
-        self.frames += 1
         self._learn(y, weights, values, answer.centre, answer.depth, not math.isfinite(reference))
 
     def miss(self) -> None:
@@ -263,7 +266,7 @@ def follow(tracker, batch, k: int, x_start: float, uniform: FrameSolution, movin
             return uniform
         restart = True
     moving.accept(tracker.evaluator, y, weights, answer, reference)
-    if abs(moving.travel) < max(MOVED_PX, SPEED_PX * moving.frames):  # (followed, not seen to move: the
+    if not moving.moved:  # (followed, not seen to move: the
         # uniform answer stands)
         return uniform
     return FrameSolution(answer.x_mm, tracker.settings.sigma_gray * math.sqrt(answer.chi2), answer.information,
