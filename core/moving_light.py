@@ -157,12 +157,11 @@ class MovingLight:
         seen = np.nonzero(np.abs(loss) > SEEN_SIGMAS * noise)[0]
         if seen.size < 3:
             return False
-        # a feature coming into view: seen from one end of the line, the far end clear (a light shape
-        # fixed to the camera shows at both ends or all along; a changed print or blur, all along)
+        # a feature coming into view: one end of the line clear (a light shape fixed to the camera shows
+        # at both ends or all along; a changed print or blur, all along). Not "seen from the other end":
+        # where the print is dark the loss is within the noise (a shadow entering was seen from pixel 11)
         far = max(int(CLEAR_SHARE * self.n_pixels), 1)
-        entering = (seen[0] == 0 and seen[-1] < self.n_pixels - far) or \
-            (seen[-1] == self.n_pixels - 1 and seen[0] >= far)
-        if not entering:
+        if not (seen[-1] < self.n_pixels - far or seen[0] >= far):
             return False
         self._learn(y, weights, values, 0.0, 1.0)
         self.active = True
