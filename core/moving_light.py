@@ -161,7 +161,7 @@ class MovingLight:
         # at both ends or all along; a changed print or blur, all along). Not "seen from the other end":
         # where the print is dark the loss is within the noise (a shadow entering was seen from pixel 11)
         far = max(int(CLEAR_SHARE * self.n_pixels), 1)
-        if not (seen[-1] < self.n_pixels - far or seen[0] >= far):
+        if not again and not (seen[-1] < self.n_pixels - far or seen[0] >= far):  # (one lost mid-field: known)
             return False
         self._learn(y, weights, values, 0.0, 1.0)
         self.active = True
