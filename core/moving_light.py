@@ -245,8 +245,11 @@ def follow(tracker, batch, k: int, x_start: float, uniform: FrameSolution, movin
         moving.places.append(uniform.x_mm)
         return uniform  # (the common case: nothing but a comparison and the light and place kept)
     weights = batch.weights(k)
-    if uniform.rejected_mask is not None:
-        weights = weights * ~uniform.rejected_mask
+    # samples the robust solve set aside are left out, unless so many that the uniform answer is not
+    # trusted: then they were the feature itself (a shadow's edge taken for a transient)
+    kept = uniform if tracker.untrusted(uniform) is None else FrameSolution(uniform.x_mm, 0.0, 0.0, 0)
+    if kept.rejected_mask is not None:
+        weights = weights * ~kept.rejected_mask
     weights = np.asarray(weights, dtype=np.float64).reshape(-1)
     y = np.asarray(batch.frames[k], dtype=np.float64).reshape(-1)
     restart = first = not moving.active
@@ -269,10 +272,10 @@ def follow(tracker, batch, k: int, x_start: float, uniform: FrameSolution, movin
         # uniform answer stands)
         return uniform
     return FrameSolution(answer.x_mm, tracker.settings.sigma_gray * math.sqrt(answer.chi2), answer.information,
-                         ITERATIONS, moving.gain, moving.offset_gray, answer.chi2, uniform.rejected, False, 0.0,
-                         answer.cost, uniform.rejected_mask, uniform.rejected_weights_exact,
-                         transient_px=uniform.transient_px, transient_share=uniform.transient_share,
-                         transient_at=uniform.transient_at, moving=True)
+                         ITERATIONS, moving.gain, moving.offset_gray, answer.chi2, kept.rejected, False, 0.0,
+                         answer.cost, kept.rejected_mask, kept.rejected_weights_exact,
+                         transient_px=kept.transient_px, transient_share=kept.transient_share,
+                         transient_at=kept.transient_at, moving=True)
 
 
 def _sane(answer: Follow | None, uniform: FrameSolution, moving: MovingLight, tracker, limit: float,
