@@ -76,7 +76,8 @@ class MovingLight:
         self.kernel = kernel / kernel.sum()
         self.offset = (EXTENT // 2) * n_pixels  # grid index of column 0 when the feature is at c = 0
         self.columns = np.arange(n_pixels, dtype=np.float64)
-        self.lights: deque = deque(maxlen=LIGHT_LAG + LIGHT_FRAMES)  # the last frames' (gain, offset), before an episode
+        # the last frames' (gain, offset), before an episode
+        self.lights: deque = deque(maxlen=LIGHT_LAG + LIGHT_FRAMES)
         self.places: deque = deque(maxlen=LIGHT_LAG + 1)  # ... and their positions (NaN: not placed)
         self.reset()
 

@@ -3,9 +3,10 @@
 (core/moving_light.py) and its frames measured near the bound, flagged ``light``; without it they
 are flagged (on the paper rig less than a period is in view, and no light field of a frame's own
 separates from x); none is placed far off without a flag, and once the shadow has left the tracker
-is back on the calibrated light, at its bound and unflagged, within a few frames. Before core/chi2_episode.py the shadow's frames held the running χ² (and the grating
-watch's window) up for hundreds of frames: the light stayed solved and every frame flagged, three
-times the frames the shadow covered."""
+is back on the calibrated light, at its bound and unflagged, within a few frames. Before
+core/chi2_episode.py the shadow's frames held the running χ² (and the grating watch's window) up
+for hundreds of frames: the light stayed solved and every frame flagged, three times the frames the
+shadow covered."""
 
 from __future__ import annotations
 
