@@ -4,23 +4,27 @@ A cable's shadow, a hand, a lamp's spot: a smooth multiplicative loss of light h
 neither the camera nor the print, crossing the field. On a line shorter than a period no field of
 a frame's own separates from x (docs/robustness.md: a Legendre field that describes the shadow
 costs 30–50× the bound); what does is the shape holding still while it moves. So the shape is
-learned once, from evidence, and each frame solves only where it is (c, in pixels) and how deep
-(a, relative to the learned depth), jointly with x:
+learned from evidence, and each frame solves only where it is (c, in pixels) jointly with x:
 
-    y_p ≈ G · v_p(x) · (1 − a · h(p − c)) + O
+    y_p ≈ G · v_p(x) · (1 − h(p − c)) + O
 
-(G, O: the light held as the frame before the episode had it). The shape starts, when a frame the
-uniform light does not explain comes, as the ratio frame / model at the position predicted from
-the motion just before, smoothed (the edge is soft); every frame the feature explains then adds its
-own ratio at its solved place, so the shape is known where the feature has been seen, and grows as
-it slides into view (pixels that fall on a part not seen yet carry no weight in that frame's solve).
+(G, O: the light the frames had before the episode). The shape starts, when a frame the uniform
+light does not explain comes, as the loss frame / model at the grating's position, smoothed (the
+edge is soft); every frame the feature explains then adds its own loss at its place (again at the
+grating's position), so the shape is known where the feature has been seen, and grows as it slides
+into view (samples that fall on a part not seen yet carry no weight in that frame's solve). Its
+depth is not solved apart: with a shape learned as it goes, depth and shape scale drifted together
+(a depth of 5.7 by mid-band), and the shape already carries it.
 
-The bound is the joint Fisher information's (x with c and a profiled out), each pixel's variance
-widened by the learned shape's own (its precision summed over the frames and rows that built it).
-The answer is taken only when it explains the frame (χ² back within the single-frame limit of the
-calibration's level), the bound is finite and the feature is seen in the frame beyond its noise;
-otherwise the uniform answer stands, flagged as before. The episode ends when the feature has left
-the field or stops explaining frames.
+Only with the grating read: a shape learned at the frames' own x carries each frame's error into
+the next (measured on the paper rig: 2.5–43× the bound, 1.8–25 % of the frames 4+ bounds off).
+
+The bound is the joint Fisher information's (x with c profiled out), each sample's variance widened
+by the learned shape's own (its precision summed over the frames and rows that built it). The
+answer is taken only when it explains the frame (χ² within the single-frame limit of the
+calibration's level), the bound is sane, the feature is seen in the frame beyond its noise and has
+been seen to move (:data:`MOVED_PX`, :data:`SPEED_PX`); otherwise the uniform answer stands, flagged
+as before. The episode ends when the feature stops explaining frames (it has left the field).
 """
 
 from __future__ import annotations
@@ -49,7 +53,6 @@ LIGHT_LAG = 5  # frames: the light the episode holds is the one this many frames
 # traded against it: a gain 3 % low placed a shadow's frames 5-10 bounds off), averaged over as many
 # frames before those as LIGHT_FRAMES (one frame's solved gain is ±0.5 %: 1.006 held placed 5 frames 4-7 bounds off)
 LIGHT_FRAMES = 20
-PARAMETERS = 2  # x, the place (and the depth, 3)
 
 
 @dataclass
@@ -61,7 +64,6 @@ class Follow:
     chi2: float
     cost: float
     centre: float
-    depth: float
     visible: float  # the feature's loss in view, in units of its noise
 
 
@@ -78,14 +80,13 @@ class MovingLight:
         self.columns = np.arange(n_pixels, dtype=np.float64)
         # the last frames' (gain, offset), before an episode
         self.lights: deque = deque(maxlen=LIGHT_LAG + LIGHT_FRAMES)
-        self.places: deque = deque(maxlen=LIGHT_LAG + 1)  # ... and their positions (NaN: not placed)
         self.reset()
 
     def reset(self, keep_motion: bool = False) -> None:
         """Forget the feature (``keep_motion``: its shape and place only, learned again at once)."""
         size = EXTENT * self.n_pixels
         self.numerator, self.precision = np.zeros(size), np.zeros(size)
-        self.active, self.centre, self.depth, self.misses = False, 0.0, 1.0, 0
+        self.active, self.centre, self.misses = False, 0.0, 0
         self.followed = 0  # frames the feature explained since its shape was learned
         if not keep_motion:
             self.rate = 0.0
@@ -94,24 +95,18 @@ class MovingLight:
         self.gain, self.offset_gray = 1.0, 0.0
 
     # --- the shape -------------------------------------------------------------------------------
-    def _columns(self, y: np.ndarray, weights: np.ndarray, values: np.ndarray, loss_scale: float) \
-            -> tuple[np.ndarray, np.ndarray]:
+    def _columns(self, y: np.ndarray, weights: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """One frame's loss of light per column and its precision, smoothed: the ratio to the model."""
         shape = (self.n_rows, self.n_pixels)
-        lit = self.gain * values * loss_scale
+        lit = self.gain * values
         precision = (weights * lit * lit).reshape(shape).sum(axis=0)
         loss = (weights * lit * (self.gain * values + self.offset_gray - y)).reshape(shape).sum(axis=0)
         smooth = np.convolve(precision, self.kernel, mode="same")
         return np.convolve(loss, self.kernel, mode="same") / np.maximum(smooth, 1e-300), smooth
 
-    def _learn(self, y: np.ndarray, weights: np.ndarray, values: np.ndarray, centre: float, depth: float,
-               unseen_only: bool = False) -> None:
-        """Add the frame's loss (in units of the learned depth) at the columns it falls on (``unseen_only``:
-        only those not seen yet)."""
-        loss, precision = self._columns(y, weights, values, depth)
-        if unseen_only:
-            at = np.clip(np.rint(self.columns - centre + self.offset).astype(int), 0, self.precision.size - 1)
-            precision = np.where(self.precision[at] > 0, 0.0, precision)
+    def _learn(self, y: np.ndarray, weights: np.ndarray, values: np.ndarray, centre: float) -> None:
+        """Add the frame's loss at the shape's columns it falls on (shared between the two nearest)."""
+        loss, precision = self._columns(y, weights, values)
         at = np.clip(self.columns - centre + self.offset, 0.0, self.numerator.size - 1.001)
         low = np.floor(at).astype(int)
         upper = at - low  # split between the two grid columns it falls between
@@ -134,18 +129,9 @@ class MovingLight:
                             np.inf)
         return h, slope, variance
 
-    def predicted(self, x_start: float) -> float:
-        """Where the frame is by the motion :data:`LIGHT_LAG` frames before (the last frames' own
-        places have traded against the feature's edge coming in: 12 µm off at a 2 µm bound); the
-        tracker's prediction when those frames are not known."""
-        places = np.asarray(self.places, dtype=np.float64)
-        if places.size < self.places.maxlen or not np.all(np.isfinite(places[:2])):
-            return x_start
-        return float(places[1] + (places[1] - places[0]) * places.size)
-
     # --- the frame -------------------------------------------------------------------------------
     def start(self, evaluator, y: np.ndarray, weights: np.ndarray, x_mm: float, again: bool = False) -> bool:
-        """Learn the shape from a frame the uniform light does not explain, at the predicted ``x_mm``.
+        """Learn the shape from a frame the uniform light does not explain, at ``x_mm`` (the grating's).
         False (nothing learned) when the loss has no clear part in view: a feature with no edge in
         the field (a lamp dimmed, a new vignetting) is not one that moves, and its place is not measurable.
         ``again``: a feature lost mid-episode, whose motion so far is kept."""
@@ -153,7 +139,7 @@ class MovingLight:
         held = list(self.lights)[:max(len(self.lights) - LIGHT_LAG, 1)]
         self.gain, self.offset_gray = (float(v) for v in np.mean(held, axis=0)) if held else (1.0, 0.0)
         values = evaluator.evaluate(np.array([x_mm]))[0][0]
-        loss, precision = self._columns(y, weights, values, 1.0)
+        loss, precision = self._columns(y, weights, values)
         noise = 1.0 / np.sqrt(np.maximum(precision, 1e-300))
         seen = np.nonzero(np.abs(loss) > SEEN_SIGMAS * noise)[0]
         if seen.size < 3:
@@ -164,14 +150,14 @@ class MovingLight:
         far = max(int(CLEAR_SHARE * self.n_pixels), 1)
         if not again and not (seen[-1] < self.n_pixels - far or seen[0] >= far):  # (one lost mid-field: known)
             return False
-        self._learn(y, weights, values, 0.0, 1.0)
+        self._learn(y, weights, values, 0.0)
         self.active = True
         return True
 
     def solve(self, evaluator, y: np.ndarray, weights: np.ndarray, x_start: float, max_step_mm: float) \
             -> Follow | None:
-        """Gauss–Newton in (x, c, a) from the predicted place; None when the system has no x to give."""
-        x, centre, depth = x_start, self.centre + self.rate, self.depth
+        """Gauss–Newton in (x, c) from the place the motion predicts; None when the system has no x to give."""
+        x, centre = x_start, self.centre + self.rate
         shape = (self.n_rows, self.n_pixels)
         result = None
         for _ in range(ITERATIONS):
@@ -181,13 +167,10 @@ class MovingLight:
             h, slope, variance = (np.broadcast_to(part, shape).reshape(-1) for part in (h, slope, variance))
             seen = np.isfinite(variance)
             lit = self.gain * values
-            model = lit * (1.0 - depth * h) + self.offset_gray
-            residual = y - model
+            residual = y - (lit * (1.0 - h) + self.offset_gray)
             # the shape's own uncertainty widens each sample's variance (zero weight where unseen)
-            widened = np.where(seen, weights / (1.0 + weights * (lit * depth) ** 2 * np.where(seen, variance, 0.0)),
-                               0.0)
-            jacobian = np.stack((self.gain * slopes * (1.0 - depth * h), lit * depth * slope, -lit * h), axis=1)
-            jacobian = jacobian[:, :PARAMETERS]
+            widened = np.where(seen, weights / (1.0 + weights * lit**2 * np.where(seen, variance, 0.0)), 0.0)
+            jacobian = np.stack((self.gain * slopes * (1.0 - h), lit * slope), axis=1)
             weighted = jacobian * widened[:, None]
             normal = weighted.T @ jacobian
             try:
@@ -199,31 +182,28 @@ class MovingLight:
             step = covariance @ (weighted.T @ residual)
             step[0] = float(np.clip(step[0], -max_step_mm, max_step_mm))
             step[1] = float(np.clip(step[1], -0.1 * self.n_pixels, 0.1 * self.n_pixels))
-            step = np.append(step, np.zeros(3 - step.size))
             used = float(np.count_nonzero(widened))
             cost = float(widened @ (residual * residual))
-            lost = np.abs(lit * depth * h)
+            lost = lit * h
             visible = float(np.sqrt(np.sum(widened * lost * lost)))
-            result = Follow(x, 1.0 / covariance[0, 0], cost / max(used - PARAMETERS, 1.0), cost, centre, depth, visible)
-            x, centre, depth = x + step[0], centre + step[1], depth + step[2]
+            result = Follow(x, 1.0 / covariance[0, 0], cost / max(used - 2.0, 1.0), cost, centre, visible)
+            x, centre = x + step[0], centre + step[1]
             if abs(step[0]) < 1e-7:
                 break
         return result
 
-    def accept(self, evaluator, y: np.ndarray, weights: np.ndarray, answer: Follow,
-               reference: float = math.nan) -> None:
+    def accept(self, evaluator, y: np.ndarray, weights: np.ndarray, answer: Follow, reference: float) -> None:
         """The frame was explained: the feature is where it was found, and its shape learns from it
-        (at the grating's position when read)."""
-        known = reference if math.isfinite(reference) else answer.x_mm
-        values = evaluator.evaluate(np.array([known]))[0][0]
+        (at the grating's position)."""
+        values = evaluator.evaluate(np.array([reference]))[0][0]
         if self.followed:  # (a frame its shape was just learned on again tells no motion)
             self.travel += answer.centre - self.centre
             self.frames += 1
             self.moved = self.moved or abs(self.travel) >= max(MOVED_PX, SPEED_PX * self.frames)
             self.rate = answer.centre - self.centre
-        self.centre, self.depth, self.misses = answer.centre, answer.depth, 0
+        self.centre, self.misses = answer.centre, 0
         self.followed += 1
-        self._learn(y, weights, values, answer.centre, answer.depth, not math.isfinite(reference))
+        self._learn(y, weights, values, answer.centre)
 
     def miss(self) -> None:
         self.misses += 1
@@ -235,16 +215,15 @@ def follow(tracker, batch, k: int, x_start: float, uniform: FrameSolution, movin
            here: float = 1.0, reference: float = math.nan) -> FrameSolution:
     """Frame ``k`` with a moving light feature followed, when one is in view and explains it; else
     ``uniform``. The episode holds the light the frames had :data:`LIGHT_LAG` frames before it.
-    ``reference``: the grating's reading (NaN: none), where the shape is learned when read: a shape
-    learned at the solved x would carry that x's error into every later frame."""
+    ``reference``: the grating's reading (NaN: none, and nothing is followed), where the shape is
+    learned and the joint solve starts."""
     limit = tracker.chi2_limit * here
     if not math.isfinite(reference):  # no grating read: the frames' own x would trade into the shape
         moving.reset()
         return uniform
     if not moving.active and not (uniform.chi2 > limit and math.isfinite(x_start)):
         moving.lights.append((uniform.gain, uniform.offset) if uniform.free_light else (1.0, 0.0))
-        moving.places.append(uniform.x_mm)
-        return uniform  # (the common case: nothing but a comparison and the light and place kept)
+        return uniform  # (the common case: nothing but a comparison and the light kept)
     weights = batch.weights(k)
     # samples the robust solve set aside are left out, unless so many that the uniform answer is not
     # trusted: then they were the feature itself (a shadow's edge taken for a transient)
@@ -256,12 +235,9 @@ def follow(tracker, batch, k: int, x_start: float, uniform: FrameSolution, movin
     restart = first = not moving.active
     for _ in range(2):  # a feature lost mid-episode (its place and x traded) is learned again at once
         if restart:
-            known = reference if math.isfinite(reference) else moving.predicted(x_start)
-            moving.places.clear()  # (a restart later in the episode starts from the last frame's place)
-            if not moving.start(tracker.evaluator, y, weights, known, again=not first):
+            if not moving.start(tracker.evaluator, y, weights, reference, again=not first):
                 return uniform
-        start = reference if math.isfinite(reference) else x_start  # (the grating, where read, is the nearer start)
-        answer = moving.solve(tracker.evaluator, y, weights, start, tracker.settings.max_step_mm)
+        answer = moving.solve(tracker.evaluator, y, weights, reference, tracker.settings.max_step_mm)
         if _sane(answer, uniform, moving, tracker, limit, x_start):
             break
         moving.miss()
@@ -269,8 +245,7 @@ def follow(tracker, batch, k: int, x_start: float, uniform: FrameSolution, movin
             return uniform
         restart = True
     moving.accept(tracker.evaluator, y, weights, answer, reference)
-    if not moving.moved:  # (followed, not seen to move: the
-        # uniform answer stands)
+    if not moving.moved:  # (followed, not yet seen to move: the uniform answer stands)
         return uniform
     return FrameSolution(answer.x_mm, tracker.settings.sigma_gray * math.sqrt(answer.chi2), answer.information,
                          ITERATIONS, moving.gain, moving.offset_gray, answer.chi2, kept.rejected, False, 0.0,
