@@ -38,6 +38,7 @@ from graytrack.core.focus_solve import CurvatureTable, focus_solve, general_focu
 from graytrack.core.focus_solve import warm as focus_warm
 from graytrack.core.focus_follow import FocusFollow, followable
 from graytrack.core.models.fourier import TWO_PI, FourierModel
+from graytrack.core.moving_light import MovingLight, follow
 from graytrack.core.recording import Recording
 from graytrack.core.stretch import frame_stretch
 from graytrack.core.texture import Texture
@@ -142,6 +143,7 @@ class LightMemory:
     # the mean of χ²(1), the field's one extra unknown, when the focus explains the frames)
     free_level: float = 1.0  # average χ² of the last free-light frames, in the calibration's level
     free_frames: int = 0  # how many frames that average holds (up to FIELD_WINDOW)
+    moving: MovingLight | None = None  # a light feature moving across the field (core/moving_light.py)
 
 
 class Tracker:
@@ -316,9 +318,11 @@ class Tracker:
         """Noise of one model row when ``frame_rows`` raw rows feed the model (averaging lowers it)."""
         return (self.model.noise_gray or 1.0) / np.sqrt(self.model.rows_averaged(frame_rows))
 
-    def solve(self, batch: GeneralBatch | TrigPolyBatch, k: int, x_start: float, memory: LightMemory) -> FrameSolution:
+    def solve(self, batch: GeneralBatch | TrigPolyBatch, k: int, x_start: float, memory: LightMemory,
+              reference: float = math.nan) -> FrameSolution:
         """Frame ``k`` from ``x_start``: the light and robustness the frame asks for, cheapest first
-        (what the last frame needed, then the light solved, then the robust solve)."""
+        (what the last frame needed, then the light solved, then the robust solve). ``reference``:
+        the grating's reading, where a moving light's shape is learned (core/moving_light.py)."""
         # A model fitted with a gain and offset per frame knows the light moves from frame to frame
         # (flicker, auto-exposure, row banding): "auto" then solves it in every frame, as calibration did.
         free = self.free_light(memory)
@@ -348,6 +352,14 @@ class Tracker:
         memory.free = self.light == "auto" and stays
         memory.gain, memory.offset = solution.gain, solution.offset
         memory.rejected = solution.rejected_mask if solution.rejected else None
+        if self.focus_capable:  # (light "auto") a light feature moving across the field, followed: no
+            # evidence for a blur or a field of the frame's own (core/moving_light.py)
+            if memory.moving is None:
+                memory.moving = MovingLight(self.model.n_rows, self.model.n_pixels, self.model.pixel_pitch_mm)
+            followed = follow(self, batch, k, x_start, solution, memory.moving, here, reference)
+            if followed is not solution:
+                memory.focus_track.wait()
+                return followed
         if solution.free_light and math.isfinite(solution.chi2):
             memory.free_frames = min(memory.free_frames + 1, FIELD_WINDOW)
             level = min(solution.chi2 / (self.chi2_calibration * here), self.free_frame_cap)
@@ -615,7 +627,7 @@ PENDING_SLOTS = ("frame", "solution", "reference_mm", "placed", "rows_averaged",
 SOLUTION_SIGNS = {"chi2": "chi2", "information": "information", "gain": "gain", "offset_gray": "offset",
                   "focus": "focus", "focus_sigma": "focus_sigma", "rejected_px": "rejected",
                   "transient_px": "transient_px", "transient_at": "transient_at", "x_mm": "x_mm",
-                  "free_light": "free_light", "field": "field"}
+                  "free_light": "free_light", "field": "field", "moving": "moving"}
 _solution_signs = operator.attrgetter(*SOLUTION_SIGNS.values())
 
 
@@ -691,7 +703,8 @@ class SequentialState:
             transient_px=solution.transient_px, transient_at=solution.transient_at,
             x_mm=solution.x_mm, reference_mm=reference, placed=placed, rows_averaged=self.rows_averaged,
             free_light=solution.free_light, field=solution.field, chi2_average=average,
-            chi2_suspect=self.chi2_suspect, chi2_stale=self.chi2_stale, explain=explain, stretch=stretched)
+            chi2_suspect=self.chi2_suspect, chi2_stale=self.chi2_stale, explain=explain, stretch=stretched,
+            moving=solution.moving)
         verdict = self.monitor.observe(sign)
         self.stale, self.stale_reason = verdict.stale, verdict.reason
 
@@ -991,7 +1004,7 @@ def _solve_frame(tracker: Tracker, batch: GeneralBatch | TrigPolyBatch, k: int, 
         if frame > 0 or not ok:
             events.append(LockEvent(frame, "acquisition", float("nan"), solution.x_mm if ok else float("nan"), ok))
         return solution, ok
-    solution = tracker.solve(batch, k, x_prev + state.velocity, memory)
+    solution = tracker.solve(batch, k, x_prev + state.velocity, memory, reference)
     reason = tracker.lost_reason(solution, x_prev, reference)
     if reason is None:
         return solution, True
