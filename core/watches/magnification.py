@@ -52,20 +52,31 @@ class MagnificationWatch:
         self._squares = 0.0  # Σ dᵃ·w·m²
         self._frames = 0.0  # Σ dᵃ
         self._prior = np.diag([0.0] + [PRIOR_PPM ** -2] * 4)
+        self._accounted_var = 0.0  # ppm²: the uncertainty of the stretch a trim accounts for
         self.flagged = False
         self.mean_ppm, self.sigma_ppm, self.turning_ppm = 0.0, math.inf, 0.0
+
+    @classmethod
+    def for_model(cls, model) -> "MagnificationWatch":
+        """Less what the model read on its own calibration (``stretch_profile`` in its info, when it has one)."""
+        doc = (getattr(model, "info", None) or {}).get("stretch_profile")
+        return cls(model.period_mm, StretchProfile.from_dict(doc) if isinstance(doc, dict) else None)
 
     def observe(self, sign) -> str | None:
         return self.step(sign.placed, sign.x_mm, sign.stretch)
 
-    def step(self, placed: bool, x_mm: float, stretch) -> str | None:
+    def step(self, placed: bool, x_mm: float, stretch, accounted_ppm: float = 0.0,
+             accounted_sigma_ppm: float = 0.0) -> str | None:
+        """``accounted_ppm`` (± its σ): the stretch a trim in force takes out of the positions (a grown
+        print's, core/watches/scale.py), judged as the calibration's: what is left is the lens's."""
+        self._accounted_var = accounted_sigma_ppm * accounted_sigma_ppm
         if placed and stretch is not None and math.isfinite(x_mm):
             m, sigma = stretch()
             if math.isfinite(m) and 0 < sigma < math.inf:
                 if self.record is not None:
                     self.record.append((x_mm, m * 1e6, sigma * 1e6))
                 own = self.profile.at_ppm(x_mm) if self.profile is not None else 0.0
-                self._add(x_mm, m * 1e6 - own, sigma * 1e6)
+                self._add(x_mm, m * 1e6 - own - accounted_ppm, sigma * 1e6)
         return self.family if self.flagged else None
 
     def _add(self, x_mm: float, m_ppm: float, sigma_ppm: float) -> None:
@@ -84,7 +95,8 @@ class MagnificationWatch:
         mean = self._right[0] / total
         scatter = max((self._squares - mean * self._right[0]) / max(self._frames - 1.0, 1.0), 1.0)
         self.mean_ppm = float(mean)
-        self.sigma_ppm = math.sqrt(self._noise[0, 0] / (total * total) * scatter + self.allowance_ppm ** 2)
+        self.sigma_ppm = math.sqrt(self._noise[0, 0] / (total * total) * scatter + self.allowance_ppm ** 2
+                                    + self._accounted_var)
         significant = abs(mean) >= (Z_OFF if self.flagged else Z_ON) * self.sigma_ppm
         self.flagged = significant and not self._turning(mean)
 
@@ -148,7 +160,6 @@ class StretchProfile:
 
 
 def make(tracker) -> MagnificationWatch:
-    """Every tracker's: the stretch is in the frames, with a grating or without; less what the model
-    read on its own calibration (``stretch_profile`` in its info, when it has one)."""
-    doc = (getattr(tracker.model, "info", None) or {}).get("stretch_profile")
-    return MagnificationWatch(tracker.model.period_mm, StretchProfile.from_dict(doc) if isinstance(doc, dict) else None)
+    """Every tracker's: the stretch is in the frames, with a grating or without (a trimmed run's scale
+    watch carries its own, judged against the trim: core/watches/scale.py)."""
+    return MagnificationWatch.for_model(tracker.model)
