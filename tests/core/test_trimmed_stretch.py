@@ -48,3 +48,19 @@ def test_a_grown_print_without_the_trim_is_still_flagged(grown):
     result, flagged = _tracked(model, run, trim=False)
     assert flagged[run.n_frames // 4:].mean() > 0.9
     assert set(result.stale_reason[flagged]) <= {"scale", "magnification", "geometry"}
+
+
+def test_a_temperature_cycle_without_a_grating_is_named_while_the_stage_turns_round():
+    """The stretch's harmonics of the print's phase, beside a drift in time and only where the stage
+    saw enough phases: a 16-row cycle's stretch had been taken for a print's turning change at its
+    peak (49-54 % of the frames 4+ bounds off, unflagged)."""
+    calibration, _ = build_rig("strip16", "", seed=3).record(6.0)
+    model = calibrate(calibration, "paper").model
+    run, truth = build_rig("strip16", "magnification_drift:ppm=1500:cycle_s=6", seed=3, run=1).record(6.0)
+    result = track(model, run.frames, np.full(run.n_frames, np.nan), light="auto", robust=True)
+    error_um = (result.x_mm - truth.x_mm) * 1e3
+    error_um -= model.period_mm * 1e3 * np.round(np.nanmedian(error_um) / (model.period_mm * 1e3))
+    placed = np.isfinite(error_um)
+    far = placed & (np.abs(error_um) > 4.0 * result.crlb_mm * 1e3)
+    peak = slice(run.n_frames // 4, 3 * run.n_frames // 4)  # the stretch beyond 750 ppm: ~13 µm of slide
+    assert far[peak].all() and result.stale[peak].mean() > 0.95
