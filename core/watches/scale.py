@@ -136,8 +136,8 @@ class ScaleWatch:
         if self.magnification is not None:
             verdicts.append(self.magnification.step(placed, x_mm, stretch, *_accounted(trimmer)))
         if self.grating is not None:
-            verdicts.append(self.grating.step(placed, reference_mm, self.last.x_mm if trimmer.trim is not None else x_mm,
-                                              information, chi2, chi2_suspect))
+            trimmed = self.last.x_mm if trimmer is not None and trimmer.trim is not None else x_mm
+            verdicts.append(self.grating.step(placed, reference_mm, trimmed, information, chi2, chi2_suspect))
         return min((v for v in verdicts if v is not None), key=RANK.__getitem__, default=None)
 
     def step_many(self, columns, n: int) -> list[str | None]:
