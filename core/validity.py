@@ -193,9 +193,10 @@ def monitor_for(tracker: Any, watches: Sequence[Watch] = ()) -> Monitor:
     from graytrack.core import watches as found  # the watches read the tracker's model: imported on use
 
     given = {type(watch).__module__: watch for watch in watches}
+    replaced = {name for watch in watches for name in getattr(watch, "replaces", ())}  # a watch carrying another's
     made = []
     for info in pkgutil.iter_modules(found.__path__):
-        if info.name.startswith("_"):
+        if info.name.startswith("_") or f"{found.__name__}.{info.name}" in replaced:
             continue
         name = f"{found.__name__}.{info.name}"
         if name in given:

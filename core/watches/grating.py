@@ -110,8 +110,14 @@ class GratingWatch:
         return np.where(out, self.family, None).tolist()
 
 
-def make(tracker) -> GratingWatch:
+def for_model(model, chi2_calibration: float, chi2_curve) -> GratingWatch:
+    """For a model whose calibration left χ² at ``chi2_calibration`` (``chi2_curve``: its level along
+    the stroke, None when flat)."""
     # a model whose χ² level varies along the stroke holds each frame against its own level, not this watch
-    spread = math.sqrt(2.0 / (tracker.model.n_rows * tracker.model.n_pixels))
-    limit = tracker.chi2_calibration * (1.0 + 3.0 * spread) if tracker.chi2_curve is None else math.inf
-    return GratingWatch(stream_bound_factor(tracker.model.info) ** 2, limit)
+    spread = math.sqrt(2.0 / (model.n_rows * model.n_pixels))
+    limit = chi2_calibration * (1.0 + 3.0 * spread) if chi2_curve is None else math.inf
+    return GratingWatch(stream_bound_factor(model.info) ** 2, limit)
+
+
+def make(tracker) -> GratingWatch:
+    return for_model(tracker.model, tracker.chi2_calibration, tracker.chi2_curve)

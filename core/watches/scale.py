@@ -29,7 +29,11 @@ import numpy as np
 
 from graytrack.core.compression import stream_bound_factor
 from graytrack.core.reference_monitor import GATE, ReferenceMonitor, Trimmer, TrimEvent, scale_tells
-from graytrack.core.validity import FrameSign
+from graytrack.core.chi2_curve import Chi2Curve
+from graytrack.core.validity import RANK, FrameSign
+from graytrack.core.watches.grating import GratingWatch
+from graytrack.core.watches.grating import for_model as grating_watch
+from graytrack.core.watches.magnification import MagnificationWatch
 
 
 # While χ² is suspect no line is fitted, and with χ² quiet the line leaves far frames out as outliers;
@@ -51,10 +55,11 @@ class ScaleWatch:
     reads what the trim did to each frame from :attr:`last` (live) or :attr:`log` (a recording)."""
 
     family = "scale"
-    reads = ("chi2_suspect", "placed", "x_mm", "reference_mm", "information")
+    reads = ("chi2_suspect", "placed", "x_mm", "reference_mm", "information", "stretch", "chi2")
 
     def __init__(self, monitor: ReferenceMonitor, feeds: bool = True, bound_scale: float = 1.0,
-                 trimmer: Trimmer | None = None, log: bool = False) -> None:
+                 trimmer: Trimmer | None = None, log: bool = False,
+                 magnification: MagnificationWatch | None = None, grating: GratingWatch | None = None) -> None:
         if trimmer is not None and trimmer.monitor is not monitor:
             raise ValueError("a scale watch's trimmer must read the watch's own monitor")
         self.monitor = monitor
@@ -62,6 +67,11 @@ class ScaleWatch:
         self.feeds = feeds
         self.bound_scale = bound_scale  # the frames' bound over the sensor's (a JPEG stream's quantisation)
         self.trimmer = trimmer
+        # with a trim, the magnification watch judges the stretch the trim does not account for and the
+        # grating watch the trimmed positions: they must see the trim in force at each frame, so they
+        # are stepped here, in place of the tracker's own (``replaces``: core/validity.py monitor_for)
+        self.magnification, self.grating = magnification, grating
+        self.replaces = tuple(type(watch).__module__ for watch in (magnification, grating) if watch is not None)
         self.events: list[tuple[int, TrimEvent]] = []  # (frame, a change of the trim), for the owner to drain
         self.last = Applied()  # what the trim did to the last frame
         self.log: list[Applied] | None = [] if log else None  # ... to every frame, when asked for
@@ -74,14 +84,19 @@ class ScaleWatch:
         its floor over the whole stroke); ``reference_resolution_mm``: the grating's step, if known;
         ``trim``: with an online trim of its own."""
         monitor = ReferenceMonitor.for_model(model, reference_resolution_mm, **options)
-        return cls(monitor, bound_scale=stream_bound_factor(model.info), trimmer=Trimmer(monitor) if trim else None,
-                   log=log)
+        if not trim:
+            return cls(monitor, bound_scale=stream_bound_factor(model.info), log=log)
+        chi2_calibration = float(model.info.get("calibration_chi2") or 1.0)
+        return cls(monitor, bound_scale=stream_bound_factor(model.info), trimmer=Trimmer(monitor), log=log,
+                   magnification=MagnificationWatch.for_model(model),
+                   grating=grating_watch(model, chi2_calibration, Chi2Curve.from_info(model.info)))
 
     def observe(self, sign: FrameSign) -> str | None:
-        return self.step(sign.chi2_suspect, sign.placed, sign.x_mm, sign.reference_mm, sign.information)
+        return self.step(sign.chi2_suspect, sign.placed, sign.x_mm, sign.reference_mm, sign.information,
+                         sign.stretch, sign.chi2)
 
     def step(self, chi2_suspect: bool, placed: bool, x_mm: float, reference_mm: float,
-             information: float) -> str | None:
+             information: float, stretch=None, chi2: float = 0.0) -> str | None:
         # While χ² says the images changed, a disagreement with the grating is its consequence, not a
         # scale: those frames are not fed. But a disagreement already found stays a flag: the camera
         # is off the grating and the images are not the calibration's, so the model does not describe
@@ -117,7 +132,13 @@ class ScaleWatch:
         if self.log is not None:
             self.log.append(dataclasses.replace(self.last, flagged=verdict is not None, drifted=drifted)
                             if trimmer is not None else Applied(x_mm, flagged=verdict is not None, drifted=drifted))
-        return verdict
+        verdicts = [verdict]
+        if self.magnification is not None:
+            verdicts.append(self.magnification.step(placed, x_mm, stretch, *_accounted(trimmer)))
+        if self.grating is not None:
+            trimmed = self.last.x_mm if trimmer is not None and trimmer.trim is not None else x_mm
+            verdicts.append(self.grating.step(placed, reference_mm, trimmed, information, chi2, chi2_suspect))
+        return min((v for v in verdicts if v is not None), key=RANK.__getitem__, default=None)
 
     def step_many(self, columns, n: int) -> list[str | None]:
         """:meth:`step` of ``n`` frames at once (the monitor's :meth:`~ReferenceMonitor.observe_many`)."""
@@ -136,6 +157,14 @@ class ScaleWatch:
         if not stale.any():
             return [None] * n
         return np.where(stale, self.family, None).tolist()
+
+
+def _accounted(trimmer: Trimmer | None) -> tuple[float, float]:
+    """The image stretch the trim in force accounts for, ppm, and its σ: a print grown by g reads
+    camera − grating with the scale −g and stretches its image across the pixels by the same −g (the
+    pixel that saw target offset s sees s·(1 − g)); none without a trim."""
+    trim = trimmer.trim if trimmer is not None else None
+    return (trim.scale_ppm, trim.scale_sigma_ppm) if trim is not None else (0.0, 0.0)
 
 
 @dataclass(frozen=True)

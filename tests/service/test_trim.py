@@ -16,7 +16,8 @@ from graytrack.service.daemon.app import create_app
 from graytrack.service.daemon.trim import ReferenceTrim
 from tests.service.helpers import fast_settings, wait_for, wait_state
 
-STROKE = SimpleNamespace(stroke_range_mm=(0.0, 10.0), info={})  # all the monitor needs of a model
+# all the monitor needs of a model, and the watches the trim carries (magnification, grating)
+STROKE = SimpleNamespace(stroke_range_mm=(0.0, 10.0), info={}, period_mm=1.0, n_rows=1, n_pixels=100)
 BOUND_MM = 1.5e-3
 
 
