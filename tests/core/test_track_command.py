@@ -42,7 +42,9 @@ def test_track_command_follows_changed_light_and_reports_validity(tmp_path, caps
     save(Recording(frames, np.arange(300) / 50.0, x_true, rig.meta()), tmp_path / "run.npz")
     assert main(args) == 0
     err = capsys.readouterr().err
-    assert "model stale on" in err and "recalibrate" in err and "for geometry" in err  # a print the model does not know
+    # a print the model does not know; a grown harmonic also reads as a stretch while the stage has seen few
+    # phases, and the magnification watch may name it first (docs/robustness.md, *Magnification*)
+    assert "model stale on" in err and "recalibrate" in err and ("for geometry" in err or "for magnification" in err)
 
 
 def test_single_frames_off_the_grating_are_named_not_blamed_on_the_model(tmp_path, capsys):
