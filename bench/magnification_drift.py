@@ -5,7 +5,9 @@ magnification drifts (``magnification_drift``: a warm-up ramp or a temperature c
 axis well off the ROI so the image slides while the stage stands). For each case: the error std
 over the rms bound (against the truth, not the grating), the share of frames flagged and their
 reasons, and the placed frames 4+ of their own bounds off the truth left unflagged — with the
-grating read, with ``--trim``, and with ``--no-reference`` (no grating while running).
+grating read, with ``--trim``, and with ``--no-reference`` (no grating while running: each bound
+carries the slide a magnification could give the image, core/slide.py, the axis undeclared; ``slide``
+is the rms bound over the rms noise floor).
 
     .venv/bin/python bench/magnification_drift.py [CASE-SUBSTRING]
 """
@@ -19,6 +21,7 @@ import time
 import numpy as np
 
 from graytrack.core.calibration import calibrate
+from graytrack.core.slide import SlideWatch, carry
 from graytrack.core.tracking import track
 from graytrack.drivers.sim.scenarios import build_rig
 from graytrack.service.commands.track_scale import check, scale_watch
@@ -39,8 +42,11 @@ def measured(model, run, truth, trim: bool, reference: bool) -> dict:
     """Tracked as `graytrack track` does (with ``--trim``, or ``--no-reference``), scored against the truth."""
     grating = run.reference if reference else np.full(run.n_frames, np.nan)
     watch = scale_watch(run, model, grating, trim)
-    result = track(model, run.frames, grating, light="auto", robust=True, watches=[watch] if watch else [])
+    slide = None if watch is not None else SlideWatch.for_model(model)  # as `track` does without a grating
+    result = track(model, run.frames, grating, light="auto", robust=True, watches=[watch or slide])
+    floor_um = result.crlb_mm * 1e3
     scale = check(run, model, result, trim, watch).columns["scale_stale"] == 1
+    carry(result, slide)
     error = (result.x_mm - truth.x_mm) * 1e3
     if not reference:  # acquired on the image alone: its origin is known up to whole periods
         period_um = model.period_mm * 1e3
@@ -53,7 +59,8 @@ def measured(model, run, truth, trim: bool, reference: bool) -> dict:
     return {"ratio": float(np.nanstd(error) / np.sqrt(np.nanmean(bound_um ** 2))),
             "rms_ratio": float(np.sqrt(np.nanmean(error ** 2)) / np.sqrt(np.nanmean(bound_um ** 2))),
             "flagged": float(flagged.mean()), "silent": float((far & ~flagged).sum() / max(placed.sum(), 1)),
-            "reasons": dict(reasons.most_common(3))}
+            "reasons": dict(reasons.most_common(3)),
+            "slide": float(np.sqrt(np.nanmean(bound_um[placed] ** 2) / np.nanmean(floor_um[placed] ** 2)))}
 
 
 def main(selection: str = "") -> None:
@@ -66,7 +73,8 @@ def main(selection: str = "") -> None:
         for mode, options in MODES.items():
             m = measured(model, run, truth, **options)
             cells.append(f"{mode}: {m['ratio']:.2f}x (rms {m['rms_ratio']:.2f}x) flagged {100 * m['flagged']:.0f} % "
-                         f"{m['reasons']} silent-far {100 * m['silent']:.1f} %")
+                         f"{m['reasons']} silent-far {100 * m['silent']:.1f} %"
+                         + (f" slide {m['slide']:.2f}x" if not options["reference"] else ""))
         print(f"{label} ({time.perf_counter() - started:.0f} s)\n    " + "\n    ".join(cells), flush=True)
 
 

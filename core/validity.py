@@ -205,7 +205,12 @@ def monitor_for(tracker: Any, watches: Sequence[Watch] = ()) -> Monitor:
         make = getattr(importlib.import_module(name), "make", None)
         if make is not None and (watch := make(tracker)) is not None:
             made.append(watch)
-    return Monitor(made + list(given.values()))
+    # a watch made here may carry another's too (the scale watch carries the magnification watch): the one
+    # its module made is not asked again (one handed in is: its owner reads it)
+    handed = {id(watch) for watch in watches}
+    carried = {name for watch in made for name in getattr(watch, "replaces", ())}
+    kept = [watch for watch in made if id(watch) in handed or type(watch).__module__ not in carried]
+    return Monitor(kept + list(given.values()))
 
 
 def running(average: float | None, value: float, window: int) -> float:

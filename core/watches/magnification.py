@@ -36,6 +36,7 @@ PROFILE_BINS = 16  # stretches of the stroke the calibration's own stretch is ke
 NOISE_SHARE = 0.3  # of a stretch mean's noise kept as the model's own stretch there (0: a clean paper run flagged 4 %)
 COVERAGE = 0.1  # each harmonic's share of the frames' weight, beside a level and a drift, before a turning is told
 TURNING_CHI2 = 36.0  # the turning part (4 harmonic terms) is significant beyond this χ² (p ≈ 3e-7)
+CHANGE_PRIOR_PPM = 2000.0  # σ of a lens's change since calibration before any frame tells (0.2 %: tens of kelvin)
 
 
 class MagnificationWatch:
@@ -85,6 +86,19 @@ class MagnificationWatch:
                 own = self.profile.at_ppm(x_mm) if self.profile is not None else 0.0
                 self._add(x_mm, m * 1e6 - own - accounted_ppm, sigma * 1e6)
         return self.family if self.flagged else None
+
+    @property
+    def rms_ppm(self) -> float:
+        """The rms stretch since calibration the frames allow now, √(mean² + σ²): the mean over the
+        memory and its σ as the decision takes them, from the first frame on (shrunk by
+        :data:`CHANGE_PRIOR_PPM`, which is all there is before one): what a slide may be made of
+        while no grating vouches (core/slide.py)."""
+        prior = CHANGE_PRIOR_PPM ** -2
+        total = self._normal[0, 0] + prior
+        mean = self._right[0] / total
+        scatter = max((self._squares - mean * self._right[0]) / (self._frames - 1.0), 1.0) if self._frames > 2 else 1.0
+        variance = (self._noise[0, 0] * scatter + prior) / (total * total) + self.allowance_ppm ** 2 + self._accounted_var
+        return math.sqrt(mean * mean + variance)
 
     def _add(self, x_mm: float, m_ppm: float, sigma_ppm: float) -> None:
         d, w = self._decay, 1.0 / (sigma_ppm * sigma_ppm)

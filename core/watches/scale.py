@@ -44,6 +44,8 @@ from graytrack.core.watches.magnification import MagnificationWatch
 # called fresh on 94 % of the frames.
 SUSPECT_WINDOW = 20
 SUSPECT_LIMIT = 6.0
+STRETCH_Z = 3.0  # a stretch within this many σ of the line's scale, the scale beyond it: the print grew (2: a
+# grown paper print named magnification on 10 of 500 frames)
 
 
 class ScaleWatch:
@@ -84,8 +86,9 @@ class ScaleWatch:
         its floor over the whole stroke); ``reference_resolution_mm``: the grating's step, if known;
         ``trim``: with an online trim of its own."""
         monitor = ReferenceMonitor.for_model(model, reference_resolution_mm, **options)
-        if not trim:
-            return cls(monitor, bound_scale=stream_bound_factor(model.info), log=log)
+        if not trim:  # the stretch judged beside the line (:meth:`_stretched_by`)
+            return cls(monitor, bound_scale=stream_bound_factor(model.info), log=log,
+                       magnification=MagnificationWatch.for_model(model))
         chi2_calibration = float(model.info.get("calibration_chi2") or 1.0)
         return cls(monitor, bound_scale=stream_bound_factor(model.info), trimmer=Trimmer(monitor), log=log,
                    magnification=MagnificationWatch.for_model(model),
@@ -134,17 +137,49 @@ class ScaleWatch:
                             if trimmer is not None else Applied(x_mm, flagged=verdict is not None, drifted=drifted))
         verdicts = [verdict]
         if self.magnification is not None:
-            verdicts.append(self.magnification.step(placed, x_mm, stretch, *_accounted(trimmer)))
+            stretched = self.magnification.step(placed, x_mm, stretch, *_accounted(trimmer))
+            cause = self._stretched_by()
+            verdicts.append(None if stretched is not None and cause == "print" else stretched)
+            if verdict == self.family and cause == "lens":
+                verdicts[0] = "magnification"
         if self.grating is not None:
             trimmed = self.last.x_mm if trimmer is not None and trimmer.trim is not None else x_mm
             verdicts.append(self.grating.step(placed, reference_mm, trimmed, information, chi2, chi2_suspect))
         return min((v for v in verdicts if v is not None), key=RANK.__getitem__, default=None)
 
+    def _stretched_by(self) -> str | None:
+        """What stretches the image while the line camera − grating has drifted (untrimmed: the trim's
+        scale is taken out of the stretch instead, :func:`_accounted`): ``"print"`` when the
+        magnification watch's stretch is the line's scale (a print grown by g reads the scale −g and
+        stretches its image by the same −g; the two within :data:`STRETCH_Z` of their σ, the scale
+        beyond it), ``"lens"`` when a stretch beyond :data:`STRETCH_Z` of its σ is not (a lens's
+        magnification m stretches the image with no such slope: its slide, m × the axis's distance,
+        is the same all along the stroke, and what of it the line reads as a scale while the stage
+        sweeps, the slide's growth in time over the speed, does not match the stretch: −2800 ppm for
+        a 0.15 % ramp over 10 s on the paper rig, its stretch 0 to 1500), else None. A 16-row print
+        grown 250 ppm had 391 of 500 frames named ``magnification`` under the line's ``scale``; the
+        paper rig's lens ramp 289 frames ``scale`` before the stretch's own mean told it."""
+        monitor, watch = self.monitor, self.magnification
+        line = monitor.estimate
+        if self.trimmer is not None or not monitor.stale or line is None or not math.isfinite(watch.sigma_ppm):
+            return None
+        base = monitor.calibration
+        scale = line.scale_ppm - (base.scale_ppm if base is not None else 0.0)
+        scale_var = line.covariance[2] + (base.covariance[2] if base is not None else 0.0)
+        limit2 = STRETCH_Z * STRETCH_Z
+        if scale * scale > limit2 * scale_var and (watch.mean_ppm - scale) ** 2 <= limit2 * (scale_var + watch.sigma_ppm ** 2):
+            return "print"
+        if watch.mean_ppm ** 2 > limit2 * watch.sigma_ppm ** 2:
+            return "lens"
+        return None
+
     def step_many(self, columns, n: int) -> list[str | None]:
         """:meth:`step` of ``n`` frames at once (the monitor's :meth:`~ReferenceMonitor.observe_many`)."""
         suspect = columns.array("chi2_suspect", bool)
-        if suspect.any() or self.trimmer is not None or self.log is not None:
-            return None  # frame by frame: a suspect run reads the monitor's verdict, a trim follows each frame
+        if suspect.any() or self.trimmer is not None or self.log is not None or self.magnification is not None:
+            # frame by frame: a suspect run reads the monitor's verdict, a trim follows each frame, and a
+            # stretch is judged against the line at each frame
+            return None
         information = columns.array("information", np.float64)
         placed = columns.array("placed", bool)
         feed = placed if self.feeds else np.zeros(n, dtype=bool)

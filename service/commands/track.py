@@ -13,6 +13,7 @@ if TYPE_CHECKING:  # the parser is built for every command: only `run` imports t
 
     from graytrack.core.models.fourier import FourierModel
     from graytrack.core.recording import Recording
+    from graytrack.core.slide import SlideWatch
     from graytrack.core.tracking import TrackResult
     from graytrack.service.progress import ProgressBar
 
@@ -36,6 +37,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--trim", action="store_true",
                         help="correct scale and offset against the recording's grating as the daemon's online trim "
                              "would (only on evidence of a drift; columns trim_um, trim_sigma_um)")
+    parser.add_argument("--axis-px", type=float, default=None, metavar="PX",
+                        help="the optical axis's distance from the ROI's centre along the line, pixels (the camera's "
+                             "geometry): without a grating each bound carries what a magnification change could "
+                             "slide the image by (column slide_sigma_um; default 300, a prior; 0: the ROI on the axis)")
     parser.add_argument("--flip", action="store_true",
                         help="reverse the pixel axis first (default: when the model was calibrated with --flip)")
     add_chunk_arguments(parser)
@@ -148,9 +153,11 @@ def texture_lines(result: TrackResult, out: str) -> list[str]:
 
 def solve(recording: Recording, model: FourierModel, no_reference: bool = False,
           progress: ProgressBar | None = None, chunks: ChunkOptions | None = None, light: str = "auto",
-          robust: bool = True, trim: bool = False) -> tuple[TrackResult, np.ndarray, "ScaleWatch | None"]:
+          robust: bool = True, trim: bool = False,
+          slide: "SlideWatch | None" = None) -> tuple[TrackResult, np.ndarray, "ScaleWatch | None"]:
     """Track a recording as the command does: (result, the grating at the exposure instants, the
-    tracker's scale watch: with ``trim``, it carries the online trim; see track_scale.py).
+    tracker's scale watch: with ``trim``, it carries the online trim; see track_scale.py). ``slide``:
+    where no grating is read, the watch that keeps each frame's slide σ (core/slide.py; not in chunks).
 
     ``recording`` is oriented already (:func:`oriented`); frames that fit the model far better
     reversed are refused here, before a run tracked millimetres off."""
@@ -181,7 +188,7 @@ def solve(recording: Recording, model: FourierModel, no_reference: bool = False,
     if chunks is not None:  # the chunks' own trackers: the watch follows their positions afterwards (check)
         return track_in_chunks(model, recording.frames, reference, chunks, light, robust), grating, watch
     return track(model, recording.frames, reference=reference, progress=progress, light=light, robust=robust,
-                 learn=robust, watches=[watch] if watch is not None else []), grating, watch
+                 learn=robust, watches=[given for given in (watch, slide) if given is not None]), grating, watch
 
 
 def run(args: argparse.Namespace) -> int:
@@ -189,6 +196,7 @@ def run(args: argparse.Namespace) -> int:
     from graytrack.core.recording import load
     from graytrack.service.outputs import output_file
     from graytrack.service.progress import ProgressBar
+    from graytrack.core.slide import SlideWatch, carry, describe
     from graytrack.service.commands.track_scale import check
     from graytrack.service.tables import write_csv
 
@@ -200,11 +208,16 @@ def run(args: argparse.Namespace) -> int:
     recording = load(args.recording)
     model = load_model(args.model)
     recording = oriented(recording, model, args.flip)
+    import numpy as np
+
+    unread = args.no_reference or not np.isfinite(recording.reference).any()  # no grating vouches: the slide
+    slide = SlideWatch.for_model(model, args.axis_px) if unread and chunks is None else None
     result, grating, watch = solve(recording, model, args.no_reference, ProgressBar("track"), chunks, args.light,
-                                   not args.no_robust, args.trim)
+                                   not args.no_robust, args.trim, slide)
     scale = check(recording, model, result, args.trim, watch)
-    path = write_csv(args.out, {**result_columns(recording.t, result, grating), **scale.columns})
-    print("\n".join(summary(result, grating) + scale.lines + texture_lines(result, args.out)))
+    slid = carry(result, slide)
+    path = write_csv(args.out, {**result_columns(recording.t, result, grating), **slid, **scale.columns})
+    print("\n".join(summary(result, grating) + describe(slide, slid) + scale.lines + texture_lines(result, args.out)))
     from graytrack.core.geometry_check import refusal
 
     if refusal(model):
