@@ -353,6 +353,16 @@ class ReferenceMonitor:
             self.estimate = None
         self._rows = list(map(tuple, rows.tolist()))
 
+    def snapshot(self) -> tuple:
+        """The monitor's running state (as the compiled loop packs it, and the trim in force), to go
+        back to with :meth:`restore`."""
+        _, _, *state = self._packed()
+        return (*state, self.baseline)
+
+    def restore(self, state: tuple) -> None:
+        *packed, self.baseline = state
+        self._unpack(*packed)
+
     @property
     def scatter(self) -> float:
         """The window's χ² per degree of freedom about its line (at least 1): how much wider than their

@@ -36,6 +36,7 @@ PROFILE_BINS = 16  # stretches of the stroke the calibration's own stretch is ke
 NOISE_SHARE = 0.3  # of a stretch mean's noise kept as the model's own stretch there (0: a clean paper run flagged 4 %)
 COVERAGE = 0.1  # each harmonic's share of the frames' weight, beside a level and a drift, before a turning is told
 TURNING_CHI2 = 36.0  # the turning part (4 harmonic terms) is significant beyond this χ² (p ≈ 3e-7)
+LENS_PPM = 10000.0  # a stretch beyond 1 % is no lens's (tens of ppm per kelvin): the print or the model changed
 CHANGE_PRIOR_PPM = 2000.0  # σ of a lens's change since calibration before any frame tells (0.2 %: tens of kelvin)
 
 
@@ -85,7 +86,10 @@ class MagnificationWatch:
                     self.record.append((x_mm, m * 1e6, sigma * 1e6))
                 own = self.profile.at_ppm(x_mm) if self.profile is not None else 0.0
                 self._add(x_mm, m * 1e6 - own - accounted_ppm, sigma * 1e6)
-        return self.family if self.flagged else None
+        if not self.flagged:
+            return None
+        # a print harmonic grown 2 % read as a steady 17000-25000 ppm while the stage saw less than a period
+        return self.family if abs(self.mean_ppm) <= LENS_PPM else "geometry"
 
     @property
     def rms_ppm(self) -> float:

@@ -137,15 +137,24 @@ class ScaleWatch:
                             if trimmer is not None else Applied(x_mm, flagged=verdict is not None, drifted=drifted))
         verdicts = [verdict]
         if self.magnification is not None:
-            stretched = self.magnification.step(placed, x_mm, stretch, *_accounted(trimmer))
-            cause = self._stretched_by()
-            verdicts.append(None if stretched is not None and cause == "print" else stretched)
-            if verdict == self.family and cause == "lens":
-                verdicts[0] = "magnification"
+            verdicts = list(self._stretch_step(placed, x_mm, stretch, verdict))
         if self.grating is not None:
             trimmed = self.last.x_mm if trimmer is not None and trimmer.trim is not None else x_mm
             verdicts.append(self.grating.step(placed, reference_mm, trimmed, information, chi2, chi2_suspect))
         return min((v for v in verdicts if v is not None), key=RANK.__getitem__, default=None)
+
+    def _stretch_step(self, placed: bool, x_mm: float, stretch,
+                      verdict: str | None = None) -> tuple[str | None, str | None]:
+        """The carried magnification watch's step beside the line: (the line's verdict, renamed
+        ``magnification`` when a lens drifted it; the stretch's verdict, None where the line names a
+        print's growth)."""
+        stretched = self.magnification.step(placed, x_mm, stretch, *_accounted(self.trimmer))
+        cause = self._stretched_by()
+        if stretched is not None and cause == "print":
+            return verdict, None
+        if verdict == self.family and cause == "lens":
+            return "magnification", "magnification"
+        return verdict, stretched
 
     def _stretched_by(self) -> str | None:
         """What stretches the image while the line camera − grating has drifted (untrimmed: the trim's
@@ -176,10 +185,10 @@ class ScaleWatch:
     def step_many(self, columns, n: int) -> list[str | None]:
         """:meth:`step` of ``n`` frames at once (the monitor's :meth:`~ReferenceMonitor.observe_many`)."""
         suspect = columns.array("chi2_suspect", bool)
-        if suspect.any() or self.trimmer is not None or self.log is not None or self.magnification is not None:
-            # frame by frame: a suspect run reads the monitor's verdict, a trim follows each frame, and a
-            # stretch is judged against the line at each frame
-            return None
+        if suspect.any() or self.trimmer is not None or self.log is not None:
+            return None  # frame by frame: a suspect run reads the monitor's verdict, a trim follows each frame
+        carried = self.magnification
+        saved = (self.monitor.snapshot(), self._off.snapshot()) if carried is not None else None
         information = columns.array("information", np.float64)
         placed = columns.array("placed", bool)
         feed = placed if self.feeds else np.zeros(n, dtype=bool)
@@ -189,6 +198,14 @@ class ScaleWatch:
         far = self._off.add_many(x_mm, reference_mm, bound)
         stale = self.monitor.observe_many(x_mm, reference_mm, bound, feed) | far
         self._frame += n
+        if saved is not None:
+            if stale.any():  # the line drifted here: the stretch is named against it frame by frame
+                self.monitor.restore(saved[0])
+                self._off.restore(saved[1])
+                self._frame -= n
+                return None
+            # the line held on every frame: the stretch is judged frame by frame beside the slope
+            return [self._stretch_step(*row)[1] for row in zip(columns["placed"], columns["x_mm"], columns["stretch"])]
         if not stale.any():
             return [None] * n
         return np.where(stale, self.family, None).tolist()
@@ -223,7 +240,15 @@ class Disagreement:
     def __init__(self, monitor: ReferenceMonitor) -> None:
         self.monitor = monitor
         self._line = None
+        self._known2 = 0.0  # µm²: the line's own variance at the last frame's place
         self.clear()
+
+    def snapshot(self) -> tuple:
+        """The running mean's state, to go back to with :meth:`restore`."""
+        return self._line, self.count, self.weighted_per_um, self.precision_per_um2, self._known2
+
+    def restore(self, state: tuple) -> None:
+        self._line, self.count, self.weighted_per_um, self.precision_per_um2, self._known2 = state
 
     def clear(self) -> None:
         # running means of residual/σ² and 1/σ²: their ratio weighs each frame by its bound, so that
