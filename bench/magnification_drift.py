@@ -7,7 +7,7 @@ over the rms bound (against the truth, not the grating), the share of frames fla
 reasons, and the placed frames 4+ of their own bounds off the truth left unflagged — with the
 grating read, with ``--trim``, and with ``--no-reference`` (no grating while running: each bound
 carries the slide a magnification could give the image, core/slide.py, the axis undeclared; ``slide``
-is the rms bound over the rms noise floor).
+is the median over the unflagged placed frames of each one's bound over its noise floor).
 
     .venv/bin/python bench/magnification_drift.py [CASE-SUBSTRING]
 """
@@ -60,7 +60,8 @@ def measured(model, run, truth, trim: bool, reference: bool) -> dict:
             "rms_ratio": float(np.sqrt(np.nanmean(error ** 2)) / np.sqrt(np.nanmean(bound_um ** 2))),
             "flagged": float(flagged.mean()), "silent": float((far & ~flagged).sum() / max(placed.sum(), 1)),
             "reasons": dict(reasons.most_common(3)),
-            "slide": float(np.sqrt(np.nanmean(bound_um[placed] ** 2) / np.nanmean(floor_um[placed] ** 2)))}
+            "slide": float(np.median(bound_um[placed & ~flagged] / floor_um[placed & ~flagged]))
+            if (placed & ~flagged).any() else float("nan")}
 
 
 def main(selection: str = "") -> None:

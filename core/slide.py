@@ -11,10 +11,10 @@ its frames are off, and no test on these stretches does much better (docs/robust
 
 So while no grating vouches, each placed frame's bound carries what the stretch the frames allow
 now could slide the image by: L × √(m̄² + σ_m²), the watch's mean and its σ in quadrature (the
-expected square of a slide the positions do not take out). A steady run then carries the slide the
-frames cannot rule out (a 16-row strip ~4-5× its noise with the axis 300 px off); a drift's bound
-grows with the stretch the mean has started to see, until the watch flags it. With a grating read
-the slide is the grating's to see (core/watches/scale.py), and nothing is added.
+expected square of a slide the positions do not take out), the largest of the last :data:`HOLD`
+frames'. A steady run then carries the slide the frames cannot rule out; a drift's bound grows with
+the stretch the mean has started to see, until the watch flags it. With a grating read the slide is
+the grating's to see (core/watches/scale.py), and nothing is added.
 
 The lever is the camera's geometry: the optical axis (the sensor's centre, for a lens centred on
 it) from the ROI's centre along the line, in pixels (``track --axis-px``). Undeclared, it is taken
@@ -25,6 +25,7 @@ default); an ROI on the axis declares 0 and carries nothing.
 from __future__ import annotations
 
 import math
+from collections import deque
 
 import numpy as np
 
@@ -32,6 +33,10 @@ from graytrack.core.watches.magnification import MagnificationWatch
 from graytrack.core.watches.scale import ScaleWatch
 
 AXIS_PRIOR_PX = 300.0  # pixels: the optical axis from the ROI's centre when the rig does not say
+# frames the largest stretch the frames allowed is held for: the watch's mean can dip for some frames
+# where its estimate errs with the print's phase (a one-row paper rig's temperature cycle read 150 ppm
+# at its second rise, truth 1100: 7 frames 4+ bounds off unflagged), while a lens cannot cool that fast
+HOLD = 20
 
 
 class SlideWatch:
@@ -51,6 +56,7 @@ class SlideWatch:
         self.replaces = (type(watch).__module__, ScaleWatch.__module__)
         self.sigma_um: dict[int, float] = {}  # frame → the slide's σ, µm
         self.declared = declared  # the lever is the rig's (False: the prior's)
+        self._recent: deque[float] = deque(maxlen=HOLD)  # ppm: the rms stretch of the last frames
 
     @classmethod
     def for_model(cls, model, axis_px: float | None = None) -> "SlideWatch":
@@ -63,8 +69,9 @@ class SlideWatch:
 
     def step(self, frame: int, placed: bool, x_mm: float, stretch, reference_mm: float) -> str | None:
         verdict = self.watch.step(placed, x_mm, stretch)
+        self._recent.append(self.watch.rms_ppm)
         vouched = math.isfinite(reference_mm)
-        self.sigma_um[frame] = 0.0 if vouched else self.lever_mm * 1e3 * self.watch.rms_ppm * 1e-6
+        self.sigma_um[frame] = 0.0 if vouched else self.lever_mm * 1e3 * max(self._recent) * 1e-6
         return verdict
 
 

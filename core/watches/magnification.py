@@ -89,7 +89,8 @@ class MagnificationWatch:
         if not self.flagged:
             return None
         # a print harmonic grown 2 % read as a steady 17000-25000 ppm while the stage saw less than a period
-        return self.family if abs(self.mean_ppm) <= LENS_PPM else "geometry"
+        # (the image's own stretch: what a trim accounts for is a lens's slide read as a scale)
+        return self.family if abs(self.mean_ppm + accounted_ppm) <= LENS_PPM else "geometry"
 
     @property
     def rms_ppm(self) -> float:
