@@ -8,11 +8,13 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
-import tomllib
+import zipfile
 from collections.abc import Iterator
 from dataclasses import dataclass
+from email.parser import Parser
 from pathlib import Path
 
 import httpx
@@ -20,23 +22,33 @@ import pytest
 from packaging.requirements import Requirement
 from packaging.utils import canonicalize_name
 
-from tests.client.wheelhouse import closure, installed, pack
+from tests.client.wheelhouse import closure, pack
 from tests.service.helpers import free_port, wait_for
 
 ROOT = Path(__file__).resolve().parents[2]
+# what a wheel does not need (the Containerfile copies the rest); the checkout's own build files stay out
+NOT_SHIPPED = (".*", "__pycache__", "*.egg-info", "build", "tests", "bench", "docs", "examples", "deploy", "*.npz")
 ANSWERS_S = 120.0  # a cold first start answers after ~25 s on a busy 2-core machine; CI may be slower
 
 
-def base_requirements() -> list[str]:
-    """What ``pip install graytrack`` (no extra) requires, as the installed metadata says; the same as
-    pyproject.toml's ``dependencies``, else the install is stale (``make install`` renews it)."""
-    required = [text for text in installed("graytrack").requires or []
-                 if (req := Requirement(text)).marker is None or req.marker.evaluate({"extra": ""})]
-    declared = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["dependencies"]
-    names = sorted(canonicalize_name(Requirement(text).name) for text in required)
-    assert names == sorted(canonicalize_name(Requirement(text).name) for text in declared), \
-        f"the installed graytrack requires {names}, pyproject.toml declares {declared}: run `make install`"
-    return required
+def build_wheel(source: Path, wheels: Path) -> Path:
+    """graytrack's wheel in ``wheels``, as ``pip install .`` builds it, from a copy of the checkout in
+    ``source`` (nothing is written into the checkout; the backend is this venv's setuptools, so
+    nothing is downloaded)."""
+    shutil.copytree(ROOT, source, ignore=shutil.ignore_patterns(*NOT_SHIPPED))
+    subprocess.run([sys.executable, "-m", "pip", "wheel", "--quiet", "--no-deps", "--no-build-isolation", "--no-index",
+                    "--wheel-dir", str(wheels), str(source)], check=True, capture_output=True, text=True)
+    (wheel,) = wheels.glob("graytrack-*.whl")
+    return wheel
+
+
+def base_requirements(wheel: Path) -> list[str]:
+    """What installing ``wheel`` without an extra requires: its metadata's Requires-Dist, as pip reads it."""
+    with zipfile.ZipFile(wheel) as archive:
+        (name,) = [name for name in archive.namelist() if name.endswith(".dist-info/METADATA")]
+        metadata = Parser().parsestr(archive.read(name).decode())
+    return [text for text in metadata.get_all("Requires-Dist") or []
+            if (req := Requirement(text)).marker is None or req.marker.evaluate({"extra": ""})]
 
 
 @dataclass(frozen=True)
@@ -48,17 +60,23 @@ class Venv:
     def bin(self) -> Path:
         return self.python.parent
 
+    def run(self, *args: str) -> subprocess.CompletedProcess[str]:
+        """``args`` (a program of the venv's bin, or ``-c`` code for its python) outside the checkout,
+        whose ``graytrack`` folder would otherwise shadow the installed package."""
+        program = [str(self.bin / args[0]), *args[1:]] if not args[0].startswith("-") else [str(self.python), *args]
+        return subprocess.run(program, cwd=self.bin, capture_output=True, text=True, timeout=60)
+
 
 @pytest.fixture(scope="session")
 def client_venv(tmp_path_factory: pytest.TempPathFactory) -> Venv:
     """A fresh venv where ``pip install --no-index --find-links WHEELS graytrack`` installed the client.
 
-    WHEELS holds graytrack (this checkout's editable install, packed again: its metadata is what pip
-    resolves) and what its base requirements need, packed from this venv: nothing is downloaded."""
+    WHEELS holds graytrack's wheel, built from this checkout, and what its requirements need, packed
+    from this venv (tests/client/wheelhouse.py): nothing is downloaded."""
     folder = tmp_path_factory.mktemp("client-alone")
     wheels = folder / "wheels"
     wheels.mkdir()
-    for dist in (installed("graytrack"), *closure(base_requirements()).values()):
+    for dist in closure(base_requirements(build_wheel(folder / "source", wheels))).values():
         pack(dist, wheels)
     venv = folder / "venv"
     subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True)
@@ -67,7 +85,7 @@ def client_venv(tmp_path_factory: pytest.TempPathFactory) -> Venv:
                     "--find-links", str(wheels), "graytrack"], check=True, capture_output=True, text=True)
     listing = subprocess.run([str(python), "-c", "import importlib.metadata as m, json; print(json.dumps("
                               "{d.metadata['Name']: d.version for d in m.distributions()}))"],
-                             check=True, capture_output=True, text=True).stdout
+                             cwd=folder, check=True, capture_output=True, text=True).stdout
     return Venv(python, {canonicalize_name(name): version for name, version in json.loads(listing).items()})
 
 
