@@ -3,10 +3,12 @@
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
+from pathlib import Path
 
-from tests.client.conftest import Venv
+from tests.client.conftest import ROOT, Venv
 
 HEAVY = ("numpy", "scipy", "numba", "llvmlite", "opencv-python-headless", "opencv-python", "matplotlib",
          "fastapi", "uvicorn")  # the daemon extra's numerics and server, and what they bring
@@ -46,3 +48,13 @@ def test_the_client_alone_imports_and_each_command_names_its_extra(client_venv: 
     epics = client_venv.run("graytrack", "epics", "--url", "http://127.0.0.1:9", "--prefix", "X")
     assert (epics.returncode, epics.stderr.strip()) == (
         2, "graytrack epics: error: caproto is not installed: pip install 'graytrack[epics]'")
+
+
+def test_make_run_and_the_service_venv_install_the_daemon_extra(tmp_path: Path) -> None:
+    # `pip install .` alone is the client now: what runs the daemon must name the extra
+    for target, variable in (("run", f"VENV={tmp_path / 'venv'}"), ("service-venv", f"PREFIX={tmp_path / 'opt'}")):
+        dry = subprocess.run(["make", "-n", target, variable], cwd=ROOT, capture_output=True, text=True,
+                             check=True).stdout
+        installs = [line for line in dry.splitlines() if "pip install" in line and "--upgrade pip" not in line]
+        extras = [re.search(r"\[([^\]]*)\]", line) for line in installs]
+        assert len(installs) == 1 and extras[0] and "daemon" in extras[0].group(1).split(","), dry
