@@ -55,7 +55,8 @@ from typing import Callable
 import numpy as np
 
 from graytrack.core.adequacy import inadequacy
-from graytrack.core.trim_follow import Follower, Following
+from graytrack.core.poly_follow import ChosenFollower
+from graytrack.core.trim_follow import Following
 from graytrack.core.watches import _kernels
 
 DEFAULT_WINDOW = 500  # frames in the sliding window
@@ -533,7 +534,8 @@ class Trimmer:
     monitor: ReferenceMonitor
     trim: Line | None = None
     logged: Line | None = None  # the trim as last logged (quiet refinements since are not events)
-    follower: Follower = field(default_factory=Follower)
+    # the line, or a quadratic where the drift curves (a cycle): core/poly_follow.py
+    follower: ChosenFollower = field(default_factory=ChosenFollower)
     following: Following = field(default_factory=Following)  # the follower's word on the last frame fed
     drifted: bool = False  # the monitor's flag as the last frame left it, before a trim took the drift up
     _x_mm: float = field(default=math.nan, init=False)  # the last frame's position (where a new line is restated)
@@ -604,13 +606,17 @@ class Trimmer:
 
     def step(self, x_mm: float) -> tuple[float, float]:
         """(the trimmed position in mm, what the trim adds to its bound there in mm: the line's
-        standard error, the follower's correction's and the lag, in quadrature); no trim: (x, 0)."""
+        standard error (while no correction is in force), the follower's correction's and the lag, in
+        quadrature); no trim: (x, 0)."""
         trim = self.trim
         if trim is None or not math.isfinite(x_mm):
             return x_mm, 0.0
         f = self.following
         x = x_mm - (float(trim.at_um(x_mm)) + f.correction_um) * 1e-3
-        return x, math.sqrt(float(trim.sigma_um(x_mm)) ** 2 + f.sigma_um ** 2 + f.lag_um ** 2) * 1e-3
+        # a correction in force measured what the line leaves here, the line's own error with it: its σ
+        # stands for both (a cycle's line, far from a line, had widened 16-row bounds 2.5-fold, to 1 µm)
+        line_um = 0.0 if f.correction_um else float(trim.sigma_um(x_mm))
+        return x, math.sqrt(line_um ** 2 + f.sigma_um ** 2 + f.lag_um ** 2) * 1e-3
 
     def behind(self, bound_mm: float) -> bool:
         """The trim in force lags this frame by more than its bound (flagged: never silently behind)."""
