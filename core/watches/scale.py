@@ -44,6 +44,7 @@ from graytrack.core.watches.magnification import MagnificationWatch
 # hover at the stale line (1.2026 against 1.2023) and its positions 285 µm (~200 bounds) off,
 # called fresh on 94 % of the frames.
 SUSPECT_WINDOW = 20
+FAR_OFF = "graytrack.core.watches.far_off"  # the untrimmed camera far off the grating (a wrong model's scale)
 SUSPECT_LIMIT = 6.0
 
 
@@ -74,6 +75,10 @@ class ScaleWatch:
         # are stepped here, in place of the tracker's own (``replaces``: core/validity.py monitor_for)
         self.magnification, self.grating = magnification, grating
         self.replaces = tuple(type(watch).__module__ for watch in (magnification, grating) if watch is not None)
+        if trimmer is not None:  # the camera far off the grating is judged against the trim in force (the
+            # running mean's limit below): untrimmed, a lens's slide of 94 µm, trimmed to the bound, read as
+            # a model of the wrong scale on 58 % of a 16-row run's frames
+            self.replaces += (FAR_OFF,)
         # the lens's stretch the tracker takes out of each frame (core/stretch_follow.py): the tracker finds
         # it here (``track(..., watches=)``), and this watch reads what each frame had taken out
         self.stretch_follow = stretch
