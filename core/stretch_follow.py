@@ -60,6 +60,7 @@ class StretchFollow:
         # about a fixed centre: a centre moving with each frame's weights would move the slide with it
         self.centred_mm = offsets - float(seen @ offsets) / max(float(seen.sum()), 1.0)
         self.current = Taken()  # the frame being solved
+        self.corrected_frames = 0  # frames solved with a stretch taken out
         self._log: collections.deque[Taken] = collections.deque(maxlen=KEPT)
         self._measured: tuple[float, float] | None = None
 
@@ -83,6 +84,7 @@ class StretchFollow:
         if not applied:
             return batch, k
         m = applied * 1e-6
+        self.corrected_frames += 1
         _, slopes = tracker.evaluator.evaluate(np.array([x_guess]))
         frame = batch.frames[k] - (gain * m) * slopes[0] * self.centred_mm
         weights = batch.weights(k)
@@ -107,6 +109,14 @@ class StretchFollow:
     def measured(self) -> tuple[float, float]:
         """The last frame's stretch in all (m, σ: the watch's ``stretch``), dimensionless."""
         return self._measured if self._measured is not None else (math.nan, math.inf)
+
+    def status(self) -> dict:
+        """What is followed, for a status page: the line's value now and its σ (ppm; None before it has
+        evidence), whether the frames are solved with it taken out, and how many were."""
+        line = self.follower.estimate()
+        return {"followed_ppm": None if line is None else round(line[0], 1),
+                "sigma_ppm": None if line is None else round(line[1], 1),
+                "taken_out": bool(self.current.ppm), "frames_corrected": self.corrected_frames}
 
     def taken(self) -> Taken:
         """The oldest frame's record not yet read (frames are read in the order they were solved)."""
