@@ -69,6 +69,7 @@ JUMP_FRAMES = 15  # outliers in a row that say the line itself jumped (a glint l
 Z_ON, Z_OFF = 5.0, 3.0  # drift significance (σ) to raise and to clear the flag
 FLOOR_UM = 0.2  # the smallest error over the stroke worth a flag (below a grating ruler's certified accuracy)
 PRIOR_SCALE_PPM = 1000.0  # standard deviation of the prior on the scale: unobservable while the stage rests
+UNTRIMMED_BEHIND = 2.0  # bounds: untrimmed positions this far off the calibration's line, significantly, are flagged
 GATE = 8.0  # a frame whose residual is beyond this many of its σ from the line is an outlier (not added)
 REFINE = 0.7  # a refined trim is logged when its scale or offset σ fell this much since the last logged one
 # ... and refined, quietly, when a later window knows its scale or offset this much better (σ ratio): a
@@ -555,12 +556,15 @@ class Trimmer:
         self.drifted = self.monitor.stale
         event = self.consider()
         trim, monitor = self.trim, self.monitor
-        if trim is not None and known:
-            residual = (x_mm - reference_mm) * 1e3 - float(trim.at_um(x_mm))
+        # before a trim, the follower watches the positions against the calibration's line: a drift that
+        # starts with the run is told (:meth:`behind`) before the window's line has the evidence to trim
+        line = trim if trim is not None else monitor.calibration
+        if known:
+            residual = (x_mm - reference_mm) * 1e3 - (float(line.at_um(x_mm)) if line is not None else 0.0)
             if monitor.structure is not None:  # the model's own error here, as the monitor takes it out
                 residual -= monitor.structure.at_one_um(reference_mm)
             self.follower.add(residual, (bound_mm ** 2 + monitor.reference_sigma_mm ** 2) * 1e6)
-        self.following = self.follower.now() if trim is not None else Following()
+        self.following = self.follower.now()
         return event
 
     def consider(self) -> TrimEvent | None:
@@ -582,11 +586,11 @@ class Trimmer:
         return event
 
     def _adopt(self, line: Line, why: str) -> TrimEvent:
-        old, x = self.trim, self._x_mm
-        if old is None or not math.isfinite(x):
+        old, x = self.trim if self.trim is not None else self.monitor.calibration, self._x_mm
+        if not math.isfinite(x):
             self.follower.reset()
         else:  # what the follower kept is restated against the new line
-            self.follower.shift(float(line.at_um(x)) - float(old.at_um(x)))
+            self.follower.shift(float(line.at_um(x)) - (float(old.at_um(x)) if old is not None else 0.0))
         self.trim = self.logged = line
         self.monitor.baseline = line
         self.monitor.stale = False
@@ -619,8 +623,13 @@ class Trimmer:
         return x, math.sqrt(line_um ** 2 + f.sigma_um ** 2 + f.lag_um ** 2) * 1e-3
 
     def behind(self, bound_mm: float) -> bool:
-        """The trim in force lags this frame by more than its bound (flagged: never silently behind)."""
-        return self.trim is not None and self.following.behind(bound_mm)
+        """The trim in force lags this frame by more than its bound (flagged: never silently behind);
+        before a trim, the positions are off the calibration's line by more than :data:`UNTRIMMED_BEHIND`
+        of their bound, significantly (a lens's slide from the run's first frame, 0.5 bound a frame:
+        frames 6-10 of a 16-row run 4-6.5 bounds off, before the window's line could trim)."""
+        if self.trim is None:
+            return abs(self.following.correction_um) > UNTRIMMED_BEHIND * bound_mm * 1e3
+        return self.following.behind(bound_mm)
 
 
 def _better(line: Line, than: Line, ratio: float) -> bool:

@@ -127,7 +127,8 @@ class ScaleWatch:
             drifted, behind = trimmer.drifted, trimmer.behind(bound)
             trimmed, added = trimmer.step(x_mm)
             # the running mean of camera − grating against the trim and what follows it
-            far = self._off.add(x_mm - trimmer.following.correction_um * 1e-3, reference_mm, math.hypot(bound, added))
+            following = trimmer.following.correction_um if trimmer.trim is not None else 0.0
+            far = self._off.add(x_mm - following * 1e-3, reference_mm, math.hypot(bound, added))
             self.last = Applied(trimmed, (x_mm - trimmed) * 1e3 if trimmer.trim is not None else 0.0, added * 1e3)
         else:
             far = self._off.add(x_mm, reference_mm, bound)
