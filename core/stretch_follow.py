@@ -51,14 +51,10 @@ class Taken:
 class StretchFollow:
     """``corrected(...)`` before a frame's solve, ``observe(...)`` after it; :meth:`taken` for the watch."""
 
-    def __init__(self, model, profile=None, memory: float = MEMORY) -> None:
+    def __init__(self, profile=None, memory: float = MEMORY) -> None:
         self.profile = profile  # the model's own stretch along the stroke (a StretchProfile), taken out
         self.follower = Follower(memory=memory)
-        offsets = model.target_offset().reshape(-1)
-        seen = np.ones_like(offsets) if model.pixel_weight is None else \
-            (np.asarray(model.pixel_weight, dtype=np.float64).reshape(-1) > 0).astype(np.float64)
-        # about a fixed centre: a centre moving with each frame's weights would move the slide with it
-        self.centred_mm = offsets - float(seen @ offsets) / max(float(seen.sum()), 1.0)
+        self._centred_mm: np.ndarray | None = None  # each sample's place along the line (the tracker's model)
         self.current = Taken()  # the frame being solved
         self.corrected_frames = 0  # frames solved with a stretch taken out
         self._log: collections.deque[Taken] = collections.deque(maxlen=KEPT)
@@ -69,7 +65,17 @@ class StretchFollow:
         from graytrack.core.watches.magnification import StretchProfile  # (the watch's own record of it)
 
         doc = (getattr(model, "info", None) or {}).get("stretch_profile")
-        return cls(model, StretchProfile.from_dict(doc) if isinstance(doc, dict) else None)
+        return cls(StretchProfile.from_dict(doc) if isinstance(doc, dict) else None)
+
+    def _centred(self, model) -> np.ndarray:
+        """Each sample's target offset about the line's centre, mm: a fixed centre (a centre moving with
+        each frame's weights would move the slide with it)."""
+        if self._centred_mm is None:
+            offsets = model.target_offset().reshape(-1)
+            seen = np.ones_like(offsets) if model.pixel_weight is None else \
+                (np.asarray(model.pixel_weight, dtype=np.float64).reshape(-1) > 0).astype(np.float64)
+            self._centred_mm = offsets - float(seen @ offsets) / max(float(seen.sum()), 1.0)
+        return self._centred_mm
 
     def corrected(self, tracker, batch: GeneralBatch | TrigPolyBatch, k: int, x_guess: float,
                   gain: float) -> tuple[GeneralBatch | TrigPolyBatch, int]:
@@ -86,7 +92,7 @@ class StretchFollow:
         m = applied * 1e-6
         self.corrected_frames += 1
         _, slopes = tracker.evaluator.evaluate(np.array([x_guess]))
-        frame = batch.frames[k] - (gain * m) * slopes[0] * self.centred_mm
+        frame = batch.frames[k] - (gain * m) * slopes[0] * self._centred(tracker.model)
         weights = batch.weights(k)
         if tracker.fast_path:
             return TrigPolyBatch(tracker.tables, frame[None], weights[None], evaluator=tracker.evaluator), 0
