@@ -10,8 +10,9 @@ steady drift or a ramp (0.16 µm against the line's 0.12).
 
 :class:`ChosenFollower` runs both and uses, frame by frame, the one whose predictions of the next
 frame's residual have erred least over the last :data:`JUDGED` frames (each prediction made
-before the frame is added, in units of the frame's variance: the noisier quadratic loses on a ramp): the evidence, not a setting, says
-whether the drift curves. Its interface is the line's (:class:`~graytrack.core.trim_follow.Follower`).
+before the frame is added, in units of the frame's variance: the noisier quadratic loses on a
+ramp): the evidence, not a setting, says whether the drift curves. Its interface is the line's
+(:class:`~graytrack.core.trim_follow.Follower`).
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from graytrack.core.trim_follow import APPLY_Z, CLEAR_Z, MEMORY, Following
+from graytrack.core.trim_follow import MEMORY, Following, Hysteresis
 
 CURVED_MEMORY = 10.0  # frames: the quadratic's time constant
 JUDGED = 50.0  # frames: the memory of each follower's prediction errors
@@ -37,7 +38,7 @@ def _shift_matrix(size: int) -> np.ndarray:
 
 
 @dataclass
-class PolyFollower:
+class PolyFollower(Hysteresis):
     """Exponentially weighted polynomial ``r(k) = Σ c_j·(k − now)^j`` (``degree``) of the residual
     after the trim, over the last ``memory`` frames; the interface of the trim's line follower."""
 
@@ -108,14 +109,6 @@ class PolyFollower:
         sigma = math.sqrt(now[1])
         return now[0], sigma, abs(now[0] - at_fed[0]), abs(now[0]) / sigma
 
-    def now(self) -> Following:
-        line = self.estimate()
-        if line is None:
-            return Following()
-        value, sigma, lag, z = line
-        self.applied = z >= (CLEAR_Z if self.applied else APPLY_Z)
-        return Following(value, sigma, lag) if self.applied else Following(0.0, 0.0, lag)
-
 
 @dataclass
 class ChosenFollower:
@@ -124,7 +117,8 @@ class ChosenFollower:
     members: tuple[PolyFollower, ...] = field(
         default_factory=lambda: (PolyFollower(1, MEMORY), PolyFollower(2, CURVED_MEMORY)))
     chosen: int = 0
-    _errors: np.ndarray = field(default_factory=lambda: np.zeros(2))  # EW sum of (prediction error)²/the frame's variance
+    # EW sums of each member's (prediction error)² over the frame's variance
+    _errors: np.ndarray = field(default_factory=lambda: np.zeros(2))
     _judged: float = 0.0
 
     @property

@@ -44,8 +44,27 @@ class Following:
         return self.lag_um > BEHIND * bound_mm * 1e3
 
 
+class Hysteresis:
+    """:meth:`now` from a follower's ``estimate()``: its value applied once significant beyond
+    :data:`APPLY_Z`, dropped below :data:`CLEAR_Z`."""
+
+    applied: bool = False
+
+    def estimate(self) -> tuple[float, float, float, float] | None:
+        raise NotImplementedError
+
+    def now(self) -> Following:
+        """The correction, its σ and the lag, as they stand at this frame."""
+        line = self.estimate()
+        if line is None:
+            return Following()
+        value, sigma, lag, z = line
+        self.applied = z >= (CLEAR_Z if self.applied else APPLY_Z)
+        return Following(value, sigma, lag) if self.applied else Following(0.0, 0.0, lag)
+
+
 @dataclass
-class Follower:
+class Follower(Hysteresis):
     """Exponentially weighted line ``r(k) = level + rate·(k − now)`` of the residual after the trim."""
 
     memory: float = MEMORY
@@ -89,15 +108,6 @@ class Follower:
         s[5] += w * residual_um * residual_um
         s[6] += w * w
         self._fed_at = self.frame
-
-    def now(self) -> Following:
-        """The correction, its σ and the lag, as they stand at this frame."""
-        line = self.estimate()
-        if line is None:
-            return Following()
-        value, sigma, lag, z = line
-        self.applied = z >= (CLEAR_Z if self.applied else APPLY_Z)
-        return Following(value, sigma, lag) if self.applied else Following(0.0, 0.0, lag)
 
     def estimate(self) -> tuple[float, float, float, float] | None:
         """The line's value now, its σ, the lag and the level's significance (|level|/σ), whether

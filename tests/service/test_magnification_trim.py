@@ -9,10 +9,8 @@ import numpy as np
 import pytest
 
 from graytrack.core.calibration import calibrate
-from graytrack.drivers.camera.base import Frame
 from graytrack.drivers.sim.scenarios import build_rig
-from graytrack.service.daemon.acquisition import Acquisition, Sample
-from graytrack.service.daemon.trim import ReferenceTrim
+from tests.service.helpers import stream_through_daemon
 
 pytestmark = pytest.mark.unit
 
@@ -22,14 +20,8 @@ def streamed():
     calibration, _ = build_rig("strip16", "", seed=3).record(6.0)
     model = calibrate(calibration, "paper").model
     run, truth = build_rig("strip16", "magnification_drift:ppm=1500:cycle_s=4", seed=3, run=1).record(6.0)
-    messages: list[dict] = []
-    trim = ReferenceTrim(True)
-    acquisition = Acquisition(None, None, messages.append, lambda *fault: None, 1.0, 1.0, trim=trim)
-    acquisition._build(model, float(run.reference[0]), 0, "calibration", None, lambda why: None)  # as install_model does
-    for k in range(run.n_frames):
-        frame = Frame(np.asarray(run.frames[k]), k, float(run.t[k]))
-        acquisition._track(Sample(frame, float(run.t[k]), float(run.reference[k])))
-    return messages, truth, trim
+    messages, _, acquisition = stream_through_daemon(model, run, trim_enabled=True)
+    return messages, truth, acquisition.trim
 
 
 def test_the_daemon_streams_a_magnification_cycle_at_its_bound_unflagged(streamed):
