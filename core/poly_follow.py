@@ -20,27 +20,53 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-import numpy as np
-
 from graytrack.core.trim_follow import MEMORY, Following, Hysteresis
 
 CURVED_MEMORY = 10.0  # frames: the quadratic's time constant
 JUDGED = 50.0  # frames: the memory of each follower's prediction errors
+JUDGED_DECAY = math.exp(-1.0 / JUDGED)
 
 
-def _shift_matrix(size: int) -> np.ndarray:
-    """S with S·[Σw·t⁰, Σw·t¹, …] = [Σw·(t−1)⁰, Σw·(t−1)¹, …] (binomial expansion)."""
-    shift = np.zeros((size, size))
-    for j in range(size):
-        for i in range(j + 1):
-            shift[j, i] = math.comb(j, i) * (-1.0) ** (j - i)
-    return shift
+def _shift_rows(size: int) -> list[list[tuple[int, float]]]:
+    """Row j: the (i, factor) with Σw·(t−1)^j = Σ factor·Σw·t^i (binomial expansion)."""
+    return [[(i, math.comb(j, i) * (-1.0) ** (j - i)) for i in range(j + 1)] for j in range(size)]
+
+
+def _shifted(sums: list[float], rows: list[list[tuple[int, float]]], decay: float) -> list[float]:
+    """The sums one frame on: every t one frame further back, every weight decayed."""
+    out = []
+    for row in rows:
+        total = 0.0
+        for i, factor in row:
+            total += factor * sums[i]
+        out.append(decay * total)
+    return out
+
+
+def _inverse(m: list[list[float]]) -> list[list[float]] | None:
+    """The inverse of a symmetric 2×2 or 3×3 matrix (cofactors: numpy's call overhead was most of a
+    trimmed frame's cost); None when it is singular beside its own scale."""
+    if len(m) == 2:
+        (a, b), (_, d) = m
+        det = a * d - b * b
+        if not abs(det) > 1e-12 * abs(a * d):
+            return None
+        return [[d / det, -b / det], [-b / det, a / det]]
+    (a, b, c), (_, d, e), (_, _, f) = m
+    cof = [[d * f - e * e, c * e - b * f, b * e - c * d], [0.0, a * f - c * c, b * c - a * e], [0.0, 0.0, a * d - b * b]]
+    det = a * cof[0][0] + b * cof[0][1] + c * cof[0][2]
+    if not abs(det) > 1e-12 * abs(a * d * f):
+        return None
+    for i in range(3):
+        for j in range(i):
+            cof[i][j] = cof[j][i]
+    return [[value / det for value in row] for row in cof]
 
 
 @dataclass
 class PolyFollower(Hysteresis):
-    """Exponentially weighted polynomial ``r(k) = Σ c_j·(k − now)^j`` (``degree``) of the residual
-    after the trim, over the last ``memory`` frames; the interface of the trim's line follower."""
+    """Exponentially weighted polynomial ``r(k) = Σ c_j·(k − now)^j`` (``degree`` 1 or 2) of the
+    residual after the trim, over the last ``memory`` frames; the interface of the trim's line follower."""
 
     degree: int = 1
     memory: float = MEMORY
@@ -49,29 +75,35 @@ class PolyFollower(Hysteresis):
     _fed_at: int = -1
 
     def __post_init__(self) -> None:
-        self._shift_t = _shift_matrix(2 * self.degree + 1)
-        self._shift_r = _shift_matrix(self.degree + 1)
+        if self.degree not in (1, 2):
+            raise ValueError(f"a follower's polynomial has degree 1 or 2, not {self.degree}")
+        self._shift_t = _shift_rows(2 * self.degree + 1)
+        self._shift_r = _shift_rows(self.degree + 1)
+        self._decay = math.exp(-1.0 / self.memory)
         self.reset()
 
     def reset(self) -> None:
         # Σw·t^j (j ≤ 2·degree), Σw·r·t^j (j ≤ degree), Σw·r², Σw² (the frames held: (Σw)²/Σw²)
-        self._t = np.zeros(2 * self.degree + 1)
-        self._r = np.zeros(self.degree + 1)
+        self._t = [0.0] * (2 * self.degree + 1)
+        self._r = [0.0] * (self.degree + 1)
         self._rr = self._ww = 0.0
         self.applied, self._fed_at = False, -1
+        self._fit: tuple[list[float], list[list[float]]] | bool | None = None  # the fit of the sums as they stand
+        self._last: tuple[int, list[float]] | None = None  # the frame of the last fit and its coefficients
 
     def shift(self, change_um: float) -> None:
         """The trim under the residuals moved by ``change_um``: the residuals kept restated (r → r − change)."""
         self._rr += -2.0 * change_um * self._r[0] + change_um * change_um * self._t[0]
-        self._r -= change_um * self._t[: self.degree + 1]
+        self._r = [r - change_um * t for r, t in zip(self._r, self._t)]
+        self._fit = None
 
     def tick(self) -> None:
         self.frame += 1
-        decay = math.exp(-1.0 / self.memory)
-        self._t = decay * (self._shift_t @ self._t)
-        self._r = decay * (self._shift_r @ self._r)
+        decay = self._decay
+        self._t, self._r = _shifted(self._t, self._shift_t, decay), _shifted(self._r, self._shift_r, decay)
         self._rr *= decay
         self._ww *= decay * decay
+        self._fit = None
 
     def add(self, residual_um: float, variance_um2: float) -> None:
         w = 1.0 / variance_um2
@@ -80,26 +112,60 @@ class PolyFollower(Hysteresis):
         self._rr += w * residual_um * residual_um
         self._ww += w * w
         self._fed_at = self.frame
+        self._fit = None
 
     def predict(self, t: float = 0.0) -> tuple[float, float] | None:
         """The polynomial's value at ``t`` frames from now (the frames' clock: t = 0 is the frame that
         has just ticked, the last evidence is ``frame − fed`` frames back) and its variance (None: none yet)."""
-        size = self.degree + 1
-        if self._t[0] <= 0:
+        fit = self._fit
+        if fit is None:
+            fit = self._fit = self._fitted()
+        if fit is False:
             return None
-        normal = self._t[np.add.outer(np.arange(size), np.arange(size))]
-        try:
-            inverse = np.linalg.inv(normal)
-        except np.linalg.LinAlgError:
-            return None
-        if not np.all(np.isfinite(inverse)) or np.linalg.cond(normal) > 1e12:
-            return None
-        coef = inverse @ self._r
-        chi2 = max(self._rr - float(coef @ self._r), 0.0)
-        effective = self._t[0] * self._t[0] / self._ww
+        coef, covariance = fit
+        if t == 0.0:  # (every frame's question: the value now)
+            return coef[0], covariance[0][0]
+        g = [float(t) ** j for j in range(self.degree + 1)]
+        value = variance = 0.0
+        for i, gi in enumerate(g):
+            value += coef[i] * gi
+            for j, gj in enumerate(g):
+                variance += gi * covariance[i][j] * gj
+        return value, variance
+
+    def _fitted(self) -> tuple[list[float], list[list[float]]] | bool:
+        """(coefficients, their covariance scaled by the residuals' own scatter), once per frame's state;
+        False while the frames held cannot define the polynomial (a line through one, a quadratic through two)."""
+        t, r = self._t, self._r
+        size = len(r)
+        if t[0] <= 0:
+            return False
+        inverse = _inverse([t[0:2], t[1:3]] if size == 2 else [t[0:3], t[1:4], t[2:5]])
+        if inverse is None:
+            return False
+        coef, explained = [], 0.0
+        for row, r_i in zip(inverse, r):
+            c = 0.0
+            for value, r_j in zip(row, r):
+                c += value * r_j
+            coef.append(c)
+        for c, r_i in zip(coef, r):
+            explained += c * r_i
+        self._last = (self.frame, coef)
+        chi2 = max(self._rr - explained, 0.0)
+        effective = t[0] * t[0] / self._ww
         scatter = max(chi2 / max(effective - size, 1.0), 1.0)  # the residuals' own spread beyond their bounds
-        g = float(t) ** np.arange(size)
-        return float(coef @ g), float(g @ inverse @ g) * scatter
+        if scatter != 1.0:
+            inverse = [[value * scatter for value in row] for row in inverse]
+        return coef, inverse
+
+    def forecast(self) -> float | None:
+        """This frame's value as the last fit foretold it (before this frame's evidence): the frames'
+        clock moved on by the frames since, and the sums' decay does not move a fit."""
+        if self._last is None:
+            return None
+        frames, coef = self.frame - self._last[0], self._last[1]
+        return sum(c * float(frames) ** j for j, c in enumerate(coef))
 
     def estimate(self) -> tuple[float, float, float, float] | None:
         """(value now, its σ, the lag, the level's significance), as the line follower's."""
@@ -118,7 +184,7 @@ class ChosenFollower:
         default_factory=lambda: (PolyFollower(1, MEMORY), PolyFollower(2, CURVED_MEMORY)))
     chosen: int = 0
     # EW sums of each member's (prediction error)² over the frame's variance
-    _errors: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    _errors: list[float] = field(default_factory=lambda: [0.0, 0.0])
     _judged: float = 0.0
 
     @property
@@ -132,7 +198,7 @@ class ChosenFollower:
     def reset(self) -> None:
         for member in self.members:
             member.reset()
-        self._errors[:] = 0.0
+        self._errors = [0.0] * len(self.members)
         self._judged, self.chosen = 0.0, 0
 
     def shift(self, change_um: float) -> None:
@@ -144,18 +210,18 @@ class ChosenFollower:
             member.tick()
 
     def add(self, residual_um: float, variance_um2: float) -> None:
-        errors = np.zeros(len(self.members))
+        errors = [0.0] * len(self.members)
         for i, member in enumerate(self.members):
-            predicted = member.predict(0.0) if member._fed_at >= 0 else None
+            predicted = member.forecast()
             errors[i] = math.inf if predicted is None else \
-                (residual_um - predicted[0]) ** 2 / variance_um2  # the frame's noise is the same for both
+                (residual_um - predicted) ** 2 / variance_um2  # the frame's noise is the same for both
             member.add(residual_um, variance_um2)
-        if np.all(np.isfinite(errors)):  # both predicting: each judged on the same frames
-            decay = math.exp(-1.0 / JUDGED)
-            self._errors = decay * self._errors + errors
+        if all(map(math.isfinite, errors)):  # both predicting: each judged on the same frames
+            decay = JUDGED_DECAY
+            self._errors = [decay * kept + error for kept, error in zip(self._errors, errors)]
             self._judged = decay * self._judged + 1.0
             if self._judged >= JUDGED / 5:
-                self.chosen = int(np.argmin(self._errors))
+                self.chosen = min(range(len(errors)), key=self._errors.__getitem__)
 
     def estimate(self) -> tuple[float, float, float, float] | None:
         return self.members[self.chosen].estimate()
