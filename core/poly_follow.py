@@ -53,7 +53,9 @@ def _inverse(m: list[list[float]]) -> list[list[float]] | None:
             return None
         return [[d / det, -b / det], [-b / det, a / det]]
     (a, b, c), (_, d, e), (_, _, f) = m
-    cof = [[d * f - e * e, c * e - b * f, b * e - c * d], [0.0, a * f - c * c, b * c - a * e], [0.0, 0.0, a * d - b * b]]
+    cof = [[d * f - e * e, c * e - b * f, b * e - c * d],
+           [0.0, a * f - c * c, b * c - a * e],
+           [0.0, 0.0, a * d - b * b]]
     det = a * cof[0][0] + b * cof[0][1] + c * cof[0][2]
     if not abs(det) > 1e-12 * abs(a * d * f):
         return None
