@@ -11,8 +11,6 @@ from graytrack.core.poly_follow import ChosenFollower, PolyFollower
 from graytrack.core.reference_monitor import ReferenceMonitor, follow
 from graytrack.core.trim_follow import Follower
 
-pytestmark = pytest.mark.unit
-
 BOUND_MM = 0.4e-3  # a 16-row strip's frame
 
 

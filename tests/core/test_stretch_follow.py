@@ -17,8 +17,6 @@ from graytrack.core.tracking import track
 from graytrack.drivers.sim.scenarios import build_rig
 from graytrack.service.commands.track_scale import check, scale_watch
 
-pytestmark = pytest.mark.unit
-
 CYCLE = "magnification_drift:ppm=1500:cycle_s=4"  # a temperature cycle: 0.15 % comes and goes over 4 s
 RAMP = "magnification_drift:ppm=1500:ramp_s=6"  # warming up: 0.15 % over 6 s
 
