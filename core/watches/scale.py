@@ -44,8 +44,8 @@ from graytrack.core.watches.magnification import MagnificationWatch
 # hover at the stale line (1.2026 against 1.2023) and its positions 285 µm (~200 bounds) off,
 # called fresh on 94 % of the frames.
 SUSPECT_WINDOW = 20
-FAR_OFF = "graytrack.core.watches.far_off"  # the untrimmed camera far off the grating (a wrong model's scale)
 SUSPECT_LIMIT = 6.0
+FAR_OFF = "graytrack.core.watches.far_off"  # the untrimmed camera far off the grating (a wrong model's scale)
 
 
 class ScaleWatch:
