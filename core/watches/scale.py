@@ -30,6 +30,7 @@ import numpy as np
 from graytrack.core.compression import stream_bound_factor
 from graytrack.core.reference_monitor import GATE, ReferenceMonitor, Trimmer, TrimEvent, scale_tells
 from graytrack.core.chi2_curve import Chi2Curve
+from graytrack.core.stretch_follow import StretchFollow, Taken
 from graytrack.core.validity import RANK, FrameSign
 from graytrack.core.watches.grating import GratingWatch
 from graytrack.core.watches.grating import for_model as grating_watch
@@ -46,6 +47,7 @@ SUSPECT_WINDOW = 20
 SUSPECT_LIMIT = 6.0
 STRETCH_Z = 3.0  # a stretch within this many σ of the line's scale, the scale beyond it: the print grew (2: a
 # grown paper print named magnification on 10 of 500 frames)
+FAR_OFF = "graytrack.core.watches.far_off"  # the untrimmed camera far off the grating (a wrong model's scale)
 
 
 class ScaleWatch:
@@ -61,7 +63,8 @@ class ScaleWatch:
 
     def __init__(self, monitor: ReferenceMonitor, feeds: bool = True, bound_scale: float = 1.0,
                  trimmer: Trimmer | None = None, log: bool = False,
-                 magnification: MagnificationWatch | None = None, grating: GratingWatch | None = None) -> None:
+                 magnification: MagnificationWatch | None = None, grating: GratingWatch | None = None,
+                 stretch: StretchFollow | None = None) -> None:
         if trimmer is not None and trimmer.monitor is not monitor:
             raise ValueError("a scale watch's trimmer must read the watch's own monitor")
         self.monitor = monitor
@@ -74,6 +77,13 @@ class ScaleWatch:
         # are stepped here, in place of the tracker's own (``replaces``: core/validity.py monitor_for)
         self.magnification, self.grating = magnification, grating
         self.replaces = tuple(type(watch).__module__ for watch in (magnification, grating) if watch is not None)
+        if trimmer is not None:  # the camera far off the grating is judged against the trim in force (the
+            # running mean's limit below): untrimmed, a lens's slide of 94 µm, trimmed to the bound, read as
+            # a model of the wrong scale on 58 % of a 16-row run's frames
+            self.replaces += (FAR_OFF,)
+        # the lens's stretch the tracker takes out of each frame (core/stretch_follow.py): the tracker finds
+        # it here (``track(..., watches=)``), and this watch reads what each frame had taken out
+        self.stretch_follow = stretch
         self.events: list[tuple[int, TrimEvent]] = []  # (frame, a change of the trim), for the owner to drain
         self.last = Applied()  # what the trim did to the last frame
         self.log: list[Applied] | None = [] if log else None  # ... to every frame, when asked for
@@ -92,7 +102,8 @@ class ScaleWatch:
         chi2_calibration = float(model.info.get("calibration_chi2") or 1.0)
         return cls(monitor, bound_scale=stream_bound_factor(model.info), trimmer=Trimmer(monitor), log=log,
                    magnification=MagnificationWatch.for_model(model),
-                   grating=grating_watch(model, chi2_calibration, Chi2Curve.from_info(model.info)))
+                   grating=grating_watch(model, chi2_calibration, Chi2Curve.from_info(model.info)),
+                   stretch=StretchFollow.for_model(model))
 
     def observe(self, sign: FrameSign) -> str | None:
         return self.step(sign.chi2_suspect, sign.placed, sign.x_mm, sign.reference_mm, sign.information,
@@ -119,7 +130,8 @@ class ScaleWatch:
             drifted, behind = trimmer.drifted, trimmer.behind(bound)
             trimmed, added = trimmer.step(x_mm)
             # the running mean of camera − grating against the trim and what follows it
-            far = self._off.add(x_mm - trimmer.following.correction_um * 1e-3, reference_mm, math.hypot(bound, added))
+            following = trimmer.following.correction_um if trimmer.trim is not None else 0.0
+            far = self._off.add(x_mm - following * 1e-3, reference_mm, math.hypot(bound, added))
             self.last = Applied(trimmed, (x_mm - trimmed) * 1e3 if trimmer.trim is not None else 0.0, added * 1e3)
         else:
             far = self._off.add(x_mm, reference_mm, bound)
@@ -148,7 +160,8 @@ class ScaleWatch:
         """The carried magnification watch's step beside the line: (the line's verdict, renamed
         ``magnification`` when a lens drifted it; the stretch's verdict, None where the line names a
         print's growth)."""
-        stretched = self.magnification.step(placed, x_mm, stretch, *_accounted(self.trimmer))
+        taken = self.stretch_follow.taken() if self.stretch_follow is not None else Taken()
+        stretched = self.magnification.step(placed, x_mm, stretch, *_accounted(self.trimmer, taken))
         cause = self._stretched_by()
         if stretched is not None and cause == "print":
             return verdict, None
@@ -211,12 +224,20 @@ class ScaleWatch:
         return np.where(stale, self.family, None).tolist()
 
 
-def _accounted(trimmer: Trimmer | None) -> tuple[float, float]:
+def _accounted(trimmer: Trimmer | None, taken: Taken) -> tuple[float, float]:
     """The image stretch the trim in force accounts for, ppm, and its σ: a print grown by g reads
     camera − grating with the scale −g and stretches its image across the pixels by the same −g (the
-    pixel that saw target offset s sees s·(1 − g)); none without a trim."""
+    pixel that saw target offset s sees s·(1 − g)); none without a trim. The stretch the tracker follows
+    (``taken``: its line's value at the frame, core/stretch_follow.py) is accounted for instead while the
+    trim is in force: the frames are solved with it taken out once it is significant, and the slide that
+    comes with it (a lens's m × the axis's distance) is camera − grating, which the trim and its follower
+    take out, flagged when behind. What the line lags is left for the watch to judge."""
     trim = trimmer.trim if trimmer is not None else None
-    return (trim.scale_ppm, trim.scale_sigma_ppm) if trim is not None else (0.0, 0.0)
+    if trim is None:
+        return 0.0, 0.0
+    if math.isfinite(taken.followed_ppm):
+        return taken.followed_ppm, taken.sigma_ppm
+    return trim.scale_ppm, trim.scale_sigma_ppm
 
 
 @dataclass(frozen=True)
