@@ -53,15 +53,18 @@ class CurvatureTable:
         z = np.exp(1j * omega * np.outer(x, harmonics))
         curvature = (z @ (fast.v * (-(omega * harmonics) ** 2)[:, None])).real  # (N, P)
         self.table = _trig_coefficients(curvature**2, tables.degree)  # (P, D+1)
-        self._last: tuple[np.ndarray, np.ndarray] | None = None
+        self._last: tuple[np.ndarray, np.ndarray, int, bytes] | None = None
 
     def weighted(self, weights: np.ndarray) -> np.ndarray:
         """Σ_p w_p·F″_p² coefficients ``(D+1,)``; weights every frame shares are folded in once."""
         last = self._last
-        if last is not None and last[0] is weights:
+        # a batch hands each frame a new view of the weights its frames share: the same memory holding
+        # the same values folds to the same numbers (compared as bytes: ~1 µs, the product ~10)
+        if last is not None and (last[0] is weights or (last[2] == weights.ctypes.data
+                                                        and last[3] == weights.tobytes())):
             return last[1]
         folded = weights @ self.table
-        self._last = (weights, folded)
+        self._last = (weights, folded, weights.ctypes.data, weights.tobytes())
         return folded
 
 
@@ -86,10 +89,15 @@ def focus_moments(source: TrigPolyBatch, k: int, curvature: CurvatureTable,
     if rejected is not None and rejected.any():
         weights = weights * ~rejected
         source, k = source.reweighted(k, weights), 0
-    ff, _, dd, f1, _, yf, _ = source.rows[k]
+    rows = source.rows[k]
     scalars = source.scalars(k)
-    base = np.stack([ff, dd, f1, yf, curvature.weighted(weights)])
+    base = np.empty((5, rows.shape[1]), dtype=complex)
+    np.take(rows, _BASE_ROWS, axis=0, out=base[:4])  # F·F, F′·F′, F·1, y·F
+    base[4] = curvature.weighted(weights)
     return FocusMoments(base, scalars[0], scalars[1], scalars[2], scalars[3], source.tables.phase_orders)
+
+
+_BASE_ROWS = np.array([0, 2, 3, 5])  # of the fast path's seven rows: F·F, F′·F′, F·1, y·F
 
 
 def _focus_rows(base: np.ndarray, orders: np.ndarray, x: float, m: np.ndarray) -> None:
@@ -142,13 +150,12 @@ def focus_solve(source: TrigPolyBatch, k: int, curvature: CurvatureTable, start:
         prior.delta_mm2 if has_prior else 0.0, prior.variance_mm4 if has_prior else 0.0,
         settings.max_iterations, settings.tolerance_mm, settings.max_step_mm, out)
     x, iterations, information, cost = out[:4].tolist()
-    theta, normal, projected = out[4:7], out[7:16].reshape(3, 3), out[16:19]
-    fisher = out[19:35].reshape(4, 4)
-    return _solution(x, theta.copy(), _own(normal, projected, theta.copy()), cost, information, fisher.copy(),
-                     moments.count, int(iterations), start, settings, pixel_pitch_mm)
+    return _answer(x, out[4:7].copy(), out[35:38].copy(), cost, information, float(out[38]), moments.count,
+                   int(iterations), start, settings, pixel_pitch_mm)
 
 
-_TRIG_OUT = 35  # x, iterations, information, cost, θ (3), normal (3×3), projected (3), Fisher (4×4)
+# x, iterations, information, cost, θ (3), normal (3×3), projected (3), Fisher (4×4), own θ (3), blur variance
+_TRIG_OUT = 39
 
 
 def _light_and_blur(normal: np.ndarray, projected: np.ndarray, theta: np.ndarray, has_prior: bool,
@@ -215,6 +222,13 @@ def _trig_focus(base: np.ndarray, orders: np.ndarray, yy: float, y1: float, ones
         out[23 + 4 * i] = cross[i]
         for j in range(3):
             out[24 + 4 * i + j] = normal[i, j]
+    # the frame's own (g, h, o) without the prior (the theta solved, when singular), and the blur
+    # coefficient's variance from the Fisher matrix of (x, g, h, o) (infinite, when singular)
+    own = out[4:7].copy()
+    _solve3(out[7:16].reshape(3, 3), out[16:19], own)
+    out[35:38] = own
+    inverse = np.eye(4)
+    out[38] = inverse[2, 2] if _eliminate(out[19:35].reshape(4, 4).copy(), inverse) else math.inf
 
 
 def general_focus_solve(evaluator, y: np.ndarray, weights: np.ndarray, start: FrameSolution,
@@ -445,33 +459,12 @@ def _with_prior(normal: np.ndarray, projected: np.ndarray, prior: FocusPrior | N
     return held, held_projected
 
 
-def _own(normal: np.ndarray, projected: np.ndarray, fallback: np.ndarray) -> np.ndarray:
-    """The frame's own (g, h, o) at the final x, without a prior: the independent estimate the
-    focus watch and the next frames' prior average."""
-    try:
-        return small_linalg.solve(normal, projected)
-    except np.linalg.LinAlgError:
-        return fallback
-
-
-def _solution(x: float, theta: np.ndarray, own: np.ndarray, cost: float, information: float, fisher: np.ndarray,
-              n_used: float, iterations: int, start: FrameSolution, settings: SolverSettings,
-              pixel_pitch_mm: float) -> FrameSolution:
-    """The frame's answer with the focus term: x, gain and offset as solved (``theta``); δ = h/g in
-    px² and its standard error from the frame's own estimate (``own``) and the Fisher matrix of
-    (x, g, h, o)."""
-    try:
-        blur_variance = float(small_linalg.inv(fisher)[2, 2])
-    except np.linalg.LinAlgError:
-        blur_variance = float("inf")
-    return _answer(x, theta, own, cost, information, blur_variance, n_used, iterations, start, settings,
-                   pixel_pitch_mm)
-
-
 def _answer(x: float, theta: np.ndarray, own: np.ndarray, cost: float, information: float, blur_variance: float,
             n_used: float, iterations: int, start: FrameSolution, settings: SolverSettings,
             pixel_pitch_mm: float) -> FrameSolution:
-    """:func:`_solution` given the blur coefficient's variance (the Fisher matrix inverted)."""
+    """The frame's answer with the focus term: x, gain and offset as solved (``theta``); δ = h/g in
+    px² and its standard error from the frame's own estimate (``own``, without the prior) and the
+    blur coefficient's variance (the Fisher matrix of (x, g, h, o) inverted)."""
     chi2 = max(cost, 0.0) / max(n_used - FOCUS_UNKNOWNS - 1, 1.0)
     gain, offset = float(theta[0]), float(theta[2])
     own_gain, blur = float(own[0]), float(own[1])
@@ -490,7 +483,8 @@ _light_and_blur_twin = frame_kernel.python_twin(_light_and_blur, _solve3=_solve3
 _general_focus_twin = frame_kernel.python_twin(_general_focus, _model_many=_numpy_model_many,
                                                _focus_sums_of=_focus_sums_numpy, _eliminate=_numpy_eliminate,
                                                _solve3=_solve3_twin, _light_and_blur=_light_and_blur_twin)
-_trig_focus_twin = frame_kernel.python_twin(_trig_focus, _solve3=_solve3_twin, _light_and_blur=_light_and_blur_twin)
+_trig_focus_twin = frame_kernel.python_twin(_trig_focus, _solve3=_solve3_twin, _light_and_blur=_light_and_blur_twin,
+                                            _eliminate=_numpy_eliminate)
 if kernels.numba is not None:
     _jit = kernels.numba.njit(cache=True, nogil=True, error_model="numpy")
     _model_many = _jit(_model_many)

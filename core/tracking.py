@@ -40,7 +40,7 @@ from graytrack.core.focus_follow import FocusFollow, followable
 from graytrack.core.models.fourier import TWO_PI, FourierModel
 from graytrack.core.moving_light import MovingLight, follow
 from graytrack.core.recording import Recording
-from graytrack.core.stretch import frame_stretch
+from graytrack.core.stretch import FrameStretch
 from graytrack.core.texture import Texture
 from graytrack.core.validity import FAMILIES, FrameSign, Monitor, Watch, monitor_for
 from graytrack.core.solvers import (CUT_SIGMA, TRANSIENT_MAX_WIDTH_SHARE, FrameSolution, GeneralBatch, SolverSettings,
@@ -691,7 +691,7 @@ class SequentialState:
         if self.monitor is None:
             self.monitor = monitor_for(tracker)
         explain = (lambda: tracker.explain(batch, k, solution)) if placed and self.chi2_suspect else None
-        stretched = (lambda: frame_stretch(tracker, batch, k, solution)) if placed else None  # core/stretch.py
+        stretched = FrameStretch(tracker, batch, k, solution) if placed else None  # core/stretch.py
         average = self.chi2_average if self.chi2_average is not None else float("nan")
         if self.pending is not None:
             self.pending.append((self.frame - 1, solution, reference, placed, self.rows_averaged, average,
