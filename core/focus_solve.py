@@ -68,43 +68,25 @@ class CurvatureTable:
         return folded
 
 
-@dataclass(frozen=True)
-class FocusMoments:
-    """One frame's inner products of the blur solve: the five trig polynomials the seventeen rows
-    of :func:`_trig_focus` derive from, and the frame's scalars."""
-
-    base: np.ndarray  # (5, D+1) complex: F·F, F′·F′, F·1, y·F and F″·F″
-    yy: float
-    y1: float
-    ones: float  # Σ w
-    count: float  # samples used
-    phase_orders: np.ndarray
-
-
 def focus_moments(source: TrigPolyBatch, k: int, curvature: CurvatureTable,
-                  rejected: np.ndarray | None) -> FocusMoments:
-    """The base rows of frame ``k`` (pixels ``rejected`` set aside), from the fast path's seven and
-    the curvature table (the one product that is not a derivative of those)."""
+                  rejected: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, list[float]]:
+    """Frame ``k``'s inner products of the blur solve (pixels ``rejected`` set aside): the fast path's
+    seven moment rows (F·F, F′·F′, F·1 and y·F are the ones read), the curvature table's F″·F″ row
+    (the one product that is not a derivative of those) and the frame's scalars (Σwy², Σwy, Σw, the
+    samples used)."""
     weights = source.weights(k)
     if rejected is not None and rejected.any():
         weights = weights * ~rejected
         source, k = source.reweighted(k, weights), 0
-    rows = source.rows[k]
-    scalars = source.scalars(k)
-    base = np.empty((5, rows.shape[1]), dtype=complex)
-    np.take(rows, _BASE_ROWS, axis=0, out=base[:4])  # F·F, F′·F′, F·1, y·F
-    base[4] = curvature.weighted(weights)
-    return FocusMoments(base, scalars[0], scalars[1], scalars[2], scalars[3], source.tables.phase_orders)
+    return source.rows[k], curvature.weighted(weights), source.scalars(k)
 
 
-_BASE_ROWS = np.array([0, 2, 3, 5])  # of the fast path's seven rows: F·F, F′·F′, F·1, y·F
-
-
-def _focus_rows(base: np.ndarray, orders: np.ndarray, x: float, m: np.ndarray) -> None:
+def _focus_rows(rows: np.ndarray, cc_row: np.ndarray, orders: np.ndarray, x: float, m: np.ndarray) -> None:
     """The seventeen moments at ``x`` into ``m``, each Re Σ_j row_j·e^{P_j x}, the rows derived from
-    the base ones with P = iωm (a derivative) and the identities F·F″ = ½(F·F)″ − F′·F′,
-    F′·F″ = ½(F′·F′)′: FF, FF″, F″F″, F1, F″1, yF, yF″ (the normal equations of g, h, o) and FF′,
-    FF‴, F″F′, F″F‴, F′1, F‴1, F′F′, F′F‴, yF′, yF‴ (those of the x Jacobian)."""
+    the base ones (F·F, F′·F′, F·1, y·F of the seven ``rows``; F″·F″, ``cc_row``) with P = iωm (a
+    derivative) and the identities F·F″ = ½(F·F)″ − F′·F′, F′·F″ = ½(F′·F′)′: FF, FF″, F″F″, F1,
+    F″1, yF, yF″ (the normal equations of g, h, o) and FF′, FF‴, F″F′, F″F‴, F′1, F‴1, F′F′, F′F‴,
+    yF′, yF‴ (those of the x Jacobian)."""
     for k in range(17):
         m[k] = 0.0
     for j in range(orders.size):
@@ -112,7 +94,7 @@ def _focus_rows(base: np.ndarray, orders: np.ndarray, x: float, m: np.ndarray) -
         z = np.exp(p * x)
         p2 = p * p
         p3 = p2 * p
-        ff, dd, f1, yf, cc = base[0, j] * z, base[1, j] * z, base[2, j] * z, base[3, j] * z, base[4, j] * z
+        ff, dd, f1, yf, cc = rows[0, j] * z, rows[2, j] * z, rows[3, j] * z, rows[5, j] * z, cc_row[j] * z
         fc = 0.5 * p2 * ff - dd  # F·F″
         dc = 0.5 * p * dd  # F′·F″
         m[0] += ff.real
@@ -140,18 +122,18 @@ def focus_solve(source: TrigPolyBatch, k: int, curvature: CurvatureTable, start:
     docstring). The solution's ``focus`` is δ in px² of the pixel footprint on the target,
     ``focus_sigma`` its standard error with x, gain and offset estimated too: this frame's own
     estimate, whatever the ``prior`` (see :class:`FocusPrior`) did to x."""
-    moments = focus_moments(source, k, curvature, start.rejected_mask if start.rejected else None)
+    rows, cc, scalars = focus_moments(source, k, curvature, start.rejected_mask if start.rejected else None)
     has_prior = prior is not None and prior.variance_mm4 > 0.0
     out = np.empty(_TRIG_OUT)
     compiled = kernels.COMPILED and kernels.numba is not None
     (_trig_focus if compiled else _trig_focus_twin)(
-        np.ascontiguousarray(moments.base), np.ascontiguousarray(moments.phase_orders), moments.yy, moments.y1,
-        moments.ones, float(start.x_mm), float(start.gain), float(start.offset), has_prior,
-        prior.delta_mm2 if has_prior else 0.0, prior.variance_mm4 if has_prior else 0.0,
-        settings.max_iterations, settings.tolerance_mm, settings.max_step_mm, out)
-    x, iterations, information, cost = out[:4].tolist()
-    return _answer(x, out[4:7].copy(), out[35:38].copy(), cost, information, float(out[38]), moments.count,
-                   int(iterations), start, settings, pixel_pitch_mm)
+        rows, cc, source.tables.phase_orders, scalars[0], scalars[1], scalars[2], float(start.x_mm),
+        float(start.gain), float(start.offset), has_prior, prior.delta_mm2 if has_prior else 0.0,
+        prior.variance_mm4 if has_prior else 0.0, settings.max_iterations, settings.tolerance_mm,
+        settings.max_step_mm, out)
+    values = out.tolist()
+    return _answer(values[0], values[4:7], values[35:38], values[3], values[2], values[38], scalars[3],
+                   int(values[1]), start, settings, pixel_pitch_mm)
 
 
 # x, iterations, information, cost, θ (3), normal (3×3), projected (3), Fisher (4×4), own θ (3), blur variance
@@ -181,18 +163,18 @@ def _light_and_blur(normal: np.ndarray, projected: np.ndarray, theta: np.ndarray
     return yy - 2.0 * explained + quadratic
 
 
-def _trig_focus(base: np.ndarray, orders: np.ndarray, yy: float, y1: float, ones: float, x: float, gain: float,
-                offset: float, has_prior: bool, prior_delta: float, prior_variance: float, max_iterations: int,
-                tolerance: float, max_step: float, out: np.ndarray) -> None:
-    """The iterations of :func:`focus_solve` on a frame's base moment rows, into ``out`` (see
-    :data:`_TRIG_OUT`): one compiled call instead of some fifteen small numpy ones an iteration."""
+def _trig_focus(rows: np.ndarray, cc: np.ndarray, orders: np.ndarray, yy: float, y1: float, ones: float, x: float,
+                gain: float, offset: float, has_prior: bool, prior_delta: float, prior_variance: float,
+                max_iterations: int, tolerance: float, max_step: float, out: np.ndarray) -> None:
+    """The iterations of :func:`focus_solve` on a frame's moment rows (:func:`focus_moments`), into
+    ``out`` (see :data:`_TRIG_OUT`): one compiled call instead of some fifteen small numpy ones an iteration."""
     m = np.empty(17)
     theta = np.array([gain, 0.0, offset])
     normal, projected, cross = np.eye(3), np.zeros(3), np.zeros(3)
     held, held_projected, solved = np.empty((3, 3)), np.empty(3), np.empty(3)
     information, cost, jj, iterations = 0.0, math.inf, 0.0, 0
     for iterations in range(1, max_iterations + 1):
-        _focus_rows(base, orders, x, m)
+        _focus_rows(rows, cc, orders, x, m)
         normal = np.array([[m[0], 0.5 * m[1], m[3]], [0.5 * m[1], 0.25 * m[2], 0.5 * m[4]],
                            [m[3], 0.5 * m[4], ones]])
         projected = np.array([m[5], 0.5 * m[6], y1])
@@ -266,8 +248,8 @@ def warm(evaluator, period_mm: float) -> None:
     """Compile (or load from the disk cache) the focus solves now, at model install: the first blurred frame must not wait for the compiler (~40 ms from the
     cache, seconds on a fresh install)."""
     if kernels.COMPILED and kernels.numba is not None:  # the fast path's (trig-polynomial) focus solve
-        _trig_focus(np.ones((5, 3), dtype=complex), np.ones(3, dtype=complex), 1.0, 1.0, 1.0, 0.0, 1.0, 0.0,
-                    False, 0.0, 0.0, 1, 1.0, 1.0, np.empty(_TRIG_OUT))
+        _trig_focus(np.ones((7, 3), dtype=complex), np.ones(3, dtype=complex), np.ones(3, dtype=complex), 1.0, 1.0,
+                    1.0, 0.0, 1.0, 0.0, False, 0.0, 0.0, 1, 1.0, 1.0, np.empty(_TRIG_OUT))
     if not (kernels.COMPILED and isinstance(evaluator, kernels.TableEvaluator)):
         return
     n_values = evaluator.tables.n_values

@@ -57,7 +57,8 @@ class MagnificationWatch:
         self._normal = np.zeros((6, 6))  # Σ dᵃ·w·b·bᵀ (a: a frame's age)
         self._noise = np.zeros((6, 6))  # Σ d²ᵃ·w·b·bᵀ: an estimate's noise is N⁻¹·this·N⁻¹
         self._right = np.zeros(6)  # Σ dᵃ·w·b·m
-        # Σ dᵃ·w·m², Σ dᵃ, the mean (ppm) and its σ, the variance of the stretch a trim accounts for (ppm²), flagged
+        # Σ dᵃ·w·m², Σ dᵃ, the mean (ppm) and its σ, the variance of the stretch a trim accounts for
+        # (ppm²), flagged
         self._scalars = np.array([0.0, 0.0, 0.0, math.inf, 0.0, 0.0])
         self._params = np.array([math.exp(-1.0 / MEMORY), period_mm, -(1.0 / MEMORY), MIN_FRAMES,
                                  self.allowance_ppm ** 2, Z_ON, Z_OFF])
