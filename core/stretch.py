@@ -60,7 +60,7 @@ def stretch(values: np.ndarray, slopes: np.ndarray, residual: np.ndarray, weight
 
 def frame_stretch(tracker, batch, k: int, solution) -> tuple[float, float]:
     """:func:`stretch` of batch frame ``k`` at its solution (one evaluation of the model there)."""
-    if COMPILED:
+    if compiled_for(tracker):
         m, sigma = stretches([FrameStretch(tracker, batch, k, solution)])
         return float(m[0]), float(sigma[0])
     weights = batch.weights(k)
@@ -78,6 +78,12 @@ def frame_stretch(tracker, batch, k: int, solution) -> tuple[float, float]:
     return stretch(values[1], slopes[1], residual, weights, offsets, (slopes[2] - slopes[0]) / (2.0 * step))
 
 
+def compiled_for(tracker) -> bool:
+    """Whether ``tracker``'s stretches are computed by the compiled kernel (its model evaluated by the
+    table kernel: :func:`stretches`), else by numpy frame by frame."""
+    return COMPILED and isinstance(tracker.evaluator, kernels.TableEvaluator)
+
+
 class FrameStretch:
     """One solved frame's stretch, computed when a watch asks (``FrameSign.stretch``): it keeps what
     the stretch is computed from, so that a chunk of frames waiting for the monitor is computed in
@@ -93,8 +99,8 @@ class FrameStretch:
 
 
 def stretches(frames: list[FrameStretch]) -> tuple[np.ndarray, np.ndarray]:
-    """(m, σ) of each of ``frames`` (all of one tracker), by one compiled call: :func:`stretch`'s
-    least squares frame by frame (the same numbers to rounding: tests/core/test_stretch_fast.py)."""
+    """(m, σ) of each of ``frames`` (all of one tracker, :func:`compiled_for` it), by one compiled
+    call: :func:`stretch`'s least squares frame by frame (the same numbers to rounding: tests/core/test_stretch_fast.py)."""
     tracker = frames[0].tracker
     n, n_values = len(frames), tracker.model.n_rows * tracker.model.n_pixels
     y, w = np.empty((n, n_values)), np.empty((n, n_values))

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from graytrack.core.stretch import FrameStretch, stretches
+from graytrack.core.stretch import FrameStretch, compiled_for, stretches
 from graytrack.core.watches import _kernels
 
 MEMORY = 50  # frames: the mean's time constant
@@ -113,7 +113,8 @@ class MagnificationWatch:
         m, sigma = np.full(n, math.nan), np.full(n, math.inf)
         if asked.size:
             frames = [entries[i] for i in asked]
-            if all(type(frame) is FrameStretch for frame in frames) and len({id(f.tracker) for f in frames}) == 1:
+            if all(type(frame) is FrameStretch for frame in frames) and len({id(f.tracker) for f in frames}) == 1 \
+                    and compiled_for(frames[0].tracker):
                 m[asked], sigma[asked] = stretches(frames)
             else:
                 m[asked], sigma[asked] = np.array([frame() for frame in frames], dtype=np.float64).reshape(-1, 2).T
