@@ -95,16 +95,18 @@ class FrameStretch:
         self.tracker, self.batch, self.k, self.solution = tracker, batch, k, solution
 
     def __call__(self) -> tuple[float, float]:
-        return frame_stretch(self.tracker, self.batch, self.k, self.solution)
+        if not compiled_for(self.tracker):
+            return frame_stretch(self.tracker, self.batch, self.k, self.solution)
+        m, sigma = stretches([self])
+        return float(m[0]), float(sigma[0])
 
 
 def stretches(frames: list[FrameStretch]) -> tuple[np.ndarray, np.ndarray]:
     """(m, σ) of each of ``frames`` (all of one tracker, :func:`compiled_for` it), by one compiled
     call: :func:`stretch`'s least squares frame by frame (the same numbers to rounding: tests/core/test_stretch_fast.py)."""
     tracker = frames[0].tracker
-    n, n_values = len(frames), tracker.model.n_rows * tracker.model.n_pixels
-    y, w = np.empty((n, n_values)), np.empty((n, n_values))
-    x, gain, offset, focused = np.empty(n), np.empty(n), np.empty(n), np.empty(n, dtype=np.bool_)
+    n = len(frames)
+    y, w, x, gain, offset, focused, work, m, sigma = _buffers(tracker, n)
     for i, frame in enumerate(frames):
         solution, batch = frame.solution, frame.batch
         y[i] = batch.frames[frame.k]
@@ -115,11 +117,23 @@ def stretches(frames: list[FrameStretch]) -> tuple[np.ndarray, np.ndarray]:
             w[i] = weights
         x[i], gain[i], offset[i] = solution.x_mm, solution.gain, solution.offset
         focused[i] = math.isfinite(solution.focus_sigma)
-    offsets = _target_offsets(tracker)
-    m, sigma = np.empty(n), np.empty(n)
-    _stretches(x, gain, offset, focused, y, w, offsets, tracker.model.period_mm * FOCUS_STEP_PERIODS,
-               tracker.evaluator._args, np.empty((4, 3, n_values)), m, sigma)
+    _stretches(x, gain, offset, focused, y, w, _target_offsets(tracker), tracker.model.period_mm * FOCUS_STEP_PERIODS,
+               tracker.evaluator._args, work, m, sigma)
     return m, sigma
+
+
+def _buffers(tracker, n: int) -> tuple[np.ndarray, ...]:
+    """The arrays of :func:`stretches` for ``n`` frames: those of one frame (live tracking asks frame
+    by frame) kept on the tracker's evaluator, to be overwritten by its next frame."""
+    kept = getattr(tracker.evaluator, "_stretch_buffers", None) if n == 1 else None
+    if kept is not None:
+        return kept
+    n_values = tracker.model.n_rows * tracker.model.n_pixels
+    made = (np.empty((n, n_values)), np.empty((n, n_values)), np.empty(n), np.empty(n), np.empty(n),
+            np.empty(n, dtype=np.bool_), np.empty((4, 3, n_values)), np.empty(n), np.empty(n))
+    if n == 1:
+        tracker.evaluator._stretch_buffers = made
+    return made
 
 
 def _target_offsets(tracker) -> np.ndarray:

@@ -22,6 +22,7 @@ as turning, on half its frames.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -121,7 +122,7 @@ class MagnificationWatch:
         use = np.isfinite(m) & (0 < sigma) & (sigma < math.inf)
         if self.record is not None:
             self.record.extend(zip(x[use].tolist(), (m[use] * 1e6).tolist(), (sigma[use] * 1e6).tolist()))
-        own = np.interp(x, self.profile.centers_mm, self.profile.values_ppm) if self.profile is not None else 0.0
+        own = self.profile.at_ppm(x) if self.profile is not None else 0.0
         m_ppm = np.where(use, m * 1e6 - own - 0.0, 0.0)
         sigma_ppm = np.where(use, sigma * 1e6, 1.0)
         self._scalars[4] = 0.0
@@ -176,8 +177,16 @@ class StretchProfile:
     values_ppm: tuple[float, ...]
     residual_ppm: float
 
-    def at_ppm(self, x_mm: float) -> float:
-        return float(np.interp(x_mm, self.centers_mm, self.values_ppm))
+    def at_ppm(self, x_mm: float | np.ndarray) -> float | np.ndarray:
+        """The model's own stretch at ``x_mm`` (one position, or an array of them), ppm."""
+        if np.ndim(x_mm):
+            return np.interp(x_mm, *self._nodes)
+        return float(np.interp(x_mm, *self._nodes))
+
+    @functools.cached_property
+    def _nodes(self) -> tuple[np.ndarray, np.ndarray]:
+        """The centres and values as arrays, made once: every frame reads the profile."""
+        return np.array(self.centers_mm), np.array(self.values_ppm)
 
     def as_dict(self) -> dict:
         return {"centers_mm": [round(v, 6) for v in self.centers_mm],
