@@ -136,6 +136,17 @@ def _buffers(tracker, n: int) -> tuple[np.ndarray, ...]:
     return made
 
 
+def warm(tracker) -> None:
+    """Compile (or load from numba's cache) the stretch kernel for ``tracker``'s model now, at model
+    install: no live frame waits for the compiler (tests/core/test_install_warm.py)."""
+    if not compiled_for(tracker):
+        return
+    y, w, x, gain, offset, focused, work, m, sigma = _buffers(tracker, 1)
+    w[:] = 0.0  # no sample: the model evaluated once, nothing solved
+    x[0], gain[0], offset[0], focused[0] = 0.0, 1.0, 0.0, False
+    _stretches(x, gain, offset, focused, y, w, _target_offsets(tracker), 1.0, tracker.evaluator._args, work, m, sigma)
+
+
 def _target_offsets(tracker) -> np.ndarray:
     """Each sample's target offset (mm), flat, kept on the tracker's evaluator (made once per model)."""
     offsets = getattr(tracker.evaluator, "_stretch_offsets", None)

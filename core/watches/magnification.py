@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from graytrack.core.stretch import FrameStretch, compiled_for, stretches
+from graytrack.core.stretch import warm as stretch_warm
 from graytrack.core.watches import _kernels
 
 MEMORY = 50  # frames: the mean's time constant
@@ -80,7 +81,9 @@ class MagnificationWatch:
 
     @classmethod
     def for_model(cls, model) -> "MagnificationWatch":
-        """Less what the model read on its own calibration (``stretch_profile`` in its info, when it has one)."""
+        """Less what the model read on its own calibration (``stretch_profile`` in its info, when it has
+        one); its compiled loops ready now, at model install, not on a live frame."""
+        _warm()
         doc = (getattr(model, "info", None) or {}).get("stretch_profile")
         return cls(model.period_mm, StretchProfile.from_dict(doc) if isinstance(doc, dict) else None)
 
@@ -224,5 +227,19 @@ class StretchProfile:
 
 def make(tracker) -> MagnificationWatch:
     """Every tracker's: the stretch is in the frames, with a grating or without (a trimmed run's scale
-    watch carries its own, judged against the trim: core/watches/scale.py)."""
+    watch carries its own, judged against the trim: core/watches/scale.py). Its compiled loops are
+    made ready here, at model install, not on a live frame."""
+    stretch_warm(tracker)
     return MagnificationWatch.for_model(tracker.model)
+
+
+@functools.cache
+def _warm() -> None:
+    """Compile (or load from numba's cache) the running sums' loops, once a process."""
+    watch = MagnificationWatch.__new__(MagnificationWatch)
+    watch._normal, watch._noise, watch._right = np.zeros((6, 6)), np.zeros((6, 6)), np.zeros(6)
+    watch._scalars = np.array([0.0, 0.0, 0.0, math.inf, 0.0, 0.0])
+    watch._params = np.array([1.0, 1.0, 0.0, math.inf, 0.0, Z_ON, Z_OFF])  # never enough frames to judge
+    watch._add(0.0, 0.0, 1.0)
+    one = np.zeros(1)
+    watch._run(one, one, np.ones(1), np.ones(1, dtype=np.bool_), 0, np.zeros(1, dtype=np.bool_))
