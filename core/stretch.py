@@ -61,8 +61,7 @@ def stretch(values: np.ndarray, slopes: np.ndarray, residual: np.ndarray, weight
 def frame_stretch(tracker, batch, k: int, solution) -> tuple[float, float]:
     """:func:`stretch` of batch frame ``k`` at its solution (one evaluation of the model there)."""
     if compiled_for(tracker):
-        m, sigma = stretches([FrameStretch(tracker, batch, k, solution)])
-        return float(m[0]), float(sigma[0])
+        return FrameStretch(tracker, batch, k, solution)()
     weights = batch.weights(k)
     if solution.rejected_mask is not None:
         weights = weights * ~solution.rejected_mask
@@ -103,7 +102,8 @@ class FrameStretch:
 
 def stretches(frames: list[FrameStretch]) -> tuple[np.ndarray, np.ndarray]:
     """(m, σ) of each of ``frames`` (all of one tracker, :func:`compiled_for` it), by one compiled
-    call: :func:`stretch`'s least squares frame by frame (the same numbers to rounding: tests/core/test_stretch_fast.py)."""
+    call: :func:`stretch`'s least squares frame by frame, solved by elimination rather than numpy's
+    inverse (the same numbers to rounding: tests/core/test_stretch_fast.py)."""
     tracker = frames[0].tracker
     n = len(frames)
     y, w, x, gain, offset, focused, work, m, sigma = _buffers(tracker, n)

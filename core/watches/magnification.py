@@ -126,7 +126,7 @@ class MagnificationWatch:
         if self.record is not None:
             self.record.extend(zip(x[use].tolist(), (m[use] * 1e6).tolist(), (sigma[use] * 1e6).tolist()))
         own = self.profile.at_ppm(x) if self.profile is not None else 0.0
-        m_ppm = np.where(use, m * 1e6 - own - 0.0, 0.0)
+        m_ppm = np.where(use, m * 1e6 - own, 0.0)  # as step: no trim accounts for any of it here
         sigma_ppm = np.where(use, sigma * 1e6, 1.0)
         self._scalars[4] = 0.0
         out = np.zeros(n, dtype=np.bool_)
