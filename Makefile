@@ -10,8 +10,9 @@ PORT   ?= 8000
 ARAVIS_EXTRA := $(shell pkg-config --exists gobject-introspection-1.0 cairo 2>/dev/null && echo ",aravis")
 # The stamp names the extras, so installing the Aravis system packages later triggers a reinstall.
 STAMP  := $(VENV)/.installed$(subst $(comma),-,$(ARAVIS_EXTRA))
-# `make run` installs what running needs, nothing for the tests (no pytest, no playwright).
-RUN_EXTRAS := $(if $(ARAVIS_EXTRA),[aravis],)
+# `make run` installs what running needs (the daemon extra: the numerical stack; `pip install .` alone is the
+# client, docs/clients.md), nothing for the tests (no pytest, no playwright).
+RUN_EXTRAS := [daemon$(ARAVIS_EXTRA)]
 RUN_STAMP  := $(VENV)/.run-installed$(subst $(comma),-,$(ARAVIS_EXTRA))
 # `make service-venv`: a non-editable install for the systemd unit (deploy/graytrack.service).
 PREFIX ?= /opt/graytrack
@@ -24,7 +25,7 @@ $(BIN)/python:
 	$(BIN)/python -m pip install --quiet --upgrade pip
 
 $(STAMP): pyproject.toml setup.py | $(BIN)/python
-	$(BIN)/python -m pip install --quiet -e ".[test,cluster$(ARAVIS_EXTRA)]"
+	$(BIN)/python -m pip install --quiet -e ".[daemon,test,cluster$(ARAVIS_EXTRA)]"
 	touch $(STAMP)
 
 install: $(STAMP)

@@ -17,9 +17,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
+if TYPE_CHECKING:  # numpy is imported where the columns are made: the client reads QUANTITIES without it
+    import numpy as np
 
 
 @dataclass(frozen=True)
@@ -90,6 +91,8 @@ def of_frame(source: Any, k: int | None = None, names: tuple[str, ...] | None = 
 def columns(result: Any) -> dict[str, np.ndarray]:
     """The record of every frame of a ``TrackResult`` as columns (the CSV's): flags 0/1, counts as
     integers, figures as floats (NaN where they do not exist), reasons as strings."""
+    import numpy as np  # not at the top: graytrack.wire (the client's models) imports this table without numpy
+
     out = {}
     for quantity in QUANTITIES:
         value = _raw(result, quantity.name, None)

@@ -55,7 +55,8 @@ from typing import Callable
 import numpy as np
 
 from graytrack.core.adequacy import inadequacy
-from graytrack.core.trim_follow import Follower, Following
+from graytrack.core.poly_follow import ChosenFollower
+from graytrack.core.trim_follow import Following
 from graytrack.core.watches import _kernels
 
 DEFAULT_WINDOW = 500  # frames in the sliding window
@@ -68,6 +69,7 @@ JUMP_FRAMES = 15  # outliers in a row that say the line itself jumped (a glint l
 Z_ON, Z_OFF = 5.0, 3.0  # drift significance (σ) to raise and to clear the flag
 FLOOR_UM = 0.2  # the smallest error over the stroke worth a flag (below a grating ruler's certified accuracy)
 PRIOR_SCALE_PPM = 1000.0  # standard deviation of the prior on the scale: unobservable while the stage rests
+UNTRIMMED_BEHIND = 2.0  # bounds: untrimmed positions this far off the calibration's line, significantly, are flagged
 GATE = 8.0  # a frame whose residual is beyond this many of its σ from the line is an outlier (not added)
 REFINE = 0.7  # a refined trim is logged when its scale or offset σ fell this much since the last logged one
 # ... and refined, quietly, when a later window knows its scale or offset this much better (σ ratio): a
@@ -533,7 +535,8 @@ class Trimmer:
     monitor: ReferenceMonitor
     trim: Line | None = None
     logged: Line | None = None  # the trim as last logged (quiet refinements since are not events)
-    follower: Follower = field(default_factory=Follower)
+    # the line, or a quadratic where the drift curves (a cycle): core/poly_follow.py
+    follower: ChosenFollower = field(default_factory=ChosenFollower)
     following: Following = field(default_factory=Following)  # the follower's word on the last frame fed
     drifted: bool = False  # the monitor's flag as the last frame left it, before a trim took the drift up
     _x_mm: float = field(default=math.nan, init=False)  # the last frame's position (where a new line is restated)
@@ -553,12 +556,15 @@ class Trimmer:
         self.drifted = self.monitor.stale
         event = self.consider()
         trim, monitor = self.trim, self.monitor
-        if trim is not None and known:
-            residual = (x_mm - reference_mm) * 1e3 - float(trim.at_um(x_mm))
+        # before a trim, the follower watches the positions against the calibration's line: a drift that
+        # starts with the run is told (:meth:`behind`) before the window's line has the evidence to trim
+        line = trim if trim is not None else monitor.calibration
+        if known:
+            residual = (x_mm - reference_mm) * 1e3 - (float(line.at_um(x_mm)) if line is not None else 0.0)
             if monitor.structure is not None:  # the model's own error here, as the monitor takes it out
                 residual -= monitor.structure.at_one_um(reference_mm)
             self.follower.add(residual, (bound_mm ** 2 + monitor.reference_sigma_mm ** 2) * 1e6)
-        self.following = self.follower.now() if trim is not None else Following()
+        self.following = self.follower.now()
         return event
 
     def consider(self) -> TrimEvent | None:
@@ -580,11 +586,11 @@ class Trimmer:
         return event
 
     def _adopt(self, line: Line, why: str) -> TrimEvent:
-        old, x = self.trim, self._x_mm
-        if old is None or not math.isfinite(x):
+        old, x = self.trim if self.trim is not None else self.monitor.calibration, self._x_mm
+        if not math.isfinite(x):
             self.follower.reset()
         else:  # what the follower kept is restated against the new line
-            self.follower.shift(float(line.at_um(x)) - float(old.at_um(x)))
+            self.follower.shift(float(line.at_um(x)) - (float(old.at_um(x)) if old is not None else 0.0))
         self.trim = self.logged = line
         self.monitor.baseline = line
         self.monitor.stale = False
@@ -604,17 +610,26 @@ class Trimmer:
 
     def step(self, x_mm: float) -> tuple[float, float]:
         """(the trimmed position in mm, what the trim adds to its bound there in mm: the line's
-        standard error, the follower's correction's and the lag, in quadrature); no trim: (x, 0)."""
+        standard error (while no correction is in force), the follower's correction's and the lag, in
+        quadrature); no trim: (x, 0)."""
         trim = self.trim
         if trim is None or not math.isfinite(x_mm):
             return x_mm, 0.0
         f = self.following
         x = x_mm - (float(trim.at_um(x_mm)) + f.correction_um) * 1e-3
-        return x, math.sqrt(float(trim.sigma_um(x_mm)) ** 2 + f.sigma_um ** 2 + f.lag_um ** 2) * 1e-3
+        # a correction in force measured what the line leaves here, the line's own error with it: its σ
+        # stands for both (a cycle's line, far from a line, had widened 16-row bounds 2.5-fold, to 1 µm)
+        line_um = 0.0 if f.correction_um else float(trim.sigma_um(x_mm))
+        return x, math.sqrt(line_um ** 2 + f.sigma_um ** 2 + f.lag_um ** 2) * 1e-3
 
     def behind(self, bound_mm: float) -> bool:
-        """The trim in force lags this frame by more than its bound (flagged: never silently behind)."""
-        return self.trim is not None and self.following.behind(bound_mm)
+        """The trim in force lags this frame by more than its bound (flagged: never silently behind);
+        before a trim, the positions are off the calibration's line by more than :data:`UNTRIMMED_BEHIND`
+        of their bound, significantly (a lens's slide from the run's first frame, 0.5 bound a frame:
+        frames 6-10 of a 16-row run 4-6.5 bounds off, before the window's line could trim)."""
+        if self.trim is None:
+            return abs(self.following.correction_um) > UNTRIMMED_BEHIND * bound_mm * 1e3
+        return self.following.behind(bound_mm)
 
 
 def _better(line: Line, than: Line, ratio: float) -> bool:

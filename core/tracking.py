@@ -41,6 +41,7 @@ from graytrack.core.models.fourier import TWO_PI, FourierModel
 from graytrack.core.moving_light import MovingLight, follow
 from graytrack.core.recording import Recording
 from graytrack.core.stretch import FrameStretch
+from graytrack.core.stretch_follow import StretchFollow, followed_stretch, stretch_follow
 from graytrack.core.texture import Texture
 from graytrack.core.validity import FAMILIES, FrameSign, Monitor, Watch, monitor_for
 from graytrack.core.solvers import (CUT_SIGMA, TRANSIENT_MAX_WIDTH_SHARE, FrameSolution, GeneralBatch, SolverSettings,
@@ -659,6 +660,8 @@ class SequentialState:
     pending: list | None = None
     recent: RecentChi2 = field(default_factory=RecentChi2)  # the last frames' χ²: has an episode ended?
     texture: Texture | None = None  # marks learned on the print in this run (core/texture.py); None: not learning
+    # the lens's stretch followed and taken out of each frame (core/stretch_follow.py: a trim's); None: not
+    stretch: StretchFollow | None = None
 
     def advance(self, tracker: "Tracker", batch: GeneralBatch | TrigPolyBatch, k: int,
                 reference: float) -> tuple[FrameSolution, bool, bool]:
@@ -670,7 +673,13 @@ class SequentialState:
             memory = self.memory
             solved, at = texture.corrected(tracker, batch, k, guess, tracker.free_light(memory), memory.gain,
                                            memory.offset)
+        follow = self.stretch
+        if follow is not None:
+            guess = self.x_prev + self.velocity if self.locked else reference
+            solved, at = follow.corrected(tracker, solved, at, guess, self.memory.gain)
         solution, ok = _solve_frame(tracker, solved, at, self, reference)
+        if follow is not None:
+            follow.observe(tracker, solved, at, solution, ok)
         locked = ok and len(self.events) == events_before
         self.velocity = solution.x_mm - self.x_prev if locked and self.locked and self.x_prev is not None else 0.0
         if ok:
@@ -692,6 +701,8 @@ class SequentialState:
             self.monitor = monitor_for(tracker)
         explain = (lambda: tracker.explain(batch, k, solution)) if placed and self.chi2_suspect else None
         stretched = FrameStretch(tracker, batch, k, solution) if placed else None  # core/stretch.py
+        if placed and self.stretch is not None:  # measured already, with the stretch taken out added back
+            stretched = followed_stretch(self.stretch)
         average = self.chi2_average if self.chi2_average is not None else float("nan")
         if self.pending is not None:
             self.pending.append((self.frame - 1, solution, reference, placed, self.rows_averaged, average,
@@ -803,7 +814,7 @@ def track(model: FourierModel, source: Recording | np.ndarray, reference: np.nda
     state = SequentialState(x_prev=x0_mm if x0_mm is not None else (
         reference[0] if n_frames and np.isfinite(reference[0]) else None),
         rows_averaged=model.rows_averaged(frame_rows), pending=[], monitor=monitor_for(tracker, watches),
-        texture=Texture(model, MAX_REJECTED_FRACTION) if learn else None)
+        texture=Texture(model, MAX_REJECTED_FRACTION) if learn else None, stretch=stretch_follow(watches))
     texture_px = np.zeros(n_frames, dtype=np.int64)
     report_every = max(n_frames // 100, 1)
     batch = None
@@ -893,7 +904,7 @@ class LiveTracker:
         # what it learns on the print lives as long as this tracker: a model installed anew starts without it
         learned = None if not learn else Texture(model, MAX_REJECTED_FRACTION) if texture is None else \
             Texture.from_state(model, texture, MAX_REJECTED_FRACTION)
-        self.state = SequentialState(x_prev=x0_mm, texture=learned)
+        self.state = SequentialState(x_prev=x0_mm, texture=learned, stretch=stretch_follow(watches))
         # The validity monitor now, not at the first frame: its tables (the bound over the stroke:
         # the model at a few hundred positions, ~50 ms on a 16-row model) are model install's work.
         # ``watches``: the owner's (the daemon's scale watch with its trim), in place of the defaults.

@@ -44,8 +44,27 @@ class Following:
         return self.lag_um > BEHIND * bound_mm * 1e3
 
 
+class Hysteresis:
+    """:meth:`now` from a follower's ``estimate()``: its value applied once significant beyond
+    :data:`APPLY_Z`, dropped below :data:`CLEAR_Z`."""
+
+    applied: bool = False
+
+    def estimate(self) -> tuple[float, float, float, float] | None:
+        raise NotImplementedError
+
+    def now(self) -> Following:
+        """The correction, its σ and the lag, as they stand at this frame."""
+        line = self.estimate()
+        if line is None:
+            return Following()
+        value, sigma, lag, z = line
+        self.applied = z >= (CLEAR_Z if self.applied else APPLY_Z)
+        return Following(value, sigma, lag) if self.applied else Following(0.0, 0.0, lag)
+
+
 @dataclass
-class Follower:
+class Follower(Hysteresis):
     """Exponentially weighted line ``r(k) = level + rate·(k − now)`` of the residual after the trim."""
 
     memory: float = MEMORY
@@ -90,22 +109,19 @@ class Follower:
         s[6] += w * w
         self._fed_at = self.frame
 
-    def now(self) -> Following:
-        """The correction, its σ and the lag, as they stand at this frame."""
+    def estimate(self) -> tuple[float, float, float, float] | None:
+        """The line's value now, its σ, the lag and the level's significance (|level|/σ), whether
+        applied or not (None: no line yet)."""
         sw, swt, swtt, swr, swrt, swrr, sww = self._sums
         det = sw * swtt - swt * swt
         if sw <= 0 or det <= 1e-12 * sw * sw:
-            return Following()
+            return None
         level = (swtt * swr - swt * swrt) / det
         rate = (sw * swrt - swt * swr) / det
         chi2 = max(swrr - level * swr - rate * swrt, 0.0)
         effective = sw * sw / sww
         scatter = max(chi2 / max(effective - 2.0, 1.0), 1.0)  # the residuals' own spread beyond their bounds
         var_level, var_rate = swtt / det * scatter, sw / det * scatter
-        z = abs(level) / math.sqrt(var_level)
-        self.applied = z >= (CLEAR_Z if self.applied else APPLY_Z)
         age = self.frame - self._fed_at
-        lag = abs(rate) * age
-        if not self.applied:
-            return Following(0.0, 0.0, lag)
-        return Following(level + rate * age, math.sqrt(var_level + age * age * var_rate), lag)
+        return level + rate * age, math.sqrt(var_level + age * age * var_rate), abs(rate) * age, \
+            abs(level) / math.sqrt(var_level)

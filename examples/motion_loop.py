@@ -14,8 +14,8 @@ MAX_AGE_MS = 100.0  # a position older than this at send time is not used for co
 
 def main(url: str, data_dir: str, targets: tuple[float, ...] = TARGETS_MM, max_age_ms: float = MAX_AGE_MS) -> int:
     with Client(url, data_dir=data_dir) as daemon:
-        if not daemon.status().calibrated:
-            daemon.calibrate(progress=lambda fraction, message: print(f"calibrating {fraction:4.0%} {message}"))
+        # a daemon just started by `make run` calibrates itself: follow that, or start one if it has no model
+        daemon.ensure_calibrated(progress=lambda fraction, message: print(f"calibrating {fraction:4.0%} {message}"))
         with daemon.stream(silence_s=1.0) as positions:
             try:
                 for target in targets:

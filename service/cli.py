@@ -19,6 +19,8 @@ COMMAND_MODULES = ("simulate", "calibrate", "track", "diagnose", "batch", "histo
                    "epics")
 
 EXIT_BAD_INPUT = 2
+# `pip install graytrack` is the client alone; a command that needs the numerical stack says how to get it
+DAEMON_EXTRA = "pip install 'graytrack[daemon]'"
 
 
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
@@ -55,14 +57,29 @@ def reason(exc: BaseException) -> str:
     return text.splitlines()[0] if text else type(exc).__name__
 
 
+def missing_extra(exc: ModuleNotFoundError, command: str | None) -> int:
+    """A third-party module absent (a client-only install): one line naming it and the extra, no traceback."""
+    if exc.name is None or exc.name.split(".")[0] == "graytrack":
+        raise exc  # graytrack's own module missing is a broken install, not a missing extra
+    print(f"graytrack{' ' + command if command else ''}: error: {exc.name} is not installed; "
+          f"the daemon and the commands need the numerical stack: {DAEMON_EXTRA}", file=sys.stderr)
+    return EXIT_BAD_INPUT
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     # the command named first (the usual call) needs only its own parser; anything else (--help,
     # --version, a typo) gets them all
-    parser = build_parser(argv[0] if argv and argv[0] in COMMAND_MODULES else None)
+    command = argv[0] if argv and argv[0] in COMMAND_MODULES else None
+    try:
+        parser = build_parser(command)
+    except ModuleNotFoundError as exc:
+        return missing_extra(exc, command)
     args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)
+    except ModuleNotFoundError as exc:
+        return missing_extra(exc, args.command)
     except expected_errors() as exc:
         print(f"graytrack {args.command}: error: {reason(exc)}", file=sys.stderr)
         return EXIT_BAD_INPUT

@@ -24,7 +24,7 @@ from caproto import AlarmSeverity, AlarmStatus, ChannelType
 from caproto.server import PVGroup, pvproperty
 
 from graytrack.client import AsyncClient, GraytrackClientError, Position, StreamRefused, StreamSilent, Unreachable
-from graytrack.service.daemon.api.models import Status
+from graytrack.wire import Status
 
 log = logging.getLogger("graytrack.epics")
 

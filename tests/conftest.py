@@ -16,7 +16,7 @@ from graytrack.core.calibration import calibrate
 from graytrack.core.recording import Recording
 from graytrack.drivers.sim import paper
 
-SYSTEM_FOLDERS = ("service", "web", "drivers")
+SYSTEM_FOLDERS = ("service", "web", "drivers", "client")
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:

@@ -30,6 +30,7 @@ import numpy as np
 from graytrack.core.compression import stream_bound_factor
 from graytrack.core.reference_monitor import GATE, ReferenceMonitor, Trimmer, TrimEvent, scale_tells
 from graytrack.core.chi2_curve import Chi2Curve
+from graytrack.core.stretch_follow import StretchFollow, Taken
 from graytrack.core.validity import RANK, FrameSign
 from graytrack.core.watches.grating import GratingWatch
 from graytrack.core.watches.grating import for_model as grating_watch
@@ -44,6 +45,7 @@ from graytrack.core.watches.magnification import MagnificationWatch
 # called fresh on 94 % of the frames.
 SUSPECT_WINDOW = 20
 SUSPECT_LIMIT = 6.0
+FAR_OFF = "graytrack.core.watches.far_off"  # the untrimmed camera far off the grating (a wrong model's scale)
 
 
 class ScaleWatch:
@@ -59,7 +61,8 @@ class ScaleWatch:
 
     def __init__(self, monitor: ReferenceMonitor, feeds: bool = True, bound_scale: float = 1.0,
                  trimmer: Trimmer | None = None, log: bool = False,
-                 magnification: MagnificationWatch | None = None, grating: GratingWatch | None = None) -> None:
+                 magnification: MagnificationWatch | None = None, grating: GratingWatch | None = None,
+                 stretch: StretchFollow | None = None) -> None:
         if trimmer is not None and trimmer.monitor is not monitor:
             raise ValueError("a scale watch's trimmer must read the watch's own monitor")
         self.monitor = monitor
@@ -72,6 +75,13 @@ class ScaleWatch:
         # are stepped here, in place of the tracker's own (``replaces``: core/validity.py monitor_for)
         self.magnification, self.grating = magnification, grating
         self.replaces = tuple(type(watch).__module__ for watch in (magnification, grating) if watch is not None)
+        if trimmer is not None:  # the camera far off the grating is judged against the trim in force (the
+            # running mean's limit below): untrimmed, a lens's slide of 94 µm, trimmed to the bound, read as
+            # a model of the wrong scale on 58 % of a 16-row run's frames
+            self.replaces += (FAR_OFF,)
+        # the lens's stretch the tracker takes out of each frame (core/stretch_follow.py): the tracker finds
+        # it here (``track(..., watches=)``), and this watch reads what each frame had taken out
+        self.stretch_follow = stretch
         self.events: list[tuple[int, TrimEvent]] = []  # (frame, a change of the trim), for the owner to drain
         self.last = Applied()  # what the trim did to the last frame
         self.log: list[Applied] | None = [] if log else None  # ... to every frame, when asked for
@@ -89,7 +99,8 @@ class ScaleWatch:
         chi2_calibration = float(model.info.get("calibration_chi2") or 1.0)
         return cls(monitor, bound_scale=stream_bound_factor(model.info), trimmer=Trimmer(monitor), log=log,
                    magnification=MagnificationWatch.for_model(model),
-                   grating=grating_watch(model, chi2_calibration, Chi2Curve.from_info(model.info)))
+                   grating=grating_watch(model, chi2_calibration, Chi2Curve.from_info(model.info)),
+                   stretch=StretchFollow.for_model(model))
 
     def observe(self, sign: FrameSign) -> str | None:
         return self.step(sign.chi2_suspect, sign.placed, sign.x_mm, sign.reference_mm, sign.information,
@@ -116,7 +127,8 @@ class ScaleWatch:
             drifted, behind = trimmer.drifted, trimmer.behind(bound)
             trimmed, added = trimmer.step(x_mm)
             # the running mean of camera − grating against the trim and what follows it
-            far = self._off.add(x_mm - trimmer.following.correction_um * 1e-3, reference_mm, math.hypot(bound, added))
+            following = trimmer.following.correction_um if trimmer.trim is not None else 0.0
+            far = self._off.add(x_mm - following * 1e-3, reference_mm, math.hypot(bound, added))
             self.last = Applied(trimmed, (x_mm - trimmed) * 1e3 if trimmer.trim is not None else 0.0, added * 1e3)
         else:
             far = self._off.add(x_mm, reference_mm, bound)
@@ -134,7 +146,8 @@ class ScaleWatch:
                             if trimmer is not None else Applied(x_mm, flagged=verdict is not None, drifted=drifted))
         verdicts = [verdict]
         if self.magnification is not None:
-            verdicts.append(self.magnification.step(placed, x_mm, stretch, *_accounted(trimmer)))
+            taken = self.stretch_follow.taken() if self.stretch_follow is not None else Taken()
+            verdicts.append(self.magnification.step(placed, x_mm, stretch, *_accounted(trimmer, taken)))
         if self.grating is not None:
             trimmed = self.last.x_mm if trimmer is not None and trimmer.trim is not None else x_mm
             verdicts.append(self.grating.step(placed, reference_mm, trimmed, information, chi2, chi2_suspect))
@@ -159,12 +172,20 @@ class ScaleWatch:
         return np.where(stale, self.family, None).tolist()
 
 
-def _accounted(trimmer: Trimmer | None) -> tuple[float, float]:
+def _accounted(trimmer: Trimmer | None, taken: Taken) -> tuple[float, float]:
     """The image stretch the trim in force accounts for, ppm, and its σ: a print grown by g reads
     camera − grating with the scale −g and stretches its image across the pixels by the same −g (the
-    pixel that saw target offset s sees s·(1 − g)); none without a trim."""
+    pixel that saw target offset s sees s·(1 − g)); none without a trim. The stretch the tracker follows
+    (``taken``: its line's value at the frame, core/stretch_follow.py) is accounted for instead while the
+    trim is in force: the frames are solved with it taken out once it is significant, and the slide that
+    comes with it (a lens's m × the axis's distance) is camera − grating, which the trim and its follower
+    take out, flagged when behind. What the line lags is left for the watch to judge."""
     trim = trimmer.trim if trimmer is not None else None
-    return (trim.scale_ppm, trim.scale_sigma_ppm) if trim is not None else (0.0, 0.0)
+    if trim is None:
+        return 0.0, 0.0
+    if math.isfinite(taken.followed_ppm):
+        return taken.followed_ppm, taken.sigma_ppm
+    return trim.scale_ppm, trim.scale_sigma_ppm
 
 
 @dataclass(frozen=True)

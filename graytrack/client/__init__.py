@@ -4,15 +4,14 @@
 
     from graytrack.client import Client
 
-    with Client("http://127.0.0.1:8000", data_dir="/var/lib/graytrack") as daemon:
-        if not daemon.status().calibrated:
-            daemon.calibrate(progress=lambda fraction, message: print(f"{fraction:.0%} {message}"))
+    with Client("http://127.0.0.1:8000", data_dir="~/.local/state/graytrack") as daemon:
+        daemon.ensure_calibrated(progress=lambda fraction, message: print(f"{fraction:.0%} {message}"))
         daemon.move(5.0, wait=True)
         with daemon.stream() as positions:
             for p in positions:          # reconnects by itself; p.gap counts the messages missed
                 print(p.seq, p.x_mm, p.locked)
 
-Answers are the daemon's own response models (``graytrack.service.daemon.api.models``); refusals
+Answers are the daemon's own response models (``graytrack.wire``); refusals
 raise a :class:`GraytrackClientError` carrying the HTTP status and the daemon's sentence.
 """
 

@@ -16,7 +16,7 @@ from typing import Any, Awaitable, Callable, Generator, TypeVar
 from graytrack.client import routes
 from graytrack.client.errors import CalibrationFailed, NotReady, WaitTimeout
 from graytrack.client.routes import Call
-from graytrack.service.daemon.api.models import Calibration, Moved, Status
+from graytrack.wire import Calibration, Moved, Status
 
 T = TypeVar("T")
 FAILED = frozenset({"failed", "aborted", "interrupted"})
@@ -38,6 +38,11 @@ Plan = Generator["Call[Any] | Pause", Any, T]
 def calibrate(progress: Progress | None, timeout_s: float, poll_s: float) -> Plan[Calibration]:
     """Start a calibration and follow it to ``done``; ``progress(fraction, message)`` on every change."""
     job: Calibration = yield routes.start_calibration()
+    return (yield from follow(job, progress, timeout_s, poll_s))
+
+
+def follow(job: Calibration, progress: Progress | None, timeout_s: float, poll_s: float) -> Plan[Calibration]:
+    """Follow the calibration ``job`` (as last read) to ``done``; ``CalibrationFailed`` when it ends otherwise."""
     deadline = time.monotonic() + timeout_s
     reported: tuple[float, str] | None = None
     while True:
@@ -53,6 +58,25 @@ def calibrate(progress: Progress | None, timeout_s: float, poll_s: float) -> Pla
                               f"({job.progress:.0%}: {job.message}); it goes on in the daemon")
         yield Pause(poll_s)
         job = yield routes.calibration(job.id)
+
+
+def calibrated(progress: Progress | None, timeout_s: float, poll_s: float) -> Plan[Status]:
+    """Until the daemon has a model: follow the calibration it runs, else start one if it has none.
+
+    A daemon that has just started (``make run``) is ``starting``, then calibrates itself on the
+    virtual rig; starting a second calibration then would be refused (409), so this waits out the
+    start and follows the daemon's own job instead. Returns the status once calibrated."""
+    deadline = time.monotonic() + timeout_s
+    status: Status = yield routes.status()
+    while status.state == "starting" and time.monotonic() < deadline:
+        yield Pause(poll_s)
+        status = yield routes.status()
+    job = status.calibration
+    if job is not None and job.state not in FAILED | {"done"}:
+        yield from follow((yield routes.calibration(job.id)), progress, timeout_s, poll_s)
+    elif not status.calibrated:
+        yield from calibrate(progress, timeout_s, poll_s)
+    return (yield routes.status())
 
 
 def settle(target_mm: float, tolerance_mm: float, timeout_s: float, poll_s: float) -> Plan[Status]:

@@ -3,7 +3,7 @@
 No I/O here. The blocking and the asyncio client both send a :class:`Call` with their own HTTP
 library and hand the status and body back to :func:`read`, so a route's path, body, accepted
 statuses and response model are written once. Answers are parsed into the daemon's own response
-models (``graytrack.service.daemon.api.models``): the schema the OpenAPI document shows is the one
+models (``graytrack.wire``): the schema the OpenAPI document shows is the one
 the client types with, and a field the daemon adds later stays readable (``extra="allow"``).
 """
 
@@ -19,9 +19,8 @@ from urllib.parse import quote
 from pydantic import TypeAdapter, ValidationError
 
 from graytrack.client.errors import ProtocolError, Unreachable, for_status
-from graytrack.service.daemon.api.models import (Activated, Calibration, CalibrationPage, CalibrationRow,
-                                                 CalibrationStarted, Event, Health, Homed, Moved, Status, Stopped,
-                                                 Velocity)
+from graytrack.wire import (Activated, Calibration, CalibrationPage, CalibrationRow, CalibrationStarted, Event, Health,
+                            Homed, Moved, Status, Stopped, Velocity)
 
 T = TypeVar("T")
 MUTATING = frozenset({"POST", "PUT", "PATCH", "DELETE"})

@@ -22,8 +22,8 @@ from graytrack.client.plans import CALIBRATION_TIMEOUT_S, POLL_S, SETTLE_TIMEOUT
 from graytrack.client.routes import DEFAULT_TIMEOUT_S, Call
 from graytrack.client.stream import MAX_MESSAGE, Link, Position, ws_url
 from graytrack.client.token import resolve_token
-from graytrack.service.daemon.api.models import (Activated, Calibration, CalibrationPage, CalibrationRow, Event, Health,
-                                                 Homed, Moved, Status, Stopped, Velocity)
+from graytrack.wire import (Activated, Calibration, CalibrationPage, CalibrationRow, Event, Health, Homed, Moved,
+                            Status, Stopped, Velocity)
 
 T = TypeVar("T")
 
@@ -95,6 +95,12 @@ class Client:
         if not wait:
             return self.call(routes.start_calibration())
         return plans.run(plans.calibrate(progress, timeout_s, poll_s), self.call)
+
+    def ensure_calibrated(self, progress: Progress | None = None, timeout_s: float = CALIBRATION_TIMEOUT_S,
+                          poll_s: float = POLL_S) -> Status:
+        """Until the daemon has a model: follows the calibration it runs (``make run``'s first start), or
+        starts one when it has none; the status once calibrated (``plans.calibrated``)."""
+        return plans.run(plans.calibrated(progress, timeout_s, poll_s), self.call)
 
     def move(self, x_mm: float, wait: bool = False, tolerance_mm: float = SETTLE_TOLERANCE_MM,
              timeout_s: float = SETTLE_TIMEOUT_S, poll_s: float = POLL_S) -> Moved:

@@ -9,7 +9,8 @@ from graytrack.client.errors import GraytrackClientError
 
 
 def resolve_token(token: str | None, data_dir: str | os.PathLike[str] | None) -> str | None:
-    """``token`` if given, else the content of ``data_dir/token`` (the file the daemon writes at first start)."""
+    """``token`` if given, else the content of ``data_dir/token`` (the file the daemon writes at first start);
+    ``~`` in ``data_dir`` is the home directory, as in the daemon's default ``~/.local/state/graytrack``."""
     if token is not None:
         token = token.strip()
         if not token:
@@ -17,7 +18,7 @@ def resolve_token(token: str | None, data_dir: str | os.PathLike[str] | None) ->
         return token
     if data_dir is None:
         return None
-    path = Path(data_dir) / "token"
+    path = Path(data_dir).expanduser() / "token"
     try:
         text = path.read_text(encoding="utf-8").strip()
     except FileNotFoundError:

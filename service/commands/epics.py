@@ -18,7 +18,7 @@ from pathlib import Path
 
 from graytrack.service.errors import CliError
 
-MISSING = "caproto is not installed: pip install graytrack[epics]"
+MISSING = "caproto is not installed: pip install 'graytrack[epics]'"
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

@@ -37,7 +37,7 @@ from graytrack.drivers.factory import Hardware, open_hardware
 from graytrack.service.daemon import snapshot as parts
 from graytrack.service.daemon import status as status_doc
 from graytrack.service.daemon.acquisition import Acquisition
-from graytrack.service.daemon.api.models import Activated, ActiveCalibration, Calibration
+from graytrack.wire import Activated, ActiveCalibration, Calibration
 from graytrack.service.daemon.trim import ReferenceTrim
 from graytrack.service.daemon.errors import Busy, InsufficientStorage, NotFound, NotReady
 from graytrack.service.daemon.grating import GratingPoller, Readings

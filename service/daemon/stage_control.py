@@ -15,9 +15,9 @@ from typing import Any, Callable
 
 from graytrack.drivers.factory import Hardware
 from graytrack.drivers.stage.errors import StageError, StageLimitError
-from graytrack.service.daemon.api.models import Homed, Moved, Stopped, Velocity
 from graytrack.service.daemon.errors import Busy, NotReady, OutOfLimits
 from graytrack.service.daemon.grating import Readings
+from graytrack.wire import Homed, Moved, Stopped, Velocity
 
 MAX_VELOCITY_MM_S = 100.0
 

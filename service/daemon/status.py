@@ -17,7 +17,7 @@ from graytrack.service.daemon.snapshot import RigSnapshot
 
 
 def document(snapshot: RigSnapshot) -> dict[str, Any]:
-    """The JSON body of ``GET /api/status`` (docs/contracts.md; its schema is ``api.models.Status``)."""
+    """The JSON body of ``GET /api/status`` (docs/contracts.md; its schema is ``graytrack.wire.Status``)."""
     loop, grating, devices = snapshot.frame_loop, snapshot.grating, snapshot.devices
     last = loop.last_message if loop is not None else None
     fresh = snapshot.newest_fresh

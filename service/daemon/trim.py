@@ -135,6 +135,9 @@ class ReferenceTrim:
                 doc.update({key: value for key, value in trim.as_dict().items() if key in doc})
                 doc["following_um"] = trimmer.following.correction_um
                 doc["lag_um"] = trimmer.following.lag_um
+            follow = watch.stretch_follow if watch is not None else None
+            if follow is not None:  # the lens's stretch followed (core/stretch_follow.py): explained, not stale
+                doc["stretch"] = follow.status()
         return doc
 
 

@@ -281,3 +281,25 @@ class LiveServer:
     def __exit__(self, *exc: object) -> None:
         self.server.should_exit = True
         self.thread.join(timeout=20.0)
+
+
+def stream_through_daemon(model, run, trim_enabled: bool) -> tuple[list[dict], list[tuple[str, str]], Any]:
+    """Every frame of a recorded ``run`` through the daemon's frame loop (its tracker built and switched
+    in as for an installed model, with ``[daemon] trim`` as asked): the published messages, the events
+    and the acquisition (its ``trim`` for the status)."""
+    import numpy as np
+
+    from graytrack.service.daemon.acquisition import Acquisition, Sample
+    from graytrack.service.daemon.trim import ReferenceTrim
+
+    messages: list[dict] = []
+    events: list[tuple[str, str]] = []
+    trim = ReferenceTrim(trim_enabled, lambda kind, message: events.append((kind, message)))
+    acquisition = Acquisition(None, None, messages.append, lambda *fault: None, 1.0, 1.0,
+                              on_event=lambda kind, message: events.append((kind, message)), trim=trim)
+    # as install_model does
+    acquisition._build(model, float(run.reference[0]), 0, "calibration", None, lambda why: None)
+    for k in range(run.n_frames):
+        frame = Frame(np.asarray(run.frames[k]), k, float(run.t[k]))
+        acquisition._track(Sample(frame, float(run.t[k]), float(run.reference[k])))
+    return messages, events, acquisition

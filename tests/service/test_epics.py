@@ -197,4 +197,4 @@ def test_without_caproto_the_command_names_the_extra() -> None:
                "sys.exit(main(['epics', '--url', 'http://127.0.0.1:9', '--prefix', 'X']))")
     done = subprocess.run([sys.executable, "-c", blocked], capture_output=True, text=True, timeout=60)
     assert done.returncode == 2
-    assert done.stderr.strip() == "graytrack epics: error: caproto is not installed: pip install graytrack[epics]"
+    assert done.stderr.strip() == "graytrack epics: error: caproto is not installed: pip install 'graytrack[epics]'"

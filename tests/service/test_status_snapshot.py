@@ -7,9 +7,9 @@ from dataclasses import replace
 
 import pytest
 
-from graytrack.service.daemon.api.models import Status
 from graytrack.service.daemon.snapshot import Counters, Devices, FrameLoop, Grating, RigSnapshot
 from graytrack.service.daemon.status import document
+from graytrack.wire import Status
 
 pytestmark = pytest.mark.unit
 MESSAGE = {"seq": 41, "t": 12.5, "x_mm": 5.25, "locked": True, "crlb_um": 1.5, "gain": 1.01, "offset_gray": -0.2,

@@ -13,10 +13,9 @@ import numpy as np
 import pytest
 
 from graytrack.core.calibration import calibrate
-from graytrack.drivers.camera.base import Frame
 from graytrack.drivers.sim.scenarios import build_rig
-from graytrack.service.daemon.acquisition import Acquisition, Sample
-from graytrack.service.daemon.trim import ReferenceTrim
+from graytrack.service.daemon.acquisition import Acquisition
+from tests.service.helpers import stream_through_daemon
 
 pytestmark = pytest.mark.unit
 
@@ -30,18 +29,8 @@ def grown():
 
 
 def _stream(model, run, enabled: bool) -> tuple[list[dict], list[tuple[str, str]], Acquisition]:
-    """Every frame of ``run`` through the daemon's frame loop (its tracker built and switched in as
-    for an installed model), the published messages and the events."""
-    messages: list[dict] = []
-    events: list[tuple[str, str]] = []
-    trim = ReferenceTrim(enabled, lambda kind, message: events.append((kind, message)))
-    acquisition = Acquisition(None, None, messages.append, lambda *fault: None, 1.0, 1.0,
-                              on_event=lambda kind, message: events.append((kind, message)), trim=trim)
-    acquisition._build(model, float(run.reference[0]), 0, "calibration", None, lambda why: None)  # as install_model does
-    for k in range(run.n_frames):
-        frame = Frame(np.asarray(run.frames[k]), k, float(run.t[k]))
-        acquisition._track(Sample(frame, float(run.t[k]), float(run.reference[k])))
-    return messages, events, acquisition
+    """Every frame of ``run`` through the daemon's frame loop: the published messages and the events."""
+    return stream_through_daemon(model, run, enabled)
 
 
 def test_the_daemons_flag_and_bound_follow_the_trim_in_force(grown):

@@ -6,8 +6,9 @@ from fastapi import APIRouter, Depends
 
 from graytrack.service.daemon.api.deps import AUTHORIZED
 from graytrack.service.daemon.api.deps import rig as get_rig
-from graytrack.service.daemon.api.models import Calibration, CalibrationStarted, errors
+from graytrack.service.daemon.api.responses import errors
 from graytrack.service.daemon.rig import Rig
+from graytrack.wire import Calibration, CalibrationStarted
 
 router = APIRouter(prefix="/api/calibration", tags=["calibration"])
 

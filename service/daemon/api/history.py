@@ -11,9 +11,10 @@ from fastapi.responses import FileResponse
 
 from graytrack.service.daemon.api.deps import AUTHORIZED
 from graytrack.service.daemon.api.deps import rig as get_rig
-from graytrack.service.daemon.api.models import Activated, CalibrationPage, CalibrationRow, Event, errors
+from graytrack.service.daemon.api.responses import errors
 from graytrack.service.daemon.errors import Invalid, NotFound
 from graytrack.service.daemon.rig import Rig
+from graytrack.wire import Activated, CalibrationPage, CalibrationRow, Event
 
 router = APIRouter(tags=["record"])
 MAX_ROW_ID = 2**63 - 1  # SQLite's integers are 64-bit: a larger id or offset names no row

@@ -8,9 +8,9 @@ from fastapi import APIRouter, Depends
 
 from graytrack.service.daemon.api.deps import AUTHORIZED
 from graytrack.service.daemon.api.deps import rig as get_rig
-from graytrack.service.daemon.api.models import (Homed, JogRequest, MoveRequest, Moved, Stopped, Velocity,
-                                                 VelocityRequest, errors)
+from graytrack.service.daemon.api.responses import errors
 from graytrack.service.daemon.rig import Rig
+from graytrack.wire import Homed, JogRequest, MoveRequest, Moved, Stopped, Velocity, VelocityRequest
 
 router = APIRouter(prefix="/api/stage", tags=["stage"], dependencies=AUTHORIZED)
 

@@ -10,8 +10,8 @@ from fastapi.responses import JSONResponse, PlainTextResponse
 from graytrack.core.validity import ADVICE
 from graytrack.service.daemon import metrics
 from graytrack.service.daemon.api.deps import rig as get_rig
-from graytrack.service.daemon.api.models import Health, Status
 from graytrack.service.daemon.rig import Rig
+from graytrack.wire import Health, Status
 
 router = APIRouter(tags=["status"])
 

@@ -8,7 +8,7 @@ from fastapi import APIRouter, Depends
 
 from graytrack.service.daemon.api.deps import AUTHORIZED
 from graytrack.service.daemon.api.deps import rig as get_rig
-from graytrack.service.daemon.api.models import errors
+from graytrack.service.daemon.api.responses import errors
 from graytrack.service.daemon.errors import NotReady
 from graytrack.service.daemon.rig import Rig
 

@@ -1,4 +1,12 @@
-"""Response and request bodies of the API, so the OpenAPI document shows every schema."""
+"""The bodies the daemon's REST routes take and answer, shared by the daemon and its clients.
+
+One declaration on each side of the wire: the daemon's routes name these as their request and
+response models (so the OpenAPI document shows every schema), and ``graytrack.client`` parses the
+answers into the same classes. This module imports pydantic, the frame record's table of
+quantities and the GCS protocol's smallest number, nothing numerical and nothing of the daemon:
+``import graytrack.client`` must not load numpy, and the client installs without it
+(``pip install graytrack``; docs/clients.md).
+"""
 
 from __future__ import annotations
 
@@ -10,22 +18,9 @@ from graytrack.core import frame_record
 from graytrack.drivers.stage.gcs_protocol import SMALLEST_NUMBER
 
 
-class ErrorBody(BaseModel):
+class ErrorBody(BaseModel):  # a refusal's body (no docstring: it would become the schema's description)
     error: str = Field(description="one clear sentence")
     detail: list[dict[str, Any]] | None = None
-
-
-ERRORS: dict[int | str, dict[str, Any]] = {
-    status: {"model": ErrorBody, "description": text}
-    for status, text in ((401, "missing or invalid bearer token"), (404, "no such resource"),
-                         (409, "conflicts with what the rig is doing"), (413, "request body over 64 KiB"),
-                         (422, "invalid request"), (503, "the hardware is not ready or in fault"),
-                         (507, "no room in the data directory for what the request would write"))
-}
-
-
-def errors(*statuses: int) -> dict[int | str, dict[str, Any]]:
-    return {status: ERRORS[status] for status in statuses}
 
 
 class Health(BaseModel):
