@@ -53,50 +53,40 @@ class CurvatureTable:
         z = np.exp(1j * omega * np.outer(x, harmonics))
         curvature = (z @ (fast.v * (-(omega * harmonics) ** 2)[:, None])).real  # (N, P)
         self.table = _trig_coefficients(curvature**2, tables.degree)  # (P, D+1)
-        self._last: tuple[np.ndarray, np.ndarray] | None = None
+        self._last: tuple[np.ndarray, np.ndarray, int, bytes] | None = None
 
     def weighted(self, weights: np.ndarray) -> np.ndarray:
         """Σ_p w_p·F″_p² coefficients ``(D+1,)``; weights every frame shares are folded in once."""
         last = self._last
-        if last is not None and last[0] is weights:
+        # a batch hands each frame a new view of the weights its frames share: the same memory holding
+        # the same values folds to the same numbers (compared as bytes: ~1 µs, the product ~10)
+        if last is not None and (last[0] is weights or (last[2] == weights.ctypes.data
+                                                        and last[3] == weights.tobytes())):
             return last[1]
         folded = weights @ self.table
-        self._last = (weights, folded)
+        self._last = (weights, folded, weights.ctypes.data, weights.tobytes())
         return folded
 
 
-@dataclass(frozen=True)
-class FocusMoments:
-    """One frame's inner products of the blur solve: the five trig polynomials the seventeen rows
-    of :func:`_trig_focus` derive from, and the frame's scalars."""
-
-    base: np.ndarray  # (5, D+1) complex: F·F, F′·F′, F·1, y·F and F″·F″
-    yy: float
-    y1: float
-    ones: float  # Σ w
-    count: float  # samples used
-    phase_orders: np.ndarray
-
-
 def focus_moments(source: TrigPolyBatch, k: int, curvature: CurvatureTable,
-                  rejected: np.ndarray | None) -> FocusMoments:
-    """The base rows of frame ``k`` (pixels ``rejected`` set aside), from the fast path's seven and
-    the curvature table (the one product that is not a derivative of those)."""
+                  rejected: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, list[float]]:
+    """Frame ``k``'s inner products of the blur solve (pixels ``rejected`` set aside): the fast path's
+    seven moment rows (F·F, F′·F′, F·1 and y·F are the ones read), the curvature table's F″·F″ row
+    (the one product that is not a derivative of those) and the frame's scalars (Σwy², Σwy, Σw, the
+    samples used)."""
     weights = source.weights(k)
     if rejected is not None and rejected.any():
         weights = weights * ~rejected
         source, k = source.reweighted(k, weights), 0
-    ff, _, dd, f1, _, yf, _ = source.rows[k]
-    scalars = source.scalars(k)
-    base = np.stack([ff, dd, f1, yf, curvature.weighted(weights)])
-    return FocusMoments(base, scalars[0], scalars[1], scalars[2], scalars[3], source.tables.phase_orders)
+    return source.rows[k], curvature.weighted(weights), source.scalars(k)
 
 
-def _focus_rows(base: np.ndarray, orders: np.ndarray, x: float, m: np.ndarray) -> None:
+def _focus_rows(rows: np.ndarray, cc_row: np.ndarray, orders: np.ndarray, x: float, m: np.ndarray) -> None:
     """The seventeen moments at ``x`` into ``m``, each Re Σ_j row_j·e^{P_j x}, the rows derived from
-    the base ones with P = iωm (a derivative) and the identities F·F″ = ½(F·F)″ − F′·F′,
-    F′·F″ = ½(F′·F′)′: FF, FF″, F″F″, F1, F″1, yF, yF″ (the normal equations of g, h, o) and FF′,
-    FF‴, F″F′, F″F‴, F′1, F‴1, F′F′, F′F‴, yF′, yF‴ (those of the x Jacobian)."""
+    the base ones (F·F, F′·F′, F·1, y·F of the seven ``rows``; F″·F″, ``cc_row``) with P = iωm (a
+    derivative) and the identities F·F″ = ½(F·F)″ − F′·F′, F′·F″ = ½(F′·F′)′: FF, FF″, F″F″, F1,
+    F″1, yF, yF″ (the normal equations of g, h, o) and FF′, FF‴, F″F′, F″F‴, F′1, F‴1, F′F′, F′F‴,
+    yF′, yF‴ (those of the x Jacobian)."""
     for k in range(17):
         m[k] = 0.0
     for j in range(orders.size):
@@ -104,7 +94,7 @@ def _focus_rows(base: np.ndarray, orders: np.ndarray, x: float, m: np.ndarray) -
         z = np.exp(p * x)
         p2 = p * p
         p3 = p2 * p
-        ff, dd, f1, yf, cc = base[0, j] * z, base[1, j] * z, base[2, j] * z, base[3, j] * z, base[4, j] * z
+        ff, dd, f1, yf, cc = rows[0, j] * z, rows[2, j] * z, rows[3, j] * z, rows[5, j] * z, cc_row[j] * z
         fc = 0.5 * p2 * ff - dd  # F·F″
         dc = 0.5 * p * dd  # F′·F″
         m[0] += ff.real
@@ -132,23 +122,22 @@ def focus_solve(source: TrigPolyBatch, k: int, curvature: CurvatureTable, start:
     docstring). The solution's ``focus`` is δ in px² of the pixel footprint on the target,
     ``focus_sigma`` its standard error with x, gain and offset estimated too: this frame's own
     estimate, whatever the ``prior`` (see :class:`FocusPrior`) did to x."""
-    moments = focus_moments(source, k, curvature, start.rejected_mask if start.rejected else None)
+    rows, cc, scalars = focus_moments(source, k, curvature, start.rejected_mask if start.rejected else None)
     has_prior = prior is not None and prior.variance_mm4 > 0.0
     out = np.empty(_TRIG_OUT)
     compiled = kernels.COMPILED and kernels.numba is not None
     (_trig_focus if compiled else _trig_focus_twin)(
-        np.ascontiguousarray(moments.base), np.ascontiguousarray(moments.phase_orders), moments.yy, moments.y1,
-        moments.ones, float(start.x_mm), float(start.gain), float(start.offset), has_prior,
-        prior.delta_mm2 if has_prior else 0.0, prior.variance_mm4 if has_prior else 0.0,
-        settings.max_iterations, settings.tolerance_mm, settings.max_step_mm, out)
-    x, iterations, information, cost = out[:4].tolist()
-    theta, normal, projected = out[4:7], out[7:16].reshape(3, 3), out[16:19]
-    fisher = out[19:35].reshape(4, 4)
-    return _solution(x, theta.copy(), _own(normal, projected, theta.copy()), cost, information, fisher.copy(),
-                     moments.count, int(iterations), start, settings, pixel_pitch_mm)
+        rows, cc, source.tables.phase_orders, scalars[0], scalars[1], scalars[2], float(start.x_mm),
+        float(start.gain), float(start.offset), has_prior, prior.delta_mm2 if has_prior else 0.0,
+        prior.variance_mm4 if has_prior else 0.0, settings.max_iterations, settings.tolerance_mm,
+        settings.max_step_mm, out)
+    values = out.tolist()
+    return _answer(values[0], values[4:7], values[35:38], values[3], values[2], values[38], scalars[3],
+                   int(values[1]), start, settings, pixel_pitch_mm)
 
 
-_TRIG_OUT = 35  # x, iterations, information, cost, θ (3), normal (3×3), projected (3), Fisher (4×4)
+# x, iterations, information, cost, θ (3), normal (3×3), projected (3), Fisher (4×4), own θ (3), blur variance
+_TRIG_OUT = 39
 
 
 def _light_and_blur(normal: np.ndarray, projected: np.ndarray, theta: np.ndarray, has_prior: bool,
@@ -174,18 +163,18 @@ def _light_and_blur(normal: np.ndarray, projected: np.ndarray, theta: np.ndarray
     return yy - 2.0 * explained + quadratic
 
 
-def _trig_focus(base: np.ndarray, orders: np.ndarray, yy: float, y1: float, ones: float, x: float, gain: float,
-                offset: float, has_prior: bool, prior_delta: float, prior_variance: float, max_iterations: int,
-                tolerance: float, max_step: float, out: np.ndarray) -> None:
-    """The iterations of :func:`focus_solve` on a frame's base moment rows, into ``out`` (see
-    :data:`_TRIG_OUT`): one compiled call instead of some fifteen small numpy ones an iteration."""
+def _trig_focus(rows: np.ndarray, cc: np.ndarray, orders: np.ndarray, yy: float, y1: float, ones: float, x: float,
+                gain: float, offset: float, has_prior: bool, prior_delta: float, prior_variance: float,
+                max_iterations: int, tolerance: float, max_step: float, out: np.ndarray) -> None:
+    """The iterations of :func:`focus_solve` on a frame's moment rows (:func:`focus_moments`), into
+    ``out`` (see :data:`_TRIG_OUT`): one compiled call instead of some fifteen small numpy ones an iteration."""
     m = np.empty(17)
     theta = np.array([gain, 0.0, offset])
     normal, projected, cross = np.eye(3), np.zeros(3), np.zeros(3)
     held, held_projected, solved = np.empty((3, 3)), np.empty(3), np.empty(3)
     information, cost, jj, iterations = 0.0, math.inf, 0.0, 0
     for iterations in range(1, max_iterations + 1):
-        _focus_rows(base, orders, x, m)
+        _focus_rows(rows, cc, orders, x, m)
         normal = np.array([[m[0], 0.5 * m[1], m[3]], [0.5 * m[1], 0.25 * m[2], 0.5 * m[4]],
                            [m[3], 0.5 * m[4], ones]])
         projected = np.array([m[5], 0.5 * m[6], y1])
@@ -215,6 +204,13 @@ def _trig_focus(base: np.ndarray, orders: np.ndarray, yy: float, y1: float, ones
         out[23 + 4 * i] = cross[i]
         for j in range(3):
             out[24 + 4 * i + j] = normal[i, j]
+    # the frame's own (g, h, o) without the prior (the theta solved, when singular), and the blur
+    # coefficient's variance from the Fisher matrix of (x, g, h, o) (infinite, when singular)
+    own = out[4:7].copy()
+    _solve3(out[7:16].reshape(3, 3), out[16:19], own)
+    out[35:38] = own
+    inverse = np.eye(4)
+    out[38] = inverse[2, 2] if _eliminate(out[19:35].reshape(4, 4).copy(), inverse) else math.inf
 
 
 def general_focus_solve(evaluator, y: np.ndarray, weights: np.ndarray, start: FrameSolution,
@@ -252,8 +248,8 @@ def warm(evaluator, period_mm: float) -> None:
     """Compile (or load from the disk cache) the focus solves now, at model install: the first blurred frame must not wait for the compiler (~40 ms from the
     cache, seconds on a fresh install)."""
     if kernels.COMPILED and kernels.numba is not None:  # the fast path's (trig-polynomial) focus solve
-        _trig_focus(np.ones((5, 3), dtype=complex), np.ones(3, dtype=complex), 1.0, 1.0, 1.0, 0.0, 1.0, 0.0,
-                    False, 0.0, 0.0, 1, 1.0, 1.0, np.empty(_TRIG_OUT))
+        _trig_focus(np.ones((7, 3), dtype=complex), np.ones(3, dtype=complex), np.ones(3, dtype=complex), 1.0, 1.0,
+                    1.0, 0.0, 1.0, 0.0, False, 0.0, 0.0, 1, 1.0, 1.0, np.empty(_TRIG_OUT))
     if not (kernels.COMPILED and isinstance(evaluator, kernels.TableEvaluator)):
         return
     n_values = evaluator.tables.n_values
@@ -445,33 +441,12 @@ def _with_prior(normal: np.ndarray, projected: np.ndarray, prior: FocusPrior | N
     return held, held_projected
 
 
-def _own(normal: np.ndarray, projected: np.ndarray, fallback: np.ndarray) -> np.ndarray:
-    """The frame's own (g, h, o) at the final x, without a prior: the independent estimate the
-    focus watch and the next frames' prior average."""
-    try:
-        return small_linalg.solve(normal, projected)
-    except np.linalg.LinAlgError:
-        return fallback
-
-
-def _solution(x: float, theta: np.ndarray, own: np.ndarray, cost: float, information: float, fisher: np.ndarray,
-              n_used: float, iterations: int, start: FrameSolution, settings: SolverSettings,
-              pixel_pitch_mm: float) -> FrameSolution:
-    """The frame's answer with the focus term: x, gain and offset as solved (``theta``); δ = h/g in
-    px² and its standard error from the frame's own estimate (``own``) and the Fisher matrix of
-    (x, g, h, o)."""
-    try:
-        blur_variance = float(small_linalg.inv(fisher)[2, 2])
-    except np.linalg.LinAlgError:
-        blur_variance = float("inf")
-    return _answer(x, theta, own, cost, information, blur_variance, n_used, iterations, start, settings,
-                   pixel_pitch_mm)
-
-
 def _answer(x: float, theta: np.ndarray, own: np.ndarray, cost: float, information: float, blur_variance: float,
             n_used: float, iterations: int, start: FrameSolution, settings: SolverSettings,
             pixel_pitch_mm: float) -> FrameSolution:
-    """:func:`_solution` given the blur coefficient's variance (the Fisher matrix inverted)."""
+    """The frame's answer with the focus term: x, gain and offset as solved (``theta``); δ = h/g in
+    px² and its standard error from the frame's own estimate (``own``, without the prior) and the
+    blur coefficient's variance (the Fisher matrix of (x, g, h, o) inverted)."""
     chi2 = max(cost, 0.0) / max(n_used - FOCUS_UNKNOWNS - 1, 1.0)
     gain, offset = float(theta[0]), float(theta[2])
     own_gain, blur = float(own[0]), float(own[1])
@@ -490,7 +465,8 @@ _light_and_blur_twin = frame_kernel.python_twin(_light_and_blur, _solve3=_solve3
 _general_focus_twin = frame_kernel.python_twin(_general_focus, _model_many=_numpy_model_many,
                                                _focus_sums_of=_focus_sums_numpy, _eliminate=_numpy_eliminate,
                                                _solve3=_solve3_twin, _light_and_blur=_light_and_blur_twin)
-_trig_focus_twin = frame_kernel.python_twin(_trig_focus, _solve3=_solve3_twin, _light_and_blur=_light_and_blur_twin)
+_trig_focus_twin = frame_kernel.python_twin(_trig_focus, _solve3=_solve3_twin, _light_and_blur=_light_and_blur_twin,
+                                            _eliminate=_numpy_eliminate)
 if kernels.numba is not None:
     _jit = kernels.numba.njit(cache=True, nogil=True, error_model="numpy")
     _model_many = _jit(_model_many)

@@ -18,7 +18,12 @@ import math
 
 import numpy as np
 
+from graytrack.core import kernels, small_linalg
+
 OUTLIER_Z = 4.0  # a sample this many of its σ off the model is left out of the stretch
+FOCUS_STEP_PERIODS = 1e-3  # the curvature's finite-difference step, in periods
+# The stretch of a frame by one compiled call (:func:`_stretches`); False: numpy's :func:`stretch`.
+COMPILED = kernels.COMPILED
 
 
 def stretch(values: np.ndarray, slopes: np.ndarray, residual: np.ndarray, weights: np.ndarray,
@@ -55,6 +60,8 @@ def stretch(values: np.ndarray, slopes: np.ndarray, residual: np.ndarray, weight
 
 def frame_stretch(tracker, batch, k: int, solution) -> tuple[float, float]:
     """:func:`stretch` of batch frame ``k`` at its solution (one evaluation of the model there)."""
+    if compiled_for(tracker):
+        return FrameStretch(tracker, batch, k, solution)()
     weights = batch.weights(k)
     if solution.rejected_mask is not None:
         weights = weights * ~solution.rejected_mask
@@ -65,6 +72,154 @@ def frame_stretch(tracker, batch, k: int, solution) -> tuple[float, float]:
         return stretch(values[0], slopes[0], residual, weights, offsets)
     # the tracker solved a change of focus for this frame: the stretch beside it (the curvature by the
     # slopes a thousandth of a period apart)
-    step = tracker.model.period_mm * 1e-3
+    step = tracker.model.period_mm * FOCUS_STEP_PERIODS
     values, slopes = tracker.evaluator.evaluate(np.array([solution.x_mm - step, solution.x_mm, solution.x_mm + step]))
     return stretch(values[1], slopes[1], residual, weights, offsets, (slopes[2] - slopes[0]) / (2.0 * step))
+
+
+def compiled_for(tracker) -> bool:
+    """Whether ``tracker``'s stretches are computed by the compiled kernel (its model evaluated by the
+    table kernel: :func:`stretches`), else by numpy frame by frame."""
+    return COMPILED and isinstance(tracker.evaluator, kernels.TableEvaluator)
+
+
+class FrameStretch:
+    """One solved frame's stretch, computed when a watch asks (``FrameSign.stretch``): it keeps what
+    the stretch is computed from, so that a chunk of frames waiting for the monitor is computed in
+    one compiled call (:func:`stretches`) rather than a dozen numpy calls a frame."""
+
+    __slots__ = ("tracker", "batch", "k", "solution")
+
+    def __init__(self, tracker, batch, k: int, solution) -> None:
+        self.tracker, self.batch, self.k, self.solution = tracker, batch, k, solution
+
+    def __call__(self) -> tuple[float, float]:
+        if not compiled_for(self.tracker):
+            return frame_stretch(self.tracker, self.batch, self.k, self.solution)
+        m, sigma = stretches([self])
+        return float(m[0]), float(sigma[0])
+
+
+def stretches(frames: list[FrameStretch]) -> tuple[np.ndarray, np.ndarray]:
+    """(m, σ) of each of ``frames`` (all of one tracker, :func:`compiled_for` it), by one compiled
+    call: :func:`stretch`'s least squares frame by frame, solved by elimination rather than numpy's
+    inverse (the same numbers to rounding: tests/core/test_stretch_fast.py)."""
+    tracker = frames[0].tracker
+    n = len(frames)
+    y, w, x, gain, offset, focused, work, m, sigma = _buffers(tracker, n)
+    for i, frame in enumerate(frames):
+        solution, batch = frame.solution, frame.batch
+        y[i] = batch.frames[frame.k]
+        weights = batch.weights(frame.k)
+        if solution.rejected_mask is not None:
+            np.multiply(weights, ~solution.rejected_mask, out=w[i])
+        else:
+            w[i] = weights
+        x[i], gain[i], offset[i] = solution.x_mm, solution.gain, solution.offset
+        focused[i] = math.isfinite(solution.focus_sigma)
+    _stretches(x, gain, offset, focused, y, w, _target_offsets(tracker), tracker.model.period_mm * FOCUS_STEP_PERIODS,
+               tracker.evaluator._args, work, m, sigma)
+    return m, sigma
+
+
+def _buffers(tracker, n: int) -> tuple[np.ndarray, ...]:
+    """The arrays of :func:`stretches` for ``n`` frames: those of one frame (live tracking asks frame
+    by frame) kept on the tracker's evaluator, to be overwritten by its next frame."""
+    kept = getattr(tracker.evaluator, "_stretch_buffers", None) if n == 1 else None
+    if kept is not None:
+        return kept
+    n_values = tracker.model.n_rows * tracker.model.n_pixels
+    made = (np.empty((n, n_values)), np.empty((n, n_values)), np.empty(n), np.empty(n), np.empty(n),
+            np.empty(n, dtype=np.bool_), np.empty((4, 3, n_values)), np.empty(n), np.empty(n))
+    if n == 1:
+        tracker.evaluator._stretch_buffers = made
+    return made
+
+
+def warm(tracker) -> None:
+    """Compile (or load from numba's cache) the stretch kernel for ``tracker``'s model now, at model
+    install: no live frame waits for the compiler (tests/core/test_install_warm.py)."""
+    if not compiled_for(tracker):
+        return
+    y, w, x, gain, offset, focused, work, m, sigma = _buffers(tracker, 1)
+    w[:] = 0.0  # no sample: the model evaluated once, nothing solved
+    x[0], gain[0], offset[0], focused[0] = 0.0, 1.0, 0.0, False
+    _stretches(x, gain, offset, focused, y, w, _target_offsets(tracker), 1.0, tracker.evaluator._args, work, m, sigma)
+
+
+def _target_offsets(tracker) -> np.ndarray:
+    """Each sample's target offset (mm), flat, kept on the tracker's evaluator (made once per model)."""
+    offsets = getattr(tracker.evaluator, "_stretch_offsets", None)
+    if offsets is None:
+        offsets = np.ascontiguousarray(tracker.model.target_offset().reshape(-1), dtype=np.float64)
+        tracker.evaluator._stretch_offsets = offsets
+    return offsets
+
+
+def _stretches(x: np.ndarray, gain: np.ndarray, offset: np.ndarray, focused: np.ndarray, y: np.ndarray,
+               w: np.ndarray, offsets: np.ndarray, step: float, model: tuple, work: np.ndarray, m: np.ndarray,
+               sigma: np.ndarray) -> None:
+    """:func:`stretch` of frames ``y`` ``(K, P)`` under weights ``w`` at their solutions (x, gain,
+    offset; ``focused``: with the curvature beside it) into ``m``, ``sigma``; ``work`` (4, 3, P)."""
+    values, slopes, smooth = work[0], work[1], work[2, 0]
+    shapes = work[3]
+    normal = np.empty((5, 5))
+    rhs = np.empty((5, 2))
+    for i in range(x.size):
+        m[i], sigma[i] = math.nan, math.inf
+        if focused[i]:
+            _evaluate(x[i] - step, model, values[0], slopes[0], smooth)
+            _evaluate(x[i] + step, model, values[2], slopes[2], smooth)
+        _evaluate(x[i], model, values[1], slopes[1], smooth)
+        n = 5 if focused[i] else 4
+        total = 0.0
+        centre = 0.0
+        for p in range(y.shape[1]):
+            r = y[i, p] - gain[i] * values[1, p] - offset[i]
+            wp = w[i, p]
+            if r * r * wp > OUTLIER_Z * OUTLIER_Z:
+                wp = 0.0
+            shapes[0, p], shapes[1, p] = r, wp  # the residual and the weight kept
+            total += wp
+            centre += wp * offsets[p]
+        if not total > 0:
+            continue
+        centre /= total
+        for a in range(n):
+            rhs[a, 0], rhs[a, 1] = 0.0, 0.0
+            for b in range(n):
+                normal[a, b] = 0.0
+        rhs[0, 0] = 1.0
+        for p in range(y.shape[1]):
+            wp = shapes[1, p]
+            if wp == 0.0:
+                continue
+            s = slopes[1, p]
+            c0, c1, c2, c4 = s * (offsets[p] - centre), s, values[1, p], 0.0
+            if n == 5:
+                c4 = (slopes[2, p] - slopes[0, p]) / (2.0 * step)
+            column = (c0, c1, c2, 1.0, c4)
+            r = shapes[0, p]
+            for a in range(n):
+                wa = wp * column[a]
+                rhs[a, 1] += wa * r
+                for b in range(a, n):
+                    normal[a, b] += wa * column[b]
+        for a in range(n):
+            for b in range(a):
+                normal[a, b] = normal[b, a]
+        if not _eliminate(normal[:n, :n], rhs[:n]):
+            continue
+        if rhs[0, 0] > 0:
+            m[i], sigma[i] = rhs[0, 1], math.sqrt(rhs[0, 0])
+
+
+def _evaluate(x: float, model: tuple, values: np.ndarray, slopes: np.ndarray, smooth: np.ndarray) -> None:
+    kernels._evaluate_into(x, *model, values, slopes, smooth)
+
+
+_eliminate = small_linalg._eliminate
+if kernels.COMPILED:
+    _jit = kernels.numba.njit(cache=True, nogil=True, error_model="numpy")
+    _evaluate = _jit(_evaluate)
+    _stretches = _jit(_stretches)

@@ -40,7 +40,7 @@ from graytrack.core.focus_follow import FocusFollow, followable
 from graytrack.core.models.fourier import TWO_PI, FourierModel
 from graytrack.core.moving_light import MovingLight, follow
 from graytrack.core.recording import Recording
-from graytrack.core.stretch import frame_stretch
+from graytrack.core.stretch import FrameStretch
 from graytrack.core.stretch_follow import StretchFollow, followed_stretch, stretch_follow
 from graytrack.core.texture import Texture
 from graytrack.core.validity import FAMILIES, FrameSign, Monitor, Watch, monitor_for
@@ -700,7 +700,7 @@ class SequentialState:
         if self.monitor is None:
             self.monitor = monitor_for(tracker)
         explain = (lambda: tracker.explain(batch, k, solution)) if placed and self.chi2_suspect else None
-        stretched = (lambda: frame_stretch(tracker, batch, k, solution)) if placed else None  # core/stretch.py
+        stretched = FrameStretch(tracker, batch, k, solution) if placed else None  # core/stretch.py
         if placed and self.stretch is not None:  # measured already, with the stretch taken out added back
             stretched = followed_stretch(self.stretch)
         average = self.chi2_average if self.chi2_average is not None else float("nan")

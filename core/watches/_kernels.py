@@ -332,8 +332,68 @@ def _bound_run(state, blame, table, start, grid_step, placed, information, x, ro
     state[0], state[1], state[2] = 1.0 if has_kept else 0.0, kept_avg, 1.0 if has_blame else 0.0
 
 
+# ---------------------------------------------------------------- the magnification watch
+# sc: Σdᵃ·w·m², Σdᵃ, mean (ppm), its σ (ppm), the accounted stretch's variance (ppm²), flagged
+# p: decay a frame, period (mm), the ageing term (−1/MEMORY), MIN_FRAMES, allowance², Z_ON, Z_OFF
+
+def _age(matrix, ageing: float) -> None:
+    """``A·matrix·Aᵀ`` in place, A = I + ageing·e₁e₀ᵀ (one frame on, every age term 1/MEMORY further
+    back): the row of the age term gains ageing × the level's, then so does its column."""
+    for j in range(6):
+        matrix[1, j] = matrix[1, j] + ageing * matrix[0, j]
+    for i in range(6):
+        matrix[i, 1] = matrix[i, 1] + ageing * matrix[i, 0]
+
+
+def _magnification_add(normal, noise, right, sc, x: float, m: float, sigma: float, p) -> bool:
+    """MagnificationWatch._add of one frame's stretch ``m`` ± ``sigma`` (ppm) at ``x``; True when the
+    mean is beyond its limit (whether it turns with the phase is numpy's, in Python), else the flag
+    is down (and stays as it was while too few frames are in)."""
+    d = p[0]
+    w = 1.0 / (sigma * sigma)
+    theta = 2.0 * math.pi * x / p[1]
+    b = (1.0, 0.0, math.cos(theta), math.sin(theta), math.cos(2.0 * theta), math.sin(2.0 * theta))
+    _age(normal, p[2])
+    _age(noise, p[2])
+    dd = d * d
+    for i in range(6):
+        for j in range(6):
+            outer = w * (b[i] * b[j])
+            normal[i, j] = d * normal[i, j] + outer
+            noise[i, j] = dd * noise[i, j] + outer
+    right[1] = right[1] + p[2] * right[0]
+    wm = w * m
+    for i in range(6):
+        right[i] = d * right[i] + wm * b[i]
+    sc[0] = d * sc[0] + wm * m
+    sc[1] = d * sc[1] + 1.0
+    if sc[1] < p[3]:
+        return False
+    total = normal[0, 0]
+    mean = right[0] / total
+    scatter = _max((sc[0] - mean * right[0]) / _max(sc[1] - 1.0, 1.0), 1.0)
+    sc[2] = mean
+    sc[3] = math.sqrt(noise[0, 0] / (total * total) * scatter + p[4] + sc[4])
+    significant = abs(mean) >= (p[6] if sc[5] != 0.0 else p[5]) * sc[3]
+    if not significant:
+        sc[5] = 0.0
+    return significant
+
+
+def _magnification_run(normal, noise, right, sc, x, m, sigma, use, start: int, p, out) -> int:
+    """MagnificationWatch._add of frames ``start:`` where ``use`` (the flag after each into ``out``),
+    stopping at a frame whose mean is significant (returned: Python judges its turning and goes on
+    from the next); the number of frames when none is."""
+    for i in range(start, x.size):
+        if use[i] and _magnification_add(normal, noise, right, sc, x[i], m[i], sigma[i], p):
+            return i
+        out[i] = sc[5] != 0.0
+    return x.size
+
+
 if COMPILED:
     _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
+    _age, _magnification_add, _magnification_run = _jit(_age), _jit(_magnification_add), _jit(_magnification_run)
     _max, _min, _running, slide_window = _jit(_max), _jit(_min), _jit(_running), _jit(slide_window)
     _chi2_per_dof, _update, _reset = _jit(_chi2_per_dof), _jit(_update), _jit(_reset)
     _reference_run = _jit(_reference_run)

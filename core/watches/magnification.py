@@ -22,10 +22,15 @@ as turning, on half its frames.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
 import numpy as np
+
+from graytrack.core.stretch import FrameStretch, compiled_for, stretches
+from graytrack.core.stretch import warm as stretch_warm
+from graytrack.core.watches import _kernels
 
 MEMORY = 50  # frames: the mean's time constant
 MIN_FRAMES = 20  # frames (decayed count) before it says anything
@@ -51,23 +56,36 @@ class MagnificationWatch:
         self.profile = profile  # the model's own stretch along the stroke, from its calibration frames
         self.allowance_ppm = max(STRUCTURE_PPM, profile.residual_ppm if profile is not None else 0.0)
         self.record: list[tuple[float, float, float]] | None = [] if record else None  # (x, m, σ) per frame
-        self._decay = math.exp(-1.0 / MEMORY)
-        # b: 1, the frame's age −a/MEMORY (a drift in time) and the phase's harmonics
+        # b: 1, the frame's age −a/MEMORY (a drift in time) and the phase's harmonics; one frame on,
+        # every age term moves 1/MEMORY further back (core/watches/_kernels.py steps them, compiled)
         self._normal = np.zeros((6, 6))  # Σ dᵃ·w·b·bᵀ (a: a frame's age)
         self._noise = np.zeros((6, 6))  # Σ d²ᵃ·w·b·bᵀ: an estimate's noise is N⁻¹·this·N⁻¹
         self._right = np.zeros(6)  # Σ dᵃ·w·b·m
-        # one frame on, every age term moves 1/MEMORY further back: b → AGEING·b
-        self._ageing = np.eye(6) - np.outer(np.eye(6)[1], np.eye(6)[0]) / MEMORY
-        self._squares = 0.0  # Σ dᵃ·w·m²
-        self._frames = 0.0  # Σ dᵃ
+        # Σ dᵃ·w·m², Σ dᵃ, the mean (ppm) and its σ, the variance of the stretch a trim accounts for
+        # (ppm²), flagged
+        self._scalars = np.array([0.0, 0.0, 0.0, math.inf, 0.0, 0.0])
+        self._params = np.array([math.exp(-1.0 / MEMORY), period_mm, -(1.0 / MEMORY), MIN_FRAMES,
+                                 self.allowance_ppm ** 2, Z_ON, Z_OFF])
         self._prior = np.diag([0.0, 0.0] + [PRIOR_PPM ** -2] * 4)
-        self._accounted_var = 0.0  # ppm²: the uncertainty of the stretch a trim accounts for
-        self.flagged = False
-        self.mean_ppm, self.sigma_ppm, self.turning_ppm = 0.0, math.inf, 0.0
+        self.turning_ppm = 0.0
+
+    @property
+    def flagged(self) -> bool:
+        return self._scalars[5] != 0.0
+
+    @property
+    def mean_ppm(self) -> float:
+        return float(self._scalars[2])
+
+    @property
+    def sigma_ppm(self) -> float:
+        return float(self._scalars[3])
 
     @classmethod
     def for_model(cls, model) -> "MagnificationWatch":
-        """Less what the model read on its own calibration (``stretch_profile`` in its info, when it has one)."""
+        """Less what the model read on its own calibration (``stretch_profile`` in its info, when it has
+        one); its compiled loops ready now, at model install, not on a live frame."""
+        _warm()
         doc = (getattr(model, "info", None) or {}).get("stretch_profile")
         return cls(model.period_mm, StretchProfile.from_dict(doc) if isinstance(doc, dict) else None)
 
@@ -78,7 +96,7 @@ class MagnificationWatch:
              accounted_sigma_ppm: float = 0.0) -> str | None:
         """``accounted_ppm`` (± its σ): the stretch a trim in force takes out of the positions (a grown
         print's, core/watches/scale.py), judged as the calibration's: what is left is the lens's."""
-        self._accounted_var = accounted_sigma_ppm * accounted_sigma_ppm
+        self._scalars[4] = accounted_sigma_ppm * accounted_sigma_ppm
         if placed and stretch is not None and math.isfinite(x_mm):
             m, sigma = stretch()
             if math.isfinite(m) and 0 < sigma < math.inf:
@@ -105,27 +123,51 @@ class MagnificationWatch:
         variance = (self._noise[0, 0] * scatter + prior) / (total * total) + self.allowance_ppm ** 2 + self._accounted_var
         return math.sqrt(mean * mean + variance)
 
+    def step_many(self, columns, n: int) -> list[str | None] | None:
+        """:meth:`step` of ``n`` frames at once: their stretches by one compiled call when batch tracking
+        left them (core/stretch.py), the running sums by a compiled loop that hands a frame whose mean
+        is significant to :meth:`_turning` (numpy's), as :meth:`step` does. None without numba."""
+        if not _kernels.COMPILED:
+            return None
+        placed, x = columns.array("placed", bool), columns.array("x_mm", np.float64)
+        entries = columns["stretch"]
+        given = np.fromiter((entry is not None for entry in entries), dtype=bool, count=n)
+        asked = np.flatnonzero(placed & np.isfinite(x) & given)
+        m, sigma = np.full(n, math.nan), np.full(n, math.inf)
+        if asked.size:
+            frames = [entries[i] for i in asked]
+            if all(type(frame) is FrameStretch for frame in frames) and len({id(f.tracker) for f in frames}) == 1 \
+                    and compiled_for(frames[0].tracker):
+                m[asked], sigma[asked] = stretches(frames)
+            else:
+                m[asked], sigma[asked] = np.array([frame() for frame in frames], dtype=np.float64).reshape(-1, 2).T
+        use = np.isfinite(m) & (0 < sigma) & (sigma < math.inf)
+        if self.record is not None:
+            self.record.extend(zip(x[use].tolist(), (m[use] * 1e6).tolist(), (sigma[use] * 1e6).tolist()))
+        own = self.profile.at_ppm(x) if self.profile is not None else 0.0
+        m_ppm = np.where(use, m * 1e6 - own, 0.0)  # as step: no trim accounts for any of it here
+        sigma_ppm = np.where(use, sigma * 1e6, 1.0)
+        self._scalars[4] = 0.0
+        out = np.zeros(n, dtype=np.bool_)
+        start = 0
+        while (start := self._run(x, m_ppm, sigma_ppm, use, start, out)) < n:
+            self._judge(self._scalars[2])  # a significant mean: does it turn with the phase?
+            out[start] = self.flagged
+            start += 1
+        return np.where(out, self.family, None).tolist() if out.any() else [None] * n
+
+    def _run(self, x, m_ppm, sigma_ppm, use, start: int, out) -> int:
+        return _kernels._magnification_run(self._normal, self._noise, self._right, self._scalars, x, m_ppm,
+                                           sigma_ppm, use, start, self._params, out)
+
     def _add(self, x_mm: float, m_ppm: float, sigma_ppm: float) -> None:
-        d, w = self._decay, 1.0 / (sigma_ppm * sigma_ppm)
-        theta = 2.0 * math.pi * x_mm / self.period_mm
-        b = np.array([1.0, 0.0, math.cos(theta), math.sin(theta), math.cos(2 * theta), math.sin(2 * theta)])
-        outer = w * np.outer(b, b)
-        ageing = self._ageing
-        self._normal = d * (ageing @ self._normal @ ageing.T) + outer
-        self._noise = d * d * (ageing @ self._noise @ ageing.T) + outer
-        self._right = d * (ageing @ self._right) + w * m_ppm * b
-        self._squares = d * self._squares + w * m_ppm * m_ppm
-        self._frames = d * self._frames + 1.0
-        if self._frames < MIN_FRAMES:
-            return
-        total = self._normal[0, 0]
-        mean = self._right[0] / total
-        scatter = max((self._squares - mean * self._right[0]) / max(self._frames - 1.0, 1.0), 1.0)
-        self.mean_ppm = float(mean)
-        self.sigma_ppm = math.sqrt(self._noise[0, 0] / (total * total) * scatter + self.allowance_ppm ** 2
-                                    + self._accounted_var)
-        significant = abs(mean) >= (Z_OFF if self.flagged else Z_ON) * self.sigma_ppm
-        self.flagged = significant and not self._turning(mean)
+        if _kernels._magnification_add(self._normal, self._noise, self._right, self._scalars, float(x_mm),
+                                       float(m_ppm), float(sigma_ppm), self._params):
+            self._judge(self._scalars[2])
+
+    def _judge(self, mean: float) -> None:
+        """The flag of a frame whose mean is significant: up unless the stretch turns with the phase."""
+        self._scalars[5] = 0.0 if self._turning(float(mean)) else 1.0
 
     def _turning(self, mean: float) -> bool:
         """Whether the frames' stretch turns with the print's phase, significantly and by more than
@@ -157,8 +199,16 @@ class StretchProfile:
     values_ppm: tuple[float, ...]
     residual_ppm: float
 
-    def at_ppm(self, x_mm: float) -> float:
-        return float(np.interp(x_mm, self.centers_mm, self.values_ppm))
+    def at_ppm(self, x_mm: float | np.ndarray) -> float | np.ndarray:
+        """The model's own stretch at ``x_mm`` (one position, or an array of them), ppm."""
+        if np.ndim(x_mm):
+            return np.interp(x_mm, *self._nodes)
+        return float(np.interp(x_mm, *self._nodes))
+
+    @functools.cached_property
+    def _nodes(self) -> tuple[np.ndarray, np.ndarray]:
+        """The centres and values as arrays, made once: every frame reads the profile."""
+        return np.array(self.centers_mm), np.array(self.values_ppm)
 
     def as_dict(self) -> dict:
         return {"centers_mm": [round(v, 6) for v in self.centers_mm],
@@ -196,5 +246,19 @@ class StretchProfile:
 
 def make(tracker) -> MagnificationWatch:
     """Every tracker's: the stretch is in the frames, with a grating or without (a trimmed run's scale
-    watch carries its own, judged against the trim: core/watches/scale.py)."""
+    watch carries its own, judged against the trim: core/watches/scale.py). Its compiled loops are
+    made ready here, at model install, not on a live frame."""
+    stretch_warm(tracker)
     return MagnificationWatch.for_model(tracker.model)
+
+
+@functools.cache
+def _warm() -> None:
+    """Compile (or load from numba's cache) the running sums' loops, once a process."""
+    watch = MagnificationWatch.__new__(MagnificationWatch)
+    watch._normal, watch._noise, watch._right = np.zeros((6, 6)), np.zeros((6, 6)), np.zeros(6)
+    watch._scalars = np.array([0.0, 0.0, 0.0, math.inf, 0.0, 0.0])
+    watch._params = np.array([1.0, 1.0, 0.0, math.inf, 0.0, Z_ON, Z_OFF])  # never enough frames to judge
+    watch._add(0.0, 0.0, 1.0)
+    one = np.zeros(1)
+    watch._run(one, one, np.ones(1), np.ones(1, dtype=np.bool_), 0, np.zeros(1, dtype=np.bool_))
