@@ -119,8 +119,9 @@ class MagnificationWatch:
         prior = CHANGE_PRIOR_PPM ** -2
         total = self._normal[0, 0] + prior
         mean = self._right[0] / total
-        scatter = max((self._squares - mean * self._right[0]) / (self._frames - 1.0), 1.0) if self._frames > 2 else 1.0
-        variance = (self._noise[0, 0] * scatter + prior) / (total * total) + self.allowance_ppm ** 2 + self._accounted_var
+        squares, frames, accounted_var = self._scalars[0], self._scalars[1], self._scalars[4]
+        scatter = max((squares - mean * self._right[0]) / (frames - 1.0), 1.0) if frames > 2 else 1.0
+        variance = (self._noise[0, 0] * scatter + prior) / (total * total) + self.allowance_ppm ** 2 + accounted_var
         return math.sqrt(mean * mean + variance)
 
     def step_many(self, columns, n: int) -> list[str | None] | None:
@@ -149,12 +150,16 @@ class MagnificationWatch:
         sigma_ppm = np.where(use, sigma * 1e6, 1.0)
         self._scalars[4] = 0.0
         out = np.zeros(n, dtype=np.bool_)
+        beyond = np.zeros(n, dtype=np.bool_)  # flagged with a mean no lens makes (as step: LENS_PPM)
         start = 0
         while (start := self._run(x, m_ppm, sigma_ppm, use, start, out)) < n:
             self._judge(self._scalars[2])  # a significant mean: does it turn with the phase?
             out[start] = self.flagged
+            beyond[start] = abs(self.mean_ppm) > LENS_PPM
             start += 1
-        return np.where(out, self.family, None).tolist() if out.any() else [None] * n
+        if not out.any():
+            return [None] * n
+        return np.where(out, np.where(beyond, "geometry", self.family), None).tolist()
 
     def _run(self, x, m_ppm, sigma_ppm, use, start: int, out) -> int:
         return _kernels._magnification_run(self._normal, self._noise, self._right, self._scalars, x, m_ppm,
