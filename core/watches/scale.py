@@ -217,7 +217,11 @@ class ScaleWatch:
                 self._off.restore(saved[1])
                 self._frame -= n
                 return None
-            # the line held on every frame: the stretch is judged frame by frame beside the slope
+            # the line held on every frame: the stretch is the magnification watch's alone (its chunk path when
+            # it has one: the same as its step frame by frame, nothing accounted for untrimmed)
+            many = carried.step_many(columns, n) if hasattr(carried, "step_many") else None
+            if many is not None:
+                return many
             return [self._stretch_step(*row)[1] for row in zip(columns["placed"], columns["x_mm"], columns["stretch"])]
         if not stale.any():
             return [None] * n
