@@ -54,6 +54,7 @@ SPEED_PX = 1.0  # average (a lamp's vignetting wandered ±1.6 px, then drifted p
 SANE_BOUND = 10.0  # a joint bound beyond this many of the uniform light's: x and the band do not separate
 ACCEL_PX = 0.3  # px/frame²: the spread of the band's acceleration (a swinging cable's speed changes slowly)
 WOBBLE_PX = 0.3  # px/frame: each edge's own wander about the common motion (the width may change a little)
+WIDTH_SEEN_PX = 2.0  # a band's width is kept when both its edges were placed this well
 OUT_SPREAD = 0.1  # of the field: the spread of an edge out of view when a band is found
 RATE_PX = 20.0  # px/frame: the spread of its speed when an episode starts (either way)
 MIN_EDGE_PX, MIN_WIDTH_PX = 0.5, 1.0
@@ -112,7 +113,8 @@ class MovingBand:
         self.shape = np.array([0.0, 1.0])  # (depth, softness px): the prior each frame's solve holds it to
         self.shape_information = np.zeros((2, 2))
         self.loose = self.shape, self.shape_information  # the episode's own prior on the shape
-        self.kept: tuple[np.ndarray, np.ndarray, float] | None = None  # (shape, information, width): last pass's
+        self.kept: tuple[np.ndarray, np.ndarray, float | None] | None = None  # (shape, information, width): the
+        # last pass's (or the band's before it was lost)
         self.window: deque = deque(maxlen=WINDOW)  # the last frames followed: [y, weights, x, left, right]
         self.last: np.ndarray | None = None  # the last frame taken, and the state before it (see rewind)
         self.saved: dict = {}
@@ -120,8 +122,9 @@ class MovingBand:
 
     def reset(self) -> None:
         """The episode ends (its shape is kept as the next one's prior: the same cable comes back)."""
-        if len(self.window) >= WINDOW // 2 and math.isfinite(self.width[1]):
-            self.kept = self.shape.copy(), KEEP * self.shape_information, self.width[0]
+        if len(self.window) >= WINDOW // 2:  # (its width only if both its edges were seen)
+            width = self.width[0] if self.width[1] <= WIDTH_SEEN_PX**2 else None
+            self.kept = self.shape.copy(), KEEP * self.shape_information, width
         self.window.clear()
         self.active, self.misses, self.followed = False, 0, 0
         self.motion, self.motion_cov = np.zeros(3), np.eye(3)  # (left, right, speed)
@@ -138,6 +141,7 @@ class MovingBand:
         (unless ``again``: a band lost mid-pass) the loss shows at both ends of the line: a band
         comes into view from one end, and a light shape fixed to the camera (a lamp's vignetting)
         shows at both."""
+        speed, speed_var, moved = float(self.motion[2]), float(self.motion_cov[2, 2]), self.moved
         self.reset()
         held = list(self.lights)[:max(len(self.lights) - LIGHT_LAG, 1)]
         self.gain, self.offset_gray = (float(v) for v in np.mean(held, axis=0)) if held else (1.0, 0.0)
@@ -147,17 +151,19 @@ class MovingBand:
         if not again and _both_ends(lit, lost, weights, self.n_rows, n):
             return False
         centres = np.arange(-1.5 * n, 2.5 * n + 1, max(n / 50.0, 1.0))
-        found = None
-        if self.kept is not None:  # the last pass's band: its place alone
-            found = _search(self.columns, centres, lit, lost, weights, [(self.kept[2], self.kept[0][1])],
-                            self.kept[0][0])
-        if found is not None:
-            self.loose = self.kept[0].copy(), self.kept[1].copy()
-        else:
-            found = _search(self.columns, centres, lit, lost, weights,
-                            [(w * n, e * n) for w in GRID_WIDTHS for e in GRID_EDGES])
-            if found is None:
-                return False
+        # the last pass's band (its place, and its width if not known), held to what it learned, unless
+        # a band of its own explains the frame better by far
+        widths = [w * n for w in GRID_WIDTHS]
+        grid, found = _search(self.columns, centres, lit, lost, weights, [(w, e * n) for w in widths for e in GRID_EDGES])
+        if self.kept is not None:
+            shape, information, width = self.kept
+            known = _search(self.columns, centres, lit, lost, weights,
+                            [(w, shape[1]) for w in ([width] if width is not None else widths)], shape[0])
+            if known[1] is not None and known[0] + SEEN_SIGMAS**2 >= grid:
+                found, self.loose = known[1], (shape.copy(), information.copy())
+        if found is None:
+            return False
+        if self.kept is None or found is not known[1]:
             self.loose = np.array([found[1], found[3]]), np.diag([1.0, 1.0 / n**2])  # held loosely
         self.shape, self.shape_information = self.loose[0].copy(), self.loose[1].copy()
         centre, width = found[0], found[2]
@@ -166,6 +172,8 @@ class MovingBand:
         # yet in) is unknown: held at the search's guess, a width off by 250 px lost the band when it came
         out = (self.motion[:2] < -2 * found[3]) | (self.motion[:2] > n - 1 + 2 * found[3])
         self.motion_cov = np.diag(np.append(np.where(out, (OUT_SPREAD * n) ** 2, (0.1 * n) ** 2), RATE_PX**2))
+        if again:  # a band lost mid-pass (an edge came into view far from where it was held) keeps its motion
+            self.motion[2], self.motion_cov[2, 2], self.moved = speed, speed_var, moved
         self.active = True
         return True
 
@@ -329,9 +337,9 @@ def _both_ends(lit: np.ndarray, lost: np.ndarray, weights: np.ndarray, n_rows: i
 
 
 def _search(columns: np.ndarray, centres: np.ndarray, lit: np.ndarray, lost: np.ndarray, weights: np.ndarray,
-            shapes: list[tuple[float, float]], depth: float | None = None) -> tuple[float, ...] | None:
-    """The (centre, depth, width, softness) on the grid that best explains the light ``lost`` (the
-    depth solved, linear, unless given); None when none gains :data:`SEEN_SIGMAS`² of χ²."""
+            shapes: list[tuple[float, float]], depth: float | None = None) -> tuple[float, tuple[float, ...] | None]:
+    """The χ² gained and the (centre, depth, width, softness) on the grid that best explains the light
+    ``lost`` (the depth solved, linear, unless given); None when none gains :data:`SEEN_SIGMAS`²."""
     best, found = SEEN_SIGMAS**2, None
     for width, edge in shapes:
         values = band(columns[None, :], centres[:, None] - 0.5 * width, centres[:, None] + 0.5 * width,
@@ -346,7 +354,7 @@ def _search(columns: np.ndarray, centres: np.ndarray, lit: np.ndarray, lost: np.
         i = int(np.argmax(gain))
         if gain[i] > best:
             best, found = float(gain[i]), (float(centres[i]), float(depths[i]), width, edge)
-    return found
+    return best, found
 
 
 def refine(evaluator, gain: float, offset: float, columns: np.ndarray, window, shape: np.ndarray,
@@ -445,8 +453,10 @@ def follow(tracker, batch, k: int, x_start: float, uniform: FrameSolution, movin
         # a band whose shape or motion changed (its width, unknown while one edge alone was in view,
         # shows when the other comes) is solved again loosely held; one lost is looked for anew
         if how == "anew":
-            again = moving.moved  # (a band seen to move, lost mid-field)
-            if not (uniform.chi2 > limit and moving.start(tracker.evaluator, y, weights, at, again)):
+            # (a band seen to move and lost is looked for at once: an edge out of view has no slope to
+            # be found by, and the uniform light had taken the one coming in for x at a χ² within its limit)
+            again = moving.moved
+            if not ((uniform.chi2 > limit or again) and moving.start(tracker.evaluator, y, weights, at, again)):
                 break
         elif not moving.active or (how == "loosened" and not moving.loosen()):
             continue
