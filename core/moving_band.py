@@ -47,6 +47,7 @@ from graytrack.core.solvers import FrameSolution
 ROOT_PI, ROOT_2 = math.sqrt(math.pi), math.sqrt(2.0)
 ITERATIONS = 12
 SEEN_SIGMAS = 5.0  # the band seen in a frame: its loss in view beyond this many of its noise
+EARLY_SPREADS = 3.0  # a band seen before: looked for at a frame's χ² beyond this many of its spreads
 MISSES = 3  # frames in a row the band does not explain before the episode ends
 GATE_SIGMAS = 5.0  # an edge beyond this many of its predicted spread: not the band followed
 MOVED_PX = 2.0  # the band's answer is taken once it has moved this far, at SPEED_PX a frame or more on
@@ -122,7 +123,7 @@ class MovingBand:
 
     def reset(self) -> None:
         """The episode ends (its shape is kept as the next one's prior: the same cable comes back)."""
-        if len(self.window) >= WINDOW // 2:  # (its width only if both its edges were seen)
+        if len(self.window) >= WINDOW // 2 and self.moved:  # (its width only if both its edges were seen)
             width = self.width[0] if self.width[1] <= WIDTH_SEEN_PX**2 else None
             self.kept = self.shape.copy(), KEEP * self.shape_information, width
         self.window.clear()
@@ -161,6 +162,7 @@ class MovingBand:
                             [(w, shape[1]) for w in ([width] if width is not None else widths)], shape[0])
             if known[1] is not None and known[0] + SEEN_SIGMAS**2 >= grid:
                 found, self.loose = known[1], (shape.copy(), information.copy())
+                moved = True  # (the band seen to move before, coming back)
         if found is None:
             return False
         if self.kept is None or found is not known[1]:
@@ -173,7 +175,8 @@ class MovingBand:
         out = (self.motion[:2] < -2 * found[3]) | (self.motion[:2] > n - 1 + 2 * found[3])
         self.motion_cov = np.diag(np.append(np.where(out, (OUT_SPREAD * n) ** 2, (0.1 * n) ** 2), RATE_PX**2))
         if again:  # a band lost mid-pass (an edge came into view far from where it was held) keeps its motion
-            self.motion[2], self.motion_cov[2, 2], self.moved = speed, speed_var, moved
+            self.motion[2], self.motion_cov[2, 2] = speed, speed_var
+        self.moved = moved and (again or self.kept is not None)
         self.active = True
         return True
 
@@ -435,7 +438,11 @@ def follow(tracker, batch, k: int, x_start: float, uniform: FrameSolution, movin
     ``uniform``. ``reference``: the grating's reading (NaN: none), where a band is looked for on
     its first frame (else the uniform answer's place)."""
     limit = tracker.chi2_limit * here
-    if not moving.active and not (uniform.chi2 > limit and math.isfinite(x_start)):
+    # a band seen before is looked for at three of one frame's χ² spreads (its edge coming in bent x
+    # 13 µm, 6 bounds, at a χ² within five): one frame in 700 by chance, and only after a band
+    asks = tracker.chi2_calibration * here * (1.0 + EARLY_SPREADS / 5.0 * (tracker.chi2_limit / tracker.chi2_calibration
+                                                                           - 1.0)) if moving.kept else limit
+    if not moving.active and not (uniform.chi2 > asks and math.isfinite(x_start)):
         moving.lights.append((uniform.gain, uniform.offset) if uniform.free_light else (1.0, 0.0))
         return uniform  # (the common case: nothing but a comparison and the light kept)
     weights = batch.weights(k)
@@ -456,7 +463,7 @@ def follow(tracker, batch, k: int, x_start: float, uniform: FrameSolution, movin
             # (a band seen to move and lost is looked for at once: an edge out of view has no slope to
             # be found by, and the uniform light had taken the one coming in for x at a χ² within its limit)
             again = moving.moved
-            if not ((uniform.chi2 > limit or again) and moving.start(tracker.evaluator, y, weights, at, again)):
+            if not ((uniform.chi2 > asks or again) and moving.start(tracker.evaluator, y, weights, at, again)):
                 break
         elif not moving.active or (how == "loosened" and not moving.loosen()):
             continue
