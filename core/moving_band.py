@@ -138,10 +138,8 @@ class MovingBand:
     def start(self, evaluator, y: np.ndarray, weights: np.ndarray, x_mm: float, again: bool = False) -> bool:
         """Find the band in a frame the uniform light does not explain, at ``x_mm``: its best place,
         width and softness on a grid (the depth is linear), or its place alone for the last pass's
-        band. False: no band explains the frame better than the uniform light by a clear margin, or
-        (unless ``again``: a band lost mid-pass) the loss shows at both ends of the line: a band
-        comes into view from one end, and a light shape fixed to the camera (a lamp's vignetting)
-        shows at both."""
+        band. False: no band explains the frame better than the uniform light by a clear margin.
+        ``again``: a band lost mid-pass, whose motion is kept."""
         speed, speed_var, moved = float(self.motion[2]), float(self.motion_cov[2, 2]), self.moved
         self.reset()
         held = list(self.lights)[:max(len(self.lights) - LIGHT_LAG, 1)]
@@ -149,8 +147,6 @@ class MovingBand:
         lit = self.gain * evaluator.evaluate(np.array([x_mm]))[0][0]
         lost = lit + self.offset_gray - y
         n = self.n_pixels
-        if not again and _both_ends(lit, lost, weights, self.n_rows, n):
-            return False
         centres = np.arange(-1.5 * n, 2.5 * n + 1, max(n / 50.0, 1.0))
         # the last pass's band (its place, and its width if not known), held to what it learned, unless
         # a band of its own explains the frame better by far
@@ -279,6 +275,14 @@ class MovingBand:
                          *self.loose)
         if refined is not None:
             self.shape, self.shape_information = refined
+
+    def at_both_ends(self, evaluator, y: np.ndarray, weights: np.ndarray, x_mm: float) -> bool:
+        """The light lost at ``x_mm`` (a first frame's joint answer: without the grating the last
+        frames' x, which the band's edge had bent 20 µm, showed the print's misfit at both ends) shows
+        at both ends of the line: a band comes into view from one end, and a light shape fixed to the
+        camera (a lamp's vignetting) shows at both."""
+        lit = self.gain * evaluator.evaluate(np.array([x_mm]))[0][0]
+        return _both_ends(lit, lit + self.offset_gray - y, weights, self.n_rows, self.n_pixels)
 
     def taking(self, y: np.ndarray) -> None:
         """A frame is about to be taken: the state before it is kept (the tracker may solve the same
@@ -465,11 +469,17 @@ def follow(tracker, batch, k: int, x_start: float, uniform: FrameSolution, movin
             again = moving.moved
             if not ((uniform.chi2 > asks or again) and moving.start(tracker.evaluator, y, weights, at, again)):
                 break
+            if math.isfinite(reference) and not again and moving.at_both_ends(tracker.evaluator, y, weights, at):
+                moving.reset()  # (with the grating, at its reading; without, at the first answer: below)
+                break
         elif not moving.active or (how == "loosened" and not moving.loosen()):
             continue
         trial = moving.solve(tracker.evaluator, y, weights, at, tracker.settings.max_step_mm)
         if moving.sane(trial, uniform.information, limit) and abs(trial.params[0] - x_start) \
                 < tracker.quarter_period_mm:
+            if not (moving.followed or moving.moved or math.isfinite(reference)) and moving.at_both_ends(tracker.evaluator, y, weights, trial.params[0]):
+                moving.reset()
+                break
             answer = trial
             break
     if answer is None:
