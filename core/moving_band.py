@@ -58,6 +58,8 @@ WOBBLE_PX = 0.3  # px/frame: each edge's own wander about the common motion (the
 WIDTH_SEEN_PX = 2.0  # a band's width is kept when both its edges were placed this well
 OUT_SPREAD = 0.1  # of the field: the spread of an edge out of view when a band is found
 RATE_PX = 20.0  # px/frame: the spread of its speed when an episode starts (either way)
+MIN_DEPTH = 0.03  # a band shallower than this is no shadow to follow (a blur's residual on a 16-row strip, fitted
+# as a band 0.1-0.5 % deep, took the focus term's frames); the uniform light and its field describe such a dip
 MIN_EDGE_PX, MIN_WIDTH_PX = 2.0, 1.0  # a penumbra narrower than 2 px is no soft shadow (a smudge's edges fitted
 # at half a pixel took it for a band: 8.1x without the grating, 5.5x now, 2.9x before the band)
 WINDOW = 10  # frames: the shape is solved jointly over the last frames followed (each its own x and edges)
@@ -241,7 +243,8 @@ class MovingBand:
     def sane(self, answer: BandAnswer | None, uniform_information: float, limit: float) -> bool:
         """The band explains the frame, is seen in it, its edges are where the motion carries them,
         and it leaves x a bound."""
-        if answer is None or not (answer.chi2 <= limit and answer.visible > SEEN_SIGMAS):
+        if answer is None or not (answer.chi2 <= limit and answer.visible > SEEN_SIGMAS
+                                  and answer.params[3] >= MIN_DEPTH):
             return False
         if not (math.isfinite(answer.information) and answer.information * SANE_BOUND**2 >= uniform_information):
             return False
@@ -358,7 +361,7 @@ def _search(columns: np.ndarray, centres: np.ndarray, lit: np.ndarray, lost: np.
             gain = across * depths
         else:
             gain, depths = 2 * depth * across - depth * depth * power, np.full(centres.size, depth)
-        gain = np.where((depths > 0) & (depths < 1), gain, 0.0)
+        gain = np.where((depths >= MIN_DEPTH) & (depths < 1), gain, 0.0)
         i = int(np.argmax(gain))
         if gain[i] > best:
             best, found = float(gain[i]), (float(centres[i]), float(depths[i]), width, edge)
