@@ -22,8 +22,8 @@ from graytrack.service.commands.track_scale import check, scale_watch
 SECONDS = 10.0
 FAR = 4.0
 CASES = ["", "smudge:depth=0.35", "dust_settling", "light_change:gain=0.85:ambient_gray=8:start_s=2", "glints:p=0.15",
-         "vignetting:edge=0.05", "gradient:per_10mm=0.05", "focus_drift:px=0.5", "magnification_drift:ppm=1500:ramp_s=10",
-         "bad_pixels:stuck=1:dead=0:hot=0:row=0:pixel=40:start_s=2.5"]
+         "vignetting:edge=0.05", "gradient:per_10mm=0.05", "focus_drift:px=0.5",
+         "magnification_drift:ppm=1500:ramp_s=10", "bad_pixels:stuck=1:dead=0:hot=0:row=0:pixel=40:start_s=2.5"]
 
 
 def main() -> None:

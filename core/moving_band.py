@@ -154,7 +154,8 @@ class MovingBand:
         # the last pass's band (its place, and its width if not known), held to what it learned, unless
         # a band of its own explains the frame better by far
         widths = [w * n for w in GRID_WIDTHS]
-        grid, found = _search(self.columns, centres, lit, lost, weights, [(w, e * n) for w in widths for e in GRID_EDGES])
+        grid, found = _search(self.columns, centres, lit, lost, weights,
+                              [(w, e * n) for w in widths for e in GRID_EDGES])
         if self.kept is not None:
             shape, information, width = self.kept
             known = _search(self.columns, centres, lit, lost, weights,
@@ -481,7 +482,8 @@ def follow(tracker, batch, k: int, x_start: float, uniform: FrameSolution, movin
         trial = moving.solve(tracker.evaluator, y, weights, at, tracker.settings.max_step_mm)
         if moving.sane(trial, uniform.information, limit) and abs(trial.params[0] - x_start) \
                 < tracker.quarter_period_mm:
-            if not (moving.followed or moving.moved or math.isfinite(reference)) and moving.at_both_ends(tracker.evaluator, y, weights, trial.params[0]):
+            first = not (moving.followed or moving.moved or math.isfinite(reference))
+            if first and moving.at_both_ends(tracker.evaluator, y, weights, trial.params[0]):
                 moving.reset()
                 break
             answer = trial
