@@ -56,7 +56,7 @@ SANE_BOUND = 10.0  # a joint bound beyond this many of the uniform light's: x an
 ACCEL_PX = 0.3  # px/frame²: the spread of the band's acceleration (a swinging cable's speed changes slowly)
 WOBBLE_PX = 0.3  # px/frame: each edge's own wander about the common motion (the width may change a little)
 WIDTH_SEEN_PX = 2.0  # a band's width is kept when both its edges were placed this well
-OUT_SPREAD = 0.1  # of the field: the spread of an edge out of view when a band is found
+PLACE_SPREAD = 0.1  # of the field: the spread of the edges' places when a band is found
 RATE_PX = 20.0  # px/frame: the spread of its speed when an episode starts (either way)
 MIN_DEPTH = 0.03  # a band shallower than this is no shadow to follow (a blur's residual on a 16-row strip, fitted
 # as a band 0.1-0.5 % deep, took the focus term's frames); the uniform light and its field describe such a dip
@@ -170,10 +170,10 @@ class MovingBand:
         self.shape, self.shape_information = self.loose[0].copy(), self.loose[1].copy()
         centre, width = found[0], found[2]
         self.motion = np.array([centre - 0.5 * width, centre + 0.5 * width, 0.0])
-        # an edge in view is placed by the search; one out of view (a band wider than the field, or not
-        # yet in) is unknown: held at the search's guess, a width off by 250 px lost the band when it came
-        out = (self.motion[:2] < -2 * found[3]) | (self.motion[:2] > n - 1 + 2 * found[3])
-        self.motion_cov = np.diag(np.append(np.where(out, (OUT_SPREAD * n) ** 2, (0.1 * n) ** 2), RATE_PX**2))
+        # the edges as the search placed them (one out of view held no looser: a field's width of spread
+        # let it wander and cost the followed frames; when it comes into view, a loosened solve or a
+        # search anew finds it)
+        self.motion_cov = np.diag([(PLACE_SPREAD * n) ** 2, (PLACE_SPREAD * n) ** 2, RATE_PX**2])
         if again:  # a band lost mid-pass (an edge came into view far from where it was held) keeps its motion
             self.motion[2], self.motion_cov[2, 2] = speed, speed_var
         self.moved = moved and (again or self.kept is not None)
