@@ -445,12 +445,13 @@ def follow(tracker, batch, k: int, x_start: float, uniform: FrameSolution, movin
            here: float = 1.0, reference: float = math.nan) -> FrameSolution:
     """Frame ``k`` with a band of shadow followed, when one is in view and explains it; else
     ``uniform``. ``reference``: the grating's reading (NaN: none), where a band is looked for on
-    its first frame (else the uniform answer's place)."""
+    its first frame (else where the tracker's motion puts the frame: the uniform answer had traded
+    x for the band's edge)."""
     limit = tracker.chi2_limit * here
     # a band seen before is looked for at three of one frame's χ² spreads (its edge coming in bent x
     # 13 µm, 6 bounds, at a χ² within five): one frame in 700 by chance, and only after a band
-    asks = tracker.chi2_calibration * here * (1.0 + EARLY_SPREADS / 5.0 * (tracker.chi2_limit / tracker.chi2_calibration
-                                                                           - 1.0)) if moving.kept else limit
+    spread = (tracker.chi2_limit / tracker.chi2_calibration - 1.0) / 5.0  # one frame's χ² spread, relative
+    asks = tracker.chi2_calibration * here * (1.0 + EARLY_SPREADS * spread) if moving.kept else limit
     if not moving.active and not (uniform.chi2 > asks and math.isfinite(x_start)):
         moving.lights.append((uniform.gain, uniform.offset) if uniform.free_light else (1.0, 0.0))
         return uniform  # (the common case: nothing but a comparison and the light kept)
@@ -463,7 +464,7 @@ def follow(tracker, batch, k: int, x_start: float, uniform: FrameSolution, movin
     weights = np.asarray(weights, dtype=np.float64).reshape(-1)
     y = np.asarray(batch.frames[k], dtype=np.float64).reshape(-1)
     moving.rewind(y)
-    at = reference if math.isfinite(reference) else x_start  # (the uniform answer traded x for the band)
+    at = reference if math.isfinite(reference) else x_start
     answer = None
     for how in ("followed", "loosened", "anew"):
         # a band whose shape or motion changed (its width, unknown while one edge alone was in view,
