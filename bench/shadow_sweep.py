@@ -2,7 +2,7 @@
 
 Calibrated (`calibrate --model paper`) on a clean run of SCENARIO; each measured run has the shadow
 pass twice (`moving_shadow:depth=D:passes=2:period_s=4`, starting at a time that varies with the
-seed) and is tracked as `graytrack track` does (light auto, robust; the camera-against-grating
+seed) and is tracked as `graytrack track` does (light auto, robust, learning; the camera-against-grating
 check with the grating, and again without it). Per run: frames with the shadow in view, frames
 flagged (all, and outside the shadow), frames lost, the error std against the truth over the clean
 run's bound (all placed frames, the unflagged ones, those outside the shadow), and the placed frames
@@ -20,7 +20,7 @@ import numpy as np
 from graytrack.core.calibration import calibrate
 from graytrack.core.tracking import track
 from graytrack.drivers.sim.scenarios import build_rig
-from graytrack.service.commands.track_scale import check
+from graytrack.service.commands.track_scale import check, scale_watch
 
 SECONDS = 10.0
 FAR = 4.0
@@ -40,9 +40,10 @@ def main(scenario: str = "paper", depths: str = "0.2,0.33,0.5", seeds: str = "1,
             shown = rig.config.illumination.shadow.in_view(truth.t_s, rig.geometry.x_mm)
             for grating in (True, False):
                 reference = run.reference if grating else np.full(run.n_frames, np.nan)
+                watch = scale_watch(run, model, reference)  # as `track` does: its scale watch, learning on
                 result = track(model, run.frames, reference=reference, x0_mm=run.reference[0], light="auto",
-                               robust=True)
-                flagged = result.stale | (check(run, model, result, reference, False).columns["scale_stale"] == 1)
+                               robust=True, learn=True, watches=[watch] if watch else [])
+                flagged = result.stale | (check(run, model, result, False, watch).columns["scale_stale"] == 1)
                 error = (result.x_mm - truth.x_mm) * 1e3
                 placed = np.isfinite(error)
                 silent = placed & ~flagged & (np.abs(error) > FAR * result.crlb_mm * 1e3)

@@ -59,7 +59,7 @@ class FrameSolution:
     focus_sigma: float = float("nan")  # its standard error (NaN: the focus was not estimated on this frame)
     focus_solved: bool = False  # the answer has the focus term profiled out (its bound is the Schur complement)
     chi2_calibrated_focus: float = float("nan")  # with focus_solved: the frame's χ² at the calibration's focus
-    moving: bool = False  # a light feature moving across the field was followed with x (core/moving_light.py)
+    moving: bool = False  # a light feature moving across the field was followed with x (core/moving_band.py)
 
 
 class MomentSource(Protocol):

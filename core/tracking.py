@@ -38,7 +38,7 @@ from graytrack.core.focus_solve import CurvatureTable, focus_solve, general_focu
 from graytrack.core.focus_solve import warm as focus_warm
 from graytrack.core.focus_follow import FocusFollow, followable
 from graytrack.core.models.fourier import TWO_PI, FourierModel
-from graytrack.core.moving_light import MovingLight, follow
+from graytrack.core.moving_band import MovingBand, follow
 from graytrack.core.recording import Recording
 from graytrack.core.stretch import FrameStretch
 from graytrack.core.stretch_follow import StretchFollow, followed_stretch, stretch_follow
@@ -144,7 +144,7 @@ class LightMemory:
     # the mean of χ²(1), the field's one extra unknown, when the focus explains the frames)
     free_level: float = 1.0  # average χ² of the last free-light frames, in the calibration's level
     free_frames: int = 0  # how many frames that average holds (up to FIELD_WINDOW)
-    moving: MovingLight | None = None  # a light feature moving across the field (core/moving_light.py)
+    moving: MovingBand | None = None  # a shadow's band moving across the field (core/moving_band.py)
 
 
 class Tracker:
@@ -323,7 +323,7 @@ class Tracker:
               reference: float = math.nan) -> FrameSolution:
         """Frame ``k`` from ``x_start``: the light and robustness the frame asks for, cheapest first
         (what the last frame needed, then the light solved, then the robust solve). ``reference``:
-        the grating's reading, where a moving light's shape is learned (core/moving_light.py)."""
+        the grating's reading, where a shadow's band is first looked for (core/moving_band.py)."""
         # A model fitted with a gain and offset per frame knows the light moves from frame to frame
         # (flicker, auto-exposure, row banding): "auto" then solves it in every frame, as calibration did.
         free = self.free_light(memory)
@@ -354,9 +354,9 @@ class Tracker:
         memory.gain, memory.offset = solution.gain, solution.offset
         memory.rejected = solution.rejected_mask if solution.rejected else None
         if self.focus_capable:  # (light "auto") a light feature moving across the field, followed: no
-            # evidence for a blur or a field of the frame's own (core/moving_light.py)
+            # evidence for a blur or a field of the frame's own (core/moving_band.py)
             if memory.moving is None:
-                memory.moving = MovingLight(self.model.n_rows, self.model.n_pixels, self.model.pixel_pitch_mm)
+                memory.moving = MovingBand(self.model.n_rows, self.model.n_pixels)
             followed = follow(self, batch, k, x_start, solution, memory.moving, here, reference)
             if followed is not solution:
                 memory.focus_track.wait()

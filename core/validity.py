@@ -74,7 +74,7 @@ class FrameSign:
     explain: Callable[[], dict[str, Any]] | None = None
     # The frame's stretch across the pixels (m, its σ: core/stretch.py), computed when a watch asks.
     stretch: Callable[[], tuple[float, float]] | None = None
-    moving: bool = False  # the answer followed a light feature moving across the field (core/moving_light.py)
+    moving: bool = False  # the answer followed a light feature moving across the field (core/moving_band.py)
 
 
 SIGN_FIELDS = tuple(FrameSign.__slots__)

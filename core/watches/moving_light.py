@@ -1,11 +1,10 @@
-"""A frame answered with a moving light feature followed (core/moving_light.py) is flagged ``light``.
+"""A frame answered with a shadow's band followed (core/moving_band.py) is flagged ``light``.
 
-Its position is measured, at 1.3–2× the clean print's bound on the paper rig, but the learned
-shape's own error is larger than its noise says: over the shadow's frames the errors scatter at
-1.8–2.0 of the joint bound (the shape is built frame by frame, smoothed, from a few frames at its
-edges), and unflagged 0.2–1.4 % of the placed frames were 4+ bounds off. Until the shape's error is
-measured from the frames themselves, the frame says what its answer rests on: the light is not the
-calibration's, and a learned shape stands in for it.
+Its position is measured, its bound the joint one (the band's shape and motion profiled out), but
+the answer rests on a model of the light the calibration never saw: a band of shadow of learned
+depth and softness whose edges move as a Kalman filter predicts. When the band is taken for
+something it is not (a lamp's vignetting near the line's end, taken for a band that moved) the
+answer can be off by more than its bound; the frame says what its answer rests on.
 """
 
 from __future__ import annotations

@@ -1,12 +1,12 @@
 """A cable's shadow sweeping across the field after calibration (drivers/sim/shadow.py), tracked as
-`track` does: with the grating read, the shadow's shape is learned and followed across the field
-(core/moving_light.py) and its frames measured near the bound, flagged ``light``; without it they
-are flagged (on the paper rig less than a period is in view, and no light field of a frame's own
-separates from x); none is placed far off without a flag, and once the shadow has left the tracker
-is back on the calibrated light, at its bound and unflagged, within a few frames. Before
+`track` does: the shadow's band is learned and followed across the field (core/moving_band.py), with
+the grating read and without it, on the paper rig and on a 16-row strip: its frames measured near
+the bound, flagged ``light``; none placed far off without a flag, and once the shadow has left the
+tracker is back on the calibrated light, at its bound and unflagged, within a few frames. Before
 core/chi2_episode.py the shadow's frames held the running χ² (and the grating watch's window) up
 for hundreds of frames: the light stayed solved and every frame flagged, three times the frames the
-shadow covered."""
+shadow covered. Before core/moving_band.py a shape learned free per column followed the shadow with
+the grating only (1.4–2.2× the clean bound; without it 25–83×, on the strip 6–55× with 10 % lost)."""
 
 from __future__ import annotations
 
@@ -35,6 +35,28 @@ def shadow_run(model):
     run, truth = rig.record(7.0)
     in_view = rig.config.illumination.shadow.in_view(truth.t_s, rig.geometry.x_mm)
     return run, truth, in_view, track(model, run, light="auto", robust=True)
+
+
+@pytest.fixture(scope="module")
+def strip_model():
+    calibration, _ = build_rig("strip16", "", seed=3).record(8.0)
+    return calibrate(calibration, "paper").model
+
+
+def _ridden(model, scenario: str, grating: bool):
+    """(placed, error µm, the clean frames' rms bound µm, frames flagged, placed frames 4+ bounds off
+    unflagged, shadow in view) of the shadow run tracked as `track` does, with the grating or without."""
+    rig = build_rig(scenario, SHADOW, seed=5, run=1)
+    run, truth = rig.record(7.0)
+    in_view = rig.config.illumination.shadow.in_view(truth.t_s, rig.geometry.x_mm)
+    reference = run.reference if grating else None
+    result = track(model, run.frames, reference=reference, x0_mm=float(run.reference[0]), light="auto", robust=True)
+    error = (result.x_mm - truth.x_mm) * 1e3
+    placed = np.isfinite(error)
+    before = ~in_view & (np.cumsum(in_view) == 0)
+    clean_bound = float(np.sqrt(np.mean((result.crlb_mm[before] * 1e3) ** 2)))
+    silent = placed & ~result.stale & (np.abs(error) > FAR * result.crlb_mm * 1e3)
+    return placed, error, clean_bound, result.stale, silent, in_view
 
 
 def _after(in_view: np.ndarray, frames: int) -> np.ndarray:
@@ -73,26 +95,47 @@ def test_never_placed_far_off_without_a_flag(shadow_run):
     assert placed.mean() >= 0.98  # frames lost: at most 2 %
     far = np.abs(result.x_mm - truth.x_mm) > FAR * result.crlb_mm
     silent = far & ~result.stale & placed
-    # the issue asks ≤ 0.5 %: the shadow's edge entering bends a frame or two 4-5 bounds at a χ² within
-    # its noise (docs/robustness.md), so this run's 2 of 348 are held to 1 %, and to the shadow's frames
-    assert silent.sum() <= 0.01 * placed.sum() and not (silent & ~in_view).any()
+    # the shadow's edge entering bends a frame 4-5 bounds at a χ² within its noise: 1 of 350 here
+    assert silent.sum() <= 0.005 * placed.sum() and not (silent & ~in_view).any()
 
 
 def test_rides_through_the_shadow_with_the_grating(shadow_run):
-    """Towards the issue's goal: over the whole run, the shadow's frames included, the error's spread near
-    1.5× the clean frames' bound with at most 2 % of the frames lost. Before core/moving_light.py the
-    shadow's frames were placed up to 400 µm off (flagged): 20-40× the bound over the run."""
+    """The issue's goal: over the whole run, the shadow's frames included, the error's spread within
+    1.5× the clean frames' bound with at most 2 % of the frames lost (1.28× here, none lost). The
+    shape learned free per column: 1.47×, 1.56× beside the focus follower and the texture."""
     run, truth, in_view, result = shadow_run
     error = (result.x_mm - truth.x_mm) * 1e3
     placed = np.isfinite(error)
     before = ~in_view & (np.cumsum(in_view) == 0)
     clean_bound = np.sqrt(np.mean((result.crlb_mm[before] * 1e3) ** 2))
     assert placed.mean() >= 0.98
-    # the issue asks 1.5x; this run is at 1.47x with the shadow's follower alone and 1.56x beside the
-    # focus follower and the texture (docs/robustness.md: 1.37-2.16x over 12 runs): not yet the goal
-    assert np.std(error[placed]) <= 1.7 * clean_bound
+    assert np.std(error[placed]) <= 1.5 * clean_bound
     under = in_view & placed
     assert (result.stale_reason[under] == "light").mean() > 0.7  # measured, and said to rest on a learned shape
+
+
+@pytest.mark.parametrize("scenario,grating", [("paper", False), ("strip16", True), ("strip16", False)])
+def test_rides_through_the_shadow_without_the_grating_and_on_a_strip(model, strip_model, scenario, grating):
+    """Without the grating the band is learned from the frames alone (the print's pattern moves with
+    x, the band with its edges); on a 16-row strip the row mean's lower noise asks more of the shape.
+    Measured: paper without the grating 1.31×; the strip 1.19× / 1.23× (1 of 350 frames 4+ bounds off
+    unflagged each). Before core/moving_band.py: 25–83× without the grating, the strip 6–55× with
+    38–56 frames of 500 lost."""
+    placed, error, clean_bound, stale, silent, in_view = _ridden(model if scenario == "paper" else strip_model,
+                                                                 scenario, grating)
+    assert placed.mean() >= 0.98
+    assert np.std(error[placed]) <= 1.5 * clean_bound
+    assert silent.sum() <= 0.005 * placed.sum()
+    assert not (stale & ~in_view).any()  # outside the shadow nothing flagged
+
+
+def test_a_steady_run_follows_no_band(model):
+    """A clean run: no band is ever taken (nothing flagged), with the grating or without."""
+    run, truth = build_rig("paper", "", seed=5, run=1).record(4.0)
+    for reference in (run.reference, None):
+        result = track(model, run.frames, reference=reference, x0_mm=float(run.reference[0]), light="auto",
+                       robust=True)
+        assert not result.stale.any() and np.isfinite(result.x_mm).all()
 
 
 def test_live_tracking_gives_the_batch_answer_through_the_shadow(model, shadow_run):
