@@ -357,7 +357,11 @@ class Tracker:
             # evidence for a blur or a field of the frame's own (core/moving_band.py)
             if memory.moving is None:
                 memory.moving = MovingBand(self.model.n_rows, self.model.n_pixels)
-            followed = follow(self, batch, k, x_start, solution, memory.moving, here, reference)
+            # a blur the focus follower measures and the focus term describes is no band: its residual, fitted
+            # as a band a few % deep, placed a 16-row focus cycle's second rise 3-9 bounds off (1.6x the bound)
+            blurred = not memory.moving.active and self._focus_moved(memory)
+            followed = solution if blurred else follow(self, batch, k, x_start, solution, memory.moving, here,
+                                                       reference)
             if followed is not solution:
                 memory.focus_track.wait()
                 return followed
