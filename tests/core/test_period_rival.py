@@ -70,3 +70,18 @@ def test_a_rival_is_followed_only_where_it_places_the_stage_elsewhere(pitch_rig,
     solution = FrameSolution(x_mm=8.62, rms_gray=0.6, information=1 / (1.43e-3) ** 2, iterations=3)
     whole = -periodic.period_mm if offset_mm == -8.687 else offset_mm
     assert (PeriodRival.opened(whole, solution, periodic, 25.0) is not None) == expected
+
+
+@pytest.mark.slow
+def test_the_live_tracker_of_a_rig_without_a_grating_says_period_as_the_batch_does(pitch_rig):
+    """The daemon's tracker, frame by frame with no grating reading: the same frames flagged
+    ``period`` as `track --no-reference`, and the same move to the other period."""
+    from graytrack.core.tracking import LiveTracker
+
+    _, model, run, _ = pitch_rig
+    frames = run.frames[:130]
+    batch = track(model, frames, np.full(len(frames), np.nan), light="auto", robust=True)
+    live = LiveTracker(model)
+    fixes = [live.update(frame) for frame in frames]
+    assert [fix.stale_reason == "period" for fix in fixes] == (batch.stale_reason == "period").tolist()
+    np.testing.assert_allclose([fix.x_mm for fix in fixes], batch.x_mm, atol=1e-9)
