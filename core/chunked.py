@@ -25,6 +25,7 @@ import numpy as np
 
 from graytrack.core.errors import TrackingError
 from graytrack.core.models.fourier import FourierModel
+from graytrack.core.period_rival import repeats
 from graytrack.core.tracking import LockEvent, TrackResult, track
 from graytrack.core.validity import FAMILIES
 
@@ -95,11 +96,6 @@ def track_chunk(task: ChunkTask) -> TrackResult:
                  robust=task.robust, learn=False)
 
 
-def is_periodic(model: FourierModel) -> bool:
-    """True when the prediction at x + τ equals that at x: a period shift changes nothing but x."""
-    return model.stroke_degree == 0 and model.target_map is None
-
-
 def _overlap_shift(model: FourierModel, before: TrackResult, chunk: Chunk, result: TrackResult) -> tuple[float, str | None]:
     """Whole-period shift that maps the chunk onto the track before it, or why it does not fit."""
     width = chunk.keep - chunk.start
@@ -112,7 +108,7 @@ def _overlap_shift(model: FourierModel, before: TrackResult, chunk: Chunk, resul
     worst = float(np.max(np.abs(diff - shift)))
     if worst > AGREE_MM:
         return shift, f"overlap disagrees by {worst * 1e3:.3f} um after the period pick"
-    if shift and not is_periodic(model):
+    if shift and not repeats(model):
         return shift, f"acquired {shift:+.3f} mm off with a model that is not periodic in x"
     return shift, None
 
