@@ -113,6 +113,7 @@ def sign_columns(n: int, seed: int) -> dict[str, list]:
 def watches():
     from graytrack.core.watches.bound import BoundWatch
     from graytrack.core.watches.chi2 import ChiSquareWatch
+    from graytrack.core.watches.far_off import FarOffWatch
     from graytrack.core.watches.focus import FocusWatch
     from graytrack.core.watches.grating import GratingWatch
     from graytrack.core.watches.light import LightWatch
@@ -121,6 +122,7 @@ def watches():
 
     table = 1e8 * (1.0 + 0.5 * np.sin(np.linspace(0.0, 20.0, 700)) ** 2)
     return {"bound": lambda: BoundWatch(1.0, 10.0 / 699, table), "chi2": ChiSquareWatch, "focus": FocusWatch,
+            "far_off": lambda: FarOffWatch(4e8, 1.2),
             "grating": lambda: GratingWatch(1.3, 1.9), "light": LightWatch, "transients": TransientWatch,
             "scale": lambda: ScaleWatch(ReferenceMonitor(5.0, 4.0, window=100, floor_um=0.01))}
 
