@@ -194,12 +194,24 @@ def solve(recording: Recording, model: FourierModel, no_reference: bool = False,
                  learn=robust, watches=[given for given in (watch, slide) if given is not None]), grating, watch
 
 
+def slide_for(recording: Recording, model: FourierModel, no_reference: bool,
+              axis_px: float | None = None) -> "SlideWatch | None":
+    """The slide watch whose σ each bound carries where no grating vouches for the positions (core/slide.py):
+    ``--no-reference``, or a recording without a grating reading; None with one."""
+    import numpy as np
+
+    from graytrack.core.slide import SlideWatch
+
+    unread = no_reference or not np.isfinite(recording.reference).any()
+    return SlideWatch.for_model(model, axis_px) if unread else None
+
+
 def run(args: argparse.Namespace) -> int:
     from graytrack.core.models import load_model
     from graytrack.core.recording import load
     from graytrack.service.outputs import output_file
     from graytrack.service.progress import ProgressBar
-    from graytrack.core.slide import SlideWatch, carry, describe
+    from graytrack.core.slide import carry, describe
     from graytrack.service.commands.track_scale import check
     from graytrack.service.tables import write_csv
 
@@ -211,10 +223,7 @@ def run(args: argparse.Namespace) -> int:
     recording = load(args.recording)
     model = load_model(args.model)
     recording = oriented(recording, model, args.flip)
-    import numpy as np
-
-    unread = args.no_reference or not np.isfinite(recording.reference).any()  # no grating vouches: the slide
-    slide = SlideWatch.for_model(model, args.axis_px) if unread else None
+    slide = slide_for(recording, model, args.no_reference, args.axis_px)  # no grating vouches: the slide
     result, grating, watch = solve(recording, model, args.no_reference, ProgressBar("track"), chunks, args.light,
                                    not args.no_robust, args.trim, slide)
     scale = check(recording, model, result, args.trim, watch)

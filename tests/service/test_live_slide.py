@@ -86,3 +86,23 @@ def test_the_config_declares_the_rig_without_a_grating():
     daemon = parse_settings({"daemon": {"grating": False, "axis_px": 120}}).daemon
     assert daemon.grating is False and daemon.axis_px == 120
     assert parse_settings({}).daemon.grating is True and parse_settings({}).daemon.axis_px is None
+
+
+def test_the_running_daemon_without_a_grating_streams_and_shows_the_slide(tmp_path):
+    """The whole daemon (virtual rig, calibrated at start) configured ``grating = false``, ``axis_px = 150``:
+    its messages carry the slide, unpaired, and /api/status shows it."""
+    import json
+
+    from websockets.sync.client import connect
+
+    from graytrack.service.daemon.app import create_app
+    from tests.service.helpers import LiveServer, fast_settings, wait_for
+
+    with LiveServer(create_app(fast_settings(tmp_path, grating=False, axis_px=150.0))) as rig:
+        rig.wait_state("tracking")
+        with connect(f"ws://127.0.0.1:{rig.port}/ws/position", open_timeout=5) as ws:
+            messages = [json.loads(ws.recv(timeout=5)) for _ in range(20)]
+        status = wait_for(lambda: (doc := rig.status())["slide"]["sigma_um"] is not None and doc, 10.0, "the slide")
+    assert all(m["slide_sigma_um"] > 0 and m["crlb_um"] >= m["slide_sigma_um"] for m in messages)
+    assert all("reference_mm" not in m for m in messages)
+    assert status["slide"]["axis_px"] == 150.0 and status["slide"]["declared"]
