@@ -1,4 +1,4 @@
-"""The daemon on a rig without a grating under bench/magnification_drift.py's drifts: streamed, scored against the truth.
+"""The daemon on a rig without a grating under bench/magnification_drift.py's drifts, scored against the truth.
 
 Each case's run streamed through the daemon's frame loop (tests/service/helpers.py stream_through_daemon:
 the tracker built and switched in as for an installed model) with ``[daemon] grating = false``: the

@@ -36,7 +36,7 @@ DEFAULT_OVERLAP = 32
 AGREE_MM = 1e-5
 
 PER_FRAME = tuple(f.name for f in dataclasses.fields(TrackResult)
-                  if f.name not in ("events", "chi2_calibration", "texture", "slide_sigma_um"))  # one array per frame each
+                  if f.name not in ("events", "chi2_calibration", "texture", "slide_sigma_um"))  # an array per frame
 
 
 @dataclass(frozen=True)
@@ -152,8 +152,8 @@ def track_chunked(model: FourierModel, frames: np.ndarray, reference: np.ndarray
     """Track ``frames`` in chunks (``map_chunks`` runs them, in parallel if it can) and stitch them.
 
     ``x0_mm`` is the first frame's start, as in :func:`track`; ``slide``: no grating is read, each
-    chunk's bounds carry the slide a magnification change could give the image (``axis_px``: its lever). The result has the same columns as
-    :func:`track` on the whole recording; the report says which
+    chunk's bounds carry the slide a magnification change could give the image (``axis_px``: its lever).
+    The result has the same columns as :func:`track` on the whole recording; the report says which
     chunks needed a period shift and which were tracked again as the sequential continuation.
     """
     frames = np.asarray(frames)
@@ -183,8 +183,8 @@ def track_chunked(model: FourierModel, frames: np.ndarray, reference: np.ndarray
             if problem:
                 report.redone.append((index, problem))
                 x0 = _last_position(stitched.x_mm, chunk.keep)
-                task = chunk_task(model, frames, reference, Chunk(chunk.keep, chunk.keep, chunk.stop), x0, light, robust,
-                                  slide, axis_px)
+                task = chunk_task(model, frames, reference, Chunk(chunk.keep, chunk.keep, chunk.stop), x0, light,
+                                  robust, slide, axis_px)
                 result, shift = redo(task), 0.0
                 chunk = task.chunk
             elif shift:

@@ -238,7 +238,8 @@ class Rig:
         daemon = self.settings.daemon
         acquisition = Acquisition(self.hardware.camera, self.readings, self.publish, self.faults.set,
                                   daemon.camera_fault_after_s, daemon.reopen_interval_s, self._stream_event,
-                                  priority=daemon.realtime_priority, trim=ReferenceTrim(daemon.trim, self._stream_event),
+                                  priority=daemon.realtime_priority,
+                                  trim=ReferenceTrim(daemon.trim, self._stream_event),
                                   slide=None if daemon.grating else LiveSlide(daemon.axis_px))
         if self.model is not None:  # a frame loop restarted: with what the last one learned on the print
             acquisition.install_model(self.model, self.grating.latest_mm() if self.grating else None,

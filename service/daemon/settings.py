@@ -72,9 +72,9 @@ class DaemonConfig(_Strict):
                           "with; false: the rig has none (an open-loop stage): frames are tracked and streamed without "
                           "it, and each bound carries the slide a magnification change could give the image "
                           "(slide_sigma_um, in crlb_um; service/daemon/slide.py)")
-    axis_px: float | None = Field(None, ge=0, description="without a grating: the optical axis's distance from the ROI's "
-                                  "centre along the line, pixels, the slide's lever (unset: 300, a prior; 0: the ROI "
-                                  "on the axis, nothing carried)")
+    axis_px: float | None = Field(None, ge=0, description="without a grating: the optical axis's distance from the "
+                                  "ROI's centre along the line, pixels, the slide's lever (unset: 300, a prior; 0: the "
+                                  "ROI on the axis, nothing carried)")
     events_max_age_days: float = Field(90.0, gt=0, description="the event log keeps events this long (the newest "
                                        "of each kind always)")
     events_max_count: int = Field(100_000, ge=10, description="and at most this many (about 140 bytes each), "

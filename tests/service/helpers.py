@@ -283,7 +283,8 @@ class LiveServer:
         self.thread.join(timeout=20.0)
 
 
-def stream_through_daemon(model, run, trim_enabled: bool, slide: Any = None) -> tuple[list[dict], list[tuple[str, str]], Any]:
+def stream_through_daemon(model, run, trim_enabled: bool,
+                          slide: Any = None) -> tuple[list[dict], list[tuple[str, str]], Any]:
     """Every frame of a recorded ``run`` through the daemon's frame loop (its tracker built and switched
     in as for an installed model, with ``[daemon] trim`` as asked; ``slide``: the rig's LiveSlide when it
     has no grating, ``[daemon] grating = false``): the published messages, the events and the acquisition
