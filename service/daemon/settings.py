@@ -12,7 +12,7 @@ import os
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, NonNegativeInt, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, NonNegativeInt, ValidationError, model_validator
 
 from graytrack.drivers.config import ConfigError, HardwareConfig, describe_validation_error, load_toml, parse_hardware
 from graytrack.drivers.realtime import DEFAULT_LEVEL
@@ -81,6 +81,13 @@ class DaemonConfig(_Strict):
                                   "besides the newest of each kind")
     sim_clock_scale: float = Field(1.0, gt=0, description="virtual rig only: simulated seconds per wall second")
     log_level: Literal["debug", "info", "warning", "error"] = "info"
+
+    @model_validator(mode="after")
+    def _trim_needs_a_grating(self) -> "DaemonConfig":
+        """A trim against a grating the rig does not have would never act: said now, not silently ignored."""
+        if self.trim and not self.grating:
+            raise ValueError("trim = true needs a grating (grating = false: nothing to trim against)")
+        return self
 
 
 class SweepConfig(_Strict):

@@ -13,11 +13,10 @@ import pytest
 
 from graytrack.core.calibration import calibrate
 from graytrack.drivers.sim.scenarios import build_rig
+from graytrack.drivers.config import ConfigError
 from graytrack.service.daemon.settings import parse_settings
 from graytrack.service.daemon.slide import LiveSlide
 from tests.service.helpers import stream_through_daemon
-
-pytestmark = pytest.mark.unit
 
 RAMP = "magnification_drift:ppm=1500:ramp_s=6"
 
@@ -46,6 +45,7 @@ def _silent(error, bound, flagged) -> float:
     return float(np.mean((np.abs(error) > 4.0 * bound) & ~flagged))
 
 
+@pytest.mark.unit  # the daemon's frame loop on recorded frames
 def test_a_warming_lens_streamed_without_a_grating_is_never_silently_off(model):
     """Before: the daemon's bound alone, the frames of the ramp before the watch's mean tells it 4+ bounds off."""
     error, bound, flagged, fixes, acquisition = _scored(model, RAMP, LiveSlide())
@@ -57,6 +57,7 @@ def test_a_warming_lens_streamed_without_a_grating_is_never_silently_off(model):
     assert status["axis_px"] == 300.0 and not status["declared"] and status["sigma_um"] > 0
 
 
+@pytest.mark.unit  # the daemon's frame loop on recorded frames
 def test_the_old_daemon_bound_alone_is_silently_off_on_the_ramp(model):
     """What the test above guards: the same stream with the grating's pairing dropped but no slide carried."""
     run, truth = build_rig("strip16", RAMP, seed=3, run=1).record(6.0)
@@ -70,6 +71,7 @@ def test_the_old_daemon_bound_alone_is_silently_off_on_the_ramp(model):
     assert _silent(error, bound, np.array([bool(m["stale"]) for m in fixes])) > 0.04
 
 
+@pytest.mark.unit  # the daemon's frame loop on recorded frames
 def test_a_steady_stream_without_a_grating_flags_nothing(model):
     error, bound, flagged, fixes, _ = _scored(model, "", LiveSlide())
     assert flagged.mean() < 0.01 and _silent(error, bound, flagged) <= 0.005
@@ -77,18 +79,24 @@ def test_a_steady_stream_without_a_grating_flags_nothing(model):
     assert 0.5 < np.median(late) < 2.5  # ~60 ppm the frames cannot rule out, 300 px of lever
 
 
+@pytest.mark.unit  # the daemon's frame loop on recorded frames
 def test_an_axis_on_the_roi_carries_nothing(model):
     _, bound, _, fixes, _ = _scored(model, "", LiveSlide(axis_px=0.0))
     assert all(m["slide_sigma_um"] == 0.0 for m in fixes)
 
 
+@pytest.mark.unit
 def test_the_config_declares_the_rig_without_a_grating():
     daemon = parse_settings({"daemon": {"grating": False, "axis_px": 120}}).daemon
     assert daemon.grating is False and daemon.axis_px == 120
     assert parse_settings({}).daemon.grating is True and parse_settings({}).daemon.axis_px is None
+    with pytest.raises(ConfigError, match="trim = true needs a grating"):
+        parse_settings({"daemon": {"grating": False, "trim": True}})
+    with pytest.raises(ConfigError, match="axis_px"):
+        parse_settings({"daemon": {"grating": False, "axis_px": -5}})
 
 
-def test_the_running_daemon_without_a_grating_streams_and_shows_the_slide(tmp_path):
+def test_the_running_daemon_without_a_grating_streams_and_shows_the_slide(tmp_path):  # system (tests/conftest.py)
     """The whole daemon (virtual rig, calibrated at start) configured ``grating = false``, ``axis_px = 150``:
     its messages carry the slide, unpaired, and /api/status shows it."""
     import json
