@@ -116,8 +116,7 @@ class Acquisition(Worker):
         self.stats = AcquisitionStats(last_frame_wall=clock.now())
         self.latest: tuple[Sample, LiveFix | None] | None = None  # the line view reads it (no copy)
         self._tracker: LiveTracker | None = None
-        # (model, its tracker or None, why it cannot be used, its calibration's id): built off the
-        # frame loop, taken at a frame
+        # a model's tracker and watches (:data:`Built`): built off the frame loop, taken at a frame
         self._pending: Built | None = None
         self._calibration: str | None = None  # the calibration of the model tracking now (each message names it)
         self._skew_s = 0.0  # its grating latch against the exposure (reference_skew_s): taken out of the pairing
