@@ -112,6 +112,7 @@ class TrackResult:
     focus_sigma_px2: np.ndarray | None = None  # its standard error
     texture_px: np.ndarray | None = None  # samples a mark learned on the print corrected (core/texture.py)
     texture: dict | None = None  # what the run learned on the print (Texture.summary; None: not learning)
+    slide_sigma_um: np.ndarray | None = None  # the slide σ in crlb_mm where chunks carried it (core/chunked.py)
 
     def error_um(self, reference: np.ndarray) -> np.ndarray:
         """Position minus reference in µm (NaN where either is missing)."""
