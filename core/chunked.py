@@ -25,6 +25,8 @@ import numpy as np
 
 from graytrack.core.errors import TrackingError
 from graytrack.core.models.fourier import FourierModel
+from graytrack.core.period_rival import repeats
+from graytrack.core.slide import SlideWatch, carry
 from graytrack.core.tracking import LockEvent, TrackResult, track
 from graytrack.core.validity import FAMILIES
 
@@ -34,7 +36,7 @@ DEFAULT_OVERLAP = 32
 AGREE_MM = 1e-5
 
 PER_FRAME = tuple(f.name for f in dataclasses.fields(TrackResult)
-                  if f.name not in ("events", "chi2_calibration", "texture"))  # one array per frame each
+                  if f.name not in ("events", "chi2_calibration", "texture", "slide_sigma_um"))  # an array per frame
 
 
 @dataclass(frozen=True)
@@ -57,6 +59,8 @@ class ChunkTask:
     x0_mm: float | None = None
     light: str | None = None  # as track(): the light mode and the robust reweighting
     robust: bool = False
+    slide: bool = False  # no grating read: each bound carries the slide (core/slide.py), the axis ``axis_px`` off
+    axis_px: float | None = None
 
 
 @dataclass
@@ -82,22 +86,24 @@ def plan_chunks(n_frames: int, chunk_frames: int, overlap: int = DEFAULT_OVERLAP
 
 
 def chunk_task(model: FourierModel, frames: np.ndarray, reference: np.ndarray, chunk: Chunk,
-               x0_mm: float | None = None, light: str | None = None, robust: bool = False) -> ChunkTask:
+               x0_mm: float | None = None, light: str | None = None, robust: bool = False,
+               slide: bool = False, axis_px: float | None = None) -> ChunkTask:
     return ChunkTask(model, np.asarray(frames)[chunk.start:chunk.stop], np.asarray(reference)[chunk.start:chunk.stop],
-                     chunk, x0_mm, light, robust)
+                     chunk, x0_mm, light, robust, slide, axis_px)
 
 
 def track_chunk(task: ChunkTask) -> TrackResult:
     """Track one chunk from a cold start (or from ``x0_mm``, the previous frame's position), learning
     nothing on the print: marks learned over one chunk and not the next would part their answers
-    over the overlap, where the stitching holds them to agree."""
-    return track(task.model, task.frames, reference=task.reference, x0_mm=task.x0_mm, light=task.light,
-                 robust=task.robust, learn=False)
-
-
-def is_periodic(model: FourierModel) -> bool:
-    """True when the prediction at x + τ equals that at x: a period shift changes nothing but x."""
-    return model.stroke_degree == 0 and model.target_map is None
+    over the overlap, where the stitching holds them to agree. With ``slide`` (no grating read) the
+    chunk's bounds carry the slide as ``track`` with a slide watch does, from the watch's prior at the
+    chunk's first frame: its overlap frames let the watch's mean settle before the frames it answers for."""
+    watch = SlideWatch.for_model(task.model, task.axis_px) if task.slide else None
+    result = track(task.model, task.frames, reference=task.reference, x0_mm=task.x0_mm, light=task.light,
+                   robust=task.robust, learn=False, watches=[watch] if watch is not None else [])
+    if watch is not None:
+        result.slide_sigma_um = carry(result, watch)["slide_sigma_um"]
+    return result
 
 
 def _overlap_shift(model: FourierModel, before: TrackResult, chunk: Chunk, result: TrackResult) -> tuple[float, str | None]:
@@ -112,7 +118,7 @@ def _overlap_shift(model: FourierModel, before: TrackResult, chunk: Chunk, resul
     worst = float(np.max(np.abs(diff - shift)))
     if worst > AGREE_MM:
         return shift, f"overlap disagrees by {worst * 1e3:.3f} um after the period pick"
-    if shift and not is_periodic(model):
+    if shift and not repeats(model):
         return shift, f"acquired {shift:+.3f} mm off with a model that is not periodic in x"
     return shift, None
 
@@ -121,6 +127,8 @@ def _answered(result: TrackResult, chunk: Chunk, shift_mm: float) -> tuple[dict[
     """The chunk's own frames (warm-up dropped), shifted by whole periods, events in global frames."""
     first = chunk.keep - chunk.start
     columns = {name: getattr(result, name)[first:] for name in PER_FRAME}
+    if result.slide_sigma_um is not None:
+        columns["slide_sigma_um"] = result.slide_sigma_um[first:]
     columns["x_mm"] = columns["x_mm"] + shift_mm
     events = [replace(event, frame=event.frame + chunk.start, x_before_mm=event.x_before_mm + shift_mm,
                       x_after_mm=event.x_after_mm + shift_mm)
@@ -139,11 +147,13 @@ MapChunks = Callable[[Sequence[ChunkTask]], Sequence[TrackResult]]
 def track_chunked(model: FourierModel, frames: np.ndarray, reference: np.ndarray | None, chunk_frames: int,
                   overlap: int = DEFAULT_OVERLAP, map_chunks: MapChunks | None = None, x0_mm: float | None = None,
                   redo: Callable[[ChunkTask], TrackResult] = track_chunk, light: str | None = None,
-                  robust: bool = False) -> tuple[TrackResult, StitchReport]:
+                  robust: bool = False, slide: bool = False,
+                  axis_px: float | None = None) -> tuple[TrackResult, StitchReport]:
     """Track ``frames`` in chunks (``map_chunks`` runs them, in parallel if it can) and stitch them.
 
-    ``x0_mm`` is the first frame's start, as in :func:`track`. The result has the same columns as
-    :func:`track` on the whole recording; the report says which
+    ``x0_mm`` is the first frame's start, as in :func:`track`; ``slide``: no grating is read, each
+    chunk's bounds carry the slide a magnification change could give the image (``axis_px``: its lever).
+    The result has the same columns as :func:`track` on the whole recording; the report says which
     chunks needed a period shift and which were tracked again as the sequential continuation.
     """
     frames = np.asarray(frames)
@@ -152,8 +162,8 @@ def track_chunked(model: FourierModel, frames: np.ndarray, reference: np.ndarray
     if reference.shape != (n_frames,):
         raise TrackingError(f"reference has shape {reference.shape}, expected ({n_frames},)")
     chunks = plan_chunks(n_frames, chunk_frames, overlap)
-    tasks = [chunk_task(model, frames, reference, chunk, x0_mm if chunk.start == 0 else None, light, robust)
-             for chunk in chunks]
+    tasks = [chunk_task(model, frames, reference, chunk, x0_mm if chunk.start == 0 else None, light, robust, slide,
+                        axis_px) for chunk in chunks]
     results = list((map_chunks or (lambda items: [track_chunk(item) for item in items]))(tasks))
 
     nan = lambda: np.full(n_frames, np.nan)  # noqa: E731
@@ -164,7 +174,7 @@ def track_chunked(model: FourierModel, frames: np.ndarray, reference: np.ndarray
                            transient_px=np.zeros(n_frames, dtype=np.int64),
                            chi2_calibration=results[0].chi2_calibration if results else float("nan"),
                            focus_px2=nan(), focus_sigma_px2=nan(), repeated=np.zeros(n_frames, dtype=bool),
-                           texture_px=np.zeros(n_frames, dtype=np.int64))
+                           texture_px=np.zeros(n_frames, dtype=np.int64), slide_sigma_um=nan() if slide else None)
     report = StitchReport(len(chunks))
     for index, (chunk, result) in enumerate(zip(chunks, results)):
         shift = 0.0
@@ -173,7 +183,8 @@ def track_chunked(model: FourierModel, frames: np.ndarray, reference: np.ndarray
             if problem:
                 report.redone.append((index, problem))
                 x0 = _last_position(stitched.x_mm, chunk.keep)
-                task = chunk_task(model, frames, reference, Chunk(chunk.keep, chunk.keep, chunk.stop), x0, light, robust)
+                task = chunk_task(model, frames, reference, Chunk(chunk.keep, chunk.keep, chunk.stop), x0, light,
+                                  robust, slide, axis_px)
                 result, shift = redo(task), 0.0
                 chunk = task.chunk
             elif shift:

@@ -283,16 +283,20 @@ class ReferenceMonitor:
         return self.stale
 
     def observe_many(self, x_mm: np.ndarray, reference_mm: np.ndarray, bound_mm: np.ndarray, feed: np.ndarray,
-                     on_rise: Callable[[int], None] | None = None) -> np.ndarray:
+                     on_rise: Callable[[int], None] | None = None, scatter: np.ndarray | None = None) -> np.ndarray:
         """:meth:`observe` of each frame where ``feed`` is set, in order: the flag after every frame
-        (fed or not). ``on_rise(k)`` is called when the flag rises at frame k, the monitor then as
-        it stood after that frame. Compiled (core/watches/_kernels.py): the same numbers as
-        :meth:`observe` frame by frame, which it is without numba."""
+        (fed or not); into ``scatter`` (when given) :attr:`scatter` as it stood before each frame, what
+        a frame's gate read between them (core/watches/scale.py's running mean). ``on_rise(k)`` is
+        called when the flag rises at frame k, the monitor then as it stood after that frame.
+        Compiled (core/watches/_kernels.py): the same numbers as :meth:`observe` frame by frame,
+        which it is without numba."""
         n = len(x_mm)
         stale = np.zeros(n, dtype=bool)
+        scatter = np.empty(n) if scatter is None else scatter
         if not _kernels.COMPILED:
             for k in range(n):
                 before = self.stale
+                scatter[k] = self._scatter
                 if feed[k]:
                     self.observe(float(x_mm[k]), float(reference_mm[k]), float(bound_mm[k]))
                 stale[k] = self.stale
@@ -306,8 +310,8 @@ class ReferenceMonitor:
         ip, p, ist, fst, est, rows = self._packed()
         start = 0
         while start < n:
-            start, stop = _kernels._reference_run(ip, p, ist, fst, est, rows, x, ref, bound, feed, stale, start,
-                                                  on_rise is not None)
+            start, stop = _kernels._reference_run(ip, p, ist, fst, est, rows, x, ref, bound, feed, stale, scatter,
+                                                  start, on_rise is not None)
             if stop == _kernels.DONE:
                 break
             self._unpack(ist, fst, est, rows)

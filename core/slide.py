@@ -50,19 +50,23 @@ class SlideWatch:
     family = "magnification"
     reads = ("frame", "placed", "x_mm", "stretch", "reference_mm")
 
-    def __init__(self, watch: MagnificationWatch, lever_mm: float, declared: bool = True) -> None:
+    def __init__(self, watch: MagnificationWatch, lever_mm: float, declared: bool = True, keep: bool = True) -> None:
+        """``keep``: every frame's σ kept (a recording's column); the daemon's stream keeps only the newest."""
         self.watch = watch
         self.lever_mm = abs(lever_mm)
         self.replaces = (type(watch).__module__, ScaleWatch.__module__)
-        self.sigma_um: dict[int, float] = {}  # frame → the slide's σ, µm
+        self.sigma_um: dict[int, float] = {}  # frame → the slide's σ, µm (with ``keep``)
+        self.last_um = math.nan  # the newest frame's σ (a repeated image keeps it)
+        self.keep = keep
         self.declared = declared  # the lever is the rig's (False: the prior's)
         self._recent: deque[float] = deque(maxlen=HOLD)  # ppm: the rms stretch of the last frames
 
     @classmethod
-    def for_model(cls, model, axis_px: float | None = None) -> "SlideWatch":
+    def for_model(cls, model, axis_px: float | None = None, keep: bool = True) -> "SlideWatch":
         """The model's magnification watch with the lever ``axis_px`` pixel footprints (None: the prior)."""
         lever_px = AXIS_PRIOR_PX if axis_px is None else float(axis_px)
-        return cls(MagnificationWatch.for_model(model), lever_px * model.pixel_pitch_mm, declared=axis_px is not None)
+        return cls(MagnificationWatch.for_model(model), lever_px * model.pixel_pitch_mm, declared=axis_px is not None,
+                   keep=keep)
 
     def observe(self, sign) -> str | None:
         return self.step(sign.frame, sign.placed, sign.x_mm, sign.stretch, sign.reference_mm)
@@ -71,7 +75,9 @@ class SlideWatch:
         verdict = self.watch.step(placed, x_mm, stretch)
         self._recent.append(self.watch.rms_ppm)
         vouched = math.isfinite(reference_mm)
-        self.sigma_um[frame] = 0.0 if vouched else self.lever_mm * 1e3 * max(self._recent) * 1e-6
+        self.last_um = 0.0 if vouched else self.lever_mm * 1e3 * max(self._recent) * 1e-6
+        if self.keep:
+            self.sigma_um[frame] = self.last_um
         return verdict
 
 

@@ -60,6 +60,7 @@ class FrameSolution:
     focus_solved: bool = False  # the answer has the focus term profiled out (its bound is the Schur complement)
     chi2_calibrated_focus: float = float("nan")  # with focus_solved: the frame's χ² at the calibration's focus
     moving: bool = False  # a light feature moving across the field was followed with x (core/moving_band.py)
+    period_guess: bool = False  # acquired without a grating, another period still fits as well (core/period_rival.py)
 
 
 class MomentSource(Protocol):

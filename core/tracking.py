@@ -39,6 +39,7 @@ from graytrack.core.focus_solve import warm as focus_warm
 from graytrack.core.focus_follow import FocusFollow, followable
 from graytrack.core.models.fourier import TWO_PI, FourierModel
 from graytrack.core.moving_band import MovingBand, follow
+from graytrack.core.period_rival import PeriodRival
 from graytrack.core.recording import Recording
 from graytrack.core.stretch import FrameStretch
 from graytrack.core.stretch_follow import StretchFollow, followed_stretch, stretch_follow
@@ -111,6 +112,7 @@ class TrackResult:
     focus_sigma_px2: np.ndarray | None = None  # its standard error
     texture_px: np.ndarray | None = None  # samples a mark learned on the print corrected (core/texture.py)
     texture: dict | None = None  # what the run learned on the print (Texture.summary; None: not learning)
+    slide_sigma_um: np.ndarray | None = None  # the slide σ in crlb_mm where chunks carried it (core/chunked.py)
 
     def error_um(self, reference: np.ndarray) -> np.ndarray:
         """Position minus reference in µm (NaN where either is missing)."""
@@ -572,12 +574,14 @@ class Tracker:
                 starts.append(float(grid[index]))
         if len(starts) == 1:
             return self.solve(batch, k, starts[0], memory), None
-        refined = sorted((gauss_newton(batch, k, x, free, self.settings).chi2, x) for x in starts)
+        # each refined where it converged: the rival's offset is then the models' own, which a layer
+        # along the stroke makes other than a whole period (core/period_rival.py)
+        refined = sorted((s.chi2, s.x_mm) for s in (gauss_newton(batch, k, x, free, self.settings) for x in starts))
         samples = batch.scalars(k)[3]
         (best_chi2, start), (next_chi2, other) = refined[0], refined[1]
         solution = self.solve(batch, k, start, memory)
         ambiguous = (next_chi2 - best_chi2) * samples < AMBIGUITY_CHI2
-        return solution, (other - start if ambiguous else None)
+        return solution, (other - solution.x_mm if ambiguous else None)
 
     def acquire_near(self, batch: GeneralBatch | TrigPolyBatch, k: int, anchor_mm: float,
                      memory: LightMemory) -> FrameSolution:
@@ -632,7 +636,7 @@ PENDING_SLOTS = ("frame", "solution", "reference_mm", "placed", "rows_averaged",
 SOLUTION_SIGNS = {"chi2": "chi2", "information": "information", "gain": "gain", "offset_gray": "offset",
                   "focus": "focus", "focus_sigma": "focus_sigma", "rejected_px": "rejected",
                   "transient_px": "transient_px", "transient_at": "transient_at", "x_mm": "x_mm",
-                  "free_light": "free_light", "field": "field", "moving": "moving"}
+                  "free_light": "free_light", "field": "field", "moving": "moving", "period_guess": "period_guess"}
 _solution_signs = operator.attrgetter(*SOLUTION_SIGNS.values())
 
 
@@ -666,6 +670,7 @@ class SequentialState:
     texture: Texture | None = None  # marks learned on the print in this run (core/texture.py); None: not learning
     # the lens's stretch followed and taken out of each frame (core/stretch_follow.py: a trim's); None: not
     stretch: StretchFollow | None = None
+    rival: PeriodRival | None = None  # acquired without a grating, another period followed too (core/period_rival.py)
 
     def advance(self, tracker: "Tracker", batch: GeneralBatch | TrigPolyBatch, k: int,
                 reference: float) -> tuple[FrameSolution, bool, bool]:
@@ -719,7 +724,7 @@ class SequentialState:
             x_mm=solution.x_mm, reference_mm=reference, placed=placed, rows_averaged=self.rows_averaged,
             free_light=solution.free_light, field=solution.field, chi2_average=average,
             chi2_suspect=self.chi2_suspect, chi2_stale=self.chi2_stale, explain=explain, stretch=stretched,
-            moving=solution.moving)
+            moving=solution.moving, period_guess=solution.period_guess)
         verdict = self.monitor.observe(sign)
         self.stale, self.stale_reason = verdict.stale, verdict.reason
 
@@ -1001,6 +1006,25 @@ def _identical(kept: np.ndarray, frame: np.ndarray) -> bool:
     return bool((kept == frame).all())
 
 
+def _rival_weighed(tracker: Tracker, batch: GeneralBatch | TrigPolyBatch, k: int, state: SequentialState,
+                   solution: FrameSolution, reference: float) -> FrameSolution:
+    """The frame's answer with the acquisition's rival period weighed (core/period_rival.py): marked
+    a guess while neither leads; the rival's, solved as any frame, once it has won."""
+    rival = state.rival
+    if rival is None:
+        return solution
+    verdict = rival.weigh(batch, k, solution, tracker.settings)
+    if verdict is None:
+        solution.period_guess = True
+        return solution
+    state.rival = None
+    if verdict == "chosen":
+        return solution
+    moved = tracker.solve(batch, k, solution.x_mm + rival.offset_mm, state.memory, reference)
+    state.events.append(LockEvent(state.frame, rival.describe(), solution.x_mm, moved.x_mm, True))
+    return moved
+
+
 def _solve_frame(tracker: Tracker, batch: GeneralBatch | TrigPolyBatch, k: int, state: SequentialState,
                  reference: float) -> tuple[FrameSolution, bool]:
     """Batch frame ``k`` as the state's next frame: continue from its last position; on any sign
@@ -1015,6 +1039,8 @@ def _solve_frame(tracker: Tracker, batch: GeneralBatch | TrigPolyBatch, k: int, 
             if rival is not None and tracker.untrusted(solution) is None:
                 events.append(LockEvent(frame, f"acquired without a reference, but a position {rival:+.3f} mm away "
                                                "fits as well: the period is a guess", float("nan"), solution.x_mm, True))
+                state.rival = PeriodRival.opened(rival, solution, tracker.model, AMBIGUITY_CHI2)
+                solution.period_guess = state.rival is not None
         ok = tracker.untrusted(solution) is None
         if frame > 0 or not ok:
             events.append(LockEvent(frame, "acquisition", float("nan"), solution.x_mm if ok else float("nan"), ok))
@@ -1022,7 +1048,7 @@ def _solve_frame(tracker: Tracker, batch: GeneralBatch | TrigPolyBatch, k: int, 
     solution = tracker.solve(batch, k, x_prev + state.velocity, memory, reference)
     reason = tracker.lost_reason(solution, x_prev, reference)
     if reason is None:
-        return solution, True
+        return _rival_weighed(tracker, batch, k, state, solution, reference), True
     anchor = reference if math.isfinite(reference) else x_prev
     again = tracker.acquire_near(batch, k, anchor, memory)
     ok = tracker.untrusted(again) is None and (

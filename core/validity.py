@@ -23,7 +23,7 @@ import pkgutil
 from dataclasses import dataclass, field
 from typing import Any, Callable, Protocol, Sequence
 
-FAMILIES = ("transients", "pixels", "light", "focus", "magnification", "scale", "geometry")
+FAMILIES = ("transients", "pixels", "light", "focus", "magnification", "scale", "geometry", "period")
 RANK = {family: rank for rank, family in enumerate(FAMILIES)}
 
 # What to do about each family of causes, one line each (the CLI, the daemon's events and page).
@@ -42,6 +42,9 @@ ADVICE = {
              "another instant than the exposure (its latency shows as an offset that follows the speed): recalibrate",
     "geometry": "the images are no longer what the model describes (the model's period or pitch does not match "
                 "this rig, the camera moved, the print changed): recalibrate (graytrack diagnose names the cause)",
+    "period": "acquired without a grating, another period of the print fits as well and the model places it "
+              "elsewhere than a whole period away: the position waits for the frames to tell them apart; read the "
+              "grating, or start the run where the stroke holds one period",
 }
 
 
@@ -75,6 +78,7 @@ class FrameSign:
     # The frame's stretch across the pixels (m, its σ: core/stretch.py), computed when a watch asks.
     stretch: Callable[[], tuple[float, float]] | None = None
     moving: bool = False  # the answer followed a light feature moving across the field (core/moving_band.py)
+    period_guess: bool = False  # without a grating, another period of the print fits as well (core/period_rival.py)
 
 
 SIGN_FIELDS = tuple(FrameSign.__slots__)

@@ -159,15 +159,16 @@ def _reset(ist, fst, rows):
     fst[9] = 0.0
 
 
-def _reference_run(ip, p, ist, fst, est, rows, x, ref, bound, feed, stale, start, stop_on_rise):
+def _reference_run(ip, p, ist, fst, est, rows, x, ref, bound, feed, stale, scatter, start, stop_on_rise):
     """ReferenceMonitor.observe of frames ``start:`` where ``feed`` (the flag after each into
-    ``stale``); stops early at (frame, RECOMPUTE) once a frame's addition asks for the window to be
-    re-summed (numpy's sums: Python does that and the rest of the frame), or at (frame + 1, ROSE)
-    after the flag rose, with ``stop_on_rise``."""
+    ``stale``, the window's scatter before each into ``scatter``); stops early at (frame, RECOMPUTE)
+    once a frame's addition asks for the window to be re-summed (numpy's sums: Python does that and
+    the rest of the frame), or at (frame + 1, ROSE) after the flag rose, with ``stop_on_rise``."""
     n = x.size
     window, min_frames, out_limit, every, update_every = ip[0], ip[1], ip[2], ip[4], ip[5]
     for i in range(start, n):
         before = ist[5]
+        scatter[i] = fst[7]
         xm, rm, bm = x[i], ref[i], bound[i]
         if feed[i] and math.isfinite(xm) and math.isfinite(rm) and math.isfinite(bm) and bm > 0:
             d = rm - p[0]

@@ -64,6 +64,42 @@ class FarOffWatch:
         far = offset2 > FAR_BOUNDS * FAR_BOUNDS * self.calibrated2
         return self.family if far and offset2 > (NOISE_LIMIT * MEDIAN_SE) ** 2 * self.bound2 else None
 
+    def step_many(self, columns, n: int) -> list[str | None]:
+        """:meth:`step` of ``n`` frames at once: the running bounds in the same order of operations,
+        the medians of every window the chunk ends (numpy's median of an even window is the mean of
+        its two middle values, as :func:`statistics.median`'s)."""
+        keep = columns.array("placed", bool) & np.isfinite(columns.array("reference_mm", np.float64)) \
+            & np.isfinite(columns.array("x_mm", np.float64)) & (columns.array("information", np.float64) > 0)
+        kept = keep.tolist()
+        rows = zip(kept, columns["reference_mm"], columns["x_mm"], columns["information"], columns["rows_averaged"])
+        differences = list(self.differences)
+        before = len(differences)
+        ready: list[tuple[int, float, float] | None] = []  # per frame: (differences so far, bound², calibrated²)
+        for placed, reference_mm, x_mm, information, rows_averaged in rows:
+            if placed:
+                differences.append(x_mm - reference_mm)
+                self.bound2 = running(self.bound2, self.bound_scale2 / information, WINDOW)
+                calibrated = self.calibrated_information * rows_averaged
+                self.calibrated2 = running(self.calibrated2, self.bound_scale2 / calibrated, WINDOW)
+            full = len(differences) >= WINDOW and self.bound2 and self.calibrated2
+            ready.append((len(differences), self.bound2, self.calibrated2) if full else None)
+        self.differences.extend(differences[before:])
+        if not any(ready):
+            return [None] * n
+        first = max(min(entry[0] for entry in ready if entry is not None) - WINDOW, 0)
+        windows = np.lib.stride_tricks.sliding_window_view(np.asarray(differences[first:]), WINDOW)
+        medians = np.median(windows, axis=1).tolist()  # medians[j]: the window ending at differences[first + j + W - 1]
+        families: list[str | None] = []
+        for entry in ready:
+            if entry is None:
+                families.append(None)
+                continue
+            count, bound2, calibrated2 = entry
+            offset2 = medians[count - WINDOW - first] ** 2
+            far = offset2 > FAR_BOUNDS * FAR_BOUNDS * calibrated2
+            families.append(self.family if far and offset2 > (NOISE_LIMIT * MEDIAN_SE) ** 2 * bound2 else None)
+        return families
+
 
 def make(tracker) -> FarOffWatch | None:
     """The watch for ``tracker``'s model (validity.monitor_for); None when the model has no stroke range."""

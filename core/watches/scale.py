@@ -196,9 +196,11 @@ class ScaleWatch:
         return None
 
     def step_many(self, columns, n: int) -> list[str | None]:
-        """:meth:`step` of ``n`` frames at once (the monitor's :meth:`~ReferenceMonitor.observe_many`)."""
+        """:meth:`step` of ``n`` frames at once (the monitor's :meth:`~ReferenceMonitor.observe_many`):
+        the running mean of each frame reads the monitor's scatter as it stood before the frame, as
+        :meth:`step` does, and its :attr:`log` gets what :meth:`step` would have appended."""
         suspect = columns.array("chi2_suspect", bool)
-        if suspect.any() or self.trimmer is not None or self.log is not None:
+        if suspect.any() or self.trimmer is not None or self.grating is not None:
             return None  # frame by frame: a suspect run reads the monitor's verdict, a trim follows each frame
         carried = self.magnification
         saved = (self.monitor.snapshot(), self._off.snapshot()) if carried is not None else None
@@ -208,15 +210,19 @@ class ScaleWatch:
         positive = placed & (information > 0)
         bound = np.where(positive, self.bound_scale / np.sqrt(np.where(positive, information, 1.0)), np.nan)
         x_mm, reference_mm = columns.array("x_mm", np.float64), columns.array("reference_mm", np.float64)
-        far = self._off.add_many(x_mm, reference_mm, bound)
-        stale = self.monitor.observe_many(x_mm, reference_mm, bound, feed) | far
+        scatter = np.empty(n)
+        drifted = self.monitor.observe_many(x_mm, reference_mm, bound, feed, scatter=scatter)
+        stale = self._off.add_many(x_mm, reference_mm, bound, scatter) | drifted
         self._frame += n
+        if saved is not None and stale.any():  # the line drifted here: the stretch is named against it frame by frame
+            self.monitor.restore(saved[0])
+            self._off.restore(saved[1])
+            self._frame -= n
+            return None
+        if self.log is not None:
+            self.log.extend(Applied(x, flagged=flagged, drifted=drift)
+                            for x, flagged, drift in zip(columns["x_mm"], stale.tolist(), drifted.tolist()))
         if saved is not None:
-            if stale.any():  # the line drifted here: the stretch is named against it frame by frame
-                self.monitor.restore(saved[0])
-                self._off.restore(saved[1])
-                self._frame -= n
-                return None
             # the line held on every frame: the stretch is the magnification watch's alone (its chunk path when
             # it has one: the same as its step frame by frame, nothing accounted for untrimmed)
             many = carried.step_many(columns, n) if hasattr(carried, "step_many") else None
@@ -284,8 +290,9 @@ class Disagreement:
     def mean_um(self) -> float:
         return self.weighted_per_um / self.precision_per_um2 if self.precision_per_um2 > 0 else 0.0
 
-    def add(self, x_mm: float, reference_mm: float, bound_mm: float) -> bool:
-        """One frame (skipped unless all three are finite); True while the mean disagreement is beyond its limit."""
+    def add(self, x_mm: float, reference_mm: float, bound_mm: float, scatter: float | None = None) -> bool:
+        """One frame (skipped unless all three are finite); True while the mean disagreement is beyond its limit.
+        ``scatter``: the monitor's scatter before the frame, when the monitor has since taken more frames."""
         monitor = self.monitor
         if math.isfinite(x_mm) and math.isfinite(reference_mm) and math.isfinite(bound_mm) and bound_mm > 0:
             line = monitor.baseline or monitor.calibration
@@ -301,7 +308,7 @@ class Disagreement:
                 x_mm = x_mm - monitor.structure.at_one_um(reference_mm) * 1e-3
             residual = (x_mm - reference_mm) * 1e3 - expected
             variance = (bound_mm * 1e3) ** 2 + (monitor.reference_sigma_mm * 1e3) ** 2
-            residual, beyond = self._gated(residual, variance)
+            residual, beyond = self._gated(residual, variance, monitor.scatter if scatter is None else scatter)
             self.count = min(self.count + 1, SUSPECT_WINDOW)
             self.weighted_per_um += (residual / variance - self.weighted_per_um) / self.count
             self.precision_per_um2 += (1.0 / variance - self.precision_per_um2) / self.count
@@ -310,7 +317,7 @@ class Disagreement:
                 return True
         return self._far()
 
-    def _gated(self, residual_um: float, variance_um2: float) -> tuple[float, bool]:
+    def _gated(self, residual_um: float, variance_um2: float, scatter: float) -> tuple[float, bool]:
         """(the frame's residual as the mean takes it, whether it was beyond the gate). Beyond
         :data:`GATE` of its σ from the running mean (the monitor's scatter), the frame is off the
         grating and says so, and it enters the mean clipped to the gate: a single grating reading
@@ -320,16 +327,19 @@ class Disagreement:
         if self.count == 0:
             return residual_um, False
         deviation = residual_um - self.mean_um
-        gate2 = GATE * GATE * (variance_um2 * self.monitor.scatter + 1.0 / (self.count * self.precision_per_um2))
+        gate2 = GATE * GATE * (variance_um2 * scatter + 1.0 / (self.count * self.precision_per_um2))
         if deviation * deviation <= gate2:
             return residual_um, False
         return self.mean_um + (math.sqrt(gate2) if deviation > 0 else -math.sqrt(gate2)), True
 
-    def add_many(self, x_mm: np.ndarray, reference_mm: np.ndarray, bound_mm: np.ndarray) -> np.ndarray:
-        """:meth:`add` of each frame in order: whether the mean is beyond its limit after each."""
+    def add_many(self, x_mm: np.ndarray, reference_mm: np.ndarray, bound_mm: np.ndarray,
+                 scatter: np.ndarray) -> np.ndarray:
+        """:meth:`add` of each frame in order (``scatter``: the monitor's before each frame): whether
+        the mean is beyond its limit after each."""
         far = np.zeros(len(x_mm), dtype=bool)
-        for k, (x, reference, bound) in enumerate(zip(x_mm.tolist(), reference_mm.tolist(), bound_mm.tolist())):
-            far[k] = self.add(x, reference, bound)
+        rows = zip(x_mm.tolist(), reference_mm.tolist(), bound_mm.tolist(), scatter.tolist())
+        for k, (x, reference, bound, before) in enumerate(rows):
+            far[k] = self.add(x, reference, bound, before)
         return far
 
     def _far(self) -> bool:

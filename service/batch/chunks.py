@@ -46,7 +46,8 @@ def chunk_options(args: argparse.Namespace) -> ChunkOptions | None:
 
 
 def track_in_chunks(model: FourierModel, frames: np.ndarray, reference: np.ndarray,
-                    options: ChunkOptions, light: str | None = None, robust: bool = False) -> TrackResult:
+                    options: ChunkOptions, light: str | None = None, robust: bool = False, slide: bool = False,
+                    axis_px: float | None = None) -> TrackResult:
     from graytrack.core.chunked import DEFAULT_OVERLAP, track_chunk, track_chunked
 
     overlap = DEFAULT_OVERLAP if options.overlap is None else options.overlap
@@ -55,7 +56,7 @@ def track_in_chunks(model: FourierModel, frames: np.ndarray, reference: np.ndarr
             return client.gather(client.map(track_chunk, tasks, pure=False))
 
         result, report = track_chunked(model, frames, reference, options.chunk_frames, overlap, map_chunks,
-                                       light=light, robust=robust)
+                                       light=light, robust=robust, slide=slide, axis_px=axis_px)
     shifts = ", ".join(f"chunk {index} {shift:+.4f} mm" for index, shift in report.shifted) or "none"
     print(f"chunks  {report.chunks} of {options.chunk_frames} frames (overlap {overlap}); period picks: {shifts}")
     for index, why in report.redone:

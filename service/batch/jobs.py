@@ -110,13 +110,16 @@ def _track_model(rec_path: Path, option: str | None) -> Path:
 
 def _track(rec: Recording, job: Job) -> dict[str, Any]:
     from graytrack.core.noise import pooled_bound
-    from graytrack.service.commands.track import oriented, result_columns, solve
+    from graytrack.core.slide import carry
+    from graytrack.service.commands.track import oriented, result_columns, slide_for, solve
     from graytrack.service.tables import write_csv
 
     model = load_model(_track_model(job.source.path, job.options.get("model")))
     rec = oriented(rec, model, False)  # a model calibrated with --flip reverses its camera's frames likewise
-    result, grating, _ = solve(rec, model, bool(job.options.get("no_reference")))  # no trim: no watch to keep
-    write_csv(job.folder / "track.csv", result_columns(rec.t, result, grating))
+    no_reference = bool(job.options.get("no_reference"))
+    slide = slide_for(rec, model, no_reference)  # no grating: the bounds carry the slide, as `track`'s do
+    result, grating, _ = solve(rec, model, no_reference, slide=slide)  # no trim: no watch to keep
+    write_csv(job.folder / "track.csv", {**result_columns(rec.t, result, grating), **carry(result, slide)})
     error = result.error_um(grating)
     placed = np.isfinite(error)
     return {**_geometry(model), "rmse_gray": float(np.nanmedian(result.rms_gray)) if result.locked.any() else None,

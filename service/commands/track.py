@@ -157,7 +157,8 @@ def solve(recording: Recording, model: FourierModel, no_reference: bool = False,
           slide: "SlideWatch | None" = None) -> tuple[TrackResult, np.ndarray, "ScaleWatch | None"]:
     """Track a recording as the command does: (result, the grating at the exposure instants, the
     tracker's scale watch: with ``trim``, it carries the online trim; see track_scale.py). ``slide``:
-    where no grating is read, the watch that keeps each frame's slide σ (core/slide.py; not in chunks).
+    where no grating is read, the watch that keeps each frame's slide σ (core/slide.py; in chunks each chunk's
+    tracker carries one of its own with the same lever: the result's ``slide_sigma_um``).
 
     ``recording`` is oriented already (:func:`oriented`); frames that fit the model far better
     reversed are refused here, before a run tracked millimetres off."""
@@ -186,9 +187,23 @@ def solve(recording: Recording, model: FourierModel, no_reference: bool = False,
     reference = np.full(recording.n_frames, np.nan) if no_reference else grating
     watch = scale_watch(recording, model, reference, trim)
     if chunks is not None:  # the chunks' own trackers: the watch follows their positions afterwards (check)
-        return track_in_chunks(model, recording.frames, reference, chunks, light, robust), grating, watch
+        axis_px = slide.lever_mm / model.pixel_pitch_mm if slide is not None and slide.declared else None
+        return track_in_chunks(model, recording.frames, reference, chunks, light, robust, slide is not None,
+                               axis_px), grating, watch
     return track(model, recording.frames, reference=reference, progress=progress, light=light, robust=robust,
                  learn=robust, watches=[given for given in (watch, slide) if given is not None]), grating, watch
+
+
+def slide_for(recording: Recording, model: FourierModel, no_reference: bool,
+              axis_px: float | None = None) -> "SlideWatch | None":
+    """The slide watch whose σ each bound carries where no grating vouches for the positions (core/slide.py):
+    ``--no-reference``, or a recording without a grating reading; None with one."""
+    import numpy as np
+
+    from graytrack.core.slide import SlideWatch
+
+    unread = no_reference or not np.isfinite(recording.reference).any()
+    return SlideWatch.for_model(model, axis_px) if unread else None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -196,7 +211,7 @@ def run(args: argparse.Namespace) -> int:
     from graytrack.core.recording import load
     from graytrack.service.outputs import output_file
     from graytrack.service.progress import ProgressBar
-    from graytrack.core.slide import SlideWatch, carry, describe
+    from graytrack.core.slide import carry, describe
     from graytrack.service.commands.track_scale import check
     from graytrack.service.tables import write_csv
 
@@ -208,14 +223,11 @@ def run(args: argparse.Namespace) -> int:
     recording = load(args.recording)
     model = load_model(args.model)
     recording = oriented(recording, model, args.flip)
-    import numpy as np
-
-    unread = args.no_reference or not np.isfinite(recording.reference).any()  # no grating vouches: the slide
-    slide = SlideWatch.for_model(model, args.axis_px) if unread and chunks is None else None
+    slide = slide_for(recording, model, args.no_reference, args.axis_px)  # no grating vouches: the slide
     result, grating, watch = solve(recording, model, args.no_reference, ProgressBar("track"), chunks, args.light,
                                    not args.no_robust, args.trim, slide)
     scale = check(recording, model, result, args.trim, watch)
-    slid = carry(result, slide)
+    slid = carry(result, slide) if result.slide_sigma_um is None else {"slide_sigma_um": result.slide_sigma_um}
     path = write_csv(args.out, {**result_columns(recording.t, result, grating), **slid, **scale.columns})
     print("\n".join(summary(result, grating) + describe(slide, slid) + scale.lines + texture_lines(result, args.out)))
     from graytrack.core.geometry_check import refusal

@@ -37,13 +37,18 @@ from graytrack.service.daemon.grating import Readings
 from graytrack.service.daemon.stale_log import StaleLog
 from graytrack.service.daemon.texture_log import TextureLog
 from graytrack.service.daemon.texture_store import TextureWatch
+from graytrack.core.slide import SlideWatch
 from graytrack.core.watches.scale import ScaleWatch
+from graytrack.service.daemon.slide import LiveSlide
 from graytrack.service.daemon.trim import ReferenceTrim
 from graytrack.core import frame_record
 from graytrack.drivers.realtime import raise_thread_priority
 from graytrack.service.daemon.worker import Worker, describe
 
 log = logging.getLogger("graytrack.daemon")
+# a model's tracker built off the frame loop: (model, tracker or None, why it cannot be used, its calibration's
+# id, its scale watch, its slide watch without a grating)
+Built = tuple[FourierModel, "LiveTracker | None", "str | None", "str | None", "ScaleWatch | None", "SlideWatch | None"]
 READ_TIMEOUT_S = 0.25  # short, so stop requests and fault timing are honoured promptly
 
 
@@ -95,12 +100,13 @@ class Acquisition(Worker):
                  publish: Callable[[dict[str, Any]], None], faults: Callable[[str, str | None], None],
                  fault_after_s: float, reopen_interval_s: float,
                  on_event: Callable[[str, str], None] = lambda kind, message: None, priority: int = 0,
-                 trim: ReferenceTrim | None = None, clock: Clock = HOST_CLOCK) -> None:
+                 trim: ReferenceTrim | None = None, clock: Clock = HOST_CLOCK, slide: LiveSlide | None = None) -> None:
         super().__init__("acquisition", lambda reason: faults("acquisition", reason))
         self.clock = clock  # what silence, rates and the reopen pause are measured on (service/daemon/clock.py)
         self.on_event = on_event  # lock losses, re-acquisitions, stale-model flags: the event log
         self.priority = priority  # SCHED_FIFO level of the frame loop (realtime.py), 0 = normal
         self.trim = trim or ReferenceTrim(False, on_event)  # camera against grating (service/daemon/trim.py)
+        self.slide = slide  # no grating on the rig: each bound carries the slide (service/daemon/slide.py)
         self.camera = camera
         self.readings = readings
         self.publish = publish
@@ -110,9 +116,8 @@ class Acquisition(Worker):
         self.stats = AcquisitionStats(last_frame_wall=clock.now())
         self.latest: tuple[Sample, LiveFix | None] | None = None  # the line view reads it (no copy)
         self._tracker: LiveTracker | None = None
-        # (model, its tracker or None, why it cannot be used, its calibration's id): built off the
-        # frame loop, taken at a frame
-        self._pending: tuple[FourierModel, LiveTracker | None, str | None, str | None, ScaleWatch | None] | None = None
+        # a model's tracker and watches (:data:`Built`): built off the frame loop, taken at a frame
+        self._pending: Built | None = None
         self._calibration: str | None = None  # the calibration of the model tracking now (each message names it)
         self._skew_s = 0.0  # its grating latch against the exposure (reference_skew_s): taken out of the pairing
         self._generation = 0  # of the last install asked for: an older build that finishes later is dropped
@@ -151,14 +156,16 @@ class Acquisition(Worker):
             except ValueError as exc:
                 texture_refused(describe(exc))
                 texture = None
-        watch = None
         try:
-            watch = self.trim.watch_for(model)  # the tracker's scale watch, with the trim when enabled
-            built: tuple[FourierModel, LiveTracker | None, str | None, str | None, ScaleWatch | None] = (
-                model, LiveTracker(model, start, watches=[watch] if watch is not None else [], texture=texture),
-                None, calibration, watch)
+            # without a grating the slide watch (in place of the scale watch), else the tracker's scale watch,
+            # with the trim when enabled
+            slide = self.slide.watch_for(model) if self.slide is not None else None
+            watch = self.trim.watch_for(model) if slide is None else None
+            given = [w for w in (watch, slide) if w is not None]
+            built: Built = (model, LiveTracker(model, start, watches=given, texture=texture), None, calibration,
+                            watch, slide)
         except Exception as exc:  # noqa: BLE001 - an unusable model: said at the switch, frames still read
-            built = (model, None, describe(exc), calibration, None)
+            built = (model, None, describe(exc), calibration, None, None)
         with self._lock:
             if generation == self._generation:
                 self._pending = built
@@ -283,6 +290,8 @@ class Acquisition(Worker):
         if self._skew_s:  # the grating at the exposure, as the model's calibration found it read (subscribers,
             # the sweep's recorder among them, keep the raw pairing: the next calibration measures the skew again)
             sample = dataclasses.replace(sample, reference_mm=self.readings.at(sample.t, self._skew_s))
+        if self.slide is not None:  # the stage's readout is no grating: the frames go without it
+            sample = dataclasses.replace(sample, reference_mm=math.nan)
         try:
             with self.trim.lock:  # the tracker feeds the scale watch, which a reset may clear meanwhile
                 fix = tracker.update(np.asarray(sample.frame.pixels), sample.reference_mm)
@@ -293,6 +302,7 @@ class Acquisition(Worker):
             return
         self.faults("tracking", None)
         fix = self.trim.apply(fix, sample.reference_mm)
+        slide_um = self.slide.apply(fix) if self.slide is not None else math.nan
         stats = self.stats
         stats.tracked += 1
         stats.last_tracked_wall = self.clock.now()
@@ -314,12 +324,14 @@ class Acquisition(Worker):
         self._seq += 1
         message = fix_message(self._seq, sample, fix, stats.dropped, self._calibration)
         self.trim.annotate(message, fix)
+        if slide_um == slide_um:  # not NaN: the slide σ the bound carries (crlb_um includes it)
+            message["slide_sigma_um"] = slide_um
         stats.last_message = message
         self.latest = (sample, fix)
         self.publish(message)
 
     def _switch(self, model: FourierModel, tracker: LiveTracker | None, error: str | None, calibration: str | None,
-                watch: ScaleWatch | None, reference_mm: float) -> None:
+                watch: ScaleWatch | None, slide: SlideWatch | None, reference_mm: float) -> None:
         """Track with ``tracker`` from this frame on, started at the grating's reading when there is
         one (the stage may have moved while it was built)."""
         self._texture.replaced(f"calibration {calibration} installed" if calibration else "a model installed")
@@ -334,3 +346,5 @@ class Acquisition(Worker):
             tracker.state.x_prev = reference_mm
         self._tracker = tracker
         self.trim.install(model, watch)
+        if self.slide is not None:
+            self.slide.install(slide)

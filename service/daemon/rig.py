@@ -38,6 +38,7 @@ from graytrack.service.daemon import snapshot as parts
 from graytrack.service.daemon import status as status_doc
 from graytrack.service.daemon.acquisition import Acquisition
 from graytrack.wire import Activated, ActiveCalibration, Calibration
+from graytrack.service.daemon.slide import LiveSlide
 from graytrack.service.daemon.trim import ReferenceTrim
 from graytrack.service.daemon.errors import Busy, InsufficientStorage, NotFound, NotReady
 from graytrack.service.daemon.grating import GratingPoller, Readings
@@ -237,7 +238,9 @@ class Rig:
         daemon = self.settings.daemon
         acquisition = Acquisition(self.hardware.camera, self.readings, self.publish, self.faults.set,
                                   daemon.camera_fault_after_s, daemon.reopen_interval_s, self._stream_event,
-                                  priority=daemon.realtime_priority, trim=ReferenceTrim(daemon.trim, self._stream_event))
+                                  priority=daemon.realtime_priority,
+                                  trim=ReferenceTrim(daemon.trim, self._stream_event),
+                                  slide=None if daemon.grating else LiveSlide(daemon.axis_px))
         if self.model is not None:  # a frame loop restarted: with what the last one learned on the print
             acquisition.install_model(self.model, self.grating.latest_mm() if self.grating else None,
                                       self.installed_calibration, self.texture_store.newest(self.installed_calibration))

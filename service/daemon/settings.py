@@ -12,7 +12,7 @@ import os
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, NonNegativeInt, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, NonNegativeInt, ValidationError, model_validator
 
 from graytrack.drivers.config import ConfigError, HardwareConfig, describe_validation_error, load_toml, parse_hardware
 from graytrack.drivers.realtime import DEFAULT_LEVEL
@@ -68,12 +68,26 @@ class DaemonConfig(_Strict):
     trim: bool = Field(False, description="correct the streamed position's scale and offset against the grating "
                        "(an online trim, only on evidence of a drift since calibration; POST /api/trim/reset clears it, "
                        "a new calibration too)")
+    grating: bool = Field(True, description="the stage's position readout (POS?) is a grating the frames are paired "
+                          "with; false: the rig has none (an open-loop stage): frames are tracked and streamed without "
+                          "it, and each bound carries the slide a magnification change could give the image "
+                          "(slide_sigma_um, in crlb_um; service/daemon/slide.py)")
+    axis_px: float | None = Field(None, ge=0, description="without a grating: the optical axis's distance from the "
+                                  "ROI's centre along the line, pixels, the slide's lever (unset: 300, a prior; 0: the "
+                                  "ROI on the axis, nothing carried)")
     events_max_age_days: float = Field(90.0, gt=0, description="the event log keeps events this long (the newest "
                                        "of each kind always)")
     events_max_count: int = Field(100_000, ge=10, description="and at most this many (about 140 bytes each), "
                                   "besides the newest of each kind")
     sim_clock_scale: float = Field(1.0, gt=0, description="virtual rig only: simulated seconds per wall second")
     log_level: Literal["debug", "info", "warning", "error"] = "info"
+
+    @model_validator(mode="after")
+    def _trim_needs_a_grating(self) -> "DaemonConfig":
+        """A trim against a grating the rig does not have would never act: said now, not silently ignored."""
+        if self.trim and not self.grating:
+            raise ValueError("trim = true needs a grating (grating = false: nothing to trim against)")
+        return self
 
 
 class SweepConfig(_Strict):

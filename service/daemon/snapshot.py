@@ -33,6 +33,7 @@ class AcquisitionPart(Protocol):
     stats: "AcquisitionStats"
     crashes: int
     trim: TrimPart
+    slide: TrimPart | None  # without a grating: the slide each bound carries (service/daemon/slide.py)
 
     @property
     def tracker(self) -> object | None: ...
@@ -86,6 +87,7 @@ class FrameLoop:
     counters: Counters
     crashes: int
     trim: Mapping[str, Any]
+    slide: Mapping[str, Any] | None = None  # None: a grating is read (nothing carried)
 
 
 @dataclass(frozen=True)
@@ -181,7 +183,8 @@ def read_frame_loop(acquisition: AcquisitionPart, stale_after_s: float) -> Frame
         seconds_since_tracked=acquisition.seconds_since_tracked(),
         frame_rate_hz=acquisition.frame_rate_hz(stale_after_s),
         tracker_ready=acquisition.tracker is not None, model_stale=acquisition.model_stale,
-        counters=Counters.of(stats), crashes=acquisition.crashes, trim=acquisition.trim.status())
+        counters=Counters.of(stats), crashes=acquisition.crashes, trim=acquisition.trim.status(),
+        slide=acquisition.slide.status() if acquisition.slide is not None else None)
 
 
 def read_grating(grating: GratingPart, moving: bool | None, stale_after_s: float) -> Grating:

@@ -49,6 +49,7 @@ def document(snapshot: RigSnapshot) -> dict[str, Any]:
         "calibration": dict(snapshot.job) if snapshot.job is not None else None,
         "active_calibration": dict(snapshot.active_calibration) if snapshot.active_calibration is not None else None,
         "trim": dict(loop.trim) if loop is not None else None,  # camera against grating
+        "slide": dict(loop.slide) if loop is not None and loop.slide is not None else None,  # without a grating
         "texture": dict(snapshot.texture) if snapshot.texture is not None else None,  # learned on the print
         "simulated": snapshot.simulated,
         "uptime_s": round(snapshot.uptime_s, 3),

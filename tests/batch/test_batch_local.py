@@ -122,6 +122,8 @@ def test_chunked_track_command_equals_sequential(archive, in_process_scheduler, 
     both = (seq["locked"] == 1) & (chunked["locked"] == 1)
     assert both.sum() >= 95
     assert np.max(np.abs(seq["x_mm"][both] - chunked["x_mm"][both])) < 1e-6  # 1 nm
+    # no grating read: the chunks' bounds carry the slide as the sequential run's do (core/slide.py)
+    assert np.all(chunked["slide_sigma_um"][both] > 0) and np.all(chunked["crlb_um"] >= chunked["slide_sigma_um"])
 
 
 BLOCK_DASK = """

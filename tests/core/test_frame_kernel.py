@@ -163,6 +163,30 @@ def test_the_trig_path_focus_solve_compiled_and_as_python() -> None:
                                                   model.pixel_pitch_mm, prior))
 
 
+def test_the_curvature_row_is_folded_anew_unless_the_same_memory_holds_the_same_weights() -> None:
+    """The focus's weighted curvature row is kept for a batch's new view of the weights its frames share
+    (the whole of one buffer: no address asked of numpy), and folded anew for the same values elsewhere
+    (another alignment may sum in another order) or for values changed in place."""
+    from graytrack.core.focus_solve import CurvatureTable
+
+    model, _ = _fitted("focus")
+    tracker = Tracker(model, light="auto", robust=True)
+    curvature = CurvatureTable(tracker.tables, model.period_mm)
+    shared = np.random.default_rng(3).uniform(0.5, 1.0, size=(1, model.n_pixels))
+    first = curvature.weighted(shared[0])
+    assert curvature.weighted(shared[0]) is first  # a new view of the same buffer
+    assert np.array_equal(first, shared[0] @ curvature.table)
+    elsewhere = shared.copy()
+    assert curvature.weighted(elsewhere[0]) is not first  # the same values in another buffer
+    assert curvature.weighted(shared[0]) is not first  # ... and back: the last seen was the copy
+    kept = curvature.weighted(shared[0])
+    shared[0, 5] *= 2.0
+    changed = curvature.weighted(shared[0])
+    assert changed is not kept and np.array_equal(changed, shared[0] @ curvature.table)
+    strided = np.repeat(shared, 2, axis=1)[0, ::2]  # a view of half a buffer: compared by address
+    assert curvature.weighted(strided) is not changed and curvature.weighted(strided[:]) is curvature.weighted(strided)
+
+
 def test_the_fused_sample_weights_are_inverse_variance(monkeypatch: pytest.MonkeyPatch) -> None:
     """A live frame's weights in one compiled pass: 1/σ²(y) of the photon-transfer model times the
     pixel's weight and the rows averaged, zero at the sensor's limits, bit for bit numpy's."""

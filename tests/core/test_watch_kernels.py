@@ -105,7 +105,8 @@ def sign_columns(n: int, seed: int) -> dict[str, list]:
         "field": (rng.random(n) < 0.02).tolist(), "chi2_average": [1.0] * n,
         "chi2_suspect": (stretch(0.45, 0.47) | stretch(0.62, 0.66)).tolist(), "chi2_stale": [False] * n,
         "explain": [None] * n,
-        "stretch": [None] * n, "moving": stretch(0.5, 0.55).tolist()}
+        "stretch": [None] * n, "moving": stretch(0.5, 0.55).tolist(),
+        "period_guess": stretch(0.05, 0.1).tolist()}
     assert set(columns) == set(SIGN_FIELDS)
     return columns
 
@@ -113,6 +114,7 @@ def sign_columns(n: int, seed: int) -> dict[str, list]:
 def watches():
     from graytrack.core.watches.bound import BoundWatch
     from graytrack.core.watches.chi2 import ChiSquareWatch
+    from graytrack.core.watches.far_off import FarOffWatch
     from graytrack.core.watches.focus import FocusWatch
     from graytrack.core.watches.grating import GratingWatch
     from graytrack.core.watches.light import LightWatch
@@ -121,6 +123,7 @@ def watches():
 
     table = 1e8 * (1.0 + 0.5 * np.sin(np.linspace(0.0, 20.0, 700)) ** 2)
     return {"bound": lambda: BoundWatch(1.0, 10.0 / 699, table), "chi2": ChiSquareWatch, "focus": FocusWatch,
+            "far_off": lambda: FarOffWatch(4e8, 1.2),
             "grating": lambda: GratingWatch(1.3, 1.9), "light": LightWatch, "transients": TransientWatch,
             "scale": lambda: ScaleWatch(ReferenceMonitor(5.0, 4.0, window=100, floor_um=0.01))}
 
@@ -224,3 +227,30 @@ def test_the_focus_watch_many_frames_at_once_as_frame_by_frame(share):
     assert list(at_once._estimates) == list(stepped._estimates) and at_once._missing == stepped._missing
     if share == 0.5:
         assert "focus" in families
+
+
+@pytest.mark.parametrize("log", [False, True])
+def test_scale_watch_many_frames_at_once_reads_the_scatter_frame_by_frame(log):
+    """The scale watch's running mean gates each frame with the monitor's scatter as it stood before
+    that frame (its line refitted every few frames in between): chunk by chunk as frame by frame,
+    families, the mean's state and the per-frame log (``track``'s CLI asks for it) bit for bit."""
+    from graytrack.core.validity import Columns, _observe_all
+    from graytrack.core.watches.scale import ScaleWatch
+
+    n = 3000
+    columns = sign_columns(n, 11)
+    columns["chi2_suspect"] = [False] * n  # a suspect frame is stepped on its own: here every chunk goes at once
+    make = lambda: ScaleWatch(ReferenceMonitor(5.0, 4.0, window=100, floor_um=0.01), log=log)  # noqa: E731
+    at_once, stepped = make(), make()
+    families, scatters = [], set()
+    for start, stop in ((0, 1000), (1000, 1001), (1001, n)):
+        part = Columns({key: values[start:stop] for key, values in columns.items()})
+        families += _observe_all(at_once, part, stop - start)
+    expected = []
+    for row in zip(*(columns[field] for field in stepped.reads)):
+        scatters.add(stepped.monitor.scatter)
+        expected.append(stepped.step(*row))
+    assert len(scatters) > 100  # the scatter moved within every chunk: what the mean's gate reads
+    assert families == expected and any(families)
+    assert vars(at_once._off) == vars(stepped._off)
+    assert at_once.log == stepped.log and (len(at_once.log) == n if log else at_once.log is None)

@@ -283,10 +283,12 @@ class LiveServer:
         self.thread.join(timeout=20.0)
 
 
-def stream_through_daemon(model, run, trim_enabled: bool) -> tuple[list[dict], list[tuple[str, str]], Any]:
+def stream_through_daemon(model, run, trim_enabled: bool,
+                          slide: Any = None) -> tuple[list[dict], list[tuple[str, str]], Any]:
     """Every frame of a recorded ``run`` through the daemon's frame loop (its tracker built and switched
-    in as for an installed model, with ``[daemon] trim`` as asked): the published messages, the events
-    and the acquisition (its ``trim`` for the status)."""
+    in as for an installed model, with ``[daemon] trim`` as asked; ``slide``: the rig's LiveSlide when it
+    has no grating, ``[daemon] grating = false``): the published messages, the events and the acquisition
+    (its ``trim`` and ``slide`` for the status)."""
     import numpy as np
 
     from graytrack.service.daemon.acquisition import Acquisition, Sample
@@ -296,7 +298,7 @@ def stream_through_daemon(model, run, trim_enabled: bool) -> tuple[list[dict], l
     events: list[tuple[str, str]] = []
     trim = ReferenceTrim(trim_enabled, lambda kind, message: events.append((kind, message)))
     acquisition = Acquisition(None, None, messages.append, lambda *fault: None, 1.0, 1.0,
-                              on_event=lambda kind, message: events.append((kind, message)), trim=trim)
+                              on_event=lambda kind, message: events.append((kind, message)), trim=trim, slide=slide)
     # as install_model does
     acquisition._build(model, float(run.reference[0]), 0, "calibration", None, lambda why: None)
     for k in range(run.n_frames):

@@ -68,3 +68,10 @@ def test_faults_are_one_sentence_and_a_stale_model_names_its_family() -> None:
     assert status["reason"] == "camera: no frame for 2.0 s; stage: POS? timed out."
     assert (status["model_stale"], status["stale_reason"], snapshot.tracking_fresh) == (True, "light", False)
     assert document(replace(snapshot, model=None))["stale_reason"] is None, "no model, nothing to be stale"
+
+
+def test_the_slide_a_rig_without_a_grating_carries_is_shown_and_null_with_one() -> None:
+    slide = {"axis_px": 300.0, "declared": False, "lever_mm": 0.81, "sigma_um": 1.2, "stretch_ppm": 60.0}
+    status = document(replace(TRACKING, frame_loop=replace(LOOP, slide=slide)))
+    assert Status.model_validate(status).model_dump(mode="json") == status and status["slide"] == slide
+    assert document(TRACKING)["slide"] is None

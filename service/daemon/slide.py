@@ -1,0 +1,65 @@
+"""The daemon on a rig without a grating (``[daemon] grating = false``): each streamed bound carries the slide.
+
+A lens whose magnification moves slides the image by m × the optical axis's distance from the ROI
+(core/slide.py), which no image tells from a move of the stage; with a grating the daemon's scale
+watch sees it (service/daemon/trim.py). Without one, ``graytrack track --no-reference`` carries in
+each bound what the stretch the frames allow could slide the image by; the daemon does the same here:
+a :class:`~graytrack.core.slide.SlideWatch` is made for each model (:meth:`watch_for`) and handed to
+its :class:`~graytrack.core.tracking.LiveTracker` through its constructor in place of the scale
+watch (fed there by the validity monitor, which also flags ``magnification`` on its verdicts), and
+each fix's bound is widened by the newest σ on the frame loop (:meth:`apply`, O(1)). The stage's
+``POS?`` is then no grating: the frames are tracked and streamed without it (no ``reference_mm``,
+no ``error_um``), the calibration sweep still stops at it.
+
+The lever is ``[daemon] axis_px`` (pixels from the ROI's centre to the optical axis along the line;
+unset: core/slide.py's prior, 300 px; 0: the ROI on the axis, nothing carried).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from typing import Any
+
+from graytrack.core.models.fourier import FourierModel
+from graytrack.core.slide import AXIS_PRIOR_PX, SlideWatch
+from graytrack.core.tracking import LiveFix
+
+
+class LiveSlide:
+    """The daemon's side of the slide watch without a grating: made per model, its σ folded into each fix."""
+
+    def __init__(self, axis_px: float | None = None) -> None:
+        self.axis_px = axis_px  # None: the prior (core/slide.py AXIS_PRIOR_PX)
+        self._watch: SlideWatch | None = None
+        self._lock = threading.Lock()  # the frame loop installs, HTTP threads read the status
+
+    def watch_for(self, model: FourierModel) -> SlideWatch:
+        """A new model's slide watch (only the newest σ kept: a daemon runs for days): hand it to the
+        model's tracker (``LiveTracker(..., watches=)``), then :meth:`install` it with the tracker."""
+        return SlideWatch.for_model(model, self.axis_px, keep=False)
+
+    def install(self, watch: SlideWatch | None) -> None:
+        with self._lock:
+            self._watch = watch
+
+    def apply(self, fix: LiveFix) -> float:
+        """After the tracker (whose monitor stepped the watch this frame): the fix's bound widened by the
+        slide's σ in quadrature; returns that σ in µm (NaN before the first frame the watch saw)."""
+        watch = self._watch
+        sigma_um = watch.last_um if watch is not None else math.nan
+        if math.isfinite(sigma_um):
+            fix.crlb_mm = math.hypot(fix.crlb_mm, sigma_um * 1e-3)
+        return sigma_um
+
+    def status(self) -> dict[str, Any]:
+        """``/api/status``'s ``slide``: the lever and the σ the newest frame's bound carries."""
+        with self._lock:
+            watch = self._watch
+        sigma_um = watch.last_um if watch is not None else math.nan
+        return {"axis_px": AXIS_PRIOR_PX if self.axis_px is None else self.axis_px,
+                "declared": self.axis_px is not None,
+                "lever_mm": watch.lever_mm if watch is not None else None,
+                "sigma_um": sigma_um if math.isfinite(sigma_um) else None,
+                "stretch_ppm": watch.watch.rms_ppm if watch is not None and math.isfinite(watch.watch.rms_ppm)
+                else None}
