@@ -439,7 +439,12 @@ class Texture:
             (fit.values, fit.sigma) if fit is not None else (None, None))
         if values is None:
             values, sigma = np.zeros((mark.rows, mark.size)), np.full((mark.rows, mark.size), np.inf)
-        r, j = np.unravel_index(int(np.argmax(np.abs(values))), values.shape)
+        # the deepest node its evidence stands for (two of its σ): a node at the mark's edge seen on few frames
+        # can be deeper by its noise alone (a daemon's mark read 43 % ± 49 %)
+        depth = np.abs(values)
+        standing = depth >= 2.0 * sigma
+        r, j = np.unravel_index(int(np.argmax(np.where(standing, depth, -np.inf) if standing.any()
+                                              else depth / np.maximum(sigma, 1e-300))), values.shape)
         grid = self.grid
         nodes = grid.origin_mm + grid.step_mm * (mark.first + np.arange(mark.size))
         weight = np.abs(values).sum(axis=0)
