@@ -570,7 +570,7 @@ def _array(rows: Any, shape: tuple[int, int], what: str) -> np.ndarray:
 def _mark_state(mark: Mark, description: dict[str, Any]) -> dict[str, Any]:
     """One learned mark as JSON: where (its nodes), its fit, and what :meth:`Texture.describe` says of it."""
     return {"first": mark.first, "size": mark.size, "learned_at": mark.learned_at, "relearning": mark.relearning,
-            "frames": max(mark.frames, mark.seen_before), "m": _table(mark.applied),
+            "frames": max(mark.frames, mark.seen_before), "held": mark.held, "m": _table(mark.applied),
             "sigma": _table(mark.applied_sigma), "misfit": _table(mark.applied_misfit), "describe": description}
 
 
@@ -586,5 +586,6 @@ def _mark_of(item: dict[str, Any], rows: int) -> Mark:
     if not (np.isfinite(values).all() and np.isfinite(misfit).all() and (sigma > 0).all()):
         raise ValueError("a mark's fit has non-finite values")
     mark.applied, mark.applied_sigma, mark.applied_misfit = values, sigma, misfit
+    mark.held = bool(item.get("held", False))  # learned from places nothing vouched for: its frames stay flagged
     mark.seen_before = 0 if mark.relearning else int(item["frames"])
     return mark

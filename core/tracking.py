@@ -699,9 +699,9 @@ class SequentialState:
                           not solution.field)
         self._watch_validity(tracker, solved, at, solution, ok, reference)
         if texture is not None:
-            # the frame's place vouched for by its own fit: no flag but the marks' own, nothing followed
-            trusted = not (self.chi2_suspect or self.stale and self.stale_reason != "texture" or solution.moving
-                           or texture.pull_z_beyond)
+            # the frame's place vouched for by its own fit: the running χ² at its level, nothing followed, the
+            # marks not moving it (the monitor's verdicts come a chunk later in batch tracking: not read here)
+            trusted = not (self.chi2_suspect or solution.moving or texture.pull_z_beyond)
             texture.observe(tracker, batch, k, solution, ok, self.frame - 1, reference, trusted)
         return solution, ok, locked and tracker.refused is None
 
