@@ -65,7 +65,7 @@ SCALE_EVERY_LONGEST = 800  # ... up to this, while the marks keep agreeing with 
 SCALE_TRAVEL_PX = 10.0  # marks seen over this much travel say what the footprint is
 SCALE_RANGE = 0.03  # the footprint searched within this of the model's (relative)
 SCALE_CHI2 = 25.0  # a footprint the marks prefer by this much χ² (5σ) is taken
-UNVOUCHED_SHARE = 0.1  # a mark learned with more of its frames' places vouched for by nothing: held (its frames flagged)
+UNVOUCHED_SHARE = 0.1  # a mark more of whose frames' places nothing vouched for: held (its frames flagged)
 PULL_Z = 4.0  # a frame the learned marks move this many σ of the move from where the print alone places it: flagged
 CHANGED_FRAMES = 3  # frames in a row with samples beyond a learned mark's cut: it changed (more dust landed on it)
 STATE_VERSION = 1  # of :meth:`Texture.state`'s document
@@ -186,7 +186,8 @@ class Texture:
         return under if under.any() else None
 
     def _divided(self, y: np.ndarray, w: np.ndarray, x_mm: float, sigma_x_mm: float):
-        """(y / (1 + m), its weights, samples corrected, of them by held marks) at position ``x_mm`` known to ``sigma_x_mm``;
+        """(y / (1 + m), its weights, samples corrected, of them by held marks) at position ``x_mm``
+        known to ``sigma_x_mm``;
         None: no mark in view. The samples of a candidate in view are set aside (a speck just landed
         pulls the position with the tails the robust solve leaves in, until it is learned), and so
         are those of a mark relearning. A corrected sample's variance: its noise's, the share of it
