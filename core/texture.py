@@ -189,9 +189,9 @@ class Texture:
         """(y / (1 + m), its weights, samples corrected, of them by held marks) at position ``x_mm``
         known to ``sigma_x_mm``; None: no mark in view. The samples of a candidate in view are set
         aside (a speck just landed pulls the position with the tails the robust solve leaves in, until
-        it is learned), and so are those of a mark relearning. A corrected sample's variance: its noise's, the share of it
-        the mark's fit left unexplained there (its misfit), and the mark's own uncertainty and its
-        slope times the position's, times the light it darkens."""
+        it is learned), and so are those of a mark relearning. A corrected sample's variance: its
+        noise's, the share of it the mark's fit left unexplained there (its misfit), and the mark's
+        own uncertainty and its slope times the position's, times the light it darkens."""
         factor, variance, misfit = np.ones_like(y), np.zeros_like(y), np.zeros_like(y)
         touched, held, pending = 0, 0, np.zeros(y.shape, dtype=bool)
         for mark in self.marks:
