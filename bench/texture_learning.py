@@ -8,7 +8,7 @@ places. Printed: frames lost, rms error over the clean run's bound, frames flagg
 4+ of their bounds off without a flag, and what was learned (marks; candidates opened). The steady
 rows (no dust) give the false-learning rate: marks learned where nothing landed.
 
-    .venv/bin/python bench/texture_learning.py [CASE-SUBSTRING]
+    .venv/bin/python bench/texture_learning.py [CASE-SUBSTRING] [--no-reference]
     .venv/bin/python bench/texture_learning.py live     (the live tracker's time a frame, learning or not)
 """
 
@@ -37,18 +37,26 @@ CASES = [  # (scenario, what changes in the measured run, seeds)
 FAR_PULL = 4.0
 
 
-def scored(model, run, truth) -> tuple[int, float, int, int, dict]:
+def scored(model, run, truth, no_reference: bool = False) -> tuple[int, float, int, int, dict]:
     """(frames lost, rms error µm against the truth, frames flagged, placed frames 4+ bounds off
-    unflagged, what the run learned)."""
-    result = track(model, run, light="auto", robust=True, learn=True)
+    unflagged, what the run learned). ``no_reference``: no grating read (the marks' places are then
+    the frames' own; the origin known up to whole periods, which the score takes out)."""
+    if no_reference:
+        result = track(model, run.frames, reference=np.full(run.n_frames, np.nan), light="auto", robust=True,
+                       learn=True)
+    else:
+        result = track(model, run, light="auto", robust=True, learn=True)
     error = (result.x_mm - truth.x_mm) * 1e3
+    if no_reference:
+        period_um = model.period_mm * 1e3
+        error -= period_um * np.round(np.nanmedian(error) / period_um)
     placed = np.isfinite(error)
     far = placed & (np.abs(np.where(placed, error, 0.0)) > FAR_PULL * result.crlb_mm * 1e3)
     return (int((~placed & ~result.repeated).sum()), float(np.sqrt(np.mean(error[placed] ** 2))),
             int(result.stale.sum()), int((far & ~result.stale).sum()), result.texture)
 
 
-def main(selection: str = "") -> None:
+def main(selection: str = "", no_reference: bool = False) -> None:
     print(f"{'scenario':8} {'measured run':58} {'seed':>4} {'lost':>5} {'rms/clean bound':>17} {'flagged':>7} "
           f"{'silent':>6} {'learned':>7} {'opened':>6}")
     for scenario, later, seeds in CASES:
@@ -61,7 +69,7 @@ def main(selection: str = "") -> None:
             clean_bound = float(np.sqrt(np.nanmean(np.square(
                 track(model, clean, light="auto", robust=True).crlb_mm * 1e3))))
             run, truth = build_rig(scenario, later, seed=seed, run=1).record(10.0) if later else (clean, clean_truth)
-            lost, rms, flagged, silent, learned = scored(model, run, truth)
+            lost, rms, flagged, silent, learned = scored(model, run, truth, no_reference)
             print(f"{scenario:8} {later or '-':58.58} {seed:4d} {lost:5d} {rms:7.3f}/{clean_bound:.3f}="
                   f"{rms / clean_bound:4.2f} {flagged:7d} {silent:6d} {learned['learned']:7d} {learned['opened']:6d}",
                   flush=True)
@@ -95,4 +103,5 @@ if __name__ == "__main__":
     if sys.argv[1:] == ["live"]:
         live_cost()
     else:
-        main(sys.argv[1] if len(sys.argv) > 1 else "")
+        words = [word for word in sys.argv[1:] if word != "--no-reference"]
+        main(words[0] if words else "", "--no-reference" in sys.argv[1:])

@@ -61,6 +61,7 @@ class FrameSolution:
     chi2_calibrated_focus: float = float("nan")  # with focus_solved: the frame's χ² at the calibration's focus
     moving: bool = False  # a light feature moving across the field was followed with x (core/moving_band.py)
     period_guess: bool = False  # acquired without a grating, another period still fits as well (core/period_rival.py)
+    pulled: bool = False  # the print's learned marks moved it from where the print alone places it (core/texture.py)
 
 
 class MomentSource(Protocol):

@@ -65,6 +65,8 @@ SCALE_EVERY_LONGEST = 800  # ... up to this, while the marks keep agreeing with 
 SCALE_TRAVEL_PX = 10.0  # marks seen over this much travel say what the footprint is
 SCALE_RANGE = 0.03  # the footprint searched within this of the model's (relative)
 SCALE_CHI2 = 25.0  # a footprint the marks prefer by this much χ² (5σ) is taken
+UNVOUCHED_SHARE = 0.1  # a mark more of whose frames' places nothing vouched for: held (its frames flagged)
+PULL_Z = 4.0  # a frame the learned marks move this many σ of the move from where the print alone places it: flagged
 CHANGED_FRAMES = 3  # frames in a row with samples beyond a learned mark's cut: it changed (more dust landed on it)
 STATE_VERSION = 1  # of :meth:`Texture.state`'s document
 
@@ -109,6 +111,9 @@ class Texture:
         self.refused = 0
         self.opened = 0  # candidates opened over the run
         self.corrected_px = 0  # samples the last frame had corrected by a learned mark
+        self.alone_mm, self.alone_var = math.nan, math.nan  # where the print alone placed the last frame, its σ²
+        self.pull_z = 0.0  # how far the marks moved the last frame from there, in σ of the move
+        self.held_px = 0  # of the samples corrected, those of held marks (learned from places nothing vouched for)
         self.grating_offset_mm, self.grating_frames = 0.0, 0  # the camera's recent mean offset from the grating
         self.scaled_at = 0  # frame of the last search of the footprint
         self.scale_every = SCALE_EVERY  # frames to the next one (doubled each time a search keeps the footprint)
@@ -126,7 +131,7 @@ class Texture:
         the print holds it, so each corrected sample also carries the variance of its mark read at
         an uncertain place, (y·m′·σ_x)², and an edge counts for little while a speck's flat middle
         gives the print's information back."""
-        self.corrected_px = 0
+        self.corrected_px, self.alone_mm, self.alone_var, self.pull_z, self.held_px = 0, math.nan, math.nan, 0.0, 0
         if not math.isfinite(x_guess) or not any(mark.learned for mark in self.marks):
             return batch, k
         y, w = batch.frames[k], batch.weights(k)
@@ -143,8 +148,33 @@ class Texture:
         divided = self._divided(y, w, x_at, sigma_x)
         if divided is None:
             return batch, k
-        self.corrected_px = int(divided[2])
+        self.corrected_px, self.held_px = int(divided[2]), int(divided[3])
+        if placed:
+            self.alone_mm, self.alone_var = alone.x_mm, 1.0 / alone.information
         return self._batch(tracker, divided[0], divided[1]), 0
+
+    def pulls(self, solution: FrameSolution) -> bool:
+        """The frame's answer rests on learned marks nothing vouched for: a held mark corrected it
+        (learned from frames whose places neither the grating nor their own fit vouched for, see
+        :meth:`_judge`), or the marks moved it from where the print alone places it (their samples
+        set aside) by more than ``PULL_Z`` σ of that move: the marks, not the print, hold its position.
+
+        The print alone and the corrected frame are nested estimates (the corrected one holds the
+        same samples and the marks' too), so their difference has the variance σ_alone² − σ_corrected².
+        A mark learned right adds information near where the print alone places the frame; a mark
+        learned from positions something pulled (a smudge's wings, without a grating to vouch for
+        them) holds the frames where they were pulled, with χ² at its level: that frame is flagged."""
+        if self.corrected_px and math.isfinite(self.alone_mm) and math.isfinite(solution.x_mm) \
+                and solution.information > 0.0:
+            corrected_var = 1.0 / solution.information
+            variance = max(self.alone_var - corrected_var, 0.1 * corrected_var)
+            self.pull_z = (solution.x_mm - self.alone_mm) / math.sqrt(variance)
+        return self.held_px > 0 or self.pull_z_beyond
+
+    @property
+    def pull_z_beyond(self) -> bool:
+        """The last frame's marks moved it beyond ``PULL_Z`` σ from where the print alone places it."""
+        return abs(self.pull_z) > PULL_Z
 
     def _under_marks(self, x_mm: float) -> np.ndarray | None:
         """Samples on any mark's stretch at ``x_mm`` (None: none)."""
@@ -156,14 +186,14 @@ class Texture:
         return under if under.any() else None
 
     def _divided(self, y: np.ndarray, w: np.ndarray, x_mm: float, sigma_x_mm: float):
-        """(y / (1 + m), its weights, samples corrected) at position ``x_mm`` known to ``sigma_x_mm``;
-        None: no mark in view. The samples of a candidate in view are set aside (a speck just landed
-        pulls the position with the tails the robust solve leaves in, until it is learned), and so
-        are those of a mark relearning. A corrected sample's variance: its noise's, the share of it
-        the mark's fit left unexplained there (its misfit), and the mark's own uncertainty and its
-        slope times the position's, times the light it darkens."""
+        """(y / (1 + m), its weights, samples corrected, of them by held marks) at position ``x_mm``
+        known to ``sigma_x_mm``; None: no mark in view. The samples of a candidate in view are set
+        aside (a speck just landed pulls the position with the tails the robust solve leaves in, until
+        it is learned), and so are those of a mark relearning. A corrected sample's variance: its
+        noise's, the share of it the mark's fit left unexplained there (its misfit), and the mark's
+        own uncertainty and its slope times the position's, times the light it darkens."""
         factor, variance, misfit = np.ones_like(y), np.zeros_like(y), np.zeros_like(y)
-        touched, pending = 0, np.zeros(y.shape, dtype=bool)
+        touched, held, pending = 0, 0, np.zeros(y.shape, dtype=bool)
         for mark in self.marks:
             where = self._inside(mark, x_mm)
             if where is None:
@@ -184,6 +214,7 @@ class Texture:
             variance[samples] += read(np.square(mark.applied_sigma)) + np.square(slope * sigma_x_mm)
             misfit[samples] += read(mark.applied_misfit)
             touched += samples.size
+            held += samples.size if mark.held else 0
         if pending.mean() > self.max_set_aside:  # more than a frame may lose: left to the robust solve, which
             pending[:] = False  # refuses such a frame rather than place it on what is left
         if not touched and not pending.any():
@@ -194,7 +225,7 @@ class Texture:
         with np.errstate(divide="ignore", invalid="ignore"):
             noise = np.where(w > 0.0, (1.0 + misfit) / np.where(w > 0.0, w, 1.0) / (factor * factor), np.inf)
             weights = np.where(w > 0.0, 1.0 / (noise + corrected * corrected * variance), 0.0)
-        return corrected, np.nan_to_num(weights, nan=0.0, posinf=0.0), touched
+        return corrected, np.nan_to_num(weights, nan=0.0, posinf=0.0), touched, held
 
     @staticmethod
     def _batch(tracker, frame: np.ndarray, weights: np.ndarray):
@@ -218,7 +249,7 @@ class Texture:
 
     # ------------------------------------------------------------------ evidence
     def observe(self, tracker, batch: GeneralBatch | TrigPolyBatch, k: int, solution: FrameSolution,
-                placed: bool, frame: int, reference_mm: float = math.nan) -> None:
+                placed: bool, frame: int, reference_mm: float = math.nan, trusted: bool = True) -> None:
         """Add frame ``k``'s residual (the frame as recorded, at its solution) to every mark it sees;
         open candidates where it set samples aside; learn, refine or drop marks. A frame not placed
         only for the share of its samples set aside (the marks not learned yet) still tells them:
@@ -227,6 +258,7 @@ class Texture:
         if not math.isfinite(solution.x_mm) or not (placed or fits):
             return
         x = self._vouched(solution.x_mm, reference_mm, placed)
+        vouched = trusted or x != solution.x_mm  # the grating's reading, or a frame the tracker trusts
         set_aside = solution.rejected > 0 or solution.transient_px > 0
         in_view = [mark for mark in self.marks if self._inside(mark, x) is not None]
         if not set_aside and not in_view:
@@ -236,7 +268,7 @@ class Texture:
         y, w = batch.frames[k], batch.weights(k)
         residual = y - scale
         for mark in in_view:
-            self._add(mark, x, residual, scale, w, frame)
+            self._add(mark, x, residual, scale, w, frame, vouched)
         if set_aside:
             self._open(x, residual, w, solution, frame)
         self._review(frame)
@@ -256,7 +288,8 @@ class Texture:
         agrees = abs(vouched - x_mm) < GRATING_AGREES_PX * self.model.pixel_pitch_mm
         return vouched if self.grating_frames >= GRATING_WINDOW // 2 and agrees else x_mm
 
-    def _add(self, mark: Mark, x: float, residual: np.ndarray, scale: np.ndarray, w: np.ndarray, frame: int) -> None:
+    def _add(self, mark: Mark, x: float, residual: np.ndarray, scale: np.ndarray, w: np.ndarray, frame: int,
+             vouched: bool = True) -> None:
         """The frame's samples on the mark's stretch as its evidence, unless they depart from the
         learned mark (a glint on top of it); samples departing frame after frame: it changed."""
         samples, cell, frac = self._inside(mark, x)
@@ -284,7 +317,7 @@ class Texture:
         grid = self.grid
         centre = (grid.origin_mm + grid.step_mm * (mark.first + 0.5 * (mark.size - 1)) - x) / (
             grid.scale * self.model.pixel_pitch_mm)
-        mark.add(part, centre, frame)
+        mark.add(part, centre, frame, vouched)
 
     def _open(self, x: float, residual: np.ndarray, w: np.ndarray, solution: FrameSolution, frame: int) -> None:
         """Candidates where the frame set samples aside (runs of neighbouring columns), unless a mark
@@ -379,6 +412,7 @@ class Texture:
         if mark.learned and not mark.relearning:
             if fit.consistent():
                 mark.apply(fit)
+                mark.held = mark.unvouched > UNVOUCHED_SHARE * mark.frames
             else:
                 self.marks.remove(mark)
                 self.events.append(TextureEvent(frame, "dropped", self.describe(mark)))
@@ -386,6 +420,7 @@ class Texture:
               and fit.moves_chi2 > MOVES_CHI2 and fit.peak_z > SIGNIFICANT_Z):
             mark.apply(fit)
             mark.relearning = False
+            mark.held = mark.unvouched > UNVOUCHED_SHARE * mark.frames
             mark.learned_at = frame
             self.events.append(TextureEvent(frame, "learned", self.describe(mark)))
 
@@ -453,7 +488,8 @@ class Texture:
                 "depth": round(-float(values[r, j]), 4), "depth_sigma": round(float(sigma[r, j]), 4),
                 "row": int(r), "frames": max(mark.frames, mark.seen_before),
                 "travel_px": round(float(mark.travel_px), 2),
-                "chi2_dof": round(fit.chi2_dof, 3) if fit is not None else None, "learned_at": mark.learned_at}
+                "chi2_dof": round(fit.chi2_dof, 3) if fit is not None else None, "learned_at": mark.learned_at,
+                "unvouched": round(mark.unvouched / max(mark.frames, 1), 3), "held": mark.held}
 
     @property
     def learned(self) -> list[Mark]:
@@ -539,7 +575,7 @@ def _array(rows: Any, shape: tuple[int, int], what: str) -> np.ndarray:
 def _mark_state(mark: Mark, description: dict[str, Any]) -> dict[str, Any]:
     """One learned mark as JSON: where (its nodes), its fit, and what :meth:`Texture.describe` says of it."""
     return {"first": mark.first, "size": mark.size, "learned_at": mark.learned_at, "relearning": mark.relearning,
-            "frames": max(mark.frames, mark.seen_before), "m": _table(mark.applied),
+            "frames": max(mark.frames, mark.seen_before), "held": mark.held, "m": _table(mark.applied),
             "sigma": _table(mark.applied_sigma), "misfit": _table(mark.applied_misfit), "describe": description}
 
 
@@ -555,5 +591,6 @@ def _mark_of(item: dict[str, Any], rows: int) -> Mark:
     if not (np.isfinite(values).all() and np.isfinite(misfit).all() and (sigma > 0).all()):
         raise ValueError("a mark's fit has non-finite values")
     mark.applied, mark.applied_sigma, mark.applied_misfit = values, sigma, misfit
+    mark.held = bool(item.get("held", False))  # learned from places nothing vouched for: its frames stay flagged
     mark.seen_before = 0 if mark.relearning else int(item["frames"])
     return mark

@@ -90,10 +90,12 @@ class Mark:
     applied_misfit: np.ndarray | None = None
     outlying: int = 0  # frames in a row in which samples departed from the learned mark
     seen_before: int = 0  # frames behind its fit when it was restored from a saved state (core/texture.py)
+    unvouched: int = 0  # of its frames, those whose place neither the grating nor the frame's own fit vouched for
+    held: bool = False  # learned mostly from such frames: the frames it corrects are flagged (core/texture.py)
 
     def reset(self) -> None:
         """Forget the evidence (a mark that changed starts again on its stretch)."""
-        self.parts, self.frames, self.since_fit, self.outlying, self.fit = [], 0, 0, 0, None
+        self.parts, self.frames, self.since_fit, self.outlying, self.fit, self.unvouched = [], 0, 0, 0, None, 0
         self.low_px, self.high_px = math.inf, -math.inf
 
     @property
@@ -114,9 +116,11 @@ class Mark:
             self.parts = [np.concatenate(self.parts, axis=1) if self.parts else np.zeros((len(FIELDS), 0))]
         return self.parts[0]
 
-    def add(self, part: np.ndarray, centre_px: float, frame: int) -> None:
-        """One frame's samples ``(FIELDS, k)``; ``centre_px``: the pixel column its centre was at."""
+    def add(self, part: np.ndarray, centre_px: float, frame: int, vouched: bool = True) -> None:
+        """One frame's samples ``(FIELDS, k)``; ``centre_px``: the pixel column its centre was at;
+        ``vouched``: the frame's place was vouched for (by the grating, or by the frame's own fit)."""
         self.parts.append(part)
+        self.unvouched += not vouched
         self.low_px, self.high_px = min(self.low_px, centre_px), max(self.high_px, centre_px)
         self.frames += 1
         self.since_fit += 1

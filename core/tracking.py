@@ -636,7 +636,8 @@ PENDING_SLOTS = ("frame", "solution", "reference_mm", "placed", "rows_averaged",
 SOLUTION_SIGNS = {"chi2": "chi2", "information": "information", "gain": "gain", "offset_gray": "offset",
                   "focus": "focus", "focus_sigma": "focus_sigma", "rejected_px": "rejected",
                   "transient_px": "transient_px", "transient_at": "transient_at", "x_mm": "x_mm",
-                  "free_light": "free_light", "field": "field", "moving": "moving", "period_guess": "period_guess"}
+                  "free_light": "free_light", "field": "field", "moving": "moving", "period_guess": "period_guess",
+                  "pulled": "pulled"}
 _solution_signs = operator.attrgetter(*SOLUTION_SIGNS.values())
 
 
@@ -687,6 +688,8 @@ class SequentialState:
             guess = self.x_prev + self.velocity if self.locked else reference
             solved, at = follow.corrected(tracker, solved, at, guess, self.memory.gain)
         solution, ok = _solve_frame(tracker, solved, at, self, reference)
+        if texture is not None:
+            solution.pulled = ok and texture.pulls(solution)
         if follow is not None:
             follow.observe(tracker, solved, at, solution, ok)
         locked = ok and len(self.events) == events_before
@@ -701,7 +704,10 @@ class SequentialState:
                           not solution.field)
         self._watch_validity(tracker, solved, at, solution, ok, reference)
         if texture is not None:
-            texture.observe(tracker, batch, k, solution, ok, self.frame - 1, reference)
+            # the frame's place vouched for by its own fit: the running χ² at its level, nothing followed, the
+            # marks not moving it (the monitor's verdicts come a chunk later in batch tracking: not read here)
+            trusted = not (self.chi2_suspect or solution.moving or texture.pull_z_beyond)
+            texture.observe(tracker, batch, k, solution, ok, self.frame - 1, reference, trusted)
         return solution, ok, locked and tracker.refused is None
 
     def _watch_validity(self, tracker: "Tracker", batch: GeneralBatch | TrigPolyBatch, k: int,
@@ -724,7 +730,7 @@ class SequentialState:
             x_mm=solution.x_mm, reference_mm=reference, placed=placed, rows_averaged=self.rows_averaged,
             free_light=solution.free_light, field=solution.field, chi2_average=average,
             chi2_suspect=self.chi2_suspect, chi2_stale=self.chi2_stale, explain=explain, stretch=stretched,
-            moving=solution.moving, period_guess=solution.period_guess)
+            moving=solution.moving, period_guess=solution.period_guess, pulled=solution.pulled)
         verdict = self.monitor.observe(sign)
         self.stale, self.stale_reason = verdict.stale, verdict.reason
 

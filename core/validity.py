@@ -23,12 +23,15 @@ import pkgutil
 from dataclasses import dataclass, field
 from typing import Any, Callable, Protocol, Sequence
 
-FAMILIES = ("transients", "pixels", "light", "focus", "magnification", "scale", "geometry", "period")
+FAMILIES = ("transients", "pixels", "light", "focus", "magnification", "scale", "geometry", "period", "texture")
 RANK = {family: rank for rank, family in enumerate(FAMILIES)}
 
 # What to do about each family of causes, one line each (the CLI, the daemon's events and page).
 ADVICE = {
     "transients": "glints or passing dust keep hitting the line: shade the target or move the ROI",
+    "texture": "marks learned on the print (dust, a smudge) move the position away from where the print alone "
+               "places it: learned from positions something pulled (read the grating while they are learned), or the "
+               "print changed under them",
     "pixels": "pixels went bad since calibration: recalibrate (the new calibration masks them)",
     "light": "the light changed beyond what the model can follow at its precision: fix the light or recalibrate",
     "focus": "the focus moved since calibration: check the lens and its mount, then recalibrate",
@@ -79,6 +82,7 @@ class FrameSign:
     stretch: Callable[[], tuple[float, float]] | None = None
     moving: bool = False  # the answer followed a light feature moving across the field (core/moving_band.py)
     period_guess: bool = False  # without a grating, another period of the print fits as well (core/period_rival.py)
+    pulled: bool = False  # the print's learned marks moved the answer from the print's own (core/texture.py)
 
 
 SIGN_FIELDS = tuple(FrameSign.__slots__)

@@ -106,7 +106,7 @@ def sign_columns(n: int, seed: int) -> dict[str, list]:
         "chi2_suspect": (stretch(0.45, 0.47) | stretch(0.62, 0.66)).tolist(), "chi2_stale": [False] * n,
         "explain": [None] * n,
         "stretch": [None] * n, "moving": stretch(0.5, 0.55).tolist(),
-        "period_guess": stretch(0.05, 0.1).tolist()}
+        "period_guess": stretch(0.05, 0.1).tolist(), "pulled": stretch(0.56, 0.58).tolist()}
     assert set(columns) == set(SIGN_FIELDS)
     return columns
 
