@@ -427,9 +427,9 @@ class Texture:
 
     def _held(self, mark: Mark) -> bool:
         """More than ``UNVOUCHED_SHARE`` of the mark's frames had places nothing vouched for, and its own
-        shape does not vouch for it either (a speck narrow and whole on its stretch: core/texture_shape.py)."""
+        shape does not vouch for it either (a speck's dip, narrow and whole: core/texture_shape.py)."""
         step_px = self.grid.step_mm / self.model.pixel_pitch_mm
-        return mark.unvouched > UNVOUCHED_SHARE * mark.frames and not shape_vouches(mark.applied, step_px)
+        return mark.unvouched > UNVOUCHED_SHARE * mark.frames and not shape_vouches(mark, self.learned, step_px)
 
     def _rescale(self, frame: int) -> None:
         """The pixels' footprint on the print, from the learned marks seen over a long travel: the
