@@ -45,6 +45,7 @@ from graytrack.core.frame_kernel import CUT_SIGMA
 from graytrack.core.models.fourier import FourierModel
 from graytrack.core.solvers import FrameSolution, GeneralBatch, TrigPolyBatch, robust_solve
 from graytrack.core.texture_mark import FIELDS, PRIOR_SIGMA, Grid, Mark, scale_chi2
+from graytrack.core.texture_shape import shape_vouches
 
 STEPS_PER_PIXEL = MAX_MAP_STEPS  # a quarter of a pixel footprint: specks narrower than a pixel keep their shape
 MARGIN_PX = 1.5  # a candidate's stretch beyond the samples set aside (a speck's faint tails)
@@ -412,7 +413,7 @@ class Texture:
         if mark.learned and not mark.relearning:
             if fit.consistent():
                 mark.apply(fit)
-                mark.held = mark.unvouched > UNVOUCHED_SHARE * mark.frames
+                mark.held = self._held(mark)
             else:
                 self.marks.remove(mark)
                 self.events.append(TextureEvent(frame, "dropped", self.describe(mark)))
@@ -420,9 +421,15 @@ class Texture:
               and fit.moves_chi2 > MOVES_CHI2 and fit.peak_z > SIGNIFICANT_Z):
             mark.apply(fit)
             mark.relearning = False
-            mark.held = mark.unvouched > UNVOUCHED_SHARE * mark.frames
+            mark.held = self._held(mark)
             mark.learned_at = frame
             self.events.append(TextureEvent(frame, "learned", self.describe(mark)))
+
+    def _held(self, mark: Mark) -> bool:
+        """More than ``UNVOUCHED_SHARE`` of the mark's frames had places nothing vouched for, and its own
+        shape does not vouch for it either (a speck's dip, narrow and whole: core/texture_shape.py)."""
+        step_px = self.grid.step_mm / self.model.pixel_pitch_mm
+        return mark.unvouched > UNVOUCHED_SHARE * mark.frames and not shape_vouches(mark, self.learned, step_px)
 
     def _rescale(self, frame: int) -> None:
         """The pixels' footprint on the print, from the learned marks seen over a long travel: the
