@@ -126,11 +126,10 @@ class Rig:
         self._detach()
         if self.acquisition is not None:  # what the tracker learned since the last write
             self.texture_store.save(self.acquisition.texture.latest, force=True)
-        if not self.health.probe() and self.health.pending:  # the writes kept while the disk was full: room now?
-            log.error("%d write(s) kept while the data directory could not be written are lost with this shutdown "
-                      "(%s); a calibration whose end was among them reads 'interrupted' at the next start",
-                      self.health.pending, self.health.reason)
+        if not self.health.probe() and self.health.abandon():  # the writes kept while the disk was full: room now?
+            log.error("a calibration whose end was logged above reads 'interrupted' at the next start")
         self.event("shutdown", "daemon stopped")
+        self.events.abandon()
 
     def event(self, kind: str, message: str, **details: Any) -> None:
         """One line in the event log (``GET /api/events``); the record failing never stops the rig,
