@@ -153,7 +153,8 @@ def every_model(selection: str = "") -> list[tuple[str, FourierModel, FourierMod
     """(label, model, the seed paper's model fitted on the same calibration, a run to track) for
     each effect family and each virtual-rig scenario's closed-loop model."""
     from graytrack.core.diagnosis import diagnose
-    from graytrack.drivers.sim.causes import EVERY_FORM, model_with
+    from graytrack.drivers.sim.causes import EVERY_FORM
+    from graytrack.service.grown_models import model_with
     from graytrack.drivers.sim.scenarios import build_rig, list_scenarios
 
     def run_of(scenario: str, effects: str, seed: int) -> Recording:

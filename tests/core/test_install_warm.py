@@ -19,7 +19,7 @@ SCRIPT = textwrap.dedent("""
     from numba.core.registry import CPUDispatcher
     from graytrack.core.calibration import calibrate
     from graytrack.core.tracking import LiveTracker
-    from graytrack.drivers.sim.causes import model_with
+    from graytrack.service.grown_models import model_with
     from graytrack.drivers.sim.scenarios import build_rig
 
     kind = sys.argv[1]

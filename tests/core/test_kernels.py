@@ -18,7 +18,8 @@ from graytrack.core.evaluation import GeneralHarmonics
 from graytrack.core.frame_tables import FRAME_PARTS, FrameTables
 from graytrack.core.kernels import TableEvaluator
 from graytrack.core.tracking import LiveTracker, Tracker, track
-from graytrack.drivers.sim.causes import EFFECT_CAUSES, EVERY_FORM, model_with
+from graytrack.drivers.sim.causes import EFFECT_CAUSES, EVERY_FORM
+from graytrack.service.grown_models import model_with
 
 MICROMETRE_TOLERANCE = 1e-9
 # what a model shows of the table parts that change the expression itself (the others change coefficients)
