@@ -31,7 +31,7 @@ def _text(key: str, value: Any) -> str:
         return ""
     if isinstance(value, bool):
         return str(int(value))
-    if isinstance(value, (int,)) or (hasattr(value, "dtype") and getattr(value, "dtype").kind in "iu"):
+    if isinstance(value, (int,)) or (hasattr(value, "dtype") and value.dtype.kind in "iu"):
         return str(int(value))
     if isinstance(value, float) or hasattr(value, "dtype"):
         value = float(value)

@@ -15,6 +15,7 @@ if TYPE_CHECKING:  # the parser is built for every command: only `run` imports t
     from graytrack.core.recording import Recording
     from graytrack.core.slide import SlideWatch
     from graytrack.core.tracking import TrackResult
+    from graytrack.core.watches.scale import ScaleWatch
     from graytrack.service.progress import ProgressBar
 
 CSV_COLUMNS = ("t", "x_mm", "locked", "rms_gray", "crlb_um", "reference_mm", "error_um", "chi2", "rejected_px",

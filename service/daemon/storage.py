@@ -31,7 +31,7 @@ from graytrack.core.errors import GraytrackError
 from graytrack.core.files import write_atomic
 from graytrack.core.models import load_model, save_model
 from graytrack.core.models.fourier import FourierModel
-from graytrack.service.daemon.datadir import identity, require_room
+from graytrack.service.daemon.datadir import identity
 from graytrack.service.daemon.errors import DataDirInUse, UnsafeDataDir
 from graytrack.service.daemon.switch import Switch, leftovers
 
