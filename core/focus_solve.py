@@ -262,8 +262,8 @@ _FOCUS_OUT = 12  # x, iterations, information, cost, samples used, blur variance
 
 
 def warm(evaluator, period_mm: float) -> None:
-    """Compile (or load from the disk cache) the focus solves now, at model install: the first blurred frame must not wait for the compiler (~40 ms from the
-    cache, seconds on a fresh install)."""
+    """Compile (or load from the disk cache) the focus solves now, at model install: the first blurred frame
+    must not wait for the compiler (~40 ms from the cache, seconds on a fresh install)."""
     if kernels.COMPILED and kernels.numba is not None:  # the fast path's (trig-polynomial) focus solve
         _trig_focus(np.ones((7, 3), dtype=complex), np.ones(3, dtype=complex), np.ones(3, dtype=complex), 1.0, 1.0,
                     1.0, 0.0, 1.0, 0.0, False, 0.0, 0.0, 1, 1.0, 1.0, np.empty(_TRIG_OUT))

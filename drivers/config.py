@@ -64,7 +64,8 @@ class CameraConfig(_Strict):
     effects: str = Field("", description="sim: effects the virtual rig has besides its scenario's, as "
                                          "`graytrack simulate --effects` takes them (e.g. \"dust:count=6,flicker\")")
     seed: int = 0
-    rig_process: bool = Field(True, description="sim: run the virtual rig (the stage's motion, the simulated controller "
+    rig_process: bool = Field(True,
+                              description="sim: run the virtual rig (the stage's motion, the simulated controller "
                                                 "and the camera's rendering) in a process of its own, out of the "
                                                 "daemon's interpreter; the same frames either way")
 
@@ -144,7 +145,8 @@ def read_toml(path: Path) -> dict[str, Any]:
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: not valid TOML ({exc})") from None
     except UnicodeDecodeError as exc:
-        raise ConfigError(f"{path}: not valid TOML (not UTF-8 text: byte {exc.start} is {exc.object[exc.start]:#04x})") from None
+        raise ConfigError(f"{path}: not valid TOML "
+                          f"(not UTF-8 text: byte {exc.start} is {exc.object[exc.start]:#04x})") from None
     except RecursionError:
         raise ConfigError(f"{path}: not valid TOML (nested too deeply to read)") from None
     except IsADirectoryError:

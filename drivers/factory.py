@@ -119,7 +119,8 @@ def _simulated(config: HardwareConfig, clock: ScaledClock) -> Hardware:
     truth, controller = virtual_rig_controller(rig, clock)
     controller.start()
     stage = make_gcs_stage(config.stage, port=controller.path)
-    camera = SimCamera(rig, truth, config.camera.to_settings(), clock=clock) if config.camera.kind == "sim" else make_real_camera(config.camera)
+    camera = (SimCamera(rig, truth, config.camera.to_settings(), clock=clock) if config.camera.kind == "sim"
+              else make_real_camera(config.camera))
     return Hardware(camera, stage, controller, rig)
 
 

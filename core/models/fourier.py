@@ -101,7 +101,8 @@ class FourierModel:
     def __post_init__(self) -> None:
         if not (self.period_mm > 0 and self.pixel_pitch_mm > 0 and self.n_pixels >= 2):
             raise ModelError(
-                f"model geometry must be positive: period {self.period_mm}, pitch {self.pixel_pitch_mm}, pixels {self.n_pixels}"
+                f"model geometry must be positive: period {self.period_mm}, pitch {self.pixel_pitch_mm}, pixels "
+                f"{self.n_pixels}"
             )
         for label, value in (("harmonics", self.harmonics), ("pixel_degree", self.pixel_degree),
                              ("stroke_degree", self.stroke_degree), ("row_degree", self.row_degree)):

@@ -4,7 +4,8 @@ Live sources buffer frames (V4L2 keeps several, network streams more), so readin
 naively hands out frames that are already old, and their age is unknown. For live sources a
 grabber thread therefore pulls every frame as soon as the source offers it, stamps it, and keeps
 it in a backlog bounded by the lag budget (``settings.max_lag_s``, see backlog.py); :meth:`read`
-returns the oldest frame within that budget of the newest and counts the ones skipped as dropped. Files are read in order, frame by frame, since a file has no "now"; a file
+returns the oldest frame within that budget of the newest and counts the ones skipped as dropped. Files are read in
+order, frame by frame, since a file has no "now"; a file
 opened as live plays at full speed, or at its own frame rate with ``realtime=True`` (a camera
 stand-in for tests).
 

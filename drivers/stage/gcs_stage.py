@@ -135,7 +135,8 @@ class GCSStage(Stage):
         if not velocity_mm_s > 0:
             raise StageLimitError(f"velocity must be positive, got {velocity_mm_s}")
         if float(gcs.format_number(float(velocity_mm_s))) <= 0.0:
-            raise StageLimitError(f"velocity {velocity_mm_s:g} mm/s is below the 1e-9 mm/s the GCS protocol can express")
+            raise StageLimitError(
+                f"velocity {velocity_mm_s:g} mm/s is below the 1e-9 mm/s the GCS protocol can express")
         try:
             self.link.command("VEL", self.axis, float(velocity_mm_s))
         except GCSControllerError as exc:
@@ -152,7 +153,8 @@ class GCSStage(Stage):
         """The controller's maximum closed-loop velocity (parameter 0xA), None when it will not say."""
         try:
             value, _ = self.link.query("SPA?", self.axis, "0xA",
-                                       parse=lambda lines: gcs.parse_parameter(gcs.single_line(lines), self.axis, "0xA"))
+                                       parse=lambda lines: gcs.parse_parameter(gcs.single_line(lines),
+                                                                               self.axis, "0xA"))
         except StageError:
             self.link.error_code()  # an older controller refuses SPA?: its error register is cleared
             return None

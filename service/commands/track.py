@@ -89,8 +89,10 @@ def summary(result: TrackResult, reference: np.ndarray) -> list[str]:
     error = result.error_um(reference)
     if np.isfinite(error).sum() > 1:
         lines.append(
-            f"error   std {np.nanstd(error):.3f} um, mean {np.nanmean(error):+.3f} um, max |e| {np.nanmax(np.abs(error)):.3f} um"
-            f" (noise floor {np.sqrt(np.nanmean(np.square(result.crlb_mm))) * 1e3:.3f} um, the rms of the frames' bounds)"
+            f"error   std {np.nanstd(error):.3f} um, mean {np.nanmean(error):+.3f} um, max |e| "
+            f"{np.nanmax(np.abs(error)):.3f} um"
+            f" (noise floor {np.sqrt(np.nanmean(np.square(result.crlb_mm))) * 1e3:.3f} um, "
+            "the rms of the frames' bounds)"
         )
     lines.extend(validity(result))
     return lines

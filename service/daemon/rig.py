@@ -11,7 +11,8 @@ are doing::
     tracking     a model is installed (frames tracked: /healthz says whether they are, now)
     idle         hardware open, no model yet (POST /api/calibration to get one)
 
-Who does what: :mod:`stage_control` (moves asked for over the API), :mod:`supervision` (faults, bring-up with retries, the watchdog), :mod:`jobs`
+Who does what: :mod:`stage_control` (moves asked for over the API), :mod:`supervision` (faults, bring-up with retries,
+the watchdog), :mod:`jobs`
 (the calibration state machine), :mod:`snapshot` (the parts read at one instant) and :mod:`status`
 (the status document made from it), :mod:`acquisition` and
 :mod:`grating` (the two workers). Hardware that fails to open is retried every
@@ -388,7 +389,8 @@ class Rig:
             raise (self.health.failed(exc) or exc) from None
         switch.commit()
         self.install(model, job.id)
-        self.event("model_installed", f"model of calibration {job.id} installed: {model.describe()}", calibration=job.id)
+        self.event("model_installed", f"model of calibration {job.id} installed: {model.describe()}",
+                   calibration=job.id)
 
     def _finished(self, job: CalibrationJob) -> None:
         self.calibrations_finished[job.state] = self.calibrations_finished.get(job.state, 0) + 1

@@ -183,7 +183,8 @@ class Storage:
         for path in leftovers(self.root, (self.active_path.name, self.model_path.name)):  # a switch killed half-way
             path.unlink(missing_ok=True)
         done = [i for i in self.calibration_ids()
-                if (self.read_status(i) or {}).get("state") == "done" and (self.calibration_dir(i) / "model.json").is_file()]
+                if (self.read_status(i) or {}).get("state") == "done"
+                and (self.calibration_dir(i) / "model.json").is_file()]
         active = self.active_id()
         chosen = active if active in done else (done[-1] if done else None)
         notes = []
@@ -235,7 +236,8 @@ class Storage:
 
     def write_status(self, calibration_id: str, document: dict[str, Any]) -> None:
         self.check_home()
-        write_atomic(self.calibration_dir(calibration_id) / "status.json", json.dumps(document, indent=1, default=float))
+        write_atomic(self.calibration_dir(calibration_id) / "status.json",
+                     json.dumps(document, indent=1, default=float))
 
     def read_status(self, calibration_id: str) -> dict[str, Any] | None:
         try:
