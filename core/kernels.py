@@ -20,7 +20,7 @@ from graytrack.core.frame_tables import FrameTables
 try:  # numba is a dependency; its absence (an exotic platform) costs speed, never numbers
     import numba
 except ImportError:  # pragma: no cover - exercised through GRAYTRACK_KERNEL=numpy
-    numba = None
+    numba = None  # type: ignore[assignment]  # the kernels' callers check for None
 
 COMPILED = numba is not None and os.environ.get("GRAYTRACK_KERNEL", "").lower() != "numpy"
 BLOCK = 64  # pixels whose sums the kernel keeps together (1 KB: the first-level cache holds them)
