@@ -13,18 +13,36 @@ from __future__ import annotations
 
 import math
 import time
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
+from graytrack.drivers.registry import stages
 from graytrack.drivers.stage import gcs_protocol as gcs
 from graytrack.drivers.stage.base import PositionReading, Stage
 from graytrack.drivers.stage.connection import GCSConnection, Reply
 from graytrack.drivers.stage.errors import GCSControllerError, StageError, StageLimitError, StageTimeoutError
 
+if TYPE_CHECKING:
+    from graytrack.drivers.config import StageConfig
+
 VELOCITY_OUT_OF_LIMITS = 8  # the GCS error number VEL leaves for a velocity the controller will not take
 STOPPED_BY_COMMAND = 10  # the error STP/HLT leave in the register; expected after our own stop
 
 
+@stages.register("gcs")
 class GCSStage(Stage):
+    @classmethod
+    def from_config(cls, config: StageConfig, port: str | None = None) -> GCSStage:
+        """The ``[stage]`` table's controller; ``port`` overrides its serial device (the virtual rig's pty)."""
+        return cls(
+            port or config.port or "",
+            baudrate=config.baudrate,
+            axis=config.axis,
+            timeout_s=config.timeout_s,
+            soft_limits_mm=config.soft_limits_mm,
+            velocity_mm_s=config.velocity_mm_s,
+            reference_on_open=config.reference_on_open,
+        )
+
     def __init__(
         self,
         port: str,

@@ -46,7 +46,7 @@ class DaemonConfig(_Strict):
                                        description="WebSocket Origins accepted besides the page's own")
     allowed_hosts: list[str] = Field(default_factory=list,
                                      description="Host names accepted besides the bind address and "
-                                                                       "loopback names (DNS rebinding guard)")
+                                                 "loopback names (DNS rebinding guard)")
     ws_compression: bool = Field(False, description="permessage-deflate on WebSockets: fewer bytes on a slow link, "
                                  "but one zlib compression per message and client on the event loop (at 1 kHz the "
                                  "stream's largest loop cost and its latency tail)")
