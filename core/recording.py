@@ -116,9 +116,6 @@ class Recording:
             meta[PIXEL_AXIS_REVERSED] = True
         return Recording(np.ascontiguousarray(self.frames[..., ::-1]), self.t, self.reference, meta)
 
-    def has_reference(self) -> bool:
-        return bool(np.isfinite(self.reference).any())
-
 
 def validate(rec: Recording) -> None:
     """Raise :class:`RecordingError` naming the first key that breaks the contract."""

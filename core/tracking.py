@@ -320,10 +320,6 @@ class Tracker:
             batch.raw = np.asarray(raw)
         return batch
 
-    def frame_sigma(self, frame_rows: int) -> float:
-        """Noise of one model row when ``frame_rows`` raw rows feed the model (averaging lowers it)."""
-        return (self.model.noise_gray or 1.0) / np.sqrt(self.model.rows_averaged(frame_rows))
-
     def solve(self, batch: GeneralBatch | TrigPolyBatch, k: int, x_start: float, memory: LightMemory,
               reference: float = math.nan) -> FrameSolution:
         """Frame ``k`` from ``x_start``: the light and robustness the frame asks for, cheapest first

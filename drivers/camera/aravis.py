@@ -76,15 +76,6 @@ def load_aravis() -> Any:
     return _aravis_module
 
 
-def aravis_device_ids(fake: bool = False) -> list[str]:
-    """Devices Aravis can see now (``fake`` also enables its ``Fake`` interface)."""
-    aravis = load_aravis()
-    if fake:
-        aravis.enable_interface("Fake")
-    aravis.update_device_list()
-    return [aravis.get_device_id(i) for i in range(aravis.get_n_devices())]
-
-
 @cameras.register("aravis")
 class AravisCamera(Camera):
     @classmethod

@@ -108,13 +108,6 @@ class Rig:
         self.supervisor.start()
         return self
 
-    def wait_ready(self, timeout_s: float) -> bool:
-        """True once the hardware is open (for tests and the command line's start message)."""
-        deadline = time.monotonic() + timeout_s
-        while self.acquisition is None and time.monotonic() < deadline:
-            time.sleep(0.01)
-        return self.acquisition is not None
-
     def close(self) -> None:
         """Abort a job, stop the threads, close the hardware; safe to call twice."""
         self.closing.set()

@@ -29,7 +29,7 @@ from typing import Any
 
 from graytrack.core.errors import GraytrackError
 from graytrack.core.files import write_atomic
-from graytrack.core.models import load_model, save_model
+from graytrack.core.models import load_model
 from graytrack.core.models.fourier import FourierModel
 from graytrack.service.daemon.datadir import identity
 from graytrack.service.daemon.errors import DataDirInUse, UnsafeDataDir
@@ -140,9 +140,6 @@ class Storage:
         if not self.model_path.exists():
             return None
         return load_model(self.model_path)
-
-    def save_current_model(self, model: FourierModel) -> Path:
-        return save_model(model, self.model_path)
 
     def copy_model_of(self, calibration_id: str) -> None:
         """``model.json`` becomes a byte-for-byte copy of that calibration's model."""
