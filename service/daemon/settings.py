@@ -16,6 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field, NonNegativeInt, ValidationErr
 
 from graytrack.drivers.config import ConfigError, HardwareConfig, describe_validation_error, load_toml, parse_hardware
 from graytrack.drivers.realtime import DEFAULT_LEVEL
+from graytrack.drivers.registry import stages
 
 DEFAULT_HOST = "127.0.0.1"  # docs/contracts.md: loopback unless told otherwise
 DEFAULT_PORT = 8000
@@ -121,7 +122,8 @@ class Settings(_Strict):
 
     @property
     def simulated(self) -> bool:
-        return self.hardware.stage.kind == "sim"
+        """The virtual rig runs (a simulated stage: its driver says so, drivers/registry.py)."""
+        return stages.resolve(self.hardware.stage.kind).simulated
 
     def data_path(self) -> Path:
         return Path(self.daemon.data_dir) if self.daemon.data_dir else default_data_dir()
