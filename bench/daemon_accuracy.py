@@ -3,10 +3,9 @@
 Starts ``graytrack serve`` on a virtual rig (its own process, wall-clock speed), lets it calibrate
 itself (the configured sweep and model), then moves the stage to a list of positions and, at each,
 reads stream messages and prints the mean and std of ``error_um`` (tracked minus grating) next to the
-mean Cramér–Rao bound, χ² and the share of messages flagged ``stale`` (with the reasons given). A model that is right
-has a mean error near 0 everywhere and a std
-near the bound; a calibration that missed something fixed to the print shows as a mean error that
-changes from position to position.
+mean Cramér–Rao bound, χ² and the share of messages flagged ``stale`` (with the reasons given). A model
+that is right has a mean error near 0 everywhere and a std near the bound; a calibration that missed
+something fixed to the print shows as a mean error that changes from position to position.
 
 Run: .venv/bin/python bench/daemon_accuracy.py [--scenario lab] [--effects SPEC] [--sweep scan|stops]
      [--model auto|paper] [--messages 600]

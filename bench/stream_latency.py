@@ -247,8 +247,8 @@ def run(folder: Path, rate: float, clients: int, seconds: float, poll_s: float =
                                   "--priority", str(priority + 1 if priority else 0)], stdout=subprocess.PIPE,
                                  text=True)
         result = subprocess.run([sys.executable, "-c", CLIENTS[client], f"ws://127.0.0.1:{port}/ws/position",
-                                 str(clients),
-                                 str(seconds)], capture_output=True, text=True, check=True, preexec_fn=raise_client)
+                                 str(clients), str(seconds)],
+                                capture_output=True, text=True, check=True, preexec_fn=raise_client)
         host = json.loads(floor.communicate(timeout=seconds + 30)[0])
         wall = time.monotonic() - wall0
         cpu = (cpu_seconds(daemon.pid) - cpu0) / wall

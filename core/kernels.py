@@ -28,8 +28,7 @@ BLOCK = 64  # pixels whose sums the kernel keeps together (1 KB: the first-level
 
 def _evaluate_into(x: float, omega: float, c_re: np.ndarray, c_im: np.ndarray, offset: np.ndarray,
                    lo: float, hi: float, table: np.ndarray, map_base: np.ndarray, map_size: int, origin: float,
-                   step: float,
-                   target_offset: np.ndarray,
+                   step: float, target_offset: np.ndarray,
                    clip_lo: float, clip_hi: float, values: np.ndarray, slopes: np.ndarray,
                    smooth: np.ndarray) -> None:
     """values, slopes (P,) at x; ``smooth`` is scratch (P,). Coefficients are in pixel blocks,
@@ -142,8 +141,7 @@ def _reduce(values: np.ndarray, slopes: np.ndarray, y: np.ndarray, w: np.ndarray
 
 def _evaluate_many(x_mm: np.ndarray, omega: float, c_re: np.ndarray, c_im: np.ndarray, offset: np.ndarray,
                    lo: float, hi: float, table: np.ndarray, map_base: np.ndarray, map_size: int, origin: float,
-                   step: float,
-                   target_offset: np.ndarray,
+                   step: float, target_offset: np.ndarray,
                    clip_lo: float, clip_hi: float, values: np.ndarray, slopes: np.ndarray,
                    smooth: np.ndarray) -> None:
     """values, slopes (G, P) at each of ``x_mm`` (G,)."""

@@ -424,8 +424,8 @@ class ReferenceMonitor:
         base = self.baseline or self.calibration
         do = line.offset_um - (base.offset_um if base else 0.0)
         ds = line.scale_ppm - (base.scale_ppm if base else 0.0)
-        meaningful = abs(do) + abs(ds) * 1e-3 * self.half_stroke_mm >= max(self.floor_um,
-                                                                           0.5 * self.resolution_mm * 1e3)
+        meaningful = (abs(do) + abs(ds) * 1e-3 * self.half_stroke_mm
+                      >= max(self.floor_um, 0.5 * self.resolution_mm * 1e3))
         reference = base.covariance if base is not None else self._calibration_covariance(line)
         self.significance = _chi2(do, ds, line.covariance, _plus(reference, self._structure_covariance()))
         self.stale = meaningful and self.significance >= (self.z_off if self.stale else self.z_on) ** 2

@@ -155,8 +155,8 @@ class Tracker:
     ``light``: ``"fixed"`` keeps the calibrated light; ``"free"`` solves a gain and offset with x
     in every frame; ``"auto"`` solves them when a frame's χ² says the light changed, and keeps
     solving them until the calibrated light fits again (ten frames in a row: core/light_return.py); when a uniform
-    light is not enough it also
-    tries a light field and a change of focus (blur), and takes the one the evidence asks for.
+    light is not enough it also tries a light field and a change of focus (blur), and takes the one the evidence
+    asks for.
     ``tolerance_mm``: the last Gauss–Newton step taken; it is applied, and what remains after it is that step times the
     contraction (≪ 1 on a converged frame), far below any bound. Default: ``"free"`` for a model with a
     per-frame common mode, else ``"fixed"``. ``robust``: frames whose χ² is beyond the noise are

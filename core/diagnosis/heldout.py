@@ -144,8 +144,7 @@ def figures(model: FourierModel, data: CalibrationData, fit: Fit | None = None) 
         bound_mm = np.where(np.isfinite(bound_mm), curve_bound_mm(model, data, fit), np.nan)
     mean = float(np.mean(error[finite])) if finite.any() else float("nan")  # no frame placed: no mean (not 0)
     return Figures(model.describe(), fit.rmse_gray, spread, worst, mean, pooled_bound(bound_mm) * 1e3, error,
-                   data.x_mm, tracked,
-                   bound_mm)
+                   data.x_mm, tracked, bound_mm)
 
 
 def curve_bound_mm(model: FourierModel, data: CalibrationData, fit: Fit) -> np.ndarray:

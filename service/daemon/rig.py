@@ -11,11 +11,10 @@ are doing::
     tracking     a model is installed (frames tracked: /healthz says whether they are, now)
     idle         hardware open, no model yet (POST /api/calibration to get one)
 
-Who does what: :mod:`stage_control` (moves asked for over the API), :mod:`supervision` (faults, bring-up with retries,
-the watchdog), :mod:`jobs`
-(the calibration state machine), :mod:`snapshot` (the parts read at one instant) and :mod:`status`
-(the status document made from it), :mod:`acquisition` and
-:mod:`grating` (the two workers). Hardware that fails to open is retried every
+Who does what: :mod:`stage_control` (moves asked for over the API), :mod:`supervision` (faults, bring-up with
+retries, the watchdog), :mod:`jobs` (the calibration state machine), :mod:`snapshot` (the parts read at one
+instant) and :mod:`status` (the status document made from it), :mod:`acquisition` and :mod:`grating` (the two
+workers). Hardware that fails to open is retried every
 ``reopen_interval_s``, so a daemon started before its camera is plugged in comes up by itself.
 """
 

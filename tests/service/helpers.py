@@ -25,8 +25,8 @@ FAST_TABLES: dict[str, Any] = {
     # a long serial timeout: a loaded CI machine can starve the simulated controller's thread
     "stage": {"kind": "sim", "velocity_mm_s": 20.0, "timeout_s": 5.0},
     # 20 simulated frames/s = 200 per wall second: enough to test, light enough for a loaded CI machine
-    # the virtual rig in the test process: tests reach into its controller and its stage (test_rig_process.py runs it
-    # apart)
+    # the virtual rig in the test process: tests reach into its controller and its stage
+    # (test_rig_process.py runs it apart)
     "camera": {"kind": "sim", "frame_rate_hz": 20.0, "rig_process": False},
     # step and settle, paper model: the quickest calibration (the scan and the closed loop: test_sweep_scan.py)
     "sweep": {"kind": "stops", "positions": 21, "frames_per_position": 3, "model": "paper"},
