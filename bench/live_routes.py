@@ -72,7 +72,8 @@ def main() -> None:
     for label, model, recording in cases:
         lean, prepared, difference, taken = compare(model, recording.frames, recording.reference)
         note = "" if taken else "  (weights follow the signal: prepared either way)"
-        print(f"{label:58.58} {lean:12.1f} {prepared:16.1f} {lean / prepared:6.2f} {difference:12.1e}{note}", flush=True)
+        print(f"{label:58.58} {lean:12.1f} {prepared:16.1f} {lean / prepared:6.2f} {difference:12.1e}{note}",
+              flush=True)
 
 
 if __name__ == "__main__":

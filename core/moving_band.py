@@ -93,7 +93,8 @@ class BandAnswer:
         return 1.0 / self.covariance[0, 0]
 
 
-def band(columns: np.ndarray, left: float, right: float, edge: float) -> tuple[np.ndarray, ...]:
+def band(columns: np.ndarray, left: float | np.ndarray, right: float | np.ndarray,
+         edge: float) -> tuple[np.ndarray, ...]:
     """B at each column for a band between ``left`` and ``right`` (its half-depth points), and its
     derivatives by the two edges' places and by the softness."""
     scale = ROOT_2 * edge

@@ -24,7 +24,7 @@ from typing import Protocol
 
 import numpy as np
 
-from graytrack.core import frame_kernel, small_linalg, transients
+from graytrack.core import frame_kernel, small_linalg
 from graytrack.core.evaluation import ClippedHarmonics, FastHarmonics, GeneralHarmonics, TrigTables
 # the robust solve's constants live with its control logic (core/frame_kernel.py)
 from graytrack.core.frame_kernel import (CORE_SIGMA, CUT_SIGMA, MAD_TO_SIGMA, ROBUST_ITERATIONS,  # noqa: F401

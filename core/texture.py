@@ -44,7 +44,7 @@ from graytrack.core.effects.target_map import MAX_MAP_STEPS
 from graytrack.core.frame_kernel import CUT_SIGMA
 from graytrack.core.models.fourier import FourierModel
 from graytrack.core.solvers import FrameSolution, GeneralBatch, TrigPolyBatch, robust_solve
-from graytrack.core.texture_mark import FIELDS, PRIOR_SIGMA, Grid, Mark, scale_chi2
+from graytrack.core.texture_mark import FIELDS, Grid, Mark, scale_chi2
 from graytrack.core.texture_shape import shape_vouches
 
 STEPS_PER_PIXEL = MAX_MAP_STEPS  # a quarter of a pixel footprint: specks narrower than a pixel keep their shape
@@ -342,8 +342,8 @@ class Texture:
             hi = x + self.grid.scale * centre_row[stop - 1] + MARGIN_PX * pitch + self._row_reach()
             first = int(math.floor((lo - self.grid.origin_mm) / self.grid.step_mm))
             last = int(math.ceil((hi - self.grid.origin_mm) / self.grid.step_mm))
-            for first, last in self._outside_learned(first, last):
-                self._candidate(first, last, frame)
+            for start_node, stop_node in self._outside_learned(first, last):
+                self._candidate(start_node, stop_node, frame)
 
     def _outside_learned(self, first: int, last: int) -> list[tuple[int, int]]:
         """The parts of nodes ``first..last`` no learned mark holds (a learned mark keeps its stretch:

@@ -154,10 +154,11 @@ class Tracker:
 
     ``light``: ``"fixed"`` keeps the calibrated light; ``"free"`` solves a gain and offset with x
     in every frame; ``"auto"`` solves them when a frame's χ² says the light changed, and keeps
-    solving them until the calibrated light fits again (ten frames in a row: core/light_return.py); when a uniform light is not enough it also
-    tries a light field and a change of focus (blur), and takes the one the evidence asks for.
-    ``tolerance_mm``: the last Gauss–Newton step taken; it is applied, and what remains after it is that step times the contraction (≪ 1 on a
-    converged frame), far below any bound. Default: ``"free"`` for a model with a
+    solving them until the calibrated light fits again (ten frames in a row: core/light_return.py); when a uniform
+    light is not enough it also tries a light field and a change of focus (blur), and takes the one the evidence
+    asks for.
+    ``tolerance_mm``: the last Gauss–Newton step taken; it is applied, and what remains after it is that step times the
+    contraction (≪ 1 on a converged frame), far below any bound. Default: ``"free"`` for a model with a
     per-frame common mode, else ``"fixed"``. ``robust``: frames whose χ² is beyond the noise are
     solved again by IRLS, so that a pixel gone bad in this run does not pull the position.
     ``follow_focus``: the focus term is also taken when the frames' focus estimates move (False: only
@@ -250,7 +251,8 @@ class Tracker:
         """1/σ² per sample ``(K|1, P)``: the noise model at the observed gray level (the variance of
         a row mean when rows are averaged), zero on masked pixels and, when tracking robustly, on
         samples stuck at the sensor's floor or ceiling (saturated by more light than at
-        calibration: they say nothing about x). The flag is True when these are the weights every frame shares, ``(1, P)``."""
+        calibration: they say nothing about x). The flag is True when these are the weights every frame shares,
+        ``(1, P)``."""
         rows = self.model.rows_averaged(frame_rows)
         n_frames = prepared.shape[0]
         if self.signal_dependent and n_frames == 1:  # a live frame: one fused pass (core/frame_kernel.py),
@@ -298,7 +300,8 @@ class Tracker:
         inside = (flat > lo) & (flat < hi)
         return inside if self._masked is None else np.logical_or(inside, self._masked, out=inside)
 
-    def batch(self, prepared: np.ndarray, frame_rows: int = 1, raw: np.ndarray | None = None) -> GeneralBatch | TrigPolyBatch:
+    def batch(self, prepared: np.ndarray, frame_rows: int = 1,
+              raw: np.ndarray | None = None) -> GeneralBatch | TrigPolyBatch:
         """Frames ``(K, R, n)`` in the model's row layout, reduced for solving. ``raw``: the strip
         frames themselves, kept when the model averages their rows, so that a transient on a few
         rows is set aside on those rows only (:meth:`_rows_refined`)."""
@@ -316,10 +319,6 @@ class Tracker:
         if raw is not None and self.model.n_rows == 1 and frame_rows > 1:
             batch.raw = np.asarray(raw)
         return batch
-
-    def frame_sigma(self, frame_rows: int) -> float:
-        """Noise of one model row when ``frame_rows`` raw rows feed the model (averaging lowers it)."""
-        return (self.model.noise_gray or 1.0) / np.sqrt(self.model.rows_averaged(frame_rows))
 
     def solve(self, batch: GeneralBatch | TrigPolyBatch, k: int, x_start: float, memory: LightMemory,
               reference: float = math.nan) -> FrameSolution:
@@ -1044,7 +1043,8 @@ def _solve_frame(tracker: Tracker, batch: GeneralBatch | TrigPolyBatch, k: int, 
             solution, rival = tracker.acquire_with_rival(batch, k, lo, max(hi, lo + tracker.model.period_mm), memory)
             if rival is not None and tracker.untrusted(solution) is None:
                 events.append(LockEvent(frame, f"acquired without a reference, but a position {rival:+.3f} mm away "
-                                               "fits as well: the period is a guess", float("nan"), solution.x_mm, True))
+                                               "fits as well: the period is a guess",
+                                        float("nan"), solution.x_mm, True))
                 state.rival = PeriodRival.opened(rival, solution, tracker.model, AMBIGUITY_CHI2)
                 solution.period_guess = state.rival is not None
         ok = tracker.untrusted(solution) is None

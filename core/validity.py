@@ -101,9 +101,9 @@ class Watch(Protocol):
     (tests/core/test_watch_kernels.py holds each watch to that)."""
 
     family: str
-    # A verdict on the model itself (refused or inadequate at calibration) outranks whatever a
+    # Optional, read with getattr (so not a protocol member: most watches leave it out): ``decisive =
+    # True``, a verdict on the model itself (refused or inadequate at calibration) outranks whatever a
     # frame's nuisances suggest: those only describe how a wrong model fails on this frame.
-    decisive: bool = False
 
     def observe(self, sign: FrameSign) -> str | None:
         """The family this watch blames now (None: nothing to say)."""
@@ -188,7 +188,7 @@ def _observe_all(watch: Watch, columns: dict[str, list], n: int) -> list[str | N
     if reads is None:
         return [watch.observe(FrameSign(**dict(zip(SIGN_FIELDS, row))))
                 for row in zip(*(columns[name] for name in SIGN_FIELDS))]
-    step = watch.step
+    step = watch.step  # type: ignore[attr-defined]  # a watch naming ``reads`` has ``step`` (Watch)
     if not reads:
         return [step() for _ in range(n)]
     return [step(*row) for row in zip(*(columns[name] for name in reads))]

@@ -74,7 +74,8 @@ table{{border-collapse:collapse;width:100%}}td,th{{border:1px solid #ccc;padding
 th{{background:#f3f3f3}}.flag{{color:#b00}}</style></head><body>
 <h1>graytrack history</h1>
 <p>{count} calibration(s) of {len(rigs)} rig(s). A value is pointed out when it moved from the rig's previous
-calibration, or drifted from the level of its last change (at first: its first calibration) by more than {Z_LIMIT:g} times the combined standard uncertainty (τ_w and α·d:
+calibration, or drifted from the level of its last change (at first: its first calibration) by more than
+{Z_LIMIT:g} times the combined standard uncertainty (τ_w and α·d:
 spread of interleaved refits of each sweep; σ and the held-out error: σ/√(2n) of their sample counts).</p>
 <h2>Changes beyond the calibrations' uncertainty</h2><ul id="changes">{items or '<li>none</li>'}</ul>
 <h2>Effects found by the closed loop</h2><ul>{''.join(f'<li>{html.escape(line)}</li>' for line in effects)

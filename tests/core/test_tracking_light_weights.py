@@ -98,7 +98,8 @@ def test_set_aside_pixels_match_a_direct_masked_solve(paper_rig, compiled, monke
                                                                            rel=1e-8)
         residuals = source.set_aside_residuals(j, a.x_mm, a.gain, a.offset, rejected)
         values = FastHarmonics(model).evaluate(np.array([a.x_mm]))[0][0, [12, 61]]
-        expected = np.abs(frames[k, [12, 61]] - a.gain * values - a.offset) * np.sqrt(tracker.static_weights[0, [12, 61]])
+        expected = (np.abs(frames[k, [12, 61]] - a.gain * values - a.offset)
+                    * np.sqrt(tracker.static_weights[0, [12, 61]]))
         np.testing.assert_allclose(residuals, expected, rtol=1e-9)
 
 
