@@ -33,4 +33,5 @@ def test_the_bring_up_target_generator_writes_a_sine_print_of_whole_periods(tmp_
     assert periods == pytest.approx(round(periods), abs=1e-6) and width_mm <= length, "whole periods on the sheet"
     gray = [int(stop.get("stop-color")[1:3], 16) for stop in svg.iter(f"{SVG}stop")]
     assert len(gray) == round(periods) * steps + 1
-    assert (min(gray), max(gray)) == (28, 228) and gray[0] == gray[int(steps)] == 128, "mid-gray ± 100, a period a cycle"
+    assert (min(gray), max(gray)) == (28, 228), "mid-gray ± 100"
+    assert gray[0] == gray[int(steps)] == 128, "a period a cycle"

@@ -49,6 +49,7 @@ def test_events_the_record_could_not_take_are_logged_with_their_times_at_shutdow
     with caplog.at_level(logging.ERROR, logger="graytrack.daemon"):
         assert events.abandon() == 2
     kept = [json.loads(m.split("shutdown: ", 1)[1]) for m in _logged(caplog) if m.startswith("event not written")]
-    assert [(e["kind"], e["message"]) for e in kept] == [("model_stale", "cause: scale"), ("shutdown", "daemon stopped")]
+    assert [(e["kind"], e["message"]) for e in kept] == [("model_stale", "cause: scale"),
+                                                         ("shutdown", "daemon stopped")]
     assert kept[0]["frame"] == 1234 and kept[0]["t_unix"] <= kept[1]["t_unix"]
     assert events.pending == 0
