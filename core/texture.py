@@ -260,12 +260,12 @@ class Texture:
             return
         x = self._vouched(solution.x_mm, reference_mm, placed)
         vouched = trusted or x != solution.x_mm  # the grating's reading, or a frame the tracker trusts
-        set_aside = solution.rejected > 0 or solution.transient_px > 0
+        set_aside = solution.rejected_px > 0 or solution.transient_px > 0
         in_view = [mark for mark in self.marks if self._inside(mark, x) is not None]
         if not set_aside and not in_view:
             return
         values = tracker.evaluator.evaluate(np.array([x]))[0][0]
-        scale = solution.gain * values + solution.offset  # what the frame would show without the marks
+        scale = solution.gain * values + solution.offset_gray  # what the frame would show without the marks
         y, w = batch.frames[k], batch.weights(k)
         residual = y - scale
         for mark in in_view:

@@ -53,18 +53,20 @@ ADVICE = {
 
 @dataclass(slots=True)
 class FrameSign:
-    """What one frame's solve tells the monitor beyond its position (NaN/None: not known)."""
+    """What one frame's solve tells the monitor beyond its position (NaN/None: not known). A field
+    named in core/frame_record.py is the quantity declared there, under the same name in
+    :class:`~graytrack.core.solvers.FrameSolution`, whence it is copied."""
 
     frame: int
-    chi2: float = float("nan")  # weighted residual per used sample against the noise model
+    chi2: float = float("nan")
     information: float = float("nan")  # the frame's Fisher information on x (1/mm²), as solved
     information_calibrated: float = float("nan")  # the same at x with the calibrated light and all samples
-    gain: float = 1.0  # the light relative to calibration
+    gain: float = 1.0
     offset_gray: float = 0.0
     focus: float = 0.0  # change in blur variance since calibration (px²), when a focus term was solved
     focus_sigma: float = float("nan")  # its standard error
-    rejected_px: int = 0  # samples set aside by the robust solve (bad pixels)
-    transient_px: int = 0  # samples set aside as a compact transient (a glint, passing dust)
+    rejected_px: int = 0
+    transient_px: int = 0
     transient_at: float = float("nan")  # mean pixel (column) of those samples: a blob that stays put is no transient
     x_mm: float = float("nan")
     reference_mm: float = float("nan")  # the grating at the same instant, when read

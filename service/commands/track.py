@@ -18,9 +18,16 @@ if TYPE_CHECKING:  # the parser is built for every command: only `run` imports t
     from graytrack.core.watches.scale import ScaleWatch
     from graytrack.service.progress import NoteCallback, ProgressBar
 
-CSV_COLUMNS = ("t", "x_mm", "locked", "rms_gray", "crlb_um", "reference_mm", "error_um", "chi2", "rejected_px",
-               "gain", "offset_gray", "stale", "stale_reason", "transient_px", "focus_px2", "focus_sigma_px2")
-CSV_TAIL = CSV_COLUMNS[7:]  # the frame record's fit figures, after the grating and the error (new ones at the end)
+
+def _csv_columns() -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """(every column of the contract's CSV, the frame record's ones after the grating's), from the record."""
+    from graytrack.core.frame_record import PLACEMENT, QUANTITIES
+
+    tail = tuple(q.name for q in QUANTITIES if q.csv and q.name not in PLACEMENT and q.name != "texture_px")
+    return ("t", *PLACEMENT, "reference_mm", "error_um", *tail), tail
+
+
+CSV_COLUMNS, CSV_TAIL = _csv_columns()  # (texture_px follows them with learning on)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -70,9 +77,9 @@ def result_columns(t: np.ndarray, result: TrackResult, reference: np.ndarray) ->
     from graytrack.core import frame_record
 
     record = frame_record.columns(result)
-    head = {"t": t, **{name: record[name] for name in ("x_mm", "locked", "rms_gray", "crlb_um")},
+    head = {"t": t, **{name: record[name] for name in frame_record.PLACEMENT},
             "reference_mm": reference, "error_um": result.error_um(reference)}
-    learned = {"texture_px": result.texture_px} if result.texture is not None else {}
+    learned = {"texture_px": record["texture_px"]} if result.texture is not None else {}
     return {**head, **{name: record[name] for name in CSV_TAIL}, **learned}
 
 
