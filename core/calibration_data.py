@@ -53,7 +53,10 @@ class CalibrationData:
 
 
 @dataclass
-class Calibration:
+class CalibrationFit:
+    """A model fitted to a calibration recording, with its residual and noise (the daemon's and the API's
+    ``Calibration`` is the job that made one)."""
+
     model: FourierModel
     rmse_gray: float
     sigma_gray: float

@@ -48,7 +48,7 @@ Apply = Callable[["RigConfig", dict[str, float], np.random.Generator], None]
 
 
 @dataclass(frozen=True)
-class Effect:
+class RigEffect:
     name: str
     group: str
     summary: str
@@ -84,7 +84,7 @@ class Effect:
         return ":".join(parts)
 
 
-EFFECTS: dict[str, Effect] = {}
+EFFECTS: dict[str, RigEffect] = {}
 
 
 def effect(name: str, group: str, summary: str, **params: tuple[float, str]) -> Callable[[Apply], Apply]:
@@ -93,7 +93,7 @@ def effect(name: str, group: str, summary: str, **params: tuple[float, str]) -> 
     def register(fn: Apply) -> Apply:
         if name in EFFECTS:
             raise RuntimeError(f"effect {name!r} registered twice")
-        EFFECTS[name] = Effect(name, group, summary, tuple(Param(k, d, doc) for k, (d, doc) in params.items()), fn)
+        EFFECTS[name] = RigEffect(name, group, summary, tuple(Param(k, d, doc) for k, (d, doc) in params.items()), fn)
         return fn
 
     return register
@@ -102,7 +102,7 @@ def effect(name: str, group: str, summary: str, **params: tuple[float, str]) -> 
 EffectSpec = str | tuple[str, Mapping[str, float]]
 
 
-def parse_effects(specs: Sequence[EffectSpec] | str) -> list[tuple[Effect, dict[str, float]]]:
+def parse_effects(specs: Sequence[EffectSpec] | str) -> list[tuple[RigEffect, dict[str, float]]]:
     """Specs (strings in the syntax above, or ``(name, {param: value})`` pairs) → effects + values."""
     if isinstance(specs, str):
         specs = [specs]

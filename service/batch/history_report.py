@@ -14,12 +14,12 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from graytrack.core.files import write_atomic  # noqa: E402
-from graytrack.service.batch.history import (QUANTITIES, Z_LIMIT, Calibration, Change, changes,  # noqa: E402
+from graytrack.service.batch.history import (QUANTITIES, Z_LIMIT, RigCalibration, Change, changes,  # noqa: E402
                                              effect_changes, series)
 from graytrack.service.report import _png  # noqa: E402
 
 
-def figure(rigs: dict[str, list[Calibration]], found: list[Change]) -> str:
+def figure(rigs: dict[str, list[RigCalibration]], found: list[Change]) -> str:
     """One panel per quantity (value ± its uncertainty per rig), and the effects found."""
     fig, axes = plt.subplots(len(QUANTITIES) + 1, 1, figsize=(11, 2.3 * (len(QUANTITIES) + 1)), sharex=True)
     effect_names = sorted({name for cals in rigs.values() for c in cals for name in c.effects})
@@ -48,7 +48,7 @@ def figure(rigs: dict[str, list[Calibration]], found: list[Change]) -> str:
     return _png(fig)
 
 
-def _table(rigs: dict[str, list[Calibration]]) -> str:
+def _table(rigs: dict[str, list[RigCalibration]]) -> str:
     head = "".join(f"<th>{html.escape(q.label)} ({q.unit})</th>" for q in QUANTITIES)
     lines = [f"<tr><th>rig</th><th>calibrated (UTC)</th>{head}<th>effects</th></tr>"]
     for rig, cals in rigs.items():
@@ -62,7 +62,7 @@ def _table(rigs: dict[str, list[Calibration]]) -> str:
     return "\n".join(lines)
 
 
-def render(rigs: dict[str, list[Calibration]]) -> tuple[str, list[Change]]:
+def render(rigs: dict[str, list[RigCalibration]]) -> tuple[str, list[Change]]:
     found = [change for cals in rigs.values() for change in changes(cals)]
     effects = [line for cals in rigs.values() for line in effect_changes(cals)]
     items = "".join(f"<li class=flag>{html.escape(change.text())}</li>" for change in found)
@@ -87,6 +87,6 @@ spread of interleaved refits of each sweep; σ and the held-out error: σ/√(2n
     return page, found
 
 
-def write_history(rigs: dict[str, list[Calibration]], path: str | os.PathLike[str]) -> tuple[Path, list[Change]]:
+def write_history(rigs: dict[str, list[RigCalibration]], path: str | os.PathLike[str]) -> tuple[Path, list[Change]]:
     page, found = render(rigs)
     return write_atomic(path, page), found
