@@ -1,6 +1,6 @@
 """The graytrack daemon in bluesky: an ophyd-async encoder (detector) and stage (movable).
 
-Needs the ``bluesky`` extra (``pip install graytrack[bluesky]``); the rest of graytrack imports
+Needs the ``bluesky`` extra (``pip install 'graytrack[bluesky]'``; in a checkout ``.venv/bin/pip install -e '.[bluesky]'``); the rest of graytrack imports
 without it. ::
 
     from bluesky import RunEngine
