@@ -201,7 +201,7 @@ function applyStatus(s) {
   lost.hidden = !s.dropped;
   lost.textContent = s.dropped ? `frames lost: ${s.dropped} of the ${s.frames + s.dropped} camera frames since the ` +
     `daemon started never reached the tracker (${fmt(100 * s.dropped / (s.frames + s.dropped), 1)} %; gaps in the ` +
-    "camera's frame counter: the frame loop fell behind the camera, or the link lost them); Events lists each loss" : "";
+    "camera's frame counter: the frame loop fell behind the camera, or the link lost them); Events says when" : "";
   const active = s.active_calibration;
   $("active-calibration").textContent = active && active.error_std_um !== undefined && active.error_std_um !== null
     ? `held-out error ${fmt(active.error_std_um, 2)} µm · bound ${fmt(active.bound_um, 2)} µm (calibration ${active.id})`
