@@ -119,7 +119,7 @@ def create_app(settings: Settings, factory: HardwareFactory = default_factory) -
         storage.unlock()
         raise
     rig = Rig(settings, storage, record, broadcaster.publish, factory)
-    startup = Startup(warm_tracking)
+    startup = Startup(warm_tracking, settings.daemon.realtime_priority)
     if rebuilt is not None:
         log.error("%s", rebuilt)
         rig.event("record_rebuilt", rebuilt)

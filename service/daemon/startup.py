@@ -6,9 +6,10 @@ numba's disk cache in under a second, but compiled on the first start after an i
 clone, ~30 s on two cores (`make run` on a fresh clone: 29–32 s measured, 2026-11-27). Run inside the
 lifespan that wait came before uvicorn accepted its first request: the server printed "Application
 startup complete" and then said nothing while every request, the status page's too, hung. Here it
-runs on a thread of its own and the rig opens on the event loop once it is done, as before (the
-rig's threads keep the event loop's scheduling); ``GET /api/status`` answers ``starting`` with the
-step and its seconds (:meth:`Startup.status`).
+runs on a thread of its own, at the event loop's priority as it ran before (threads start at normal
+priority: on a loaded two-core machine, at nice 10 beside a load of 13, a normal one had not finished
+after 110 s), and the rig opens on the event loop once it is done, as before; ``GET /api/status``
+answers ``starting`` with the step and its seconds (:meth:`Startup.status`).
 """
 
 from __future__ import annotations
@@ -19,6 +20,8 @@ import threading
 import time
 from typing import Any, Callable
 
+from graytrack.drivers.realtime import raise_thread_priority
+
 log = logging.getLogger("graytrack.daemon")
 WARM_STEP = "loading the tracker's compiled kernels"
 WARM_EXPECTED = "under a second from numba's cache; about 30 s on the first start after an install, which compiles them"
@@ -27,8 +30,9 @@ WARM_EXPECTED = "under a second from numba's cache; about 30 s on the first star
 class Startup:
     """``await run(then)``: ``warm()`` on a daemon thread, then ``then()`` on the calling event loop."""
 
-    def __init__(self, warm: Callable[[], None], clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(self, warm: Callable[[], None], priority: int = 0, clock: Callable[[], float] = time.monotonic) -> None:
         self.warm = warm
+        self.priority = priority  # SCHED_FIFO level of the warm-up thread ([daemon] realtime_priority), 0 = normal
         self.clock = clock
         self._began: float | None = None  # of the warm-up, while it runs
         self.seconds: float | None = None  # what it took, once done
@@ -50,6 +54,7 @@ class Startup:
 
     def _warm(self, loop: asyncio.AbstractEventLoop, done: "asyncio.Future[None]") -> None:
         self._began = began = self.clock()
+        raise_thread_priority(self.priority, "warm-up")
         log.info("%s (%s); the API answers meanwhile", WARM_STEP, WARM_EXPECTED)
         try:
             self.warm()
