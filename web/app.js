@@ -140,8 +140,9 @@ function showAccess() {
     where.replaceChildren(`Calibrate, move and activate need the daemon's bearer token: the contents of ${path} ` +
       "(on the daemon's machine: ", code, ").");
   } else {
-    where.textContent = access ? "Calibrate, move and activate need the daemon's bearer token: the [daemon] token " +
-      "of its configuration." : "Calibrate, move and activate need the daemon's bearer token (its data directory's token file).";
+    const need = "Calibrate, move and activate need the daemon's bearer token";
+    where.textContent = access ? `${need}: the [daemon] token of its configuration.`
+      : `${need} (its data directory's token file).`;
   }
   $("token").placeholder = path ? `contents of ${path}` : "the daemon's token";
   $("token-state").textContent = hasToken() ? "A token is saved in this browser (only here); the controls use it."
@@ -164,7 +165,9 @@ function holdControls(reason) {
 function controlsReason(s) {
   if (s.state === "calibrating") return `calibration ${s.calibration.id} is running: moves are disabled (Stop aborts it)`;
   if (s.state === "fault") return `disabled during the fault: ${s.reason}`;
-  if (s.state === "starting") return s.startup ? "disabled while the daemon warms up" : "disabled until the hardware is open";
+  if (s.state === "starting") {
+    return s.startup ? "disabled while the daemon warms up" : "disabled until the hardware is open";
+  }
   if (s.state === "stopping") return "the daemon is shutting down";
   return "";
 }

@@ -30,7 +30,8 @@ WARM_EXPECTED = "under a second from numba's cache; about 30 s on the first star
 class Startup:
     """``await run(then)``: ``warm()`` on a daemon thread, then ``then()`` on the calling event loop."""
 
-    def __init__(self, warm: Callable[[], None], priority: int = 0, clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(self, warm: Callable[[], None], priority: int = 0,
+                 clock: Callable[[], float] = time.monotonic) -> None:
         self.warm = warm
         self.priority = priority  # SCHED_FIFO level of the warm-up thread ([daemon] realtime_priority), 0 = normal
         self.clock = clock
@@ -58,7 +59,7 @@ class Startup:
         log.info("%s (%s); the API answers meanwhile", WARM_STEP, WARM_EXPECTED)
         try:
             self.warm()
-        except Exception:  # noqa: BLE001 - a slower first install and longer collections, not a daemon that cannot start
+        except Exception:  # noqa: BLE001 - slower first install, longer collections: not a daemon that cannot start
             log.exception("tracking could not be warmed up before the heap freeze")
         self.seconds = self.clock() - began
         self._began = None

@@ -18,8 +18,8 @@ PIP_EXTRA = re.compile(r"pip install (-e )?(?P<target>\S*\[[^\]]*\]\S*)")
 
 
 def test_every_pip_install_of_an_extra_is_quoted_for_zsh() -> None:
-    unquoted = [f"{path.relative_to(ROOT)}: {m.group(0)}" for path in TEXTS for m in PIP_EXTRA.finditer(path.read_text())
-                if m.group("target")[0] not in "'\""]
+    unquoted = [f"{path.relative_to(ROOT)}: {m.group(0)}" for path in TEXTS
+                for m in PIP_EXTRA.finditer(path.read_text()) if m.group("target")[0] not in "'\""]
     assert unquoted == []
 
 

@@ -30,7 +30,8 @@ def test_a_newcomer_is_told_what_the_page_waits_for_where_the_token_is_and_what_
         page = browser.new_page(viewport=NARROW)
         console = watch_console(page)
         held: list = []
-        page.route("**/api/status", lambda route: held.append(route))  # the status is slow to come (a loaded daemon): held back
+        # the status is slow to come (a loaded daemon): held back
+        page.route("**/api/status", lambda route: held.append(route))
         page.goto(daemon.base + "/")
         # the stream runs meanwhile; until a status arrives the page claims nothing about the daemon
         expect(page.locator("#position")).to_have_text(re.compile(r"^\d+\.\d{4}$"), timeout=10_000)
@@ -73,9 +74,9 @@ def test_a_newcomer_is_told_what_the_page_waits_for_where_the_token_is_and_what_
         factory.hardware.camera.lose = 7  # the link loses seven frames
         expect(page.locator("#dropped")).not_to_have_text(str(lost_before), timeout=10_000)
         note = page.locator("#dropped-note")
-        expect(note).to_contain_text(re.compile(r"^frames lost: (\d+) of the \d+ camera frames since the daemon started "
-                                                r"never reached the tracker \(\d+\.\d %; gaps in the camera's frame "
-                                                r"counter"), timeout=10_000)
+        expect(note).to_contain_text(re.compile(r"^frames lost: (\d+) of the \d+ camera frames since the daemon "
+                                                r"started never reached the tracker \(\d+\.\d %; gaps in the "
+                                                r"camera's frame counter"), timeout=10_000)
         expect(logged).to_have_count(logged_before + 1, timeout=15_000)  # within the events' quiet period (10 s)
         expect(logged.first).to_contain_text(re.compile(r"camera frames? lost .* since start$"))
         shown = int(page.locator("#dropped").text_content())
@@ -85,7 +86,8 @@ def test_a_newcomer_is_told_what_the_page_waits_for_where_the_token_is_and_what_
         expect(page.locator("#history tbody tr")).to_have_count(1, timeout=10_000)
         badge = page.locator("#history button.activate").first
         expect(badge).to_have_text("active")
-        height, font = badge.evaluate("b => [b.getBoundingClientRect().height, parseFloat(getComputedStyle(b).fontSize)]")
+        height, font = badge.evaluate("b => [b.getBoundingClientRect().height, "
+                                      "parseFloat(getComputedStyle(b).fontSize)]")
         assert height < 2.5 * font, (height, font)  # one line with its padding (wrapped: 53 px at 14.4 px type)
         assert page.evaluate("document.documentElement.scrollWidth") <= 390
         assert console == [], console
