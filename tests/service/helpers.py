@@ -118,13 +118,15 @@ def wait_job(get: Callable[[str], Any], job_id: str, states: str | tuple[str, ..
 
 
 class GatedCamera(Camera):
-    """Wraps a camera: ``gate_open = False`` starves the reader, ``fail_reads = n`` raises n errors."""
+    """Wraps a camera: ``gate_open = False`` starves the reader, ``fail_reads = n`` raises n errors,
+    ``lose = n`` loses the next n frames (read and thrown away, as a link that lost them)."""
 
     def __init__(self, inner: Camera) -> None:
         super().__init__(inner.settings)
         self.inner = inner
         self.gate_open = True
         self.fail_reads = 0
+        self.lose = 0
         self.narrow_by = 0
         self.opens = 0
 
@@ -152,6 +154,9 @@ class GatedCamera(Camera):
         if not self.gate_open:
             time.sleep(timeout_s)
             raise CameraTimeout("gated")
+        while self.lose > 0:
+            self.lose -= 1
+            self.inner.read(timeout_s)
         return self.inner.read(timeout_s)
 
 
