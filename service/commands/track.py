@@ -19,15 +19,13 @@ if TYPE_CHECKING:  # the parser is built for every command: only `run` imports t
     from graytrack.service.progress import NoteCallback, ProgressBar
 
 
-def _csv_columns() -> tuple[tuple[str, ...], tuple[str, ...]]:
-    """(every column of the contract's CSV, the frame record's ones after the grating's), from the record."""
+def csv_columns() -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """(every column of the contract's CSV, the frame record's ones after the grating's), from the record;
+    texture_px follows them with learning on. (A function: the parser is built without graytrack.core.)"""
     from graytrack.core.frame_record import PLACEMENT, QUANTITIES
 
     tail = tuple(q.name for q in QUANTITIES if q.csv and q.name not in PLACEMENT and q.name != "texture_px")
     return ("t", *PLACEMENT, "reference_mm", "error_um", *tail), tail
-
-
-CSV_COLUMNS, CSV_TAIL = _csv_columns()  # (texture_px follows them with learning on)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -80,7 +78,7 @@ def result_columns(t: np.ndarray, result: TrackResult, reference: np.ndarray) ->
     head = {"t": t, **{name: record[name] for name in frame_record.PLACEMENT},
             "reference_mm": reference, "error_um": result.error_um(reference)}
     learned = {"texture_px": record["texture_px"]} if result.texture is not None else {}
-    return {**head, **{name: record[name] for name in CSV_TAIL}, **learned}
+    return {**head, **{name: record[name] for name in csv_columns()[1]}, **learned}
 
 
 def summary(result: TrackResult, reference: np.ndarray) -> list[str]:

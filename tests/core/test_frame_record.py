@@ -69,11 +69,11 @@ def test_solution_and_sign_share_their_quantities_under_one_name_and_type() -> N
 
 def test_the_wire_and_the_csv_are_made_from_the_record() -> None:
     from graytrack.client.stream import Position
-    from graytrack.service.commands.track import CSV_COLUMNS
+    from graytrack.service.commands.track import csv_columns
     from graytrack.wire import FitFigures
 
     assert tuple(FitFigures.model_fields) == frame_record.FIT
-    csv_record = [name for name in CSV_COLUMNS if name in BY_NAME]
+    csv_record = [name for name in csv_columns()[0] if name in BY_NAME]
     assert csv_record == [q.name for q in QUANTITIES if q.csv and q.name != "texture_px"]
     position = annotations(Position)
     for name in set(position) & set(BY_NAME):

@@ -143,7 +143,8 @@ def test_the_trackers_fit_figures_and_stale_model_flags_reach_status_metrics_and
         wait_for(lambda: "model_stale" in [e["kind"] for e in daemon.get("/api/events").json()], what="the stale flag")
         status = daemon.status()
         assert status["fit"] == {"gain": 1.01, "offset_gray": -0.2, "rejected_px": 2, "transient_px": 0, "chi2": 1.04,
-                                 "focus_px2": None, "focus_sigma_px2": None, "stale": True, "stale_reason": "focus"}
+                                 "focus_px2": None, "focus_sigma_px2": None, "stale": True, "stale_reason": "focus",
+                                 "texture_px": 0}
         assert status["model_stale"] and status["stale_reason"] == "focus"
         health = daemon.get("/healthz")
         assert health.status_code == 503 and "focus" in health.json()["reason"], "a stale model is not healthy"
