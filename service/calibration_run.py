@@ -158,11 +158,9 @@ def _fit(recording: "Recording", kind: str, harmonics: int | None, pixel_degree:
         progress(HELD_OUT_SHARE, "held-out error: refitting without the held-out frames")
 
     def fit(part: "Recording") -> "FourierModel":
-        if part is recording:  # (a validation recording: the model of all frames is the one judged)
-            return model
         return calibrate(part, kind, harmonics=harmonics, pixel_degree=pixel_degree, rows=rows).model
 
-    held_out = validate(recording, fit, validation=validation, label=f"{kind} model")
+    held_out = validate(recording, fit, validation=validation, fitted=model, label=f"{kind} model")
     held = held_out.as_dict() if held_out is not None else None
     quality = "" if held is None else (f"held-out error {shown(held['error_std_um'], 2, 'µm')} "
                                        f"(bound {shown(held['bound_um'], 2, 'µm')}), ")

@@ -212,8 +212,9 @@ def _headline(report: dict) -> str:
     noise, held = report.get("noise") or {}, report.get("held_out") or {}
     sigma = f"; per-pixel noise σ = {shown(noise.get('gray'), 3, 'gray')}"
     if "before" in report and "after" in report:
-        return (f"<p class=\"big\">held-out error std <b>{shown(report['before'].get('error_std_um'), 3, 'µm')}</b> → "
-                f"<b>{shown(report['after'].get('error_std_um'), 3, 'µm')}</b> (bound "
+        before, after = report["before"].get("error_std_um"), report["after"].get("error_std_um")
+        return (f"<p class=\"big\">held-out error std <b>{shown(before, 3, 'µm')}</b> → "
+                f"<b>{shown(after, 3, 'µm')}</b> (bound "
                 f"{shown(noise.get('crlb_um'), 3, 'µm')}{sigma})</p>")
     if not held:
         return f"<p class=\"big\">held-out error: not measured (too few stops to hold half of them out){sigma}</p>"

@@ -186,7 +186,8 @@ MIN_BLOCKS_PER_FOLD = 4
 @dataclass
 class HeldOut:
     """Held-out position error of a calibration, next to the bound of the same frames: the figure
-    a user judges a calibration by. Per frame too (``x_mm``, ``error_um``, ``bound_um``) for plots."""
+    a user judges a calibration by, and the one result every caller reports as ``held_out``. Per
+    frame too (``x_mm``, ``error_um``, ``bound_um``) for plots."""
 
     error_std_um: float
     bound_um: float
@@ -242,14 +243,16 @@ def check_same_roi(calibration: Recording, validation: Recording) -> None:
 
 
 def validate(recording: Recording, fit: Callable[[Recording], FourierModel], *,
-             validation: Recording | None = None, label: str = "") -> "HeldOut | None":
+             validation: Recording | None = None, fitted: FourierModel | None = None,
+             label: str = "") -> "HeldOut | None":
     """The held-out figures of the model ``fit`` makes of a recording: on ``validation`` (the model
-    fitted on all of ``recording``) when given, else two-fold by :func:`block_frames`. None when the
-    recording has too few blocks to split. ``label`` (the model's kind) ends the method's text."""
+    fitted on all of ``recording``: ``fitted`` when the caller has it already) when given, else
+    two-fold by :func:`held_out_blocks`. None when the recording has too few blocks to split.
+    ``label`` (the model's kind) ends the method's text."""
     suffix = f", {label}" if label else ""
     if validation is not None:
         check_same_roi(recording, validation)
-        part = figures(fit(recording), calibration_data(validation))
+        part = figures(fitted or fit(recording), calibration_data(validation))
         return HeldOut.of([part], f"validation recording ({validation.n_frames} frames){suffix}")
     blocks = held_out_blocks(recording)
     parts = two_fold_by_block(recording, blocks, fit)

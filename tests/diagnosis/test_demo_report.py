@@ -53,7 +53,8 @@ def test_tau_is_stated_once_for_the_model_written(demo) -> None:
 def test_the_injected_effects_are_in_the_report_beside_what_the_loop_added(demo) -> None:
     run, text, report = demo
     injected = report["recording"]["simulated_effects"]
-    assert [effect.split(":")[0] for effect in injected] == [spec.split(":")[0] for spec in UNDECLARED_EFFECTS.split(",")]
+    told = [spec.split(":")[0] for spec in UNDECLARED_EFFECTS.split(",")]
+    assert [effect.split(":")[0] for effect in injected] == told
     for effect in injected:
         assert effect in text
     added = ", ".join(step["effect"].replace("_", " ") for step in report["steps"])

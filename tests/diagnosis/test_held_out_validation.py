@@ -4,6 +4,7 @@ report the same figures; `calibrate --model paper` reports them (it reported ``h
 
 from __future__ import annotations
 
+import json
 import re
 from pathlib import Path
 
@@ -16,14 +17,16 @@ from graytrack.core.errors import CalibrationError
 from graytrack.core.recording import Recording, save
 from graytrack.drivers.sim.scenarios import build_rig
 from graytrack.drivers.sim.stage import FunctionTrajectory
+from graytrack.service.batch.discover import Source
+from graytrack.service.batch.jobs import Job, run_job
 from graytrack.service.calibration_run import calibrate_recording
 from graytrack.service.cli import main
 from graytrack.service.daemon.jobs import JobRunner
 from graytrack.service.daemon.manual_clock import ManualClock
 from graytrack.service.daemon.settings import SweepConfig
 from graytrack.service.daemon.sweep import Sweep
-from tests.service.fakes import FakeFeed, FakeStage, StatusFiles, new_job
 from graytrack.service.daemon.grating import Readings
+from tests.service.fakes import FakeFeed, FakeStage, StatusFiles, new_job
 
 STOPS, DWELL_S = 21, 0.05
 UNTOLD = "gradient:per_10mm=0.05"  # an illumination gradient the paper model is not told about
@@ -77,7 +80,8 @@ def test_calibrate_model_paper_reports_its_held_out_error_next_to_the_bound(stop
     assert f"Cramer-Rao bound {held['bound_um']:.3f} um" in line
 
 
-def test_the_cli_the_daemons_sweep_and_a_direct_call_get_the_same_figures(stops, direct, tmp_path, capsys) -> None:
+def test_the_cli_batch_the_daemons_sweep_and_a_direct_call_get_the_same_figures(stops, direct, tmp_path,
+                                                                               capsys) -> None:
     clock = ManualClock()
     files = StatusFiles(tmp_path / "daemon")
     job = new_job(STOPS, 3)
@@ -87,6 +91,9 @@ def test_the_cli_the_daemons_sweep_and_a_direct_call_get_the_same_figures(stops,
     sweep.fit(stops)  # the daemon's fit of a recorded sweep, as after sweep()
     assert job.report["held_out"] == direct
     assert calibrate_recording(stops, "paper").report["held_out"] == direct
+    source = Source(save(stops, tmp_path / "batch.npz"), "stops")
+    assert run_job(Job("calibrate", source, str(tmp_path / "batch")))["status"] == "ok"
+    assert json.loads((tmp_path / "batch" / "stops" / "report.json").read_text())["held_out"] == direct
     line = _cli_line(stops, tmp_path, capsys)
     printed = re.findall(r"(\d+\.\d+) um", line)  # the terminal shows three decimals
     assert printed == [f"{direct['error_std_um']:.3f}", f"{direct['bound_um']:.3f}"], (line, direct)
