@@ -25,7 +25,7 @@ import numpy as np
 
 from graytrack.core.files import write_atomic
 from graytrack.core.jsonable import finite_or_none
-from graytrack.service.figures import positive, shown
+from graytrack.service.figures import positive, shown, structure
 
 if TYPE_CHECKING:
     from graytrack.core.diagnosis.heldout import HeldOut
@@ -238,11 +238,13 @@ def _transient_line(report: dict) -> list[str]:
 def loop_lines(report: dict) -> list[str]:
     """The closed loop's figures: before, each step, after, the bound and what limits it."""
     before, after, noise = report["before"], report["after"], report["noise"]
-    lines = geometry_lines(report) + [f"before  {before['model']}: {_figures(before)}"]
+    lines = geometry_lines(report) + [f"before  {structure(before['model'])}: {_figures(before)}"]
     for step in report["steps"]:
         lines.append(f"  + {step['effect']:<16} {step['evidence']}")
         lines.append(f"    {'':<16} {_figures(step)}")
-    lines.append(f"after   {after['model']}: {_figures(after)}")
+    lines.append(f"after   {structure(after['model'])}: {_figures(after)}")
+    if report.get("final_model") and (report.get("geometry") or {}).get("status") != "refused":
+        lines.append(f"model   {report['final_model']} (model.json: fitted on every calibration frame)")
     lines.append(f"noise   sigma {_figure(noise['gray'], 4)} gray, Cramer-Rao bound {_figure(noise['crlb_um'], 3)} um")
     compression = (report.get("findings") or {}).get("compression")
     if compression:
@@ -250,7 +252,7 @@ def loop_lines(report: dict) -> list[str]:
                      f"with its quantisation the bound is {_figure(compression.get('crlb_um'), 3)} um")
     if positive(noise.get("reference_resolution_um")):
         lines.append(f"        grating readout in steps of {_figure(noise['reference_resolution_um'], 3)} um: "
-                     f"floor against it {_figure(noise['floor_um'], 3)} um")
+                     f"readout floor {_figure(noise['floor_um'], 3)} um")
     return lines + _transient_line(report)
 
 

@@ -10,7 +10,6 @@ rigs without network access, served by the daemon's history and mailed around as
 from __future__ import annotations
 
 import html
-import re
 from typing import TYPE_CHECKING
 
 import matplotlib
@@ -22,7 +21,7 @@ import numpy as np  # noqa: E402
 from graytrack.core.diagnosis.loop import DiagnosisResult, Stage  # noqa: E402
 from graytrack.core.pixel_noise import PixelNoise  # noqa: E402
 from graytrack.core.transients import summary_line  # noqa: E402
-from graytrack.service.figures import MISSING, is_number, positive, shown  # noqa: E402
+from graytrack.service.figures import MISSING, is_number, positive, shown, structure  # noqa: E402
 from graytrack.service.report_kit import cell, image, page, plain_log_axis, png  # noqa: E402
 
 if TYPE_CHECKING:
@@ -236,14 +235,6 @@ def bound_definition(report: dict) -> str:
                      if "per-frame gain/offset" in str(report.get("final_model")) else "")
                  + ". Each error is judged against its own model's bound.")
     return f'<p class="note">{text}</p>'
-
-
-TAU = re.compile(r"; τ=[^;)]*, α·d=[^;)]*\)$")
-
-
-def structure(description: object) -> str:
-    """A model's description without its geometry (τ and α·d are stated once, from model.json)."""
-    return TAU.sub(")", str(description or ""))
 
 
 def _geometry_line(run: "CalibrationRun") -> str:

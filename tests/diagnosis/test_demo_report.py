@@ -38,6 +38,9 @@ def test_the_bound_has_one_name_and_each_model_one_value(demo) -> None:
     stated = set(re.findall(r"bound:? (\d+\.\d+) µm", text)) | set(re.findall(r"(\d+\.\d+) µm for the", text))
     assert stated <= {f"{before:.3f}", f"{after:.3f}"} and f"{after:.3f}" in stated, (stated, before, after)
     assert f"readout floor √(bound² + step²/12) = {report['noise']['floor_um']:.3f} µm" in text
+    terminal = "\n".join(run.lines())  # what `graytrack demo` prints: the same names and values
+    assert f"Cramer-Rao bound {after:.3f} um" in terminal
+    assert f"readout floor {report['noise']['floor_um']:.3f} um" in terminal
     figure = error_figure(_panels(run))
     titles = [ax.get_title() for ax in figure.axes]
     assert titles == [f"before (seed paper's model): error std {report['before']['error_std_um']:.3f} µm, "
@@ -48,6 +51,8 @@ def test_the_bound_has_one_name_and_each_model_one_value(demo) -> None:
 def test_tau_is_stated_once_for_the_model_written(demo) -> None:
     run, text, _ = demo
     assert text.count("τ") == 1 and f"τ = {run.model.period_mm:.4f} mm" in text
+    terminal = "\n".join(run.lines())
+    assert terminal.count("τ") == 1 and f"τ={run.model.period_mm:.4f} mm" in terminal
 
 
 def test_the_injected_effects_are_in_the_report_beside_what_the_loop_added(demo) -> None:
