@@ -32,7 +32,8 @@ class Evidence:
     argument: Any = None  # what the effect's grow() needs from the probe (clip limits, a skew, pixels)
 
     def as_dict(self) -> dict[str, float | str]:
-        return {"effect": self.effect, "axis": self.axis, "z": round(float(self.z), 2), "share": round(float(self.share), 4),
+        return {"effect": self.effect, "axis": self.axis, "z": round(float(self.z), 2),
+                "share": round(float(self.share), 4),
                 "text": self.text}
 
 

@@ -52,7 +52,8 @@ class TableRow:
                 f"{lost}{quoted}")
 
 
-def seed_table(calibration: Recording, measured: Recording, kinds: tuple[str, ...] = ("ideal", "paper")) -> list[TableRow]:
+def seed_table(calibration: Recording, measured: Recording,
+               kinds: tuple[str, ...] = ("ideal", "paper")) -> list[TableRow]:
     """Fit each model kind on ``calibration``; measure ``measured`` (a sweep over the stroke with its
     grating reading) the paper's way: sequential from the first reading (the grating is not read
     again until the comparison), the calibrated light, every pixel."""

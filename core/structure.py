@@ -102,7 +102,7 @@ def fit_spec(spec: ModelSpec, data: CalibrationData, period_mm: float, pitch_mm:
     photon-transfer weights are not refitted: in a 16-row lab strip with its rows, flat field and
     map, those two were 75 % of a target map's trial, 11 minutes of one closed-loop step.
     """
-    geometry_names = ("period_mm", "pixel_pitch_mm")
+    geometry_names: tuple[str, ...] = ("period_mm", "pixel_pitch_mm")
     if refine_geometry and spec.pixel_degree > PITCH_PIXEL_DEGREE:
         # α·d is one number for the whole strip: the row mean fixes it as well as every row does,
         # at a fraction of the cost of a per-row model inside every step of the search.
@@ -174,7 +174,7 @@ def _alternate(state: effects.Alternation, steps: list[tuple[effects.Effect, Any
                late_names: tuple[str, ...] = ()) -> tuple[int, list[dict[str, float]]]:
     """Rounds of the smooth fit (geometry too in the first, when ``names`` are given, and
     ``late_names`` in the second, or the only one) and of every bilinear effect's step."""
-    iterations, history = 0, []
+    iterations, history = 0, []  # type: int, list[Any]
     for round_index in range(n_rounds):
         lit = state.lit / state.map_factor
         # an effect whose layer the geometry would otherwise absorb has the geometry refined again

@@ -75,14 +75,16 @@ def main() -> None:
     base = f"http://127.0.0.1:{port}"
     config = folder / "rig.toml"
     config.write_text(f'[daemon]\ndata_dir = "{folder / "data"}"\nlog_level = "warning"\n')
-    daemon = subprocess.Popen([sys.executable, "-m", "graytrack", "serve", "--config", str(config), "--port", str(port)])
+    daemon = subprocess.Popen([sys.executable, "-m", "graytrack", "serve", "--config", str(config), "--port",
+                               str(port)])
     try:
         wait(lambda: httpx.get(f"{base}/healthz", timeout=2).status_code == 200, 300, "the first calibration")
         token = (folder / "data" / "token").read_text().strip()
         httpx.post(f"{base}/api/stage/move", json={"target_mm": 6.2}, headers={"Authorization": f"Bearer {token}"})
         with sync_playwright() as playwright:
             browser = playwright.chromium.launch(executable_path=CHROMIUM, headless=True,
-                                                 args=["--no-sandbox", "--disable-gpu", "--disable-background-networking"])
+                                                 args=["--no-sandbox", "--disable-gpu",
+                                                       "--disable-background-networking"])
             page = browser.new_page(viewport={"width": 1100, "height": 900}, device_scale_factor=1)
             page.goto(base + "/")
             page.wait_for_timeout(6000)

@@ -79,6 +79,22 @@ class TextureStatus(BaseModel):
     restored: int = Field(description="marks restored at this start from DATA/texture.json")
 
 
+class TrimStatus(BaseModel):
+    model_config = ConfigDict(extra="allow")  # the window's line and the followed stretch, when there are
+    enabled: bool = Field(description="[daemon] trim: the online trim may correct positions")
+    active: bool = Field(description="a trim is in force (its figures below; null without one)")
+    scale_ppm: float | None
+    scale_sigma_ppm: float | None
+    offset_um: float | None
+    offset_sigma_um: float | None
+    drift: bool = Field(description="camera against grating drifts beyond the calibration (the scale watch)")
+
+
+class TrimReset(BaseModel):
+    cleared: bool = Field(description="a trim was in force and is dropped")
+    trim: TrimStatus = Field(description="the trim status after the reset")
+
+
 class Status(BaseModel):
     model_config = ConfigDict(extra="allow")  # later additions stay visible to clients
     state: str = Field(description="starting, idle, calibrating, tracking, fault or stopping")

@@ -72,16 +72,18 @@ class CalibrationRun:
     def warnings(self) -> list[str]:
         """Lines for stderr: a doubtful geometry's causes, a model that errs on its own calibration."""
         check = self.report.get("geometry") or {}
-        lines = [f"warning: {text}" for text in check.get("warnings") or []] if check.get("status") == "doubtful" else []
+        doubtful = check.get("status") == "doubtful"
+        lines = [f"warning: {text}" for text in check.get("warnings") or []] if doubtful else []
         from graytrack.core.adequacy import inadequacy
         from graytrack.core.compression import stream_bound_factor
 
         info = self.model.info
         stream = info.get("stream")
         if stream:
-            lines.append(f"warning: the frames come from a JPEG stream (quality ~{stream['quality']}): its quantisation "
-                         f"widens every position's bound {stream['bound_factor']:.1f}x (tracking reports the wider "
-                         "bound); set the camera to an uncompressed pixel format (Mono8, Mono12) for the sensor's own")
+            lines.append(f"warning: the frames come from a JPEG stream (quality ~{stream['quality']}): "
+                         f"its quantisation widens every position's bound {stream['bound_factor']:.1f}x "
+                         "(tracking reports the wider bound); "
+                         "set the camera to an uncompressed pixel format (Mono8, Mono12) for the sensor's own")
         if inadequacy(info):
             ratio = info["calibration_error_ratio"] / stream_bound_factor(info)
             lines.append(f"warning: this model places its own calibration frames {ratio:.1f}x as far off as their "
@@ -263,6 +265,7 @@ def fit_lines(report: dict) -> list[str]:
              f"(noise sigma {_figure(report.get('sigma_gray'), 4)} gray from the data)"]
     held = report.get("held_out")
     if held:
-        lines.append(f"held    error std {_figure(held.get('error_std_um'), 3)} um on {_figure(held.get('frames'), 0)} held-out "
-                     f"frames, Cramer-Rao bound {_figure(held.get('bound_um'), 3)} um ({held.get('method')})")
+        lines.append(f"held    error std {_figure(held.get('error_std_um'), 3)} um "
+                     f"on {_figure(held.get('frames'), 0)} held-out frames, "
+                     f"Cramer-Rao bound {_figure(held.get('bound_um'), 3)} um ({held.get('method')})")
     return lines + _transient_line(report)

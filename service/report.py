@@ -125,11 +125,13 @@ def _findings(report: dict) -> str:
         model = PixelNoise(**{key: curve[key] for key in fields})
         sigmas = ", ".join(f"{shown(model.sigma(level), 3)} at {level:g}" for level in (32.0, 128.0, 224.0))
         noise = (f"<p>Noise grows with the signal (photon transfer): σ²(y) = {shown(curve['read_var'], 4)} + "
-                 f"{shown(curve['quant_var'], 4)} + {shown(curve['shot_gain'], 5)}·(y − {shown(curve['dark_gray'], 1)}) "
+                 f"{shown(curve['quant_var'], 4)} + {shown(curve['shot_gain'], 5)}·(y − "
+                 f"{shown(curve['dark_gray'], 1)}) "
                  f"gray²; σ = {sigmas} gray. Calibration and tracking weight each sample by 1/σ²(y), and the bound "
                  "uses it.</p>")
     else:
-        noise = f"<p>Noise is one σ = {shown((report.get('noise') or {}).get('gray'), 3)} gray for every gray level.</p>"
+        sigma = shown((report.get("noise") or {}).get("gray"), 3)
+        noise = f"<p>Noise is one σ = {sigma} gray for every gray level.</p>"
     chi2 = curve.get("calibration_chi2")
     level = (f"<p>Calibration χ² per sample: {shown(chi2, 3)} (1 when the model and the noise model hold).</p>"
              if chi2 is not None else "")
@@ -144,7 +146,8 @@ def _compression(report: dict) -> str:
         return ""
     return (f"<p>The frames come from a JPEG (MJPEG) stream at quality ≈ {shown(found.get('quality'), 0)}: the "
             f"quantisation of its 8×8 blocks is an error the model cannot know; with it the bound on the held-out "
-            f"frames is {shown(found.get('crlb_um'), 3, 'µm')}, not the {shown((report.get('noise') or {}).get('crlb_um'), 3, 'µm')} "
+            f"frames is {shown(found.get('crlb_um'), 3, 'µm')}, not the "
+            f"{shown((report.get('noise') or {}).get('crlb_um'), 3, 'µm')} "
             "of the sensor's noise alone. Stream uncompressed frames (a raw pixel format) to reach the latter.</p>")
 
 
@@ -176,7 +179,8 @@ def _transients(found: dict | None) -> str:
     if not found or not is_number(found.get("count")) or not found.get("count"):
         return "<p>No transient found (glint, reflection, passing dust).</p>"
     items = "".join(f"<li>frames {e['frames'][0]}–{e['frames'][1]}, row {e['row']}, pixel {e['pixel']} "
-                    f"(target {shown(e.get('x_mm'), 3, 'mm')}), peak {shown(e.get('peak_gray'), 0)} gray, {e['samples']} samples</li>"
+                    f"(target {shown(e.get('x_mm'), 3, 'mm')}), peak {shown(e.get('peak_gray'), 0)} gray, "
+                    f"{e['samples']} samples</li>"
                     for e in found.get("events", []))
     more = int(found["count"]) - len(found.get("events", []))
     tail = f"<li>and {more} more</li>" if more > 0 else ""
@@ -188,7 +192,8 @@ def _figures_table(report: dict) -> str:
     """The loop's before and after; a plain fit's figures in gray levels and its geometry."""
     if "before" in report and "after" in report:
         def figures_row(label: str, entry: dict) -> str:
-            return ("<tr>" + cell(label) + cell(structure(entry.get("model"))) + cell(shown(entry.get("rmse_gray"), 4))
+            return ("<tr>" + cell(label) + cell(structure(entry.get("model")))
+                    + cell(shown(entry.get("rmse_gray"), 4))
                     + "".join(cell(shown(entry.get(key), 3))
                               for key in ("error_std_um", "crlb_um", "error_max_um", "error_mean_um"))
                     + cell(shown(entry.get("lost_frames"), 0)) + "</tr>")
@@ -203,7 +208,8 @@ def _figures_table(report: dict) -> str:
             ("period τ", shown(report.get("period_mm"), 5, "mm")),
             ("pixel pitch α·d", shown(report.get("pixel_pitch_mm"), 6, "mm")),
             ("iterations", shown(report.get("iterations"), 0))]
-    return "<table>" + "".join(f"<tr><th>{html.escape(label)}</th>{cell(str(value))}</tr>" for label, value in rows) + "</table>"
+    return ("<table>" + "".join(f"<tr><th>{html.escape(label)}</th>{cell(str(value))}</tr>" for label, value in rows)
+            + "</table>")
 
 
 def _headline(report: dict) -> str:

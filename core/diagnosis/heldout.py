@@ -154,8 +154,8 @@ def figures(model: FourierModel, data: CalibrationData, fit: Fit | None = None) 
     if model.pixel_noise is not None and model.pixel_noise.signal_dependent:
         bound_mm = np.where(np.isfinite(bound_mm), curve_bound_mm(model, data, fit), np.nan)
     mean = float(np.mean(error[finite])) if finite.any() else float("nan")  # no frame placed: no mean (not 0)
-    return Figures(model.describe(), fit.rmse_gray, spread, worst, mean, pooled_bound(bound_mm) * 1e3, error, data.x_mm, tracked,
-                   bound_mm)
+    return Figures(model.describe(), fit.rmse_gray, spread, worst, mean, pooled_bound(bound_mm) * 1e3, error,
+                   data.x_mm, tracked, bound_mm)
 
 
 def curve_bound_mm(model: FourierModel, data: CalibrationData, fit: Fit) -> np.ndarray:
@@ -212,7 +212,8 @@ class HeldOut:
     def of(cls, parts: list[Figures], method: str) -> "HeldOut":
         """One figure from held-out parts: their frames pooled."""
         error = np.concatenate([part.error_um for part in parts])
-        bound = np.concatenate([(part.tracked.crlb_mm if part.bound_mm is None else part.bound_mm) * 1e3 for part in parts])
+        bound = np.concatenate([(part.tracked.crlb_mm if part.bound_mm is None else part.bound_mm) * 1e3
+                                for part in parts])
         placed = np.isfinite(error)
         spread = float(np.std(error[placed])) if placed.sum() > 1 else float("nan")
         pooled = pooled_bound(bound[placed]) if placed.any() else float("nan")

@@ -126,7 +126,8 @@ def _curve(model: FourierModel) -> dict[str, Any]:
 
 
 def _stage(spec: ModelSpec, train: CalibrationData, val: CalibrationData, geometry: tuple[float, float, float],
-           refine_geometry: bool = False, search_pitch: bool = False, searched: dict[str, float] | None = None) -> Stage:
+           refine_geometry: bool = False, search_pitch: bool = False,
+           searched: dict[str, float] | None = None) -> Stage:
     """The model of structure ``spec`` fitted on ``train``, with its figures on ``val``. With
     ``search_pitch``, α·d is searched, near the one the loop's last search found (``searched``, updated)."""
     train, val = effects.prepare_data(spec, train), effects.prepare_data(spec, val)

@@ -62,7 +62,8 @@ class Change:
     def text(self) -> str:
         q = self.quantity
         delta = (self.at.values[q.key] - self.since.values[q.key]) * q.scale
-        how = "a step from the previous calibration" if self.against == "previous" else "a drift over several calibrations"
+        how = ("a step from the previous calibration" if self.against == "previous"
+               else "a drift over several calibrations")
         return (f"{self.rig}: {q.label} changed by {delta:+.4g} {q.unit} from {self.since.when:%Y-%m-%d %H:%M} "
                 f"to {self.at.when:%Y-%m-%d %H:%M} ({self.z:.1f}× the combined uncertainty; {how})")
 
@@ -164,7 +165,8 @@ def effect_changes(calibrations: list[Calibration]) -> list[str]:
     return lines
 
 
-def series(calibrations: list[Calibration], key: str, scale: float = 1.0) -> tuple[list[datetime], np.ndarray, np.ndarray]:
+def series(calibrations: list[Calibration], key: str,
+           scale: float = 1.0) -> tuple[list[datetime], np.ndarray, np.ndarray]:
     when = [c.when for c in calibrations]
     values = np.array([c.values[key] for c in calibrations]) * scale
     errors = np.array([c.uncertainty[key] for c in calibrations]) * scale

@@ -1,8 +1,8 @@
 """The frame loop: every camera frame is paired with the grating, handed to listeners and tracked.
 
 One thread owns the camera (cameras are not thread-safe, and one reader guarantees that every
-frame is seen once, in order). Per frame it: pairs the grating (:class:`Readings`), offers the frame to subscribers (the calibration sweep),
-and, when a model is installed, runs the :class:`LiveTracker` and publishes one message.
+frame is seen once, in order). Per frame it: pairs the grating (:class:`Readings`), offers the frame to subscribers
+(the calibration sweep), and, when a model is installed, runs the :class:`LiveTracker` and publishes one message.
 
 Faults: no frame for ``camera_fault_after_s`` raises a camera fault; any other camera error
 closes the camera and reopens it every ``reopen_interval_s``; an exception from the tracker

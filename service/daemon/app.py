@@ -128,7 +128,8 @@ def create_app(settings: Settings, factory: HardwareFactory = default_factory) -
         previous = sys.getswitchinterval()
         sys.setswitchinterval(SWITCH_INTERVAL_S)
         pinned_from = pin_process(settings.daemon.cpu_cores)  # before the rig's threads and process start
-        raise_thread_priority(settings.daemon.realtime_priority, "event loop")  # before the rig's threads: they start normal
+        # before the rig's threads: they start normal
+        raise_thread_priority(settings.daemon.realtime_priority, "event loop")
         try:
             warm_tracking()  # what tracking loads on first use, loaded before the freeze (service/heap.py)
         except Exception:  # noqa: BLE001 - a slower first install and longer collections, not a daemon that cannot start

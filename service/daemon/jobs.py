@@ -142,7 +142,7 @@ class JobRunner:
         except Exception as exc:  # noqa: BLE001 - a full disk: the job is over anyway; its end is kept for later
             if self.health is not None and self.health.failed(exc) is not None:
                 self.health.defer(f"calibration {job.id}'s final status ({outcome['state']})",
-                                  lambda: self.storage.write_status(job.id, final))
+                                  lambda: self.storage.write_status(job.id, final), final)
             else:
                 log.exception("calibration %s: cannot write its final status", job.id)
         for key, value in outcome.items():

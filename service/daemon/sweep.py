@@ -269,7 +269,8 @@ class Sweep:
         # held out as `graytrack calibrate` holds out the same recording (its stops, read off it)
         run = calibrate_recording(recording, self.job.model, progress=progress,
                                   info={"camera_flip": self._camera_flip(recording)})
-        paths = write_files(run, self.storage.calibration_dir(self.job.id), self.job.id)  # the job keeps what was written
+        # the job keeps what was written
+        paths = write_files(run, self.storage.calibration_dir(self.job.id), self.job.id)
         self.job.files.update({name: str(path) for name, path in paths.items()})
         self.job.report = run.report
         run.raise_if_refused()  # the report says why; the job fails with the cause and its fix

@@ -27,7 +27,8 @@ def test_diagnose_writes_contract_files(tmp_path, capsys):
     val = tmp_path / "val.npz"
     assert main(["simulate", "--scenario", "paper", "--effects", "gradient", "--seconds", "6", "--seed", "2",
                  "--out", str(val)]) == 0
-    assert main(["track", str(val), "--model", str(tmp_path / "diag" / "model.json"), "--out", str(tmp_path / "t.csv")]) == 0
+    assert main(["track", str(val), "--model", str(tmp_path / "diag" / "model.json"), "--out",
+                 str(tmp_path / "t.csv")]) == 0
     assert np.nanstd(read_columns(tmp_path / "t.csv")["error_um"]) < 1.3 * report["noise"]["crlb_um"] * 1.2
 
 

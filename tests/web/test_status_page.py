@@ -158,7 +158,8 @@ def test_the_line_view_shows_the_frame_with_the_model_following_it(tmp_path: Pat
         for _ in range(3):  # updated a few times a second, and the overlay fits each new frame
             frame_id = canvas.get_attribute("data-frame-id")
             frames.add(frame_id)
-            residual, noise = float(canvas.get_attribute("data-residual-rms")), float(canvas.get_attribute("data-noise"))
+            residual = float(canvas.get_attribute("data-residual-rms"))
+            noise = float(canvas.get_attribute("data-noise"))
             assert residual < 1.5 * noise, (residual, noise)
             expect(canvas).not_to_have_attribute("data-frame-id", frame_id, timeout=5_000)
         assert len(frames) == 3
@@ -202,7 +203,8 @@ def test_a_fault_is_in_the_event_log_and_disables_the_controls_with_its_reason(t
                                                                                           timeout=5_000)
         for control in ("#move", "#jog-plus", "#home", "#set-velocity", "#calibrate"):
             expect(browser_page.locator(control)).to_be_disabled()
-        expect(browser_page.locator("#controls-reason")).to_contain_text("disabled during the fault: camera: no frame for")
+        expect(browser_page.locator("#controls-reason")).to_contain_text("disabled during the fault: camera: no frame "
+                                                                         "for")
         expect(browser_page.locator("#stop")).to_be_enabled()
         assert browser_page.evaluate("document.documentElement.scrollWidth") <= 390, "the long reason wraps at 390 px"
         factory.hardware.camera.gate_open = True

@@ -17,7 +17,8 @@ router = APIRouter(tags=["status"])
 
 
 @router.get("/healthz", response_model=Health,
-            responses={503: {"model": Health, "description": "not tracking now, or the model is stale: the reason says"}})
+            responses={503: {"model": Health,
+                             "description": "not tracking now, or the model is stale: the reason says"}})
 def healthz(rig: Rig = Depends(get_rig)) -> Any:
     """200 while frames are being tracked now; 503 otherwise (starting, idle, fault, stale), with the reason."""
     snapshot = rig.snapshot()
