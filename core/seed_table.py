@@ -48,7 +48,7 @@ class TableRow:
                   f"{paper['error_std_um']:.1f} um" if paper else "")
         lost = f", {self.frames - self.placed} frame(s) not placed" if self.placed < self.frames else ""
         return (f"{self.kind:<6} rmse {self.rmse_gray:7.3f} gray, tau {self.period_mm:.4f} mm | error "
-                f"{self.error_mean_um:+7.2f} ± {self.error_std_um:7.3f} um (noise floor {self.bound_um:.3f} um)"
+                f"{self.error_mean_um:+7.2f} ± {self.error_std_um:7.3f} um (bound {self.bound_um:.3f} um)"
                 f"{lost}{quoted}")
 
 

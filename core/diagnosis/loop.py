@@ -16,16 +16,15 @@ import numpy as np
 
 from graytrack.core.calibration import KIND_SPECS
 from graytrack.core.calibration_line import record_calibration_line
-from graytrack.core.calibration_data import CalibrationData, calibration_data
+from graytrack.core.calibration_data import CalibrationData
 from graytrack.core.compression import JpegFinding, bound_with_quantisation_mm, find_jpeg
-from graytrack.core.errors import CalibrationError
 from graytrack.core.geometry import initial_geometry
 from graytrack.core.geometry_check import GeometryCheck, check_geometry, raise_if_refused
 from graytrack.core.jsonable import finite_or_none
 from graytrack.core import effects
 from graytrack.core.structure import ModelSpec, fit_spec, fit_spec_pitch_search
 from graytrack.core.evidence import Evidence
-from graytrack.core.diagnosis.heldout import Figures, Stage, figures, fit_on, interleaved_split
+from graytrack.core.diagnosis.heldout import Figures, Stage, figures, fit_on, loop_split
 from graytrack.core.adequacy import assessed
 from graytrack.core.models.fourier import FourierModel
 from graytrack.core.noise import pooled_bound, reference_resolution_mm
@@ -190,21 +189,6 @@ def _candidates(stage: Stage) -> list[Evidence]:
     return [ev for ev in all_evidence(stage) if ev.z > MIN_Z]
 
 
-def _held_out(calibration: Recording, validation: Recording | None) -> tuple[CalibrationData, CalibrationData,
-                                                                             CalibrationData, str]:
-    """(all calibration data, training part, held-out part, how the held-out part was chosen)."""
-    data = calibration_data(calibration)
-    if validation is None:
-        train, val = interleaved_split(data)
-        return data, train, val, f"{len(val.x_mm)} of {len(data.x_mm)} frames, interleaved blocks the fit did not see"
-    if (validation.n_rows, validation.n_pixels) != (calibration.n_rows, calibration.n_pixels):
-        raise CalibrationError(
-            f"the validation recording has {validation.n_rows} row(s) × {validation.n_pixels} px, the calibration "
-            f"{calibration.n_rows} × {calibration.n_pixels}: both must come from the same camera ROI")
-    val = calibration_data(validation)
-    return data, data, val, f"validation recording ({len(val.x_mm)} frames)"
-
-
 def _next_step(current: Stage, train: CalibrationData, val: CalibrationData, rejected: list[Step],
                row_shift_guess_mm: float, say: Progress, fraction: float,
                searched: dict[str, float] | None = None) -> Step | None:
@@ -240,7 +224,7 @@ def diagnose(calibration: Recording, validation: Recording | None = None, progre
              max_steps: int = MAX_STEPS) -> DiagnosisResult:
     """Run the closed loop on a calibration recording (and an optional validation recording)."""
     say = progress or (lambda fraction, label: None)
-    data, train, val, holdout = _held_out(calibration, validation)
+    data, train, val, holdout = loop_split(calibration, validation)
     say(0.02, "fitting the seed paper's model")
     geometry = initial_geometry(train)
     current = before = _stage(KIND_SPECS["paper"], train, val, geometry, refine_geometry=True)

@@ -53,7 +53,7 @@ def test_each_calibrations_files_are_served(daemon: LiveServer) -> None:
     base = f"/api/calibrations/{row['id']}/files"
     report = daemon.get(f"{base}/report.html")
     assert report.status_code == 200 and report.headers["content-type"].startswith("text/html")
-    assert f"{row['error_std_um']:.2f} µm" in report.text and "<script" not in report.text
+    assert f"{row['error_std_um']:.3f} µm" in report.text and "<script" not in report.text
     policy = report.headers["content-security-policy"]
     assert "script-src" not in policy and "default-src 'none'" in policy
     assert daemon.get(f"{base}/report.json").json()["held_out"]["error_std_um"] == row["error_std_um"]
