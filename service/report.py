@@ -18,7 +18,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from graytrack.core.diagnosis.loop import DiagnosisResult, Stage  # noqa: E402
+from graytrack.core.diagnosis.loop import DiagnosisResult, LoopModel  # noqa: E402
 from graytrack.core.pixel_noise import PixelNoise  # noqa: E402
 from graytrack.core.transients import summary_line  # noqa: E402
 from graytrack.service.figures import MISSING, is_number, positive, shown, structure  # noqa: E402
@@ -28,7 +28,7 @@ if TYPE_CHECKING:
     from graytrack.service.calibration_run import CalibrationRun
 
 
-def _residual_map(stage: Stage) -> tuple[np.ndarray, np.ndarray]:
+def _residual_map(stage: LoopModel) -> tuple[np.ndarray, np.ndarray]:
     """Held-out residual (row mean) ordered by position: rows of the image are frames."""
     order = np.argsort(stage.val.data.x_mm)
     return stage.val.residual.mean(axis=1)[order], stage.val.data.x_mm[order]

@@ -169,7 +169,7 @@ def curve_bound_mm(model: FourierModel, data: CalibrationData, fit: Fit) -> np.n
 
 
 @dataclass
-class Stage:
+class LoopModel:
     """One model of the loop, fitted on the training frames and measured on the held-out ones:
     what every effect's probe looks at."""
 

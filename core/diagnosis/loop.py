@@ -24,7 +24,7 @@ from graytrack.core.jsonable import finite_or_none
 from graytrack.core import effects
 from graytrack.core.structure import ModelSpec, fit_spec, fit_spec_pitch_search
 from graytrack.core.evidence import Evidence
-from graytrack.core.diagnosis.heldout import Figures, Stage, figures, fit_on, loop_split
+from graytrack.core.diagnosis.heldout import Figures, LoopModel, figures, fit_on, loop_split
 from graytrack.core.adequacy import assessed
 from graytrack.core.models.fourier import FourierModel
 from graytrack.core.noise import pooled_bound, reference_resolution_mm
@@ -44,7 +44,7 @@ _NO_TRANSIENTS = {"count": 0, "frames": 0, "samples": 0, "share_of_frames": 0.0,
 class Step:
     effect: str
     evidence: Evidence
-    stage: Stage
+    stage: LoopModel
     accepted: bool
     reason: str
 
@@ -58,8 +58,8 @@ class Step:
 
 @dataclass
 class DiagnosisResult:
-    before: Stage
-    after: Stage
+    before: LoopModel
+    after: LoopModel
     steps: list[Step]
     rejected: list[Step]
     final_model: FourierModel
@@ -127,7 +127,7 @@ def _curve(model: FourierModel) -> dict[str, Any]:
 
 def _stage(spec: ModelSpec, train: CalibrationData, val: CalibrationData, geometry: tuple[float, float, float],
            refine_geometry: bool = False, search_pitch: bool = False,
-           searched: dict[str, float] | None = None) -> Stage:
+           searched: dict[str, float] | None = None) -> LoopModel:
     """The model of structure ``spec`` fitted on ``train``, with its figures on ``val``. With
     ``search_pitch``, α·d is searched, near the one the loop's last search found (``searched``, updated)."""
     train, val = effects.prepare_data(spec, train), effects.prepare_data(spec, val)
@@ -138,7 +138,7 @@ def _stage(spec: ModelSpec, train: CalibrationData, val: CalibrationData, geomet
     else:
         model = fit_spec(spec, train, *geometry, refine_geometry=refine_geometry).model
     train_fit, val_fit = fit_on(model, train), fit_on(model, val)
-    return Stage(spec, model, train_fit, val_fit, figures(model, val, val_fit))
+    return LoopModel(spec, model, train_fit, val_fit, figures(model, val, val_fit))
 
 
 def _better(new: Figures, old: Figures, n_samples: int) -> tuple[bool, str]:
@@ -165,14 +165,14 @@ def _better(new: Figures, old: Figures, n_samples: int) -> tuple[bool, str]:
     return False, "rejected: " + figures_text
 
 
-def _at_noise_floor(stage: Stage) -> bool:
+def _at_noise_floor(stage: LoopModel) -> bool:
     sigma2 = stage.val.data.sigma_gray**2
     n = float(stage.val.usable.sum())
     residual_ok = stage.figures.rmse_gray**2 <= sigma2 * (1.0 + 4.0 * np.sqrt(2.0 / n))
     return residual_ok and stage.figures.error_std_um <= NOISE_FLOOR_MARGIN * stage.figures.crlb_um
 
 
-def all_evidence(stage: Stage) -> list[Evidence]:
+def all_evidence(stage: LoopModel) -> list[Evidence]:
     """Every effect's probe on ``stage``: data-quality findings first (in the registry's order),
     then model terms by how much of the held-out residual they explain."""
     found = [(effect, effect.probe(stage)) for effect in effects.registry().values()]
@@ -183,13 +183,13 @@ def all_evidence(stage: Stage) -> list[Evidence]:
     return quality + terms
 
 
-def _candidates(stage: Stage) -> list[Evidence]:
+def _candidates(stage: LoopModel) -> list[Evidence]:
     """What the probes found beyond noise: data-quality findings first, then model terms by how
     much of the held-out residual they explain."""
     return [ev for ev in all_evidence(stage) if ev.z > MIN_Z]
 
 
-def _next_step(current: Stage, train: CalibrationData, val: CalibrationData, rejected: list[Step],
+def _next_step(current: LoopModel, train: CalibrationData, val: CalibrationData, rejected: list[Step],
                row_shift_guess_mm: float, say: Progress, fraction: float,
                searched: dict[str, float] | None = None) -> Step | None:
     """Try the effects the residual points to; of those that pass the held-out test, the one that
