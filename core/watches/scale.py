@@ -46,6 +46,12 @@ from graytrack.core.watches.magnification import MagnificationWatch
 # called fresh on 94 % of the frames.
 SUSPECT_WINDOW = 20
 SUSPECT_LIMIT = 6.0
+# ... but while the mean fills for the first time against the calibration's line, its tests are few (at most
+# SUSPECT_WINDOW - 1 a run, each on more frames than the last), not one a frame for good: at 4.5 σ they raise a
+# false alarm on < 1.4e-4 of runs (6.8e-6 a test). A 16-row print grown 250 ppm starts 1.5 µm (4.5 bounds) off
+# the truth, 3.7, 4.8 and 5.4 σ of the mean over its first 1, 2 and 3 frames: at 6 σ all three went unflagged
+# (0.6 % of the run), at 4.5 only the first (steady runs: the largest start-up |z| 2.2 on the sweep's rigs)
+START_LIMIT = 4.5
 STRETCH_Z = 3.0  # a stretch within this many σ of the line's scale, the scale beyond it: the print grew (2: a
 # grown paper print named magnification on 10 of 500 frames)
 FAR_OFF = "graytrack.core.watches.far_off"  # the untrimmed camera far off the grating (a wrong model's scale)
@@ -274,14 +280,15 @@ class Disagreement:
         self.monitor = monitor
         self._line = None
         self._known2 = 0.0  # µm²: the line's own variance at the last frame's place
+        self.starting = True  # the mean's first fill against the calibration's line (:data:`START_LIMIT`)
         self.clear()
 
     def snapshot(self) -> tuple:
         """The running mean's state, to go back to with :meth:`restore`."""
-        return self._line, self.count, self.weighted_per_um, self.precision_per_um2, self._known2
+        return self._line, self.count, self.weighted_per_um, self.precision_per_um2, self._known2, self.starting
 
     def restore(self, state: tuple) -> None:
-        self._line, self.count, self.weighted_per_um, self.precision_per_um2, self._known2 = state
+        self._line, self.count, self.weighted_per_um, self.precision_per_um2, self._known2, self.starting = state
 
     def clear(self) -> None:
         # running means of residual/σ² and 1/σ²: their ratio weighs each frame by its bound, so that
@@ -299,6 +306,7 @@ class Disagreement:
         if math.isfinite(x_mm) and math.isfinite(reference_mm) and math.isfinite(bound_mm) and bound_mm > 0:
             line = monitor.baseline or monitor.calibration
             if line is not self._line:
+                self.starting = self.starting and self._line is None  # a trim's line: the mean slides on it
                 self._line = line
                 self.clear()
             expected = known2 = 0.0
@@ -312,6 +320,7 @@ class Disagreement:
             variance = (bound_mm * 1e3) ** 2 + (monitor.reference_sigma_mm * 1e3) ** 2
             residual, beyond = self._gated(residual, variance, monitor.scatter if scatter is None else scatter)
             self.count = min(self.count + 1, SUSPECT_WINDOW)
+            self.starting = self.starting and self.count < SUSPECT_WINDOW
             self.weighted_per_um += (residual / variance - self.weighted_per_um) / self.count
             self.precision_per_um2 += (1.0 / variance - self.precision_per_um2) / self.count
             self._known2 = known2
@@ -357,7 +366,8 @@ class Disagreement:
         sigma2 = 1.0 / (self.count * self.precision_per_um2) + self._known2 + monitor.calibration_structure_um ** 2 \
             + (monitor.reference_sigma_mm * 1e3) ** 2 + noise ** 2
         floor = max(monitor.floor_um, 0.5 * monitor.resolution_mm * 1e3)
-        return abs(self.mean_um) > max(SUSPECT_LIMIT * math.sqrt(sigma2), floor)
+        limit = START_LIMIT if self.starting else SUSPECT_LIMIT
+        return abs(self.mean_um) > max(limit * math.sqrt(sigma2), floor)
 
 
 def make(tracker) -> "ScaleWatch | None":
