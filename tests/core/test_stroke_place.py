@@ -5,12 +5,11 @@ erred (core/watches/adequacy.py)."""
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 import pytest
 
-from graytrack.core.stroke_place import StrokePlace, folded, in_folded
+from graytrack.core.stroke_place import folded, in_folded
 from graytrack.core.validity import Columns
 from graytrack.core.watches.adequacy import LocalAdequacyWatch
 
