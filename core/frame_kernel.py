@@ -260,15 +260,22 @@ def _gauss_newton(y: np.ndarray, w: np.ndarray, x: float, free: bool, max_iterat
             _model_at(x, model, scratch)
             at = x
         _moments_of(scratch[0], scratch[1], y, w, moments)
-        numerator, information, gain, offset, cost = _light_step(
-            moments[0], moments[1], moments[2], moments[3], moments[4], moments[5], moments[6], yy, y1, s11, free)
-        dx = numerator / information if information > 0.0 else 0.0
-        dx = min(max(dx, -max_step), max_step)
+        dx, information, gain, offset, cost = _newton_step(moments, yy, y1, s11, free, max_step)
         x += dx
         if abs(dx) < tolerance:
             break
     chi2, excess = _fit_figures(cost, count, free, yy, moments)
     return x, iterations, information, gain, offset, cost, chi2, excess, at
+
+
+def _newton_step(moments: np.ndarray, yy: float, y1: float, s11: float, free: bool,
+                 max_step: float) -> tuple[float, float, float, float, float]:
+    """(step in x clipped to ``max_step``, information, gain, offset, cost) at a frame's seven moments: the
+    one Gauss–Newton step of both solves, from pixels and from moment rows."""
+    numerator, information, gain, offset, cost = _light_step(
+        moments[0], moments[1], moments[2], moments[3], moments[4], moments[5], moments[6], yy, y1, s11, free)
+    dx = numerator / information if information > 0.0 else 0.0
+    return min(max(dx, -max_step), max_step), information, gain, offset, cost
 
 
 def _fit_figures(cost: float, count: float, free: bool, yy: float, moments: np.ndarray) -> tuple[float, float]:
@@ -305,10 +312,7 @@ def _rows_solve_into(rows: np.ndarray, orders: np.ndarray, yy: float, y1: float,
     iterations = 0
     for iterations in range(1, max_iterations + 1):
         _row_moments(rows, orders, x, moments)
-        numerator, information, gain, offset, cost = _light_step(
-            moments[0], moments[1], moments[2], moments[3], moments[4], moments[5], moments[6], yy, y1, s11, free)
-        dx = numerator / information if information > 0.0 else 0.0
-        dx = min(max(dx, -max_step), max_step)
+        dx, information, gain, offset, cost = _newton_step(moments, yy, y1, s11, free, max_step)
         x += dx
         if abs(dx) < tolerance:
             break
@@ -504,7 +508,7 @@ def _python_twin(function: types.FunctionType) -> types.FunctionType:
                  _blob_samples=_numpy_blob_samples, _sizes=_numpy_sizes, _upper_median=_numpy_upper_median,
                  _normalise_and_cut=_numpy_normalise_and_cut, _settle_classes=_numpy_settle_classes,
                  _robust_weights=_numpy_robust_weights, _may_be_blob=_numpy_may_be_blob,
-                 _row_moments=_numpy_row_moments)
+                 _row_moments=_numpy_row_moments, _newton_step=python_twin(_newton_step))
     if "_gauss_newton" in _PY:
         names["_gauss_newton"] = _PY["_gauss_newton"]
     return python_twin(function, **names)
@@ -525,6 +529,7 @@ if kernels.numba is not None:  # compiled where numba is (GRAYTRACK_KERNEL=numpy
     _model_at = _jit(_model_at)
     _moments_of = _jit(_moments_of)
     _light_step = _jit(light_step)
+    _newton_step = _jit(_newton_step)
     _middle = _jit(_middle)
     _sizes = _jit(_sizes)
     _upper_median = _jit(_upper_median)
