@@ -22,7 +22,7 @@ import numpy as np
 from graytrack.core.calibration import calibrate
 from graytrack.core.tracking import track
 from graytrack.drivers.sim.scenarios import build_rig
-from graytrack.service.commands.track_scale import check
+from graytrack.service.commands.track_scale import check, scale_watch
 
 BASE = "defocus:sigma_um=100"
 LATER = ["focus_drift:px=0.5:ramp_s=10", "focus_drift:px=1:ramp_s=10", "focus_drift:px=-0.5:ramp_s=10",
@@ -36,8 +36,10 @@ def scored(model, run, truth, reference: bool) -> tuple[float, int, int, int, in
     """(error rms / bound rms, frames flagged, placed frames FAR_PULL bounds off, those unflagged,
     frames placed)."""
     grating = run.reference if reference else np.full(run.n_frames, np.nan)
-    result = track(model, run.frames, reference=grating, light="auto", robust=True)
-    flagged = result.stale | (check(run, model, result, grating, False).columns["scale_stale"] == 1)
+    watch = scale_watch(run, model, grating)  # the tracker's scale watch, as `track` hands it in
+    result = track(model, run.frames, reference=grating, light="auto", robust=True,
+                   watches=[watch] if watch is not None else ())
+    flagged = result.stale | (check(run, model, result, False, watch).columns["scale_stale"] == 1)
     error, bound = (result.x_mm - truth.x_mm) * 1e3, result.crlb_mm * 1e3
     if not reference:
         period = model.period_mm * 1e3

@@ -48,6 +48,14 @@ FOLLOW_MOVED_FRAMES = 0.8 * FOLLOW_WINDOW
 # The mean's standard error over a window of ~2·window effectively independent frames: beyond five
 # of them is no chance (two-sided 6e-7 a frame, ~1e-4 over a 500-frame steady run).
 FOCUS_MOVED_Z = 5.0
+# ... but a calibrated model's own error is no noise: fixed along the stroke and out of its calibration's
+# sample, it reads as a steady blur of a few hundredths of a px² over stretches of the stroke (the closed
+# loop's model on 3 scratches: +0.02 to +0.045 px² in 25-frame means over the last two thirds of a
+# steady run, 2-7 of their errors, where its own calibration frames read 0.00 ± 0.01). So the mean
+# is held against its error and this allowance together, as the magnification watch holds a stretch
+# (core/watches/magnification.py STRUCTURE_PPM): a move is at least 5 × 0.02 = 0.1 px² (a 16-row
+# strip's blur 1.5 px² beyond calibration's placed frames 2-4 bounds off: 0.1 px² is a tenth of a bound).
+STRUCTURE_PX2 = 0.02
 
 
 @dataclass
@@ -122,14 +130,15 @@ class FocusFollow:
             return None
         return FocusPrior(fit[0], fit[1])
 
-    def moved(self) -> bool:
+    def moved(self, allowance: float = 0.0) -> bool:
         """The estimates' mean over the window is beyond ``FOCUS_MOVED_Z`` of its standard error
-        from the calibration's focus (zero): the focus has moved, whatever χ² says."""
+        from the calibration's focus (zero), ``allowance`` (the model's own error read as a focus,
+        :data:`STRUCTURE_PX2` in the estimates' unit) counted in it: the focus has moved, whatever χ² says."""
         if self.count < FOLLOW_MOVED_FRAMES or self.s0 <= 0.0:
             return False
         mean = self.y0 / self.s0
         scatter = max(1.0, (self.yy - mean * self.y0) / max(self.count - 1.0, 1.0))
-        return mean * mean * self.s0 > FOCUS_MOVED_Z * FOCUS_MOVED_Z * scatter
+        return mean * mean > FOCUS_MOVED_Z * FOCUS_MOVED_Z * (scatter / self.s0 + allowance * allowance)
 
     def shown(self, focus_on: bool) -> bool:
         """Whether this frame's estimate goes to the focus watch (core/watches/focus.py): while the

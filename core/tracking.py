@@ -36,6 +36,7 @@ from graytrack.core.evaluation import FastHarmonics, TrigTables
 from graytrack.core.frame_tables import FrameTables
 from graytrack.core.focus_solve import CurvatureTable, focus_solve, general_focus_solve
 from graytrack.core.focus_solve import warm as focus_warm
+from graytrack.core.focus_follow import STRUCTURE_PX2 as FOCUS_STRUCTURE_PX2
 from graytrack.core.focus_follow import FocusFollow, followable
 from graytrack.core.models.fourier import TWO_PI, FourierModel
 from graytrack.core.moving_band import MovingBand, follow
@@ -468,9 +469,11 @@ class Tracker:
             answer = focused
             focused.chi2_calibrated_focus = uniform.chi2
         # a model whose focus is followed shows its estimates a while after the term was dropped (the
-        # watch sees the focus come back); any other, as before, only those of the frames that tried it
-        showing = memory.focus_track.shown(tried_focus or memory.focus)
-        shown = measured is not None and (tried_focus or (showing and self.focus_followed))
+        # watch sees the focus come back); any other only those of the frames that tried it and kept it on:
+        # one frame's χ² beyond its limit (a telegraph pixel's flip) tries the focus, whose gain then says no
+        # (a steady 16-row strip showed 85 such estimates, as a focus taken)
+        showing = memory.focus_track.shown(memory.focus)
+        shown = measured is not None and ((tried_focus and memory.focus) or (showing and self.focus_followed))
         if shown and answer is uniform:  # under the field's answer the blur-only fit is no estimate
             answer.focus, answer.focus_sigma = measured.focus, measured.focus_sigma
         return answer
@@ -509,7 +512,8 @@ class Tracker:
         stray light) leaves a residue part of which the blur direction takes: its estimates move
         too, but its χ² stays up (the seed model under 2 gray of DSNU: 4.3x its bound, 7.8x had the
         focus been taken)."""
-        return self.focus_followed and memory.focus_track.moved() and memory.focus_chi2 is not None and \
+        allowance = FOCUS_STRUCTURE_PX2 * self.model.pixel_pitch_mm**2  # in the estimates' unit (core/focus_follow.py)
+        return self.focus_followed and memory.focus_track.moved(allowance) and memory.focus_chi2 is not None and \
             memory.focus_chi2 <= self.sustained_limit
 
     def _field(self, batch: GeneralBatch | TrigPolyBatch, k: int, uniform: FrameSolution,

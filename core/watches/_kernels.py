@@ -140,7 +140,7 @@ def _update(ip, p, ist, fst, est):
         q = swd / sw
         half2 = 3.0 * _max(swdd / sw - q * q, 0.0)
         var_s = _min(struct2 / half2 if half2 > 0 else math.inf, p[8])
-        st0, st1, st2 = struct2, 0.0, var_s * 1e6
+        st0, st1, st2 = struct2 + q * q * var_s, -q * var_s * 1e3, var_s * 1e6  # about the centre
     # _chi2
     a, b, c = est[2] + (ref0 + st0), est[3] + (ref1 + st1), est[4] + (ref2 + st2)
     det2 = a * c - b * b

@@ -34,7 +34,7 @@ from graytrack.core.stretch_follow import StretchFollow, Taken
 from graytrack.core.validity import RANK, FrameSign
 from graytrack.core.watches.grating import GratingWatch
 from graytrack.core.watches.grating import for_model as grating_watch
-from graytrack.core.watches.magnification import MagnificationWatch
+from graytrack.core.watches.magnification import CHANGE_PRIOR_PPM, MagnificationWatch
 
 
 # While χ² is suspect no line is fitted, and with χ² quiet the line leaves far frames out as outliers;
@@ -199,7 +199,8 @@ class ScaleWatch:
         if (scale * scale > limit2 * scale_var
                 and (watch.mean_ppm - scale) ** 2 <= limit2 * (scale_var + watch.sigma_ppm ** 2)):
             return "print"
-        if watch.mean_ppm ** 2 > limit2 * watch.sigma_ppm ** 2:
+        if watch.mean_ppm ** 2 > limit2 * watch.sigma_ppm ** 2 or \
+                lens_favoured(watch.mean_ppm, watch.sigma_ppm, scale, scale_var):
             return "lens"
         return None
 
@@ -240,6 +241,27 @@ class ScaleWatch:
         if not stale.any():
             return [None] * n
         return np.where(stale, self.family, None).tolist()
+
+
+def lens_favoured(mean_ppm: float, sigma_ppm: float, scale_ppm: float, scale_var_ppm2: float) -> bool:
+    """Whether a stretch mean (± its σ) is better explained by a lens's change since calibration (a stretch
+    drawn from :data:`~graytrack.core.watches.magnification.CHANGE_PRIOR_PPM`) than by none and than by a
+    grown print's (the line's scale ± its σ): its likelihood the highest of the three (at 2.2σ from none for
+    a one-row line's 200 ppm). While the line has drifted, something changed, and the stretch picks the
+    cause: held to 3σ, the paper rig's lens ramp was named ``scale`` on 29 frames where its stretch stood
+    2.2-3σ (the magnification watch, with its hysteresis, flagging them); against none alone, a paper print
+    grown 250 ppm was named ``magnification`` on 4 frames."""
+    if not (math.isfinite(mean_ppm) and math.isfinite(sigma_ppm) and sigma_ppm > 0.0):
+        return False
+    var = sigma_ppm * sigma_ppm
+    lens = _log_normal(mean_ppm, var + CHANGE_PRIOR_PPM * CHANGE_PRIOR_PPM)
+    grown = _log_normal(mean_ppm - scale_ppm, var + scale_var_ppm2) if math.isfinite(scale_ppm) else -math.inf
+    return lens > max(_log_normal(mean_ppm, var), grown)
+
+
+def _log_normal(residual: float, variance: float) -> float:
+    """log of the normal density of ``residual`` with ``variance`` (its constant dropped)."""
+    return -0.5 * (residual * residual / variance + math.log(variance))
 
 
 def _accounted(trimmer: Trimmer | None, taken: Taken) -> tuple[float, float]:

@@ -4,12 +4,15 @@ with one, never silently wrong; scored against the truth."""
 
 from __future__ import annotations
 
+import collections
+
 import numpy as np
 import pytest
 
 from graytrack.core.calibration import calibrate
 from graytrack.core.tracking import track
 from graytrack.drivers.sim.scenarios import build_rig
+from graytrack.core.watches.scale import STRETCH_Z, lens_favoured
 from graytrack.service.commands.track_scale import check, scale_watch
 
 DRIFT = "magnification_drift:ppm=3000:ramp_s=6"  # the lens warming up; the axis 300 px off: 56 µm of slide
@@ -51,3 +54,23 @@ def test_with_the_trim_it_is_followed_and_never_silently_wrong(rig):
     assert np.std(error_um[placed]) < 1.3 * np.sqrt(np.mean(bound_um[placed] ** 2))
     far = placed & (np.abs(error_um) > 4.0 * bound_um)
     assert (far & ~flagged).sum() <= 0.005 * placed.sum()
+
+
+def test_the_stretch_names_the_lens_as_soon_as_it_explains_the_line_better():
+    """With the grating read and no trim, the line camera − grating drifts first (the slide) and the
+    stretch picks the cause. The paper rig's 1500 ppm ramp at its frame 321: stretch 600 ± 216 ppm,
+    the line's scale −2505 ± 45 (no grown print: that would stretch the image by the scale). Held to 3σ
+    that frame was named ``scale`` (29 such frames between frames named ``magnification``); a print's
+    stretch, or none, is still not a lens's."""
+    assert lens_favoured(600.0, 216.0, -2505.0, 45.0 ** 2)
+    assert not 600.0 ** 2 > STRETCH_Z ** 2 * 216.0 ** 2  # what the 3σ rule alone said
+    assert not lens_favoured(-450.0, 200.0, -250.0, 30.0 ** 2)  # a print grown 250 ppm, its stretch 1σ off
+    assert not lens_favoured(300.0, 200.0, -2505.0, 45.0 ** 2)  # 1.5σ: no stretch explains it as well
+
+
+def test_with_the_grating_the_drift_is_named_magnification_not_scale(rig):
+    model, run, truth, *_ = rig
+    result, _, _, flagged = _tracked(model, run, truth, trim=False, grating=True)
+    late = slice(run.n_frames // 2, None)
+    named = result.stale_reason[late][flagged[late]]
+    assert np.mean(named == "magnification") > 0.9, collections.Counter(named.tolist())
