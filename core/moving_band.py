@@ -47,6 +47,8 @@ from graytrack.core.solvers import FrameSolution
 ROOT_PI, ROOT_2 = math.sqrt(math.pi), math.sqrt(2.0)
 ITERATIONS = 12
 SEEN_SIGMAS = 5.0  # the band seen in a frame: its loss in view beyond this many of its noise
+LEAVING_BOUNDS = 1.0  # a band seen to move is followed out of view while its loss bends x beyond this many bounds
+# (its tail, 2-4 of its noise, bent the uniform light's answers 3.5-4 bounds as it left, at a χ² within its noise)
 EARLY_SPREADS = 3.0  # a band seen before: looked for at a frame's χ² beyond this many of its spreads
 MISSES = 3  # frames in a row the band does not explain before the episode ends
 GATE_SIGMAS = 5.0  # an edge beyond this many of its predicted spread: not the band followed
@@ -85,6 +87,7 @@ class BandAnswer:
     chi2: float
     cost: float
     visible: float  # the band's loss in view, in units of its noise
+    bends: float  # how far that loss, left out, would move x: in x's bounds
     predicted: np.ndarray  # the edges' places the motion predicted, and their covariance
     predicted_cov: np.ndarray
 
@@ -222,7 +225,7 @@ class MovingBand:
                 break
             if abs(step[0]) < 1e-7 and total - current[0] < 1e-3:
                 break
-        total, residual, jacobian, cost, visible = current
+        total, residual, jacobian, cost, visible, bends = current
         try:
             covariance = np.linalg.inv((jacobian * weights[:, None]).T @ jacobian + prior)
         except np.linalg.LinAlgError:
@@ -230,22 +233,27 @@ class MovingBand:
         if not np.all(np.isfinite(covariance)) or covariance[0, 0] <= 0:
             return None
         used = float(np.count_nonzero(weights))
-        return BandAnswer(params, covariance, cost / max(used - 2.0, 1.0), cost, visible, state[:2],
+        return BandAnswer(params, covariance, cost / max(used - 2.0, 1.0), cost, visible, bends, state[:2],
                           state_cov[:2, :2])
 
     def _linearise(self, evaluator, y: np.ndarray, weights: np.ndarray, params: np.ndarray, prior: np.ndarray,
-                   anchor: np.ndarray) -> tuple[float, np.ndarray, np.ndarray, float, float]:
-        """(cost with the priors, residual, Jacobian, the data's cost, the band's loss in its noise) at ``params``."""
+                   anchor: np.ndarray) -> tuple[float, np.ndarray, np.ndarray, float, float, float]:
+        """(cost with the priors, residual, Jacobian, the data's cost, the band's loss in its noise, and
+        in x's bounds the shift that loss would cause left out) at ``params``."""
         residual, jacobian, lost = _frame(evaluator, self.gain, self.offset_gray, self.columns, y, params)
         cost = float(weights @ (residual * residual))
         off = params - anchor
-        return cost + float(off @ prior @ off), residual, jacobian, cost, float(np.sqrt(weights @ (lost * lost)))
+        slope = weights * jacobian[:, 0]
+        bends = abs(float(slope @ lost)) / math.sqrt(max(float(slope @ jacobian[:, 0]), 1e-300))
+        return cost + float(off @ prior @ off), residual, jacobian, cost, float(np.sqrt(weights @ (lost * lost))), bends
 
     def sane(self, answer: BandAnswer | None, uniform_information: float, limit: float) -> bool:
         """The band explains the frame, is seen in it, its edges are where the motion carries them,
         and it leaves x a bound."""
-        if answer is None or not (answer.chi2 <= limit and answer.visible > SEEN_SIGMAS
-                                  and answer.params[3] >= MIN_DEPTH):
+        if answer is None or not (answer.chi2 <= limit and answer.params[3] >= MIN_DEPTH):
+            return False
+        leaving = self.moved and self.followed and answer.bends > LEAVING_BOUNDS
+        if not (answer.visible > SEEN_SIGMAS or leaving):
             return False
         if not (math.isfinite(answer.information) and answer.information * SANE_BOUND**2 >= uniform_information):
             return False
@@ -280,6 +288,14 @@ class MovingBand:
                          *self.loose)
         if refined is not None:
             self.shape, self.shape_information = refined
+
+    @property
+    def young(self) -> bool:
+        """Not yet followed over the frames it takes to be seen to move (:data:`MOVED_PX` at
+        :data:`SPEED_PX` a frame): its answer is taken, flagged, where the uniform light does not
+        explain the frame (a first pass's first frames: the band's answers were 0-2 µm off at a
+        2 µm bound, the uniform light's, which stood until the band had moved, 18-46 µm)."""
+        return not self.moved and len(self.steps) < math.ceil(MOVED_PX / SPEED_PX)
 
     def at_both_ends(self, evaluator, y: np.ndarray, weights: np.ndarray, x_mm: float) -> bool:
         """The light lost at ``x_mm`` (a first frame's joint answer: without the grating the last
@@ -494,8 +510,8 @@ def follow(tracker, batch, k: int, x_start: float, uniform: FrameSolution, movin
         return uniform
     moving.taking(y)
     moving.accept(tracker.evaluator, y, weights, answer, how == "followed")
-    if not moving.moved:  # (followed, not yet seen to move: the uniform answer stands)
-        return uniform
+    if not (moving.moved or (moving.young and uniform.chi2 > limit)):
+        return uniform  # (followed, given its frames to move and not seen to: the uniform answer stands)
     x = float(answer.params[0])
     return FrameSolution(x, tracker.settings.sigma_gray * math.sqrt(answer.chi2), answer.information,
                          ITERATIONS, moving.gain, moving.offset_gray, answer.chi2, kept.rejected, False, 0.0,
