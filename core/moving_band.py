@@ -54,6 +54,8 @@ MISSES = 3  # frames in a row the band does not explain before the episode ends
 GATE_SIGMAS = 5.0  # an edge beyond this many of its predicted spread: not the band followed
 MOVED_PX = 2.0  # the band's answer is taken once it has moved this far, at SPEED_PX a frame or more on
 SPEED_PX = 1.0  # average (a lamp's vignetting wandered ±1.6 px, then drifted past 2 px after 30 frames)
+YOUNG_STEPS = 5  # a band followed over fewer steps than this, not yet seen to move, answers where the uniform light
+# does not explain the frame (with its tail alone in view its depth grows before its place moves: 3 steps did not move)
 SANE_BOUND = 10.0  # a joint bound beyond this many of the uniform light's: x and the band do not separate
 ACCEL_PX = 0.3  # px/frame²: the spread of the band's acceleration (a swinging cable's speed changes slowly)
 WOBBLE_PX = 0.3  # px/frame: each edge's own wander about the common motion (the width may change a little)
@@ -137,6 +139,7 @@ class MovingBand:
         self.motion, self.motion_cov = np.zeros(3), np.eye(3)  # (left, right, speed)
         self.steps: list[float] = []  # the place's steps, frame to frame, until it is seen to move
         self.moved = False
+        self.entering = False  # found with an edge beyond the line's end: coming into view as a shadow does
         self.width = (0.0, math.inf)  # the band's width where both edges were best seen, and their larger variance
         self.gain, self.offset_gray = 1.0, 0.0
 
@@ -180,6 +183,7 @@ class MovingBand:
         if again:  # a band lost mid-pass (an edge came into view far from where it was held) keeps its motion
             self.motion[2], self.motion_cov[2, 2] = speed, speed_var
         self.moved = moved and (again or self.kept is not None)
+        self.entering = bool(self.motion[0] < 0.0 or self.motion[1] > n - 1.0)
         self.active = True
         return True
 
@@ -294,8 +298,11 @@ class MovingBand:
         """Not yet followed over the frames it takes to be seen to move (:data:`MOVED_PX` at
         :data:`SPEED_PX` a frame): its answer is taken, flagged, where the uniform light does not
         explain the frame (a first pass's first frames: the band's answers were 0-2 µm off at a
-        2 µm bound, the uniform light's, which stood until the band had moved, 18-46 µm)."""
-        return not self.moved and len(self.steps) < math.ceil(MOVED_PX / SPEED_PX)
+        2 µm bound, the uniform light's, which stood until the band had moved, 18-46 µm). Only a band
+        coming into view from beyond the line's end, as a shadow does: one found whole inside the field
+        (a smudge on the print the uniform light had lost, 400 µm off) answered 10 bounds off, frame
+        after frame, each frame a new episode."""
+        return self.entering and not self.moved and len(self.steps) < YOUNG_STEPS
 
     def at_both_ends(self, evaluator, y: np.ndarray, weights: np.ndarray, x_mm: float) -> bool:
         """The light lost at ``x_mm`` (a first frame's joint answer: without the grating the last
