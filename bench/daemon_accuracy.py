@@ -3,9 +3,9 @@
 Starts ``graytrack serve`` on a virtual rig (its own process, wall-clock speed), lets it calibrate
 itself (the configured sweep and model), then moves the stage to a list of positions and, at each,
 reads stream messages and prints the mean and std of ``error_um`` (tracked minus grating) next to the
-mean Cramér–Rao bound, χ² and the share of messages flagged ``stale`` (with the reasons given). A model that is right has a mean error near 0 everywhere and a std
-near the bound; a calibration that missed something fixed to the print shows as a mean error that
-changes from position to position.
+mean Cramér–Rao bound, χ² and the share of messages flagged ``stale`` (with the reasons given). A model
+that is right has a mean error near 0 everywhere and a std near the bound; a calibration that missed
+something fixed to the print shows as a mean error that changes from position to position.
 
 Run: .venv/bin/python bench/daemon_accuracy.py [--scenario lab] [--effects SPEC] [--sweep scan|stops]
      [--model auto|paper] [--messages 600]
@@ -51,7 +51,8 @@ def main() -> None:
                       f'[sweep]\nkind = "{args.sweep}"\nmodel = "{args.model}"\n')
     port = free_port()
     base = f"http://127.0.0.1:{port}"
-    daemon = subprocess.Popen([sys.executable, "-m", "graytrack", "serve", "--config", str(config), "--port", str(port)])
+    daemon = subprocess.Popen([sys.executable, "-m", "graytrack", "serve", "--config", str(config), "--port",
+                               str(port)])
     try:
         started = time.monotonic()
         while True:
@@ -68,7 +69,8 @@ def main() -> None:
               f"{time.monotonic() - started:.0f} s; {status['calibration']['message']}")
         print(f"model: {status['model']}")
         auth = {"Authorization": f"Bearer {(folder / 'data' / 'token').read_text().strip()}"}
-        print(f"{'position mm':>11} {'mean error µm':>13} {'std µm':>7} {'bound µm':>8} {'chi2':>5} {'stale %':>7}  reasons")
+        print(f"{'position mm':>11} {'mean error µm':>13} {'std µm':>7} {'bound µm':>8} {'chi2':>5} {'stale %':>7}  "
+              "reasons")
         means = []
         for target in POSITIONS_MM:
             httpx.post(f"{base}/api/stage/move", json={"target_mm": target}, headers=auth, timeout=5)

@@ -61,7 +61,8 @@ def main(selection: str = "") -> None:
         try:
             result = calibrate(calibration, "paper")
             check = result.geometry
-            paper = f"{check.status} ({check.cause or '-'}, rms {check.residual_ratio:.2f}x σ): {tracked(result.model, run)}"
+            paper = (f"{check.status} ({check.cause or '-'}, rms {check.residual_ratio:.2f}x σ): "
+                     f"{tracked(result.model, run)}")
         except GeometryError as exc:
             check = exc.check
             paper = f"REFUSED ({check.cause}, rms {check.residual_ratio:.1f}x σ)"

@@ -68,7 +68,8 @@ def summary(late_ms: np.ndarray, steal: int, seconds: float) -> dict[str, float]
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seconds", type=float, default=20.0)
-    parser.add_argument("--core", type=int, default=max(os.sched_getaffinity(0)), help="the core probed (default: the last)")
+    parser.add_argument("--core", type=int, default=max(os.sched_getaffinity(0)),
+                        help="the core probed (default: the last)")
     parser.add_argument("--priority", type=int, default=20, help="SCHED_FIFO level (0: normal)")
     parser.add_argument("--json", action="store_true", help="one JSON line (bench/stream_latency.py reads it)")
     args = parser.parse_args()

@@ -27,7 +27,8 @@ import numpy as np  # noqa: E402
 from graytrack.core.calibration import calibrate  # noqa: E402
 from graytrack.core.diagnosis import diagnose  # noqa: E402
 from graytrack.core.tracking import LiveTracker  # noqa: E402
-from graytrack.drivers.sim.causes import EVERY_FORM, model_with  # noqa: E402
+from graytrack.drivers.sim.causes import EVERY_FORM  # noqa: E402
+from graytrack.service.grown_models import model_with  # noqa: E402
 from graytrack.drivers.sim.scenarios import build_rig  # noqa: E402
 
 CLOCK = time.thread_time
@@ -71,7 +72,8 @@ def main() -> None:
     for label, model, recording in cases:
         lean, prepared, difference, taken = compare(model, recording.frames, recording.reference)
         note = "" if taken else "  (weights follow the signal: prepared either way)"
-        print(f"{label:58.58} {lean:12.1f} {prepared:16.1f} {lean / prepared:6.2f} {difference:12.1e}{note}", flush=True)
+        print(f"{label:58.58} {lean:12.1f} {prepared:16.1f} {lean / prepared:6.2f} {difference:12.1e}{note}",
+              flush=True)
 
 
 if __name__ == "__main__":

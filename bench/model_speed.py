@@ -30,7 +30,8 @@ from graytrack.core import kernels  # noqa: E402
 from graytrack.core.calibration import calibrate  # noqa: E402
 from graytrack.core.diagnosis import diagnose  # noqa: E402
 from graytrack.core.tracking import LiveTracker, track  # noqa: E402
-from graytrack.drivers.sim.causes import EVERY_FORM, model_with  # noqa: E402
+from graytrack.drivers.sim.causes import EVERY_FORM  # noqa: E402
+from graytrack.service.grown_models import model_with  # noqa: E402
 from graytrack.drivers.sim.scenarios import build_rig  # noqa: E402
 
 CLOCK = time.thread_time

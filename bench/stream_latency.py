@@ -67,7 +67,8 @@ async def client(url, seconds, out):
             text = await ws.recv()
             now = time.monotonic()
             m = json.loads(text)
-            out.append((now - m["t"], m["seq"], m["dropped"], m["age_ms"]))  # age_ms: mid-exposure to encoding, in the daemon
+            # age_ms: mid-exposure to encoding, in the daemon
+            out.append((now - m["t"], m["seq"], m["dropped"], m["age_ms"]))
 
 async def main(url, n, seconds):
     outs = [[] for _ in range(n)]
@@ -173,13 +174,16 @@ def config(folder: Path, rate: float, poll_s: float = 0.005, deflate: bool = Fal
            pin: bool = False) -> Path:
     """The daemon's configuration; each model kind (and rig, and exposure) keeps its own data
     directory, so its one calibration (made at the first start) serves every run of that kind."""
-    path = folder / f"{model}-{scenario}-rows{rows}-rate{rate:g}-poll{poll_s:g}-deflate{int(deflate)}-prio{priority}-rp{int(rig_process)}-pin{int(pin)}.toml"
+    path = folder / (f"{model}-{scenario}-rows{rows}-rate{rate:g}-poll{poll_s:g}-deflate{int(deflate)}"
+                     f"-prio{priority}-rp{int(rig_process)}-pin{int(pin)}.toml")
     exposure_us = min(1000.0, 0.5e6 / rate)  # the rig's 1 ms exposure fits up to 1000 frames/s
     path.write_text(f'[camera]\nkind = "sim"\nframe_rate_hz = {rate}\nexposure_us = {exposure_us}\n'
                     f'effects = "{effects}"\nscenario = "{scenario}"\nrig_process = {str(rig_process).lower()}\n'
                     f'[camera.roi]\nrows = {rows}\n'
                     f'[sweep]\nmodel = "{model}"\n'
-                    f'[daemon]\ndata_dir = "{folder / ("data-" + model + "-" + scenario + str(rows) + f"-{exposure_us:g}us")}"\nlog_level = "warning"\ngrating_poll_s = {poll_s}\n'
+                    '[daemon]\ndata_dir = '
+                    f'"{folder / ("data-" + model + "-" + scenario + str(rows) + f"-{exposure_us:g}us")}"\nlog_level = '
+                    f'"warning"\ngrating_poll_s = {poll_s}\n'
                     f'ws_compression = {str(deflate).lower()}\nrealtime_priority = {priority}\n'
                     f'cpu_cores = {CORES[-1:] if pin else []}\n')
     return path
@@ -223,7 +227,8 @@ def run(folder: Path, rate: float, clients: int, seconds: float, poll_s: float =
     port = free_port()
     log = (folder / f"serve-{model}-{rate:g}-{clients}.log").open("w")
     daemon = subprocess.Popen([sys.executable, "-m", "graytrack", "serve", "--config",
-                               str(config(folder, rate, poll_s, deflate, priority, model, effects, scenario, rows, rig_process, pin)),
+                               str(config(folder, rate, poll_s, deflate, priority, model, effects, scenario, rows,
+                                          rig_process, pin)),
                                "--port", str(port)], stderr=log, env={**os.environ, "GRAYTRACK_SIM_RENDER": render})
     try:
         status = wait_tracking(f"http://127.0.0.1:{port}")
@@ -239,9 +244,11 @@ def run(folder: Path, rate: float, clients: int, seconds: float, poll_s: float =
         # the host's own floor in the same seconds, on the daemon's core, above every thread of the run
         floor = subprocess.Popen([sys.executable, str(Path(__file__).with_name("host_floor.py")), "--json",
                                   "--seconds", str(seconds), "--core", str(CORES[-1]),
-                                  "--priority", str(priority + 1 if priority else 0)], stdout=subprocess.PIPE, text=True)
-        result = subprocess.run([sys.executable, "-c", CLIENTS[client], f"ws://127.0.0.1:{port}/ws/position", str(clients),
-                                 str(seconds)], capture_output=True, text=True, check=True, preexec_fn=raise_client)
+                                  "--priority", str(priority + 1 if priority else 0)], stdout=subprocess.PIPE,
+                                 text=True)
+        result = subprocess.run([sys.executable, "-c", CLIENTS[client], f"ws://127.0.0.1:{port}/ws/position",
+                                 str(clients), str(seconds)],
+                                capture_output=True, text=True, check=True, preexec_fn=raise_client)
         host = json.loads(floor.communicate(timeout=seconds + 30)[0])
         wall = time.monotonic() - wall0
         cpu = (cpu_seconds(daemon.pid) - cpu0) / wall
@@ -259,7 +266,8 @@ def run(folder: Path, rate: float, clients: int, seconds: float, poll_s: float =
     return {"rate": rate, "clients": clients, "msgs_s": np.mean([len(out) for out in outs]) / seconds,
             "missing": missing, "dropped": dropped, "p50": np.percentile(latency, 50),
             "p99": np.percentile(latency, 99), "max": latency.max(), "cpu": 100 * cpu, "rig_cpu": 100 * rig_cpu,
-            "client_cpu": 100 * measured["cpu"], "enc50": np.percentile(encoded, 50), "enc99": np.percentile(encoded, 99),
+            "client_cpu": 100 * measured["cpu"], "enc50": np.percentile(encoded, 50),
+            "enc99": np.percentile(encoded, 99),
             "stale": status.get("stale_reason") or "-" if status.get("model_stale") else "-",
             "host99": host["p99"], "host_max": host["max"], "steal": host["steal_pct"]}
 
@@ -287,7 +295,8 @@ def main() -> None:
     parser.add_argument("--clients", default="1,4")
     parser.add_argument("--deflate", default="0", help="permessage-deflate off/on (0,1) to compare, side by side")
     parser.add_argument("--polls", default="0.005", help="grating poll periods (s) to compare, side by side")
-    parser.add_argument("--priority", default="0", help="the daemon's realtime_priority values to compare, side by side")
+    parser.add_argument("--priority", default="0",
+                        help="the daemon's realtime_priority values to compare, side by side")
     parser.add_argument("--client-offsets", default="0", help="the clients' SCHED_FIFO level over the daemon's "
                         "(with --priority above 0), side by side: 0,1")
     parser.add_argument("--load", type=int, default=0, help="busy-looping processes to run meanwhile")
@@ -304,10 +313,12 @@ def main() -> None:
                         "stamped as the read returns)")
     parser.add_argument("--repeat", type=int, default=1, help="rounds of every configuration, interleaved, with "
                         "the medians at the end (one run's p99 swings several-fold on a shared machine)")
-    parser.add_argument("--pin", default="0", help="the daemon on a core of its own ([daemon] cpu_cores: the last), the "
+    parser.add_argument("--pin", default="0",
+                        help="the daemon on a core of its own ([daemon] cpu_cores: the last), the "
                         "rig's process and the clients on the others (1), or where the kernel puts them (0); side by "
                         "side: 0,1")
-    parser.add_argument("--rig-process", default="1", help="the virtual rig in its own process (1) or the daemon's (0), "
+    parser.add_argument("--rig-process", default="1",
+                        help="the virtual rig in its own process (1) or the daemon's (0), "
                         "side by side: 0,1")
     args = parser.parse_args()
     folder = Path(tempfile.mkdtemp(prefix="graytrack-bench-"))
@@ -322,8 +333,10 @@ def main() -> None:
                 run(folder, rate, 1, 0.5, model=model, effects=args.effects, scenario=args.scenario, rows=args.rows)
         print(f"machine: {os.cpu_count()} cores, load average {load_average()} at start, "
               f"{args.load} busy-looping processes meanwhile; scenario {args.scenario}, {args.rows} row(s)")
-        print(f"{'pin':>3} {'client':>10} {'rig':>4} {'render':>6} {'model':>6} {'prio':>4} {'deflate':>7} {'poll ms':>7} {'frames/s':>8} {'clients':>7} {'cl+':>3} {'msgs/s':>8} {'missing':>7} {'dropped':>7} "
-              f"{'p50 ms':>7} {'p99 ms':>7} {'max ms':>7} {'CPU %':>6} {'rig %':>6} {'cl CPU':>6} {'enc p50':>7} {'enc p99':>7} {'host99':>6} {'hostmax':>7} {'steal%':>6} {'stale':>9}")
+        print(f"{'pin':>3} {'client':>10} {'rig':>4} {'render':>6} {'model':>6} {'prio':>4} {'deflate':>7} "
+              f"{'poll ms':>7} {'frames/s':>8} {'clients':>7} {'cl+':>3} {'msgs/s':>8} {'missing':>7} {'dropped':>7} "
+              f"{'p50 ms':>7} {'p99 ms':>7} {'max ms':>7} {'CPU %':>6} {'rig %':>6} {'cl CPU':>6} {'enc p50':>7} "
+              f"{'enc p99':>7} {'host99':>6} {'hostmax':>7} {'steal%':>6} {'stale':>9}")
         configurations = [(rate, clients, n == "1", c, a == "1", e, m, float(p), d == "1", int(q), int(o))
                           for rate in (float(r) for r in args.rates.split(",")) for clients in
                           (int(c) for c in args.clients.split(",")) for n in args.pin.split(",")
@@ -338,16 +351,22 @@ def main() -> None:
                 r = run(folder, rate, clients, args.seconds, poll, deflate, prio, model, args.effects,
                         args.scenario, args.rows, render, apart, client, pin, offset)
                 results.setdefault(setup, []).append(r)
-                print(f"{'yes' if pin else 'no':>3} {client:>10} {'own' if apart else 'in':>4} {render:>6} {model:>6} {prio:4d} {'on' if deflate else 'off':>7} {poll * 1e3:7.1f} {r['rate']:8.0f} {r['clients']:7d} {offset:3d} {r['msgs_s']:8.0f} {r['missing']:7d} {r['dropped']:7d} "
-                      f"{r['p50']:7.2f} {r['p99']:7.2f} {r['max']:7.2f} {r['cpu']:6.0f} {r['rig_cpu']:6.0f} {r['client_cpu']:6.0f} {r['enc50']:7.2f} {r['enc99']:7.2f} {r['host99']:6.2f} {r['host_max']:7.2f} {r['steal']:6.2f} {r['stale']:>9}",
+                print(f"{'yes' if pin else 'no':>3} {client:>10} {'own' if apart else 'in':>4} {render:>6} {model:>6} "
+                      f"{prio:4d} {'on' if deflate else 'off':>7} {poll * 1e3:7.1f} {r['rate']:8.0f} {r['clients']:7d} "
+                      f"{offset:3d} {r['msgs_s']:8.0f} {r['missing']:7d} {r['dropped']:7d} "
+                      f"{r['p50']:7.2f} {r['p99']:7.2f} {r['max']:7.2f} {r['cpu']:6.0f} {r['rig_cpu']:6.0f} "
+                      f"{r['client_cpu']:6.0f} {r['enc50']:7.2f} {r['enc99']:7.2f} {r['host99']:6.2f} "
+                      f"{r['host_max']:7.2f} {r['steal']:6.2f} {r['stale']:>9}",
                       flush=True)
         if args.repeat > 1:
             print(f"\nmedians over {args.repeat} rounds (p99: its median and range; runs with no camera frame dropped)")
             for (rate, clients, pin, client, apart, *_, prio, offset), runs in results.items():
                 p99 = np.array([r["p99"] for r in runs])
                 print(f"{'yes' if pin else 'no':>3} {client:>10} {'own' if apart else 'in':>4} {rate:8.0f} frames/s "
-                      f"prio {prio}, clients +{offset}: {clients} clients: p50 {np.median([r['p50'] for r in runs]):.2f} ms, p99 {np.median(p99):.2f} ms "
-                      f"({p99.min():.2f}-{p99.max():.2f}), enc p99 {np.median([r['enc99'] for r in runs]):.2f} ms, CPU {np.median([r['cpu'] for r in runs]):.0f} %, "
+                      f"prio {prio}, clients +{offset}: {clients} clients: p50 "
+                      f"{np.median([r['p50'] for r in runs]):.2f} ms, p99 {np.median(p99):.2f} ms "
+                      f"({p99.min():.2f}-{p99.max():.2f}), enc p99 {np.median([r['enc99'] for r in runs]):.2f} ms, CPU "
+                      f"{np.median([r['cpu'] for r in runs]):.0f} %, "
                       f"{sum(r['dropped'] == 0 for r in runs)} of {len(runs)} runs without a drop; the host's own "
                       f"wake-up p99 (bench/host_floor.py) {np.median([r['host99'] for r in runs]):.2f} ms")
         every = [r for runs in results.values() for r in runs]

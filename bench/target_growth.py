@@ -39,7 +39,8 @@ def main(scenario: str = "paper", selection: str = "") -> None:
     model = calibrate(calibration, "paper").model
     print(f"{scenario}: calibration's own line: {model.info['reference_line']['scale_ppm']:+.1f} +/- "
           f"{model.info['reference_line']['scale_sigma_ppm']:.1f} ppm")
-    print(f"{'measured run':48} {'s':>3} {'trim':>4} {'first flag':>10} {'flagged':>8} {'run':>6} {'after':>6}  last window")
+    print(f"{'measured run':48} {'s':>3} {'trim':>4} {'first flag':>10} {'flagged':>8} {'run':>6} {'after':>6}  last "
+          "window")
     for effects, seconds in CASES:
         if selection not in effects:
             continue
@@ -53,7 +54,8 @@ def main(scenario: str = "paper", selection: str = "") -> None:
             first = int(np.argmax(followed.stale)) if followed.stale.any() else None
             after = error[first:] if first is not None else error[:0]
             line = followed.final
-            print(f"{effects or '-':48} {seconds:3.0f} {'on' if trim else 'off':>4} {first if first is not None else '-':>10} "
+            print(f"{effects or '-':48} {seconds:3.0f} {'on' if trim else 'off':>4} "
+                  f"{first if first is not None else '-':>10} "
                   f"{100 * followed.stale.mean():7.1f}% {np.sqrt(np.nanmean(error ** 2)) / bound:6.2f} "
                   f"{np.sqrt(np.nanmean(after ** 2)) / bound if after.size else float('nan'):6.2f}  "
                   f"{line.scale_ppm:+.0f} +/- {line.scale_sigma_ppm:.0f} ppm, {line.offset_um:+.3f} +/- "

@@ -153,7 +153,8 @@ def every_model(selection: str = "") -> list[tuple[str, FourierModel, FourierMod
     """(label, model, the seed paper's model fitted on the same calibration, a run to track) for
     each effect family and each virtual-rig scenario's closed-loop model."""
     from graytrack.core.diagnosis import diagnose
-    from graytrack.drivers.sim.causes import EVERY_FORM, model_with
+    from graytrack.drivers.sim.causes import EVERY_FORM
+    from graytrack.service.grown_models import model_with
     from graytrack.drivers.sim.scenarios import build_rig, list_scenarios
 
     def run_of(scenario: str, effects: str, seed: int) -> Recording:
@@ -165,8 +166,10 @@ def every_model(selection: str = "") -> list[tuple[str, FourierModel, FourierMod
     for name, cause in EVERY_FORM.items():
         label = f"effect {name} ({cause.scenario}: {cause.effects})"
         if selection in label:
-            model, _, calibration = model_with(name, seconds=8.0 if cause.scenario == "paper" else 4.0, pitch_search=True)
-            cases.append((label, model, calibrate(calibration, "paper").model, run_of(cause.scenario, cause.effects, 5)))
+            model, _, calibration = model_with(name, seconds=8.0 if cause.scenario == "paper" else 4.0,
+                                               pitch_search=True)
+            cases.append((label, model, calibrate(calibration, "paper").model,
+                          run_of(cause.scenario, cause.effects, 5)))
     for scenario in list_scenarios():
         seconds = SCENARIO_SECONDS.get(scenario, 3.0)
         calibration, _ = build_rig(scenario, seed=3).record(seconds)

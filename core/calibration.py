@@ -14,7 +14,7 @@ import numpy as np
 
 from graytrack.core import effects
 from graytrack.core.adequacy import assessed
-from graytrack.core.calibration_data import Calibration, CalibrationData, calibration_data
+from graytrack.core.calibration_data import CalibrationFit, CalibrationData, calibration_data
 from graytrack.core.errors import CalibrationError
 from graytrack.core.geometry import initial_geometry
 from graytrack.core.geometry_check import MIN_SEEN_SHARE, GeometryError, check_geometry, dark_pixels
@@ -28,7 +28,7 @@ RowMode = Literal["auto", "mean", "each"]
 # Rows are modelled separately when the shared model leaves this much more variance than noise.
 ROW_DISAGREEMENT_EXCESS = 0.10
 
-__all__ = ["Calibration", "CalibrationData", "KIND_SPECS", "calibrate", "calibration_data", "rows_disagree"]
+__all__ = ["CalibrationFit", "CalibrationData", "KIND_SPECS", "calibrate", "calibration_data", "rows_disagree"]
 
 
 def rows_disagree(model: FourierModel, data: CalibrationData) -> bool:
@@ -56,7 +56,7 @@ KIND_SPECS = {
 
 
 def calibrate(rec: Recording, model: str = "paper", *, harmonics: int | None = None, pixel_degree: int | None = None,
-              rows: RowMode = "auto", progress: Progress | None = None, check: bool = True) -> Calibration:
+              rows: RowMode = "auto", progress: Progress | None = None, check: bool = True) -> CalibrationFit:
     """Calibrate the ``ideal`` or ``paper`` model on a recording with a reference.
 
     The fit's geometry is then checked (core/geometry_check.py): a fault of the rig's set-up (a

@@ -53,7 +53,10 @@ class CalibrationData:
 
 
 @dataclass
-class Calibration:
+class CalibrationFit:
+    """A model fitted to a calibration recording, with its residual and noise (the daemon's and the API's
+    ``Calibration`` is the job that made one)."""
+
     model: FourierModel
     rmse_gray: float
     sigma_gray: float
@@ -68,7 +71,8 @@ def calibration_data(rec: Recording) -> CalibrationData:
     if not valid.any():
         raise CalibrationError("the recording has no reference positions: calibration needs the grating readout")
     if valid.sum() < MIN_FRAMES:
-        raise CalibrationError(f"only {int(valid.sum())} frames have a reference; calibration needs at least {MIN_FRAMES}")
+        raise CalibrationError(f"only {int(valid.sum())} frames have a reference; calibration needs at least "
+                               f"{MIN_FRAMES}")
     frames = rec.strip()[valid]
     spread = np.percentile(frames, 99) - np.percentile(frames, 1)
     if spread < 2.0 or frames.std(axis=-1).mean() < 0.5:

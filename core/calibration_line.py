@@ -23,7 +23,8 @@ def record_calibration_line(model, recording) -> Line | None:
     """Track the calibration ``recording`` with the ``model`` fitted to it, as tracking will, and keep
     the line camera − grating in ``model.info["reference_line"]``: the agreement drift is measured
     from; and how far off the line its frames are, stretch by stretch along the stroke, against their
-    bound (``calibration_error_profile``: where the model cannot measure at its bound). None (and nothing kept) when the recording has no grating reading or too few frames."""
+    bound (``calibration_error_profile``: where the model cannot measure at its bound). None (and nothing kept) when
+    the recording has no grating reading or too few frames."""
     # the grating at the exposure: a latch the calibration found is no error of the model's
     reference = model_reference(model, recording.t, recording.reference)
     if np.isfinite(reference).sum() < MIN_FRAMES:

@@ -106,7 +106,8 @@ def track_chunk(task: ChunkTask) -> TrackResult:
     return result
 
 
-def _overlap_shift(model: FourierModel, before: TrackResult, chunk: Chunk, result: TrackResult) -> tuple[float, str | None]:
+def _overlap_shift(model: FourierModel, before: TrackResult, chunk: Chunk,
+                   result: TrackResult) -> tuple[float, str | None]:
     """Whole-period shift that maps the chunk onto the track before it, or why it does not fit."""
     width = chunk.keep - chunk.start
     prev_x, prev_locked = before.x_mm[chunk.start:chunk.keep], before.locked[chunk.start:chunk.keep]

@@ -18,7 +18,7 @@ import numpy as np
 from graytrack.core.basis import legendre_basis, scaled
 
 if TYPE_CHECKING:  # a leaf module: effects and the loop import it, it imports neither
-    from graytrack.core.diagnosis.heldout import Fit, Stage
+    from graytrack.core.diagnosis.heldout import Fit, LoopModel
 
 
 @dataclass
@@ -32,7 +32,8 @@ class Evidence:
     argument: Any = None  # what the effect's grow() needs from the probe (clip limits, a skew, pixels)
 
     def as_dict(self) -> dict[str, float | str]:
-        return {"effect": self.effect, "axis": self.axis, "z": round(float(self.z), 2), "share": round(float(self.share), 4),
+        return {"effect": self.effect, "axis": self.axis, "z": round(float(self.z), 2),
+                "share": round(float(self.share), 4),
                 "text": self.text}
 
 
@@ -106,7 +107,7 @@ def model_rows(fit: Fit) -> tuple[np.ndarray, np.ndarray, int]:
     return fit.residual.mean(axis=1, keepdims=True), fit.usable.min(axis=1, keepdims=True), n_rows
 
 
-def cross_validated_evidence(effect: str, axis: str, stage: Stage, basis: Basis, label: str) -> Evidence:
+def cross_validated_evidence(effect: str, axis: str, stage: LoopModel, basis: Basis, label: str) -> Evidence:
     """Evidence for a structure whose coefficients carry over between frames: ``basis`` fitted to
     the training residual, scored by what it removes from the held-out residual."""
     train, val = stage.train, stage.val

@@ -139,13 +139,13 @@ def focus_solve(source: TrigPolyBatch, k: int, curvature: CurvatureTable, start:
     docstring). The solution's ``focus`` is δ in px² of the pixel footprint on the target,
     ``focus_sigma`` its standard error with x, gain and offset estimated too: this frame's own
     estimate, whatever the ``prior`` (see :class:`FocusPrior`) did to x."""
-    rows, cc, scalars = focus_moments(source, k, curvature, start.rejected_mask if start.rejected else None)
+    rows, cc, scalars = focus_moments(source, k, curvature, start.rejected_mask if start.rejected_px else None)
     has_prior = prior is not None and prior.variance_mm4 > 0.0
     out = np.empty(_TRIG_OUT)
     compiled = kernels.COMPILED and kernels.numba is not None
     (_trig_focus if compiled else _trig_focus_twin)(
         rows, cc, source.tables.phase_orders, scalars[0], scalars[1], scalars[2], float(start.x_mm),
-        float(start.gain), float(start.offset), has_prior, prior.delta_mm2 if has_prior else 0.0,
+        float(start.gain), float(start.offset_gray), has_prior, prior.delta_mm2 if has_prior else 0.0,
         prior.variance_mm4 if has_prior else 0.0, settings.max_iterations, settings.tolerance_mm,
         settings.max_step_mm, out)
     values = out.tolist()
@@ -237,9 +237,9 @@ def general_focus_solve(evaluator, y: np.ndarray, weights: np.ndarray, start: Fr
     a target map, clipping): B = ½F″ and B′ = ½F‴ by central differences of the model's slopes
     (a step of a thousandth of a period: relative error ~(2πM·10⁻³)²/6, far below the noise), the
     same (g, h, o) least squares and Schur complement. Each iteration reads the pixels once, into
-    the sums of :func:`focus_sums`; the rest is algebra on 3×3 matrices. The whole solve is one
+    the sums of :func:`_focus_sums`; the rest is algebra on 3×3 matrices. The whole solve is one
     call of :func:`_general_focus` (compiled on a table kernel, its Python twin otherwise)."""
-    if start.rejected:
+    if start.rejected_px:
         weights = weights * ~start.rejected_mask
     y = np.ascontiguousarray(y, dtype=np.float64)
     weights = np.ascontiguousarray(weights, dtype=np.float64)
@@ -249,7 +249,7 @@ def general_focus_solve(evaluator, y: np.ndarray, weights: np.ndarray, start: Fr
     out = np.empty(_FOCUS_OUT)
     has_prior = prior is not None and prior.variance_mm4 > 0.0
     (_general_focus if compiled else _general_focus_twin)(
-        y, weights, float(start.x_mm), float(start.gain), float(start.offset), FOCUS_STEP_PERIODS * period_mm,
+        y, weights, float(start.x_mm), float(start.gain), float(start.offset_gray), FOCUS_STEP_PERIODS * period_mm,
         has_prior, prior.delta_mm2 if has_prior else 0.0, prior.variance_mm4 if has_prior else 0.0,
         settings.max_iterations, settings.tolerance_mm, settings.max_step_mm, model, work[0], work[1],
         np.empty(y.size), out)
@@ -262,8 +262,8 @@ _FOCUS_OUT = 12  # x, iterations, information, cost, samples used, blur variance
 
 
 def warm(evaluator, period_mm: float) -> None:
-    """Compile (or load from the disk cache) the focus solves now, at model install: the first blurred frame must not wait for the compiler (~40 ms from the
-    cache, seconds on a fresh install)."""
+    """Compile (or load from the disk cache) the focus solves now, at model install: the first blurred frame
+    must not wait for the compiler (~40 ms from the cache, seconds on a fresh install)."""
     if kernels.COMPILED and kernels.numba is not None:  # the fast path's (trig-polynomial) focus solve
         _trig_focus(np.ones((7, 3), dtype=complex), np.ones(3, dtype=complex), np.ones(3, dtype=complex), 1.0, 1.0,
                     1.0, 0.0, 1.0, 0.0, False, 0.0, 0.0, 1, 1.0, 1.0, np.empty(_TRIG_OUT))
@@ -426,15 +426,6 @@ def _focus_sums_numpy(values: np.ndarray, slopes: np.ndarray, y: np.ndarray, w: 
 _compiled_focus_sums = kernels.numba.njit(cache=True, nogil=True)(_focus_sums) if kernels.numba is not None else None
 
 
-def focus_sums(values: np.ndarray, slopes: np.ndarray, y: np.ndarray, w: np.ndarray, step: float,
-               out: np.ndarray) -> None:
-    """The sums of one focus iteration (:func:`_focus_sums`), compiled where numba is."""
-    if kernels.COMPILED:
-        _compiled_focus_sums(values, slopes, y, w, step, out)
-    else:
-        _focus_sums_numpy(values, slopes, y, w, step, out)
-
-
 @dataclass(frozen=True)
 class FocusPrior:
     """What the last frames say about the focus (δ in mm² and its variance): a focus drifts slowly,
@@ -444,18 +435,6 @@ class FocusPrior:
 
     delta_mm2: float
     variance_mm4: float
-
-
-def _with_prior(normal: np.ndarray, projected: np.ndarray, prior: FocusPrior | None,
-                gain: float) -> tuple[np.ndarray, np.ndarray]:
-    """The normal equations of (g, h, o) with the prior on h = g·δ added (g at its last value)."""
-    if prior is None or not prior.variance_mm4 > 0.0:
-        return normal, projected
-    variance = gain * gain * prior.variance_mm4
-    held, held_projected = normal.copy(), projected.copy()
-    held[1, 1] += 1.0 / variance
-    held_projected[1] += gain * prior.delta_mm2 / variance
-    return held, held_projected
 
 
 def _answer(x: float, theta: np.ndarray, own: np.ndarray, cost: float, information: float, blur_variance: float,
@@ -471,7 +450,7 @@ def _answer(x: float, theta: np.ndarray, own: np.ndarray, cost: float, informati
     focus = blur / own_gain / footprint if own_gain else float("nan")
     focus_sigma = math.sqrt(max(blur_variance, 0.0)) / abs(own_gain) / footprint if own_gain else float("nan")
     return FrameSolution(x, settings.sigma_gray * math.sqrt(chi2), information, iterations, gain, offset, chi2,
-                         start.rejected, True, 0.0, cost, start.rejected_mask, start.rejected_weights_exact,
+                         start.rejected_px, True, 0.0, cost, start.rejected_mask, start.rejected_weights_exact,
                          focus=focus, focus_sigma=focus_sigma, focus_solved=True)
 
 

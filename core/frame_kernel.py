@@ -61,7 +61,8 @@ def light_step(ff: float, fdf: float, dfdf: float, f1: float, df1: float, yf: fl
     if det > 0.0:
         a, b = gain * fdf, gain * df1
         information -= (a * a * s11 - 2.0 * a * b * f1 + b * b * ff) / det
-    cost = yy - 2.0 * gain * yf - 2.0 * offset * y1 + gain * gain * ff + 2.0 * gain * offset * f1 + offset * offset * s11
+    cost = (yy - 2.0 * gain * yf - 2.0 * offset * y1
+            + gain * gain * ff + 2.0 * gain * offset * f1 + offset * offset * s11)
     return numerator, information, gain, offset, cost
 
 

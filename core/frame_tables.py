@@ -6,8 +6,8 @@ Every model the closed loop can produce is, pixel by pixel, the same expression:
 
 with the pixel's phase, its flat-field gain and its mask folded into the complex coefficients c,
 the stroke drift as Legendre polynomials P_l of the scaled stage position, a target map m
-(piecewise linear along the target, 0 where the map ends; one for all rows or one per row), a per-pixel offset o and the sensor's
-clipping limits. Each effect states which of these tables it fills (``Effect.frame_part``), so a
+(piecewise linear along the target, 0 where the map ends; one for all rows or one per row), a per-pixel offset o and
+the sensor's clipping limits. Each effect states which of these tables it fills (``Effect.frame_part``), so a
 new effect either fits this expression or is refused by the effect registry's test instead of
 falling to a slow general path.
 

@@ -58,7 +58,8 @@ def estimate_period(x_mm: np.ndarray, line: np.ndarray, stroke_mm: float) -> flo
 
 def fundamental_phase(x_mm: np.ndarray, line: np.ndarray, period_mm: float) -> np.ndarray:
     """Phase of the fundamental seen by each column of ``line`` ``(K, m)`` along the stroke."""
-    design = np.stack([np.sin(TWO_PI * x_mm / period_mm), np.cos(TWO_PI * x_mm / period_mm), np.ones_like(x_mm)], axis=1)
+    design = np.stack([np.sin(TWO_PI * x_mm / period_mm), np.cos(TWO_PI * x_mm / period_mm), np.ones_like(x_mm)],
+                      axis=1)
     coef, *_ = np.linalg.lstsq(design, line, rcond=None)
     return np.unwrap(np.arctan2(coef[1], coef[0]))
 
@@ -144,7 +145,8 @@ def fit_geometry(template: FourierModel, x_mm: np.ndarray, data: np.ndarray, wei
         damping = max(damping / 10, 1e-9)
         history.append({"iteration": iteration, "cost": cost, **dict(zip(names, params.tolist()))})
         if progress:
-            progress(min(0.95, iteration / 10), f"geometry iteration {iteration}, rms {np.sqrt(cost / residual.size):.3f}")
+            progress(min(0.95, iteration / 10),
+                     f"geometry iteration {iteration}, rms {np.sqrt(cost / residual.size):.3f}")
         if relative_drop < CONVERGED_RELATIVE_GAIN:
             break
     return model, iteration, history

@@ -20,15 +20,15 @@ from graytrack.core.frame_tables import FrameTables
 try:  # numba is a dependency; its absence (an exotic platform) costs speed, never numbers
     import numba
 except ImportError:  # pragma: no cover - exercised through GRAYTRACK_KERNEL=numpy
-    numba = None
+    numba = None  # type: ignore[assignment]  # the kernels' callers check for None
 
 COMPILED = numba is not None and os.environ.get("GRAYTRACK_KERNEL", "").lower() != "numpy"
 BLOCK = 64  # pixels whose sums the kernel keeps together (1 KB: the first-level cache holds them)
 
 
 def _evaluate_into(x: float, omega: float, c_re: np.ndarray, c_im: np.ndarray, offset: np.ndarray,
-                   lo: float, hi: float, table: np.ndarray, map_base: np.ndarray, map_size: int, origin: float, step: float,
-                   target_offset: np.ndarray,
+                   lo: float, hi: float, table: np.ndarray, map_base: np.ndarray, map_size: int, origin: float,
+                   step: float, target_offset: np.ndarray,
                    clip_lo: float, clip_hi: float, values: np.ndarray, slopes: np.ndarray,
                    smooth: np.ndarray) -> None:
     """values, slopes (P,) at x; ``smooth`` is scratch (P,). Coefficients are in pixel blocks,
@@ -140,8 +140,8 @@ def _reduce(values: np.ndarray, slopes: np.ndarray, y: np.ndarray, w: np.ndarray
 
 
 def _evaluate_many(x_mm: np.ndarray, omega: float, c_re: np.ndarray, c_im: np.ndarray, offset: np.ndarray,
-                   lo: float, hi: float, table: np.ndarray, map_base: np.ndarray, map_size: int, origin: float, step: float,
-                   target_offset: np.ndarray,
+                   lo: float, hi: float, table: np.ndarray, map_base: np.ndarray, map_size: int, origin: float,
+                   step: float, target_offset: np.ndarray,
                    clip_lo: float, clip_hi: float, values: np.ndarray, slopes: np.ndarray,
                    smooth: np.ndarray) -> None:
     """values, slopes (G, P) at each of ``x_mm`` (G,)."""
@@ -183,7 +183,8 @@ class TableEvaluator:
         self._im = blocked(tables.coefficients.imag)
         lo, hi = tables.stroke_range_mm
         self._args = (tables.omega, self._re, self._im, tables.offset, lo, hi, tables.target_map, tables.map_base,
-                      tables.map_size, tables.map_origin_mm, tables.map_step_mm, tables.target_offset_mm, *tables.clip_gray)
+                      tables.map_size, tables.map_origin_mm, tables.map_step_mm, tables.target_offset_mm,
+                      *tables.clip_gray)
         self._scratch = np.empty((3, n_values))
         self._at = float("nan")  # the position whose values and slopes _scratch[0], _scratch[1] hold
         self._out = np.empty(7)

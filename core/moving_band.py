@@ -100,7 +100,8 @@ class BandAnswer:
         return 1.0 / self.covariance[0, 0]
 
 
-def band(columns: np.ndarray, left: float, right: float, edge: float) -> tuple[np.ndarray, ...]:
+def band(columns: np.ndarray, left: float | np.ndarray, right: float | np.ndarray,
+         edge: float) -> tuple[np.ndarray, ...]:
     """B at each column for a band between ``left`` and ``right`` (its half-depth points), and its
     derivatives by the two edges' places and by the softness."""
     scale = ROOT_2 * edge
@@ -479,7 +480,7 @@ def follow(tracker, batch, k: int, x_start: float, uniform: FrameSolution, movin
     asks = tracker.chi2_calibration * here * (1.0 + EARLY_SPREADS * spread) if moving.kept else limit
     strained = tracker.chi2_calibration * here * (1.0 + STRAINED_SPREADS * spread)
     if not moving.active and not (uniform.chi2 > asks and math.isfinite(x_start)):
-        moving.lights.append((uniform.gain, uniform.offset) if uniform.free_light else (1.0, 0.0))
+        moving.lights.append((uniform.gain, uniform.offset_gray) if uniform.free_light else (1.0, 0.0))
         return uniform  # (the common case: nothing but a comparison and the light kept)
     weights = batch.weights(k)
     # samples the robust solve set aside are left out, unless so many that the uniform answer is not
@@ -526,7 +527,7 @@ def follow(tracker, batch, k: int, x_start: float, uniform: FrameSolution, movin
         return uniform  # (followed, given its frames to move and not seen to: the uniform answer stands)
     x = float(answer.params[0])
     return FrameSolution(x, tracker.settings.sigma_gray * math.sqrt(answer.chi2), answer.information,
-                         ITERATIONS, moving.gain, moving.offset_gray, answer.chi2, kept.rejected, False, 0.0,
+                         ITERATIONS, moving.gain, moving.offset_gray, answer.chi2, kept.rejected_px, False, 0.0,
                          answer.cost, kept.rejected_mask, kept.rejected_weights_exact,
                          transient_px=kept.transient_px, transient_share=kept.transient_share,
                          transient_at=kept.transient_at, moving=True)

@@ -118,8 +118,8 @@ def estimate_pixel_noise(frames: np.ndarray, reference: np.ndarray | None = None
     variance per bin; a weighted straight line var = a + K·y through the bins. Quantisation
     (Δ = 1 count, Δ²/12) is split off the intercept when the bit depth is known. Without dark
     frames a black level b cannot be told from read noise (σ² = read − K·b + K·y): the curve is
-    referred to gray 0, which describes every level seen exactly. When the slope is not significant (or not positive) the
-    constant-σ model is returned: a curve that the data do not support would only add noise to
+    referred to gray 0, which describes every level seen exactly. When the slope is not significant (or not positive)
+    the constant-σ model is returned: a curve that the data do not support would only add noise to
     the weights. ``usable`` ``(R, n)`` leaves out pixels found bad, ``exclude`` (like ``frames``)
     samples set aside as transients.
     """

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Literal
 
 from graytrack.core.trim_follow import MEMORY, Following, Hysteresis
 
@@ -90,7 +91,8 @@ class PolyFollower(Hysteresis):
         self._r = [0.0] * (self.degree + 1)
         self._rr = self._ww = 0.0
         self.applied, self._fed_at = False, -1
-        self._fit: tuple[list[float], list[list[float]]] | bool | None = None  # the fit of the sums as they stand
+        # the fit of the sums as they stand
+        self._fit: tuple[list[float], list[list[float]]] | Literal[False] | None = None
         self._last: tuple[int, list[float]] | None = None  # the frame of the last fit and its coefficients
 
     def shift(self, change_um: float) -> None:
@@ -135,7 +137,7 @@ class PolyFollower(Hysteresis):
                 variance += gi * covariance[i][j] * gj
         return value, variance
 
-    def _fitted(self) -> tuple[list[float], list[list[float]]] | bool:
+    def _fitted(self) -> tuple[list[float], list[list[float]]] | Literal[False]:
         """(coefficients, their covariance scaled by the residuals' own scatter), once per frame's state;
         False while the frames held cannot define the polynomial (a line through one, a quadratic through two)."""
         t, r = self._t, self._r

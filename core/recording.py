@@ -116,9 +116,6 @@ class Recording:
             meta[PIXEL_AXIS_REVERSED] = True
         return Recording(np.ascontiguousarray(self.frames[..., ::-1]), self.t, self.reference, meta)
 
-    def has_reference(self) -> bool:
-        return bool(np.isfinite(self.reference).any())
-
 
 def validate(rec: Recording) -> None:
     """Raise :class:`RecordingError` naming the first key that breaks the contract."""
@@ -134,7 +131,8 @@ def validate(rec: Recording) -> None:
         bad = ~np.isfinite(frames).reshape(n_frames, -1).all(axis=1)
         if bad.any():
             raise RecordingError(
-                f"frames: {int(bad.sum())} frame(s) hold NaN or infinite gray values (first at frame {int(np.argmax(bad))})"
+                f"frames: {int(bad.sum())} frame(s) hold NaN or infinite gray values (first at frame "
+                f"{int(np.argmax(bad))})"
             )
     for key, values in (("t", rec.t), ("reference", rec.reference)):
         if values.shape != (n_frames,):
@@ -232,7 +230,8 @@ def _npy_header(archive: zipfile.ZipFile, info: zipfile.ZipInfo, key: str) -> tu
         with archive.open(info) as fh:
             shape, _, dtype = _read_header(fh)
     except Exception as exc:  # noqa: BLE001 - numpy's header parser raises anything from SyntaxError to TokenError
-        raise RecordingError(f"{key}: broken .npy header ({type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''})") from None
+        raise RecordingError(f"{key}: broken .npy header ({type(exc).__name__}: "
+                             f"{str(exc).splitlines()[0] if str(exc) else ''})") from None
     if not isinstance(shape, tuple) or not all(isinstance(n, int) and n >= 0 for n in shape):
         raise RecordingError(f"{key}: broken .npy header (shape {shape!r})")
     if dtype.hasobject:
@@ -276,7 +275,8 @@ def _read_member(archive: zipfile.ZipFile, info: zipfile.ZipInfo, key: str) -> n
                 filled += got
             return flat.reshape(shape, order="F" if fortran else "C")
     except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
-        raise RecordingError(f"{key}: cannot be read ({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})") from None
+        raise RecordingError(f"{key}: cannot be read "
+                             f"({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})") from None
 
 
 def _parse_meta(raw: np.ndarray | None, path: Path) -> dict[str, Any]:

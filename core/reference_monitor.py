@@ -171,7 +171,8 @@ class StructureProfile:
         return slope * (reference_mm - centers[k - 1]) + values[k - 1]
 
     def as_dict(self) -> dict:
-        return {"centers_mm": [round(v, 6) for v in self.centers_mm], "values_um": [round(v, 4) for v in self.values_um],
+        return {"centers_mm": [round(v, 6) for v in self.centers_mm],
+                "values_um": [round(v, 4) for v in self.values_um],
                 "noise_um": round(self.noise_um, 4), "residual_um": round(self.residual_um, 4)}
 
     @classmethod
@@ -411,7 +412,8 @@ class ReferenceMonitor:
     def _recompute(self) -> None:
         """The window's sums afresh (every RECOMPUTE_EVERY frames added: bounds their rounding drift)."""
         rows = np.array(self._rows[: self._count] if self._count < self.window else self._rows)
-        self._sums = [float(v) for v in _terms(rows[:, 0], rows[:, 1], rows[:, 2], total=True)] + [float(rows[:, 3].sum())]
+        self._sums = ([float(v) for v in _terms(rows[:, 0], rows[:, 1], rows[:, 2], total=True)]
+                      + [float(rows[:, 3].sum())])
         self._since_recompute = 0
 
     def _update(self) -> None:
@@ -422,7 +424,8 @@ class ReferenceMonitor:
         base = self.baseline or self.calibration
         do = line.offset_um - (base.offset_um if base else 0.0)
         ds = line.scale_ppm - (base.scale_ppm if base else 0.0)
-        meaningful = abs(do) + abs(ds) * 1e-3 * self.half_stroke_mm >= max(self.floor_um, 0.5 * self.resolution_mm * 1e3)
+        meaningful = (abs(do) + abs(ds) * 1e-3 * self.half_stroke_mm
+                      >= max(self.floor_um, 0.5 * self.resolution_mm * 1e3))
         reference = base.covariance if base is not None else self._calibration_covariance(line)
         self.significance = _chi2(do, ds, line.covariance, _plus(reference, self._structure_covariance()))
         self.stale = meaningful and self.significance >= (self.z_off if self.stale else self.z_on) ** 2

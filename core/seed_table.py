@@ -48,11 +48,12 @@ class TableRow:
                   f"{paper['error_std_um']:.1f} um" if paper else "")
         lost = f", {self.frames - self.placed} frame(s) not placed" if self.placed < self.frames else ""
         return (f"{self.kind:<6} rmse {self.rmse_gray:7.3f} gray, tau {self.period_mm:.4f} mm | error "
-                f"{self.error_mean_um:+7.2f} ± {self.error_std_um:7.3f} um (noise floor {self.bound_um:.3f} um)"
+                f"{self.error_mean_um:+7.2f} ± {self.error_std_um:7.3f} um (bound {self.bound_um:.3f} um)"
                 f"{lost}{quoted}")
 
 
-def seed_table(calibration: Recording, measured: Recording, kinds: tuple[str, ...] = ("ideal", "paper")) -> list[TableRow]:
+def seed_table(calibration: Recording, measured: Recording,
+               kinds: tuple[str, ...] = ("ideal", "paper")) -> list[TableRow]:
     """Fit each model kind on ``calibration``; measure ``measured`` (a sweep over the stroke with its
     grating reading) the paper's way: sequential from the first reading (the grating is not read
     again until the comparison), the calibrated light, every pixel."""

@@ -24,7 +24,7 @@ from typing import Protocol
 
 import numpy as np
 
-from graytrack.core import frame_kernel, small_linalg, transients
+from graytrack.core import frame_kernel, small_linalg
 from graytrack.core.evaluation import ClippedHarmonics, FastHarmonics, GeneralHarmonics, TrigTables
 # the robust solve's constants live with its control logic (core/frame_kernel.py)
 from graytrack.core.frame_kernel import (CORE_SIGMA, CUT_SIGMA, MAD_TO_SIGMA, ROBUST_ITERATIONS,  # noqa: F401
@@ -36,14 +36,18 @@ SET_ASIDE_BLOCK = 64  # frames whose moments lose a set-aside pixel's share in o
 
 @dataclass
 class FrameSolution:
+    """One frame's solve. ``rms_gray`` is √χ² × the model's σ (the residual rms were every pixel of that σ);
+    a field named in core/frame_record.py is the quantity declared there (``rejected_px``: the samples the
+    robust reweighting gave zero weight)."""
+
     x_mm: float
-    rms_gray: float  # √χ² × the model's σ: the residual rms when every pixel has that σ
+    rms_gray: float
     information: float  # Fisher information on x (1/mm²), gain/offset profiled out when solved
     iterations: int
     gain: float = 1.0
-    offset: float = 0.0
-    chi2: float = float("nan")  # weighted residual per used pixel (≈ 1 when the model is right)
-    rejected: int = 0  # pixels the robust reweighting set to zero weight
+    offset_gray: float = 0.0
+    chi2: float = float("nan")
+    rejected_px: int = 0
     free_light: bool = False  # gain and offset were solved with x
     light_excess: float = 0.0  # χ² added by forcing the calibrated light (gain 1, offset 0) at this x
     cost: float = float("nan")  # weighted residual Σ w·r² (χ² before dividing by the degrees of freedom)
@@ -52,7 +56,7 @@ class FrameSolution:
     field: bool = False  # a light field (gain smooth across the pixels) was solved with x
     shape: np.ndarray | None = None  # the field's shape: gain coefficients beyond the uniform one
     shape_precision: np.ndarray | None = None  # their inverse covariance, x and the rest profiled out
-    transient_px: int = 0  # of the rejected samples, those of a compact blob (a glint, passing dust)
+    transient_px: int = 0
     transient_share: float = 0.0  # those as a share of the frame's samples (raw rows when set aside row by row)
     transient_at: float = float("nan")  # mean pixel (column) of those samples: where along the line they sit
     focus: float = 0.0  # change of blur variance since calibration (px² of the pixel footprint), when estimated
@@ -143,7 +147,7 @@ def robust_solve(source: MomentSource, k: int, start: FrameSolution, free: bool,
     on a table kernel, its Python twin otherwise).
     """
     out, mask = frame_kernel.robust(source.evaluator, source.frames[k], source.weights(k), start.x_mm, start.gain,
-                                    start.offset, free, rejected, chi2_limit, layout, settings.max_iterations,
+                                    start.offset_gray, free, rejected, chi2_limit, layout, settings.max_iterations,
                                     settings.tolerance_mm, settings.max_step_mm)
     return _solution(out, free, settings, mask)
 
@@ -521,7 +525,7 @@ def field_solve(evaluator: "FastHarmonics | GeneralHarmonics | ClippedHarmonics"
     yw = y * weights
     yy, n_used = float(yw @ y), float(np.count_nonzero(weights))
     theta = np.zeros(n_basis + 1)  # the gain's Legendre coefficients, then the offset
-    theta[0], theta[n_basis] = start.gain, start.offset
+    theta[0], theta[n_basis] = start.gain, start.offset_gray
     information, cost, iterations = 0.0, float("inf"), 0
     fisher = np.eye(n_basis + 2)
     for iterations in range(1, settings.max_iterations + 1):
@@ -546,6 +550,6 @@ def field_solve(evaluator: "FastHarmonics | GeneralHarmonics | ClippedHarmonics"
     except np.linalg.LinAlgError:
         shape_precision = np.zeros((n_basis - 1, n_basis - 1))
     return FrameSolution(x, settings.sigma_gray * math.sqrt(chi2), information, iterations, float(theta[0]),
-                         float(theta[n_basis]), chi2, start.rejected, True, 0.0, cost,
+                         float(theta[n_basis]), chi2, start.rejected_px, True, 0.0, cost,
                          start.rejected_mask, start.rejected_weights_exact, True, theta[1:n_basis], shape_precision,
                          start.transient_px, start.transient_share, start.transient_at)

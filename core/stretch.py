@@ -65,7 +65,7 @@ def frame_stretch(tracker, batch, k: int, solution) -> tuple[float, float]:
     weights = batch.weights(k)
     if solution.rejected_mask is not None:
         weights = weights * ~solution.rejected_mask
-    residual = batch.residuals(k, solution.x_mm, solution.gain, solution.offset)
+    residual = batch.residuals(k, solution.x_mm, solution.gain, solution.offset_gray)
     offsets = tracker.model.target_offset().reshape(-1)
     if not math.isfinite(solution.focus_sigma):  # the focus held: the stretch alone (its full power)
         values, slopes = tracker.evaluator.evaluate(np.array([solution.x_mm]))
@@ -115,7 +115,7 @@ def stretches(frames: list[FrameStretch]) -> tuple[np.ndarray, np.ndarray]:
             np.multiply(weights, ~solution.rejected_mask, out=w[i])
         else:
             w[i] = weights
-        x[i], gain[i], offset[i] = solution.x_mm, solution.gain, solution.offset
+        x[i], gain[i], offset[i] = solution.x_mm, solution.gain, solution.offset_gray
         focused[i] = math.isfinite(solution.focus_sigma)
     _stretches(x, gain, offset, focused, y, w, _target_offsets(tracker), tracker.model.period_mm * FOCUS_STEP_PERIODS,
                tracker.evaluator._args, work, m, sigma)

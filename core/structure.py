@@ -17,7 +17,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from graytrack.core import effects
-from graytrack.core.calibration_data import Calibration, CalibrationData, sensor_range
+from graytrack.core.calibration_data import CalibrationFit, CalibrationData, sensor_range
 from graytrack.core.geometry import fit_geometry
 from graytrack.core.linear_fit import fit_coefficients
 from graytrack.core.models.fourier import FourierModel
@@ -76,7 +76,7 @@ class ModelSpec:
 
 def fit_spec(spec: ModelSpec, data: CalibrationData, period_mm: float, pitch_mm: float, row_shift_mm: float = 0.0,
              progress: Progress | None = None, refine_geometry: bool = True, rounds: int | None = None,
-             searching: bool = False) -> Calibration:
+             searching: bool = False) -> CalibrationFit:
     """Calibrate a model of structure ``spec``; geometry starts from the given values.
 
     ``refine_geometry=False`` keeps τ_w and α·d as given (a per-row model still fits its row
@@ -102,7 +102,7 @@ def fit_spec(spec: ModelSpec, data: CalibrationData, period_mm: float, pitch_mm:
     photon-transfer weights are not refitted: in a 16-row lab strip with its rows, flat field and
     map, those two were 75 % of a target map's trial, 11 minutes of one closed-loop step.
     """
-    geometry_names = ("period_mm", "pixel_pitch_mm")
+    geometry_names: tuple[str, ...] = ("period_mm", "pixel_pitch_mm")
     if refine_geometry and spec.pixel_degree > PITCH_PIXEL_DEGREE:
         # α·d is one number for the whole strip: the row mean fixes it as well as every row does,
         # at a fraction of the cost of a per-row model inside every step of the search.
@@ -158,7 +158,7 @@ def fit_spec(spec: ModelSpec, data: CalibrationData, period_mm: float, pitch_mm:
     # fits its own frames closer than it will fit any other, and every frame would look changed
     # (counted as the model sees them: a model of the rows' mean fits one sample where R were read)
     model.info["calibration_chi2"] = model.out_of_sample(chi2, float(usable.sum()) * model.n_rows / usable.shape[1])
-    return Calibration(model, rmse, data.sigma_gray, iterations, history)
+    return CalibrationFit(model, rmse, data.sigma_gray, iterations, history)
 
 
 def _row_shift(spec: ModelSpec, data: CalibrationData, period_mm: float, pitch_mm: float,
@@ -174,7 +174,7 @@ def _alternate(state: effects.Alternation, steps: list[tuple[effects.Effect, Any
                late_names: tuple[str, ...] = ()) -> tuple[int, list[dict[str, float]]]:
     """Rounds of the smooth fit (geometry too in the first, when ``names`` are given, and
     ``late_names`` in the second, or the only one) and of every bilinear effect's step."""
-    iterations, history = 0, []
+    iterations, history = 0, []  # type: int, list[Any]
     for round_index in range(n_rounds):
         lit = state.lit / state.map_factor
         # an effect whose layer the geometry would otherwise absorb has the geometry refined again
@@ -205,7 +205,7 @@ def _finished(spec: ModelSpec, state: effects.Alternation) -> FourierModel:
 
 def fit_spec_pitch_search(spec: ModelSpec, data: CalibrationData, period_mm: float, pitch_mm: float,
                           row_shift_mm: float = 0.0, span: float = 0.12, grid_step: float = 0.01,
-                          found_mm: float | None = None) -> Calibration:
+                          found_mm: float | None = None) -> CalibrationFit:
     """:func:`fit_spec` with α·d searched for the lowest residual.
 
     A target map pins features to the target coordinate x + α·d·u, so it needs α·d to a fraction

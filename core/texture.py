@@ -44,7 +44,7 @@ from graytrack.core.effects.target_map import MAX_MAP_STEPS
 from graytrack.core.frame_kernel import CUT_SIGMA
 from graytrack.core.models.fourier import FourierModel
 from graytrack.core.solvers import FrameSolution, GeneralBatch, TrigPolyBatch, robust_solve
-from graytrack.core.texture_mark import FIELDS, PRIOR_SIGMA, Grid, Mark, scale_chi2
+from graytrack.core.texture_mark import FIELDS, Grid, Mark, scale_chi2
 from graytrack.core.texture_shape import shape_vouches
 
 STEPS_PER_PIXEL = MAX_MAP_STEPS  # a quarter of a pixel footprint: specks narrower than a pixel keep their shape
@@ -260,12 +260,12 @@ class Texture:
             return
         x = self._vouched(solution.x_mm, reference_mm, placed)
         vouched = trusted or x != solution.x_mm  # the grating's reading, or a frame the tracker trusts
-        set_aside = solution.rejected > 0 or solution.transient_px > 0
+        set_aside = solution.rejected_px > 0 or solution.transient_px > 0
         in_view = [mark for mark in self.marks if self._inside(mark, x) is not None]
         if not set_aside and not in_view:
             return
         values = tracker.evaluator.evaluate(np.array([x]))[0][0]
-        scale = solution.gain * values + solution.offset  # what the frame would show without the marks
+        scale = solution.gain * values + solution.offset_gray  # what the frame would show without the marks
         y, w = batch.frames[k], batch.weights(k)
         residual = y - scale
         for mark in in_view:
@@ -342,8 +342,8 @@ class Texture:
             hi = x + self.grid.scale * centre_row[stop - 1] + MARGIN_PX * pitch + self._row_reach()
             first = int(math.floor((lo - self.grid.origin_mm) / self.grid.step_mm))
             last = int(math.ceil((hi - self.grid.origin_mm) / self.grid.step_mm))
-            for first, last in self._outside_learned(first, last):
-                self._candidate(first, last, frame)
+            for start_node, stop_node in self._outside_learned(first, last):
+                self._candidate(start_node, stop_node, frame)
 
     def _outside_learned(self, first: int, last: int) -> list[tuple[int, int]]:
         """The parts of nodes ``first..last`` no learned mark holds (a learned mark keeps its stretch:

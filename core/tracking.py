@@ -91,7 +91,9 @@ class LockEvent:
 
 @dataclass
 class TrackResult:
-    """Every frame's record (core/frame_record.py) as one array per quantity, and the lock events."""
+    """Every frame's record as one array per quantity, and the lock events. A field named in
+    core/frame_record.py is the quantity declared there (unit, type, meaning); here NaN stands for
+    null and "" for no stale reason. The arrays beyond the first seven exist when tracking made them."""
 
     x_mm: np.ndarray
     locked: np.ndarray
@@ -101,18 +103,18 @@ class TrackResult:
     gain: np.ndarray
     offset_gray: np.ndarray
     events: list[LockEvent] = field(default_factory=list)
-    chi2: np.ndarray | None = None  # weighted residual per pixel against the noise model (≈ 1: model right)
-    rejected_px: np.ndarray | None = None  # pixels the robust reweighting gave zero weight
-    stale: np.ndarray | None = None  # the model was stale at this frame (sustained χ² rise)
+    chi2: np.ndarray | None = None
+    rejected_px: np.ndarray | None = None
+    stale: np.ndarray | None = None
     chi2_calibration: float = float("nan")  # the calibration's own level, what χ² is compared with
     repeated: np.ndarray | None = None  # the image repeats the frame before bit for bit (given no position)
-    stale_reason: np.ndarray | None = None  # the family blamed while stale ("" when not): core/validity.py
-    transient_px: np.ndarray | None = None  # samples set aside as a compact transient (glint, passing dust)
-    focus_px2: np.ndarray | None = None  # change of blur variance since calibration (NaN: not estimated)
-    focus_sigma_px2: np.ndarray | None = None  # its standard error
-    texture_px: np.ndarray | None = None  # samples a mark learned on the print corrected (core/texture.py)
+    stale_reason: np.ndarray | None = None
+    transient_px: np.ndarray | None = None
+    focus_px2: np.ndarray | None = None
+    focus_sigma_px2: np.ndarray | None = None
+    texture_px: np.ndarray | None = None
     texture: dict | None = None  # what the run learned on the print (Texture.summary; None: not learning)
-    slide_sigma_um: np.ndarray | None = None  # the slide σ in crlb_mm where chunks carried it (core/chunked.py)
+    slide_sigma_um: np.ndarray | None = None
 
     def error_um(self, reference: np.ndarray) -> np.ndarray:
         """Position minus reference in µm (NaN where either is missing)."""
@@ -154,10 +156,11 @@ class Tracker:
 
     ``light``: ``"fixed"`` keeps the calibrated light; ``"free"`` solves a gain and offset with x
     in every frame; ``"auto"`` solves them when a frame's χ² says the light changed, and keeps
-    solving them until the calibrated light fits again (ten frames in a row: core/light_return.py); when a uniform light is not enough it also
-    tries a light field and a change of focus (blur), and takes the one the evidence asks for.
-    ``tolerance_mm``: the last Gauss–Newton step taken; it is applied, and what remains after it is that step times the contraction (≪ 1 on a
-    converged frame), far below any bound. Default: ``"free"`` for a model with a
+    solving them until the calibrated light fits again (ten frames in a row: core/light_return.py); when a uniform
+    light is not enough it also tries a light field and a change of focus (blur), and takes the one the evidence
+    asks for.
+    ``tolerance_mm``: the last Gauss–Newton step taken; it is applied, and what remains after it is that step times the
+    contraction (≪ 1 on a converged frame), far below any bound. Default: ``"free"`` for a model with a
     per-frame common mode, else ``"fixed"``. ``robust``: frames whose χ² is beyond the noise are
     solved again by IRLS, so that a pixel gone bad in this run does not pull the position.
     ``follow_focus``: the focus term is also taken when the frames' focus estimates move (False: only
@@ -250,7 +253,8 @@ class Tracker:
         """1/σ² per sample ``(K|1, P)``: the noise model at the observed gray level (the variance of
         a row mean when rows are averaged), zero on masked pixels and, when tracking robustly, on
         samples stuck at the sensor's floor or ceiling (saturated by more light than at
-        calibration: they say nothing about x). The flag is True when these are the weights every frame shares, ``(1, P)``."""
+        calibration: they say nothing about x). The flag is True when these are the weights every frame shares,
+        ``(1, P)``."""
         rows = self.model.rows_averaged(frame_rows)
         n_frames = prepared.shape[0]
         if self.signal_dependent and n_frames == 1:  # a live frame: one fused pass (core/frame_kernel.py),
@@ -298,7 +302,8 @@ class Tracker:
         inside = (flat > lo) & (flat < hi)
         return inside if self._masked is None else np.logical_or(inside, self._masked, out=inside)
 
-    def batch(self, prepared: np.ndarray, frame_rows: int = 1, raw: np.ndarray | None = None) -> GeneralBatch | TrigPolyBatch:
+    def batch(self, prepared: np.ndarray, frame_rows: int = 1,
+              raw: np.ndarray | None = None) -> GeneralBatch | TrigPolyBatch:
         """Frames ``(K, R, n)`` in the model's row layout, reduced for solving. ``raw``: the strip
         frames themselves, kept when the model averages their rows, so that a transient on a few
         rows is set aside on those rows only (:meth:`_rows_refined`)."""
@@ -316,10 +321,6 @@ class Tracker:
         if raw is not None and self.model.n_rows == 1 and frame_rows > 1:
             batch.raw = np.asarray(raw)
         return batch
-
-    def frame_sigma(self, frame_rows: int) -> float:
-        """Noise of one model row when ``frame_rows`` raw rows feed the model (averaging lowers it)."""
-        return (self.model.noise_gray or 1.0) / np.sqrt(self.model.rows_averaged(frame_rows))
 
     def solve(self, batch: GeneralBatch | TrigPolyBatch, k: int, x_start: float, memory: LightMemory,
               reference: float = math.nan) -> FrameSolution:
@@ -343,7 +344,7 @@ class Tracker:
         freed_here = free and self.light == "auto" and not (memory.free or self.model.common_mode)
         if solution.chi2 > limit and self.robust and not robust_first:
             solution = self._attempt(batch, k, x_start, memory, free, True)
-        if freed_here and solution.rejected and solution.free_light and solution.light_excess <= LIGHT_RETURN_CHI2:
+        if freed_here and solution.rejected_px and solution.free_light and solution.light_excess <= LIGHT_RETURN_CHI2:
             # The light was freed for samples that turned out to be outliers (a glint): with them out the
             # calibrated light fits, and solving it would only cost the frame information.
             start = FrameSolution(solution.x_mm, float("nan"), 0.0, 0)
@@ -353,8 +354,8 @@ class Tracker:
             solution = self._rows_refined(batch, k, solution)
         stays, memory.fitted = after_frame(memory.fitted, solution.free_light, solution.light_excess)
         memory.free = self.light == "auto" and stays
-        memory.gain, memory.offset = solution.gain, solution.offset
-        memory.rejected = solution.rejected_mask if solution.rejected else None
+        memory.gain, memory.offset = solution.gain, solution.offset_gray
+        memory.rejected = solution.rejected_mask if solution.rejected_px else None
         young = None
         if self.focus_capable:  # (light "auto") a light feature moving across the field, followed: no
             # evidence for a blur or a field of the frame's own (core/moving_band.py)
@@ -408,7 +409,7 @@ class Tracker:
         model = self.model
         raw = np.asarray(batch.raw[k], dtype=np.float64)  # (R, n)
         values = self.evaluator.evaluate(np.array([line.x_mm]))[0][0]
-        predicted = np.broadcast_to(line.gain * values + line.offset, raw.shape)
+        predicted = np.broadcast_to(line.gain * values + line.offset_gray, raw.shape)
         per_sample = model.inverse_variance(predicted)  # 1/σ² of one raw sample, 0 on masked pixels
         used = per_sample > 0.0
         size = np.abs(raw - predicted) * np.sqrt(per_sample)
@@ -427,7 +428,7 @@ class Tracker:
                                                                   evaluator=self.evaluator)
         else:
             single = GeneralBatch.one(self.evaluator, mean[None], weights[None])
-        start = FrameSolution(line.x_mm, float("nan"), 0.0, 0, line.gain, line.offset)
+        start = FrameSolution(line.x_mm, float("nan"), 0.0, 0, line.gain, line.offset_gray)
         solution = robust_solve(single, 0, start, line.free_light, self.settings, None, self.chi2_limit, self.layout)
         solution.transient_px = int(blob.sum())
         solution.transient_share = float(blob.mean())
@@ -521,7 +522,7 @@ class Tracker:
         the uniform light and how still its shape holds. Once the gain falls back, the field
         stops being solved."""
         weights = batch.weights(k)
-        if uniform.rejected:
+        if uniform.rejected_px:
             weights = weights * ~uniform.rejected_mask
         shaped = field_solve(self.evaluator, batch.frames[k], weights, self.field_basis, uniform, self.settings)
         # In units of the calibration's own χ² level: where the model already left residue at
@@ -601,7 +602,7 @@ class Tracker:
         weights = batch.weights(k)
         if solution.rejected_mask is not None:
             weights = weights * ~solution.rejected_mask
-        residual = batch.residuals(k, solution.x_mm, solution.gain, solution.offset)
+        residual = batch.residuals(k, solution.x_mm, solution.gain, solution.offset_gray)
         phase = (TWO_PI / self.model.period_mm) * (solution.x_mm + self.model.target_offset().reshape(-1))
         columns = attribution.shapes(values[1], slopes[1], curvature, self.model.n_rows, phase, self.model.harmonics)
         squares = residual * residual * weights
@@ -618,8 +619,8 @@ class Tracker:
         if solution.transient_share > MAX_REJECTED_FRACTION:
             return (f"a transient (glint, reflection, passing dust) covers {100 * solution.transient_share:.0f} % of "
                     f"the frame ({solution.transient_px} samples): too little left to trust the position")
-        if solution.rejected > MAX_REJECTED_FRACTION * self.model.n_rows * self.model.n_pixels:
-            return f"{solution.rejected} pixels rejected as outliers"
+        if solution.rejected_px > MAX_REJECTED_FRACTION * self.model.n_rows * self.model.n_pixels:
+            return f"{solution.rejected_px} pixels rejected as outliers"
         return None
 
     def lost_reason(self, solution: FrameSolution, x_prev: float, reference: float) -> str | None:
@@ -634,15 +635,12 @@ class Tracker:
 
 
 # A pending frame's entry (SequentialState._watch_validity), slot by slot, and the fields of its
-# solution each sign field is read from.
+# solution a sign reads (FrameSolution and FrameSign name them alike).
 PENDING_SLOTS = ("frame", "solution", "reference_mm", "placed", "rows_averaged", "chi2_average", "chi2_suspect",
                  "chi2_stale", "explain", "stretch")
-SOLUTION_SIGNS = {"chi2": "chi2", "information": "information", "gain": "gain", "offset_gray": "offset",
-                  "focus": "focus", "focus_sigma": "focus_sigma", "rejected_px": "rejected",
-                  "transient_px": "transient_px", "transient_at": "transient_at", "x_mm": "x_mm",
-                  "free_light": "free_light", "field": "field", "moving": "moving", "period_guess": "period_guess",
-                  "pulled": "pulled"}
-_solution_signs = operator.attrgetter(*SOLUTION_SIGNS.values())
+SOLUTION_SIGNS = ("chi2", "information", "gain", "offset_gray", "focus", "focus_sigma", "rejected_px", "transient_px",
+                  "transient_at", "x_mm", "free_light", "field", "moving", "period_guess", "pulled")  # named alike
+_solution_signs = operator.attrgetter(*SOLUTION_SIGNS)
 
 
 @dataclass
@@ -728,8 +726,8 @@ class SequentialState:
                                  self.chi2_suspect, self.chi2_stale, explain, stretched))
             return
         sign = FrameSign(
-            self.frame - 1, solution.chi2, solution.information, gain=solution.gain, offset_gray=solution.offset,
-            focus=solution.focus, focus_sigma=solution.focus_sigma, rejected_px=solution.rejected,
+            self.frame - 1, solution.chi2, solution.information, gain=solution.gain, offset_gray=solution.offset_gray,
+            focus=solution.focus, focus_sigma=solution.focus_sigma, rejected_px=solution.rejected_px,
             transient_px=solution.transient_px, transient_at=solution.transient_at,
             x_mm=solution.x_mm, reference_mm=reference, placed=placed, rows_averaged=self.rows_averaged,
             free_light=solution.free_light, field=solution.field, chi2_average=average,
@@ -845,7 +843,7 @@ def track(model: FourierModel, source: Recording | np.ndarray, reference: np.nda
             batch = tracker.batch(tracker.prepare(chunk), frame_rows, raw=chunk if frames.ndim == 3 else None)
         if not repeated[k]:
             solution, ok, locked[k] = state.advance(tracker, batch, k % BATCH_CHUNK, reference[k])
-            out["chi2"][k], rejected[k] = solution.chi2, solution.rejected
+            out["chi2"][k], rejected[k] = solution.chi2, solution.rejected_px
             transient[k] = solution.transient_px
             texture_px[k] = state.texture.corrected_px if state.texture is not None else 0
             if math.isfinite(solution.focus_sigma):
@@ -855,7 +853,7 @@ def track(model: FourierModel, source: Recording | np.ndarray, reference: np.nda
             ok = False
         if ok:
             out["x"][k], out["rms"][k], out["info"][k] = solution.x_mm, solution.rms_gray, solution.information
-            out["gain"][k], out["offset"][k] = solution.gain, solution.offset
+            out["gain"][k], out["offset"][k] = solution.gain, solution.offset_gray
             iterations[k] = solution.iterations
         if progress and k % report_every == 0:
             progress(k / n_frames, f"frame {k}/{n_frames}")
@@ -888,25 +886,26 @@ def _judge(state: SequentialState, repeated: np.ndarray, stale: np.ndarray, stal
 
 @dataclass
 class LiveFix:
-    """One frame's answer in live tracking (the daemon's position stream): its record
-    (core/frame_record.py), the fields named as there."""
+    """One frame's answer in live tracking (the daemon's position stream): its record. A field named
+    in core/frame_record.py is the quantity declared there (``crlb_mm`` is ``crlb_um`` in the solver's
+    unit); NaN stands for null (``x_mm`` of a frame not placed), None for no stale reason."""
 
-    x_mm: float  # NaN when the frame could not be placed
+    x_mm: float
     locked: bool
     rms_gray: float
     crlb_mm: float
     event: LockEvent | None
-    chi2: float = float("nan")  # weighted residual per pixel against the noise model
-    rejected_px: int = 0  # pixels the robust reweighting set aside in this frame
-    gain: float = 1.0  # the light relative to calibration (1, 0 unless solved)
+    chi2: float = float("nan")
+    rejected_px: int = 0
+    gain: float = 1.0
     offset_gray: float = 0.0
-    stale: bool = False  # the model no longer describes the images: recalibrate
-    stale_reason: str | None = None  # the family of causes blamed while stale (core/validity.py)
-    transient_px: int = 0  # samples set aside as a compact transient (a glint, passing dust)
-    focus_px2: float = float("nan")  # change of blur variance since calibration (NaN: not estimated)
+    stale: bool = False
+    stale_reason: str | None = None
+    transient_px: int = 0
+    focus_px2: float = float("nan")
     focus_sigma_px2: float = float("nan")
     iterations: int = 0
-    texture_px: int = 0  # samples a mark learned on the print corrected (core/texture.py)
+    texture_px: int = 0
 
 
 class LiveTracker:
@@ -970,7 +969,7 @@ class LiveTracker:
         event = self.state.events[-1] if len(self.state.events) > events_before else None
         crlb = self._bound_factor / math.sqrt(solution.information) if solution.information > 0 else float("nan")
         return LiveFix(solution.x_mm if ok else float("nan"), locked, solution.rms_gray, crlb, event,
-                       solution.chi2, solution.rejected, solution.gain, solution.offset, self.state.stale,
+                       solution.chi2, solution.rejected_px, solution.gain, solution.offset_gray, self.state.stale,
                        self.state.stale_reason, solution.transient_px,
                        solution.focus if math.isfinite(solution.focus_sigma) else float("nan"), solution.focus_sigma,
                        solution.iterations if ok else 0,
@@ -1048,7 +1047,8 @@ def _solve_frame(tracker: Tracker, batch: GeneralBatch | TrigPolyBatch, k: int, 
             solution, rival = tracker.acquire_with_rival(batch, k, lo, max(hi, lo + tracker.model.period_mm), memory)
             if rival is not None and tracker.untrusted(solution) is None:
                 events.append(LockEvent(frame, f"acquired without a reference, but a position {rival:+.3f} mm away "
-                                               "fits as well: the period is a guess", float("nan"), solution.x_mm, True))
+                                               "fits as well: the period is a guess",
+                                        float("nan"), solution.x_mm, True))
                 state.rival = PeriodRival.opened(rival, solution, tracker.model, AMBIGUITY_CHI2)
                 solution.period_guess = state.rival is not None
         ok = tracker.untrusted(solution) is None

@@ -35,10 +35,6 @@ class Following:
     sigma_um: float = 0.0
     lag_um: float = 0.0
 
-    def widened(self, bound_mm: float) -> float:
-        """A frame's bound with what the trim adds (its uncertainty and lag), mm."""
-        return math.sqrt(bound_mm * bound_mm + (self.sigma_um ** 2 + self.lag_um ** 2) * 1e-6)
-
     def behind(self, bound_mm: float) -> bool:
         """The trim lags this frame by more than :data:`BEHIND` of its bound."""
         return self.lag_um > BEHIND * bound_mm * 1e3

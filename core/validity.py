@@ -53,18 +53,20 @@ ADVICE = {
 
 @dataclass(slots=True)
 class FrameSign:
-    """What one frame's solve tells the monitor beyond its position (NaN/None: not known)."""
+    """What one frame's solve tells the monitor beyond its position (NaN/None: not known). A field
+    named in core/frame_record.py is the quantity declared there, under the same name in
+    :class:`~graytrack.core.solvers.FrameSolution`, whence it is copied."""
 
     frame: int
-    chi2: float = float("nan")  # weighted residual per used sample against the noise model
+    chi2: float = float("nan")
     information: float = float("nan")  # the frame's Fisher information on x (1/mm²), as solved
     information_calibrated: float = float("nan")  # the same at x with the calibrated light and all samples
-    gain: float = 1.0  # the light relative to calibration
+    gain: float = 1.0
     offset_gray: float = 0.0
     focus: float = 0.0  # change in blur variance since calibration (px²), when a focus term was solved
     focus_sigma: float = float("nan")  # its standard error
-    rejected_px: int = 0  # samples set aside by the robust solve (bad pixels)
-    transient_px: int = 0  # samples set aside as a compact transient (a glint, passing dust)
+    rejected_px: int = 0
+    transient_px: int = 0
     transient_at: float = float("nan")  # mean pixel (column) of those samples: a blob that stays put is no transient
     x_mm: float = float("nan")
     reference_mm: float = float("nan")  # the grating at the same instant, when read
@@ -101,9 +103,9 @@ class Watch(Protocol):
     (tests/core/test_watch_kernels.py holds each watch to that)."""
 
     family: str
-    # A verdict on the model itself (refused or inadequate at calibration) outranks whatever a
+    # Optional, read with getattr (so not a protocol member: most watches leave it out): ``decisive =
+    # True``, a verdict on the model itself (refused or inadequate at calibration) outranks whatever a
     # frame's nuisances suggest: those only describe how a wrong model fails on this frame.
-    decisive: bool = False
 
     def observe(self, sign: FrameSign) -> str | None:
         """The family this watch blames now (None: nothing to say)."""
@@ -188,7 +190,7 @@ def _observe_all(watch: Watch, columns: dict[str, list], n: int) -> list[str | N
     if reads is None:
         return [watch.observe(FrameSign(**dict(zip(SIGN_FIELDS, row))))
                 for row in zip(*(columns[name] for name in SIGN_FIELDS))]
-    step = watch.step
+    step = watch.step  # type: ignore[attr-defined]  # a watch naming ``reads`` has ``step`` (Watch)
     if not reads:
         return [step() for _ in range(n)]
     return [step(*row) for row in zip(*(columns[name] for name in reads))]

@@ -49,15 +49,12 @@ def wait(predicate, timeout_s: float, what: str):
 def report_plot(recording_path: Path, out: Path) -> None:
     """The held-out error of the calibration the daemon made with the default sweep (a scan)."""
     from graytrack.core.calibration import calibrate
-    from graytrack.core.diagnosis.heldout import two_fold_by_block
+    from graytrack.core.diagnosis.heldout import held_out_blocks, two_fold_by_block
     from graytrack.core.recording import load
-    from graytrack.service.daemon.settings import SweepConfig
-    from graytrack.service.daemon.sweep import held_out_block
 
     recording = load(recording_path)
-    block = held_out_block(SweepConfig(), recording.n_frames)
     fig, ax = plt.subplots(figsize=(7, 3.2), dpi=150)
-    folds = two_fold_by_block(recording, block, lambda part: calibrate(part, "paper").model)
+    folds = two_fold_by_block(recording, held_out_blocks(recording), lambda part: calibrate(part, "paper").model)
     for fold, color, label in zip(folds, ("#2b6cb0", "#b7791f"), ("even", "odd")):
         ax.fill_between(np.sort(fold.x_mm), -fold.crlb_um, fold.crlb_um, color="0.85", zorder=0)
         ax.plot(fold.x_mm, fold.error_um, "o", ms=2, color=color, label=f"held out: {label} blocks")
@@ -78,14 +75,16 @@ def main() -> None:
     base = f"http://127.0.0.1:{port}"
     config = folder / "rig.toml"
     config.write_text(f'[daemon]\ndata_dir = "{folder / "data"}"\nlog_level = "warning"\n')
-    daemon = subprocess.Popen([sys.executable, "-m", "graytrack", "serve", "--config", str(config), "--port", str(port)])
+    daemon = subprocess.Popen([sys.executable, "-m", "graytrack", "serve", "--config", str(config), "--port",
+                               str(port)])
     try:
         wait(lambda: httpx.get(f"{base}/healthz", timeout=2).status_code == 200, 300, "the first calibration")
         token = (folder / "data" / "token").read_text().strip()
         httpx.post(f"{base}/api/stage/move", json={"target_mm": 6.2}, headers={"Authorization": f"Bearer {token}"})
         with sync_playwright() as playwright:
             browser = playwright.chromium.launch(executable_path=CHROMIUM, headless=True,
-                                                 args=["--no-sandbox", "--disable-gpu", "--disable-background-networking"])
+                                                 args=["--no-sandbox", "--disable-gpu",
+                                                       "--disable-background-networking"])
             page = browser.new_page(viewport={"width": 1100, "height": 900}, device_scale_factor=1)
             page.goto(base + "/")
             page.wait_for_timeout(6000)

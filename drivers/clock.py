@@ -3,9 +3,9 @@
 The simulated controller, the simulated camera and the drivers talking to them must agree on
 one clock, because pairing an exposure with a grating reading is what the rig is about. Tests
 run that clock faster than wall time (``ScaledClock(10)``) so that a calibration sweep of real
-moves, settles and frames takes a fraction of a second without changing any of the timing logic. What leaves a simulated device is host time all the
-same (:meth:`ScaledClock.to_host`): physics runs on the simulated clock, the frame and reading
-boundaries map to ``time.monotonic``, so the time contract holds whatever the scale.
+moves, settles and frames takes a fraction of a second without changing any of the timing logic. What leaves a
+simulated device is host time all the same (:meth:`ScaledClock.to_host`): physics runs on the simulated clock,
+the frame and reading boundaries map to ``time.monotonic``, so the time contract holds whatever the scale.
 """
 
 from __future__ import annotations

@@ -41,8 +41,22 @@ class RoiConfig(_Strict):
         return Roi(self.row, self.rows, self.col, self.cols)
 
 
+def _registered(registry_name: str) -> Callable[[str], str]:
+    """A validator of ``kind``: the name of a registered driver (drivers/registry.py), read back as that
+    driver's short name, so "OpenCVCamera" and "opencv" configure the same camera."""
+    def check(value: str) -> str:
+        from graytrack.drivers import registry  # (imports the drivers: only when a table is validated)
+
+        try:
+            return getattr(registry, registry_name).resolve(value).name
+        except LookupError as exc:
+            raise ValueError(str(exc)) from None
+    return check
+
+
 class CameraConfig(_Strict):
-    kind: Literal["opencv", "aravis", "sim"] = "sim"
+    kind: str = Field("sim", description="the camera's driver: its class (OpenCVCamera, AravisCamera, SimCamera), "
+                                         "dotted path or short name (opencv, aravis, sim)")
     device: str | int | None = Field(None, description="opencv: index, file or URL; aravis: device id or IP")
     roi: RoiConfig = RoiConfig()
     exposure_us: float | None = Field(None, gt=0)
@@ -64,9 +78,12 @@ class CameraConfig(_Strict):
     effects: str = Field("", description="sim: effects the virtual rig has besides its scenario's, as "
                                          "`graytrack simulate --effects` takes them (e.g. \"dust:count=6,flicker\")")
     seed: int = 0
-    rig_process: bool = Field(True, description="sim: run the virtual rig (the stage's motion, the simulated controller "
-                                                "and the camera's rendering) in a process of its own, out of the "
-                                                "daemon's interpreter; the same frames either way")
+    rig_process: bool = Field(True,
+                              description="sim: run the virtual rig (the stage's motion, the simulated controller "
+                                          "and the camera's rendering) in a process of its own, out of the "
+                                          "daemon's interpreter; the same frames either way")
+
+    _known_kind = field_validator("kind")(_registered("cameras"))
 
     @model_validator(mode="after")
     def _rig_exists(self) -> "CameraConfig":
@@ -91,7 +108,8 @@ class CameraConfig(_Strict):
 
 
 class StageConfig(_Strict):
-    kind: Literal["gcs", "sim"] = "sim"
+    kind: str = Field("sim", description="the stage's driver: its class (GCSStage, SimGCSController), dotted path "
+                                         "or short name (gcs, sim)")
     port: str | None = Field(None, description="gcs: serial device, e.g. /dev/serial/by-id/usb-PI_...")
     baudrate: int = 115200
     axis: str = Field("1", pattern=r"^[A-Za-z0-9_]+$")
@@ -99,6 +117,8 @@ class StageConfig(_Strict):
     velocity_mm_s: float | None = Field(None, gt=0)
     timeout_s: float = Field(1.0, gt=0)
     reference_on_open: bool = True
+
+    _known_kind = field_validator("kind")(_registered("stages"))
 
     @field_validator("baudrate")
     @classmethod
@@ -144,7 +164,8 @@ def read_toml(path: Path) -> dict[str, Any]:
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: not valid TOML ({exc})") from None
     except UnicodeDecodeError as exc:
-        raise ConfigError(f"{path}: not valid TOML (not UTF-8 text: byte {exc.start} is {exc.object[exc.start]:#04x})") from None
+        raise ConfigError(f"{path}: not valid TOML "
+                          f"(not UTF-8 text: byte {exc.start} is {exc.object[exc.start]:#04x})") from None
     except RecursionError:
         raise ConfigError(f"{path}: not valid TOML (nested too deeply to read)") from None
     except IsADirectoryError:

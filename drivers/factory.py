@@ -1,6 +1,7 @@
 """Build the camera and the stage from their configuration (what the daemon calls at start).
 
-``kind = "sim"`` builds the virtual rig behind the *real* drivers: the stage is a
+``kind`` names a registered driver (drivers/registry.py): a hardware one builds itself from its table
+(``from_config``). ``kind = "sim"`` builds the virtual rig behind the *real* drivers: the stage is a
 :class:`GCSStage` talking to a simulated controller over a pty, so the daemon exercises the same
 code paths with and without hardware. A simulated camera needs the simulated stage (it renders
 that stage's true position), so that combination is required.
@@ -14,6 +15,7 @@ from typing import TYPE_CHECKING
 from graytrack.drivers.camera.base import Camera
 from graytrack.drivers.clock import REAL_TIME, ScaledClock
 from graytrack.drivers.config import CameraConfig, ConfigError, HardwareConfig, StageConfig
+from graytrack.drivers.registry import cameras, stages
 from graytrack.drivers.stage.base import Stage
 from graytrack.drivers.stage.gcs_stage import GCSStage
 
@@ -38,45 +40,34 @@ class Hardware:
 
 
 def make_gcs_stage(config: StageConfig, port: str | None = None) -> GCSStage:
-    return GCSStage(
-        port or config.port or "",
-        baudrate=config.baudrate,
-        axis=config.axis,
-        timeout_s=config.timeout_s,
-        soft_limits_mm=config.soft_limits_mm,
-        velocity_mm_s=config.velocity_mm_s,
-        reference_on_open=config.reference_on_open,
-    )
+    return GCSStage.from_config(config, port)
 
 
 def make_real_camera(config: CameraConfig) -> Camera:
-    """OpenCV or Aravis; the Aravis module (and ``gi``) is only imported when asked for."""
-    if config.kind == "opencv":
-        from graytrack.drivers.camera.opencv import OpenCVCamera
+    """The hardware camera ``kind`` names (Aravis's ``gi`` is only imported when one opens)."""
+    driver = cameras.resolve(config.kind)
+    if driver.simulated:
+        raise ConfigError(f"camera.kind: {config.kind!r} is not a hardware camera")
+    return driver.cls.from_config(config)  # type: ignore[attr-defined]
 
-        assert config.device is not None
-        return OpenCVCamera(config.device, config.to_settings(), readout_s=config.readout_us * 1e-6)
-    if config.kind == "aravis":
-        from graytrack.drivers.camera.aravis import AravisCamera
 
-        return AravisCamera(
-            None if config.device is None else str(config.device),
-            config.to_settings(),
-            trigger=config.trigger,
-            trigger_source=config.trigger_source,
-            pixel_format=config.pixel_format,
-            n_buffers=config.n_buffers,
-            readout_s=config.readout_us * 1e-6,
-        )
-    raise ConfigError(f"camera.kind: {config.kind!r} is not a hardware camera")
+def make_real_stage(config: StageConfig) -> Stage:
+    """The hardware stage ``kind`` names."""
+    driver = stages.resolve(config.kind)
+    if driver.simulated:
+        raise ConfigError(f"stage.kind: {config.kind!r} is not a hardware stage")
+    return driver.cls.from_config(config)  # type: ignore[attr-defined]
 
 
 def open_hardware(config: HardwareConfig, clock: ScaledClock = REAL_TIME) -> Hardware:
     """Open camera and stage (stage referenced and ready); the caller closes the result."""
-    if config.camera.kind == "sim" and config.stage.kind != "sim":
-        raise ConfigError("camera.kind = 'sim' renders the simulated stage: set stage.kind = 'sim' too")
-    if config.stage.kind == "gcs":
-        hardware = Hardware(make_real_camera(config.camera), make_gcs_stage(config.stage))
+    camera_simulated = cameras.resolve(config.camera.kind).simulated
+    stage_simulated = stages.resolve(config.stage.kind).simulated
+    if camera_simulated and not stage_simulated:
+        raise ConfigError(f"camera.kind = {config.camera.kind!r} renders the simulated stage: "
+                          "set stage.kind = 'sim' too")
+    if not stage_simulated:
+        hardware = Hardware(make_real_camera(config.camera), make_real_stage(config.stage))
     else:
         hardware = _simulated(config, clock)
     try:
@@ -108,7 +99,7 @@ def _simulated(config: HardwareConfig, clock: ScaledClock) -> Hardware:
     from graytrack.drivers.sim.scenarios import build_rig
 
     rig = build_rig(config.camera.scenario, config.camera.effects, seed=config.camera.seed)
-    if config.camera.kind == "sim" and config.camera.rig_process:
+    if cameras.resolve(config.camera.kind).simulated and config.camera.rig_process:
         # the stage's motion, its controller and the rendering in a process of their own (drivers/sim/process.py)
         from graytrack.drivers.sim.process import RigProcess
 
@@ -119,7 +110,8 @@ def _simulated(config: HardwareConfig, clock: ScaledClock) -> Hardware:
     truth, controller = virtual_rig_controller(rig, clock)
     controller.start()
     stage = make_gcs_stage(config.stage, port=controller.path)
-    camera = SimCamera(rig, truth, config.camera.to_settings(), clock=clock) if config.camera.kind == "sim" else make_real_camera(config.camera)
+    camera = (SimCamera(rig, truth, config.camera.to_settings(), clock=clock)
+              if cameras.resolve(config.camera.kind).simulated else make_real_camera(config.camera))
     return Hardware(camera, stage, controller, rig)
 
 

@@ -29,6 +29,20 @@ class Health(BaseModel):
     reason: str | None = None
 
 
+class Access(BaseModel):
+    token_from: str = Field(description="file (the daemon wrote DATA/token at its first start) or config "
+                                        "([daemon] token of its configuration)")
+    token_file: str | None = Field(description="the token file's absolute path on the daemon's machine (null when "
+                                               "the token comes from the configuration)")
+    data_dir: str = Field(description="the daemon's data directory (the client's data_dir=)")
+
+
+class Startup(BaseModel):
+    step: str = Field(description="what the daemon is doing before it opens the rig")
+    elapsed_s: float = Field(description="seconds in that step so far")
+    expected_s: str = Field(description="how long the step takes, in words")
+
+
 class JobSummary(BaseModel):
     id: str
     state: str
@@ -79,6 +93,22 @@ class TextureStatus(BaseModel):
     restored: int = Field(description="marks restored at this start from DATA/texture.json")
 
 
+class TrimStatus(BaseModel):
+    model_config = ConfigDict(extra="allow")  # the window's line and the followed stretch, when there are
+    enabled: bool = Field(description="[daemon] trim: the online trim may correct positions")
+    active: bool = Field(description="a trim is in force (its figures below; null without one)")
+    scale_ppm: float | None
+    scale_sigma_ppm: float | None
+    offset_um: float | None
+    offset_sigma_um: float | None
+    drift: bool = Field(description="camera against grating drifts beyond the calibration (the scale watch)")
+
+
+class TrimReset(BaseModel):
+    cleared: bool = Field(description="a trim was in force and is dropped")
+    trim: TrimStatus = Field(description="the trim status after the reset")
+
+
 class Status(BaseModel):
     model_config = ConfigDict(extra="allow")  # later additions stay visible to clients
     state: str = Field(description="starting, idle, calibrating, tracking, fault or stopping")
@@ -108,6 +138,8 @@ class Status(BaseModel):
     texture: TextureStatus | None = Field(None, description="marks the tracker learned on the print (null: no frame "
                                                             "loop or not learning)")
     simulated: bool
+    startup: Startup | None = Field(None, description="while the daemon warms up before opening the rig (state "
+                                                       "starting): the step and its progress; null after")
     uptime_s: float
     version: str
 

@@ -25,7 +25,7 @@ import numpy as np
 
 from graytrack.core.files import write_atomic
 from graytrack.core.jsonable import finite_or_none
-from graytrack.service.figures import positive, shown
+from graytrack.service.figures import positive, shown, structure
 
 if TYPE_CHECKING:
     from graytrack.core.diagnosis.heldout import HeldOut
@@ -72,16 +72,18 @@ class CalibrationRun:
     def warnings(self) -> list[str]:
         """Lines for stderr: a doubtful geometry's causes, a model that errs on its own calibration."""
         check = self.report.get("geometry") or {}
-        lines = [f"warning: {text}" for text in check.get("warnings") or []] if check.get("status") == "doubtful" else []
+        doubtful = check.get("status") == "doubtful"
+        lines = [f"warning: {text}" for text in check.get("warnings") or []] if doubtful else []
         from graytrack.core.adequacy import inadequacy
         from graytrack.core.compression import stream_bound_factor
 
         info = self.model.info
         stream = info.get("stream")
         if stream:
-            lines.append(f"warning: the frames come from a JPEG stream (quality ~{stream['quality']}): its quantisation "
-                         f"widens every position's bound {stream['bound_factor']:.1f}x (tracking reports the wider "
-                         "bound); set the camera to an uncompressed pixel format (Mono8, Mono12) for the sensor's own")
+            lines.append(f"warning: the frames come from a JPEG stream (quality ~{stream['quality']}): "
+                         f"its quantisation widens every position's bound {stream['bound_factor']:.1f}x "
+                         "(tracking reports the wider bound); "
+                         "set the camera to an uncompressed pixel format (Mono8, Mono12) for the sensor's own")
         if inadequacy(info):
             ratio = info["calibration_error_ratio"] / stream_bound_factor(info)
             lines.append(f"warning: this model places its own calibration frames {ratio:.1f}x as far off as their "
@@ -109,16 +111,15 @@ class CalibrationRun:
 
 def calibrate_recording(recording: "Recording", kind: str = "paper", *, validation: "Recording | None" = None,
                         harmonics: int | None = None, pixel_degree: int | None = None, rows: str = "auto",
-                        held_out_block: int | None = None, info: dict[str, Any] | None = None,
-                        progress: Progress | None = None) -> CalibrationRun:
+                        info: dict[str, Any] | None = None, progress: Progress | None = None) -> CalibrationRun:
     """Calibrate ``recording`` with the model ``kind`` (``ideal``, ``paper``, or ``auto``: the closed loop).
 
-    ``held_out_block``: frames per block of the two-fold held-out error of ``ideal`` and ``paper``
-    (a sweep's stop; None: no held-out figure); the closed loop measures on its own held-out
-    frames, or on ``validation``. ``info`` is added to the model's info before anything is
-    written (the daemon's camera orientation, ``--flip``). A refused geometry raises
-    :class:`GeometryError` for ``ideal``/``paper``; the closed loop returns the run with
-    ``refused`` set, so that its report can still be written.
+    Every kind is judged by core/diagnosis/heldout.py on frames its fit did not see: ``validation``
+    when given, else blocks of ``recording`` (the same frames whoever calls: the CLI, batch, the
+    daemon). ``info`` is added to the model's info before anything is written (the daemon's camera
+    orientation, ``--flip``). A refused geometry raises :class:`GeometryError` for
+    ``ideal``/``paper``; the closed loop returns the run with ``refused`` set, so that its report
+    can still be written.
     """
     if kind not in KINDS:
         from graytrack.core.errors import CalibrationError
@@ -129,30 +130,39 @@ def calibrate_recording(recording: "Recording", kind: str = "paper", *, validati
 
         run = CalibrationRun.of_diagnosis(diagnose(recording, validation, progress=progress))
     else:
-        run = _fit(recording, kind, harmonics, pixel_degree, rows, held_out_block, progress)
+        run = _fit(recording, kind, harmonics, pixel_degree, rows, validation, progress)
     run.model.info.update(info or {})
+    run.report["recording"] = recording_facts(recording)
     return run
 
 
+def recording_facts(recording: "Recording") -> dict[str, Any]:
+    """What the recording says about itself that a reader of the report needs: its source, and for
+    the virtual rig its scenario and the effects switched on (which no model is told about)."""
+    meta = recording.meta
+    return {"source": meta.get("source"), "scenario": meta.get("scenario"),
+            "simulated_effects": [str(effect) for effect in meta.get("effects") or []]}
+
+
+HELD_OUT_SHARE = 0.6  # of the progress bar, the fit on all frames; the held-out refits take the rest
+
+
 def _fit(recording: "Recording", kind: str, harmonics: int | None, pixel_degree: int | None, rows: str,
-         held_out_block: int | None, progress: Progress | None) -> CalibrationRun:
-    """The ideal or seed paper's model, with its held-out error two-fold by block when asked."""
+         validation: "Recording | None", progress: Progress | None) -> CalibrationRun:
+    """The ideal or seed paper's model, fitted on all frames, with its held-out error."""
     from graytrack.core.calibration import calibrate
-    from graytrack.core.diagnosis.heldout import HeldOut, two_fold_by_block
+    from graytrack.core.diagnosis.heldout import validate
 
-    share = 1.0 if held_out_block is None else 0.6
-    scaled = None if progress is None else (lambda f, label: progress(share * f, label))
+    scaled = None if progress is None else (lambda f, label: progress(HELD_OUT_SHARE * f, label))
     result = calibrate(recording, kind, harmonics=harmonics, pixel_degree=pixel_degree, rows=rows, progress=scaled)
-    model, held_out = result.model, None
-    if held_out_block is not None:
-        if progress:
-            progress(share, "held-out error: two-fold by block")
+    model = result.model
+    if progress:
+        progress(HELD_OUT_SHARE, "held-out error: refitting without the held-out frames")
 
-        def fit(part: "Recording") -> "FourierModel":
-            return calibrate(part, kind, harmonics=harmonics, pixel_degree=pixel_degree, rows=rows).model
+    def fit(part: "Recording") -> "FourierModel":
+        return calibrate(part, kind, harmonics=harmonics, pixel_degree=pixel_degree, rows=rows).model
 
-        parts = two_fold_by_block(recording, held_out_block, fit)
-        held_out = HeldOut.of(parts, f"two-fold by block, {kind} model") if parts else None
+    held_out = validate(recording, fit, validation=validation, fitted=model, label=f"{kind} model")
     held = held_out.as_dict() if held_out is not None else None
     quality = "" if held is None else (f"held-out error {shown(held['error_std_um'], 2, 'µm')} "
                                        f"(bound {shown(held['bound_um'], 2, 'µm')}), ")
@@ -168,7 +178,7 @@ def _fit(recording: "Recording", kind: str, harmonics: int | None, pixel_degree:
                     f"(noise {shown(result.sigma_gray, 3)} gray)" + _doubts(result.geometry.as_dict())),
         "findings": {"transients": model.info.get("transients") or NO_TRANSIENTS},
     })
-    if progress and held_out_block is not None:  # (without it, calibrate said "done" itself)
+    if progress:
         progress(1.0, f"done, held-out error {shown(held['error_std_um'] if held else None, 2, 'µm')}")
     return CalibrationRun(kind, model, report, held_out, result.geometry)
 
@@ -230,11 +240,13 @@ def _transient_line(report: dict) -> list[str]:
 def loop_lines(report: dict) -> list[str]:
     """The closed loop's figures: before, each step, after, the bound and what limits it."""
     before, after, noise = report["before"], report["after"], report["noise"]
-    lines = geometry_lines(report) + [f"before  {before['model']}: {_figures(before)}"]
+    lines = geometry_lines(report) + [f"before  {structure(before['model'])}: {_figures(before)}"]
     for step in report["steps"]:
         lines.append(f"  + {step['effect']:<16} {step['evidence']}")
         lines.append(f"    {'':<16} {_figures(step)}")
-    lines.append(f"after   {after['model']}: {_figures(after)}")
+    lines.append(f"after   {structure(after['model'])}: {_figures(after)}")
+    if report.get("final_model") and (report.get("geometry") or {}).get("status") != "refused":
+        lines.append(f"model   {report['final_model']} (model.json: fitted on every calibration frame)")
     lines.append(f"noise   sigma {_figure(noise['gray'], 4)} gray, Cramer-Rao bound {_figure(noise['crlb_um'], 3)} um")
     compression = (report.get("findings") or {}).get("compression")
     if compression:
@@ -242,7 +254,7 @@ def loop_lines(report: dict) -> list[str]:
                      f"with its quantisation the bound is {_figure(compression.get('crlb_um'), 3)} um")
     if positive(noise.get("reference_resolution_um")):
         lines.append(f"        grating readout in steps of {_figure(noise['reference_resolution_um'], 3)} um: "
-                     f"floor against it {_figure(noise['floor_um'], 3)} um")
+                     f"readout floor {_figure(noise['floor_um'], 3)} um")
     return lines + _transient_line(report)
 
 
@@ -253,6 +265,7 @@ def fit_lines(report: dict) -> list[str]:
              f"(noise sigma {_figure(report.get('sigma_gray'), 4)} gray from the data)"]
     held = report.get("held_out")
     if held:
-        lines.append(f"held    error std {_figure(held.get('error_std_um'), 3)} um on {_figure(held.get('frames'), 0)} held-out "
-                     f"frames, Cramer-Rao bound {_figure(held.get('bound_um'), 3)} um ({held.get('method')})")
+        lines.append(f"held    error std {_figure(held.get('error_std_um'), 3)} um "
+                     f"on {_figure(held.get('frames'), 0)} held-out frames, "
+                     f"Cramer-Rao bound {_figure(held.get('bound_um'), 3)} um ({held.get('method')})")
     return lines + _transient_line(report)

@@ -29,7 +29,8 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     command (a ``track`` of a short recording) does not pay for building all the others'."""
     parser = argparse.ArgumentParser(
         prog="graytrack",
-        description="Camera + printed sine target as a displacement sensor: simulate, calibrate, track, diagnose, serve.",
+        description="Camera + printed sine target as a displacement sensor: "
+                    "simulate, calibrate, track, diagnose, serve.",
     )
     parser.add_argument("--version", action="version", version=f"graytrack {__version__}")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)

@@ -10,6 +10,7 @@ does not exist. The command line shows the same with ASCII ("n/a").
 from __future__ import annotations
 
 import math
+import re
 from typing import Any
 
 MISSING = "—"
@@ -39,3 +40,12 @@ def shown(value: Any, digits: int, unit: str = "", missing: str = MISSING) -> st
         text = text.lstrip("-")  # −0.0004 shown to three decimals is 0.000, not −0.000
     return f"{text} {unit}" if unit else text
 
+
+
+GEOMETRY = re.compile(r"; τ=[^;)]*, α·d=[^;)]*\)$")
+
+
+def structure(description: object) -> str:
+    """A model's description without its geometry: τ and α·d are stated once, of the model written
+    (model.json), and not again for each stage of its making (fitted on fewer frames, they differ)."""
+    return GEOMETRY.sub(")", str(description or ""))

@@ -11,6 +11,9 @@ import time
 from typing import Callable, TextIO
 
 ProgressCallback = Callable[[float, str], None]
+# A line saying what a run did besides its outputs (a frame axis reversed, the grating moved to mid-exposure):
+# the command line prints it, a batch worker keeps it in the recording's summary row (nobody reads its stdout).
+NoteCallback = Callable[[str], None]
 
 
 class ProgressBar:

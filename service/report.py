@@ -9,9 +9,7 @@ rigs without network access, served by the daemon's history and mailed around as
 
 from __future__ import annotations
 
-import base64
 import html
-import io
 from typing import TYPE_CHECKING
 
 import matplotlib
@@ -20,23 +18,17 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from graytrack.core.diagnosis.loop import DiagnosisResult, Stage  # noqa: E402
+from graytrack.core.diagnosis.loop import DiagnosisResult, LoopModel  # noqa: E402
 from graytrack.core.pixel_noise import PixelNoise  # noqa: E402
 from graytrack.core.transients import summary_line  # noqa: E402
-from graytrack.service.figures import MISSING, is_number, positive, shown  # noqa: E402
+from graytrack.service.figures import MISSING, is_number, positive, shown, structure  # noqa: E402
+from graytrack.service.report_kit import cell, image, page, plain_log_axis, png  # noqa: E402
 
 if TYPE_CHECKING:
     from graytrack.service.calibration_run import CalibrationRun
 
 
-def _png(figure: plt.Figure) -> str:
-    buffer = io.BytesIO()
-    figure.savefig(buffer, format="png", dpi=90, bbox_inches="tight")
-    plt.close(figure)
-    return base64.b64encode(buffer.getvalue()).decode("ascii")
-
-
-def _residual_map(stage: Stage) -> tuple[np.ndarray, np.ndarray]:
+def _residual_map(stage: LoopModel) -> tuple[np.ndarray, np.ndarray]:
     """Held-out residual (row mean) ordered by position: rows of the image are frames."""
     order = np.argsort(stage.val.data.x_mm)
     return stage.val.residual.mean(axis=1)[order], stage.val.data.x_mm[order]
@@ -55,10 +47,10 @@ def residual_maps(result: DiagnosisResult) -> str:
         ax.set_title(f"residual, {title}")
     axes[0].set_ylabel("position (mm)")
     fig.colorbar(shown, ax=axes, label="gray")
-    return _png(fig)
+    return png(fig)
 
 
-def residual_spread(result: DiagnosisResult) -> str:
+def residual_spread(result: DiagnosisResult) -> plt.Figure:
     """Fig. 3c/4c: the residual's spread per pixel, before and after, against the noise."""
     fig, ax = plt.subplots(figsize=(11, 3.2))
     for stage, label in ((result.before, "before"), (result.after, "after")):
@@ -67,35 +59,43 @@ def residual_spread(result: DiagnosisResult) -> str:
     ax.set_xlabel("pixel u")
     ax.set_ylabel("residual std (gray)")
     ax.set_yscale("log")
+    plain_log_axis(ax.yaxis)
     ax.legend()
-    return _png(fig)
+    return fig
 
 
-Panel = tuple[str, np.ndarray, np.ndarray, float]  # title, position (mm), error (µm), bound (µm)
+# title, position (mm), error (µm), and the error std and bound (µm) as report.json states them
+Panel = tuple[str, np.ndarray, np.ndarray, "float | None", "float | None"]
 
 
-def error_plot(panels: list[Panel]) -> str:
-    """Fig. 5: displacement error against the grating on held-out frames, with the noise floor."""
-    fig, axes = plt.subplots(len(panels), 1, figsize=(11, 2.75 * len(panels) + 0.5), sharex=True, squeeze=False)
-    for ax, (title, x_mm, error_um, bound_um) in zip(axes[:, 0], panels):
-        placed = np.isfinite(error_um)
+def error_figure(panels: list[Panel]) -> plt.Figure:
+    """Fig. 5: position error against the grating on held-out frames, within ±1 bound. The panels
+    share their y-scale (before and after side by side compare by eye only so), and their titles
+    read the figures report.json states: the page says each number once, with one value."""
+    fig, axes = plt.subplots(len(panels), 1, figsize=(11, 2.75 * len(panels) + 0.5), sharex=True, sharey=True,
+                             squeeze=False)
+    for ax, (title, x_mm, error_um, std_um, bound_um) in zip(axes[:, 0], panels):
         ax.plot(x_mm, error_um, ".", ms=2)
-        ax.fill_between(np.sort(x_mm), -bound_um, bound_um, color="0.8", label="±1 CRLB")
+        if is_number(bound_um):
+            ax.fill_between(np.sort(x_mm), -bound_um, bound_um, color="0.8", label="±1 bound")
+            ax.legend(loc="upper right")
         ax.set_ylabel("error (µm)")
-        spread = float(np.std(error_um[placed])) if placed.sum() > 1 else float("nan")
-        ax.set_title(f"{title}: std {shown(spread, 3, 'µm')}, noise floor {shown(bound_um, 3, 'µm')}"
+        ax.set_title(f"{title}: error std {shown(std_um, 3, 'µm')}, bound {shown(bound_um, 3, 'µm')}"
                      f"{_lost(error_um)}", fontsize=10)
-        ax.legend(loc="upper right")
     axes[-1, 0].set_xlabel("grating position (mm)")
-    return _png(fig)
+    return fig
 
 
 def _panels(run: "CalibrationRun") -> list[Panel]:
+    report = run.report
     if run.diagnosis is not None:
-        return [(title, stage.figures.x_mm, stage.figures.error_um, stage.figures.crlb_um)
-                for stage, title in ((run.diagnosis.before, "before"), (run.diagnosis.after, "after"))]
-    held = run.held_out
-    return [] if held is None else [(f"held out ({held.method})", held.x_mm, held.error_um, held.bound_um)]
+        return [(title, stage.figures.x_mm, stage.figures.error_um, report[key].get("error_std_um"),
+                 report[key].get("crlb_um"))
+                for stage, title, key in ((run.diagnosis.before, "before (seed paper's model)", "before"),
+                                          (run.diagnosis.after, "after the loop", "after"))]
+    held, stated = run.held_out, report.get("held_out") or {}
+    return [] if held is None else [("held out", held.x_mm, held.error_um, stated.get("error_std_um"),
+                                     stated.get("bound_um"))]
 
 
 def _lost(error_um: np.ndarray) -> str:
@@ -103,16 +103,12 @@ def _lost(error_um: np.ndarray) -> str:
     return f" ({lost} of {error_um.size} frames not placed)" if lost else ""
 
 
-def _cell(text: str) -> str:
-    return f"<td>{html.escape(text)}</td>"
-
-
 def _rows(report: dict) -> str:
     cells = []
     for step in report["steps"] + report["rejected"]:
-        cells.append("<tr>" + "".join(_cell(str(step.get(key, ""))) for key in ("effect", "family", "evidence"))
-                     + _cell(shown(step.get("rmse_gray"), 4)) + _cell(shown(step.get("error_std_um"), 3))
-                     + _cell(str(step.get("decision", ""))) + "</tr>")
+        cells.append("<tr>" + "".join(cell(str(step.get(key, ""))) for key in ("effect", "family", "evidence"))
+                     + cell(shown(step.get("rmse_gray"), 4)) + cell(shown(step.get("error_std_um"), 3))
+                     + cell(str(step.get("decision", ""))) + "</tr>")
     return "\n".join(cells) or "<tr><td colspan=6>nothing added: the residual holds no structure beyond noise</td></tr>"
 
 
@@ -129,11 +125,13 @@ def _findings(report: dict) -> str:
         model = PixelNoise(**{key: curve[key] for key in fields})
         sigmas = ", ".join(f"{shown(model.sigma(level), 3)} at {level:g}" for level in (32.0, 128.0, 224.0))
         noise = (f"<p>Noise grows with the signal (photon transfer): σ²(y) = {shown(curve['read_var'], 4)} + "
-                 f"{shown(curve['quant_var'], 4)} + {shown(curve['shot_gain'], 5)}·(y − {shown(curve['dark_gray'], 1)}) "
+                 f"{shown(curve['quant_var'], 4)} + {shown(curve['shot_gain'], 5)}·(y − "
+                 f"{shown(curve['dark_gray'], 1)}) "
                  f"gray²; σ = {sigmas} gray. Calibration and tracking weight each sample by 1/σ²(y), and the bound "
                  "uses it.</p>")
     else:
-        noise = f"<p>Noise is one σ = {shown((report.get('noise') or {}).get('gray'), 3)} gray for every gray level.</p>"
+        sigma = shown((report.get("noise") or {}).get("gray"), 3)
+        noise = f"<p>Noise is one σ = {sigma} gray for every gray level.</p>"
     chi2 = curve.get("calibration_chi2")
     level = (f"<p>Calibration χ² per sample: {shown(chi2, 3)} (1 when the model and the noise model hold).</p>"
              if chi2 is not None else "")
@@ -148,7 +146,8 @@ def _compression(report: dict) -> str:
         return ""
     return (f"<p>The frames come from a JPEG (MJPEG) stream at quality ≈ {shown(found.get('quality'), 0)}: the "
             f"quantisation of its 8×8 blocks is an error the model cannot know; with it the bound on the held-out "
-            f"frames is {shown(found.get('crlb_um'), 3, 'µm')}, not the {shown((report.get('noise') or {}).get('crlb_um'), 3, 'µm')} "
+            f"frames is {shown(found.get('crlb_um'), 3, 'µm')}, not the "
+            f"{shown((report.get('noise') or {}).get('crlb_um'), 3, 'µm')} "
             "of the sensor's noise alone. Stream uncompressed frames (a raw pixel format) to reach the latter.</p>")
 
 
@@ -180,7 +179,8 @@ def _transients(found: dict | None) -> str:
     if not found or not is_number(found.get("count")) or not found.get("count"):
         return "<p>No transient found (glint, reflection, passing dust).</p>"
     items = "".join(f"<li>frames {e['frames'][0]}–{e['frames'][1]}, row {e['row']}, pixel {e['pixel']} "
-                    f"(target {shown(e.get('x_mm'), 3, 'mm')}), peak {shown(e.get('peak_gray'), 0)} gray, {e['samples']} samples</li>"
+                    f"(target {shown(e.get('x_mm'), 3, 'mm')}), peak {shown(e.get('peak_gray'), 0)} gray, "
+                    f"{e['samples']} samples</li>"
                     for e in found.get("events", []))
     more = int(found["count"]) - len(found.get("events", []))
     tail = f"<li>and {more} more</li>" if more > 0 else ""
@@ -192,21 +192,24 @@ def _figures_table(report: dict) -> str:
     """The loop's before and after; a plain fit's figures in gray levels and its geometry."""
     if "before" in report and "after" in report:
         def figures_row(label: str, entry: dict) -> str:
-            return ("<tr>" + _cell(label) + _cell(str(entry.get("model", ""))) + _cell(shown(entry.get("rmse_gray"), 4))
-                    + "".join(_cell(shown(entry.get(key), 3)) for key in ("error_std_um", "error_max_um", "error_mean_um"))
-                    + _cell(shown(entry.get("lost_frames"), 0)) + "</tr>")
+            return ("<tr>" + cell(label) + cell(structure(entry.get("model")))
+                    + cell(shown(entry.get("rmse_gray"), 4))
+                    + "".join(cell(shown(entry.get(key), 3))
+                              for key in ("error_std_um", "crlb_um", "error_max_um", "error_mean_um"))
+                    + cell(shown(entry.get("lost_frames"), 0)) + "</tr>")
 
-        return ("<table><tr><th></th><th>model</th><th>rmse (gray)</th><th>error std (µm)</th><th>error max (µm)</th>"
-                "<th>mean (µm)</th><th>frames not placed</th></tr>"
+        return ("<table><tr><th></th><th>model</th><th>rmse (gray)</th><th>error std (µm)</th><th>bound (µm)</th>"
+                "<th>error max (µm)</th><th>mean (µm)</th><th>frames not placed</th></tr>"
                 f"{figures_row('before', report['before'])}{figures_row('after', report['after'])}</table>"
                 + _missing_note(report["before"], report["after"]))
-    rows = [("model", report.get("model", "")),
+    rows = [("model", structure(report.get("model"))),
             ("fit rms / noise", f"{shown(report.get('rmse_gray'), 3)} / {shown(report.get('sigma_gray'), 3)} gray"),
             ("frames", shown(report.get("frames"), 0)), ("stroke", shown(report.get("stroke_mm"), 3, "mm")),
             ("period τ", shown(report.get("period_mm"), 5, "mm")),
             ("pixel pitch α·d", shown(report.get("pixel_pitch_mm"), 6, "mm")),
             ("iterations", shown(report.get("iterations"), 0))]
-    return "<table>" + "".join(f"<tr><th>{html.escape(label)}</th>{_cell(str(value))}</tr>" for label, value in rows) + "</table>"
+    return ("<table>" + "".join(f"<tr><th>{html.escape(label)}</th>{cell(str(value))}</tr>" for label, value in rows)
+            + "</table>")
 
 
 def _headline(report: dict) -> str:
@@ -214,14 +217,57 @@ def _headline(report: dict) -> str:
     noise, held = report.get("noise") or {}, report.get("held_out") or {}
     sigma = f"; per-pixel noise σ = {shown(noise.get('gray'), 3, 'gray')}"
     if "before" in report and "after" in report:
-        return (f"<p class=\"big\">held-out error std <b>{shown(report['before'].get('error_std_um'), 3, 'µm')}</b> → "
-                f"<b>{shown(report['after'].get('error_std_um'), 3, 'µm')}</b> (noise floor, Cramér–Rao: "
+        before, after = report["before"].get("error_std_um"), report["after"].get("error_std_um")
+        return (f"<p class=\"big\">held-out error std <b>{shown(before, 3, 'µm')}</b> → "
+                f"<b>{shown(after, 3, 'µm')}</b> (bound "
                 f"{shown(noise.get('crlb_um'), 3, 'µm')}{sigma})</p>")
     if not held:
         return f"<p class=\"big\">held-out error: not measured (too few stops to hold half of them out){sigma}</p>"
     return (f"<p class=\"big\">held-out error std <b>{shown(held.get('error_std_um'), 3, 'µm')}</b> "
-            f"(noise floor, Cramér–Rao: {shown(held.get('bound_um'), 3, 'µm')}; {html.escape(str(held.get('method')))}"
-            f"{sigma})</p>")
+            f"(bound {shown(held.get('bound_um'), 3, 'µm')}; {html.escape(str(held.get('method')))}{sigma})</p>")
+
+
+def bound_definition(report: dict) -> str:
+    """What "bound" means on this page, said once; where the loop's models have bounds of their own,
+    why they differ (a model that solves the light per frame spends information on it)."""
+    text = ("<b>Bound</b>: the Cramér–Rao bound, the position error std that the pixel noise alone allows on "
+            "the held-out frames (the rms of each frame's bound) for the model that tracks them; an error std "
+            "at the bound is all a model can do.")
+    before, after = (report.get("before") or {}).get("crlb_um"), (report.get("after") or {}).get("crlb_um")
+    if is_number(before) and is_number(after) and shown(before, 3) != shown(after, 3):
+        text += (f" Each model has its own: {shown(before, 3, 'µm')} for the seed paper's model, "
+                 f"{shown(after, 3, 'µm')} for the final one" + (
+                     ", whose gain and offset per frame cost information (solved, they are no longer known)"
+                     if "per-frame gain/offset" in str(report.get("final_model")) else "")
+                 + ". Each error is judged against its own model's bound.")
+    return f'<p class="note">{text}</p>'
+
+
+def _geometry_line(run: "CalibrationRun") -> str:
+    """τ and α·d of the model written, once; for the loop, which model that is and how it relates to
+    the figures above (the same structure, fitted without the held-out frames)."""
+    if "heldout" not in run.report:  # a plain fit: its table states τ and α·d
+        return ""
+    model = run.model
+    return (f"<p>Final model (model.json): {html.escape(structure(model.describe()))}, τ = {model.period_mm:.4f} mm, "
+            f"α·d = {model.pixel_pitch_mm:.5f} mm, fitted on every calibration frame; the figures above are of the "
+            f"same structure fitted without the held-out frames ({html.escape(str(run.report['heldout']))}).</p>")
+
+
+def _injected(report: dict) -> str:
+    """A simulated recording's effects, which no model was told about, beside what the loop found:
+    the demo's point, stated where its result is."""
+    recording = report.get("recording") or {}
+    injected = recording.get("simulated_effects") or []
+    if not injected:
+        return ""
+    items = "".join(f"<li>{html.escape(str(effect))}</li>" for effect in injected)
+    added = ", ".join(str(step.get("effect", "")).replace("_", " ") for step in report.get("steps") or [])
+    found = (f"<p>The loop added: {html.escape(added)}.</p>" if added
+             else "<p>The loop added nothing.</p>" if "steps" in report else "")
+    return (f"<h2>Recording</h2><p>Recorded on the virtual rig ({html.escape(str(recording.get('scenario', '')))} "
+            "scenario) with these effects switched on; no model was told about them:</p>"
+            f"<ul id=\"injected\">{items}</ul>{found}")
 
 
 TITLES = {"auto": "graytrack closed loop", "paper": "graytrack calibration: seed paper's model",
@@ -233,42 +279,34 @@ def render_html(run: "CalibrationRun", name: str = "") -> str:
     calibration's id, in the title (the daemon's history opens many)."""
     report = run.report
     noise = report.get("noise") or {}
-    images = {"error": error_plot(panels)} if (panels := _panels(run)) else {}
+    images = {"error": png(error_figure(panels))} if (panels := _panels(run)) else {}
     if run.diagnosis is not None:
-        images = {"maps": residual_maps(run.diagnosis), "spread": residual_spread(run.diagnosis), **images}
+        images = {"maps": residual_maps(run.diagnosis), "spread": png(residual_spread(run.diagnosis)), **images}
     reference_line = (f"<p>The grating readout comes in steps of {shown(noise['reference_resolution_um'], 3, 'µm')}: "
-                      f"against it no sensor can show less than {shown(noise.get('floor_um'), 3, 'µm')}.</p>"
+                      "measured against it, no error std can fall below the <b>readout floor</b> √(bound² + "
+                      f"step²/12) = {shown(noise.get('floor_um'), 3, 'µm')}.</p>"
                       if positive(noise.get("reference_resolution_um")) else "")
-    held_out = (f"<p>Held out: {html.escape(str(report['heldout']))}. Final model (model.json): "
-                f"{html.escape(str(report.get('final_model')))}.</p>" if "heldout" in report else "")
     steps = ("<h2>Effects tried, in order</h2><table><tr><th>effect</th><th>physical family</th><th>evidence in the "
              f"residual</th><th>rmse</th><th>error std</th><th>decision</th></tr>{_rows(report)}</table>"
              if "steps" in report else "")
-    plots = "".join(f"<h2>{title}</h2><img alt=\"{title}\" src=\"data:image/png;base64,{images[key]}\">"
-                    for key, title in (("maps", "Residual over position and pixel"),
-                                       ("spread", "Residual spread per pixel"),
-                                       ("error", "Displacement error against the grating")) if key in images)
+    plots = "".join(image(title, images[key]) for key, title in (("maps", "Residual over position and pixel"),
+                                                                  ("spread", "Residual spread per pixel"),
+                                                                  ("error", "Displacement error against the grating"))
+                    if key in images)
     remaining = ""
     if "remaining_evidence" in report:
         items = "".join(f"<li>{html.escape(str(item.get('text')))} (z = {shown(item.get('z'), 1)})</li>"
                         for item in report["remaining_evidence"])
         remaining = f"<h2>Structure still in the residual</h2><ul>{items or '<li>none beyond noise</li>'}</ul>"
     title = TITLES.get(run.kind, "graytrack calibration") + (f" — {name}" if name else "")
-    return f"""<!doctype html>
-<html lang="en"><head><meta charset="utf-8"><title>{html.escape(title)}</title>
-<style>body{{font-family:system-ui,sans-serif;max-width:1150px;margin:2em auto;color:#222}}
-table{{border-collapse:collapse;width:100%}}td,th{{border:1px solid #ccc;padding:4px 6px;font-size:13px;vertical-align:top}}
-th{{background:#f3f3f3;text-align:left}}.big{{font-size:20px}}img{{max-width:100%}}</style></head><body>
-<h1>{html.escape(title)}</h1>
-{geometry_banner(report)}
+    return page(title, f"""{geometry_banner(report)}
 {_headline(report)}
 {_figures_table(report)}
-{reference_line}{held_out}
-<p>Summary: {html.escape(str(report.get('summary', '')))}</p>
+{bound_definition(report)}
+{reference_line}{_geometry_line(run)}
+{_injected(report)}
 {_findings(report)}
 {steps}
 {plots}
 {remaining}
-<p style="color:#666">Files: <a href="report.json">report.json</a> · <a href="model.json">model.json</a></p>
-</body></html>
-"""
+<p class="note">Files: <a href="report.json">report.json</a> · <a href="model.json">model.json</a></p>""")

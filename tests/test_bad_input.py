@@ -97,7 +97,8 @@ def test_a_zip_entry_larger_than_its_declared_array_is_refused(tmp_path: Path,
                                                                capsys: pytest.CaptureFixture[str]) -> None:
     body = bytes(4 * 3) + bytes(2_000_000)  # the array plus 2 MB nobody declared
     rec = npz(tmp_path / "r.npz", raw_npy("{'descr': '|u1', 'fortran_order': False, 'shape': (4, 3), }", body))
-    refused(["calibrate", str(rec), "--out", str(tmp_path / "m.json")], capsys, "frames: the zip entry inflates to 2.0 MB")
+    refused(["calibrate", str(rec), "--out", str(tmp_path / "m.json")], capsys,
+            "frames: the zip entry inflates to 2.0 MB")
 
 
 def test_references_times_1e300_are_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -43,7 +43,8 @@ def test_calibrate_then_track(tmp_path, recordings, capsys):
 )
 def test_bad_input_is_one_line_and_exit_2(tmp_path, recordings, argv, message):
     (tmp_path / "garbage.npz").write_bytes(b"\x00garbage")
-    names = {"missing": tmp_path / "nope.npz", "garbage": tmp_path / "garbage.npz", "tmp": tmp_path, "cal": recordings[0]}
+    names = {"missing": tmp_path / "nope.npz", "garbage": tmp_path / "garbage.npz", "tmp": tmp_path,
+             "cal": recordings[0]}
     argv = [arg.format(**names) for arg in argv]
     run = subprocess.run([sys.executable, "-m", "graytrack", *argv], capture_output=True, text=True, timeout=60)
     assert run.returncode == 2
@@ -57,7 +58,8 @@ HEAVY_MODULES = ("numpy", "scipy", "matplotlib", "cv2", "pydantic", "fastapi", "
 def test_building_the_parser_imports_no_numerics_or_server():
     """Every invocation builds the whole parser: command modules import their work inside `run`."""
     code = ("import sys; from graytrack.service.cli import build_parser; build_parser(); "
-            f"print(sorted(m for m in sys.modules if m.split('.')[0] in {HEAVY_MODULES!r} or m.startswith({HEAVY_MODULES!r})))")
+            f"print(sorted(m for m in sys.modules if m.split('.')[0] in {HEAVY_MODULES!r} or "
+            f"m.startswith({HEAVY_MODULES!r})))")
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True)
     assert run.stdout.strip() == "[]", run.stdout
     help_run = subprocess.run([sys.executable, "-m", "graytrack", "track", "--help"], capture_output=True, text=True,

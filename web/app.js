@@ -15,6 +15,9 @@ let status = null;
 let lastEvent = 0;
 let historyKey = "";
 const calibratable = new Set(["tracking", "model"]); // faults during which a calibration still helps
+const CONTROLS = ["move", "target", "jog-minus", "jog-plus", "jog-step", "home", "velocity", "set-velocity"];
+const TOKEN_REASON = "save the bearer token under Access first";
+let access = null; // GET /api/access: where the daemon's token is
 
 const fmt = (value, digits) => (value === null || value === undefined || Number.isNaN(value) ? "—" : Number(value).toFixed(digits));
 
@@ -24,15 +27,19 @@ function say(text, isError = false) {
   box.classList.toggle("error", isError);
 }
 
+const hasToken = () => Boolean(localStorage.getItem(TOKEN_KEY));
+const tokenFile = () => (access && access.token_file) || "the daemon's token file";
+
 // A request the daemon would refuse is not sent (the browser would log the refusal as an error):
 // without a token the page says so itself.
 async function api(method, path, body) {
   const token = localStorage.getItem(TOKEN_KEY);
-  if (!token) throw new Error("missing bearer token: save the contents of DATA/token under Access");
+  if (!token) throw new Error(`missing bearer token: save the contents of ${tokenFile()} under Access`);
   const headers = { Authorization: `Bearer ${token}` };
   if (body !== undefined) headers["Content-Type"] = "application/json";
   const response = await fetch(path, { method, headers, body: body === undefined ? undefined : JSON.stringify(body) });
   const data = await response.json().catch(() => ({}));
+  if (response.status === 401) throw new Error(`${data.error}: save the contents of ${tokenFile()} under Access`);
   if (!response.ok) throw new Error(data.error || `${response.status} ${response.statusText}`);
   return data;
 }
@@ -65,7 +72,6 @@ function draw() {
     $("grating").textContent = latest.reference_mm === undefined ? "—" : `${fmt(latest.reference_mm, 4)} mm`;
     $("error").textContent = latest.error_um === undefined ? "—" : `${fmt(latest.error_um, 2)} µm`;
     $("crlb").textContent = latest.crlb_um === null ? "—" : `${fmt(latest.crlb_um, 2)} µm`;
-    $("dropped").textContent = String(latest.dropped ?? "—");
   }
   if (!paused) {
     const clipped = Plot.timeSeries($("plot"), samples, performance.now() / 1000, Number($("window").value));
@@ -76,7 +82,12 @@ function draw() {
 
 // -- line view -----------------------------------------------------------------------------
 async function refreshProfile() {
+  // no frame before the rig is open: not asked (the 503 would be a console error on every first start)
   if (document.hidden) return;
+  if (!status || status.state === "starting") {
+    $("profile-info").textContent = "no line view until the rig is open";
+    return;
+  }
   const row = $("profile-row").value;
   try {
     const doc = await get(`/api/profile${row === "" ? "" : `?row=${row}`}`);
@@ -108,11 +119,55 @@ async function refreshProfile() {
   }
 }
 
+// -- access --------------------------------------------------------------------------------
+// The token file named by its path on the daemon's machine (a newcomer has no idea what "DATA" is),
+// and whether this browser holds a token: without one every control is disabled and says so.
+async function loadAccess() {
+  try {
+    access = await get("/api/access");
+  } catch (err) {
+    access = null;
+  }
+  showAccess();
+}
+
+function showAccess() {
+  const where = $("token-where");
+  const path = access && access.token_file;
+  if (path) {
+    const code = document.createElement("code");
+    code.textContent = `cat ${path}`;
+    where.replaceChildren(`Calibrate, move and activate need the daemon's bearer token: the contents of ${path} ` +
+      "(on the daemon's machine: ", code, ").");
+  } else {
+    const need = "Calibrate, move and activate need the daemon's bearer token";
+    where.textContent = access ? `${need}: the [daemon] token of its configuration.`
+      : `${need} (its data directory's token file).`;
+  }
+  $("token").placeholder = path ? `contents of ${path}` : "the daemon's token";
+  $("token-state").textContent = hasToken() ? "A token is saved in this browser (only here); the controls use it."
+    : "No token saved in this browser yet: the controls stay disabled until one is.";
+}
+
 // -- status, controls ----------------------------------------------------------------------
+function setDisabled(ids, reason) {
+  for (const id of ids) {
+    $(id).disabled = reason !== "";
+    $(id).title = reason;
+  }
+}
+
+function holdControls(reason) {
+  $("controls-reason").textContent = reason;
+  setDisabled([...CONTROLS, "stop", "calibrate"], reason);
+}
+
 function controlsReason(s) {
   if (s.state === "calibrating") return `calibration ${s.calibration.id} is running: moves are disabled (Stop aborts it)`;
   if (s.state === "fault") return `disabled during the fault: ${s.reason}`;
-  if (s.state === "starting") return "disabled until the hardware is open";
+  if (s.state === "starting") {
+    return s.startup ? "disabled while the daemon warms up" : "disabled until the hardware is open";
+  }
   if (s.state === "stopping") return "the daemon is shutting down";
   return "";
 }
@@ -136,12 +191,20 @@ function applyStatus(s) {
   const state = $("state");
   state.textContent = s.state;
   state.dataset.state = s.state;
-  $("reason").textContent = s.reason || "";
+  const warming = s.startup ? `${s.startup.step}: ${fmt(s.startup.elapsed_s, 0)} s (${s.startup.expected_s})` : "";
+  $("reason").textContent = s.reason || warming;
   const staleNote = $("model-stale");
   staleNote.hidden = !s.model_stale;
   staleNote.textContent = s.model_stale ? `model stale: ${s.stale_reason} changed since calibration — recalibrate` : "";
   $("sim-badge").hidden = !s.simulated;
-  $("model").textContent = s.model || "no model: start a calibration";
+  $("model").textContent = s.model || (s.state === "starting" ? "—" : s.state === "calibrating"
+    ? "no model yet: the calibration running makes one" : "no model: start a calibration");
+  $("dropped").textContent = String(s.dropped);
+  const lost = $("dropped-note");
+  lost.hidden = !s.dropped;
+  lost.textContent = s.dropped ? `frames lost: ${s.dropped} of the ${s.frames + s.dropped} camera frames since the ` +
+    `daemon started never reached the tracker (${fmt(100 * s.dropped / (s.frames + s.dropped), 1)} %; gaps in the ` +
+    "camera's frame counter: the frame loop fell behind the camera, or the link lost them); Events says when" : "";
   const active = s.active_calibration;
   $("active-calibration").textContent = active && active.error_std_um !== undefined && active.error_std_um !== null
     ? `held-out error ${fmt(active.error_std_um, 2)} µm · bound ${fmt(active.bound_um, 2)} µm (calibration ${active.id})`
@@ -166,17 +229,15 @@ function applyStatus(s) {
     const ended = ["failed", "aborted", "interrupted"].includes(job.state);
     $("calibration-message").textContent = `${job.id}: ${job.state}${ended ? ` at ${Math.round(job.progress * 100)} %` : ` · ${Math.round(job.progress * 100)} %`} · ${job.message}`;
   }
-  const reason = controlsReason(s);
+  const tokenReason = hasToken() ? "" : TOKEN_REASON;
+  const reason = controlsReason(s) || tokenReason;
   $("controls-reason").textContent = reason;
-  for (const id of ["move", "target", "jog-minus", "jog-plus", "jog-step", "home", "velocity", "set-velocity"]) {
-    $(id).disabled = reason !== "";
-    $(id).title = reason;
-  }
+  setDisabled(CONTROLS, reason);
+  setDisabled(["stop"], tokenReason);
   const blocking = Object.keys(s.faults || {}).filter((k) => !calibratable.has(k));
   const calibrateReason = s.state === "calibrating" ? "a calibration is running"
     : ["starting", "stopping"].includes(s.state) ? reason : blocking.length ? `disabled during the fault: ${s.reason}` : "";
-  $("calibrate").disabled = calibrateReason !== "";
-  $("calibrate").title = calibrateReason;
+  setDisabled(["calibrate"], calibrateReason || tokenReason);
   for (const button of document.querySelectorAll("#history button")) button.disabled = reason !== "" || button.dataset.active === "true";
   const key = `${job ? job.id + job.state : ""}|${active ? active.id : ""}`;
   if (key !== historyKey) {
@@ -191,6 +252,7 @@ async function refresh() {
   } catch (err) {
     $("state").textContent = "offline";
     $("state").dataset.state = "fault";
+    holdControls("the daemon does not answer");
   }
 }
 
@@ -311,8 +373,12 @@ $("token-form").addEventListener("submit", (event) => {
   localStorage.setItem(TOKEN_KEY, $("token").value.trim());
   $("token").value = "";
   say("token saved in this browser");
+  showAccess();
+  refresh(); // the controls follow at once
 });
 
+holdControls("waiting for the daemon's first status");
+loadAccess();
 connect();
 refresh();
 refreshEvents();

@@ -1,8 +1,17 @@
-"""Held-out data and the figures a model earns on it.
+"""Held-out validation: which frames a fit does not see, and the figures a model earns on them.
 
-Every figure of the closed loop is measured on frames the fit did not see: either a separate
-validation recording, or short blocks interleaved through the calibration sweep, so that the
-held-out frames cover the whole stroke and the whole recording time.
+The one place where held-out frames are chosen and measured, for every caller: ``graytrack
+calibrate`` and ``batch`` (ideal and paper models), the daemon's calibration sweep, and the closed
+loop (``diagnose``, ``--model auto``). Each gets a :class:`HeldOut`. Two choices of frames:
+
+- a separate validation recording of the same rig, when there is one (:func:`validate`,
+  :func:`loop_split`);
+- blocks of the calibration recording itself. A plain fit (:func:`validate`) is measured two-fold
+  by block (fit on the even blocks, measure on the odd ones, and the other way round: every frame
+  is held out once); a block is read off the recording (:func:`held_out_blocks`), so the same
+  recording gets the same figures whoever calibrates it. The closed loop fits dozens of candidate
+  models, so it holds out one fold only (:func:`loop_split`: every ``HOLDOUT_EVERY``-th block of
+  ``HOLDOUT_BLOCK_FRAMES``), spread over the whole stroke and the whole recording time.
 """
 
 from __future__ import annotations
@@ -14,6 +23,7 @@ import numpy as np
 
 from graytrack.core.calibration_data import CalibrationData, calibration_data
 from graytrack.core.effects.focus import FOCUS_INFO, with_frame_focus
+from graytrack.core.errors import CalibrationError
 from graytrack.core.models.fourier import FourierModel
 from graytrack.core.noise import crlb_mm, pooled_bound
 from graytrack.core.recording import Recording
@@ -26,6 +36,7 @@ if TYPE_CHECKING:
 
 HOLDOUT_BLOCK_FRAMES = 10
 HOLDOUT_EVERY = 4
+HELD_OUT_BLOCKS = 40  # a scan (no stops) is cut into this many blocks for the two-fold held-out error
 
 
 def interleaved_split(data: CalibrationData) -> tuple[CalibrationData, CalibrationData]:
@@ -143,8 +154,8 @@ def figures(model: FourierModel, data: CalibrationData, fit: Fit | None = None) 
     if model.pixel_noise is not None and model.pixel_noise.signal_dependent:
         bound_mm = np.where(np.isfinite(bound_mm), curve_bound_mm(model, data, fit), np.nan)
     mean = float(np.mean(error[finite])) if finite.any() else float("nan")  # no frame placed: no mean (not 0)
-    return Figures(model.describe(), fit.rmse_gray, spread, worst, mean, pooled_bound(bound_mm) * 1e3, error, data.x_mm, tracked,
-                   bound_mm)
+    return Figures(model.describe(), fit.rmse_gray, spread, worst, mean, pooled_bound(bound_mm) * 1e3, error,
+                   data.x_mm, tracked, bound_mm)
 
 
 def curve_bound_mm(model: FourierModel, data: CalibrationData, fit: Fit) -> np.ndarray:
@@ -158,7 +169,7 @@ def curve_bound_mm(model: FourierModel, data: CalibrationData, fit: Fit) -> np.n
 
 
 @dataclass
-class Stage:
+class LoopModel:
     """One model of the loop, fitted on the training frames and measured on the held-out ones:
     what every effect's probe looks at."""
 
@@ -175,7 +186,8 @@ MIN_BLOCKS_PER_FOLD = 4
 @dataclass
 class HeldOut:
     """Held-out position error of a calibration, next to the bound of the same frames: the figure
-    a user judges a calibration by. Per frame too (``x_mm``, ``error_um``, ``bound_um``) for plots."""
+    a user judges a calibration by, and the one result every caller reports as ``held_out``. Per
+    frame too (``x_mm``, ``error_um``, ``bound_um``) for plots."""
 
     error_std_um: float
     bound_um: float
@@ -200,20 +212,74 @@ class HeldOut:
     def of(cls, parts: list[Figures], method: str) -> "HeldOut":
         """One figure from held-out parts: their frames pooled."""
         error = np.concatenate([part.error_um for part in parts])
-        bound = np.concatenate([(part.tracked.crlb_mm if part.bound_mm is None else part.bound_mm) * 1e3 for part in parts])
+        bound = np.concatenate([(part.tracked.crlb_mm if part.bound_mm is None else part.bound_mm) * 1e3
+                                for part in parts])
         placed = np.isfinite(error)
         spread = float(np.std(error[placed])) if placed.sum() > 1 else float("nan")
         pooled = pooled_bound(bound[placed]) if placed.any() else float("nan")
         return cls(spread, pooled, method, np.concatenate([part.x_mm for part in parts]), error, bound)
 
 
-def two_fold_by_block(recording: Recording, block_frames: int,
+def held_out_blocks(recording: Recording) -> np.ndarray:
+    """Each frame's held-out block, read off the recording so that every caller holds out the same frames.
+
+    A block is made of whole runs of one grating reading: a step-and-settle sweep reads the axis at
+    rest once per stop, and holding out frames within a stop would flatter the model (a slow scan's
+    repeated readout step is kept whole as well; it costs nothing). A block is at least
+    ``1/HELD_OUT_BLOCKS`` of the recording and its longest rest (a scan's frames at rest at its ends).
+    """
+    reference = np.asarray(recording.reference, dtype=np.float64)
+    starts = np.flatnonzero(np.concatenate(([True], reference[1:] != reference[:-1])))
+    lengths = np.diff(np.append(starts, reference.size))
+    least = max(recording.n_frames // HELD_OUT_BLOCKS, int(lengths.max()), 1)
+    return np.repeat(starts // least, lengths)
+
+
+def check_same_roi(calibration: Recording, validation: Recording) -> None:
+    """A validation recording must come from the camera ROI the model describes."""
+    if (validation.n_rows, validation.n_pixels) != (calibration.n_rows, calibration.n_pixels):
+        raise CalibrationError(
+            f"the validation recording has {validation.n_rows} row(s) × {validation.n_pixels} px, the calibration "
+            f"{calibration.n_rows} × {calibration.n_pixels}: both must come from the same camera ROI")
+
+
+def validate(recording: Recording, fit: Callable[[Recording], FourierModel], *,
+             validation: Recording | None = None, fitted: FourierModel | None = None,
+             label: str = "") -> "HeldOut | None":
+    """The held-out figures of the model ``fit`` makes of a recording: on ``validation`` (the model
+    fitted on all of ``recording``: ``fitted`` when the caller has it already) when given, else
+    two-fold by :func:`held_out_blocks`. None when the recording has too few blocks to split.
+    ``label`` (the model's kind) ends the method's text."""
+    suffix = f", {label}" if label else ""
+    if validation is not None:
+        check_same_roi(recording, validation)
+        part = figures(fitted or fit(recording), calibration_data(validation))
+        return HeldOut.of([part], f"validation recording ({validation.n_frames} frames){suffix}")
+    blocks = held_out_blocks(recording)
+    parts = two_fold_by_block(recording, blocks, fit)
+    method = f"two-fold by block ({int(blocks.max()) + 1} blocks, no stop cut){suffix}"
+    return HeldOut.of(parts, method) if parts else None
+
+
+def loop_split(calibration: Recording, validation: Recording | None) -> tuple[CalibrationData, CalibrationData,
+                                                                              CalibrationData, str]:
+    """The closed loop's frames: (all calibration data, training part, held-out part, how the
+    held-out part was chosen). One fold of interleaved blocks (the loop fits dozens of candidate
+    models: two folds would double that), or the whole validation recording."""
+    data = calibration_data(calibration)
+    if validation is None:
+        train, val = interleaved_split(data)
+        return data, train, val, f"{len(val.x_mm)} of {len(data.x_mm)} frames, interleaved blocks the fit did not see"
+    check_same_roi(calibration, validation)
+    val = calibration_data(validation)
+    return data, data, val, f"validation recording ({len(val.x_mm)} frames)"
+
+
+def two_fold_by_block(recording: Recording, block: np.ndarray,
                       fit: Callable[[Recording], FourierModel]) -> list[Figures]:
-    """Fit on the even blocks and measure on the odd ones, then the other way round: every frame is
-    held out once. A block is a stop of a step-and-settle sweep (its frames share one reference:
-    holding out frames within a stop would flatter the model) or a stretch of a scan. [] when the
-    sweep has too few blocks to split."""
-    block = np.arange(recording.n_frames) // max(1, block_frames)
+    """Fit on the even blocks (``block``: each frame's, :func:`held_out_blocks`) and measure on the
+    odd ones, then the other way round: every frame is held out once. [] when the recording has too
+    few blocks to split."""
     if int(block.max()) + 1 < 2 * MIN_BLOCKS_PER_FOLD:
         return []
     parts = []

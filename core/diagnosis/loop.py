@@ -16,16 +16,15 @@ import numpy as np
 
 from graytrack.core.calibration import KIND_SPECS
 from graytrack.core.calibration_line import record_calibration_line
-from graytrack.core.calibration_data import CalibrationData, calibration_data
+from graytrack.core.calibration_data import CalibrationData
 from graytrack.core.compression import JpegFinding, bound_with_quantisation_mm, find_jpeg
-from graytrack.core.errors import CalibrationError
 from graytrack.core.geometry import initial_geometry
 from graytrack.core.geometry_check import GeometryCheck, check_geometry, raise_if_refused
 from graytrack.core.jsonable import finite_or_none
 from graytrack.core import effects
 from graytrack.core.structure import ModelSpec, fit_spec, fit_spec_pitch_search
 from graytrack.core.evidence import Evidence
-from graytrack.core.diagnosis.heldout import Figures, Stage, figures, fit_on, interleaved_split
+from graytrack.core.diagnosis.heldout import Figures, LoopModel, figures, fit_on, loop_split
 from graytrack.core.adequacy import assessed
 from graytrack.core.models.fourier import FourierModel
 from graytrack.core.noise import pooled_bound, reference_resolution_mm
@@ -45,7 +44,7 @@ _NO_TRANSIENTS = {"count": 0, "frames": 0, "samples": 0, "share_of_frames": 0.0,
 class Step:
     effect: str
     evidence: Evidence
-    stage: Stage
+    stage: LoopModel
     accepted: bool
     reason: str
 
@@ -59,8 +58,8 @@ class Step:
 
 @dataclass
 class DiagnosisResult:
-    before: Stage
-    after: Stage
+    before: LoopModel
+    after: LoopModel
     steps: list[Step]
     rejected: list[Step]
     final_model: FourierModel
@@ -127,7 +126,8 @@ def _curve(model: FourierModel) -> dict[str, Any]:
 
 
 def _stage(spec: ModelSpec, train: CalibrationData, val: CalibrationData, geometry: tuple[float, float, float],
-           refine_geometry: bool = False, search_pitch: bool = False, searched: dict[str, float] | None = None) -> Stage:
+           refine_geometry: bool = False, search_pitch: bool = False,
+           searched: dict[str, float] | None = None) -> LoopModel:
     """The model of structure ``spec`` fitted on ``train``, with its figures on ``val``. With
     ``search_pitch``, α·d is searched, near the one the loop's last search found (``searched``, updated)."""
     train, val = effects.prepare_data(spec, train), effects.prepare_data(spec, val)
@@ -138,7 +138,7 @@ def _stage(spec: ModelSpec, train: CalibrationData, val: CalibrationData, geomet
     else:
         model = fit_spec(spec, train, *geometry, refine_geometry=refine_geometry).model
     train_fit, val_fit = fit_on(model, train), fit_on(model, val)
-    return Stage(spec, model, train_fit, val_fit, figures(model, val, val_fit))
+    return LoopModel(spec, model, train_fit, val_fit, figures(model, val, val_fit))
 
 
 def _better(new: Figures, old: Figures, n_samples: int) -> tuple[bool, str]:
@@ -165,14 +165,14 @@ def _better(new: Figures, old: Figures, n_samples: int) -> tuple[bool, str]:
     return False, "rejected: " + figures_text
 
 
-def _at_noise_floor(stage: Stage) -> bool:
+def _at_noise_floor(stage: LoopModel) -> bool:
     sigma2 = stage.val.data.sigma_gray**2
     n = float(stage.val.usable.sum())
     residual_ok = stage.figures.rmse_gray**2 <= sigma2 * (1.0 + 4.0 * np.sqrt(2.0 / n))
     return residual_ok and stage.figures.error_std_um <= NOISE_FLOOR_MARGIN * stage.figures.crlb_um
 
 
-def all_evidence(stage: Stage) -> list[Evidence]:
+def all_evidence(stage: LoopModel) -> list[Evidence]:
     """Every effect's probe on ``stage``: data-quality findings first (in the registry's order),
     then model terms by how much of the held-out residual they explain."""
     found = [(effect, effect.probe(stage)) for effect in effects.registry().values()]
@@ -183,28 +183,13 @@ def all_evidence(stage: Stage) -> list[Evidence]:
     return quality + terms
 
 
-def _candidates(stage: Stage) -> list[Evidence]:
+def _candidates(stage: LoopModel) -> list[Evidence]:
     """What the probes found beyond noise: data-quality findings first, then model terms by how
     much of the held-out residual they explain."""
     return [ev for ev in all_evidence(stage) if ev.z > MIN_Z]
 
 
-def _held_out(calibration: Recording, validation: Recording | None) -> tuple[CalibrationData, CalibrationData,
-                                                                             CalibrationData, str]:
-    """(all calibration data, training part, held-out part, how the held-out part was chosen)."""
-    data = calibration_data(calibration)
-    if validation is None:
-        train, val = interleaved_split(data)
-        return data, train, val, f"{len(val.x_mm)} of {len(data.x_mm)} frames, interleaved blocks the fit did not see"
-    if (validation.n_rows, validation.n_pixels) != (calibration.n_rows, calibration.n_pixels):
-        raise CalibrationError(
-            f"the validation recording has {validation.n_rows} row(s) × {validation.n_pixels} px, the calibration "
-            f"{calibration.n_rows} × {calibration.n_pixels}: both must come from the same camera ROI")
-    val = calibration_data(validation)
-    return data, data, val, f"validation recording ({len(val.x_mm)} frames)"
-
-
-def _next_step(current: Stage, train: CalibrationData, val: CalibrationData, rejected: list[Step],
+def _next_step(current: LoopModel, train: CalibrationData, val: CalibrationData, rejected: list[Step],
                row_shift_guess_mm: float, say: Progress, fraction: float,
                searched: dict[str, float] | None = None) -> Step | None:
     """Try the effects the residual points to; of those that pass the held-out test, the one that
@@ -239,7 +224,7 @@ def diagnose(calibration: Recording, validation: Recording | None = None, progre
              max_steps: int = MAX_STEPS) -> DiagnosisResult:
     """Run the closed loop on a calibration recording (and an optional validation recording)."""
     say = progress or (lambda fraction, label: None)
-    data, train, val, holdout = _held_out(calibration, validation)
+    data, train, val, holdout = loop_split(calibration, validation)
     say(0.02, "fitting the seed paper's model")
     geometry = initial_geometry(train)
     current = before = _stage(KIND_SPECS["paper"], train, val, geometry, refine_geometry=True)

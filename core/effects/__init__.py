@@ -26,7 +26,7 @@ if TYPE_CHECKING:
 
     from graytrack.core.calibration_data import CalibrationData
     from graytrack.core.evidence import Evidence
-    from graytrack.core.diagnosis.heldout import Stage
+    from graytrack.core.diagnosis.heldout import LoopModel
     from graytrack.core.models.fourier import FourierModel
     from graytrack.core.structure import ModelSpec
 
@@ -87,7 +87,7 @@ class Effect:
         return {"effect": self.name, "family": self.family, "adds": self.adds, "fitted": self.fitted}
 
     # ----------------------------------------------------------------- closed loop
-    def probe(self, stage: "Stage") -> "Evidence | None":
+    def probe(self, stage: "LoopModel") -> "Evidence | None":
         """Evidence for this effect in a stage's residual (None: nothing to say)."""
         return None
 

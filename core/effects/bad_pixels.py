@@ -42,7 +42,8 @@ def _robust_z(values: np.ndarray, good: np.ndarray) -> np.ndarray:
 
 
 def model_free_bad_pixels(frames: np.ndarray, reference: np.ndarray | None, period_mm: float | None,
-                          sigma_gray: float, variance_at: Any = None, transients: np.ndarray | None = None) -> list[Finding]:
+                          sigma_gray: float, variance_at: Any = None,
+                          transients: np.ndarray | None = None) -> list[Finding]:
     """Stuck, dead, hot and noisy pixels of frames ``(K, R, n)``, from their time series alone.
 
     ``variance_at(gray)`` is the noise curve (σ² at a gray level); default σ² = ``sigma_gray``².

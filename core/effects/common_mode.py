@@ -35,7 +35,8 @@ class CommonMode(Effect):
         jitter = np.diff(gain[np.argsort(val.data.x_mm)])
         frame_to_frame = float(np.std(jitter) / np.sqrt(2)) * 100
         return Evidence(self.name, "time (per frame)", explained, z, share,
-                        f"a gain per frame ({frame_to_frame:.2f}% rms from frame to frame) and offset {explains(share)}")
+                        f"a gain per frame ({frame_to_frame:.2f}% rms from frame to frame) "
+                        f"and offset {explains(share)}")
 
     def model_fields(self, setting):
         return {"common_mode": True}

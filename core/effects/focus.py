@@ -33,7 +33,8 @@ def blur_direction(model: FourierModel, x_mm: np.ndarray) -> np.ndarray:
     return np.einsum("krua,krua->kru", trig * factor, weights)
 
 
-def per_frame_blur(target: np.ndarray, direction: np.ndarray, weights: np.ndarray) -> np.ndarray:
+def per_frame_blur(target: np.ndarray, direction: np.ndarray,
+                   weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Least-squares δ per frame of ``target ≈ δ·direction`` (all ``(K, R, n)``), and the sum of
     squares each frame's δ removes (second return)."""
     wd = weights * direction

@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, Literal, overload
 
 import numpy as np
 
@@ -101,7 +101,8 @@ class FourierModel:
     def __post_init__(self) -> None:
         if not (self.period_mm > 0 and self.pixel_pitch_mm > 0 and self.n_pixels >= 2):
             raise ModelError(
-                f"model geometry must be positive: period {self.period_mm}, pitch {self.pixel_pitch_mm}, pixels {self.n_pixels}"
+                f"model geometry must be positive: period {self.period_mm}, pitch {self.pixel_pitch_mm}, pixels "
+                f"{self.n_pixels}"
             )
         for label, value in (("harmonics", self.harmonics), ("pixel_degree", self.pixel_degree),
                              ("stroke_degree", self.stroke_degree), ("row_degree", self.row_degree)):
@@ -125,12 +126,12 @@ class FourierModel:
                 raise ModelError(f"target_map has {self.target_map.shape[0]} rows; the model has {self.n_rows} "
                                  "(one map for all rows, or one per row)")
         for label in ("pixel_gain", "pixel_offset", "pixel_weight"):
-            value = getattr(self, label)
-            if value is not None:
-                value = np.asarray(value, dtype=np.float64)
-                if value.shape != (self.n_rows, self.n_pixels):
-                    raise ModelError(f"{label} has shape {value.shape}, the model needs {(self.n_rows, self.n_pixels)}")
-                setattr(self, label, value)
+            given = getattr(self, label)
+            if given is not None:
+                table = np.asarray(given, dtype=np.float64)
+                if table.shape != (self.n_rows, self.n_pixels):
+                    raise ModelError(f"{label} has shape {table.shape}, the model needs {(self.n_rows, self.n_pixels)}")
+                setattr(self, label, table)
         self._cache: dict[str, Any] = {}
 
     # ----------------------------------------------------------------- structure
@@ -251,6 +252,14 @@ class FourierModel:
         if self.pixel_weight is not None:
             gain, offset = gain * self.seen(), offset * self.seen()
         return gain, offset
+
+    @overload
+    def predict(self, x_mm: np.ndarray, with_derivative: Literal[False] = False,
+                with_response: bool = True) -> np.ndarray: ...
+
+    @overload
+    def predict(self, x_mm: np.ndarray, with_derivative: Literal[True],
+                with_response: bool = True) -> tuple[np.ndarray, np.ndarray]: ...
 
     def predict(self, x_mm: np.ndarray, with_derivative: bool = False,
                 with_response: bool = True) -> np.ndarray | tuple[np.ndarray, np.ndarray]:

@@ -76,7 +76,8 @@ def model_from_dict(document: Any) -> FourierModel:
         found = document.get("schema") if isinstance(document, dict) else type(document).__name__
         raise ModelError(f"not a graytrack model file (schema {found!r}, expected {SCHEMA!r})")
     if document.get("version") != SCHEMA_VERSION:
-        raise ModelError(f"model schema version {document.get('version')!r} is not supported (this graytrack reads {SCHEMA_VERSION})")
+        raise ModelError(f"model schema version {document.get('version')!r} is not supported (this graytrack reads "
+                         f"{SCHEMA_VERSION})")
     body = document.get("model")
     if not isinstance(body, dict):
         raise ModelError("model file has no 'model' object")

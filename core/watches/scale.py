@@ -38,7 +38,8 @@ from graytrack.core.watches.magnification import MagnificationWatch
 
 
 # While χ² is suspect no line is fitted, and with χ² quiet the line leaves far frames out as outliers;
-# but a camera that disagrees with the grating by this many standard errors (of the frames' bounds, the grating's rounding, the calibration line and the
+# but a camera that disagrees with the grating by this many standard errors (of the frames' bounds, the grating's
+# rounding, the calibration line and the
 # model's own structure along the stroke), averaged over SUSPECT_WINDOW frames, places its frames
 # off whatever the cause: a model 5 % off in period, seen at rest mid-stroke, had its running χ²
 # hover at the stale line (1.2026 against 1.2023) and its positions 285 µm (~200 bounds) off,
@@ -189,7 +190,8 @@ class ScaleWatch:
         scale = line.scale_ppm - (base.scale_ppm if base is not None else 0.0)
         scale_var = line.covariance[2] + (base.covariance[2] if base is not None else 0.0)
         limit2 = STRETCH_Z * STRETCH_Z
-        if scale * scale > limit2 * scale_var and (watch.mean_ppm - scale) ** 2 <= limit2 * (scale_var + watch.sigma_ppm ** 2):
+        if (scale * scale > limit2 * scale_var
+                and (watch.mean_ppm - scale) ** 2 <= limit2 * (scale_var + watch.sigma_ppm ** 2)):
             return "print"
         if watch.mean_ppm ** 2 > limit2 * watch.sigma_ppm ** 2:
             return "lens"
@@ -350,7 +352,8 @@ class Disagreement:
         # averaging removes. Judged from the first frame on: a run that starts 20-40 bounds off the
         # grating (a print grown, a camera moved, a sensor's response changed since calibration)
         # had its first 5-15 frames called fresh while the window filled.
-        noise = monitor.structure.noise_um if monitor.structure is not None else 0.0  # the correction's, fixed per place
+        # the correction's, fixed per place
+        noise = monitor.structure.noise_um if monitor.structure is not None else 0.0
         sigma2 = 1.0 / (self.count * self.precision_per_um2) + self._known2 + monitor.calibration_structure_um ** 2 \
             + (monitor.reference_sigma_mm * 1e3) ** 2 + noise ** 2
         floor = max(monitor.floor_um, 0.5 * monitor.resolution_mm * 1e3)

@@ -29,7 +29,7 @@ trigger and waits for that frame), ``hardware`` (frames start on ``trigger_sourc
 from __future__ import annotations
 
 import time
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
@@ -45,6 +45,10 @@ from graytrack.drivers.camera.base import (
     Frame,
 )
 from graytrack.drivers.camera.clock_fit import DeviceClockFit
+from graytrack.drivers.registry import cameras
+
+if TYPE_CHECKING:
+    from graytrack.drivers.config import CameraConfig
 
 TriggerMode = Literal["free-run", "software", "hardware"]
 PIXEL_DTYPES = {"Mono8": np.uint8, "Mono10": np.uint16, "Mono12": np.uint16, "Mono16": np.uint16}
@@ -72,16 +76,21 @@ def load_aravis() -> Any:
     return _aravis_module
 
 
-def aravis_device_ids(fake: bool = False) -> list[str]:
-    """Devices Aravis can see now (``fake`` also enables its ``Fake`` interface)."""
-    aravis = load_aravis()
-    if fake:
-        aravis.enable_interface("Fake")
-    aravis.update_device_list()
-    return [aravis.get_device_id(i) for i in range(aravis.get_n_devices())]
-
-
+@cameras.register("aravis")
 class AravisCamera(Camera):
+    @classmethod
+    def from_config(cls, config: CameraConfig) -> AravisCamera:
+        """The ``[camera]`` table's device (None: the first Aravis finds), trigger, pixel format and timing."""
+        return cls(
+            None if config.device is None else str(config.device),
+            config.to_settings(),
+            trigger=config.trigger,
+            trigger_source=config.trigger_source,
+            pixel_format=config.pixel_format,
+            n_buffers=config.n_buffers,
+            readout_s=config.readout_us * 1e-6,
+        )
+
     def __init__(
         self,
         device_id: str | None = None,

@@ -4,7 +4,8 @@ Live sources buffer frames (V4L2 keeps several, network streams more), so readin
 naively hands out frames that are already old, and their age is unknown. For live sources a
 grabber thread therefore pulls every frame as soon as the source offers it, stamps it, and keeps
 it in a backlog bounded by the lag budget (``settings.max_lag_s``, see backlog.py); :meth:`read`
-returns the oldest frame within that budget of the newest and counts the ones skipped as dropped. Files are read in order, frame by frame, since a file has no "now"; a file
+returns the oldest frame within that budget of the newest and counts the ones skipped as dropped. Files are read in
+order, frame by frame, since a file has no "now"; a file
 opened as live plays at full speed, or at its own frame rate with ``realtime=True`` (a camera
 stand-in for tests).
 
@@ -22,6 +23,7 @@ import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -37,6 +39,10 @@ from graytrack.drivers.camera.base import (
     CameraTimeout,
     Frame,
 )
+from graytrack.drivers.registry import cameras
+
+if TYPE_CHECKING:
+    from graytrack.drivers.config import CameraConfig
 
 V4L2_EXPOSURE_UNIT_US = 100.0  # V4L2's exposure_time_absolute counts in units of 100 µs
 BACKLOG_IMAGES = 32  # whole decoded images wait in the backlog: bounded in number, whatever the lag budget
@@ -55,7 +61,14 @@ def _is_live(source: int | str) -> bool:
     return isinstance(source, int) or "://" in source or source.startswith("/dev/")
 
 
+@cameras.register("opencv")
 class OpenCVCamera(Camera):
+    @classmethod
+    def from_config(cls, config: CameraConfig) -> OpenCVCamera:
+        """The ``[camera]`` table's source (``device``: an index, a file or a URL) and timing."""
+        assert config.device is not None  # CameraConfig requires it for this driver
+        return cls(config.device, config.to_settings(), readout_s=config.readout_us * 1e-6)
+
     def __init__(
         self,
         source: int | str,

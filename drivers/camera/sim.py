@@ -33,12 +33,14 @@ import numpy as np
 from graytrack.drivers.camera.backlog import first_slot
 from graytrack.drivers.camera.base import Camera, CameraError, CameraSettingError, CameraSettings, CameraTimeout, Frame
 from graytrack.drivers.clock import REAL_TIME, ScaledClock
+from graytrack.drivers.registry import cameras
 from graytrack.drivers.sim.frame_render import FrameRenderer
 from graytrack.drivers.sim.process import RigProcess, RigProcessError, RigProcessTimeout
 from graytrack.drivers.sim.rig import VirtualRig
 from graytrack.drivers.sim.stage import Trajectory
 
 
+@cameras.register("sim", simulated=True)  # it renders the virtual rig's stage: drivers/factory.py builds both
 class SimCamera(Camera):
     def __init__(
         self,

@@ -48,7 +48,7 @@ Apply = Callable[["RigConfig", dict[str, float], np.random.Generator], None]
 
 
 @dataclass(frozen=True)
-class Effect:
+class RigEffect:
     name: str
     group: str
     summary: str
@@ -84,7 +84,7 @@ class Effect:
         return ":".join(parts)
 
 
-EFFECTS: dict[str, Effect] = {}
+EFFECTS: dict[str, RigEffect] = {}
 
 
 def effect(name: str, group: str, summary: str, **params: tuple[float, str]) -> Callable[[Apply], Apply]:
@@ -93,7 +93,7 @@ def effect(name: str, group: str, summary: str, **params: tuple[float, str]) -> 
     def register(fn: Apply) -> Apply:
         if name in EFFECTS:
             raise RuntimeError(f"effect {name!r} registered twice")
-        EFFECTS[name] = Effect(name, group, summary, tuple(Param(k, d, doc) for k, (d, doc) in params.items()), fn)
+        EFFECTS[name] = RigEffect(name, group, summary, tuple(Param(k, d, doc) for k, (d, doc) in params.items()), fn)
         return fn
 
     return register
@@ -102,7 +102,7 @@ def effect(name: str, group: str, summary: str, **params: tuple[float, str]) -> 
 EffectSpec = str | tuple[str, Mapping[str, float]]
 
 
-def parse_effects(specs: Sequence[EffectSpec] | str) -> list[tuple[Effect, dict[str, float]]]:
+def parse_effects(specs: Sequence[EffectSpec] | str) -> list[tuple[RigEffect, dict[str, float]]]:
     """Specs (strings in the syntax above, or ``(name, {param: value})`` pairs) → effects + values."""
     if isinstance(specs, str):
         specs = [specs]
@@ -173,7 +173,8 @@ def _field_span(config: "RigConfig") -> tuple[float, float]:
 # ----- target ----------------------------------------------------------------------------------
 
 
-@effect("harmonics", "target", "Print distortion: 2nd and 3rd harmonics added to the profile, relative to its fundamental.",
+@effect("harmonics", "target",
+        "Print distortion: 2nd and 3rd harmonics added to the profile, relative to its fundamental.",
         h2=(0.05, "2nd-harmonic amplitude / fundamental"), h3=(0.02, "3rd-harmonic amplitude / fundamental"),
         phase2_deg=(0.0, "phase of the 2nd harmonic"), phase3_deg=(0.0, "phase of the 3rd harmonic"))
 def _harmonics(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
@@ -182,7 +183,8 @@ def _harmonics(config: "RigConfig", v: dict[str, float], rng: np.random.Generato
             config.target.harmonics.append((order, v[f"h{order}"], math.radians(v[f"phase{order}_deg"])))
 
 
-@effect("print_gamma", "target", "Nonlinear print (dot gain): each period's profile normalised to [0,1] and raised to gamma.",
+@effect("print_gamma", "target",
+        "Nonlinear print (dot gain): each period's profile normalised to [0,1] and raised to gamma.",
         gamma=(1.3, ">1 narrows the bright crests, <1 the dark troughs"))
 def _print_gamma(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
     config.target.print_gamma *= _positive("print_gamma", "gamma", v["gamma"])
@@ -195,7 +197,8 @@ def _pitch_scale(config: "RigConfig", v: dict[str, float], rng: np.random.Genera
 
 
 @effect("chirp", "target", "Nonlinear pitch error: the print is warped by um·ξ^order over the field (ξ ∈ [-1, 1]).",
-        um=(20.0, "peak position error of the print, µm"), order=(2.0, "2 = chirp (period changes linearly), 3 = S-shape"))
+        um=(20.0, "peak position error of the print, µm"),
+        order=(2.0, "2 = chirp (period changes linearly), 3 = S-shape"))
 def _chirp(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
     order = _count("chirp", "order (order 1 is pitch_scale)", v["order"], 2, 9)
     lo, hi = _field_span(config)
@@ -226,8 +229,10 @@ def _defect_y_range(config: "RigConfig", margin: float) -> tuple[float, float]:
     return -margin, pitch * (config.optics.n_rows - 1) + margin
 
 
-@effect("dust", "target", "Dust on the target: dark Gaussian spots fixed to the target, placed at random over the field.",
-        count=(8.0, "number of spots"), size_um=(50.0, "spot sigma, µm"), depth=(0.3, "relative darkening at the centre"))
+@effect("dust", "target",
+        "Dust on the target: dark Gaussian spots fixed to the target, placed at random over the field.",
+        count=(8.0, "number of spots"), size_um=(50.0, "spot sigma, µm"),
+        depth=(0.3, "relative darkening at the centre"))
 def _dust(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
     size = _positive("dust", "size_um", v["size_um"]) * 1e-3
     lo, hi = _field_span(config)
@@ -260,7 +265,8 @@ def _dust_settling(config: "RigConfig", v: dict[str, float], rng: np.random.Gene
 
 
 @effect("scratches", "target", "Scratches across the target: thin lines (bright when depth<0) at a small angle to y.",
-        count=(2.0, "number of scratches"), width_um=(15.0, "line sigma, µm"), depth=(-0.25, "relative darkening (<0 brightens)"),
+        count=(2.0, "number of scratches"), width_um=(15.0, "line sigma, µm"),
+        depth=(-0.25, "relative darkening (<0 brightens)"),
         angle_deg=(5.0, "angle from the target's y axis"))
 def _scratches(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
     width = _positive("scratches", "width_um", v["width_um"]) * 1e-3
@@ -274,8 +280,10 @@ def _scratches(config: "RigConfig", v: dict[str, float], rng: np.random.Generato
 # ----- illumination --------------------------------------------------------------------------
 
 
-@effect("gradient", "illumination", "Uneven light fixed to the target: gain 1 + slope·dx + curvature·dx² along the stroke.",
-        per_10mm=(0.05, "relative gain change per 10 mm"), curvature=(0.0, "relative gain change at ±10 mm from the centre"))
+@effect("gradient", "illumination",
+        "Uneven light fixed to the target: gain 1 + slope·dx + curvature·dx² along the stroke.",
+        per_10mm=(0.05, "relative gain change per 10 mm"),
+        curvature=(0.0, "relative gain change at ±10 mm from the centre"))
 def _gradient(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
     lo, hi = _field_span(config)
     config.illumination.gradient_per_mm += v["per_10mm"] / 10.0
@@ -283,13 +291,15 @@ def _gradient(config: "RigConfig", v: dict[str, float], rng: np.random.Generator
     config.illumination.gradient_center_mm = 0.5 * (lo + hi)
 
 
-@effect("vignetting", "illumination", "Light fall-off fixed to the camera: gain 1 − edge·ρ² (ρ = radius / sensor half-width).",
+@effect("vignetting", "illumination",
+        "Light fall-off fixed to the camera: gain 1 − edge·ρ² (ρ = radius / sensor half-width).",
         edge=(0.08, "relative loss at the half-width"))
 def _vignetting(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
     config.illumination.vignetting += v["edge"]
 
 
-@effect("flicker", "illumination", "Lamp flicker at 2×mains: each frame's light scaled by 1 + depth·sinc(2fT)·cos(2π·2f·t + φ).",
+@effect("flicker", "illumination",
+        "Lamp flicker at 2×mains: each frame's light scaled by 1 + depth·sinc(2fT)·cos(2π·2f·t + φ).",
         mains_hz=(50.0, "mains frequency"), depth=(0.02, "relative modulation of the light"),
         phase_deg=(-1.0, "phase φ; negative = random"))
 def _flicker(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
@@ -347,7 +357,8 @@ def _defocus(config: "RigConfig", v: dict[str, float], rng: np.random.Generator)
     config.optics.defocus_sigma_mm = math.hypot(s, _positive("defocus", "sigma_um", v["sigma_um"], True) * 1e-3)
 
 
-@effect("focus_drift", "optics", "Focus drifting during the run (a lens mount warming up): from start_s the blur σ on the "
+@effect("focus_drift", "optics",
+        "Focus drifting during the run (a lens mount warming up): from start_s the blur σ on the "
         "target moves by px pixel footprints (px·α·d; >0 blurrier, <0 sharper, never below σ = 0: a sharper image "
         "needs a base defocus to lose), ramped in over ramp_s (0: a step).",
         px=(0.5, "change of the blur σ, pixels"), start_s=(0.0, "when the change begins, s"),
@@ -373,7 +384,8 @@ def _focus_cycle(config: "RigConfig", v: dict[str, float], rng: np.random.Genera
     config.optics.focus_cycle_s = _positive("focus_cycle", "period_s", v["period_s"])
 
 
-@effect("tilt", "optics", "Camera rows tilted against the axis of motion: row r sees the target shifted by −r·α·d·sin(angle).",
+@effect("tilt", "optics",
+        "Camera rows tilted against the axis of motion: row r sees the target shifted by −r·α·d·sin(angle).",
         deg=(0.5, "tilt angle, degrees"))
 def _tilt(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
     config.optics.tilt_rad += math.radians(v["deg"])
@@ -563,7 +575,8 @@ def _time_skew(config: "RigConfig", v: dict[str, float], rng: np.random.Generato
     config.timing.latch_skew_s += v["ms"] * 1e-3
 
 
-@effect("jitter", "timing", "Exposure instants jitter about the frame clock that latches the reference: error v·N(0, σ).",
+@effect("jitter", "timing",
+        "Exposure instants jitter about the frame clock that latches the reference: error v·N(0, σ).",
         us=(500.0, "jitter standard deviation, µs"))
 def _jitter(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
     config.timing.trigger_jitter_s = _positive("jitter", "us", v["us"], True) * 1e-6
@@ -589,7 +602,8 @@ def _dropped_frames(config: "RigConfig", v: dict[str, float], rng: np.random.Gen
     config.timing.drop_probability = v["p"]
 
 
-@effect("frame_rate", "timing", "Frame rate (the exposure is capped at the frame period).", hz=(1000.0, "frames per second"))
+@effect("frame_rate", "timing", "Frame rate (the exposure is capped at the frame period).",
+        hz=(1000.0, "frames per second"))
 def _frame_rate(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
     config.timing.frame_rate_hz = _positive("frame_rate", "hz", v["hz"])
     config.timing.exposure_s = min(config.timing.exposure_s, 1.0 / v["hz"])
@@ -598,7 +612,8 @@ def _frame_rate(config: "RigConfig", v: dict[str, float], rng: np.random.Generat
 # ----- effects found by red-teaming the closed loop (light, pixels, print, optics, timing) --------
 
 
-@effect("glare", "illumination", "A bright blob fixed to the camera (a reflection in the lens or a window): stray light "
+@effect("glare", "illumination",
+        "A bright blob fixed to the camera (a reflection in the lens or a window): stray light "
         "added to the image, Gaussian about a point of the ROI; it dims and flickers with the lamp.",
         gray=(20.0, "stray light at the centre, gray"), at=(0.7, "centre along the line, fraction of the ROI width"),
         row=(0.5, "centre across the rows, fraction of the ROI height"), sigma_px=(8.0, "size, pixels"))
@@ -623,7 +638,8 @@ def _gain_hunting(config: "RigConfig", v: dict[str, float], rng: np.random.Gener
     sensor.gain_hunt_phase_rad = math.radians(v["phase_deg"]) if v["phase_deg"] >= 0 else rng.uniform(0, 2 * math.pi)
 
 
-@effect("telegraph_pixels", "sensor", "Random-telegraph (flickering) pixels: a charge trap makes each of `count` pixels "
+@effect("telegraph_pixels", "sensor",
+        "Random-telegraph (flickering) pixels: a charge trap makes each of `count` pixels "
         "jump by `gray` and back at random instants, `rate_hz` flips per second on average.",
         count=(3.0, "number of flickering pixels"), gray=(6.0, "size of the jump, gray"),
         rate_hz=(4.0, "mean flips per second"))

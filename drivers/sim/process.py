@@ -112,7 +112,8 @@ class RigProcess:
             try:
                 reply = ours.recv(MAX_MESSAGE)
             except TimeoutError:
-                raise RigProcessTimeout(f"the virtual rig's process did not start within {START_TIMEOUT_S:g} s") from None
+                raise RigProcessTimeout(
+                    f"the virtual rig's process did not start within {START_TIMEOUT_S:g} s") from None
             ours.settimeout(None)
             if not reply:
                 raise EOFError
@@ -179,7 +180,8 @@ class RigProcess:
         return f"(pid {process.pid}) exited with status {code}"
 
     # -- frames ----------------------------------------------------------------------------
-    def configure(self, t0_s: float, frame_rate_hz: float, exposure_s: float, max_lag_s: float, priority: int = 0) -> None:
+    def configure(self, t0_s: float, frame_rate_hz: float, exposure_s: float, max_lag_s: float,
+                  priority: int = 0) -> None:
         """Start (or restart) the child's frame clock: slot k is exposed over ``t0_s + k / frame_rate_hz``
         + [0, exposure_s] (rig clock); frames of an earlier configuration are never handed out after
         this. ``priority``: the child's rendering thread's SCHED_FIFO level (the daemon's frame loop's)."""

@@ -114,8 +114,8 @@ class Sensor:
         if rng is not None and cfg.row_noise_gray:
             signal += np.float32(cfg.row_noise_gray) * rng.standard_normal(signal.shape[:2] + (1,), dtype=np.float32)
         if cfg.gamma != 1.0:
-            signal = np.float32(FULL_SCALE_GRAY) * (np.maximum(signal, 0.0) / np.float32(FULL_SCALE_GRAY)) ** np.float32(
-                cfg.gamma)
+            full = np.float32(FULL_SCALE_GRAY)
+            signal = full * (np.maximum(signal, 0.0) / full) ** np.float32(cfg.gamma)
         for bad in cfg.bad_pixels:
             _spoil(signal, bad, rng, t_s)
         if cfg.clip or cfg.bit_depth is not None:

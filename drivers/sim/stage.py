@@ -133,19 +133,10 @@ class SimStage:
             )
         self.config.acceleration_mm_s2 = float(value)
 
-    def set_acceleration(self, value: float) -> None:
-        """Acceleration (= deceleration) for the next moves."""
-        self.acceleration_mm_s2 = value
-
     @property
     def target_mm(self) -> float:
         """Target of the last move (or the stop position after ``stop``)."""
         return self._target_mm
-
-    @property
-    def motion_end_s(self) -> float:
-        """Time at which the commanded profile comes to rest."""
-        return self._t_end
 
     # ----- commands -------------------------------------------------------------------------
     def move_to(self, target_mm: float, t_s: float) -> float:
@@ -202,10 +193,6 @@ class SimStage:
     def following_error(self, t_s: ArrayLike) -> np.ndarray:
         """Commanded minus actual position (positive when the stage lags a forward move)."""
         return -self._evaluate(t_s)[2]
-
-    def is_moving(self, t_s: float) -> bool:
-        """True while the commanded profile is still in motion."""
-        return float(t_s) < self._t_end
 
     def on_target(self, t_s: float) -> bool:
         """PI-style on-target: motion finished and within the window for the whole settle time."""

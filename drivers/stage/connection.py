@@ -102,10 +102,6 @@ class GCSConnection:
         with self._lock:
             self._drop_port()
 
-    @property
-    def is_connected(self) -> bool:
-        return self._state.port is not None
-
     def locked(self) -> threading.RLock:
         """The transaction lock, for callers that need several commands to be atomic."""
         return self._lock

@@ -13,18 +13,36 @@ from __future__ import annotations
 
 import math
 import time
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
+from graytrack.drivers.registry import stages
 from graytrack.drivers.stage import gcs_protocol as gcs
 from graytrack.drivers.stage.base import PositionReading, Stage
 from graytrack.drivers.stage.connection import GCSConnection, Reply
 from graytrack.drivers.stage.errors import GCSControllerError, StageError, StageLimitError, StageTimeoutError
 
+if TYPE_CHECKING:
+    from graytrack.drivers.config import StageConfig
+
 VELOCITY_OUT_OF_LIMITS = 8  # the GCS error number VEL leaves for a velocity the controller will not take
 STOPPED_BY_COMMAND = 10  # the error STP/HLT leave in the register; expected after our own stop
 
 
+@stages.register("gcs")
 class GCSStage(Stage):
+    @classmethod
+    def from_config(cls, config: StageConfig, port: str | None = None) -> GCSStage:
+        """The ``[stage]`` table's controller; ``port`` overrides its serial device (the virtual rig's pty)."""
+        return cls(
+            port or config.port or "",
+            baudrate=config.baudrate,
+            axis=config.axis,
+            timeout_s=config.timeout_s,
+            soft_limits_mm=config.soft_limits_mm,
+            velocity_mm_s=config.velocity_mm_s,
+            reference_on_open=config.reference_on_open,
+        )
+
     def __init__(
         self,
         port: str,
@@ -135,7 +153,8 @@ class GCSStage(Stage):
         if not velocity_mm_s > 0:
             raise StageLimitError(f"velocity must be positive, got {velocity_mm_s}")
         if float(gcs.format_number(float(velocity_mm_s))) <= 0.0:
-            raise StageLimitError(f"velocity {velocity_mm_s:g} mm/s is below the 1e-9 mm/s the GCS protocol can express")
+            raise StageLimitError(
+                f"velocity {velocity_mm_s:g} mm/s is below the 1e-9 mm/s the GCS protocol can express")
         try:
             self.link.command("VEL", self.axis, float(velocity_mm_s))
         except GCSControllerError as exc:
@@ -152,7 +171,8 @@ class GCSStage(Stage):
         """The controller's maximum closed-loop velocity (parameter 0xA), None when it will not say."""
         try:
             value, _ = self.link.query("SPA?", self.axis, "0xA",
-                                       parse=lambda lines: gcs.parse_parameter(gcs.single_line(lines), self.axis, "0xA"))
+                                       parse=lambda lines: gcs.parse_parameter(gcs.single_line(lines),
+                                                                               self.axis, "0xA"))
         except StageError:
             self.link.error_code()  # an older controller refuses SPA?: its error register is cleared
             return None

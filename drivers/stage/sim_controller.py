@@ -31,6 +31,7 @@ from typing import Callable, Literal
 
 from graytrack.drivers.stage import gcs_protocol as gcs
 from graytrack.drivers.stage.axis_model import AxisModel, TrapezoidAxis
+from graytrack.drivers.registry import stages
 from graytrack.drivers.stage.sim_gcs import DEFAULT_IDN, SimGCSInterpreter
 
 FaultKind = Literal["garbage", "partial", "drop", "slow", "error"]
@@ -54,6 +55,7 @@ class Fault:
     count: int = 1
 
 
+@stages.register("sim", simulated=True)  # the virtual rig's controller, which GCSStage drives: drivers/factory.py
 class SimGCSController:
     def __init__(
         self,

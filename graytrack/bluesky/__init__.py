@@ -1,7 +1,7 @@
 """The graytrack daemon in bluesky: an ophyd-async encoder (detector) and stage (movable).
 
-Needs the ``bluesky`` extra (``pip install graytrack[bluesky]``); the rest of graytrack imports
-without it. ::
+Needs the ``bluesky`` extra (``pip install 'graytrack[bluesky]'``; in a checkout
+``.venv/bin/pip install -e '.[bluesky]'``); the rest of graytrack imports without it. ::
 
     from bluesky import RunEngine
     import bluesky.plans as bp

@@ -13,7 +13,8 @@ from typing import Any
 class GraytrackClientError(Exception):
     """Anything the client could not do; ``status`` is the HTTP status when the daemon answered."""
 
-    def __init__(self, error: str, status: int | None = None, request: str | None = None, hint: str | None = None) -> None:
+    def __init__(self, error: str, status: int | None = None, request: str | None = None,
+                 hint: str | None = None) -> None:
         self.error = error
         self.status = status
         self.request = request

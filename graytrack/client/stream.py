@@ -34,15 +34,17 @@ class Position:
     its queue. With ``max_rate`` the daemon skips messages on purpose and ``gap`` counts those too.
     ``reconnected`` marks the first message over a new connection, ``restarted`` one whose ``seq``
     went back (a restarted daemon; ``gap`` then counts the new daemon's messages missed).
+    ``x_mm``, ``locked``, ``crlb_um``, ``stale`` and ``stale_reason`` are the frame record's quantities
+    (core/frame_record.py, ``graytrack.wire.FitFigures``); the rest of the record is in ``raw``.
     """
 
     seq: int
     t: float  # mid-exposure, the daemon host's time.monotonic() (s)
-    x_mm: float | None  # None when the frame could not be placed
+    x_mm: float | None
     locked: bool
     crlb_um: float | None
-    stale: bool  # the daemon's validity monitor says the model no longer holds: recalibrate
-    stale_reason: str | None  # while stale: the family of causes (transients, pixels, light, focus, scale, geometry)
+    stale: bool
+    stale_reason: str | None
     age_ms: float | None  # send time minus mid-exposure, in the daemon
     t_unix: float | None
     frame_id: int | None

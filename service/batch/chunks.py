@@ -18,6 +18,7 @@ if TYPE_CHECKING:  # the parser is built for every command: the numerics load wh
     from graytrack.core.chunked import ChunkTask
     from graytrack.core.models.fourier import FourierModel
     from graytrack.core.tracking import TrackResult
+    from graytrack.service.progress import NoteCallback
 
 
 @dataclass(frozen=True)
@@ -47,7 +48,9 @@ def chunk_options(args: argparse.Namespace) -> ChunkOptions | None:
 
 def track_in_chunks(model: FourierModel, frames: np.ndarray, reference: np.ndarray,
                     options: ChunkOptions, light: str | None = None, robust: bool = False, slide: bool = False,
-                    axis_px: float | None = None) -> TrackResult:
+                    axis_px: float | None = None, *, note: NoteCallback) -> TrackResult:
+    """The recording tracked in chunks on a Dask cluster and stitched; the stitching's picks are said to
+    ``note``."""
     from graytrack.core.chunked import DEFAULT_OVERLAP, track_chunk, track_chunked
 
     overlap = DEFAULT_OVERLAP if options.overlap is None else options.overlap
@@ -58,7 +61,7 @@ def track_in_chunks(model: FourierModel, frames: np.ndarray, reference: np.ndarr
         result, report = track_chunked(model, frames, reference, options.chunk_frames, overlap, map_chunks,
                                        light=light, robust=robust, slide=slide, axis_px=axis_px)
     shifts = ", ".join(f"chunk {index} {shift:+.4f} mm" for index, shift in report.shifted) or "none"
-    print(f"chunks  {report.chunks} of {options.chunk_frames} frames (overlap {overlap}); period picks: {shifts}")
+    note(f"chunks  {report.chunks} of {options.chunk_frames} frames (overlap {overlap}); period picks: {shifts}")
     for index, why in report.redone:
-        print(f"  chunk {index} tracked again as the sequential continuation: {why}")
+        note(f"  chunk {index} tracked again as the sequential continuation: {why}")
     return result

@@ -20,7 +20,8 @@ CONNECT_TIMEOUT_S = 20.0
 
 def add_cluster_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                        help="submit to a running Dask scheduler (tcp://HOST:8786); default: a local cluster of processes")
+                        help="submit to a running Dask scheduler (tcp://HOST:8786); "
+                             "default: a local cluster of processes")
     parser.add_argument("--workers", type=int, default=None, metavar="N",
                         help="local cluster: worker processes (default: one per core); "
                              "with --scheduler: wait until N workers are connected")

@@ -41,7 +41,7 @@ QUANTITIES = (
 
 
 @dataclass(frozen=True)
-class Calibration:
+class RigCalibration:
     rig: str
     when: datetime
     path: str
@@ -54,15 +54,16 @@ class Calibration:
 class Change:
     rig: str
     quantity: Quantity
-    since: Calibration
-    at: Calibration
+    since: RigCalibration
+    at: RigCalibration
     z: float
     against: str  # "previous" (a step) or "baseline" (drift accumulated since ``since``)
 
     def text(self) -> str:
         q = self.quantity
         delta = (self.at.values[q.key] - self.since.values[q.key]) * q.scale
-        how = "a step from the previous calibration" if self.against == "previous" else "a drift over several calibrations"
+        how = ("a step from the previous calibration" if self.against == "previous"
+               else "a drift over several calibrations")
         return (f"{self.rig}: {q.label} changed by {delta:+.4g} {q.unit} from {self.since.when:%Y-%m-%d %H:%M} "
                 f"to {self.at.when:%Y-%m-%d %H:%M} ({self.z:.1f}× the combined uncertainty; {how})")
 
@@ -93,7 +94,7 @@ def statistical_uncertainty(key: str, value: float, row: dict[str, str]) -> floa
     return value / math.sqrt(2.0 * samples) if samples > 0 else math.nan
 
 
-def calibration_of(row: dict[str, str]) -> Calibration | None:
+def calibration_of(row: dict[str, str]) -> RigCalibration | None:
     when = _time(row.get("calibrated_at", ""))
     if row.get("status") != "ok" or when is None:
         return None
@@ -102,12 +103,12 @@ def calibration_of(row: dict[str, str]) -> Calibration | None:
     for key in ("noise_gray", "error_std_after_um"):
         uncertainty[key] = statistical_uncertainty(key, values[key], row)
     effects = tuple(name for name in (row.get("effects") or "").split(";") if name)
-    return Calibration(row.get("rig") or "rig", when, row.get("path", ""), values, uncertainty, effects)
+    return RigCalibration(row.get("rig") or "rig", when, row.get("path", ""), values, uncertainty, effects)
 
 
-def load_calibrations(folders: Iterable[str | Path]) -> dict[str, list[Calibration]]:
+def load_calibrations(folders: Iterable[str | Path]) -> dict[str, list[RigCalibration]]:
     """Every usable row of the batches' summaries, per rig, in time order (a recording once)."""
-    seen: dict[str, Calibration] = {}
+    seen: dict[str, RigCalibration] = {}
     for folder in folders:
         folder = Path(folder)
         summary = folder if folder.is_file() else folder / SUMMARY
@@ -120,7 +121,7 @@ def load_calibrations(folders: Iterable[str | Path]) -> dict[str, list[Calibrati
             calibration = calibration_of(row)
             if calibration is not None:
                 seen.setdefault(calibration.path, calibration)
-    rigs: dict[str, list[Calibration]] = {}
+    rigs: dict[str, list[RigCalibration]] = {}
     for calibration in sorted(seen.values(), key=lambda c: (c.rig, c.when)):
         rigs.setdefault(calibration.rig, []).append(calibration)
     if not rigs:
@@ -128,13 +129,13 @@ def load_calibrations(folders: Iterable[str | Path]) -> dict[str, list[Calibrati
     return rigs
 
 
-def _z(a: Calibration, b: Calibration, key: str) -> float:
+def _z(a: RigCalibration, b: RigCalibration, key: str) -> float:
     combined = math.hypot(a.uncertainty[key], b.uncertainty[key])
     delta = abs(b.values[key] - a.values[key])
     return delta / combined if combined > 0 else math.nan
 
 
-def changes(calibrations: list[Calibration], z_limit: float = Z_LIMIT) -> list[Change]:
+def changes(calibrations: list[RigCalibration], z_limit: float = Z_LIMIT) -> list[Change]:
     """Changes of one rig beyond ``z_limit`` combined uncertainties: a step from one calibration
     to the next, or a slow drift accumulated since the last change (or the first calibration)."""
     found: list[Change] = []
@@ -152,7 +153,7 @@ def changes(calibrations: list[Calibration], z_limit: float = Z_LIMIT) -> list[C
     return sorted(found, key=lambda change: change.at.when)
 
 
-def effect_changes(calibrations: list[Calibration]) -> list[str]:
+def effect_changes(calibrations: list[RigCalibration]) -> list[str]:
     """Effects the closed loop started or stopped finding, calibration to calibration."""
     lines = []
     for before, after in zip(calibrations, calibrations[1:]):
@@ -164,7 +165,8 @@ def effect_changes(calibrations: list[Calibration]) -> list[str]:
     return lines
 
 
-def series(calibrations: list[Calibration], key: str, scale: float = 1.0) -> tuple[list[datetime], np.ndarray, np.ndarray]:
+def series(calibrations: list[RigCalibration], key: str,
+           scale: float = 1.0) -> tuple[list[datetime], np.ndarray, np.ndarray]:
     when = [c.when for c in calibrations]
     values = np.array([c.values[key] for c in calibrations]) * scale
     errors = np.array([c.uncertainty[key] for c in calibrations]) * scale

@@ -14,12 +14,12 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from graytrack.core.files import write_atomic  # noqa: E402
-from graytrack.service.batch.history import (QUANTITIES, Z_LIMIT, Calibration, Change, changes,  # noqa: E402
+from graytrack.service.batch.history import (QUANTITIES, Z_LIMIT, RigCalibration, Change, Quantity, changes,  # noqa: E402
                                              effect_changes, series)
-from graytrack.service.report import _png  # noqa: E402
+from graytrack.service.report_kit import image, page, png, table  # noqa: E402
 
 
-def figure(rigs: dict[str, list[Calibration]], found: list[Change]) -> str:
+def figure(rigs: dict[str, list[RigCalibration]], found: list[Change]) -> str:
     """One panel per quantity (value ± its uncertainty per rig), and the effects found."""
     fig, axes = plt.subplots(len(QUANTITIES) + 1, 1, figsize=(11, 2.3 * (len(QUANTITIES) + 1)), sharex=True)
     effect_names = sorted({name for cals in rigs.values() for c in cals for name in c.effects})
@@ -45,47 +45,39 @@ def figure(rigs: dict[str, list[Calibration]], found: list[Change]) -> str:
     axes[-1].set_ylabel("effects found", fontsize=9)
     axes[-1].set_xlabel("calibration time (UTC)")
     fig.autofmt_xdate()
-    return _png(fig)
+    return png(fig)
 
 
-def _table(rigs: dict[str, list[Calibration]]) -> str:
-    head = "".join(f"<th>{html.escape(q.label)} ({q.unit})</th>" for q in QUANTITIES)
-    lines = [f"<tr><th>rig</th><th>calibrated (UTC)</th>{head}<th>effects</th></tr>"]
-    for rig, cals in rigs.items():
-        for c in cals:
-            cells = "".join(
-                f"<td>{c.values[q.key] * q.scale:.6g}" + (f" ± {c.uncertainty[q.key] * q.scale:.2g}"
-                                                         if np.isfinite(c.uncertainty[q.key]) else "") + "</td>"
-                for q in QUANTITIES)
-            lines.append(f"<tr><td>{html.escape(rig)}</td><td>{c.when:%Y-%m-%d %H:%M:%S}</td>{cells}"
-                         f"<td>{html.escape(', '.join(c.effects) or '—')}</td></tr>")
-    return "\n".join(lines)
+def _value(c: RigCalibration, q: Quantity) -> str:
+    """A quantity of one calibration, with its standard uncertainty when known."""
+    uncertainty = c.uncertainty[q.key] * q.scale
+    return f"{c.values[q.key] * q.scale:.6g}" + (f" ± {uncertainty:.2g}" if np.isfinite(uncertainty) else "")
 
 
-def render(rigs: dict[str, list[Calibration]]) -> tuple[str, list[Change]]:
+def _table(rigs: dict[str, list[RigCalibration]]) -> str:
+    header = ["rig", "calibrated (UTC)", *(f"{q.label} ({q.unit})" for q in QUANTITIES), "effects"]
+    rows = [[rig, f"{c.when:%Y-%m-%d %H:%M:%S}", *(_value(c, q) for q in QUANTITIES), ", ".join(c.effects) or "—"]
+            for rig, cals in rigs.items() for c in cals]
+    return table(header, rows)
+
+
+def render(rigs: dict[str, list[RigCalibration]]) -> tuple[str, list[Change]]:
     found = [change for cals in rigs.values() for change in changes(cals)]
     effects = [line for cals in rigs.values() for line in effect_changes(cals)]
     items = "".join(f"<li class=flag>{html.escape(change.text())}</li>" for change in found)
     count = sum(len(cals) for cals in rigs.values())
-    page = f"""<!doctype html>
-<html lang="en"><head><meta charset="utf-8"><title>graytrack history</title>
-<style>body{{font-family:system-ui,sans-serif;max-width:1150px;margin:2em auto;color:#222}}
-table{{border-collapse:collapse;width:100%}}td,th{{border:1px solid #ccc;padding:4px 6px;font-size:13px}}
-th{{background:#f3f3f3}}.flag{{color:#b00}}</style></head><body>
-<h1>graytrack history</h1>
-<p>{count} calibration(s) of {len(rigs)} rig(s). A value is pointed out when it moved from the rig's previous
-calibration, or drifted from the level of its last change (at first: its first calibration) by more than {Z_LIMIT:g} times the combined standard uncertainty (τ_w and α·d:
-spread of interleaved refits of each sweep; σ and the held-out error: σ/√(2n) of their sample counts).</p>
+    body = f"""<p>{count} calibration(s) of {len(rigs)} rig(s). A value is pointed out when it moved from the rig's
+previous calibration, or drifted from the level of its last change (at first: its first calibration) by more than
+{Z_LIMIT:g} times the combined standard uncertainty (τ_w and α·d: spread of interleaved refits of each sweep; σ and
+the held-out error: σ/√(2n) of their sample counts).</p>
 <h2>Changes beyond the calibrations' uncertainty</h2><ul id="changes">{items or '<li>none</li>'}</ul>
 <h2>Effects found by the closed loop</h2><ul>{''.join(f'<li>{html.escape(line)}</li>' for line in effects)
                                            or '<li>no change in the effects found</li>'}</ul>
-<h2>Against calibration time</h2><img alt="history" src="data:image/png;base64,{figure(rigs, found)}">
-<h2>Calibrations</h2><table>{_table(rigs)}</table>
-</body></html>
-"""
-    return page, found
+{image("Against calibration time", figure(rigs, found))}
+<h2>Calibrations</h2>{_table(rigs)}"""
+    return page("graytrack history", body), found
 
 
-def write_history(rigs: dict[str, list[Calibration]], path: str | os.PathLike[str]) -> tuple[Path, list[Change]]:
-    page, found = render(rigs)
-    return write_atomic(path, page), found
+def write_history(rigs: dict[str, list[RigCalibration]], path: str | os.PathLike[str]) -> tuple[Path, list[Change]]:
+    text, found = render(rigs)
+    return write_atomic(path, text), found

@@ -115,17 +115,19 @@ def _track(rec: Recording, job: Job) -> dict[str, Any]:
     from graytrack.service.tables import write_csv
 
     model = load_model(_track_model(job.source.path, job.options.get("model")))
-    rec = oriented(rec, model, False)  # a model calibrated with --flip reverses its camera's frames likewise
+    notes: list[str] = []  # what `track` prints besides its summary: the row's, on a worker nobody watches
+    rec = oriented(rec, model, False, note=notes.append)  # a model calibrated with --flip reverses its frames too
     no_reference = bool(job.options.get("no_reference"))
     slide = slide_for(rec, model, no_reference)  # no grating: the bounds carry the slide, as `track`'s do
-    result, grating, _ = solve(rec, model, no_reference, slide=slide)  # no trim: no watch to keep
+    result, grating, _ = solve(rec, model, no_reference, slide=slide, note=notes.append)  # no trim: no watch
     write_csv(job.folder / "track.csv", {**result_columns(rec.t, result, grating), **carry(result, slide)})
     error = result.error_um(grating)
     placed = np.isfinite(error)
     return {**_geometry(model), "rmse_gray": float(np.nanmedian(result.rms_gray)) if result.locked.any() else None,
             "error_std_after_um": float(np.nanstd(error)) if placed.sum() > 1 else None,
             "crlb_after_um": pooled_bound(result.crlb_mm) * 1e3 if result.locked.any() else None,
-            "locked": int(result.locked.sum()), "lock_events": len(result.events)}
+            "locked": int(result.locked.sum()), "lock_events": len(result.events),
+            "notes": "; ".join(" ".join(line.split()) for line in notes)}
 
 
 WORK: dict[str, Callable[[Recording, Job], dict[str, Any]]] = {

@@ -42,8 +42,9 @@ class Progress:
         self.frames += int(row["frames"] or 0)
         elapsed = max(time.perf_counter() - self.started, 1e-9)
         left = (self.total - self.done) * elapsed / self.done
-        self.stream.write(f"batch: {self.done}/{self.total} done, {self.failed} failed, {self.done / elapsed:.2f} rec/s, "
-                          f"{self.frames / elapsed:.0f} frames/s, ~{left:.0f} s left ({row['name']}: {row['status']})\n")
+        self.stream.write(f"batch: {self.done}/{self.total} done, {self.failed} failed, "
+                          f"{self.done / elapsed:.2f} rec/s, {self.frames / elapsed:.0f} frames/s, "
+                          f"~{left:.0f} s left ({row['name']}: {row['status']})\n")
         self.stream.flush()
 
 

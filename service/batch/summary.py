@@ -21,7 +21,7 @@ COLUMNS = (
     "path", "name", "rig", "calibrated_at", "frames", "rows_x_pixels", "model", "rmse_gray",
     "error_std_before_um", "crlb_before_um", "error_std_after_um", "crlb_after_um", "effects",
     "tau_w_mm", "tau_w_u_mm", "alpha_d_mm", "alpha_d_u_mm", "noise_gray", "locked", "lock_events",
-    "seconds", "status", "reason",
+    "seconds", "status", "reason", "notes",
 )
 DIGITS = {"seconds": 3}
 
@@ -31,7 +31,7 @@ def _text(key: str, value: Any) -> str:
         return ""
     if isinstance(value, bool):
         return str(int(value))
-    if isinstance(value, (int,)) or (hasattr(value, "dtype") and getattr(value, "dtype").kind in "iu"):
+    if isinstance(value, (int,)) or (hasattr(value, "dtype") and value.dtype.kind in "iu"):
         return str(int(value))
     if isinstance(value, float) or hasattr(value, "dtype"):
         value = float(value)

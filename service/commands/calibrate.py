@@ -26,6 +26,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="ideal = 5-parameter sine; paper = Fourier order 5 x cubic in u (default); "
                              "auto = the closed loop (graytrack diagnose) picks the effects the data need")
     parser.add_argument("--out", required=True, help="model file to write (JSON)")
+    parser.add_argument("--validate", help="separate validation recording of the same rig for the held-out error "
+                                           "(default: two-fold by block of the recording itself)")
     parser.add_argument("--harmonics", type=int, default=None, help="Fourier order M of the paper model (default 5)")
     parser.add_argument("--pixel-degree", type=int, default=None, help="polynomial degree P in u (default 3)")
     parser.add_argument("--rows", choices=("auto", "mean", "each"), default="auto",
@@ -102,9 +104,13 @@ def run(args: argparse.Namespace) -> int:
 
     out = output_file(args.out)
     recording = flip_for_calibration(load(args.recording), args.flip)
+    validation = load(args.validate) if args.validate else None
+    if validation is not None and args.flip:
+        validation = validation.flipped()
     check_model_size(recording, args.harmonics, args.pixel_degree)
     label = "calibrate auto" if args.model == "auto" else "calibrate"
-    run_ = calibrate_recording(recording, args.model, harmonics=args.harmonics, pixel_degree=args.pixel_degree,
+    run_ = calibrate_recording(recording, args.model, validation=validation, harmonics=args.harmonics,
+                               pixel_degree=args.pixel_degree,
                                rows=args.rows, info={"flip": True} if args.flip else None, progress=ProgressBar(label))
     run_.raise_if_refused()
     path = save_model(run_.model, out)

@@ -1,7 +1,7 @@
 """``graytrack demo``: the main job offline, on the virtual rig (what ``make run`` does for now).
 
 Records the seed paper's rig, calibrates the ideal and the paper model, tracks a held-out run and
-prints the error of each next to the noise floor; then records a rig with effects the tools are
+prints the error of each next to its bound (Cramér–Rao); then records a rig with effects the tools are
 not told about and runs the closed loop on it.
 """
 

@@ -45,7 +45,8 @@ def bind(host: str, port: int) -> socket.socket:
     except OSError as exc:
         sock.close()
         if exc.errno == errno.EADDRINUSE:
-            raise CliError(f"port {port} on {host} is already in use (another graytrack serve? choose --port)") from None
+            raise CliError(
+                f"port {port} on {host} is already in use (another graytrack serve? choose --port)") from None
         raise CliError(f"cannot listen on {host}:{port}: {exc.strerror or exc}") from None
     return sock
 

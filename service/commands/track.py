@@ -15,11 +15,17 @@ if TYPE_CHECKING:  # the parser is built for every command: only `run` imports t
     from graytrack.core.recording import Recording
     from graytrack.core.slide import SlideWatch
     from graytrack.core.tracking import TrackResult
-    from graytrack.service.progress import ProgressBar
+    from graytrack.core.watches.scale import ScaleWatch
+    from graytrack.service.progress import NoteCallback, ProgressBar
 
-CSV_COLUMNS = ("t", "x_mm", "locked", "rms_gray", "crlb_um", "reference_mm", "error_um", "chi2", "rejected_px",
-               "gain", "offset_gray", "stale", "stale_reason", "transient_px", "focus_px2", "focus_sigma_px2")
-CSV_TAIL = CSV_COLUMNS[7:]  # the frame record's fit figures, after the grating and the error (new ones at the end)
+
+def csv_columns() -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """(every column of the contract's CSV, the frame record's ones after the grating's), from the record;
+    texture_px follows them with learning on. (A function: the parser is built without graytrack.core.)"""
+    from graytrack.core.frame_record import PLACEMENT, QUANTITIES
+
+    tail = tuple(q.name for q in QUANTITIES if q.csv and q.name not in PLACEMENT and q.name != "texture_px")
+    return ("t", *PLACEMENT, "reference_mm", "error_um", *tail), tail
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -47,17 +53,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=run)
 
 
-def oriented(recording: Recording, model: FourierModel, flip: bool) -> Recording:
+def oriented(recording: Recording, model: FourierModel, flip: bool, *, note: NoteCallback) -> Recording:
     """The recording as the model expects it. ``--flip`` reverses the pixel axis; without it, a model
     calibrated with ``--flip`` reverses the frames of its camera likewise, unless the recording says
-    its frames were reversed already (by ``[camera] flip`` or a tool); each is said on stdout."""
+    its frames were reversed already (by ``[camera] flip`` or a tool); each is said to ``note``."""
     from graytrack.core.recording import PIXEL_AXIS_REVERSED
 
     if flip:
-        print("flip    pixel axis reversed (--flip)")
+        note("flip    pixel axis reversed (--flip)")
         return recording.flipped()
     if model.info.get("flip") and not recording.meta.get(PIXEL_AXIS_REVERSED):
-        print("flip    pixel axis reversed: the model was calibrated with --flip")
+        note("flip    pixel axis reversed: the model was calibrated with --flip")
         return recording.flipped()
     return recording
 
@@ -69,10 +75,10 @@ def result_columns(t: np.ndarray, result: TrackResult, reference: np.ndarray) ->
     from graytrack.core import frame_record
 
     record = frame_record.columns(result)
-    head = {"t": t, **{name: record[name] for name in ("x_mm", "locked", "rms_gray", "crlb_um")},
+    head = {"t": t, **{name: record[name] for name in frame_record.PLACEMENT},
             "reference_mm": reference, "error_um": result.error_um(reference)}
-    learned = {"texture_px": result.texture_px} if result.texture is not None else {}
-    return {**head, **{name: record[name] for name in CSV_TAIL}, **learned}
+    learned = {"texture_px": record["texture_px"]} if result.texture is not None else {}
+    return {**head, **{name: record[name] for name in csv_columns()[1]}, **learned}
 
 
 def summary(result: TrackResult, reference: np.ndarray) -> list[str]:
@@ -88,8 +94,10 @@ def summary(result: TrackResult, reference: np.ndarray) -> list[str]:
     error = result.error_um(reference)
     if np.isfinite(error).sum() > 1:
         lines.append(
-            f"error   std {np.nanstd(error):.3f} um, mean {np.nanmean(error):+.3f} um, max |e| {np.nanmax(np.abs(error)):.3f} um"
-            f" (noise floor {np.sqrt(np.nanmean(np.square(result.crlb_mm))) * 1e3:.3f} um, the rms of the frames' bounds)"
+            f"error   std {np.nanstd(error):.3f} um, mean {np.nanmean(error):+.3f} um, max |e| "
+            f"{np.nanmax(np.abs(error)):.3f} um"
+            f" (noise floor {np.sqrt(np.nanmean(np.square(result.crlb_mm))) * 1e3:.3f} um, "
+            "the rms of the frames' bounds)"
         )
     lines.extend(validity(result))
     return lines
@@ -153,10 +161,11 @@ def texture_lines(result: TrackResult, out: str) -> list[str]:
 
 def solve(recording: Recording, model: FourierModel, no_reference: bool = False,
           progress: ProgressBar | None = None, chunks: ChunkOptions | None = None, light: str = "auto",
-          robust: bool = True, trim: bool = False,
-          slide: "SlideWatch | None" = None) -> tuple[TrackResult, np.ndarray, "ScaleWatch | None"]:
+          robust: bool = True, trim: bool = False, slide: "SlideWatch | None" = None, *,
+          note: NoteCallback) -> tuple[TrackResult, np.ndarray, "ScaleWatch | None"]:
     """Track a recording as the command does: (result, the grating at the exposure instants, the
-    tracker's scale watch: with ``trim``, it carries the online trim; see track_scale.py). ``slide``:
+    tracker's scale watch: with ``trim``, it carries the online trim; see track_scale.py); what it did
+    besides (the grating moved to mid-exposure, the chunks' period picks) is said to ``note``. ``slide``:
     where no grating is read, the watch that keeps each frame's slide σ (core/slide.py; in chunks each chunk's
     tracker carries one of its own with the same lever: the result's ``slide_sigma_um``).
 
@@ -181,7 +190,7 @@ def solve(recording: Recording, model: FourierModel, no_reference: bool = False,
     skew_s = float(model.info.get("reference_skew_s", 0.0))
     if skew_s:  # the closed loop found the grating latched off mid-exposure: compare at the exposure
         grating = model_reference(model, recording.t, grating)
-        print(f"grating reference moved to mid-exposure ({skew_s * 1e3:+.3f} ms, from the model)")
+        note(f"grating reference moved to mid-exposure ({skew_s * 1e3:+.3f} ms, from the model)")
     from graytrack.service.commands.track_scale import scale_watch
 
     reference = np.full(recording.n_frames, np.nan) if no_reference else grating
@@ -189,7 +198,7 @@ def solve(recording: Recording, model: FourierModel, no_reference: bool = False,
     if chunks is not None:  # the chunks' own trackers: the watch follows their positions afterwards (check)
         axis_px = slide.lever_mm / model.pixel_pitch_mm if slide is not None and slide.declared else None
         return track_in_chunks(model, recording.frames, reference, chunks, light, robust, slide is not None,
-                               axis_px), grating, watch
+                               axis_px, note=note), grating, watch
     return track(model, recording.frames, reference=reference, progress=progress, light=light, robust=robust,
                  learn=robust, watches=[given for given in (watch, slide) if given is not None]), grating, watch
 
@@ -222,10 +231,10 @@ def run(args: argparse.Namespace) -> int:
     output_file(args.out)
     recording = load(args.recording)
     model = load_model(args.model)
-    recording = oriented(recording, model, args.flip)
+    recording = oriented(recording, model, args.flip, note=print)
     slide = slide_for(recording, model, args.no_reference, args.axis_px)  # no grating vouches: the slide
     result, grating, watch = solve(recording, model, args.no_reference, ProgressBar("track"), chunks, args.light,
-                                   not args.no_robust, args.trim, slide)
+                                   not args.no_robust, args.trim, slide, note=print)
     scale = check(recording, model, result, args.trim, watch)
     slid = carry(result, slide) if result.slide_sigma_um is None else {"slide_sigma_um": result.slide_sigma_um}
     path = write_csv(args.out, {**result_columns(recording.t, result, grating), **slid, **scale.columns})

@@ -1,8 +1,8 @@
 """The frame loop: every camera frame is paired with the grating, handed to listeners and tracked.
 
 One thread owns the camera (cameras are not thread-safe, and one reader guarantees that every
-frame is seen once, in order). Per frame it: pairs the grating (:class:`Readings`), offers the frame to subscribers (the calibration sweep),
-and, when a model is installed, runs the :class:`LiveTracker` and publishes one message.
+frame is seen once, in order). Per frame it: pairs the grating (:class:`Readings`), offers the frame to subscribers
+(the calibration sweep), and, when a model is installed, runs the :class:`LiveTracker` and publishes one message.
 
 Faults: no frame for ``camera_fault_after_s`` raises a camera fault; any other camera error
 closes the camera and reopens it every ``reopen_interval_s``; an exception from the tracker
@@ -34,6 +34,7 @@ from graytrack.drivers.camera.base import Camera, CameraError, CameraTimeout, Fr
 from graytrack.service.daemon.clock import HOST_CLOCK, Clock
 from graytrack.service.daemon.framerate import FrameRate
 from graytrack.service.daemon.grating import Readings
+from graytrack.service.daemon.loss_log import LossLog
 from graytrack.service.daemon.stale_log import StaleLog
 from graytrack.service.daemon.texture_log import TextureLog
 from graytrack.service.daemon.texture_store import TextureWatch
@@ -126,6 +127,7 @@ class Acquisition(Worker):
         self.rate = FrameRate()  # restarts after an outage (service/daemon/framerate.py)
         self._seq = 0
         self._last_id: int | None = None
+        self._losses = LossLog(on_event)  # frames the camera's counter skipped: frames_lost events
         self._stale = StaleLog(on_event)  # the flag's events: a model gone stale, or a single frame
         self._texture = TextureLog(on_event)  # what the tracker learns on the print (core/texture.py)
         self.texture = TextureWatch()  # ... and its newest state, for the model of record (texture_store.py)
@@ -241,8 +243,10 @@ class Acquisition(Worker):
         stats.frames += 1
         stats.last_frame_wall = now
         self.rate.arrive(frame.t_host)  # exposure times: a host stall and its backlog are no outage
-        if self._last_id is not None and frame.frame_id > self._last_id + 1:
-            stats.dropped += frame.frame_id - self._last_id - 1
+        missing = frame.frame_id - self._last_id - 1 if self._last_id is not None else 0
+        if missing > 0:
+            stats.dropped += missing
+        self._losses.observe(missing, frame.frame_id, now)  # the count's events (loss_log.py)
         self._last_id = frame.frame_id
         self.faults("camera", None)
         self.faults("acquisition", None)

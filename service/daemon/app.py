@@ -21,7 +21,7 @@ from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
 from starlette.exceptions import HTTPException
 
-from graytrack.service.daemon.api import calibration, history, pages, profile, stage, status, stream, trim
+from graytrack.service.daemon.api import access, calibration, history, pages, profile, stage, status, stream, trim
 from graytrack.service.daemon.api.pages import WEB_DIR
 from graytrack.service.daemon.api.schema import strict_openapi
 from graytrack.service.daemon.api.security import WebGuard, WebPolicy
@@ -34,12 +34,13 @@ from graytrack.service.daemon.record import open_record
 from graytrack.drivers.realtime import pin_process, raise_thread_priority, restore_process
 from graytrack.service.daemon.rig import HardwareFactory, Rig, default_factory
 from graytrack.service.daemon.settings import Settings
+from graytrack.service.daemon.startup import Startup
 from graytrack.service.daemon.storage import Storage
 from graytrack.service.daemon.ws_protocol import StreamProtocol
 
 log = logging.getLogger("graytrack.daemon")
 ROUTERS = (status.router, calibration.router, history.router, profile.router, stage.router, stream.router,
-           pages.router, trim.router)
+           pages.router, trim.router, access.router)
 # The frame thread and the event loop share the GIL. A thread that computes for long (a calibration
 # fit, a status document) holds it for Python's default 5 ms switch interval before the stream's
 # thread gets a turn: five frames at 1 kHz. 0.1 ms bounds that wait to a tenth of a frame (against
@@ -118,6 +119,7 @@ def create_app(settings: Settings, factory: HardwareFactory = default_factory) -
         storage.unlock()
         raise
     rig = Rig(settings, storage, record, broadcaster.publish, factory)
+    startup = Startup(warm_tracking, settings.daemon.realtime_priority)
     if rebuilt is not None:
         log.error("%s", rebuilt)
         rig.event("record_rebuilt", rebuilt)
@@ -128,16 +130,18 @@ def create_app(settings: Settings, factory: HardwareFactory = default_factory) -
         previous = sys.getswitchinterval()
         sys.setswitchinterval(SWITCH_INTERVAL_S)
         pinned_from = pin_process(settings.daemon.cpu_cores)  # before the rig's threads and process start
-        raise_thread_priority(settings.daemon.realtime_priority, "event loop")  # before the rig's threads: they start normal
-        try:
-            warm_tracking()  # what tracking loads on first use, loaded before the freeze (service/heap.py)
-        except Exception:  # noqa: BLE001 - a slower first install and longer collections, not a daemon that cannot start
-            log.exception("tracking could not be warmed up before the heap freeze")
-        rig.start()
-        freeze_long_lived()  # full collections walk what the frames leave, not the daemon (service/heap.py)
+        # before the rig's threads: they start normal
+        raise_thread_priority(settings.daemon.realtime_priority, "event loop")
+
+        def open_rig() -> None:  # on the event loop, once tracking is warm (service/daemon/startup.py)
+            rig.start()
+            freeze_long_lived()  # full collections walk what the frames leave, not the daemon (service/heap.py)
+
+        opening = asyncio.create_task(startup.run(open_rig))  # what tracking loads on first use, before the freeze
         try:
             yield
         finally:
+            opening.cancel()  # stopped while warming up: the rig never opens
             await asyncio.to_thread(rig.close)
             thaw()
             sys.setswitchinterval(previous)
@@ -150,6 +154,7 @@ def create_app(settings: Settings, factory: HardwareFactory = default_factory) -
                   openapi_url="/api/openapi.json",
                   description="Camera displacement sensor daemon. State changes need a bearer token.")
     app.state.rig, app.state.storage, app.state.broadcaster = rig, storage, broadcaster
+    app.state.startup = startup
     app.state.token_source = token_source
     app.state.limits = ConnectionLimits(settings.daemon)
     app.state.server_options = server_options(settings, app.state.limits)

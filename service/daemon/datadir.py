@@ -14,19 +14,21 @@ directory's identity (``st_dev``, ``st_ino``) taken at start; a directory moved 
 same inode) is safe and clears the fault, a replaced one keeps it until a restart.
 
 Writes that could not be made (a job's final status) are kept in memory in order (``defer``) and
-made when the fault clears.
+made when the fault clears. A shutdown before then hands each one's content to the log (``abandon``):
+the journal is the one place left that takes it, so the end of a calibration is still on record.
 """
 
 from __future__ import annotations
 
 import errno
+import json
 import logging
 import os
 import sqlite3
 import threading
 from collections import deque
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 from graytrack.service.daemon.errors import InsufficientStorage
 
@@ -122,7 +124,7 @@ class DataDirHealth:
         self.root, self.home, self.report = root, home, report
         self.min_free_bytes = min_free_bytes
         self._needed = min_free_bytes  # what the last write that failed for space asked for
-        self._pending: deque[tuple[str, Callable[[], None]]] = deque()
+        self._pending: deque[tuple[str, Callable[[], None], Any]] = deque()
         self._lock = threading.Lock()
         self.reason: str | None = None
 
@@ -170,11 +172,12 @@ class DataDirHealth:
         self.report(reason)
         return InsufficientStorage(reason)
 
-    def defer(self, what: str, write: Callable[[], None]) -> None:
-        """Make ``write`` once the fault clears (in order), kept in memory until then."""
+    def defer(self, what: str, write: Callable[[], None], content: Any) -> None:
+        """Make ``write`` once the fault clears (in order), kept in memory until then; ``content`` (JSON-able)
+        is what it writes, logged in full should the daemon stop first (``abandon``)."""
         log.warning("%s: kept in memory until the data directory can be written", what)
         with self._lock:
-            self._pending.append((what, write))
+            self._pending.append((what, write, content))
 
     @property
     def pending(self) -> int:
@@ -183,7 +186,7 @@ class DataDirHealth:
     def _flush(self) -> None:
         with self._lock:
             while self._pending:
-                what, write = self._pending[0]
+                what, write, _ = self._pending[0]
                 try:
                     write()
                 except Exception as exc:  # noqa: BLE001 - still no room: kept, tried at the next probe
@@ -191,3 +194,13 @@ class DataDirHealth:
                     return
                 self._pending.popleft()
                 log.info("%s: written", what)
+
+    def abandon(self) -> int:
+        """At shutdown with the fault still raised: log each kept write's content (the journal keeps it, the
+        directory cannot) and forget them. Returns how many there were."""
+        with self._lock:
+            kept, self._pending = list(self._pending), deque()
+        for what, _, content in kept:
+            log.error("%s could not be written to %s before the shutdown (%s); its content: %s",
+                      what, self.root, self.reason, json.dumps(content, sort_keys=True, default=str))
+        return len(kept)

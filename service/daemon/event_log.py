@@ -14,6 +14,7 @@ each kind (:meth:`Record.compact`).
 
 from __future__ import annotations
 
+import json
 import logging
 import sqlite3
 import threading
@@ -76,6 +77,19 @@ class EventLog:
                 self._compact()
         self.report(reason)
         return reason is None
+
+    def abandon(self) -> int:
+        """At shutdown, the events still kept in memory (the record could not take them) into the log, one line
+        each with its time and details: the journal keeps them where the record cannot. Returns how many."""
+        with self._lock:
+            kept, lost = list(self._queue), self._lost
+            self._queue.clear()
+        for t_unix, kind, message, details in kept:
+            log.error("event not written to %s before the shutdown: %s", self.record.path.name,
+                      json.dumps({"t_unix": t_unix, "kind": kind, "message": message, **details}, default=str))
+        if lost:
+            log.error("%d older event(s) were dropped while the record could not be written", lost)
+        return len(kept)
 
     def compact(self) -> None:
         with self._lock:

@@ -44,7 +44,8 @@ class FrameRate:
         self._arrivals.clear()
 
     def hz(self, now: float, stale_after_s: float) -> float:
-        """The rate over the window; 0 with fewer than two arrivals or when the newest is older than ``stale_after_s``."""
+        """The rate over the window; 0 with fewer than two arrivals or when the newest is older than
+        ``stale_after_s``."""
         arrivals = list(self._arrivals)  # a copy: the frame loop appends from its own thread
         if len(arrivals) < 2 or arrivals[-1] <= arrivals[0] or now - arrivals[-1] > stale_after_s:
             return 0.0

@@ -96,7 +96,7 @@ class Readings:
             n = len(self._t)
             if n == 0:
                 return NAN
-            ts, xs = self._t, self._x
+            ts = self._t
             i = n - 1
             while i >= 0 and ts[i] > t:  # the frame is recent: few steps from the end
                 i -= 1

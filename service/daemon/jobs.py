@@ -93,6 +93,7 @@ class JobRunner:
         self.job, self.storage, self.install, self.on_finish = job, storage, install, on_finish
         self.clock = clock  # the job's duration is measured on it (service/daemon/clock.py)
         self.health = health  # a full or vanished data directory: the cause it names, the final status kept
+        self._logged_tenth = -1  # of the progress, logged last
 
     def enter(self, state: str, progress: float | None = None, message: str | None = None) -> None:
         self._commit(state, progress, message)
@@ -113,6 +114,16 @@ class JobRunner:
         self.storage.write_status(self.job.id, {**self.job.to_dict(), **changes})
         for key, value in changes.items():
             setattr(self.job, key, value)
+        self._log_progress(state is not None)
+
+    def _log_progress(self, entered: bool) -> None:
+        """A log line per state and per tenth of the progress bar: the daemon's first start calibrates for
+        ~30 s, and a log that said only "started" and "done" looked like a daemon that hung."""
+        tenth = int(self.job.progress * 10 + 1e-9)
+        if entered or tenth > self._logged_tenth:
+            self._logged_tenth = tenth
+            log.info("calibration %s: %s %d %% · %s", self.job.id, self.job.state, round(100 * self.job.progress),
+                     self.job.message)
 
     def run(self, steps: Steps) -> None:
         job, started = self.job, self.clock.now()
@@ -142,7 +153,7 @@ class JobRunner:
         except Exception as exc:  # noqa: BLE001 - a full disk: the job is over anyway; its end is kept for later
             if self.health is not None and self.health.failed(exc) is not None:
                 self.health.defer(f"calibration {job.id}'s final status ({outcome['state']})",
-                                  lambda: self.storage.write_status(job.id, final))
+                                  lambda: self.storage.write_status(job.id, final), final)
             else:
                 log.exception("calibration %s: cannot write its final status", job.id)
         for key, value in outcome.items():

@@ -126,7 +126,8 @@ def render(snapshot: RigSnapshot, broadcaster: Broadcaster, limits: ConnectionLi
                    stats.camera_errors if stats else 0)
     out += counter("graytrack_grating_reads_total", "POS? readings", grating.reads if grating else 0)
     out += counter("graytrack_grating_errors_total", "failed POS? readings", grating.errors if grating else 0)
-    out += counter("graytrack_stage_reconnects_total", "serial port reopened", devices.stage_reconnects if devices else 0)
+    out += counter("graytrack_stage_reconnects_total", "serial port reopened",
+                   devices.stage_reconnects if devices else 0)
     out += counter("graytrack_faults_total", "faults raised", snapshot.faults_raised)
     out += family("graytrack_calibrations_total", "counter",
                   "calibrations ended, by outcome (interrupted: found unfinished at start-up)",

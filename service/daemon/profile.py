@@ -44,7 +44,8 @@ def profile(acquisition: Acquisition | None, model: FourierModel | None, row: in
         raise IndexError(f"row {row} is outside the frame's {rows} row(s)")
     line = raw[row].astype(np.float64) if row is not None else raw.mean(axis=0)
     level = saturation_level(raw, model)
-    saturated = np.flatnonzero((raw if row is None else raw[row:row + 1]) >= level).tolist() if math.isfinite(level) else []
+    shown = raw if row is None else raw[row:row + 1]
+    saturated = np.flatnonzero(shown >= level).tolist() if math.isfinite(level) else []
     document: dict[str, Any] = {
         "t": sample.t, "frame_id": sample.frame.frame_id, "rows": rows, "row": row, "pixels": _rounded(line),
         "saturation_gray": level if math.isfinite(level) else None,
@@ -55,7 +56,8 @@ def profile(acquisition: Acquisition | None, model: FourierModel | None, row: in
         document["why_no_model"] = "no model installed: calibrate to see the model over the frame"
         return document
     if model.pixel_weight is not None:
-        document["bad"] = np.flatnonzero(np.asarray(model.pixel_weight).reshape(-1, model.n_pixels).min(axis=0) == 0).tolist()
+        weights = np.asarray(model.pixel_weight).reshape(-1, model.n_pixels)
+        document["bad"] = np.flatnonzero(weights.min(axis=0) == 0).tolist()
     x = fix.x_mm if fix is not None else float("nan")
     if fix is None or not math.isfinite(x):
         document["why_no_model"] = "the latest frame was not placed: no model prediction"

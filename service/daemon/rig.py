@@ -11,10 +11,10 @@ are doing::
     tracking     a model is installed (frames tracked: /healthz says whether they are, now)
     idle         hardware open, no model yet (POST /api/calibration to get one)
 
-Who does what: :mod:`stage_control` (moves asked for over the API), :mod:`supervision` (faults, bring-up with retries, the watchdog), :mod:`jobs`
-(the calibration state machine), :mod:`snapshot` (the parts read at one instant) and :mod:`status`
-(the status document made from it), :mod:`acquisition` and
-:mod:`grating` (the two workers). Hardware that fails to open is retried every
+Who does what: :mod:`stage_control` (moves asked for over the API), :mod:`supervision` (faults, bring-up with
+retries, the watchdog), :mod:`jobs` (the calibration state machine), :mod:`snapshot` (the parts read at one
+instant) and :mod:`status` (the status document made from it), :mod:`acquisition` and :mod:`grating` (the two
+workers). Hardware that fails to open is retried every
 ``reopen_interval_s``, so a daemon started before its camera is plugged in comes up by itself.
 """
 
@@ -107,13 +107,6 @@ class Rig:
         self.supervisor.start()
         return self
 
-    def wait_ready(self, timeout_s: float) -> bool:
-        """True once the hardware is open (for tests and the command line's start message)."""
-        deadline = time.monotonic() + timeout_s
-        while self.acquisition is None and time.monotonic() < deadline:
-            time.sleep(0.01)
-        return self.acquisition is not None
-
     def close(self) -> None:
         """Abort a job, stop the threads, close the hardware; safe to call twice."""
         self.closing.set()
@@ -126,11 +119,10 @@ class Rig:
         self._detach()
         if self.acquisition is not None:  # what the tracker learned since the last write
             self.texture_store.save(self.acquisition.texture.latest, force=True)
-        if not self.health.probe() and self.health.pending:  # the writes kept while the disk was full: room now?
-            log.error("%d write(s) kept while the data directory could not be written are lost with this shutdown "
-                      "(%s); a calibration whose end was among them reads 'interrupted' at the next start",
-                      self.health.pending, self.health.reason)
+        if not self.health.probe() and self.health.abandon():  # the writes kept while the disk was full: room now?
+            log.error("a calibration whose end was logged above reads 'interrupted' at the next start")
         self.event("shutdown", "daemon stopped")
+        self.events.abandon()
 
     def event(self, kind: str, message: str, **details: Any) -> None:
         """One line in the event log (``GET /api/events``); the record failing never stops the rig,
@@ -388,7 +380,8 @@ class Rig:
             raise (self.health.failed(exc) or exc) from None
         switch.commit()
         self.install(model, job.id)
-        self.event("model_installed", f"model of calibration {job.id} installed: {model.describe()}", calibration=job.id)
+        self.event("model_installed", f"model of calibration {job.id} installed: {model.describe()}",
+                   calibration=job.id)
 
     def _finished(self, job: CalibrationJob) -> None:
         self.calibrations_finished[job.state] = self.calibrations_finished.get(job.state, 0) + 1

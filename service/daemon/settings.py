@@ -16,6 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field, NonNegativeInt, ValidationErr
 
 from graytrack.drivers.config import ConfigError, HardwareConfig, describe_validation_error, load_toml, parse_hardware
 from graytrack.drivers.realtime import DEFAULT_LEVEL
+from graytrack.drivers.registry import stages
 
 DEFAULT_HOST = "127.0.0.1"  # docs/contracts.md: loopback unless told otherwise
 DEFAULT_PORT = 8000
@@ -42,9 +43,11 @@ class DaemonConfig(_Strict):
     pair_rest_s: float = Field(0.25, gt=0, description="host seconds the newest grating reading of a stage at rest "
                                                        "(no command since) stands for")
     stale_after_s: float = Field(0.5, gt=0, description="a position or rate older than this is withdrawn (null)")
-    allowed_origins: list[str] = Field(default_factory=list, description="WebSocket Origins accepted besides the page's own")
-    allowed_hosts: list[str] = Field(default_factory=list, description="Host names accepted besides the bind address and "
-                                                                       "loopback names (DNS rebinding guard)")
+    allowed_origins: list[str] = Field(default_factory=list,
+                                       description="WebSocket Origins accepted besides the page's own")
+    allowed_hosts: list[str] = Field(default_factory=list,
+                                     description="Host names accepted besides the bind address and "
+                                                 "loopback names (DNS rebinding guard)")
     ws_compression: bool = Field(False, description="permessage-deflate on WebSockets: fewer bytes on a slow link, "
                                  "but one zlib compression per message and client on the event loop (at 1 kHz the "
                                  "stream's largest loop cost and its latency tail)")
@@ -57,17 +60,20 @@ class DaemonConfig(_Strict):
     keep_alive_s: float = Field(5.0, gt=0, le=3600, description="an idle connection between requests is closed "
                                 "after this")
     api_docs: bool = Field(False, description="serve the interactive API docs at /api/docs (loads scripts from a CDN)")
-    realtime_priority: int = Field(DEFAULT_LEVEL, ge=0, le=99, description="SCHED_FIFO priority of the frame loop, the event "
-                                   "loop and the grating poller (1-99; needs LimitRTPRIO or CAP_SYS_NICE): the stream's latency tail on a busy machine. "
+    realtime_priority: int = Field(DEFAULT_LEVEL, ge=0, le=99,
+                                   description="SCHED_FIFO priority of the frame loop, the event "
+                                   "loop and the grating poller (1-99; needs LimitRTPRIO or CAP_SYS_NICE): the "
+                                   "stream's latency tail on a busy machine. "
                                    "0 = normal scheduling")
-    cpu_cores: list[NonNegativeInt] = Field(default_factory=list, description="cores the daemon's threads run on (empty: "
+    cpu_cores: list[NonNegativeInt] = Field(default_factory=list,
+                                            description="cores the daemon's threads run on (empty: "
                                  "wherever the kernel puts them). One core of its own: its threads share one "
                                  "interpreter lock anyway, and pinned they stop handing it across cores and being "
                                  "preempted by other processes while they hold it; the virtual rig's process then "
                                  "runs on the others. Cores this process may not use are refused in the log")
     trim: bool = Field(False, description="correct the streamed position's scale and offset against the grating "
-                       "(an online trim, only on evidence of a drift since calibration; POST /api/trim/reset clears it, "
-                       "a new calibration too)")
+                       "(an online trim, only on evidence of a drift since calibration; POST /api/trim/reset clears "
+                       "it, a new calibration too)")
     grating: bool = Field(True, description="the stage's position readout (POS?) is a grating the frames are paired "
                           "with; false: the rig has none (an open-loop stage): frames are tracked and streamed without "
                           "it, and each bound carries the slide a magnification change could give the image "
@@ -116,7 +122,8 @@ class Settings(_Strict):
 
     @property
     def simulated(self) -> bool:
-        return self.hardware.stage.kind == "sim"
+        """The virtual rig runs (a simulated stage: its driver says so, drivers/registry.py)."""
+        return stages.resolve(self.hardware.stage.kind).simulated
 
     def data_path(self) -> Path:
         return Path(self.daemon.data_dir) if self.daemon.data_dir else default_data_dir()
@@ -149,7 +156,8 @@ def parse_settings(tables: dict[str, Any]) -> Settings:
         try:
             parts[name] = model.model_validate(tables.get(name, {}))
         except ValidationError as exc:
-            raise ConfigError("; ".join(f"{name}.{describe_validation_error(error)}" for error in exc.errors())) from None
+            raise ConfigError("; ".join(f"{name}.{describe_validation_error(error)}"
+                                        for error in exc.errors())) from None
     return Settings(**parts)
 
 

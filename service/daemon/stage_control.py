@@ -90,7 +90,8 @@ class StageControl:
         controller = self.velocity_limit_mm_s
         highest = MAX_VELOCITY_MM_S if controller is None else min(MAX_VELOCITY_MM_S, controller)
         if not (math.isfinite(velocity_mm_s) and 0 < velocity_mm_s <= highest):
-            whose = "the controller's limit" if controller is not None and controller < MAX_VELOCITY_MM_S else "the limit"
+            lower = controller is not None and controller < MAX_VELOCITY_MM_S
+            whose = "the controller's limit" if lower else "the limit"
             raise OutOfLimits(f"velocity_mm_s {velocity_mm_s:g} is outside (0, {highest:g}] mm/s ({whose})")
 
         def apply() -> float:

@@ -52,6 +52,7 @@ def document(snapshot: RigSnapshot) -> dict[str, Any]:
         "slide": dict(loop.slide) if loop is not None and loop.slide is not None else None,  # without a grating
         "texture": dict(snapshot.texture) if snapshot.texture is not None else None,  # learned on the print
         "simulated": snapshot.simulated,
+        "startup": None,  # the warm-up's step before the rig opens: the route adds it (service/daemon/startup.py)
         "uptime_s": round(snapshot.uptime_s, 3),
         "version": __version__,
     }

@@ -29,9 +29,9 @@ from typing import Any
 
 from graytrack.core.errors import GraytrackError
 from graytrack.core.files import write_atomic
-from graytrack.core.models import load_model, save_model
+from graytrack.core.models import load_model
 from graytrack.core.models.fourier import FourierModel
-from graytrack.service.daemon.datadir import identity, require_room
+from graytrack.service.daemon.datadir import identity
 from graytrack.service.daemon.errors import DataDirInUse, UnsafeDataDir
 from graytrack.service.daemon.switch import Switch, leftovers
 
@@ -141,9 +141,6 @@ class Storage:
             return None
         return load_model(self.model_path)
 
-    def save_current_model(self, model: FourierModel) -> Path:
-        return save_model(model, self.model_path)
-
     def copy_model_of(self, calibration_id: str) -> None:
         """``model.json`` becomes a byte-for-byte copy of that calibration's model."""
         write_atomic(self.model_path, (self.calibration_dir(calibration_id) / "model.json").read_bytes())
@@ -183,7 +180,8 @@ class Storage:
         for path in leftovers(self.root, (self.active_path.name, self.model_path.name)):  # a switch killed half-way
             path.unlink(missing_ok=True)
         done = [i for i in self.calibration_ids()
-                if (self.read_status(i) or {}).get("state") == "done" and (self.calibration_dir(i) / "model.json").is_file()]
+                if (self.read_status(i) or {}).get("state") == "done"
+                and (self.calibration_dir(i) / "model.json").is_file()]
         active = self.active_id()
         chosen = active if active in done else (done[-1] if done else None)
         notes = []
@@ -235,7 +233,8 @@ class Storage:
 
     def write_status(self, calibration_id: str, document: dict[str, Any]) -> None:
         self.check_home()
-        write_atomic(self.calibration_dir(calibration_id) / "status.json", json.dumps(document, indent=1, default=float))
+        write_atomic(self.calibration_dir(calibration_id) / "status.json",
+                     json.dumps(document, indent=1, default=float))
 
     def read_status(self, calibration_id: str) -> dict[str, Any] | None:
         try:

@@ -51,9 +51,8 @@ SWEEP_SHARE = 0.8  # of the progress bar; the fit takes the rest
 MIN_PASS_FRAMES = 50  # a pass that pairs fewer frames with the grating cannot calibrate anything
 ON_TARGET_CHECK_S = 0.1  # how often the pass asks the controller whether it has arrived
 PAIRING_MARGIN = 0.5  # the pass's velocity uses half the pairing tolerance for the readings' timing
-HELD_OUT_BLOCKS = 40
 MAX_ROUND_TRIPS = 3  # a scan goes up and down again while it has fewer than ENOUGH_SHARE of its frames
-ENOUGH_SHARE = 0.8  # a scan is cut into this many blocks for the two-fold held-out error
+ENOUGH_SHARE = 0.8
 
 
 class SweepError(GraytrackError):
@@ -71,13 +70,6 @@ def sweep_range(limits: tuple[float, float], config: SweepConfig) -> tuple[float
 def sweep_positions(limits: tuple[float, float], config: SweepConfig) -> np.ndarray:
     """Evenly spaced stops over the allowed range, ``margin_mm`` inside each limit."""
     return np.linspace(*sweep_range(limits, config), config.positions)
-
-
-def held_out_block(config: SweepConfig, n_frames: int) -> int:
-    """Frames per held-out block: a stop, or a scan's share of ``HELD_OUT_BLOCKS``."""
-    if config.kind == "stops":
-        return config.frames_per_position
-    return max(config.frames_per_position, n_frames // HELD_OUT_BLOCKS)
 
 
 class _Frames:
@@ -274,10 +266,11 @@ class Sweep:
         def progress(fraction: float, label: str) -> None:
             self.runner.update(SWEEP_SHARE + (1 - SWEEP_SHARE) * min(max(fraction, 0.0), 0.99), label)
 
+        # held out as `graytrack calibrate` holds out the same recording (its stops, read off it)
         run = calibrate_recording(recording, self.job.model, progress=progress,
-                                  held_out_block=held_out_block(self.config, recording.n_frames),
                                   info={"camera_flip": self._camera_flip(recording)})
-        paths = write_files(run, self.storage.calibration_dir(self.job.id), self.job.id)  # the job keeps what was written
+        # the job keeps what was written
+        paths = write_files(run, self.storage.calibration_dir(self.job.id), self.job.id)
         self.job.files.update({name: str(path) for name, path in paths.items()})
         self.job.report = run.report
         run.raise_if_refused()  # the report says why; the job fails with the cause and its fix

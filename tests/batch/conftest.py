@@ -39,14 +39,16 @@ def archive(tmp_path_factory) -> dict[str, Path]:
     record(root / "loose" / "sweep.npz", seed)
     corrupt = root / "loose" / "corrupt.npz"
     corrupt.write_bytes(b"PK\x03\x04 this is not a zip archive")
-    return {"root": root, "rig-a": root / "rig-a", "rig-b": root / "rig-b", "loose": root / "loose" / "sweep.npz", "corrupt": corrupt}
+    return {"root": root, "rig-a": root / "rig-a", "rig-b": root / "rig-b", "loose": root / "loose" / "sweep.npz",
+            "corrupt": corrupt}
 
 
 @pytest.fixture(scope="session")
 def in_process_scheduler() -> str:
     """Address of a Dask scheduler with two single-threaded workers inside this process."""
     distributed = pytest.importorskip("distributed")
-    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False, host="127.0.0.1", protocol="tcp",
+    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False, host="127.0.0.1",
+                                       protocol="tcp",
                                        dashboard_address=None)
     yield cluster.scheduler_address
     cluster.close()
@@ -61,7 +63,8 @@ def calibrated(archive, in_process_scheduler, tmp_path_factory) -> dict:
     out = tmp_path_factory.mktemp("calibrated")
     err = io.StringIO()
     with contextlib.redirect_stderr(err):
-        code = main(["batch", "calibrate", *batch_paths(archive), "--out", str(out), "--scheduler", in_process_scheduler])
+        code = main(["batch", "calibrate", *batch_paths(archive), "--out", str(out), "--scheduler",
+                     in_process_scheduler])
     return {"code": code, "rows": read_summary(out / "summary.csv"), "out": out, "stderr": err.getvalue()}
 
 

@@ -74,7 +74,8 @@ def test_real_scheduler_and_two_workers_give_the_same_rows(archive, calibrated, 
     assert [row["status"] for row in remote_rows].count("failed") == 1
     for row in remote_rows:
         if row["status"] == "ok":
-            assert (remote / row["name"] / "model.json").read_bytes() == (local / row["name"] / "model.json").read_bytes()
+            remote_model, local_model = remote / row["name"] / "model.json", local / row["name"] / "model.json"
+            assert remote_model.read_bytes() == local_model.read_bytes()
 
 
 def test_unreachable_scheduler_is_one_line(archive, tmp_path, capsys, monkeypatch):

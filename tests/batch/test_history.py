@@ -8,15 +8,15 @@ from datetime import datetime, timedelta, timezone
 import numpy as np
 import pytest
 
-from graytrack.service.batch.history import QUANTITIES, Calibration, changes
+from graytrack.service.batch.history import QUANTITIES, RigCalibration, changes
 from graytrack.service.cli import main
 
 START = datetime(2026, 1, 1, tzinfo=timezone.utc)
 
 
-def series(tau_mm: list[float], tau_u_mm: float = 1e-4, rig: str = "rig") -> list[Calibration]:
+def series(tau_mm: list[float], tau_u_mm: float = 1e-4, rig: str = "rig") -> list[RigCalibration]:
     """A rig whose other quantities stay put; only τ_w follows ``tau_mm``."""
-    return [Calibration(rig, START + timedelta(days=day), f"{rig}/{day}.npz",
+    return [RigCalibration(rig, START + timedelta(days=day), f"{rig}/{day}.npz",
                         {"tau_w_mm": tau, "alpha_d_mm": 0.062, "noise_gray": 0.7, "error_std_after_um": 1.5},
                         {"tau_w_mm": tau_u_mm, "alpha_d_mm": 1e-5, "noise_gray": 0.005, "error_std_after_um": 0.1},
                         ()) for day, tau in enumerate(tau_mm)]

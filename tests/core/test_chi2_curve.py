@@ -42,7 +42,8 @@ def test_too_few_frames_keep_no_curve():
     assert measured(np.linspace(0, 1, 30), np.linspace(1.0, 2.0, 30)) is None
 
 
-@pytest.mark.parametrize("body", [None, "flat", {"x_mm": [0.0], "level": [1.0]}, {"x_mm": [1.0, 0.0], "level": [1.0, 1.1]},
+@pytest.mark.parametrize("body",
+                         [None, "flat", {"x_mm": [0.0], "level": [1.0]}, {"x_mm": [1.0, 0.0], "level": [1.0, 1.1]},
                                   {"x_mm": [0.0, 1.0], "level": [1.0]}, {"x_mm": [0.0, 1.0], "level": [1.0, "a"]}])
 def test_a_malformed_curve_in_a_model_file_is_a_flat_level(body):
     try:

@@ -129,7 +129,7 @@ def _focus_solves_agree(solve) -> None:
         a, b = answers
         assert abs(a.x_mm - b.x_mm) * 1e3 < MICROMETRE_TOLERANCE
         assert a.iterations == b.iterations > 1
-        for field in ("information", "gain", "offset", "chi2", "focus", "focus_sigma", "cost"):
+        for field in ("information", "gain", "offset_gray", "chi2", "focus", "focus_sigma", "cost"):
             assert getattr(a, field) == pytest.approx(getattr(b, field), rel=1e-9, abs=1e-12), field
         assert math.isfinite(a.focus) and a.focus_sigma > 0
 

@@ -1,6 +1,6 @@
 """A live tracker compiles and builds everything at model install: no live frame waits for the
-compiler, a table or the validity monitor (a first blurred frame once stalled the daemon ~40 ms loading the general focus
-solve from numba's cache, seconds on a fresh install with no cache).
+compiler, a table or the validity monitor (a first blurred frame once stalled the daemon ~40 ms loading the general
+focus solve from numba's cache, seconds on a fresh install with no cache).
 
 Each case runs in a fresh interpreter, where numba's dispatchers start with no compiled signature:
 in this process other tests have compiled them already, and the check could not fail."""
@@ -19,7 +19,7 @@ SCRIPT = textwrap.dedent("""
     from numba.core.registry import CPUDispatcher
     from graytrack.core.calibration import calibrate
     from graytrack.core.tracking import LiveTracker
-    from graytrack.drivers.sim.causes import model_with
+    from graytrack.service.grown_models import model_with
     from graytrack.drivers.sim.scenarios import build_rig
 
     kind = sys.argv[1]
@@ -46,7 +46,8 @@ SCRIPT = textwrap.dedent("""
         focused += fix.focus_sigma_px2 == fix.focus_sigma_px2
     after = compiled()
     print(json.dumps({"fast_path": bool(tracker.tracker.fast_path), "frames": len(run.frames), "placed": int(placed),
-                      "focused": int(focused), "monitor_ready": monitor_ready, "late": {k: v for k, v in after.items() if v != installed.get(k, 0)}}))
+                      "focused": int(focused), "monitor_ready": monitor_ready,
+                      "late": {k: v for k, v in after.items() if v != installed.get(k, 0)}}))
 """)
 
 

@@ -18,7 +18,8 @@ from graytrack.core.evaluation import GeneralHarmonics
 from graytrack.core.frame_tables import FRAME_PARTS, FrameTables
 from graytrack.core.kernels import TableEvaluator
 from graytrack.core.tracking import LiveTracker, Tracker, track
-from graytrack.drivers.sim.causes import EFFECT_CAUSES, EVERY_FORM, model_with
+from graytrack.drivers.sim.causes import EFFECT_CAUSES, EVERY_FORM
+from graytrack.service.grown_models import model_with
 
 MICROMETRE_TOLERANCE = 1e-9
 # what a model shows of the table parts that change the expression itself (the others change coefficients)
@@ -123,7 +124,8 @@ def test_live_tracking_reloads_one_buffer_and_tracks_as_the_batch(name: str) -> 
     positions = np.array([fix.x_mm for fix in fixes])
     placed = np.isfinite(positions)
     assert placed.mean() > 0.9 and np.array_equal(np.isfinite([fix.x_mm for fix in again]), placed)
-    assert np.max(np.abs(positions[placed] - np.array([fix.x_mm for fix in again])[placed])) * 1e3 < MICROMETRE_TOLERANCE
+    replayed = np.array([fix.x_mm for fix in again])
+    assert np.max(np.abs(positions[placed] - replayed[placed])) * 1e3 < MICROMETRE_TOLERANCE
     assert [(f.locked, f.stale_reason, f.rejected_px, f.transient_px) for f in fixes] == \
         [(f.locked, f.stale_reason, f.rejected_px, f.transient_px) for f in again]
     batch_placed = np.isfinite(batch.x_mm)

@@ -74,7 +74,8 @@ def test_tracker_evaluator_matches_model_with_stroke_terms_and_flat_field(paper_
     base = paper_models["paper"].model
     rng = np.random.default_rng(1)
     model = base.with_changes(stroke_degree=2, n_rows=3, row_degree=1, row_shift_mm=0.01, stroke_range_mm=(0.0, 10.0))
-    model = model.with_changes(coeffs=rng.normal(size=model.coeff_shape), pixel_gain=1 + 0.01 * rng.normal(size=(3, 100)),
+    model = model.with_changes(coeffs=rng.normal(size=model.coeff_shape),
+                               pixel_gain=1 + 0.01 * rng.normal(size=(3, 100)),
                                pixel_offset=rng.normal(size=(3, 100)))
     x = np.array([0.5, 3.7, 9.2])
     values, slopes = FastHarmonics(model).evaluate(x)

@@ -17,7 +17,8 @@ def _sweep(n: int, scale_ppm: float = 0.0, offset_um: float = 0.0, extra_um: flo
            still_at: float | None = None):
     rng = np.random.default_rng(seed)
     ref = np.full(n, still_at) if still_at is not None else np.linspace(0.0, 10.0, n)
-    err_um = offset_um + scale_ppm * 1e-3 * (ref - 5.0) + rng.normal(0, BOUND_MM * 1e3, n) + extra_um * rng.normal(size=n)
+    err_um = (offset_um + scale_ppm * 1e-3 * (ref - 5.0) + rng.normal(0, BOUND_MM * 1e3, n)
+              + extra_um * rng.normal(size=n))
     return ref + err_um * 1e-3, ref
 
 

@@ -10,7 +10,6 @@ from graytrack.core.recording import Recording
 from graytrack.core.repeats import repeated
 from graytrack.core.tracking import track
 
-from ..conftest import paper_recording
 
 REPEATS = np.arange(37, 1000, 41)  # frames the "driver" delivers again
 

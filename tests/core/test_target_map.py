@@ -1,4 +1,5 @@
-"""The target map: a row for each model row, fitted, stored and read back; a map the rows shared would be wrong on each."""
+"""The target map: a row for each model row, fitted, stored and read back; a map the rows shared would be wrong
+on each."""
 
 from __future__ import annotations
 

@@ -79,7 +79,7 @@ def test_field_bound_is_the_schur_complement_of_the_full_information(model):
     solution = field_solve(tracker.evaluator, y, weights, basis, FrameSolution(x_true + 0.01, 0.0, 0.0, 0),
                            tracker.settings)
     assert abs(solution.x_mm - x_true) < 5.0 / np.sqrt(solution.information)
-    assert solution.gain == pytest.approx(0.9, abs=0.02) and solution.offset == pytest.approx(4.0, abs=1.0)
+    assert solution.gain == pytest.approx(0.9, abs=0.02) and solution.offset_gray == pytest.approx(4.0, abs=1.0)
     h = 1e-6
     plus, _ = tracker.evaluator.evaluate(np.array([solution.x_mm + h]))
     minus, _ = tracker.evaluator.evaluate(np.array([solution.x_mm - h]))

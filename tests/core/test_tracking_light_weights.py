@@ -67,7 +67,7 @@ def test_fast_path_matches_direct_evaluation_with_weights_and_free_light(paper_r
             assert a.x_mm == pytest.approx(b.x_mm, abs=1e-9)
             assert a.information == pytest.approx(b.information, rel=1e-8)
             assert a.chi2 == pytest.approx(b.chi2, rel=1e-7)
-            assert (a.gain, a.offset) == pytest.approx((b.gain, b.offset), rel=1e-8)
+            assert (a.gain, a.offset_gray) == pytest.approx((b.gain, b.offset_gray), rel=1e-8)
         grid = np.linspace(0.0, model.period_mm, 40)
         np.testing.assert_allclose(grid_cost(fast, 3, grid, free), grid_cost(direct, 3, grid, free), rtol=1e-8)
 
@@ -94,11 +94,12 @@ def test_set_aside_pixels_match_a_direct_masked_solve(paper_rig, compiled, monke
         a = gauss_newton(source.without(j, rejected), 0, x_true[k] + 0.05, True, tracker.settings)
         b = gauss_newton(direct, k, x_true[k] + 0.05, True, tracker.settings)
         assert a.x_mm == pytest.approx(b.x_mm, abs=1e-9)
-        assert (a.information, a.chi2, a.gain, a.offset) == pytest.approx((b.information, b.chi2, b.gain, b.offset),
-                                                                           rel=1e-8)
-        residuals = source.set_aside_residuals(j, a.x_mm, a.gain, a.offset, rejected)
+        assert (a.information, a.chi2, a.gain, a.offset_gray) == pytest.approx(
+            (b.information, b.chi2, b.gain, b.offset_gray), rel=1e-8)
+        residuals = source.set_aside_residuals(j, a.x_mm, a.gain, a.offset_gray, rejected)
         values = FastHarmonics(model).evaluate(np.array([a.x_mm]))[0][0, [12, 61]]
-        expected = np.abs(frames[k, [12, 61]] - a.gain * values - a.offset) * np.sqrt(tracker.static_weights[0, [12, 61]])
+        expected = (np.abs(frames[k, [12, 61]] - a.gain * values - a.offset_gray)
+                    * np.sqrt(tracker.static_weights[0, [12, 61]]))
         np.testing.assert_allclose(residuals, expected, rtol=1e-9)
 
 

@@ -251,7 +251,8 @@ def test_a_wrong_model_at_rest_is_flagged_by_the_grating_while_its_chi2_is_only_
     run, _ = build_rig("paper", "", seed=3, run=1).record(4.0, trajectory=oscillation(5.0, 0.0, 1.0))
     if live:
         tracker = LiveTracker(wrong, x0_mm=float(run.reference[0]))
-        stale = np.array([tracker.update(frame, reference).stale for frame, reference in zip(run.frames, run.reference)])
+        stale = np.array([tracker.update(frame, reference).stale
+                          for frame, reference in zip(run.frames, run.reference)])
         x = None
     else:
         result = track(wrong, run, light="auto", robust=True)

@@ -39,7 +39,8 @@ MONITORS = {
                                            calibration_frames=300, calibration_x_std_mm=2.0,
                                            calibration_structure_um=0.1,
                                            calibration=Line(0.1, 20.0, (0.01, 0.001, 100.0), 5.0, 300, 5.2)),
-    "trimmed": lambda: ReferenceMonitor(5.0, 4.0, calibration_frames=2, baseline=Line(-0.2, -50.0, (0.02, 0.0, 50.0), 5.0)),
+    "trimmed": lambda: ReferenceMonitor(5.0, 4.0, calibration_frames=2,
+                                        baseline=Line(-0.2, -50.0, (0.02, 0.0, 50.0), 5.0)),
 }
 
 
@@ -53,9 +54,11 @@ def test_reference_monitor_many_frames_at_once_as_frame_by_frame(monkeypatch, na
     x, reference, bound, feed = drifting_run(n, n, resolution_mm=1e-3 if name == "calibrated" else 0.0)
     compiled, stepped = MONITORS[name](), MONITORS[name]()
     rises_compiled, rises_stepped = [], []
-    flags = compiled.observe_many(x, reference, bound, feed, on_rise=lambda k: rises_compiled.append((k, state(compiled))))
+    flags = compiled.observe_many(x, reference, bound, feed,
+                                  on_rise=lambda k: rises_compiled.append((k, state(compiled))))
     monkeypatch.setattr(_kernels, "COMPILED", False)
-    expected = stepped.observe_many(x, reference, bound, feed, on_rise=lambda k: rises_stepped.append((k, state(stepped))))
+    expected = stepped.observe_many(x, reference, bound, feed,
+                                    on_rise=lambda k: rises_stepped.append((k, state(stepped))))
     assert np.array_equal(flags, expected)
     assert state(compiled) == state(stepped)
     assert [k for k, _ in rises_compiled] == [k for k, _ in rises_stepped]

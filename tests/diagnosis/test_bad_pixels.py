@@ -94,12 +94,13 @@ def test_dust_across_a_strip_is_no_pixel_defect():
     whose tracker called every frame fresh. The probe names only what the pixels' own time series
     show, and never a mask of more than a share of the line."""
     from graytrack.core.calibration import KIND_SPECS
-    from graytrack.core.diagnosis.loop import _held_out, _stage
+    from graytrack.core.diagnosis.heldout import loop_split
+    from graytrack.core.diagnosis.loop import _stage
     from graytrack.core.effects.bad_pixels import EFFECT, MAX_MASKED_SHARE, masked_share, residual_bad_pixels
     from graytrack.core.geometry import initial_geometry
 
     recording, _ = build_rig("strip16", "dust", seed=3).record(8.0)
-    _, train, val, _ = _held_out(recording, None)
+    _, train, val, _ = loop_split(recording, None)
     seed = _stage(KIND_SPECS["paper"], train, val, initial_geometry(train), refine_geometry=True)
     residual = train.frames - np.broadcast_to(seed.train.predicted, train.frames.shape)
     following = residual_bad_pixels(residual, seed.train.predicted, seed.train.usable, train.sigma_gray)

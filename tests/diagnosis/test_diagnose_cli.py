@@ -23,11 +23,12 @@ def test_diagnose_writes_contract_files(tmp_path, capsys):
         assert set(report[key]) >= {"model", "rmse_gray", "error_std_um", "error_max_um"}
     assert report["steps"] and set(report["steps"][0]) >= {"effect", "evidence", "rmse_gray", "error_std_um"}
     page = (tmp_path / "diag" / "report.html").read_text()
-    assert page.count("data:image/png;base64,") == 3 and "noise floor" in page
+    assert page.count("data:image/png;base64,") == 3 and "noise floor" not in page and "<b>Bound</b>" in page
     val = tmp_path / "val.npz"
     assert main(["simulate", "--scenario", "paper", "--effects", "gradient", "--seconds", "6", "--seed", "2",
                  "--out", str(val)]) == 0
-    assert main(["track", str(val), "--model", str(tmp_path / "diag" / "model.json"), "--out", str(tmp_path / "t.csv")]) == 0
+    assert main(["track", str(val), "--model", str(tmp_path / "diag" / "model.json"), "--out",
+                 str(tmp_path / "t.csv")]) == 0
     assert np.nanstd(read_columns(tmp_path / "t.csv")["error_um"]) < 1.3 * report["noise"]["crlb_um"] * 1.2
 
 

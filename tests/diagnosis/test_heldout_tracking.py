@@ -11,7 +11,7 @@ import numpy as np
 
 from graytrack.core.calibration_data import calibration_data
 from graytrack.core.diagnosis.heldout import figures, track_runs
-from graytrack.drivers.sim.causes import model_with
+from graytrack.service.grown_models import model_with
 
 
 def _spread(tracked, data) -> float:

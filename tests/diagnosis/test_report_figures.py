@@ -29,7 +29,7 @@ PERCENT = re.compile(r"(-?\d+(?:\.\d+)?)\s*%")
 NOT_A_FIGURE = re.compile(r"\b(nan|None|inf)\b")
 
 
-def _nothing_placed(stage: loop.Stage) -> loop.Stage:
+def _nothing_placed(stage: loop.LoopModel) -> loop.LoopModel:
     """The stage as a model that placed none of the held-out frames leaves it: no figure exists."""
     figures = dataclasses.replace(stage.figures, rmse_gray=math.nan, error_std_um=math.inf, error_max_um=math.inf,
                                   error_mean_um=math.nan, crlb_um=math.nan,

@@ -106,7 +106,8 @@ realtime.restore_process(previous)
 stop.set()
 earlier.join()
 print(json.dumps({"allowed": allowed, "refused": refused is None, "previous": sorted(previous), "pinned": pinned,
-                  "spare": spare, "child": child, "restored": threads(), "spare_after": sorted(realtime.spare_cores())}))
+                  "spare": spare, "child": child, "restored": threads(),
+                  "spare_after": sorted(realtime.spare_cores())}))
 """
 
 

@@ -45,8 +45,10 @@ def case(request: pytest.FixtureRequest) -> Iterator[Case]:
             with GCSStage(ctl.path, timeout_s=REPLY_TIMEOUT_S, velocity_mm_s=20.0, soft_limits_mm=(5.0, 20.0)) as stage:
                 yield Case(stage, ctl, 12.5, (5.0, 20.0), 19.5, 1e-9)
         return
-    config = parse_hardware({"stage": {"velocity_mm_s": 4.0, "timeout_s": REPLY_TIMEOUT_S, "soft_limits_mm": [0.0, 10.0]},
-                             "camera": {"rig_process": False}})  # in process: the test injects faults into its controller
+    config = parse_hardware({"stage": {"velocity_mm_s": 4.0, "timeout_s": REPLY_TIMEOUT_S,
+                                       "soft_limits_mm": [0.0, 10.0]},
+                             # in process: the test injects faults into its controller
+                             "camera": {"rig_process": False}})
     hardware = open_hardware(config, ScaledClock(5.0))
     try:
         start = hardware.stage.position().position_mm

@@ -25,14 +25,16 @@ FAST_TABLES: dict[str, Any] = {
     # a long serial timeout: a loaded CI machine can starve the simulated controller's thread
     "stage": {"kind": "sim", "velocity_mm_s": 20.0, "timeout_s": 5.0},
     # 20 simulated frames/s = 200 per wall second: enough to test, light enough for a loaded CI machine
-    # the virtual rig in the test process: tests reach into its controller and its stage (test_rig_process.py runs it apart)
+    # the virtual rig in the test process: tests reach into its controller and its stage
+    # (test_rig_process.py runs it apart)
     "camera": {"kind": "sim", "frame_rate_hz": 20.0, "rig_process": False},
     # step and settle, paper model: the quickest calibration (the scan and the closed loop: test_sweep_scan.py)
     "sweep": {"kind": "stops", "positions": 21, "frames_per_position": 3, "model": "paper"},
     # the page's tests reach the daemon as "testserver" (TestClient's Host)
     # fault and staleness thresholds a loaded CI machine does not cross by itself
     # normal scheduling: the suite's daemons share 2 cores with the test processes (one test checks realtime)
-    "daemon": {"realtime_priority": 0, "sim_clock_scale": 10.0, "camera_fault_after_s": 1.0, "stale_after_s": 1.0, "reopen_interval_s": 0.1,
+    "daemon": {"realtime_priority": 0, "sim_clock_scale": 10.0, "camera_fault_after_s": 1.0, "stale_after_s": 1.0,
+               "reopen_interval_s": 0.1,
                "allowed_hosts": ["testserver"]},
 }
 
@@ -116,13 +118,15 @@ def wait_job(get: Callable[[str], Any], job_id: str, states: str | tuple[str, ..
 
 
 class GatedCamera(Camera):
-    """Wraps a camera: ``gate_open = False`` starves the reader, ``fail_reads = n`` raises n errors."""
+    """Wraps a camera: ``gate_open = False`` starves the reader, ``fail_reads = n`` raises n errors,
+    ``lose = n`` loses the next n frames (read and thrown away, as a link that lost them)."""
 
     def __init__(self, inner: Camera) -> None:
         super().__init__(inner.settings)
         self.inner = inner
         self.gate_open = True
         self.fail_reads = 0
+        self.lose = 0
         self.narrow_by = 0
         self.opens = 0
 
@@ -150,6 +154,9 @@ class GatedCamera(Camera):
         if not self.gate_open:
             time.sleep(timeout_s)
             raise CameraTimeout("gated")
+        while self.lose > 0:
+            self.lose -= 1
+            self.inner.read(timeout_s)
         return self.inner.read(timeout_s)
 
 

@@ -70,7 +70,8 @@ def test_bad_moves_are_refused_with_a_clear_message(tracking: TestClient, token:
     outside = tracking.post("/api/stage/move", json={"target_mm": 12.0}, headers=token)
     assert outside.status_code == 422
     assert outside.json()["error"] == "target_mm 12 is outside the soft limits [0, 10.46] mm"
-    broken = tracking.post("/api/stage/move", content=b"{target_mm: 3", headers={**token, "Content-Type": "application/json"})
+    broken = tracking.post("/api/stage/move", content=b"{target_mm: 3",
+                           headers={**token, "Content-Type": "application/json"})
     assert broken.status_code == 422 and broken.json()["error"] == "request body is not valid JSON"
     missing = tracking.post("/api/stage/move", json={"target": 3.0}, headers=token)
     assert missing.status_code == 422 and "target_mm" in missing.json()["error"]

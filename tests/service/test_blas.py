@@ -17,7 +17,8 @@ def test_the_daemon_and_track_limit_blas_to_one_thread() -> None:
         "print(before, after)\n"
     )
     env = {"OPENBLAS_NUM_THREADS": "2", "PATH": ""}
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env).stdout.split(maxsplit=1)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         env=env).stdout.split(maxsplit=1)
     assert int(out[0]) == 2
     threads = [int(n) for n in out[1].strip(" []\n").split(",")]
     assert threads and set(threads) == {1}

@@ -54,6 +54,7 @@ def test_a_mirrored_camera_fails_the_sweep_with_the_cause_and_flip_true_calibrat
         # Activating that calibration again is a conflict with the camera's configuration (409), not "not ready"
         calibration_id = client.get("/api/calibrations").json()["items"][0]["id"]
         token = client.app.state.storage.token_path.read_text().strip()
-        reply = client.post(f"/api/calibrations/{calibration_id}/activate", headers={"Authorization": f"Bearer {token}"})
+        reply = client.post(f"/api/calibrations/{calibration_id}/activate",
+                            headers={"Authorization": f"Bearer {token}"})
         assert reply.status_code == 409, reply.text
         assert "recalibrate or set flip back" in reply.json()["error"]

@@ -13,14 +13,16 @@ import pytest
 from fastapi.testclient import TestClient
 
 from graytrack.service.daemon.app import create_app
-from tests.service.helpers import fast_settings
+from tests.service.helpers import fast_settings, wait_for
 
 
 def test_the_running_daemon_keeps_its_start_up_heap_frozen_and_thaws_it_at_shutdown(tmp_path) -> None:
     gc.unfreeze()
     with TestClient(create_app(fast_settings(tmp_path, auto_calibrate="never"))) as client:
         assert client.get("/healthz").status_code in (200, 503)
-        assert gc.get_freeze_count() > 10_000  # the modules, the app, the drivers
+        # frozen once the warm-up (off the event loop, service/daemon/startup.py) has opened the rig
+        wait_for(lambda: client.app.state.startup.seconds is not None and gc.get_freeze_count() > 10_000, 30.0,
+                 "the warm-up and the freeze")  # the modules, the app, the drivers
     assert gc.get_freeze_count() == 0
 
 

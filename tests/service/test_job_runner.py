@@ -66,3 +66,28 @@ def test_a_stop_during_the_fit_aborts_the_job_without_a_new_model(tmp_path: Path
     assert installed == []
     assert (job.state, job.duration_s, job.error) == ("aborted", 1.25, "calibration aborted by a stop request")
     assert [d["state"] for d in files.documents] == ["sweeping", "fitting", "aborted"]
+
+
+class SteppedSweep(TimedSteps):
+    """A sweep of 41 stops, each reported as the daemon's sweep reports it (sweep.py)."""
+
+    def sweep(self) -> str:
+        self.runner.enter("sweeping", 0.0, "moving to the first of 41 stops")
+        for i in range(41):
+            self.runner.update(0.8 * (i + 1) / 41, f"stop {i + 1}/41 at {0.25 * i:.3f} mm")
+        return "recording"
+
+
+def test_the_log_follows_the_job_a_line_per_state_and_per_tenth_of_the_progress(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    clock, files = ManualClock(), StatusFiles(tmp_path)
+    runner = JobRunner(new_job(), files, lambda model, job: None, lambda job: None, clock=clock)
+    with caplog.at_level("INFO", logger="graytrack.daemon"):
+        runner.run(SteppedSweep(runner, clock, sweep_s=0.0, fit_s=1.0))
+    lines = [r.getMessage() for r in caplog.records if r.getMessage().startswith(f"calibration {runner.job.id}: ")]
+    # sweeping 0 %, then 10 … 80 % over 41 updates (8 lines, not 41), fitting 80 %, installing
+    assert len(lines) == 1 + 8 + 1 + 1, lines
+    assert lines[0].endswith("sweeping 0 % · moving to the first of 41 stops")
+    assert lines[1].endswith("sweeping 12 % · stop 6/41 at 1.250 mm")  # the first update past 10 %
+    assert lines[8].endswith("sweeping 80 % · stop 41/41 at 10.000 mm")
+    assert "fitting 80 % · fitting recording" in lines[9] and "installing" in lines[10]

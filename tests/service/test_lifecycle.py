@@ -55,7 +55,8 @@ def test_kill_9_in_the_sweep_or_the_fit_leaves_the_job_interrupted_at_the_next_s
             daemon.wait_state("idle")
             for job_id, state in killed:
                 job = httpx.get(f"{daemon.base}/api/calibration/{job_id}", timeout=5).json()
-                assert job["state"] == "interrupted" and job["message"] == f"interrupted while {state} (the daemon stopped)"
+                assert job["state"] == "interrupted"
+                assert job["message"] == f"interrupted while {state} (the daemon stopped)"
             if phase is None:
                 break
             job_id = _start_calibration(daemon)
@@ -90,7 +91,8 @@ def test_a_bad_host_or_a_busy_port_is_one_line_and_exit_2(tmp_path: Path, capsys
         port = busy.getsockname()[1]
         assert main([*args, "--port", str(port)]) == 2
     line = capsys.readouterr().err.strip()
-    assert line == f"graytrack serve: error: port {port} on 127.0.0.1 is already in use (another graytrack serve? choose --port)"
+    assert line == (f"graytrack serve: error: port {port} on 127.0.0.1 is already in use "
+                    "(another graytrack serve? choose --port)")
     # the failed starts released the directory: a third start may lock it
     from graytrack.service.daemon.storage import Storage
 

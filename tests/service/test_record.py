@@ -32,7 +32,8 @@ def daemon(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LiveServer]:
 
 def test_calibrations_are_listed_newest_first_with_their_quality_and_paginated(daemon: LiveServer) -> None:
     page = daemon.get("/api/calibrations").json()
-    assert page["total"] == 2 and [c["id"] for c in page["items"]] == sorted((c["id"] for c in page["items"]), reverse=True)
+    assert page["total"] == 2 and [c["id"] for c in page["items"]] == sorted((c["id"] for c in page["items"]),
+                                                                             reverse=True)
     newest, oldest = page["items"]
     assert newest["active"] and not oldest["active"]
     for row in page["items"]:
@@ -52,12 +53,14 @@ def test_each_calibrations_files_are_served(daemon: LiveServer) -> None:
     base = f"/api/calibrations/{row['id']}/files"
     report = daemon.get(f"{base}/report.html")
     assert report.status_code == 200 and report.headers["content-type"].startswith("text/html")
-    assert f"{row['error_std_um']:.2f} µm" in report.text and "<script" not in report.text
-    assert "script-src" not in report.headers["content-security-policy"] and "default-src 'none'" in report.headers["content-security-policy"]
+    assert f"{row['error_std_um']:.3f} µm" in report.text and "<script" not in report.text
+    policy = report.headers["content-security-policy"]
+    assert "script-src" not in policy and "default-src 'none'" in policy
     assert daemon.get(f"{base}/report.json").json()["held_out"]["error_std_um"] == row["error_std_um"]
     assert daemon.get(f"{base}/model.json").json()["schema"] == "graytrack.model"
     assert daemon.get(f"{base}/recording.npz").content[:2] == b"PK"
-    for path in (f"{base}/status.json", f"{base}/..%2F..%2Ftoken", "/api/calibrations/20990101T000000000000Z/files/model.json"):
+    for path in (f"{base}/status.json", f"{base}/..%2F..%2Ftoken",
+                 "/api/calibrations/20990101T000000000000Z/files/model.json"):
         assert daemon.get(path).status_code == 404, path
 
 
@@ -140,7 +143,8 @@ def test_the_trackers_fit_figures_and_stale_model_flags_reach_status_metrics_and
         wait_for(lambda: "model_stale" in [e["kind"] for e in daemon.get("/api/events").json()], what="the stale flag")
         status = daemon.status()
         assert status["fit"] == {"gain": 1.01, "offset_gray": -0.2, "rejected_px": 2, "transient_px": 0, "chi2": 1.04,
-                                 "focus_px2": None, "focus_sigma_px2": None, "stale": True, "stale_reason": "focus"}
+                                 "focus_px2": None, "focus_sigma_px2": None, "stale": True, "stale_reason": "focus",
+                                 "texture_px": 0}
         assert status["model_stale"] and status["stale_reason"] == "focus"
         health = daemon.get("/healthz")
         assert health.status_code == 503 and "focus" in health.json()["reason"], "a stale model is not healthy"

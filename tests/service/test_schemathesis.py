@@ -29,7 +29,8 @@ HEALTH_CHECKS = "response_schema_conformance,content_type_conformance"
 JOG = "/api/stage/jog"
 
 
-def _schemathesis(daemon: ServeProcess, token: str, cwd: Path, checks: str, *selection: str) -> subprocess.CompletedProcess:
+def _schemathesis(daemon: ServeProcess, token: str, cwd: Path, checks: str,
+                  *selection: str) -> subprocess.CompletedProcess:
     return subprocess.run(
         [str(Path(sys.executable).parent / "schemathesis"), "run", f"{daemon.base}/api/openapi.json",
          "--header", f"Authorization: {token}", "--max-examples", str(EXAMPLES_PER_OPERATION),

@@ -32,7 +32,8 @@ TRACKING = RigSnapshot(
 def test_a_fresh_frame_shows_its_figures_and_the_document_is_what_the_status_model_describes() -> None:
     status = document(TRACKING)
     assert Status.model_validate(status).model_dump(mode="json") == status
-    assert (status["state"], status["position_mm"], status["locked"], status["crlb_um"]) == ("tracking", 5.25, True, 1.5)
+    assert (status["state"], status["position_mm"], status["locked"],
+            status["crlb_um"]) == ("tracking", 5.25, True, 1.5)
     assert status["fit"] == {"gain": 1.01, "offset_gray": -0.2, "chi2": 1.04, "rejected_px": 2, "transient_px": 0,
                              "focus_px2": None, "focus_sigma_px2": None, "stale": False, "stale_reason": None}
     assert (status["stale"], status["age_ms"], status["grating_age_ms"]) == (False, 250.0, 12.5)

@@ -144,7 +144,8 @@ def _fifo_allowed(level: int) -> bool:
     return allowed[0]
 
 
-def test_realtime_priority_raises_the_frame_loop_the_event_loop_and_the_poller_only(daemon: LiveServer, tmp_path) -> None:
+def test_realtime_priority_raises_the_frame_loop_the_event_loop_and_the_poller_only(daemon: LiveServer,
+                                                                                    tmp_path) -> None:
     shutil.copy(daemon.rig.storage.model_path, tmp_path / "model.json")
     settings = fast_settings(tmp_path, realtime_priority=3, auto_calibrate="never")
     with LiveServer(create_app(settings)) as rig:

@@ -114,7 +114,8 @@ def test_an_unexpected_error_in_a_calibration_fails_the_job_and_restores_the_dae
         assert done["progress"] == 1.0
 
 
-def test_a_shutdown_during_the_fit_aborts_the_job_and_installs_nothing(tmp_path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_a_shutdown_during_the_fit_aborts_the_job_and_installs_nothing(tmp_path,
+                                                                       monkeypatch: pytest.MonkeyPatch) -> None:
     real_calibrate, fitting = sweep.calibrate_recording, []
 
     def slow_fit(*args, **kwargs):  # a fit that is still running when the shutdown comes

@@ -39,4 +39,5 @@ def test_marks_learned_live_are_logged_and_dropped_with_their_model():
     log.replaced("calibration 7 installed")
     kind, message = events[-1]
     assert kind == "texture_dropped" and message.startswith(f"{len(tracker.state.texture.learned)} mark(s)")
-    assert LiveTracker(model).state.texture.learned == []  # the model installed anew starts from the print as calibrated
+    # the model installed anew starts from the print as calibrated
+    assert LiveTracker(model).state.texture.learned == []

@@ -12,7 +12,6 @@ import json
 import re
 from pathlib import Path
 
-import pytest
 
 from graytrack.service.daemon.app import create_app
 from graytrack.service.daemon.datadir import DataDirHealth

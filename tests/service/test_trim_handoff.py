@@ -7,7 +7,6 @@ the one that knew no trim, while its bound was the untrimmed frame's."""
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 import pytest

@@ -66,7 +66,8 @@ def test_bodies_over_64_kib_are_refused_even_when_chunked(daemon: LiveServer) ->
 @pytest.mark.parametrize("body", [{"target_mm": True}, {"target_mm": "5"}, {"target_mm": None}, {"target_mm": [1]}])
 def test_target_mm_is_strictly_a_json_number(daemon: LiveServer, body: dict) -> None:
     response = daemon.post("/api/stage/move", json=body, headers=daemon.auth())
-    assert response.status_code == 422 and response.json()["error"].startswith("invalid request: target_mm"), response.text
+    assert response.status_code == 422, response.text
+    assert response.json()["error"].startswith("invalid request: target_mm"), response.text
 
 
 def test_an_integer_target_is_a_number(daemon: LiveServer) -> None:
@@ -121,7 +122,8 @@ def test_beyond_loopback_the_stream_needs_the_token(tmp_path) -> None:
     scope = {"headers": [(b"host", b"192.0.2.7:8000")], "query_string": b""}
     assert "needs the token" in policy.websocket_refusal(scope)
     assert policy.websocket_refusal({**scope, "query_string": b"token=" + b"t" * 32}) is None
-    assert policy.websocket_refusal({**scope, "headers": [*scope["headers"], (b"authorization", b"Bearer " + b"t" * 32)]}) is None
+    assert policy.websocket_refusal({**scope, "headers": [*scope["headers"],
+                                                          (b"authorization", b"Bearer " + b"t" * 32)]}) is None
 
 
 @pytest.mark.parametrize("path", ["/api/status", "/api/events", "/", "/api/calibrations", "/healthz"])
@@ -154,7 +156,8 @@ def test_an_unforeseen_error_is_json_with_the_security_headers(tmp_path, monkeyp
         monkeypatch.setattr(Rig, "status", broken)
         answer = server.get("/api/status")
         assert answer.status_code == 500 and "log" in answer.json()["error"]
-        assert answer.headers["x-frame-options"] == "DENY" and "frame-ancestors" in answer.headers["content-security-policy"]
+        assert answer.headers["x-frame-options"] == "DENY"
+        assert "frame-ancestors" in answer.headers["content-security-policy"]
         monkeypatch.undo()
         assert server.get("/api/status").status_code == 200, "the daemon goes on"
 

@@ -3,7 +3,6 @@ pixels, row banding, Mono12-in-16, smudge, vibration, duplicated frames, camera 
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 import pytest

@@ -172,4 +172,5 @@ def test_rolling_shutter_exposes_each_row_later_and_so_further_along_in_motion()
         assert np.allclose(light[0, r], global_shutter.render_light(delayed, np.array([0.1]))[0, r], rtol=0, atol=1e-9)
     assert not np.allclose(light, global_shutter.render_light(moving, np.array([0.1])), rtol=0, atol=1e-3)
     still = np.array([[5.0]])
-    assert np.array_equal(rolling.render_light(still, np.array([0.1])), global_shutter.render_light(still, np.array([0.1])))
+    assert np.array_equal(rolling.render_light(still, np.array([0.1])),
+                          global_shutter.render_light(still, np.array([0.1])))

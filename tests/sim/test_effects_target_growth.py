@@ -46,7 +46,8 @@ def test_growth_leaves_the_grating_alone_and_composes_with_a_second_session():
     np.testing.assert_array_equal(rec0.reference, plain.reference)  # the stage's scale never sees the print
     assert not np.array_equal(rec0.frames, plain.frames)
     assert not np.array_equal(rec1.frames[:5], rec0.frames[:5])
-    assert truth1.info["effects"] == ["target_growth:ppm=250:at=0.5:start_s=0:ramp_s=0", "vibration:um=2:hz=180:phase_deg=-1"]
+    assert truth1.info["effects"] == ["target_growth:ppm=250:at=0.5:start_s=0:ramp_s=0",
+                                      "vibration:um=2:hz=180:phase_deg=-1"]
 
 
 def test_growth_refuses_a_point_off_the_field_and_a_negative_ramp():

@@ -128,7 +128,8 @@ def test_a_defect_narrower_than_a_pixel_is_averaged_over_the_pixel_footprint():
 
 def test_defocus_attenuates_harmonic_i_by_gaussian_mtf():
     sigma, tau = 0.3, paper.PERIOD_MM
-    amps = harmonic_amplitudes(one_period(quiet_rig(effects=["harmonics:h2=0.1:h3=0", f"defocus:sigma_um={sigma * 1e3}"])))
+    amps = harmonic_amplitudes(one_period(quiet_rig(effects=["harmonics:h2=0.1:h3=0",
+                                                             f"defocus:sigma_um={sigma * 1e3}"])))
     mtf = lambda i: math.exp(-2 * math.pi**2 * sigma**2 * (i / tau) ** 2)  # noqa: E731
     assert amps[1] == pytest.approx(80 * mtf(1), rel=1e-6)
     assert amps[2] == pytest.approx(8 * mtf(2), rel=1e-6)

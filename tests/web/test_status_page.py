@@ -56,9 +56,9 @@ def test_page_shows_live_position_and_runs_a_calibration(page) -> None:
     first = position.text_content()
     expect(position).not_to_have_text(first, timeout=10_000)
 
-    # without a token the daemon refuses, and the page says why
-    browser_page.click("#calibrate")
-    expect(browser_page.locator("#message")).to_contain_text("missing bearer token: save the contents of DATA/token")
+    # without a token the controls are disabled, and say why
+    expect(browser_page.locator("#calibrate")).to_be_disabled()
+    assert browser_page.locator("#calibrate").get_attribute("title") == "save the bearer token under Access first"
 
     token = (daemon.folder / "data" / "token").read_text().strip()
     browser_page.fill("#token", token)
@@ -158,7 +158,8 @@ def test_the_line_view_shows_the_frame_with_the_model_following_it(tmp_path: Pat
         for _ in range(3):  # updated a few times a second, and the overlay fits each new frame
             frame_id = canvas.get_attribute("data-frame-id")
             frames.add(frame_id)
-            residual, noise = float(canvas.get_attribute("data-residual-rms")), float(canvas.get_attribute("data-noise"))
+            residual = float(canvas.get_attribute("data-residual-rms"))
+            noise = float(canvas.get_attribute("data-noise"))
             assert residual < 1.5 * noise, (residual, noise)
             expect(canvas).not_to_have_attribute("data-frame-id", frame_id, timeout=5_000)
         assert len(frames) == 3
@@ -177,8 +178,9 @@ def test_the_line_view_shows_the_frame_with_the_model_following_it(tmp_path: Pat
         button_right = table.locator("button.activate").first.evaluate("b => b.getBoundingClientRect().right")
         assert button_right <= 390, button_right
         browser_page.evaluate("window.scrollTo(0, 0)")
-        browser_page.click("#calibrate")
-        expect(browser_page.locator("#message")).to_contain_text("missing bearer token")
+        browser_page.fill("#token", (tmp_path / "token").read_text().strip())
+        browser_page.click("#save-token")
+        expect(browser_page.locator("#message")).to_have_text("token saved in this browser")
         expect(browser_page.locator("#message")).to_be_in_viewport()
         assert console == [], console
 
@@ -194,6 +196,8 @@ def test_a_fault_is_in_the_event_log_and_disables_the_controls_with_its_reason(t
         browser_page = browser.new_page(viewport={"width": 390, "height": 844})
         console = watch_console(browser_page)
         browser_page.goto(daemon.base + "/")
+        browser_page.fill("#token", daemon.app.state.policy.token)  # the controls need it
+        browser_page.click("#save-token")
         expect(browser_page.locator("#move")).to_be_enabled(timeout=10_000)
         factory.hardware.camera.gate_open = False
         expect(browser_page.locator("#state")).to_have_text("fault", timeout=10_000)
@@ -202,7 +206,8 @@ def test_a_fault_is_in_the_event_log_and_disables_the_controls_with_its_reason(t
                                                                                           timeout=5_000)
         for control in ("#move", "#jog-plus", "#home", "#set-velocity", "#calibrate"):
             expect(browser_page.locator(control)).to_be_disabled()
-        expect(browser_page.locator("#controls-reason")).to_contain_text("disabled during the fault: camera: no frame for")
+        expect(browser_page.locator("#controls-reason")).to_contain_text("disabled during the fault: camera: no frame "
+                                                                         "for")
         expect(browser_page.locator("#stop")).to_be_enabled()
         assert browser_page.evaluate("document.documentElement.scrollWidth") <= 390, "the long reason wraps at 390 px"
         factory.hardware.camera.gate_open = True

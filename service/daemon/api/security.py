@@ -112,7 +112,8 @@ class WebPolicy:
         if SAFE_HOST.match(host_header):
             connect += f" ws://{host_header} wss://{host_header}"
         return ("default-src 'self'; script-src 'self'; style-src 'self'; img-src 'self' data:; "
-                f"connect-src {connect}; frame-ancestors 'none'; base-uri 'none'; form-action 'self'; object-src 'none'")
+                f"connect-src {connect}; frame-ancestors 'none'; base-uri 'none'; form-action 'self'; "
+                "object-src 'none'")
 
 
 async def _send_json(send: Send, status: int, body: dict[str, Any], headers: list[tuple[bytes, bytes]]) -> None:
@@ -157,11 +158,13 @@ class WebGuard:
         if scope["method"] in MUTATING:
             given = bearer(headers)
             if not given:
-                await _send_json(send_secured, 401, {"error": "missing bearer token: send 'Authorization: Bearer <token>'"},
+                await _send_json(send_secured, 401,
+                                 {"error": "missing bearer token: send 'Authorization: Bearer <token>'"},
                                  [(b"www-authenticate", b"Bearer")])
                 return
             if not token_matches(given, self.policy.token):
-                await _send_json(send_secured, 401, {"error": "invalid bearer token"}, [(b"www-authenticate", b"Bearer")])
+                await _send_json(send_secured, 401, {"error": "invalid bearer token"},
+                                 [(b"www-authenticate", b"Bearer")])
                 return
             receive = await self._bounded_body(headers, receive, send_secured)
             if receive is None:

@@ -17,7 +17,8 @@ router = APIRouter(tags=["status"])
 
 
 @router.get("/healthz", response_model=Health,
-            responses={503: {"model": Health, "description": "not tracking now, or the model is stale: the reason says"}})
+            responses={503: {"model": Health,
+                             "description": "not tracking now, or the model is stale: the reason says"}})
 def healthz(rig: Rig = Depends(get_rig)) -> Any:
     """200 while frames are being tracked now; 503 otherwise (starting, idle, fault, stale), with the reason."""
     snapshot = rig.snapshot()
@@ -35,9 +36,10 @@ def healthz(rig: Rig = Depends(get_rig)) -> Any:
 
 
 @router.get("/api/status", response_model=Status)
-def status(rig: Rig = Depends(get_rig)) -> Any:
-    """The status document of this instant (one snapshot of the rig, ``service/daemon/status.py``)."""
-    return rig.status()
+def status(request: Request, rig: Rig = Depends(get_rig)) -> Any:
+    """The status document of this instant (one snapshot of the rig, ``service/daemon/status.py``), with the
+    warm-up's step while the daemon is starting (``service/daemon/startup.py``)."""
+    return {**rig.status(), "startup": request.app.state.startup.status()}
 
 
 @router.get("/metrics", response_class=PlainTextResponse)
