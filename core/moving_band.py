@@ -47,11 +47,17 @@ from graytrack.core.solvers import FrameSolution
 ROOT_PI, ROOT_2 = math.sqrt(math.pi), math.sqrt(2.0)
 ITERATIONS = 12
 SEEN_SIGMAS = 5.0  # the band seen in a frame: its loss in view beyond this many of its noise
+LEAVING_BOUNDS = 1.0  # a band seen to move is followed out of view while its loss bends x beyond this many bounds
+# (its tail, 2-4 of its noise, bent the uniform light's answers 3.5-4 bounds as it left, at a χ² within its noise)
 EARLY_SPREADS = 3.0  # a band seen before: looked for at a frame's χ² beyond this many of its spreads
+STRAINED_SPREADS = 1.0  # a followed answer's χ² beyond this many spreads: the band loosely held is tried too (at
+# three, a 16-row strip's band whose shape its tail had misled was freed a frame later: 1.38x, 1.17x now)
 MISSES = 3  # frames in a row the band does not explain before the episode ends
 GATE_SIGMAS = 5.0  # an edge beyond this many of its predicted spread: not the band followed
 MOVED_PX = 2.0  # the band's answer is taken once it has moved this far, at SPEED_PX a frame or more on
 SPEED_PX = 1.0  # average (a lamp's vignetting wandered ±1.6 px, then drifted past 2 px after 30 frames)
+YOUNG_STEPS = 5  # a band followed over fewer steps than this, not yet seen to move, answers where the uniform light
+# does not explain the frame (with its tail alone in view its depth grows before its place moves: 3 steps did not move)
 SANE_BOUND = 10.0  # a joint bound beyond this many of the uniform light's: x and the band do not separate
 ACCEL_PX = 0.3  # px/frame²: the spread of the band's acceleration (a swinging cable's speed changes slowly)
 WOBBLE_PX = 0.3  # px/frame: each edge's own wander about the common motion (the width may change a little)
@@ -85,6 +91,7 @@ class BandAnswer:
     chi2: float
     cost: float
     visible: float  # the band's loss in view, in units of its noise
+    bends: float  # how far that loss, left out, would move x: in x's bounds
     predicted: np.ndarray  # the edges' places the motion predicted, and their covariance
     predicted_cov: np.ndarray
 
@@ -135,6 +142,7 @@ class MovingBand:
         self.motion, self.motion_cov = np.zeros(3), np.eye(3)  # (left, right, speed)
         self.steps: list[float] = []  # the place's steps, frame to frame, until it is seen to move
         self.moved = False
+        self.entering = False  # found with an edge beyond the line's end: coming into view as a shadow does
         self.width = (0.0, math.inf)  # the band's width where both edges were best seen, and their larger variance
         self.gain, self.offset_gray = 1.0, 0.0
 
@@ -178,6 +186,7 @@ class MovingBand:
         if again:  # a band lost mid-pass (an edge came into view far from where it was held) keeps its motion
             self.motion[2], self.motion_cov[2, 2] = speed, speed_var
         self.moved = moved and (again or self.kept is not None)
+        self.entering = bool(self.motion[0] < 0.0 or self.motion[1] > n - 1.0)
         self.active = True
         return True
 
@@ -223,7 +232,7 @@ class MovingBand:
                 break
             if abs(step[0]) < 1e-7 and total - current[0] < 1e-3:
                 break
-        total, residual, jacobian, cost, visible = current
+        total, residual, jacobian, cost, visible, bends = current
         try:
             covariance = np.linalg.inv((jacobian * weights[:, None]).T @ jacobian + prior)
         except np.linalg.LinAlgError:
@@ -231,22 +240,27 @@ class MovingBand:
         if not np.all(np.isfinite(covariance)) or covariance[0, 0] <= 0:
             return None
         used = float(np.count_nonzero(weights))
-        return BandAnswer(params, covariance, cost / max(used - 2.0, 1.0), cost, visible, state[:2],
+        return BandAnswer(params, covariance, cost / max(used - 2.0, 1.0), cost, visible, bends, state[:2],
                           state_cov[:2, :2])
 
     def _linearise(self, evaluator, y: np.ndarray, weights: np.ndarray, params: np.ndarray, prior: np.ndarray,
-                   anchor: np.ndarray) -> tuple[float, np.ndarray, np.ndarray, float, float]:
-        """(cost with the priors, residual, Jacobian, the data's cost, the band's loss in its noise) at ``params``."""
+                   anchor: np.ndarray) -> tuple[float, np.ndarray, np.ndarray, float, float, float]:
+        """(cost with the priors, residual, Jacobian, the data's cost, the band's loss in its noise, and
+        in x's bounds the shift that loss would cause left out) at ``params``."""
         residual, jacobian, lost = _frame(evaluator, self.gain, self.offset_gray, self.columns, y, params)
         cost = float(weights @ (residual * residual))
         off = params - anchor
-        return cost + float(off @ prior @ off), residual, jacobian, cost, float(np.sqrt(weights @ (lost * lost)))
+        slope = weights * jacobian[:, 0]
+        bends = abs(float(slope @ lost)) / math.sqrt(max(float(slope @ jacobian[:, 0]), 1e-300))
+        return cost + float(off @ prior @ off), residual, jacobian, cost, float(np.sqrt(weights @ (lost * lost))), bends
 
     def sane(self, answer: BandAnswer | None, uniform_information: float, limit: float) -> bool:
         """The band explains the frame, is seen in it, its edges are where the motion carries them,
         and it leaves x a bound."""
-        if answer is None or not (answer.chi2 <= limit and answer.visible > SEEN_SIGMAS
-                                  and answer.params[3] >= MIN_DEPTH):
+        if answer is None or not (answer.chi2 <= limit and answer.params[3] >= MIN_DEPTH):
+            return False
+        leaving = self.moved and self.followed and answer.bends > LEAVING_BOUNDS
+        if not (answer.visible > SEEN_SIGMAS or leaving):
             return False
         if not (math.isfinite(answer.information) and answer.information * SANE_BOUND**2 >= uniform_information):
             return False
@@ -281,6 +295,17 @@ class MovingBand:
                          *self.loose)
         if refined is not None:
             self.shape, self.shape_information = refined
+
+    @property
+    def young(self) -> bool:
+        """Not yet followed over the frames it takes to be seen to move (:data:`MOVED_PX` at
+        :data:`SPEED_PX` a frame): its answer is taken, flagged, where the uniform light does not
+        explain the frame (a first pass's first frames: the band's answers were 0-2 µm off at a
+        2 µm bound, the uniform light's, which stood until the band had moved, 18-46 µm). Only a band
+        coming into view from beyond the line's end, as a shadow does: one found whole inside the field
+        (a smudge on the print the uniform light had lost, 400 µm off) answered 10 bounds off, frame
+        after frame, each frame a new episode."""
+        return self.entering and not self.moved and len(self.steps) < YOUNG_STEPS
 
     def at_both_ends(self, evaluator, y: np.ndarray, weights: np.ndarray, x_mm: float) -> bool:
         """The light lost at ``x_mm`` (a first frame's joint answer: without the grating the last
@@ -453,6 +478,7 @@ def follow(tracker, batch, k: int, x_start: float, uniform: FrameSolution, movin
     # 13 µm, 6 bounds, at a χ² within five): one frame in 700 by chance, and only after a band
     spread = (tracker.chi2_limit / tracker.chi2_calibration - 1.0) / 5.0  # one frame's χ² spread, relative
     asks = tracker.chi2_calibration * here * (1.0 + EARLY_SPREADS * spread) if moving.kept else limit
+    strained = tracker.chi2_calibration * here * (1.0 + STRAINED_SPREADS * spread)
     if not moving.active and not (uniform.chi2 > asks and math.isfinite(x_start)):
         moving.lights.append((uniform.gain, uniform.offset_gray) if uniform.free_light else (1.0, 0.0))
         return uniform  # (the common case: nothing but a comparison and the light kept)
@@ -489,17 +515,36 @@ def follow(tracker, batch, k: int, x_start: float, uniform: FrameSolution, movin
                 moving.reset()
                 break
             answer = trial
+            if how == "followed" and trial.chi2 > strained and moving.followed:
+                how, answer = _loosened_if_better(tracker, moving, y, weights, at, uniform.information, limit, trial)
             break
     if answer is None:
         moving.miss()
         return uniform
     moving.taking(y)
     moving.accept(tracker.evaluator, y, weights, answer, how == "followed")
-    if not moving.moved:  # (followed, not yet seen to move: the uniform answer stands)
-        return uniform
+    if not (moving.moved or (moving.young and uniform.chi2 > limit)):
+        return uniform  # (followed, given its frames to move and not seen to: the uniform answer stands)
     x = float(answer.params[0])
     return FrameSolution(x, tracker.settings.sigma_gray * math.sqrt(answer.chi2), answer.information,
                          ITERATIONS, moving.gain, moving.offset_gray, answer.chi2, kept.rejected_px, False, 0.0,
                          answer.cost, kept.rejected_mask, kept.rejected_weights_exact,
                          transient_px=kept.transient_px, transient_share=kept.transient_share,
                          transient_at=kept.transient_at, moving=True)
+
+
+def _loosened_if_better(tracker, moving: MovingBand, y: np.ndarray, weights: np.ndarray, at: float,
+                        uniform_information: float, limit: float, followed: BandAnswer) -> tuple[str, BandAnswer]:
+    """The frame solved again with the band loosely held, taken when it explains the frame better by
+    :data:`SEEN_SIGMAS`² of χ²: a followed answer within the limit but strained (beyond
+    :data:`STRAINED_SPREADS` of its spreads) may be a band whose shape, learned while its tail alone
+    was in view, is wrong (a 16-row strip's band read 0.54 deep and 18 px wide for 0.2 and 48 while
+    its second edge came in, and its answers were 5-8 bounds off while the χ² stayed within its limit)."""
+    held = moving.shape_information.copy(), moving.motion_cov.copy()
+    moving.loosen()
+    trial = moving.solve(tracker.evaluator, y, weights, at, tracker.settings.max_step_mm)
+    if moving.sane(trial, uniform_information, limit) and trial.cost + SEEN_SIGMAS**2 < followed.cost \
+            and abs(trial.params[0] - followed.params[0]) < tracker.quarter_period_mm:
+        return "loosened", trial
+    moving.shape_information, moving.motion_cov = held
+    return "followed", followed

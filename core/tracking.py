@@ -357,6 +357,7 @@ class Tracker:
         memory.free = self.light == "auto" and stays
         memory.gain, memory.offset = solution.gain, solution.offset_gray
         memory.rejected = solution.rejected_mask if solution.rejected_px else None
+        young = None
         if self.focus_capable:  # (light "auto") a light feature moving across the field, followed: no
             # evidence for a blur or a field of the frame's own (core/moving_band.py)
             if memory.moving is None:
@@ -366,9 +367,12 @@ class Tracker:
             blurred = not memory.moving.active and self._focus_moved(memory)
             followed = solution if blurred else follow(self, batch, k, x_start, solution, memory.moving, here,
                                                        reference)
-            if followed is not solution:
+            if followed is not solution and memory.moving.moved:
                 memory.focus_track.wait()
                 return followed
+            # a band not yet seen to move answers its first frames; the rest of the frame's bookkeeping (the
+            # focus follower's) goes on as for the uniform answer (taken over, it swung a smudge's run 8 µm off)
+            young = followed if followed is not solution else None
         if solution.free_light and math.isfinite(solution.chi2):
             memory.free_frames = min(memory.free_frames + 1, FIELD_WINDOW)
             level = min(solution.chi2 / (self.chi2_calibration * here), self.free_frame_cap)
@@ -380,7 +384,7 @@ class Tracker:
         # The focus is measured on every frame (core/focus_follow.py): a blur moves x before χ² shows it
         if tried_field or self.focus_capable:
             solution = self._changed(batch, k, solution, memory, tried_field, tried_focus, here)
-        return solution
+        return solution if young is None else young
 
     def free_light(self, memory: LightMemory) -> bool:
         """Whether the next frame solves the light's gain and offset with x."""

@@ -36,11 +36,13 @@ def test_a_smudge_learned_without_a_grating_holds_no_frame_off_unflagged(model):
     error -= period_um * np.round(np.nanmedian(error) / period_um)  # no grating: the origin up to whole periods
     placed = np.isfinite(error)
     far = placed & (np.abs(np.where(placed, error, 0.0)) > 4.0 * result.crlb_mm * 1e3)
-    assert far.sum() > 100  # the smudge's frames are off: what this test is about
+    # the smudge's frames are off: what this test is about (138 before the shadow's band answered the first
+    # frames of a band coming into view, core/moving_band.py, which takes the smudge's for one: 49-50 now)
+    assert far.sum() > 40
     assert (far & ~result.stale).sum() <= 0.005 * placed.sum()  # never silently wrong (57 before)
     marks = result.texture["marks"]
     assert len(marks) >= 5 and all(mark["held"] and mark["unvouched"] > 0.1 for mark in marks)
-    assert (result.stale_reason[far] == "texture").sum() > 40  # the frames only the marks' flag catches
+    assert (result.stale_reason[far] == "texture").sum() > 10  # the frames only the marks' flag catches (57; 11)
 
 
 def test_the_texture_watch_flags_a_placed_frame_the_marks_pulled():
