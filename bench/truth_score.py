@@ -65,7 +65,7 @@ class Score:
 def scored(model, run, truth, trim: bool = False, no_reference: bool = False) -> Score:
     """``run`` tracked as `graytrack track [--trim] [--no-reference]` does (light auto, robust, the
     print's texture learned, the tracker's scale watch), each frame against ``truth``."""
-    result, _, watch = solve(run, model, no_reference=no_reference, trim=trim)
+    result, _, watch = solve(run, model, no_reference=no_reference, trim=trim, note=lambda line: None)
     scale = check(run, model, result, trim, watch).columns
     error = (result.x_mm - truth.x_mm) * 1e3
     if no_reference:  # acquired on the image alone: its origin is known up to whole periods
