@@ -15,6 +15,7 @@ import numpy as np
 
 from graytrack.core.calibration_data import CalibrationData
 from graytrack.core.compression import bound_factor, find_jpeg, stream_bound_factor
+from graytrack.core.light_level import stated_level
 from graytrack.core.light_return import replay
 from graytrack.core.models.fourier import FourierModel
 
@@ -119,11 +120,14 @@ def assessed(model: FourierModel, data: CalibrationData) -> FourierModel:
     """The model with ``info["calibration_error_ratio"]`` set, and ``info["stream"]`` when its
     frames came through JPEG (an MJPEG camera): what the quantisation costs every bound."""
     model.info.pop("stream", None)
+    n_values = model.n_rows * model.n_pixels
+    solved = model.out_of_sample(chi2_as_tracked(model, data), data.frames.shape[0] * n_values)
     if (finding := find_jpeg(data.frames)) is not None:
         factor = stream_factor(model, data, finding.table)
         model.info["stream"] = {"kind": "jpeg", "quality": finding.quality, "bound_factor": round(factor, 3)}
-        model.info["calibration_chi2"] = model.out_of_sample(chi2_as_tracked(model, data),
-                                                             data.frames.shape[0] * model.n_rows * model.n_pixels)
+        model.info["calibration_chi2"] = solved
+    elif "calibration_chi2" in model.info:  # a light that moved during calibration is the tracker's to solve
+        model.info["calibration_chi2"] = stated_level(float(model.info["calibration_chi2"]), solved, n_values)
     errors = frame_errors(model, data)
     ratio = error_ratio(errors)
     model.info["calibration_error_ratio"] = round(ratio, 3) if np.isfinite(ratio) else None
