@@ -77,6 +77,21 @@ def block_dct(images: np.ndarray, level_shift: float = 0.0) -> np.ndarray:
     return np.einsum("ij,kajbl,ml->kabim", DCT, blocks, DCT)
 
 
+def round_trip(codes: np.ndarray, table: np.ndarray) -> np.ndarray:
+    """8-bit codes ``(K, R, n)`` through a baseline JPEG's luminance path with quantisation
+    ``table`` and back, as float64 codes: the 8×8 DCT from the frame's corner (a partial block at
+    the edge padded by repeating its last row or column, as encoders do), each coefficient rounded
+    to its step, the inverse, rounded and clipped to 0…255 (the entropy coding is lossless)."""
+    values = np.asarray(codes, dtype=np.float64)
+    k, rows, width = values.shape
+    padded = np.pad(values, ((0, 0), (0, -rows % BLOCK), (0, -width % BLOCK)), mode="edge") - 128.0
+    blocks = padded.reshape(k, padded.shape[1] // BLOCK, BLOCK, padded.shape[2] // BLOCK, BLOCK)
+    coefficients = np.einsum("ij,kajbl,ml->kaibm", DCT, blocks, DCT)  # (K, by, 8, bx, 8)
+    steps = np.asarray(table, dtype=np.float64)[None, None, :, None, :]
+    restored = np.einsum("ji,kajbl,lm->kaibm", DCT, np.rint(coefficients / steps) * steps, DCT)
+    return np.clip(np.rint(restored.reshape(padded.shape)[:, :rows, :width] + 128.0), 0.0, 255.0)
+
+
 def _lattice_score(values: np.ndarray, step: float, tolerance: float = LATTICE_TOLERANCE) -> float:
     """How much more of ``values`` sits on multiples of ``step`` than chance puts there (0 … 1).
     Values within half a step of zero sit on every lattice and say nothing: left out."""
