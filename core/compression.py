@@ -11,6 +11,9 @@ What the compression costs: a coefficient quantised with step q carries, besides
 way no calibration repeats). The Cramér–Rao bound of white noise, σ/√Σ(∂F/∂x)², then promises
 more than the frames hold; the bound with the quantisation, computed on the DCT of the slope, is
 what a tracker can reach on such a stream. On the lab rig at quality 75 it is 2.5× the white one.
+Where the steps are several times the sensor's σ the q²/12 picture no longer holds (no noise dithers
+the rounding): calibration replays its model's images through the stream (:func:`round_trip`,
+core/adequacy.py ``replayed_factor``) and the bound carries the larger of the two.
 """
 
 from __future__ import annotations
