@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from graytrack.core.calibration_data import CalibrationData
-from graytrack.core.compression import bound_factor, find_jpeg, round_trip, stream_bound_factor
+from graytrack.core.compression import bound_factor, find_jpeg, judged_factor, round_trip
 from graytrack.core.light_level import stated_level
 from graytrack.core.light_return import replay
 from graytrack.core.models.fourier import FourierModel
@@ -112,7 +112,7 @@ def inadequacy(info: dict) -> str | None:
     model; its positions carry the wider bound instead, and the calibration says why.
     """
     ratio = info.get("calibration_error_ratio")
-    if ratio is None or ratio / stream_bound_factor(info) <= INADEQUATE_RATIO:
+    if ratio is None or ratio / judged_factor(info) <= INADEQUATE_RATIO:
         return None
     return "geometry"
 

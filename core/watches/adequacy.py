@@ -14,7 +14,7 @@ import bisect
 import math
 
 from graytrack.core.adequacy import INADEQUATE_RATIO, PROFILE_FRAMES, inadequacy
-from graytrack.core.compression import stream_bound_factor
+from graytrack.core.compression import judged_factor
 from graytrack.core.validity import FrameSign
 
 # a stretch is flagged beyond the global limit plus the ratio's own noise over its frames (an
@@ -73,7 +73,7 @@ def make(tracker) -> AdequacyWatch | LocalAdequacyWatch | None:
     profile = info.get("calibration_error_profile")
     if not isinstance(profile, dict):
         return None
-    limit = LOCAL_LIMIT * stream_bound_factor(info)
+    limit = LOCAL_LIMIT * judged_factor(info)
     off = [ratio is not None and ratio > limit for ratio in profile.get("ratio", [])]
     edges = profile.get("edges_mm", [])
     if not any(off) or len(edges) != len(off) + 1:

@@ -98,3 +98,19 @@ def test_the_stream_s_bound_is_what_its_replay_through_the_quantisation_gives_th
     error, bound = (result.x_mm - truth.x_mm) * 1e3, result.crlb_mm * 1e3
     assert np.nanstd(error) < 1.15 * np.sqrt(np.nanmean(bound ** 2))
     assert not (np.isfinite(error) & (np.abs(error) > 4.0 * bound) & ~result.stale).any()
+
+
+def test_a_model_is_judged_against_the_quantisation_s_figure_and_its_positions_carry_the_replay_s():
+    """The seed model on the lab strip at quality 75: its calibration frames 6.4 white bounds off,
+    the replay 3.3, the quantisation's q²/12 figure 2.4. Judged against the replay it would pass as
+    adequate (1.9x) and its runs, 1.9x their bound, went 2.3 % unflagged 4+ bounds off; judged
+    against q²/12 (2.7x) it is inadequate and flagged, as before the replay."""
+    from graytrack.core.adequacy import inadequacy
+    from graytrack.core.compression import judged_factor
+
+    info = {"stream": {"kind": "jpeg", "bound_factor": 3.298, "quantisation_factor": 2.413},
+            "calibration_error_ratio": 6.427}
+    assert judged_factor(info) == 2.413 and stream_bound_factor(info) == 3.298
+    assert inadequacy(info) == "geometry"
+    assert inadequacy({**info, "calibration_error_ratio": 3.206}) is None  # the `diagnose` model: 1.33x
+    assert judged_factor({"stream": {"bound_factor": 2.0}}) == 2.0 and judged_factor({}) == 1.0
