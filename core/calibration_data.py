@@ -47,6 +47,9 @@ class CalibrationData:
     def with_weights(self, weights: np.ndarray) -> "CalibrationData":
         return replace(self, weights=weights)
 
+    def with_frames(self, frames: np.ndarray) -> "CalibrationData":
+        return replace(self, frames=frames)
+
     @property
     def stroke_mm(self) -> float:
         return float(self.x_mm.max() - self.x_mm.min())

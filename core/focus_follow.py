@@ -28,7 +28,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from graytrack.core.compression import stream_bound_factor
+from graytrack.core.compression import judged_factor
 from graytrack.core.focus_solve import FocusPrior
 from graytrack.core.watches.focus import FOCUS_WINDOW
 
@@ -162,6 +162,6 @@ def followable(info: dict) -> bool:
     flagged `focus`; telegraph pixels and a hunting gain leave such a profile too. A model with no
     adequacy figure is followed."""
     ratio = info.get("calibration_error_ratio")
-    if ratio is not None and ratio / stream_bound_factor(info) > FOLLOW_ADEQUACY:
+    if ratio is not None and ratio / judged_factor(info) > FOLLOW_ADEQUACY:
         return False
     return not info.get("reference_structure_profile")

@@ -75,7 +75,7 @@ class CalibrationRun:
         doubtful = check.get("status") == "doubtful"
         lines = [f"warning: {text}" for text in check.get("warnings") or []] if doubtful else []
         from graytrack.core.adequacy import inadequacy
-        from graytrack.core.compression import stream_bound_factor
+        from graytrack.core.compression import judged_factor
 
         info = self.model.info
         stream = info.get("stream")
@@ -85,7 +85,7 @@ class CalibrationRun:
                          "(tracking reports the wider bound); "
                          "set the camera to an uncompressed pixel format (Mono8, Mono12) for the sensor's own")
         if inadequacy(info):
-            ratio = info["calibration_error_ratio"] / stream_bound_factor(info)
+            ratio = info["calibration_error_ratio"] / judged_factor(info)
             lines.append(f"warning: this model places its own calibration frames {ratio:.1f}x as far off as their "
                          "noise floor: it does not describe this rig, and every position it gives will be flagged "
                          "stale (geometry); use --model auto (the closed loop) or graytrack diagnose for the cause")

@@ -14,7 +14,7 @@ import bisect
 import math
 
 from graytrack.core.adequacy import INADEQUATE_RATIO, PROFILE_FRAMES, inadequacy
-from graytrack.core.compression import stream_bound_factor
+from graytrack.core.compression import judged_factor
 from graytrack.core.period_rival import repeats
 from graytrack.core.stroke_place import StrokePlace, folded, in_folded
 from graytrack.core.validity import FrameSign
@@ -89,7 +89,7 @@ def make(tracker) -> AdequacyWatch | LocalAdequacyWatch | None:
     profile = info.get("calibration_error_profile")
     if not isinstance(profile, dict):
         return None
-    limit = LOCAL_LIMIT * stream_bound_factor(info)
+    limit = LOCAL_LIMIT * judged_factor(info)
     off = [ratio is not None and ratio > limit for ratio in profile.get("ratio", [])]
     edges = profile.get("edges_mm", [])
     if not any(off) or len(edges) != len(off) + 1:

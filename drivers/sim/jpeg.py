@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from graytrack.core.compression import BLOCK, DCT, quantisation_table
+from graytrack.core.compression import quantisation_table, round_trip
 
 
 def compress(frames: np.ndarray, quality: float) -> np.ndarray:
@@ -22,15 +22,6 @@ def compress(frames: np.ndarray, quality: float) -> np.ndarray:
 
     Blocks start at row 0 and pixel 0 of the ROI (an ROI on the 8-pixel grid of the sensor, as
     cameras place them); a partial block at the edge is padded by repeating its last row or
-    column, as encoders do.
+    column, as encoders do (core/compression.py's round trip, which calibration also replays).
     """
-    codes = np.asarray(frames, dtype=np.float64)
-    k, rows, width = codes.shape
-    pad_r, pad_c = -rows % BLOCK, -width % BLOCK
-    padded = np.pad(codes, ((0, 0), (0, pad_r), (0, pad_c)), mode="edge") - 128.0
-    blocks = padded.reshape(k, padded.shape[1] // BLOCK, BLOCK, padded.shape[2] // BLOCK, BLOCK)
-    coefficients = np.einsum("ij,kajbl,ml->kaibm", DCT, blocks, DCT)  # (K, by, 8, bx, 8)
-    table = quantisation_table(quality)[None, None, :, None, :]
-    restored = np.einsum("ji,kajbl,lm->kaibm", DCT, np.rint(coefficients / table) * table, DCT)
-    image = restored.reshape(padded.shape)[:, :rows, :width] + 128.0
-    return np.clip(np.rint(image), 0, 255).astype(np.uint8)
+    return round_trip(frames, quantisation_table(quality)).astype(np.uint8)
