@@ -75,7 +75,8 @@ def folded(edges_mm: list[float], flagged: list[bool], period_mm: float) -> tupl
     return np.array([m[0] for m in merged]), np.array([m[1] for m in merged])
 
 
-def in_folded(x_mm: np.ndarray, lo_mm: float, period_mm: float, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
+def in_folded(x_mm: np.ndarray | float, lo_mm: float, period_mm: float, starts: np.ndarray,
+              ends: np.ndarray) -> np.ndarray:
     """Whether each position's phase (from ``lo_mm``) falls in one of the :func:`folded` intervals."""
     phase = np.mod(np.asarray(x_mm, dtype=np.float64) - lo_mm, period_mm)
     index = np.searchsorted(starts, phase, side="right") - 1

@@ -49,6 +49,7 @@ class LocalAdequacyWatch:
     def __init__(self, edges_mm: list[float], off: list[bool], period_mm: float | None = None) -> None:
         self.edges, self.off = edges_mm, off
         self.place = StrokePlace(period_mm)
+        self._period_mm = period_mm or 0.0  # read only with the fold (a repeating model)
         self._folded = folded(edges_mm, off, period_mm) if period_mm else None
 
     def observe(self, sign: FrameSign) -> str | None:
@@ -67,7 +68,7 @@ class LocalAdequacyWatch:
         stretch = np.minimum(np.searchsorted(edges, np.where(inside, x, edges[0]), side="right") - 1, len(self.off) - 1)
         flagged = inside & np.asarray(self.off)[stretch]
         if self._folded is not None and not known.all():
-            flagged |= placed & ~known & in_folded(x, edges[0], self.place.period_mm, *self._folded)
+            flagged |= placed & ~known & in_folded(x, edges[0], self._period_mm, *self._folded)
         return [self.family if f else None for f in flagged.tolist()]
 
     def step(self, placed: bool, x_mm: float, reference_mm: float = math.nan) -> str | None:
@@ -75,7 +76,7 @@ class LocalAdequacyWatch:
         if not placed or not math.isfinite(x_mm):
             return None
         if not known and self._folded is not None:
-            return self.family if bool(in_folded(x_mm, self.edges[0], self.place.period_mm, *self._folded)) else None
+            return self.family if bool(in_folded(x_mm, self.edges[0], self._period_mm, *self._folded)) else None
         if not self.edges[0] <= x_mm <= self.edges[-1]:
             return None
         stretch = min(bisect.bisect_right(self.edges, x_mm) - 1, len(self.off) - 1)
