@@ -15,7 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from graytrack.service.commands.track import solve
+from graytrack.core.slide import carry
+from graytrack.service.commands.track import slide_for, solve
 from graytrack.service.commands.track_scale import check
 
 FAR_PULL = 4.0  # a placed frame this many of its own bounds off the truth is wrong, not noise's tail (6e-5)
@@ -33,7 +34,7 @@ class Score:
     repeated: int
     std_um: float  # error spread against the truth
     rms_um: float  # error rms against the truth (a bias counts)
-    bound_um: float  # rms of the frames' own bounds (with the trim's share under --trim)
+    bound_um: float  # rms of the frames' noise floors (with the trim's share under --trim; the slide's is in "far")
     flagged: int  # stale by the model's χ² or by the camera against the grating
     far: int  # placed frames beyond FAR_PULL of their bounds off the truth
     silent: int  # ... of them not flagged
@@ -65,13 +66,17 @@ class Score:
 def scored(model, run, truth, trim: bool = False, no_reference: bool = False) -> Score:
     """``run`` tracked as `graytrack track [--trim] [--no-reference]` does (light auto, robust, the
     print's texture learned, the tracker's scale watch), each frame against ``truth``."""
-    result, _, watch = solve(run, model, no_reference=no_reference, trim=trim, note=lambda line: None)
+    slide = slide_for(run, model, no_reference)  # without a grating each bound carries the slide, as track's
+    result, _, watch = solve(run, model, no_reference=no_reference, trim=trim, slide=slide, note=lambda line: None)
     scale = check(run, model, result, trim, watch).columns
     error = (result.x_mm - truth.x_mm) * 1e3
     if no_reference:  # acquired on the image alone: its origin is known up to whole periods
         period_um = model.period_mm * 1e3
         error -= period_um * np.round(np.nanmedian(error) / period_um)
-    bound = result.crlb_mm * 1e3
+    floor = result.crlb_mm * 1e3  # the noise floor: what the ratio is stated against
+    if result.slide_sigma_um is None:
+        carry(result, slide)
+    bound = result.crlb_mm * 1e3  # the bound track reports (the slide's σ in it): what "far" is judged by
     placed = np.isfinite(error)
     repeated = result.repeated if result.repeated is not None else np.zeros(placed.size, dtype=bool)
     flagged = result.stale | (scale["scale_stale"] == 1)
@@ -80,7 +85,7 @@ def scored(model, run, truth, trim: bool = False, no_reference: bool = False) ->
     focus = np.isfinite(result.focus_px2) if result.focus_px2 is not None else np.zeros(placed.size, dtype=bool)
     return Score(frames=int(placed.size), placed=int(placed.sum()), lost=int((~placed & ~repeated).sum()),
                  repeated=int(repeated.sum()), std_um=float(np.nanstd(error)),
-                 rms_um=float(np.sqrt(np.nanmean(error ** 2))), bound_um=float(np.sqrt(np.nanmean(bound ** 2))),
+                 rms_um=float(np.sqrt(np.nanmean(error ** 2))), bound_um=float(np.sqrt(np.nanmean(floor ** 2))),
                  flagged=int(flagged.sum()), far=int(far.sum()), silent=int((far & ~flagged).sum()),
                  marks=int((result.texture or {}).get("learned", 0)), focus=int(focus.sum()),
                  trimmed=int(trimmed.sum()))

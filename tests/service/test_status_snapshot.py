@@ -14,7 +14,7 @@ from graytrack.wire import Status
 pytestmark = pytest.mark.unit
 MESSAGE = {"seq": 41, "t": 12.5, "x_mm": 5.25, "locked": True, "crlb_um": 1.5, "gain": 1.01, "offset_gray": -0.2,
            "chi2": 1.04, "rejected_px": 2, "transient_px": 0, "focus_px2": None, "focus_sigma_px2": None,
-           "stale": False, "stale_reason": None}
+           "stale": False, "stale_reason": None, "texture_px": 0}
 LOOP = FrameLoop(last_message=MESSAGE, seconds_since_tracked=0.25, frame_rate_hz=49.996, tracker_ready=True,
                  model_stale=None, counters=Counters(frames=120, tracked=118, unplaced=1, lock_events=0,
                                                      camera_errors=0, tracking_errors=0, dropped=3),
@@ -35,7 +35,8 @@ def test_a_fresh_frame_shows_its_figures_and_the_document_is_what_the_status_mod
     assert (status["state"], status["position_mm"], status["locked"],
             status["crlb_um"]) == ("tracking", 5.25, True, 1.5)
     assert status["fit"] == {"gain": 1.01, "offset_gray": -0.2, "chi2": 1.04, "rejected_px": 2, "transient_px": 0,
-                             "focus_px2": None, "focus_sigma_px2": None, "stale": False, "stale_reason": None}
+                             "focus_px2": None, "focus_sigma_px2": None, "stale": False, "stale_reason": None,
+                             "texture_px": 0}
     assert (status["stale"], status["age_ms"], status["grating_age_ms"]) == (False, 250.0, 12.5)
     assert (status["frame_rate_hz"], status["frames"], status["dropped"], status["uptime_s"]) == (50.0, 120, 3, 12.346)
     assert status["limits_mm"] == [0.0, 10.0] and status["active_calibration"]["id"] == "c1"
