@@ -476,7 +476,9 @@ class Tracker:
         # watch sees the focus come back); any other only those of the frames that tried it and kept it on:
         # one frame's χ² beyond its limit (a telegraph pixel's flip) tries the focus, whose gain then says no
         # (a steady 16-row strip showed 85 such estimates, as a focus taken)
-        showing = memory.focus_track.shown(memory.focus)
+        # the watch's window opens on every try (a focus that comes and goes is judged as it comes back; a 16-row
+        # focus cycle under --trim was 1.92x its bound with the window opened by a kept term alone, 1.01x so)
+        showing = memory.focus_track.shown(tried_focus or memory.focus)
         shown = measured is not None and ((tried_focus and memory.focus) or (showing and self.focus_followed))
         if shown and answer is uniform:  # under the field's answer the blur-only fit is no estimate
             answer.focus, answer.focus_sigma = measured.focus, measured.focus_sigma
