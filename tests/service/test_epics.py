@@ -119,7 +119,8 @@ def test_the_pvs_follow_the_stream_and_the_status(bridge: Bridge, daemon: ServeP
     wait_for(lambda: status(daemon)["state"] == "tracking" and not status(daemon)["moving"], 20.0, "a resting stage")
     # a frame may be flagged alone (frame_flagged) at rest once in a while: the PV's alarm follows it, and the
     # next frames' readings clear it (seen once in six suites, at the stroke's end)
-    wait_for(lambda: bridge.read("X_MM").metadata.severity == AlarmSeverity.NO_ALARM, 3.0, "X_MM without alarm")
+    wait_for(lambda: bridge.read("X_MM").metadata.severity == AlarmSeverity.NO_ALARM, 10.0, "X_MM without alarm",
+             show=lambda: (status(daemon)["stale_reason"], status(daemon)["position_mm"], status(daemon)["faults"]))
     before = status(daemon)["position_mm"]
     first = bridge.read("X_MM")
     after = status(daemon)["position_mm"]
