@@ -34,7 +34,8 @@ from graytrack.core.stretch_follow import StretchFollow, Taken
 from graytrack.core.validity import RANK, FrameSign
 from graytrack.core.watches.grating import GratingWatch
 from graytrack.core.watches.grating import for_model as grating_watch
-from graytrack.core.watches.magnification import CHANGE_PRIOR_PPM, MagnificationWatch
+from graytrack.core.drift_cause import lens_favoured
+from graytrack.core.watches.magnification import MagnificationWatch
 
 
 # While χ² is suspect no line is fitted, and with χ² quiet the line leaves far frames out as outliers;
@@ -187,7 +188,9 @@ class ScaleWatch:
         sweeps, the slide's growth in time over the speed, does not match the stretch: −2800 ppm for
         a 0.15 % ramp over 10 s on the paper rig, its stretch 0 to 1500), else None. A 16-row print
         grown 250 ppm had 391 of 500 frames named ``magnification`` under the line's ``scale``; the
-        paper rig's lens ramp 289 frames ``scale`` before the stretch's own mean told it."""
+        paper rig's lens ramp 289 frames ``scale`` before the stretch's own mean told it. Between the two,
+        the cause that explains the stretch and the line's scale together best (core/drift_cause.py): a
+        scale of thousands of ppm with no stretch to match is no print's, and no grating's or mount's."""
         monitor, watch = self.monitor, self.magnification
         line = monitor.estimate
         if self.trimmer is not None or not monitor.stale or line is None or not math.isfinite(watch.sigma_ppm):
@@ -241,27 +244,6 @@ class ScaleWatch:
         if not stale.any():
             return [None] * n
         return np.where(stale, self.family, None).tolist()
-
-
-def lens_favoured(mean_ppm: float, sigma_ppm: float, scale_ppm: float, scale_var_ppm2: float) -> bool:
-    """Whether a stretch mean (± its σ) is better explained by a lens's change since calibration (a stretch
-    drawn from :data:`~graytrack.core.watches.magnification.CHANGE_PRIOR_PPM`) than by none and than by a
-    grown print's (the line's scale ± its σ): its likelihood the highest of the three (at 2.2σ from none for
-    a one-row line's 200 ppm). While the line has drifted, something changed, and the stretch picks the
-    cause: held to 3σ, the paper rig's lens ramp was named ``scale`` on 29 frames where its stretch stood
-    2.2-3σ (the magnification watch, with its hysteresis, flagging them); against none alone, a paper print
-    grown 250 ppm was named ``magnification`` on 4 frames."""
-    if not (math.isfinite(mean_ppm) and math.isfinite(sigma_ppm) and sigma_ppm > 0.0):
-        return False
-    var = sigma_ppm * sigma_ppm
-    lens = _log_normal(mean_ppm, var + CHANGE_PRIOR_PPM * CHANGE_PRIOR_PPM)
-    grown = _log_normal(mean_ppm - scale_ppm, var + scale_var_ppm2) if math.isfinite(scale_ppm) else -math.inf
-    return lens > max(_log_normal(mean_ppm, var), grown)
-
-
-def _log_normal(residual: float, variance: float) -> float:
-    """log of the normal density of ``residual`` with ``variance`` (its constant dropped)."""
-    return -0.5 * (residual * residual / variance + math.log(variance))
 
 
 def _accounted(trimmer: Trimmer | None, taken: Taken) -> tuple[float, float]:
