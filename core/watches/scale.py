@@ -56,6 +56,10 @@ START_LIMIT = 4.5
 STRETCH_Z = 3.0  # a stretch within this many σ of the line's scale, the scale beyond it: the print grew (2: a
 # grown paper print named magnification on 10 of 500 frames)
 FAR_OFF = "graytrack.core.watches.far_off"  # the untrimmed camera far off the grating (a wrong model's scale)
+# frames in the line of camera − grating kept beside the monitor's while it has drifted: a slide that turned (a
+# lens's temperature cycle) tilts this line at once, while the monitor's 500 frames average its rise and fall to
+# no scale (the paper cycle's window scale crossed zero at frame ~310 and stayed within 1000 ppm for 140 frames)
+LOCAL_WINDOW = 100
 
 
 class ScaleWatch:
@@ -72,7 +76,7 @@ class ScaleWatch:
     def __init__(self, monitor: ReferenceMonitor, feeds: bool = True, bound_scale: float = 1.0,
                  trimmer: Trimmer | None = None, log: bool = False,
                  magnification: MagnificationWatch | None = None, grating: GratingWatch | None = None,
-                 stretch: StretchFollow | None = None) -> None:
+                 stretch: StretchFollow | None = None, local: ReferenceMonitor | None = None) -> None:
         if trimmer is not None and trimmer.monitor is not monitor:
             raise ValueError("a scale watch's trimmer must read the watch's own monitor")
         self.monitor = monitor
@@ -92,6 +96,8 @@ class ScaleWatch:
         # the lens's stretch the tracker takes out of each frame (core/stretch_follow.py): the tracker finds
         # it here (``track(..., watches=)``), and this watch reads what each frame had taken out
         self.stretch_follow = stretch
+        # untrimmed, the line of the last LOCAL_WINDOW frames since the monitor's drifted (:meth:`_stretched_by`)
+        self.local = local
         self.events: list[tuple[int, TrimEvent]] = []  # (frame, a change of the trim), for the owner to drain
         self.last = Applied()  # what the trim did to the last frame
         self.log: list[Applied] | None = [] if log else None  # ... to every frame, when asked for
@@ -105,8 +111,9 @@ class ScaleWatch:
         ``trim``: with an online trim of its own."""
         monitor = ReferenceMonitor.for_model(model, reference_resolution_mm, **options)
         if not trim:  # the stretch judged beside the line (:meth:`_stretched_by`)
+            local = ReferenceMonitor.for_model(model, reference_resolution_mm, **{**options, "window": LOCAL_WINDOW})
             return cls(monitor, bound_scale=stream_bound_factor(model.info), log=log,
-                       magnification=MagnificationWatch.for_model(model))
+                       magnification=MagnificationWatch.for_model(model), local=local)
         chi2_calibration = float(model.info.get("calibration_chi2") or 1.0)
         return cls(monitor, bound_scale=stream_bound_factor(model.info), trimmer=Trimmer(monitor), log=log,
                    magnification=MagnificationWatch.for_model(model),
@@ -146,6 +153,8 @@ class ScaleWatch:
             if feed:
                 self.monitor.observe(x_mm, reference_mm, bound)
             drifted = self.monitor.stale
+            if self.local is not None:
+                self._step_local(drifted, feed, x_mm, reference_mm, bound)
         self._frame += 1
         verdict = None
         if chi2_suspect:
@@ -177,6 +186,16 @@ class ScaleWatch:
             return "magnification", "magnification"
         return verdict, stretched
 
+    def _step_local(self, drifted: bool, feed: bool, x_mm: float, reference_mm: float, bound: float) -> None:
+        """The local line follows the frames while the monitor's line has drifted, and starts again
+        once it holds: a steady run never feeds it."""
+        local = self.local
+        if not drifted:
+            if local.frames:
+                local.reset()
+        elif feed:
+            local.observe(x_mm, reference_mm, bound)
+
     def _stretched_by(self) -> str | None:
         """What stretches the image while the line camera − grating has drifted (untrimmed: the trim's
         scale is taken out of the stretch instead, :func:`_accounted`): ``"print"`` when the
@@ -196,14 +215,17 @@ class ScaleWatch:
         if self.trimmer is not None or not monitor.stale or line is None or not math.isfinite(watch.sigma_ppm):
             return None
         base = monitor.calibration
-        scale = line.scale_ppm - (base.scale_ppm if base is not None else 0.0)
-        scale_var = line.covariance[2] + (base.covariance[2] if base is not None else 0.0)
+        scale, scale_var = _since_calibration(line, base)
         limit2 = STRETCH_Z * STRETCH_Z
         if (scale * scale > limit2 * scale_var
                 and (watch.mean_ppm - scale) ** 2 <= limit2 * (scale_var + watch.sigma_ppm ** 2)):
             return "print"
-        if watch.mean_ppm ** 2 > limit2 * watch.sigma_ppm ** 2 or \
-                lens_favoured(watch.mean_ppm, watch.sigma_ppm, scale, scale_var):
+        if watch.mean_ppm ** 2 > limit2 * watch.sigma_ppm ** 2:
+            return "lens"
+        lines = [(scale, scale_var)]
+        if self.local is not None and self.local.estimate is not None:
+            lines.append(_since_calibration(self.local.estimate, base))
+        if any(lens_favoured(watch.mean_ppm, watch.sigma_ppm, *line) for line in lines):
             return "lens"
         return None
 
@@ -231,6 +253,8 @@ class ScaleWatch:
             self._off.restore(saved[1])
             self._frame -= n
             return None
+        if self.local is not None and self.local.frames:  # the line held on every frame: as :meth:`_step_local`
+            self.local.reset()
         if self.log is not None:
             self.log.extend(Applied(x, flagged=flagged, drifted=drift)
                             for x, flagged, drift in zip(columns["x_mm"], stale.tolist(), drifted.tolist()))
@@ -244,6 +268,13 @@ class ScaleWatch:
         if not stale.any():
             return [None] * n
         return np.where(stale, self.family, None).tolist()
+
+
+def _since_calibration(line, calibration) -> tuple[float, float]:
+    """A line's scale since the calibration's (ppm) and its variance (ppm²)."""
+    if calibration is None:
+        return line.scale_ppm, line.covariance[2]
+    return line.scale_ppm - calibration.scale_ppm, line.covariance[2] + calibration.covariance[2]
 
 
 def _accounted(trimmer: Trimmer | None, taken: Taken) -> tuple[float, float]:

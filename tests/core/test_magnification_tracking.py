@@ -57,6 +57,23 @@ def test_with_the_trim_it_is_followed_and_never_silently_wrong(rig):
     assert (far & ~flagged).sum() <= 0.005 * placed.sum()
 
 
+@pytest.fixture(scope="module")
+def cycle(rig):
+    """The lens's temperature cycle on the same rig: 0.15 % out and back within 6 s."""
+    run, truth = build_rig("paper", "magnification_drift:ppm=1500:cycle_s=6", seed=11, run=3).record(10.0)
+    return rig[0], run, truth
+
+
+def test_a_cycle_is_named_magnification_while_its_slide_turns(cycle):
+    """The monitor's line (500 frames) averages a cycle's slide rising and falling to no scale; the line of
+    the last 100 frames (core/watches/scale.py ``LOCAL_WINDOW``) reads the slide turning at once: 36 of
+    461 flagged frames named ``scale`` (122 on the monitor's line alone), every flagged frame still flagged."""
+    model, run, truth = cycle
+    result, _, _, flagged = _tracked(model, run, truth, trim=False, grating=True)
+    named = collections.Counter(result.stale_reason[flagged].tolist())
+    assert flagged.mean() > 0.9 and named["scale"] <= 0.15 * flagged.sum(), named
+
+
 def test_the_stretch_names_the_lens_as_soon_as_it_explains_the_line_better():
     """With the grating read and no trim, the line camera − grating drifts first (the slide) and the
     stretch picks the cause. The paper rig's 1500 ppm ramp at its frame 321: stretch 600 ± 216 ppm,
