@@ -138,7 +138,7 @@ def figures(model: FourierModel, data: CalibrationData, fit: Fit | None = None) 
     is beyond the noise has its worst samples set aside), and the worse of the two is the model's
     figure. A model that holds a defect only in part (a map the rows share, of a spot only some
     rows see) leaves samples the robust solve sets aside, and what it keeps then pulls the
-    position: the plain solve's figure alone hid that (0.58 µm held out, 1.47 µm on the
+    position: the plain solve's figure alone hides that (0.58 µm held out, 1.47 µm on the
     instrument, for such a map of a 16-row lab strip).
     """
     fit = fit or fit_on(model, data)

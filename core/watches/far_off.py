@@ -3,7 +3,7 @@
 A model whose period or pixel pitch is wrong for the rig (one calibrated on another target or
 lens, installed here) still fits every frame after a fashion: the per-frame light and focus terms
 bend to absorb the mismatch, so the light and focus watches fire and, being the more specific
-families, named the cause. Their advice pointed the wrong way. Tracked with the paper rig's model
+families, would name the cause, their advice pointing the wrong way. Tracked with the paper rig's model
 5 % off in period, the camera sat 357 µm (~250 bounds) off the grating at rest and 380 µm in a
 sweep, and the frames were flagged ``light`` and ``focus``; 1 % off, 62-86 µm, flagged mostly
 ``geometry``, ``light`` and ``focus``.

@@ -30,7 +30,7 @@ SETTLE = 30  # frames with a grating reading before the spread is trusted (at 1.
 # A difference beyond GATE of its σ (the window's spread, at least the frames' bound, and the frame's own)
 # flags its own frame and enters the window clipped to the gate: one reading gone wrong (the grating's
 # or the camera's) then lifts the spread by a few per cent, where a single grating reading 0.5 mm off
-# had lifted it for 156 frames and flagged every one; a difference that stays beyond moves the window
+# entered unclipped lifts it for 156 frames and flags every one; a difference that stays beyond moves the window
 # a gate's worth a frame, each of those frames flagged on its own.
 GATE2 = GATE * GATE
 

@@ -62,7 +62,7 @@ def open_history(path: Path) -> tuple["LabHistory", str | None]:
     """The history at ``path``: ``(history, what was rebuilt and why)``, the second None when it opened as it was.
 
     Only damage sets a file aside: SQLite's "file is not a database" or "malformed", or a page that
-    does not read back. A 0-byte file (what a start on a full disk used to leave) is said, not
+    does not read back. A 0-byte file (its pages never written: a disk full before the first one) is said, not
     taken silently for an empty history. A full or read-only disk raises :class:`InsufficientStorage`
     with nothing renamed and nothing created: it is not the record's fault, and freeing space fixes it.
     """
