@@ -323,7 +323,7 @@ class ReferenceMonitor:
                 if on_rise is not None and self.stale and not before:
                     on_rise(start)
                 start += 1
-            else:
+            elif on_rise is not None:  # (the kernel stops at a rise only when asked to)
                 on_rise(start - 1)
             ip, p, ist, fst, est, rows = self._packed()
         self._unpack(ist, fst, est, rows)

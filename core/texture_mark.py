@@ -132,8 +132,8 @@ class Mark:
         if low == self.first and high == self.last:
             return
         pad = ((0, 0), (self.first - low, high - self.last))
-        if self.applied is not None:
-            self.applied = np.pad(self.applied, pad)
+        if self.applied is not None and self.applied_sigma is not None and self.applied_misfit is not None:
+            self.applied = np.pad(self.applied, pad)  # (the three are set together: :meth:`apply`)
             self.applied_sigma = np.pad(self.applied_sigma, pad, constant_values=PRIOR_SIGMA)
             self.applied_misfit = np.pad(self.applied_misfit, pad)
         self.first, self.size = low, high - low + 1

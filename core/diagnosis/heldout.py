@@ -141,14 +141,19 @@ def track_runs(model: FourierModel, data: CalibrationData, robust: bool = False)
     Held-out blocks are separated by the frames the fit used; a rig tracks continuously, and
     tracking across those gaps would test re-acquisition, not the model. Frames with transients
     (glints) are always tracked robustly: a glint says nothing about the model, and a plain solve
-    would lose those frames and blame it.
+    would lose those frames and blame it. Data without frame times is one run.
     """
     robust = robust or (data.transients is not None and bool(data.transients.any()))
     tracker = Tracker(model, robust=robust)  # model-level work (folded weights, Gram polynomials) once for all runs
-    parts = [track(model, data.frames[run], reference=data.x_mm[run], tracker=tracker) for run in runs(data.t_s)]
-    joined = {key: np.concatenate([getattr(part, key) for part in parts])
-              for key in ("x_mm", "locked", "rms_gray", "crlb_mm", "iterations", "gain", "offset_gray")}
-    return TrackResult(**joined, events=[event for part in parts for event in part.events])
+    times = data.t_s if data.t_s is not None else np.arange(len(data.x_mm), dtype=np.float64)
+    parts = [track(model, data.frames[run], reference=data.x_mm[run], tracker=tracker) for run in runs(times)]
+
+    def joined(key: str) -> np.ndarray:
+        return np.concatenate([getattr(part, key) for part in parts])
+
+    return TrackResult(x_mm=joined("x_mm"), locked=joined("locked"), rms_gray=joined("rms_gray"),
+                       crlb_mm=joined("crlb_mm"), iterations=joined("iterations"), gain=joined("gain"),
+                       offset_gray=joined("offset_gray"), events=[event for part in parts for event in part.events])
 
 
 def _spread(tracked: TrackResult, data: CalibrationData) -> tuple[int, float]:
@@ -189,8 +194,11 @@ def curve_bound_mm(model: FourierModel, data: CalibrationData, fit: Fit) -> np.n
     """Cramér–Rao bound per frame with the photon-transfer curve: each sample's σ²(y) at its
     expected value (a row average of R raw rows has 1/R of it), masked pixels carrying nothing
     (their slope is 0), the per-frame gain and offset profiled out when the model solves them."""
+    noise = model.pixel_noise
+    if noise is None:
+        raise ValueError("a model without a photon-transfer curve has the tracker's white-noise bound")
     predicted = np.asarray(fit.predicted)[:, :model.n_rows]  # a shared model's rows are all alike
-    variance = model.pixel_noise.variance(predicted) / model.rows_averaged(data.frames.shape[1])
+    variance = noise.variance(predicted) / model.rows_averaged(data.frames.shape[1])
     nuisance = np.stack([predicted, np.ones_like(predicted)], axis=-1) if model.common_mode else None
     return crlb_mm(fit.slope, 1.0, nuisance, variance)
 

@@ -81,8 +81,9 @@ class FarOffWatch:
                 self.bound2 = running(self.bound2, self.bound_scale2 / information, WINDOW)
                 calibrated = self.calibrated_information * rows_averaged
                 self.calibrated2 = running(self.calibrated2, self.bound_scale2 / calibrated, WINDOW)
-            full = len(differences) >= WINDOW and self.bound2 and self.calibrated2
-            ready.append((len(differences), self.bound2, self.calibrated2) if full else None)
+            bound2, calibrated2 = self.bound2, self.calibrated2
+            ready.append((len(differences), bound2, calibrated2)
+                         if len(differences) >= WINDOW and bound2 and calibrated2 else None)
         self.differences.extend(differences[before:])
         if not any(ready):
             return [None] * n
