@@ -102,6 +102,12 @@ class Mark:
     def learned(self) -> bool:
         return self.applied is not None
 
+    def correction(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(m, its σ, its misfit) per node of a learned mark (set together: :meth:`apply`)."""
+        if self.applied is None or self.applied_sigma is None or self.applied_misfit is None:
+            raise ValueError("a candidate mark has no correction yet")
+        return self.applied, self.applied_sigma, self.applied_misfit
+
     @property
     def travel_px(self) -> float:
         return self.high_px - self.low_px if self.frames else 0.0
