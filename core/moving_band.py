@@ -37,6 +37,7 @@ import copy
 import math
 from collections import deque
 from dataclasses import dataclass
+from typing import TypeGuard
 
 import numpy as np
 from scipy.special import erf
@@ -129,6 +130,8 @@ class MovingBand:
         self.window: deque = deque(maxlen=WINDOW)  # the last frames followed: [y, weights, x, left, right]
         self.last: np.ndarray | None = None  # the last frame taken, and the state before it (see rewind)
         self.saved: dict = {}
+        self.moved: bool = False  # (the episode's state: reset() sets it, and reads it for the episode it ends)
+        self.width: tuple[float, float] = (0.0, math.inf)
         self.reset()
 
     def reset(self) -> None:
@@ -253,7 +256,7 @@ class MovingBand:
         bends = abs(float(slope @ lost)) / math.sqrt(max(float(slope @ jacobian[:, 0]), 1e-300))
         return cost + float(off @ prior @ off), residual, jacobian, cost, float(np.sqrt(weights @ (lost * lost))), bends
 
-    def sane(self, answer: BandAnswer | None, uniform_information: float, limit: float) -> bool:
+    def sane(self, answer: BandAnswer | None, uniform_information: float, limit: float) -> TypeGuard[BandAnswer]:
         """The band explains the frame, is seen in it, its edges are where the motion carries them,
         and it leaves x a bound."""
         if answer is None or not (answer.chi2 <= limit and answer.params[3] >= MIN_DEPTH):
