@@ -34,7 +34,7 @@ from graytrack.service.daemon.history import open_history
 from graytrack.drivers.realtime import pin_process, raise_thread_priority, restore_process
 from graytrack.service.daemon.rig import HardwareFactory, Rig, default_factory
 from graytrack.service.daemon.settings import Settings
-from graytrack.service.daemon.startup import Startup
+from graytrack.service.daemon.startup import WarmUp
 from graytrack.service.daemon.storage import Storage
 from graytrack.service.daemon.ws_protocol import StreamProtocol
 
@@ -119,7 +119,7 @@ def create_app(settings: Settings, factory: HardwareFactory = default_factory) -
         storage.unlock()
         raise
     rig = Rig(settings, storage, history, broadcaster.publish, factory)
-    startup = Startup(warm_tracking, settings.daemon.realtime_priority)
+    startup = WarmUp(warm_tracking, settings.daemon.realtime_priority)
     if rebuilt is not None:
         log.error("%s", rebuilt)
         rig.event("record_rebuilt", rebuilt)

@@ -9,7 +9,7 @@ and then says nothing while every request, the status page's too, hangs. Here it
 its own, at the event loop's priority (threads start at normal priority: on a loaded two-core machine,
 at nice 10 beside a load of 13, a normal one had not finished after 110 s), and the rig opens on the
 event loop once it is done; ``GET /api/status`` answers ``starting`` with the step and its seconds
-(:meth:`Startup.status`).
+(:meth:`WarmUp.status`).
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ WARM_STEP = "loading the tracker's compiled kernels"
 WARM_EXPECTED = "under a second from numba's cache; about 30 s on the first start after an install, which compiles them"
 
 
-class Startup:
+class WarmUp:
     """``await run(then)``: ``warm()`` on a daemon thread, then ``then()`` on the calling event loop."""
 
     def __init__(self, warm: Callable[[], None], priority: int = 0,
