@@ -500,7 +500,7 @@ def follow(tracker, batch, k: int, x_start: float, uniform: FrameSolution, movin
         # shows when the other comes) is solved again loosely held; one lost is looked for anew
         if how == "anew":
             # (a band seen to move and lost is looked for at once: an edge out of view has no slope to
-            # be found by, and the uniform light had taken the one coming in for x at a χ² within its limit)
+            # be found by, and the uniform light takes the one coming in for x at a χ² within its limit)
             again = moving.moved
             if not ((uniform.chi2 > asks or again) and moving.start(tracker.evaluator, y, weights, at, again)):
                 break
