@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from graytrack.core.compression import stream_bound_factor
-from graytrack.core.reference_monitor import GATE, Line, ReferenceMonitor, Trimmer, TrimEvent, scale_tells
+from graytrack.core.reference_monitor import GATE, ReferenceMonitor, Trimmer, TrimEvent, scale_tells
 from graytrack.core.chi2_curve import Chi2Curve
 from graytrack.core.stretch_follow import StretchFollow, Taken
 from graytrack.core.validity import RANK, FrameSign
@@ -167,11 +167,8 @@ class ScaleWatch:
         """The carried magnification watch's step beside the line: (the line's verdict, renamed
         ``magnification`` when a lens drifted it; the stretch's verdict, None where the line names a
         print's growth)."""
-        watch = self.magnification
-        if watch is None:  # (asked only of a watch that carries one)
-            return verdict, None
         taken = self.stretch_follow.taken() if self.stretch_follow is not None else Taken()
-        stretched = watch.step(placed, x_mm, stretch, *_accounted(self.trimmer, taken))
+        stretched = self.magnification.step(placed, x_mm, stretch, *_accounted(self.trimmer, taken))
         cause = self._stretched_by()
         if stretched is not None and cause == "print":
             return verdict, None
@@ -193,8 +190,7 @@ class ScaleWatch:
         paper rig's lens ramp 289 frames ``scale`` before the stretch's own mean told it."""
         monitor, watch = self.monitor, self.magnification
         line = monitor.estimate
-        if watch is None or self.trimmer is not None or not monitor.stale or line is None \
-                or not math.isfinite(watch.sigma_ppm):
+        if self.trimmer is not None or not monitor.stale or line is None or not math.isfinite(watch.sigma_ppm):
             return None
         base = monitor.calibration
         scale = line.scale_ppm - (base.scale_ppm if base is not None else 0.0)
@@ -208,11 +204,10 @@ class ScaleWatch:
             return "lens"
         return None
 
-    def step_many(self, columns, n: int) -> list[str | None] | None:
+    def step_many(self, columns, n: int) -> list[str | None]:
         """:meth:`step` of ``n`` frames at once (the monitor's :meth:`~ReferenceMonitor.observe_many`):
         the running mean of each frame reads the monitor's scatter as it stood before the frame, as
-        :meth:`step` does, and its :attr:`log` gets what :meth:`step` would have appended. None: the
-        frames go frame by frame."""
+        :meth:`step` does, and its :attr:`log` gets what :meth:`step` would have appended."""
         suspect = columns.array("chi2_suspect", bool)
         if suspect.any() or self.trimmer is not None or self.grating is not None:
             return None  # frame by frame: a suspect run reads the monitor's verdict, a trim follows each frame
@@ -236,7 +231,7 @@ class ScaleWatch:
         if self.log is not None:
             self.log.extend(Applied(x, flagged=flagged, drifted=drift)
                             for x, flagged, drift in zip(columns["x_mm"], stale.tolist(), drifted.tolist()))
-        if carried is not None:
+        if saved is not None:
             # the line held on every frame: the stretch is the magnification watch's alone (its chunk path when
             # it has one: the same as its step frame by frame, nothing accounted for untrimmed)
             many = carried.step_many(columns, n) if hasattr(carried, "step_many") else None
@@ -245,7 +240,7 @@ class ScaleWatch:
             return [self._stretch_step(*row)[1] for row in zip(columns["placed"], columns["x_mm"], columns["stretch"])]
         if not stale.any():
             return [None] * n
-        return [self.family if flagged else None for flagged in stale.tolist()]
+        return np.where(stale, self.family, None).tolist()
 
 
 def lens_favoured(mean_ppm: float, sigma_ppm: float, scale_ppm: float, scale_var_ppm2: float) -> bool:
@@ -305,7 +300,7 @@ class Disagreement:
 
     def __init__(self, monitor: ReferenceMonitor) -> None:
         self.monitor = monitor
-        self._line: Line | None = None
+        self._line = None
         self._known2 = 0.0  # µm²: the line's own variance at the last frame's place
         self.starting = True  # the mean's first fill against the calibration's line (:data:`START_LIMIT`)
         self.clear()
