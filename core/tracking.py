@@ -199,9 +199,9 @@ class Tracker:
         # tenth more than calibration the model is called stale: its images are no longer these.
         # The flags' average is, until STALE_WINDOW frames have been seen, the plain mean of those
         # there are, judged against their spread (limits by the number of frames averaged, from 1):
-        # started at calibration's level instead, a stream that never fits (a JPEG stream's first
-        # frames at 9× the level, 80 of one frame's spreads) would be called fresh for its first 5-7
-        # frames, 4-11 bounds off.
+        # started at calibration's level instead, a stream that never fits (a JPEG stream's first frames
+        # at 9× the level, 80 of one frame's spreads) would be called fresh for its first 5-7 frames,
+        # 4-11 bounds off.
         spreads = np.sqrt(2.0 / (np.arange(1, STALE_WINDOW + 1) * n_values))
         self.sustained_limits = (self.chi2_calibration * (1.0 + 5.0 * spreads)).tolist()
         self.stale_limits = (self.chi2_calibration * (STALE_RATIO + 5.0 * spreads)).tolist()
