@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 
 from graytrack.service.daemon.event_log import EventLog
-from graytrack.service.daemon.record import Record
+from graytrack.service.daemon.history import LabHistory
 
 
 def main() -> None:
@@ -27,8 +27,8 @@ def main() -> None:
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as folder:
         path = Path(folder) / "record.sqlite"
-        record = Record(path)
-        log = EventLog(record, lambda: None, lambda reason: None, max_age_days=90.0, max_count=args.max_count)
+        history = LabHistory(path)
+        log = EventLog(history, lambda: None, lambda reason: None, max_age_days=90.0, max_count=args.max_count)
         started, step = time.perf_counter(), max(1, args.events // 6)
         for i in range(args.events):
             target = i % 1000 / 100
@@ -36,8 +36,8 @@ def main() -> None:
             if (i + 1) % step == 0:
                 size = os.path.getsize(path) + os.path.getsize(f"{path}-wal")
                 print(f"{i + 1:>9} events written: record + WAL {size / 1e6:6.1f} MB")
-        kept = record.events(limit=1)[0]["id"]
-        record.close()
+        kept = history.events(limit=1)[0]["id"]
+        history.close()
     print(f"{args.events} events in {time.perf_counter() - started:.0f} s; the oldest kept has id {kept} "
           f"(max_count {args.max_count})")
 

@@ -189,8 +189,8 @@ def replayed_factor(model: FourierModel, data: CalibrationData, table: np.ndarra
     against an estimator that weighs the coefficients by it. Neither holds on a stream whose steps
     are several times the sensor's noise: a coefficient is rounded the same way frame after frame
     (no noise dithers it), small ones are zeroed, and the tracker weighs pixels, not coefficients.
-    On the lab strip at quality 75 (σ 1.05 gray) that factor said 2.41 where the replay gives 3.2
-    and the model's own calibration frames sat 3.21 white bounds off: a run was 1.48× its widened
+    On the lab strip at quality 75 (σ 1.05 gray) that factor says 2.41 where the replay gives 3.2
+    and the model's own calibration frames sit 3.21 white bounds off: a run judged by it is 1.48× its widened
     bound with 1 % of its frames 4+ bounds off unflagged."""
     n_frames = data.frames.shape[0]
     picked = data.subset(np.unique(np.linspace(0, n_frames - 1, min(n_frames, MAX_FRAMES)).astype(int)))

@@ -190,7 +190,7 @@ def judged_factor(info: dict) -> float:
     whether its focus is followed): the quantisation's q²/12 figure, the stricter of the two a
     calibration finds (1: raw frames). The positions carry :func:`stream_bound_factor`, the stream
     replayed as the tracker meets it; judged against that, the seed model on the lab strip at
-    quality 75 (its own frames 6.2 white bounds off, 1.8x the replay's 3.4) passed as adequate
-    and its runs sat 1.9x their bound with 2.3 % of their frames 4+ bounds off unflagged."""
+    quality 75 (its own frames 6.2 white bounds off, 1.8x the replay's 3.4) would pass as adequate
+    and its runs sit 1.9x their bound with 2.3 % of their frames 4+ bounds off unflagged."""
     stream = info.get("stream") or {}
     return float(stream.get("quantisation_factor") or stream.get("bound_factor") or 1.0)

@@ -28,6 +28,7 @@ still its own, without the prior: independent estimates for the watch and for th
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -140,13 +141,14 @@ def focus_solve(source: TrigPolyBatch, k: int, curvature: CurvatureTable, start:
     ``focus_sigma`` its standard error with x, gain and offset estimated too: this frame's own
     estimate, whatever the ``prior`` (see :class:`FocusPrior`) did to x."""
     rows, cc, scalars = focus_moments(source, k, curvature, start.rejected_mask if start.rejected_px else None)
-    has_prior = prior is not None and prior.variance_mm4 > 0.0
+    delta, variance = (prior.delta_mm2, prior.variance_mm4) if prior is not None else (0.0, 0.0)
+    has_prior = variance > 0.0
     out = np.empty(_TRIG_OUT)
     compiled = kernels.COMPILED and kernels.numba is not None
     (_trig_focus if compiled else _trig_focus_twin)(
         rows, cc, source.tables.phase_orders, scalars[0], scalars[1], scalars[2], float(start.x_mm),
-        float(start.gain), float(start.offset_gray), has_prior, prior.delta_mm2 if has_prior else 0.0,
-        prior.variance_mm4 if has_prior else 0.0, settings.max_iterations, settings.tolerance_mm,
+        float(start.gain), float(start.offset_gray), has_prior, delta if has_prior else 0.0,
+        variance if has_prior else 0.0, settings.max_iterations, settings.tolerance_mm,
         settings.max_step_mm, out)
     values = out.tolist()
     return _answer(values[0], values[4:7], values[35:38], values[3], values[2], values[38], scalars[3],
@@ -239,7 +241,7 @@ def general_focus_solve(evaluator, y: np.ndarray, weights: np.ndarray, start: Fr
     same (g, h, o) least squares and Schur complement. Each iteration reads the pixels once, into
     the sums of :func:`_focus_sums`; the rest is algebra on 3×3 matrices. The whole solve is one
     call of :func:`_general_focus` (compiled on a table kernel, its Python twin otherwise)."""
-    if start.rejected_px:
+    if start.rejected_px and start.rejected_mask is not None:
         weights = weights * ~start.rejected_mask
     y = np.ascontiguousarray(y, dtype=np.float64)
     weights = np.ascontiguousarray(weights, dtype=np.float64)
@@ -247,10 +249,11 @@ def general_focus_solve(evaluator, y: np.ndarray, weights: np.ndarray, start: Fr
     model = evaluator._args if compiled else (evaluator,)
     work = np.empty((2, 3, y.size))
     out = np.empty(_FOCUS_OUT)
-    has_prior = prior is not None and prior.variance_mm4 > 0.0
+    delta, variance = (prior.delta_mm2, prior.variance_mm4) if prior is not None else (0.0, 0.0)
+    has_prior = variance > 0.0
     (_general_focus if compiled else _general_focus_twin)(
         y, weights, float(start.x_mm), float(start.gain), float(start.offset_gray), FOCUS_STEP_PERIODS * period_mm,
-        has_prior, prior.delta_mm2 if has_prior else 0.0, prior.variance_mm4 if has_prior else 0.0,
+        has_prior, delta if has_prior else 0.0, variance if has_prior else 0.0,
         settings.max_iterations, settings.tolerance_mm, settings.max_step_mm, model, work[0], work[1],
         np.empty(y.size), out)
     x, iterations, information, cost, n_used, blur_variance = out[:6].tolist()
@@ -437,8 +440,8 @@ class FocusPrior:
     variance_mm4: float
 
 
-def _answer(x: float, theta: np.ndarray, own: np.ndarray, cost: float, information: float, blur_variance: float,
-            n_used: float, iterations: int, start: FrameSolution, settings: SolverSettings,
+def _answer(x: float, theta: Sequence[float], own: Sequence[float], cost: float, information: float,
+            blur_variance: float, n_used: float, iterations: int, start: FrameSolution, settings: SolverSettings,
             pixel_pitch_mm: float) -> FrameSolution:
     """The frame's answer with the focus term: x, gain and offset as solved (``theta``); δ = h/g in
     px² and its standard error from the frame's own estimate (``own``, without the prior) and the

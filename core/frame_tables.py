@@ -67,9 +67,9 @@ class FrameTables:
         sin_c, cos_c = weights[..., 1::2, :], weights[..., 2::2, :]  # (R, n, M, L)
         folded = (cos_c - 1j * sin_c) * (shift * gain[..., None])[..., None]
         coefficients[1:] = folded.reshape(n_values, model.harmonics, -1).transpose(1, 2, 0)
-        has_map = model.target_map is not None
+        target_map = model.target_map
         map_rows = model.map_rows
-        map_size = model.target_map.shape[1] if has_map else 0
+        map_size = target_map.shape[1] if target_map is not None else 0
         map_row = np.arange(model.n_rows) if map_rows > 1 else np.zeros(model.n_rows, dtype=np.int64)
         return cls(
             omega=omega,
@@ -77,11 +77,12 @@ class FrameTables:
             offset=np.ascontiguousarray(np.broadcast_to(np.asarray(offset, dtype=np.float64),
                                                         weights.shape[:2]).reshape(-1)),
             stroke_range_mm=(float(model.stroke_range_mm[0]), float(model.stroke_range_mm[1])),
-            target_map=np.ascontiguousarray(model.target_map.reshape(-1) if has_map else np.zeros(0), dtype=np.float64),
+            target_map=np.ascontiguousarray(target_map.reshape(-1) if target_map is not None else np.zeros(0),
+                                            dtype=np.float64),
             map_size=map_size,
             map_base=np.repeat(map_row.astype(np.int64) * map_size, model.n_pixels),
-            map_origin_mm=float(model.target_map_origin_mm) if has_map else 0.0,
-            map_step_mm=float(model.target_map_step_mm) if has_map else 1.0,
+            map_origin_mm=float(model.target_map_origin_mm) if target_map is not None else 0.0,
+            map_step_mm=float(model.target_map_step_mm) if target_map is not None else 1.0,
             target_offset_mm=np.ascontiguousarray(target_offset.reshape(-1), dtype=np.float64),
             clip_gray=(-np.inf, np.inf) if model.clip_gray is None else (float(model.clip_gray[0]),
                                                                         float(model.clip_gray[1])))

@@ -6,10 +6,10 @@ One rule, kept here for both its users: the tracker applies it frame by frame
 calibration is what tracking will do with it.
 
 The light goes back once the calibrated light fits (the χ² freeing it gains is within its 2-dof
-noise) on :data:`LIGHT_RETURN_FRAMES` solved frames in a row. One such frame was enough until
-2026-11-26: under row banding (an offset of its own each frame, 1 gray rms) the light went back
-whenever one frame's offset happened to be small, and the next frames' offsets moved their
-positions (1.31x the bound, 8 of 500 frames 4-6 bounds off, nothing flagged: each frame's χ²
+noise) on :data:`LIGHT_RETURN_FRAMES` solved frames in a row, not on one: under row banding (an
+offset of its own each frame, 1 gray rms) one frame's offset is small by chance every few frames,
+and a light taken back on such a frame lets the next frames' offsets move their positions (with
+one frame: 1.31x the bound, 8 of 500 frames 4-6 bounds off, nothing flagged: each frame's χ²
 within its own limit). A light that jitters fits by chance on one frame in a few, not on ten in
 a row; a light that came back costs ten frames a little information.
 """

@@ -85,11 +85,10 @@ def _trig_stroke(model: FourierModel, x_mm: np.ndarray) -> np.ndarray:
 def project_columns(model: FourierModel, x_mm: np.ndarray, values: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """Φᵀ·W·v for data-shaped arrays ``values`` ``(K, R, n, m)``: ``(m, A·L·I·J)``."""
     pixel, row = model.pixel_basis(), model.row_basis()
-    acc = None
+    acc = np.zeros(())  # the chunks' sums add onto it (broadcast to the first one's shape)
     for part in _frame_chunks(model, len(x_mm)):
         frame_factor = _trig_stroke(model, _positions(x_mm, part))
-        block = np.einsum("krup,krum,kru->rupm", frame_factor, values[part], weights[part], optimize=True)
-        acc = block if acc is None else acc + block
+        acc = acc + np.einsum("krup,krum,kru->rupm", frame_factor, values[part], weights[part], optimize=True)
     return np.einsum("rupm,ui,rj->mpij", acc, pixel, row, optimize=True).reshape(values.shape[-1], -1)
 
 

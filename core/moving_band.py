@@ -10,11 +10,10 @@ with the band's edges l < r (pixels, moving every frame), its depth d and softne
 the same on every frame). A single edge entering (a hand) is a band wider than the field. On a
 line shorter than a period no field of a frame's own separates from x (a Legendre field that
 describes the shadow costs 30–50× the bound, docs/robustness.md), and a shape learned free per
-column (core/moving_light.py, before this module) was built from few frames at its edges, needed
-the grating to learn at, and left its error out of the bound (1.4–2.2× the clean bound with the
-grating, not followed without it: 25–83×). A shape of two numbers shared by every frame is learned
-from the frames themselves, grating or not: the print's pattern moves with x, the band with its
-edges, and its shape is the same wherever it is.
+column is built from few frames at its edges, needs the grating to learn at, and leaves its error
+out of the bound (1.4–2.2× the clean bound with the grating, not followed without it: 25–83×).
+A shape of two numbers shared by every frame is learned from the frames themselves, grating or not:
+the print's pattern moves with x, the band with its edges, and its shape is the same wherever it is.
 
 Each frame solves (x, l, r, d, e) by Levenberg–Marquardt, with what earlier frames taught as priors:
 
@@ -38,6 +37,7 @@ import copy
 import math
 from collections import deque
 from dataclasses import dataclass
+from typing import TypeGuard
 
 import numpy as np
 from scipy.special import erf
@@ -51,7 +51,7 @@ LEAVING_BOUNDS = 1.0  # a band seen to move is followed out of view while its lo
 # (its tail, 2-4 of its noise, bent the uniform light's answers 3.5-4 bounds as it left, at a χ² within its noise)
 EARLY_SPREADS = 3.0  # a band seen before: looked for at a frame's χ² beyond this many of its spreads
 STRAINED_SPREADS = 1.0  # a followed answer's χ² beyond this many spreads: the band loosely held is tried too (at
-# three, a 16-row strip's band whose shape its tail had misled was freed a frame later: 1.38x, 1.17x now)
+# three, a 16-row strip's band whose shape its tail misled is freed a frame later: 1.38x its bound, 1.17x at one)
 MISSES = 3  # frames in a row the band does not explain before the episode ends
 GATE_SIGMAS = 5.0  # an edge beyond this many of its predicted spread: not the band followed
 MOVED_PX = 2.0  # the band's answer is taken once it has moved this far, at SPEED_PX a frame or more on
@@ -67,7 +67,7 @@ RATE_PX = 20.0  # px/frame: the spread of its speed when an episode starts (eith
 MIN_DEPTH = 0.03  # a band shallower than this is no shadow to follow (a blur's residual on a 16-row strip, fitted
 # as a band 0.1-0.5 % deep, took the focus term's frames); the uniform light and its field describe such a dip
 MIN_EDGE_PX, MIN_WIDTH_PX = 2.0, 1.0  # a penumbra narrower than 2 px is no soft shadow (a smudge's edges fitted
-# at half a pixel took it for a band: 8.1x without the grating, 5.5x now, 2.9x before the band)
+# at half a pixel take it for a band: 8.1x the bound without the grating, 5.5x with this floor)
 WINDOW = 10  # frames: the shape is solved jointly over the last frames followed (each its own x and edges)
 KEEP = 0.5  # the share of a pass's information on the shape the next pass starts from (the cable may have moved)
 LIGHT_LAG, LIGHT_FRAMES = 5, 20  # the light held: its average over LIGHT_FRAMES frames, LIGHT_LAG before the
@@ -130,6 +130,8 @@ class MovingBand:
         self.window: deque = deque(maxlen=WINDOW)  # the last frames followed: [y, weights, x, left, right]
         self.last: np.ndarray | None = None  # the last frame taken, and the state before it (see rewind)
         self.saved: dict = {}
+        self.moved: bool = False  # (the episode's state: reset() sets it, and reads it for the episode it ends)
+        self.width: tuple[float, float] = (0.0, math.inf)
         self.reset()
 
     def reset(self) -> None:
@@ -254,7 +256,7 @@ class MovingBand:
         bends = abs(float(slope @ lost)) / math.sqrt(max(float(slope @ jacobian[:, 0]), 1e-300))
         return cost + float(off @ prior @ off), residual, jacobian, cost, float(np.sqrt(weights @ (lost * lost))), bends
 
-    def sane(self, answer: BandAnswer | None, uniform_information: float, limit: float) -> bool:
+    def sane(self, answer: BandAnswer | None, uniform_information: float, limit: float) -> TypeGuard[BandAnswer]:
         """The band explains the frame, is seen in it, its edges are where the motion carries them,
         and it leaves x a bound."""
         if answer is None or not (answer.chi2 <= limit and answer.params[3] >= MIN_DEPTH):
@@ -498,7 +500,7 @@ def follow(tracker, batch, k: int, x_start: float, uniform: FrameSolution, movin
         # shows when the other comes) is solved again loosely held; one lost is looked for anew
         if how == "anew":
             # (a band seen to move and lost is looked for at once: an edge out of view has no slope to
-            # be found by, and the uniform light had taken the one coming in for x at a χ² within its limit)
+            # be found by, and the uniform light takes the one coming in for x at a χ² within its limit)
             again = moving.moved
             if not ((uniform.chi2 > asks or again) and moving.start(tracker.evaluator, y, weights, at, again)):
                 break

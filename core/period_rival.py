@@ -26,7 +26,7 @@ import math
 from dataclasses import dataclass
 
 from graytrack.core.models.fourier import FourierModel
-from graytrack.core.solvers import FrameSolution, MomentSource, SolverSettings, gauss_newton
+from graytrack.core.solvers import FrameSolution, GeneralBatch, SolverSettings, TrigPolyBatch, gauss_newton
 
 RIVAL_BOUNDS = 4.0  # a rival this many of the frame's bounds off a whole period gives another position
 
@@ -63,7 +63,8 @@ class PeriodRival:
             return None
         return cls(offset_mm, margin)
 
-    def weigh(self, batch: MomentSource, k: int, solution: FrameSolution, settings: SolverSettings) -> str | None:
+    def weigh(self, batch: "GeneralBatch | TrigPolyBatch", k: int, solution: FrameSolution,
+              settings: SolverSettings) -> str | None:
         """Batch frame ``k``, answered by ``solution``, as evidence: "chosen" or "rival" once one
         leads by the margin, None while it is still a guess. Both are solved the same way (plain
         Gauss–Newton, the light as the answer had it) so that their χ² compare."""

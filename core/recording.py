@@ -18,7 +18,7 @@ import threading
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -261,12 +261,14 @@ def _check_declared_sizes(archive: zipfile.ZipFile, members: dict[str, zipfile.Z
 def _read_member(archive: zipfile.ZipFile, info: zipfile.ZipInfo, key: str) -> np.ndarray:
     """The member's array (its header was checked against the budget by :func:`_npy_header`)."""
     try:
-        with archive.open(info) as fh:
+        with archive.open(info) as opened:
+            # a member opened for reading is a ZipExtFile (a BufferedIOBase: readinto), typed IO[bytes]
+            fh = cast(zipfile.ZipExtFile, opened)
             shape, fortran, dtype = _read_header(fh)
             if dtype.hasobject:
                 raise ValueError("holds Python objects")
             flat = np.empty(math.prod(shape), dtype=dtype)
-            buffer = memoryview(flat).cast("B")
+            buffer = flat.data.cast("B")
             filled = 0
             while filled < len(buffer):  # straight into the array: no second copy of a large recording
                 got = fh.readinto(buffer[filled:])

@@ -145,9 +145,9 @@ class StructureProfile:
     by stretch (the calibration's frames binned by grating reading): fixed in position, so a run
     read through the same model shows it again at the same places, and it is taken out of camera −
     grating before the line is fitted. Without it the monitor could only allow for it: a window over
-    the whole stroke was given a scale uncertainty of that structure over the half-stroke (0.84 µm
+    the whole stroke would carry a scale uncertainty of that structure over the half-stroke (0.84 µm
     of structure: 160 ppm), and a print grown 400 ppm read by a seed model on a rig with fixed
-    pattern noise went unflagged, 1.46× its bound against the truth, 6 frames 4+ bounds off."""
+    pattern noise would go unflagged, 1.46× its bound against the truth, 6 frames 4+ bounds off."""
 
     centers_mm: tuple[float, ...]  # bin centres, increasing (bins with too few frames left out)
     values_um: tuple[float, ...]  # mean camera − grating − line there
@@ -323,7 +323,7 @@ class ReferenceMonitor:
                 if on_rise is not None and self.stale and not before:
                     on_rise(start)
                 start += 1
-            else:
+            elif on_rise is not None:  # (the kernel stops at a rise only when asked to)
                 on_rise(start - 1)
             ip, p, ist, fst, est, rows = self._packed()
         self._unpack(ist, fst, est, rows)
@@ -639,7 +639,7 @@ class Trimmer:
         f = self.following
         x = x_mm - (float(trim.at_um(x_mm)) + f.correction_um) * 1e-3
         # a correction in force measured what the line leaves here, the line's own error with it: its σ
-        # stands for both (a cycle's line, far from a line, had widened 16-row bounds 2.5-fold, to 1 µm)
+        # stands for both (a cycle's line, far from a line, would widen 16-row bounds 2.5-fold, to 1 µm)
         line_um = 0.0 if f.correction_um else float(trim.sigma_um(x_mm))
         return x, math.sqrt(line_um ** 2 + f.sigma_um ** 2 + f.lag_um ** 2) * 1e-3
 

@@ -20,7 +20,7 @@ from __future__ import annotations
 import cmath
 import math
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -69,12 +69,14 @@ class FrameSolution:
 
 
 class MomentSource(Protocol):
-    """What the solver needs from a batch of reduced frames."""
+    """What the solver needs from a batch of reduced frames (the robust solve evaluates the model
+    pixel by pixel on ``evaluator``, over ``frames``)."""
 
     n_frames: int
+    frames: np.ndarray
+    evaluator: Any
 
     def moments(self, k: int, x_mm: float) -> list[float]: ...
-    def moment_rows(self, k: int) -> tuple[np.ndarray, np.ndarray]: ...
     def grid_moments(self, k: int, grid: np.ndarray) -> np.ndarray: ...
     def scalars(self, k: int) -> list[float]: ...
     def residuals(self, k: int, x_mm: float, gain: float, offset: float,
@@ -86,6 +88,14 @@ class MomentSource(Protocol):
                             rejected: np.ndarray) -> list[float]: ...
 
 
+class RowMoments(Protocol):
+    """What the moment-row Gauss–Newton reads of a frame: the fast path's batch, or one frame's
+    moments with its samples set aside (:class:`FrameMoments`)."""
+
+    def scalars(self, k: int) -> list[float]: ...
+    def moment_rows(self, k: int) -> tuple[np.ndarray, np.ndarray]: ...
+
+
 # --------------------------------------------------------------------------- the shared solver
 @dataclass(frozen=True)
 class SolverSettings:
@@ -95,7 +105,8 @@ class SolverSettings:
     sigma_gray: float  # the model's σ, to report χ² as an equivalent rms in gray
 
 
-def gauss_newton(source: MomentSource, k: int, x_start: float, free: bool, settings: SolverSettings) -> FrameSolution:
+def gauss_newton(source: "GeneralBatch | RowMoments", k: int, x_start: float, free: bool,
+                 settings: SolverSettings) -> FrameSolution:
     """Weighted Gauss–Newton on frame ``k`` from ``x_start``; gain/offset profiled when ``free``.
     A source that evaluates its model pixel by pixel (:class:`GeneralBatch`) is solved in one call
     of core/frame_kernel.py on its pixels; a source of moment tables (the trig-polynomial fast
@@ -341,7 +352,10 @@ class TrigPolyBatch:
         return block.plan.normalised_residuals(block.values[k - block.start], x_mm, gain, offset)
 
     def _block(self, k: int, rejected: np.ndarray) -> "SetAsideBlock":
-        plan = self._static.set_aside(self.tables, rejected)
+        static = self._static
+        if static is None:  # (asked only with static weights: set_aside_residuals, without)
+            raise ValueError("samples are set aside in blocks only under static weights")
+        plan = static.set_aside(self.tables, rejected)
         block = self._set_aside_block
         if block is None or block.plan is not plan or not block.start <= k < block.stop:
             block = self._set_aside_block = self._block_without(plan, k, min(k + SET_ASIDE_BLOCK, self.n_frames))

@@ -210,10 +210,11 @@ class Texture:
             def read(table: np.ndarray) -> np.ndarray:
                 return table[rows, cell] * (1.0 - frac) + table[rows, cell + 1] * frac
 
-            slope = (mark.applied[rows, cell + 1] - mark.applied[rows, cell]) / self.grid.step_mm
-            factor[samples] *= 1.0 + read(mark.applied)
-            variance[samples] += read(np.square(mark.applied_sigma)) + np.square(slope * sigma_x_mm)
-            misfit[samples] += read(mark.applied_misfit)
+            applied, applied_sigma, applied_misfit = mark.correction()
+            slope = (applied[rows, cell + 1] - applied[rows, cell]) / self.grid.step_mm
+            factor[samples] *= 1.0 + read(applied)
+            variance[samples] += read(np.square(applied_sigma)) + np.square(slope * sigma_x_mm)
+            misfit[samples] += read(applied_misfit)
             touched += samples.size
             held += samples.size if mark.held else 0
         if pending.mean() > self.max_set_aside:  # more than a frame may lose: left to the robust solve, which
@@ -298,7 +299,7 @@ class Texture:
         keep = weights > 0.0
         if mark.learned and not mark.relearning:
             rows = self.row_of[samples]
-            applied, spread = mark.applied, mark.applied_sigma
+            applied, spread, _ = mark.correction()
             predicted = a * (applied[rows, cell] * (1.0 - frac) + applied[rows, cell + 1] * frac)
             allowance = np.abs(a) * np.maximum(spread[rows, cell], spread[rows, cell + 1])
             inside = np.abs(r - predicted) <= CUT_SIGMA * np.sqrt(1.0 / np.maximum(weights, 1e-300) + allowance**2)
@@ -477,9 +478,11 @@ class Texture:
     def describe(self, mark: Mark) -> dict[str, Any]:
         """Where a mark is, how deep, how sure: its deepest node and its stretch along the target."""
         fit = mark.fit
-        values, sigma = (mark.applied, mark.applied_sigma) if mark.learned else (
-            (fit.values, fit.sigma) if fit is not None else (None, None))
-        if values is None:
+        if mark.learned:
+            values, sigma, _ = mark.correction()
+        elif fit is not None:
+            values, sigma = fit.values, fit.sigma
+        else:
             values, sigma = np.zeros((mark.rows, mark.size)), np.full((mark.rows, mark.size), np.inf)
         # the deepest node its evidence stands for (two of its σ): a node at the mark's edge seen on few frames
         # can be deeper by its noise alone (a daemon's mark read 43 % ± 49 %)
@@ -581,9 +584,10 @@ def _array(rows: Any, shape: tuple[int, int], what: str) -> np.ndarray:
 
 def _mark_state(mark: Mark, description: dict[str, Any]) -> dict[str, Any]:
     """One learned mark as JSON: where (its nodes), its fit, and what :meth:`Texture.describe` says of it."""
+    m, sigma, misfit = mark.correction()
     return {"first": mark.first, "size": mark.size, "learned_at": mark.learned_at, "relearning": mark.relearning,
-            "frames": max(mark.frames, mark.seen_before), "held": mark.held, "m": _table(mark.applied),
-            "sigma": _table(mark.applied_sigma), "misfit": _table(mark.applied_misfit), "describe": description}
+            "frames": max(mark.frames, mark.seen_before), "held": mark.held, "m": _table(m),
+            "sigma": _table(sigma), "misfit": _table(misfit), "describe": description}
 
 
 def _mark_of(item: dict[str, Any], rows: int) -> Mark:

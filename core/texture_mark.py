@@ -43,7 +43,7 @@ class Grid:
 
 
 @dataclass
-class Fit:
+class MarkFit:
     """A mark's relative reflectance per node (R, size), its standard error (∞ where no frame saw
     the node), and how well the frames agree on it."""
 
@@ -84,7 +84,7 @@ class Mark:
     since_fit: int = 0
     learned_at: int = -1  # frame at which it was learned (−1: a candidate)
     relearning: bool = False  # it changed (more dust landed on it): fresh evidence gathers while the old m applies
-    fit: Fit | None = None  # the last fit
+    fit: MarkFit | None = None  # the last fit
     applied: np.ndarray | None = None  # the m frames are corrected by (the last fit that was ready; None: a candidate)
     applied_sigma: np.ndarray | None = None
     applied_misfit: np.ndarray | None = None
@@ -101,6 +101,12 @@ class Mark:
     @property
     def learned(self) -> bool:
         return self.applied is not None
+
+    def correction(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(m, its σ, its misfit) per node of a learned mark (set together: :meth:`apply`)."""
+        if self.applied is None or self.applied_sigma is None or self.applied_misfit is None:
+            raise ValueError("a candidate mark has no correction yet")
+        return self.applied, self.applied_sigma, self.applied_misfit
 
     @property
     def travel_px(self) -> float:
@@ -132,8 +138,8 @@ class Mark:
         if low == self.first and high == self.last:
             return
         pad = ((0, 0), (self.first - low, high - self.last))
-        if self.applied is not None:
-            self.applied = np.pad(self.applied, pad)
+        if self.applied is not None and self.applied_sigma is not None and self.applied_misfit is not None:
+            self.applied = np.pad(self.applied, pad)  # (the three are set together: :meth:`apply`)
             self.applied_sigma = np.pad(self.applied_sigma, pad, constant_values=PRIOR_SIGMA)
             self.applied_misfit = np.pad(self.applied_misfit, pad)
         self.first, self.size = low, high - low + 1
@@ -142,11 +148,11 @@ class Mark:
         """The stretch moved by ``nodes`` (the grid's scale changed under it)."""
         self.first += nodes
 
-    def apply(self, fit: Fit) -> None:
+    def apply(self, fit: MarkFit) -> None:
         """Correct frames by this fit from now on."""
         self.applied, self.applied_sigma, self.applied_misfit = fit.values, fit.sigma, fit.misfit
 
-    def refit(self, grid: Grid) -> Fit:
+    def refit(self, grid: Grid) -> MarkFit:
         """Fit the mark at the grid's scale and keep the fit."""
         self.fit = fit_samples(self.samples(), grid, self.first, self.size, self.rows)
         self.since_fit = 0
@@ -158,7 +164,7 @@ class Mark:
         return float(offsets.mean()) if offsets.size else 0.0
 
 
-def fit_samples(samples: np.ndarray, grid: Grid, first: int, size: int, rows: int) -> Fit:
+def fit_samples(samples: np.ndarray, grid: Grid, first: int, size: int, rows: int) -> MarkFit:
     """m on nodes ``first..first+size−1`` from samples ``(FIELDS, N)``: residual ≈ scale·m(x_w).
 
     Least squares row by row (a weak prior of ``PRIOR_SIGMA`` holds nodes no sample saw at 0); σ
@@ -216,7 +222,7 @@ def fit_samples(samples: np.ndarray, grid: Grid, first: int, size: int, rows: in
     told = np.isfinite(sigma) & (sigma > 0.0) & (sigma < 0.5 * PRIOR_SIGMA)  # nodes the frames tell
     peak_z = float((np.abs(values[told]) / sigma[told]).max()) if told.any() else 0.0
     misfit = np.where(seen, np.maximum(local - 1.0, 0.0), 0.0)
-    return Fit(values, sigma, misfit, chi2, n, seen_nodes, signal, moves_chi2, peak_z)
+    return MarkFit(values, sigma, misfit, chi2, n, seen_nodes, signal, moves_chi2, peak_z)
 
 
 def scale_chi2(marks: list[Mark], grid: Grid, scale: float) -> float:

@@ -35,17 +35,20 @@ def shape_vouches(mark: Mark, learned: Sequence[Mark], step_px: float) -> bool:
     deepest node is at most ``NARROW_PX`` wide and comes back up on both sides. The row is read across the
     learned marks that abut or overlap it (``learned``; a speck split between two stretches is whole again
     there); a dip that runs off the joined stretch is a piece of something broader. Nodes ``step_px`` pixel
-    footprints apart."""
+    footprints apart. A mark not yet fitted (a candidate: no ``applied``) has no shape to vouch for."""
+    if mark.applied is None:
+        return False
     values = np.abs(mark.applied)
     r = int(np.argmax(values.max(axis=1)))
     first, last = mark.first, mark.last
-    joined = [mark] + [other for other in learned if other is not mark and other.applied is not None
-                       and other.first <= last + 1 and first - 1 <= other.last]
-    first, last = min(m.first for m in joined), max(m.last for m in joined)
+    joined = [(mark, mark.applied)] + [(other, other.applied) for other in learned
+                                       if other is not mark and other.applied is not None
+                                       and other.first <= last + 1 and first - 1 <= other.last]
+    first, last = min(m.first for m, _ in joined), max(m.last for m, _ in joined)
     row = np.zeros(last - first + 1)
-    for part in joined:  # abutting stretches share their end node: the deeper reading of it
+    for part, applied in joined:  # abutting stretches share their end node: the deeper reading of it
         span = slice(part.first - first, part.last - first + 1)
-        row[span] = np.maximum(row[span], np.abs(part.applied[r]))
+        row[span] = np.maximum(row[span], np.abs(applied[r]))
     deepest = mark.first - first + int(np.argmax(values[r]))
     if not row[deepest] > 0.0:
         return False

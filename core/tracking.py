@@ -199,8 +199,8 @@ class Tracker:
         # tenth more than calibration the model is called stale: its images are no longer these.
         # The flags' average is, until STALE_WINDOW frames have been seen, the plain mean of those
         # there are, judged against their spread (limits by the number of frames averaged, from 1):
-        # started at calibration's level, a stream that never fitted (a JPEG stream's first frames
-        # at 9× the level, 80 of one frame's spreads) was called fresh for its first 5-7 frames,
+        # started at calibration's level instead, a stream that never fits (a JPEG stream's first frames
+        # at 9× the level, 80 of one frame's spreads) would be called fresh for its first 5-7 frames,
         # 4-11 bounds off.
         spreads = np.sqrt(2.0 / (np.arange(1, STALE_WINDOW + 1) * n_values))
         self.sustained_limits = (self.chi2_calibration * (1.0 + 5.0 * spreads)).tolist()
@@ -475,9 +475,9 @@ class Tracker:
         # a model whose focus is followed shows its estimates a while after the term was dropped (the
         # watch sees the focus come back); any other only those of the frames that tried it and kept it on:
         # one frame's χ² beyond its limit (a telegraph pixel's flip) tries the focus, whose gain then says no
-        # (a steady 16-row strip showed 85 such estimates, as a focus taken)
+        # (shown, a steady 16-row strip would report 85 such estimates, as a focus taken)
         # the watch's window opens on every try (a focus that comes and goes is judged as it comes back; a 16-row
-        # focus cycle under --trim was 1.92x its bound with the window opened by a kept term alone, 1.01x so)
+        # focus cycle under --trim is 1.01x its bound so, 1.92x with the window opened by a kept term alone)
         showing = memory.focus_track.shown(tried_focus or memory.focus)
         shown = measured is not None and ((tried_focus and memory.focus) or (showing and self.focus_followed))
         if shown and answer is uniform:  # under the field's answer the blur-only fit is no estimate
@@ -502,7 +502,7 @@ class Tracker:
         level_chi2 = focused.chi2 / here if math.isfinite(focused.chi2) else math.inf
         memory.focus_chi2 = level_chi2 if memory.focus_chi2 is None else \
             memory.focus_chi2 + (min(level_chi2, 3.0 * self.stale_limit) - memory.focus_chi2) / FIELD_WINDOW
-        if not tried:  # measured only: the χ² it gains is counted once the frames ask (as before)
+        if not tried:  # measured only: the χ² it gains counts once the frames ask; the term holds where the focus moved
             memory.focus = self._focus_moved(memory)
             return focused
         gained = (uniform.cost - focused.cost) / self.chi2_calibration if math.isfinite(focused.cost) else 0.0

@@ -190,15 +190,17 @@ class TransientFindings:
 
 def summary_line(summary: dict[str, Any] | None) -> str:
     """One sentence for a command's output, from :meth:`TransientFindings.summary` (None: none found)."""
+    found: dict[str, Any] = summary or {}
+
     def count(key: str) -> str:  # a report read back may have lost any figure
-        value = summary.get(key)
+        value = found.get(key)
         return str(int(value)) if isinstance(value, (int, float)) and math.isfinite(value) else "n/a"
 
-    if not summary or count("count") == "0":
+    if not found or count("count") == "0":
         return "transients: none found"
     if count("count") == "n/a":
         return "transients: n/a (the report lost the figure)"
-    first = (summary.get("events") or [{}])[0]
+    first = (found.get("events") or [{}])[0]
     where = f", first in frames {first['frames'][0]}-{first['frames'][1]} at pixel {first['pixel']}" if first else ""
     return (f"transients: {count('count')} (glints, reflections, passing dust) in {count('frames')} frame(s), "
             f"{count('samples')} samples set aside{where}; their pixels stay in use")

@@ -27,11 +27,14 @@ class ConfigError(ValueError):
     """A configuration file or table that cannot be used; the message names the key."""
 
 
-class _Strict(BaseModel):
+class StrictTable(BaseModel):
+    """A configuration table: an unknown key is an error (a typo is never silently ignored), and the
+    values are fixed once read."""
+
     model_config = ConfigDict(extra="forbid", frozen=True)
 
 
-class RoiConfig(_Strict):
+class RoiConfig(StrictTable):
     row: int = Field(0, ge=0, description="first sensor row of the strip")
     rows: int = Field(1, ge=1, description="rows in the strip")
     col: int = Field(0, ge=0, description="first pixel column")
@@ -54,7 +57,7 @@ def _registered(registry_name: str) -> Callable[[str], str]:
     return check
 
 
-class CameraConfig(_Strict):
+class CameraConfig(StrictTable):
     kind: str = Field("sim", description="the camera's driver: its class (OpenCVCamera, AravisCamera, SimCamera), "
                                          "dotted path or short name (opencv, aravis, sim)")
     device: str | int | None = Field(None, description="opencv: index, file or URL; aravis: device id or IP")
@@ -107,7 +110,7 @@ class CameraConfig(_Strict):
                               max_lag_s=self.max_lag_ms * 1e-3, flip=self.flip)
 
 
-class StageConfig(_Strict):
+class StageConfig(StrictTable):
     kind: str = Field("sim", description="the stage's driver: its class (GCSStage, SimGCSController), dotted path "
                                          "or short name (gcs, sim)")
     port: str | None = Field(None, description="gcs: serial device, e.g. /dev/serial/by-id/usb-PI_...")
@@ -141,7 +144,7 @@ class StageConfig(_Strict):
         return self
 
 
-class HardwareConfig(_Strict):
+class HardwareConfig(StrictTable):
     camera: CameraConfig = CameraConfig()
     stage: StageConfig = StageConfig()
 

@@ -8,9 +8,9 @@ the GIL held, on whichever thread happens to allocate. At 1,000 frames/s that is
 generation, full passes walk only what came after. Reference counting still frees them; only a
 cycle among them would outlive its use, and they are built once.
 
-The first model install used to bring most of the heap with it: numba builds its typing
+Left to the first model install, most of the heap would come with it: numba builds its typing
 registries and loads the compiled kernels on first use, ~50,000 objects that live as long as the
-process, and a full pass over them took 15–25 ms (over 100 ms seen with the cores busy) on the
+process, and a full pass over them takes 15–25 ms (over 100 ms seen with the cores busy) on the
 event loop's thread in the middle of the stream. :func:`warm_tracking` runs a small synthetic
 model through a live tracker before the freeze, so they are frozen with the rest; a model
 installed later then leaves ~600 objects to the collector (full pass ~0.2 ms). A model's own

@@ -6,12 +6,21 @@ loop (``diagnose``, ``--model auto``). Each gets a :class:`HeldOut`. Two choices
 
 - a separate validation recording of the same rig, when there is one (:func:`validate`,
   :func:`loop_split`);
-- blocks of the calibration recording itself. A plain fit (:func:`validate`) is measured two-fold
-  by block (fit on the even blocks, measure on the odd ones, and the other way round: every frame
-  is held out once); a block is read off the recording (:func:`held_out_blocks`), so the same
-  recording gets the same figures whoever calibrates it. The closed loop fits dozens of candidate
-  models, so it holds out one fold only (:func:`loop_split`: every ``HOLDOUT_EVERY``-th block of
-  ``HOLDOUT_BLOCK_FRAMES``), spread over the whole stroke and the whole recording time.
+- blocks of the calibration recording itself, read off its grating readings by one function
+  (:func:`reading_blocks`): a block is made of whole runs of one reading, so a held-out frame never
+  sits at a position the fit saw (a stop of a step-and-settle sweep is held out whole or not at
+  all), and the same recording gets the same blocks whoever calibrates it.
+
+The folds differ, and must. A plain fit (:func:`validate`) is measured two-fold (fit on the even
+blocks of :func:`held_out_blocks`, measure on the odd ones, and the other way round): every frame is
+held out once, and the figure is the model's, fitted on all. The closed loop (:func:`loop_split`)
+compares dozens of candidate models with each other, and its probes read one fitted model's residual
+on frames it never saw (:class:`LoopModel`): it needs one model per candidate and one fold none of
+them fitted, the same frames for every candidate (two folds would make two models of each and double
+every fit). It keeps three quarters of the frames to fit each candidate's extra terms on: every
+``HOLDOUT_EVERY``-th block of at least ``HOLDOUT_BLOCK_FRAMES``, fine blocks so that the probes see
+held-out frames all along the stroke and the recording time. Its final model is refitted on every
+frame afterwards.
 """
 
 from __future__ import annotations
@@ -34,15 +43,33 @@ from graytrack.core.tracking import Tracker, TrackResult, track
 if TYPE_CHECKING:
     from graytrack.core.structure import ModelSpec
 
-HOLDOUT_BLOCK_FRAMES = 10
-HOLDOUT_EVERY = 4
+HOLDOUT_BLOCK_FRAMES = 10  # the closed loop's blocks: at least this many frames (whole readings)
+HOLDOUT_EVERY = 4  # ... of which every this-many-th is its held-out fold
 HELD_OUT_BLOCKS = 40  # a scan (no stops) is cut into this many blocks for the two-fold held-out error
 
 
+def _reading_runs(reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(first frame, length) of each run of consecutive frames with one grating reading."""
+    reference = np.asarray(reference, dtype=np.float64)
+    starts = np.flatnonzero(np.concatenate(([True], reference[1:] != reference[:-1])))
+    return starts, np.diff(np.append(starts, reference.size))
+
+
+def reading_blocks(reference: np.ndarray, least: int) -> np.ndarray:
+    """Each frame's block, numbered 0, 1, … in recording order: the runs of one grating reading that
+    start within the same ``least`` frames, each run whole. Frames of one reading are frames at one
+    position (a stop, a slow scan's repeated readout step): held out apart from each other, the fit
+    would have seen the held-out frame's position, which flatters the model. A scan whose every
+    frame has a reading of its own gets blocks of ``least`` frames."""
+    starts, lengths = _reading_runs(reference)
+    _, block = np.unique(starts // max(int(least), 1), return_inverse=True)
+    return np.repeat(block, lengths)
+
+
 def interleaved_split(data: CalibrationData) -> tuple[CalibrationData, CalibrationData]:
-    """Every ``HOLDOUT_EVERY``-th block of ``HOLDOUT_BLOCK_FRAMES`` consecutive frames is held out."""
-    block = np.arange(len(data.x_mm)) // HOLDOUT_BLOCK_FRAMES
-    held = block % HOLDOUT_EVERY == HOLDOUT_EVERY // 2
+    """The closed loop's one fold: every ``HOLDOUT_EVERY``-th block of :func:`reading_blocks`
+    (at least ``HOLDOUT_BLOCK_FRAMES``) is held out."""
+    held = reading_blocks(data.x_mm, HOLDOUT_BLOCK_FRAMES) % HOLDOUT_EVERY == HOLDOUT_EVERY // 2
     return data.subset(np.flatnonzero(~held)), data.subset(np.flatnonzero(held))
 
 
@@ -114,14 +141,19 @@ def track_runs(model: FourierModel, data: CalibrationData, robust: bool = False)
     Held-out blocks are separated by the frames the fit used; a rig tracks continuously, and
     tracking across those gaps would test re-acquisition, not the model. Frames with transients
     (glints) are always tracked robustly: a glint says nothing about the model, and a plain solve
-    would lose those frames and blame it.
+    would lose those frames and blame it. Data without frame times is one run.
     """
     robust = robust or (data.transients is not None and bool(data.transients.any()))
     tracker = Tracker(model, robust=robust)  # model-level work (folded weights, Gram polynomials) once for all runs
-    parts = [track(model, data.frames[run], reference=data.x_mm[run], tracker=tracker) for run in runs(data.t_s)]
-    joined = {key: np.concatenate([getattr(part, key) for part in parts])
-              for key in ("x_mm", "locked", "rms_gray", "crlb_mm", "iterations", "gain", "offset_gray")}
-    return TrackResult(**joined, events=[event for part in parts for event in part.events])
+    times = data.t_s if data.t_s is not None else np.arange(len(data.x_mm), dtype=np.float64)
+    parts = [track(model, data.frames[run], reference=data.x_mm[run], tracker=tracker) for run in runs(times)]
+
+    def joined(key: str) -> np.ndarray:
+        return np.concatenate([getattr(part, key) for part in parts])
+
+    return TrackResult(x_mm=joined("x_mm"), locked=joined("locked"), rms_gray=joined("rms_gray"),
+                       crlb_mm=joined("crlb_mm"), iterations=joined("iterations"), gain=joined("gain"),
+                       offset_gray=joined("offset_gray"), events=[event for part in parts for event in part.events])
 
 
 def _spread(tracked: TrackResult, data: CalibrationData) -> tuple[int, float]:
@@ -138,7 +170,7 @@ def figures(model: FourierModel, data: CalibrationData, fit: Fit | None = None) 
     is beyond the noise has its worst samples set aside), and the worse of the two is the model's
     figure. A model that holds a defect only in part (a map the rows share, of a spot only some
     rows see) leaves samples the robust solve sets aside, and what it keeps then pulls the
-    position: the plain solve's figure alone hid that (0.58 µm held out, 1.47 µm on the
+    position: the plain solve's figure alone hides that (0.58 µm held out, 1.47 µm on the
     instrument, for such a map of a 16-row lab strip).
     """
     fit = fit or fit_on(model, data)
@@ -162,8 +194,11 @@ def curve_bound_mm(model: FourierModel, data: CalibrationData, fit: Fit) -> np.n
     """Cramér–Rao bound per frame with the photon-transfer curve: each sample's σ²(y) at its
     expected value (a row average of R raw rows has 1/R of it), masked pixels carrying nothing
     (their slope is 0), the per-frame gain and offset profiled out when the model solves them."""
+    noise = model.pixel_noise
+    if noise is None:
+        raise ValueError("a model without a photon-transfer curve has the tracker's white-noise bound")
     predicted = np.asarray(fit.predicted)[:, :model.n_rows]  # a shared model's rows are all alike
-    variance = model.pixel_noise.variance(predicted) / model.rows_averaged(data.frames.shape[1])
+    variance = noise.variance(predicted) / model.rows_averaged(data.frames.shape[1])
     nuisance = np.stack([predicted, np.ones_like(predicted)], axis=-1) if model.common_mode else None
     return crlb_mm(fit.slope, 1.0, nuisance, variance)
 
@@ -223,16 +258,12 @@ class HeldOut:
 def held_out_blocks(recording: Recording) -> np.ndarray:
     """Each frame's held-out block, read off the recording so that every caller holds out the same frames.
 
-    A block is made of whole runs of one grating reading: a step-and-settle sweep reads the axis at
-    rest once per stop, and holding out frames within a stop would flatter the model (a slow scan's
-    repeated readout step is kept whole as well; it costs nothing). A block is at least
-    ``1/HELD_OUT_BLOCKS`` of the recording and its longest rest (a scan's frames at rest at its ends).
+    :func:`reading_blocks` of at least ``1/HELD_OUT_BLOCKS`` of the recording and its longest rest
+    (a scan's frames at rest at its ends), so that the blocks are alike in length.
     """
-    reference = np.asarray(recording.reference, dtype=np.float64)
-    starts = np.flatnonzero(np.concatenate(([True], reference[1:] != reference[:-1])))
-    lengths = np.diff(np.append(starts, reference.size))
+    _, lengths = _reading_runs(recording.reference)
     least = max(recording.n_frames // HELD_OUT_BLOCKS, int(lengths.max()), 1)
-    return np.repeat(starts // least, lengths)
+    return reading_blocks(recording.reference, least)
 
 
 def check_same_roi(calibration: Recording, validation: Recording) -> None:
@@ -264,8 +295,8 @@ def validate(recording: Recording, fit: Callable[[Recording], FourierModel], *,
 def loop_split(calibration: Recording, validation: Recording | None) -> tuple[CalibrationData, CalibrationData,
                                                                               CalibrationData, str]:
     """The closed loop's frames: (all calibration data, training part, held-out part, how the
-    held-out part was chosen). One fold of interleaved blocks (the loop fits dozens of candidate
-    models: two folds would double that), or the whole validation recording."""
+    held-out part was chosen). One fold of :func:`interleaved_split` (why one: this module's
+    docstring), or the whole validation recording."""
     data = calibration_data(calibration)
     if validation is None:
         train, val = interleaved_split(data)

@@ -175,8 +175,8 @@ def _at_noise_floor(stage: LoopModel) -> bool:
 def all_evidence(stage: LoopModel) -> list[Evidence]:
     """Every effect's probe on ``stage``: data-quality findings first (in the registry's order),
     then model terms by how much of the held-out residual they explain."""
-    found = [(effect, effect.probe(stage)) for effect in effects.registry().values()]
-    found = [(effect, evidence) for effect, evidence in found if evidence is not None]
+    found = [(effect, evidence) for effect in effects.registry().values()
+             if (evidence := effect.probe(stage)) is not None]
     quality = [evidence for effect, evidence in found if effect.data_quality]
     terms = sorted((evidence for effect, evidence in found if not effect.data_quality),
                    key=lambda ev: ev.explained_gray2, reverse=True)

@@ -66,7 +66,11 @@ class Alternation:
 
     @property
     def shaded(self) -> "np.ndarray":
-        return (self.smooth + self.blurred) * self.map_factor
+        """The model's light before the per-frame and per-pixel layers: asked for once S is fitted."""
+        smooth = self.smooth
+        if smooth is None:
+            raise ValueError("the smooth model S is fitted before the layers are shaded")
+        return (smooth + self.blurred) * self.map_factor
 
 
 class Effect:

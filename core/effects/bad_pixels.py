@@ -107,17 +107,12 @@ def residual_bad_pixels(residual: np.ndarray, predicted: np.ndarray, usable: np.
              f"noise {sigma_gray:.2f})") for r, u in zip(*np.nonzero(hits))]
 
 
-def find_bad_pixels(data: Any, residual: np.ndarray | None = None, predicted: np.ndarray | None = None,
-                    usable: np.ndarray | None = None) -> list[Finding]:
-    """Every bad pixel of calibration data: model-free findings, then (given a fit's residual)
-    pixels that do not follow the target."""
+def find_bad_pixels(data: Any) -> list[Finding]:
+    """Every bad pixel calibration data shows without a model (a fit's residual adds those that do not
+    follow the target: :func:`residual_bad_pixels`, which the probe runs on the fit it has)."""
     noise = getattr(data, "pixel_noise", None)
-    found = model_free_bad_pixels(data.frames, data.x_mm, data.meta.get("period_mm"), data.sigma_gray,
-                                  None if noise is None else noise.variance, getattr(data, "transients", None))
-    if residual is not None:
-        known = {(r, u) for r, u, _ in found}
-        found += [f for f in residual_bad_pixels(residual, predicted, usable, data.sigma_gray) if f[:2] not in known]
-    return sorted(found)
+    return sorted(model_free_bad_pixels(data.frames, data.x_mm, data.meta.get("period_mm"), data.sigma_gray,
+                                        None if noise is None else noise.variance, getattr(data, "transients", None)))
 
 
 def masked_share(findings: Any, shape: tuple[int, int], per_row: bool) -> float:

@@ -294,9 +294,12 @@ class FourierModel:
 
     def target_factor(self, x_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(K, R, n)``: 1 + m(x_w) and its derivative along x (piecewise linear; 1 outside the mapped range)."""
+        target_map = self.target_map
+        if target_map is None:
+            raise ValueError("the model has no target map: its factor is 1 everywhere")
         position = (self.target_coordinate(x_mm) - self.target_map_origin_mm) / self.target_map_step_mm
-        map_row = np.arange(self.target_map.shape[0])[:, None]  # (R|1, 1): a row's own map, or the one map
-        factor, rise = map_lookup(self.target_map, map_row, position)
+        map_row = np.arange(target_map.shape[0])[:, None]  # (R|1, 1): a row's own map, or the one map
+        factor, rise = map_lookup(target_map, map_row, position)
         return factor, rise / self.target_map_step_mm
 
     @property

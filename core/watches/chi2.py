@@ -23,9 +23,9 @@ STILL_WINDOW = 20
 EXPLAIN_EVERY = 5
 # ... at first: a run that stays suspect without going stale is looked at half as often after each
 # WINDOW frames learnt, down to one in this many. At 1,000 frames/s a steady χ² a few per cent
-# above calibration's (suspect for the whole run, never stale) had the daemon's frame loop explain
-# 200 frames a second, a third of its time, and drop camera frames; the averages need no more
-# than a window of recent looks. Once stale, every EXPLAIN_EVERY-th frame again.
+# above calibration's (suspect for the whole run, never stale) would otherwise have the daemon's frame
+# loop explain 200 frames a second, a third of its time, and drop camera frames; the averages need no
+# more than a window of recent looks. Once stale, every EXPLAIN_EVERY-th frame again.
 EXPLAIN_EVERY_LONGEST = 80
 
 

@@ -3,7 +3,7 @@
 A model whose period or pixel pitch is wrong for the rig (one calibrated on another target or
 lens, installed here) still fits every frame after a fashion: the per-frame light and focus terms
 bend to absorb the mismatch, so the light and focus watches fire and, being the more specific
-families, named the cause. Their advice pointed the wrong way. Tracked with the paper rig's model
+families, would name the cause, their advice pointing the wrong way. Tracked with the paper rig's model
 5 % off in period, the camera sat 357 µm (~250 bounds) off the grating at rest and 380 µm in a
 sweep, and the frames were flagged ``light`` and ``focus``; 1 % off, 62-86 µm, flagged mostly
 ``geometry``, ``light`` and ``focus``.
@@ -81,8 +81,9 @@ class FarOffWatch:
                 self.bound2 = running(self.bound2, self.bound_scale2 / information, WINDOW)
                 calibrated = self.calibrated_information * rows_averaged
                 self.calibrated2 = running(self.calibrated2, self.bound_scale2 / calibrated, WINDOW)
-            full = len(differences) >= WINDOW and self.bound2 and self.calibrated2
-            ready.append((len(differences), self.bound2, self.calibrated2) if full else None)
+            bound2, calibrated2 = self.bound2, self.calibrated2
+            ready.append((len(differences), bound2, calibrated2)
+                         if len(differences) >= WINDOW and bound2 and calibrated2 else None)
         self.differences.extend(differences[before:])
         if not any(ready):
             return [None] * n

@@ -30,7 +30,7 @@ SETTLE = 30  # frames with a grating reading before the spread is trusted (at 1.
 # A difference beyond GATE of its σ (the window's spread, at least the frames' bound, and the frame's own)
 # flags its own frame and enters the window clipped to the gate: one reading gone wrong (the grating's
 # or the camera's) then lifts the spread by a few per cent, where a single grating reading 0.5 mm off
-# had lifted it for 156 frames and flagged every one; a difference that stays beyond moves the window
+# entered unclipped lifts it for 156 frames and flags every one; a difference that stays beyond moves the window
 # a gate's worth a frame, each of those frames flagged on its own.
 GATE2 = GATE * GATE
 
@@ -69,23 +69,25 @@ class GratingWatch:
 
     def _verdict(self) -> str | None:
         """The window's own verdict: its spread beyond LIMIT times the frames' bound."""
-        if self.count < SETTLE or not self.bound2:
+        mean, square, bound2 = self.mean, self.square, self.bound2  # (None together, before a first reading)
+        if self.count < SETTLE or mean is None or square is None or not bound2:
             return None
-        spread2 = max(self.square - self.mean * self.mean, 0.0)
-        if spread2 <= LIMIT * LIMIT * self.bound2:
+        spread2 = max(square - mean * mean, 0.0)
+        if spread2 <= LIMIT * LIMIT * bound2:
             return None
         return self.family
 
     def _gated(self, difference: float, frame_bound2: float) -> tuple[float, bool]:
         """(the difference as the window takes it, whether it was beyond the gate)."""
-        if self.count < SETTLE or not self.bound2:
+        mean, square, bound2 = self.mean, self.square, self.bound2
+        if self.count < SETTLE or mean is None or square is None or not bound2:
             return difference, False
-        spread2 = max(self.square - self.mean * self.mean, 0.0)
-        deviation = difference - self.mean
-        gate2 = GATE2 * (max(spread2, self.bound2) + frame_bound2)
+        spread2 = max(square - mean * mean, 0.0)
+        deviation = difference - mean
+        gate2 = GATE2 * (max(spread2, bound2) + frame_bound2)
         if deviation * deviation <= gate2:
             return difference, False
-        return self.mean + (math.sqrt(gate2) if deviation > 0 else -math.sqrt(gate2)), True
+        return mean + (math.sqrt(gate2) if deviation > 0 else -math.sqrt(gate2)), True
 
     def step_many(self, columns, n: int) -> list[str | None] | None:
         """:meth:`step` of ``n`` frames at once (compiled: core/watches/_kernels.py)."""
@@ -107,7 +109,7 @@ class GratingWatch:
         self.count = int(values[3])
         if not out.any():
             return [None] * n
-        return np.where(out, self.family, None).tolist()
+        return [self.family if flagged else None for flagged in out.tolist()]
 
 
 def for_model(model, chi2_calibration: float, chi2_curve) -> GratingWatch:

@@ -45,7 +45,7 @@ class LightWatch:
         self.gain = float(state[1]) if state[0] else None
         if not out.any():
             return [None] * n
-        return np.where(out, "light", None).tolist()
+        return ["light" if flagged else None for flagged in out.tolist()]
 
 
 def make(tracker) -> LightWatch:

@@ -159,7 +159,8 @@ class MagnificationWatch:
             start += 1
         if not out.any():
             return [None] * n
-        return np.where(out, np.where(beyond, "geometry", self.family), None).tolist()
+        return [("geometry" if far else self.family) if flagged else None
+                for flagged, far in zip(out.tolist(), beyond.tolist())]
 
     def _run(self, x, m_ppm, sigma_ppm, use, start: int, out) -> int:
         return _kernels._magnification_run(self._normal, self._noise, self._right, self._scalars, x, m_ppm,

@@ -42,9 +42,9 @@ from graytrack.core.watches.magnification import MagnificationWatch
 # but a camera that disagrees with the grating by this many standard errors (of the frames' bounds, the grating's
 # rounding, the calibration line and the
 # model's own structure along the stroke), averaged over SUSPECT_WINDOW frames, places its frames
-# off whatever the cause: a model 5 % off in period, seen at rest mid-stroke, had its running χ²
+# off whatever the cause: a model 5 % off in period, seen at rest mid-stroke, has its running χ²
 # hover at the stale line (1.2026 against 1.2023) and its positions 285 µm (~200 bounds) off,
-# called fresh on 94 % of the frames.
+# which χ² alone calls fresh on 94 % of the frames.
 SUSPECT_WINDOW = 20
 SUSPECT_LIMIT = 6.0
 # ... but while the mean fills for the first time against the calibration's line, its tests are few (at most
@@ -395,7 +395,7 @@ class Disagreement:
         # The mean's noise (the frames averaged so far, at most the window's worth) and what no
         # averaging removes. Judged from the first frame on: a run that starts 20-40 bounds off the
         # grating (a print grown, a camera moved, a sensor's response changed since calibration)
-        # had its first 5-15 frames called fresh while the window filled.
+        # would have its first 5-15 frames called fresh while the window fills.
         # the correction's, fixed per place
         noise = monitor.structure.noise_um if monitor.structure is not None else 0.0
         sigma2 = 1.0 / (self.count * self.precision_per_um2) + self._known2 + monitor.calibration_structure_um ** 2 \

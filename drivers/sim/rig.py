@@ -37,7 +37,7 @@ from graytrack.drivers.sim.illumination import IlluminationConfig
 from graytrack.drivers.sim.optics import (OpticsConfig, defocus_attenuation, drifted_offsets, focus_attenuation,
                                          off_target, pixel_geometry)
 from graytrack.drivers.sim.sensor import Sensor, SensorConfig
-from graytrack.drivers.sim.stage import SimStage, StageConfig, Trajectory, Vibrating, oscillation, sweep
+from graytrack.drivers.sim.stage import SimStage, SimStageConfig, Trajectory, Vibrating, oscillation, sweep
 from graytrack.drivers.sim.target import TargetConfig
 from graytrack.drivers.sim.timing import TimingConfig, frame_clock
 
@@ -63,7 +63,7 @@ class RigConfig:
     illumination: IlluminationConfig = field(default_factory=IlluminationConfig)
     optics: OpticsConfig = field(default_factory=OpticsConfig)
     sensor: SensorConfig = field(default_factory=SensorConfig)
-    stage: StageConfig = field(default_factory=StageConfig)
+    stage: SimStageConfig = field(default_factory=SimStageConfig)
     grating: GratingConfig = field(default_factory=GratingConfig)
     timing: TimingConfig = field(default_factory=TimingConfig)
     glints: GlintConfig = field(default_factory=GlintConfig)
@@ -201,7 +201,7 @@ class VirtualRig:
     # ----- parts a driver can use -----------------------------------------------------------
     def make_stage(self, position_mm: float | None = None, t_s: float = 0.0) -> SimStage:
         """A fresh :class:`SimStage` with this rig's stage settings, at the stroke start by default."""
-        cfg = StageConfig(**vars(self.config.stage))
+        cfg = SimStageConfig(**vars(self.config.stage))
         return SimStage(cfg, self.config.stroke_mm[0] if position_mm is None else position_mm, t_s)
 
     def make_grating(self, stage: Trajectory) -> GratingReadout:

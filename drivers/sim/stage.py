@@ -43,7 +43,7 @@ class Trajectory(Protocol):
 
 
 @dataclass
-class StageConfig:
+class SimStageConfig:
     """Limits, current motion settings and servo behaviour of the simulated stage."""
 
     velocity_mm_s: float = 5.0  # current move velocity (PI: VEL)
@@ -86,8 +86,8 @@ class SimStage:
     profile arrives; the servo settles shortly after (see ``on_target``).
     """
 
-    def __init__(self, config: StageConfig | None = None, position_mm: float = 0.0, t_s: float = 0.0):
-        self.config = config if config is not None else StageConfig()
+    def __init__(self, config: SimStageConfig | None = None, position_mm: float = 0.0, t_s: float = 0.0):
+        self.config = config if config is not None else SimStageConfig()
         self._check_limits(position_mm)
         self._segments: list[_Segment] = [_Segment(float(t_s), float(position_mm), 0.0, 0.0, 0.0, 0.0)]
         self._last_command_t = float(t_s)
@@ -290,7 +290,7 @@ def _plan(p: float, v: float, target: float, vmax: float, acc: float) -> list[tu
     return [(t1, sgn * math.copysign(acc, vp - vs)), (t2, 0.0), (vp / acc, -sgn * acc)]
 
 
-def _segment_arrays(segments: list[_Segment], omega: float, zeta: float, cfg: StageConfig) -> dict[str, np.ndarray]:
+def _segment_arrays(segments: list[_Segment], omega: float, zeta: float, cfg: SimStageConfig) -> dict[str, np.ndarray]:
     """Per-segment constants of the closed-form servo error (particular + damped homogeneous part)."""
     t0 = np.array([s.t0 for s in segments])
     p0 = np.array([s.p0 for s in segments])
@@ -356,7 +356,7 @@ def _eval_segments(arr: dict[str, np.ndarray], idx: np.ndarray, tau: np.ndarray,
 # ----- trajectories ----------------------------------------------------------------------------
 
 
-def sweep(start_mm: float, end_mm: float, seconds: float, config: StageConfig | None = None,
+def sweep(start_mm: float, end_mm: float, seconds: float, config: SimStageConfig | None = None,
           dwell_fraction: float = 0.0) -> SimStage:
     """A stage that sweeps ``start → end`` once at constant velocity, filling ``seconds``.
 
@@ -365,7 +365,7 @@ def sweep(start_mm: float, end_mm: float, seconds: float, config: StageConfig | 
     acceleration is raised if the stroke cannot be covered otherwise. This is the calibration-like
     sweep of a scenario: frames cover the stroke uniformly and the motion is slow.
     """
-    cfg = StageConfig(**vars(config)) if config is not None else StageConfig()
+    cfg = SimStageConfig(**vars(config)) if config is not None else SimStageConfig()
     low, high = min(start_mm, end_mm), max(start_mm, end_mm)
     cfg.soft_limits_mm = (min(cfg.soft_limits_mm[0], low), max(cfg.soft_limits_mm[1], high))
     stage = SimStage(cfg, position_mm=start_mm, t_s=0.0)
@@ -383,9 +383,10 @@ def sweep(start_mm: float, end_mm: float, seconds: float, config: StageConfig | 
     return stage
 
 
-def steps(start_mm: float, end_mm: float, n_steps: int, dwell_s: float, config: StageConfig | None = None) -> SimStage:
+def steps(start_mm: float, end_mm: float, n_steps: int, dwell_s: float,
+          config: SimStageConfig | None = None) -> SimStage:
     """Step-and-settle: ``n_steps`` equal moves from start to end, each followed by ``dwell_s`` at rest."""
-    cfg = StageConfig(**vars(config)) if config is not None else StageConfig()
+    cfg = SimStageConfig(**vars(config)) if config is not None else SimStageConfig()
     low, high = min(start_mm, end_mm), max(start_mm, end_mm)
     cfg.soft_limits_mm = (min(cfg.soft_limits_mm[0], low), max(cfg.soft_limits_mm[1], high))
     stage = SimStage(cfg, position_mm=start_mm, t_s=0.0)

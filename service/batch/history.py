@@ -25,7 +25,7 @@ Z_LIMIT = 4.0  # with uncertainties estimated from a few refits, z has heavier t
 
 
 @dataclass(frozen=True)
-class Quantity:
+class DriftQuantity:
     key: str
     label: str
     unit: str
@@ -33,10 +33,10 @@ class Quantity:
 
 
 QUANTITIES = (
-    Quantity("tau_w_mm", "target period τ_w", "µm", 1e3),
-    Quantity("alpha_d_mm", "pixel footprint α·d", "nm", 1e6),
-    Quantity("noise_gray", "noise σ", "gray"),
-    Quantity("error_std_after_um", "held-out error std", "µm"),
+    DriftQuantity("tau_w_mm", "target period τ_w", "µm", 1e3),
+    DriftQuantity("alpha_d_mm", "pixel footprint α·d", "nm", 1e6),
+    DriftQuantity("noise_gray", "noise σ", "gray"),
+    DriftQuantity("error_std_after_um", "held-out error std", "µm"),
 )
 
 
@@ -53,7 +53,7 @@ class RigCalibration:
 @dataclass(frozen=True)
 class Change:
     rig: str
-    quantity: Quantity
+    quantity: DriftQuantity
     since: RigCalibration
     at: RigCalibration
     z: float

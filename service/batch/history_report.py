@@ -14,8 +14,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from graytrack.core.files import write_atomic  # noqa: E402
-from graytrack.service.batch.history import (QUANTITIES, Z_LIMIT, RigCalibration, Change, Quantity, changes,  # noqa: E402
-                                             effect_changes, series)
+from graytrack.service.batch.history import (QUANTITIES, Z_LIMIT, Change, DriftQuantity, RigCalibration,  # noqa: E402
+                                             changes, effect_changes, series)
 from graytrack.service.report_kit import image, page, png, table  # noqa: E402
 
 
@@ -48,7 +48,7 @@ def figure(rigs: dict[str, list[RigCalibration]], found: list[Change]) -> str:
     return png(fig)
 
 
-def _value(c: RigCalibration, q: Quantity) -> str:
+def _value(c: RigCalibration, q: DriftQuantity) -> str:
     """A quantity of one calibration, with its standard uncertainty when known."""
     uncertainty = c.uncertainty[q.key] * q.scale
     return f"{c.values[q.key] * q.scale:.6g}" + (f" ± {uncertainty:.2g}" if np.isfinite(uncertainty) else "")

@@ -37,7 +37,7 @@ from graytrack.service.daemon.grating import Readings
 from graytrack.service.daemon.loss_log import LossLog
 from graytrack.service.daemon.stale_log import StaleLog
 from graytrack.service.daemon.texture_log import TextureLog
-from graytrack.service.daemon.texture_store import TextureWatch
+from graytrack.service.daemon.texture_store import TextureSnapshotter
 from graytrack.core.slide import SlideWatch
 from graytrack.core.watches.scale import ScaleWatch
 from graytrack.service.daemon.slide import LiveSlide
@@ -130,7 +130,7 @@ class Acquisition(Worker):
         self._losses = LossLog(on_event)  # frames the camera's counter skipped: frames_lost events
         self._stale = StaleLog(on_event)  # the flag's events: a model gone stale, or a single frame
         self._texture = TextureLog(on_event)  # what the tracker learns on the print (core/texture.py)
-        self.texture = TextureWatch()  # ... and its newest state, for the model of record (texture_store.py)
+        self.texture = TextureSnapshotter()  # ... and its newest state, for the model of record (texture_store.py)
 
     # -- control (any thread) --------------------------------------------------------------
     def install_model(self, model: FourierModel, x0_mm: float | None = None, calibration: str | None = None,

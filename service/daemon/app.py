@@ -30,11 +30,11 @@ from graytrack.service.daemon.errors import DaemonError
 from graytrack.service.daemon.limits import ConnectionLimits, server_protocols
 from graytrack.service.heap import freeze_long_lived, thaw, warm_tracking
 from graytrack.service.daemon.datadir import require_room
-from graytrack.service.daemon.record import open_record
+from graytrack.service.daemon.history import open_history
 from graytrack.drivers.realtime import pin_process, raise_thread_priority, restore_process
 from graytrack.service.daemon.rig import HardwareFactory, Rig, default_factory
 from graytrack.service.daemon.settings import Settings
-from graytrack.service.daemon.startup import Startup
+from graytrack.service.daemon.startup import WarmUp
 from graytrack.service.daemon.storage import Storage
 from graytrack.service.daemon.ws_protocol import StreamProtocol
 
@@ -114,12 +114,12 @@ def create_app(settings: Settings, factory: HardwareFactory = default_factory) -
         raise
     broadcaster = Broadcaster()
     try:
-        record, rebuilt = open_record(storage.root / "record.sqlite")
+        history, rebuilt = open_history(storage.root / "record.sqlite")
     except BaseException:
         storage.unlock()
         raise
-    rig = Rig(settings, storage, record, broadcaster.publish, factory)
-    startup = Startup(warm_tracking, settings.daemon.realtime_priority)
+    rig = Rig(settings, storage, history, broadcaster.publish, factory)
+    startup = WarmUp(warm_tracking, settings.daemon.realtime_priority)
     if rebuilt is not None:
         log.error("%s", rebuilt)
         rig.event("record_rebuilt", rebuilt)
@@ -146,7 +146,7 @@ def create_app(settings: Settings, factory: HardwareFactory = default_factory) -
             thaw()
             sys.setswitchinterval(previous)
             restore_process(pinned_from)
-            record.close()
+            history.close()
             storage.unlock()
 
     docs = settings.daemon.api_docs

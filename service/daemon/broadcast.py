@@ -29,7 +29,7 @@ from graytrack.service.daemon.ws_protocol import text_frame
 CLIENT_QUEUE = 2000
 
 
-class Client:
+class Subscriber:
     """One connection's queue and decimation, and its pre-framed writer when it has one.
 
     ``writer`` (set by the stream route) is the connection's :class:`StreamProtocol` when it takes
@@ -72,7 +72,7 @@ class Client:
 class Broadcaster:
     def __init__(self) -> None:
         self._loop: asyncio.AbstractEventLoop | None = None
-        self._clients: tuple[Client, ...] = ()
+        self._clients: tuple[Subscriber, ...] = ()
         self._lock = threading.Lock()
         self._wall = WallClock()
         self._handover: deque[tuple[str, bytes, float]] = deque()
@@ -89,15 +89,15 @@ class Broadcaster:
     def clients(self) -> int:
         return len(self._clients)
 
-    def subscribe(self, max_rate_hz: float | None = None, writer: Any = None) -> Client:
+    def subscribe(self, max_rate_hz: float | None = None, writer: Any = None) -> Subscriber:
         """A new client; ``writer`` is its connection's :class:`StreamProtocol` when it takes pre-framed bytes."""
-        client = Client(max_rate_hz)
+        client = Subscriber(max_rate_hz)
         client.writer = writer
         with self._lock:
             self._clients = self._clients + (client,)
         return client
 
-    def unsubscribe(self, client: Client) -> None:
+    def unsubscribe(self, client: Subscriber) -> None:
         with self._lock:
             self._clients = tuple(c for c in self._clients if c is not client)
 

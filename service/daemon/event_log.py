@@ -9,7 +9,7 @@ or replaced), nothing is written at all: SQLite would go on writing into a delet
 
 Retention (``[daemon] events_max_age_days``, ``events_max_count``): every ``max_count // 100``
 events (at least every event) the oldest beyond either bound are deleted, except the newest of
-each kind (:meth:`Record.compact`).
+each kind (:meth:`LabHistory.compact`).
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ import time
 from collections import deque
 from typing import Any, Callable
 
-from graytrack.service.daemon.record import Record
+from graytrack.service.daemon.history import LabHistory
 
 log = logging.getLogger("graytrack.daemon")
 KEPT_IN_MEMORY = 10_000  # events held while the record cannot be written (the oldest go first beyond it)
@@ -30,10 +30,10 @@ DAY_S = 86_400.0
 
 
 class EventLog:
-    def __init__(self, record: Record, blocked: Callable[[], str | None], report: Callable[[str | None], None],
+    def __init__(self, history: LabHistory, blocked: Callable[[], str | None], report: Callable[[str | None], None],
                  max_age_days: float, max_count: int) -> None:
         """``blocked()``: why nothing may be written now (None: go ahead); ``report``: the ``record`` fault."""
-        self.record, self.blocked, self.report = record, blocked, report
+        self.history, self.blocked, self.report = history, blocked, report
         self.max_age_s, self.max_count = max_age_days * DAY_S, max_count
         self._every = max(1, max_count // 100)
         self._since_compact = 0
@@ -63,7 +63,7 @@ class EventLog:
             while self._queue and blocked is None:
                 t_unix, kind, message, details = self._queue[0]
                 try:
-                    self.record.event(kind, message, t_unix=t_unix, **details)
+                    self.history.event(kind, message, t_unix=t_unix, **details)
                 except sqlite3.Error as exc:
                     blocked = str(exc)
                     break
@@ -71,7 +71,7 @@ class EventLog:
                 self._since_compact += 1
             if blocked is not None:
                 lost = f"; {self._lost} older ones were dropped" if self._lost else ""
-                reason = (f"the event log {self.record.path.name} cannot be written ({blocked}): {len(self._queue)} "
+                reason = (f"the event log {self.history.path.name} cannot be written ({blocked}): {len(self._queue)} "
                           f"event(s) kept in memory until it can{lost}")
             elif self._since_compact >= self._every:
                 self._compact()
@@ -85,7 +85,7 @@ class EventLog:
             kept, lost = list(self._queue), self._lost
             self._queue.clear()
         for t_unix, kind, message, details in kept:
-            log.error("event not written to %s before the shutdown: %s", self.record.path.name,
+            log.error("event not written to %s before the shutdown: %s", self.history.path.name,
                       json.dumps({"t_unix": t_unix, "kind": kind, "message": message, **details}, default=str))
         if lost:
             log.error("%d older event(s) were dropped while the record could not be written", lost)
@@ -98,7 +98,7 @@ class EventLog:
     def _compact(self) -> None:
         self._since_compact = 0
         try:
-            removed = self.record.compact(self.max_age_s, self.max_count)
+            removed = self.history.compact(self.max_age_s, self.max_count)
         except sqlite3.Error as exc:  # a full disk: the log stays as it is, the next round tries again
             log.warning("event log not compacted: %s", exc)
             return

@@ -45,7 +45,7 @@ from graytrack.service.daemon.grating import GratingPoller, Readings
 from graytrack.service.daemon.jobs import FINAL, CalibrationJob, JobRunner, calibration_row, mark_interrupted, reconcile
 from graytrack.service.daemon.datadir import DataDirHealth
 from graytrack.service.daemon.event_log import EventLog
-from graytrack.service.daemon.record import Record
+from graytrack.service.daemon.history import LabHistory
 from graytrack.service.daemon.switch import Switch
 from graytrack.service.daemon.settings import Settings
 from graytrack.service.daemon.stage_control import StageControl
@@ -66,18 +66,18 @@ def default_factory(settings: Settings, clock: ScaledClock) -> Hardware:
 
 
 class Rig:
-    def __init__(self, settings: Settings, storage: Storage, record: Record, publish: Callable[[dict[str, Any]], None],
-                 factory: HardwareFactory = default_factory) -> None:
+    def __init__(self, settings: Settings, storage: Storage, history: LabHistory,
+                 publish: Callable[[dict[str, Any]], None], factory: HardwareFactory = default_factory) -> None:
         daemon = settings.daemon
         self.settings = settings
         self.storage = storage
-        self.record = record
+        self.history = history
         self.publish = publish
         self.factory = factory
         self.clock = ScaledClock(daemon.sim_clock_scale) if settings.simulated else REAL_TIME
         self.faults = Faults()
         self.health = DataDirHealth(storage.root, storage.home, self.faults.reporter("storage"))
-        self.events = EventLog(record, self.health.moved, self.faults.reporter("record"), daemon.events_max_age_days,
+        self.events = EventLog(history, self.health.moved, self.faults.reporter("record"), daemon.events_max_age_days,
                                daemon.events_max_count)
         # the marks learned on the print, kept with the model of record (texture_store.py)
         self.texture_store = TextureStore(storage, self.health, self.clock.now, self.event)
@@ -148,7 +148,7 @@ class Rig:
         for job_id in interrupted:
             self.event("calibration_interrupted", f"calibration {job_id} was interrupted by the last shutdown",
                        calibration=job_id)
-        removed, restored = reconcile(self.storage, self.record)
+        removed, restored = reconcile(self.storage, self.history)
         if restored:
             self.event("record_restored", f"{len(restored)} finished calibration(s) were missing from the record and "
                                           f"were restored from their folders", calibrations=restored)
@@ -374,7 +374,7 @@ class Rig:
         the tracker only ever gets a model the data directory already names."""
         switch = self._switch_model(job.id)
         try:
-            self.record.add_calibration(calibration_row(job, model))
+            self.history.add_calibration(calibration_row(job, model))
         except BaseException as exc:  # a full disk: both files back, the old model stays what is tracked
             switch.undo()
             raise (self.health.failed(exc) or exc) from None
@@ -395,7 +395,7 @@ class Rig:
             if self.job is not None and self.job.active:
                 raise Busy(f"calibration {self.job.id} is running; stop it first")
             self.health.refuse()  # a vanished or read-only directory: 507 before its files are read
-            row = self.record.calibration(calibration_id)
+            row = self.history.calibration(calibration_id)
             if row is None:
                 raise NotFound(f"no finished calibration {calibration_id!r}")
             model = load_model(self.storage.calibration_dir(calibration_id) / "model.json")
@@ -424,7 +424,7 @@ class Rig:
         active = self.storage.active_id()
         if active is None or self.model is None:
             return None
-        row = self.record.calibration(active)
+        row = self.history.calibration(active)
         if row is None:
             return ActiveCalibration(id=active)
         return ActiveCalibration.model_validate({key: row[key] for key in ActiveCalibration.model_fields})

@@ -12,9 +12,10 @@ import os
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, NonNegativeInt, ValidationError, model_validator
+from pydantic import Field, NonNegativeInt, ValidationError, model_validator
 
-from graytrack.drivers.config import ConfigError, HardwareConfig, describe_validation_error, load_toml, parse_hardware
+from graytrack.drivers.config import (ConfigError, HardwareConfig, StrictTable, describe_validation_error, load_toml,
+                                      parse_hardware)
 from graytrack.drivers.realtime import DEFAULT_LEVEL
 from graytrack.drivers.registry import stages
 
@@ -22,11 +23,7 @@ DEFAULT_HOST = "127.0.0.1"  # docs/contracts.md: loopback unless told otherwise
 DEFAULT_PORT = 8000
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class DaemonConfig(_Strict):
+class DaemonConfig(StrictTable):
     host: str = DEFAULT_HOST
     port: int = Field(DEFAULT_PORT, ge=0, le=65535)
     data_dir: str | None = Field(None, description="models, calibrations, token; default: see default_data_dir()")
@@ -96,7 +93,7 @@ class DaemonConfig(_Strict):
         return self
 
 
-class SweepConfig(_Strict):
+class SweepConfig(StrictTable):
     kind: Literal["stops", "scan"] = Field("stops", description="stops: step and settle at `positions` stops; scan: "
                                            "frames at rest at both ends and a pass up and one down at constant "
                                            "velocity, every frame with its interpolated grating reference (frames in "
@@ -115,7 +112,7 @@ class SweepConfig(_Strict):
     period_mm: float | None = Field(None, gt=0, description="nominal target period for real hardware (else estimated)")
 
 
-class Settings(_Strict):
+class Settings(StrictTable):
     hardware: HardwareConfig = HardwareConfig()
     daemon: DaemonConfig = DaemonConfig()
     sweep: SweepConfig = SweepConfig()

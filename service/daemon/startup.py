@@ -3,13 +3,13 @@ meanwhile and the log says what the wait is.
 
 Tracking's compiled kernels load on first use (:func:`graytrack.service.heap.warm_tracking`): from
 numba's disk cache in under a second, but compiled on the first start after an install or a fresh
-clone, ~30 s on two cores (`make run` on a fresh clone: 29–32 s measured, 2026-11-27). Run inside the
-lifespan that wait came before uvicorn accepted its first request: the server printed "Application
-startup complete" and then said nothing while every request, the status page's too, hung. Here it
-runs on a thread of its own, at the event loop's priority as it ran before (threads start at normal
-priority: on a loaded two-core machine, at nice 10 beside a load of 13, a normal one had not finished
-after 110 s), and the rig opens on the event loop once it is done, as before; ``GET /api/status``
-answers ``starting`` with the step and its seconds (:meth:`Startup.status`).
+clone, ~30 s on two cores (`make run` on a fresh clone: 29–32 s). Run inside the lifespan, that wait
+would come before uvicorn accepts its first request: the server prints "Application startup complete"
+and then says nothing while every request, the status page's too, hangs. Here it runs on a thread of
+its own, at the event loop's priority (threads start at normal priority: on a loaded two-core machine,
+at nice 10 beside a load of 13, a normal one had not finished after 110 s), and the rig opens on the
+event loop once it is done; ``GET /api/status`` answers ``starting`` with the step and its seconds
+(:meth:`WarmUp.status`).
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ WARM_STEP = "loading the tracker's compiled kernels"
 WARM_EXPECTED = "under a second from numba's cache; about 30 s on the first start after an install, which compiles them"
 
 
-class Startup:
+class WarmUp:
     """``await run(then)``: ``warm()`` on a daemon thread, then ``then()`` on the calling event loop."""
 
     def __init__(self, warm: Callable[[], None], priority: int = 0,

@@ -10,7 +10,7 @@ model (a new calibration, a rollback: :meth:`Storage.switch_model`), since marks
 one model's print map sit elsewhere on another's.
 
 Who does what: the frame loop takes a :class:`TextureSnapshot` when the marks change
-(:class:`TextureWatch`: an event, or every ``REFRESH_FRAMES`` frames while marks are refined),
+(:class:`TextureSnapshotter`: an event, or every ``REFRESH_FRAMES`` frames while marks are refined),
 never touching the disk; the rig's watchdog hands the newest to :meth:`TextureStore.save`, which
 writes it atomically at most every ``SAVE_EVERY_S`` (the first change at once). A full or read-only
 disk is the ``storage`` fault (:mod:`datadir`), the state stays in memory and the write is tried
@@ -52,7 +52,7 @@ class TextureSnapshot:
     state: dict[str, Any]  # Texture.state(): the document kept on disk
 
 
-class TextureWatch:
+class TextureSnapshotter:
     """On the frame loop: ``observe`` after each tracked frame; ``latest`` is the newest snapshot."""
 
     def __init__(self) -> None:

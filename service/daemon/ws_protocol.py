@@ -11,7 +11,7 @@ A connection offers this through its ASGI scope (``scope["extensions"]["graytrac
 the protocol itself) only when the bytes on the wire would be the same as ``send_text`` writes: a
 server's frames are not masked, and no extension was negotiated (permessage-deflate compresses per
 connection: such a connection, and any server without this protocol, such as Starlette's test
-client, is sent to through ``send_text`` as before). Back-pressure is kept: a transport above its
+client, is sent to through ``send_text``). Back-pressure is kept: a transport above its
 high-water mark (``writable`` cleared by ``pause_writing``) is not written to; the broadcaster queues
 for that client instead.
 

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from graytrack.core.calibration import calibrate
-from graytrack.core.diagnosis.heldout import HELD_OUT_BLOCKS, held_out_blocks, validate
+from graytrack.core.diagnosis.heldout import (HELD_OUT_BLOCKS, HOLDOUT_BLOCK_FRAMES, HOLDOUT_EVERY, held_out_blocks,
+                                              loop_split, reading_blocks, validate)
 from graytrack.core.errors import CalibrationError
 from graytrack.core.recording import Recording, save
 from graytrack.drivers.sim.scenarios import build_rig
@@ -125,3 +126,19 @@ def test_a_validation_recording_replaces_the_folds_and_must_share_the_roi(stops,
     narrow = Recording(validation.frames[:, :-1], validation.t, validation.reference, dict(validation.meta))
     with pytest.raises(CalibrationError, match="same camera ROI"):
         calibrate_recording(stops, "paper", validation=narrow)
+
+
+def test_the_loop_holds_out_one_fold_of_the_same_reading_blocks(stops) -> None:
+    """The closed loop compares its candidates on one fold none of them fitted (why one: heldout.py's docstring),
+    a quarter of the frames; its blocks come from the same function as the two-fold's, so no stop is cut: a
+    held-out frame never shares a grating reading with a fitted one. A scan whose every frame has its own
+    reading (the demo's) gets blocks of HOLDOUT_BLOCK_FRAMES frames, as the loop always held out."""
+    data, train, val, _ = loop_split(stops, None)
+    assert len(train.x_mm) + len(val.x_mm) == len(data.x_mm) and len(val.x_mm) > 0
+    assert not set(train.x_mm.tolist()) & set(val.x_mm.tolist())  # no stop cut between fit and held-out
+    block = reading_blocks(data.x_mm, HOLDOUT_BLOCK_FRAMES)
+    np.testing.assert_array_equal(val.x_mm, data.x_mm[block % HOLDOUT_EVERY == HOLDOUT_EVERY // 2])
+    np.testing.assert_array_equal(block, np.maximum.accumulate(block))  # numbered in recording order
+    assert np.array_equal(np.unique(block), np.arange(block.max() + 1))  # no number skipped: every 4th is a 4th
+    scan = np.linspace(1.0, 9.0, 1000)
+    np.testing.assert_array_equal(reading_blocks(scan, HOLDOUT_BLOCK_FRAMES), np.arange(1000) // HOLDOUT_BLOCK_FRAMES)

@@ -342,8 +342,8 @@ def test_an_install_whose_record_row_cannot_be_written_is_undone_whole(
     data = tmp_path / "data"
     with LiveServer(create_app(fast_settings(data, auto_calibrate="never"))) as daemon:
         daemon.wait_state("tracking")
-        record = daemon.rig.record
-        monkeypatch.setattr(record, "add_calibration",
+        history = daemon.rig.history
+        monkeypatch.setattr(history, "add_calibration",
                             lambda row: (_ for _ in ()).throw(sqlite3.OperationalError("database or disk is full")))
         job_id = daemon.post("/api/calibration", headers=daemon.auth()).json()["id"]
         job = wait_job(daemon.get, job_id, ("failed", "done"), 30.0)

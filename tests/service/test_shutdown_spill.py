@@ -11,7 +11,7 @@ import pytest
 
 from graytrack.service.daemon.datadir import DataDirHealth, identity
 from graytrack.service.daemon.event_log import EventLog
-from graytrack.service.daemon.record import Record
+from graytrack.service.daemon.history import LabHistory
 
 pytestmark = pytest.mark.unit
 NO_DISK_HAS_THIS_MUCH = 1 << 62  # the directory reads as full however much it has free
@@ -40,7 +40,7 @@ def test_a_final_status_kept_for_a_full_disk_is_logged_whole_at_shutdown(
 def test_events_the_record_could_not_take_are_logged_with_their_times_at_shutdown(
         tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     why: list[str | None] = ["the data directory was removed"]
-    events = EventLog(Record(tmp_path / "record.sqlite"), lambda: why[0], lambda reason: None,
+    events = EventLog(LabHistory(tmp_path / "record.sqlite"), lambda: why[0], lambda reason: None,
                       max_age_days=30, max_count=1000)
     events.write("model_stale", "cause: scale", frame=1234)
     events.write("shutdown", "daemon stopped")

@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 
 from graytrack.drivers.sim.scenarios import build_config, build_rig
-from graytrack.drivers.sim.stage import SimStage, SoftLimitError, StageConfig, constant_velocity
+from graytrack.drivers.sim.stage import SimStage, SoftLimitError, SimStageConfig, constant_velocity
 
 from .helpers import sine_fit
 
 
 def test_move_respects_velocity_and_acceleration_limits_and_arrives():
-    stage = SimStage(StageConfig(velocity_mm_s=4.0, acceleration_mm_s2=50.0))
+    stage = SimStage(SimStageConfig(velocity_mm_s=4.0, acceleration_mm_s2=50.0))
     t_end = stage.move_to(10.0, 0.2)
     assert t_end == pytest.approx(0.2 + 10.0 / 4.0 + 4.0 / 50.0)  # trapezoid: d/v + v/a
     t = np.linspace(0, t_end + 0.5, 20001)
@@ -26,7 +26,7 @@ def test_move_respects_velocity_and_acceleration_limits_and_arrives():
 
 
 def test_soft_limits_stop_and_moves_during_moves():
-    stage = SimStage(StageConfig(soft_limits_mm=(0.0, 20.0)))
+    stage = SimStage(SimStageConfig(soft_limits_mm=(0.0, 20.0)))
     with pytest.raises(SoftLimitError):
         stage.move_to(25.0, 0.0)
     stage.move_to(15.0, 0.0)
@@ -45,7 +45,7 @@ def test_following_error_is_proportional_to_velocity():
     zeta, omega = cfg.damping, 2 * math.pi * 15
     lags = []
     for v in (2.0, 6.0):
-        stage = SimStage(StageConfig(**{**vars(cfg), "velocity_mm_s": v}))
+        stage = SimStage(SimStageConfig(**{**vars(cfg), "velocity_mm_s": v}))
         t_end = stage.move_to(20.0, 0.0)
         lags.append(float(stage.following_error(t_end / 2)))
     assert lags[0] == pytest.approx(2 * zeta * 2.0 / omega, rel=1e-3)
@@ -146,7 +146,7 @@ def test_grating_latency_reports_an_earlier_position():
 def test_position_kernel_matches_the_numpy_path():
     """The compiled per-instant position (what a live camera asks three times a frame) is the numpy
     path's ``p + e`` through moves, settling and rest, for numbers, rows and grids of instants."""
-    stage = SimStage(StageConfig(damping=0.3), position_mm=1.0, t_s=0.0)  # a servo that rings after each move
+    stage = SimStage(SimStageConfig(damping=0.3), position_mm=1.0, t_s=0.0)  # a servo that rings after each move
     stage.move_to(6.0, 0.1)
     stage.move_to(2.5, 2.0)
     t = np.concatenate([np.linspace(-0.5, 5.0, 4001), [0.1, 2.0]])

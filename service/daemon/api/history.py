@@ -26,7 +26,7 @@ FILES = {"report.html": "text/html", "report.json": "application/json", "model.j
 def calibrations(limit: int = Query(20, ge=1, le=500), offset: int = Query(0, ge=0, le=MAX_ROW_ID),
                  rig: Rig = Depends(get_rig)) -> CalibrationPage:
     """Calibrations that finished ``done``, newest first."""
-    items, total = rig.record.calibrations(limit, offset)
+    items, total = rig.history.calibrations(limit, offset)
     active = rig.storage.active_id()
     return CalibrationPage(items=[_row(item, active) for item in items], total=total, limit=limit, offset=offset)
 
@@ -38,7 +38,7 @@ def _row(row: dict[str, Any], active: str | None) -> CalibrationRow:
 
 @router.get("/api/calibrations/{calibration_id}", response_model=CalibrationRow, responses=errors(404))
 def calibration_row(calibration_id: str, rig: Rig = Depends(get_rig)) -> CalibrationRow:
-    row = rig.record.calibration(calibration_id)
+    row = rig.history.calibration(calibration_id)
     if row is None:
         raise NotFound(f"no finished calibration {calibration_id!r}")
     return _row(row, rig.storage.active_id())
@@ -47,7 +47,7 @@ def calibration_row(calibration_id: str, rig: Rig = Depends(get_rig)) -> Calibra
 @router.get("/api/calibrations/{calibration_id}/files/{name}", response_class=FileResponse, responses=errors(404))
 def calibration_file(calibration_id: str, name: str, rig: Rig = Depends(get_rig)) -> FileResponse:
     """``report.html``, ``report.json``, ``model.json`` or ``recording.npz`` of a finished calibration."""
-    row = rig.record.calibration(calibration_id)
+    row = rig.history.calibration(calibration_id)
     if row is None or name not in FILES or name not in row["files"]:
         raise NotFound(f"no file {name!r} in calibration {calibration_id!r}")
     path = rig.storage.calibration_dir(calibration_id) / name
@@ -81,7 +81,7 @@ def events(since: str = Query("0", description=f"an event id (the last one seen,
            limit: int = Query(200, ge=1, le=500), rig: Rig = Depends(get_rig)) -> list[Event]:
     """Events after ``since``, oldest first."""
     if EVENT_ID.fullmatch(since):
-        return _events(rig.record.events(since_id=int(since), limit=limit))
+        return _events(rig.history.events(since_id=int(since), limit=limit))
     wrong = f"since={since[:40]!r}: give an event id (at most 18 digits) or an ISO 8601 time from {FIRST_YEAR} on"
     try:
         moment = datetime.fromisoformat(since.replace("Z", "+00:00"))
@@ -92,7 +92,7 @@ def events(since: str = Query("0", description=f"an event id (the last one seen,
         since_unix = moment.timestamp()
     except (ValueError, OverflowError, OSError):  # not a time, or one the platform cannot place
         raise Invalid(wrong) from None
-    return _events(rig.record.events(since_unix=since_unix, limit=limit))
+    return _events(rig.history.events(since_unix=since_unix, limit=limit))
 
 
 def _events(rows: list[dict[str, Any]]) -> list[Event]:

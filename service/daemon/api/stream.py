@@ -16,7 +16,7 @@ import math
 
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 
-from graytrack.service.daemon.broadcast import Broadcaster, Client
+from graytrack.service.daemon.broadcast import Broadcaster, Subscriber
 from graytrack.service.daemon.limits import WS_CONTROL_BYTES, WS_MESSAGE_TOO_BIG, WS_TRY_AGAIN_LATER, ConnectionLimits
 from graytrack.service.daemon.ws_protocol import EXTENSION, REFUSAL
 
@@ -62,7 +62,7 @@ def _max_rate(text: str | None) -> float | None | bool:
     return value if math.isfinite(value) and value > 0 else False
 
 
-async def _pump(websocket: WebSocket, client: Client, broadcaster: Broadcaster) -> None:
+async def _pump(websocket: WebSocket, client: Subscriber, broadcaster: Broadcaster) -> None:
     queue, writer = client.queue, client.writer
     try:
         while True:

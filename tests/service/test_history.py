@@ -207,33 +207,33 @@ def test_a_damaged_record_is_set_aside_and_rebuilt_from_the_calibration_folders(
 def test_an_event_log_that_cannot_be_written_is_a_fault_not_a_line_on_stderr(tmp_path: Path) -> None:
     with LiveServer(create_app(fast_settings(tmp_path, auto_calibrate="never"))) as daemon:
         daemon.wait_state("idle")
-        record = daemon.rig.record
-        real_db = record._db
-        record._db = sqlite3.connect(":memory:", check_same_thread=False)  # no tables: every write fails
+        history = daemon.rig.history
+        real_db = history._db
+        history._db = sqlite3.connect(":memory:", check_same_thread=False)  # no tables: every write fails
         daemon.rig.event("test", "an event that cannot be written")
         status = daemon.status()
         assert "record" in status["faults"] and "cannot be written" in status["faults"]["record"]
         assert "graytrack_faults_total 1.0" in daemon.get("/metrics").text
-        record._db = real_db
+        history._db = real_db
         daemon.rig.event("test", "written again")
         assert "record" not in daemon.status()["faults"]
 
 
 def test_the_event_log_is_compacted_by_age_and_count_keeping_the_newest_of_each_kind(tmp_path: Path) -> None:
-    from graytrack.service.daemon.record import Record
+    from graytrack.service.daemon.history import LabHistory
 
-    record = Record(tmp_path / "record.sqlite")
+    history = LabHistory(tmp_path / "record.sqlite")
     day = 86_400.0
-    record.event("start", "daemon started", t_unix=0.0)
-    record.event("fault", "camera: no frame", t_unix=1.0 * day)
+    history.event("start", "daemon started", t_unix=0.0)
+    history.event("fault", "camera: no frame", t_unix=1.0 * day)
     for i in range(30):
-        record.event("move", f"move to {i} mm", t_unix=2.0 * day + i)
-    assert record.compact(max_age_s=10 * day, max_count=1000, now=5.0 * day) == 0
-    assert record.compact(max_age_s=10 * day, max_count=10, now=5.0 * day) == 20  # by count
-    kept = record.events(limit=100)
+        history.event("move", f"move to {i} mm", t_unix=2.0 * day + i)
+    assert history.compact(max_age_s=10 * day, max_count=1000, now=5.0 * day) == 0
+    assert history.compact(max_age_s=10 * day, max_count=10, now=5.0 * day) == 20  # by count
+    kept = history.events(limit=100)
     assert [e["kind"] for e in kept] == ["start", "fault"] + ["move"] * 10, "the newest of each kind stays"
     assert kept[-1]["message"] == "move to 29 mm"
-    assert record.compact(max_age_s=1.0 * day, max_count=1000, now=3.0 * day + 25) == 5  # by age: 2 d + 0..24 s
-    assert [e["message"] for e in record.events(limit=100)][-5:] == [f"move to {i} mm" for i in range(25, 30)]
-    assert [e["kind"] for e in record.events(limit=100)][:2] == ["start", "fault"]
-    record.close()
+    assert history.compact(max_age_s=1.0 * day, max_count=1000, now=3.0 * day + 25) == 5  # by age: 2 d + 0..24 s
+    assert [e["message"] for e in history.events(limit=100)][-5:] == [f"move to {i} mm" for i in range(25, 30)]
+    assert [e["kind"] for e in history.events(limit=100)][:2] == ["start", "fault"]
+    history.close()

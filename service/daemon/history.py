@@ -1,4 +1,4 @@
-"""The record a lab lives with: calibrations and events in SQLite (``DATA/record.sqlite``).
+"""The history a lab lives with (:class:`LabHistory`): calibrations and events in SQLite (``DATA/record.sqlite``).
 
 Why SQLite (the standard library's): one file in the data directory, transactions, and WAL mode,
 so a reader never waits for the writer and a ``kill -9`` loses at most the transaction in flight,
@@ -58,24 +58,24 @@ CALIBRATION_COLUMNS = ("id", "started", "finished", "model_kind", "model", "erro
 MAX_PAGE = 500
 
 
-def open_record(path: Path) -> tuple["Record", str | None]:
-    """The record at ``path``: ``(record, what was rebuilt and why)``, the second None when it opened as it was.
+def open_history(path: Path) -> tuple["LabHistory", str | None]:
+    """The history at ``path``: ``(history, what was rebuilt and why)``, the second None when it opened as it was.
 
     Only damage sets a file aside: SQLite's "file is not a database" or "malformed", or a page that
-    does not read back. A 0-byte file (what a start on a full disk used to leave) is said, not
+    does not read back. A 0-byte file (its pages never written: a disk full before the first one) is said, not
     taken silently for an empty history. A full or read-only disk raises :class:`InsufficientStorage`
     with nothing renamed and nothing created: it is not the record's fault, and freeing space fixes it.
     """
     path = Path(path)
     existed = path.exists()
     empty = existed and path.stat().st_size == 0
-    record = None
+    history = None
     try:
-        record = Record(path)
-        record.check()
+        history = LabHistory(path)
+        history.check()
     except sqlite3.Error as exc:
-        if record is not None:
-            record.close()
+        if history is not None:
+            history.close()
         if not (isinstance(exc, Damaged) or corrupt(exc)):
             if not existed:
                 for suffix in ("", "-wal", "-shm"):  # nothing left behind by the attempt
@@ -88,19 +88,19 @@ def open_record(path: Path) -> tuple["Record", str | None]:
             companion = path.with_name(path.name + suffix)
             if companion.exists():
                 companion.replace(aside.with_name(aside.name + suffix))
-        return Record(path), (f"the record could not be read ({exc}): the damaged file was kept as {aside.name} and a "
-                              f"new record started; the calibrations come back from their folders")
+        return LabHistory(path), (f"the record could not be read ({exc}): the damaged file was kept as {aside.name} "
+                                  f"and a new record started; the calibrations come back from their folders")
     if empty:
-        return record, ("the record was an empty file (0 bytes: its history was lost before this start): a new "
+        return history, ("the record was an empty file (0 bytes: its history was lost before this start): a new "
                         "record started; the calibrations come back from their folders")
-    return record, None
+    return history, None
 
 
 class Damaged(sqlite3.DatabaseError):
     """A page of the record does not read back (``PRAGMA quick_check``)."""
 
 
-class Record:
+class LabHistory:
     def __init__(self, path: Path) -> None:
         self.path = Path(path)
         self._lock = threading.Lock()
