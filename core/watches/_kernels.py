@@ -382,7 +382,7 @@ def _magnification_add(normal, noise, right, sc, x: float, m: float, sigma: floa
 
 
 def _place_add(roots, total, x: float, w: float, p) -> float:
-    """PlaceSpread.add (core/stretch_place.py): one frame of weight ``w`` (1/ppm²) at ``x`` into its
+    """PlaceSpread.add (core/place_spread.py): one frame of weight ``w`` (1/ppm²) at ``x`` into its
     place's decayed sum of √w (p: decay a frame, the place's width in mm, the model's share of a
     frame's variance fixed at a place); the variance (ppm²) the places' own stretch leaves in the
     weighted mean of the stretches, share × Σ_place (Σ√w)² / (Σw)²."""

@@ -30,7 +30,7 @@ import numpy as np
 
 from graytrack.core.stretch import FrameStretch, compiled_for, stretches
 from graytrack.core.stretch import warm as stretch_warm
-from graytrack.core.stretch_place import PlaceSpread, model_share
+from graytrack.core.place_spread import PlaceSpread, model_share
 from graytrack.core.watches import _kernels
 
 MEMORY = 50  # frames: the mean's time constant
@@ -54,7 +54,7 @@ class MagnificationWatch:
 
     def __init__(self, period_mm: float, profile: "StretchProfile | None" = None, record: bool = False,
                  place_share: float = 0.0) -> None:
-        """``place_share``: of a frame's stretch variance, the model's own at a place (core/stretch_place.py)."""
+        """``place_share``: of a frame's stretch variance, the model's own at a place (core/place_spread.py)."""
         self.period_mm = period_mm
         self.profile = profile  # the model's own stretch along the stroke, from its calibration frames
         self.allowance_ppm = max(STRUCTURE_PPM, profile.residual_ppm if profile is not None else 0.0)
@@ -72,7 +72,7 @@ class MagnificationWatch:
         self._prior = np.diag([0.0, 0.0] + [PRIOR_PPM ** -2] * 4)
         self.turning_ppm = 0.0
         # the model's own stretch at the places the mean was taken (a stage at rest never averages it):
-        # added to the mean's variance, with the accounted stretch's, in _scalars[4] (core/stretch_place.py)
+        # added to the mean's variance, with the accounted stretch's, in _scalars[4] (core/place_spread.py)
         self.place = PlaceSpread(math.exp(-1.0 / MEMORY), place_share)
         self._accounted_var = 0.0  # ppm²: the stretch a trim accounts for
 
