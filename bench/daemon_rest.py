@@ -152,7 +152,8 @@ def main() -> None:
               f"{dict(counts['rest'])}", flush=True)
     for phase in ("rest", "moving"):
         share = 100.0 * sum(total[phase].values()) / max(frames_total[phase], 1)
-        reasons = ", ".join(f"{reason} {100.0 * n / frames_total[phase]:.2f} %" for reason, n in total[phase].most_common())
+        reasons = ", ".join(f"{reason} {100.0 * n / frames_total[phase]:.2f} %"
+                            for reason, n in total[phase].most_common())
         print(f"{phase}: {share:.2f} % of {frames_total[phase]} frames flagged ({reasons or 'none'})")
     placed = frames_total["rest"] + frames_total["moving"]
     print(f"off the truth by {FAR_BOUNDS:g}+ bounds: {off_total['flagged']} flagged, {off_total['unflagged']} "

@@ -1,8 +1,9 @@
 """The model's own error at a place, in a mean over frames: what a stage at rest never averages.
 
 A frame's stretch (core/stretch.py) is the projection of its residual onto the shape a magnification
-leaves (its focus change, onto a blur's: core/watches/focus.py, the same argument). The residual holds the frame's noise, which a mean over frames averages away, and the model's
-own error at that place of the print, the same on every frame taken there. At a place the model was
+leaves (its focus change, onto a blur's: core/watches/focus.py, the same argument). The residual holds
+the frame's noise, which a mean over frames averages away, and the model's own error at that place
+of the print, the same on every frame taken there. At a place the model was
 not fitted to, its coefficients' noise leaves an error there (as the scale watch takes a position's:
 ``reference_place_sigma_um``, core/calibration_line.py): over a moving stage the places change and it
 averages like noise; at rest it does not average at all. On the paper rig's daemon calibration (21
