@@ -17,8 +17,8 @@ The frames' √weights are summed per place, decayed as the watch's mean is: the
 places' own stretch has the variance share × Σ_place (Σ√w)² / (Σw)² (frames at one place: share × σ²;
 spread over N places: that over N). A place is :data:`PLACE_MM` wide (the model's stretch changes
 sign over 0.1-0.3 mm on the paper print); places :data:`PLACES` apart share a sum (a stage does not
-rest on both within one memory). The focus watch takes the same sum over its window at once
-(:func:`concentration`).
+rest on both within one memory). The focus watch keeps the same sum over its window
+(:class:`WindowPlaces`).
 
 A stage resting where the tracker solves a focus term (the model's misfit there asks for it) read
 the model's own focus change there: 2.5 ± 0.6 px² at 3.33 mm on seed 2's calibration, flagged
@@ -26,6 +26,9 @@ the model's own focus change there: 2.5 ± 0.6 px² at 3.33 mm on seed 2's calib
 """
 
 from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -52,17 +55,37 @@ class PlaceSpread:
         return _kernels._place_add(self.roots, self.total, float(x_mm), float(weight), self.params)
 
 
-def concentration(places_mm: np.ndarray, weights: np.ndarray) -> float:
-    """Σ_place (Σ√w)² / (Σw)² of a window's frames (at ``places_mm``, weights ``weights``): 1 when all
-    sit at one place, 1/N over N places of equal weight; a frame of unknown place is a place apart."""
-    if not weights.size or not weights.sum() > 0:
-        return 0.0
-    finite = np.isfinite(places_mm)
-    place = np.where(finite, np.floor(np.where(finite, places_mm, 0.0) / PLACE_MM), np.nan)
-    kinds, index = np.unique(place[finite], return_inverse=True)
-    roots = np.bincount(index, np.sqrt(weights[finite]), kinds.size) if kinds.size else np.zeros(0)
-    alone = weights[~finite]
-    return float((roots @ roots + alone.sum()) / weights.sum() ** 2)
+@dataclass
+class WindowPlaces:
+    """Σ√w per place of the frames in a window (the focus watch's), kept as frames enter and leave:
+    :meth:`concentration` is Σ_place (Σ√w)² / (Σw)², 1 when all sit at one place, 1/N over N places of
+    equal weight; a frame of unknown place is a place apart."""
+
+    _roots: dict[int, list[float]] = field(default_factory=dict)  # place → [Σ√w, frames]
+    _alone: float = 0.0  # Σw of frames of unknown place
+
+    def add(self, x_mm: float, weight: float, sign: float = 1.0) -> None:
+        if not math.isfinite(x_mm):
+            self._alone += sign * weight
+            return
+        place = math.floor(x_mm / PLACE_MM)
+        entry = self._roots.setdefault(place, [0.0, 0.0])
+        entry[0] += sign * math.sqrt(weight)
+        entry[1] += sign
+        if entry[1] <= 0.0:
+            del self._roots[place]
+
+    def remove(self, x_mm: float, weight: float) -> None:
+        self.add(x_mm, weight, -1.0)
+
+    def clear(self) -> None:
+        self._roots.clear()
+        self._alone = 0.0
+
+    def concentration(self, total_weight: float) -> float:
+        if not total_weight > 0.0:
+            return 0.0
+        return (sum(root * root for root, _ in self._roots.values()) + self._alone) / (total_weight * total_weight)
 
 
 def model_share(model) -> float:

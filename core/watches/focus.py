@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from graytrack.core.place_spread import concentration, model_share
+from graytrack.core.place_spread import WindowPlaces, model_share
 from graytrack.core.validity import FrameSign
 
 FOCUS_WINDOW = 50  # frames of focus estimates averaged
@@ -62,6 +62,7 @@ class FocusWatch:
     place_share: float = 0.0
     family: str = "focus"
     _estimates: deque = field(default_factory=deque)  # (δ, 1/σ², χ², x)
+    _places: WindowPlaces = field(default_factory=WindowPlaces, repr=False)  # the window's frames by place
     _missing: int = 0
     change_px2: float = float("nan")  # the window's median change, as last judged
     change_sigma_px2: float = float("nan")
@@ -73,14 +74,17 @@ class FocusWatch:
     def step(self, focus: float, sigma: float, chi2: float, field: bool, x_mm: float = math.nan) -> str | None:
         if math.isfinite(sigma) and sigma > 0.0 and math.isfinite(focus):
             self._estimates.append((focus, 1.0 / (sigma * sigma), chi2, x_mm))
+            self._places.add(x_mm, 1.0 / (sigma * sigma))
             if len(self._estimates) > self.window:
-                self._estimates.popleft()
+                _, gone, _, at = self._estimates.popleft()
+                self._places.remove(at, gone)
             self._missing = 0
         else:
             self._missing += 1
             # the tracker's evidence took a light field over the focus: the estimates were mimicry
             if self._missing >= self.window or field:
                 self._estimates.clear()
+                self._places.clear()
         if len(self._estimates) < self.min_frames:
             self.change_px2 = self.change_sigma_px2 = float("nan")
             return None
@@ -88,7 +92,8 @@ class FocusWatch:
         cumulative = list(accumulate(map(itemgetter(1), ordered)))  # (C-level: this runs every focus frame)
         precision = cumulative[-1]
         self.change_px2 = ordered[bisect_left(cumulative, 0.5 * precision)][0]  # the precision-weighted median
-        self.change_sigma_px2 = math.sqrt(MEDIAN_EFFICIENCY * MEDIAN_EFFICIENCY / precision + self._place_var())
+        place_var = self.place_share * self._places.concentration(precision)  # the model's own focus at the places
+        self.change_sigma_px2 = math.sqrt(MEDIAN_EFFICIENCY * MEDIAN_EFFICIENCY / precision + place_var)
         low, high = self.calibrated_px2
         beyond = max(low - self.change_px2, self.change_px2 - high)
         moved = abs(self.change_px2) > self.z * self.change_sigma_px2 and beyond > self.min_change_px2
@@ -110,14 +115,18 @@ class FocusWatch:
         cleared = ~valid & ((missing >= self.window) | columns.array("field", bool))
         if cleared.any():
             self._estimates.clear()
+            self._places.clear()
             start = int(np.flatnonzero(cleared)[-1]) + 1
         else:
             start = 0
         if count:
             chi2, x = columns.array("chi2", np.float64), columns.array("x_mm", np.float64)
             kept = np.flatnonzero(valid[start:]) + start
-            self._estimates.extend(zip(focus[kept].tolist(), (1.0 / (sigma[kept] * sigma[kept])).tolist(),
-                                       chi2[kept].tolist(), x[kept].tolist()))
+            entering = list(zip(focus[kept].tolist(), (1.0 / (sigma[kept] * sigma[kept])).tolist(),
+                                chi2[kept].tolist(), x[kept].tolist()))
+            self._estimates.extend(entering)
+            for _, weight, _, at in entering:
+                self._places.add(at, weight)
         self._missing = int(missing[-1]) if not valid[-1] else 0
         self.change_px2 = self.change_sigma_px2 = float("nan")
         return [None] * n
@@ -129,14 +138,6 @@ class FocusWatch:
         scatter = sum(p * (d - self.change_px2) ** 2 for d, p, _, _ in self._estimates) / max(n - 1, 1)
         chi2 = sorted(c for _, _, c, _ in self._estimates)[n // 2]
         return scatter < FOCUS_SCATTER_LIMIT and not chi2 > self.chi2_limit
-
-    def _place_var(self) -> float:
-        """px²: what the model's own focus at the window's places leaves in it (a frame's variance there is
-        1/precision: share × Σ_place (Σ√p)² / (Σp)²)."""
-        if not self.place_share:
-            return 0.0
-        _, precision, _, x = (np.array(column) for column in zip(*self._estimates))
-        return self.place_share * concentration(x, precision)
 
     @classmethod
     def for_model(cls, model, chi2_calibration: float = math.nan) -> "FocusWatch":
