@@ -12,7 +12,7 @@ tests/service/helpers.py FAST_TABLES), then one :class:`LiveTracker` with the da
 30 places, 40 frames each, the variance of the mean stretch beyond its noise over a frame's stretch variance,
 against the model's coefficients over its calibration's frames (``--stop-frames`` a stop).
 
-Run: .venv/bin/python bench/daemon_rest.py [--seeds 4] [--rests 8] [--frames 300] [--scenario paper]
+Run: .venv/bin/python bench/daemon_rest.py [--seeds 4] [--rests 8] [--frames 300] [--scenario paper] [--trim]
      .venv/bin/python bench/daemon_rest.py --share [--stop-frames 3]
 """
 
@@ -59,9 +59,10 @@ def rests(rng: np.random.Generator, stroke: tuple[float, float], n: int) -> np.n
     return rng.uniform(stroke[0] + margin, stroke[1] - margin, n)
 
 
-def track(model, rig: VirtualRig, targets: np.ndarray, frames_per_rest: int, speed_mm_s: float):
-    """Counters of stale reasons at rest and while moving, and the frames off the truth (flagged or not)."""
-    watch = ReferenceTrim(False).watch_for(model)
+def track(model, rig: VirtualRig, targets: np.ndarray, frames_per_rest: int, speed_mm_s: float, trim: bool = False):
+    """Counters of stale reasons at rest and while moving, and the frames off the truth (flagged or not);
+    ``trim``: the daemon's ``[daemon] trim`` (its scale watch with a trim of its own)."""
+    watch = ReferenceTrim(trim).watch_for(model)
     tracker = LiveTracker(model, float(targets[0]), watches=[watch] if watch is not None else [])
     counts = {"rest": collections.Counter(), "moving": collections.Counter()}
     frames = {"rest": 0, "moving": 0}
@@ -125,6 +126,7 @@ def main() -> None:
     parser.add_argument("--rests", type=int, default=8, help="rest positions per seed")
     parser.add_argument("--frames", type=int, default=300, help="frames at each rest")
     parser.add_argument("--speed", type=float, default=5.0, help="mm/s between rests")
+    parser.add_argument("--trim", action="store_true", help="as the daemon with [daemon] trim = true")
     parser.add_argument("--share", action="store_true", help="measure the model's own stretch at a place instead")
     parser.add_argument("--stop-frames", type=int, default=STOP_FRAMES, help="calibration frames a stop (--share)")
     args = parser.parse_args()
@@ -142,7 +144,7 @@ def main() -> None:
         model = calibrated(calibration, stroke)
         run = build_rig(args.scenario, seed=seed, run=1)  # the same rig, fresh noise: the run after calibration
         counts, frames, off = track(model, run, rests(np.random.default_rng(seed), stroke, args.rests),
-                                    args.frames, args.speed)
+                                    args.frames, args.speed, args.trim)
         for phase in total:
             total[phase].update(counts[phase])
             frames_total[phase] += frames[phase]
