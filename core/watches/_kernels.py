@@ -334,7 +334,7 @@ def _bound_run(state, blame, table, start, grid_step, placed, information, x, ro
 
 
 # ---------------------------------------------------------------- the magnification watch
-# sc: Σdᵃ·w·m², Σdᵃ, mean (ppm), its σ (ppm), the accounted stretch's variance (ppm²), flagged
+# sc: Σdᵃ·w·m², Σdᵃ, mean (ppm), its σ (ppm), the variance the trim's stretch and the places add (ppm²), flagged
 # p: decay a frame, period (mm), the ageing term (−1/MEMORY), MIN_FRAMES, allowance², Z_ON, Z_OFF
 
 def _age(matrix, ageing: float) -> None:
@@ -381,13 +381,34 @@ def _magnification_add(normal, noise, right, sc, x: float, m: float, sigma: floa
     return significant
 
 
-def _magnification_run(normal, noise, right, sc, x, m, sigma, use, start: int, p, out) -> int:
+def _place_add(roots, total, x: float, w: float, p) -> float:
+    """PlaceSpread.add (core/place_spread.py): one frame of weight ``w`` (1/ppm²) at ``x`` into its
+    place's decayed sum of √w (p: decay a frame, the place's width in mm, the model's share of a
+    frame's variance fixed at a place); the variance (ppm²) the places' own stretch leaves in the
+    weighted mean of the stretches, share × Σ_place (Σ√w)² / (Σw)²."""
+    d = p[0]
+    for b in range(roots.size):
+        roots[b] = d * roots[b]
+    k = int(math.floor(x / p[1])) % roots.size
+    roots[k] = roots[k] + math.sqrt(w)
+    total[0] = d * total[0] + w
+    spread = 0.0
+    for b in range(roots.size):
+        spread = spread + roots[b] * roots[b]
+    return p[2] * spread / (total[0] * total[0])
+
+
+def _magnification_run(normal, noise, right, sc, x, m, sigma, use, start: int, p, out,
+                       place_roots, place_total, place_p) -> int:
     """MagnificationWatch._add of frames ``start:`` where ``use`` (the flag after each into ``out``),
-    stopping at a frame whose mean is significant (returned: Python judges its turning and goes on
-    from the next); the number of frames when none is."""
+    each mean's σ widened by what the model's own stretch at its places leaves in it
+    (:func:`_place_add`), stopping at a frame whose mean is significant (returned: Python judges its turning
+    and goes on from the next); the number of frames when none is."""
     for i in range(start, x.size):
-        if use[i] and _magnification_add(normal, noise, right, sc, x[i], m[i], sigma[i], p):
-            return i
+        if use[i]:
+            sc[4] = _place_add(place_roots, place_total, x[i], 1.0 / (sigma[i] * sigma[i]), place_p)
+            if _magnification_add(normal, noise, right, sc, x[i], m[i], sigma[i], p):
+                return i
         out[i] = sc[5] != 0.0
     return x.size
 
@@ -395,6 +416,7 @@ def _magnification_run(normal, noise, right, sc, x, m, sigma, use, start: int, p
 if COMPILED:
     _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
     _age, _magnification_add, _magnification_run = _jit(_age), _jit(_magnification_add), _jit(_magnification_run)
+    _place_add = _jit(_place_add)
     _max, _min, _running, slide_window = _jit(_max), _jit(_min), _jit(_running), _jit(slide_window)
     _chi2_per_dof, _update, _reset = _jit(_chi2_per_dof), _jit(_update), _jit(_reset)
     _reference_run = _jit(_reference_run)

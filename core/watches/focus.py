@@ -20,6 +20,9 @@ from itertools import accumulate
 from operator import itemgetter
 from dataclasses import dataclass, field
 
+import numpy as np
+
+from graytrack.core.place_spread import WindowPlaces, model_share
 from graytrack.core.validity import FrameSign
 
 FOCUS_WINDOW = 50  # frames of focus estimates averaged
@@ -54,27 +57,34 @@ class FocusWatch:
     min_change_px2: float = FOCUS_MIN_CHANGE_PX2
     calibrated_px2: tuple[float, float] = (0.0, 0.0)
     chi2_limit: float = math.inf  # a frame's χ² (with the focus solved) beyond which it is not explained
+    # of a frame's focus variance, the model's own at a place (core/place_spread.py): a window taken at one
+    # place (a stage at rest) holds it whole, one spread over many places averages it
+    place_share: float = 0.0
     family: str = "focus"
-    _estimates: deque = field(default_factory=deque)  # (δ, 1/σ²)
+    _estimates: deque = field(default_factory=deque)  # (δ, 1/σ², χ², x)
+    _places: WindowPlaces = field(default_factory=WindowPlaces, repr=False)  # the window's frames by place
     _missing: int = 0
     change_px2: float = float("nan")  # the window's median change, as last judged
     change_sigma_px2: float = float("nan")
-    reads = ("focus", "focus_sigma", "chi2", "field")  # (a class attribute: not a field)
+    reads = ("focus", "focus_sigma", "chi2", "field", "x_mm")  # (a class attribute: not a field)
 
     def observe(self, sign: FrameSign) -> str | None:
-        return self.step(sign.focus, sign.focus_sigma, sign.chi2, sign.field)
+        return self.step(sign.focus, sign.focus_sigma, sign.chi2, sign.field, sign.x_mm)
 
-    def step(self, focus: float, sigma: float, chi2: float, field: bool) -> str | None:
+    def step(self, focus: float, sigma: float, chi2: float, field: bool, x_mm: float = math.nan) -> str | None:
         if math.isfinite(sigma) and sigma > 0.0 and math.isfinite(focus):
-            self._estimates.append((focus, 1.0 / (sigma * sigma), chi2))
+            self._estimates.append((focus, 1.0 / (sigma * sigma), chi2, x_mm))
+            self._places.add(x_mm, 1.0 / (sigma * sigma))
             if len(self._estimates) > self.window:
-                self._estimates.popleft()
+                _, gone, _, at = self._estimates.popleft()
+                self._places.remove(at, gone)
             self._missing = 0
         else:
             self._missing += 1
             # the tracker's evidence took a light field over the focus: the estimates were mimicry
             if self._missing >= self.window or field:
                 self._estimates.clear()
+                self._places.clear()
         if len(self._estimates) < self.min_frames:
             self.change_px2 = self.change_sigma_px2 = float("nan")
             return None
@@ -82,7 +92,8 @@ class FocusWatch:
         cumulative = list(accumulate(map(itemgetter(1), ordered)))  # (C-level: this runs every focus frame)
         precision = cumulative[-1]
         self.change_px2 = ordered[bisect_left(cumulative, 0.5 * precision)][0]  # the precision-weighted median
-        self.change_sigma_px2 = MEDIAN_EFFICIENCY / math.sqrt(precision)
+        place_var = self.place_share * self._places.concentration(precision)  # the model's own focus at the places
+        self.change_sigma_px2 = math.sqrt(MEDIAN_EFFICIENCY * MEDIAN_EFFICIENCY / precision + place_var)
         low, high = self.calibrated_px2
         beyond = max(low - self.change_px2, self.change_px2 - high)
         moved = abs(self.change_px2) > self.z * self.change_sigma_px2 and beyond > self.min_change_px2
@@ -93,8 +104,6 @@ class FocusWatch:
         within them (the common case: the focus solved on a few frames, or on none): nothing is
         judged, and the window's estimates, gaps and clearings follow as frame by frame. Else None:
         frame by frame."""
-        import numpy as np
-
         sigma, focus = columns.array("focus_sigma", np.float64), columns.array("focus", np.float64)
         valid = np.isfinite(sigma) & (sigma > 0.0) & np.isfinite(focus)
         count = int(valid.sum())
@@ -106,14 +115,18 @@ class FocusWatch:
         cleared = ~valid & ((missing >= self.window) | columns.array("field", bool))
         if cleared.any():
             self._estimates.clear()
+            self._places.clear()
             start = int(np.flatnonzero(cleared)[-1]) + 1
         else:
             start = 0
         if count:
-            chi2 = columns.array("chi2", np.float64)
+            chi2, x = columns.array("chi2", np.float64), columns.array("x_mm", np.float64)
             kept = np.flatnonzero(valid[start:]) + start
-            self._estimates.extend(zip(focus[kept].tolist(), (1.0 / (sigma[kept] * sigma[kept])).tolist(),
-                                       chi2[kept].tolist()))
+            entering = list(zip(focus[kept].tolist(), (1.0 / (sigma[kept] * sigma[kept])).tolist(),
+                                chi2[kept].tolist(), x[kept].tolist()))
+            self._estimates.extend(entering)
+            for _, weight, _, at in entering:
+                self._places.add(at, weight)
         self._missing = int(missing[-1]) if not valid[-1] else 0
         self.change_px2 = self.change_sigma_px2 = float("nan")
         return [None] * n
@@ -122,8 +135,8 @@ class FocusWatch:
         """The window's estimates hold still (scatter about their median as their errors say) and
         the focus explains the frames (their median χ² within the limit)."""
         n = len(self._estimates)
-        scatter = sum(p * (d - self.change_px2) ** 2 for d, p, _ in self._estimates) / max(n - 1, 1)
-        chi2 = sorted(c for _, _, c in self._estimates)[n // 2]
+        scatter = sum(p * (d - self.change_px2) ** 2 for d, p, _, _ in self._estimates) / max(n - 1, 1)
+        chi2 = sorted(c for _, _, c, _ in self._estimates)[n // 2]
         return scatter < FOCUS_SCATTER_LIMIT and not chi2 > self.chi2_limit
 
     @classmethod
@@ -133,7 +146,7 @@ class FocusWatch:
         seen = model.info.get("calibration_focus_range_px2")
         limit = chi2_calibration * (1.0 + FOCUS_FIT_SPREADS * math.sqrt(2.0 / (model.n_rows * model.n_pixels)))
         return cls(calibrated_px2=(float(seen[0]), float(seen[1])) if seen else (0.0, 0.0),
-                   chi2_limit=limit if math.isfinite(limit) else math.inf)
+                   chi2_limit=limit if math.isfinite(limit) else math.inf, place_share=model_share(model))
 
 
 def make(tracker) -> FocusWatch | None:

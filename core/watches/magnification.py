@@ -30,6 +30,7 @@ import numpy as np
 
 from graytrack.core.stretch import FrameStretch, compiled_for, stretches
 from graytrack.core.stretch import warm as stretch_warm
+from graytrack.core.place_spread import PlaceSpread, model_share
 from graytrack.core.watches import _kernels
 
 MEMORY = 50  # frames: the mean's time constant
@@ -51,7 +52,9 @@ class MagnificationWatch:
     family = "magnification"
     reads = ("placed", "x_mm", "stretch")
 
-    def __init__(self, period_mm: float, profile: "StretchProfile | None" = None, record: bool = False) -> None:
+    def __init__(self, period_mm: float, profile: "StretchProfile | None" = None, record: bool = False,
+                 place_share: float = 0.0) -> None:
+        """``place_share``: of a frame's stretch variance, the model's own at a place (core/place_spread.py)."""
         self.period_mm = period_mm
         self.profile = profile  # the model's own stretch along the stroke, from its calibration frames
         self.allowance_ppm = max(STRUCTURE_PPM, profile.residual_ppm if profile is not None else 0.0)
@@ -68,6 +71,10 @@ class MagnificationWatch:
                                  self.allowance_ppm ** 2, Z_ON, Z_OFF])
         self._prior = np.diag([0.0, 0.0] + [PRIOR_PPM ** -2] * 4)
         self.turning_ppm = 0.0
+        # the model's own stretch at the places the mean was taken (a stage at rest never averages it):
+        # added to the mean's variance, with the accounted stretch's, in _scalars[4] (core/place_spread.py)
+        self.place = PlaceSpread(math.exp(-1.0 / MEMORY), place_share)
+        self._accounted_var = 0.0  # ppm²: the stretch a trim accounts for
 
     @property
     def flagged(self) -> bool:
@@ -87,7 +94,8 @@ class MagnificationWatch:
         one); its compiled loops ready now, at model install, not on a live frame."""
         _warm()
         doc = (getattr(model, "info", None) or {}).get("stretch_profile")
-        return cls(model.period_mm, StretchProfile.from_dict(doc) if isinstance(doc, dict) else None)
+        return cls(model.period_mm, StretchProfile.from_dict(doc) if isinstance(doc, dict) else None,
+                   place_share=model_share(model))
 
     def observe(self, sign) -> str | None:
         return self.step(sign.placed, sign.x_mm, sign.stretch)
@@ -96,14 +104,17 @@ class MagnificationWatch:
              accounted_sigma_ppm: float = 0.0) -> str | None:
         """``accounted_ppm`` (± its σ): the stretch a trim in force takes out of the positions (a grown
         print's, core/watches/scale.py), judged as the calibration's: what is left is the lens's."""
-        self._scalars[4] = accounted_sigma_ppm * accounted_sigma_ppm
+        self._accounted_var = accounted_sigma_ppm * accounted_sigma_ppm
+        self._scalars[4] = self._accounted_var
         if placed and stretch is not None and math.isfinite(x_mm):
             m, sigma = stretch()
             if math.isfinite(m) and 0 < sigma < math.inf:
                 if self.record is not None:
                     self.record.append((x_mm, m * 1e6, sigma * 1e6))
                 own = self.profile.at_ppm(x_mm) if self.profile is not None else 0.0
-                self._add(x_mm, m * 1e6 - own - accounted_ppm, sigma * 1e6)
+                sigma_ppm = sigma * 1e6
+                self._scalars[4] += self.place.add(x_mm, 1.0 / (sigma_ppm * sigma_ppm))
+                self._add(x_mm, m * 1e6 - own - accounted_ppm, sigma_ppm)
         if not self.flagged:
             return None
         # a print harmonic grown 2 % read as a steady 17000-25000 ppm while the stage saw less than a period
@@ -119,7 +130,7 @@ class MagnificationWatch:
         prior = CHANGE_PRIOR_PPM ** -2
         total = self._normal[0, 0] + prior
         mean = self._right[0] / total
-        squares, frames, accounted_var = self._scalars[0], self._scalars[1], self._scalars[4]
+        squares, frames, accounted_var = self._scalars[0], self._scalars[1], self._accounted_var
         scatter = max((squares - mean * self._right[0]) / (frames - 1.0), 1.0) if frames > 2 else 1.0
         variance = (self._noise[0, 0] * scatter + prior) / (total * total) + self.allowance_ppm ** 2 + accounted_var
         return math.sqrt(mean * mean + variance)
@@ -148,7 +159,7 @@ class MagnificationWatch:
         own = self.profile.at_ppm(x) if self.profile is not None else 0.0
         m_ppm = np.where(use, m * 1e6 - own, 0.0)  # as step: no trim accounts for any of it here
         sigma_ppm = np.where(use, sigma * 1e6, 1.0)
-        self._scalars[4] = 0.0
+        self._scalars[4] = self._accounted_var = 0.0
         out = np.zeros(n, dtype=np.bool_)
         beyond = np.zeros(n, dtype=np.bool_)  # flagged with a mean no lens makes (as step: LENS_PPM)
         start = 0
@@ -163,8 +174,10 @@ class MagnificationWatch:
                 for flagged, far in zip(out.tolist(), beyond.tolist())]
 
     def _run(self, x, m_ppm, sigma_ppm, use, start: int, out) -> int:
+        place = self.place
         return _kernels._magnification_run(self._normal, self._noise, self._right, self._scalars, x, m_ppm,
-                                           sigma_ppm, use, start, self._params, out)
+                                           sigma_ppm, use, start, self._params, out, place.roots, place.total,
+                                           place.params)
 
     def _add(self, x_mm: float, m_ppm: float, sigma_ppm: float) -> None:
         if _kernels._magnification_add(self._normal, self._noise, self._right, self._scalars, float(x_mm),
@@ -265,6 +278,8 @@ def _warm() -> None:
     watch._normal, watch._noise, watch._right = np.zeros((6, 6)), np.zeros((6, 6)), np.zeros(6)
     watch._scalars = np.array([0.0, 0.0, 0.0, math.inf, 0.0, 0.0])
     watch._params = np.array([1.0, 1.0, 0.0, math.inf, 0.0, Z_ON, Z_OFF])  # never enough frames to judge
+    watch.place = PlaceSpread(1.0, 0.0)
+    watch.place.add(0.0, 1.0)
     watch._add(0.0, 0.0, 1.0)
     one = np.zeros(1)
     watch._run(one, one, np.ones(1), np.ones(1, dtype=np.bool_), 0, np.zeros(1, dtype=np.bool_))

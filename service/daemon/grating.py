@@ -15,7 +15,14 @@ is mid-exposure on the same clock. A frame gets a reference only when it can be 
   delayed by a busy machine makes that large), which must stay below ``tolerance_mm`` too;
 * **at rest** — the last readings agree within ``tolerance_mm``, no move was commanded since the
   first of them, and the newest is at most ``rest_s`` old (a closed-loop axis at rest holds its
-  position; the limit only guards against a poller that stopped).
+  position; the limit only guards against a poller that stopped). After a command, readings that
+  still agree with the position before it prove nothing about the moments after them: the stage
+  takes a few ms to start, and a poller starved then (a busy host) left three such readings stand
+  for frames exposed while the stage was already under way (the daemon's virtual rig under two
+  busy loops: frames paired with 8.000 mm placed 75-960 µm off it, a lock re-acquired a period
+  away, 740 frames flagged ``scale``/``geometry``). So the rest after a command is the one the
+  readings reach once they have seen the stage move, or, for a command that moved nothing (a stop
+  at rest, a move to where it is), the one they hold for ``rest_s`` after it.
 
 Otherwise no reference is sent: a wrong reference is worse than none (the stream's ``error_um``
 would show the pairing, not the tracker). Pairing is called once per frame, so it scans the few
@@ -55,6 +62,8 @@ class Readings:
         self._latency: deque[float] = deque(maxlen=history)
         self._lock = threading.Lock()
         self.command_t = -math.inf  # host time of the last commanded move or stop
+        self._before_command: float | None = None  # the position read last before it (None: none read)
+        self._moved = True  # a reading since the command left that position (or there was none to leave)
 
     def append(self, t: float, x_mm: float, latency_s: float = 0.0) -> None:
         """A reading stamped ``t`` (host s), taken at most ``latency_s / 2`` from that stamp."""
@@ -64,6 +73,9 @@ class Readings:
             self._t.append(t)
             self._x.append(x_mm)
             self._latency.append(latency_s)
+            if not self._moved and t > self.command_t and self._before_command is not None \
+                    and abs(x_mm - self._before_command) > self.tolerance_mm:
+                self._moved = True
 
     def latest(self) -> tuple[float, float] | None:
         with self._lock:
@@ -84,8 +96,12 @@ class Readings:
         return max(recent) - min(recent) > self.tolerance_mm
 
     def note_command(self, t: float) -> None:
-        """A move or stop was sent at host time ``t``: rest seen before it proves nothing after it."""
-        self.command_t = t
+        """A move or stop was sent at host time ``t``: rest seen before it proves nothing after it, nor
+        does a reading after it of the position before it (the stage may not have started yet)."""
+        with self._lock:
+            self.command_t = t
+            self._before_command = self._x[-1] if self._x else None
+            self._moved = self._before_command is None
 
     def at(self, t: float, skew_s: float = 0.0) -> float:
         """The grating position at host time ``t``, or NaN when it cannot be known (see module doc).
@@ -133,6 +149,8 @@ class Readings:
         first = n - REST_READINGS
         if ts[first] <= self.command_t or ts[-1] - ts[first] > REST_READINGS * self.rest_s:
             return NAN
+        if not self._moved and ts[-1] - self.command_t < self.rest_s:
+            return NAN  # the position before the command, read since: the stage may be starting (module doc)
         newest = xs[-1]
         for k in range(first, n - 1):
             if abs(xs[k] - newest) > self.tolerance_mm:

@@ -117,14 +117,13 @@ def status(daemon: ServeProcess) -> dict[str, Any]:
 
 def test_the_pvs_follow_the_stream_and_the_status(bridge: Bridge, daemon: ServeProcess) -> None:
     wait_for(lambda: status(daemon)["state"] == "tracking" and not status(daemon)["moving"], 20.0, "a resting stage")
-    # a frame may be flagged alone (frame_flagged) at rest once in a while: the PV's alarm follows it, and the
-    # next frames' readings clear it (seen once in six suites, at the stroke's end)
-    wait_for(lambda: bridge.read("X_MM").metadata.severity == AlarmSeverity.NO_ALARM, 10.0, "X_MM without alarm",
-             show=lambda: (status(daemon)["stale_reason"], status(daemon)["position_mm"], status(daemon)["faults"]))
     before = status(daemon)["position_mm"]
     first = bridge.read("X_MM")
     after = status(daemon)["position_mm"]
     x = first.data[0]
+    # a steady rig at rest is measured, not flagged (the model's own stretch and focus at the resting place,
+    # core/place_spread.py; the grating paired at rest only once a command's motion is seen, daemon/grating.py)
+    assert first.metadata.severity == AlarmSeverity.NO_ALARM, (status(daemon)["stale_reason"], after)
     # the stage rests: X_MM is the daemon's position within a few bounds of noise (each ~2 µm)
     assert min(before, after) - 0.01 < x < max(before, after) + 0.01
     assert abs(first.metadata.timestamp - time.time()) < 2.0, "stamped with the frame's time, not old"

@@ -101,6 +101,30 @@ def test_grating_pairing_holds_a_resting_stage_until_a_command() -> None:
     assert np.isnan(creeping.at(t[-1] + 0.004)), "readings that disagree are not rest"
 
 
+def test_grating_pairing_after_a_command_waits_for_the_stage_to_move_or_to_hold() -> None:
+    """Readings of the old position just after a move command (the stage has not started yet), then a
+    poller starved on a busy host: a frame exposed meanwhile was paired with the old position while
+    the stage ran (a lock re-acquired a period away, on the daemon's virtual rig under load)."""
+    readings = _readings(np.arange(0.0, 0.02, 0.005), np.full(4, 8.0))
+    readings.note_command(0.0175)
+    for t in (0.018, 0.023, 0.028):  # POS? answered before the stage started, then silence
+        readings.append(t, 8.0)
+    assert np.isnan(readings.at(0.04)), "the stage may be under way: no reference"
+    for t in (0.033, 0.038):  # ... it moves, then stops at its target: the rest it reached
+        readings.append(t, 7.5)
+    for t in (0.043, 0.048, 0.053):
+        readings.append(t, 7.0)
+    assert readings.at(0.06) == 7.0
+    held = _readings(np.arange(0.0, 0.02, 0.005), np.full(4, 3.0))
+    held.note_command(0.0175)  # a stop at rest, a move to where it is: nothing moves
+    for t in (0.018, 0.023, 0.028):
+        held.append(t, 3.0)
+    assert np.isnan(held.at(0.03)), "within rest_s of the command the old position proves nothing yet"
+    for t in (0.058, 0.063, 0.068):
+        held.append(t, 3.0)
+    assert held.at(0.07) == 3.0, "held for rest_s after it: at rest"
+
+
 def test_make_run_installs_only_what_running_needs(tmp_path: Path) -> None:
     import re
     import subprocess
