@@ -42,12 +42,12 @@ def error_profile(x_mm: np.ndarray, error_mm: np.ndarray, bound2_mm2: np.ndarray
     away, the frames there are wrong all the same, and on every run (core/watches/adequacy.py
     flags them). The calibration's own frames tracked as tracking will are what to measure it on
     (core/calibration_line.py): their errors come out as a run's do. Only the error that repeats
-    at the place is the place's: a frame off on its own (a telegraph pixel's flip, a light taken
-    for a shadow's band on one frame: 15 bounds) errs at that instant, not there, and a run passes
-    the place at other instants. Its rms counted it (the steady 16-row strip with telegraph pixels
-    flagged 26 of 500 frames `geometry` on two stretches of 25 frames, 2.4x and 4.9x for one
-    frame 8 and 15 bounds off each, 1.4x at most now); a scratch's stretches, off on every frame
-    there, still are (6 of the 7 beyond the limit, 2.3-3.5x)."""
+    at the place is the place's: a frame off on its own (a row-banded frame taken for a shadow's
+    band: 15 bounds; a pixel's flip) errs at that instant, not there, and a run passes the place at
+    other instants. The rms counted it: the steady 16-row strip with row banding and telegraph
+    pixels had 26 of 500 frames flagged `geometry`, on two stretches of 25 frames at 2.4x and 4.9x,
+    each for one frame 8 and 15 bounds off (1.4x at most now). A scratch's stretches, off on every
+    frame there, still are flagged (6 of the 7 beyond the limit, 2.3-3.5x)."""
     if x_mm.size < 2 * PROFILE_FRAMES:
         return None
     order = np.argsort(x_mm)
@@ -62,8 +62,8 @@ def error_profile(x_mm: np.ndarray, error_mm: np.ndarray, bound2_mm2: np.ndarray
 
 
 def shared_error(error: np.ndarray) -> np.ndarray:
-    """Each frame's error times the mean of its neighbours' along the stroke (``error`` in the order
-    of place): the power of the error fixed there. Frames next to each other see the same print a
+    """Each frame's error times the mean of its neighbours' along the stroke (``error``: two or more,
+    in the order of place): the power of the error fixed there. Frames next to each other see the same print a
     fraction of a pixel apart (a sweep's consecutive frames, or another pass's), so an error fixed
     on the print or the stroke they share, and the product keeps its square; errors that do not
     repeat (the noise, a flip, a one-frame misstep) are independent, and their products average to
