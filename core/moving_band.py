@@ -66,6 +66,10 @@ PLACE_SPREAD = 0.1  # of the field: the spread of the edges' places when a band 
 RATE_PX = 20.0  # px/frame: the spread of its speed when an episode starts (either way)
 MIN_DEPTH = 0.03  # a band shallower than this is no shadow to follow (a blur's residual on a 16-row strip, fitted
 # as a band 0.1-0.5 % deep, took the focus term's frames); the uniform light and its field describe such a dip
+# (the depth the band reaches, :func:`peak_depth`: a blob whose edges are softer than it is wide never gets near its
+# nominal depth; row banding on a 16-row strip, against the light held, was fitted as one 4-9 % deep but 0.5-2 % at its
+# peak, 4-26 px wide and 22-94 px soft, and its next frame's jump of 10-50 px was taken for motion: 7 frames of a
+# steady run flagged `light`, 2 of its calibration's 15 and 8 bounds off)
 MIN_EDGE_PX, MIN_WIDTH_PX = 2.0, 1.0  # a penumbra narrower than 2 px is no soft shadow (a smudge's edges fitted
 # at half a pixel take it for a band: 8.1x the bound without the grating, 5.5x with this floor)
 WINDOW = 10  # frames: the shape is solved jointly over the last frames followed (each its own x and edges)
@@ -259,7 +263,7 @@ class MovingBand:
     def sane(self, answer: BandAnswer | None, uniform_information: float, limit: float) -> TypeGuard[BandAnswer]:
         """The band explains the frame, is seen in it, its edges are where the motion carries them,
         and it leaves x a bound."""
-        if answer is None or not (answer.chi2 <= limit and answer.params[3] >= MIN_DEPTH):
+        if answer is None or not (answer.chi2 <= limit and peak_depth(*answer.params[1:]) >= MIN_DEPTH):
             return False
         leaving = self.moved and self.followed and answer.bends > LEAVING_BOUNDS
         if not (answer.visible > SEEN_SIGMAS or leaving):
@@ -341,6 +345,15 @@ class MovingBand:
         self.misses += 1
         if self.misses >= MISSES:
             self.reset()
+
+
+def peak_depth(left: float, right: float, depth: float, edge: float) -> float:
+    """The share of the light the band takes at its middle: ``depth · erf(w / (2√2 e))`` for its
+    width w = right − left and softness e. A shadow's band is several pixels wide and its edges
+    sharper than that (a cable's: 48 px wide, 16 px soft, 0.87 of its depth reached); a band
+    softer than it is wide is a faint broad dip, which the uniform light and a frame's own offset
+    describe (row banding's), and is no shadow whatever its nominal depth."""
+    return float(depth * erf((right - left) / (2.0 * ROOT_2 * max(edge, 1e-12))))
 
 
 def _frame(evaluator, gain: float, offset: float, columns: np.ndarray, y: np.ndarray,
