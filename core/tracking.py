@@ -513,7 +513,7 @@ class Tracker:
             return focused
         # in what the focus term gains by chance: the calibration's level, or on a lossy stream, whose error lies
         # along the blur far more than the noise does, its estimates' scatter (core/stream_focus.py)
-        chance = max(self.chi2_calibration, self.focus_factor**2)
+        chance = max(self.chi2_calibration, self.focus_factor**2) if self.focus_factor > 1.0 else self.chi2_calibration
         gained = (uniform.cost - focused.cost) / chance if math.isfinite(focused.cost) else 0.0
         gained = min(max(gained, 0.0), EVIDENCE_CAP)
         memory.focus_gain += (gained - memory.focus_gain) / FIELD_WINDOW
