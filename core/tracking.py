@@ -41,6 +41,7 @@ from graytrack.core.focus_follow import FocusFollow, followable
 from graytrack.core.models.fourier import TWO_PI, FourierModel
 from graytrack.core.moving_band import MovingBand, follow
 from graytrack.core.period_rival import PeriodRival
+from graytrack.core.period_rival import repeats as repeats_each_period
 from graytrack.core.recording import Recording
 from graytrack.core.stretch import FrameStretch
 from graytrack.core.stretch_follow import StretchFollow, followed_stretch, stretch_follow
@@ -184,6 +185,7 @@ class Tracker:
         self.quarter_period_mm = model.period_mm / 4.0
         sigma = model.noise_gray or 1.0
         self.chi2_curve = Chi2Curve.from_info(model.info)  # the level along the stroke (None: flat)
+        self.repeats = repeats_each_period(model)  # placed without a grating only up to whole periods (core/stroke_place.py)
         self.settings = SolverSettings(max_iterations, tolerance_mm, self.quarter_period_mm, sigma)
         calibration_rmse = float(model.info.get("calibration_rmse_gray", sigma))
         self.residual_limit_gray = residual_limit_gray or 3.0 * calibration_rmse + 1.0
@@ -193,7 +195,8 @@ class Tracker:
             # every flag reads χ² against this level: NaN would call every frame fresh
             raise TrackingError(f"the model's calibration χ² is {self.chi2_calibration:g}: it cannot tell a frame "
                                 "that fits from one that does not (every pixel masked, or no sample left); recalibrate")
-        # a lossy stream's error is no white noise: its frames' χ² spreads as that of fewer samples (core/compression.py)
+        # a lossy stream's error is no white noise: its frames' χ² spreads as fewer samples' would
+        # (core/compression.py stream_chi2_spread)
         independent = n_values / stream_chi2_spread(model.info) ** 2
         # beyond 5 standard deviations of one frame's χ² at the calibration's level: the frame asks
         self.chi2_limit = self.chi2_calibration * (1.0 + 5.0 * np.sqrt(2.0 / independent))
@@ -338,7 +341,7 @@ class Tracker:
         free = self.free_light(memory)
         robust_first = self.robust and memory.rejected is not None
         solution = self._attempt(batch, k, x_start, memory, free, robust_first)
-        here = self.chi2_level(solution.x_mm)
+        here = self.chi2_level(solution.x_mm, reference)
         limit = self.chi2_limit * here
         asked = solution.chi2 > limit
         # The light is asked for beyond the calibration's mean level even where its own frames fitted
@@ -395,11 +398,17 @@ class Tracker:
         """Whether the next frame solves the light's gain and offset with x."""
         return self.light == "free" or (self.light == "auto" and (memory.free or self.model.common_mode))
 
-    def chi2_level(self, x_mm: float) -> float:
+    def chi2_level(self, x_mm: float, reference: float = 0.0) -> float:
         """The calibration's χ² level where a frame was placed, relative to its mean (1 without a
-        curve, or off the map): a frame's χ² is held against it (core/chi2_curve.py)."""
+        curve, or off the map): a frame's χ² is held against it (core/chi2_curve.py). A frame without a
+        grating ``reference`` of a model that repeats once a period may be any whole period away: the
+        highest level there."""
         curve = self.chi2_curve
-        return 1.0 if curve is None or not math.isfinite(x_mm) else curve.at(x_mm)
+        if curve is None or not math.isfinite(x_mm):
+            return 1.0
+        if math.isfinite(reference) or not self.repeats:
+            return curve.at(x_mm)
+        return curve.anywhere(x_mm, self.model.period_mm)
 
     def _blur_suspected(self, memory: LightMemory) -> bool:
         """The free-light frames' average χ² beyond three of its spreads above the calibration's."""
@@ -717,7 +726,7 @@ class SequentialState:
         # with a focus term solved, the model as calibrated is what the running χ² watches
         focus_free = solution.chi2_calibrated_focus
         chi2 = focus_free if math.isfinite(focus_free) else solution.chi2
-        self._watch_model(tracker, chi2 / tracker.chi2_level(solution.x_mm),  # against the level where it was taken
+        self._watch_model(tracker, chi2 / tracker.chi2_level(solution.x_mm, reference),  # the level where it was taken
                           not solution.field)
         self._watch_validity(tracker, solved, at, solution, ok, reference)
         if texture is not None:
