@@ -227,7 +227,7 @@ class StretchProfile:
     def folded(self, period_mm: float) -> "StretchProfile":
         """The profile for frames placed only up to whole periods (a model that repeats, tracked without
         a grating: core/stroke_place.py): at each place of one period, the mean of what it holds at the
-        places whole periods on, their rms spread added to the allowance. Read at the place given, a
+        places whole periods on, their largest spread added to the allowance. Read at the place given, a
         16-row JPEG strip's own stretch (±100-500 ppm along the stroke) was read a period away and a
         steady run flagged `magnification` on 14 % of its frames."""
         first, last = self.centers_mm[0], self.centers_mm[-1]
@@ -238,7 +238,7 @@ class StretchProfile:
         inside = (places <= last) | (np.arange(places.shape[0]) == 0)[:, None]  # (the first always counts)
         values = np.where(inside, np.interp(places, *self._nodes), np.nan)
         mean = np.nanmean(values, axis=0)
-        spread = float(np.sqrt(np.nanmean((values - mean) ** 2)))
+        spread = float(np.sqrt(np.nanmean((values - mean) ** 2, axis=0)).max())  # where the places disagree most
         return StretchProfile(tuple(grid.tolist()), tuple(mean.tolist()), math.hypot(self.residual_ppm, spread),
                               period_mm)
 
