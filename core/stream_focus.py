@@ -60,8 +60,8 @@ def stream_focus_factor(model: FourierModel, data: CalibrationData, table: np.nd
     """The rms over the replayed stream's frames (the calibration's places, the model's images with
     the sensor's noise through 8 bits and ``table``) of :func:`focus_pulls`: how many of its white
     errors a focus estimate scatters on this stream when the focus has not moved. At least 1."""
-    pulls = [focus_pulls(model, streamed) for streamed in replayed_frames(model, picked_frames(data), table, seed)]
-    pulls = np.concatenate(pulls) if pulls else np.empty(0)
+    replays = [focus_pulls(model, streamed) for streamed in replayed_frames(model, picked_frames(data), table, seed)]
+    pulls = np.concatenate(replays) if replays else np.empty(0)
     pulls = pulls[np.isfinite(pulls)]
     return max(1.0, float(np.sqrt(np.mean(pulls**2)))) if pulls.size else 1.0
 

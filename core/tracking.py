@@ -185,7 +185,7 @@ class Tracker:
         self.quarter_period_mm = model.period_mm / 4.0
         sigma = model.noise_gray or 1.0
         self.chi2_curve = Chi2Curve.from_info(model.info)  # the level along the stroke (None: flat)
-        self.repeats = repeats_each_period(model)  # placed without a grating only up to whole periods (core/stroke_place.py)
+        self.repeats = repeats_each_period(model)  # no grating: placed up to whole periods (core/stroke_place.py)
         self.settings = SolverSettings(max_iterations, tolerance_mm, self.quarter_period_mm, sigma)
         calibration_rmse = float(model.info.get("calibration_rmse_gray", sigma))
         self.residual_limit_gray = residual_limit_gray or 3.0 * calibration_rmse + 1.0
