@@ -75,6 +75,7 @@ CASES = [
     ("lab", "gain_hunting:depth=0.05,duplicate_frames:p=0.03", ""),
     ("lab", "mjpeg:quality=75", ""),
     ("strip16", "mjpeg:quality=75", ""),
+    ("strip16", "defocus:sigma_um=100,mjpeg:quality=75", LATER_FOCUS_RAMP),  # a blur still found through the stream
     ("paper", "", LATER_GROWTH),
     ("strip16", "", LATER_GROWTH),
     ("paper", "glints:p=0.05", "glints:p=0.15"),  # the later spec replaces the rate: 5 % → 15 % of frames

@@ -14,15 +14,17 @@ from __future__ import annotations
 import numpy as np
 
 from graytrack.core.calibration_data import CalibrationData
-from graytrack.core.compression import bound_factor, find_jpeg, judged_factor, round_trip
+from graytrack.core.compression import bound_factor, find_jpeg, judged_factor
 from graytrack.core.light_level import stated_level
 from graytrack.core.light_return import replay
 from graytrack.core.models.fourier import FourierModel
+from graytrack.core.replay import frame_weights, picked_frames, replayed_frames
+from graytrack.core.stream_focus import stream_focus_factor
 
-MAX_FRAMES = 400  # frames looked at (evenly spread): the ratio is a statistic, not a census
 INADEQUATE_RATIO = 2.0  # beyond this, every position the model gives is flagged (core/watches/adequacy.py)
+# frames of a running χ² mean whose spread a stream's is measured on (the tracker's FIELD_WINDOW: its blur suspicion)
+SPREAD_WINDOW = 20
 PROFILE_FRAMES = 25  # calibration frames per stretch of the stroke in the local error profile (its ratio to ~15 %)
-REPLAYS = 3  # noise draws of each frame looked at when a JPEG stream is replayed (the factor to ~2 %)
 
 
 def error_ratio(errors: tuple[np.ndarray, np.ndarray, np.ndarray] | None) -> float:
@@ -75,19 +77,13 @@ def shared_error(error: np.ndarray) -> np.ndarray:
 
 def frame_errors(model: FourierModel, data: CalibrationData) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """(x mm, position bias mm, bound² mm²) of the calibration frames looked at (up to
-    :data:`MAX_FRAMES`, evenly spread) that the model can place; None when it places none."""
-    n_frames = data.frames.shape[0]
-    picked = np.unique(np.linspace(0, n_frames - 1, min(n_frames, MAX_FRAMES)).astype(int))
-    x = data.x_mm[picked]
-    frames = model.prepare(data.frames[picked]).reshape(picked.size, -1)
+    core/replay.py ``MAX_FRAMES``, evenly spread) that the model can place; None when it places none."""
+    data = picked_frames(data)
+    x = data.x_mm
+    frames = model.prepare(data.frames).reshape(x.size, -1)
     values, slopes = model.predict(x, with_derivative=True)
-    values, slopes = values.reshape(picked.size, -1), slopes.reshape(picked.size, -1)
-    weights = model.inverse_variance(values.reshape((picked.size,) + model.prepare(data.frames[:1]).shape[1:]))
-    weights = weights.reshape(picked.size, -1) * model.rows_averaged(data.frames.shape[1])
-    usable_samples = np.broadcast_to(data.weights, data.frames.shape)[picked]
-    if model.n_rows == 1:  # a row mean is usable only where every row is (a glint's samples spoil it), as in the fit
-        usable_samples = usable_samples.min(axis=1, keepdims=True)
-    weights = weights * (model.prepare(usable_samples).reshape(picked.size, -1) > 0)
+    values, slopes = values.reshape(x.size, -1), slopes.reshape(x.size, -1)
+    weights = frame_weights(model, data, values)
     # per frame: regress the residual on [F′, F, 1] (x, gain, offset) by weighted least squares
     basis = np.stack([slopes, values, np.ones_like(values)], axis=2)  # (K, P, 3)
     fisher = np.einsum("kp,kpi,kpj->kij", weights, basis, basis)
@@ -142,13 +138,16 @@ def assessed(model: FourierModel, data: CalibrationData) -> FourierModel:
     frames came through JPEG (an MJPEG camera): what the quantisation costs every bound."""
     model.info.pop("stream", None)
     n_values = model.n_rows * model.n_pixels
-    solved = model.out_of_sample(chi2_as_tracked(model, data), data.frames.shape[0] * n_values)
+    per_frame, used = frame_chi2(model, data)
+    solved = model.out_of_sample(level(per_frame, used), data.frames.shape[0] * n_values)
     if (finding := find_jpeg(data.frames)) is not None:
         model.info["calibration_chi2"] = solved
         quantisation = stream_factor(model, data, finding.table)
         factor = max(quantisation, replayed_factor(model, data, finding.table))  # what the tracker reaches
         model.info["stream"] = {"kind": "jpeg", "quality": finding.quality, "bound_factor": round(factor, 3),
-                                "quantisation_factor": round(quantisation, 3)}
+                                "quantisation_factor": round(quantisation, 3),
+                                "focus_factor": round(stream_focus_factor(model, data, finding.table), 3),
+                                "chi2_spread": round(chi2_spread(per_frame, used), 3)}
     elif "calibration_chi2" in model.info:  # a light that moved during calibration is the tracker's to solve
         model.info["calibration_chi2"] = stated_level(float(model.info["calibration_chi2"]), solved, n_values)
     errors = frame_errors(model, data)
@@ -167,33 +166,56 @@ def chi2_as_tracked(model: FourierModel, data: CalibrationData) -> float:
     counted sample by sample it sets the level up to R times too low, so that every frame of
     the run looks changed.
     """
-    n_frames = data.frames.shape[0]
-    picked = np.unique(np.linspace(0, n_frames - 1, min(n_frames, MAX_FRAMES)).astype(int))
-    frames = model.prepare(data.frames[picked]).reshape(picked.size, -1)
-    values = model.predict(data.x_mm[picked]).reshape(picked.size, -1)
-    usable = np.broadcast_to(data.weights, data.frames.shape)[picked]
-    if model.n_rows == 1:
-        usable = usable.min(axis=1, keepdims=True)
-    weights = model.inverse_variance(values.reshape((picked.size,) + usable.shape[1:])).reshape(picked.size, -1)
-    weights = weights * (model.prepare(usable).reshape(picked.size, -1) > 0) * model.rows_averaged(data.frames.shape[1])
+    return level(*frame_chi2(model, data))
+
+
+def frame_chi2(model: FourierModel, data: CalibrationData) -> tuple[np.ndarray, np.ndarray]:
+    """(χ² per used sample, samples used) of each calibration frame looked at that the model can
+    solve, with its light solved as the tracker solves it (:func:`chi2_as_tracked`)."""
+    data = picked_frames(data)
+    n_frames = data.x_mm.size
+    frames = model.prepare(data.frames).reshape(n_frames, -1)
+    values = model.predict(data.x_mm).reshape(n_frames, -1)
+    weights = frame_weights(model, data, values)
     basis = np.stack([values, np.ones_like(values)], axis=2)  # the frame's gain and offset
     fisher = np.einsum("kp,kpi,kpj->kij", weights, basis, basis)
     score = np.einsum("kp,kpi,kp->ki", weights, basis, frames)
     solvable = np.linalg.det(fisher) > 0
-    gain_offset = np.zeros((picked.size, 2))
-    gain_offset[solvable] = np.linalg.solve(fisher[solvable], score[solvable][..., None])[..., 0]
-    residual = frames - np.einsum("kpi,ki->kp", basis, gain_offset)
-    used = (weights > 0)[solvable].sum()
-    return float(np.einsum("kp,kp->", weights[solvable], residual[solvable] ** 2) / max(used, 1))
+    gain_offset = np.linalg.solve(fisher[solvable], score[solvable][..., None])[..., 0]
+    residual = frames[solvable] - np.einsum("kpi,ki->kp", basis[solvable], gain_offset)
+    used = (weights[solvable] > 0).sum(axis=1)
+    return np.einsum("kp,kp->k", weights[solvable], residual**2) / np.maximum(used, 1), used
+
+
+def level(per_frame: np.ndarray, used: np.ndarray) -> float:
+    """The χ² per used sample over all frames (:func:`frame_chi2`)."""
+    return float((per_frame * used).sum() / max(used.sum(), 1))
+
+
+def chi2_spread(per_frame: np.ndarray, used: np.ndarray) -> float:
+    """The frames' χ² spread about its level over what white noise in as many samples gives it
+    (√(2/samples) of the level), at least 1: core/compression.py ``stream_chi2_spread``. The larger of
+    one frame's and that of a mean over :data:`SPREAD_WINDOW` frames in their order (against white
+    noise's over as many): a stream's χ² wanders with the place the frames see, and the tracker judges
+    running means (the `lab` strip at quality 75: 3.2 a frame, 3.7 over 20, a steady run's blur
+    suspected on 5 frames with the first)."""
+    if per_frame.size < 2:
+        return 1.0
+    white = np.sqrt(2.0 / max(float(np.median(used)), 1.0))
+    relative = per_frame / max(float(np.mean(per_frame)), 1e-300)
+    spread = float(np.std(relative)) / white
+    if relative.size >= 2 * SPREAD_WINDOW:
+        means = np.convolve(relative, np.full(SPREAD_WINDOW, 1.0 / SPREAD_WINDOW), mode="valid")
+        spread = max(spread, float(np.std(means)) * np.sqrt(SPREAD_WINDOW) / white)
+    return float(max(1.0, spread))
 
 
 def stream_factor(model: FourierModel, data: CalibrationData, table: np.ndarray) -> float:
     """The quantisation's widening of the bound over the calibration frames (compression.bound_factor),
     on the frames' own rows: JPEG blocks are cut from the image the camera sent, not the row mean."""
-    n_frames = data.frames.shape[0]
-    picked = np.unique(np.linspace(0, n_frames - 1, min(n_frames, MAX_FRAMES)).astype(int))
-    values, slopes = model.predict(data.x_mm[picked], with_derivative=True)
-    shape = (picked.size,) + data.frames.shape[1:]
+    x = picked_frames(data).x_mm
+    values, slopes = model.predict(x, with_derivative=True)
+    shape = (x.size,) + data.frames.shape[1:]
     sigma2 = model.noise().variance(values)
     return bound_factor(np.broadcast_to(slopes, shape), np.broadcast_to(sigma2, shape), table)
 
@@ -212,15 +234,9 @@ def replayed_factor(model: FourierModel, data: CalibrationData, table: np.ndarra
     On the lab strip at quality 75 (σ 1.05 gray) that factor says 2.41 where the replay gives 3.2
     and the model's own calibration frames sit 3.21 white bounds off: a run judged by it is 1.48× its widened
     bound with 1 % of its frames 4+ bounds off unflagged."""
-    n_frames = data.frames.shape[0]
-    picked = data.subset(np.unique(np.linspace(0, n_frames - 1, min(n_frames, MAX_FRAMES)).astype(int)))
-    values = np.broadcast_to(model.predict(picked.x_mm), picked.frames.shape)
-    sigma = np.sqrt(model.noise().variance(values))
-    rng = np.random.default_rng(seed)
     error2, bound2 = [], []
-    for _ in range(REPLAYS):
-        streamed = round_trip(np.clip(np.rint(values + rng.standard_normal(values.shape) * sigma), 0.0, 255.0), table)
-        errors = frame_errors(model, picked.with_frames(streamed))
+    for streamed in replayed_frames(model, picked_frames(data), table, seed):
+        errors = frame_errors(model, streamed)
         if errors is not None:
             error2.append(errors[1] ** 2)
             bound2.append(errors[2])

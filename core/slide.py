@@ -65,8 +65,8 @@ class SlideWatch:
     def for_model(cls, model, axis_px: float | None = None, keep: bool = True) -> "SlideWatch":
         """The model's magnification watch with the lever ``axis_px`` pixel footprints (None: the prior)."""
         lever_px = AXIS_PRIOR_PX if axis_px is None else float(axis_px)
-        return cls(MagnificationWatch.for_model(model), lever_px * model.pixel_pitch_mm, declared=axis_px is not None,
-                   keep=keep)
+        return cls(MagnificationWatch.for_model(model, unplaced=True), lever_px * model.pixel_pitch_mm,
+                   declared=axis_px is not None, keep=keep)
 
     def observe(self, sign) -> str | None:
         return self.step(sign.frame, sign.placed, sign.x_mm, sign.stretch, sign.reference_mm)

@@ -27,7 +27,7 @@ import numpy as np
 from graytrack.core import attribution, frame_kernel, repeats, transients
 from graytrack.core.chi2_curve import Chi2Curve
 from graytrack.core.chi2_episode import RECENT, RecentChi2
-from graytrack.core.compression import stream_bound_factor
+from graytrack.core.compression import stream_bound_factor, stream_chi2_spread
 from graytrack.core.errors import TrackingError
 from graytrack.core.geometry_check import refusal
 from graytrack.core.light_return import LIGHT_RETURN_CHI2, after_frame
@@ -41,9 +41,11 @@ from graytrack.core.focus_follow import FocusFollow, followable
 from graytrack.core.models.fourier import TWO_PI, FourierModel
 from graytrack.core.moving_band import MovingBand, follow
 from graytrack.core.period_rival import PeriodRival
+from graytrack.core.period_rival import repeats as repeats_each_period
 from graytrack.core.recording import Recording
 from graytrack.core.stretch import FrameStretch
 from graytrack.core.stretch_follow import StretchFollow, followed_stretch, stretch_follow
+from graytrack.core.stream_focus import focus_factor
 from graytrack.core.texture import Texture
 from graytrack.core.validity import FAMILIES, FrameSign, Monitor, Watch, monitor_for
 from graytrack.core.solvers import (CUT_SIGMA, TRANSIENT_MAX_WIDTH_SHARE, FrameSolution, GeneralBatch, SolverSettings,
@@ -183,6 +185,7 @@ class Tracker:
         self.quarter_period_mm = model.period_mm / 4.0
         sigma = model.noise_gray or 1.0
         self.chi2_curve = Chi2Curve.from_info(model.info)  # the level along the stroke (None: flat)
+        self.repeats = repeats_each_period(model)  # no grating: placed up to whole periods (core/stroke_place.py)
         self.settings = SolverSettings(max_iterations, tolerance_mm, self.quarter_period_mm, sigma)
         calibration_rmse = float(model.info.get("calibration_rmse_gray", sigma))
         self.residual_limit_gray = residual_limit_gray or 3.0 * calibration_rmse + 1.0
@@ -192,8 +195,11 @@ class Tracker:
             # every flag reads χ² against this level: NaN would call every frame fresh
             raise TrackingError(f"the model's calibration χ² is {self.chi2_calibration:g}: it cannot tell a frame "
                                 "that fits from one that does not (every pixel masked, or no sample left); recalibrate")
+        # a lossy stream's error is no white noise: its frames' χ² spreads as fewer samples' would
+        # (core/compression.py stream_chi2_spread)
+        independent = n_values / stream_chi2_spread(model.info) ** 2
         # beyond 5 standard deviations of one frame's χ² at the calibration's level: the frame asks
-        self.chi2_limit = self.chi2_calibration * (1.0 + 5.0 * np.sqrt(2.0 / n_values))
+        self.chi2_limit = self.chi2_calibration * (1.0 + 5.0 * np.sqrt(2.0 / independent))
         # The running average's own spread is ≈ √(2/(window·pixels)) of the level; beyond five of
         # those the light is re-solved (a change too small for one frame to show), and beyond a
         # tenth more than calibration the model is called stale: its images are no longer these.
@@ -202,7 +208,7 @@ class Tracker:
         # started at calibration's level instead, a stream that never fits (a JPEG stream's first frames
         # at 9× the level, 80 of one frame's spreads) would be called fresh for its first 5-7 frames,
         # 4-11 bounds off.
-        spreads = np.sqrt(2.0 / (np.arange(1, STALE_WINDOW + 1) * n_values))
+        spreads = np.sqrt(2.0 / (np.arange(1, STALE_WINDOW + 1) * independent))
         self.sustained_limits = (self.chi2_calibration * (1.0 + 5.0 * spreads)).tolist()
         self.stale_limits = (self.chi2_calibration * (STALE_RATIO + 5.0 * spreads)).tolist()
         self.sustained_limit, self.stale_limit = self.sustained_limits[-1], self.stale_limits[-1]
@@ -212,7 +218,7 @@ class Tracker:
         # nothing; the average of the last frames (up to FIELD_WINDOW), beyond three of its
         # spreads, asks for it. One frame counts at most the single-frame limit: a glint's frame
         # cannot hold the average up.
-        self.free_frame_spread = float(np.sqrt(2.0 / n_values))
+        self.free_frame_spread = float(np.sqrt(2.0 / independent))
         self.free_frame_cap = self.chi2_limit / self.chi2_calibration
         # Model-level work, done once: live tracking reduces one frame at a time.
         # Every model is the same expression of per-pixel tables (core/frame_tables.py), evaluated by
@@ -244,6 +250,8 @@ class Tracker:
         self.focus_capable = light == "auto"
         # its estimates' move alone asks for the focus term (core/focus_follow.py)
         self.focus_followed = self.focus_capable and follow_focus and followable(model.info)
+        # a lossy stream scatters each focus estimate this many of its white errors (core/stream_focus.py)
+        self.focus_factor = focus_factor(model.info)
         self._curvature: CurvatureTable | None = None
         if self.focus_capable:
             if self.fast_path:
@@ -333,7 +341,7 @@ class Tracker:
         free = self.free_light(memory)
         robust_first = self.robust and memory.rejected is not None
         solution = self._attempt(batch, k, x_start, memory, free, robust_first)
-        here = self.chi2_level(solution.x_mm)
+        here = self.chi2_level(solution.x_mm, reference)
         limit = self.chi2_limit * here
         asked = solution.chi2 > limit
         # The light is asked for beyond the calibration's mean level even where its own frames fitted
@@ -390,11 +398,17 @@ class Tracker:
         """Whether the next frame solves the light's gain and offset with x."""
         return self.light == "free" or (self.light == "auto" and (memory.free or self.model.common_mode))
 
-    def chi2_level(self, x_mm: float) -> float:
+    def chi2_level(self, x_mm: float, reference: float = 0.0) -> float:
         """The calibration's χ² level where a frame was placed, relative to its mean (1 without a
-        curve, or off the map): a frame's χ² is held against it (core/chi2_curve.py)."""
+        curve, or off the map): a frame's χ² is held against it (core/chi2_curve.py). A frame without a
+        grating ``reference`` of a model that repeats once a period may be any whole period away: the
+        highest level there."""
         curve = self.chi2_curve
-        return 1.0 if curve is None or not math.isfinite(x_mm) else curve.at(x_mm)
+        if curve is None or not math.isfinite(x_mm):
+            return 1.0
+        if math.isfinite(reference) or not self.repeats:
+            return curve.at(x_mm)
+        return curve.anywhere(x_mm, self.model.period_mm)
 
     def _blur_suspected(self, memory: LightMemory) -> bool:
         """The free-light frames' average χ² beyond three of its spreads above the calibration's."""
@@ -497,6 +511,7 @@ class Tracker:
             if self._curvature is None:  # (a solver built without the focus term: light given)
                 self._curvature = CurvatureTable(self.tables, model.period_mm)
             focused = focus_solve(batch, k, self._curvature, uniform, self.settings, model.pixel_pitch_mm, prior)
+        focused.focus_sigma *= self.focus_factor  # the stream's scatter is in the estimate's error
         footprint = model.pixel_pitch_mm**2
         memory.focus_track.add(focused.focus * footprint, focused.focus_sigma * footprint)
         level_chi2 = focused.chi2 / here if math.isfinite(focused.chi2) else math.inf
@@ -505,7 +520,10 @@ class Tracker:
         if not tried:  # measured only: the χ² it gains counts once the frames ask; the term holds where the focus moved
             memory.focus = self._focus_moved(memory)
             return focused
-        gained = (uniform.cost - focused.cost) / self.chi2_calibration if math.isfinite(focused.cost) else 0.0
+        # in what the focus term gains by chance: the calibration's level, or on a lossy stream, whose error lies
+        # along the blur far more than the noise does, its estimates' scatter (core/stream_focus.py)
+        chance = max(self.chi2_calibration, self.focus_factor**2) if self.focus_factor > 1.0 else self.chi2_calibration
+        gained = (uniform.cost - focused.cost) / chance if math.isfinite(focused.cost) else 0.0
         gained = min(max(gained, 0.0), EVIDENCE_CAP)
         memory.focus_gain += (gained - memory.focus_gain) / FIELD_WINDOW
         memory.focus = memory.focus_gain > FOCUS_KEEP or self._focus_moved(memory)
@@ -708,7 +726,7 @@ class SequentialState:
         # with a focus term solved, the model as calibrated is what the running χ² watches
         focus_free = solution.chi2_calibrated_focus
         chi2 = focus_free if math.isfinite(focus_free) else solution.chi2
-        self._watch_model(tracker, chi2 / tracker.chi2_level(solution.x_mm),  # against the level where it was taken
+        self._watch_model(tracker, chi2 / tracker.chi2_level(solution.x_mm, reference),  # the level where it was taken
                           not solution.field)
         self._watch_validity(tracker, solved, at, solution, ok, reference)
         if texture is not None:

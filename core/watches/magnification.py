@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from graytrack.core.period_rival import repeats
 from graytrack.core.stretch import FrameStretch, compiled_for, stretches
 from graytrack.core.stretch import warm as stretch_warm
 from graytrack.core.place_spread import PlaceSpread, model_share
@@ -39,6 +40,7 @@ Z_ON, Z_OFF = 4.0, 2.5
 STRUCTURE_PPM = 40.0  # what a calibrated model's own structure reads as a stretch, in a mean of MEMORY frames
 PRIOR_PPM = 20000.0  # the prior's σ on each phase harmonic: keeps the turning fit defined while the stage stands
 PROFILE_BINS = 16  # stretches of the stroke the calibration's own stretch is kept for
+FOLD_POINTS = 64  # places of one period a profile folded onto it is kept at (StretchProfile.folded)
 NOISE_SHARE = 0.3  # of a stretch mean's noise kept as the model's own stretch there (0: a clean paper run flagged 4 %)
 COVERAGE = 0.1  # each harmonic's share of the frames' weight, beside a level and a drift, before a turning is told
 TURNING_CHI2 = 36.0  # the turning part (4 harmonic terms) is significant beyond this χ² (p ≈ 3e-7)
@@ -89,13 +91,16 @@ class MagnificationWatch:
         return float(self._scalars[3])
 
     @classmethod
-    def for_model(cls, model) -> "MagnificationWatch":
+    def for_model(cls, model, unplaced: bool = False) -> "MagnificationWatch":
         """Less what the model read on its own calibration (``stretch_profile`` in its info, when it has
-        one); its compiled loops ready now, at model install, not on a live frame."""
+        one); its compiled loops ready now, at model install, not on a live frame. ``unplaced``: no
+        grating places the frames, so a model that repeats once a period reads it folded onto one."""
         _warm()
         doc = (getattr(model, "info", None) or {}).get("stretch_profile")
-        return cls(model.period_mm, StretchProfile.from_dict(doc) if isinstance(doc, dict) else None,
-                   place_share=model_share(model))
+        profile = StretchProfile.from_dict(doc) if isinstance(doc, dict) else None
+        if profile is not None and unplaced and repeats(model):
+            profile = profile.folded(model.period_mm)
+        return cls(model.period_mm, profile, place_share=model_share(model))
 
     def observe(self, sign) -> str | None:
         return self.step(sign.placed, sign.x_mm, sign.stretch)
@@ -217,9 +222,12 @@ class StretchProfile:
     centers_mm: tuple[float, ...]
     values_ppm: tuple[float, ...]
     residual_ppm: float
+    fold_mm: float = 0.0  # > 0: read at a place known only up to whole ones of these (:meth:`folded`)
 
     def at_ppm(self, x_mm: float | np.ndarray) -> float | np.ndarray:
         """The model's own stretch at ``x_mm`` (one position, or an array of them), ppm."""
+        if self.fold_mm > 0.0:
+            x_mm = self.centers_mm[0] + np.mod(np.asarray(x_mm, dtype=np.float64) - self.centers_mm[0], self.fold_mm)
         if np.ndim(x_mm):
             return np.interp(x_mm, *self._nodes)
         return float(np.interp(x_mm, *self._nodes))
@@ -228,6 +236,24 @@ class StretchProfile:
     def _nodes(self) -> tuple[np.ndarray, np.ndarray]:
         """The centres and values as arrays, made once: every frame reads the profile."""
         return np.array(self.centers_mm), np.array(self.values_ppm)
+
+    def folded(self, period_mm: float) -> "StretchProfile":
+        """The profile for frames placed only up to whole periods (a model that repeats, tracked without
+        a grating: core/stroke_place.py): at each place of one period, the mean of what it holds at the
+        places whole periods on, their largest spread added to the allowance. Read at the place given, a
+        16-row JPEG strip's own stretch (±100-500 ppm along the stroke) was read a period away and a
+        steady run flagged `magnification` on 14 % of its frames."""
+        first, last = self.centers_mm[0], self.centers_mm[-1]
+        if not period_mm > 0.0:
+            return self
+        grid = first + np.linspace(0.0, period_mm, FOLD_POINTS, endpoint=False)
+        places = grid[None, :] + period_mm * np.arange(int((last - first) // period_mm) + 1)[:, None]
+        inside = (places <= last) | (np.arange(places.shape[0]) == 0)[:, None]  # (the first always counts)
+        values = np.where(inside, np.interp(places, *self._nodes), np.nan)
+        mean = np.nanmean(values, axis=0)
+        spread = float(np.sqrt(np.nanmean((values - mean) ** 2, axis=0)).max())  # where the places disagree most
+        return StretchProfile(tuple(grid.tolist()), tuple(mean.tolist()), math.hypot(self.residual_ppm, spread),
+                              period_mm)
 
     def as_dict(self) -> dict:
         return {"centers_mm": [round(v, 6) for v in self.centers_mm],

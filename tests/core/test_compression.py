@@ -114,3 +114,25 @@ def test_a_model_is_judged_against_the_quantisation_s_figure_and_its_positions_c
     assert inadequacy(info) == "geometry"
     assert inadequacy({**info, "calibration_error_ratio": 3.206}) is None  # the `diagnose` model: 1.33x
     assert judged_factor({"stream": {"bound_factor": 2.0}}) == 2.0 and judged_factor({}) == 1.0
+
+
+def test_the_stream_s_focus_scatter_and_chi2_spread_are_measured_and_the_run_shows_them(strip_stream):
+    """JPEG's quantisation is a low-pass that moves with the image on the blocks: it lands on the blur
+    direction far more than the sensor's noise, so a focus estimate scatters several of its white
+    errors (the `lab` strip's `diagnose` model: 3.7 on a steady run, where the focus term was then taken
+    on 278 frames and 2.3 % flagged). The calibration's replay through the stream measures it, and a
+    later run's frames, placed at their truth, scatter as the replay said (within a fifth)."""
+    from graytrack.core.adequacy import chi2_spread, frame_chi2
+    from graytrack.core.calibration_data import calibration_data
+    from graytrack.core.replay import picked_frames
+    from graytrack.core.stream_focus import focus_factor, focus_pulls
+
+    model, run, truth = strip_stream
+    factor = focus_factor(model.info)
+    assert factor > 3.0 and focus_factor({}) == 1.0
+    data = calibration_data(run)
+    pulls = focus_pulls(model, picked_frames(data.with_reference(truth.x_mm[:data.x_mm.size])))
+    assert abs(np.sqrt(np.mean(pulls**2)) / factor - 1.0) < 0.2
+    per_frame, used = frame_chi2(model, data.with_reference(truth.x_mm[:data.x_mm.size]))
+    assert chi2_spread(per_frame, used) >= 1.0 and model.info["stream"]["chi2_spread"] >= 1.0
+
