@@ -100,6 +100,37 @@ class FrameStretch:
         return float(m[0]), float(sigma[0])
 
 
+class Measured:
+    """A frame's stretch computed already (``FrameSign.stretch`` as :class:`FrameStretch` would
+    return it): a chunk's stretches made by one compiled call and handed out frame by frame."""
+
+    __slots__ = ("m", "sigma")
+
+    def __init__(self, m: float, sigma: float) -> None:
+        self.m, self.sigma = m, sigma
+
+    def __call__(self) -> tuple[float, float]:
+        return self.m, self.sigma
+
+
+def chunk_stretches(entries: list, asked: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(m, σ) of every frame of a chunk, computed for the frames ``asked`` (indices into ``entries``,
+    each a ``FrameSign.stretch``): by one compiled call (:func:`stretches`) when they are all
+    :class:`FrameStretch` of one compiled tracker, else by each frame's own call; NaN and inf elsewhere.
+    Frame by frame :func:`_stretches` reads only its own frame: the same numbers as each frame's
+    :class:`FrameStretch` (tests/core/test_stretch_fast.py)."""
+    n = len(entries)
+    m, sigma = np.full(n, math.nan), np.full(n, math.inf)
+    if asked.size:
+        frames = [entries[i] for i in asked]
+        if all(type(frame) is FrameStretch for frame in frames) and len({id(f.tracker) for f in frames}) == 1 \
+                and compiled_for(frames[0].tracker):
+            m[asked], sigma[asked] = stretches(frames)
+        else:
+            m[asked], sigma[asked] = np.array([frame() for frame in frames], dtype=np.float64).reshape(-1, 2).T
+    return m, sigma
+
+
 def stretches(frames: list[FrameStretch]) -> tuple[np.ndarray, np.ndarray]:
     """(m, σ) of each of ``frames`` (all of one tracker, :func:`compiled_for` it), by one compiled
     call: :func:`stretch`'s least squares frame by frame, solved by elimination rather than numpy's
