@@ -159,9 +159,11 @@ def _reset(ist, fst, rows):
     fst[9] = 0.0
 
 
-def _reference_run(ip, p, ist, fst, est, rows, x, ref, bound, feed, stale, scatter, start, stop_on_rise):
+def _reference_run(ip, p, ist, fst, est, rows, x, ref, bound, feed, stale, scatter, start, stop_on_rise, lines):
     """ReferenceMonitor.observe of frames ``start:`` where ``feed`` (the flag after each into
-    ``stale``, the window's scatter before each into ``scatter``); stops early at (frame, RECOMPUTE)
+    ``stale``, the window's scatter before each into ``scatter``, the line after each into ``lines``
+    when it has a row a frame: whether there is one, its scale and the scale's variance); stops early
+    at (frame, RECOMPUTE)
     once a frame's addition asks for the window to be re-summed (numpy's sums: Python does that and
     the rest of the frame), or at (frame + 1, ROSE) after the flag rose, with ``stop_on_rise``."""
     n = x.size
@@ -207,6 +209,9 @@ def _reference_run(ip, p, ist, fst, est, rows, x, ref, bound, feed, stale, scatt
                 if ist[4] % update_every == 0 or ist[0] == min_frames or ist[5] != 0:
                     _update(ip, p, ist, fst, est)
         stale[i] = ist[5] != 0
+        if lines.shape[0] > 0:  # the estimate after the frame (Python's Line: none, or its scale and variance)
+            has = ist[6] != 0
+            lines[i, 0], lines[i, 1], lines[i, 2] = (1.0, est[1], est[4]) if has else (0.0, 0.0, 0.0)
         if stop_on_rise and ist[5] != 0 and before == 0:
             return i + 1, ROSE
     return n, DONE

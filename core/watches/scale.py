@@ -170,7 +170,10 @@ class ScaleWatch:
         print's growth)."""
         taken = self.stretch_follow.taken() if self.stretch_follow is not None else Taken()
         stretched = self.magnification.step(placed, x_mm, stretch, *_accounted(self.trimmer, taken))
-        cause = self._stretched_by()
+        return self._named(verdict, stretched, self._stretched_by())
+
+    def _named(self, verdict: str | None, stretched: str | None, cause: str | None) -> tuple[str | None, str | None]:
+        """:meth:`_stretch_step`'s answer from the line's verdict, the stretch's and what stretched the image."""
         if stretched is not None and cause == "print":
             return verdict, None
         if verdict == self.family and cause == "lens":
@@ -189,13 +192,19 @@ class ScaleWatch:
         a 0.15 % ramp over 10 s on the paper rig, its stretch 0 to 1500), else None. A 16-row print
         grown 250 ppm had 391 of 500 frames named ``magnification`` under the line's ``scale``; the
         paper rig's lens ramp 289 frames ``scale`` before the stretch's own mean told it."""
+        line = self.monitor.estimate
+        if self.trimmer is not None or not self.monitor.stale or line is None:
+            return None
+        return self._cause(line.scale_ppm, line.covariance[2])
+
+    def _cause(self, scale_ppm: float, scale_var: float) -> str | None:
+        """:meth:`_stretched_by` of a drifted line with this scale and variance (untrimmed)."""
         monitor, watch = self.monitor, self.magnification
-        line = monitor.estimate
-        if self.trimmer is not None or not monitor.stale or line is None or not math.isfinite(watch.sigma_ppm):
+        if not math.isfinite(watch.sigma_ppm):
             return None
         base = monitor.calibration
-        scale = line.scale_ppm - (base.scale_ppm if base is not None else 0.0)
-        scale_var = line.covariance[2] + (base.covariance[2] if base is not None else 0.0)
+        scale = scale_ppm - (base.scale_ppm if base is not None else 0.0)
+        scale_var = scale_var + (base.covariance[2] if base is not None else 0.0)
         limit2 = STRETCH_Z * STRETCH_Z
         if (scale * scale > limit2 * scale_var
                 and (watch.mean_ppm - scale) ** 2 <= limit2 * (scale_var + watch.sigma_ppm ** 2)):
@@ -246,18 +255,45 @@ class ScaleWatch:
 
 
     def _stepped(self, columns) -> list[str | None]:
-        """:meth:`step` frame by frame, the chunk's stretches (what the carried magnification watch reads)
-        computed first by one compiled call: the same numbers as each frame's own call (core/stretch.py,
-        :func:`~graytrack.core.stretch.chunk_stretches`), without ~7 µs of Python around each of them."""
-        entries = columns["stretch"]
-        if self.magnification is not None:
-            asked = asked_stretches(columns)
-            m, sigma = chunk_stretches(entries, asked)
-            entries = list(entries)
-            for i, value, spread in zip(asked.tolist(), m[asked].tolist(), sigma[asked].tolist()):
-                entries[i] = Measured(value, spread)
-        return [self.step(*row) for row in zip(*(entries if name == "stretch" else columns[name]
-                                                 for name in self.reads))]
+        """:meth:`step` of a chunk (untrimmed) where the line drifted or χ² was suspect: the stretch is named
+        against the line frame by frame. The monitor and the running mean still take the chunk at once
+        (the line after each frame recorded: all the naming reads of it), the chunk's stretches by one
+        compiled call (core/stretch.py, :func:`~graytrack.core.stretch.chunk_stretches`: the same numbers
+        as each frame's own call); the carried magnification watch and the naming then go frame by frame,
+        as :meth:`step` does (tests/core/test_stretch_fast.py holds the two to the bit)."""
+        n = len(columns["x_mm"])
+        suspect = columns.array("chi2_suspect", bool)
+        information = columns.array("information", np.float64)
+        placed = columns.array("placed", bool)
+        feed = placed & ~suspect if self.feeds else np.zeros(n, dtype=bool)  # a suspect frame is not fed
+        positive = placed & (information > 0)
+        bound = np.where(positive, self.bound_scale / np.sqrt(np.where(positive, information, 1.0)), np.nan)
+        x_mm, reference_mm = columns.array("x_mm", np.float64), columns.array("reference_mm", np.float64)
+        scatter, lines = np.empty(n), np.empty((n, 3))
+        drifted = self.monitor.observe_many(x_mm, reference_mm, bound, feed, scatter=scatter, lines=lines)
+        far = self._off.add_many(x_mm, reference_mm, bound, scatter)
+        self._frame += n
+        off = drifted | far  # while χ² is suspect a disagreement is the model's (geometry), else the scale's
+        verdicts = np.where(off, np.where(suspect, "geometry", self.family), None).tolist()
+        if self.log is not None:
+            self.log.extend(Applied(x, flagged=verdict is not None, drifted=drift)
+                            for x, verdict, drift in zip(columns["x_mm"], verdicts, drifted.tolist()))
+        if self.magnification is None:
+            return verdicts
+        entries = list(columns["stretch"])
+        asked = asked_stretches(columns)
+        m, sigma = chunk_stretches(entries, asked)
+        for i, value, spread in zip(asked.tolist(), m[asked].tolist(), sigma[asked].tolist()):
+            entries[i] = Measured(value, spread)
+        step, cause, name = self.magnification.step, self._cause, self._named
+        families = []
+        for verdict, frame_placed, x, stretch, drift, (has, scale, scale_var) in zip(
+                verdicts, columns["placed"], columns["x_mm"], entries, drifted.tolist(), lines.tolist()):
+            stretched = step(frame_placed, x, stretch)
+            line_verdict, stretch_verdict = name(verdict, stretched, cause(scale, scale_var) if drift and has else None)
+            families.append(min((v for v in (line_verdict, stretch_verdict) if v is not None), key=RANK.__getitem__,
+                                default=None))
+        return families
 
 
 def lens_favoured(mean_ppm: float, sigma_ppm: float, scale_ppm: float, scale_var_ppm2: float) -> bool:

@@ -257,3 +257,36 @@ def test_scale_watch_many_frames_at_once_reads_the_scatter_frame_by_frame(log):
     assert families == expected and any(families)
     assert vars(at_once._off) == vars(stepped._off)
     assert at_once.log == stepped.log and (len(at_once.log) == n if log else at_once.log is None)
+
+
+def test_scale_watch_names_the_stretch_frame_by_frame_in_a_drifted_chunk():
+    """A chunk whose line drifts, with suspect frames: the monitor and the running mean take it at once
+    (the line recorded after each frame), the carried magnification watch and the naming of the stretch
+    (a lens's, a print's) go frame by frame. Against :meth:`ScaleWatch.step` frame by frame: families,
+    the per-frame log, the running mean's, the monitor's and the magnification watch's state bit for bit."""
+    from graytrack.core.validity import Columns, _observe_all
+    from graytrack.core.watches.magnification import MagnificationWatch
+    from graytrack.core.watches.scale import ScaleWatch
+
+    n = 3000
+    columns = sign_columns(n, 12)
+    rng = np.random.default_rng(5)
+    k = np.arange(n)
+    m = np.where(k > 0.75 * n, 1500e-6, 0.0) + 300e-6 * rng.normal(size=n)  # a lens's stretch near the drift
+    columns["stretch"] = [None if rng.random() < 0.02 else (lambda m=m[i]: (m, 300e-6)) for i in range(n)]
+    make = lambda: ScaleWatch(ReferenceMonitor(5.0, 4.0, window=100, floor_um=0.01), log=True,  # noqa: E731
+                              magnification=MagnificationWatch(8.6))
+    at_once, stepped = make(), make()
+    families = []
+    for start, stop in ((0, 1000), (1000, 1001), (1001, n)):
+        part = Columns({key: values[start:stop] for key, values in columns.items()})
+        families += _observe_all(at_once, part, stop - start)
+    expected = [stepped.step(*row) for row in zip(*(columns[field] for field in stepped.reads))]
+    assert families == expected
+    assert {"scale", "geometry", "magnification"} <= set(families)
+    assert at_once.log == stepped.log and len(at_once.log) == n
+    assert vars(at_once._off) == vars(stepped._off)
+    for a, b in zip(at_once.monitor.snapshot(), stepped.monitor.snapshot()):
+        assert np.array_equal(a, b) if isinstance(a, np.ndarray) else a == b
+    for name in ("_normal", "_noise", "_right", "_scalars"):
+        assert np.array_equal(getattr(at_once.magnification, name), getattr(stepped.magnification, name)), name
