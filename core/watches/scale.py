@@ -32,6 +32,7 @@ from graytrack.core.reference_monitor import GATE, ReferenceMonitor, Trimmer, Tr
 from graytrack.core.chi2_curve import Chi2Curve
 from graytrack.core.stretch_follow import StretchFollow, Taken
 from graytrack.core.validity import RANK, FrameSign
+from graytrack.core.watches import _kernels
 from graytrack.core.watches.grating import GratingWatch
 from graytrack.core.watches.grating import for_model as grating_watch
 from graytrack.core.stretch import Measured, chunk_stretches
@@ -423,9 +424,38 @@ class Disagreement:
         """:meth:`add` of each frame in order (``scatter``: the monitor's before each frame): whether
         the mean is beyond its limit after each."""
         far = np.zeros(len(x_mm), dtype=bool)
-        rows = zip(x_mm.tolist(), reference_mm.tolist(), bound_mm.tolist(), scatter.tolist())
-        for k, (x, reference, bound, before) in enumerate(rows):
-            far[k] = self.add(x, reference, bound, before)
+        monitor = self.monitor
+        line = monitor.baseline or monitor.calibration
+        fresh = self.count == 0 and self.weighted_per_um == 0.0 and self.precision_per_um2 == 0.0
+        if not _kernels.COMPILED or (line is not self._line and not fresh):  # a new line mid-chunk: as add does
+            rows = zip(x_mm.tolist(), reference_mm.tolist(), bound_mm.tolist(), scatter.tolist())
+            for k, (x, reference, bound, before) in enumerate(rows):
+                far[k] = self.add(x, reference, bound, before)
+            return far
+        valid = np.isfinite(x_mm) & np.isfinite(reference_mm) & np.isfinite(bound_mm) & (bound_mm > 0)
+        if line is not self._line and valid.any():  # the first line of an empty mean: add's switch, taken first
+            self.starting, self._line = self.starting and self._line is None, line
+        # what add squares and interpolates, in Python's own arithmetic (``**`` is libm's pow, not a product)
+        bound2 = np.zeros(len(x_mm))
+        at = np.flatnonzero(valid)
+        bound2[at] = [(bound * 1e3) ** 2 for bound in bound_mm[at].tolist()]
+        structure = np.zeros(len(x_mm))
+        if monitor.structure is not None:
+            structure[at] = [monitor.structure.at_one_um(reference) for reference in reference_mm[at].tolist()]
+        state = np.array([self.count, self.starting, self.weighted_per_um, self.precision_per_um2, self._known2],
+                         dtype=np.float64)
+        noise = monitor.structure.noise_um if monitor.structure is not None else 0.0
+        p = np.array([line is not None, *((line.offset_um, line.scale_ppm, line.center_mm, *line.covariance)
+                                          if line is not None else (0.0,) * 6),
+                      SUSPECT_WINDOW, GATE * GATE, monitor.calibration_structure_um ** 2,
+                      (monitor.reference_sigma_mm * 1e3) ** 2, noise ** 2,
+                      max(monitor.floor_um, 0.5 * monitor.resolution_mm * 1e3), START_LIMIT, SUSPECT_LIMIT],
+                     dtype=np.float64)
+        _kernels._disagreement_run(state, p, np.ascontiguousarray(x_mm, dtype=np.float64),
+                                   np.ascontiguousarray(reference_mm, dtype=np.float64), bound2, structure,
+                                   np.ascontiguousarray(scatter, dtype=np.float64), valid, far)
+        count, starting, self.weighted_per_um, self.precision_per_um2, self._known2 = state.tolist()
+        self.count, self.starting = int(count), bool(starting)
         return far
 
     def _far(self) -> bool:
