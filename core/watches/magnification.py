@@ -130,7 +130,7 @@ class MagnificationWatch:
         is significant to :meth:`_turning` (numpy's), as :meth:`step` does. None without numba."""
         if not _kernels.COMPILED:
             return None
-        placed, x = columns.array("placed", bool), columns.array("x_mm", np.float64)
+        x = columns.array("x_mm", np.float64)
         m, sigma = chunk_stretches(columns["stretch"], asked_stretches(columns))
         use = np.isfinite(m) & (0 < sigma) & (sigma < math.inf)
         if self.record is not None:

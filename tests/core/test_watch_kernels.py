@@ -131,20 +131,27 @@ def watches():
             "scale": lambda: ScaleWatch(ReferenceMonitor(5.0, 4.0, window=100, floor_um=0.01))}
 
 
-@pytest.mark.parametrize("name", sorted(watches()))
-def test_each_watch_many_frames_at_once_as_frame_by_frame(name):
-    """``step_many`` (chunk by chunk, as batch tracking calls it) gives ``step``'s families and state."""
+def both_ways(at_once, stepped, columns: dict[str, list]) -> tuple[list, list]:
+    """(families of ``at_once`` taking the frames chunk by chunk as batch tracking hands them, a chunk
+    of one frame among them; those of ``stepped`` frame by frame)."""
     from graytrack.core.validity import Columns, _observe_all
 
-    n = 3000
-    columns = sign_columns(n, 11)
-    make = watches()[name]
-    at_once, stepped = make(), make()
+    n = len(columns["frame"])
     families = []
     for start, stop in ((0, 1000), (1000, 1001), (1001, n)):
         part = Columns({key: values[start:stop] for key, values in columns.items()})
         families += _observe_all(at_once, part, stop - start)
-    expected = [stepped.step(*row) for row in zip(*(columns[field] for field in stepped.reads))]
+    return families, [stepped.step(*row) for row in zip(*(columns[field] for field in stepped.reads))]
+
+
+@pytest.mark.parametrize("name", sorted(watches()))
+def test_each_watch_many_frames_at_once_as_frame_by_frame(name):
+    """``step_many`` (chunk by chunk, as batch tracking calls it) gives ``step``'s families and state."""
+    n = 3000
+    columns = sign_columns(n, 11)
+    make = watches()[name]
+    at_once, stepped = make(), make()
+    families, expected = both_ways(at_once, stepped, columns)
     assert families == expected
     assert any(families) or name in ("chi2", "focus")
     inner = lambda w: w.monitor if name == "scale" else w  # noqa: E731
@@ -277,7 +284,6 @@ def test_scale_watch_names_the_stretch_frame_by_frame_in_a_drifted_chunk(monitor
     naming of the stretch (a lens's, a print's) go frame by frame. Against :meth:`ScaleWatch.step` frame
     by frame: families, the per-frame log, the running mean's, the monitor's and the magnification
     watch's state bit for bit."""
-    from graytrack.core.validity import Columns, _observe_all
     from graytrack.core.watches.magnification import MagnificationWatch
     from graytrack.core.watches.scale import ScaleWatch
 
@@ -289,11 +295,7 @@ def test_scale_watch_names_the_stretch_frame_by_frame_in_a_drifted_chunk(monitor
     columns["stretch"] = [None if rng.random() < 0.02 else (lambda m=m[i]: (m, 300e-6)) for i in range(n)]
     make = lambda: ScaleWatch(SCALE_MONITORS[monitor](), log=True, magnification=MagnificationWatch(8.6))  # noqa: E731
     at_once, stepped = make(), make()
-    families = []
-    for start, stop in ((0, 1000), (1000, 1001), (1001, n)):
-        part = Columns({key: values[start:stop] for key, values in columns.items()})
-        families += _observe_all(at_once, part, stop - start)
-    expected = [stepped.step(*row) for row in zip(*(columns[field] for field in stepped.reads))]
+    families, expected = both_ways(at_once, stepped, columns)
     assert families == expected
     assert {"scale", "magnification"} <= set(families) and ("geometry" in families or monitor != "plain")
     assert at_once.log == stepped.log and len(at_once.log) == n
