@@ -138,27 +138,29 @@ def stretches(frames: list[FrameStretch]) -> tuple[np.ndarray, np.ndarray]:
     tracker = frames[0].tracker
     n = len(frames)
     y, w, x, gain, offset, focused, work, m, sigma = _buffers(tracker, n)
-    solutions = [frame.solution for frame in frames]
     if n > 1 and all(frame.batch is frames[0].batch for frame in frames):  # a batch's frames: copied at once
+        solutions = [frame.solution for frame in frames]
         batch, at = frames[0].batch, [frame.k for frame in frames]
         y[:] = batch.frames[at]
         w[:] = [batch.weights(k) for k in at]
         for i, solution in enumerate(solutions):
             if solution.rejected_mask is not None:
                 np.multiply(w[i], ~solution.rejected_mask, out=w[i])
-    else:
+        x[:] = [solution.x_mm for solution in solutions]
+        gain[:] = [solution.gain for solution in solutions]
+        offset[:] = [solution.offset_gray for solution in solutions]
+        focused[:] = [math.isfinite(solution.focus_sigma) for solution in solutions]
+    else:  # live tracking's one frame, or frames of several batches
         for i, frame in enumerate(frames):
-            solution, batch = solutions[i], frame.batch
+            solution, batch = frame.solution, frame.batch
             y[i] = batch.frames[frame.k]
             weights = batch.weights(frame.k)
             if solution.rejected_mask is not None:
                 np.multiply(weights, ~solution.rejected_mask, out=w[i])
             else:
                 w[i] = weights
-    x[:] = [solution.x_mm for solution in solutions]
-    gain[:] = [solution.gain for solution in solutions]
-    offset[:] = [solution.offset_gray for solution in solutions]
-    focused[:] = [math.isfinite(solution.focus_sigma) for solution in solutions]
+            x[i], gain[i], offset[i] = solution.x_mm, solution.gain, solution.offset_gray
+            focused[i] = math.isfinite(solution.focus_sigma)
     _stretches(x, gain, offset, focused, y, w, _target_offsets(tracker), tracker.model.period_mm * FOCUS_STEP_PERIODS,
                tracker.evaluator._args, work, m, sigma)
     return m, sigma
