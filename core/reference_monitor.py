@@ -284,16 +284,20 @@ class ReferenceMonitor:
         return self.stale
 
     def observe_many(self, x_mm: np.ndarray, reference_mm: np.ndarray, bound_mm: np.ndarray, feed: np.ndarray,
-                     on_rise: Callable[[int], None] | None = None, scatter: np.ndarray | None = None) -> np.ndarray:
+                     on_rise: Callable[[int], None] | None = None, scatter: np.ndarray | None = None,
+                     lines: np.ndarray | None = None) -> np.ndarray:
         """:meth:`observe` of each frame where ``feed`` is set, in order: the flag after every frame
         (fed or not); into ``scatter`` (when given) :attr:`scatter` as it stood before each frame, what
-        a frame's gate read between them (core/watches/scale.py's running mean). ``on_rise(k)`` is
+        a frame's gate read between them (core/watches/scale.py's running mean); into ``lines`` (when
+        given, ``(n, 3)``) the :attr:`estimate` after each frame: 1 if there is one, its scale (ppm) and
+        the scale's variance (what the scale watch names a stretch against, frame by frame). ``on_rise(k)`` is
         called when the flag rises at frame k, the monitor then as it stood after that frame.
         Compiled (core/watches/_kernels.py): the same numbers as :meth:`observe` frame by frame,
         which it is without numba."""
         n = len(x_mm)
         stale = np.zeros(n, dtype=bool)
         scatter = np.empty(n) if scatter is None else scatter
+        recorded = lines if lines is not None else np.empty((0, 3))
         if not _kernels.COMPILED:
             for k in range(n):
                 before = self.stale
@@ -301,6 +305,7 @@ class ReferenceMonitor:
                 if feed[k]:
                     self.observe(float(x_mm[k]), float(reference_mm[k]), float(bound_mm[k]))
                 stale[k] = self.stale
+                self._record_line(recorded, k)
                 if on_rise is not None and self.stale and not before:
                     on_rise(k)
             return stale
@@ -312,7 +317,7 @@ class ReferenceMonitor:
         start = 0
         while start < n:
             start, stop = _kernels._reference_run(ip, p, ist, fst, est, rows, x, ref, bound, feed, stale, scatter,
-                                                  start, on_rise is not None)
+                                                  start, on_rise is not None, recorded)
             if stop == _kernels.DONE:
                 break
             self._unpack(ist, fst, est, rows)
@@ -320,6 +325,7 @@ class ReferenceMonitor:
                 before = self.stale
                 self._recompute()
                 stale[start] = self._added()
+                self._record_line(recorded, start)
                 if on_rise is not None and self.stale and not before:
                     on_rise(start)
                 start += 1
@@ -328,6 +334,12 @@ class ReferenceMonitor:
             ip, p, ist, fst, est, rows = self._packed()
         self._unpack(ist, fst, est, rows)
         return stale
+
+    def _record_line(self, lines: np.ndarray, k: int) -> None:
+        """Row ``k`` of :meth:`observe_many`'s ``lines`` (none when it has no rows): the estimate now."""
+        if len(lines):
+            line = self.estimate
+            lines[k] = (1.0, line.scale_ppm, line.covariance[2]) if line is not None else (0.0, 0.0, 0.0)
 
     def _packed(self) -> tuple[np.ndarray, ...]:
         """The state as the compiled loop takes it (core/watches/_kernels.py names each slot)."""

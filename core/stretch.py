@@ -100,6 +100,37 @@ class FrameStretch:
         return float(m[0]), float(sigma[0])
 
 
+class Measured:
+    """A frame's stretch computed already (``FrameSign.stretch`` as :class:`FrameStretch` would
+    return it): a chunk's stretches made by one compiled call and handed out frame by frame."""
+
+    __slots__ = ("m", "sigma")
+
+    def __init__(self, m: float, sigma: float) -> None:
+        self.m, self.sigma = m, sigma
+
+    def __call__(self) -> tuple[float, float]:
+        return self.m, self.sigma
+
+
+def chunk_stretches(entries: list, asked: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(m, σ) of every frame of a chunk, computed for the frames ``asked`` (indices into ``entries``,
+    each a ``FrameSign.stretch``): by one compiled call (:func:`stretches`) when they are all
+    :class:`FrameStretch` of one compiled tracker, else by each frame's own call; NaN and inf elsewhere.
+    Frame by frame :func:`_stretches` reads only its own frame: the same numbers as each frame's
+    :class:`FrameStretch` (tests/core/test_stretch_fast.py)."""
+    n = len(entries)
+    m, sigma = np.full(n, math.nan), np.full(n, math.inf)
+    if asked.size:
+        frames = [entries[i] for i in asked]
+        if all(type(frame) is FrameStretch for frame in frames) and len({id(f.tracker) for f in frames}) == 1 \
+                and compiled_for(frames[0].tracker):
+            m[asked], sigma[asked] = stretches(frames)
+        else:
+            m[asked], sigma[asked] = np.array([frame() for frame in frames], dtype=np.float64).reshape(-1, 2).T
+    return m, sigma
+
+
 def stretches(frames: list[FrameStretch]) -> tuple[np.ndarray, np.ndarray]:
     """(m, σ) of each of ``frames`` (all of one tracker, :func:`compiled_for` it), by one compiled
     call: :func:`stretch`'s least squares frame by frame, solved by elimination rather than numpy's
@@ -107,16 +138,29 @@ def stretches(frames: list[FrameStretch]) -> tuple[np.ndarray, np.ndarray]:
     tracker = frames[0].tracker
     n = len(frames)
     y, w, x, gain, offset, focused, work, m, sigma = _buffers(tracker, n)
-    for i, frame in enumerate(frames):
-        solution, batch = frame.solution, frame.batch
-        y[i] = batch.frames[frame.k]
-        weights = batch.weights(frame.k)
-        if solution.rejected_mask is not None:
-            np.multiply(weights, ~solution.rejected_mask, out=w[i])
-        else:
-            w[i] = weights
-        x[i], gain[i], offset[i] = solution.x_mm, solution.gain, solution.offset_gray
-        focused[i] = math.isfinite(solution.focus_sigma)
+    if n > 1 and all(frame.batch is frames[0].batch for frame in frames):  # a batch's frames: copied at once
+        solutions = [frame.solution for frame in frames]
+        batch, at = frames[0].batch, [frame.k for frame in frames]
+        y[:] = batch.frames[at]
+        w[:] = [batch.weights(k) for k in at]
+        for i, solution in enumerate(solutions):
+            if solution.rejected_mask is not None:
+                np.multiply(w[i], ~solution.rejected_mask, out=w[i])
+        x[:] = [solution.x_mm for solution in solutions]
+        gain[:] = [solution.gain for solution in solutions]
+        offset[:] = [solution.offset_gray for solution in solutions]
+        focused[:] = [math.isfinite(solution.focus_sigma) for solution in solutions]
+    else:  # live tracking's one frame, or frames of several batches
+        for i, frame in enumerate(frames):
+            solution, batch = frame.solution, frame.batch
+            y[i] = batch.frames[frame.k]
+            weights = batch.weights(frame.k)
+            if solution.rejected_mask is not None:
+                np.multiply(weights, ~solution.rejected_mask, out=w[i])
+            else:
+                w[i] = weights
+            x[i], gain[i], offset[i] = solution.x_mm, solution.gain, solution.offset_gray
+            focused[i] = math.isfinite(solution.focus_sigma)
     _stretches(x, gain, offset, focused, y, w, _target_offsets(tracker), tracker.model.period_mm * FOCUS_STEP_PERIODS,
                tracker.evaluator._args, work, m, sigma)
     return m, sigma

@@ -159,9 +159,11 @@ def _reset(ist, fst, rows):
     fst[9] = 0.0
 
 
-def _reference_run(ip, p, ist, fst, est, rows, x, ref, bound, feed, stale, scatter, start, stop_on_rise):
+def _reference_run(ip, p, ist, fst, est, rows, x, ref, bound, feed, stale, scatter, start, stop_on_rise, lines):
     """ReferenceMonitor.observe of frames ``start:`` where ``feed`` (the flag after each into
-    ``stale``, the window's scatter before each into ``scatter``); stops early at (frame, RECOMPUTE)
+    ``stale``, the window's scatter before each into ``scatter``, the line after each into ``lines``
+    when it has a row a frame: whether there is one, its scale and the scale's variance); stops early
+    at (frame, RECOMPUTE)
     once a frame's addition asks for the window to be re-summed (numpy's sums: Python does that and
     the rest of the frame), or at (frame + 1, ROSE) after the flag rose, with ``stop_on_rise``."""
     n = x.size
@@ -207,6 +209,9 @@ def _reference_run(ip, p, ist, fst, est, rows, x, ref, bound, feed, stale, scatt
                 if ist[4] % update_every == 0 or ist[0] == min_frames or ist[5] != 0:
                     _update(ip, p, ist, fst, est)
         stale[i] = ist[5] != 0
+        if lines.shape[0] > 0:  # the estimate after the frame (Python's Line: none, or its scale and variance)
+            has = ist[6] != 0
+            lines[i, 0], lines[i, 1], lines[i, 2] = (1.0, est[1], est[4]) if has else (0.0, 0.0, 0.0)
         if stop_on_rise and ist[5] != 0 and before == 0:
             return i + 1, ROSE
     return n, DONE
@@ -413,8 +418,53 @@ def _magnification_run(normal, noise, right, sc, x, m, sigma, use, start: int, p
     return x.size
 
 
+# ---------------------------------------------------------------- the scale watch's running mean
+# state: count, starting (1/0), Σ residual/σ² mean, Σ 1/σ² mean, the line's variance at the last frame's place
+# p: has line, line offset (µm), scale (ppm), centre (mm), covariance ×3, window, gate², the constant terms of
+#    the mean's σ² (calibration structure², reference σ², correction noise², each squared in Python), floor,
+#    start limit, suspect limit
+def _disagreement_run(state, p, x, ref, bound2, structure_um, scatter, valid, far) -> None:
+    """Disagreement.add of each frame in order into ``far``; ``bound2`` the frames' (bound in µm)² and
+    ``structure_um`` the model's own error at each reading, both made in Python (``**`` is libm's pow);
+    ``valid``: the frames add takes (all three finite, the bound positive)."""
+    window = p[7]
+    for i in range(x.size):
+        count = state[0]
+        if valid[i]:
+            expected = known2 = 0.0
+            if p[0] != 0.0:
+                d = (ref[i] - p[3]) * 1e-3
+                expected, known2 = p[1] + p[2] * d, _max(p[4] + 2.0 * d * p[5] + d * d * p[6], 0.0)
+            residual = ((x[i] - structure_um[i] * 1e-3) - ref[i]) * 1e3 - expected
+            variance = bound2[i] + p[10]
+            beyond = False
+            if count != 0.0:  # _gated
+                mean = state[2] / state[3] if state[3] > 0 else 0.0
+                deviation = residual - mean
+                gate2 = p[8] * (variance * scatter[i] + 1.0 / (count * state[3]))
+                if not deviation * deviation <= gate2:
+                    residual, beyond = mean + (math.sqrt(gate2) if deviation > 0 else -math.sqrt(gate2)), True
+            count = _min(count + 1.0, window)
+            state[0] = count
+            state[1] = 1.0 if state[1] != 0.0 and count < window else 0.0
+            state[2] += (residual / variance - state[2]) / count
+            state[3] += (1.0 / variance - state[3]) / count
+            state[4] = known2
+            if beyond:
+                far[i] = True
+                continue
+        if count == 0.0:  # _far
+            far[i] = False
+            continue
+        sigma2 = 1.0 / (count * state[3]) + state[4] + p[9] + p[10] + p[11]
+        mean = state[2] / state[3] if state[3] > 0 else 0.0
+        limit = p[13] if state[1] != 0.0 else p[14]
+        far[i] = abs(mean) > _max(limit * math.sqrt(sigma2), p[12])
+
+
 if COMPILED:
     _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
+    _disagreement_run = _jit(_disagreement_run)
     _age, _magnification_add, _magnification_run = _jit(_age), _jit(_magnification_add), _jit(_magnification_run)
     _place_add = _jit(_place_add)
     _max, _min, _running, slide_window = _jit(_max), _jit(_min), _jit(_running), _jit(slide_window)

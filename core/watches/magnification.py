@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from graytrack.core.period_rival import repeats
-from graytrack.core.stretch import FrameStretch, compiled_for, stretches
+from graytrack.core.stretch import chunk_stretches
 from graytrack.core.stretch import warm as stretch_warm
 from graytrack.core.place_spread import PlaceSpread, model_share
 from graytrack.core.watches import _kernels
@@ -146,18 +146,8 @@ class MagnificationWatch:
         is significant to :meth:`_turning` (numpy's), as :meth:`step` does. None without numba."""
         if not _kernels.COMPILED:
             return None
-        placed, x = columns.array("placed", bool), columns.array("x_mm", np.float64)
-        entries = columns["stretch"]
-        given = np.fromiter((entry is not None for entry in entries), dtype=bool, count=n)
-        asked = np.flatnonzero(placed & np.isfinite(x) & given)
-        m, sigma = np.full(n, math.nan), np.full(n, math.inf)
-        if asked.size:
-            frames = [entries[i] for i in asked]
-            if all(type(frame) is FrameStretch for frame in frames) and len({id(f.tracker) for f in frames}) == 1 \
-                    and compiled_for(frames[0].tracker):
-                m[asked], sigma[asked] = stretches(frames)
-            else:
-                m[asked], sigma[asked] = np.array([frame() for frame in frames], dtype=np.float64).reshape(-1, 2).T
+        x = columns.array("x_mm", np.float64)
+        m, sigma = chunk_stretches(columns["stretch"], asked_stretches(columns))
         use = np.isfinite(m) & (0 < sigma) & (sigma < math.inf)
         if self.record is not None:
             self.record.extend(zip(x[use].tolist(), (m[use] * 1e6).tolist(), (sigma[use] * 1e6).tolist()))
@@ -287,6 +277,13 @@ class StretchProfile:
         beyond = math.sqrt(max(spread2 - float(np.mean(noise2)), 0.0))  # the structure beyond the means' noise
         left = NOISE_SHARE * math.sqrt(float(np.mean(noise2))) + (1.0 - shrink) * beyond
         return cls(tuple(centers.tolist()), tuple((means * shrink).tolist()), left)
+
+
+def asked_stretches(columns) -> np.ndarray:
+    """The frames of a chunk whose stretch :meth:`MagnificationWatch.step` reads: placed, at a finite
+    position, with a stretch to compute."""
+    given = np.fromiter((entry is not None for entry in columns["stretch"]), dtype=bool, count=len(columns["stretch"]))
+    return np.flatnonzero(columns.array("placed", bool) & np.isfinite(columns.array("x_mm", np.float64)) & given)
 
 
 def make(tracker) -> MagnificationWatch:

@@ -32,10 +32,12 @@ from graytrack.core.reference_monitor import GATE, ReferenceMonitor, Trimmer, Tr
 from graytrack.core.chi2_curve import Chi2Curve
 from graytrack.core.stretch_follow import StretchFollow, Taken
 from graytrack.core.validity import RANK, FrameSign
+from graytrack.core.watches import _kernels
 from graytrack.core.watches.grating import GratingWatch
 from graytrack.core.watches.grating import for_model as grating_watch
+from graytrack.core.stretch import Measured, chunk_stretches
 from graytrack.core.drift_cause import lens_favoured
-from graytrack.core.watches.magnification import MagnificationWatch
+from graytrack.core.watches.magnification import MagnificationWatch, asked_stretches
 
 
 # While χ² is suspect no line is fitted, and with χ² quiet the line leaves far frames out as outliers;
@@ -179,7 +181,18 @@ class ScaleWatch:
         print's growth)."""
         taken = self.stretch_follow.taken() if self.stretch_follow is not None else Taken()
         stretched = self.magnification.step(placed, x_mm, stretch, *_accounted(self.trimmer, taken))
+        # :meth:`_named` written out: live frames through the helper measured 0.93-0.95x main's p50 (disturbed,
+        # five side-by-side runs), 0.99-1.00x so (two); the cause is not understood
         cause = self._stretched_by()
+        if stretched is not None and cause == "print":
+            return verdict, None
+        if verdict == self.family and cause == "lens":
+            return "magnification", "magnification"
+        return verdict, stretched
+
+    def _named(self, verdict: str | None, stretched: str | None, cause: str | None) -> tuple[str | None, str | None]:
+        """:meth:`_stretch_step`'s answer (as it spells it out) from the line's verdict, the stretch's and what
+        stretched the image: a chunk's frames (:meth:`_stepped`)."""
         if stretched is not None and cause == "print":
             return verdict, None
         if verdict == self.family and cause == "lens":
@@ -210,12 +223,19 @@ class ScaleWatch:
         paper rig's lens ramp 289 frames ``scale`` before the stretch's own mean told it. Between the two,
         the cause that explains the stretch and the line's scale together best (core/drift_cause.py): a
         scale of thousands of ppm with no stretch to match is no print's, and no grating's or mount's."""
+        line = self.monitor.estimate
+        if self.trimmer is not None or not self.monitor.stale or line is None:
+            return None
+        return self._cause(line.scale_ppm, line.covariance[2])
+
+    def _cause(self, scale_ppm: float, scale_var: float) -> str | None:
+        """:meth:`_stretched_by` of a drifted line with this scale and variance (untrimmed), the local line
+        (:meth:`_step_local`) as it stands."""
         monitor, watch = self.monitor, self.magnification
-        line = monitor.estimate
-        if self.trimmer is not None or not monitor.stale or line is None or not math.isfinite(watch.sigma_ppm):
+        if not math.isfinite(watch.sigma_ppm):
             return None
         base = monitor.calibration
-        scale, scale_var = _since_calibration(line, base)
+        scale, scale_var = _since_calibration(scale_ppm, scale_var, base)
         limit2 = STRETCH_Z * STRETCH_Z
         if (scale * scale > limit2 * scale_var
                 and (watch.mean_ppm - scale) ** 2 <= limit2 * (scale_var + watch.sigma_ppm ** 2)):
@@ -223,8 +243,9 @@ class ScaleWatch:
         if watch.mean_ppm ** 2 > limit2 * watch.sigma_ppm ** 2:
             return "lens"
         lines = [(scale, scale_var)]
-        if self.local is not None and self.local.estimate is not None:
-            lines.append(_since_calibration(self.local.estimate, base))
+        local = self.local.estimate if self.local is not None else None
+        if local is not None:
+            lines.append(_since_calibration(local.scale_ppm, local.covariance[2], base))
         if any(lens_favoured(watch.mean_ppm, watch.sigma_ppm, *line) for line in lines):
             return "lens"
         return None
@@ -233,9 +254,10 @@ class ScaleWatch:
         """:meth:`step` of ``n`` frames at once (the monitor's :meth:`~ReferenceMonitor.observe_many`):
         the running mean of each frame reads the monitor's scatter as it stood before the frame, as
         :meth:`step` does, and its :attr:`log` gets what :meth:`step` would have appended."""
-        suspect = columns.array("chi2_suspect", bool)
-        if suspect.any() or self.trimmer is not None or self.grating is not None:
-            return None  # frame by frame: a suspect run reads the monitor's verdict, a trim follows each frame
+        if self.trimmer is not None or self.grating is not None:
+            return None  # frame by frame: a trim follows each frame
+        if columns.array("chi2_suspect", bool).any():
+            return self._stepped(columns)  # a suspect run reads the monitor's verdict
         carried = self.magnification
         saved = (self.monitor.snapshot(), self._off.snapshot()) if carried is not None else None
         information = columns.array("information", np.float64)
@@ -252,7 +274,7 @@ class ScaleWatch:
             self.monitor.restore(saved[0])
             self._off.restore(saved[1])
             self._frame -= n
-            return None
+            return self._stepped(columns)
         if self.local is not None and self.local.frames:  # the line held on every frame: as :meth:`_step_local`
             self.local.reset()
         if self.log is not None:
@@ -270,11 +292,57 @@ class ScaleWatch:
         return np.where(stale, self.family, None).tolist()
 
 
-def _since_calibration(line, calibration) -> tuple[float, float]:
+    def _stepped(self, columns) -> list[str | None]:
+        """:meth:`step` of a chunk (untrimmed) where the line drifted or χ² was suspect: the stretch is named
+        against the line frame by frame. The monitor and the running mean still take the chunk at once
+        (the line after each frame recorded: all the naming reads of it), the chunk's stretches by one
+        compiled call (core/stretch.py, :func:`~graytrack.core.stretch.chunk_stretches`: the same numbers
+        as each frame's own call); the carried magnification watch and the naming then go frame by frame,
+        as :meth:`step` does (tests/core/test_stretch_fast.py holds the two to the bit)."""
+        n = len(columns["x_mm"])
+        suspect = columns.array("chi2_suspect", bool)
+        information = columns.array("information", np.float64)
+        placed = columns.array("placed", bool)
+        feed = placed & ~suspect if self.feeds else np.zeros(n, dtype=bool)  # a suspect frame is not fed
+        positive = placed & (information > 0)
+        bound = np.where(positive, self.bound_scale / np.sqrt(np.where(positive, information, 1.0)), np.nan)
+        x_mm, reference_mm = columns.array("x_mm", np.float64), columns.array("reference_mm", np.float64)
+        scatter, lines = np.empty(n), np.empty((n, 3))
+        drifted = self.monitor.observe_many(x_mm, reference_mm, bound, feed, scatter=scatter, lines=lines)
+        far = self._off.add_many(x_mm, reference_mm, bound, scatter)
+        self._frame += n
+        off = drifted | far  # while χ² is suspect a disagreement is the model's (geometry), else the scale's
+        verdicts = np.where(off, np.where(suspect, "geometry", self.family), None).tolist()
+        if self.log is not None:
+            self.log.extend(Applied(x, flagged=verdict is not None, drifted=drift)
+                            for x, verdict, drift in zip(columns["x_mm"], verdicts, drifted.tolist()))
+        if self.magnification is None:
+            return verdicts
+        entries = list(columns["stretch"])
+        asked = asked_stretches(columns)
+        m, sigma = chunk_stretches(entries, asked)
+        for i, value, spread in zip(asked.tolist(), m[asked].tolist(), sigma[asked].tolist()):
+            entries[i] = Measured(value, spread)
+        step, cause, name = self.magnification.step, self._cause, self._named
+        local = self._step_local if self.local is not None else None
+        families = []
+        for verdict, frame_placed, x, reference, frame_bound, fed, stretch, drift, (has, scale, scale_var) in zip(
+                verdicts, columns["placed"], columns["x_mm"], reference_mm.tolist(), bound.tolist(), feed.tolist(),
+                entries, drifted.tolist(), lines.tolist()):
+            if local is not None:
+                local(drift, fed, x, reference, frame_bound)
+            stretched = step(frame_placed, x, stretch)
+            line_verdict, stretch_verdict = name(verdict, stretched, cause(scale, scale_var) if drift and has else None)
+            families.append(min((v for v in (line_verdict, stretch_verdict) if v is not None), key=RANK.__getitem__,
+                                default=None))
+        return families
+
+
+def _since_calibration(scale_ppm: float, scale_var: float, calibration) -> tuple[float, float]:
     """A line's scale since the calibration's (ppm) and its variance (ppm²)."""
     if calibration is None:
-        return line.scale_ppm, line.covariance[2]
-    return line.scale_ppm - calibration.scale_ppm, line.covariance[2] + calibration.covariance[2]
+        return scale_ppm, scale_var
+    return scale_ppm - calibration.scale_ppm, scale_var + calibration.covariance[2]
 
 
 def _accounted(trimmer: Trimmer | None, taken: Taken) -> tuple[float, float]:
@@ -383,9 +451,38 @@ class Disagreement:
         """:meth:`add` of each frame in order (``scatter``: the monitor's before each frame): whether
         the mean is beyond its limit after each."""
         far = np.zeros(len(x_mm), dtype=bool)
-        rows = zip(x_mm.tolist(), reference_mm.tolist(), bound_mm.tolist(), scatter.tolist())
-        for k, (x, reference, bound, before) in enumerate(rows):
-            far[k] = self.add(x, reference, bound, before)
+        monitor = self.monitor
+        line = monitor.baseline or monitor.calibration
+        fresh = self.count == 0 and self.weighted_per_um == 0.0 and self.precision_per_um2 == 0.0
+        if not _kernels.COMPILED or (line is not self._line and not fresh):  # a new line mid-chunk: as add does
+            rows = zip(x_mm.tolist(), reference_mm.tolist(), bound_mm.tolist(), scatter.tolist())
+            for k, (x, reference, bound, before) in enumerate(rows):
+                far[k] = self.add(x, reference, bound, before)
+            return far
+        valid = np.isfinite(x_mm) & np.isfinite(reference_mm) & np.isfinite(bound_mm) & (bound_mm > 0)
+        if line is not self._line and valid.any():  # the first line of an empty mean: add's switch, taken first
+            self.starting, self._line = self.starting and self._line is None, line
+        # what add squares and interpolates, in Python's own arithmetic (``**`` is libm's pow, not a product)
+        bound2 = np.zeros(len(x_mm))
+        at = np.flatnonzero(valid)
+        bound2[at] = [(bound * 1e3) ** 2 for bound in bound_mm[at].tolist()]
+        structure = np.zeros(len(x_mm))
+        if monitor.structure is not None:
+            structure[at] = [monitor.structure.at_one_um(reference) for reference in reference_mm[at].tolist()]
+        state = np.array([self.count, self.starting, self.weighted_per_um, self.precision_per_um2, self._known2],
+                         dtype=np.float64)
+        noise = monitor.structure.noise_um if monitor.structure is not None else 0.0
+        p = np.array([line is not None, *((line.offset_um, line.scale_ppm, line.center_mm, *line.covariance)
+                                          if line is not None else (0.0,) * 6),
+                      SUSPECT_WINDOW, GATE * GATE, monitor.calibration_structure_um ** 2,
+                      (monitor.reference_sigma_mm * 1e3) ** 2, noise ** 2,
+                      max(monitor.floor_um, 0.5 * monitor.resolution_mm * 1e3), START_LIMIT, SUSPECT_LIMIT],
+                     dtype=np.float64)
+        _kernels._disagreement_run(state, p, np.ascontiguousarray(x_mm, dtype=np.float64),
+                                   np.ascontiguousarray(reference_mm, dtype=np.float64), bound2, structure,
+                                   np.ascontiguousarray(scatter, dtype=np.float64), valid, far)
+        count, starting, self.weighted_per_um, self.precision_per_um2, self._known2 = state.tolist()
+        self.count, self.starting = int(count), bool(starting)
         return far
 
     def _far(self) -> bool:

@@ -163,3 +163,24 @@ def test_the_focus_solves_own_estimate_and_blur_variance_are_the_small_solves(ri
             assert solution.focus == own[1] / own[0] / footprint
             assert solution.focus_sigma == math.sqrt(max(blur_variance, 0.0)) / abs(own[0]) / footprint
             assert solution.x_mm == out[0]
+
+
+def test_a_drifted_line_steps_the_scale_watch_on_stretches_computed_at_once(monkeypatch, rigs):
+    """Where the line camera − grating drifts (the lens warming up), the scale watch names the stretch
+    frame by frame; the chunk's stretches are computed first by one compiled call. Against the frames
+    stepped one by one with each frame's own call (the path before): every position, bound, flag and
+    reason bit for bit, and the stepped chunk was the path taken."""
+    from graytrack.core.watches.scale import ScaleWatch
+
+    model, run = rigs["magnification"]
+    taken = []
+    stepped = ScaleWatch._stepped
+    monkeypatch.setattr(ScaleWatch, "_stepped", lambda watch, columns: taken.append(1) or stepped(watch, columns))
+    fast = track(model, run.frames, reference=run.reference, light="auto", robust=True)
+    assert taken  # the line drifted within the chunk
+    monkeypatch.setattr(ScaleWatch, "_stepped", lambda watch, columns: None)  # _observe_all steps each frame
+    slow = track(model, run.frames, reference=run.reference, light="auto", robust=True)
+    for field in OUTPUTS:
+        a, b = getattr(fast, field), getattr(slow, field)
+        assert np.array_equal(a, b, equal_nan=a.dtype.kind == "f"), field
+    assert (fast.stale_reason == "magnification").sum() > 20 and (fast.stale_reason == "scale").sum() > 0

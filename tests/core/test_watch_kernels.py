@@ -9,7 +9,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from graytrack.core.reference_monitor import Line, ReferenceMonitor, follow
+from graytrack.core.reference_monitor import Line, ReferenceMonitor, StructureProfile, follow
 from graytrack.core.watches import _kernels
 
 pytestmark = pytest.mark.skipif(not _kernels.COMPILED, reason="numba missing: the watches step in Python")
@@ -131,20 +131,27 @@ def watches():
             "scale": lambda: ScaleWatch(ReferenceMonitor(5.0, 4.0, window=100, floor_um=0.01))}
 
 
-@pytest.mark.parametrize("name", sorted(watches()))
-def test_each_watch_many_frames_at_once_as_frame_by_frame(name):
-    """``step_many`` (chunk by chunk, as batch tracking calls it) gives ``step``'s families and state."""
+def both_ways(at_once, stepped, columns: dict[str, list]) -> tuple[list, list]:
+    """(families of ``at_once`` taking the frames chunk by chunk as batch tracking hands them, a chunk
+    of one frame among them; those of ``stepped`` frame by frame)."""
     from graytrack.core.validity import Columns, _observe_all
 
-    n = 3000
-    columns = sign_columns(n, 11)
-    make = watches()[name]
-    at_once, stepped = make(), make()
+    n = len(columns["frame"])
     families = []
     for start, stop in ((0, 1000), (1000, 1001), (1001, n)):
         part = Columns({key: values[start:stop] for key, values in columns.items()})
         families += _observe_all(at_once, part, stop - start)
-    expected = [stepped.step(*row) for row in zip(*(columns[field] for field in stepped.reads))]
+    return families, [stepped.step(*row) for row in zip(*(columns[field] for field in stepped.reads))]
+
+
+@pytest.mark.parametrize("name", sorted(watches()))
+def test_each_watch_many_frames_at_once_as_frame_by_frame(name):
+    """``step_many`` (chunk by chunk, as batch tracking calls it) gives ``step``'s families and state."""
+    n = 3000
+    columns = sign_columns(n, 11)
+    make = watches()[name]
+    at_once, stepped = make(), make()
+    families, expected = both_ways(at_once, stepped, columns)
     assert families == expected
     assert any(families) or name in ("chi2", "focus")
     inner = lambda w: w.monitor if name == "scale" else w  # noqa: E731
@@ -257,3 +264,43 @@ def test_scale_watch_many_frames_at_once_reads_the_scatter_frame_by_frame(log):
     assert families == expected and any(families)
     assert vars(at_once._off) == vars(stepped._off)
     assert at_once.log == stepped.log and (len(at_once.log) == n if log else at_once.log is None)
+
+
+SCALE_MONITORS = {
+    "plain": lambda: ReferenceMonitor(5.0, 4.0, window=100, floor_um=0.01),
+    # a calibration's line and the model's own error along the stroke, taken out of camera − grating
+    "calibrated": lambda: ReferenceMonitor(
+        5.0, 4.0, window=100, floor_um=0.01, reference_sigma_mm=1e-3 / 12 ** 0.5, resolution_mm=1e-3,
+        calibration_frames=300, calibration_x_std_mm=2.0, calibration_structure_um=0.1, place_sigma_um=0.05,
+        calibration=Line(0.1, 20.0, (0.01, 0.001, 100.0), 5.0, 300, 5.2),
+        structure=StructureProfile((2.5, 4.0, 6.5), (0.3, -0.2, 0.1), 0.05, 0.02)),
+}
+
+
+@pytest.mark.parametrize("monitor", SCALE_MONITORS)
+def test_scale_watch_names_the_stretch_frame_by_frame_in_a_drifted_chunk(monitor):
+    """A chunk whose line drifts, with suspect frames: the monitor and the running mean take it at once
+    (the line recorded after each frame, the mean compiled), the carried magnification watch and the
+    naming of the stretch (a lens's, a print's) go frame by frame. Against :meth:`ScaleWatch.step` frame
+    by frame: families, the per-frame log, the running mean's, the monitor's and the magnification
+    watch's state bit for bit."""
+    from graytrack.core.watches.magnification import MagnificationWatch
+    from graytrack.core.watches.scale import ScaleWatch
+
+    n = 3000
+    columns = sign_columns(n, 12)
+    rng = np.random.default_rng(5)
+    k = np.arange(n)
+    m = np.where(k > 0.75 * n, 1500e-6, 0.0) + 300e-6 * rng.normal(size=n)  # a lens's stretch near the drift
+    columns["stretch"] = [None if rng.random() < 0.02 else (lambda m=m[i]: (m, 300e-6)) for i in range(n)]
+    make = lambda: ScaleWatch(SCALE_MONITORS[monitor](), log=True, magnification=MagnificationWatch(8.6))  # noqa: E731
+    at_once, stepped = make(), make()
+    families, expected = both_ways(at_once, stepped, columns)
+    assert families == expected
+    assert {"scale", "magnification"} <= set(families) and ("geometry" in families or monitor != "plain")
+    assert at_once.log == stepped.log and len(at_once.log) == n
+    assert vars(at_once._off) == vars(stepped._off)
+    for a, b in zip(at_once.monitor.snapshot(), stepped.monitor.snapshot()):
+        assert np.array_equal(a, b) if isinstance(a, np.ndarray) else a == b
+    for name in ("_normal", "_noise", "_right", "_scalars"):
+        assert np.array_equal(getattr(at_once.magnification, name), getattr(stepped.magnification, name)), name
