@@ -293,9 +293,11 @@ def test_scale_watch_names_the_stretch_frame_by_frame_in_a_drifted_chunk(monitor
     k = np.arange(n)
     m = np.where(k > 0.75 * n, 1500e-6, 0.0) + 300e-6 * rng.normal(size=n)  # a lens's stretch near the drift
     columns["stretch"] = [None if rng.random() < 0.02 else (lambda m=m[i]: (m, 300e-6)) for i in range(n)]
-    make = lambda: ScaleWatch(SCALE_MONITORS[monitor](), log=True, magnification=MagnificationWatch(8.6))  # noqa: E731
+    make = lambda: ScaleWatch(SCALE_MONITORS[monitor](), log=True, magnification=MagnificationWatch(8.6),  # noqa: E731
+                              local=SCALE_MONITORS[monitor]())
     at_once, stepped = make(), make()
     families, expected = both_ways(at_once, stepped, columns)
+    assert at_once.local.frames == stepped.local.frames > 0 and at_once.local.estimate == stepped.local.estimate
     assert families == expected
     assert {"scale", "magnification"} <= set(families) and ("geometry" in families or monitor != "plain")
     assert at_once.log == stepped.log and len(at_once.log) == n
