@@ -111,6 +111,17 @@ class Watch(Protocol):
         """The family this watch blames now (None: nothing to say)."""
 
 
+class Decisive(str):
+    """A family named decisively on this frame alone, by a watch that is not decisive on every frame: the
+    scale watch carries the far-off judgement (core/watches/far_off.py), decisive for the model's scale, and
+    names it ``magnification`` where the line's drift is a lens's (core/watches/scale.py). It outranks what
+    a frame's nuisances suggest, as a decisive watch's verdict does, but not a watch decisive on every frame
+    (the model's own calibration refused it: those said more than the far-off ever did, being asked after
+    it). The monitor reports it as the plain family."""
+
+    __slots__ = ()
+
+
 @dataclass
 class Verdict:
     stale: bool = False
@@ -128,8 +139,8 @@ class Monitor:
         reason, rank = None, len(FAMILIES)
         for watch in self.watches:  # every watch, every frame: each keeps its own running state
             family = watch.observe(sign)
-            if family is not None and (RANK[family] < rank or getattr(watch, "decisive", False)):
-                reason, rank = family, -1 if getattr(watch, "decisive", False) else RANK[family]
+            if family is not None:
+                reason, rank = _ranked(family, getattr(watch, "decisive", False), reason, rank)
         if reason != self.verdict.reason:
             self.verdict = Verdict(reason is not None, reason)
         return self.verdict
@@ -150,11 +161,25 @@ class Monitor:
                 continue
             decisive = getattr(watch, "decisive", False)
             for i, family in enumerate(families):
-                if family is not None and (RANK[family] < ranks[i] or decisive):
-                    reasons[i], ranks[i] = family, -1 if decisive else RANK[family]
+                if family is not None:
+                    reasons[i], ranks[i] = _ranked(family, decisive, reasons[i], ranks[i])
         if n and reasons[-1] != self.verdict.reason:
             self.verdict = Verdict(reasons[-1] is not None, reasons[-1])
         return reasons
+
+
+DECISIVE, MARKED = -2, -1  # the ranks of a decisive watch's verdict and of one marked :class:`Decisive`
+
+
+def _ranked(family: str, decisive: bool, reason: str | None, rank: int) -> tuple[str | None, int]:
+    """The frame's (reason, rank) once a watch named ``family``: a decisive watch's verdict outranks
+    everything before it (the last decisive watch asked has the say), a :class:`Decisive` verdict
+    everything but a decisive watch's, any other the less specific families (:data:`FAMILIES`)."""
+    if decisive:
+        return family, DECISIVE
+    if type(family) is Decisive:
+        return (str(family), MARKED) if rank > DECISIVE else (reason, rank)
+    return (family, RANK[family]) if RANK[family] < rank else (reason, rank)
 
 
 class Columns(dict):

@@ -17,6 +17,8 @@ import math
 import numpy as np
 
 from graytrack.core import frame_kernel
+from graytrack.core.frame_tables import FrameTables
+from graytrack.core.kernels import TableEvaluator
 from graytrack.core.validity import FrameSign, running
 
 WINDOW = 100  # frames
@@ -95,23 +97,26 @@ class BoundWatch:
         return np.array((*BLAMED, "geometry", None), dtype=object)[out].tolist()
 
 
-def calibrated_information(tracker) -> tuple[float, float, np.ndarray] | None:
+def calibrated_information(model) -> tuple[float, float, np.ndarray] | None:
     """The information per model row on x with the calibrated light and every sample, on a grid over the
-    stroke: (grid start, grid step, values); None when the model has no stroke range."""
-    model = tracker.model
+    stroke: (grid start, grid step, values); None when the model has no stroke range. From the model
+    alone, weighed as its tracker weighs each sample (core/tracking.py), so that a watch made before its
+    tracker (an owner's scale watch, carrying the far-off judgement) judges against the same figure."""
     lo, hi = model.stroke_range_mm
     if not (math.isfinite(lo) and math.isfinite(hi)):
         return None
     step = model.period_mm / GRID_PER_PERIOD
     grid = np.arange(lo - model.period_mm, hi + model.period_mm + step, step)
-    values, slopes = tracker.evaluator.evaluate(grid)
-    if tracker.signal_dependent:  # the model's inverse variance at each grid position, in one compiled pass
-        weights, _ = frame_kernel.sample_weights(values, model.pixel_noise, tracker.pixel_weight, 1.0, None)
+    values, slopes = TableEvaluator(FrameTables.of(model)).evaluate(grid)
+    if model.noise().signal_dependent:  # the model's inverse variance at each grid position, in one compiled pass
+        pixel_weight = np.ones(model.n_rows * model.n_pixels) if model.pixel_weight is None else \
+            np.ascontiguousarray(model.pixel_weight, dtype=np.float64).reshape(-1)
+        weights, _ = frame_kernel.sample_weights(values, model.pixel_noise, pixel_weight, 1.0, None)
     else:
-        weights = tracker.static_weights
+        weights = model.inverse_variance(np.zeros((model.n_rows, model.n_pixels))).reshape(1, -1)
     return float(grid[0]), step, np.sum(weights * slopes * slopes, axis=1)
 
 
 def make(tracker) -> BoundWatch | None:
-    table = calibrated_information(tracker)
+    table = calibrated_information(tracker.model)
     return None if table is None else BoundWatch(*table)

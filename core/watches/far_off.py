@@ -16,6 +16,12 @@ last :data:`WINDOW` frames (one grating reading gone wrong moves a median by not
 :data:`FAR_BOUNDS` times the bound of the calibrated light (the model's own precision: a wrong model
 makes the tracker solve a light field, whose frames' bound then rose from 2.2 to 17 µm at 1 % off),
 and against the median's own noise under the frames' bound as solved, so noise is never "far".
+
+A lens whose magnification drifts with the optical axis far off the ROI slides the image as far
+(3000 ppm × 500 px on a 16-row strip: hundreds of µm), and that is no wrong model: the scale watch
+(core/watches/scale.py) carries this watch beside its line, and names its verdict ``magnification``
+where the line's drift is a lens's (its stretch and its scale say so), ``scale`` otherwise; decisive
+either way (core/validity.py ``Decisive``).
 """
 
 from __future__ import annotations
@@ -102,9 +108,15 @@ class FarOffWatch:
         return families
 
 
-def make(tracker) -> FarOffWatch | None:
-    """The watch for ``tracker``'s model (validity.monitor_for); None when the model has no stroke range."""
-    table = calibrated_information(tracker)
+def for_model(model) -> FarOffWatch | None:
+    """The watch for ``model``; None when the model has no stroke range."""
+    table = calibrated_information(model)
     if table is None:
         return None
-    return FarOffWatch(float(np.median(table[2])), stream_bound_factor(tracker.model.info) ** 2)
+    return FarOffWatch(float(np.median(table[2])), stream_bound_factor(model.info) ** 2)
+
+
+def make(tracker) -> FarOffWatch | None:
+    """The watch for ``tracker``'s model (validity.monitor_for) where no scale watch carries it (one that
+    reads a grating does: core/watches/scale.py names a lens's slide ``magnification`` instead)."""
+    return for_model(tracker.model)

@@ -31,13 +31,15 @@ from graytrack.core.compression import stream_bound_factor
 from graytrack.core.reference_monitor import GATE, ReferenceMonitor, Trimmer, TrimEvent, scale_tells
 from graytrack.core.chi2_curve import Chi2Curve
 from graytrack.core.stretch_follow import StretchFollow, Taken
-from graytrack.core.validity import RANK, FrameSign
+from graytrack.core.validity import RANK, Decisive, FrameSign
 from graytrack.core.watches import _kernels
 from graytrack.core.watches.grating import GratingWatch
 from graytrack.core.watches.grating import for_model as grating_watch
 from graytrack.core.stretch import Measured, chunk_stretches
 from graytrack.core.drift_cause import lens_favoured
 from graytrack.core.watches.magnification import MagnificationWatch, asked_stretches
+from graytrack.core.watches import far_off as far_off_watch
+from graytrack.core.watches.far_off import FarOffWatch
 
 
 # While χ² is suspect no line is fitted, and with χ² quiet the line leaves far frames out as outliers;
@@ -73,14 +75,17 @@ class ScaleWatch:
     reads what the trim did to each frame from :attr:`last` (live) or :attr:`log` (a recording)."""
 
     family = "scale"
-    reads = ("chi2_suspect", "placed", "x_mm", "reference_mm", "information", "stretch", "chi2")
+    reads = ("chi2_suspect", "placed", "x_mm", "reference_mm", "information", "stretch", "chi2", "rows_averaged")
 
     def __init__(self, monitor: ReferenceMonitor, feeds: bool = True, bound_scale: float = 1.0,
                  trimmer: Trimmer | None = None, log: bool = False,
                  magnification: MagnificationWatch | None = None, grating: GratingWatch | None = None,
-                 stretch: StretchFollow | None = None, local: ReferenceMonitor | None = None) -> None:
+                 stretch: StretchFollow | None = None, local: ReferenceMonitor | None = None,
+                 far_off: FarOffWatch | None = None) -> None:
         if trimmer is not None and trimmer.monitor is not monitor:
             raise ValueError("a scale watch's trimmer must read the watch's own monitor")
+        if trimmer is not None and far_off is not None:
+            raise ValueError("a trimmed scale watch judges the camera far off against its trim: it carries no far-off")
         self.monitor = monitor
         self._off = Disagreement(monitor)
         self.feeds = feeds
@@ -94,6 +99,12 @@ class ScaleWatch:
         if trimmer is not None:  # the camera far off the grating is judged against the trim in force (the
             # running mean's limit below): untrimmed, a lens's slide of 94 µm, trimmed to the bound, read as
             # a model of the wrong scale on 58 % of a 16-row run's frames
+            self.replaces += (FAR_OFF,)
+        # untrimmed, the far-off judgement stepped here (``replaces``), so that the camera far off is named with
+        # what drifted the line (:meth:`_far_named`): a lens's slide 3000 ppm × 500 px from the axis, hundreds of
+        # µm on a 16-row strip, had 295 of 490 flagged frames named ``scale`` (a wrong model) by the far-off alone
+        self.far_off = far_off
+        if far_off is not None:
             self.replaces += (FAR_OFF,)
         # the lens's stretch the tracker takes out of each frame (core/stretch_follow.py): the tracker finds
         # it here (``track(..., watches=)``), and this watch reads what each frame had taken out
@@ -115,7 +126,8 @@ class ScaleWatch:
         if not trim:  # the stretch judged beside the line (:meth:`_stretched_by`)
             local = ReferenceMonitor.for_model(model, reference_resolution_mm, **{**options, "window": LOCAL_WINDOW})
             return cls(monitor, bound_scale=stream_bound_factor(model.info), log=log,
-                       magnification=MagnificationWatch.for_model(model), local=local)
+                       magnification=MagnificationWatch.for_model(model), local=local,
+                       far_off=far_off_watch.for_model(model))
         chi2_calibration = float(model.info.get("calibration_chi2") or 1.0)
         return cls(monitor, bound_scale=stream_bound_factor(model.info), trimmer=Trimmer(monitor), log=log,
                    magnification=MagnificationWatch.for_model(model),
@@ -124,10 +136,10 @@ class ScaleWatch:
 
     def observe(self, sign: FrameSign) -> str | None:
         return self.step(sign.chi2_suspect, sign.placed, sign.x_mm, sign.reference_mm, sign.information,
-                         sign.stretch, sign.chi2)
+                         sign.stretch, sign.chi2, sign.rows_averaged)
 
     def step(self, chi2_suspect: bool, placed: bool, x_mm: float, reference_mm: float,
-             information: float, stretch=None, chi2: float = 0.0) -> str | None:
+             information: float, stretch=None, chi2: float = 0.0, rows_averaged: int = 1) -> str | None:
         # While χ² says the images changed, a disagreement with the grating is its consequence, not a
         # scale: those frames are not fed. But a disagreement already found stays a flag: the camera
         # is off the grating and the images are not the calibration's, so the model does not describe
@@ -166,29 +178,41 @@ class ScaleWatch:
         if self.log is not None:
             self.log.append(dataclasses.replace(self.last, flagged=verdict is not None, drifted=drifted)
                             if trimmer is not None else Applied(x_mm, flagged=verdict is not None, drifted=drifted))
-        verdicts = [verdict]
+        verdicts, cause = [verdict], None
         if self.magnification is not None:
-            verdicts = list(self._stretch_step(placed, x_mm, stretch, verdict))
+            *verdicts, cause = self._stretch_step(placed, x_mm, stretch, verdict)
         if self.grating is not None:
             trimmed = self.last.x_mm if trimmer is not None and trimmer.trim is not None else x_mm
             verdicts.append(self.grating.step(placed, reference_mm, trimmed, information, chi2, chi2_suspect))
+        if self.far_off is not None:
+            far = self.far_off.step(placed, reference_mm, x_mm, information, rows_averaged)
+            if far is not None:
+                return self._far_named(far, cause)
         return min((v for v in verdicts if v is not None), key=RANK.__getitem__, default=None)
 
+    @staticmethod
+    def _far_named(far: str, cause: str | None) -> Decisive:
+        """The carried far-off verdict (untrimmed), named with what drifted the line: a lens's slide is
+        ``magnification``; anything else far off is the model's scale (a model of another period or pitch,
+        whose stretch the line's scale matches, or a print grown: core/watches/far_off.py). Decisive either
+        way: the light and focus watches only describe how the frames fail so far off."""
+        return Decisive("magnification" if cause == "lens" else far)
+
     def _stretch_step(self, placed: bool, x_mm: float, stretch,
-                      verdict: str | None = None) -> tuple[str | None, str | None]:
+                      verdict: str | None = None) -> tuple[str | None, str | None, str | None]:
         """The carried magnification watch's step beside the line: (the line's verdict, renamed
         ``magnification`` when a lens drifted it; the stretch's verdict, None where the line names a
-        print's growth)."""
+        print's growth; what stretched the image, :meth:`_stretched_by`)."""
         taken = self.stretch_follow.taken() if self.stretch_follow is not None else Taken()
         stretched = self.magnification.step(placed, x_mm, stretch, *_accounted(self.trimmer, taken))
         # :meth:`_named` written out: live frames through the helper measured 0.93-0.95x main's p50 (disturbed,
         # five side-by-side runs), 0.99-1.00x so (two); the cause is not understood
         cause = self._stretched_by()
         if stretched is not None and cause == "print":
-            return verdict, None
+            return verdict, None, cause
         if verdict == self.family and cause == "lens":
-            return "magnification", "magnification"
-        return verdict, stretched
+            return "magnification", "magnification", cause
+        return verdict, stretched, cause
 
     def _named(self, verdict: str | None, stretched: str | None, cause: str | None) -> tuple[str | None, str | None]:
         """:meth:`_stretch_step`'s answer (as it spells it out) from the line's verdict, the stretch's and what
@@ -284,13 +308,25 @@ class ScaleWatch:
             # the line held on every frame: the stretch is the magnification watch's alone (its chunk path when
             # it has one: the same as its step frame by frame, nothing accounted for untrimmed)
             many = carried.step_many(columns, n) if hasattr(carried, "step_many") else None
-            if many is not None:
-                return many
-            return [self._stretch_step(*row)[1] for row in zip(columns["placed"], columns["x_mm"], columns["stretch"])]
-        if not stale.any():
-            return [None] * n
-        return np.where(stale, self.family, None).tolist()
+            if many is None:
+                many = [self._stretch_step(*row)[1]
+                        for row in zip(columns["placed"], columns["x_mm"], columns["stretch"])]
+        else:
+            many = np.where(stale, self.family, None).tolist() if stale.any() else [None] * n
+        return self._far_many(columns, many)  # the line held: nothing drifted it, a camera far off is the scale's
 
+    def _far_many(self, columns, families: list[str | None],
+                  causes: list[str | None] | None = None) -> list[str | None]:
+        """``families`` of a chunk with the carried far-off judgement's over them (:meth:`_far_named`, each
+        frame's ``causes``: what drifted its line, none given while the line held)."""
+        if self.far_off is None:
+            return families
+        far = self.far_off.step_many(columns, len(families))
+        if not any(far):
+            return families
+        causes = causes or [None] * len(families)
+        return [family if off is None else self._far_named(off, cause)
+                for family, off, cause in zip(families, far, causes)]
 
     def _stepped(self, columns) -> list[str | None]:
         """:meth:`step` of a chunk (untrimmed) where the line drifted or χ² was suspect: the stretch is named
@@ -317,7 +353,7 @@ class ScaleWatch:
             self.log.extend(Applied(x, flagged=verdict is not None, drifted=drift)
                             for x, verdict, drift in zip(columns["x_mm"], verdicts, drifted.tolist()))
         if self.magnification is None:
-            return verdicts
+            return self._far_many(columns, verdicts)
         entries = list(columns["stretch"])
         asked = asked_stretches(columns)
         m, sigma = chunk_stretches(entries, asked)
@@ -325,17 +361,18 @@ class ScaleWatch:
             entries[i] = Measured(value, spread)
         step, cause, name = self.magnification.step, self._cause, self._named
         local = self._step_local if self.local is not None else None
-        families = []
+        families, causes = [], []
         for verdict, frame_placed, x, reference, frame_bound, fed, stretch, drift, (has, scale, scale_var) in zip(
                 verdicts, columns["placed"], columns["x_mm"], reference_mm.tolist(), bound.tolist(), feed.tolist(),
                 entries, drifted.tolist(), lines.tolist()):
             if local is not None:
                 local(drift, fed, x, reference, frame_bound)
             stretched = step(frame_placed, x, stretch)
-            line_verdict, stretch_verdict = name(verdict, stretched, cause(scale, scale_var) if drift and has else None)
+            causes.append(cause(scale, scale_var) if drift and has else None)
+            line_verdict, stretch_verdict = name(verdict, stretched, causes[-1])
             families.append(min((v for v in (line_verdict, stretch_verdict) if v is not None), key=RANK.__getitem__,
                                 default=None))
-        return families
+        return self._far_many(columns, families, causes)
 
 
 def _since_calibration(scale_ppm: float, scale_var: float, calibration) -> tuple[float, float]:
