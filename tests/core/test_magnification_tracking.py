@@ -104,3 +104,44 @@ def test_with_the_grating_the_drift_is_named_magnification_not_scale(rig):
     late = slice(run.n_frames // 2, None)
     named = result.stale_reason[late][flagged[late]]
     assert np.mean(named == "magnification") > 0.9, collections.Counter(named.tolist())
+
+
+FAR = "magnification_drift:ppm=3000:axis_px=-1000:ramp_s=6"  # the axis 1000 px off: the slide reaches 185 µm
+
+
+@pytest.fixture(scope="module")
+def far(rig):
+    """The lens's ramp on the same rig with the optical axis far off the ROI: from frame ~215 the camera
+    is more than 100 of its bounds off the grating, where the far-off judgement speaks (a wrong model's)."""
+    run, truth = build_rig("paper", FAR, seed=11, run=4).record(6.0)
+    return rig[0], run, truth
+
+
+def test_a_lens_sliding_the_camera_far_off_the_grating_is_named_magnification_not_a_wrong_model(far):
+    """Untrimmed, the scale watch carries the far-off judgement (core/watches/far_off.py) and names it with
+    what drifted the line: the lens's. Every frame from the first one 100 bounds off is named
+    ``magnification``; before, the far-off watch alone named them ``scale`` (a model of another period or
+    pitch), decisively: 60 of 294 flagged frames, all from frame 259 on (now 19, the ramp's first flags).
+    A model 5 % off in period is still ``scale`` (tests/core/test_validity.py)."""
+    model, run, truth = far
+    result, _, _, flagged = _tracked(model, run, truth, trim=False, grating=True)
+    beyond = np.abs(result.x_mm - run.reference) > 100.0 * result.crlb_mm
+    first = int(np.argmax(beyond))
+    assert beyond.any() and first < run.n_frames - 60  # the far frames are the run's last ~85
+    assert flagged[first:].all()
+    assert (result.stale_reason[first:] == "magnification").all(), collections.Counter(result.stale_reason[first:])
+    named = collections.Counter(result.stale_reason[flagged].tolist())
+    assert named["scale"] <= 0.1 * flagged.sum(), named
+
+
+def test_the_far_lens_is_named_the_same_chunk_by_chunk_as_frame_by_frame(monkeypatch, far):
+    """The scale watch's chunk paths (the line held: the far-off judgement over the chunk at once; drifted:
+    named frame by frame beside the line) against its ``step`` on every frame: the same reasons, bit for bit."""
+    from graytrack.core.watches.scale import ScaleWatch
+
+    model, run, _ = far
+    chunked = track(model, run.frames, run.reference, light="auto", robust=True)
+    monkeypatch.setattr(ScaleWatch, "step_many", lambda watch, columns, n: None)  # _observe_all steps each frame
+    stepped = track(model, run.frames, run.reference, light="auto", robust=True)
+    assert np.array_equal(chunked.stale_reason, stepped.stale_reason)
+    assert (chunked.stale_reason == "magnification").sum() > 200

@@ -115,6 +115,34 @@ def test_the_monitor_names_the_most_specific_family_blamed():
     assert not Monitor([Blames(None)]).observe(FrameSign(0)).stale
 
 
+def test_a_verdict_decisive_on_its_frame_outranks_the_nuisances_not_a_decisive_watch():
+    """The scale watch names the far-off judgement it carries decisively on those frames alone
+    (``Decisive``): ahead of the light a nuisance suggests, behind a watch decisive on every frame (the
+    geometry its calibration refused), whichever the order asked; reported as the plain family, frame by
+    frame and over many frames at once."""
+    from graytrack.core.validity import SIGN_FIELDS, Decisive
+
+    class Blames:
+        family = "x"
+
+        def __init__(self, answer, decisive=False):
+            self.answer, self.decisive = answer, decisive
+
+        def observe(self, sign):
+            return self.answer
+
+    marked = Blames(Decisive("magnification"))
+    cases = (([Blames("light"), marked], "magnification"), ([marked, Blames("light")], "magnification"),
+             ([Blames("geometry", decisive=True), marked], "geometry"),
+             ([marked, Blames("geometry", decisive=True)], "geometry"))
+    for watches, reason in cases:
+        verdict = Monitor(watches).observe(FrameSign(0))
+        assert verdict.reason == reason and type(verdict.reason) is str
+        many = Monitor(watches).observe_many({name: [getattr(FrameSign(k), name) for k in range(3)]
+                                              for name in SIGN_FIELDS})
+        assert many == [reason] * 3 and all(type(r) is str for r in many)
+
+
 def test_every_watch_module_is_found(model):
     from graytrack.core.tracking import Tracker
 

@@ -128,7 +128,9 @@ def watches():
     return {"bound": lambda: BoundWatch(1.0, 10.0 / 699, table), "chi2": ChiSquareWatch, "focus": FocusWatch,
             "far_off": lambda: FarOffWatch(4e8, 1.2),
             "grating": lambda: GratingWatch(1.3, 1.9), "light": LightWatch, "transients": TransientWatch,
-            "scale": lambda: ScaleWatch(ReferenceMonitor(5.0, 4.0, window=100, floor_um=0.01))}
+            "scale": lambda: ScaleWatch(ReferenceMonitor(5.0, 4.0, window=100, floor_um=0.01)),
+            "scale far off": lambda: ScaleWatch(ReferenceMonitor(5.0, 4.0, window=100, floor_um=0.01),
+                                                far_off=FarOffWatch(4e8, 1.2))}
 
 
 def both_ways(at_once, stepped, columns: dict[str, list]) -> tuple[list, list]:
@@ -154,7 +156,11 @@ def test_each_watch_many_frames_at_once_as_frame_by_frame(name):
     families, expected = both_ways(at_once, stepped, columns)
     assert families == expected
     assert any(families) or name in ("chi2", "focus")
-    inner = lambda w: w.monitor if name == "scale" else w  # noqa: E731
+    inner = lambda w: w.monitor if name.startswith("scale") else w  # noqa: E731
+    if name == "scale far off":  # the far-off judgement it carries, named decisively (core/validity.py Decisive)
+        assert any(type(f).__name__ == "Decisive" for f in families)
+        assert all(type(a) is type(b) for a, b in zip(families, expected))
+        assert vars(at_once.far_off) == vars(stepped.far_off)
     assert vars(inner(at_once)).keys() == vars(inner(stepped)).keys()
     for key, value in vars(inner(at_once)).items():
         if key in ("_array",):
