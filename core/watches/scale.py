@@ -185,9 +185,9 @@ class ScaleWatch:
             trimmed = self.last.x_mm if trimmer is not None and trimmer.trim is not None else x_mm
             verdicts.append(self.grating.step(placed, reference_mm, trimmed, information, chi2, chi2_suspect))
         if self.far_off is not None:
-            far = self.far_off.step(placed, reference_mm, x_mm, information, rows_averaged)
-            if far is not None:
-                return self._far_named(far, cause)
+            far_family = self.far_off.step(placed, reference_mm, x_mm, information, rows_averaged)
+            if far_family is not None:
+                return self._far_named(far_family, cause)
         return min((v for v in verdicts if v is not None), key=RANK.__getitem__, default=None)
 
     @staticmethod

@@ -8,6 +8,7 @@ from types import SimpleNamespace
 import numpy as np
 from fastapi.testclient import TestClient
 
+from graytrack.core.models.fourier import FourierModel
 from graytrack.core.reference_monitor import MIN_FRAMES
 from graytrack.core.tracking import LiveFix
 from graytrack.core.validity import FrameSign
@@ -16,8 +17,17 @@ from graytrack.service.daemon.app import create_app
 from graytrack.service.daemon.trim import ReferenceTrim
 from tests.service.helpers import fast_settings, wait_for, wait_state
 
-# all the monitor needs of a model, and the watches the trim carries (magnification, grating)
-STROKE = SimpleNamespace(stroke_range_mm=(0.0, 10.0), info={}, period_mm=1.0, n_rows=1, n_pixels=100)
+
+def _stroke_model() -> FourierModel:
+    """A sine print over a 10 mm stroke: what the monitor needs of a model, and the watches the trim carries
+    (magnification, grating) and the untrimmed watch (the far-off judgement: its calibrated bound 0.5 µm)."""
+    model = FourierModel(1.0, 0.06, 100, harmonics=1, pixel_degree=0, stroke_range_mm=(0.0, 10.0))
+    coefficients = np.zeros(model.coeff_shape)
+    coefficients[0, 0], coefficients[1, 0] = 100.0, 30.0
+    return model.with_changes(coeffs=coefficients, noise_gray=0.7)
+
+
+STROKE = _stroke_model()
 BOUND_MM = 1.5e-3
 
 
