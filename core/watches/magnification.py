@@ -132,13 +132,31 @@ class MagnificationWatch:
         memory and its σ as the decision takes them, from the first frame on (shrunk by
         :data:`CHANGE_PRIOR_PPM`, which is all there is before one): what a slide may be made of
         while no grating vouches (core/slide.py)."""
-        prior = CHANGE_PRIOR_PPM ** -2
+        mean, variance = self._level(CHANGE_PRIOR_PPM ** -2)
+        return math.sqrt(mean * mean + variance)
+
+    def so_far(self) -> tuple[float, float]:
+        """The stretch mean (ppm) and its σ to weigh causes by (core/watches/scale.py): the decision's once
+        :data:`MIN_FRAMES` are in; before, the same level over the frames seen so far (two at least),
+        its σ from their own noise and scatter as the decision takes them (inf: none yet). The frames'
+        flag waits for its frames (a 4σ test on every frame); what drifted a line already found off the
+        grating needs only the frames' evidence: a lens's first 15 flagged frames named ``scale`` read a
+        line scale of 3500-7000 ppm (± 1600-540) beside a stretch near none, which no grown print gives."""
+        if math.isfinite(self.sigma_ppm) or self._scalars[1] < 2.0:
+            return self.mean_ppm, self.sigma_ppm
+        mean, variance = self._level(0.0)
+        return mean, math.sqrt(variance)
+
+    def _level(self, prior: float) -> tuple[float, float]:
+        """The level of the stretches over the memory (ppm) and its variance (ppm²), shrunk by a
+        ``prior`` precision (1/ppm²; 0: none) toward no change, as the decision weighs it: the frames'
+        noise scaled by their scatter, the model's own allowance and what a trim accounts for."""
         total = self._normal[0, 0] + prior
         mean = self._right[0] / total
         squares, frames, accounted_var = self._scalars[0], self._scalars[1], self._accounted_var
         scatter = max((squares - mean * self._right[0]) / (frames - 1.0), 1.0) if frames > 2 else 1.0
         variance = (self._noise[0, 0] * scatter + prior) / (total * total) + self.allowance_ppm ** 2 + accounted_var
-        return math.sqrt(mean * mean + variance)
+        return mean, variance
 
     def step_many(self, columns, n: int) -> list[str | None] | None:
         """:meth:`step` of ``n`` frames at once: their stretches by one compiled call when batch tracking

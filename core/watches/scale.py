@@ -255,22 +255,22 @@ class ScaleWatch:
     def _cause(self, scale_ppm: float, scale_var: float) -> str | None:
         """:meth:`_stretched_by` of a drifted line with this scale and variance (untrimmed), the local line
         (:meth:`_step_local`) as it stands."""
-        monitor, watch = self.monitor, self.magnification
-        if not math.isfinite(watch.sigma_ppm):
+        monitor = self.monitor
+        mean, sigma = self.magnification.so_far()  # before the watch's own frames are in, the frames' so far
+        if not math.isfinite(sigma):
             return None
         base = monitor.calibration
         scale, scale_var = _since_calibration(scale_ppm, scale_var, base)
         limit2 = STRETCH_Z * STRETCH_Z
-        if (scale * scale > limit2 * scale_var
-                and (watch.mean_ppm - scale) ** 2 <= limit2 * (scale_var + watch.sigma_ppm ** 2)):
+        if scale * scale > limit2 * scale_var and (mean - scale) ** 2 <= limit2 * (scale_var + sigma * sigma):
             return "print"
-        if watch.mean_ppm ** 2 > limit2 * watch.sigma_ppm ** 2:
+        if mean * mean > limit2 * sigma * sigma:
             return "lens"
         lines = [(scale, scale_var)]
         local = self.local.estimate if self.local is not None else None
         if local is not None:
             lines.append(_since_calibration(local.scale_ppm, local.covariance[2], base))
-        if any(lens_favoured(watch.mean_ppm, watch.sigma_ppm, *line) for line in lines):
+        if any(lens_favoured(mean, sigma, *line) for line in lines):
             return "lens"
         return None
 
