@@ -147,17 +147,38 @@ def test_the_far_lens_is_named_the_same_chunk_by_chunk_as_frame_by_frame(monkeyp
     assert (chunked.stale_reason == "magnification").sum() > 200
 
 
-def test_a_16_row_lens_ramp_is_named_magnification_from_its_first_flags():
+@pytest.fixture(scope="module")
+def strip():
+    """A 16-row strip's model, calibrated on 8 s of the rig as it was."""
+    calibration, _ = build_rig("strip16", "", seed=3).record(8.0)
+    return calibrate(calibration, "paper").model
+
+
+def test_a_16_row_lens_ramp_is_named_magnification_from_its_first_flags(strip):
     """The line drifts on frame 18 of a 16-row strip's lens ramp, before the magnification watch has the
     frames its own flag waits for (``MIN_FRAMES``); the cause is weighed on the stretches seen so far
     (``MagnificationWatch.so_far``: their level and its σ from their own noise and scatter) beside the line's
     scale of thousands of ppm, which no grown print gives with a stretch near none: 1 of the run's first 82
     flagged frames named ``scale`` (7 before, frames 18-24). A grown print is still ``scale``
     (tests/diagnosis/test_target_growth_end_to_end.py)."""
-    calibration, _ = build_rig("strip16", "", seed=3).record(8.0)
-    model = calibrate(calibration, "paper").model
     run, truth = build_rig("strip16", "magnification_drift:ppm=1500:ramp_s=10", seed=3, run=1).record(2.0)
-    result, _, _, flagged = _tracked(model, run, truth, trim=False, grating=True)
+    result, _, _, flagged = _tracked(strip, run, truth, trim=False, grating=True)
     named = collections.Counter(result.stale_reason[flagged].tolist())
     assert flagged.sum() > 70 and flagged[-50:].all()
     assert named["scale"] <= 2 and named["magnification"] >= flagged.sum() - 2, named
+
+
+@pytest.mark.parametrize("trajectory", ["rest", "sweep"])
+def test_a_16_row_model_of_another_period_far_off_is_still_the_models_scale(strip, trajectory):
+    """The far-off judgement the scale watch carries names a model 1 % off in period ``scale`` (its stretch
+    is the line's scale, or the line cannot tell: no lens's), on every settled frame, as its own module did."""
+    from graytrack.core.watches.far_off import WINDOW
+    from graytrack.drivers.sim.stage import oscillation
+
+    wrong = strip.with_changes(period_mm=strip.period_mm * 1.01, coeffs=strip.coeffs)
+    motion = {"trajectory": oscillation(5.0, 0.0, 1.0)} if trajectory == "rest" else {}
+    run, _ = build_rig("strip16", "", seed=3, run=1).record(2.0, **motion)
+    watch = scale_watch(run, wrong, run.reference)
+    result = track(wrong, run, light="auto", robust=True, watches=[watch])
+    settled = result.stale_reason[WINDOW + 10:]
+    assert (settled == "scale").all(), collections.Counter(settled.tolist())
