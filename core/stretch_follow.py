@@ -33,6 +33,12 @@ from graytrack.core.stretch import frame_stretch
 from graytrack.core.trim_follow import Follower
 
 MEMORY = 20.0  # frames: the line's time constant (a 16-row frame knows its stretch to ~450 ppm: ~150 ppm now)
+# the line's value now is taken out once this many of its σ from zero (the trim's own follower: 3). It is tested on
+# every frame: at 3σ a 500-frame run of noise alone took a stretch out on 13 of 200 seeded runs, at 4 on none; and
+# a model's own misfit reads as a stretch the same way (the seed model under clipping it lacks reached 3.0-3.6σ on
+# steady runs, 4000 ppm taken out of 20 frames, which tried the focus term on them). A lens's ramp or cycle on a
+# 16-row strip is still followed as at 3 (bench/magnification_drift.py: the same ratios under --trim)
+APPLY_Z = 4.0
 KEPT = 8192  # frames whose taken-out stretch waits for the watch (a batch chunk's worth, and more)
 
 
@@ -53,7 +59,7 @@ class StretchFollow:
 
     def __init__(self, profile=None, memory: float = MEMORY) -> None:
         self.profile = profile  # the model's own stretch along the stroke (a StretchProfile), taken out
-        self.follower = Follower(memory=memory)
+        self.follower = Follower(memory=memory, apply_z=APPLY_Z)
         self._centred_mm: np.ndarray | None = None  # each sample's place along the line (the tracker's model)
         self.current = Taken()  # the frame being solved
         self.corrected_frames = 0  # frames solved with a stretch taken out
