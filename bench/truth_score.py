@@ -41,6 +41,7 @@ class Score:
     marks: int  # print texture learned (core/texture.py)
     focus: int  # frames whose focus term was on (an estimate shown: core/focus_follow.py)
     trimmed: int  # frames a trim was in force on
+    stretched: int = 0  # frames solved with the lens's stretch taken out (core/stretch_follow.py, under --trim)
 
     @property
     def ratio(self) -> float:
@@ -54,7 +55,8 @@ class Score:
     def learned(self) -> str:
         """What the run learned or took on, "-" for nothing (what a steady run must show)."""
         parts = [f"{count} {what}" for count, what in ((self.marks, "marks"), (self.focus, "focus frames"),
-                                                       (self.trimmed, "trimmed")) if count]
+                                                       (self.trimmed, "trimmed"), (self.stretched, "stretched"))
+                 if count]
         return ", ".join(parts) or "-"
 
     def cell(self) -> str:
@@ -88,4 +90,5 @@ def scored(model, run, truth, trim: bool = False, no_reference: bool = False) ->
                  rms_um=float(np.sqrt(np.nanmean(error ** 2))), bound_um=float(np.sqrt(np.nanmean(floor ** 2))),
                  flagged=int(flagged.sum()), far=int(far.sum()), silent=int((far & ~flagged).sum()),
                  marks=int((result.texture or {}).get("learned", 0)), focus=int(focus.sum()),
-                 trimmed=int(trimmed.sum()))
+                 trimmed=int(trimmed.sum()),
+                 stretched=watch.stretch_follow.corrected_frames if watch is not None and watch.stretch_follow else 0)

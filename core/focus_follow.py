@@ -48,6 +48,12 @@ FOLLOW_MOVED_FRAMES = 0.8 * FOLLOW_WINDOW
 # The mean's standard error over a window of ~2·window effectively independent frames: beyond five
 # of them is no chance (two-sided 6e-7 a frame, ~1e-4 over a 500-frame steady run).
 FOCUS_MOVED_Z = 5.0
+# A try of the focus term opens the focus watch's window unless the estimates before it held the calibration's focus
+# within this many of their errors: a blur coming back moves them first (a focus cycle), one frame's χ² spike does not
+# (a clipped crest of the seed model under saturation opened it for 50 frames of a steady run). Only a try is gated,
+# so a steady run's mean straying past 2σ now and then costs nothing; at 3 the paper rig's focus cycle under --trim
+# was 1.11x its bound (its one-row estimates slower to stand out, the blur read as a stretch beside no focus), 0.97x so
+HELD_Z = 2.0
 # ... but a calibrated model's own error is no noise: fixed along the stroke and out of its calibration's
 # sample, it reads as a steady blur of a few hundredths of a px² over stretches of the stroke (the closed
 # loop's model on 3 scratches: +0.02 to +0.045 px² in 25-frame means over the last two thirds of a
@@ -130,15 +136,21 @@ class FocusFollow:
             return None
         return FocusPrior(fit[0], fit[1])
 
-    def moved(self, allowance: float = 0.0) -> bool:
-        """The estimates' mean over the window is beyond ``FOCUS_MOVED_Z`` of its standard error
-        from the calibration's focus (zero), ``allowance`` (the model's own error read as a focus,
+    def moved(self, allowance: float = 0.0, z: float = FOCUS_MOVED_Z) -> bool:
+        """The estimates' mean over the window is beyond ``z`` (:data:`FOCUS_MOVED_Z`) of its standard
+        error from the calibration's focus (zero), ``allowance`` (the model's own error read as a focus,
         :data:`STRUCTURE_PX2` in the estimates' unit) counted in it: the focus has moved, whatever χ² says."""
         if self.count < FOLLOW_MOVED_FRAMES or self.s0 <= 0.0:
             return False
         mean = self.y0 / self.s0
         scatter = max(1.0, (self.yy - mean * self.y0) / max(self.count - 1.0, 1.0))
-        return mean * mean > FOCUS_MOVED_Z * FOCUS_MOVED_Z * (scatter / self.s0 + allowance * allowance)
+        return mean * mean > z * z * (scatter / self.s0 + allowance * allowance)
+
+    def held(self, allowance: float = 0.0) -> bool:
+        """The estimates say the focus is the calibration's: enough of them (as for :meth:`moved`), their
+        mean within :data:`HELD_Z` of its error. A try of the focus term on such a frame is its own χ²'s
+        (a clipped crest, a telegraph pixel's flip), not a blur coming back."""
+        return self.count >= FOLLOW_MOVED_FRAMES and not self.moved(allowance, HELD_Z)
 
     def shown(self, focus_on: bool) -> bool:
         """Whether this frame's estimate goes to the focus watch (core/watches/focus.py): while the

@@ -28,11 +28,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from graytrack.core.compression import stream_bound_factor
 from graytrack.core.solvers import GeneralBatch, TrigPolyBatch
 from graytrack.core.stretch import frame_stretch
 from graytrack.core.trim_follow import Follower
 
 MEMORY = 20.0  # frames: the line's time constant (a 16-row frame knows its stretch to ~450 ppm: ~150 ppm now)
+# the line's value now is taken out once this many of its σ from zero (the trim's own follower: 3). It is tested on
+# every frame: at 3σ a 500-frame run of noise alone took a stretch out on 13 of 200 seeded runs, at 4 on none; and
+# a model's own misfit reads as a stretch the same way (the seed model under clipping it lacks reached 3.0-3.6σ on
+# steady runs, 4000 ppm taken out of 20 frames, which tried the focus term on them). A lens's ramp or cycle on a
+# 16-row strip is still followed as at 3 (bench/magnification_drift.py: the same ratios under --trim)
+APPLY_Z = 4.0
 KEPT = 8192  # frames whose taken-out stretch waits for the watch (a batch chunk's worth, and more)
 
 
@@ -51,9 +58,14 @@ class Taken:
 class StretchFollow:
     """``corrected(...)`` before a frame's solve, ``observe(...)`` after it; :meth:`taken` for the watch."""
 
-    def __init__(self, profile=None, memory: float = MEMORY) -> None:
+    def __init__(self, profile=None, memory: float = MEMORY, noise_factor: float = 1.0) -> None:
         self.profile = profile  # the model's own stretch along the stroke (a StretchProfile), taken out
-        self.follower = Follower(memory=memory)
+        # a frame's stretch error over its white-noise σ: a lossy stream's (core/compression.py) quantisation lies
+        # along F'·s as along x's F'; left white, the line's own scatter estimate over a few tens of frames is
+        # the only widening, and a steady `lab` run at quality 75 (its stretches 3.3 σ in rms) had 17 frames
+        # solved with a stretch taken out at 4.4 of the line's σ
+        self.noise_factor = noise_factor
+        self.follower = Follower(memory=memory, apply_z=APPLY_Z)
         self._centred_mm: np.ndarray | None = None  # each sample's place along the line (the tracker's model)
         self.current = Taken()  # the frame being solved
         self.corrected_frames = 0  # frames solved with a stretch taken out
@@ -64,8 +76,10 @@ class StretchFollow:
     def for_model(cls, model) -> "StretchFollow":
         from graytrack.core.watches.magnification import StretchProfile  # (the watch's own record of it)
 
-        doc = (getattr(model, "info", None) or {}).get("stretch_profile")
-        return cls(StretchProfile.from_dict(doc) if isinstance(doc, dict) else None)
+        info = getattr(model, "info", None) or {}
+        doc = info.get("stretch_profile")
+        return cls(StretchProfile.from_dict(doc) if isinstance(doc, dict) else None,
+                   noise_factor=stream_bound_factor(info))
 
     def _centred(self, model) -> np.ndarray:
         """Each sample's target offset about the line's centre, mm: a fixed centre (a centre moving with
@@ -108,7 +122,7 @@ class StretchFollow:
                 total = self.current.ppm + m * 1e6
                 self._measured = (total * 1e-6, sigma)
                 own = self.profile.at_ppm(solution.x_mm) if self.profile is not None else 0.0
-                self.follower.add(total - own, (sigma * 1e6) ** 2)
+                self.follower.add(total - own, (self.noise_factor * sigma * 1e6) ** 2)
         self.current = dataclasses.replace(self.current, total_ppm=total)
         self._log.append(self.current)
 

@@ -250,6 +250,8 @@ class Tracker:
         self.focus_capable = light == "auto"
         # its estimates' move alone asks for the focus term (core/focus_follow.py)
         self.focus_followed = self.focus_capable and follow_focus and followable(model.info)
+        # the model's own error read as a focus, in the estimates' unit (core/focus_follow.py)
+        self._focus_allowance = FOCUS_STRUCTURE_PX2 * model.pixel_pitch_mm**2
         # a lossy stream scatters each focus estimate this many of its white errors (core/stream_focus.py)
         self.focus_factor = focus_factor(model.info)
         self._curvature: CurvatureTable | None = None
@@ -490,9 +492,11 @@ class Tracker:
         # watch sees the focus come back); any other only those of the frames that tried it and kept it on:
         # one frame's χ² beyond its limit (a telegraph pixel's flip) tries the focus, whose gain then says no
         # (shown, a steady 16-row strip would report 85 such estimates, as a focus taken)
-        # the watch's window opens on every try (a focus that comes and goes is judged as it comes back; a 16-row
-        # focus cycle under --trim is 1.01x its bound so, 1.92x with the window opened by a kept term alone)
-        showing = memory.focus_track.shown(tried_focus or memory.focus)
+        # the watch's window opens on a try too, unless the estimates held the calibration's focus until then (a
+        # focus that comes and goes is judged as it comes back: a 16-row focus cycle under --trim 1.04x its bound so,
+        # 1.92x with the window opened by a kept term alone, the blur read as a stretch beside no focus)
+        opened = tried_focus and not memory.focus_track.held(self._focus_allowance)
+        showing = memory.focus_track.shown(opened or memory.focus)
         shown = measured is not None and ((tried_focus and memory.focus) or (showing and self.focus_followed))
         if shown and answer is uniform:  # under the field's answer the blur-only fit is no estimate
             answer.focus, answer.focus_sigma = measured.focus, measured.focus_sigma
@@ -536,9 +540,8 @@ class Tracker:
         stray light) leaves a residue part of which the blur direction takes: its estimates move
         too, but its χ² stays up (the seed model under 2 gray of DSNU: 4.3x its bound, 7.8x had the
         focus been taken)."""
-        allowance = FOCUS_STRUCTURE_PX2 * self.model.pixel_pitch_mm**2  # in the estimates' unit (core/focus_follow.py)
-        return self.focus_followed and memory.focus_track.moved(allowance) and memory.focus_chi2 is not None and \
-            memory.focus_chi2 <= self.sustained_limit
+        return self.focus_followed and memory.focus_track.moved(self._focus_allowance) \
+            and memory.focus_chi2 is not None and memory.focus_chi2 <= self.sustained_limit
 
     def _field(self, batch: GeneralBatch | TrigPolyBatch, k: int, uniform: FrameSolution,
                memory: LightMemory, here: float = 1.0) -> FrameSolution:

@@ -42,9 +42,10 @@ class Following:
 
 class Hysteresis:
     """:meth:`now` from a follower's ``estimate()``: its value applied once significant beyond
-    :data:`APPLY_Z`, dropped below :data:`CLEAR_Z`."""
+    ``apply_z`` (:data:`APPLY_Z` unless the follower says otherwise), dropped below :data:`CLEAR_Z`."""
 
     applied: bool = False
+    apply_z: float = APPLY_Z
 
     def estimate(self) -> tuple[float, float, float, float] | None:
         raise NotImplementedError
@@ -55,7 +56,7 @@ class Hysteresis:
         if line is None:
             return Following()
         value, sigma, lag, z = line
-        self.applied = z >= (CLEAR_Z if self.applied else APPLY_Z)
+        self.applied = z >= (CLEAR_Z if self.applied else self.apply_z)
         return Following(value, sigma, lag) if self.applied else Following(0.0, 0.0, lag)
 
 
@@ -64,6 +65,7 @@ class Follower(Hysteresis):
     """Exponentially weighted line ``r(k) = level + rate·(k − now)`` of the residual after the trim."""
 
     memory: float = MEMORY
+    apply_z: float = APPLY_Z
     frame: int = 0  # frames seen (fed or not): the clock the rate is per
     applied: bool = False
     # Σw, Σw·t, Σw·t², Σw·r, Σw·r·t, Σw·r², Σw² (t = k − now; the last counts the frames held: (Σw)²/Σw²)

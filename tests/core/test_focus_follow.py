@@ -104,6 +104,31 @@ def test_a_steady_focus_is_neither_taken_nor_flagged(model):
     assert ratio <= 1.15
 
 
+def test_one_frames_chi2_spike_on_a_held_focus_opens_no_focus_window():
+    """The seed model on a paper rig clipping its crests (which it lacks): one clipped frame's χ² tried
+    the focus term, whose gain said no, and the focus watch's window opened on the try showed 50
+    estimates (up to 12 px² at σ 3.9) of a run where nothing changed. The estimates before it held the
+    calibration's focus: no window, nothing shown (the clipped frame itself is flagged: it does not fit)."""
+    effects = "saturation:gain=1.3,quantize:bits=8"
+    seed_model = calibrate(build_rig("paper", effects, seed=6).record(20.0)[0], "paper").model
+    run, truth = build_rig("paper", effects, seed=6, run=1).record(10.0)
+    result = track(seed_model, run.frames, reference=run.reference, light="auto", robust=True)
+    assert not np.isfinite(result.focus_px2).any()
+    assert result.stale.mean() < 0.01
+
+
+def test_the_follow_tells_a_held_focus_from_one_that_moved():
+    """:meth:`FocusFollow.held` once it has enough estimates: a focus at the calibration's within its
+    noise holds; a mean a few errors off does not (a try then opens the watch's window)."""
+    rng = np.random.default_rng(5)
+    steady, moved = FocusFollow(), FocusFollow()
+    assert not steady.held()  # too few estimates yet: a try opens the window
+    for noise in rng.normal(0.0, 1.0, size=3 * FOLLOW_WINDOW).tolist():
+        steady.add(noise, 1.0)
+        moved.add(noise + 1.5, 1.0)
+    assert steady.held() and not moved.held()
+
+
 def test_the_follow_predicts_a_ramp_without_lag_and_forgets_a_focus_that_came_back():
     rng = np.random.default_rng(1)
     follow, sigma, rate = FocusFollow(), 0.7, 0.01
