@@ -147,10 +147,17 @@ class FocusFollow:
         return mean * mean > z * z * (scatter / self.s0 + allowance * allowance)
 
     def held(self, allowance: float = 0.0) -> bool:
-        """The estimates say the focus is the calibration's: enough of them (as for :meth:`moved`), their
-        mean within :data:`HELD_Z` of its error. A try of the focus term on such a frame is its own χ²'s
-        (a clipped crest, a telegraph pixel's flip), not a blur coming back."""
-        return self.count >= FOLLOW_MOVED_FRAMES and not self.moved(allowance, HELD_Z)
+        """The estimates say the focus is the calibration's: their mean within :data:`HELD_Z` of its
+        error (with the scatter about it once they are as many as :meth:`moved` asks; before, against their
+        stated errors: a run that starts blurred shows it on its first estimate, and a try on the first
+        frame of a steady run opened the window on 50 frames). A try of the focus term on such a frame is
+        its own χ²'s (a clipped crest, a telegraph pixel's flip), not a blur coming back."""
+        if self.count >= FOLLOW_MOVED_FRAMES:
+            return not self.moved(allowance, HELD_Z)
+        if self.s0 <= 0.0:
+            return False
+        mean = self.y0 / self.s0  # too few for a scatter of their own: against their stated errors
+        return mean * mean <= HELD_Z * HELD_Z * (1.0 / self.s0 + allowance * allowance)
 
     def shown(self, focus_on: bool) -> bool:
         """Whether this frame's estimate goes to the focus watch (core/watches/focus.py): while the
