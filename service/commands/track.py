@@ -49,6 +49,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                              "slide the image by (column slide_sigma_um; default 300, a prior; 0: the ROI on the axis)")
     parser.add_argument("--flip", action="store_true",
                         help="reverse the pixel axis first (default: when the model was calibrated with --flip)")
+    parser.add_argument("--engine", choices=("watches", "estimator"), default="watches",
+                        help="the per-frame path: today's solver with its watches (default), or the one recursive "
+                             "estimator (core/estimator/: every nuisance a state with a declared rate, flags from one "
+                             "innovation test; --trim fuses the grating, --no-reference reads none)")
     add_chunk_arguments(parser)
     parser.set_defaults(func=run)
 
@@ -232,6 +236,8 @@ def run(args: argparse.Namespace) -> int:
     recording = load(args.recording)
     model = load_model(args.model)
     recording = oriented(recording, model, args.flip, note=print)
+    if args.engine == "estimator":
+        return run_estimator(args, recording, model)
     slide = slide_for(recording, model, args.no_reference, args.axis_px)  # no grating vouches: the slide
     result, grating, watch = solve(recording, model, args.no_reference, ProgressBar("track"), chunks, args.light,
                                    not args.no_robust, args.trim, slide, note=print)
@@ -247,5 +253,40 @@ def run(args: argparse.Namespace) -> int:
     for warning in (stale_warning(result), scale.warning):
         if warning:
             print(warning, file=sys.stderr)
+    print(f"wrote   {path}")
+    return 0
+
+
+def estimated(recording: Recording, model: FourierModel, no_reference: bool = False, trim: bool = False,
+              robust: bool = True, axis_px: float | None = None,
+              progress: ProgressBar | None = None) -> tuple[TrackResult, np.ndarray]:
+    """Track a recording with the one recursive estimator (core/estimator/): (result, the grating at the
+    exposure instants). The grating is checked by default, fused with ``trim``, unread with ``no_reference``."""
+    import numpy as np
+
+    from graytrack.core.estimator import as_result, calibration_level, track
+    from graytrack.core.timing import model_reference
+
+    grating = recording.reference
+    if float(model.info.get("reference_skew_s", 0.0)):
+        grating = model_reference(model, recording.t, grating)
+    mode = "none" if no_reference or not np.isfinite(grating).any() else ("fuse" if trim else "check")
+    estimates = track(model, recording.frames, recording.t, grating, grating=mode, robust=robust, axis_px=axis_px,
+                      progress=progress)
+    return as_result(estimates, calibration_level(model)), grating
+
+
+def run_estimator(args: argparse.Namespace, recording: Recording, model: FourierModel) -> int:
+    """``track --engine estimator``: the same CSV, its bound the posterior σ with every nuisance."""
+    from graytrack.service.progress import ProgressBar
+    from graytrack.service.tables import write_csv
+
+    result, grating = estimated(recording, model, args.no_reference, args.trim, not args.no_robust, args.axis_px,
+                                ProgressBar("track"))
+    path = write_csv(args.out, result_columns(recording.t, result, grating))
+    print("\n".join(summary(result, grating)))
+    warning = stale_warning(result)
+    if warning:
+        print(warning, file=sys.stderr)
     print(f"wrote   {path}")
     return 0

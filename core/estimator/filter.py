@@ -1,0 +1,465 @@
+"""The recursive estimator: one state for what the rig does between frames, one update a frame.
+
+Shaped as a Kalman filter is (filterpy's ``KalmanFilter``): the state ``x`` and its covariance
+``P``, ``predict(t)`` moves both to a frame's time with each state's declared rate of change
+(settings.py), ``update(frame, reference)`` fuses the frame's gray values (and the grating, where it
+is fused) and returns the frame's :class:`FrameEstimate`, made once and frozen. The update is the
+iterated (Gauss–Newton) form, with robust reweighting as the measurement's outlier model, in one
+compiled call (kernel.py). A batch is the same recursion over a recording's frames
+(:func:`track`), so live and batch cannot disagree.
+
+Flags come from one test. The minimum of the update's cost is the innovation's χ² (kernel.py); a
+frame whose χ² is beyond its quantile at the declared false-alarm rate has met something the
+prediction did not allow for. Each family of states that may jump (the light switched, the camera
+knocked, the stage jerked) is then tried, as the interacting-multiple-model filter weighs its
+modes: the state with that family's jump added to its prediction is updated again, and the jump
+that brings the innovation back within its quantile is taken (the state learned it; the frame's
+``mode`` names it). A frame no jump explains is flagged, its reason the family whose jump explained
+most. The bound is the posterior σ of position with every nuisance in the state: where the frames
+cannot see a state (the camera's place, a lens's slide, without the grating), the bound carries
+its uncertainty, and once that uncertainty outweighs the frame's own noise floor the frames are
+flagged with the family that carries it.
+
+Grating modes: ``"check"`` (read, not fused: each frame's position is the image's own, tested
+against the grating at the same false-alarm rate, flagged ``scale`` when they disagree),
+``"fuse"`` (a second measurement of the carriage: the camera's place and the lens's lever are
+learned against it, the ``--trim`` of the command line), ``"none"`` (no grating read).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Callable
+
+import numpy as np
+
+from graytrack.core.chi2_curve import Chi2Curve
+from graytrack.core.compression import stream_bound_factor, stream_chi2_spread
+from graytrack.core.errors import TrackingError
+from graytrack.core.estimator import kernel
+from graytrack.core.estimator.settings import EstimatorSettings
+from graytrack.core.estimator.state import A1, A2, B, C, G, L, M, N_STATE, OFS, STATE, T, V, X
+from graytrack.core.frame_tables import FrameTables
+from graytrack.core.kernels import TableEvaluator
+from graytrack.core.models.fourier import FourierModel
+
+if TYPE_CHECKING:
+    from graytrack.core.tracking import TrackResult
+
+GRATING_MODES = ("check", "fuse", "none")
+ACQUIRE_GRID_PER_PERIOD = 64  # grid positions a period when a frame is placed from nothing (a 64th of a period
+# is well inside Gauss–Newton's quarter-period reach)
+FAILED_TO_REACQUIRE = 3  # frames in a row not placed before the next is placed from nothing again
+# Families whose states may jump between two frames, and the states that jump with them.
+JUMPS = {"light": (G, OFS), "field": (A1, A2), "focus": (B,), "magnification": (M,), "geometry": (C, T), "motion": (V,)}
+REASON = {"light": "light", "field": "light", "geometry": "geometry", "motion": "geometry", "focus": "focus",
+          "magnification": "magnification"}
+
+
+@dataclass(frozen=True)
+class FrameEstimate:
+    """One frame's estimate, made once. Figures are NaN where they do not exist; ``crlb_mm`` is the
+    posterior σ of position with every nuisance (the bound), ``floor_mm`` the frame's own noise floor."""
+
+    t: float
+    x_mm: float
+    crlb_mm: float
+    floor_mm: float
+    locked: bool
+    rms_gray: float
+    chi2: float  # residual per sample in the calibration's level
+    test: float  # the innovation's χ² over its quantile at the false-alarm rate (> 1: failed)
+    rejected_px: int
+    iterations: int
+    gain: float
+    offset_gray: float
+    focus_px2: float  # NaN unless the blur moved beyond its σ at the false-alarm rate
+    focus_sigma_px2: float
+    stretch: float
+    stretch_sigma: float
+    place_mm: float
+    place_sigma_mm: float
+    mode: str  # the family whose jump this frame took ("" none)
+    stale: bool
+    stale_reason: str
+    message: str
+    state: tuple[float, ...] = field(repr=False)
+    sigma: tuple[float, ...] = field(repr=False)
+
+
+def _legendre(n_rows: int, n_pixels: int) -> tuple[np.ndarray, np.ndarray]:
+    u = np.tile(np.linspace(-1.0, 1.0, n_pixels), n_rows)
+    return np.ascontiguousarray(u), np.ascontiguousarray(1.5 * u * u - 0.5)
+
+
+def _quantile(z: float, dof: float) -> float:
+    """χ²(dof)'s upper quantile at the standard normal's ``z`` (Wilson–Hilferty: within 1 % from 10 dof)."""
+    k = max(dof, 1.0)
+    c = 2.0 / (9.0 * k)
+    return k * (1.0 - c + z * math.sqrt(c)) ** 3
+
+
+def calibration_level(model: FourierModel) -> float:
+    """The χ² per sample the calibration's own frames left: what a frame's residual is judged against."""
+    rmse = float(model.info.get("calibration_rmse_gray", model.noise_gray or 1.0))
+    return float(model.info.get("calibration_chi2", (rmse / (model.noise_gray or 1.0)) ** 2))
+
+
+class Estimator:
+    """The recursive estimator bound to one calibrated model.
+
+    ``grating``: how a grating reading is used (module docstring). ``robust``: robust reweighting on.
+    ``settings``: the declared rates and levels (settings.py)."""
+
+    def __init__(self, model: FourierModel, settings: EstimatorSettings | None = None, grating: str = "check",
+                 robust: bool = True, axis_px: float | None = None):
+        if not model.is_calibrated:
+            raise TrackingError("the model has no coefficients: calibrate it first")
+        if grating not in GRATING_MODES:
+            raise TrackingError(f"grating mode must be one of {', '.join(GRATING_MODES)}, got {grating!r}")
+        from scipy.stats import norm
+
+        self.model, self.grating, self.robust = model, grating, robust
+        self.settings = settings = settings or EstimatorSettings()
+        if axis_px is not None:
+            settings = self.settings = settings.replace(lever_prior=float(axis_px))
+        self.z_alpha = float(norm.isf(settings.false_alarm))
+        self.z_two = float(norm.isf(settings.false_alarm / 2.0))
+        tables = FrameTables.of(model)
+        self.evaluator = TableEvaluator(tables)
+        self.model_args = self.evaluator._args
+        n_values = model.n_rows * model.n_pixels
+        self.n_values = n_values
+        target = model.target_offset().reshape(-1)
+        self.t_rel = np.ascontiguousarray(target - target.mean())
+        rows = np.repeat(np.arange(model.n_rows) - 0.5 * (model.n_rows - 1), model.n_pixels)
+        self.r_rel = np.ascontiguousarray(rows.astype(np.float64))
+        self.b1, self.b2 = _legendre(model.n_rows, model.n_pixels)
+        self.mask = np.ones(n_values) if model.pixel_weight is None else \
+            np.ascontiguousarray(model.pixel_weight, dtype=np.float64).reshape(-1)
+        noise = model.noise()
+        self.noise = np.array([noise.read_var + noise.quant_var, noise.shot_gain, noise.dark_gray])
+        self.chi2_calibration = calibration_level(model)
+        if not (math.isfinite(self.chi2_calibration) and self.chi2_calibration > 0):
+            raise TrackingError(f"the model's calibration χ² is {self.chi2_calibration:g}: recalibrate")
+        self.chi2_curve = Chi2Curve.from_info(model.info)
+        self.spread = stream_chi2_spread(model.info)  # a lossy stream's χ² scatters as fewer samples'
+        self.bound_factor = stream_bound_factor(model.info)
+        limits = model.info.get("sensor_range_gray") if robust else None
+        self.sensor_range = None if limits is None else (float(limits[0]), float(limits[1]))
+        pitch = model.pixel_pitch_mm
+        rates = np.zeros(N_STATE)
+        rates[G], rates[OFS] = settings.gain_rate, settings.offset_rate
+        rates[A1] = rates[A2] = settings.field_rate
+        rates[B] = settings.focus_rate
+        rates[M] = settings.stretch_rate
+        rates[C] = settings.place_rate
+        rates[T] = settings.tilt_rate
+        self.rates2 = rates ** 2
+        active = [X, V, G, OFS, A1, A2, B, M]
+        if grating != "check":  # checked, the grating judges the place and the slide; else they are states
+            active += [C, L]
+        if model.n_rows > 1:
+            active.append(T)
+        self.idx = np.array(sorted(active), dtype=np.int64)
+        self.scratch = np.empty((6, n_values))
+        self.rho = np.ones(n_values)
+        self.stats = np.zeros(kernel.N_STATS)
+        self.s = np.zeros(N_STATE)
+        self.P = np.zeros((N_STATE, N_STATE))
+        self.t_last: float | None = None
+        self.dt_last = 0.0
+        self.failed = 0
+        self.started = False
+        mid = 0.5 * (float(model.stroke_range_mm[0]) + float(model.stroke_range_mm[1]))
+        self.mean_gray = float(np.mean(self.evaluator.evaluate(np.array([mid]))[0]))  # the light's scale, gray
+        mean = max(abs(self.mean_gray), 1.0)
+        self.jump_var = {"light": np.array([settings.jump_light, settings.jump_light * mean]) ** 2,
+                         "field": np.array([settings.jump_field, settings.jump_field]) ** 2,
+                         "focus": np.array([settings.jump_focus]) ** 2,
+                         "magnification": np.array([settings.jump_stretch]) ** 2,
+                         "geometry": np.array([settings.jump_place, settings.jump_turn * pitch]) ** 2,
+                         "motion": np.array([settings.jump_motion]) ** 2}
+        self._warm()
+
+    # ------------------------------------------------------------------ the recursion
+    def start(self, x_mm: float, t: float, sigma_mm: float) -> None:
+        """The state before the first frame: position ``x_mm`` ± ``sigma_mm``, nuisances at calibration."""
+        settings, pitch = self.settings, self.model.pixel_pitch_mm
+        self.s[:] = 0.0
+        self.s[X], self.s[G] = x_mm, 1.0
+        prior = np.zeros(N_STATE)
+        prior[X] = sigma_mm
+        prior[V] = 100.0  # mm/s: any speed the stage can go
+        prior[G], prior[OFS] = settings.gain_prior, settings.offset_prior
+        prior[A1] = prior[A2] = settings.field_prior
+        prior[B] = settings.focus_prior
+        prior[M] = settings.stretch_prior
+        prior[C] = settings.grating_sigma
+        prior[L] = settings.lever_prior * pitch
+        prior[T] = 1e-6
+        self.P[:] = np.diag(prior ** 2)
+        self.t_last = t
+        self.started = True
+        self.failed = 0
+
+    def predict(self, t: float) -> None:
+        """State and covariance moved on to time ``t``."""
+        dt = 0.0 if self.t_last is None else max(t - self.t_last, 0.0)
+        self.dt_last = dt
+        kernel.predict(self.s, self.P, dt, self.settings.acceleration ** 2, self.rates2)
+        self.t_last = t
+
+    def update(self, frame: np.ndarray, t: float, reference_mm: float = math.nan) -> FrameEstimate:
+        """The frame at time ``t`` (mid-exposure) with its grating reading (NaN: none)."""
+        y, mask = self._prepared(frame)
+        if not self.started or self.failed >= FAILED_TO_REACQUIRE:
+            self._acquire(y, mask, t, reference_mm)
+        else:
+            self.predict(t)
+        if self.grating == "check" and math.isfinite(reference_mm) and \
+                abs(self.s[X] - reference_mm) > 0.25 * self.model.period_mm:
+            self._acquire(y, mask, t, reference_mm)  # the image's period lost: start again at the grating
+        fuse = self.grating == "fuse" and math.isfinite(reference_mm)
+        s_prior, P_prior = self.s.copy(), self.P.copy()
+        s, A, stats = self._solve(y, mask, s_prior, P_prior, reference_mm if fuse else math.nan)
+        test = self._test(stats, s)
+        mode = ""
+        if test > 1.0:
+            best = None
+            for family in JUMPS:
+                if not np.isin(JUMPS[family], self.idx).all():
+                    continue
+                widened = self._jumped(P_prior, family)
+                s_j, A_j, stats_j = self._solve(y, mask, s_prior, widened, reference_mm if fuse else math.nan)
+                test_j = self._test(stats_j, s_j)
+                if best is None or test_j < best[0]:
+                    best = (test_j, family, s_j, A_j, stats_j)
+            if best is not None and best[0] <= 1.0:
+                test, mode, s, A, stats = best[0], best[1], best[2], best[3], best[4]
+                reason_jump = None
+            else:
+                reason_jump = best[1] if best is not None and best[0] < test else None
+        else:
+            reason_jump = None
+        placed = stats[kernel.S_CONVERGED] > 0 or stats[kernel.S_ITER] > 0
+        used, rejected = stats[kernel.S_USED], stats[kernel.S_REJECTED]
+        if used + rejected <= 0 or rejected > self.settings.max_rejected * (used + rejected) or \
+                not np.isfinite(s[X]):
+            placed = False
+        if not placed:
+            self.failed += 1
+            return self._unplaced(t, stats, test, "too many samples set aside" if rejected else "not converged")
+        self.failed = 0
+        self.s[:] = s
+        cov = self._covariance(A)
+        self.P[:] = cov
+        return self._estimate(t, stats, test, mode, reason_jump, reference_mm)
+
+    # ------------------------------------------------------------------ parts
+    def _prepared(self, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        frame = np.asarray(frame)
+        rows = self.model.rows_averaged(1 if frame.ndim == 1 else frame.shape[0])
+        y = self.model.prepare(frame[None]).reshape(-1)
+        mask = self.mask * rows  # a row mean's variance is the sample's over the rows averaged
+        if self.sensor_range is not None:
+            lo, hi = self.sensor_range
+            mask = mask * ((y > lo) & (y < hi))
+        return np.ascontiguousarray(y), np.ascontiguousarray(mask)
+
+    def _solve(self, y: np.ndarray, mask: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray,
+               grating_z: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        idx = self.idx
+        Pinv = np.linalg.inv(P_prior[np.ix_(idx, idx)])
+        s = s_prior.copy()
+        A = np.zeros((idx.size, idx.size))
+        stats = np.zeros(kernel.N_STATS)
+        grating_w = 1.0 / self.settings.grating_sigma ** 2 if math.isfinite(grating_z) else 0.0
+        settings = self.settings
+        kernel.update(s, s_prior, Pinv, idx, y, mask, self.noise, self.t_rel, self.r_rel, self.b1, self.b2,
+                      self.model.pixel_pitch_mm, self.model.period_mm, grating_z if grating_w else 0.0, grating_w,
+                      self.robust, settings.core_sigma, settings.cut_sigma, settings.max_rejected,
+                      int(settings.max_iterations), settings.tolerance, self.model_args, self.scratch, self.rho, A,
+                      stats)
+        return s, A, stats
+
+    def _level(self, x_mm: float) -> float:
+        if self.chi2_curve is None:
+            return self.chi2_calibration
+        return self.chi2_calibration * self.chi2_curve.at(x_mm)
+
+    def _test(self, stats: np.ndarray, s: np.ndarray) -> float:
+        """The innovation's χ² over its quantile at the false-alarm rate (the stream's spread counted)."""
+        used = stats[kernel.S_USED]
+        if used <= 0:
+            return math.inf
+        level = self._level(float(s[X]))
+        chi2 = stats[kernel.S_RESIDUAL] / level + stats[kernel.S_PRIOR] + stats[kernel.S_GRATING]
+        dof = used / self.spread ** 2
+        return (chi2 / self.spread ** 2) / _quantile(self.z_alpha, dof)
+
+    def _jumped(self, P: np.ndarray, family: str) -> np.ndarray:
+        widened = P.copy()
+        for state, var in zip(JUMPS[family], self.jump_var[family]):
+            widened[state, state] += var
+        if family == "motion":  # a velocity jump during the last interval moved the position with it
+            var, dt = self.jump_var[family][0], self.dt_last
+            widened[X, X] += var * dt * dt
+            widened[X, V] += var * dt
+            widened[V, X] += var * dt
+        return widened
+
+    def _covariance(self, A: np.ndarray) -> np.ndarray:
+        """The full covariance: the posterior over the active states, the prior's elsewhere."""
+        idx = self.idx
+        cov = self.P.copy()
+        inner = np.linalg.inv(A)
+        cov[np.ix_(idx, idx)] = inner
+        # inactive states keep their prediction's variance and no correlation with the active ones
+        mask = np.ones(N_STATE, dtype=bool)
+        mask[idx] = False
+        cov[np.ix_(idx, np.flatnonzero(mask))] = 0.0
+        cov[np.ix_(np.flatnonzero(mask), idx)] = 0.0
+        return cov
+
+    def _position_variance(self) -> float:
+        """Variance of the reported position: the carriage, or the image's own where the grating only checks."""
+        P = self.P
+        if self.grating == "check":
+            return float(P[X, X])
+        # the carriage: the image's position less the place and the lens's slide (x is that already)
+        return float(P[X, X])
+
+    def _estimate(self, t: float, stats: np.ndarray, test: float, mode: str, reason_jump: str | None,
+                  reference_mm: float) -> FrameEstimate:
+        s, P, settings = self.s, self.P, self.settings
+        sigma = np.sqrt(np.maximum(np.diag(P), 0.0))
+        floor = 1.0 / math.sqrt(stats[kernel.S_XINFO]) if stats[kernel.S_XINFO] > 0 else math.inf
+        var_x = self._position_variance()
+        stale, reason, message = False, "", ""
+        if test > 1.0:
+            stale = True
+            reason = REASON.get(reason_jump or "", "") or ("transients" if stats[kernel.S_REJECTED] else "light")
+            message = f"innovation χ² {test:.2f}x its quantile at the false-alarm rate"
+        if self.grating == "check" and math.isfinite(reference_mm):
+            nu = reference_mm - s[X]
+            if nu * nu > self.z_two ** 2 * (var_x + settings.grating_sigma ** 2):
+                stale, reason = True, reason or "scale"
+                message = message or f"camera and grating disagree by {nu * 1e3:+.2f} µm"
+        if var_x > settings.dominance * floor * floor * self.bound_factor ** 2:
+            carried = self._carrier()
+            if carried:
+                stale, reason = True, reason or carried
+                message = message or f"the position's bound is carried by the {carried} state"
+        focus_sigma = sigma[B]
+        focus = s[B] if abs(s[B]) > self.z_two * focus_sigma else math.nan
+        x_report = s[X] + (s[C] if self.grating == "check" else 0.0)
+        return FrameEstimate(
+            t=t, x_mm=float(x_report), crlb_mm=math.sqrt(var_x) * self.bound_factor,
+            floor_mm=floor * self.bound_factor, locked=True, rms_gray=float(stats[kernel.S_RMS]),
+            chi2=float(stats[kernel.S_RESIDUAL] / max(stats[kernel.S_USED], 1.0) / self._level(float(s[X]))),
+            test=float(test), rejected_px=int(stats[kernel.S_REJECTED]), iterations=int(stats[kernel.S_ITER]),
+            gain=float(s[G]), offset_gray=float(s[OFS]), focus_px2=float(focus),
+            focus_sigma_px2=float(focus_sigma) if math.isfinite(focus) else math.nan,
+            stretch=float(s[M]), stretch_sigma=float(sigma[M]), place_mm=float(s[C]), place_sigma_mm=float(sigma[C]),
+            mode=mode, stale=stale, stale_reason=reason, message=message,
+            state=tuple(float(v) for v in s), sigma=tuple(float(v) for v in sigma))
+
+    def _carrier(self) -> str:
+        """The family whose states carry most of the position's variance (what pinning them would remove)."""
+        idx = list(self.idx)
+        P = self.P[np.ix_(idx, idx)]
+        info = np.linalg.inv(P)
+        ix = idx.index(X)
+        best, family = 0.0, ""
+        groups = {"geometry": (C, T), "magnification": (M, L), "light": (G, OFS, A1, A2), "focus": (B,)}
+        for name, states in groups.items():
+            keep = [i for i, state in enumerate(idx) if state not in states]
+            if len(keep) == len(idx):
+                continue
+            pinned = np.linalg.inv(info[np.ix_(keep, keep)])
+            removed = P[ix, ix] - pinned[keep.index(ix), keep.index(ix)]
+            if removed > best:
+                best, family = removed, name
+        return family
+
+    def _unplaced(self, t: float, stats: np.ndarray, test: float, why: str) -> FrameEstimate:
+        nan = math.nan
+        return FrameEstimate(t=t, x_mm=nan, crlb_mm=nan, floor_mm=nan, locked=False,
+                             rms_gray=float(stats[kernel.S_RMS]), chi2=nan, test=float(test),
+                             rejected_px=int(stats[kernel.S_REJECTED]), iterations=int(stats[kernel.S_ITER]),
+                             gain=nan, offset_gray=nan, focus_px2=nan, focus_sigma_px2=nan, stretch=nan,
+                             stretch_sigma=nan, place_mm=nan, place_sigma_mm=nan, mode="", stale=True,
+                             stale_reason="transients" if stats[kernel.S_REJECTED] else "light",
+                             message=f"not placed: {why}", state=tuple(float(v) for v in self.s),
+                             sigma=tuple(float(v) for v in np.sqrt(np.maximum(np.diag(self.P), 0.0))))
+
+    def _acquire(self, y: np.ndarray, mask: np.ndarray, t: float, reference_mm: float) -> None:
+        """Start from the grating where it is read, else from the best of a grid over the stroke."""
+        if math.isfinite(reference_mm):
+            self.start(reference_mm, t, max(self.settings.grating_sigma, 0.01 * self.model.period_mm))
+            return
+        lo, hi = (float(v) for v in self.model.info.get("stroke_mm", self.model.stroke_range_mm))
+        if not hi > lo:
+            lo, hi = float(self.model.stroke_range_mm[0]), float(self.model.stroke_range_mm[1])
+        step = self.model.period_mm / ACQUIRE_GRID_PER_PERIOD
+        grid = np.arange(lo, hi + step, step)
+        values, _ = self.evaluator.evaluate(grid)
+        w = mask
+        ones, yy, y1 = w.sum(), (w * y * y).sum(), (w * y).sum()
+        ff, f1, yf = (values * values) @ w, values @ w, values @ (w * y)
+        det = np.maximum(ff * ones - f1 * f1, 1e-300)
+        gain = (yf * ones - f1 * y1) / det
+        explained = (yf * yf * ones - 2.0 * yf * y1 * f1 + y1 * y1 * ff) / det
+        cost = yy - explained + np.where(gain > 0.0, 0.0, np.inf)
+        self.start(float(grid[int(np.argmin(cost))]), t, step)
+        self.P[G, G], self.P[OFS, OFS] = 1.0, (0.5 * max(self.mean_gray, 1.0)) ** 2  # the light unknown too
+
+    def _warm(self) -> None:
+        """Compile (or load) the kernel now, at model install, not on a live frame."""
+        y = np.zeros(self.n_values)
+        self.start(0.5 * sum(self.model.stroke_range_mm), 0.0, 1.0)
+        self._solve(y, self.mask.copy(), self.s.copy(), self.P.copy(), math.nan)
+        self._solve(y, self.mask.copy(), self.s.copy(), self.P.copy(), 0.0)
+        kernel.predict(self.s.copy(), self.P.copy(), 0.01, 1.0, self.rates2)
+        self.started = False
+
+
+Progress = Callable[[float, str], None]
+
+
+def track(model: FourierModel, frames: np.ndarray, t: np.ndarray, reference: np.ndarray | None = None,
+          grating: str = "check", robust: bool = True, settings: EstimatorSettings | None = None,
+          axis_px: float | None = None, progress: Progress | None = None) -> list[FrameEstimate]:
+    """Every frame of a recording through one estimator, in order: the live recursion, batched."""
+    estimator = Estimator(model, settings=settings, grating=grating, robust=robust, axis_px=axis_px)
+    n = frames.shape[0]
+    reference = np.full(n, np.nan) if reference is None or grating == "none" else np.asarray(reference, float)
+    out = []
+    for k in range(n):
+        out.append(estimator.update(frames[k], float(t[k]), float(reference[k])))
+        if progress is not None and (k % 1000 == 999 or k == n - 1):
+            progress((k + 1) / n, f"frame {k + 1} of {n}")
+    return out
+
+
+def as_result(estimates: list[FrameEstimate], chi2_calibration: float) -> "TrackResult":
+    """The estimates as the command's per-frame columns (core/frame_record.py names them), made once."""
+    from graytrack.core.tracking import LockEvent, TrackResult
+
+    def column(name: str, kind: type = float) -> np.ndarray:
+        return np.array([getattr(e, name) for e in estimates], dtype=kind)
+
+    events = [LockEvent(frame=k, reason=e.message, x_before_mm=math.nan, x_after_mm=math.nan, reacquired=False)
+              for k, e in enumerate(estimates) if not e.locked]
+    return TrackResult(x_mm=column("x_mm"), locked=column("locked", bool), rms_gray=column("rms_gray"),
+                       crlb_mm=column("crlb_mm"), iterations=column("iterations", np.int64), gain=column("gain"),
+                       offset_gray=column("offset_gray"), events=events, chi2=column("chi2"),
+                       rejected_px=column("rejected_px", np.int64), stale=column("stale", bool),
+                       chi2_calibration=chi2_calibration, stale_reason=column("stale_reason", object).astype(str),
+                       transient_px=np.zeros(len(estimates), dtype=np.int64), focus_px2=column("focus_px2"),
+                       focus_sigma_px2=column("focus_sigma_px2"))
+
+
+__all__ = ["Estimator", "FrameEstimate", "GRATING_MODES", "STATE", "as_result", "calibration_level", "track"]

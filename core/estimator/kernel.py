@@ -1,0 +1,267 @@
+"""One frame of the estimator in one compiled call: predict the state to the frame's time, then
+update it with the frame's gray values (and the grating, where it is fused) by Gauss–Newton on the
+posterior, with robust reweighting as the measurement's outlier model.
+
+The update minimises, over the active states s,
+
+    Σ_p ρ_p w_p (y_p − h_p(s))²  +  (s − s⁻)ᵀ (P⁻)⁻¹ (s − s⁻)  +  (z − x)² / σ_z²
+
+where h is the calibrated model seen through the nuisance states (state.py):
+
+    h_p = (g + a₁ B₁(u_p) + a₂ B₂(u_p)) · (F_p(ξ) + F′_p(ξ) (m t_p + θ r_p) + ½ b δ² F″_p(ξ)) + o,
+    ξ   = x + c + L m
+
+(F the model's values along the pixels at image position ξ, t_p a pixel's target coordinate from
+the ROI's centre, r_p its row from the strip's middle, δ the pixel pitch, w_p the noise model's
+weight, ρ_p the robust weight). For a linear-Gaussian model the minimum of that cost is the
+innovation's χ² against its covariance, with as many degrees of freedom as samples: the one test
+every flag comes from (filter.py). The posterior information is the Gauss–Newton normal matrix at
+the minimum.
+
+Written once in the subset of Python numba compiles; without numba it runs as Python (slowly, the
+same numbers).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from graytrack.core import kernels
+from graytrack.core.estimator.state import A1, A2, B, C, G, L, M, N_STATE, OFS, T, V, X
+
+MAD_TO_SIGMA = 1.4826
+ROBUST_ROUNDS = 6  # reweightings at most: the redescending weights settle in 2–3 on a frame with a blob
+CURVATURE_STEP_PERIODS = 1e-3  # forward-difference step of F″ from the slopes, in periods (error ~ 3 % at order 5)
+# out_stats layout
+(S_COST, S_RESIDUAL, S_PRIOR, S_USED, S_REJECTED, S_ITER, S_XINFO, S_RMS, S_GRATING, S_CONVERGED) = range(10)
+N_STATS = 10
+
+
+def predict(s: np.ndarray, P: np.ndarray, dt: float, q_accel: float, rates2: np.ndarray) -> None:
+    """In place: the state and covariance moved on by ``dt`` s: constant velocity with an acceleration of
+    variance ``q_accel`` (mm²/s⁴) held over the interval (the discrete white-acceleration model); every
+    other state a random walk of variance ``rates2`` per second."""
+    n = s.size
+    s[X] += s[V] * dt
+    # P ← F P Fᵀ with F = I + dt·e_X e_Vᵀ
+    for j in range(n):
+        P[X, j] += dt * P[V, j]
+    for i in range(n):
+        P[i, X] += dt * P[i, V]
+    dt2 = dt * dt
+    P[X, X] += q_accel * dt2 * dt2 / 4.0
+    P[X, V] += q_accel * dt2 * dt / 2.0
+    P[V, X] += q_accel * dt2 * dt / 2.0
+    P[V, V] += q_accel * dt2
+    for i in range(n):
+        if i != X and i != V:
+            P[i, i] += rates2[i] * dt
+
+
+def _evaluate(x: float, model: tuple, values: np.ndarray, slopes: np.ndarray, smooth: np.ndarray) -> None:
+    kernels._evaluate_into(x, *model, values, slopes, smooth)
+
+
+def _normal(s: np.ndarray, idx: np.ndarray, y: np.ndarray, w: np.ndarray, rho: np.ndarray, values: np.ndarray,
+            slopes: np.ndarray, curvature: np.ndarray, t_rel: np.ndarray, r_rel: np.ndarray, b1: np.ndarray,
+            b2: np.ndarray, half_d2: float, A: np.ndarray, rhs: np.ndarray, residual: np.ndarray) -> float:
+    """The normal matrix and right-hand side of the frame's samples over the active states; the
+    residuals into ``residual``; returns Σρw r²."""
+    n = idx.size
+    for i in range(n):
+        rhs[i] = 0.0
+        for j in range(n):
+            A[i, j] = 0.0
+    jac = np.zeros(N_STATE)
+    g, o, a1, a2, b, m, th = s[G], s[OFS], s[A1], s[A2], s[B], s[M], s[T]
+    lever = s[L]
+    cost = 0.0
+    for p in range(y.size):
+        level = g + a1 * b1[p] + a2 * b2[p]
+        f, df = values[p], slopes[p]
+        ft = f + df * (m * t_rel[p] + th * r_rel[p]) + half_d2 * b * curvature[p]
+        r = y[p] - (level * ft + o)
+        residual[p] = r
+        weight = w[p] * rho[p]
+        if weight <= 0.0:
+            continue
+        cost += weight * r * r
+        gdf = level * df
+        jac[X] = gdf
+        jac[G] = ft
+        jac[OFS] = 1.0
+        jac[A1] = b1[p] * ft
+        jac[A2] = b2[p] * ft
+        jac[B] = level * half_d2 * curvature[p]
+        jac[M] = gdf * (t_rel[p] + lever)
+        jac[C] = gdf
+        jac[L] = gdf * m
+        jac[T] = gdf * r_rel[p]
+        for i in range(n):
+            ji = weight * jac[idx[i]]
+            rhs[i] += ji * r
+            for j in range(i + 1):
+                A[i, j] += ji * jac[idx[j]]
+    for i in range(n):
+        for j in range(i):
+            A[j, i] = A[i, j]
+    return cost
+
+
+def update(s: np.ndarray, s_prior: np.ndarray, Pinv: np.ndarray, idx: np.ndarray, y: np.ndarray, mask: np.ndarray,
+           noise: np.ndarray, t_rel: np.ndarray, r_rel: np.ndarray, b1: np.ndarray, b2: np.ndarray,
+           pitch_mm: float, period_mm: float, grating_z: float, grating_w: float, robust: bool, core: float,
+           cut: float, max_rejected: float, max_iterations: int, tolerance: float, model: tuple,
+           scratch: np.ndarray, rho: np.ndarray, A_out: np.ndarray, stats: np.ndarray) -> None:
+    """Update ``s`` (in place, from its value on entry: the prediction or a better start) with one frame.
+
+    ``Pinv``: the prior information over the active states ``idx`` (centred on ``s_prior``); ``noise``:
+    read variance, shot gain, dark level of the noise model; ``grating_w``: 1/σ_z² of a fused grating reading (0: not
+    fused). ``scratch``: (6, P); ``rho``: (P,) robust weights out; ``A_out``: the posterior information over
+    ``idx``; ``stats``: the figures named by the S_ constants."""
+    n = idx.size
+    values, slopes, smooth, curvature, w, residual = (scratch[0], scratch[1], scratch[2], scratch[3], scratch[4],
+                                                      scratch[5])
+    ix = -1
+    for i in range(n):
+        if idx[i] == X:
+            ix = i
+    xi = s[X] + s[C] + s[L] * s[M]
+    step = CURVATURE_STEP_PERIODS * period_mm
+    _evaluate(xi + step, model, values, curvature, smooth)
+    _evaluate(xi, model, values, slopes, smooth)
+    half_d2 = 0.5 * pitch_mm * pitch_mm
+    for p in range(y.size):
+        curvature[p] = (curvature[p] - slopes[p]) / step
+        # the noise model's weight at the predicted gray value
+        gray = (s[G] + s[A1] * b1[p] + s[A2] * b2[p]) * values[p] + s[OFS]
+        signal = gray - noise[2]
+        if signal < 0.0:
+            signal = 0.0
+        var = noise[0] + noise[1] * signal
+        if var < 1e-6:
+            var = 1e-6
+        w[p] = mask[p] / var
+        rho[p] = 1.0
+    A = np.zeros((n, n))
+    rhs = np.zeros(n)
+    delta = np.zeros(n)
+    total_iterations = 0
+    converged = 0.0
+    cost = 0.0
+    for round_ in range(ROBUST_ROUNDS + 1):
+        at = xi
+        for it in range(max_iterations):
+            total_iterations += 1
+            xi = s[X] + s[C] + s[L] * s[M]
+            if xi != at:
+                _evaluate(xi, model, values, slopes, smooth)
+                at = xi
+            cost = _normal(s, idx, y, w, rho, values, slopes, curvature, t_rel, r_rel, b1, b2, half_d2, A, rhs,
+                           residual)
+            for i in range(n):
+                acc = 0.0
+                for j in range(n):
+                    acc += Pinv[i, j] * (s[idx[j]] - s_prior[idx[j]])
+                    A[i, j] += Pinv[i, j]
+                rhs[i] -= acc
+            if ix >= 0 and grating_w > 0.0:
+                A[ix, ix] += grating_w
+                rhs[ix] += grating_w * (grating_z - s[X])
+            delta[:] = np.linalg.solve(A, rhs)
+            moved = 0.0
+            for i in range(n):
+                s[idx[i]] += delta[i]
+            for i in range(n):
+                if idx[i] == X or idx[i] == C:
+                    moved += abs(delta[i])
+            if moved <= tolerance:
+                converged = 1.0
+                break
+        xi = s[X] + s[C] + s[L] * s[M]
+        if xi != at:
+            _evaluate(xi, model, values, slopes, smooth)
+        cost = _normal(s, idx, y, w, rho, values, slopes, curvature, t_rel, r_rel, b1, b2, half_d2, A, rhs,
+                       residual)
+        if not robust:
+            break
+        # robust σ of the normalised residuals (never below the noise model's), then redescending weights
+        z = np.empty(y.size)
+        count = 0
+        for p in range(y.size):
+            if w[p] > 0.0:
+                z[count] = abs(residual[p]) * math.sqrt(w[p])
+                count += 1
+        if count == 0:
+            break
+        scale = MAD_TO_SIGMA * np.median(z[:count])
+        if scale < 1.0:
+            scale = 1.0
+        changed = False
+        for p in range(y.size):
+            if w[p] <= 0.0:
+                continue
+            u = abs(residual[p]) * math.sqrt(w[p]) / scale
+            if u <= core:
+                new = 1.0
+            elif u >= cut:
+                new = 0.0
+            else:
+                q = (u - core) / (cut - core)
+                new = (1.0 - q * q) ** 2
+            if abs(new - rho[p]) > 1e-3:
+                changed = True
+            rho[p] = new
+        if not changed:
+            break
+        if round_ == ROBUST_ROUNDS:
+            cost = _normal(s, idx, y, w, rho, values, slopes, curvature, t_rel, r_rel, b1, b2, half_d2, A, rhs,
+                           residual)
+    # the posterior information (normal matrix with the prior and the grating) and the figures
+    prior = 0.0
+    for i in range(n):
+        acc = 0.0
+        for j in range(n):
+            A[i, j] += Pinv[i, j]
+            acc += Pinv[i, j] * (s[idx[j]] - s_prior[idx[j]])
+        prior += (s[idx[i]] - s_prior[idx[i]]) * acc
+    grating_cost = 0.0
+    if ix >= 0 and grating_w > 0.0:
+        A[ix, ix] += grating_w
+        grating_cost = grating_w * (grating_z - s[X]) ** 2
+    A_out[:, :] = A
+    used = 0.0
+    rejected = 0.0
+    xinfo = 0.0
+    rss = 0.0
+    level_g = s[G]
+    for p in range(y.size):
+        if mask[p] <= 0.0:
+            continue
+        if rho[p] <= 0.0:
+            rejected += 1.0
+            continue
+        used += 1.0
+        rss += residual[p] * residual[p]
+        gdf = (level_g + s[A1] * b1[p] + s[A2] * b2[p]) * slopes[p]
+        xinfo += w[p] * rho[p] * gdf * gdf
+    stats[S_COST] = cost + prior + grating_cost
+    stats[S_RESIDUAL] = cost
+    stats[S_PRIOR] = prior
+    stats[S_USED] = used
+    stats[S_REJECTED] = rejected
+    stats[S_ITER] = total_iterations
+    stats[S_XINFO] = xinfo
+    stats[S_RMS] = math.sqrt(rss / used) if used > 0 else math.nan
+    stats[S_GRATING] = grating_cost
+    stats[S_CONVERGED] = converged
+
+
+if kernels.COMPILED:
+    _jit = kernels.numba.njit(cache=True, nogil=True, error_model="numpy")
+    predict = _jit(predict)
+    _evaluate = _jit(_evaluate)
+    _normal = _jit(_normal)
+    update = _jit(update)

@@ -1,0 +1,178 @@
+"""The estimator's tunables, each declared once with its unit and the reason it has its value.
+
+A tunable is a physical rate (how fast a nuisance of the rig may drift between frames, as the
+standard deviation of a random walk after one second), a prior (how little is known of a quantity
+before any frame), or the one false-alarm rate every flag is tested at. Nothing else in the
+estimator is a free number: thresholds follow from the false-alarm rate and the noise model.
+
+``EstimatorSettings.describe()`` lists them as python-microscope's ``describe_settings`` does
+(name, value, unit, reason), so a user, the daemon's config and the tests read the same table.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Any
+
+
+@dataclass(frozen=True)
+class Tunable:
+    """One declared number: its default, unit and why it has that value."""
+
+    default: float
+    unit: str
+    reason: str
+    low: float = 0.0  # the smallest value that makes physical sense (inclusive)
+    high: float = math.inf
+
+
+# The table of every tunable. A new state's rate is one entry here and one field below.
+TUNABLES: dict[str, Tunable] = {
+    "false_alarm": Tunable(
+        1e-4, "1/frame",
+        "the probability that a frame the model describes is flagged: one flag in 10,000 steady frames keeps a "
+        "steady run flagged far below 1 %, and a frame 4σ off (6e-5 two-sided) is still caught",
+        low=1e-12, high=0.1),
+    "acceleration": Tunable(
+        1000.0, "mm/s²",
+        "the stage's acceleration, as white noise between frames: the fastest rig here oscillates 10 mm at 2 Hz "
+        "(830 mm/s² peak); a frame at 50 fps is then barely tied to the last, at 1 kHz within ~0.5 µm",
+        low=0.0),
+    "gain_rate": Tunable(
+        0.005, "1/√s",
+        "the light's relative drift in a second while the lamp holds (a lamp warming); over less than a period of "
+        "the print a light that wanders moves the position a little with it, so a steady rate stays small and a "
+        "real change of the light is a jump", low=0.0),
+    "gain_prior": Tunable(
+        0.05, "1", "the light at the first frame against calibration's (another day, another lamp setting)", low=0.0),
+    "offset_rate": Tunable(
+        0.1, "gray/√s", "stray light creeping in a second while the room holds; a light switched is a jump",
+        low=0.0),
+    "offset_prior": Tunable(2.0, "gray", "stray light at the first frame against calibration's", low=0.0),
+    "field_rate": Tunable(
+        1e-5, "1/√s",
+        "the light's shape across the line (a tilt and a bow of the illumination, relative) drifting in a second "
+        "while nothing happens to the lamp; over less than a period of the print a light's tilt looks like a shift "
+        "of the image, so a shape that wanders freely wanders the position with it: a real change is a jump",
+        low=0.0),
+    "field_prior": Tunable(2e-4, "1", "the light's shape at the first frame against calibration's", low=0.0),
+    "focus_rate": Tunable(
+        1e-4, "px²/√s", "the blur variance drifting in a second while the lens holds (a mount warming over minutes)",
+        low=0.0),
+    "focus_prior": Tunable(0.003, "px²", "the blur at the first frame against calibration's", low=0.0),
+    "stretch_rate": Tunable(
+        1e-6, "1/√s", "the magnification drifting in a second while the lens holds its temperature", low=0.0),
+    "stretch_prior": Tunable(5e-6, "1", "the magnification at the first frame against calibration's", low=0.0),
+    "place_rate": Tunable(
+        0.05e-3, "mm/√s",
+        "the camera creeping on its mount against the carriage in a second (a clamped mount: tens of nm); "
+        "a knock is a jump, not this rate", low=0.0),
+    "tilt_rate": Tunable(
+        1e-6, "mm/row/√s", "the camera turning about the optical axis in a second (a clamped mount: µrad)",
+        low=0.0),
+    "lever_prior": Tunable(
+        300.0, "px",
+        "how far the optical axis may be from the ROI's centre along the line (a camera's ROI is rarely centred "
+        "on the lens): a magnification change slides the image by this lever times the change", low=0.0),
+    "grating_sigma": Tunable(
+        0.2e-3, "mm",
+        "the grating reading's error against the stage at the exposure: a 0.5 µm step's quantisation "
+        "(0.14 µm) and its cyclic error", low=1e-9),
+    "jump_light": Tunable(
+        0.5, "1 (relative)",
+        "what the light may jump by in one frame (a lamp switched, a shutter); the offset jumps by this share of "
+        "the mean gray", low=0.0),
+    "jump_field": Tunable(
+        0.02, "1 (relative)",
+        "what the light's shape across the line (its tilt and bow) may jump by in one frame (a lamp moved, a "
+        "shadow's soft edge); small, for the shape is read with the position over less than a period", low=0.0),
+    "jump_focus": Tunable(1.0, "px²", "what the blur variance may jump by in one frame (a focus ring touched)",
+                          low=0.0),
+    "jump_stretch": Tunable(
+        2e-3, "1", "what the magnification may move by between frames when the lens is warming (0.2 %)", low=0.0),
+    "jump_place": Tunable(
+        0.1, "mm", "what the camera's place may jump by in one frame (a knock on the mount)", low=0.0),
+    "jump_turn": Tunable(
+        0.01, "rad", "what the camera may turn by in one frame (a knock on the mount)", low=0.0),
+    "jump_motion": Tunable(
+        0.5, "mm/s",
+        "the velocity change the stage may make in one frame beyond its acceleration (a collision, a "
+        "servo fault, a dropped burst of frames)", low=0.0),
+    "dominance": Tunable(
+        2.0, "1 (variance ratio)",
+        "a position whose variance is more than this times the frame's own noise floor's is carried by "
+        "the state's memory of what the frames cannot see (a knock, a lens without the grating): it is "
+        "flagged with the state that carries it", low=1.0),
+    "core_sigma": Tunable(
+        3.5, "σ", "robust weight: full for samples within this many robust σ (the measurement's outlier model)",
+        low=1.0),
+    "cut_sigma": Tunable(
+        7.0, "σ", "robust weight: none beyond this many robust σ (Tukey's taper in between)", low=1.0),
+    "max_rejected": Tunable(
+        0.25, "1 (share of samples)",
+        "a frame with more of its samples set aside is not placed: the rest no longer pins the period",
+        low=0.0, high=1.0),
+    "tolerance": Tunable(
+        1e-8, "mm", "the last Gauss–Newton step in position below which a frame is converged (far below any bound)",
+        low=0.0),
+    "max_iterations": Tunable(
+        8, "1", "Gauss–Newton iterations a frame may take (a converged frame takes 2–3)", low=1),
+}
+
+
+@dataclass(frozen=True)
+class EstimatorSettings:
+    """Values of :data:`TUNABLES` (their units there); ``replace`` makes a variant."""
+
+    false_alarm: float = TUNABLES["false_alarm"].default
+    acceleration: float = TUNABLES["acceleration"].default
+    gain_rate: float = TUNABLES["gain_rate"].default
+    gain_prior: float = TUNABLES["gain_prior"].default
+    offset_rate: float = TUNABLES["offset_rate"].default
+    offset_prior: float = TUNABLES["offset_prior"].default
+    field_rate: float = TUNABLES["field_rate"].default
+    field_prior: float = TUNABLES["field_prior"].default
+    focus_rate: float = TUNABLES["focus_rate"].default
+    focus_prior: float = TUNABLES["focus_prior"].default
+    stretch_rate: float = TUNABLES["stretch_rate"].default
+    stretch_prior: float = TUNABLES["stretch_prior"].default
+    place_rate: float = TUNABLES["place_rate"].default
+    tilt_rate: float = TUNABLES["tilt_rate"].default
+    lever_prior: float = TUNABLES["lever_prior"].default
+    grating_sigma: float = TUNABLES["grating_sigma"].default
+    jump_light: float = TUNABLES["jump_light"].default
+    jump_field: float = TUNABLES["jump_field"].default
+    jump_focus: float = TUNABLES["jump_focus"].default
+    jump_stretch: float = TUNABLES["jump_stretch"].default
+    jump_place: float = TUNABLES["jump_place"].default
+    jump_turn: float = TUNABLES["jump_turn"].default
+    jump_motion: float = TUNABLES["jump_motion"].default
+    dominance: float = TUNABLES["dominance"].default
+    core_sigma: float = TUNABLES["core_sigma"].default
+    cut_sigma: float = TUNABLES["cut_sigma"].default
+    max_rejected: float = TUNABLES["max_rejected"].default
+    tolerance: float = TUNABLES["tolerance"].default
+    max_iterations: float = TUNABLES["max_iterations"].default
+
+    def __post_init__(self) -> None:
+        for name, tunable in TUNABLES.items():
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and tunable.low <= value <= tunable.high):
+                raise ValueError(f"estimator setting {name} = {value!r} {tunable.unit}: must be within "
+                                 f"[{tunable.low:g}, {tunable.high:g}] ({tunable.reason})")
+        if self.cut_sigma <= self.core_sigma:
+            raise ValueError(f"estimator setting cut_sigma ({self.cut_sigma:g}) must exceed core_sigma "
+                             f"({self.core_sigma:g})")
+
+    def replace(self, **changes: Any) -> "EstimatorSettings":
+        unknown = set(changes) - set(TUNABLES)
+        if unknown:
+            raise ValueError(f"unknown estimator setting {sorted(unknown)[0]!r}; known: {', '.join(TUNABLES)}")
+        return dataclasses.replace(self, **changes)
+
+    def describe(self) -> dict[str, dict[str, Any]]:
+        """Every tunable: its value, unit, default and reason."""
+        return {name: {"value": getattr(self, name), "unit": tunable.unit, "default": tunable.default,
+                       "reason": tunable.reason} for name, tunable in TUNABLES.items()}

@@ -1,0 +1,39 @@
+"""The estimator's state: what the rig does between frames, one entry a quantity.
+
+Position and velocity of the stage; the light (a gain, an offset, and its shape across the line as
+two Legendre terms); the focus (blur variance relative to calibration); the magnification (a
+stretch about the optical axis, and the axis's lever from the ROI's centre); the camera's place on
+the carriage (an offset along the axis, and its turn across rows). Each belongs to the family a
+flag names when that state is what moved.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class StateEntry:
+    name: str
+    unit: str
+    family: str  # the stale reason a flag carries when this state moved (core/validity.py FAMILIES)
+    description: str
+
+
+STATE: tuple[StateEntry, ...] = (
+    StateEntry("x_mm", "mm", "geometry", "the stage (carriage) position"),
+    StateEntry("v_mm_s", "mm/s", "geometry", "the stage velocity"),
+    StateEntry("gain", "1", "light", "the light relative to calibration"),
+    StateEntry("offset_gray", "gray", "light", "stray light added to every sample"),
+    StateEntry("field_tilt", "1", "light", "the light's first Legendre term across the line (relative)"),
+    StateEntry("field_bow", "1", "light", "the light's second Legendre term across the line (relative)"),
+    StateEntry("focus_px2", "px²", "focus", "blur variance relative to calibration"),
+    StateEntry("stretch", "1", "magnification", "magnification relative to calibration, minus one"),
+    StateEntry("place_mm", "mm", "geometry", "the image's offset against the carriage (the camera's place)"),
+    StateEntry("lever_mm", "mm", "magnification", "the optical axis's distance behind the ROI's centre"),
+    StateEntry("turn_mm_row", "mm/row", "geometry", "the image's shift per row (the camera turned)"),
+)
+INDEX = {entry.name: i for i, entry in enumerate(STATE)}
+X, V, G, OFS, A1, A2, B, M, C, L, T = range(len(STATE))
+N_STATE = len(STATE)
+FAMILIES = {entry.family for entry in STATE}

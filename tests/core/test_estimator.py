@@ -1,0 +1,111 @@
+"""The one recursive estimator (core/estimator/): declared tunables, the plain solve reproduced, an
+honest bound on steady runs in every grating mode, a light switched learned as a jump, a drift the
+frames cannot see carried in the bound."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from graytrack.core.calibration import calibrate
+from graytrack.core.estimator import TUNABLES, Estimator, EstimatorSettings, FrameEstimate, track
+from graytrack.core.tracking import Tracker
+from graytrack.core.tracking import track as plain_track
+from graytrack.drivers.sim.scenarios import build_rig
+
+
+@pytest.fixture(scope="module")
+def paper():
+    calibration, _ = build_rig("paper", "", seed=4).record()
+    return calibrate(calibration, "paper").model
+
+
+def _errors(model, estimates, truth, mode):
+    x = np.array([e.x_mm for e in estimates])
+    error = (x - truth.x_mm) * 1e3
+    if mode == "none":  # placed from the image alone: its origin is known up to whole periods
+        period = model.period_mm * 1e3
+        error -= period * np.round(np.nanmedian(error) / period)
+    return error, np.array([e.crlb_mm for e in estimates]) * 1e3
+
+
+def test_every_tunable_is_declared_once_with_unit_and_reason():
+    fields = {f.name for f in dataclasses.fields(EstimatorSettings)}
+    assert fields == set(TUNABLES)
+    described = EstimatorSettings().describe()
+    for name, tunable in TUNABLES.items():
+        assert tunable.unit and len(tunable.reason) > 20, name
+        assert described[name]["value"] == tunable.default and described[name]["unit"] == tunable.unit
+        assert tunable.low <= tunable.default <= tunable.high, name
+    with pytest.raises(ValueError, match="unknown estimator setting"):
+        EstimatorSettings().replace(gain_rat=1.0)
+    with pytest.raises(ValueError, match="false_alarm"):
+        EstimatorSettings(false_alarm=0.5)
+    with pytest.raises(ValueError, match="cut_sigma"):
+        EstimatorSettings(core_sigma=5.0, cut_sigma=4.0)
+
+
+def test_pinned_nuisances_and_no_motion_prior_reproduce_the_plain_solve(paper):
+    """Every nuisance pinned at calibration and the motion left free: the update is the frame's own
+    least squares, which the plain solver (fixed light, no reweighting) finds from its own start."""
+    run, _ = build_rig("paper", "", seed=4, run=1).record(4.0)
+    tiny = 1e-9
+    pinned = EstimatorSettings(acceleration=1e7, gain_rate=0.0, gain_prior=tiny, offset_rate=0.0, offset_prior=tiny,
+                               field_rate=0.0, field_prior=tiny, focus_rate=0.0, focus_prior=tiny,
+                               stretch_rate=0.0, stretch_prior=tiny, tolerance=1e-12)
+    estimates = track(paper, run.frames, run.t, run.reference, grating="check", robust=False, settings=pinned)
+    solver = Tracker(paper, tolerance_mm=1e-12, max_iterations=20, light="fixed", robust=False)
+    plain = plain_track(paper, run.frames, reference=run.reference, tracker=solver)
+    x = np.array([e.x_mm for e in estimates])
+    assert np.all(np.isfinite(x))
+    assert np.max(np.abs(x - plain.x_mm)) * 1e3 < 1e-3  # µm
+    # the bound is then the frame's own noise floor, the plain solver's Cramér–Rao bound
+    floor = np.array([e.crlb_mm for e in estimates])
+    assert np.allclose(floor, plain.crlb_mm, rtol=1e-3)
+
+
+@pytest.mark.parametrize("mode", ["check", "fuse", "none"])
+def test_a_steady_run_has_an_honest_bound_and_learns_nothing(paper, mode):
+    run, truth = build_rig("paper", "", seed=4, run=2).record()
+    estimates = track(paper, run.frames, run.t, run.reference, grating=mode)
+    error, bound = _errors(paper, estimates, truth, mode)
+    assert np.all(np.isfinite(error))
+    pull = np.sqrt(np.mean((error / bound) ** 2))
+    assert 0.7 <= pull <= 1.25, pull
+    assert sum(e.stale for e in estimates) < 0.01 * len(estimates)
+    assert not any(e.mode for e in estimates)  # no jump taken
+    assert all(math.isnan(e.focus_px2) for e in estimates)  # no blur shown
+    if mode != "fuse":  # the image's own position: within 15 % of the frame's noise floor
+        floor = np.array([e.floor_mm for e in estimates]) * 1e3
+        assert np.std(error) <= 1.15 * np.sqrt(np.mean(floor ** 2))
+
+
+def test_a_light_switched_is_learned_as_a_jump(paper):
+    run, truth = build_rig("paper", "light_change:gain=0.8:ambient_gray=10:start_s=3", seed=4, run=3).record()
+    estimates = track(paper, run.frames, run.t, run.reference, grating="check")
+    error, bound = _errors(paper, estimates, truth, "check")
+    after = np.asarray(run.t) > 3.2
+    assert any(e.mode == "light" for e in estimates)
+    assert estimates[-1].gain == pytest.approx(0.8, abs=0.02)
+    assert np.std(error[after]) <= 1.5 * np.sqrt(np.mean(bound[after] ** 2))
+    assert sum(e.stale for e in estimates) <= 0.02 * len(estimates)
+    # never silently wrong: a frame 4 bounds off is flagged
+    far = np.abs(error) > 4 * bound
+    assert not any(far & ~np.array([e.stale for e in estimates]))
+
+
+def test_a_frame_estimate_is_made_once(paper):
+    run, _ = build_rig("paper", "", seed=4, run=4).record(0.2)
+    estimator = Estimator(paper)
+    estimate = estimator.update(run.frames[0], float(run.t[0]), float(run.reference[0]))
+    assert isinstance(estimate, FrameEstimate)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        estimate.x_mm = 0.0  # type: ignore[misc]
+    # the live update and the batch are one recursion: the same numbers frame by frame
+    batch = track(paper, run.frames, run.t, run.reference)
+    live = [estimate] + [estimator.update(run.frames[k], float(run.t[k]), float(run.reference[k]))
+                         for k in range(1, run.frames.shape[0])]
+    assert [e.x_mm for e in live] == [e.x_mm for e in batch]
