@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from graytrack.core.slide import carry
-from graytrack.service.commands.track import slide_for, solve
+from graytrack.service.commands.track import estimated, slide_for, solve
 from graytrack.service.commands.track_scale import check
 
 FAR_PULL = 4.0  # a placed frame this many of its own bounds off the truth is wrong, not noise's tail (6e-5)
@@ -65,9 +65,11 @@ class Score:
                 f"({100 * self.silent_share:4.2f} %) learned {self.learned}")
 
 
-def scored(model, run, truth, trim: bool = False, no_reference: bool = False) -> Score:
-    """``run`` tracked as `graytrack track [--trim] [--no-reference]` does (light auto, robust, the
+def scored(model, run, truth, trim: bool = False, no_reference: bool = False, engine: str = "watches") -> Score:
+    """``run`` tracked as `graytrack track [--trim] [--no-reference] [--engine E]` does (light auto, robust, the
     print's texture learned, the tracker's scale watch), each frame against ``truth``."""
+    if engine == "estimator":
+        return estimator_scored(model, run, truth, trim, no_reference)
     slide = slide_for(run, model, no_reference)  # without a grating each bound carries the slide, as track's
     result, _, watch = solve(run, model, no_reference=no_reference, trim=trim, slide=slide, note=lambda line: None)
     scale = check(run, model, result, trim, watch).columns
@@ -92,3 +94,23 @@ def scored(model, run, truth, trim: bool = False, no_reference: bool = False) ->
                  marks=int((result.texture or {}).get("learned", 0)), focus=int(focus.sum()),
                  trimmed=int(trimmed.sum()),
                  stretched=watch.stretch_follow.corrected_frames if watch is not None and watch.stretch_follow else 0)
+
+
+def estimator_scored(model, run, truth, trim: bool = False, no_reference: bool = False) -> Score:
+    """The same score for `graytrack track --engine estimator`: its bound is the posterior σ with every
+    nuisance (what "far" is judged by), its floor each frame's own noise floor (what the ratio is stated
+    against); what it learned is the jumps it took and the frames whose blur it showed."""
+    result, _ = estimated(run, model, no_reference=no_reference, trim=trim)
+    error = (result.x_mm - truth.x_mm) * 1e3
+    if no_reference:
+        period_um = model.period_mm * 1e3
+        error -= period_um * np.round(np.nanmedian(error) / period_um)
+    bound = result.crlb_mm * 1e3
+    placed = np.isfinite(error)
+    far = placed & (np.abs(error) > FAR_PULL * bound)
+    flagged = result.stale
+    focus = np.isfinite(result.focus_px2)
+    return Score(frames=int(placed.size), placed=int(placed.sum()), lost=int((~placed).sum()), repeated=0,
+                 std_um=float(np.nanstd(error)), rms_um=float(np.sqrt(np.nanmean(error ** 2))),
+                 bound_um=float(np.sqrt(np.nanmean(bound ** 2))), flagged=int(flagged.sum()), far=int(far.sum()),
+                 silent=int((far & ~flagged).sum()), marks=0, focus=int(focus.sum()), trimmed=0)

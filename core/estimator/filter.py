@@ -100,6 +100,20 @@ def _quantile(z: float, dof: float) -> float:
     return k * (1.0 - c + z * math.sqrt(c)) ** 3
 
 
+def _model_error(info: dict) -> tuple[np.ndarray, np.ndarray, float]:
+    """(edges, ratios, global ratio) of the model's own error on its calibration frames over their
+    bound (core/adequacy.py): the local profile where calibration measured one, else the whole."""
+    from graytrack.core.compression import judged_factor
+
+    whole = float(info.get("calibration_error_ratio") or 1.0) / judged_factor(info)
+    profile = info.get("calibration_error_profile") or {}
+    edges = np.asarray(profile.get("edges_mm", []), dtype=np.float64)
+    ratios = np.asarray(profile.get("ratio", []), dtype=np.float64)
+    if edges.size != ratios.size + 1:
+        edges, ratios = np.zeros(0), np.zeros(0)
+    return edges, ratios, max(whole, 1.0)
+
+
 def calibration_level(model: FourierModel) -> float:
     """The χ² per sample the calibration's own frames left: what a frame's residual is judged against."""
     rmse = float(model.info.get("calibration_rmse_gray", model.noise_gray or 1.0))
@@ -144,6 +158,7 @@ class Estimator:
         if not (math.isfinite(self.chi2_calibration) and self.chi2_calibration > 0):
             raise TrackingError(f"the model's calibration χ² is {self.chi2_calibration:g}: recalibrate")
         self.chi2_curve = Chi2Curve.from_info(model.info)
+        self.model_error = _model_error(model.info)
         self.spread = stream_chi2_spread(model.info)  # a lossy stream's χ² scatters as fewer samples'
         self.bound_factor = stream_bound_factor(model.info)
         limits = model.info.get("sensor_range_gray") if robust else None
@@ -241,6 +256,11 @@ class Estimator:
                 reason_jump = None
             else:
                 reason_jump = best[1] if best is not None and best[0] < test else None
+                # No mode explains the frame: its noise is evidently beyond the noise model's. Its samples
+                # count for as much as its χ² says they are worth (the measurement's covariance scaled by the
+                # innovation's excess), so the frame moves the state little and its bound widens.
+                inflation = self._excess(stats, s)
+                s, A, stats = self._solve(y, mask / inflation, s_prior, P_prior, reference_mm if fuse else math.nan)
         else:
             reason_jump = None
         placed = stats[kernel.S_CONVERGED] > 0 or stats[kernel.S_ITER] > 0
@@ -271,13 +291,12 @@ class Estimator:
     def _solve(self, y: np.ndarray, mask: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray,
                grating_z: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         idx = self.idx
-        Pinv = np.linalg.inv(P_prior[np.ix_(idx, idx)])
         s = s_prior.copy()
         A = np.zeros((idx.size, idx.size))
         stats = np.zeros(kernel.N_STATS)
         grating_w = 1.0 / self.settings.grating_sigma ** 2 if math.isfinite(grating_z) else 0.0
         settings = self.settings
-        kernel.update(s, s_prior, Pinv, idx, y, mask, self.noise, self.t_rel, self.r_rel, self.b1, self.b2,
+        kernel.update(s, s_prior, P_prior, idx, y, mask, self.noise, self.t_rel, self.r_rel, self.b1, self.b2,
                       self.model.pixel_pitch_mm, self.model.period_mm, grating_z if grating_w else 0.0, grating_w,
                       self.robust, settings.core_sigma, settings.cut_sigma, settings.max_rejected,
                       int(settings.max_iterations), settings.tolerance, self.model_args, self.scratch, self.rho, A,
@@ -299,6 +318,13 @@ class Estimator:
         dof = used / self.spread ** 2
         return (chi2 / self.spread ** 2) / _quantile(self.z_alpha, dof)
 
+    def _excess(self, stats: np.ndarray, s: np.ndarray) -> float:
+        """The frame's residual χ² per sample over what the noise model and the calibration expect (≥ 1)."""
+        used = stats[kernel.S_USED]
+        if used <= 0:
+            return 1.0
+        return max(stats[kernel.S_RESIDUAL] / (used * self._level(float(s[X]))), 1.0)
+
     def _jumped(self, P: np.ndarray, family: str) -> np.ndarray:
         widened = P.copy()
         for state, var in zip(JUMPS[family], self.jump_var[family]):
@@ -312,31 +338,26 @@ class Estimator:
 
     def _covariance(self, A: np.ndarray) -> np.ndarray:
         """The full covariance: the posterior over the active states, the prior's elsewhere."""
-        idx = self.idx
         cov = self.P.copy()
-        inner = np.linalg.inv(A)
-        cov[np.ix_(idx, idx)] = inner
-        # inactive states keep their prediction's variance and no correlation with the active ones
-        mask = np.ones(N_STATE, dtype=bool)
-        mask[idx] = False
-        cov[np.ix_(idx, np.flatnonzero(mask))] = 0.0
-        cov[np.ix_(np.flatnonzero(mask), idx)] = 0.0
+        kernel.embed(cov, A, self.idx)
         return cov
 
     def _position_variance(self) -> float:
-        """Variance of the reported position: the carriage, or the image's own where the grating only checks."""
-        P = self.P
-        if self.grating == "check":
-            return float(P[X, X])
-        # the carriage: the image's position less the place and the lens's slide (x is that already)
-        return float(P[X, X])
+        """Variance of the reported position (the carriage's: the image's less the camera's place and the
+        lens's slide, which the state carries; with the grating only checked, the place is not a state)."""
+        return float(self.P[X, X])
 
     def _estimate(self, t: float, stats: np.ndarray, test: float, mode: str, reason_jump: str | None,
                   reference_mm: float) -> FrameEstimate:
         s, P, settings = self.s, self.P, self.settings
         sigma = np.sqrt(np.maximum(np.diag(P), 0.0))
         floor = 1.0 / math.sqrt(stats[kernel.S_XINFO]) if stats[kernel.S_XINFO] > 0 else math.inf
-        var_x = self._position_variance()
+        # what the model itself errs by here (its calibration's shared error): no frame can see it
+        # (as much of it as the image's share of the position carries: a fused grating pins the rest)
+        var_image = self._position_variance()
+        share = min(var_image / (floor * floor), 1.0) if floor > 0 else 1.0
+        model_var = self._model_share(float(s[X])) * floor * floor * share * share
+        var_x = var_image + model_var
         stale, reason, message = False, "", ""
         if test > 1.0:
             stale = True
@@ -348,7 +369,7 @@ class Estimator:
                 stale, reason = True, reason or "scale"
                 message = message or f"camera and grating disagree by {nu * 1e3:+.2f} µm"
         if var_x > settings.dominance * floor * floor * self.bound_factor ** 2:
-            carried = self._carrier()
+            carried = "geometry" if model_var > var_x - model_var - floor * floor else self._carrier()
             if carried:
                 stale, reason = True, reason or carried
                 message = message or f"the position's bound is carried by the {carried} state"
@@ -364,7 +385,15 @@ class Estimator:
             focus_sigma_px2=float(focus_sigma) if math.isfinite(focus) else math.nan,
             stretch=float(s[M]), stretch_sigma=float(sigma[M]), place_mm=float(s[C]), place_sigma_mm=float(sigma[C]),
             mode=mode, stale=stale, stale_reason=reason, message=message,
-            state=tuple(float(v) for v in s), sigma=tuple(float(v) for v in sigma))
+            state=tuple(s.tolist()), sigma=tuple(sigma.tolist()))
+
+    def _model_share(self, x_mm: float) -> float:
+        """The model's own error power at ``x_mm`` over the noise floor's (ratio² − 1 of its calibration)."""
+        edges, ratios, whole = self.model_error
+        ratio = whole
+        if edges.size and edges[0] <= x_mm <= edges[-1]:
+            ratio = ratios[min(int(np.searchsorted(edges, x_mm, side="right")) - 1, ratios.size - 1)]
+        return max(ratio * ratio - 1.0, 0.0)
 
     def _carrier(self) -> str:
         """The family whose states carry most of the position's variance (what pinning them would remove)."""

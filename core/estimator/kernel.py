@@ -39,6 +39,33 @@ CURVATURE_STEP_PERIODS = 1e-3  # forward-difference step of F″ from the slopes
 N_STATS = 10
 
 
+def information(P: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """The inverse of ``P``'s block over the states ``idx``."""
+    n = idx.size
+    block = np.empty((n, n))
+    for i in range(n):
+        for j in range(n):
+            block[i, j] = P[idx[i], idx[j]]
+    return np.linalg.inv(block)
+
+
+def embed(P: np.ndarray, A: np.ndarray, idx: np.ndarray) -> None:
+    """In place: ``P``'s block over ``idx`` becomes ``A``⁻¹ (the posterior); states outside ``idx`` keep
+    their own variance and lose their correlation with those inside."""
+    inner = np.linalg.inv(A)
+    n, total = idx.size, P.shape[0]
+    inside = np.zeros(total, dtype=np.bool_)
+    for i in range(n):
+        inside[idx[i]] = True
+    for i in range(total):
+        for j in range(total):
+            if inside[i] != inside[j]:
+                P[i, j] = 0.0
+    for i in range(n):
+        for j in range(n):
+            P[idx[i], idx[j]] = inner[i, j]
+
+
 def predict(s: np.ndarray, P: np.ndarray, dt: float, q_accel: float, rates2: np.ndarray) -> None:
     """In place: the state and covariance moved on by ``dt`` s: constant velocity with an acceleration of
     variance ``q_accel`` (mm²/s⁴) held over the interval (the discrete white-acceleration model); every
@@ -74,7 +101,7 @@ def _normal(s: np.ndarray, idx: np.ndarray, y: np.ndarray, w: np.ndarray, rho: n
         rhs[i] = 0.0
         for j in range(n):
             A[i, j] = 0.0
-    jac = np.zeros(N_STATE)
+    jac = np.zeros(N_STATE)  # (a dozen numbers a solve: numba keeps them on the stack)
     g, o, a1, a2, b, m, th = s[G], s[OFS], s[A1], s[A2], s[B], s[M], s[T]
     lever = s[L]
     cost = 0.0
@@ -110,18 +137,20 @@ def _normal(s: np.ndarray, idx: np.ndarray, y: np.ndarray, w: np.ndarray, rho: n
     return cost
 
 
-def update(s: np.ndarray, s_prior: np.ndarray, Pinv: np.ndarray, idx: np.ndarray, y: np.ndarray, mask: np.ndarray,
+def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndarray, y: np.ndarray, mask: np.ndarray,
            noise: np.ndarray, t_rel: np.ndarray, r_rel: np.ndarray, b1: np.ndarray, b2: np.ndarray,
            pitch_mm: float, period_mm: float, grating_z: float, grating_w: float, robust: bool, core: float,
            cut: float, max_rejected: float, max_iterations: int, tolerance: float, model: tuple,
            scratch: np.ndarray, rho: np.ndarray, A_out: np.ndarray, stats: np.ndarray) -> None:
     """Update ``s`` (in place, from its value on entry: the prediction or a better start) with one frame.
 
-    ``Pinv``: the prior information over the active states ``idx`` (centred on ``s_prior``); ``noise``:
+    ``P_prior``: the prior covariance (its block over the active states ``idx`` is used, centred on
+    ``s_prior``); ``noise``:
     read variance, shot gain, dark level of the noise model; ``grating_w``: 1/σ_z² of a fused grating reading (0: not
     fused). ``scratch``: (6, P); ``rho``: (P,) robust weights out; ``A_out``: the posterior information over
     ``idx``; ``stats``: the figures named by the S_ constants."""
     n = idx.size
+    Pinv = information(P_prior, idx)
     values, slopes, smooth, curvature, w, residual = (scratch[0], scratch[1], scratch[2], scratch[3], scratch[4],
                                                       scratch[5])
     ix = -1
@@ -262,6 +291,8 @@ def update(s: np.ndarray, s_prior: np.ndarray, Pinv: np.ndarray, idx: np.ndarray
 if kernels.COMPILED:
     _jit = kernels.numba.njit(cache=True, nogil=True, error_model="numpy")
     predict = _jit(predict)
+    information = _jit(information)
+    embed = _jit(embed)
     _evaluate = _jit(_evaluate)
     _normal = _jit(_normal)
     update = _jit(update)

@@ -63,7 +63,10 @@ TUNABLES: dict[str, Tunable] = {
         low=0.0),
     "focus_prior": Tunable(0.003, "px²", "the blur at the first frame against calibration's", low=0.0),
     "stretch_rate": Tunable(
-        1e-6, "1/√s", "the magnification drifting in a second while the lens holds its temperature", low=0.0),
+        30e-6, "1/√s",
+        "the magnification drifting in a second (a lens warming up changes it by ~1500 ppm over 10 s); without the "
+        "grating its slide reaches the position through the lever, so a faster rate widens every bound of a steady "
+        "run (at 100 ppm/√s the paper rig's bound grew by a half)", low=0.0),
     "stretch_prior": Tunable(5e-6, "1", "the magnification at the first frame against calibration's", low=0.0),
     "place_rate": Tunable(
         0.05e-3, "mm/√s",
@@ -77,9 +80,9 @@ TUNABLES: dict[str, Tunable] = {
         "how far the optical axis may be from the ROI's centre along the line (a camera's ROI is rarely centred "
         "on the lens): a magnification change slides the image by this lever times the change", low=0.0),
     "grating_sigma": Tunable(
-        0.2e-3, "mm",
+        0.15e-3, "mm",
         "the grating reading's error against the stage at the exposure: a 0.5 µm step's quantisation "
-        "(0.14 µm) and its cyclic error", low=1e-9),
+        "(0.14 µm) and a little cyclic error", low=1e-9),
     "jump_light": Tunable(
         0.5, "1 (relative)",
         "what the light may jump by in one frame (a lamp switched, a shutter); the offset jumps by this share of "
