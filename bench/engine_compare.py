@@ -58,7 +58,8 @@ def main(selection: str = "") -> None:
               f"({100 * silent / max(placed, 1):.3f} %); {frames / max(elapsed, 1e-9):.0f} frames/s over the runs")
     if all(totals[engine][3] for engine in ENGINES):
         speed = {engine: totals[engine][4] / totals[engine][3] for engine in ENGINES}
-        print(f"estimator / watches frames/s (side by side, scoring included): {speed['estimator'] / speed['watches']:.2f}")
+        ratio = speed["estimator"] / speed["watches"]
+        print(f"estimator / watches frames/s (side by side, scoring included): {ratio:.2f}")
 
 
 if __name__ == "__main__":
