@@ -50,7 +50,8 @@ def main(selection: str = "") -> None:
                 total[2] += score.silent
                 total[3] += elapsed
                 total[4] += score.frames
-                cells.append(f"{score.ratio:6.2f}x lost {score.lost:4d} flagged {100 * score.flagged / score.frames:5.1f}"
+                flagged = 100 * score.flagged / score.frames
+                cells.append(f"{score.ratio:6.2f}x lost {score.lost:4d} flagged {flagged:5.1f}"
                              f" % far {score.far:4d} silent {score.silent:4d} {score.frames / elapsed:7.0f}/s")
             print(f"{label[:70]:70} {mode:15} " + "  ".join(f"{cell:>62}" for cell in cells), flush=True)
     for engine, (placed, far, silent, elapsed, frames) in totals.items():
