@@ -41,6 +41,11 @@ class TableRow:
     placed: int  # frames the sequential solution placed, of ``frames``
     frames: int
 
+    def as_dict(self) -> dict:
+        """For a report: the row's figures and, under ``paper``, the paper's own for the same model."""
+        row = {key: getattr(self, key) for key in self.__dataclass_fields__}
+        return {**row, "paper": dict(PAPER.get(self.kind, {}))}
+
     def line(self) -> str:
         """As ``graytrack demo`` prints it, with the paper's own figures beside."""
         paper = PAPER.get(self.kind, {})
