@@ -22,7 +22,8 @@ NARROW = {"width": 390, "height": 844}
 # the words a newcomer asked about (issue 48) and where each stands on the page
 WORDS = {"lock": ".figures dt[data-term=lock]", "grating": ".figures dt[data-term=grating]",
          "error": ".figures dt[data-term=error]", "bound": ".figures dt[data-term=bound]",
-         "stale": "#position-stale", "print texture": "#texture-card h2", "frames lost": ".figures dt[data-term=dropped]"}
+         "stale": "#position-stale", "print texture": "#texture-card h2",
+         "frames lost": ".figures dt[data-term=dropped]"}
 REPEATS = 12  # frames_lost events in a row, as a loaded host logs them (one per 10 s)
 BOX = "e => { const r = e.getBoundingClientRect(); return [r.left, r.top, r.right, r.bottom]; }"
 
@@ -42,7 +43,8 @@ def stale_on_demand(monkeypatch: pytest.MonkeyPatch) -> dict[str, bool]:
 
     def update(self, frame, reference_mm=float("nan")):
         fix = real_update(self, frame, reference_mm)
-        return SimpleNamespace(**{**vars(fix), "stale": flag["stale"], "stale_reason": "focus" if flag["stale"] else None})
+        cause = "focus" if flag["stale"] else None
+        return SimpleNamespace(**{**vars(fix), "stale": flag["stale"], "stale_reason": cause})
 
     monkeypatch.setattr(tracking.LiveTracker, "update", update)
     return flag
@@ -161,7 +163,8 @@ def test_no_axis_label_runs_into_another_when_a_tick_sits_on_the_plots_top_edge(
     # [−0.13, 1.0] and its top tick 1.0 at the edge; error the same in µm × 10 (the right axis)
     edge = 1 / 1.15
     labels = page.evaluate("""edge => {
-        const samples = Array.from({length: 200}, (_, i) => ({t: i / 20, x: i % 2 ? edge : 0, e: i % 2 ? 10 * edge : 0}));
+        const samples = Array.from({length: 200},
+                                   (_, i) => ({t: i / 20, x: i % 2 ? edge : 0, e: i % 2 ? 10 * edge : 0}));
         Plot.timeSeries(document.getElementById("plot"), samples, 10, 10);
         // the line view: gray 0…200/1.08 (its 8 % pad puts 200 on the edge), residual within ±σ
         const n = 100, top = 200 / 1.08;
