@@ -52,7 +52,7 @@ RUN_BY = {
     ("README.md", "TOKEN=$(cat ~/.local/state/graytrack/token)"):
         "tests/client/test_readme_examples.py::test_the_readmes_rest_and_websocket_block_works_as_written",
     ("README.md", "[daemon]"):
-        "tests/test_docs_snippets.py::test_the_readmes_realtime_switch_turns_sched_fifo_off",
+        "tests/client/test_readme_examples.py::test_the_readmes_realtime_block_turns_sched_fifo_off",
     ("docs/clients.md", "from itertools import islice"):
         "tests/client/test_docs_examples.py::test_the_python_example_runs_with_the_client_installed_alone",
     ("docs/clients.md", ".venv/bin/graytrack epics"):

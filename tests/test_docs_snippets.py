@@ -37,7 +37,7 @@ def test_the_bring_up_target_generator_writes_a_sine_print_of_whole_periods(tmp_
     assert gray[0] == gray[int(steps)] == 128, "a period a cycle"
 
 
-def test_the_readmes_realtime_switch_turns_sched_fifo_off(tmp_path: Path) -> None:
+def test_the_readmes_realtime_block_is_a_configuration_that_changes_only_the_priority(tmp_path: Path) -> None:
     """README's "Real-time priority": the default it states is the daemon's, and its block, saved as
     the config file, is a configuration the daemon accepts with every thread at normal scheduling."""
     from graytrack.drivers.realtime import DEFAULT_LEVEL
