@@ -25,7 +25,8 @@ const GLOSSARY = {
   position: ["position", "Where the camera is along the printed target, in mm, from this frame's pixels and the " +
     "calibrated model alone (the grating is not used for it)."],
   lock: ["lock", "locked: each frame is solved from the one before and the fit agrees with the image. lost: the " +
-    "tracker lost its place within the print's period and is finding it again; positions meanwhile are not placed."],
+    "tracker lost its place within the print's period and is finding it again; positions until it is locked " +
+    "again are not to be trusted."],
   grating: ["grating", "The stage's own position readout (its encoder grating, the controller's POS?), read for the " +
     "instant of the exposure: the reference the camera's position is checked against."],
   error: ["error", "position − grating for this frame, in µm: how far the camera's reading is from the stage's. " +
@@ -36,7 +37,7 @@ const GLOSSARY = {
   stale: ["stale", "The model no longer describes the images: something named after the word (light, focus, pixels, " +
     "magnification, scale …) changed since calibration. Positions still come, flagged, and may be off by more " +
     "than the bound: recalibrate."],
-  rate: ["frames/s", "Frames the tracker placed per second, over the last few seconds."],
+  rate: ["frames/s", "Frames the tracker placed per second, over up to its last 200 frames."],
   dropped: ["frames lost", "Camera frames that never reached the tracker since the daemon started (gaps in the " +
     "camera's frame counter); Events says when."],
   "held-out": ["held-out error", "A calibration's error std against the grating on frames its fit did not see: " +
