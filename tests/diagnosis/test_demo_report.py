@@ -120,3 +120,16 @@ def test_the_readme_and_the_performance_page_quote_the_demos_figures(demo) -> No
                      r"against a ([\d.]+) µm bound", performance).groups()
     figures = (report["before"]["error_std_um"], report["after"]["error_std_um"], report["noise"]["crlb_um"])
     assert all(map(quoted, loop, figures)), (loop, figures)
+
+
+def test_a_model_that_placed_no_frame_is_null_in_the_report_and_a_dash_on_the_page() -> None:
+    from graytrack.core.seed_table import TableRow
+    from graytrack.service.report import _seed_table
+
+    nan = float("nan")
+    row = TableRow("ideal", 8.0, 8.6, nan, nan, nan, placed=0, frames=500).as_dict()
+    assert json.loads(json.dumps(row, allow_nan=False))["error_std_um"] is None  # never NaN in report.json
+    page = _seed_table({"seed_table": {"protocol": "p", "scenario": "paper", "seed": 0, "calibration_frames": 1000,
+                                       "measured_frames": 500, "rows": [row]}})
+    cells = re.findall(r"<td>(.*?)</td>", page)
+    assert cells[:8] == ["ideal sine", "8.000", "8.6000", "—", "—", "—", "500", "7.825"], cells
