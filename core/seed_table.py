@@ -41,6 +41,13 @@ class TableRow:
     placed: int  # frames the sequential solution placed, of ``frames``
     frames: int
 
+    def as_dict(self) -> dict:
+        """For a report: the row's figures and, under ``paper``, the paper's own for the same model; a
+        figure that does not exist (no frame placed) is None, as every report's (never NaN)."""
+        row = {key: None if isinstance(value := getattr(self, key), float) and not np.isfinite(value) else value
+               for key in self.__dataclass_fields__}
+        return {**row, "paper": dict(PAPER.get(self.kind, {}))}
+
     def line(self) -> str:
         """As ``graytrack demo`` prints it, with the paper's own figures beside."""
         paper = PAPER.get(self.kind, {})

@@ -22,7 +22,7 @@ from graytrack.core.diagnosis.loop import DiagnosisResult, LoopModel  # noqa: E4
 from graytrack.core.pixel_noise import PixelNoise  # noqa: E402
 from graytrack.core.transients import summary_line  # noqa: E402
 from graytrack.service.figures import MISSING, is_number, positive, shown, structure  # noqa: E402
-from graytrack.service.report_kit import cell, image, page, plain_log_axis, png  # noqa: E402
+from graytrack.service.report_kit import cell, image, page, plain_log_axis, png, table  # noqa: E402
 
 if TYPE_CHECKING:
     from graytrack.service.calibration_run import CalibrationRun
@@ -270,6 +270,32 @@ def _injected(report: dict) -> str:
             f"<ul id=\"injected\">{items}</ul>{found}")
 
 
+SEED_MODELS = {"ideal": "ideal sine", "paper": "seed paper's model"}
+
+
+def _seed_table(report: dict) -> str:
+    """The demo's comparison on the clean paper rig (``seed_table``, written by ``graytrack demo``):
+    each plain model's figures, computed as the paper did, beside the paper's own; the same digits as
+    the terminal's table."""
+    seed = report.get("seed_table")
+    if not seed:
+        return ""
+    rows = [(SEED_MODELS.get(row["kind"], row["kind"]), shown(row["rmse_gray"], 3), shown(row["period_mm"], 4),
+             shown(row["error_mean_um"], 2), shown(row["error_std_um"], 3), shown(row["bound_um"], 3),
+             shown(row["frames"] - row["placed"], 0),
+             shown((row.get("paper") or {}).get("rmse_gray"), 3),
+             f"{shown((row.get('paper') or {}).get('error_mean_um'), 2)} ± "
+             f"{shown((row.get('paper') or {}).get('error_std_um'), 1)}") for row in seed["rows"]]
+    header = ("model", "rmse (gray)", "period (mm)", "error mean (µm)", "error std (µm)", "bound (µm)",
+              "frames not placed", "paper: rmse (gray)", "paper: error (µm)")
+    return (f"<h2>The seed paper's rig: ideal sine and the paper's model</h2><p>Recorded on the virtual rig "
+            f"({html.escape(str(seed.get('scenario')))} scenario, seed {html.escape(str(seed.get('seed')))}, no "
+            f"effects): {shown(seed.get('calibration_frames'), 0)} calibration and "
+            f"{shown(seed.get('measured_frames'), 0)} held-out frames; {html.escape(str(seed.get('protocol')))}. "
+            "The bound is the rms of the held-out frames' bounds for each model.</p>"
+            + table(header, rows).replace("<table>", '<table id="seed-table">', 1))
+
+
 TITLES = {"auto": "graytrack closed loop", "paper": "graytrack calibration: seed paper's model",
           "ideal": "graytrack calibration: ideal sine"}
 
@@ -304,6 +330,7 @@ def render_html(run: "CalibrationRun", name: str = "") -> str:
 {_figures_table(report)}
 {bound_definition(report)}
 {reference_line}{_geometry_line(run)}
+{_seed_table(report)}
 {_injected(report)}
 {_findings(report)}
 {steps}

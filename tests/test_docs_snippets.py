@@ -35,3 +35,48 @@ def test_the_bring_up_target_generator_writes_a_sine_print_of_whole_periods(tmp_
     assert len(gray) == round(periods) * steps + 1
     assert (min(gray), max(gray)) == (28, 228), "mid-gray ± 100"
     assert gray[0] == gray[int(steps)] == 128, "a period a cycle"
+
+
+def test_the_readmes_realtime_block_is_a_configuration_that_changes_only_the_priority(tmp_path: Path) -> None:
+    """README's "Real-time priority": the default it states is the daemon's, and its block, saved as
+    the config file, is a configuration the daemon accepts with every thread at normal scheduling."""
+    from graytrack.drivers.realtime import DEFAULT_LEVEL
+    from graytrack.service.daemon.settings import Settings, load_settings
+    from tests.doc_blocks import block
+
+    readme = (DOCS.parent / "README.md").read_text(encoding="utf-8")
+    assert f"`[daemon] realtime_priority = {DEFAULT_LEVEL}`" in readme and DEFAULT_LEVEL > 0
+    assert Settings().daemon.realtime_priority == DEFAULT_LEVEL
+    config = tmp_path / "graytrack.toml"
+    config.write_text(block("README.md", "[daemon]", "toml").code)
+    settings = load_settings(config)
+    assert settings.daemon.realtime_priority == 0
+    assert settings.model_dump(exclude={"daemon"}) == Settings().model_dump(exclude={"daemon"}), "nothing else changes"
+
+
+def test_every_block_of_the_readme_and_the_clients_page_is_run_by_a_test_or_marked_as_not_run() -> None:
+    import ast
+
+    from tests.doc_blocks import PAGES, ROOT, RUN_BY, blocks
+
+    claimed: dict[tuple[str, str], list[int]] = {key: [] for key in RUN_BY}
+    unclaimed, marked = [], []
+    for page in PAGES:
+        for found in blocks(page):
+            keys = [key for key in RUN_BY if key[0] == page and found.first_line.startswith(key[1])]
+            if found.not_run is not None:
+                assert not keys, f"{page}:{found.line} is marked not run but {RUN_BY[keys[0]]} runs it"
+                marked.append(f"{page}:{found.line}")
+            elif keys:
+                for key in keys:
+                    claimed[key].append(found.line)
+            else:
+                unclaimed.append(f"{page}:{found.line} ({found.first_line!r})")
+    assert unclaimed == [], "blocks no test runs and not marked <!-- not run: why -->"
+    assert {key: lines for key, lines in claimed.items() if len(lines) != 1} == {}, "each key names one block"
+    assert len(marked) <= 2, marked  # the install lines and `make test`: few
+    for test in RUN_BY.values():  # the test named exists
+        path, name = test.split("::")
+        functions = {node.name for node in ast.walk(ast.parse((ROOT / path).read_text()))
+                     if isinstance(node, ast.FunctionDef)}
+        assert name in functions, test

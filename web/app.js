@@ -19,6 +19,46 @@ const CONTROLS = ["move", "target", "jog-minus", "jog-plus", "jog-step", "home",
 const TOKEN_REASON = "save the bearer token under Access first";
 let access = null; // GET /api/access: where the daemon's token is
 
+// What the page's words mean, each said once: the tooltip of every element marked data-term="key"
+// (where the word stands) and an entry of the glossary card (a phone has no hover).
+const GLOSSARY = {
+  position: ["position", "Where the camera is along the printed target, in mm, from this frame's pixels and the " +
+    "calibrated model alone (the grating is not used for it)."],
+  lock: ["lock", "locked: each frame is solved from the one before and the fit agrees with the image. lost: the " +
+    "tracker lost its place within the print's period and is finding it again; positions until it is locked " +
+    "again are not to be trusted."],
+  grating: ["grating", "The stage's own position readout (its encoder grating, the controller's POS?), read for the " +
+    "instant of the exposure: the reference the camera's position is checked against."],
+  error: ["error", "position − grating for this frame, in µm: how far the camera's reading is from the stage's. " +
+    "Judge it against the bound."],
+  bound: ["bound", "The Cramér–Rao bound of this frame, in µm: the smallest standard deviation any unbiased reading " +
+    "of these pixels can have, given the camera's noise and the slope of the model (σ / √Σ(∂F/∂x)²). An error " +
+    "within about twice it is noise; far beyond it, the model misses something."],
+  stale: ["stale", "The model no longer describes the images: something named after the word (light, focus, pixels, " +
+    "magnification, scale …) changed since calibration. Positions still come, flagged, and may be off by more " +
+    "than the bound: recalibrate."],
+  rate: ["frames/s", "Frames the tracker placed per second, over up to its last 200 frames."],
+  dropped: ["frames lost", "Camera frames that never reached the tracker since the daemon started (gaps in the " +
+    "camera's frame counter); Events says when."],
+  "held-out": ["held-out error", "A calibration's error std against the grating on frames its fit did not see: " +
+    "what to expect while tracking, next to its bound."],
+  texture: ["print texture", "Marks that settle on the printed target while the rig runs (dust, a smudge): the " +
+    "tracker learns each one's place and depth from what the model leaves unexplained and takes it out, so it " +
+    "does not pull the position. Kept with the model in use; dropped when another model is installed."],
+};
+
+function explainTerms() {
+  for (const element of document.querySelectorAll("[data-term]")) element.title = GLOSSARY[element.dataset.term][1];
+  $("glossary").replaceChildren(...Object.entries(GLOSSARY).flatMap(([key, [word, text]]) => {
+    const dt = document.createElement("dt");
+    dt.id = `term-${key}`;
+    dt.textContent = word;
+    const dd = document.createElement("dd");
+    dd.textContent = text;
+    return [dt, dd];
+  }));
+}
+
 const fmt = (value, digits) => (value === null || value === undefined || Number.isNaN(value) ? "—" : Number(value).toFixed(digits));
 
 function say(text, isError = false) {
@@ -73,6 +113,7 @@ function draw() {
     $("error").textContent = latest.error_um === undefined ? "—" : `${fmt(latest.error_um, 2)} µm`;
     $("crlb").textContent = latest.crlb_um === null ? "—" : `${fmt(latest.crlb_um, 2)} µm`;
   }
+  showStale();
   if (!paused) {
     const clipped = Plot.timeSeries($("plot"), samples, performance.now() / 1000, Number($("window").value));
     $("plot").dataset.clipped = String(clipped);
@@ -186,6 +227,19 @@ function textureLine(t) {
     `(${fmt(100 * newest.depth, 1)} %${sure} of the light, ${newest.frames} frames)${tail}`;
 }
 
+// The model's validity where the position is read: the frame's own flag from the stream, or the
+// daemon's verdict from the status (which holds while frames are flagged), with the family of causes.
+function showStale() {
+  const frame = latest && latest.stale ? latest.stale_reason : null;
+  const model = status && status.model_stale ? status.stale_reason : null;
+  const stale = Boolean((latest && latest.stale) || (status && status.model_stale));
+  const flag = $("position-stale");
+  flag.hidden = !stale;
+  const reason = frame || model;
+  flag.textContent = stale ? (reason ? `stale: ${reason}` : "stale") : "";
+  $("position").classList.toggle("stale", stale);
+}
+
 function applyStatus(s) {
   status = s;
   const state = $("state");
@@ -196,6 +250,7 @@ function applyStatus(s) {
   const staleNote = $("model-stale");
   staleNote.hidden = !s.model_stale;
   staleNote.textContent = s.model_stale ? `model stale: ${s.stale_reason} changed since calibration — recalibrate` : "";
+  showStale();
   $("sim-badge").hidden = !s.simulated;
   $("model").textContent = s.model || (s.state === "starting" ? "—" : s.state === "calibrating"
     ? "no model yet: the calibration running makes one" : "no model: start a calibration");
@@ -297,18 +352,47 @@ async function refreshHistory() {
   }
 }
 
+// Events of one kind in a row (frames lost, one every 10 s on a loaded host) are one line with their
+// count, the span of times and the newest message, so the rare ones (a calibration done, a model
+// installed) are not pushed out of view; those, and faults, each keep a line of their own.
+const EVENTS_APART = new Set(["fault", "recovered", "model_installed", "model_stale", "model_fresh", "geometry",
+  "calibration_started", "calibration_done", "calibration_failed", "calibration_aborted", "calibration_interrupted"]);
+
+function addEvent(list, e) {
+  const when = new Date(e.t_unix * 1000).toLocaleTimeString();
+  const top = list.firstElementChild;
+  if (top && top.dataset.kind === e.kind && !EVENTS_APART.has(e.kind)) {
+    const count = Number(top.dataset.count) + 1;
+    top.dataset.count = String(count);
+    top.querySelector(".count").textContent = `×${count}`;
+    top.querySelector("time").textContent = `${top.dataset.first}–${when}`;
+    top.querySelector(".text").textContent = e.message;
+    top.title = `${count} ${e.kind} events in a row from ${top.dataset.first} to ${when}; the newest shown`;
+    return;
+  }
+  const li = document.createElement("li");
+  li.dataset.kind = e.kind;
+  li.dataset.count = "1";
+  li.dataset.first = when;
+  li.classList.toggle("apart", EVENTS_APART.has(e.kind));
+  const time = document.createElement("time");
+  time.textContent = when;
+  const count = document.createElement("span");
+  count.className = "count";
+  const text = document.createElement("span");
+  text.className = "text";
+  text.textContent = e.message;
+  li.append(time, count, text);
+  list.prepend(li);
+}
+
 async function refreshEvents() {
   try {
     const events = await get(`/api/events?since=${lastEvent}`);
     const list = $("events");
     for (const e of events) {
       lastEvent = Math.max(lastEvent, e.id);
-      const li = document.createElement("li");
-      li.dataset.kind = e.kind;
-      const time = document.createElement("time");
-      time.textContent = new Date(e.t_unix * 1000).toLocaleTimeString();
-      li.append(time, e.message);
-      list.prepend(li);
+      addEvent(list, e);
     }
     while (list.children.length > 200) list.lastElementChild.remove();
   } catch (err) {
@@ -377,6 +461,7 @@ $("token-form").addEventListener("submit", (event) => {
   refresh(); // the controls follow at once
 });
 
+explainTerms();
 holdControls("waiting for the daemon's first status");
 loadAccess();
 connect();

@@ -4,6 +4,8 @@
 
 const Plot = (() => {
   const FONT = "12px system-ui, sans-serif";
+  const UNIT_GAP = 9; // px between an axis's unit and its box: half a label's height (6 px) and a margin
+  const UNIT_ROOM = 26; // px above a box for its unit: the gap and a label's height (12 px) and a margin
 
   // Size the canvas backing store to its CSS box × devicePixelRatio; draw in CSS pixels.
   function crisp(canvas) {
@@ -18,7 +20,16 @@ const Plot = (() => {
     ctx.setTransform(ratio, 0, 0, ratio, 0, 0);
     ctx.clearRect(0, 0, width, height);
     ctx.font = FONT;
+    canvas.labels = []; // every text drawn, with its box: tests/web check that none overlaps another
     return { ctx, width, height };
+  }
+
+  // Text at (x, y) with the context's alignment, its box (CSS px) kept on the canvas.
+  function label(ctx, text, x, y) {
+    const m = ctx.measureText(text);
+    ctx.fillText(text, x, y);
+    ctx.canvas.labels.push({ text, left: x - m.actualBoundingBoxLeft, right: x + m.actualBoundingBoxRight,
+                             top: y - m.actualBoundingBoxAscent, bottom: y + m.actualBoundingBoxDescent });
   }
 
   function quantile(sorted, q) {
@@ -68,10 +79,11 @@ const Plot = (() => {
       const y = box.bottom - (box.bottom - box.top) * (v - range[0]) / (range[1] - range[0]);
       ctx.strokeStyle = "#e2e5ea";
       ctx.beginPath(); ctx.moveTo(box.left, y); ctx.lineTo(box.right, y); ctx.stroke();
-      ctx.fillText(v.toFixed(digits), right ? box.right + 4 : box.left - 4, y);
+      label(ctx, v.toFixed(digits), right ? box.right + 4 : box.left - 4, y);
     }
+    // the unit above the axis, clear of the top tick's label (centred on the box's top edge at most)
     ctx.textBaseline = "bottom";
-    ctx.fillText(unit, right ? box.right + 4 : box.left - 4, box.top - 2);
+    label(ctx, unit, right ? box.right + 4 : box.left - 4, box.top - UNIT_GAP);
   }
 
   // One trace; returns how many points were clipped (drawn as marks at the edge).
@@ -108,8 +120,8 @@ const Plot = (() => {
     const visible = samples.filter((s) => s.t >= xRange[0]);
     const ts = visible.map((s) => s.t);
     const bands = [
-      { key: "x", unit: "mm", color: "#2b6cb0", box: { left, right, top: 16, bottom: split - 10 }, min: 1e-3, right: false },
-      { key: "e", unit: "µm", color: "#b7791f", box: { left, right, top: split + 14, bottom: height - 26 }, min: 1, right: true },
+      { key: "x", unit: "mm", color: "#2b6cb0", box: { left, right, top: UNIT_ROOM, bottom: split - 10 }, min: 1e-3, right: false },
+      { key: "e", unit: "µm", color: "#b7791f", box: { left, right, top: split + UNIT_ROOM, bottom: height - 26 }, min: 1, right: true },
     ];
     let clipped = 0;
     for (const band of bands) {
@@ -123,7 +135,7 @@ const Plot = (() => {
     ctx.fillStyle = "#6b7380"; ctx.textAlign = "center"; ctx.textBaseline = "top";
     for (const ago of ticks(0, windowS, 5)) {
       const px = right - (right - left) * ago / windowS;
-      ctx.fillText(ago === 0 ? "now" : `−${ago} s`, px, height - 20);
+      label(ctx, ago === 0 ? "now" : `−${ago} s`, px, height - 20);
     }
     return clipped;
   }
@@ -135,8 +147,8 @@ const Plot = (() => {
     const n = doc.pixels.length;
     const xs = doc.pixels.map((_, i) => i);
     const xRange = [-0.5, n - 0.5];
-    const top = { left, right, top: 16, bottom: split - 8 };
-    const bottom = { left, right, top: split + 14, bottom: height - 22 };
+    const top = { left, right, top: UNIT_ROOM, bottom: split - 8 };
+    const bottom = { left, right, top: split + UNIT_ROOM, bottom: height - 22 };
     const grays = doc.pixels.concat(doc.model || []).filter(Number.isFinite);
     const grayRange = [Math.min(...grays), Math.max(...grays)];
     const pad = Math.max((grayRange[1] - grayRange[0]) * 0.08, 1);
@@ -165,9 +177,15 @@ const Plot = (() => {
       trace(ctx, bottom, xs, doc.residual, xRange, rRange, "#4a5568");
     }
     ctx.fillStyle = "#6b7380"; ctx.textAlign = "center"; ctx.textBaseline = "top";
-    for (const i of ticks(0, n - 1, 6)) ctx.fillText(String(i), left + (right - left) * (i + 0.5) / n, height - 18);
     ctx.textAlign = "right";
-    ctx.fillText("pixel", right, height - 18);
+    label(ctx, "pixel", right, height - 18);
+    const unitLeft = ctx.canvas.labels[ctx.canvas.labels.length - 1].left;
+    ctx.textAlign = "center";
+    for (const i of ticks(0, n - 1, 6)) {
+      const px = left + (right - left) * (i + 0.5) / n;
+      // a tick whose number would run into "pixel" (a narrow screen) is left out
+      if (px + ctx.measureText(String(i)).width / 2 + 4 < unitLeft) label(ctx, String(i), px, height - 18);
+    }
   }
 
   return { timeSeries, profile, robustRange, ticks };

@@ -93,6 +93,7 @@ def client_venv(tmp_path_factory: pytest.TempPathFactory) -> Venv:
 class MakeRun:
     url: str
     home: Path  # HOME of the daemon and of the examples: the data directory is HOME/.local/state/graytrack
+    pid: int = 0  # the daemon's process
 
     def env(self) -> dict[str, str]:
         env = {key: value for key, value in os.environ.items() if key not in ("STATE_DIRECTORY", "XDG_STATE_HOME")}
@@ -105,11 +106,12 @@ def make_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[MakeRun]:
     defaults (the virtual rig; the data directory ``~/.local/state/graytrack``, under a HOME of its
     own); P is a free port instead of 8000, so a daemon the developer runs is left alone."""
     port = free_port()
-    daemon = MakeRun(f"http://127.0.0.1:{port}", tmp_path_factory.mktemp("home"))
-    log = daemon.home / "serve.log"  # a file, not a pipe: nobody reads the daemon's log while it runs
+    home = tmp_path_factory.mktemp("home")
+    log = home / "serve.log"  # a file, not a pipe: nobody reads the daemon's log while it runs
     with log.open("w") as sink:
         process = subprocess.Popen([sys.executable, "-m", "graytrack", "serve", "--host", "127.0.0.1", "--port",
-                                    str(port)], cwd=ROOT, env=daemon.env(), stdout=sink, stderr=sink)
+                                    str(port)], cwd=ROOT, env=MakeRun("", home).env(), stdout=sink, stderr=sink)
+    daemon = MakeRun(f"http://127.0.0.1:{port}", home, process.pid)
 
     def answers() -> bool:
         assert process.poll() is None, f"the daemon exited: {log.read_text()[-2000:]}"

@@ -11,12 +11,15 @@ import re
 import shutil
 import signal
 import subprocess
+import sys
+from pathlib import Path
 
 import httpx
 import pytest
 
 from tests.client.conftest import ROOT, MakeRun
-from tests.service.helpers import wait_for
+from tests.doc_blocks import block as doc_block
+from tests.service.helpers import free_port, wait_for
 
 README = ROOT / "README.md"
 MAKE_RUN_HOST = "localhost:8000"
@@ -67,3 +70,48 @@ def test_the_readmes_rest_and_websocket_block_works_as_written(make_run: MakeRun
     assert all({"seq", "t", "x_mm", "locked", "crlb_um"} <= set(m) for m in messages), messages[0]
     seqs = [m["seq"] for m in messages]
     assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs)
+
+
+def fifo_threads(pid: int) -> list[str]:
+    """The names of the threads of process ``pid`` that run under SCHED_FIFO."""
+    found = []
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        try:
+            # the daemon raises its threads with SCHED_RESET_ON_FORK, which the policy read back carries
+            if os.sched_getscheduler(int(task.name)) & ~getattr(os, "SCHED_RESET_ON_FORK", 0) == os.SCHED_FIFO:
+                found.append((task / "comm").read_text().strip())
+        except OSError:  # the thread ended meanwhile
+            pass
+    return found
+
+
+@pytest.mark.skipif(not hasattr(os, "SCHED_FIFO"), reason="no SCHED_FIFO on this platform")
+def test_the_readmes_realtime_block_turns_sched_fifo_off(make_run: MakeRun, tmp_path: Path) -> None:
+    """README's "Real-time priority": `make run`'s daemon, run as root, has threads under SCHED_FIFO; the
+    block, saved as the configuration file, starts a daemon whose threads all run ordinary scheduling."""
+    wait_for(lambda: httpx.get(f"{make_run.url}/api/status", timeout=5).json()["state"] == "tracking",
+             RUN_S, "the daemon to track")
+    if os.geteuid() == 0:  # the default takes it where the system grants it (root here)
+        assert len(fifo_threads(make_run.pid)) >= 3, fifo_threads(make_run.pid)  # frame loop, event loop, poller
+    config = tmp_path / "graytrack.toml"
+    config.write_text(doc_block("README.md", "[daemon]", "toml").code)
+    port, log = free_port(), tmp_path / "serve.log"
+    with log.open("w") as sink:
+        process = subprocess.Popen([sys.executable, "-m", "graytrack", "serve", "--config", str(config), "--host",
+                                    "127.0.0.1", "--port", str(port), "--data-dir", str(tmp_path / "data")],
+                                   cwd=ROOT, env=make_run.env(), stdout=sink, stderr=sink)
+    try:
+        def rig_open() -> bool:  # the frame loop and the grating poller run from here on
+            assert process.poll() is None, log.read_text()[-2000:]
+            try:
+                return httpx.get(f"http://127.0.0.1:{port}/api/status", timeout=5).json()["state"] in (
+                    "calibrating", "tracking")
+            except httpx.TransportError:
+                return False
+
+        wait_for(rig_open, RUN_S, "the daemon with the README's configuration to open the rig")
+        assert fifo_threads(process.pid) == []
+        assert "SCHED_FIFO" not in log.read_text()
+    finally:
+        process.terminate()
+        process.wait(timeout=30)
