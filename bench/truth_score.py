@@ -110,7 +110,9 @@ def estimator_scored(model, run, truth, trim: bool = False, no_reference: bool =
     far = placed & (np.abs(error) > FAR_PULL * bound)
     flagged = result.stale
     focus = np.isfinite(result.focus_px2)
-    return Score(frames=int(placed.size), placed=int(placed.sum()), lost=int((~placed).sum()), repeated=0,
+    repeated = result.repeated
+    return Score(frames=int(placed.size), placed=int(placed.sum()), lost=int((~placed & ~repeated).sum()),
+                 repeated=int(repeated.sum()),
                  std_um=float(np.nanstd(error)), rms_um=float(np.sqrt(np.nanmean(error ** 2))),
                  bound_um=float(np.sqrt(np.nanmean(bound ** 2))), flagged=int(flagged.sum()), far=int(far.sum()),
                  silent=int((far & ~flagged).sum()), marks=0, focus=int(focus.sum()), trimmed=0)

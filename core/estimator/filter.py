@@ -37,9 +37,10 @@ import numpy as np
 from graytrack.core.chi2_curve import Chi2Curve
 from graytrack.core.compression import stream_bound_factor, stream_chi2_spread
 from graytrack.core.errors import TrackingError
+from graytrack.core import repeats
 from graytrack.core.estimator import kernel
 from graytrack.core.estimator.settings import EstimatorSettings
-from graytrack.core.estimator.state import A1, A2, B, C, G, L, M, N_STATE, OFS, STATE, T, V, X
+from graytrack.core.estimator.state import A1, A2, B, C, G, L, M, N_STATE, OFS, SK, STATE, T, V, X
 from graytrack.core.frame_tables import FrameTables
 from graytrack.core.kernels import TableEvaluator
 from graytrack.core.models.fourier import FourierModel
@@ -81,6 +82,7 @@ class FrameEstimate:
     place_mm: float
     place_sigma_mm: float
     mode: str  # the family whose jump this frame took ("" none)
+    repeated: bool  # the driver delivered the last image again (core/repeats.py): set aside, no position
     stale: bool
     stale_reason: str
     message: str
@@ -171,10 +173,13 @@ class Estimator:
         rates[M] = settings.stretch_rate
         rates[C] = settings.place_rate
         rates[T] = settings.tilt_rate
+        rates[SK] = settings.skew_rate
         self.rates2 = rates ** 2
         active = [X, V, G, OFS, A1, A2, B, M]
         if grating != "check":  # checked, the grating judges the place and the slide; else they are states
             active += [C, L]
+        if grating == "fuse":  # fused, the grating's own latch against the exposure is one too
+            active.append(SK)
         if model.n_rows > 1:
             active.append(T)
         self.idx = np.array(sorted(active), dtype=np.int64)
@@ -184,6 +189,7 @@ class Estimator:
         self.s = np.zeros(N_STATE)
         self.P = np.zeros((N_STATE, N_STATE))
         self.t_last: float | None = None
+        self.last_frame: np.ndarray | None = None
         self.dt_last = 0.0
         self.failed = 0
         self.started = False
@@ -214,6 +220,7 @@ class Estimator:
         prior[C] = settings.grating_sigma
         prior[L] = settings.lever_prior * pitch
         prior[T] = 1e-6
+        prior[SK] = settings.skew_prior
         self.P[:] = np.diag(prior ** 2)
         self.t_last = t
         self.started = True
@@ -228,6 +235,12 @@ class Estimator:
 
     def update(self, frame: np.ndarray, t: float, reference_mm: float = math.nan) -> FrameEstimate:
         """The frame at time ``t`` (mid-exposure) with its grating reading (NaN: none)."""
+        frame = np.asarray(frame)
+        last, self.last_frame = self.last_frame, frame
+        if last is not None and last.shape == frame.shape and \
+                repeats.repeated(frame[None], self.model.noise_gray or 0.0, last)[0]:
+            # the image shows where the stage was, its time and grating where it is: no measurement of either
+            return self._unplaced(t, self.stats, math.nan, "the driver delivered the last image again", True)
         y, mask = self._prepared(frame)
         if not self.started or self.failed >= FAILED_TO_REACQUIRE:
             self._acquire(y, mask, t, reference_mm)
@@ -384,7 +397,7 @@ class Estimator:
             gain=float(s[G]), offset_gray=float(s[OFS]), focus_px2=float(focus),
             focus_sigma_px2=float(focus_sigma) if math.isfinite(focus) else math.nan,
             stretch=float(s[M]), stretch_sigma=float(sigma[M]), place_mm=float(s[C]), place_sigma_mm=float(sigma[C]),
-            mode=mode, stale=stale, stale_reason=reason, message=message,
+            mode=mode, repeated=False, stale=stale, stale_reason=reason, message=message,
             state=tuple(s.tolist()), sigma=tuple(sigma.tolist()))
 
     def _model_share(self, x_mm: float) -> float:
@@ -413,14 +426,15 @@ class Estimator:
                 best, family = removed, name
         return family
 
-    def _unplaced(self, t: float, stats: np.ndarray, test: float, why: str) -> FrameEstimate:
+    def _unplaced(self, t: float, stats: np.ndarray, test: float, why: str, repeated: bool = False) -> FrameEstimate:
         nan = math.nan
         return FrameEstimate(t=t, x_mm=nan, crlb_mm=nan, floor_mm=nan, locked=False,
                              rms_gray=float(stats[kernel.S_RMS]), chi2=nan, test=float(test),
                              rejected_px=int(stats[kernel.S_REJECTED]), iterations=int(stats[kernel.S_ITER]),
                              gain=nan, offset_gray=nan, focus_px2=nan, focus_sigma_px2=nan, stretch=nan,
-                             stretch_sigma=nan, place_mm=nan, place_sigma_mm=nan, mode="", stale=True,
-                             stale_reason="transients" if stats[kernel.S_REJECTED] else "light",
+                             stretch_sigma=nan, place_mm=nan, place_sigma_mm=nan, mode="", repeated=repeated,
+                             stale=not repeated,
+                             stale_reason="" if repeated else "transients" if stats[kernel.S_REJECTED] else "light",
                              message=f"not placed: {why}", state=tuple(float(v) for v in self.s),
                              sigma=tuple(float(v) for v in np.sqrt(np.maximum(np.diag(self.P), 0.0))))
 
@@ -486,7 +500,7 @@ def as_result(estimates: list[FrameEstimate], chi2_calibration: float) -> "Track
                        crlb_mm=column("crlb_mm"), iterations=column("iterations", np.int64), gain=column("gain"),
                        offset_gray=column("offset_gray"), events=events, chi2=column("chi2"),
                        rejected_px=column("rejected_px", np.int64), stale=column("stale", bool),
-                       chi2_calibration=chi2_calibration, stale_reason=column("stale_reason", object).astype(str),
+                       chi2_calibration=chi2_calibration, repeated=column("repeated", bool), stale_reason=column("stale_reason", object).astype(str),
                        transient_px=np.zeros(len(estimates), dtype=np.int64), focus_px2=column("focus_px2"),
                        focus_sigma_px2=column("focus_sigma_px2"))
 

@@ -29,7 +29,7 @@ import math
 import numpy as np
 
 from graytrack.core import kernels
-from graytrack.core.estimator.state import A1, A2, B, C, G, L, M, N_STATE, OFS, T, V, X
+from graytrack.core.estimator.state import A1, A2, B, C, G, L, M, N_STATE, OFS, SK, T, V, X
 
 MAD_TO_SIGMA = 1.4826
 ROBUST_ROUNDS = 6  # reweightings at most: the redescending weights settle in 2–3 on a frame with a blob
@@ -137,6 +137,26 @@ def _normal(s: np.ndarray, idx: np.ndarray, y: np.ndarray, w: np.ndarray, rho: n
     return cost
 
 
+def _grating(s: np.ndarray, idx: np.ndarray, z: float, weight: float, A: np.ndarray, rhs: np.ndarray) -> float:
+    """The grating's reading z = x − v·τ (latched τ before mid-exposure) into the normal equations;
+    returns its χ² term."""
+    n = idx.size
+    jac = np.zeros(n)
+    for i in range(n):
+        if idx[i] == X:
+            jac[i] = 1.0
+        elif idx[i] == V:
+            jac[i] = -s[SK]
+        elif idx[i] == SK:
+            jac[i] = -s[V]
+    r = z - (s[X] - s[V] * s[SK])
+    for i in range(n):
+        rhs[i] += weight * jac[i] * r
+        for j in range(n):
+            A[i, j] += weight * jac[i] * jac[j]
+    return weight * r * r
+
+
 def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndarray, y: np.ndarray, mask: np.ndarray,
            noise: np.ndarray, t_rel: np.ndarray, r_rel: np.ndarray, b1: np.ndarray, b2: np.ndarray,
            pitch_mm: float, period_mm: float, grating_z: float, grating_w: float, robust: bool, core: float,
@@ -153,10 +173,6 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
     Pinv = information(P_prior, idx)
     values, slopes, smooth, curvature, w, residual = (scratch[0], scratch[1], scratch[2], scratch[3], scratch[4],
                                                       scratch[5])
-    ix = -1
-    for i in range(n):
-        if idx[i] == X:
-            ix = i
     xi = s[X] + s[C] + s[L] * s[M]
     step = CURVATURE_STEP_PERIODS * period_mm
     _evaluate(xi + step, model, values, curvature, smooth)
@@ -196,9 +212,8 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
                     acc += Pinv[i, j] * (s[idx[j]] - s_prior[idx[j]])
                     A[i, j] += Pinv[i, j]
                 rhs[i] -= acc
-            if ix >= 0 and grating_w > 0.0:
-                A[ix, ix] += grating_w
-                rhs[ix] += grating_w * (grating_z - s[X])
+            if grating_w > 0.0:
+                _grating(s, idx, grating_z, grating_w, A, rhs)
             delta[:] = np.linalg.solve(A, rhs)
             moved = 0.0
             for i in range(n):
@@ -219,11 +234,16 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
         # robust σ of the normalised residuals (never below the noise model's), then redescending weights
         z = np.empty(y.size)
         count = 0
+        largest = 0.0
         for p in range(y.size):
             if w[p] > 0.0:
                 z[count] = abs(residual[p]) * math.sqrt(w[p])
+                if z[count] > largest:
+                    largest = z[count]
                 count += 1
         if count == 0:
+            break
+        if round_ == 0 and largest <= core:  # within the core at the noise model's σ: every weight stays 1
             break
         scale = MAD_TO_SIGMA * np.median(z[:count])
         if scale < 1.0:
@@ -257,9 +277,8 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
             acc += Pinv[i, j] * (s[idx[j]] - s_prior[idx[j]])
         prior += (s[idx[i]] - s_prior[idx[i]]) * acc
     grating_cost = 0.0
-    if ix >= 0 and grating_w > 0.0:
-        A[ix, ix] += grating_w
-        grating_cost = grating_w * (grating_z - s[X]) ** 2
+    if grating_w > 0.0:
+        grating_cost = _grating(s, idx, grating_z, grating_w, A, rhs)
     A_out[:, :] = A
     used = 0.0
     rejected = 0.0
@@ -295,4 +314,5 @@ if kernels.COMPILED:
     embed = _jit(embed)
     _evaluate = _jit(_evaluate)
     _normal = _jit(_normal)
+    _grating = _jit(_grating)
     update = _jit(update)

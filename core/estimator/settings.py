@@ -75,6 +75,15 @@ TUNABLES: dict[str, Tunable] = {
     "tilt_rate": Tunable(
         1e-6, "mm/row/√s", "the camera turning about the optical axis in a second (a clamped mount: µrad)",
         low=0.0),
+    "skew_rate": Tunable(
+        3e-5, "s/√s",
+        "how fast the grating's latch drifts against the exposure in a second (a camera's and a controller's "
+        "clocks running apart); at constant speed a latch looks like the camera's place, so a freer latch "
+        "blurs the place and the fused position with it", low=0.0),
+    "skew_prior": Tunable(
+        3e-5, "s", "how far the grating's latch may be from mid-exposure before any frame (a controller's "
+        "latch jitter; the model's own latency, when calibration found one, is taken out first): a wider prior "
+        "lets the latch take noise for a skew and bias the fused position", low=0.0),
     "lever_prior": Tunable(
         300.0, "px",
         "how far the optical axis may be from the ROI's centre along the line (a camera's ROI is rarely centred "
@@ -143,6 +152,8 @@ class EstimatorSettings:
     stretch_prior: float = TUNABLES["stretch_prior"].default
     place_rate: float = TUNABLES["place_rate"].default
     tilt_rate: float = TUNABLES["tilt_rate"].default
+    skew_rate: float = TUNABLES["skew_rate"].default
+    skew_prior: float = TUNABLES["skew_prior"].default
     lever_prior: float = TUNABLES["lever_prior"].default
     grating_sigma: float = TUNABLES["grating_sigma"].default
     jump_light: float = TUNABLES["jump_light"].default

@@ -32,8 +32,9 @@ STATE: tuple[StateEntry, ...] = (
     StateEntry("place_mm", "mm", "geometry", "the image's offset against the carriage (the camera's place)"),
     StateEntry("lever_mm", "mm", "magnification", "the optical axis's distance behind the ROI's centre"),
     StateEntry("turn_mm_row", "mm/row", "geometry", "the image's shift per row (the camera turned)"),
+    StateEntry("skew_s", "s", "scale", "how much earlier than the exposure the grating was latched (with it fused)"),
 )
 INDEX = {entry.name: i for i, entry in enumerate(STATE)}
-X, V, G, OFS, A1, A2, B, M, C, L, T = range(len(STATE))
+X, V, G, OFS, A1, A2, B, M, C, L, T, SK = range(len(STATE))
 N_STATE = len(STATE)
 FAMILIES = {entry.family for entry in STATE}

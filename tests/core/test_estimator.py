@@ -111,3 +111,18 @@ def test_a_frame_estimate_is_made_once(paper):
     live = [estimate] + [estimator.update(run.frames[k], float(run.t[k]), float(run.reference[k]))
                          for k in range(1, run.frames.shape[0])]
     assert [e.x_mm for e in live] == [e.x_mm for e in batch]
+
+
+def test_an_image_delivered_twice_is_set_aside(paper):
+    """A driver that hands out the last buffer again: its time and grating say where the stage is, its
+    image where it was; neither a position nor a flag, and the frames after it tracked as before."""
+    run, truth = build_rig("paper", "", seed=4, run=5).record(1.0)
+    frames = run.frames.copy()
+    frames[20] = frames[19]
+    estimates = track(paper, frames, run.t, run.reference, grating="fuse")
+    assert estimates[20].repeated and math.isnan(estimates[20].x_mm) and not estimates[20].stale
+    assert not any(e.repeated for k, e in enumerate(estimates) if k != 20)
+    error, bound = _errors(paper, estimates, truth, "fuse")
+    placed = np.isfinite(error)
+    assert placed.sum() == len(estimates) - 1
+    assert np.all(np.abs(error[placed]) < 4 * bound[placed])
