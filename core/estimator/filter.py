@@ -500,7 +500,8 @@ def as_result(estimates: list[FrameEstimate], chi2_calibration: float) -> "Track
                        crlb_mm=column("crlb_mm"), iterations=column("iterations", np.int64), gain=column("gain"),
                        offset_gray=column("offset_gray"), events=events, chi2=column("chi2"),
                        rejected_px=column("rejected_px", np.int64), stale=column("stale", bool),
-                       chi2_calibration=chi2_calibration, repeated=column("repeated", bool), stale_reason=column("stale_reason", object).astype(str),
+                       chi2_calibration=chi2_calibration, repeated=column("repeated", bool),
+                       stale_reason=column("stale_reason", object).astype(str),
                        transient_px=np.zeros(len(estimates), dtype=np.int64), focus_px2=column("focus_px2"),
                        focus_sigma_px2=column("focus_sigma_px2"))
 
