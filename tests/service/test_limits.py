@@ -21,6 +21,7 @@ from tests.service.hostile import (Slowloris, StreamReader, big_frame_clients, c
                                    idle_sockets, raise_fd_limit, rss_mb, ws_handshake)
 
 MAX_CONNECTIONS = 40
+PER_CLIENT = 16  # [daemon] max_connections_per_client: the global limit's tests spread over several clients
 REQUEST_TIMEOUT_S = 1.0
 FRAMES_PER_S = 200.0  # the fast test rig's 20 simulated frames/s at 10x wall time (helpers.FAST_TABLES)
 
@@ -29,7 +30,8 @@ FRAMES_PER_S = 200.0  # the fast test rig's 20 simulated frames/s at 10x wall ti
 def daemon(tmp_path_factory: pytest.TempPathFactory):
     raise_fd_limit(1024)
     with ServeProcess(tmp_path_factory.mktemp("limits"), daemon={
-            "max_connections": MAX_CONNECTIONS, "request_timeout_s": REQUEST_TIMEOUT_S}) as process:
+            "max_connections": MAX_CONNECTIONS, "max_connections_per_client": PER_CLIENT,
+            "request_timeout_s": REQUEST_TIMEOUT_S}) as process:
         process.wait_state("tracking", timeout_s=120)
         yield process
 
@@ -63,8 +65,8 @@ def test_a_client_message_over_the_control_size_closes_the_stream_1009(daemon: S
 
 
 def test_idle_connections_do_not_disturb_the_stream_and_are_closed(daemon: ServeProcess) -> None:
-    """200 idle connections (5x the limit): those beyond twice the limit are closed at once, the others
-    after request_timeout_s; the stream's reader sees every message meanwhile."""
+    """200 idle connections from one client (5x the limit): those beyond twice its limit are closed at once, the
+    others after request_timeout_s; the stream's reader sees every message meanwhile."""
     with StreamReader(daemon.port) as reader:
         assert reader.error is None, reader.error
         started = time.monotonic()
@@ -111,8 +113,9 @@ def test_a_request_head_over_16_kib_is_431_whole_or_trickled(daemon: ServeProces
 
 
 def test_beyond_the_limit_a_request_gets_503_and_a_websocket_1013_with_the_reason(daemon: ServeProcess) -> None:
-    """The handshake of a refused WebSocket completes (101), so the client sees the close code and reason."""
-    socks = idle_sockets(daemon.port, MAX_CONNECTIONS)
+    """The handshake of a refused WebSocket completes (101), so the client sees the close code and reason.
+    The connections come from four clients, each within its own limit."""
+    socks = [s for i in range(4) for s in idle_sockets(daemon.port, MAX_CONNECTIONS // 4, f"127.0.0.{i + 2}")]
     try:
         refused = httpx.get(f"{daemon.base}/api/status", timeout=5)
         sock, answer = ws_handshake(daemon.port)
@@ -134,5 +137,33 @@ def test_beyond_the_limit_a_request_gets_503_and_a_websocket_1013_with_the_reaso
     assert code is not None and code[0] == 1013 and "max_connections" in code[1], code
     wait_for(lambda: httpx.get(f"{daemon.base}/api/status", timeout=5).status_code == 200, 5.0, "room again")
     with pytest.raises(InvalidStatus):  # a foreign Host is still refused before any of this (handshake 403)
-        connect(f"ws://127.0.0.1:{daemon.port}/ws/position", additional_headers={"Host": "evil.example"},
-                open_timeout=5)
+        connect(f"ws://evil.example:{daemon.port}/ws/position", open_timeout=5,
+                sock=socket.create_connection(("127.0.0.1", daemon.port), timeout=5))
+
+
+def _refused_counter(daemon: ServeProcess, why: str) -> float:
+    name = f'graytrack_connections_refused_total{{why="{why}"}}'
+    scrape = httpx.get(f"{daemon.base}/metrics", timeout=5).text
+    return float(next(line for line in scrape.splitlines() if line.startswith(name)).split()[-1])
+
+
+def test_one_client_holding_connections_locks_out_only_itself(daemon: ServeProcess) -> None:
+    """Before the per-client cap, one client holding max_connections sockets locked every other out (issue #48).
+    Now its requests beyond its own share get 503 naming the per-client limit, its connections beyond twice
+    that are closed as they open, and another client is served meanwhile."""
+    dropped_before = _refused_counter(daemon, "dropped")
+    hog = idle_sockets(daemon.port, PER_CLIENT + 4, "127.0.0.9")
+    try:
+        with httpx.Client(transport=httpx.HTTPTransport(local_address="127.0.0.9"), timeout=5) as same_client:
+            refused = same_client.get(f"{daemon.base}/api/status")
+        hog += idle_sockets(daemon.port, PER_CLIENT, "127.0.0.9")  # up to 36: the last ones beyond twice its share
+        other = httpx.get(f"{daemon.base}/api/status", timeout=5)
+    finally:
+        for s in hog:
+            s.close()
+    assert refused.status_code == 503, refused.text
+    assert f"at most {PER_CLIENT} connections from one client" in refused.json()["error"]
+    assert "max_connections_per_client" in refused.json()["error"] and refused.headers["retry-after"] == "1"
+    assert other.status_code == 200 and other.json()["state"] == "tracking"
+    dropped = _refused_counter(daemon, "dropped") - dropped_before
+    assert 0 < dropped <= 4, dropped  # beyond twice its share (old code: none, all 36 held)

@@ -1,0 +1,60 @@
+"""A real ``graytrack serve`` on the virtual rig under pipelined HTTP requests (issue #48, docs/daemon.md
+"Resource limits"): 10 loopback connections each writing ``GET /api/status`` 100 at a time without waiting
+for the answers, for 20 s, reading what comes back. Prints the daemon's RSS before, at its peak during the
+flood and after the connections closed, what the flood was answered, and the rig's counters (frames lost,
+the stage link's failed readings, faults) over the flood against a quiet window of the same length just
+before it.
+
+    nice -n 5 .venv/bin/python bench/pipeline_flood.py [--connections 10] [--seconds 20] [--unread] [--test-rig]
+
+``--unread``: the flood never reads its answers (the daemon's writes back up instead). ``--test-rig``: the
+tests' fast rig (tests/service/helpers.py: 200 frames per wall second, the virtual rig inside the daemon's
+process) instead of the embedded default that ``make run`` starts.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the tests' daemon and client helpers
+
+from tests.service.helpers import ServeProcess  # noqa: E402
+from tests.service.hostile import quiet_then_flood  # noqa: E402
+
+SHOWN = ("frames", "frames_lost", "camera_dropped", "grating_errors", "faults")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--connections", type=int, default=10, help="pipelining connections")
+    parser.add_argument("--seconds", type=float, default=20.0, help="length of the flood (and of the quiet window)")
+    parser.add_argument("--unread", action="store_true", help="the flood leaves its answers unread")
+    parser.add_argument("--test-rig", action="store_true", help="the tests' fast rig instead of the default one")
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as folder, \
+            ServeProcess(Path(folder), default_rig=not args.test_rig) as daemon:
+        daemon.wait_state("tracking", timeout_s=300)
+        figures = quiet_then_flood(daemon.base, daemon.process.pid, daemon.port, args.seconds, args.connections,
+                                   read_answers=not args.unread)
+        alive = daemon.status() is not None
+        code = daemon.terminate()
+    flood = figures.client
+    print(f"{args.connections} connections pipelining GET /api/status for {args.seconds:g} s "
+          f"({'answers unread' if args.unread else 'reading the answers'}): {flood.sent_requests:,} requests "
+          f"written, {flood.answers:,} answered {dict(sorted(flood.statuses.items()))}; "
+          f"{len(flood.errors)} connection errors {flood.errors[:3]}")
+    print(f"RSS: {figures.rss_before_mb:.0f} MB before, peak {figures.rss_peak_mb:.0f} during "
+          f"(+{figures.rss_peak_mb - figures.rss_before_mb:.1f}), {figures.rss_after_mb:.0f} after closing "
+          f"(+{figures.rss_after_mb - figures.rss_before_mb:.1f})")
+    for name, window in (("quiet", figures.quiet), ("flood", figures.flood)):
+        print(f"{name:>5} {args.seconds:g} s: " + ", ".join(f"{key} {window[key]:.0f}" for key in SHOWN))
+    tracebacks = daemon.stderr.count("Traceback")
+    print(f"daemon answering after the flood: {alive}; exit status {code}; {tracebacks} tracebacks, "
+          f"{len(daemon.stderr.splitlines())} lines in its log")
+
+
+if __name__ == "__main__":
+    main()
