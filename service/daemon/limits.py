@@ -61,6 +61,7 @@ HARD_CAP_FACTOR = 2  # beyond this many times a connection limit a connection is
 REFUSAL_LOG_INTERVAL_S = 60.0
 HEAD_TOO_LARGE = f"the request's target and headers exceed {MAX_HEAD_BYTES} bytes"
 BURST_S = 1.0  # the request budget's buckets hold a second's worth: a page loading its files at once never waits
+TOKEN_SLACK = 1e-9  # a refill summed from float steps may fall short of a whole token by rounding
 MAX_TRACKED_CLIENTS = 1024  # request budgets kept before the full ones are forgotten
 IPV6_CLIENT_PREFIX = 64  # one IPv6 client is its /64: a host picks addresses within it at will (SLAAC, privacy)
 
@@ -124,7 +125,7 @@ class RequestBudget:
         now = self._monotonic()
         total = self._level(self._total, self.total_hz, now)
         own = self._level(self._clients.get(key, (self.per_client_hz * self.burst_s, now)), self.per_client_hz, now)
-        if total >= 1.0 and own >= 1.0:
+        if total >= 1.0 - TOKEN_SLACK and own >= 1.0 - TOKEN_SLACK:
             self._total, self._clients[key] = (total - 1.0, now), (own - 1.0, now)
             if len(self._clients) > MAX_TRACKED_CLIENTS:
                 self._forget_full(now)
