@@ -21,6 +21,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the tests' daemon and client helpers
 
+import httpx  # noqa: E402
+
 from tests.service.helpers import ServeProcess  # noqa: E402
 from tests.service.hostile import quiet_then_flood  # noqa: E402
 
@@ -40,6 +42,8 @@ def main() -> None:
         figures = quiet_then_flood(daemon.base, daemon.process.pid, daemon.port, args.seconds, args.connections,
                                    read_answers=not args.unread)
         alive = daemon.status() is not None
+        limits = [line for line in httpx.get(f"{daemon.base}/metrics", timeout=10).text.splitlines()
+                  if line.startswith(("graytrack_connections_refused_total{", "graytrack_requests_paced_total "))]
         code = daemon.terminate()
     flood = figures.client
     print(f"{args.connections} connections pipelining GET /api/status for {args.seconds:g} s "
@@ -51,6 +55,7 @@ def main() -> None:
           f"(+{figures.rss_after_mb - figures.rss_before_mb:.1f})")
     for name, window in (("quiet", figures.quiet), ("flood", figures.flood)):
         print(f"{name:>5} {args.seconds:g} s: " + ", ".join(f"{key} {window[key]:.0f}" for key in SHOWN))
+    print("what the limits did: " + ", ".join(line.removeprefix("graytrack_") for line in limits))
     tracebacks = daemon.stderr.count("Traceback")
     print(f"daemon answering after the flood: {alive}; exit status {code}; {tracebacks} tracebacks, "
           f"{len(daemon.stderr.splitlines())} lines in its log")

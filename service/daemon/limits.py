@@ -61,7 +61,6 @@ HARD_CAP_FACTOR = 2  # beyond this many times a connection limit a connection is
 REFUSAL_LOG_INTERVAL_S = 60.0
 HEAD_TOO_LARGE = f"the request's target and headers exceed {MAX_HEAD_BYTES} bytes"
 BURST_S = 1.0  # the request budget's buckets hold a second's worth: a page loading its files at once never waits
-TOKEN_SLACK = 1e-9  # a refill summed from float steps may fall short of a whole token by rounding
 MAX_TRACKED_CLIENTS = 1024  # request budgets kept before the full ones are forgotten
 IPV6_CLIENT_PREFIX = 64  # one IPv6 client is its /64: a host picks addresses within it at will (SLAAC, privacy)
 
@@ -106,8 +105,11 @@ class Ticket:
 
 
 class RequestBudget:
-    """Token buckets of requests begun: one per client, one for all. A request waits for a token of both (its
-    bytes unparsed, the socket not read); it is never refused for this, only paced."""
+    """Token buckets of requests begun: one per client, one for all, each holding ``burst_s`` worth of its rate.
+    A request takes a token of both at once, lent when there is none: it then waits until the debt is paid
+    back by the rate (its bytes unparsed, the socket unread), and goes on without asking again. Paced, never
+    refused; each waiting connection is woken once, at its turn (a connection has one request in work, so the
+    debt is at most the open connections' count)."""
 
     def __init__(self, per_client_hz: float, total_hz: float, burst_s: float,
                  monotonic: Callable[[], float] = time.monotonic) -> None:
@@ -121,16 +123,15 @@ class RequestBudget:
         return min(rate * self.burst_s, tokens + rate * (now - at))
 
     def take(self, key: str) -> float:
-        """0 after taking a token for a request of client ``key``; else the seconds until one is there."""
+        """Take a token for a request of client ``key``: the seconds it has to wait for it (0: go now)."""
         now = self._monotonic()
-        total = self._level(self._total, self.total_hz, now)
-        own = self._level(self._clients.get(key, (self.per_client_hz * self.burst_s, now)), self.per_client_hz, now)
-        if total >= 1.0 - TOKEN_SLACK and own >= 1.0 - TOKEN_SLACK:
-            self._total, self._clients[key] = (total - 1.0, now), (own - 1.0, now)
-            if len(self._clients) > MAX_TRACKED_CLIENTS:
-                self._forget_full(now)
-            return 0.0
-        return max((1.0 - total) / self.total_hz, (1.0 - own) / self.per_client_hz, 0.0)
+        total = self._level(self._total, self.total_hz, now) - 1.0
+        own = self._level(self._clients.get(key, (self.per_client_hz * self.burst_s, now)), self.per_client_hz,
+                          now) - 1.0
+        self._total, self._clients[key] = (total, now), (own, now)
+        if len(self._clients) > MAX_TRACKED_CLIENTS:
+            self._forget_full(now)
+        return max(-total / self.total_hz, -own / self.per_client_hz, 0.0)
 
     def _forget_full(self, now: float) -> None:
         """Drop the clients whose bucket has filled again: a new one starts full anyway."""
@@ -267,6 +268,7 @@ class GuardedHttpProtocol(HttpToolsProtocol):
         self.chunked = False
         self.held = False  # reading paused here because the next request waits for an answer
         self.pacing: Any = None  # asyncio.TimerHandle while the next request waits for the request budget
+        self.budgeted = False  # the next request has its token (taken, its wait over or under way)
 
     @property
     def holds_unparsed(self) -> bool:
@@ -347,10 +349,11 @@ class GuardedHttpProtocol(HttpToolsProtocol):
             if self._answer_pending() and not self.in_body:  # the next request's bytes: they wait
                 self._hold()
                 return
-            if self.pacing is not None:  # waiting for the budget already
+            if self.pacing is not None:  # waiting for its turn in the budget
                 return
-            if not self.in_head and not self.in_body and self.ticket is not None:
+            if not self.in_head and not self.in_body and not self.budgeted and self.ticket is not None:
                 wait_s = self.limits.budget.take(self.ticket.key)  # a new request begins: the budget's token
+                self.budgeted = True
                 if wait_s > 0:
                     self.limits.paced += 1
                     self._hold()
@@ -422,7 +425,7 @@ class GuardedHttpProtocol(HttpToolsProtocol):
 
     def on_message_begin(self) -> None:
         super().on_message_begin()
-        self.head_bytes, self.in_head = 0, True
+        self.head_bytes, self.in_head, self.budgeted = 0, True, False
         self.body_left, self.chunked = None, False
         self._arm()
 

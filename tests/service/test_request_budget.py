@@ -18,23 +18,24 @@ class Clock:
         return self.now
 
 
-def test_a_client_gets_a_seconds_worth_at_once_then_its_rate() -> None:
+def test_a_client_gets_a_seconds_worth_at_once_then_its_turns_at_its_rate() -> None:
     clock = Clock()
-    budget = RequestBudget(per_client_hz=10.0, total_hz=1000.0, burst_s=1.0, monotonic=clock)
-    assert [budget.take("a") for _ in range(10)] == [0.0] * 10
-    assert budget.take("a") == pytest.approx(0.1)  # the next token in a tenth of a second
+    budget = RequestBudget(per_client_hz=8.0, total_hz=1000.0, burst_s=1.0, monotonic=clock)
+    assert [budget.take("a") for _ in range(8)] == [0.0] * 8
+    # each further request has its token lent and waits its turn, once (no retry, no crowd at each refill)
+    assert [budget.take("a") for _ in range(3)] == [0.125, 0.25, 0.375]
     assert budget.take("b") == 0.0, "another client has its own bucket"
-    clock.now += 0.1
-    assert budget.take("a") == 0.0 and budget.take("a") > 0
+    clock.now += 0.375  # the three waiting ones went
+    assert budget.take("a") == 0.125
     clock.now += 60
-    assert [budget.take("a") for _ in range(11)].count(0.0) == 10, "refilled to a second's worth, no more"
+    assert [budget.take("a") for _ in range(9)].count(0.0) == 8, "refilled to a second's worth, no more"
 
 
 def test_all_clients_together_share_the_total() -> None:
     clock = Clock()
-    budget = RequestBudget(per_client_hz=100.0, total_hz=20.0, burst_s=1.0, monotonic=clock)
-    taken = [budget.take(f"client{i % 5}") for i in range(25)]
-    assert taken.count(0.0) == 20 and taken[-1] == pytest.approx(0.05)
+    budget = RequestBudget(per_client_hz=100.0, total_hz=16.0, burst_s=1.0, monotonic=clock)
+    waits = [budget.take(f"client{i % 4}") for i in range(20)]
+    assert waits[:16] == [0.0] * 16 and waits[16:] == [0.0625, 0.125, 0.1875, 0.25]
 
 
 def test_full_buckets_are_forgotten_beyond_the_tracked_clients(monkeypatch: pytest.MonkeyPatch) -> None:

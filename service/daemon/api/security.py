@@ -6,12 +6,14 @@
 * a request that changes state is refused before its body is read when the bearer token is
   missing or wrong, and its body may not exceed 64 KiB (checked while it arrives, before any
   parsing): a large anonymous body costs the daemon nothing;
-* every HTTP request and the WebSocket name this machine in their Host (a DNS-rebound name is
+* every HTTP request and the WebSocket name this machine in exactly one Host (a DNS-rebound name is
   refused: a page on another site could otherwise read the status, the events and the recordings
-  through a name it controls); the WebSocket accepts a browser only from its own origin (or a
+  through a name it controls; a second Host could name another to a proxy in front), and a request
+  target in absolute form names it too; the WebSocket accepts a browser only from its own origin (or a
   configured one), and asks for the token when the daemon listens beyond loopback;
 * an error the routes did not foresee is still a JSON answer with these headers (logged with its
-  traceback), never a bare text 500.
+  traceback), never a bare text 500; the answers the HTTP protocol writes itself (limits.py) carry them too;
+* every GET route answers HEAD: the GET's status and headers, without the body.
 """
 
 from __future__ import annotations
