@@ -18,6 +18,10 @@ and in :class:`ws_protocol.StreamProtocol` for upgraded connections:
   request and no further, and the next request's bytes wait unparsed, the socket not read, until the
   answer to the current one is written (pipelining is served in order, nothing piles up: a connection
   holds at most one read of bytes, 256 KiB, and one request in work);
+* a client (its address; an IPv6 one by its /64) begins at most ``requests_per_s_per_client`` requests a
+  second, and all together ``requests_per_s`` (each a second's worth at once): beyond, the next request
+  waits its turn unparsed (:class:`RequestBudget`), so a flood spends a bounded share of the interpreter
+  the frame loop and the stage link run in, and is slowed, not refused;
 * an answer the client does not take (the transport's buffer above its high-water mark) for
   ``request_timeout_s`` closes the connection;
 * a request (head and body) must arrive whole within ``request_timeout_s`` of its first byte, or of

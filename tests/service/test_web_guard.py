@@ -252,10 +252,19 @@ def test_a_request_names_exactly_one_host(daemon: LiveServer, hosts: tuple[str, 
                                                                                                          body)
 
 
-def test_a_websocket_naming_two_hosts_is_refused(daemon: LiveServer) -> None:
-    with pytest.raises(InvalidStatus) as refused:
-        _ws(daemon, Host="localhost")  # added to the client's own Host: two of them
-    assert refused.value.response.status_code == 403
+def test_a_refused_websocket_gets_a_json_403_with_the_security_headers(daemon: LiveServer) -> None:
+    """Two Host headers on the handshake, or a foreign Origin: 403 with the reason as JSON (was an empty
+    text/plain 403) and the headers every answer carries."""
+    import json
+
+    for headers in ({"Host": "localhost"}, {"Origin": "http://evil.example"}):  # a Host added to the client's own
+        with pytest.raises(InvalidStatus) as refused:
+            _ws(daemon, **headers)
+        answer = refused.value.response
+        assert answer.status_code == 403 and answer.headers["content-type"] == "application/json"
+        assert answer.headers["x-frame-options"] == "DENY", answer.headers
+        reason = json.loads(answer.body)["error"]
+        assert ("exactly once" in reason) if "Host" in headers else ("Origin" in reason), reason
 
 
 @pytest.mark.parametrize("target, expected", [("http://evil.example/api/status", 400),
