@@ -2,14 +2,14 @@
 "Resource limits"): 10 loopback connections each writing ``GET /api/status`` 100 at a time without waiting
 for the answers, for 20 s, reading what comes back. Prints the daemon's RSS before, at its peak during the
 flood and after the connections closed, what the flood was answered, and the rig's counters (frames lost,
-the stage link's failed readings, faults) over the flood against a quiet window of the same length just
-before it.
+the stage link's failed readings, faults) over the flood against quiet windows of the same length just
+before and after it.
 
     nice -n 5 .venv/bin/python bench/pipeline_flood.py [--connections 10] [--seconds 20] [--unread] [--test-rig]
 
 ``--unread``: the flood never reads its answers (the daemon's writes back up instead). ``--test-rig``: the
-tests' fast rig (tests/service/helpers.py: 200 frames per wall second, the virtual rig inside the daemon's
-process) instead of the embedded default that ``make run`` starts.
+rig of tests/service/test_pipeline_flood.py (the tests' fast rig, 200 frames per wall second, its virtual rig
+in a process of its own) instead of the embedded default that ``make run`` starts.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the tests' daemo
 import httpx  # noqa: E402
 
 from tests.service.helpers import ServeProcess  # noqa: E402
-from tests.service.hostile import quiet_then_flood  # noqa: E402
+from tests.service.hostile import FLOOD_RIG, quiet_flood_quiet  # noqa: E402
 
 SHOWN = ("frames", "frames_lost", "camera_dropped", "grating_errors", "faults")
 
@@ -35,12 +35,15 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=20.0, help="length of the flood (and of the quiet window)")
     parser.add_argument("--unread", action="store_true", help="the flood leaves its answers unread")
     parser.add_argument("--test-rig", action="store_true", help="the tests' fast rig instead of the default one")
+    parser.add_argument("--client-hz", type=float, default=None,
+                        help="[daemon] requests_per_s_per_client of the test rig (default: the daemon's)")
     args = parser.parse_args()
+    tables = {**FLOOD_RIG, "daemon": {"requests_per_s_per_client": args.client_hz}} if args.client_hz else FLOOD_RIG
     with tempfile.TemporaryDirectory() as folder, \
-            ServeProcess(Path(folder), default_rig=not args.test_rig) as daemon:
+            ServeProcess(Path(folder), **tables) if args.test_rig else ServeProcess(Path(folder), True) as daemon:
         daemon.wait_state("tracking", timeout_s=300)
-        figures = quiet_then_flood(daemon.base, daemon.process.pid, daemon.port, args.seconds, args.connections,
-                                   read_answers=not args.unread)
+        figures = quiet_flood_quiet(daemon.base, daemon.process.pid, daemon.port, args.seconds, args.connections,
+                                    read_answers=not args.unread)
         alive = daemon.status() is not None
         limits = [line for line in httpx.get(f"{daemon.base}/metrics", timeout=10).text.splitlines()
                   if line.startswith(("graytrack_connections_refused_total{", "graytrack_requests_paced_total "))]
@@ -51,10 +54,11 @@ def main() -> None:
           f"written, {flood.answers:,} answered {dict(sorted(flood.statuses.items()))}; "
           f"{len(flood.errors)} connection errors {flood.errors[:3]}")
     print(f"RSS: {figures.rss_before_mb:.0f} MB before, peak {figures.rss_peak_mb:.0f} during "
-          f"(+{figures.rss_peak_mb - figures.rss_before_mb:.1f}), {figures.rss_after_mb:.0f} after closing "
+          f"(+{figures.rss_peak_mb - figures.rss_before_mb:.1f}), {figures.rss_after_mb:.0f} a quiet window after "
           f"(+{figures.rss_after_mb - figures.rss_before_mb:.1f})")
-    for name, window in (("quiet", figures.quiet), ("flood", figures.flood)):
-        print(f"{name:>5} {args.seconds:g} s: " + ", ".join(f"{key} {window[key]:.0f}" for key in SHOWN))
+    for name, window in (("quiet before", figures.quiet), ("flood", figures.flood),
+                         ("quiet after", figures.quiet_after)):
+        print(f"{name:>12} {args.seconds:g} s: " + ", ".join(f"{key} {window[key]:.0f}" for key in SHOWN))
     print("what the limits did: " + ", ".join(line.removeprefix("graytrack_") for line in limits))
     tracebacks = daemon.stderr.count("Traceback")
     print(f"daemon answering after the flood: {alive}; exit status {code}; {tracebacks} tracebacks, "

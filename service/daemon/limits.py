@@ -112,8 +112,8 @@ class RequestBudget:
     """Token buckets of requests begun: one per client, one for all, each holding ``burst_s`` worth of its rate.
     A request takes a token of both at once, lent when there is none: it then waits until the debt is paid
     back by the rate (its bytes unparsed, the socket unread), and goes on without asking again. Paced, never
-    refused; each waiting connection is woken once, at its turn (a connection has one request in work, so the
-    debt is at most the open connections' count)."""
+    refused; each waiting connection is woken once, at its turn. A connection has one request in work and gives
+    its lent token back when it closes while waiting, so the debt is at most the waiting connections' count."""
 
     def __init__(self, per_client_hz: float, total_hz: float, burst_s: float,
                  monotonic: Callable[[], float] = time.monotonic) -> None:
@@ -136,6 +136,15 @@ class RequestBudget:
         if len(self._clients) > MAX_TRACKED_CLIENTS:
             self._forget_full(now)
         return max(-total / self.total_hz, -own / self.per_client_hz, 0.0)
+
+    def give_back(self, key: str) -> None:
+        """Return the token a request of ``key`` was lent and never used (its connection closed while it waited):
+        the debt stays that of the requests waiting now, whatever comes and goes."""
+        now = self._monotonic()
+        total = self._level(self._total, self.total_hz, now)
+        own = self._level(self._clients.get(key, (0.0, now)), self.per_client_hz, now)
+        self._total = (min(total + 1.0, self.total_hz * self.burst_s), now)
+        self._clients[key] = (min(own + 1.0, self.per_client_hz * self.burst_s), now)
 
     def _forget_full(self, now: float) -> None:
         """Drop the clients whose bucket has filled again: a new one starts full anyway."""
@@ -312,7 +321,9 @@ class GuardedHttpProtocol(HttpToolsProtocol):
         if self.transport.is_closing():
             return
         self.limits.timed_out += 1
-        if self.received_any and (self.cycle is None or not self.cycle.response_started):
+        # a 408 only where no answer is half-written (a keep-alive connection's next request gets one too)
+        if self.received_any and (self.cycle is None or self.cycle.response_complete
+                                  or not self.cycle.response_started):
             self.transport.write(json_response(
                 408, "Request Timeout", f"the request did not arrive whole within {self.limits.request_timeout_s:g} s "
                                         "([daemon] request_timeout_s)"))
@@ -419,9 +430,11 @@ class GuardedHttpProtocol(HttpToolsProtocol):
         if self.stall is not None:
             self.stall.cancel()
             self.stall = None
-        if self.pacing is not None:
+        if self.pacing is not None:  # gone while its next request waited: the lent token is returned
             self.pacing.cancel()
             self.pacing = None
+            if self.ticket is not None:
+                self.limits.budget.give_back(self.ticket.key)
         if self.ticket is not None:
             self.ticket.release()
         self.inbox, self.parsed_to = b"", 0

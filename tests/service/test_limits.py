@@ -245,3 +245,17 @@ def test_a_client_that_reads_none_of_its_answers_is_closed(daemon: ServeProcess)
     sock.close()
     assert closed, "the daemon kept a connection that reads nothing"
     assert _refused_counter(daemon, "stalled") > before
+
+
+def test_a_slow_second_request_on_a_kept_connection_gets_408_too(daemon: ServeProcess) -> None:
+    """The deadline is per request: the second one on a keep-alive connection, trickled, is answered 408
+    like the first would be (it was closed without a word: the first answer's cycle was taken as in work)."""
+    with socket.create_connection(("127.0.0.1", daemon.port), timeout=5) as sock:
+        sock.sendall(f"GET /healthz HTTP/1.1\r\nHost: 127.0.0.1:{daemon.port}\r\n\r\n".encode())
+        assert _answers(sock, 1)[0][0] in (200, 503)
+        sock.sendall(f"GET /api/status HTTP/1.1\r\nHost: 127.0.0.1:{daemon.port}\r\nX-Slow: ".encode())
+        sock.settimeout(REQUEST_TIMEOUT_S + 5)
+        reply = b""
+        while chunk := sock.recv(4096):
+            reply += chunk
+    assert reply.startswith(b"HTTP/1.1 408") and b"request_timeout_s" in reply, reply[:200]

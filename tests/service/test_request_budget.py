@@ -31,6 +31,20 @@ def test_a_client_gets_a_seconds_worth_at_once_then_its_turns_at_its_rate() -> N
     assert [budget.take("a") for _ in range(9)].count(0.0) == 8, "refilled to a second's worth, no more"
 
 
+def test_a_token_lent_and_never_used_is_given_back() -> None:
+    """A client that connects, asks and closes while it waits, again and again, must not run up a debt that
+    every other client then waits for."""
+    clock = Clock()
+    budget = RequestBudget(per_client_hz=8.0, total_hz=8.0, burst_s=1.0, monotonic=clock)
+    for _ in range(8):
+        budget.take("a")
+    for _ in range(1000):
+        assert budget.take("a") == 0.125
+        budget.give_back("a")
+    clock.now += 0.125
+    assert budget.take("b") == 0.0
+
+
 def test_all_clients_together_share_the_total() -> None:
     clock = Clock()
     budget = RequestBudget(per_client_hz=100.0, total_hz=16.0, burst_s=1.0, monotonic=clock)
