@@ -5,7 +5,8 @@ flood and after the connections closed, what the flood was answered, and the rig
 the stage link's failed readings, faults) over the flood against quiet windows of the same length just
 before and after it.
 
-    nice -n 5 .venv/bin/python bench/pipeline_flood.py [--connections 10] [--seconds 20] [--unread] [--test-rig]
+    nice -n 5 .venv/bin/python bench/pipeline_flood.py [--connections 10] [--seconds 20] [--unread]
+                                                       [--test-rig [--client-hz 200]]
 
 ``--unread``: the flood never reads its answers (the daemon's writes back up instead). ``--test-rig``: the
 rig of tests/service/test_pipeline_flood.py (the tests' fast rig, 200 frames per wall second, its virtual rig

@@ -1,8 +1,10 @@
 """Hostile local clients on raw sockets (what a careless or malicious program on the rig's PC can do),
-shared by tests/service/test_limits.py and bench/hostile_clients.py.
+shared by tests/service/test_limits.py, test_pipeline_flood.py, bench/hostile_clients.py and
+bench/pipeline_flood.py.
 
-Raw sockets, not a WebSocket library: a library refuses to declare a 15 MiB frame and then not send
-it, or to trickle a request head a byte at a time, which is exactly what these clients do.
+Raw sockets, not a WebSocket or HTTP library: a library refuses to declare a 15 MiB frame and then not
+send it, to trickle a request head a byte at a time, or to write requests without waiting for answers,
+which is exactly what these clients do.
 """
 
 from __future__ import annotations
