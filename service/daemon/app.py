@@ -167,7 +167,11 @@ def create_app(settings: Settings, factory: HardwareFactory = default_factory) -
         unreadable = _unreadable_body(exc)
         if unreadable is not None:
             return _error(422, unreadable)
-        return _error(exc.status_code, str(exc.detail), headers=exc.headers)  # a 405's Allow among them
+        headers = dict(exc.headers or {})
+        allowed = [method.strip() for method in headers.get("Allow", "").split(",") if method.strip()]
+        if "GET" in allowed and "HEAD" not in allowed:  # every GET route answers HEAD too (api/security.py)
+            headers["Allow"] = ", ".join([*allowed, "HEAD"])
+        return _error(exc.status_code, str(exc.detail), headers=headers or None)  # a 405's Allow among them
 
     @app.exception_handler(RequestValidationError)
     async def validation_error(request: Request, exc: RequestValidationError) -> JSONResponse:

@@ -137,9 +137,12 @@ def render(snapshot: RigSnapshot, broadcaster: Broadcaster, limits: ConnectionLi
     out += counter("graytrack_websocket_dropped_total", "messages dropped for slow clients", broadcaster.dropped)
     out += family("graytrack_connections_refused_total", "counter",
                   "connections and requests the resource limits refused, by why: refused (503/1013 beyond "
-                  "max_connections), dropped (closed at once beyond twice it), timed_out (408, request_timeout_s), "
-                  "oversized (431, or a WebSocket message closed 1009)",
+                  "max_connections or max_connections_per_client), dropped (closed at once beyond twice either), "
+                  "timed_out (408, request_timeout_s), oversized (431, or a WebSocket message closed 1009), "
+                  "stalled (closed: its answers not read within request_timeout_s)",
                   [({"why": why}, value) for why, value in limits.counters().items()])
+    out += counter("graytrack_requests_paced_total", "requests that waited for the request budget "
+                   "(requests_per_s_per_client, requests_per_s)", limits.paced)
     out += family("graytrack_model_stale", "gauge",
                   "1 for the family of causes the model is stale for (all 0: it holds)",
                   [({"reason": cause}, status.get("stale_reason") == cause) for cause in FAMILIES])

@@ -51,9 +51,21 @@ class DaemonConfig(StrictTable):
     max_connections: int = Field(256, ge=1, le=100_000, description="open HTTP and WebSocket connections served at "
                                  "once; beyond it a request gets 503 and a WebSocket is closed 1013, both with the "
                                  "reason (each open connection costs a file descriptor and some memory)")
+    max_connections_per_client: int = Field(32, ge=1, le=100_000, description="open connections from one client "
+                                            "(its address; IPv6: its /64) served at once, so one client cannot take "
+                                            "them all (a browser opens 6 per site); beyond it the same answers as "
+                                            "beyond max_connections")
+    requests_per_s_per_client: float = Field(200.0, gt=0, le=1e6, description="requests one client may begin per "
+                                             "second (a second's worth at once); beyond, its next request waits, "
+                                             "unread: at about 1 ms of the interpreter each, one client's requests "
+                                             "take at most a fifth of the time the frame loop shares with them")
+    requests_per_s: float = Field(500.0, gt=0, le=1e6, description="requests all clients together may begin per "
+                                  "second (a second's worth at once); beyond, the next requests wait, unread (a "
+                                  "flood from many clients slows the answers, not the frame loop)")
     request_timeout_s: float = Field(10.0, gt=0, le=3600, description="a request (head and body) must arrive whole "
                                      "within this of its first byte, a new connection send one within this: else "
-                                     "408 and closed (slow or idle clients cannot hold connections)")
+                                     "408 and closed (slow or idle clients cannot hold connections); a client "
+                                     "that takes none of its answers for this long is closed too")
     keep_alive_s: float = Field(5.0, gt=0, le=3600, description="an idle connection between requests is closed "
                                 "after this")
     api_docs: bool = Field(False, description="serve the interactive API docs at /api/docs (loads scripts from a CDN)")

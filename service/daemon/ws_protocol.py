@@ -15,8 +15,9 @@ client, is sent to through ``send_text``). Back-pressure is kept: a transport ab
 high-water mark (``writable`` cleared by ``pause_writing``) is not written to; the broadcaster queues
 for that client instead.
 
-The connection limit (``limits.py``) is decided here for upgraded connections, once the handshake is
-in: a connection beyond ``max_connections`` carries its refusal in ``scope["extensions"][REFUSAL]``,
+The connection limits (``limits.py``) are decided here for upgraded connections, once the handshake is
+in (the connection keeps its place in its client's count, handed over by the HTTP protocol): a connection
+beyond ``max_connections`` or ``max_connections_per_client`` carries its refusal in ``scope["extensions"][REFUSAL]``,
 and the route accepts it only to close it ``1013`` with that reason (a close code needs a handshake).
 """
 
@@ -28,7 +29,7 @@ from typing import Any
 from uvicorn.protocols.websockets.websockets_sansio_impl import WebSocketsSansIOProtocol
 from websockets.protocol import State
 
-from graytrack.service.daemon.limits import ConnectionLimits
+from graytrack.service.daemon.limits import ConnectionLimits, Ticket
 
 EXTENSION = "graytrack.preframed"
 REFUSAL = "graytrack.refusal"
@@ -52,13 +53,26 @@ class StreamProtocol(WebSocketsSansIOProtocol):
     def __init__(self, *args: Any, limits: ConnectionLimits, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         self.limits = limits
+        self.ticket: Ticket | None = None  # set as the connection is made
+
+    def connection_made(self, transport: Any) -> None:
+        super().connection_made(transport)
+        upgraded_from = transport.get_protocol()  # the HTTP protocol, until uvicorn switches the transport to this one
+        take = getattr(upgraded_from, "take_ticket", None)
+        self.ticket = (take() if take is not None else None) or self.limits.admit(self.client)
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        super().connection_lost(exc)
+        if self.ticket is not None:
+            self.ticket.release()
 
     def handle_connect(self, event: Any) -> None:
         super().handle_connect(event)
         scope = getattr(self, "scope", None)  # absent when the handshake was refused
         if scope is not None:  # the ASGI task starts later: it sees these
             scope["extensions"][EXTENSION] = self
-            refusal = self.limits.over(len(self.connections))  # this connection included
+            assert self.ticket is not None
+            refusal = self.limits.over(len(self.connections), self.ticket)  # this connection included
             if refusal is not None:
                 self.limits.refused += 1
                 self.limits.note_refusal("a WebSocket closed 1013")

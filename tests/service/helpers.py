@@ -200,16 +200,23 @@ def write_config(folder: Path, **changes: dict[str, Any]) -> Path:
 
 
 class ServeProcess:
-    """``python -m graytrack serve`` on a free loopback port; SIGTERM on exit, stderr kept."""
+    """``python -m graytrack serve`` on a free loopback port; SIGTERM on exit, stderr kept. The fast test
+    rig (:data:`FAST_TABLES` updated by ``tables``), or with ``default_rig`` no configuration at all: the
+    embedded default, as ``make run`` starts it (data in ``folder / "data"``)."""
 
-    def __init__(self, folder: Path, **tables: dict[str, Any]) -> None:
+    def __init__(self, folder: Path, default_rig: bool = False, **tables: dict[str, Any]) -> None:
         self.folder = folder
         self.port = free_port()
         self.base = f"http://127.0.0.1:{self.port}"
         self.stderr = ""
-        self.config = write_config(folder, **tables)
+        if default_rig:
+            assert not tables, "the default rig takes no tables"
+            where = ["--data-dir", str(folder / "data")]
+        else:
+            self.config = write_config(folder, **tables)
+            where = ["--config", str(self.config)]
         self.process = subprocess.Popen(
-            [sys.executable, "-m", "graytrack", "serve", "--config", str(self.config), "--port", str(self.port)],
+            [sys.executable, "-m", "graytrack", "serve", *where, "--port", str(self.port)],
             stderr=subprocess.PIPE, text=True)
 
     def status(self) -> dict[str, Any] | None:

@@ -1,8 +1,10 @@
 """Hostile local clients on raw sockets (what a careless or malicious program on the rig's PC can do),
-shared by tests/service/test_limits.py and bench/hostile_clients.py.
+shared by tests/service/test_limits.py, test_pipeline_flood.py, bench/hostile_clients.py and
+bench/pipeline_flood.py.
 
-Raw sockets, not a WebSocket library: a library refuses to declare a 15 MiB frame and then not send
-it, or to trickle a request head a byte at a time, which is exactly what these clients do.
+Raw sockets, not a WebSocket or HTTP library: a library refuses to declare a 15 MiB frame and then not
+send it, to trickle a request head a byte at a time, or to write requests without waiting for answers,
+which is exactly what these clients do.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import struct
 import threading
 import time
 from dataclasses import dataclass, field
+from typing import Any
 
 import psutil
 from websockets.sync.client import connect
@@ -120,12 +123,13 @@ def big_frame_clients(port: int, n: int) -> list[BigFrameClient]:
     return clients
 
 
-def idle_sockets(port: int, n: int) -> list[socket.socket]:
-    """``n`` connections that send nothing (refused or reset ones are left out)."""
+def idle_sockets(port: int, n: int, source: str = "127.0.0.1") -> list[socket.socket]:
+    """``n`` connections that send nothing (refused or reset ones are left out), from the loopback address
+    ``source`` (any 127.x.y.z: another client as the daemon counts them)."""
     socks = []
     for _ in range(n):
         try:
-            socks.append(socket.create_connection(("127.0.0.1", port), timeout=5))
+            socks.append(socket.create_connection(("127.0.0.1", port), timeout=5, source_address=(source, 0)))
         except OSError:
             pass
     return socks
@@ -238,3 +242,143 @@ class StreamReader:
 def gaps(seqs: list[int]) -> int:
     """Messages missing between consecutive seqs."""
     return sum(b - a - 1 for a, b in zip(seqs, seqs[1:]) if b > a + 1)
+
+
+PIPELINE_BATCH = 100  # requests in one write (issue #48's probe)
+FLOOD_READ_BYTES = 256 * 1024  # what one connection reads of its answers per wake-up
+
+
+@dataclass
+class PipelineFlood:
+    """``n`` connections that each write ``GET path`` requests ``PIPELINE_BATCH`` at a time, pipelined (no
+    waiting for answers), for ``seconds``, while reading whatever answers come back (``read_answers``; else
+    they are left unread, the socket's buffers full). Non-blocking sockets and one select loop: the loop ends at
+    its deadline whatever the daemon does. Counts bytes sent and the answers' status lines."""
+
+    port: int
+    n: int = 10
+    seconds: float = 20.0
+    path: str = "/api/status"
+    read_answers: bool = True
+    sent_requests: int = 0
+    answers: int = 0
+    statuses: dict[str, int] = field(default_factory=dict)
+    errors: list[str] = field(default_factory=list)
+
+    def run(self) -> None:
+        request = f"GET {self.path} HTTP/1.1\r\nHost: 127.0.0.1:{self.port}\r\n\r\n".encode()
+        batch = request * PIPELINE_BATCH
+        selector = selectors.DefaultSelector()
+        socks: list[socket.socket] = []
+        pending: dict[int, memoryview] = {}
+        tails: dict[int, bytes] = {}
+        for i in range(self.n):
+            s = socket.create_connection(("127.0.0.1", self.port), timeout=5)
+            s.setblocking(False)
+            socks.append(s)
+            pending[i], tails[i] = memoryview(batch), b""
+            selector.register(s, selectors.EVENT_WRITE | (selectors.EVENT_READ if self.read_answers else 0), i)
+        deadline = time.monotonic() + self.seconds
+        while time.monotonic() < deadline and selector.get_map():
+            for key, mask in selector.select(timeout=max(0.0, min(0.2, deadline - time.monotonic()))):
+                i, s = key.data, socks[key.data]
+                try:
+                    if mask & selectors.EVENT_READ:
+                        chunk = s.recv(FLOOD_READ_BYTES)
+                        if not chunk:
+                            self.errors.append(f"connection {i} closed by the daemon")
+                            selector.unregister(s)
+                            continue
+                        self._count(tails[i] + chunk, i, tails)
+                    if mask & selectors.EVENT_WRITE:
+                        sent = s.send(pending[i])
+                        pending[i] = pending[i][sent:]
+                        if not len(pending[i]):
+                            self.sent_requests += PIPELINE_BATCH
+                            pending[i] = memoryview(batch)
+                except BlockingIOError:
+                    pass
+                except OSError as exc:
+                    self.errors.append(f"connection {i}: {type(exc).__name__}")
+                    selector.unregister(s)
+        selector.close()
+        for s in socks:
+            s.close()
+
+    def _count(self, data: bytes, i: int, tails: dict[int, bytes]) -> None:
+        """Count the status lines in ``data``; keep its last bytes (a status line cut between two reads)."""
+        start = 0
+        while (found := data.find(b"HTTP/1.1 ", start)) >= 0 and found + 12 <= len(data):
+            status = data[found + 9:found + 12].decode(errors="replace")
+            self.statuses[status] = self.statuses.get(status, 0) + 1
+            self.answers += 1
+            start = found + 12
+        tails[i] = data[max(start, len(data) - 11):]
+
+
+# /metrics counters the flood's figures compare (service/daemon/metrics.py)
+RIG_COUNTERS = {
+    "frames": "graytrack_frames_total",  # camera frames received
+    "frames_lost": "graytrack_frames_dropped_total",  # gaps in the camera's frame_id sequence
+    "camera_dropped": "graytrack_camera_dropped_frames_total",  # lost or skipped by the camera itself
+    "grating_errors": "graytrack_grating_errors_total",  # failed POS? readings: the stage link
+    "faults": "graytrack_faults_total",  # faults raised (a stage that did not answer among them)
+}
+
+
+def rig_counters(base: str) -> dict[str, float]:
+    """The rig's counters of :data:`RIG_COUNTERS` from one ``/metrics`` scrape."""
+    import httpx
+
+    text = httpx.get(f"{base}/metrics", timeout=10).text
+    values = {line.split()[0]: float(line.split()[-1]) for line in text.splitlines()
+              if line and not line.startswith("#")}
+    return {key: values[name] for key, name in RIG_COUNTERS.items()}
+
+
+def counter_deltas(before: dict[str, float], after: dict[str, float]) -> dict[str, float]:
+    return {key: after[key] - before[key] for key in before}
+
+
+@dataclass
+class FloodFigures:
+    """A flood between two quiet windows of the same length on one daemon: its RSS and the rig's counters."""
+
+    rss_before_mb: float
+    rss_peak_mb: float  # the largest of the samples taken during the flood
+    rss_after_mb: float  # at the end of the quiet window after the flood (its connections closed)
+    quiet: dict[str, float]  # counter deltas over the quiet window before the flood
+    flood: dict[str, float]  # over the flood
+    quiet_after: dict[str, float]  # over the quiet window after it
+    client: PipelineFlood
+
+
+RSS_SAMPLE_S = 0.25
+# The rig a flood is measured on in the tests (and bench/pipeline_flood.py --test-rig): the tests' fast rig with
+# the virtual rig in a process of its own, as the daemon runs it by default: the daemon's interpreter then
+# holds what the flood must not reach, the frame loop and the stage link
+FLOOD_RIG: dict[str, dict[str, Any]] = {"camera": {"rig_process": True}}
+
+
+def quiet_flood_quiet(base: str, pid: int, port: int, seconds: float, connections: int,
+                      read_answers: bool = True) -> FloodFigures:
+    """The rig's counters over ``seconds`` of quiet, over ``seconds`` of :class:`PipelineFlood` on
+    ``connections`` connections (RSS sampled every :data:`RSS_SAMPLE_S` meanwhile), and over ``seconds`` of
+    quiet again once the flood's connections closed (what the host's load alone does to the rig, on both sides
+    of the flood); RSS at the end."""
+    start = rig_counters(base)
+    time.sleep(seconds)
+    quiet_end = rig_counters(base)
+    before = rss_mb(pid)
+    flood = PipelineFlood(port, connections, seconds, read_answers=read_answers)
+    thread = threading.Thread(target=flood.run, name="flood")
+    flood_start = rig_counters(base)
+    thread.start()
+    peak = before
+    while thread.is_alive():
+        peak = max(peak, rss_mb(pid))
+        thread.join(RSS_SAMPLE_S)
+    flood_end = rig_counters(base)
+    time.sleep(seconds)
+    return FloodFigures(before, peak, rss_mb(pid), counter_deltas(start, quiet_end),
+                        counter_deltas(flood_start, flood_end), counter_deltas(flood_end, rig_counters(base)), flood)

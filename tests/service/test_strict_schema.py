@@ -52,8 +52,9 @@ def test_a_body_that_cannot_be_read_is_the_documented_422(daemon: LiveServer, do
     assert "422" in document["paths"]["/api/stage/move"]["post"]["responses"]
 
 
-@pytest.mark.parametrize("method, path, allowed", [("TRACE", "/api/status", "GET"), ("PUT", "/api/stage/move", "POST"),
-                                                   ("DELETE", "/metrics", "GET")])
+@pytest.mark.parametrize("method, path, allowed", [("TRACE", "/api/status", "GET, HEAD"),
+                                                   ("PUT", "/api/stage/move", "POST"),
+                                                   ("DELETE", "/metrics", "GET, HEAD")])
 def test_a_405_names_the_methods_allowed(daemon: LiveServer, method: str, path: str, allowed: str) -> None:
     import httpx
 

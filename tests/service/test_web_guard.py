@@ -74,9 +74,12 @@ def test_an_integer_target_is_a_number(daemon: LiveServer) -> None:
     assert daemon.post("/api/stage/move", json={"target_mm": 3}, headers=daemon.auth()).json()["target_mm"] == 3.0
 
 
-def _ws(daemon: LiveServer, **headers: str) -> dict:
-    url = f"ws://127.0.0.1:{daemon.port}/ws/position"
-    with connect(url, additional_headers=headers, open_timeout=5) as ws:
+def _ws(daemon: LiveServer, host: str | None = None, **headers: str) -> dict:
+    """A message from the stream; ``host``: the name the handshake gives as its one Host (the socket still
+    reaches the daemon on loopback, as a DNS-rebound name would)."""
+    url = f"ws://{host or f'127.0.0.1:{daemon.port}'}/ws/position"
+    sock = socket.create_connection(("127.0.0.1", daemon.port), timeout=5)
+    with connect(url, sock=sock, additional_headers=headers, open_timeout=5) as ws:
         import json
 
         return json.loads(ws.recv(timeout=5))
@@ -95,9 +98,9 @@ def test_the_websocket_accepts_its_own_origin_and_configured_ones_only(daemon: L
 def test_the_websocket_refuses_a_foreign_host_name(daemon: LiveServer) -> None:
     # DNS rebinding: a foreign name resolving to 127.0.0.1, the page's own origin under that name
     with pytest.raises(InvalidStatus) as refused:
-        _ws(daemon, Host=f"rebind.evil.example:{daemon.port}", Origin=f"http://rebind.evil.example:{daemon.port}")
+        _ws(daemon, host=f"rebind.evil.example:{daemon.port}", Origin=f"http://rebind.evil.example:{daemon.port}")
     assert refused.value.response.status_code == 403
-    assert "seq" in _ws(daemon, Host=f"localhost:{daemon.port}")
+    assert "seq" in _ws(daemon, host=f"localhost:{daemon.port}")
 
 
 def test_openapi_declares_the_bearer_scheme_every_answer_and_every_schema(daemon: LiveServer) -> None:
@@ -178,3 +181,101 @@ def test_a_json_body_without_its_content_type_is_told_which_header_is_missing(da
     assert reply.status_code == 422
     assert "Content-Type: application/json" in reply.json()["error"], reply.json()
     assert "x-www-form-urlencoded" in reply.json()["error"]
+
+
+def _exchange(daemon: LiveServer, raw: bytes) -> tuple[int, dict[str, str], bytes]:
+    """One raw request on a fresh connection: the answer's status, headers (names lowercased) and body."""
+    with socket.create_connection(("127.0.0.1", daemon.port), timeout=5) as s:
+        s.sendall(raw)
+        reply = b""
+        while b"\r\n\r\n" not in reply and (chunk := s.recv(65536)):
+            reply += chunk
+        head, _, body = reply.partition(b"\r\n\r\n")
+        lines = head.decode("latin-1").split("\r\n")
+        headers = {name.lower(): value.strip() for name, _, value in (line.partition(":") for line in lines[1:])}
+        while len(body) < int(headers.get("content-length", 0)) and (chunk := s.recv(65536)):
+            body += chunk
+    return int(lines[0].split()[1]), headers, body
+
+
+def _secured_json_error(headers: dict[str, str], body: bytes) -> str:
+    import json
+
+    assert headers["content-type"] == "application/json", headers
+    assert headers["x-frame-options"] == "DENY" and headers["x-content-type-options"] == "nosniff", headers
+    assert "frame-ancestors 'none'" in headers["content-security-policy"], headers
+    return json.loads(body)["error"]
+
+
+@pytest.mark.parametrize("raw", [b"GARBAGE\r\n\r\n", b"GET /api/status HTTP/1.1\r\nHo st: x\r\n\r\n",
+                                 b"GET /api/status HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Length: -4\r\n\r\n"])
+def test_malformed_http_gets_a_json_400_with_the_security_headers(daemon: LiveServer, raw: bytes) -> None:
+    """uvicorn answers what its parser refuses with a text/plain 400 without them (issue #48)."""
+    status, headers, body = _exchange(daemon, raw)
+    assert status == 400 and "not valid HTTP/1.1" in _secured_json_error(headers, body)
+    assert daemon.get("/api/status").status_code == 200, "the daemon goes on"
+
+
+def test_answers_the_protocol_writes_itself_carry_the_security_headers(daemon: LiveServer) -> None:
+    status, headers, body = _exchange(daemon, b"GET /api/status HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Big: "
+                                      + b"a" * 20_000 + b"\r\n\r\n")
+    assert status == 431 and "16384 bytes" in _secured_json_error(headers, body)
+
+
+@pytest.mark.parametrize("path", ["/", "/healthz", "/api/status", "/metrics", "/api/calibrations", "/api/events",
+                                  "/static/app.js", "/favicon.ico", "/api/openapi.json"])
+def test_every_get_route_answers_head_with_the_get_status_and_headers_and_no_body(daemon: LiveServer,
+                                                                                   path: str) -> None:
+    """HEAD was 405 on /healthz and / (issue #48); a HEAD answer is the GET's without its body."""
+    got = daemon.get(path)
+    status, headers, body = _exchange(daemon, f"HEAD {path} HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+                                              "Connection: close\r\n\r\n".encode())
+    assert status == got.status_code and body == b"", (path, status)
+    assert headers["content-type"] == got.headers["content-type"] and headers["x-frame-options"] == "DENY"
+    if path != "/api/status" and path != "/metrics" and path != "/healthz":  # those change between two answers
+        assert headers["content-length"] == got.headers["content-length"], path
+
+
+def test_head_on_a_route_without_get_is_405_with_allow(daemon: LiveServer) -> None:
+    status, headers, body = _exchange(daemon, b"HEAD /api/stage/stop HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
+    assert status == 405 and headers["allow"] == "POST" and body == b""
+
+
+@pytest.mark.parametrize("hosts", [("evil.example", "127.0.0.1"), ("127.0.0.1", "evil.example"),
+                                   ("127.0.0.1", "localhost"), ()])
+def test_a_request_names_exactly_one_host(daemon: LiveServer, hosts: tuple[str, ...]) -> None:
+    """Two Host headers, a foreign one first, were taken (the last one was checked; issue #48): a proxy in
+    front and the daemon could each see another name. Two, or none, is 400 (RFC 9112 §3.2)."""
+    lines = "".join(f"Host: {host}\r\n" for host in hosts)
+    status, headers, body = _exchange(daemon, f"GET /api/status HTTP/1.1\r\n{lines}\r\n".encode())
+    assert status == 400 and f"exactly once (this one: {len(hosts)} Host headers)" in _secured_json_error(headers,
+                                                                                                         body)
+
+
+def test_a_refused_websocket_gets_a_json_403_with_the_security_headers(daemon: LiveServer) -> None:
+    """Two Host headers on the handshake, or a foreign Origin: 403 with the reason as JSON (was an empty
+    text/plain 403) and the headers every answer carries."""
+    import json
+
+    for headers in ({"Host": "localhost"}, {"Origin": "http://evil.example"}):  # a Host added to the client's own
+        with pytest.raises(InvalidStatus) as refused:
+            _ws(daemon, **headers)
+        answer = refused.value.response
+        assert answer.status_code == 403 and answer.headers["content-type"] == "application/json"
+        assert answer.headers["x-frame-options"] == "DENY", answer.headers
+        reason = json.loads(answer.body)["error"]
+        assert ("exactly once" in reason) if "Host" in headers else ("Origin" in reason), reason
+
+
+@pytest.mark.parametrize("target, expected", [("http://evil.example/api/status", 400),
+                                              ("http://evil.example:80/api/status", 400),
+                                              ("http://127.0.0.1/api/status", 200),
+                                              ("http://localhost:1/api/status", 200)])
+def test_an_absolute_form_target_must_name_this_daemon(daemon: LiveServer, target: str, expected: int) -> None:
+    """``GET http://evil.example/api/status`` with an own Host was served (issue #48); the target's host is
+    what names the server then (RFC 9112 §3.2.2), so it is checked like Host."""
+    status, headers, body = _exchange(daemon, f"GET {target} HTTP/1.1\r\nHost: 127.0.0.1:{daemon.port}\r\n"
+                                              "Connection: close\r\n\r\n".encode())
+    assert status == expected, body[:200]
+    if expected == 400:
+        assert "evil.example" in _secured_json_error(headers, body) and "allowed_hosts" in body.decode()

@@ -6,12 +6,14 @@
 * a request that changes state is refused before its body is read when the bearer token is
   missing or wrong, and its body may not exceed 64 KiB (checked while it arrives, before any
   parsing): a large anonymous body costs the daemon nothing;
-* every HTTP request and the WebSocket name this machine in their Host (a DNS-rebound name is
+* every HTTP request and the WebSocket name this machine in exactly one Host (a DNS-rebound name is
   refused: a page on another site could otherwise read the status, the events and the recordings
-  through a name it controls); the WebSocket accepts a browser only from its own origin (or a
+  through a name it controls; a second Host could name another to a proxy in front), and a request
+  target in absolute form names it too; the WebSocket accepts a browser only from its own origin (or a
   configured one), and asks for the token when the daemon listens beyond loopback;
 * an error the routes did not foresee is still a JSON answer with these headers (logged with its
-  traceback), never a bare text 500.
+  traceback), never a bare text 500; the answers the HTTP protocol writes itself (limits.py) carry them too;
+* every GET route answers HEAD: the GET's status and headers, without the body.
 """
 
 from __future__ import annotations
@@ -34,6 +36,9 @@ MAX_BODY = 64 * 1024
 MUTATING = frozenset({"POST", "PUT", "PATCH", "DELETE"})
 LOOPBACK_NAMES = frozenset({"localhost", "127.0.0.1", "::1", "ip6-localhost"})
 SAFE_HOST = re.compile(r"^[A-Za-z0-9.\-:\[\]]{1,255}$")
+# the scope extension the HTTP protocol (limits.py) puts a request target's host in, when the target is in
+# absolute form (RFC 9112 §3.2.2: then the target, not Host, names the server)
+TARGET_AUTHORITY = "graytrack.target_authority"
 
 
 def token_matches(given: str, token: str) -> bool:
@@ -92,12 +97,29 @@ class WebPolicy:
         origin = origin.rstrip("/")
         return origin in self.allowed_origins or origin in (f"http://{host_header}", f"https://{host_header}")
 
+    def host_refusal(self, scope: Scope) -> str | None:
+        """Why this request does not name this daemon, or None: exactly one Host header (RFC 9112 §3.2: a
+        second one, foreign first, is how a proxy and the daemon could be told different names) naming it,
+        and a request target in absolute form (``GET http://name/path``) naming it too."""
+        hosts = [value.decode("latin-1") for name, value in scope.get("headers", []) if name.lower() == b"host"]
+        if len(hosts) != 1:
+            return f"a request names its Host exactly once (this one: {len(hosts)} Host headers)"
+        if not self.host_allowed(hosts[0]):
+            return (f"Host {hosts[0][:100]!r} is not this daemon: reach it by its address, or add the name to "
+                    "[daemon] allowed_hosts")
+        authority = scope.get("extensions", {}).get(TARGET_AUTHORITY)
+        if authority is not None and not self.host_allowed(authority):
+            return (f"the request's target names {authority[:100]!r}, not this daemon: reach it by its address, "
+                    "or add the name to [daemon] allowed_hosts")
+        return None
+
     def websocket_refusal(self, scope: Scope) -> str | None:
         """Why this WebSocket handshake is refused, or None."""
         headers = {k.decode("latin-1"): v.decode("latin-1") for k, v in scope.get("headers", [])}
         host = headers.get("host", "")
-        if not self.host_allowed(host):
-            return f"Host {host!r} is not this daemon"
+        refusal = self.host_refusal(scope)
+        if refusal is not None:
+            return refusal
         if not self.origin_allowed(headers.get("origin"), host):
             return f"Origin {headers.get('origin')!r} is not allowed"
         if self.beyond_loopback:
@@ -108,12 +130,24 @@ class WebPolicy:
         return None
 
     def csp(self, host_header: str) -> str:
-        connect = "'self'"
-        if SAFE_HOST.match(host_header):
-            connect += f" ws://{host_header} wss://{host_header}"
-        return ("default-src 'self'; script-src 'self'; style-src 'self'; img-src 'self' data:; "
-                f"connect-src {connect}; frame-ancestors 'none'; base-uri 'none'; form-action 'self'; "
-                "object-src 'none'")
+        return csp(host_header)
+
+
+def csp(host_header: str) -> str:
+    """The Content-Security-Policy of an answer to a request naming ``host_header`` (its WebSocket allowed)."""
+    connect = "'self'"
+    if SAFE_HOST.match(host_header):
+        connect += f" ws://{host_header} wss://{host_header}"
+    return ("default-src 'self'; script-src 'self'; style-src 'self'; img-src 'self' data:; "
+            f"connect-src {connect}; frame-ancestors 'none'; base-uri 'none'; form-action 'self'; "
+            "object-src 'none'")
+
+
+def security_headers(host_header: str = "") -> list[tuple[bytes, bytes]]:
+    """The headers every HTTP answer carries, the app's and those the protocol writes itself (a malformed
+    request, a timeout, a refusal: no Host was read there, so no WebSocket address in the policy)."""
+    return [(b"x-frame-options", b"DENY"), (b"x-content-type-options", b"nosniff"),
+            (b"referrer-policy", b"no-referrer"), (b"content-security-policy", csp(host_header).encode())]
 
 
 async def _send_json(send: Send, status: int, body: dict[str, Any], headers: list[tuple[bytes, bytes]]) -> None:
@@ -135,11 +169,12 @@ class WebGuard:
             await self.app(scope, receive, send)
             return
         headers = {k.decode("latin-1"): v.decode("latin-1") for k, v in scope.get("headers", [])}
-        security = [(b"x-frame-options", b"DENY"), (b"x-content-type-options", b"nosniff"),
-                    (b"referrer-policy", b"no-referrer"),
-                    (b"content-security-policy", self.policy.csp(headers.get("host", "")).encode())]
+        security = security_headers(headers.get("host", ""))
 
         started = False
+        head = scope["method"] == "HEAD"
+        if head:  # every GET route answers HEAD: the GET's status and headers, no body
+            scope = {**scope, "method": "GET"}
 
         async def send_secured(message: Message) -> None:
             nonlocal started
@@ -148,12 +183,13 @@ class WebGuard:
                 own = message.get("headers", [])
                 extra = [h for h in security if not any(k.lower() == h[0] for k, _ in own)]  # a route may be stricter
                 message = {**message, "headers": [*own, *extra]}
+            elif head and message["type"] == "http.response.body":
+                message = {**message, "body": b""}
             await send(message)
 
-        host = headers.get("host", "")
-        if not self.policy.host_allowed(host):
-            await _send_json(send_secured, 400, {"error": f"Host {host[:100]!r} is not this daemon: reach it by its "
-                                                          "address, or add the name to [daemon] allowed_hosts"}, [])
+        refusal = self.policy.host_refusal(scope)
+        if refusal is not None:
+            await _send_json(send_secured, 400, {"error": refusal}, [])
             return
         if scope["method"] in MUTATING:
             given = bearer(headers)

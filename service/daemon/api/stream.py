@@ -4,7 +4,8 @@ Two tasks per connection, not per message: one sends what the broadcaster queued
 the client to go away. A connection served by :class:`StreamProtocol` without extensions is written
 to by the broadcaster itself, pre-framed bytes shared by every client (``broadcast.py``); its sending
 task only handles what had to be queued (a transport above its high-water mark). The handshake is
-checked by :class:`WebPolicy` (Host, Origin, token). A connection beyond the connection limit is
+checked by :class:`WebPolicy` (Host, Origin, token); a refused one is answered 403 with the reason
+as JSON and the security headers. A connection beyond the connection limit is
 accepted only to be closed 1013 with the reason; a client message over a small control size closes
 the connection 1009 (the stream reads nothing from its clients; limits.py).
 """
@@ -15,7 +16,9 @@ import asyncio
 import math
 
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
+from fastapi.responses import JSONResponse
 
+from graytrack.service.daemon.api.security import security_headers
 from graytrack.service.daemon.broadcast import Broadcaster, Subscriber
 from graytrack.service.daemon.limits import WS_CONTROL_BYTES, WS_MESSAGE_TOO_BIG, WS_TRY_AGAIN_LATER, ConnectionLimits
 from graytrack.service.daemon.ws_protocol import EXTENSION, REFUSAL
@@ -28,11 +31,11 @@ POLICY_VIOLATION = 1008
 async def positions(websocket: WebSocket) -> None:
     refusal = websocket.app.state.policy.websocket_refusal(websocket.scope)
     if refusal is not None:
-        await websocket.close(code=POLICY_VIOLATION, reason=refusal[:120])
+        await _deny(websocket, refusal)
         return
     max_rate = _max_rate(websocket.query_params.get("max_rate"))
     if max_rate is False:
-        await websocket.close(code=POLICY_VIOLATION, reason="max_rate must be a positive number (messages/s)")
+        await _deny(websocket, "max_rate must be a positive number (messages/s)")
         return
     await websocket.accept()
     extensions = websocket.scope.get("extensions", {})
@@ -50,6 +53,16 @@ async def positions(websocket: WebSocket) -> None:
         broadcaster.unsubscribe(client)
         sender.cancel()
         closed.cancel()
+
+
+async def _deny(websocket: WebSocket, reason: str) -> None:
+    """A handshake refused: 403 with the reason as JSON and the security headers, like every HTTP answer
+    (a server without the denial-response extension closes it 1008 with the reason instead)."""
+    if "websocket.http.response" in websocket.scope.get("extensions", {}):
+        headers = {name.decode(): value.decode() for name, value in security_headers()}
+        await websocket.send_denial_response(JSONResponse({"error": reason}, status_code=403, headers=headers))
+    else:
+        await websocket.close(code=POLICY_VIOLATION, reason=reason[:120])
 
 
 def _max_rate(text: str | None) -> float | None | bool:
