@@ -32,6 +32,7 @@ import numpy as np
 from graytrack.core.calibration import calibrate
 from graytrack.core.models import FourierModel
 from graytrack.core.recording import Recording
+from graytrack.core.estimator import track as estimate
 from graytrack.core.tracking import LiveTracker, track
 from graytrack.drivers.sim import paper
 
@@ -93,6 +94,19 @@ def live_us(model: FourierModel, frames: np.ndarray, x0: float) -> np.ndarray:
     return times * 1e6
 
 
+def estimator_us(model: FourierModel, frames: np.ndarray, t: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """Per-frame CPU time of the estimator's live update (core/estimator/), µs."""
+    from graytrack.core.estimator import Estimator
+
+    live = Estimator(model)
+    times = np.empty(len(frames))
+    for k, frame in enumerate(frames):
+        start = CLOCK()
+        live.update(frame, float(t[k]), float(reference[k]))
+        times[k] = CLOCK() - start
+    return times * 1e6
+
+
 def best_times(jobs: dict[str, Callable[[], object]], repeats: int = REPEATS) -> dict[str, float]:
     """Best-of-``repeats`` CPU time of each job, the jobs interleaved within each repeat."""
     best = {name: float("inf") for name in jobs}
@@ -119,9 +133,16 @@ def main() -> None:
         jobs["disturbed gain/offset + robust (auto)"] = lambda: track(model, bad, reference=val.reference,
                                                                       light="auto", robust=True)
         jobs["clean     plain numpy GN"] = lambda: plain_numpy_track(model, val.frames, x0)
+        # the one recursive estimator (core/estimator/), batch and as the command runs it
+        jobs["clean     estimator"] = lambda: estimate(model, val.frames, val.t, val.reference)
+        jobs["disturbed estimator"] = lambda: estimate(model, bad, val.t, val.reference)
         folder = tempfile.TemporaryDirectory()
         jobs["clean     graytrack track (CLI, all of it)"] = cli_seconds(model, val, folder.name, "paper")
-        jobs["clean     graytrack track (CLI, all of it)"]()  # its imports and compilations before the clock
+        jobs["clean     graytrack track --engine estimator"] = cli_seconds(model, val, folder.name, "estimator",
+                                                                           ("--engine", "estimator"))
+        for name in ("clean     graytrack track (CLI, all of it)", "clean     graytrack track --engine estimator",
+                     "clean     estimator"):
+            jobs[name]()  # its imports and compilations before the clock
         best = best_times(jobs)
         folder.cleanup()
         plain = best["clean     plain (calibrated light)"]
@@ -134,6 +155,11 @@ def main() -> None:
         for label, times in (("clean", live), ("disturbed", live_bad)):
             print(f"  live update, {label:9s} (auto + robust)      p50 {np.percentile(times, 50):6.1f} us"
                   f"  p99 {np.percentile(times, 99):6.1f} us  (batch plain {plain / N_FRAMES * 1e6:.1f} us/frame)")
+        for label, frames in (("clean", val.frames), ("disturbed", bad)):
+            times = min((estimator_us(model, frames, val.t, val.reference) for _ in range(3)),
+                        key=lambda t: np.percentile(t, 50))
+            print(f"  live estimator, {label:9s}                   p50 {np.percentile(times, 50):6.1f} us"
+                  f"  p99 {np.percentile(times, 99):6.1f} us")
         ours = track(model, val).x_mm
         agree = np.abs(ours - plain_numpy_track(model, val.frames, x0)).max() * 1e3
         dist = track(model, bad, reference=val.reference, light="auto", robust=True)
@@ -182,8 +208,9 @@ def every_model(selection: str = "") -> list[tuple[str, FourierModel, FourierMod
     return cases
 
 
-def cli_seconds(model: FourierModel, run: Recording, folder: str, name: str) -> Callable[[], float]:
-    """A job running ``graytrack track`` on ``run`` with ``model`` in this process (its output muted)."""
+def cli_seconds(model: FourierModel, run: Recording, folder: str, name: str,
+                extra: tuple[str, ...] = ()) -> Callable[[], float]:
+    """A job running ``graytrack track [extra]`` on ``run`` with ``model`` in this process (its output muted)."""
     from graytrack.core.models.io import save_model
     from graytrack.core.recording import save
     from graytrack.service.cli import main as cli
@@ -192,7 +219,7 @@ def cli_seconds(model: FourierModel, run: Recording, folder: str, name: str) -> 
     if not os.path.exists(recording):
         save(run, recording)
     save_model(model, model_path)
-    argv = ["track", recording, "--model", model_path, "--out", os.path.join(folder, f"{name}.csv")]
+    argv = ["track", recording, "--model", model_path, "--out", os.path.join(folder, f"{name}.csv"), *extra]
 
     def job() -> None:
         with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
