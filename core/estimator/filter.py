@@ -28,9 +28,9 @@ learned against it, the ``--trim`` of the command line), ``"none"`` (no grating 
 
 from __future__ import annotations
 
+import bisect
 import math
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING, Callable, NamedTuple
 
 import numpy as np
 
@@ -58,10 +58,10 @@ REASON = {"light": "light", "field": "light", "geometry": "geometry", "motion": 
           "magnification": "magnification"}
 
 
-@dataclass(frozen=True)
-class FrameEstimate:
-    """One frame's estimate, made once. Figures are NaN where they do not exist; ``crlb_mm`` is the
-    posterior σ of position with every nuisance (the bound), ``floor_mm`` the frame's own noise floor."""
+class FrameEstimate(NamedTuple):
+    """One frame's estimate, made once and immutable (a named tuple: a frame's record costs a
+    microsecond). Figures are NaN where they do not exist; ``crlb_mm`` is the posterior σ of position
+    with every nuisance (the bound), ``floor_mm`` the frame's own noise floor."""
 
     t: float
     x_mm: float
@@ -86,8 +86,8 @@ class FrameEstimate:
     stale: bool
     stale_reason: str
     message: str
-    state: tuple[float, ...] = field(repr=False)
-    sigma: tuple[float, ...] = field(repr=False)
+    state: tuple[float, ...]  # every state (state.py's order) and its σ
+    sigma: tuple[float, ...]
 
 
 def _legendre(n_rows: int, n_pixels: int) -> tuple[np.ndarray, np.ndarray]:
@@ -102,7 +102,7 @@ def _quantile(z: float, dof: float) -> float:
     return k * (1.0 - c + z * math.sqrt(c)) ** 3
 
 
-def _model_error(info: dict) -> tuple[np.ndarray, np.ndarray, float]:
+def _model_error(info: dict) -> tuple[list[float], list[float], float]:
     """(edges, ratios, global ratio) of the model's own error on its calibration frames over their
     bound (core/adequacy.py): the local profile where calibration measured one, else the whole."""
     from graytrack.core.compression import judged_factor
@@ -113,7 +113,7 @@ def _model_error(info: dict) -> tuple[np.ndarray, np.ndarray, float]:
     ratios = np.asarray(profile.get("ratio", []), dtype=np.float64)
     if edges.size != ratios.size + 1:
         edges, ratios = np.zeros(0), np.zeros(0)
-    return edges, ratios, max(whole, 1.0)
+    return edges.tolist(), ratios.tolist(), max(whole, 1.0)
 
 
 def calibration_level(model: FourierModel) -> float:
@@ -362,50 +362,53 @@ class Estimator:
 
     def _estimate(self, t: float, stats: np.ndarray, test: float, mode: str, reason_jump: str | None,
                   reference_mm: float) -> FrameEstimate:
-        s, P, settings = self.s, self.P, self.settings
-        sigma = np.sqrt(np.maximum(np.diag(P), 0.0))
-        floor = 1.0 / math.sqrt(stats[kernel.S_XINFO]) if stats[kernel.S_XINFO] > 0 else math.inf
+        settings = self.settings
+        # plain Python numbers from here: this runs for every frame
+        s = self.s.tolist()
+        sigma = np.sqrt(np.maximum(np.diag(self.P), 0.0)).tolist()
+        xinfo, used, rejected, residual = (float(stats[kernel.S_XINFO]), float(stats[kernel.S_USED]),
+                                           float(stats[kernel.S_REJECTED]), float(stats[kernel.S_RESIDUAL]))
+        floor = 1.0 / math.sqrt(xinfo) if xinfo > 0 else math.inf
         # what the model itself errs by here (its calibration's shared error): no frame can see it
         # (as much of it as the image's share of the position carries: a fused grating pins the rest)
         var_image = self._position_variance()
-        share = min(var_image / (floor * floor), 1.0) if floor > 0 else 1.0
-        model_var = self._model_share(float(s[X])) * floor * floor * share * share
+        floor2 = floor * floor
+        share = min(var_image / floor2, 1.0) if floor > 0 else 1.0
+        model_var = self._model_share(s[X]) * floor2 * share * share
         var_x = var_image + model_var
         stale, reason, message = False, "", ""
         if test > 1.0:
             stale = True
-            reason = REASON.get(reason_jump or "", "") or ("transients" if stats[kernel.S_REJECTED] else "light")
+            reason = REASON.get(reason_jump or "", "") or ("transients" if rejected else "light")
             message = f"innovation χ² {test:.2f}x its quantile at the false-alarm rate"
-        if self.grating == "check" and math.isfinite(reference_mm):
+        if self.grating == "check" and reference_mm == reference_mm:
             nu = reference_mm - s[X]
             if nu * nu > self.z_two ** 2 * (var_x + settings.grating_sigma ** 2):
                 stale, reason = True, reason or "scale"
                 message = message or f"camera and grating disagree by {nu * 1e3:+.2f} µm"
-        if var_x > settings.dominance * floor * floor * self.bound_factor ** 2:
-            carried = "geometry" if model_var > var_x - model_var - floor * floor else self._carrier()
+        if var_x > settings.dominance * floor2 * self.bound_factor ** 2:
+            carried = "geometry" if model_var > var_x - model_var - floor2 else self._carrier()
             if carried:
                 stale, reason = True, reason or carried
                 message = message or f"the position's bound is carried by the {carried} state"
         focus_sigma = sigma[B]
-        focus = s[B] if abs(s[B]) > self.z_two * focus_sigma else math.nan
-        x_report = s[X] + (s[C] if self.grating == "check" else 0.0)
+        shown = abs(s[B]) > self.z_two * focus_sigma
         return FrameEstimate(
-            t=t, x_mm=float(x_report), crlb_mm=math.sqrt(var_x) * self.bound_factor,
+            t=t, x_mm=s[X] + (s[C] if self.grating == "check" else 0.0), crlb_mm=math.sqrt(var_x) * self.bound_factor,
             floor_mm=floor * self.bound_factor, locked=True, rms_gray=float(stats[kernel.S_RMS]),
-            chi2=float(stats[kernel.S_RESIDUAL] / max(stats[kernel.S_USED], 1.0) / self._level(float(s[X]))),
-            test=float(test), rejected_px=int(stats[kernel.S_REJECTED]), iterations=int(stats[kernel.S_ITER]),
-            gain=float(s[G]), offset_gray=float(s[OFS]), focus_px2=float(focus),
-            focus_sigma_px2=float(focus_sigma) if math.isfinite(focus) else math.nan,
-            stretch=float(s[M]), stretch_sigma=float(sigma[M]), place_mm=float(s[C]), place_sigma_mm=float(sigma[C]),
+            chi2=residual / max(used, 1.0) / self._level(s[X]), test=float(test), rejected_px=int(rejected),
+            iterations=int(stats[kernel.S_ITER]), gain=s[G], offset_gray=s[OFS],
+            focus_px2=s[B] if shown else math.nan, focus_sigma_px2=focus_sigma if shown else math.nan,
+            stretch=s[M], stretch_sigma=sigma[M], place_mm=s[C], place_sigma_mm=sigma[C],
             mode=mode, repeated=False, stale=stale, stale_reason=reason, message=message,
-            state=tuple(s.tolist()), sigma=tuple(sigma.tolist()))
+            state=tuple(s), sigma=tuple(sigma))
 
     def _model_share(self, x_mm: float) -> float:
         """The model's own error power at ``x_mm`` over the noise floor's (ratio² − 1 of its calibration)."""
         edges, ratios, whole = self.model_error
         ratio = whole
-        if edges.size and edges[0] <= x_mm <= edges[-1]:
-            ratio = ratios[min(int(np.searchsorted(edges, x_mm, side="right")) - 1, ratios.size - 1)]
+        if edges and edges[0] <= x_mm <= edges[-1]:
+            ratio = ratios[min(bisect.bisect_right(edges, x_mm) - 1, len(ratios) - 1)]
         return max(ratio * ratio - 1.0, 0.0)
 
     def _carrier(self) -> str:

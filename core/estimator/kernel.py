@@ -191,6 +191,7 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
         w[p] = mask[p] / var
         rho[p] = 1.0
     A = np.zeros((n, n))
+    bare = np.zeros((n, n))  # the samples' normal matrix alone, before the prior and the grating
     rhs = np.zeros(n)
     delta = np.zeros(n)
     total_iterations = 0
@@ -206,6 +207,7 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
                 at = xi
             cost = _normal(s, idx, y, w, rho, values, slopes, curvature, t_rel, r_rel, b1, b2, half_d2, A, rhs,
                            residual)
+            bare[:, :] = A
             for i in range(n):
                 acc = 0.0
                 for j in range(n):
@@ -224,11 +226,15 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
             if moved <= tolerance:
                 converged = 1.0
                 break
-        xi = s[X] + s[C] + s[L] * s[M]
-        if xi != at:
-            _evaluate(xi, model, values, slopes, smooth)
-        cost = _normal(s, idx, y, w, rho, values, slopes, curvature, t_rel, r_rel, b1, b2, half_d2, A, rhs,
-                       residual)
+        if converged > 0.0:
+            # the last step was below the tolerance: the model there is the model here, to far below any bound
+            A[:, :] = bare
+        else:
+            xi = s[X] + s[C] + s[L] * s[M]
+            if xi != at:
+                _evaluate(xi, model, values, slopes, smooth)
+            cost = _normal(s, idx, y, w, rho, values, slopes, curvature, t_rel, r_rel, b1, b2, half_d2, A, rhs,
+                           residual)
         if not robust:
             break
         # robust σ of the normalised residuals (never below the noise model's), then redescending weights
@@ -265,6 +271,7 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
             rho[p] = new
         if not changed:
             break
+        converged = 0.0  # the weights moved: solved again from here
         if round_ == ROBUST_ROUNDS:
             cost = _normal(s, idx, y, w, rho, values, slopes, curvature, t_rel, r_rel, b1, b2, half_d2, A, rhs,
                            residual)

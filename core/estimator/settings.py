@@ -127,7 +127,8 @@ TUNABLES: dict[str, Tunable] = {
         "a frame with more of its samples set aside is not placed: the rest no longer pins the period",
         low=0.0, high=1.0),
     "tolerance": Tunable(
-        1e-8, "mm", "the last Gauss–Newton step in position below which a frame is converged (far below any bound)",
+        1e-6, "mm", "the last Gauss–Newton step in position below which a frame is converged (1 nm: far below any "
+        "bound; the step is taken, and what remains is that step times the contraction, ≪ 1 converged)",
         low=0.0),
     "max_iterations": Tunable(
         8, "1", "Gauss–Newton iterations a frame may take (a converged frame takes 2–3)", low=1),

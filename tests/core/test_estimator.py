@@ -104,7 +104,7 @@ def test_a_frame_estimate_is_made_once(paper):
     estimator = Estimator(paper)
     estimate = estimator.update(run.frames[0], float(run.t[0]), float(run.reference[0]))
     assert isinstance(estimate, FrameEstimate)
-    with pytest.raises(dataclasses.FrozenInstanceError):
+    with pytest.raises(AttributeError):
         estimate.x_mm = 0.0  # type: ignore[misc]
     # the live update and the batch are one recursion: the same numbers frame by frame
     batch = track(paper, run.frames, run.t, run.reference)
