@@ -970,8 +970,18 @@ class LiveTracker:
         """The model has stopped describing the images (sustained χ² rise): recalibrate."""
         return self.state.stale
 
-    def update(self, frame: np.ndarray, reference_mm: float = float("nan")) -> LiveFix:
-        """Solve one frame ``(n,)`` or ``(R, n)``; ``reference_mm`` is the grating at that instant, if read."""
+    @property
+    def texture(self) -> Texture | None:
+        """What this tracker learned on the print (None: not learning)."""
+        return self.state.texture
+
+    def restart_at(self, x_mm: float) -> None:
+        """The next frame is solved from ``x_mm`` (the grating's reading when a model is switched in)."""
+        self.state.x_prev = x_mm
+
+    def update(self, frame: np.ndarray, reference_mm: float = float("nan"), t: float | None = None) -> LiveFix:
+        """Solve one frame ``(n,)`` or ``(R, n)``; ``reference_mm`` is the grating at that instant, if read
+        (``t``, its mid-exposure, is the estimator's: this solver places each frame on its own)."""
         frame = np.asarray(frame)
         last = self._last_frame
         same = last is not None and last.shape == frame.shape and _identical(last, frame)

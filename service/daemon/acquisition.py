@@ -29,6 +29,7 @@ import numpy as np
 
 from graytrack.core.models.fourier import FourierModel
 from graytrack.core.texture import Texture
+from graytrack.core.estimator.live import LiveEstimator
 from graytrack.core.tracking import LiveFix, LiveTracker
 from graytrack.drivers.camera.base import Camera, CameraError, CameraTimeout, Frame
 from graytrack.service.daemon.clock import HOST_CLOCK, Clock
@@ -49,7 +50,8 @@ from graytrack.service.daemon.worker import Worker, describe
 log = logging.getLogger("graytrack.daemon")
 # a model's tracker built off the frame loop: (model, tracker or None, why it cannot be used, its calibration's
 # id, its scale watch, its slide watch without a grating)
-Built = tuple[FourierModel, "LiveTracker | None", "str | None", "str | None", "ScaleWatch | None", "SlideWatch | None"]
+Built = tuple[FourierModel, "LiveTracker | LiveEstimator | None", "str | None", "str | None", "ScaleWatch | None",
+              "SlideWatch | None"]
 READ_TIMEOUT_S = 0.25  # short, so stop requests and fault timing are honoured promptly
 
 
@@ -101,13 +103,15 @@ class Acquisition(Worker):
                  publish: Callable[[dict[str, Any]], None], faults: Callable[[str, str | None], None],
                  fault_after_s: float, reopen_interval_s: float,
                  on_event: Callable[[str, str], None] = lambda kind, message: None, priority: int = 0,
-                 trim: ReferenceTrim | None = None, clock: Clock = HOST_CLOCK, slide: LiveSlide | None = None) -> None:
+                 trim: ReferenceTrim | None = None, clock: Clock = HOST_CLOCK, slide: LiveSlide | None = None,
+                 engine: str = "watches") -> None:
         super().__init__("acquisition", lambda reason: faults("acquisition", reason))
         self.clock = clock  # what silence, rates and the reopen pause are measured on (service/daemon/clock.py)
         self.on_event = on_event  # lock losses, re-acquisitions, stale-model flags: the event log
         self.priority = priority  # SCHED_FIFO level of the frame loop (realtime.py), 0 = normal
         self.trim = trim or ReferenceTrim(False, on_event)  # camera against grating (service/daemon/trim.py)
         self.slide = slide  # no grating on the rig: each bound carries the slide (service/daemon/slide.py)
+        self.engine = engine  # the per-frame path: "watches" (LiveTracker) or "estimator" (core/estimator/)
         self.camera = camera
         self.readings = readings
         self.publish = publish
@@ -161,11 +165,15 @@ class Acquisition(Worker):
         try:
             # without a grating the slide watch (in place of the scale watch), else the tracker's scale watch,
             # with the trim when enabled
-            slide = self.slide.watch_for(model) if self.slide is not None else None
-            watch = self.trim.watch_for(model) if slide is None else None
-            given = [w for w in (watch, slide) if w is not None]
-            built: Built = (model, LiveTracker(model, start, watches=given, texture=texture), None, calibration,
-                            watch, slide)
+            if self.engine == "estimator":  # the one estimator: the trim is its fused grating, the slide its lever
+                grating = "none" if self.slide is not None else ("fuse" if self.trim.enabled else "check")
+                built: Built = (model, LiveEstimator(model, start, grating), None, calibration, None, None)
+            else:
+                slide = self.slide.watch_for(model) if self.slide is not None else None
+                watch = self.trim.watch_for(model) if slide is None else None
+                given = [w for w in (watch, slide) if w is not None]
+                built = (model, LiveTracker(model, start, watches=given, texture=texture), None, calibration,
+                         watch, slide)
         except Exception as exc:  # noqa: BLE001 - an unusable model: said at the switch, frames still read
             built = (model, None, describe(exc), calibration, None, None)
         with self._lock:
@@ -298,7 +306,7 @@ class Acquisition(Worker):
             sample = dataclasses.replace(sample, reference_mm=math.nan)
         try:
             with self.trim.lock:  # the tracker feeds the scale watch, which a reset may clear meanwhile
-                fix = tracker.update(np.asarray(sample.frame.pixels), sample.reference_mm)
+                fix = tracker.update(np.asarray(sample.frame.pixels), sample.reference_mm, sample.t)
         except Exception as exc:  # noqa: BLE001 - a frame or model the tracker cannot use: a fault, not a dead loop
             self.stats.tracking_errors += 1
             self.faults("tracking", f"frame {sample.frame.frame_id} cannot be tracked: {describe(exc)}")
@@ -323,8 +331,8 @@ class Acquisition(Worker):
                               f"{sample.frame.frame_id}: {event.reason}")
         self._stale.observe(sample.frame.frame_id,
                             getattr(fix, "stale_reason", None) if getattr(fix, "stale", False) else None)
-        self._texture.observe(tracker.state.texture)
-        self.texture.observe(tracker.state.texture, self._calibration)
+        self._texture.observe(tracker.texture)
+        self.texture.observe(tracker.texture, self._calibration)
         self._seq += 1
         message = fix_message(self._seq, sample, fix, stats.dropped, self._calibration)
         self.trim.annotate(message, fix)
@@ -347,7 +355,7 @@ class Acquisition(Worker):
             self.faults("tracking", f"cannot track with this model: {error}")
             return
         if math.isfinite(reference_mm):
-            tracker.state.x_prev = reference_mm
+            tracker.restart_at(reference_mm)
         self._tracker = tracker
         self.trim.install(model, watch)
         if self.slide is not None:

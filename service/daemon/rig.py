@@ -232,7 +232,7 @@ class Rig:
                                   daemon.camera_fault_after_s, daemon.reopen_interval_s, self._stream_event,
                                   priority=daemon.realtime_priority,
                                   trim=ReferenceTrim(daemon.trim, self._stream_event),
-                                  slide=None if daemon.grating else LiveSlide(daemon.axis_px))
+                                  slide=None if daemon.grating else LiveSlide(daemon.axis_px), engine=daemon.engine)
         if self.model is not None:  # a frame loop restarted: with what the last one learned on the print
             acquisition.install_model(self.model, self.grating.latest_mm() if self.grating else None,
                                       self.installed_calibration, self.texture_store.newest(self.installed_calibration))

@@ -90,6 +90,11 @@ class DaemonConfig(StrictTable):
     axis_px: float | None = Field(None, ge=0, description="without a grating: the optical axis's distance from the "
                                   "ROI's centre along the line, pixels, the slide's lever (unset: 300, a prior; 0: the "
                                   "ROI on the axis, nothing carried)")
+    engine: Literal["watches", "estimator"] = Field(
+        "watches", description="the per-frame path: today's solver and its watches, or the one recursive estimator "
+        "being built to replace it (core/estimator/: every nuisance a state with a declared rate, the bound its "
+        "posterior, flags from one innovation test; with trim = true it fuses the grating, with grating = false "
+        "it reads none; it learns no print texture yet)")
     events_max_age_days: float = Field(90.0, gt=0, description="the event log keeps events this long (the newest "
                                        "of each kind always)")
     events_max_count: int = Field(100_000, ge=10, description="and at most this many (about 140 bytes each), "

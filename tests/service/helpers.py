@@ -297,8 +297,8 @@ class LiveServer:
         self.thread.join(timeout=20.0)
 
 
-def stream_through_daemon(model, run, trim_enabled: bool,
-                          slide: Any = None) -> tuple[list[dict], list[tuple[str, str]], Any]:
+def stream_through_daemon(model, run, trim_enabled: bool, slide: Any = None,
+                          engine: str = "watches") -> tuple[list[dict], list[tuple[str, str]], Any]:
     """Every frame of a recorded ``run`` through the daemon's frame loop (its tracker built and switched
     in as for an installed model, with ``[daemon] trim`` as asked; ``slide``: the rig's LiveSlide when it
     has no grating, ``[daemon] grating = false``): the published messages, the events and the acquisition
@@ -312,7 +312,8 @@ def stream_through_daemon(model, run, trim_enabled: bool,
     events: list[tuple[str, str]] = []
     trim = ReferenceTrim(trim_enabled, lambda kind, message: events.append((kind, message)))
     acquisition = Acquisition(None, None, messages.append, lambda *fault: None, 1.0, 1.0,
-                              on_event=lambda kind, message: events.append((kind, message)), trim=trim, slide=slide)
+                              on_event=lambda kind, message: events.append((kind, message)), trim=trim, slide=slide,
+                              engine=engine)
     # as install_model does
     acquisition._build(model, float(run.reference[0]), 0, "calibration", None, lambda why: None)
     for k in range(run.n_frames):

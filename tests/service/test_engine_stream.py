@@ -1,0 +1,44 @@
+"""``[daemon] engine = "estimator"``: the daemon's frame loop driven by the one recursive estimator
+(core/estimator/), streamed as the watches' path is, scored against the rig's truth."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from graytrack.core.calibration import calibrate
+from graytrack.drivers.sim.scenarios import build_rig
+from graytrack.service.daemon.settings import DaemonConfig
+from tests.service.helpers import stream_through_daemon
+
+pytestmark = pytest.mark.unit
+
+
+@pytest.fixture(scope="module")
+def paper():
+    calibration, _ = build_rig("paper", "", seed=12).record(8.0)
+    return calibrate(calibration, "paper").model
+
+
+@pytest.mark.parametrize("trim", [False, True])
+def test_the_daemon_streams_the_estimators_positions_within_their_bounds(paper, trim):
+    run, truth = build_rig("paper", "light_change:gain=0.85:ambient_gray=8:start_s=2", seed=12, run=2).record(5.0)
+    messages, _, acquisition = stream_through_daemon(paper, run, trim_enabled=trim, engine="estimator")
+    assert acquisition.engine == "estimator"
+    placed = [m for m in messages if m.get("x_mm") is not None]
+    assert len(placed) == run.n_frames
+    error = np.array([(m["x_mm"] - truth.x_mm[m["seq"] - 1]) * 1e3 for m in placed])
+    bound = np.array([m["crlb_um"] for m in placed])
+    assert np.sqrt(np.mean((error / bound) ** 2)) < 1.5
+    stale = np.array([m["stale"] for m in placed])
+    assert not np.any((np.abs(error) > 4 * bound) & ~stale)  # never silently wrong
+    assert stale.mean() < 0.05
+    # the light switched at 2 s is followed: the stream's gain ends at the rig's
+    assert placed[-1]["gain"] == pytest.approx(0.85, abs=0.03)
+
+
+def test_the_engine_is_a_declared_setting():
+    assert DaemonConfig().engine == "watches"
+    assert DaemonConfig(engine="estimator").engine == "estimator"
+    with pytest.raises(ValueError):
+        DaemonConfig(engine="kalman")
