@@ -25,9 +25,9 @@ class LiveEstimator:
     texture = None  # what the estimator learns on the print: not yet (the maps are its next states)
 
     def __init__(self, model: FourierModel, x0_mm: float | None = None, grating: str = "check",
-                 settings: EstimatorSettings | None = None):
+                 settings: EstimatorSettings | None = None, axis_px: float | None = None):
         self.model = model
-        self.estimator = Estimator(model, settings=settings, grating=grating)
+        self.estimator = Estimator(model, settings=settings, grating=grating, axis_px=axis_px)
         self._start = x0_mm
         self.last: FrameEstimate | None = None
 

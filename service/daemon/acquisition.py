@@ -167,7 +167,9 @@ class Acquisition(Worker):
             # with the trim when enabled
             if self.engine == "estimator":  # the one estimator: the trim is its fused grating, the slide its lever
                 grating = "none" if self.slide is not None else ("fuse" if self.trim.enabled else "check")
-                built: Built = (model, LiveEstimator(model, start, grating), None, calibration, None, None)
+                axis_px = self.slide.axis_px if self.slide is not None else None
+                built: Built = (model, LiveEstimator(model, start, grating, axis_px=axis_px), None, calibration, None,
+                                None)
             else:
                 slide = self.slide.watch_for(model) if self.slide is not None else None
                 watch = self.trim.watch_for(model) if slide is None else None
