@@ -183,6 +183,7 @@ class Estimator:
         if model.n_rows > 1:
             active.append(T)
         self.idx = np.array(sorted(active), dtype=np.int64)
+        self.idx_motion = np.array([X, V], dtype=np.int64)
         self.scratch = np.empty((6, n_values))
         self.rho = np.ones(n_values)
         self.stats = np.zeros(kernel.N_STATS)
@@ -253,7 +254,7 @@ class Estimator:
         s_prior, P_prior = self.s.copy(), self.P.copy()
         s, A, stats = self._solve(y, mask, s_prior, P_prior, reference_mm if fuse else math.nan)
         test = self._test(stats, s)
-        mode = ""
+        mode, solved = "", self.idx
         if test > 1.0:
             best = None
             for family in JUMPS:
@@ -272,8 +273,11 @@ class Estimator:
                 # No mode explains the frame: its noise is evidently beyond the noise model's. Its samples
                 # count for as much as its χ² says they are worth (the measurement's covariance scaled by the
                 # innovation's excess), so the frame moves the state little and its bound widens.
+                # Nor does it teach the rig's slow states anything: only the motion is updated by it.
                 inflation = self._excess(stats, s)
-                s, A, stats = self._solve(y, mask / inflation, s_prior, P_prior, reference_mm if fuse else math.nan)
+                solved = self.idx_motion
+                s, A, stats = self._solve(y, mask / inflation, s_prior, P_prior, reference_mm if fuse else math.nan,
+                                          solved)
         else:
             reason_jump = None
         placed = stats[kernel.S_CONVERGED] > 0 or stats[kernel.S_ITER] > 0
@@ -286,7 +290,7 @@ class Estimator:
             return self._unplaced(t, stats, test, "too many samples set aside" if rejected else "not converged")
         self.failed = 0
         self.s[:] = s
-        cov = self._covariance(A)
+        cov = self._covariance(A, solved)
         self.P[:] = cov
         return self._estimate(t, stats, test, mode, reason_jump, reference_mm)
 
@@ -302,8 +306,9 @@ class Estimator:
         return np.ascontiguousarray(y), np.ascontiguousarray(mask)
 
     def _solve(self, y: np.ndarray, mask: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray,
-               grating_z: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        idx = self.idx
+               grating_z: float, idx: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The update over the states ``idx`` (default: every active one; the others held at the prior)."""
+        idx = self.idx if idx is None else idx
         s = s_prior.copy()
         A = np.zeros((idx.size, idx.size))
         stats = np.zeros(kernel.N_STATS)
@@ -349,10 +354,10 @@ class Estimator:
             widened[V, X] += var * dt
         return widened
 
-    def _covariance(self, A: np.ndarray) -> np.ndarray:
-        """The full covariance: the posterior over the active states, the prior's elsewhere."""
+    def _covariance(self, A: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        """The full covariance: the posterior over the states solved, the prior's elsewhere."""
         cov = self.P.copy()
-        kernel.embed(cov, A, self.idx)
+        kernel.embed(cov, A, idx)
         return cov
 
     def _position_variance(self) -> float:
