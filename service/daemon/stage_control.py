@@ -20,6 +20,20 @@ from graytrack.service.daemon.grating import Readings
 from graytrack.wire import Homed, Moved, Stopped, Velocity
 
 MAX_VELOCITY_MM_S = 100.0
+SHOWN_DIGITS = 6  # significant digits of a refused value and its limits, more only where they would read equal
+MAX_DIGITS = 17  # enough for any float64 to read back as itself
+
+
+def shown(value: float, *limits: float) -> list[str]:
+    """``value`` and ``limits`` as text with the fewest significant digits (at least :data:`SHOWN_DIGITS`)
+    that keep ``value`` apart from every limit it differs from: 10.4600000001 against 10.46 reads
+    "10.4600000001", not "10.46 is outside [0, 10.46]"."""
+    numbers = (value, *limits)
+    for digits in range(SHOWN_DIGITS, MAX_DIGITS + 1):
+        texts = [f"{number:.{digits}g}" for number in numbers]
+        if all(texts[0] != text for limit, text in zip(limits, texts[1:]) if limit != value):
+            return texts
+    return [repr(number) for number in numbers]
 
 
 class StageControl:
@@ -62,7 +76,8 @@ class StageControl:
         hardware = self._idle()
         low, high = hardware.stage.limits()
         if not (math.isfinite(target_mm) and low <= target_mm <= high):
-            raise OutOfLimits(f"target_mm {target_mm:g} is outside the soft limits [{low:g}, {high:g}] mm")
+            target, low_text, high_text = shown(target_mm, low, high)
+            raise OutOfLimits(f"target_mm {target} is outside the soft limits [{low_text}, {high_text}] mm")
         self._command(lambda: hardware.stage.move_to(target_mm))
         self.target_mm = target_mm
         self._event("move", f"move to {target_mm:g} mm", target_mm=target_mm)
@@ -92,7 +107,8 @@ class StageControl:
         if not (math.isfinite(velocity_mm_s) and 0 < velocity_mm_s <= highest):
             lower = controller is not None and controller < MAX_VELOCITY_MM_S
             whose = "the controller's limit" if lower else "the limit"
-            raise OutOfLimits(f"velocity_mm_s {velocity_mm_s:g} is outside (0, {highest:g}] mm/s ({whose})")
+            velocity, highest_text = shown(velocity_mm_s, highest)
+            raise OutOfLimits(f"velocity_mm_s {velocity} is outside (0, {highest_text}] mm/s ({whose})")
 
         def apply() -> float:
             hardware.stage.set_velocity(velocity_mm_s)
