@@ -324,7 +324,9 @@ class Rig:
         return hardware, acquisition
 
     def start_calibration(self) -> CalibrationJob:
-        with self._lock:
+        # the stage's motion lock first (stage_control.py): a move checked before the job exists has reached
+        # the controller before the sweep's first command, which then replaces it
+        with self.stage.motion, self._lock:
             hardware, acquisition = self._ready()
             if self.job is not None and self.job.active:
                 raise Busy(f"calibration {self.job.id} is already running")

@@ -105,6 +105,11 @@ class SweepConfig(StrictTable):
     frames_per_position: int = Field(5, ge=3, description="frames at each stop (scan: at each end)")
     margin_mm: float = Field(0.1, ge=0, description="keep this far inside the soft limits")
     settle_timeout_s: float = Field(10.0, gt=0)
+    # a stop is checked where it settled: something else commanding the stage (another program on the
+    # controller, a move that slipped in) is then a failed sweep with the cause, not a model fitted on a
+    # stop recorded somewhere else. Ten times the settle window a PI controller reports on target in.
+    stop_tolerance_um: float = Field(10.0, gt=0, description="largest distance between a stop's planned and "
+                                                              "settled position (µm), else the sweep fails")
     frame_timeout_s: float = Field(5.0, gt=0, description="wall time to wait for the frames of one stop")
     model: Literal["paper", "auto"] = Field("auto", description="auto = the closed loop (finds the effects the rig "
                                             "has), or the paper model")
