@@ -40,6 +40,10 @@ class DaemonConfig(StrictTable):
     pair_rest_s: float = Field(0.25, gt=0, description="host seconds the newest grating reading of a stage at rest "
                                                        "(no command since) stands for")
     stale_after_s: float = Field(0.5, gt=0, description="a position or rate older than this is withdrawn (null)")
+    read_token: Literal["beyond_loopback", "always", "never"] = Field(
+        "beyond_loopback", description="when reads (status, profile, events, calibrations and their files, metrics, "
+        "the stream) need the bearer token: when the daemon listens beyond loopback, always, or never; the page, "
+        "its files, /healthz and /api/access stay open (api/read_policy.py)")
     allowed_origins: list[str] = Field(default_factory=list,
                                        description="WebSocket Origins accepted besides the page's own")
     allowed_hosts: list[str] = Field(default_factory=list,
