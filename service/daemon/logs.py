@@ -42,6 +42,10 @@ REQUEST_LOGGERS = ("uvicorn.access", "uvicorn.error")
 UNADDRESSED = frozenset({"Invalid HTTP request received.", "Unsupported upgrade request.",
                          "Exceeded concurrency limit."})
 UNKNOWN_ADDRESS = "an unknown address"
+# what the WebSocket protocol (websockets, on uvicorn's logger) writes per connection, without its address:
+# the template and whether it is a refusal
+CONNECTION_LINES = {"connection rejected (%d %s)": True, "HTTP response sent (%d %s)": False, "connection open": False,
+                    "connection closed": False}
 
 
 class Redact(logging.Filter):
@@ -106,6 +110,8 @@ def classify(record: logging.LogRecord) -> tuple[str, bool, str] | None:
         return _address(args[0]), True, f"WebSocket handshake refused ({status})"
     if template in UNADDRESSED:
         return UNKNOWN_ADDRESS, True, template.rstrip(".")
+    if template in CONNECTION_LINES:
+        return UNKNOWN_ADDRESS, CONNECTION_LINES[template], f"WebSocket {record.getMessage()}"
     return None
 
 
