@@ -136,13 +136,14 @@ class Sweep:
         self.on_command(self.clock.now())
         self.stage.move_to(target)
         reading = self.stage.wait_on_target(self.config.settle_timeout_s)
+        self.job.check_abort()  # a stop request halts the stage anywhere: that is an abort, not a displaced stop
         self._check_stop(target, reading.position_mm, "settled")
-        self.job.check_abort()
         samples = self._settled_samples(feed, reading.t)  # host time, as frames
         # The axis is at rest inside its on-target window, so one POS? read after the frames
         # is the reference of all of them (pairing with the poller's readings could mix in
         # one taken before the move when polls are sparse).
         at_rest = self.stage.position().position_mm
+        self.job.check_abort()
         self._check_stop(target, at_rest, "after its frames")
         for sample in samples:
             gathered.add(sample, at_rest)
