@@ -153,9 +153,10 @@ class Sweep:
         frames recorded elsewhere would be fitted as if taken at the plan."""
         off_um = abs(position_mm - target) * 1e3
         if not off_um <= self.config.stop_tolerance_um:  # NaN too
-            raise SweepError(f"the stop planned at {target:.4f} mm was at {position_mm:.4f} mm {when} ({off_um:.1f} µm "
-                             f"off, more than [sweep] stop_tolerance_um = {self.config.stop_tolerance_um:g}): something "
-                             f"else moved the stage during the calibration")
+            raise SweepError(f"the stop planned at {target:.4f} mm was at {position_mm:.4f} mm {when} "
+                             f"({off_um:.1f} µm off, more than [sweep] stop_tolerance_um = "
+                             f"{self.config.stop_tolerance_um:g}): something else moved the stage during the "
+                             "calibration")
 
     def _scan(self, feed: "queue.Queue[Sample]") -> Recording:
         low, high = sweep_range(self.stage.limits(), self.config)

@@ -87,9 +87,9 @@ def _flood(port: int, kind: str, count: int, seen: list[bytes]) -> None:
             answer = _exchange(port, b"\x16\x03\x01 this is not HTTP at all\r\n\r\n")
         else:
             key = base64.b64encode(os.urandom(16)).decode()
-            answer = _exchange(port, (f"GET /ws/position HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\n"
-                                      f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n"
-                                      f"Origin: https://evil.example\r\n\r\n").encode())
+            answer = _exchange(port, (f"GET /ws/position HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\n"
+                                      f"Upgrade: websocket\r\nConnection: Upgrade\r\nSec-WebSocket-Key: {key}\r\n"
+                                      f"Sec-WebSocket-Version: 13\r\nOrigin: https://evil.example\r\n\r\n").encode())
         seen.append(answer.split(b" ")[1] if answer.startswith(b"HTTP/1.1") else b"none")
 
 
@@ -138,7 +138,8 @@ def test_a_flood_of_refused_requests_writes_few_lines_and_the_stage_fault_among_
             logger.removeHandler(lines)
         logging.getLogger().setLevel(root_level)
     written = lines.lines
-    assert len(written) <= MAX_LINES, (f"{len(written)} lines for {REQUESTS} requests in {flooded_s:.1f} s", "\n".join(written))
+    assert len(written) <= MAX_LINES, (f"{len(written)} lines for {REQUESTS} requests in {flooded_s:.1f} s",
+                                       "\n".join(written))
     assert any(line.startswith("WARNING graytrack.daemon: stage fault:") for line in written), written
     summarised = [line for line in written if "requests refused in the last 10 s from" in line]
     assert any("from 127.0.0.1: WebSocket handshake refused (403)" in line for line in summarised), written

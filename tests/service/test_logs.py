@@ -73,7 +73,6 @@ def test_a_flood_is_summarised_per_window_by_source_and_reason_and_faults_always
     summary.propagate, summary.level = False, logging.DEBUG
     summary.addHandler(lines)
     gate = FloodGate(clock, summary)
-    requests = logging.getLogger("test.logs.requests")
 
     def request(record: logging.LogRecord) -> None:
         if gate.filter(record):

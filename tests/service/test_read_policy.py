@@ -39,7 +39,8 @@ def test_every_read_route_follows_the_one_read_policy(tmp_path: Path, two_calibr
             bare = client.get(path)
             if needed:
                 assert bare.status_code == 401, (path, bare.status_code)
-                assert "needs the token for reads" in bare.json()["error"] and bare.headers["www-authenticate"] == "Bearer"
+                assert "needs the token for reads" in bare.json()["error"]
+                assert bare.headers["www-authenticate"] == "Bearer"
                 assert bare.headers["x-frame-options"] == "DENY", "refused with the security headers"
                 wrong = client.get(path, headers={"Authorization": f"Bearer {WRONG}"})
                 assert wrong.status_code == 401 and wrong.json()["error"] == "invalid bearer token", path

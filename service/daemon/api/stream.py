@@ -4,9 +4,10 @@ Two tasks per connection, not per message: one sends what the broadcaster queued
 the client to go away. A connection served by :class:`StreamProtocol` without extensions is written
 to by the broadcaster itself, pre-framed bytes shared by every client (``broadcast.py``); its sending
 task only handles what had to be queued (a transport above its high-water mark). The handshake is
-checked by :class:`WebPolicy` (Host, Origin, and the token as ``[daemon] read_token`` says, read_policy.py). A connection beyond the connection limit is
-accepted only to be closed 1013 with the reason; a client message over a small control size closes
-the connection 1009 (the stream reads nothing from its clients; limits.py).
+checked by :class:`WebPolicy` (Host, Origin, and the token as ``[daemon] read_token`` says,
+read_policy.py). A connection beyond the connection limit is accepted only to be closed 1013 with
+the reason; a client message over a small control size closes the connection 1009 (the stream reads
+nothing from its clients; limits.py).
 """
 
 from __future__ import annotations
