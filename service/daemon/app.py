@@ -1,6 +1,7 @@
 """The daemon's HTTP interface (docs/contracts.md, "the daemon's interface") as a FastAPI app.
 
-Reads are open; every request that changes state needs ``Authorization: Bearer <token>``,
+Reads are open on loopback (beyond it they need the token too, `[daemon] read_token`, :mod:`api.read_policy`);
+every request that changes state needs ``Authorization: Bearer <token>``,
 checked before its body is read (:mod:`api.security`). Errors are always JSON
 ``{"error": "one clear sentence"}``: every refusal is a :class:`DaemonError` whose ``status`` is
 the answer, mapped here in one place. The rig's threads do the work; the handlers only ask and
