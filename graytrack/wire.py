@@ -227,6 +227,8 @@ class CalibrationRow(BaseModel):
     files: list[str] = Field(description="names served at /api/calibrations/{id}/files/{name}")
     summary: str | None
     active: bool = False
+    damaged: str | None = Field(None, description="why this calibration's model.json cannot be read (it cannot be "
+                                                  "activated); null when it reads back")
 
 
 class CalibrationPage(BaseModel):

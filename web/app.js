@@ -85,7 +85,9 @@ async function api(method, path, body) {
 }
 
 async function get(path) {
-  const response = await fetch(path);
+  // reads carry the token when one is saved: a daemon bound beyond loopback asks for it ([daemon] read_token)
+  const token = localStorage.getItem(TOKEN_KEY);
+  const response = await fetch(path, token ? { headers: { Authorization: `Bearer ${token}` } } : undefined);
   const data = await response.json().catch(() => ({}));
   if (!response.ok) throw new Error(data.error || `${response.status} ${response.statusText}`);
   return data;
@@ -93,9 +95,11 @@ async function get(path) {
 
 // -- live position -------------------------------------------------------------------------
 function connect() {
+  // the token as a subprotocol, never in the URL (URLs end up in logs): the daemon answers "graytrack"
   const token = localStorage.getItem(TOKEN_KEY);
-  const query = `max_rate=${STREAM_RATE}` + (token ? `&token=${encodeURIComponent(token)}` : "");
-  const ws = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws/position?${query}`);
+  const protocols = token ? ["graytrack", `graytrack.bearer.${token}`] : [];
+  const url = `${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws/position?max_rate=${STREAM_RATE}`;
+  const ws = new WebSocket(url, protocols);
   ws.onmessage = (event) => {
     latest = JSON.parse(event.data);
     const t = performance.now() / 1000;

@@ -143,8 +143,9 @@ def metrics() -> Call[str]:
 
 
 def headers(call: Call[Any], token: str | None) -> dict[str, str] | None:
-    """The bearer token goes only with the requests that need it."""
-    return {"Authorization": f"Bearer {token}"} if call.needs_token and token else None
+    """The bearer token goes with every request when the client has one: state changes need it, and so do
+    reads from a daemon bound beyond loopback (``[daemon] read_token``); in a header, never in the URL."""
+    return {"Authorization": f"Bearer {token}"} if token else None
 
 
 def unreachable(call: Call[Any], url: str, exc: Exception) -> Unreachable:

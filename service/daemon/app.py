@@ -1,6 +1,7 @@
 """The daemon's HTTP interface (docs/contracts.md, "the daemon's interface") as a FastAPI app.
 
-Reads are open; every request that changes state needs ``Authorization: Bearer <token>``,
+Reads are open on loopback (beyond it they need the token too, `[daemon] read_token`, :mod:`api.read_policy`);
+every request that changes state needs ``Authorization: Bearer <token>``,
 checked before its body is read (:mod:`api.security`). Errors are always JSON
 ``{"error": "one clear sentence"}``: every refusal is a :class:`DaemonError` whose ``status`` is
 the answer, mapped here in one place. The rig's threads do the work; the handlers only ask and
@@ -28,6 +29,7 @@ from graytrack.service.daemon.api.security import WebGuard, WebPolicy
 from graytrack.service.daemon.broadcast import Broadcaster
 from graytrack.service.daemon.errors import DaemonError
 from graytrack.service.daemon.limits import ConnectionLimits, server_protocols
+from graytrack.service.daemon.logs import LogGuard
 from graytrack.service.heap import freeze_long_lived, thaw, warm_tracking
 from graytrack.service.daemon.datadir import require_room
 from graytrack.service.daemon.history import open_history
@@ -137,17 +139,22 @@ def create_app(settings: Settings, factory: HardwareFactory = default_factory) -
             rig.start()
             freeze_long_lived()  # full collections walk what the frames leave, not the daemon (service/heap.py)
 
+        logs = LogGuard(token)  # uvicorn's loggers are configured by now: the token kept out of every line
+        logs.install()
+        flushing = asyncio.create_task(logs.flush_every())
         opening = asyncio.create_task(startup.run(open_rig))  # what tracking loads on first use, before the freeze
         try:
             yield
         finally:
             opening.cancel()  # stopped while warming up: the rig never opens
+            flushing.cancel()
             await asyncio.to_thread(rig.close)
             thaw()
             sys.setswitchinterval(previous)
             restore_process(pinned_from)
             history.close()
             storage.unlock()
+            logs.close()
 
     docs = settings.daemon.api_docs
     app = FastAPI(title="graytrack", lifespan=lifespan, docs_url="/api/docs" if docs else None, redoc_url=None,

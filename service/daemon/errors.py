@@ -22,6 +22,13 @@ class NotReady(DaemonError):
     status = 503
 
 
+class DamagedCalibration(DaemonError):
+    """A calibration whose stored files cannot be read back (its ``model.json`` missing, not JSON, of another
+    schema): the request was fine, the calibration is not, and retrying changes nothing."""
+
+    status = 409
+
+
 class OutOfLimits(DaemonError):
     status = 422
 

@@ -29,6 +29,7 @@ import numpy as np
 from typing import Any, Callable
 
 from graytrack import __version__
+from graytrack.core.errors import ModelError
 from graytrack.core.models import load_model
 from graytrack.core.models.fourier import FourierModel
 from graytrack.core.recording import PIXEL_AXIS_REVERSED
@@ -40,7 +41,7 @@ from graytrack.service.daemon.acquisition import Acquisition
 from graytrack.wire import Activated, ActiveCalibration, Calibration
 from graytrack.service.daemon.slide import LiveSlide
 from graytrack.service.daemon.trim import ReferenceTrim
-from graytrack.service.daemon.errors import Busy, InsufficientStorage, NotFound, NotReady
+from graytrack.service.daemon.errors import Busy, DamagedCalibration, InsufficientStorage, NotFound, NotReady
 from graytrack.service.daemon.grating import GratingPoller, Readings
 from graytrack.service.daemon.jobs import FINAL, CalibrationJob, JobRunner, calibration_row, mark_interrupted, reconcile
 from graytrack.service.daemon.datadir import DataDirHealth
@@ -59,6 +60,7 @@ log = logging.getLogger("graytrack.daemon")
 HardwareFactory = Callable[[Settings, ScaledClock], Hardware]
 ROOM_MARGIN_BYTES = 16 * 2**20  # model, report, status and the record's growth
 SWITCH_MARGIN_BYTES = 8 * 1024  # the pointer's block and the record's growth, besides the model's copy
+DAMAGE_CACHE_ENTRIES = 1024  # model files checked for damage, remembered (more than a page of the list lists)
 
 
 def default_factory(settings: Settings, clock: ScaledClock) -> Hardware:
@@ -99,6 +101,7 @@ class Rig:
                                   self.readings, lambda: self.grating.latest_mm() if self.grating else None,
                                   self.event)
         self._lock = threading.RLock()
+        self._damage: dict[tuple[Any, ...], str | None] = {}  # Rig.damage's answers by file identity
         self.supervisor = Supervisor(self._bring_up, self._watch, self.faults, daemon.reopen_interval_s)
         self.faults.listeners.append(self._fault_event)
 
@@ -321,7 +324,9 @@ class Rig:
         return hardware, acquisition
 
     def start_calibration(self) -> CalibrationJob:
-        with self._lock:
+        # the stage's motion lock first (stage_control.py): a move checked before the job exists has reached
+        # the controller before the sweep's first command, which then replaces it
+        with self.stage.motion, self._lock:
             hardware, acquisition = self._ready()
             if self.job is not None and self.job.active:
                 raise Busy(f"calibration {self.job.id} is already running")
@@ -398,7 +403,7 @@ class Rig:
             row = self.history.calibration(calibration_id)
             if row is None:
                 raise NotFound(f"no finished calibration {calibration_id!r}")
-            model = load_model(self.storage.calibration_dir(calibration_id) / "model.json")
+            model = self._stored_model(calibration_id)
             mismatch = self._flip_mismatch(model)
             if mismatch is not None:  # a conflict with the camera's configuration, not a wait: retrying will not help
                 raise Busy(mismatch)
@@ -407,6 +412,33 @@ class Rig:
         self.event("model_installed", f"model of calibration {calibration_id} activated: {model.describe()}",
                    calibration=calibration_id)
         return Activated(active=calibration_id, model=model.describe())
+
+    def _stored_model(self, calibration_id: str) -> FourierModel:
+        """The model a finished calibration left, or :class:`DamagedCalibration` naming the file and why."""
+        try:
+            return load_model(self.storage.calibration_dir(calibration_id) / "model.json")
+        except ModelError as exc:  # the message names the file: missing, not JSON, another schema, inconsistent
+            raise DamagedCalibration(f"calibration {calibration_id} cannot be activated: {exc}") from None
+
+    def damage(self, calibration_id: str) -> str | None:
+        """Why a listed calibration's model cannot be read back (None: it reads), cached while the file is
+        unchanged: the list shows it on every page load, and the check parses the whole model."""
+        path = self.storage.calibration_dir(calibration_id) / "model.json"
+        try:
+            stat = path.stat()
+            key: tuple[Any, ...] = (calibration_id, stat.st_mtime_ns, stat.st_size, stat.st_ino)
+        except OSError:
+            key = (calibration_id, None)
+        if key not in self._damage:
+            try:
+                load_model(path)
+                found = None
+            except ModelError as exc:
+                found = str(exc)
+            if len(self._damage) >= DAMAGE_CACHE_ENTRIES:
+                self._damage.clear()
+            self._damage[key] = found
+        return self._damage[key]
 
     def _switch_model(self, calibration_id: str) -> Switch:
         """``DATA/active`` and ``DATA/model.json`` to that calibration's, as one step with its undo; a full,

@@ -40,6 +40,10 @@ class DaemonConfig(StrictTable):
     pair_rest_s: float = Field(0.25, gt=0, description="host seconds the newest grating reading of a stage at rest "
                                                        "(no command since) stands for")
     stale_after_s: float = Field(0.5, gt=0, description="a position or rate older than this is withdrawn (null)")
+    read_token: Literal["beyond_loopback", "always", "never"] = Field(
+        "beyond_loopback", description="when reads (status, profile, events, calibrations and their files, metrics, "
+        "the stream) need the bearer token: when the daemon listens beyond loopback, always, or never; the page, "
+        "its files, /healthz and /api/access stay open (api/read_policy.py)")
     allowed_origins: list[str] = Field(default_factory=list,
                                        description="WebSocket Origins accepted besides the page's own")
     allowed_hosts: list[str] = Field(default_factory=list,
@@ -122,6 +126,11 @@ class SweepConfig(StrictTable):
     frames_per_position: int = Field(5, ge=3, description="frames at each stop (scan: at each end)")
     margin_mm: float = Field(0.1, ge=0, description="keep this far inside the soft limits")
     settle_timeout_s: float = Field(10.0, gt=0)
+    # a stop is checked where it settled: something else commanding the stage (another program on the
+    # controller, a move that slipped in) is then a failed sweep with the cause, not a model fitted on a
+    # stop recorded somewhere else. Ten times the settle window a PI controller reports on target in.
+    stop_tolerance_um: float = Field(10.0, gt=0, description="largest distance between a stop's planned and "
+                                                              "settled position (µm), else the sweep fails")
     frame_timeout_s: float = Field(5.0, gt=0, description="wall time to wait for the frames of one stop")
     model: Literal["paper", "auto"] = Field("auto", description="auto = the closed loop (finds the effects the rig "
                                             "has), or the paper model")

@@ -5,13 +5,20 @@ Apart from the rig so that what a move may do is in one place: it refuses while 
 moves the stage (a stop aborts that calibration first, then stops), marks the command for the
 grating's pairing (a frame is not paired across a commanded move), and logs one event per action.
 Answers are the API's response models.
+
+"Is a calibration running?" and the command that follows are one step under :attr:`StageControl.motion`,
+the lock the rig also holds while it starts a calibration: without it a move checked before the job
+existed reached the controller after the sweep's first move, and the sweep recorded its first stop at
+the move's target (2.0 mm for a planned 0.1 mm). A stop takes no lock: it must never wait.
 """
 
 from __future__ import annotations
 
 import math
+import threading
 import time
-from typing import Any, Callable
+from contextlib import contextmanager
+from typing import Any, Callable, Iterator
 
 from graytrack.drivers.factory import Hardware
 from graytrack.drivers.stage.errors import StageError, StageLimitError
@@ -20,6 +27,20 @@ from graytrack.service.daemon.grating import Readings
 from graytrack.wire import Homed, Moved, Stopped, Velocity
 
 MAX_VELOCITY_MM_S = 100.0
+SHOWN_DIGITS = 6  # significant digits of a refused value and its limits, more only where they would read equal
+MAX_DIGITS = 17  # enough for any float64 to read back as itself
+
+
+def shown(value: float, *limits: float) -> list[str]:
+    """``value`` and ``limits`` as text with the fewest significant digits (at least :data:`SHOWN_DIGITS`)
+    that keep ``value`` apart from every limit it differs from: 10.4600000001 against 10.46 reads
+    "10.4600000001", not "10.46 is outside [0, 10.46]"."""
+    numbers = (value, *limits)
+    for digits in range(SHOWN_DIGITS, MAX_DIGITS + 1):
+        texts = [f"{number:.{digits}g}" for number in numbers]
+        if all(texts[0] != text for limit, text in zip(limits, texts[1:]) if limit != value):
+            return texts
+    return [repr(number) for number in numbers]
 
 
 class StageControl:
@@ -32,6 +53,8 @@ class StageControl:
                  grating_mm: Callable[[], float | None], event: Callable[..., None]) -> None:
         self._ready, self._active_job, self._abort_job = ready, active_job, abort_job
         self._readings, self._grating_mm, self._event = readings, grating_mm, event
+        # held from the check for a calibration to the end of the command; the rig holds it to start one
+        self.motion = threading.RLock()
         self.target_mm: float | None = None  # the last commanded target (the page's moving indicator)
         self.velocity_mm_s: float | None = None
         self.velocity_limit_mm_s: float | None = None
@@ -41,12 +64,15 @@ class StageControl:
         self.velocity_mm_s = hardware.stage.velocity()
         self.velocity_limit_mm_s = hardware.stage.velocity_limit()
 
-    def _idle(self) -> Hardware:
-        hardware = self._ready()
-        job = self._active_job()
-        if job is not None:
-            raise Busy(f"calibration {job} is moving the stage; POST /api/stage/stop aborts it")
-        return hardware
+    @contextmanager
+    def _idle(self) -> Iterator[Hardware]:
+        """The hardware, while no calibration can start (the command runs inside)."""
+        with self.motion:
+            hardware = self._ready()
+            job = self._active_job()
+            if job is not None:
+                raise Busy(f"calibration {job} is moving the stage; POST /api/stage/stop aborts it")
+            yield hardware
 
     def _command(self, action: Callable[[], Any]) -> Any:
         """Run a stage command: a value it refuses is 422, a stage that fails is 503."""
@@ -59,12 +85,13 @@ class StageControl:
             raise NotReady(f"stage: {exc}") from None
 
     def move(self, target_mm: float) -> Moved:
-        hardware = self._idle()
-        low, high = hardware.stage.limits()
-        if not (math.isfinite(target_mm) and low <= target_mm <= high):
-            raise OutOfLimits(f"target_mm {target_mm:g} is outside the soft limits [{low:g}, {high:g}] mm")
-        self._command(lambda: hardware.stage.move_to(target_mm))
-        self.target_mm = target_mm
+        with self._idle() as hardware:
+            low, high = hardware.stage.limits()
+            if not (math.isfinite(target_mm) and low <= target_mm <= high):
+                target, low_text, high_text = shown(target_mm, low, high)
+                raise OutOfLimits(f"target_mm {target} is outside the soft limits [{low_text}, {high_text}] mm")
+            self._command(lambda: hardware.stage.move_to(target_mm))
+            self.target_mm = target_mm
         self._event("move", f"move to {target_mm:g} mm", target_mm=target_mm)
         return Moved(target_mm=target_mm, limits_mm=[low, high])
 
@@ -79,28 +106,32 @@ class StageControl:
 
     def home(self) -> Homed:
         """The reference move: the controller finds its reference mark again (the stage moves)."""
-        hardware = self._idle()
-        self.target_mm = None
-        self._command(hardware.stage.reference)
+        with self._idle() as hardware:
+            self.target_mm = None
+            self._command(hardware.stage.reference)
         self._event("home", "reference move done")
         return Homed(referenced=True)
 
     def set_velocity(self, velocity_mm_s: float) -> Velocity:
-        hardware = self._idle()
+        with self._idle() as hardware:
+            self.velocity_mm_s = self._velocity(hardware, velocity_mm_s)
+        self._event("velocity", f"velocity set to {self.velocity_mm_s:g} mm/s")
+        return Velocity(velocity_mm_s=self.velocity_mm_s)
+
+    def _velocity(self, hardware: Hardware, velocity_mm_s: float) -> float:
         controller = self.velocity_limit_mm_s
         highest = MAX_VELOCITY_MM_S if controller is None else min(MAX_VELOCITY_MM_S, controller)
         if not (math.isfinite(velocity_mm_s) and 0 < velocity_mm_s <= highest):
             lower = controller is not None and controller < MAX_VELOCITY_MM_S
             whose = "the controller's limit" if lower else "the limit"
-            raise OutOfLimits(f"velocity_mm_s {velocity_mm_s:g} is outside (0, {highest:g}] mm/s ({whose})")
+            velocity, highest_text = shown(velocity_mm_s, highest)
+            raise OutOfLimits(f"velocity_mm_s {velocity} is outside (0, {highest_text}] mm/s ({whose})")
 
         def apply() -> float:
             hardware.stage.set_velocity(velocity_mm_s)
             return hardware.stage.velocity()
 
-        self.velocity_mm_s = self._command(apply)
-        self._event("velocity", f"velocity set to {self.velocity_mm_s:g} mm/s")
-        return Velocity(velocity_mm_s=self.velocity_mm_s)
+        return float(self._command(apply))
 
     def stop(self) -> Stopped:
         """Stop the stage now; an active calibration is aborted first (it would move it again).

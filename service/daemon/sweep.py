@@ -135,15 +135,28 @@ class Sweep:
         self.job.check_abort()
         self.on_command(self.clock.now())
         self.stage.move_to(target)
-        settled = self.stage.wait_on_target(self.config.settle_timeout_s).t  # host time, as frames
-        self.job.check_abort()
-        samples = self._settled_samples(feed, settled)
+        reading = self.stage.wait_on_target(self.config.settle_timeout_s)
+        self.job.check_abort()  # a stop request halts the stage anywhere: that is an abort, not a displaced stop
+        self._check_stop(target, reading.position_mm, "settled")
+        samples = self._settled_samples(feed, reading.t)  # host time, as frames
         # The axis is at rest inside its on-target window, so one POS? read after the frames
         # is the reference of all of them (pairing with the poller's readings could mix in
         # one taken before the move when polls are sparse).
         at_rest = self.stage.position().position_mm
+        self.job.check_abort()
+        self._check_stop(target, at_rest, "after its frames")
         for sample in samples:
             gathered.add(sample, at_rest)
+
+    def _check_stop(self, target: float, position_mm: float, when: str) -> None:
+        """A stop is where it was planned (within ``stop_tolerance_um``), or the sweep fails saying where it was:
+        frames recorded elsewhere would be fitted as if taken at the plan."""
+        off_um = abs(position_mm - target) * 1e3
+        if not off_um <= self.config.stop_tolerance_um:  # NaN too
+            raise SweepError(f"the stop planned at {target:.4f} mm was at {position_mm:.4f} mm {when} "
+                             f"({off_um:.1f} µm off, more than [sweep] stop_tolerance_um = "
+                             f"{self.config.stop_tolerance_um:g}): something else moved the stage during the "
+                             "calibration")
 
     def _scan(self, feed: "queue.Queue[Sample]") -> Recording:
         low, high = sweep_range(self.stage.limits(), self.config)

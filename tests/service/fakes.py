@@ -89,7 +89,9 @@ def stop_worker(worker: Worker, clock: ManualClock, most: int = 100) -> None:
 
 
 class FakeStage:
-    """An axis that settles at once (or never arrives, ``arrives = False``), stamping on the clock."""
+    """An axis that settles at once (or never arrives, ``arrives = False``, or no longer from move number
+    ``arrives_moves + 1`` on), stamping on the clock; ``intruder_mm`` makes the next move land there instead,
+    as if another command had replaced it."""
 
     def __init__(self, clock: ManualClock, limits: tuple[float, float] = (0.0, 10.0), velocity_mm_s: float = 20.0,
                  arrives: bool = True) -> None:
@@ -98,6 +100,8 @@ class FakeStage:
         self._velocity = velocity_mm_s
         self.arrives = arrives
         self.at_mm = limits[0]
+        self.arrives_moves: int | None = None
+        self.intruder_mm: float | None = None
         self.moves: list[float] = []
         self.velocities: list[float] = []
 
@@ -113,8 +117,11 @@ class FakeStage:
 
     def move_to(self, target_mm: float) -> None:
         self.moves.append(target_mm)
+        if self.arrives_moves is not None and len(self.moves) > self.arrives_moves:
+            self.arrives = False
         if self.arrives:
-            self.at_mm = target_mm
+            self.at_mm = target_mm if self.intruder_mm is None else self.intruder_mm
+            self.intruder_mm = None
 
     def on_target(self) -> bool:
         return self.arrives

@@ -200,11 +200,13 @@ def write_config(folder: Path, **changes: dict[str, Any]) -> Path:
 
 
 class ServeProcess:
-    """``python -m graytrack serve`` on a free loopback port; SIGTERM on exit, stderr kept. The fast test
-    rig (:data:`FAST_TABLES` updated by ``tables``), or with ``default_rig`` no configuration at all: the
-    embedded default, as ``make run`` starts it (data in ``folder / "data"``)."""
+    """``python -m graytrack serve`` on a free loopback port; SIGTERM on exit, stderr kept (and stdout, uvicorn's
+    access log, in ``stdout_path`` when given). The fast test rig (:data:`FAST_TABLES` updated by ``tables``), or
+    with ``default_rig`` no configuration at all: the embedded default, as ``make run`` starts it (data in
+    ``folder / "data"``)."""
 
-    def __init__(self, folder: Path, default_rig: bool = False, **tables: dict[str, Any]) -> None:
+    def __init__(self, folder: Path, default_rig: bool = False, stdout_path: Path | None = None,
+                 **tables: dict[str, Any]) -> None:
         self.folder = folder
         self.port = free_port()
         self.base = f"http://127.0.0.1:{self.port}"
@@ -217,11 +219,14 @@ class ServeProcess:
             where = ["--config", str(self.config)]
         self.process = subprocess.Popen(
             [sys.executable, "-m", "graytrack", "serve", *where, "--port", str(self.port)],
-            stderr=subprocess.PIPE, text=True)
+            stderr=subprocess.PIPE, text=True, stdout=None if stdout_path is None else stdout_path.open("w"))
 
     def status(self) -> dict[str, Any] | None:
+        token = self.folder / "data" / "token"  # reads need it under [daemon] read_token = "always"
         try:
-            return httpx.get(f"{self.base}/api/status", timeout=2.0).json()
+            headers = self.auth() if token.exists() else None  # (not yet written: the daemon is not up either)
+            document = httpx.get(f"{self.base}/api/status", timeout=2.0, headers=headers).json()
+            return document if "state" in document else None
         except httpx.TransportError:
             return None
 
@@ -256,7 +261,7 @@ class LiveServer:
     """The app on a real uvicorn server in this process (loopback, free port), so a test can inject
     faults into the running rig (monkeypatch, gated hardware) and still talk HTTP/WebSocket to it."""
 
-    def __init__(self, app: Any) -> None:
+    def __init__(self, app: Any, log_level: str = "warning") -> None:
         import threading
 
         import uvicorn
@@ -264,7 +269,9 @@ class LiveServer:
         self.app = app
         self.port = free_port()
         self.base = f"http://127.0.0.1:{self.port}"
-        config = uvicorn.Config(app, host="127.0.0.1", port=self.port, log_level="warning", **app.state.server_options)
+        # the access log only at debug, as `graytrack serve` has it
+        config = uvicorn.Config(app, host="127.0.0.1", port=self.port, log_level=log_level,
+                                access_log=log_level == "debug", **app.state.server_options)
         self.server = uvicorn.Server(config)
         self.thread = threading.Thread(target=self.server.run, name="uvicorn", daemon=True)
 

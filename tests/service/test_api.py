@@ -70,6 +70,14 @@ def test_bad_moves_are_refused_with_a_clear_message(tracking: TestClient, token:
     outside = tracking.post("/api/stage/move", json={"target_mm": 12.0}, headers=token)
     assert outside.status_code == 422
     assert outside.json()["error"] == "target_mm 12 is outside the soft limits [0, 10.46] mm"
+    # just past the limit: printed with the digits that show the difference, not "10.46 is outside [0, 10.46]"
+    hair = tracking.post("/api/stage/move", json={"target_mm": 10.4600000001}, headers=token)
+    assert hair.status_code == 422
+    assert hair.json()["error"] == "target_mm 10.4600000001 is outside the soft limits [0, 10.46] mm"
+    below = tracking.post("/api/stage/move", json={"target_mm": -1e-12}, headers=token)
+    assert below.json()["error"] == "target_mm -1e-12 is outside the soft limits [0, 10.46] mm"
+    fast = tracking.post("/api/stage/velocity", json={"velocity_mm_s": 50.00000001}, headers=token)
+    assert fast.json()["error"] == "velocity_mm_s 50.00000001 is outside (0, 50] mm/s (the controller's limit)"
     broken = tracking.post("/api/stage/move", content=b"{target_mm: 3",
                            headers={**token, "Content-Type": "application/json"})
     assert broken.status_code == 422 and broken.json()["error"] == "request body is not valid JSON"

@@ -79,6 +79,32 @@ def test_a_stop_keeps_the_frames_exposed_after_the_settle_at_the_rest_position(t
     assert (tmp_path / rig.runner.job.id / "recording.npz").is_file()
 
 
+def test_a_stop_that_settles_away_from_its_plan_fails_the_sweep_with_where_it_was(tmp_path: Path) -> None:
+    """Another command replaced the sweep's first move (it landed at 2 mm, not the planned 0.1 mm): the sweep
+    fails saying so, before a frame is taken there, instead of recording the stop at the wrong place."""
+    rig = Rig(tmp_path, SweepConfig(kind="stops", positions=2, frames_per_position=3, stop_tolerance_um=10.0))
+    rig.stage.intruder_mm = 2.0
+    rig.thread.start()  # it fails without waiting on the clock
+    error = rig.end()
+    assert isinstance(error, SweepError), error
+    assert str(error) == ("the stop planned at 0.1000 mm was at 2.0000 mm settled (1900.0 µm off, more than [sweep] "
+                          "stop_tolerance_um = 10): something else moved the stage during the calibration")
+    assert not (tmp_path / rig.runner.job.id / "recording.npz").exists(), "no recording of the wrong place"
+
+
+def test_a_stop_within_its_tolerance_is_recorded_where_it_settled(tmp_path: Path) -> None:
+    rig = Rig(tmp_path, SweepConfig(kind="stops", positions=2, frames_per_position=3, stop_tolerance_um=10.0))
+    rig.stage.intruder_mm = 0.1 + 9e-6  # 9 µm off the plan, inside 10
+    rig.start()
+    for stop in range(2):
+        for k in range(3):
+            rig.clock.advance(0.01)
+            rig.frame(10 * stop + k, rig.clock.now(), last=(stop, k) == (1, 2))
+    recording = rig.end()
+    assert not isinstance(recording, Exception), recording
+    assert list(recording.reference) == [0.1 + 9e-6] * 3 + [9.9] * 3
+
+
 def test_a_stop_fails_after_frame_timeout_s_naming_how_many_frames_came(tmp_path: Path) -> None:
     rig = Rig(tmp_path, SweepConfig(kind="stops", positions=2, frames_per_position=3, frame_timeout_s=2.0)).start()
     rig.frame(1, rig.clock.now() + 0.01)
@@ -95,9 +121,9 @@ def scan_until_pass(tmp_path: Path, readings: Readings, **config: object) -> Rig
     """A scan whose stage never reaches the end of its pass, stopped at the start of that pass."""
     rig = Rig(tmp_path, SweepConfig(kind="scan", scan_frames=200, frames_per_position=3, settle_timeout_s=5.0,
                                     **config), frame_rate_hz=100.0, readings=readings)
-    rig.stage.arrives = False
+    rig.stage.arrives_moves = 1  # the first stop is reached, the end of the pass never
     rig.start()
-    for k in range(3):  # the first stop, at rest (the fake stage settles wherever it is)
+    for k in range(3):  # the first stop, at rest
         rig.frame(k, rig.clock.now() + 0.01)
     return rig
 

@@ -25,15 +25,16 @@ FILES = {"report.html": "text/html", "report.json": "application/json", "model.j
 @router.get("/api/calibrations", response_model=CalibrationPage)
 def calibrations(limit: int = Query(20, ge=1, le=500), offset: int = Query(0, ge=0, le=MAX_ROW_ID),
                  rig: Rig = Depends(get_rig)) -> CalibrationPage:
-    """Calibrations that finished ``done``, newest first."""
+    """Calibrations that finished ``done``, newest first; one whose model file cannot be read back says why
+    in ``damaged``."""
     items, total = rig.history.calibrations(limit, offset)
     active = rig.storage.active_id()
-    return CalibrationPage(items=[_row(item, active) for item in items], total=total, limit=limit, offset=offset)
+    return CalibrationPage(items=[_row(item, active, rig) for item in items], total=total, limit=limit, offset=offset)
 
 
-def _row(row: dict[str, Any], active: str | None) -> CalibrationRow:
-    """A record's row as the API shows it, marked when its model is the one in use."""
-    return CalibrationRow.model_validate({**row, "active": row["id"] == active})
+def _row(row: dict[str, Any], active: str | None, rig: Rig) -> CalibrationRow:
+    """A record's row as the API shows it, marked when its model is the one in use or is damaged."""
+    return CalibrationRow.model_validate({**row, "active": row["id"] == active, "damaged": rig.damage(row["id"])})
 
 
 @router.get("/api/calibrations/{calibration_id}", response_model=CalibrationRow, responses=errors(404))
@@ -41,7 +42,7 @@ def calibration_row(calibration_id: str, rig: Rig = Depends(get_rig)) -> Calibra
     row = rig.history.calibration(calibration_id)
     if row is None:
         raise NotFound(f"no finished calibration {calibration_id!r}")
-    return _row(row, rig.storage.active_id())
+    return _row(row, rig.storage.active_id(), rig)
 
 
 @router.get("/api/calibrations/{calibration_id}/files/{name}", response_class=FileResponse, responses=errors(404))
@@ -64,7 +65,8 @@ def calibration_file(calibration_id: str, name: str, rig: Rig = Depends(get_rig)
 @router.post("/api/calibrations/{calibration_id}/activate", dependencies=AUTHORIZED, response_model=Activated,
              responses=errors(401, 404, 409, 413, 503, 507))
 def activate(calibration_id: str, rig: Rig = Depends(get_rig)) -> Activated:
-    """Track with that calibration's model from now on (and after restarts)."""
+    """Track with that calibration's model from now on (and after restarts). 409 when a calibration runs, or
+    when this one's ``model.json`` is damaged (missing, not JSON, another schema: the answer names the file)."""
     return rig.activate(calibration_id)
 
 

@@ -10,7 +10,9 @@
   refused: a page on another site could otherwise read the status, the events and the recordings
   through a name it controls; a second Host could name another to a proxy in front), and a request
   target in absolute form names it too; the WebSocket accepts a browser only from its own origin (or a
-  configured one), and asks for the token when the daemon listens beyond loopback;
+  configured one);
+* a read (the stream included) asks for the token as ``[daemon] read_token`` says, the same for
+  every read route (``read_policy.py``);
 * an error the routes did not foresee is still a JSON answer with these headers (logged with its
   traceback), never a bare text 500; the answers the HTTP protocol writes itself (limits.py) carry them too;
 * every GET route answers HEAD: the GET's status and headers, without the body.
@@ -25,10 +27,10 @@ import logging
 import re
 import socket
 from typing import Any, Awaitable, Callable
-from urllib.parse import parse_qs
 
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from graytrack.service.daemon.api.read_policy import presented_token, read_refusal
 from graytrack.service.daemon.settings import DaemonConfig
 
 log = logging.getLogger("graytrack.daemon")
@@ -73,6 +75,7 @@ class WebPolicy:
         self.token = token
         self.bind_host = daemon.host
         self.beyond_loopback = not is_loopback(daemon.host)
+        self.read_token = daemon.read_token
         self.allowed_origins = frozenset(o.rstrip("/") for o in daemon.allowed_origins)
         names = set(LOOPBACK_NAMES) | {daemon.host} | set(daemon.allowed_hosts)
         if self.beyond_loopback:
@@ -122,12 +125,13 @@ class WebPolicy:
             return refusal
         if not self.origin_allowed(headers.get("origin"), host):
             return f"Origin {headers.get('origin')!r} is not allowed"
-        if self.beyond_loopback:
-            query = parse_qs(scope.get("query_string", b"").decode("latin-1"))
-            given = bearer(headers) or (query.get("token") or [""])[0]
-            if not token_matches(given, self.token):
-                return "this daemon listens beyond loopback: the stream needs the token (?token=…)"
-        return None
+        return self.read_refusal(scope, headers, websocket=True)
+
+    def read_refusal(self, scope: Scope, headers: dict[str, str], websocket: bool = False) -> str | None:
+        """Why this read is refused by ``[daemon] read_token`` (read_policy.py), or None."""
+        return read_refusal(self.read_token, self.beyond_loopback, scope.get("path", ""),
+                            presented_token(headers, scope.get("query_string", b"")),
+                            lambda given: token_matches(given, self.token), websocket)
 
     def csp(self, host_header: str) -> str:
         return csp(host_header)
@@ -204,6 +208,11 @@ class WebGuard:
                 return
             receive = await self._bounded_body(headers, receive, send_secured)
             if receive is None:
+                return
+        else:
+            refusal = self.policy.read_refusal(scope, headers)
+            if refusal is not None:
+                await _send_json(send_secured, 401, {"error": refusal}, [(b"www-authenticate", b"Bearer")])
                 return
         try:
             await self.app(scope, receive, send_secured)

@@ -4,10 +4,11 @@ Two tasks per connection, not per message: one sends what the broadcaster queued
 the client to go away. A connection served by :class:`StreamProtocol` without extensions is written
 to by the broadcaster itself, pre-framed bytes shared by every client (``broadcast.py``); its sending
 task only handles what had to be queued (a transport above its high-water mark). The handshake is
-checked by :class:`WebPolicy` (Host, Origin, token); a refused one is answered 403 with the reason
-as JSON and the security headers. A connection beyond the connection limit is
-accepted only to be closed 1013 with the reason; a client message over a small control size closes
-the connection 1009 (the stream reads nothing from its clients; limits.py).
+checked by :class:`WebPolicy` (Host, Origin, and the token as ``[daemon] read_token`` says,
+read_policy.py); a refused one is answered 403 with the reason as JSON and the security headers. A
+connection beyond the connection limit is accepted only to be closed 1013 with the reason; a client
+message over a small control size closes the connection 1009 (the stream reads nothing from its
+clients; limits.py).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import math
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 from fastapi.responses import JSONResponse
 
+from graytrack.service.daemon.api.read_policy import SUBPROTOCOL, offered_subprotocols
 from graytrack.service.daemon.api.security import security_headers
 from graytrack.service.daemon.broadcast import Broadcaster, Subscriber
 from graytrack.service.daemon.limits import WS_CONTROL_BYTES, WS_MESSAGE_TOO_BIG, WS_TRY_AGAIN_LATER, ConnectionLimits
@@ -37,7 +39,10 @@ async def positions(websocket: WebSocket) -> None:
     if max_rate is False:
         await _deny(websocket, "max_rate must be a positive number (messages/s)")
         return
-    await websocket.accept()
+    # a client presenting the token as a subprotocol offers "graytrack" beside it: that one is answered
+    # (a browser fails a handshake that selects none of those it offered), never the token
+    offered = offered_subprotocols({k.decode("latin-1"): v.decode("latin-1") for k, v in websocket.scope["headers"]})
+    await websocket.accept(subprotocol=SUBPROTOCOL if SUBPROTOCOL in offered else None)
     extensions = websocket.scope.get("extensions", {})
     if REFUSAL in extensions:
         await websocket.close(code=WS_TRY_AGAIN_LATER, reason=extensions[REFUSAL][:120])
