@@ -66,6 +66,14 @@ class StreamProtocol(WebSocketsSansIOProtocol):
         if self.ticket is not None:
             self.ticket.release()
 
+    async def send(self, message: Any) -> None:
+        await super().send(message)
+        if message["type"] == "websocket.http.response.body" and not message.get("more_body", False):
+            # A denial response (403 with its JSON reason) ends the handshake as the ASGI spec has it; uvicorn's
+            # protocol leaves its flag unset and logs an ERROR for each refused handshake, a line per
+            # cross-origin probe that the log's summaries cannot hold back (errors are always written).
+            self.handshake_complete = True
+
     def handle_connect(self, event: Any) -> None:
         super().handle_connect(event)
         scope = getattr(self, "scope", None)  # absent when the handshake was refused

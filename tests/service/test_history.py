@@ -137,8 +137,8 @@ def test_the_trackers_fit_figures_and_stale_model_flags_reach_status_metrics_and
 
     real_update, flag = tracking.LiveTracker.update, {"stale": False}
 
-    def update(self, frame, reference_mm=float("nan")):  # the tracker's per-frame fit figures, stale on demand
-        fix = real_update(self, frame, reference_mm)
+    def update(self, frame, reference_mm=float("nan"), t=None):  # the tracker's per-frame fit figures, stale on demand
+        fix = real_update(self, frame, reference_mm, t)
         return SimpleNamespace(**{**vars(fix), "gain": 1.01, "offset_gray": -0.2, "rejected_px": 2, "chi2": 1.04,
                                   "stale": flag["stale"], "stale_reason": "focus" if flag["stale"] else None})
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 from fastapi.testclient import TestClient
-from starlette.websockets import WebSocketDisconnect
+from starlette.testclient import WebSocketDenialResponse
 
 from graytrack.service.daemon.app import create_app
 from tests.service.helpers import fast_settings
@@ -59,10 +59,12 @@ def _stream_follows_the_policy(client: TestClient, token: str, needed: bool) -> 
     if needed:
         for refused in ({}, {"headers": {"Authorization": f"Bearer {WRONG}"}},
                         {"subprotocols": ["graytrack", f"graytrack.bearer.{WRONG}"]}):
-            with pytest.raises(WebSocketDisconnect) as closed:
+            # refused at the handshake: 403 with the reason as JSON (the security headers with it)
+            with pytest.raises(WebSocketDenialResponse) as denied:
                 with client.websocket_connect("/ws/position", **refused):  # type: ignore[arg-type]
                     pass
-            assert closed.value.code == 1008, refused
+            assert denied.value.status_code == 403, refused
+            assert "token" in denied.value.json()["error"], refused
     else:
         with client.websocket_connect("/ws/position") as stream:
             assert stream.accepted_subprotocol is None

@@ -41,8 +41,8 @@ def stale_on_demand(monkeypatch: pytest.MonkeyPatch) -> dict[str, bool]:
 
     real_update, flag = tracking.LiveTracker.update, {"stale": False}
 
-    def update(self, frame, reference_mm=float("nan")):
-        fix = real_update(self, frame, reference_mm)
+    def update(self, frame, reference_mm=float("nan"), t=None):
+        fix = real_update(self, frame, reference_mm, t)
         cause = "focus" if flag["stale"] else None
         return SimpleNamespace(**{**vars(fix), "stale": flag["stale"], "stale_reason": cause})
 
