@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 import signal
 import socket
 import subprocess
@@ -327,3 +328,18 @@ def stream_through_daemon(model, run, trim_enabled: bool, slide: Any = None,
         frame = Frame(np.asarray(run.frames[k]), k, float(run.t[k]))
         acquisition._track(Sample(frame, float(run.t[k]), float(run.reference[k])))
     return messages, events, acquisition
+
+
+class Lines(logging.Handler):
+    """The log lines a handler would write, formatted as the daemon writes them (``emit`` runs under the
+    handler's own lock); records of loggers named in ``ignore`` (a test's own HTTP client) are left out."""
+
+    def __init__(self, ignore: tuple[str, ...] = ()) -> None:
+        super().__init__(logging.DEBUG)
+        self.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
+        self.lines: list[str] = []
+        self.ignore = ignore
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if not (self.ignore and record.name.startswith(self.ignore)):
+            self.lines.extend(self.format(record).splitlines())

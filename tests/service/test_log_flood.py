@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from graytrack.service.daemon.app import create_app
-from tests.service.helpers import GatedFactory, LiveServer, fast_settings
+from tests.service.helpers import GatedFactory, Lines, LiveServer, fast_settings
 
 REQUESTS = 10_000
 MAX_LINES = 100
@@ -27,17 +27,6 @@ KINDS = ("garbage", "handshake", "unauthorized")
 TEST_SIDE = ("httpx", "httpcore")  # this test's own HTTP client logs in the same process: not the daemon's lines
 
 
-class Lines(logging.Handler):
-    """The daemon's log lines, as its handlers would write them (emit runs under the handler's own lock)."""
-
-    def __init__(self) -> None:
-        super().__init__(logging.DEBUG)
-        self.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
-        self.lines: list[str] = []
-
-    def emit(self, record: logging.LogRecord) -> None:
-        if not record.name.startswith(TEST_SIDE):
-            self.lines.extend(self.format(record).splitlines())
 
 
 def _exchange(port: int, payload: bytes) -> bytes:
@@ -98,7 +87,7 @@ def test_a_flood_of_refused_requests_writes_few_lines_and_the_stage_fault_among_
                                                                                      level: str) -> None:
     factory = GatedFactory()
     server = LiveServer(create_app(fast_settings(tmp_path, auto_calibrate="never"), factory), log_level=level)
-    lines = Lines()
+    lines = Lines(TEST_SIDE)
     # as `graytrack serve` has it: the root and uvicorn's logger; its access log only at debug (a handler on
     # uvicorn.access is what turns it on)
     loggers = [logging.getLogger(), logging.getLogger("uvicorn")]

@@ -9,21 +9,12 @@ import sys
 import pytest
 
 from graytrack.service.daemon.logs import REDACTED, VERBATIM_LINES, WINDOW_S, FloodGate, Redact
+from tests.service.helpers import Lines
 
 pytestmark = pytest.mark.unit
 TOKEN = "s3cr3t-t0ken-0f-32-characters-xyz"
 
 
-class Lines(logging.Handler):
-    """The lines a handler would write, formatted."""
-
-    def __init__(self) -> None:
-        super().__init__(logging.DEBUG)
-        self.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
-        self.lines: list[str] = []
-
-    def emit(self, record: logging.LogRecord) -> None:
-        self.lines.extend(self.format(record).splitlines())
 
 
 class Clock:
