@@ -60,8 +60,10 @@ lint: $(STAMP)
 	@$(BIN)/mypy > build/mypy.out; status=$$?; sed 's|^$(TYPING)/||' build/mypy.out; exit $$status
 
 # Both parts always run (a failure in the first still shows the second's), and either failing fails the target.
+# worksteal: each worker starts on one half of the suite in order (a module's shared daemon or recording is made
+# on one worker, not on both as tests are dealt out one by one), and takes from the other's when its half is done.
 test: lint $(STAMP)
-	@$(BIN)/python -m pytest -n $(PYTEST_WORKERS) -m "not alone" $(PYTEST_ARGS); first=$$?; \
+	@$(BIN)/python -m pytest -n $(PYTEST_WORKERS) --dist worksteal -m "not alone" $(PYTEST_ARGS); first=$$?; \
 	$(BIN)/python -m pytest -n 0 -m alone $(PYTEST_ARGS); alone=$$?; \
 	[ $$alone -eq 5 ] && alone=0; \
 	[ $$first -eq 0 ] && [ $$alone -eq 0 ]  # 5: no alone test selected

@@ -9,6 +9,8 @@ and files only, seeded, fast. ``pytest -m unit`` is the quick check while editin
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 
@@ -17,6 +19,35 @@ from graytrack.core.recording import Recording
 from graytrack.drivers.sim import paper
 
 SYSTEM_FOLDERS = ("service", "web", "drivers", "client")
+# BLAS threads per test worker: the cores shared out among the workers (pytest -n), at least one. OpenBLAS's
+# threads spin between calls; two workers on two cores, each with two threads, ran a closed-loop test twice side
+# by side in 50-76 s against 40 s with one thread each (service/blas.py: the daemon runs one for the same reason).
+BLAS_ENV = "OPENBLAS_NUM_THREADS"
+
+
+def _workers(config: pytest.Config) -> int:
+    """The test workers this run starts (0: none, the tests run in this process); none in a worker itself."""
+    if hasattr(config, "workerinput"):
+        return 0
+    workers = getattr(config.option, "numprocesses", None)
+    return workers if isinstance(workers, int) else 0
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    # set before the workers start, which inherit it (and so do the daemons and commands tests start from them);
+    # a value the caller set is kept
+    if (workers := _workers(config)) > 0:
+        os.environ.setdefault(BLAS_ENV, str(max(1, (os.cpu_count() or 1) // workers)))
+
+
+def pytest_sessionstart(session: pytest.Session) -> None:
+    """Before the workers start (xdist starts them last): tracking's compiled kernels loaded once here, which on a
+    fresh clone compiles them into numba's disk cache (~30 s of CPU) for every worker and daemon to load from
+    (under a second), rather than each worker compiling them at once on its first tracking test."""
+    if _workers(session.config) > 0:
+        from graytrack.service.heap import warm_tracking
+
+        warm_tracking()
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:

@@ -238,11 +238,19 @@ def test_the_print_texture_learned_is_shown_where_and_how_sure(tmp_path: Path, b
         # a mark that brightens the print reads a negative depth (one learned at the turning point, −321 %)
         expect(line).to_have_text(re.compile(r"^\d+ marks learned on the print · newest at x_w = \d+\.\d{3} mm "
                                              r"\(-?\d+\.\d % ± \d+\.\d % of the light, \d+ frames\)"), timeout=10_000)
-        shown = daemon.status()["texture"]
         # a mark may stop fitting and be dropped meanwhile (17 learned, 15 shown once): the page follows status
         assert int(line.get_attribute("data-marks")) >= 3 and texture["marks"] >= 3
-        # the newest mark is refined while the page polls (11.642 read, 11.649 shown): the same mark, not a copy
-        shown_x = float(re.search(r"x_w = (\d+\.\d+) mm", line.text_content()).group(1))
-        assert abs(shown_x - shown["newest"][0]["x_mm"]) < 0.05 or shown["marks"] > texture["marks"]
+
+        def same_newest() -> bool:
+            """The page's newest place is status's (the newest mark is refined while the page polls: 11.642 read,
+            11.649 shown, the same mark, not a copy), or status learned more since. Polled: a mark learned and
+            another dropped between the page's poll and this read leave the count as it was and the page a
+            poll behind (14 and 14 marks, 3.775 mm shown against 2.951 mm under load)."""
+            shown = daemon.status()["texture"]
+            shown_x = float(re.search(r"x_w = (\d+\.\d+) mm", line.text_content()).group(1))
+            return abs(shown_x - shown["newest"][0]["x_mm"]) < 0.05 or shown["marks"] > texture["marks"]
+
+        wait_for(same_newest, 10.0, "the page's newest mark to be status's",
+                 show=lambda: (line.text_content(), daemon.status()["texture"]["newest"]))
         assert browser_page.evaluate("document.documentElement.scrollWidth") <= 390
         assert console == [], console
