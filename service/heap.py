@@ -38,10 +38,12 @@ def thaw() -> None:
     gc.unfreeze()
 
 
-def warm_tracking() -> None:
-    """Track a synthetic sine target with a synthetic model, frame by frame as the daemon does:
-    what tracking loads on first use is loaded now (from numba's disk cache: ~0.5 s; compiled on a
-    fresh install: tens of seconds, which the first model install would otherwise pay)."""
+def warm_tracking(engines: tuple[str, ...] = ("watches",)) -> None:
+    """Track a synthetic sine target with a synthetic model, frame by frame as the daemon does, with each
+    per-frame path of ``engines`` (``[daemon] engine``'s values): what tracking loads on first use is loaded
+    now (from numba's disk cache: ~0.5 s; compiled on a fresh install: tens of seconds, which the first
+    model install would otherwise pay)."""
+    from graytrack.core.estimator.live import LiveEstimator
     from graytrack.core.models.fourier import FourierModel
     from graytrack.core.tracking import LiveTracker
 
@@ -53,6 +55,11 @@ def warm_tracking() -> None:
     noise = np.random.default_rng(0).normal(0.0, 1.0, (WARM_FRAMES, model.n_pixels))
     x_mm = np.linspace(0.1, 0.3, WARM_FRAMES)
     frames = model.predict(x_mm)[:, 0] + noise
-    tracker = LiveTracker(model, x0_mm=float(x_mm[0]))
-    for frame, x in zip(frames, x_mm):
-        tracker.update(frame, float(x))
+    if "watches" in engines:
+        tracker = LiveTracker(model, x0_mm=float(x_mm[0]))
+        for frame, x in zip(frames, x_mm):
+            tracker.update(frame, float(x))
+    if "estimator" in engines:
+        estimator = LiveEstimator(model, x0_mm=float(x_mm[0]))
+        for k, (frame, x) in enumerate(zip(frames, x_mm)):
+            estimator.update(frame, float(x), k * 1e-3)

@@ -47,7 +47,7 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     if _workers(session.config) > 0:
         from graytrack.service.heap import warm_tracking
 
-        warm_tracking()
+        warm_tracking(("watches", "estimator"))
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:

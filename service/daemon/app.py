@@ -11,6 +11,7 @@ report, so a slow camera never blocks the event loop.
 from __future__ import annotations
 
 import asyncio
+import functools
 import logging
 import sys
 from contextlib import asynccontextmanager
@@ -121,7 +122,7 @@ def create_app(settings: Settings, factory: HardwareFactory = default_factory) -
         storage.unlock()
         raise
     rig = Rig(settings, storage, history, broadcaster.publish, factory)
-    startup = WarmUp(warm_tracking, settings.daemon.realtime_priority)
+    startup = WarmUp(functools.partial(warm_tracking, (settings.daemon.engine,)), settings.daemon.realtime_priority)
     if rebuilt is not None:
         log.error("%s", rebuilt)
         rig.event("record_rebuilt", rebuilt)

@@ -19,9 +19,9 @@ def test_the_status_route_answers_during_a_slow_warm_up_with_its_step_then_the_r
 
     compiled = threading.Event()  # stands for numba compiling the kernels (tens of seconds with no cache)
 
-    def first_start_warm_up() -> None:
+    def first_start_warm_up(engines: tuple[str, ...] = ("watches",)) -> None:
         compiled.wait(30.0)
-        warm_tracking()
+        warm_tracking(engines)
 
     monkeypatch.setattr(app_module, "warm_tracking", first_start_warm_up)
     caplog.set_level(logging.INFO, logger="graytrack.daemon")
@@ -43,7 +43,7 @@ def test_a_shutdown_during_the_warm_up_never_opens_the_rig(tmp_path: Path, monke
     from graytrack.service.daemon import app as app_module
 
     release = threading.Event()
-    monkeypatch.setattr(app_module, "warm_tracking", lambda: release.wait(30.0))
+    monkeypatch.setattr(app_module, "warm_tracking", lambda engines=(): release.wait(30.0))
     app = app_module.create_app(fast_settings(tmp_path, auto_calibrate="never"))
     with LiveServer(app) as daemon:
         assert daemon.status()["state"] == "starting"

@@ -105,7 +105,7 @@ def test_while_the_daemon_warms_up_the_page_says_what_it_is_doing(tmp_path: Path
     from graytrack.service.daemon import app as app_module
 
     compiled = threading.Event()  # numba compiling the tracker's kernels on a first start (~30 s)
-    monkeypatch.setattr(app_module, "warm_tracking", lambda: compiled.wait(30.0))
+    monkeypatch.setattr(app_module, "warm_tracking", lambda engines=(): compiled.wait(30.0))
     try:
         with LiveServer(app_module.create_app(fast_settings(tmp_path / "data", auto_calibrate="never"))) as daemon:
             page = browser.new_page(viewport=NARROW)
