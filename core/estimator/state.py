@@ -34,7 +34,6 @@ STATE: tuple[StateEntry, ...] = (
     StateEntry("turn_mm_row", "mm/row", "geometry", "the image's shift per row (the camera turned)"),
     StateEntry("skew_s", "s", "scale", "how much earlier than the exposure the grating was latched (with it fused)"),
 )
-INDEX = {entry.name: i for i, entry in enumerate(STATE)}
 X, V, G, OFS, A1, A2, B, M, C, L, T, SK = range(len(STATE))
 N_STATE = len(STATE)
 FAMILIES = {entry.family for entry in STATE}

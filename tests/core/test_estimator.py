@@ -48,6 +48,15 @@ def test_every_tunable_is_declared_once_with_unit_and_reason():
         EstimatorSettings(core_sigma=5.0, cut_sigma=4.0)
 
 
+def test_every_state_names_a_family_a_flag_can_carry():
+    from graytrack.core.estimator.state import FAMILIES, STATE
+    from graytrack.core.validity import FAMILIES as REASONS
+
+    assert FAMILIES <= set(REASONS)
+    assert len({entry.name for entry in STATE}) == len(STATE)
+    assert all(entry.unit and entry.description for entry in STATE)
+
+
 def test_pinned_nuisances_and_no_motion_prior_reproduce_the_plain_solve(paper):
     """Every nuisance pinned at calibration and the motion left free: the update is the frame's own
     least squares, which the plain solver (fixed light, no reweighting) finds from its own start."""
