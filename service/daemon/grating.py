@@ -9,10 +9,16 @@ is mid-exposure on the same clock. A frame gets a reference only when it can be 
 
 * **bracketed** — a reading before and one after the frame, at most ``window_s`` apart, and the
   motion between them straight: the change of velocity to the neighbouring readings, times the
-  span, bounds the interpolation error (``|a| h² / 8``), which must stay below ``tolerance_mm``;
-  and each reading's instant known well enough: a reading was taken somewhere between request
-  and reply, so while moving at ``v`` its stamp may be off by ``|v| · latency / 2`` (a reply
-  delayed by a busy machine makes that large), which must stay below ``tolerance_mm`` too;
+  span, bounds the interpolation error (``|a| h² / 8``), which must stay below ``tolerance_mm``.
+  A frame paired as it arrives often has no reading after the bracket yet, and the velocity change
+  on one side cannot see an acceleration that begins or reverses inside the span (the start of a
+  move, the turn into deceleration, where the two may even cancel): with one side seen, the stage's
+  largest change of acceleration bounds the line too, unless the three readings agree and no
+  command came since (an axis at rest stays there until told). Without it, a busy host's late
+  readings, 12-19 ms apart, left frames paired 1.5-4.5 um off during a move. And each reading's
+  instant must be known well enough: a reading was taken somewhere between request and reply, so
+  while moving at ``v`` its stamp may be off by ``|v| · latency / 2`` (a reply delayed by a busy
+  machine makes that large), which must stay below ``tolerance_mm`` too;
 * **at rest** — the last readings agree within ``tolerance_mm``, no move was commanded since the
   first of them, and the newest is at most ``rest_s`` old (a closed-loop axis at rest holds its
   position; the limit only guards against a poller that stopped). After a command, readings that
@@ -48,13 +54,18 @@ log = logging.getLogger("graytrack.daemon")
 HISTORY = 64
 REST_READINGS = 3
 NAN = float("nan")
+# the largest change of acceleration a stage makes between two readings: a reversal from its ACC to its DEC
+# (a PI stage's default 100 mm/s^2 each way), the bound on what one side's readings cannot see
+CHANGE_MM_S2 = 200.0
 
 
 class Readings:
     """Recent (host time, position) pairs, oldest first; safe to append and pair from two threads."""
 
-    def __init__(self, window_s: float, tolerance_mm: float, rest_s: float = 0.25, history: int = HISTORY) -> None:
+    def __init__(self, window_s: float, tolerance_mm: float, rest_s: float = 0.25, history: int = HISTORY,
+                 change_mm_s2: float = CHANGE_MM_S2) -> None:
         self.window_s = window_s
+        self.change_mm_s2 = change_mm_s2
         self.rest_s = rest_s
         self.tolerance_mm = tolerance_mm
         self._t: deque[float] = deque(maxlen=history)
@@ -136,10 +147,19 @@ class Readings:
             dv.append(abs((xs[i + 2] - xb) / (ts[i + 2] - tb) - v))
         if not dv or max(dv) * span / 8.0 > self.tolerance_mm:
             return NAN  # accelerating (or nothing to tell): the straight line may be wrong
+        if len(dv) == 1 and self.change_mm_s2 * span * span / 8.0 > self.tolerance_mm \
+                and not self._held(i - 1 if i > 0 else i + 2, i, i + 1):
+            return NAN  # one side seen: a change of motion beginning in the span is not (module doc)
         if abs(v) * 0.5 * max(self._latency[i], self._latency[i + 1]) > self.tolerance_mm:
             return NAN  # moving, and the readings' instants are too loosely known
         value = xa + (xb - xa) * (t - ta) / span
         return value - skew_s * v if skew_s else value
+
+    def _held(self, *readings: int) -> bool:
+        """Whether these readings agree and no command came after the first: a closed-loop axis at rest
+        stays there until commanded, so no change of motion hides between them."""
+        xs = [self._x[k] for k in readings]
+        return max(xs) - min(xs) <= self.tolerance_mm and self._t[min(readings)] > self.command_t
 
     def _at_rest(self, t: float) -> float:
         ts, xs = self._t, self._x

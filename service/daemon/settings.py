@@ -37,6 +37,10 @@ class DaemonConfig(StrictTable):
                                                          "readings a frame is interpolated between")
     pair_tolerance_um: float = Field(1.0, gt=0, description="largest interpolation error a paired reference may have "
                                                            "(acceleration between readings); else none is sent")
+    pair_change_mm_s2: float = Field(200.0, gt=0, description="the largest change of acceleration the stage makes "
+                                     "between two readings (a reversal: its ACC plus its DEC); a frame with readings "
+                                     "on one side only is paired only while this cannot bend the line past the "
+                                     "tolerance")
     pair_rest_s: float = Field(0.25, gt=0, description="host seconds the newest grating reading of a stage at rest "
                                                        "(no command since) stands for")
     stale_after_s: float = Field(0.5, gt=0, description="a position or rate older than this is withdrawn (null)")

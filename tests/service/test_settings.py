@@ -125,6 +125,44 @@ def test_grating_pairing_after_a_command_waits_for_the_stage_to_move_or_to_hold(
     assert held.at(0.07) == 3.0, "held for rest_s after it: at rest"
 
 
+def _paired_on_a_real_move(change_mm_s2: float) -> tuple[int, int]:
+    """References sent and those off by more than the 1 um tolerance, over 40 moves of the simulated stage
+    (accelerate, turn into deceleration, settle) read by a poller that is sometimes late (12 and 19 ms
+    between readings, as on a busy host), each frame paired as the frame loop pairs it: when it arrives,
+    with at most one reading after its exposure; scored against the stage's own position."""
+    from graytrack.drivers.sim.stage import SimStage, SimStageConfig
+
+    rng = np.random.default_rng(7)
+    sent = far = 0
+    for _ in range(40):
+        stage = SimStage(SimStageConfig(velocity_mm_s=20.0))  # ACC = DEC = 100 mm/s^2: a 200 mm/s^2 reversal
+        command_t = float(rng.uniform(0.0, 0.05))
+        stage.move_to(4.0, command_t)
+        polls = np.cumsum(rng.choice([0.005, 0.005, 0.005, 0.012, 0.019], size=100))
+        truth = stage.position(polls)
+        readings = Readings(window_s=0.02, tolerance_mm=1e-3, rest_s=0.25, change_mm_s2=change_mm_s2)
+        seen = 0
+        for t in np.sort(rng.uniform(0.0, 0.6, 200)):
+            while seen < polls.size and polls[seen - 1 if seen else 0] <= t:  # up to the first reading after t
+                if polls[seen] > command_t > readings.command_t:
+                    readings.note_command(command_t)
+                readings.append(float(polls[seen]), float(truth[seen]))
+                seen += 1
+            value = readings.at(float(t))
+            if value == value:
+                sent += 1
+                far += abs(value - float(stage.position(t))) > 1e-3
+    return sent, far
+
+
+def test_grating_pairing_is_never_off_by_more_than_its_tolerance_on_a_real_move() -> None:
+    sent, far = _paired_on_a_real_move(200.0)
+    assert far == 0, f"{far} of {sent} references off by more than 1 um"
+    trusting, wrong = _paired_on_a_real_move(0.0)  # one side's velocity change taken as all there is
+    assert wrong > 0.005 * trusting, "the motion must reach what one side cannot see"
+    assert sent > 0.9 * trusting, (sent, trusting)  # what it costs: the frames a late reading left unpaired
+
+
 def test_make_run_installs_only_what_running_needs(tmp_path: Path) -> None:
     import re
     import subprocess
