@@ -13,7 +13,8 @@ is mid-exposure on the same clock. A frame gets a reference only when it can be 
   A frame paired as it arrives often has no reading after the bracket yet, and the velocity change
   on one side cannot see an acceleration that begins or reverses inside the span (the start of a
   move, the turn into deceleration, where the two may even cancel): with one side seen, the stage's
-  largest change of acceleration bounds the line too, unless the three readings agree and no
+  largest change of acceleration bounds the line too (``change · (t − ta)(tb − t) / 2``, the frame's
+  place in the span counted), unless the three readings agree and no
   command came since (an axis at rest stays there until told). Without it, a busy host's late
   readings, 12-19 ms apart, left frames paired 1.5-4.5 um off during a move. And each reading's
   instant must be known well enough: a reading was taken somewhere between request and reply, so
@@ -92,6 +93,15 @@ class Readings:
         with self._lock:
             return (self._t[-1], self._x[-1]) if self._t else None
 
+    def newer(self, t: float, most: int = 2) -> int:
+        """How many readings are newer than host time ``t`` (counted up to ``most``): a frame with two
+        after it is paired with the motion seen on both sides of its bracket."""
+        with self._lock:
+            count, k = 0, len(self._t) - 1
+            while k >= 0 and count < most and self._t[k] > t:
+                count, k = count + 1, k - 1
+        return count
+
     def typical_latency_s(self) -> float:
         """The median round trip of the recent readings (0 before any): how well their instants are known."""
         with self._lock:
@@ -147,7 +157,7 @@ class Readings:
             dv.append(abs((xs[i + 2] - xb) / (ts[i + 2] - tb) - v))
         if not dv or max(dv) * span / 8.0 > self.tolerance_mm:
             return NAN  # accelerating (or nothing to tell): the straight line may be wrong
-        if len(dv) == 1 and self.change_mm_s2 * span * span / 8.0 > self.tolerance_mm \
+        if len(dv) == 1 and self.change_mm_s2 * (t - ta) * (tb - t) / 2.0 > self.tolerance_mm \
                 and not self._held(i - 1 if i > 0 else i + 2, i, i + 1):
             return NAN  # one side seen: a change of motion beginning in the span is not (module doc)
         if abs(v) * 0.5 * max(self._latency[i], self._latency[i + 1]) > self.tolerance_mm:

@@ -83,8 +83,9 @@ class Rig:
                                daemon.events_max_count)
         # the marks learned on the print, kept with the model of record (texture_store.py)
         self.texture_store = TextureStore(storage, self.health, self.clock.now, self.event)
+        # readings are stamped on the host's clock: a virtual rig run k times faster changes its motion k² faster
         self.readings = Readings(daemon.pair_window_s, daemon.pair_tolerance_um * 1e-3, daemon.pair_rest_s,
-                                 change_mm_s2=daemon.pair_change_mm_s2)
+                                 change_mm_s2=daemon.pair_change_mm_s2 * self.clock.scale ** 2)
         self.hardware: Hardware | None = None
         self.grating: GratingPoller | None = None
         self.acquisition: Acquisition | None = None

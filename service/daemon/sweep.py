@@ -224,8 +224,10 @@ class Sweep:
                 except queue.Empty:
                     pass
                 latest = readings.latest()
-                # A frame is paired once a reading after it exists (the bracketing one): never guessed ahead.
-                while waiting and latest is not None and waiting[0].t < latest[0]:
+                # A frame is paired once two readings after it exist (the bracketing one and the next): never
+                # guessed ahead, and the motion is seen on both sides of its bracket (grating.py), so a busy
+                # host's late reading costs no frame of the pass.
+                while waiting and readings.newer(waiting[0].t) >= 2:
                     sample = waiting.popleft()
                     seen += 1
                     if seen % keep_every:
