@@ -12,6 +12,7 @@ import pytest
 from graytrack.drivers.sim.camera_side import REST_SPEED_MM_S
 from graytrack.drivers.sim.effects import EffectError
 from graytrack.drivers.sim.frame_render import FrameRenderer
+from graytrack.drivers.sim.rig import Truth
 from graytrack.drivers.sim.scenarios import build_rig, list_effects
 from graytrack.drivers.sim.stage import steps
 
@@ -71,7 +72,7 @@ def test_a_speck_is_a_blob_over_rows_and_pixels_on_a_strip_from_its_instant_on()
     assert 1 - after[r0, u0 + 2 if u0 + 2 < 100 else u0 - 2] > 0.05
 
 
-def test_specks_at_rest_land_only_while_the_stage_stands_still():
+def test_specks_at_rest_land_only_while_the_stage_stands_still(tmp_path):
     """Step-and-settle over the stroke: every speck lands in a rest (the grating's stage not moving),
     at or after its own instant, and some wait for one; the frames before the first landing are those
     of the same rig without the dust, draw for draw, and after it they differ on the speck's pixels only."""
@@ -101,6 +102,7 @@ def test_specks_at_rest_land_only_while_the_stage_stands_still():
         (a, b), (c, d) = speck["rows"], speck["pixels"]
         marked[a:b + 1, c:d + 1] = True
     assert not changed[~marked].any()  # nothing beyond the pixels the truth names
+    assert Truth.load(truth.save(tmp_path / "truth.npz")).info["camera_side"] == truth.info["camera_side"]
 
 
 def test_specks_not_at_rest_land_at_their_own_instants_moving_or_not():
