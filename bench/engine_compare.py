@@ -17,7 +17,7 @@ import time
 
 from graytrack.core.calibration import calibrate
 from graytrack.drivers.sim.scenarios import build_rig
-from robustness_sweep import CASES, SECONDS
+from robustness_sweep import CASES, SECONDS, measured_motion
 from truth_score import MODES, scored
 
 ENGINES = ("watches", "estimator")
@@ -37,7 +37,8 @@ def main(selection: str = "") -> None:
             models[scenario, rig_effects] = calibrate(calibration, "paper").model
         model = models[scenario, rig_effects]
         run_effects = ",".join(part for part in (rig_effects, later) if part)
-        run, truth = build_rig(scenario, run_effects, seed=3, run=1).record(seconds / 2)
+        measured = build_rig(scenario, run_effects, seed=3, run=1)
+        run, truth = measured.record(seconds / 2, measured_motion(measured, later, seconds / 2))
         for mode, options in MODES.items():
             cells = []
             for engine in ENGINES:

@@ -25,6 +25,8 @@ from typing import TYPE_CHECKING, Callable, Mapping, Sequence
 
 import numpy as np
 
+from graytrack.drivers.sim.camera_side import VeilConfig, WindowSpeck
+from graytrack.drivers.sim.optics import pixel_geometry
 from graytrack.drivers.sim.sensor import FULL_SCALE_GRAY, BadPixel
 from graytrack.drivers.sim.shadow import ShadowConfig
 from graytrack.drivers.sim.target import Defect, Growth
@@ -298,6 +300,22 @@ def _vignetting(config: "RigConfig", v: dict[str, float], rng: np.random.Generat
     config.illumination.vignetting += v["edge"]
 
 
+@effect("vignetting_change", "illumination", "The field's vignetting changes after calibration (the lens's aperture "
+        "ring knocked, a lamp riding on the camera moved): from start_s each pixel's gain changes by −delta·ρ² "
+        "(ρ = radius / sensor half-width, as for vignetting), reached over ramp_s (0: a step), then kept; fixed to "
+        "the camera's pixels.",
+        delta=(0.05, "relative gain change at the sensor's half-width (> 0: darker edges)"),
+        start_s=(2.0, "when the change begins, s"), ramp_s=(1.0, "how long it takes, s (0: a step)"))
+def _vignetting_change(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    side = config.camera_side
+    delta = side.vignetting_delta + v["delta"]
+    if delta * float(pixel_geometry(config.optics).radius2.max()) >= 1.0:
+        raise EffectError("effect 'vignetting_change': delta would take all the light from the ROI's corner")
+    side.vignetting_delta = delta
+    side.vignetting_start_s = v["start_s"]
+    side.vignetting_ramp_s = _positive("vignetting_change", "ramp_s", v["ramp_s"], True)
+
+
 @effect("flicker", "illumination",
         "Lamp flicker at 2×mains: each frame's light scaled by 1 + depth·sinc(2fT)·cos(2π·2f·t + φ).",
         mains_hz=(50.0, "mains frequency"), depth=(0.02, "relative modulation of the light"),
@@ -436,6 +454,59 @@ def _off_target(config: "RigConfig", v: dict[str, float], rng: np.random.Generat
     config.optics.off_target_cols = int(round(v["share"] * config.optics.n_pixels))
     config.optics.off_target_rows = _count("off_target", "rows", v["rows"], 0, config.optics.n_rows)
     config.optics.background_gray = _positive("off_target", "gray", v["gray"], True)
+
+
+@effect("window_dust", "optics", "Dust landing on the camera's window (the cover glass over the sensor) during the "
+        "run: the window is out of focus, so each speck is a soft dark blob over rows and pixels (Gaussian σ between "
+        "sigma_min_px and sigma_max_px, taking depth_min..depth_max of the light at its centre) fixed to the pixels "
+        "whatever the stage does. They land one by one at random places and at random times between start_s and "
+        "start_s + over_s, and stay. at_rest=1: each lands only on a frame taken while the stage stands still (the "
+        "first at or after its time): until the stage moves it looks like a mark on the print.",
+        count=(6.0, "number of specks"), sigma_min_px=(1.0, "narrowest speck's σ, pixels"),
+        sigma_max_px=(2.5, "widest speck's σ, pixels"), depth_min=(0.2, "least share of the light a speck takes"),
+        depth_max=(0.5, "most share of the light a speck takes"), start_s=(1.0, "when the first may land, s"),
+        over_s=(6.0, "the span of time over which they land, s"),
+        at_rest=(0.0, "1: land only while the stage is at rest, 0: whatever it does"))
+def _window_dust(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    low, high = (_positive("window_dust", key, v[key]) for key in ("sigma_min_px", "sigma_max_px"))
+    if high < low:
+        raise EffectError("effect 'window_dust': need sigma_min_px ≤ sigma_max_px")
+    if not 0 <= v["depth_min"] <= v["depth_max"] < 1:
+        raise EffectError("effect 'window_dust': need 0 ≤ depth_min ≤ depth_max < 1")
+    if v["at_rest"] not in (0.0, 1.0):
+        raise EffectError("effect 'window_dust': at_rest must be 0 or 1")
+    count = _count("window_dust", "count", v["count"], 0, 1_000)
+    side = config.camera_side
+    if side.specks and bool(v["at_rest"]) != side.at_rest:
+        raise EffectError("effect 'window_dust': specks landing at rest and at any time cannot be mixed")
+    side.at_rest = bool(v["at_rest"])
+    start = _positive("window_dust", "start_s", v["start_s"], True)
+    times = np.sort(start + rng.uniform(0.0, _positive("window_dust", "over_s", v["over_s"], True), count))
+    for when in times:
+        side.specks.append(WindowSpeck(rng.uniform(0.0, 1.0), rng.uniform(0.0, 1.0), rng.uniform(low, high),
+                                       rng.uniform(v["depth_min"], v["depth_max"]), float(when)))
+
+
+@effect("veil", "optics", "A veil forming on the camera's window during the run (condensation on a cold window, a "
+        "film of oil) and staying: over the cover share of the line at one end it takes depth of the light and "
+        "scatters scatter_gray of the lamp's light into the pixels, with a soft edge edge_px wide (a cosine taper: "
+        "the window is out of focus); it arrives at start_s over rise_s; fixed to the camera's pixels, every row.",
+        depth=(0.25, "share of the light it takes where it covers"),
+        scatter_gray=(3.0, "the lamp's light it scatters into the covered pixels, gray"),
+        cover=(0.4, "share of the line's pixels under it, 0..1"),
+        side=(1.0, "which end it covers: 0 from the first pixel, 1 from the last"),
+        edge_px=(8.0, "width of its soft edge, pixels (0: sharp)"), start_s=(2.0, "when it begins to form, s"),
+        rise_s=(0.5, "how long it takes to form, s (0: at once)"))
+def _veil(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    if not 0 <= v["depth"] < 1:
+        raise EffectError("effect 'veil': depth must be in [0, 1)")
+    if not 0 <= v["cover"] <= 1:
+        raise EffectError("effect 'veil': cover must be in [0, 1]")
+    if v["side"] not in (0.0, 1.0):
+        raise EffectError("effect 'veil': side must be 0 or 1")
+    config.camera_side.veil = VeilConfig(v["depth"], v["scatter_gray"], v["cover"], int(v["side"]),
+                                         _positive("veil", "edge_px", v["edge_px"], True), v["start_s"],
+                                         _positive("veil", "rise_s", v["rise_s"], True))
 
 
 @effect("motion_blur", "optics", "Longer exposure: the moving profile is integrated over it (amplitude × sinc(v·T/τ)).",

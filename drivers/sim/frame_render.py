@@ -12,7 +12,9 @@ frame, so it is done once here, when the renderer is built:
   one basis row first (``2M+1`` numbers, scalar work) and the matrix is applied once;
 - the glare (fixed to the camera) is one precomputed ``(R, n)`` array, added when present; the
   flicker and a changing room light are per-frame scalars, evaluated only when configured; a moving
-  shadow is one ``(R, n)`` gain per frame, likewise.
+  shadow is one ``(R, n)`` gain per frame, likewise;
+- what changes on the camera's side (window dust, a veil, a changed vignetting) is the rig's own
+  :meth:`CameraSide.apply` on the frame, with the rig's own landing state of the window's specks.
 
 The sensor (fixed patterns, shot and read noise, gamma, quantisation) is the rig's own
 :meth:`Sensor.expose` with the rig's own noise stream, so a frame is statistically — and, draw for
@@ -93,18 +95,22 @@ class FrameRenderer:
         self._flicker = icfg.flicker_depth != 0.0
         self._level = icfg.level_gain != 1.0 or icfg.ambient_gray != 0.0
         self._shadow = icfg.shadow if icfg.shadow.active else None
+        self._camera_side = rig.camera_side
         self._basis = np.empty(self._matrix.shape[0])  # reused: the frame's only allocation is its light
 
     def light(self, x_mm: np.ndarray, t_mid_s: float, exposure_s: float) -> np.ndarray:
         """Noise-free light ``(1, R, n)`` (float64) of one exposure: ``x_mm`` ``(S,)`` are the stage's
         positions at S instants evenly spaced over it (S = 1: still), as :meth:`VirtualRig.render`
         takes them. Only for rigs with ``fallback`` None."""
-        _exposure_basis(np.asarray(x_mm, dtype=np.float64).reshape(-1).tolist(), self._omega, self._basis)
+        positions = np.asarray(x_mm, dtype=np.float64).reshape(-1)
+        _exposure_basis(positions.tolist(), self._omega, self._basis)
         light = (self._basis @ self._matrix).reshape(self._shape)
         if self._shadow is not None:  # a shadow sweeping across the field, as the rig renders it
             light *= self._shadow.gain(np.array([t_mid_s]), self.rig.geometry.x_mm)
         if self._glare is not None:
             light += self._glare
+        if self._camera_side is not None:
+            self._camera_side.apply(light, np.array([t_mid_s]), positions[None], exposure_s)
         if self._flicker or self._level:
             t = np.array([t_mid_s])
             gain, ambient = illum.level_change(self._illumination, t)

@@ -72,12 +72,17 @@ def level_change(cfg: IlluminationConfig, t_mid_s: np.ndarray) -> tuple[np.ndarr
     """Per-frame (gain, ambient gray) of a light that changes during the run: someone switches on the
     room light or a lamp ages. Before ``level_start_s`` nothing changes; then the change ramps in
     linearly over ``level_ramp_s`` (a step when 0)."""
-    t = np.asarray(t_mid_s, dtype=np.float64)
-    if cfg.level_ramp_s > 0:
-        share = np.clip((t - cfg.level_start_s) / cfg.level_ramp_s, 0.0, 1.0)
-    else:
-        share = (t >= cfg.level_start_s).astype(np.float64)
+    share = ramp_share(t_mid_s, cfg.level_start_s, cfg.level_ramp_s)
     return 1.0 + (cfg.level_gain - 1.0) * share, cfg.ambient_gray * share
+
+
+def ramp_share(t_s: np.ndarray, start_s: float, ramp_s: float) -> np.ndarray:
+    """How far a change that begins at ``start_s`` and ramps in linearly over ``ramp_s`` (0: a step)
+    has come at each instant, 0..1."""
+    t = np.asarray(t_s, dtype=np.float64)
+    if ramp_s > 0:
+        return np.clip((t - start_s) / ramp_s, 0.0, 1.0)
+    return (t >= start_s).astype(np.float64)
 
 
 def flicker_gain(cfg: IlluminationConfig, t_mid_s: np.ndarray, exposure_s: float) -> np.ndarray:

@@ -12,7 +12,9 @@ is exact in that form too — the mean of ``e^{jiκx(t)}`` over a linear piece o
 ``e^{jiκx_mid}·sinc(iκΔx/2π)``. Target-fixed gains and chirp take a slower path that evaluates each
 pixel at sub-samples of the exposure.
 
-The light then goes through the sensor (sensor.py). Ground truth — true exposure instants and
+What sits on the camera's side and changes during a run (dust landing on its window, a veil, a
+changed vignetting: camera_side.py) then darkens the light on the pixels it covers, whatever the
+stage does. The light then goes through the sensor (sensor.py). Ground truth — true exposure instants and
 positions, fixed patterns, the true period — is returned as a :class:`Truth`, never put into the
 recording.
 """
@@ -31,6 +33,7 @@ import numpy as np
 from graytrack.core.recording import Recording
 from graytrack.drivers.sim import illumination as illum
 from graytrack.drivers.sim import target as tgt
+from graytrack.drivers.sim.camera_side import CameraSide, CameraSideConfig
 from graytrack.drivers.sim.glints import GlintConfig, Glints
 from graytrack.drivers.sim.grating import GratingConfig, GratingReadout
 from graytrack.drivers.sim.illumination import IlluminationConfig
@@ -67,6 +70,7 @@ class RigConfig:
     grating: GratingConfig = field(default_factory=GratingConfig)
     timing: TimingConfig = field(default_factory=TimingConfig)
     glints: GlintConfig = field(default_factory=GlintConfig)
+    camera_side: CameraSideConfig = field(default_factory=CameraSideConfig)  # fixed to the pixels, changing in a run
     stroke_mm: tuple[float, float] = (0.0, 10.46)
     default_seconds: float = 10.0
     motion: str = "sweep"  # default trajectory: "sweep" once over the stroke, or "oscillation"
@@ -84,6 +88,9 @@ class Truth:
     (reference − x_mm), ``light_gain`` (flicker), ``frame_index`` (index before drops). Per pixel
     ``(R, n)``: ``pixel_x_mm`` target offset seen, ``pixel_gain`` (PRNU × vignetting),
     ``pixel_offset_gray`` (DSNU). Scalars: ``period_mm`` (true printed period), ``noise_gray``.
+    ``info``: the scenario, effects, seed and whole configuration (the print's defects with the instant
+    each appears); with changes on the camera's side, also the window's specks with the instant each
+    landed and the pixels each marks, and the veil's pixels (:meth:`CameraSide.truth`).
     """
 
     t_s: np.ndarray
@@ -166,6 +173,8 @@ class VirtualRig:
         gcfg = config.glints
         self._glints = Glints(gcfg, rng_for(gcfg.seed, "glints", f"run {run}"), config.timing.frame_rate_hz,
                               opt.n_rows) if gcfg.probability > 0 else None
+        side = config.camera_side
+        self.camera_side = CameraSide(side, opt.n_rows, opt.n_pixels, self.geometry.radius2) if side.active else None
 
     # ----- shape and nominal figures --------------------------------------------------------
     @property
@@ -256,6 +265,8 @@ class VirtualRig:
             out += self._glare  # the lamp's stray light: it dims and flickers with the lamp
         if self._glints is not None:  # the lamp mirrored by the print: it dims and flickers with it too
             self._glints.add_light(out, t, x.mean(axis=1), self.geometry.x_mm, self.pixel_pitch_mm)
+        if self.camera_side is not None:  # window dust, a veil, a changed vignetting: fixed to the pixels
+            self.camera_side.apply(out, t, x, exposure)
         gain, ambient = illum.level_change(self.config.illumination, t)
         out *= (illum.flicker_gain(self.config.illumination, t, exposure) * gain)[:, None, None]
         out += ambient[:, None, None]
@@ -431,6 +442,10 @@ class VirtualRig:
         )
         stored = frames[:, 0, :] if self.n_rows == 1 else frames
         rec = Recording(stored, clock.stamp[keep], reference, self.meta())
+        info = {"scenario": cfg.scenario, "effects": list(cfg.effects), "seed": self.seed,
+                "config": _jsonable(asdict(cfg))}
+        if self.camera_side is not None:
+            info["camera_side"] = self.camera_side.truth()
         truth = Truth(
             t_s=t_mid,
             x_mm=x_mid,
@@ -444,8 +459,7 @@ class VirtualRig:
             pixel_offset_gray=self.sensor.dsnu + cfg.sensor.black_level_gray,
             period_mm=cfg.target.true_period_mm,
             noise_gray=cfg.sensor.read_noise_gray,
-            info={"scenario": cfg.scenario, "effects": list(cfg.effects), "seed": self.seed,
-                  "config": _jsonable(asdict(cfg))},
+            info=info,
         )
         return rec, truth
 

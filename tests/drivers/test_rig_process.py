@@ -35,7 +35,9 @@ def _process(rig, clock: ScaledClock) -> Iterator[RigProcess]:
         process.stop()
 
 
-@pytest.mark.parametrize("effects", ["rows:n=4,flicker", "glints"])  # folded into the matrix / rendered directly
+# folded into the matrix / rendered directly / the camera's side, specks landing in the child while its stage rests
+@pytest.mark.parametrize("effects", ["rows:n=4,flicker", "glints",
+                                     "rows:n=4,window_dust:start_s=0:over_s=0:at_rest=1,veil:start_s=0,vignetting_change"])
 def test_frames_are_those_rendered_in_process_draw_for_draw(effects: str) -> None:
     # the child exposes on its own frame clock; each frame it hands over is rendered here again, in order, by
     # the in-process renderer of an identical rig (same seed): bit for bit the same while no frame is lost
@@ -57,6 +59,8 @@ def test_frames_are_those_rendered_in_process_draw_for_draw(effects: str) -> Non
         assert np.array_equal(frame.pixels, want)
         assert frame.pixels.flags.writeable
         assert clock.to_host(t_mid) == pytest.approx(frame.t_host, abs=1e-9)
+    if here.camera_side is not None:  # the window's specks landed on the first frame, in both processes alike
+        assert np.all(here.camera_side.landed_s == frames[0].t_device)
 
 
 def test_the_stage_is_driven_through_its_pty_and_the_frames_follow_it(clock: ScaledClock) -> None:
