@@ -186,6 +186,7 @@ class Estimator:
         self.idx_motion = np.array([X, V], dtype=np.int64)
         self.scratch = np.empty((6, n_values))
         self.rho = np.ones(n_values)
+        self._row_masks: dict[int, np.ndarray] = {}  # the pixel mask over the rows a frame averages, by rows
         self.stats = np.zeros(kernel.N_STATS)
         self.s = np.zeros(N_STATE)
         self.P = np.zeros((N_STATE, N_STATE))
@@ -238,7 +239,8 @@ class Estimator:
         """The frame at time ``t`` (mid-exposure) with its grating reading (NaN: none)."""
         frame = np.asarray(frame)
         last, self.last_frame = self.last_frame, frame
-        if last is not None and last.shape == frame.shape and \
+        # (an image again is equal in its first sample too: that one comparison settles nearly every frame)
+        if last is not None and last.shape == frame.shape and last.flat[0] == frame.flat[0] and \
                 repeats.repeated(frame[None], self.model.noise_gray or 0.0, last)[0]:
             # the image shows where the stage was, its time and grating where it is: no measurement of either
             return self._unplaced(t, self.stats, math.nan, "the driver delivered the last image again", True)
@@ -290,8 +292,7 @@ class Estimator:
             return self._unplaced(t, stats, test, "too many samples set aside" if rejected else "not converged")
         self.failed = 0
         self.s[:] = s
-        cov = self._covariance(A, solved)
-        self.P[:] = cov
+        kernel.embed(self.P, A, solved)  # the posterior over the states solved, the prior's elsewhere
         return self._estimate(t, stats, test, mode, reason_jump, reference_mm)
 
     # ------------------------------------------------------------------ parts
@@ -299,11 +300,13 @@ class Estimator:
         frame = np.asarray(frame)
         rows = self.model.rows_averaged(1 if frame.ndim == 1 else frame.shape[0])
         y = self.model.prepare(frame[None]).reshape(-1)
-        mask = self.mask * rows  # a row mean's variance is the sample's over the rows averaged
+        mask = self._row_masks.get(rows)
+        if mask is None:  # a row mean's variance is the sample's over the rows averaged
+            mask = self._row_masks[rows] = np.ascontiguousarray(self.mask * rows)
         if self.sensor_range is not None:
             lo, hi = self.sensor_range
             mask = mask * ((y > lo) & (y < hi))
-        return np.ascontiguousarray(y), np.ascontiguousarray(mask)
+        return np.ascontiguousarray(y), mask
 
     def _solve(self, y: np.ndarray, mask: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray,
                grating_z: float, idx: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -353,12 +356,6 @@ class Estimator:
             widened[X, V] += var * dt
             widened[V, X] += var * dt
         return widened
-
-    def _covariance(self, A: np.ndarray, idx: np.ndarray) -> np.ndarray:
-        """The full covariance: the posterior over the states solved, the prior's elsewhere."""
-        cov = self.P.copy()
-        kernel.embed(cov, A, idx)
-        return cov
 
     def _position_variance(self) -> float:
         """Variance of the reported position (the carriage's: the image's less the camera's place and the
