@@ -29,8 +29,15 @@ import math
 import numpy as np
 
 from graytrack.core import kernels
-from graytrack.core.estimator.state import A1, A2, B, C, G, L, M, N_STATE, OFS, SK, T, V, X
+from graytrack.core.estimator.state import A1, A2, B, C, G, L, M, N_STATE, OFS, SK, STATE, T, V, X
 
+# The state's layout as this file was compiled for. numba keys its cache by this file's stamp alone, not
+# by the indices it compiles in from state.py: a cache made for another layout indexes the wrong states
+# (seen: NaN or a silently wrong skew). A layout change must therefore change this file, and does:
+LAYOUT = "x_mm v_mm_s gain offset_gray field_tilt field_bow focus_px2 stretch place_mm lever_mm turn_mm_row skew_s"
+if LAYOUT != " ".join(entry.name for entry in STATE):
+    raise ImportError("core/estimator/state.py's layout differs from kernel.LAYOUT: update LAYOUT with it "
+                      "(it keys the compiled kernel's cache)")
 MAD_TO_SIGMA = 1.4826
 ROBUST_ROUNDS = 6  # reweightings at most: the redescending weights settle in 2–3 on a frame with a blob
 CURVATURE_STEP_PERIODS = 1e-3  # forward-difference step of F″ from the slopes, in periods (error ~ 3 % at order 5)
