@@ -44,6 +44,7 @@ LATER_DUST = "dust_settling"  # 30 specks landing on the print one by one during
 LATER_WINDOW = "window_dust"  # 6 specks landing on the camera's window during the run: fixed to the pixels
 LATER_WINDOW_REST = "window_dust:at_rest=1"  # ... each while the stage stands still: a print mark until it moves
 LATER_VEIL = "veil"  # a veil forming on the window from 2 s: 25 % of the light and 3 gray scattered over 40 % of it
+LATER_KNOCK = "knock:um=40:deg=0.2:at_s=2"  # the camera knocked on its mount at 2 s: 40 µm along the axis, 0.2°
 LATER_VIGNETTING = "vignetting_change"  # the vignetting 5 % deeper at the sensor's edge from 2 s (an aperture knocked)
 REST_STEPS = 10  # an at-rest case's measured run: the stroke in this many steps ...
 REST_DWELL = 0.06  # ... each followed by a rest of this share of the run (0.6 s of 10 s: 30 frames at 50 frames/s)
@@ -115,6 +116,8 @@ CASES = [
     ("strip16", "", LATER_VEIL),
     ("paper", "", LATER_VIGNETTING),
     ("strip16", "", LATER_VIGNETTING),
+    ("paper", "", LATER_KNOCK),
+    ("strip16", "", LATER_KNOCK),
 ]
 
 

@@ -444,6 +444,18 @@ def _magnification_drift(config: "RigConfig", v: dict[str, float], rng: np.rando
     optics.magnification_cycle_s = _positive("magnification_drift", "cycle_s", v["cycle_s"], True)
 
 
+@effect("knock", "mechanics", "The camera knocked on its mount during the run: from at_s on, the image sits "
+        "um further along the axis against the carriage and its rows are turned by deg about the ROI's centre "
+        "(a strip's rows then shift against each other); the carriage, and the grating, do not move.",
+        um=(40.0, "the image's jump along the axis against the carriage, µm"),
+        deg=(0.2, "the rows' turn, degrees (a strip only shows it)"), at_s=(2.0, "when, s"))
+def _knock(config: "RigConfig", v: dict[str, float], rng: np.random.Generator) -> None:
+    optics = config.optics
+    optics.knock_mm += v["um"] * 1e-3
+    optics.knock_rad += math.radians(v["deg"])
+    optics.knock_s = _positive("knock", "at_s", v["at_s"], True)
+
+
 @effect("off_target", "optics", "The ROI partly off the print: its last `share` of columns (and its first `rows` "
         "rows) look past the print's edge at a plain surface of `gray`.",
         share=(0.3, "share of the line's columns off the print, 0..1"), rows=(0.0, "rows off the print"),

@@ -64,8 +64,8 @@ def tabulable(rig: VirtualRig) -> str | None:
     cfg = rig.config
     if os.environ.get("GRAYTRACK_SIM_RENDER", "").lower() == "direct":
         return "GRAYTRACK_SIM_RENDER=direct (benches compare the two renders side by side)"
-    if cfg.optics.magnification_drift:
-        return "a drifting magnification"
+    if cfg.optics.moves:
+        return "a drifting magnification or a knock (what a pixel sees changes during the run)"
     if rig._slow:
         return "the print is chirped, defective or growing (every pixel evaluated on its own)"
     if cfg.illumination.has_target_field:

@@ -69,6 +69,17 @@ class OpticsConfig:
     magnification_start_s: float = 0.0
     magnification_ramp_s: float = 0.0
     magnification_cycle_s: float = 0.0
+    # The camera knocked on its mount at knock_s: from then on every pixel sees the target knock_mm further
+    # along the axis and the rows turned by knock_rad about the ROI's centre (a row y_mm across the line
+    # sees it shifted by −y·sin knock_rad), for the rest of the run.
+    knock_mm: float = 0.0
+    knock_rad: float = 0.0
+    knock_s: float = 0.0
+
+    @property
+    def moves(self) -> bool:
+        """Whether what a pixel sees of the target changes during a run (each frame's offsets then)."""
+        return bool(self.magnification_drift or self.knock_mm or self.knock_rad)
 
     @property
     def full_width(self) -> int:
@@ -169,9 +180,16 @@ def magnification_change(cfg: OpticsConfig, t_s: np.ndarray) -> np.ndarray:
     return cfg.magnification_drift * share
 
 
-def drifted_offsets(cfg: OpticsConfig, x_mm: np.ndarray, t_s: np.ndarray) -> np.ndarray:
+def drifted_offsets(cfg: OpticsConfig, x_mm: np.ndarray, t_s: np.ndarray, y_mm: np.ndarray) -> np.ndarray:
     """``(K, R, n)``: the target offsets ``x_mm`` ``(R, n)`` each pixel sees at frame times ``t_s``
-    under the magnification drift (the footprint scaled about the optical axis)."""
+    under the magnification drift (the footprint scaled about the optical axis) and after a knock
+    (``y_mm`` ``(R, n)``: each pixel's place across the line, about which the rows turn)."""
+    t = np.asarray(t_s, dtype=np.float64)
     axis = float(np.mean(x_mm)) + cfg.magnification_axis_mm
-    m = magnification_change(cfg, t_s)
-    return x_mm[None] + m[:, None, None] * (x_mm - axis)[None]
+    m = magnification_change(cfg, t)
+    offsets = x_mm[None] + m[:, None, None] * (x_mm - axis)[None]
+    if cfg.knock_mm or cfg.knock_rad:
+        knocked = (t >= cfg.knock_s).astype(np.float64)[:, None, None]
+        across = y_mm - float(np.mean(y_mm))
+        offsets = offsets + knocked * (cfg.knock_mm - across * math.sin(cfg.knock_rad))[None]
+    return offsets

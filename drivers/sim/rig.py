@@ -166,7 +166,7 @@ class VirtualRig:
         # a smooth (quadratic) light field fixed to the target stays on the fast path:
         # G(x + s) = G(x) + G'(x)·s + ½G''·s², one extra matrix per power of s
         self._matrix_s = [self._matrix * self.geometry.x_mm.reshape(1, -1) ** p for p in (1, 2)]
-        self._slow = (not tcfg.affine) or bool(tcfg.defects) or bool(tcfg.growths) or bool(opt.magnification_drift)
+        self._slow = (not tcfg.affine) or bool(tcfg.defects) or bool(tcfg.growths) or opt.moves
         self._row_y = self.geometry.y_mm.mean(axis=1)
         self._glare = illum.glare(config.illumination, opt.n_rows, opt.n_pixels)
         self._duplicate_rng = rng_for(seed, "duplicates") if run == 0 else rng_for(seed, "duplicates", f"run {run}")
@@ -348,9 +348,9 @@ class VirtualRig:
         blur = self.config.optics.defocus_sigma_mm
         aperture = self.pixel_pitch_mm  # a pixel's footprint on the target (fill factor 1)
         t_frame = t[:, None, None] if tcfg.growths else None
-        offsets = self.geometry.x_mm  # (R, n), or (K, R, n) while the magnification drifts
-        if self.config.optics.magnification_drift:
-            offsets = drifted_offsets(self.config.optics, offsets, t)
+        offsets = self.geometry.x_mm  # (R, n), or (K, R, n) while the magnification drifts or after a knock
+        if self.config.optics.moves:
+            offsets = drifted_offsets(self.config.optics, offsets, t, self.geometry.y_mm)
         for q in range(points.shape[1]):
             xq = points[:, q]
             if tcfg.affine and not tcfg.growths and offsets.ndim == 2:
