@@ -22,7 +22,7 @@ EXPOSURES = [(np.array([3.1]), 0.0), (np.array([1.0, 1.0004, 1.0008]), 0.25),
              (np.array([7.0, 7.05, 7.1, 7.15, 7.2]), 1.3731)]
 # the effects the renderer cannot fold: their light depends on each pixel's own target coordinate or time
 DIRECT = {"chirp", "dust", "dust_settling", "scratches", "smudge", "target_growth", "gradient", "focus_drift",
-          "focus_cycle", "glints", "rolling_shutter", "magnification_drift"}
+          "focus_cycle", "glints", "rolling_shutter", "magnification_drift", "knock"}
 
 
 def _rigs(effect: str, scenario: str = "strip16"):
