@@ -15,12 +15,12 @@ from graytrack.core.calibration import calibrate
 from graytrack.core.tracking import track
 from graytrack.core.validity import FAMILIES, FrameSign, Monitor, monitor_for
 from graytrack.drivers.sim.scenarios import build_rig
+from tests.conftest import rig_model
 
 
 @pytest.fixture(scope="module")
 def model():
-    calibration, _ = build_rig("paper", "", seed=3).record(16.0)
-    return calibrate(calibration, "paper").model
+    return rig_model("paper", "", seed=3, seconds=16.0)
 
 
 def _tracked(model, later: str, seconds: float):

@@ -14,6 +14,7 @@ import pytest
 from graytrack.core.diagnosis import diagnose
 from graytrack.core.tracking import track
 from graytrack.drivers.sim.scenarios import build_rig
+from tests.conftest import rig_model
 
 # A bench with most of the library at once: 16 rows, a photon-transfer 8-bit sensor, PRNU, bad
 # pixels, light uneven along the stroke, a printed harmonic, a slightly tilted camera.
@@ -103,10 +104,7 @@ def test_a_change_of_the_lights_shape_after_calibration_is_followed_by_a_light_f
     uniform gain and offset can absorb: the running χ² rises, the tracker solves a light field
     (gain smooth across the line) and ends at its larger bound; χ² is back, but the precision lost
     to the field is flagged: stale for the light."""
-    from graytrack.core.calibration import calibrate
-
-    calibration, _ = build_rig("paper", "", seed=3).record(16.0)
-    model = calibrate(calibration, "paper").model
+    model = rig_model("paper", "", seed=3, seconds=16.0)
     run, _ = build_rig("paper", "vignetting:edge=0.05", seed=3, run=1).record(8.0)
     result = track(model, run, light="auto", robust=True)
     error, bound = result.error_um(run.reference)[-200:], result.crlb_mm[-200:] * 1e3

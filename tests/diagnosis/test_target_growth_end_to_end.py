@@ -15,20 +15,18 @@ from functools import lru_cache
 import numpy as np
 import pytest
 
-from graytrack.core.calibration import calibrate
 from graytrack.core.recording import save
 from graytrack.core.reference_monitor import ReferenceMonitor, follow
 from graytrack.core.tracking import track
 from graytrack.drivers.sim.scenarios import build_rig
+from tests.conftest import rig_model
 from graytrack.service.cli import main
 
 GROWTH = "target_growth:ppm=250"
 
 
-@lru_cache(maxsize=None)
 def _model(scenario: str):
-    calibration, _ = build_rig(scenario, seed=3).record(20.0)
-    return calibrate(calibration, "paper").model
+    return rig_model(scenario, "", seed=3, seconds=20.0)
 
 
 @lru_cache(maxsize=None)
