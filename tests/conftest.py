@@ -90,7 +90,6 @@ def paper_models(paper_cal):
     return {kind: calibrate(paper_cal, kind) for kind in ("ideal", "paper")}
 
 
-
 @functools.lru_cache(maxsize=None)
 def rig_model(scenario: str, effects: str = "", seed: int = 3, seconds: float = 20.0):
     """The seed paper's model calibrated on ``seconds`` of the virtual rig (``build_rig(scenario, effects,
