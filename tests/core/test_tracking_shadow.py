@@ -13,7 +13,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from graytrack.core.calibration import calibrate
 from graytrack.core.chi2_episode import RECENT, RecentChi2
 from graytrack.core.tracking import LiveTracker, track
 from graytrack.drivers.sim.scenarios import build_rig
@@ -39,8 +38,7 @@ def shadow_run(model):
 
 @pytest.fixture(scope="module")
 def strip_model():
-    calibration, _ = build_rig("strip16", "", seed=3).record(8.0)
-    return calibrate(calibration, "paper").model
+    return rig_model("strip16", "", seed=3, seconds=8.0)
 
 
 def _ridden(model, scenario: str, grating: bool):
