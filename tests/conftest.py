@@ -9,6 +9,7 @@ and files only, seeded, fast. ``pytest -m unit`` is the quick check while editin
 
 from __future__ import annotations
 
+import functools
 import os
 
 import numpy as np
@@ -17,6 +18,7 @@ import pytest
 from graytrack.core.calibration import calibrate
 from graytrack.core.recording import Recording
 from graytrack.drivers.sim import paper
+from graytrack.drivers.sim.scenarios import build_rig
 
 SYSTEM_FOLDERS = ("service", "web", "drivers", "client")
 # BLAS threads per test worker: the cores shared out among the workers (pytest -n), at least one. OpenBLAS's
@@ -86,3 +88,12 @@ def paper_val() -> Recording:
 @pytest.fixture(scope="session")
 def paper_models(paper_cal):
     return {kind: calibrate(paper_cal, kind) for kind in ("ideal", "paper")}
+
+
+@functools.lru_cache(maxsize=None)
+def rig_model(scenario: str, effects: str = "", seed: int = 3, seconds: float = 20.0):
+    """The seed paper's model calibrated on ``seconds`` of the virtual rig (``build_rig(scenario, effects,
+    seed)``): made once a test process for every module that tracks its later runs with it (seeded: the same
+    model every time; tracking reads a model and never changes it, so the modules share one)."""
+    calibration, _ = build_rig(scenario, effects, seed=seed).record(seconds)
+    return calibrate(calibration, "paper").model

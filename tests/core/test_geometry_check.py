@@ -22,9 +22,10 @@ from graytrack.service.cli import main
 from graytrack.service.calibration_run import CalibrationRun, write_files
 
 
-def _figures(model, run):
-    """(all frames locked, error std over the rms of the frames' bounds, error std µm)."""
-    result = track(model, run, light="auto", robust=True)
+def _figures(model, run, result=None):
+    """(tracking result, error std over the rms of the frames' bounds, error std µm) of ``model`` on ``run``
+    (``result``: that tracking, done already)."""
+    result = track(model, run, light="auto", robust=True) if result is None else result
     error = result.error_um(run.reference)
     bound = float(np.sqrt(np.nanmean(np.square(result.crlb_mm * 1e3))))
     return result, float(np.nanstd(error)) / bound, float(np.nanstd(error))
@@ -35,6 +36,24 @@ def mirrored():
     calibration, _ = build_rig("paper", "mirrored", seed=3).record(20.0)
     run, _ = build_rig("paper", "mirrored", seed=3, run=1).record(10.0)
     return calibration, run
+
+
+@pytest.fixture(scope="module")
+def flipped(mirrored):
+    """The mirrored calibration reversed (the fix), fitted, and its model tracking the reversed run: once for
+    the module's tests, which read them (seeded: the same numbers each time)."""
+    calibration, run = mirrored
+    fit = calibrate(calibration.flipped(), "paper")
+    return fit, track(fit.model, run.flipped(), light="auto", robust=True)
+
+
+@pytest.fixture(scope="module")
+def refused(mirrored):
+    """The mirrored calibration as it came, its refused model kept for study (``check=False``), tracking
+    the run: once for the module's tests, which read them."""
+    calibration, run = mirrored
+    fit = calibrate(calibration, "paper", check=False)
+    return fit, track(fit.model, run, light="auto", robust=True)
 
 
 def test_a_mirrored_camera_is_refused_with_the_cause_and_the_fix(mirrored) -> None:
@@ -50,21 +69,21 @@ def test_a_mirrored_camera_is_refused_with_the_cause_and_the_fix(mirrored) -> No
     assert "pixel axis looks reversed" in message and "--flip" in message and "[camera] flip = true" in message
 
 
-def test_reversed_it_calibrates_and_tracks_at_the_usual_figures(mirrored) -> None:
-    calibration, run = mirrored
-    result = calibrate(calibration.flipped(), "paper")
+def test_reversed_it_calibrates_and_tracks_at_the_usual_figures(mirrored, flipped) -> None:
+    _, run = mirrored
+    result, tracked_run = flipped
     assert result.geometry.status == "ok" and not result.geometry.warnings
     assert result.rmse_gray / result.sigma_gray < 1.03  # measured 1.004
-    tracked, ratio, _ = _figures(result.model, run.flipped())
+    tracked, ratio, _ = _figures(result.model, run.flipped(), tracked_run)
     assert tracked.locked.all()
     assert ratio < 1.15  # measured 1.03 of the bound
 
 
-def test_a_refused_model_kept_for_study_never_says_locked(mirrored) -> None:
-    calibration, run = mirrored
-    result = calibrate(calibration, "paper", check=False)
+def test_a_refused_model_kept_for_study_never_says_locked(mirrored, refused) -> None:
+    _, run = mirrored
+    result, tracked_run = refused
     assert result.model.info["geometry"]["status"] == "refused"
-    tracked, _, spread = _figures(result.model, run)
+    tracked, _, spread = _figures(result.model, run, tracked_run)
     assert not tracked.locked.any()
     assert spread > 100.0  # why: hundreds of µm off (the issue measured 414)
 
@@ -182,23 +201,20 @@ def _blamed(watch, result) -> np.ndarray:
     return np.array([watch.observe(FrameSign(k, chi2=float(c))) == "geometry" for k, c in enumerate(result.chi2)])
 
 
-def test_the_geometry_watch_blames_every_frame_of_a_refused_model_and_none_of_a_good_one(mirrored) -> None:
-    calibration, run = mirrored
-    good = calibrate(calibration.flipped(), "paper").model
-    assert _blamed(GeometryWatch(good), track(good, run.flipped(), light="auto", robust=True)).sum() == 0
-    refused = calibrate(calibration, "paper", check=False).model
-    tracked = track(refused, run, light="auto", robust=True)
-    assert _blamed(GeometryWatch(refused), tracked).all()
+def test_the_geometry_watch_blames_every_frame_of_a_refused_model_and_none_of_a_good_one(flipped, refused) -> None:
+    (good, good_tracked), (bad, tracked) = flipped, refused
+    assert _blamed(GeometryWatch(good.model), good_tracked).sum() == 0
+    assert _blamed(GeometryWatch(bad.model), tracked).all()
     # the monitor has it (make): every frame stale, nearly all for geometry (92 %; FAMILIES puts the
     # light, which also moved on some frames, ahead of it)
     assert tracked.stale.all() and (tracked.stale_reason == "geometry").mean() > 0.85
 
 
-def test_track_refuses_frames_reversed_against_the_model(mirrored, tmp_path, capsys) -> None:
+def test_track_refuses_frames_reversed_against_the_model(mirrored, flipped, tmp_path, capsys) -> None:
     """A model calibrated with --flip fed frames that are already reversed (or a camera remounted
     since): the grating shows the mismatch before tracking 1.3 mm off."""
-    calibration, run = mirrored
-    model = calibrate(calibration.flipped(), "paper").model
+    _, run = mirrored
+    model = flipped[0].model
     gain = orientation_mismatch(model, run)
     assert gain > 10.0  # the frames fit the model this many times better reversed
     assert orientation_mismatch(model, run.flipped()) < 0.5

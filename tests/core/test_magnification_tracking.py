@@ -12,6 +12,7 @@ import pytest
 from graytrack.core.calibration import calibrate
 from graytrack.core.tracking import track
 from graytrack.drivers.sim.scenarios import build_rig
+from tests.conftest import rig_model
 from graytrack.core.drift_cause import lens_favoured
 from graytrack.core.watches.scale import STRETCH_Z
 from graytrack.service.commands.track_scale import check, scale_watch
@@ -150,8 +151,7 @@ def test_the_far_lens_is_named_the_same_chunk_by_chunk_as_frame_by_frame(monkeyp
 @pytest.fixture(scope="module")
 def strip():
     """A 16-row strip's model, calibrated on 8 s of the rig as it was."""
-    calibration, _ = build_rig("strip16", "", seed=3).record(8.0)
-    return calibrate(calibration, "paper").model
+    return rig_model("strip16", "", seed=3, seconds=8.0)
 
 
 def test_a_16_row_lens_ramp_is_named_magnification_from_its_first_flags(strip):

@@ -10,13 +10,13 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from graytrack.core.calibration import calibrate
 from graytrack.core.models import save_model
 from graytrack.core.recording import save
 from graytrack.core.slide import SlideWatch, carry
 from graytrack.core.tracking import track
 from graytrack.core.watches.magnification import MagnificationWatch
 from graytrack.drivers.sim.scenarios import build_rig
+from tests.conftest import rig_model
 from graytrack.service.cli import main
 from tests.tables import read_columns
 
@@ -26,8 +26,7 @@ CYCLE = "magnification_drift:ppm=1500:cycle_s=6"  # a temperature cycle that com
 
 @pytest.fixture(scope="module")
 def models():
-    return {scenario: calibrate(build_rig(scenario, "", seed=3).record(20.0)[0], "paper").model
-            for scenario in ("paper", "strip16")}
+    return {scenario: rig_model(scenario, "", seed=3, seconds=20.0) for scenario in ("paper", "strip16")}
 
 
 def _unread(model, run, truth, slide: SlideWatch | None):

@@ -15,6 +15,7 @@ from graytrack.core.calibration import calibrate
 from graytrack.core.stretch_follow import StretchFollow
 from graytrack.core.tracking import track
 from graytrack.drivers.sim.scenarios import build_rig
+from tests.conftest import rig_model
 from graytrack.service.commands.track_scale import check, scale_watch
 
 CYCLE = "magnification_drift:ppm=1500:cycle_s=4"  # a temperature cycle: 0.15 % comes and goes over 4 s
@@ -23,8 +24,7 @@ RAMP = "magnification_drift:ppm=1500:ramp_s=6"  # warming up: 0.15 % over 6 s
 
 @pytest.fixture(scope="module")
 def model():
-    calibration, _ = build_rig("strip16", "", seed=3).record(6.0)
-    return calibrate(calibration, "paper").model
+    return rig_model("strip16", "", seed=3, seconds=6.0)
 
 
 def _trimmed(model, effects: str):

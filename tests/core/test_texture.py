@@ -10,18 +10,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from graytrack.core.calibration import calibrate
 from graytrack.core.texture_mark import FIELDS, Grid, fit_samples
 from graytrack.core.tracking import track
 from graytrack.drivers.sim.scenarios import build_rig
+from tests.conftest import rig_model
 
 SEED = 4
 
 
 @pytest.fixture(scope="module")
 def model():
-    calibration, _ = build_rig("paper", "", seed=SEED).record(20.0)
-    return calibrate(calibration, "paper").model
+    return rig_model("paper", "", seed=SEED, seconds=20.0)
 
 
 @pytest.fixture(scope="module")

@@ -12,19 +12,18 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from graytrack.core.calibration import calibrate
 from graytrack.core.tracking import track
 from graytrack.core.validity import FrameSign
 from graytrack.core.watches.texture import TextureWatch
 from graytrack.drivers.sim.scenarios import build_rig
+from tests.conftest import rig_model
 
 SEED = 3  # the sweep's (seed 4's smudge is placed within its bound by the marks: nothing held pulls it)
 
 
 @pytest.fixture(scope="module")
 def model():
-    calibration, _ = build_rig("paper", "", seed=SEED).record(20.0)
-    return calibrate(calibration, "paper").model
+    return rig_model("paper", "", seed=SEED, seconds=20.0)
 
 
 def test_a_smudge_learned_without_a_grating_holds_no_frame_off_unflagged(model):

@@ -9,16 +9,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from graytrack.core.calibration import calibrate
 from graytrack.core.solvers import FrameSolution, field_basis, field_solve
 from graytrack.core.tracking import Tracker, track
 from graytrack.drivers.sim.scenarios import build_rig
+from tests.conftest import rig_model
 
 
 @pytest.fixture(scope="module")
 def model():
-    calibration, _ = build_rig("paper", "", seed=3).record(16.0)
-    return calibrate(calibration, "paper").model
+    return rig_model("paper", "", seed=3, seconds=16.0)
 
 
 def rms(values: np.ndarray) -> float:

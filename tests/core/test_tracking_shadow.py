@@ -13,10 +13,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from graytrack.core.calibration import calibrate
 from graytrack.core.chi2_episode import RECENT, RecentChi2
 from graytrack.core.tracking import LiveTracker, track
 from graytrack.drivers.sim.scenarios import build_rig
+from tests.conftest import rig_model
 
 SHADOW = "moving_shadow:depth=0.33:passes=2:period_s=3:start_s=1.5"
 RECOVERY = 12  # frames after the shadow has left by which the tracker is back (the issue: "a few")
@@ -25,8 +25,7 @@ FAR = 4.0  # bounds
 
 @pytest.fixture(scope="module")
 def model():
-    calibration, _ = build_rig("paper", "", seed=3).record(16.0)
-    return calibrate(calibration, "paper").model
+    return rig_model("paper", "", seed=3, seconds=16.0)
 
 
 @pytest.fixture(scope="module")
@@ -39,8 +38,7 @@ def shadow_run(model):
 
 @pytest.fixture(scope="module")
 def strip_model():
-    calibration, _ = build_rig("strip16", "", seed=3).record(8.0)
-    return calibrate(calibration, "paper").model
+    return rig_model("strip16", "", seed=3, seconds=8.0)
 
 
 def _ridden(model, scenario: str, grating: bool):

@@ -39,6 +39,15 @@ def _sessions(scenario: str):
     return scenario, cal, cal_touched, run, run_touched
 
 
+@functools.lru_cache(maxsize=2)
+def _paper_model(scenario: str):
+    """The paper model of the scenario's glint calibration and its tracking of the glint run: made once a
+    process for the three tests that ask different things of them (which read them, and change nothing)."""
+    _, cal, _, run, _ = _sessions(scenario)
+    model = calibrate(cal, "paper").model
+    return model, track(model, run, light="auto", robust=True)
+
+
 @pytest.fixture(scope="module", params=["paper", "strip16"])
 def sessions(request):
     return _sessions(request.param)
@@ -73,17 +82,17 @@ def test_glints_calibrated_and_tracked_at_the_bound(sessions, method):
     no good pixel masked, with the paper model and with the closed loop."""
     scenario, cal, _, run, run_touched = sessions
     if method == "paper":
-        model = calibrate(cal, "paper").model
+        model, tracked = _paper_model(scenario)
     else:
         result = diagnose(cal)
         model = result.final_model
         findings = result.report()["findings"]
         assert findings["transients"]["count"] >= 10
         assert "bad_pixels" not in findings
+        tracked = track(model, run, light="auto", robust=True)
     assert not model.info.get("bad_pixels")
     assert model.pixel_weight is None or model.pixel_weight.min() > 0
     assert model.info["transients"]["count"] >= 10
-    tracked = track(model, run, light="auto", robust=True)
     error = tracked.error_um(run.reference)
     glinted = run_touched.any(axis=(1, 2))
     assert np.isfinite(error).all() and tracked.locked.all()
@@ -172,12 +181,11 @@ def test_calibrate_and_diagnose_name_the_transients(tmp_path, capsys):
 def test_on_a_strip_a_glint_costs_its_rows_not_whole_columns():
     """A row-averaged model on 16 rows: the glint's samples are set aside in the rows it covers, so
     a glint frame keeps nearly the bound and the position the same frame has without the glint."""
-    scenario, cal, _, run, run_touched = _sessions("strip16")
-    model = calibrate(cal, "paper").model
+    scenario, _, _, _, run_touched = _sessions("strip16")
+    model, with_glints = _paper_model(scenario)
     assert model.n_rows == 1  # the rows agree: the model sees their mean
     plain, _ = build_rig(scenario, "", seed=3, run=1).record(RUN_S)
     glinted = run_touched.any(axis=(1, 2))
-    with_glints = track(model, run, light="auto", robust=True)
     without = track(model, plain, light="auto", robust=True)
     ratio = with_glints.crlb_mm[glinted] / without.crlb_mm[glinted]
     assert np.median(ratio) < 1.04 and ratio.max() < 1.15
@@ -190,9 +198,8 @@ def test_on_a_strip_a_glint_costs_its_rows_not_whole_columns():
 def test_live_tracking_sets_glints_aside_as_batch_tracking_does(sessions):
     from graytrack.core.tracking import LiveTracker
 
-    scenario, cal, _, run, run_touched = sessions
-    model = calibrate(cal, "paper").model
-    batch = track(model, run, light="auto", robust=True)
+    scenario, _, _, run, run_touched = sessions
+    model, batch = _paper_model(scenario)
     live = LiveTracker(model, x0_mm=float(run.reference[0]))
     fixes = [live.update(frame, float(ref)) for frame, ref in zip(run.frames, run.reference)]
     np.testing.assert_allclose([fix.x_mm for fix in fixes], batch.x_mm, atol=1e-9)

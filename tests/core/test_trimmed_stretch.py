@@ -9,9 +9,9 @@ import collections
 import numpy as np
 import pytest
 
-from graytrack.core.calibration import calibrate
 from graytrack.core.tracking import track
 from graytrack.drivers.sim.scenarios import build_rig
+from tests.conftest import rig_model
 from graytrack.service.commands.track_scale import check, scale_watch
 
 GROWTH = "target_growth:ppm=250"  # humidity: the 16-row print 250 ppm longer than at calibration
@@ -19,8 +19,7 @@ GROWTH = "target_growth:ppm=250"  # humidity: the 16-row print 250 ppm longer th
 
 @pytest.fixture(scope="module")
 def grown():
-    calibration, _ = build_rig("strip16", "", seed=3).record(6.0)
-    model = calibrate(calibration, "paper").model
+    model = rig_model("strip16", "", seed=3, seconds=6.0)
     run, truth = build_rig("strip16", GROWTH, seed=3, run=1).record(6.0)
     return model, run, truth
 
@@ -54,8 +53,7 @@ def test_a_temperature_cycle_without_a_grating_is_named_while_the_stage_turns_ro
     """The stretch's harmonics of the print's phase, beside a drift in time and only where the stage
     saw enough phases: a 16-row cycle's stretch had been taken for a print's turning change at its
     peak (49-54 % of the frames 4+ bounds off, unflagged)."""
-    calibration, _ = build_rig("strip16", "", seed=3).record(6.0)
-    model = calibrate(calibration, "paper").model
+    model = rig_model("strip16", "", seed=3, seconds=6.0)
     run, truth = build_rig("strip16", "magnification_drift:ppm=1500:cycle_s=6", seed=3, run=1).record(6.0)
     result = track(model, run.frames, np.full(run.n_frames, np.nan), light="auto", robust=True)
     error_um = (result.x_mm - truth.x_mm) * 1e3

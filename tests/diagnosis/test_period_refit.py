@@ -8,6 +8,7 @@ grating. Refined in the second alternation round, with the flat field known, τ_
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from graytrack.core import effects
 from graytrack.core.calibration import KIND_SPECS
@@ -21,8 +22,14 @@ from graytrack.drivers.sim.scenarios import build_rig
 GLARE = "glare"  # the rig effect's defaults: 20 gray at its centre, 8 px across, on a 16-row strip
 
 
-def test_stray_light_pulls_the_seed_period_and_the_flat_field_fit_brings_it_back() -> None:
-    recording, _ = build_rig("strip16", GLARE, seed=3).record(8.0)
+@pytest.fixture(scope="module")
+def glare_calibration():
+    """The strip's calibration run under the glare, recorded once for both tests (the tests only read it)."""
+    return build_rig("strip16", GLARE, seed=3).record(8.0)[0]
+
+
+def test_stray_light_pulls_the_seed_period_and_the_flat_field_fit_brings_it_back(glare_calibration) -> None:
+    recording = glare_calibration
     data = calibration_data(recording)
     true_mm = recording.meta["period_mm"]
     seed = fit_spec(KIND_SPECS["paper"], data, *initial_geometry(data)).model
@@ -37,8 +44,8 @@ def test_stray_light_pulls_the_seed_period_and_the_flat_field_fit_brings_it_back
     assert held.period_mm == seed.period_mm
 
 
-def test_the_closed_loop_on_stray_light_tracks_another_run_at_its_bound() -> None:
-    calibration, _ = build_rig("strip16", GLARE, seed=3).record(8.0)
+def test_the_closed_loop_on_stray_light_tracks_another_run_at_its_bound(glare_calibration) -> None:
+    calibration = glare_calibration
     run, _ = build_rig("strip16", GLARE, seed=3, run=1).record(4.0)
     loop = diagnose(calibration)
     assert "flat_field" in [step.effect for step in loop.steps]

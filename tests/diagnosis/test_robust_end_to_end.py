@@ -14,6 +14,7 @@ import pytest
 from graytrack.core.diagnosis import diagnose
 from graytrack.core.tracking import track
 from graytrack.drivers.sim.scenarios import build_rig
+from tests.conftest import rig_model
 
 # A bench with most of the library at once: 16 rows, a photon-transfer 8-bit sensor, PRNU, bad
 # pixels, light uneven along the stroke, a printed harmonic, a slightly tilted camera.
@@ -47,23 +48,36 @@ def test_a_lab_strip_keeps_its_floor_when_the_light_changes_and_a_pixel_fails_in
     assert spread <= 1.3 * bound, f"{spread:.3f} µm against a bound of {bound:.3f} µm"
 
 
-@pytest.mark.parametrize("gain,offset", [(0.7, 20.0), (1.3, -20.0)])
-def test_the_closed_loops_model_tracks_through_a_step_change_of_light(gain, offset):
+@pytest.fixture(scope="module")
+def loop_model():
+    """The closed loop's model of a plain paper rig, fitted once for both steps of light (seeded: the
+    same model each time, and tracking reads it without changing it)."""
     calibration, _ = build_rig("paper", "", seed=4).record(16.0)
-    model = diagnose(calibration).final_model
+    return diagnose(calibration).final_model
+
+
+@pytest.fixture(scope="module")
+def eight_bit_model():
+    """The paper model of an 8-bit rig, fitted once for the batch and the live saturation tests."""
+    from graytrack.core.calibration import calibrate
+
+    calibration, _ = build_rig("paper", "quantize:bits=8", seed=6).record(16.0)
+    return calibrate(calibration, "paper").model
+
+
+@pytest.mark.parametrize("gain,offset", [(0.7, 20.0), (1.3, -20.0)])
+def test_the_closed_loops_model_tracks_through_a_step_change_of_light(loop_model, gain, offset):
+    model = loop_model
     run, _ = build_rig("paper", f"light_change:gain={gain}:ambient_gray={offset}:start_s=4", seed=4, run=1).record(8.0)
     lost, spread, bound = error_against_bound(model, run)
     assert lost == 0
     assert spread <= 1.1 * bound, f"{spread:.3f} µm against a bound of {bound:.3f} µm"
 
 
-def test_samples_driven_into_saturation_after_calibration_are_set_aside():
+def test_samples_driven_into_saturation_after_calibration_are_set_aside(eight_bit_model):
     """More light than at calibration drives the crests of an 8-bit sensor into its ceiling: the
     tracker sets those samples aside (they say nothing about x) instead of losing the frames."""
-    from graytrack.core.calibration import calibrate
-
-    calibration, _ = build_rig("paper", "quantize:bits=8", seed=6).record(16.0)
-    model = calibrate(calibration, "paper").model
+    model = eight_bit_model
     assert model.info["sensor_range_gray"] == [0.0, 255.0]
     run, _ = build_rig("paper", "quantize:bits=8,light_change:gain=1.35:ambient_gray=5", seed=6, run=1).record(8.0)
     assert (run.frames == 255).mean() > 0.05  # a good share of the samples sit at the ceiling
@@ -72,12 +86,10 @@ def test_samples_driven_into_saturation_after_calibration_are_set_aside():
     assert spread <= 1.3 * bound, f"{spread:.3f} µm against a bound of {bound:.3f} µm"
 
 
-def test_live_tracking_sets_saturated_samples_aside_as_the_batch_tracker_does():
-    from graytrack.core.calibration import calibrate
+def test_live_tracking_sets_saturated_samples_aside_as_the_batch_tracker_does(eight_bit_model):
     from graytrack.core.tracking import LiveTracker
 
-    calibration, _ = build_rig("paper", "quantize:bits=8", seed=6).record(10.0)
-    model = calibrate(calibration, "paper").model
+    model = eight_bit_model  # (the batch test's, calibrated on 16 s rather than 10 s: the same 8-bit rig)
     run, _ = build_rig("paper", "quantize:bits=8,light_change:gain=1.35:ambient_gray=5:start_s=1",
                        seed=6, run=1).record(3.0)
     live = LiveTracker(model, x0_mm=float(run.reference[0]))
@@ -92,10 +104,7 @@ def test_a_change_of_the_lights_shape_after_calibration_is_followed_by_a_light_f
     uniform gain and offset can absorb: the running χ² rises, the tracker solves a light field
     (gain smooth across the line) and ends at its larger bound; χ² is back, but the precision lost
     to the field is flagged: stale for the light."""
-    from graytrack.core.calibration import calibrate
-
-    calibration, _ = build_rig("paper", "", seed=3).record(16.0)
-    model = calibrate(calibration, "paper").model
+    model = rig_model("paper", "", seed=3, seconds=16.0)
     run, _ = build_rig("paper", "vignetting:edge=0.05", seed=3, run=1).record(8.0)
     result = track(model, run, light="auto", robust=True)
     error, bound = result.error_um(run.reference)[-200:], result.crlb_mm[-200:] * 1e3

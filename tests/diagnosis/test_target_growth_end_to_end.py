@@ -15,30 +15,36 @@ from functools import lru_cache
 import numpy as np
 import pytest
 
-from graytrack.core.calibration import calibrate
 from graytrack.core.recording import save
 from graytrack.core.reference_monitor import ReferenceMonitor, follow
 from graytrack.core.tracking import track
 from graytrack.drivers.sim.scenarios import build_rig
+from tests.conftest import rig_model
 from graytrack.service.cli import main
 
 GROWTH = "target_growth:ppm=250"
 
 
-@lru_cache(maxsize=None)
 def _model(scenario: str):
-    calibration, _ = build_rig(scenario, seed=3).record(20.0)
-    return calibrate(calibration, "paper").model
+    return rig_model(scenario, "", seed=3, seconds=20.0)
+
+
+@lru_cache(maxsize=None)
+def _tracked(scenario: str, effects: str, seconds: float):
+    """A run tracked by the seed model: (grating readings, true positions, tracking result), once a process
+    (seeded: the same numbers each time; the tests read them and change nothing): the trim's test follows
+    the grown runs the flagging test tracked, with and without the trim, rather than tracking them again."""
+    run, truth = build_rig(scenario, effects, seed=3, run=1).record(seconds)
+    result = track(_model(scenario), run, light="auto", robust=True)
+    return run.reference, truth.x_mm, float(run.meta.get("grating_resolution_mm", 0.0)), result
 
 
 def _followed(scenario: str, effects: str, seconds: float = 10.0, trim: bool = False):
     model = _model(scenario)
-    run, truth = build_rig(scenario, effects, seed=3, run=1).record(seconds)
-    result = track(model, run, light="auto", robust=True)
-    step = float(run.meta.get("grating_resolution_mm", 0.0))
-    followed = follow(ReferenceMonitor.for_model(model, step), result.x_mm, run.reference, result.crlb_mm,
+    reference, truth_mm, step, result = _tracked(scenario, effects, seconds)
+    followed = follow(ReferenceMonitor.for_model(model, step), result.x_mm, reference, result.crlb_mm,
                       result.locked, trim=trim)
-    error = (followed.x_mm - truth.x_mm) * 1e3
+    error = (followed.x_mm - truth_mm) * 1e3
     bound = np.sqrt(np.nanmean(np.square(result.crlb_mm))) * 1e3
     return followed, error, bound, result
 

@@ -8,17 +8,16 @@ import re
 import numpy as np
 import pytest
 
-from graytrack.core.calibration import calibrate
 from graytrack.core.tracking import LiveTracker
 from graytrack.drivers.sim.scenarios import build_rig
 from graytrack.service.daemon.texture_log import TextureLog
+from tests.conftest import rig_model
 
 pytestmark = pytest.mark.unit
 
 
 def test_marks_learned_live_are_logged_and_dropped_with_their_model():
-    calibration, _ = build_rig("paper", "", seed=4).record(20.0)
-    model = calibrate(calibration, "paper").model
+    model = rig_model("paper", "", seed=4, seconds=20.0)
     run, truth = build_rig("paper", "dust_settling", seed=4, run=1).record(10.0)
     events: list[tuple[str, str]] = []
     log = TextureLog(lambda kind, message: events.append((kind, message)))
