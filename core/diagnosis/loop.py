@@ -151,6 +151,12 @@ def _better(new: Figures, old: Figures, n_samples: int) -> tuple[bool, str]:
     """
     if not np.isfinite(new.error_max_um) and np.isfinite(old.error_max_um):
         return False, "rejected: the tracker lost frames it held before"
+    if not (old.rmse_gray > 0 and old.error_std_um > 0 and np.isfinite(new.rmse_gray)
+            and np.isfinite(new.error_std_um)):
+        # no scatter to judge a gain against (one held-out frame placed, or none): nothing is kept on it
+        return False, (f"rejected: the held-out figures cannot judge it (rmse {old.rmse_gray:.3f} → "
+                       f"{new.rmse_gray:.3f} gray, error std {old.error_std_um:.3f} → {new.error_std_um:.3f} µm "
+                       f"over {int(np.isfinite(old.error_um).sum())} placed frames)")
     residual_gain = 1.0 - (new.rmse_gray / old.rmse_gray) ** 2
     error_gain = 1.0 - (new.error_std_um / old.error_std_um) ** 2
     chance = 4.0 * np.sqrt(2.0 / n_samples)
