@@ -22,6 +22,9 @@ REQUESTS = 10_000
 MAX_LINES = 100
 SENDERS = 4  # threads, each a quarter of every kind
 KINDS = ("garbage", "handshake", "unauthorized")
+# The request budget's pacing (tests/service/test_limits.py) lifted here: at the default 200 requests a second
+# from one client, the 10,000 requests would take 50 s of pacing; this test is about what the log holds.
+UNPACED = {"requests_per_s_per_client": 1e5, "requests_per_s": 1e5}
 
 
 TEST_SIDE = ("httpx", "httpcore")  # this test's own HTTP client logs in the same process: not the daemon's lines
@@ -86,7 +89,8 @@ def _flood(port: int, kind: str, count: int, seen: list[bytes]) -> None:
 def test_a_flood_of_refused_requests_writes_few_lines_and_the_stage_fault_among_them(tmp_path: Path,
                                                                                      level: str) -> None:
     factory = GatedFactory()
-    server = LiveServer(create_app(fast_settings(tmp_path, auto_calibrate="never"), factory), log_level=level)
+    settings = fast_settings(tmp_path, auto_calibrate="never", **UNPACED)
+    server = LiveServer(create_app(settings, factory), log_level=level)
     lines = Lines(TEST_SIDE)
     # as `graytrack serve` has it: the root and uvicorn's logger; its access log only at debug (a handler on
     # uvicorn.access is what turns it on)
