@@ -55,6 +55,7 @@ from typing import Callable
 import numpy as np
 
 from graytrack.core.adequacy import inadequacy
+from graytrack.core.holdout import held_out
 from graytrack.core.poly_follow import ChosenFollower
 from graytrack.core.trim_follow import Following
 from graytrack.core.watches import _kernels
@@ -775,11 +776,15 @@ def structure_profile(x_mm: np.ndarray, residual_um: np.ndarray, bound_um: np.nd
     if shrink < 0.5:
         return None
     means, noise_um = means * shrink, noise_um * shrink
-    # What is left is measured out of sample: every other frame corrected by the profile of the rest (its
-    # noise, twice the whole profile's variance, taken off again); in sample it would be nil by construction.
-    half = structure_profile(x_mm[0::2], residual_um[0::2], bound_um[0::2], bins) if x_mm.size >= 8 * bins else None
+    # What is left is measured out of sample: the held-out frames (core/holdout.py: whole readings, so no
+    # held-out frame sits at a stop the profile saw) corrected by the profile of the rest (that profile's
+    # own noise taken off again); in sample it would be nil by construction.
+    held = held_out(x_mm)
+    fit = ~held
+    half = structure_profile(x_mm[fit], residual_um[fit], bound_um[fit], bins) \
+        if x_mm.size >= 8 * bins and held.any() else None
     left = 0.0
     if half is not None:
-        held_out = structure_um(x_mm[1::2], residual_um[1::2] - half.at_um(x_mm[1::2]), bound_um[1::2], bins)
-        left = math.sqrt(max(held_out ** 2 - half.noise_um ** 2, 0.0))
+        out_um = structure_um(x_mm[held], residual_um[held] - half.at_um(x_mm[held]), bound_um[held], bins)
+        left = math.sqrt(max(out_um ** 2 - half.noise_um ** 2, 0.0))
     return StructureProfile(tuple(centers.tolist()), tuple(means.tolist()), noise_um, left)

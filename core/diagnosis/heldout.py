@@ -33,6 +33,7 @@ import numpy as np
 from graytrack.core.calibration_data import CalibrationData, calibration_data
 from graytrack.core.effects.focus import FOCUS_INFO, with_frame_focus
 from graytrack.core.errors import CalibrationError
+from graytrack.core.holdout import held_out, reading_blocks, reading_runs
 from graytrack.core.models.fourier import FourierModel
 from graytrack.core.noise import crlb_mm, pooled_bound
 from graytrack.core.recording import Recording
@@ -43,33 +44,13 @@ from graytrack.core.tracking import Tracker, TrackResult, track
 if TYPE_CHECKING:
     from graytrack.core.structure import ModelSpec
 
-HOLDOUT_BLOCK_FRAMES = 10  # the closed loop's blocks: at least this many frames (whole readings)
-HOLDOUT_EVERY = 4  # ... of which every this-many-th is its held-out fold
 HELD_OUT_BLOCKS = 40  # a scan (no stops) is cut into this many blocks for the two-fold held-out error
 
 
-def _reading_runs(reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(first frame, length) of each run of consecutive frames with one grating reading."""
-    reference = np.asarray(reference, dtype=np.float64)
-    starts = np.flatnonzero(np.concatenate(([True], reference[1:] != reference[:-1])))
-    return starts, np.diff(np.append(starts, reference.size))
-
-
-def reading_blocks(reference: np.ndarray, least: int) -> np.ndarray:
-    """Each frame's block, numbered 0, 1, … in recording order: the runs of one grating reading that
-    start within the same ``least`` frames, each run whole. Frames of one reading are frames at one
-    position (a stop, a slow scan's repeated readout step): held out apart from each other, the fit
-    would have seen the held-out frame's position, which flatters the model. A scan whose every
-    frame has a reading of its own gets blocks of ``least`` frames."""
-    starts, lengths = _reading_runs(reference)
-    _, block = np.unique(starts // max(int(least), 1), return_inverse=True)
-    return np.repeat(block, lengths)
-
-
 def interleaved_split(data: CalibrationData) -> tuple[CalibrationData, CalibrationData]:
-    """The closed loop's one fold: every ``HOLDOUT_EVERY``-th block of :func:`reading_blocks`
-    (at least ``HOLDOUT_BLOCK_FRAMES``) is held out."""
-    held = reading_blocks(data.x_mm, HOLDOUT_BLOCK_FRAMES) % HOLDOUT_EVERY == HOLDOUT_EVERY // 2
+    """The closed loop's one fold (core/holdout.py :func:`~graytrack.core.holdout.held_out`): every
+    ``HOLDOUT_EVERY``-th block of :func:`reading_blocks` (at least ``HOLDOUT_BLOCK_FRAMES``) is held out."""
+    held = held_out(data.x_mm)
     return data.subset(np.flatnonzero(~held)), data.subset(np.flatnonzero(held))
 
 
@@ -261,7 +242,7 @@ def held_out_blocks(recording: Recording) -> np.ndarray:
     :func:`reading_blocks` of at least ``1/HELD_OUT_BLOCKS`` of the recording and its longest rest
     (a scan's frames at rest at its ends), so that the blocks are alike in length.
     """
-    _, lengths = _reading_runs(recording.reference)
+    _, lengths = reading_runs(recording.reference)
     least = max(recording.n_frames // HELD_OUT_BLOCKS, int(lengths.max()), 1)
     return reading_blocks(recording.reference, least)
 

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from graytrack.core.calibration import calibrate
-from graytrack.core.diagnosis.heldout import (HELD_OUT_BLOCKS, HOLDOUT_BLOCK_FRAMES, HOLDOUT_EVERY, held_out_blocks,
-                                              loop_split, reading_blocks, validate)
+from graytrack.core.diagnosis.heldout import HELD_OUT_BLOCKS, held_out_blocks, loop_split, validate
+from graytrack.core.holdout import HOLDOUT_BLOCK_FRAMES, HOLDOUT_EVERY, reading_blocks
 from graytrack.core.errors import CalibrationError
 from graytrack.core.recording import Recording, save
 from graytrack.drivers.sim.scenarios import build_rig
