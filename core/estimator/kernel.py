@@ -109,6 +109,8 @@ def _normal(s: np.ndarray, idx: np.ndarray, y: np.ndarray, w: np.ndarray, rho: n
         for j in range(n):
             A[i, j] = 0.0
     jac = np.zeros(N_STATE)  # (a dozen numbers a solve: numba keeps them on the stack)
+    active = np.empty(n)  # the Jacobian over the active states, and weighted
+    weighted = np.empty(n)
     g, o, a1, a2, b, m, th = s[G], s[OFS], s[A1], s[A2], s[B], s[M], s[T]
     lever = s[L]
     cost = 0.0
@@ -134,10 +136,18 @@ def _normal(s: np.ndarray, idx: np.ndarray, y: np.ndarray, w: np.ndarray, rho: n
         jac[L] = gdf * m
         jac[T] = gdf * r_rel[p]
         for i in range(n):
-            ji = weight * jac[idx[i]]
+            active[i] = jac[idx[i]]
+        for i in range(n):
+            ji = weight * active[i]
+            weighted[i] = ji
             rhs[i] += ji * r
-            for j in range(i + 1):
-                A[i, j] += ji * jac[idx[j]]
+        # Whole rows, the same products and sums element by element as the lower triangle alone (the
+        # compiler vectorises a row); the upper triangle is then the lower's mirror, as it always was.
+        for i in range(n):
+            ji = weighted[i]
+            row = A[i]
+            for j in range(n):
+                row[j] += ji * active[j]
     for i in range(n):
         for j in range(i):
             A[j, i] = A[i, j]
