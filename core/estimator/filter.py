@@ -49,6 +49,9 @@ if TYPE_CHECKING:
     from graytrack.core.tracking import TrackResult
 
 GRATING_MODES = ("check", "fuse", "none")
+# frames whose row mean the estimator computes compiled as they come (the cameras' and the recordings' types);
+# any other is made float64 first
+FRAME_TYPES = (np.dtype(np.uint8), np.dtype(np.uint16), np.dtype(np.float32), np.dtype(np.float64))
 ACQUIRE_GRID_PER_PERIOD = 64  # grid positions a period when a frame is placed from nothing (a 64th of a period
 # is well inside Gauss–Newton's quarter-period reach)
 FAILED_TO_REACQUIRE = 3  # frames in a row not placed before the next is placed from nothing again
@@ -190,6 +193,18 @@ class Estimator:
         self.stats = np.zeros(kernel.N_STATS)
         self.s = np.zeros(N_STATE)
         self.P = np.zeros((N_STATE, N_STATE))
+        # a frame's own arrays, made once: its gray values, their mask, the main update's answer and the σ
+        self._y = np.empty(n_values)
+        self._masked = np.empty(n_values)
+        self._seen = None if model.pixel_weight is None else model.seen().reshape(-1)
+        self._answer = (np.empty(N_STATE), np.empty((self.idx.size, self.idx.size)), np.empty(kernel.N_STATS))
+        self._sigma = np.empty(N_STATE)
+        # the update's arguments that stay what they are for the estimator's life (a frame's call passes them
+        # as they are, not looked up again)
+        self._frame_args = (self.noise, self.t_rel, self.r_rel, self.b1, self.b2, model.pixel_pitch_mm,
+                            model.period_mm)
+        self._solver_args = (robust, settings.core_sigma, settings.cut_sigma, settings.max_rejected,
+                             int(settings.max_iterations), settings.tolerance, self.model_args, self.scratch, self.rho)
         self.t_last: float | None = None
         self.last_frame: np.ndarray | None = None
         self.dt_last = 0.0
@@ -253,8 +268,8 @@ class Estimator:
                 abs(self.s[X] - reference_mm) > 0.25 * self.model.period_mm:
             self._acquire(y, mask, t, reference_mm)  # the image's period lost: start again at the grating
         fuse = self.grating == "fuse" and math.isfinite(reference_mm)
-        s_prior, P_prior = self.s.copy(), self.P.copy()
-        s, A, stats = self._solve(y, mask, s_prior, P_prior, reference_mm if fuse else math.nan)
+        s_prior, P_prior = self.s, self.P  # read, never written, until the posterior replaces them below
+        s, A, stats = self._solve(y, mask, s_prior, P_prior, reference_mm if fuse else math.nan, out=self._answer)
         test = self._test(stats, s)
         mode, solved = "", self.idx
         if test > 1.0:
@@ -292,44 +307,55 @@ class Estimator:
             return self._unplaced(t, stats, test, "too many samples set aside" if rejected else "not converged")
         self.failed = 0
         self.s[:] = s
-        kernel.embed(self.P, A, solved)  # the posterior over the states solved, the prior's elsewhere
+        kernel.embed(self.P, A, solved, self._sigma)  # the posterior over the states solved, the prior's elsewhere
         return self._estimate(t, stats, test, mode, reason_jump, reference_mm)
 
     # ------------------------------------------------------------------ parts
     def _prepared(self, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        frame = np.asarray(frame)
-        rows = self.model.rows_averaged(1 if frame.ndim == 1 else frame.shape[0])
-        y = self.model.prepare(frame[None]).reshape(-1)
+        """The frame's gray values as the model sees them (its ``prepare``) and their mask."""
+        model = self.model
+        rows = 1 if frame.ndim == 1 else frame.shape[0]
+        if model.n_rows == 1 and frame.ndim <= 2 and frame.shape[-1] == model.n_pixels and rows > 0:
+            # the row mean prepare takes, compiled into the estimator's own array (prepare's arrays a call
+            # cost a 16-row frame 5 µs)
+            if frame.dtype not in FRAME_TYPES or not (frame.flags.c_contiguous and frame.flags.writeable):
+                frame = np.array(frame, dtype=np.float64)
+            y = self._y
+            kernel.row_mean(frame.reshape(rows, model.n_pixels), y)
+            if self._seen is not None:
+                np.multiply(y, self._seen, out=y)
+        else:
+            rows = model.rows_averaged(rows)
+            y = np.ascontiguousarray(model.prepare(frame[None]).reshape(-1))
         mask = self._row_masks.get(rows)
         if mask is None:  # a row mean's variance is the sample's over the rows averaged
             mask = self._row_masks[rows] = np.ascontiguousarray(self.mask * rows)
         if self.sensor_range is not None:
             lo, hi = self.sensor_range
-            mask = mask * ((y > lo) & (y < hi))
-        return np.ascontiguousarray(y), mask
+            kernel.in_range(y, lo, hi, mask, self._masked)
+            mask = self._masked
+        return y, mask
 
     def _solve(self, y: np.ndarray, mask: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray,
-               grating_z: float, idx: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The update over the states ``idx`` (default: every active one; the others held at the prior)."""
+               grating_z: float, idx: np.ndarray | None = None,
+               out: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray, list]:
+        """The update over the states ``idx`` (default: every active one; the others held at the prior):
+        the state, the posterior information and the figures (kernel.S_*, plain numbers). ``out``: the
+        arrays to answer in (the state, the information over ``idx``, the figures), else new ones."""
         idx = self.idx if idx is None else idx
-        s = s_prior.copy()
-        A = np.zeros((idx.size, idx.size))
-        stats = np.zeros(kernel.N_STATS)
+        s, A, stats = out or (np.empty(N_STATE), np.empty((idx.size, idx.size)), np.empty(kernel.N_STATS))
+        s[:] = s_prior
         grating_w = 1.0 / self.settings.grating_sigma ** 2 if math.isfinite(grating_z) else 0.0
-        settings = self.settings
-        kernel.update(s, s_prior, P_prior, idx, y, mask, self.noise, self.t_rel, self.r_rel, self.b1, self.b2,
-                      self.model.pixel_pitch_mm, self.model.period_mm, grating_z if grating_w else 0.0, grating_w,
-                      self.robust, settings.core_sigma, settings.cut_sigma, settings.max_rejected,
-                      int(settings.max_iterations), settings.tolerance, self.model_args, self.scratch, self.rho, A,
-                      stats)
-        return s, A, stats
+        kernel.update(s, s_prior, P_prior, idx, y, mask, *self._frame_args, grating_z if grating_w else 0.0, grating_w,
+                      *self._solver_args, A, stats)
+        return s, A, stats.tolist()
 
     def _level(self, x_mm: float) -> float:
         if self.chi2_curve is None:
             return self.chi2_calibration
         return self.chi2_calibration * self.chi2_curve.at(x_mm)
 
-    def _test(self, stats: np.ndarray, s: np.ndarray) -> float:
+    def _test(self, stats: list, s: np.ndarray) -> float:
         """The innovation's χ² over its quantile at the false-alarm rate (the stream's spread counted)."""
         used = stats[kernel.S_USED]
         if used <= 0:
@@ -339,7 +365,7 @@ class Estimator:
         dof = used / self.spread ** 2
         return (chi2 / self.spread ** 2) / _quantile(self.z_alpha, dof)
 
-    def _excess(self, stats: np.ndarray, s: np.ndarray) -> float:
+    def _excess(self, stats: list, s: np.ndarray) -> float:
         """The frame's residual χ² per sample over what the noise model and the calibration expect (≥ 1)."""
         used = stats[kernel.S_USED]
         if used <= 0:
@@ -362,14 +388,15 @@ class Estimator:
         lens's slide, which the state carries; with the grating only checked, the place is not a state)."""
         return float(self.P[X, X])
 
-    def _estimate(self, t: float, stats: np.ndarray, test: float, mode: str, reason_jump: str | None,
+    def _estimate(self, t: float, stats: list, test: float, mode: str, reason_jump: str | None,
                   reference_mm: float) -> FrameEstimate:
+        """The frame's record from the posterior just embedded (its σ in ``_sigma``)."""
         settings = self.settings
         # plain Python numbers from here: this runs for every frame
         s = self.s.tolist()
-        sigma = np.sqrt(np.maximum(np.diag(self.P), 0.0)).tolist()
-        xinfo, used, rejected, residual = (float(stats[kernel.S_XINFO]), float(stats[kernel.S_USED]),
-                                           float(stats[kernel.S_REJECTED]), float(stats[kernel.S_RESIDUAL]))
+        sigma = self._sigma.tolist()
+        xinfo, used, rejected, residual = (stats[kernel.S_XINFO], stats[kernel.S_USED], stats[kernel.S_REJECTED],
+                                           stats[kernel.S_RESIDUAL])
         floor = 1.0 / math.sqrt(xinfo) if xinfo > 0 else math.inf
         # what the model itself errs by here (its calibration's shared error): no frame can see it
         # (as much of it as the image's share of the position carries: a fused grating pins the rest)
@@ -397,7 +424,7 @@ class Estimator:
         shown = abs(s[B]) > self.z_two * focus_sigma
         return FrameEstimate(
             t=t, x_mm=s[X] + (s[C] if self.grating == "check" else 0.0), crlb_mm=math.sqrt(var_x) * self.bound_factor,
-            floor_mm=floor * self.bound_factor, locked=True, rms_gray=float(stats[kernel.S_RMS]),
+            floor_mm=floor * self.bound_factor, locked=True, rms_gray=stats[kernel.S_RMS],
             chi2=residual / max(used, 1.0) / self._level(s[X]), test=float(test), rejected_px=int(rejected),
             iterations=int(stats[kernel.S_ITER]), gain=s[G], offset_gray=s[OFS],
             focus_px2=s[B] if shown else math.nan, focus_sigma_px2=focus_sigma if shown else math.nan,
@@ -431,7 +458,8 @@ class Estimator:
                 best, family = removed, name
         return family
 
-    def _unplaced(self, t: float, stats: np.ndarray, test: float, why: str, repeated: bool = False) -> FrameEstimate:
+    def _unplaced(self, t: float, stats: np.ndarray | list, test: float, why: str,
+                  repeated: bool = False) -> FrameEstimate:
         nan = math.nan
         return FrameEstimate(t=t, x_mm=nan, crlb_mm=nan, floor_mm=nan, locked=False,
                              rms_gray=float(stats[kernel.S_RMS]), chi2=nan, test=float(test),
@@ -471,6 +499,10 @@ class Estimator:
         self._solve(y, self.mask.copy(), self.s.copy(), self.P.copy(), math.nan)
         self._solve(y, self.mask.copy(), self.s.copy(), self.P.copy(), 0.0)
         kernel.predict(self.s.copy(), self.P.copy(), 0.01, 1.0, self.rates2)
+        kernel.embed(self.P.copy(), np.eye(self.idx.size), self.idx, self._sigma)
+        for kind in FRAME_TYPES:  # each kind of frame a camera delivers, compiled for now
+            kernel.row_mean(np.zeros((2, self.model.n_pixels), dtype=kind), self._y)
+        kernel.in_range(self._y, 0.0, 1.0, self.mask, self._masked)
         self.started = False
 
 

@@ -56,9 +56,10 @@ def information(P: np.ndarray, idx: np.ndarray) -> np.ndarray:
     return np.linalg.inv(block)
 
 
-def embed(P: np.ndarray, A: np.ndarray, idx: np.ndarray) -> None:
+def embed(P: np.ndarray, A: np.ndarray, idx: np.ndarray, sigma: np.ndarray) -> None:
     """In place: ``P``'s block over ``idx`` becomes ``A``⁻¹ (the posterior); states outside ``idx`` keep
-    their own variance and lose their correlation with those inside."""
+    their own variance and lose their correlation with those inside. ``sigma``: every state's σ out
+    (a negative variance's 0)."""
     inner = np.linalg.inv(A)
     n, total = idx.size, P.shape[0]
     inside = np.zeros(total, dtype=np.bool_)
@@ -71,6 +72,28 @@ def embed(P: np.ndarray, A: np.ndarray, idx: np.ndarray) -> None:
     for i in range(n):
         for j in range(n):
             P[idx[i], idx[j]] = inner[i, j]
+    for i in range(total):
+        sigma[i] = 0.0 if P[i, i] < 0.0 else math.sqrt(P[i, i])
+
+
+def row_mean(frame: np.ndarray, out: np.ndarray) -> None:
+    """``out`` (n,): the mean of ``frame``'s rows (R, n) in float64, summed row after row and divided by
+    R: what the model's ``prepare`` computes with numpy, to the bit, without its arrays made a frame."""
+    n_rows, n = frame.shape
+    for p in range(n):
+        out[p] = frame[0, p]
+    for r in range(1, n_rows):
+        for p in range(n):
+            out[p] += frame[r, p]
+    if n_rows > 1:
+        for p in range(n):
+            out[p] = out[p] / n_rows
+
+
+def in_range(y: np.ndarray, lo: float, hi: float, mask: np.ndarray, out: np.ndarray) -> None:
+    """``out``: ``mask`` where ``y`` lies strictly between the sensor's limits, 0 elsewhere."""
+    for p in range(y.size):
+        out[p] = mask[p] * (1.0 if (y[p] > lo) & (y[p] < hi) else 0.0)
 
 
 def predict(s: np.ndarray, P: np.ndarray, dt: float, q_accel: float, rates2: np.ndarray) -> None:
@@ -336,6 +359,8 @@ if kernels.COMPILED:
     predict = _jit(predict)
     information = _jit(information)
     embed = _jit(embed)
+    row_mean = _jit(row_mean)
+    in_range = _jit(in_range)
     _evaluate = _jit(_evaluate)
     _normal = _jit(_normal)
     _grating = _jit(_grating)
