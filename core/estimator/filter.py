@@ -199,12 +199,14 @@ class Estimator:
         self._seen = None if model.pixel_weight is None else model.seen().reshape(-1)
         self._answer = (np.empty(N_STATE), np.empty((self.idx.size, self.idx.size)), np.empty(kernel.N_STATS))
         self._sigma = np.empty(N_STATE)
-        # the update's arguments that stay what they are for the estimator's life (a frame's call passes them
-        # as they are, not looked up again)
-        self._frame_args = (self.noise, self.t_rel, self.r_rel, self.b1, self.b2, model.pixel_pitch_mm,
-                            model.period_mm)
-        self._solver_args = (robust, settings.core_sigma, settings.cut_sigma, settings.max_rejected,
-                             int(settings.max_iterations), settings.tolerance, self.model_args, self.scratch, self.rho)
+        # the update's constants, as the kernel takes them (kernel.U_*, kernel.PX_*): a frame sets the grating's two
+        self.pixels = np.ascontiguousarray(np.stack([self.t_rel, self.r_rel, self.b1, self.b2]))
+        self.params = params = np.zeros(kernel.N_PARAMS)
+        params[[kernel.U_READ, kernel.U_SHOT, kernel.U_DARK]] = self.noise
+        params[kernel.U_PITCH], params[kernel.U_PERIOD] = model.pixel_pitch_mm, model.period_mm
+        params[kernel.U_ROBUST] = 1.0 if robust else 0.0
+        params[kernel.U_CORE], params[kernel.U_CUT] = settings.core_sigma, settings.cut_sigma
+        params[kernel.U_ITERATIONS], params[kernel.U_TOLERANCE] = int(settings.max_iterations), settings.tolerance
         self.t_last: float | None = None
         self.last_frame: np.ndarray | None = None
         self.dt_last = 0.0
@@ -346,8 +348,10 @@ class Estimator:
         s, A, stats = out or (np.empty(N_STATE), np.empty((idx.size, idx.size)), np.empty(kernel.N_STATS))
         s[:] = s_prior
         grating_w = 1.0 / self.settings.grating_sigma ** 2 if math.isfinite(grating_z) else 0.0
-        kernel.update(s, s_prior, P_prior, idx, y, mask, *self._frame_args, grating_z if grating_w else 0.0, grating_w,
-                      *self._solver_args, A, stats)
+        params = self.params
+        params[kernel.U_GRATING_Z], params[kernel.U_GRATING_W] = grating_z if grating_w else 0.0, grating_w
+        kernel.update(s, s_prior, P_prior, idx, y, mask, self.pixels, params, self.model_args, self.scratch, self.rho,
+                      A, stats)
         return s, A, stats.tolist()
 
     def _level(self, x_mm: float) -> float:

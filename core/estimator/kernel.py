@@ -44,6 +44,16 @@ CURVATURE_STEP_PERIODS = 1e-3  # forward-difference step of F″ from the slopes
 # out_stats layout
 (S_COST, S_RESIDUAL, S_PRIOR, S_USED, S_REJECTED, S_ITER, S_XINFO, S_RMS, S_GRATING, S_CONVERGED) = range(10)
 N_STATS = 10
+# the update's numbers in one array (a frame's call passes one array, not a dozen arguments: each argument costs
+# the call ~0.1 µs): the noise model's read variance, shot gain and dark level, the pixel pitch and the period (mm),
+# the fused grating's reading (mm) and weight (1/σ², 0: none), robust weights on (1) or off (0), their core and cut
+# (σ), the iterations at most, the tolerance (mm)
+(U_READ, U_SHOT, U_DARK, U_PITCH, U_PERIOD, U_GRATING_Z, U_GRATING_W, U_ROBUST, U_CORE, U_CUT, U_ITERATIONS,
+ U_TOLERANCE) = range(12)
+N_PARAMS = 12
+# the pixels' constants in one (4, P) array: target coordinate from the ROI's centre, row from the strip's middle,
+# the two Legendre terms across the line
+(PX_TARGET, PX_ROW, PX_B1, PX_B2) = range(4)
 
 
 def information(P: np.ndarray, idx: np.ndarray) -> np.ndarray:
@@ -198,17 +208,21 @@ def _grating(s: np.ndarray, idx: np.ndarray, z: float, weight: float, A: np.ndar
 
 
 def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndarray, y: np.ndarray, mask: np.ndarray,
-           noise: np.ndarray, t_rel: np.ndarray, r_rel: np.ndarray, b1: np.ndarray, b2: np.ndarray,
-           pitch_mm: float, period_mm: float, grating_z: float, grating_w: float, robust: bool, core: float,
-           cut: float, max_rejected: float, max_iterations: int, tolerance: float, model: tuple,
-           scratch: np.ndarray, rho: np.ndarray, A_out: np.ndarray, stats: np.ndarray) -> None:
+           pixels: np.ndarray, params: np.ndarray, model: tuple, scratch: np.ndarray, rho: np.ndarray,
+           A_out: np.ndarray, stats: np.ndarray) -> None:
     """Update ``s`` (in place, from its value on entry: the prediction or a better start) with one frame.
 
     ``P_prior``: the prior covariance (its block over the active states ``idx`` is used, centred on
-    ``s_prior``); ``noise``:
-    read variance, shot gain, dark level of the noise model; ``grating_w``: 1/σ_z² of a fused grating reading (0: not
-    fused). ``scratch``: (6, P); ``rho``: (P,) robust weights out; ``A_out``: the posterior information over
+    ``s_prior``); ``pixels``: (4, P) by the PX_ constants; ``params``: the numbers named by the U_ constants.
+    ``scratch``: (6, P); ``rho``: (P,) robust weights out; ``A_out``: the posterior information over
     ``idx``; ``stats``: the figures named by the S_ constants."""
+    t_rel, r_rel, b1, b2 = pixels[PX_TARGET], pixels[PX_ROW], pixels[PX_B1], pixels[PX_B2]
+    read_var, shot_gain, dark = params[U_READ], params[U_SHOT], params[U_DARK]
+    pitch_mm, period_mm = params[U_PITCH], params[U_PERIOD]
+    grating_z, grating_w = params[U_GRATING_Z], params[U_GRATING_W]
+    robust = params[U_ROBUST] > 0.0
+    core, cut, tolerance = params[U_CORE], params[U_CUT], params[U_TOLERANCE]
+    max_iterations = int(params[U_ITERATIONS])
     n = idx.size
     Pinv = information(P_prior, idx)
     values, slopes, smooth, curvature, w, residual = (scratch[0], scratch[1], scratch[2], scratch[3], scratch[4],
@@ -222,10 +236,10 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
         curvature[p] = (curvature[p] - slopes[p]) / step
         # the noise model's weight at the predicted gray value
         gray = (s[G] + s[A1] * b1[p] + s[A2] * b2[p]) * values[p] + s[OFS]
-        signal = gray - noise[2]
+        signal = gray - dark
         if signal < 0.0:
             signal = 0.0
-        var = noise[0] + noise[1] * signal
+        var = read_var + shot_gain * signal
         if var < 1e-6:
             var = 1e-6
         w[p] = mask[p] / var
