@@ -410,31 +410,34 @@ class Estimator:
         model_var = self._model_share(s[X]) * floor2 * share * share
         var_x = var_image + model_var
         stale, reason, message = False, "", ""
+        checked = self.grating == "check"
         if test > 1.0:
             stale = True
             reason = REASON.get(reason_jump or "", "") or ("transients" if rejected else "light")
             message = f"innovation χ² {test:.2f}x its quantile at the false-alarm rate"
-        if self.grating == "check" and reference_mm == reference_mm:
+        if checked and reference_mm == reference_mm:
             nu = reference_mm - s[X]
             if nu * nu > self.z_two ** 2 * (var_x + settings.grating_sigma ** 2):
                 stale, reason = True, reason or "scale"
                 message = message or f"camera and grating disagree by {nu * 1e3:+.2f} µm"
-        if var_x > settings.dominance * floor2 * self.bound_factor ** 2:
+        bound_factor = self.bound_factor
+        if var_x > settings.dominance * floor2 * bound_factor ** 2:
             carried = "geometry" if model_var > var_x - model_var - floor2 else self._carrier()
             if carried:
                 stale, reason = True, reason or carried
                 message = message or f"the position's bound is carried by the {carried} state"
         focus_sigma = sigma[B]
         shown = abs(s[B]) > self.z_two * focus_sigma
+        # (by position, in the fields' order: by keyword the record cost a frame a microsecond)
         return FrameEstimate(
-            t=t, x_mm=s[X] + (s[C] if self.grating == "check" else 0.0), crlb_mm=math.sqrt(var_x) * self.bound_factor,
-            floor_mm=floor * self.bound_factor, locked=True, rms_gray=stats[kernel.S_RMS],
-            chi2=residual / max(used, 1.0) / self._level(s[X]), test=float(test), rejected_px=int(rejected),
-            iterations=int(stats[kernel.S_ITER]), gain=s[G], offset_gray=s[OFS],
-            focus_px2=s[B] if shown else math.nan, focus_sigma_px2=focus_sigma if shown else math.nan,
-            stretch=s[M], stretch_sigma=sigma[M], place_mm=s[C], place_sigma_mm=sigma[C],
-            mode=mode, repeated=False, stale=stale, stale_reason=reason, message=message,
-            state=tuple(s), sigma=tuple(sigma))
+            t, s[X] + (s[C] if checked else 0.0), math.sqrt(var_x) * bound_factor,  # t, x_mm, crlb_mm
+            floor * bound_factor, True, stats[kernel.S_RMS],  # floor_mm, locked, rms_gray
+            residual / max(used, 1.0) / self._level(s[X]), float(test), int(rejected),  # chi2, test, rejected_px
+            int(stats[kernel.S_ITER]), s[G], s[OFS],  # iterations, gain, offset_gray
+            s[B] if shown else math.nan, focus_sigma if shown else math.nan,  # focus_px2, focus_sigma_px2
+            s[M], sigma[M], s[C], sigma[C],  # stretch, stretch_sigma, place_mm, place_sigma_mm
+            mode, False, stale, reason, message,  # mode, repeated, stale, stale_reason, message
+            tuple(s), tuple(sigma))  # state, sigma
 
     def _model_share(self, x_mm: float) -> float:
         """The model's own error power at ``x_mm`` over the noise floor's (ratio² − 1 of its calibration)."""
