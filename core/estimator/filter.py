@@ -51,7 +51,7 @@ if TYPE_CHECKING:
 GRATING_MODES = ("check", "fuse", "none")
 # frames whose row mean the estimator computes compiled as they come (the cameras' and the recordings' types);
 # any other is made float64 first
-FRAME_TYPES = (np.dtype(np.uint8), np.dtype(np.uint16), np.dtype(np.float32), np.dtype(np.float64))
+FRAME_TYPES = frozenset(np.dtype(kind) for kind in (np.uint8, np.uint16, np.float32, np.float64))
 ACQUIRE_GRID_PER_PERIOD = 64  # grid positions a period when a frame is placed from nothing (a 64th of a period
 # is well inside Gauss–Newton's quarter-period reach)
 FAILED_TO_REACQUIRE = 3  # frames in a row not placed before the next is placed from nothing again
@@ -257,7 +257,7 @@ class Estimator:
         frame = np.asarray(frame)
         last, self.last_frame = self.last_frame, frame
         # (an image again is equal in its first sample too: that one comparison settles nearly every frame)
-        if last is not None and last.shape == frame.shape and last.flat[0] == frame.flat[0] and \
+        if last is not None and last.shape == frame.shape and frame.size and last.item(0) == frame.item(0) and \
                 repeats.repeated(frame[None], self.model.noise_gray or 0.0, last)[0]:
             # the image shows where the stage was, its time and grating where it is: no measurement of either
             return self._unplaced(t, self.stats, math.nan, "the driver delivered the last image again", True)
@@ -302,7 +302,7 @@ class Estimator:
         placed = stats[kernel.S_CONVERGED] > 0 or stats[kernel.S_ITER] > 0
         used, rejected = stats[kernel.S_USED], stats[kernel.S_REJECTED]
         if used + rejected <= 0 or rejected > self.settings.max_rejected * (used + rejected) or \
-                not np.isfinite(s[X]):
+                not math.isfinite(s[X]):
             placed = False
         if not placed:
             self.failed += 1
@@ -320,7 +320,8 @@ class Estimator:
         if model.n_rows == 1 and frame.ndim <= 2 and frame.shape[-1] == model.n_pixels and rows > 0:
             # the row mean prepare takes, compiled into the estimator's own array (prepare's arrays a call
             # cost a 16-row frame 5 µs)
-            if frame.dtype not in FRAME_TYPES or not (frame.flags.c_contiguous and frame.flags.writeable):
+            flags = frame.flags
+            if frame.dtype not in FRAME_TYPES or not (flags.c_contiguous and flags.writeable):
                 frame = np.array(frame, dtype=np.float64)
             y = self._y
             kernel.row_mean(frame.reshape(rows, model.n_pixels), y)
