@@ -207,6 +207,7 @@ class Estimator:
         params[kernel.U_ROBUST] = 1.0 if robust else 0.0
         params[kernel.U_CORE], params[kernel.U_CUT] = settings.core_sigma, settings.cut_sigma
         params[kernel.U_ITERATIONS], params[kernel.U_TOLERANCE] = int(settings.max_iterations), settings.tolerance
+        params[kernel.U_ACCELERATION], params[kernel.U_RATES:] = settings.acceleration ** 2, self.rates2
         self.t_last: float | None = None
         self.last_frame: np.ndarray | None = None
         self.dt_last = 0.0
@@ -247,10 +248,13 @@ class Estimator:
 
     def predict(self, t: float) -> None:
         """State and covariance moved on to time ``t``."""
+        kernel.predict(self.s, self.P, self._advance(t), self.settings.acceleration ** 2, self.rates2)
+
+    def _advance(self, t: float) -> float:
+        """The interval from the last frame's time to ``t`` (s, never negative), ``t`` now the last."""
         dt = 0.0 if self.t_last is None else max(t - self.t_last, 0.0)
-        self.dt_last = dt
-        kernel.predict(self.s, self.P, dt, self.settings.acceleration ** 2, self.rates2)
-        self.t_last = t
+        self.dt_last, self.t_last = dt, t
+        return dt
 
     def update(self, frame: np.ndarray, t: float, reference_mm: float = math.nan) -> FrameEstimate:
         """The frame at time ``t`` (mid-exposure) with its grating reading (NaN: none)."""
@@ -262,16 +266,18 @@ class Estimator:
             # the image shows where the stage was, its time and grating where it is: no measurement of either
             return self._unplaced(t, self.stats, math.nan, "the driver delivered the last image again", True)
         y, mask = self._prepared(frame)
+        dt = None
         if not self.started or self.failed >= FAILED_TO_REACQUIRE:
             self._acquire(y, mask, t, reference_mm)
         else:
-            self.predict(t)
+            dt = self._advance(t)  # the prediction to the frame's time, made by the update's own call below
+        grating_z = reference_mm if self.grating == "fuse" and math.isfinite(reference_mm) else math.nan
+        s_prior, P_prior = self.s, self.P  # read, never written (once predicted), until the posterior replaces them
+        s, A, stats = self._solve(y, mask, s_prior, P_prior, grating_z, out=self._answer, predict=dt)
         if self.grating == "check" and math.isfinite(reference_mm) and \
-                abs(self.s[X] - reference_mm) > 0.25 * self.model.period_mm:
+                abs(s_prior[X] - reference_mm) > 0.25 * self.model.period_mm:
             self._acquire(y, mask, t, reference_mm)  # the image's period lost: start again at the grating
-        fuse = self.grating == "fuse" and math.isfinite(reference_mm)
-        s_prior, P_prior = self.s, self.P  # read, never written, until the posterior replaces them below
-        s, A, stats = self._solve(y, mask, s_prior, P_prior, reference_mm if fuse else math.nan, out=self._answer)
+            s, A, stats = self._solve(y, mask, s_prior, P_prior, grating_z, out=self._answer)
         test = self._test(stats, s)
         mode, solved = "", self.idx
         if test > 1.0:
@@ -280,7 +286,7 @@ class Estimator:
                 if not np.isin(JUMPS[family], self.idx).all():
                     continue
                 widened = self._jumped(P_prior, family)
-                s_j, A_j, stats_j = self._solve(y, mask, s_prior, widened, reference_mm if fuse else math.nan)
+                s_j, A_j, stats_j = self._solve(y, mask, s_prior, widened, grating_z)
                 test_j = self._test(stats_j, s_j)
                 if best is None or test_j < best[0]:
                     best = (test_j, family, s_j, A_j, stats_j)
@@ -295,7 +301,7 @@ class Estimator:
                 # Nor does it teach the rig's slow states anything: only the motion is updated by it.
                 inflation = self._excess(stats, s)
                 solved = self.idx_motion
-                s, A, stats = self._solve(y, mask / inflation, s_prior, P_prior, reference_mm if fuse else math.nan,
+                s, A, stats = self._solve(y, mask / inflation, s_prior, P_prior, grating_z,
                                           solved)
         else:
             reason_jump = None
@@ -341,16 +347,18 @@ class Estimator:
 
     def _solve(self, y: np.ndarray, mask: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray,
                grating_z: float, idx: np.ndarray | None = None,
-               out: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray, list]:
+               out: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+               predict: float | None = None) -> tuple[np.ndarray, np.ndarray, list]:
         """The update over the states ``idx`` (default: every active one; the others held at the prior):
         the state, the posterior information and the figures (kernel.S_*, plain numbers). ``out``: the
-        arrays to answer in (the state, the information over ``idx``, the figures), else new ones."""
+        arrays to answer in (the state, the information over ``idx``, the figures), else new ones.
+        ``predict``: the prior is first moved on by that many seconds, in place (``predict``)."""
         idx = self.idx if idx is None else idx
         s, A, stats = out or (np.empty(N_STATE), np.empty((idx.size, idx.size)), np.empty(kernel.N_STATS))
-        s[:] = s_prior
         grating_w = 1.0 / self.settings.grating_sigma ** 2 if math.isfinite(grating_z) else 0.0
         params = self.params
         params[kernel.U_GRATING_Z], params[kernel.U_GRATING_W] = grating_z if grating_w else 0.0, grating_w
+        params[kernel.U_PREDICT], params[kernel.U_DT] = (0.0, 0.0) if predict is None else (1.0, predict)
         kernel.update(s, s_prior, P_prior, idx, y, mask, self.pixels, params, self.model_args, self.scratch, self.rho,
                       A, stats)
         return s, A, stats.tolist()

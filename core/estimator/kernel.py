@@ -47,10 +47,11 @@ N_STATS = 10
 # the update's numbers in one array (a frame's call passes one array, not a dozen arguments: each argument costs
 # the call ~0.1 µs): the noise model's read variance, shot gain and dark level, the pixel pitch and the period (mm),
 # the fused grating's reading (mm) and weight (1/σ², 0: none), robust weights on (1) or off (0), their core and cut
-# (σ), the iterations at most, the tolerance (mm)
+# (σ), the iterations at most, the tolerance (mm); whether the prior is first predicted (1) or taken as it is (0), over
+# how long (s), the acceleration's variance (mm²/s⁴) and from U_RATES on each state's rate (predict's ``rates2``)
 (U_READ, U_SHOT, U_DARK, U_PITCH, U_PERIOD, U_GRATING_Z, U_GRATING_W, U_ROBUST, U_CORE, U_CUT, U_ITERATIONS,
- U_TOLERANCE) = range(12)
-N_PARAMS = 12
+ U_TOLERANCE, U_PREDICT, U_DT, U_ACCELERATION, U_RATES) = range(16)
+N_PARAMS = U_RATES + N_STATE
 # the pixels' constants in one (4, P) array: target coordinate from the ROI's centre, row from the strip's middle,
 # the two Legendre terms across the line
 (PX_TARGET, PX_ROW, PX_B1, PX_B2) = range(4)
@@ -210,10 +211,12 @@ def _grating(s: np.ndarray, idx: np.ndarray, z: float, weight: float, A: np.ndar
 def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndarray, y: np.ndarray, mask: np.ndarray,
            pixels: np.ndarray, params: np.ndarray, model: tuple, scratch: np.ndarray, rho: np.ndarray,
            A_out: np.ndarray, stats: np.ndarray) -> None:
-    """Update ``s`` (in place, from its value on entry: the prediction or a better start) with one frame.
+    """Update ``s`` (in place, from ``s_prior``) with one frame.
 
     ``P_prior``: the prior covariance (its block over the active states ``idx`` is used, centred on
-    ``s_prior``); ``pixels``: (4, P) by the PX_ constants; ``params``: the numbers named by the U_ constants.
+    ``s_prior``); with ``params[U_PREDICT]`` set, ``s_prior`` and ``P_prior`` are first moved on by
+    ``params[U_DT]`` in place (:func:`predict`: the frame's two calls made one).
+    ``pixels``: (4, P) by the PX_ constants; ``params``: the numbers named by the U_ constants.
     ``scratch``: (6, P); ``rho``: (P,) robust weights out; ``A_out``: the posterior information over
     ``idx``; ``stats``: the figures named by the S_ constants."""
     t_rel, r_rel, b1, b2 = pixels[PX_TARGET], pixels[PX_ROW], pixels[PX_B1], pixels[PX_B2]
@@ -223,6 +226,10 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
     robust = params[U_ROBUST] > 0.0
     core, cut, tolerance = params[U_CORE], params[U_CUT], params[U_TOLERANCE]
     max_iterations = int(params[U_ITERATIONS])
+    if params[U_PREDICT] > 0.0:
+        predict(s_prior, P_prior, params[U_DT], params[U_ACCELERATION], params[U_RATES:])
+    for i in range(s.size):
+        s[i] = s_prior[i]
     n = idx.size
     Pinv = information(P_prior, idx)
     values, slopes, smooth, curvature, w, residual = (scratch[0], scratch[1], scratch[2], scratch[3], scratch[4],
