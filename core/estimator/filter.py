@@ -199,6 +199,7 @@ class Estimator:
         self._seen = None if model.pixel_weight is None else model.seen().reshape(-1)
         self._answer = (np.empty(N_STATE), np.empty((self.idx.size, self.idx.size)), np.empty(kernel.N_STATS))
         self._sigma = np.empty(N_STATE)
+        self._P_next = np.zeros((N_STATE, N_STATE))  # where the main update makes the posterior covariance
         # the update's constants, as the kernel takes them (kernel.U_*, kernel.PX_*): a frame sets the grating's two
         self.pixels = np.ascontiguousarray(np.stack([self.t_rel, self.r_rel, self.b1, self.b2]))
         self.params = params = np.zeros(kernel.N_PARAMS)
@@ -315,7 +316,10 @@ class Estimator:
             return self._unplaced(t, stats, test, "too many samples set aside" if rejected else "not converged")
         self.failed = 0
         self.s[:] = s
-        kernel.embed(self.P, A, solved, self._sigma)  # the posterior over the states solved, the prior's elsewhere
+        if A is self._answer[1]:  # the main update's: it made the posterior already
+            self.P, self._P_next = self._P_next, self.P
+        else:
+            kernel.embed(self.P, A, solved, self._sigma)  # the posterior over the states solved, the prior's elsewhere
         return self._estimate(t, stats, test, mode, reason_jump, reference_mm)
 
     # ------------------------------------------------------------------ parts
@@ -351,7 +355,8 @@ class Estimator:
                predict: float | None = None) -> tuple[np.ndarray, np.ndarray, list]:
         """The update over the states ``idx`` (default: every active one; the others held at the prior):
         the state, the posterior information and the figures (kernel.S_*, plain numbers). ``out``: the
-        arrays to answer in (the state, the information over ``idx``, the figures), else new ones.
+        arrays to answer in (the state, the information over ``idx``, the figures), else new ones; with
+        them, the posterior covariance is made into ``_P_next`` and its σ into ``_sigma`` too.
         ``predict``: the prior is first moved on by that many seconds, in place (``predict``)."""
         idx = self.idx if idx is None else idx
         s, A, stats = out or (np.empty(N_STATE), np.empty((idx.size, idx.size)), np.empty(kernel.N_STATS))
@@ -359,8 +364,9 @@ class Estimator:
         params = self.params
         params[kernel.U_GRATING_Z], params[kernel.U_GRATING_W] = grating_z if grating_w else 0.0, grating_w
         params[kernel.U_PREDICT], params[kernel.U_DT] = (0.0, 0.0) if predict is None else (1.0, predict)
+        params[kernel.U_POSTERIOR] = 0.0 if out is None else 1.0
         kernel.update(s, s_prior, P_prior, idx, y, mask, self.pixels, params, self.model_args, self.scratch, self.rho,
-                      A, stats)
+                      A, stats, self._P_next, self._sigma)
         return s, A, stats.tolist()
 
     def _level(self, x_mm: float) -> float:

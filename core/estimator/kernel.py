@@ -48,9 +48,10 @@ N_STATS = 10
 # the call ~0.1 µs): the noise model's read variance, shot gain and dark level, the pixel pitch and the period (mm),
 # the fused grating's reading (mm) and weight (1/σ², 0: none), robust weights on (1) or off (0), their core and cut
 # (σ), the iterations at most, the tolerance (mm); whether the prior is first predicted (1) or taken as it is (0), over
-# how long (s), the acceleration's variance (mm²/s⁴) and from U_RATES on each state's rate (predict's ``rates2``)
+# how long (s), the acceleration's variance (mm²/s⁴); whether the posterior covariance is made too (1: ``embed`` into
+# ``P_post``, for the update a frame most likely keeps); from U_RATES on each state's rate (predict's ``rates2``)
 (U_READ, U_SHOT, U_DARK, U_PITCH, U_PERIOD, U_GRATING_Z, U_GRATING_W, U_ROBUST, U_CORE, U_CUT, U_ITERATIONS,
- U_TOLERANCE, U_PREDICT, U_DT, U_ACCELERATION, U_RATES) = range(16)
+ U_TOLERANCE, U_PREDICT, U_DT, U_ACCELERATION, U_POSTERIOR, U_RATES) = range(17)
 N_PARAMS = U_RATES + N_STATE
 # the pixels' constants in one (4, P) array: target coordinate from the ROI's centre, row from the strip's middle,
 # the two Legendre terms across the line
@@ -210,7 +211,7 @@ def _grating(s: np.ndarray, idx: np.ndarray, z: float, weight: float, A: np.ndar
 
 def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndarray, y: np.ndarray, mask: np.ndarray,
            pixels: np.ndarray, params: np.ndarray, model: tuple, scratch: np.ndarray, rho: np.ndarray,
-           A_out: np.ndarray, stats: np.ndarray) -> None:
+           A_out: np.ndarray, stats: np.ndarray, P_post: np.ndarray, sigma: np.ndarray) -> None:
     """Update ``s`` (in place, from ``s_prior``) with one frame.
 
     ``P_prior``: the prior covariance (its block over the active states ``idx`` is used, centred on
@@ -218,7 +219,9 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
     ``params[U_DT]`` in place (:func:`predict`: the frame's two calls made one).
     ``pixels``: (4, P) by the PX_ constants; ``params``: the numbers named by the U_ constants.
     ``scratch``: (6, P); ``rho``: (P,) robust weights out; ``A_out``: the posterior information over
-    ``idx``; ``stats``: the figures named by the S_ constants."""
+    ``idx``; ``stats``: the figures named by the S_ constants; with ``params[U_POSTERIOR]`` set, ``P_post`` the
+    (predicted) prior with the posterior embedded and ``sigma`` every state's σ (:func:`embed`: the frame's
+    next call made in this one)."""
     t_rel, r_rel, b1, b2 = pixels[PX_TARGET], pixels[PX_ROW], pixels[PX_B1], pixels[PX_B2]
     read_var, shot_gain, dark = params[U_READ], params[U_SHOT], params[U_DARK]
     pitch_mm, period_mm = params[U_PITCH], params[U_PERIOD]
@@ -373,6 +376,9 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
     stats[S_RMS] = math.sqrt(rss / used) if used > 0 else math.nan
     stats[S_GRATING] = grating_cost
     stats[S_CONVERGED] = converged
+    if params[U_POSTERIOR] > 0.0:
+        P_post[:, :] = P_prior
+        embed(P_post, A_out, idx, sigma)
 
 
 if kernels.COMPILED:
