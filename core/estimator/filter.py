@@ -276,7 +276,7 @@ class Estimator:
         s_prior, P_prior = self.s, self.P  # read, never written (once predicted), until the posterior replaces them
         s, A, stats = self._solve(y, mask, s_prior, P_prior, grating_z, out=self._answer, predict=dt)
         if self.grating == "check" and math.isfinite(reference_mm) and \
-                abs(s_prior[X] - reference_mm) > 0.25 * self.model.period_mm:
+                abs(s_prior.item(X) - reference_mm) > 0.25 * self.model.period_mm:
             self._acquire(y, mask, t, reference_mm)  # the image's period lost: start again at the grating
             s, A, stats = self._solve(y, mask, s_prior, P_prior, grating_z, out=self._answer)
         test = self._test(stats, s)
@@ -334,7 +334,7 @@ class Estimator:
             if frame.dtype not in FRAME_TYPES or not (flags.c_contiguous and flags.writeable):
                 frame = np.array(frame, dtype=np.float64)
             y = self._y
-            kernel.row_mean(frame.reshape(rows, model.n_pixels), y)
+            kernel.row_mean(frame if frame.ndim == 2 else frame.reshape(1, -1), y)
             if self._seen is not None:
                 np.multiply(y, self._seen, out=y)
         else:
@@ -379,7 +379,7 @@ class Estimator:
         used = stats[kernel.S_USED]
         if used <= 0:
             return math.inf
-        level = self._level(float(s[X]))
+        level = self._level(s.item(X))
         chi2 = stats[kernel.S_RESIDUAL] / level + stats[kernel.S_PRIOR] + stats[kernel.S_GRATING]
         dof = used / self.spread ** 2
         return (chi2 / self.spread ** 2) / _quantile(self.z_alpha, dof)
