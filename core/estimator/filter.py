@@ -196,7 +196,7 @@ class Estimator:
         # a frame's own arrays, made once: its gray values, their mask, the main update's answer and the σ
         self._y = np.empty(n_values)
         self._masked = np.empty(n_values)
-        self._seen = None if model.pixel_weight is None else model.seen().reshape(-1)
+        self._seen = None if model.pixel_weight is None else np.asarray(model.seen(), dtype=np.float64).reshape(-1)
         self._answer = (np.empty(N_STATE), np.empty((self.idx.size, self.idx.size)), np.empty(kernel.N_STATS))
         self._sigma = np.empty(N_STATE)
         self._P_next = np.zeros((N_STATE, N_STATE))  # where the main update makes the posterior covariance

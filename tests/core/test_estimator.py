@@ -135,3 +135,34 @@ def test_an_image_delivered_twice_is_set_aside(paper):
     placed = np.isfinite(error)
     assert placed.sum() == len(estimates) - 1
     assert np.all(np.abs(error[placed]) < 4 * bound[placed])
+
+
+def test_every_kind_of_frame_is_prepared_as_the_model_prepares_it(paper):
+    """A frame's gray values are the model's own ``prepare`` to the bit, whatever the camera hands over:
+    the estimator averages the rows compiled, into its own array, for each kind it meets."""
+    run, _ = build_rig("paper", "", seed=4, run=6).record(0.05)
+    line = run.frames[0]
+    rows = line + np.random.default_rng(1).normal(0.0, 3.0, (16, line.size))
+    read_only = rows.copy()
+    read_only.flags.writeable = False
+    kinds = {
+        "a float32 line": line.astype(np.float32),
+        "16 float64 rows": rows,
+        "16 uint16 rows": np.clip(rows * 16.0, 0, 4095).astype(np.uint16),
+        "one uint8 row": np.clip(line, 0, 255).astype(np.uint8)[None],
+        "int32 rows": rows.astype(np.int32),
+        "every other row (strided)": rows[::2],
+        "read-only rows": read_only,
+        "big-endian rows": rows.astype(">f8"),
+    }
+    weight = np.ones((1, line.size))
+    weight[0, [7, 40]] = 0.0  # two pixels found bad: the model reads 0 there
+    for model in (paper, dataclasses.replace(paper, pixel_weight=weight)):
+        estimator = Estimator(model)
+        for name, frame in kinds.items():
+            y, mask = estimator._prepared(frame)
+            assert np.array_equal(y, model.prepare(frame[None]).reshape(-1)), name
+            n_rows = 1 if frame.ndim == 1 else frame.shape[0]
+            assert np.array_equal(mask, estimator.mask * n_rows), name  # a row mean's weight: the rows it averages
+    with pytest.raises(Exception, match="pixels"):
+        estimator._prepared(rows[:, :-1])
