@@ -316,7 +316,7 @@ class Estimator:
             return self._unplaced(t, stats, test, "too many samples set aside" if rejected else "not converged")
         self.failed = 0
         self.s[:] = s
-        if A is self._answer[1]:  # the main update's: it made the posterior already
+        if A is self._answer[1] and stats[kernel.S_POSTERIOR] > 0:  # the main update's: it made the posterior
             self.P, self._P_next = self._P_next, self.P
         else:
             kernel.embed(self.P, A, solved, self._sigma)  # the posterior over the states solved, the prior's elsewhere

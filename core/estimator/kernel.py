@@ -42,8 +42,10 @@ MAD_TO_SIGMA = 1.4826
 ROBUST_ROUNDS = 6  # reweightings at most: the redescending weights settle in 2–3 on a frame with a blob
 CURVATURE_STEP_PERIODS = 1e-3  # forward-difference step of F″ from the slopes, in periods (error ~ 3 % at order 5)
 # out_stats layout
-(S_COST, S_RESIDUAL, S_PRIOR, S_USED, S_REJECTED, S_ITER, S_XINFO, S_RMS, S_GRATING, S_CONVERGED) = range(10)
-N_STATS = 10
+# (S_POSTERIOR: 1 where the update made the posterior covariance, params[U_POSTERIOR])
+(S_COST, S_RESIDUAL, S_PRIOR, S_USED, S_REJECTED, S_ITER, S_XINFO, S_RMS, S_GRATING, S_CONVERGED,
+ S_POSTERIOR) = range(11)
+N_STATS = 11
 # the update's numbers in one array (a frame's call passes one array, not a dozen arguments: each argument costs
 # the call ~0.1 µs): the noise model's read variance, shot gain and dark level, the pixel pitch and the period (mm),
 # the fused grating's reading (mm) and weight (1/σ², 0: none), robust weights on (1) or off (0), their core and cut
@@ -376,9 +378,16 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
     stats[S_RMS] = math.sqrt(rss / used) if used > 0 else math.nan
     stats[S_GRATING] = grating_cost
     stats[S_CONVERGED] = converged
+    stats[S_POSTERIOR] = 0.0
     if params[U_POSTERIOR] > 0.0:
-        P_post[:, :] = P_prior
-        embed(P_post, A_out, idx, sigma)
+        # made on the chance the frame is kept: an update that failed (its information not finite, or
+        # singular) is no error here, the frame is refused by its figures and its covariance not made
+        try:
+            P_post[:, :] = P_prior
+            embed(P_post, A_out, idx, sigma)
+            stats[S_POSTERIOR] = 1.0
+        except Exception:  # noqa: BLE001 - numba's linear algebra raises its one kind
+            pass
 
 
 if kernels.COMPILED:
