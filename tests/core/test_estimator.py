@@ -166,3 +166,21 @@ def test_every_kind_of_frame_is_prepared_as_the_model_prepares_it(paper):
             assert np.array_equal(mask, estimator.mask * n_rows), name  # a row mean's weight: the rows it averages
     with pytest.raises(Exception, match="pixels"):
         estimator._prepared(rows[:, :-1])
+
+
+def test_a_grating_a_period_away_starts_the_estimate_again_and_is_flagged(paper):
+    """A checked grating beyond a quarter period from the prediction: the image's period is taken as lost,
+    the estimate starts again at the grating (the frame solved again from there), and while the two
+    disagree every frame is flagged, none before."""
+    run, truth = build_rig("paper", "", seed=4, run=7).record(0.6)
+    reference = run.reference.copy()
+    jump = len(reference) // 2
+    reference[jump:] += 0.35 * paper.period_mm
+    estimates = track(paper, run.frames, run.t, reference)
+    stale = np.array([e.stale for e in estimates])
+    assert not stale[:jump].any()
+    assert stale[jump:].all()
+    assert all(e.locked for e in estimates)
+    steady = track(paper, run.frames, run.t, run.reference)
+    assert [e.x_mm for e in estimates[:jump]] == [e.x_mm for e in steady[:jump]]
+    assert abs(estimates[jump].x_mm - steady[jump].x_mm) > 1e-3  # started again at the grating, not predicted
