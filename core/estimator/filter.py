@@ -315,7 +315,9 @@ class Estimator:
             self.failed += 1
             return self._unplaced(t, stats, test, "too many samples set aside" if rejected else "not converged")
         self.failed = 0
-        self.s[:] = s
+        if s is self._answer[0]:  # the main update's arrays: the state's becomes the next answer's
+            self._answer = (self.s, A, self._answer[2])
+        self.s = s
         if A is self._answer[1] and stats[kernel.S_POSTERIOR] > 0:  # the main update's: it made the posterior
             self.P, self._P_next = self._P_next, self.P
         else:
@@ -538,9 +540,10 @@ def track(model: FourierModel, frames: np.ndarray, t: np.ndarray, reference: np.
     estimator = Estimator(model, settings=settings, grating=grating, robust=robust, axis_px=axis_px)
     n = frames.shape[0]
     reference = np.full(n, np.nan) if reference is None or grating == "none" else np.asarray(reference, float)
+    times, readings = np.asarray(t, dtype=np.float64).tolist(), reference.tolist()  # plain numbers, made once
     out = []
     for k in range(n):
-        out.append(estimator.update(frames[k], float(t[k]), float(reference[k])))
+        out.append(estimator.update(frames[k], times[k], readings[k]))
         if progress is not None and (k % 1000 == 999 or k == n - 1):
             progress((k + 1) / n, f"frame {k + 1} of {n}")
     return out
