@@ -10,10 +10,11 @@ compiled call (kernel.py). A batch is the same recursion over a recording's fram
 
 Flags come from one test. The minimum of the update's cost is the innovation's χ² (kernel.py); a
 frame whose χ² is beyond its quantile at the declared false-alarm rate has met something the
-prediction did not allow for. Each family of states that may jump (the light switched, the camera
-knocked, the stage jerked) is then tried, as the interacting-multiple-model filter weighs its
-modes: the state with that family's jump added to its prediction is updated again, and the jump
-that brings the innovation back within its quantile is taken (the state learned it; the frame's
+prediction did not allow for. The families of states that may jump (the light switched, the camera
+knocked, the stage jerked) are then ranked by their score test of the innovation (``_ranked``) and
+the most evident tried, as the interacting-multiple-model filter weighs its modes: the state with
+that family's jump added to its prediction is updated again, and the jump that brings the
+innovation back within its quantile is taken (the state learned it; the frame's
 ``mode`` names it). A frame no jump explains is flagged, its reason the family whose jump explained
 most. The bound is the posterior σ of position with every nuisance in the state: where the frames
 cannot see a state (the camera's place, a lens's slide, without the grating), the bound carries
@@ -57,6 +58,9 @@ ACQUIRE_GRID_PER_PERIOD = 64  # grid positions a period when a frame is placed f
 FAILED_TO_REACQUIRE = 3  # frames in a row not placed before the next is placed from nothing again
 # Families whose states may jump between two frames, and the states that jump with them.
 JUMPS = {"light": (G, OFS), "field": (A1, A2), "focus": (B,), "magnification": (M,), "geometry": (C, T), "motion": (V,)}
+SEARCHED = 2  # families tried with their jump on a frame that fails the test, most evident first (_ranked): the
+# families that mimic each other on one frame come in pairs (the light's shape and a shift over less than a
+# period; the stage's jerk and the camera's place without the grating), so the one that moved ranks first or second
 REASON = {"light": "light", "field": "light", "geometry": "geometry", "motion": "geometry", "focus": "focus",
           "magnification": "magnification"}
 
@@ -223,6 +227,7 @@ class Estimator:
                          "magnification": np.array([settings.jump_stretch]) ** 2,
                          "geometry": np.array([settings.jump_place, settings.jump_turn * pitch]) ** 2,
                          "motion": np.array([settings.jump_motion]) ** 2}
+        self.jump_directions = JUMPS
         self._warm()
 
     # ------------------------------------------------------------------ the recursion
@@ -283,9 +288,7 @@ class Estimator:
         mode, solved = "", self.idx
         if test > 1.0:
             best = None
-            for family in JUMPS:
-                if not np.isin(JUMPS[family], self.idx).all():
-                    continue
+            for family in self._ranked(s, A, s_prior, P_prior)[:SEARCHED]:
                 widened = self._jumped(P_prior, family)
                 s_j, A_j, stats_j = self._solve(y, mask, s_prior, widened, grating_z)
                 test_j = self._test(stats_j, s_j)
@@ -392,6 +395,36 @@ class Estimator:
         if used <= 0:
             return 1.0
         return max(stats[kernel.S_RESIDUAL] / (used * self._level(float(s[X]))), 1.0)
+
+    def _ranked(self, s: np.ndarray, A: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray) -> list[str]:
+        """The families that may jump, most evident first: each one's score test of the innovation (the
+        Lagrange-multiplier test of a jump in its states) made from the update without a jump. With Λ the
+        prior's information and P⁺ the posterior's covariance over the active states, g = Λ(s⁺ − s⁻) is the
+        innovation seen in the state (Λ times the prior's pull) and has covariance Λ − ΛP⁺Λ when nothing
+        jumped; a family's statistic is g's part in its directions, normalised by that covariance: χ² with
+        as many degrees of freedom as the family has states, each family's standardised for ranking."""
+        idx = self.idx
+        info = np.linalg.inv(P_prior[np.ix_(idx, idx)])
+        g = info @ (s[idx] - s_prior[idx])
+        cov = info - info @ np.linalg.solve(A, info)
+        where = {state: i for i, state in enumerate(idx.tolist())}
+        scored = []
+        for family, states in self.jump_directions.items():
+            if not all(state in where for state in states):
+                continue
+            D = np.zeros((idx.size, len(states)))
+            for j, state in enumerate(states):
+                D[where[state], j] = 1.0
+            if family == "motion":  # a velocity jump in the last interval moved the position with it
+                D[where[X], 0] = self.dt_last
+            gd, cd = D.T @ g, D.T @ cov @ D
+            try:
+                statistic = float(gd @ np.linalg.solve(cd, gd))
+            except np.linalg.LinAlgError:
+                continue
+            k = len(states)
+            scored.append(((statistic - k) / math.sqrt(2.0 * k), family))
+        return [family for _, family in sorted(scored, reverse=True)]
 
     def _jumped(self, P: np.ndarray, family: str) -> np.ndarray:
         widened = P.copy()

@@ -184,3 +184,27 @@ def test_a_grating_a_period_away_starts_the_estimate_again_and_is_flagged(paper)
     steady = track(paper, run.frames, run.t, run.reference)
     assert [e.x_mm for e in estimates[:jump]] == [e.x_mm for e in steady[:jump]]
     assert abs(estimates[jump].x_mm - steady[jump].x_mm) > 1e-3  # started again at the grating, not predicted
+
+
+def test_a_frame_that_fails_the_test_tries_the_most_evident_jumps_first(paper):
+    """On a frame the prediction cannot explain, each family's jump is ranked by its score test of the
+    innovation (made from the update without a jump), and only the first two are solved: the family that
+    moved is among them and is taken, and the search costs two solves, not one a family."""
+    import copy
+
+    from graytrack.core.estimator import filter as estimator_filter
+
+    run, _ = build_rig("paper", "", seed=4, run=3).record()
+    estimator = Estimator(paper, grating="check")
+    for k in range(100):
+        estimator.update(run.frames[k], run.t[k], run.reference[k])
+    u = np.linspace(-1.0, 1.0, run.frames.shape[-1])
+    frame = run.frames[100]
+    for disturbed, family in ((frame * 0.7, "light"), (frame + 20.0, "light"), (frame * (1.0 + 0.05 * u), "field")):
+        trial = copy.deepcopy(estimator)
+        solves = []
+        solve = trial._solve
+        trial._solve = lambda *args, **kwargs: solves.append(1) or solve(*args, **kwargs)
+        estimate = trial.update(disturbed, run.t[100], run.reference[100])
+        assert estimate.mode == family, (family, estimate)
+        assert len(solves) == 1 + estimator_filter.SEARCHED  # the frame's own update, then the jumps tried
