@@ -227,7 +227,10 @@ class Estimator:
                          "magnification": np.array([settings.jump_stretch]) ** 2,
                          "geometry": np.array([settings.jump_place, settings.jump_turn * pitch]) ** 2,
                          "motion": np.array([settings.jump_motion]) ** 2}
-        self.jump_directions = JUMPS
+        # each family's states by their place among the active ones (the motion's: the position and the velocity)
+        place = {state: i for i, state in enumerate(self.idx.tolist())}
+        self._families = [(family, [place[X], place[V]] if family == "motion" else [place[state] for state in states])
+                          for family, states in JUMPS.items() if all(state in place for state in states)]
         self._warm()
 
     # ------------------------------------------------------------------ the recursion
@@ -407,22 +410,29 @@ class Estimator:
         info = np.linalg.inv(P_prior[np.ix_(idx, idx)])
         g = info @ (s[idx] - s_prior[idx])
         cov = info - info @ np.linalg.solve(A, info)
-        where = {state: i for i, state in enumerate(idx.tolist())}
         scored = []
-        for family, states in self.jump_directions.items():
-            if not all(state in where for state in states):
-                continue
-            D = np.zeros((idx.size, len(states)))
-            for j, state in enumerate(states):
-                D[where[state], j] = 1.0
+        for family, where in self._families:
             if family == "motion":  # a velocity jump in the last interval moved the position with it
-                D[where[X], 0] = self.dt_last
-            gd, cd = D.T @ g, D.T @ cov @ D
-            try:
-                statistic = float(gd @ np.linalg.solve(cd, gd))
-            except np.linalg.LinAlgError:
-                continue
-            k = len(states)
+                x, v = where
+                dt = self.dt_last
+                gd = g[v] + dt * g[x]
+                cd = cov[v, v] + 2.0 * dt * cov[x, v] + dt * dt * cov[x, x]
+                statistic = gd * gd / cd if cd > 0.0 else 0.0
+            elif len(where) == 1:
+                cd = cov[where[0], where[0]]
+                statistic = g[where[0]] ** 2 / cd if cd > 0.0 else 0.0
+            elif len(where) > 2:
+                gd = g[where]
+                statistic = float(gd @ np.linalg.solve(cov[np.ix_(where, where)], gd))
+            else:  # two states: the 2×2 form written out
+                i, j = where
+                a, b, d = cov[i, i], cov[i, j], cov[j, j]
+                det = a * d - b * b
+                if not det > 0.0:
+                    continue
+                gi, gj = g[i], g[j]
+                statistic = (d * gi * gi - 2.0 * b * gi * gj + a * gj * gj) / det
+            k = 1 if family == "motion" else len(where)
             scored.append(((statistic - k) / math.sqrt(2.0 * k), family))
         return [family for _, family in sorted(scored, reverse=True)]
 
