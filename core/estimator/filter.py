@@ -227,6 +227,10 @@ class Estimator:
                          "magnification": np.array([settings.jump_stretch]) ** 2,
                          "geometry": np.array([settings.jump_place, settings.jump_turn * pitch]) ** 2,
                          "motion": np.array([settings.jump_motion]) ** 2}
+        from scipy.stats import chi2
+
+        # a family's score beyond χ²(its states)'s quantile at the false-alarm rate points the innovation its way
+        self._score_quantile = {k: float(chi2.isf(settings.false_alarm, k)) for k in (1, 2, 3)}
         # each family's states by their place among the active ones (the motion's: the position and the velocity)
         place = {state: i for i, state in enumerate(self.idx.tolist())}
         self._families = [(family, [place[X], place[V]] if family == "motion" else [place[state] for state in states])
@@ -433,6 +437,8 @@ class Estimator:
                 gi, gj = g[i], g[j]
                 statistic = (d * gi * gi - 2.0 * b * gi * gj + a * gj * gj) / det
             k = 1 if family == "motion" else len(where)
+            if statistic <= self._score_quantile[k]:
+                continue  # the innovation does not point along this family's states: its jump cannot explain it
             scored.append(((statistic - k) / math.sqrt(2.0 * k), family))
         return [family for _, family in sorted(scored, reverse=True)]
 
