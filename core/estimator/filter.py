@@ -190,7 +190,8 @@ class Estimator:
         if model.n_rows > 1:
             active.append(T)
         self.idx = np.array(sorted(active), dtype=np.int64)
-        self.idx_motion = np.array([X, V], dtype=np.int64)
+        self.idx_appearance = np.array([state for state in (X, V, G, OFS, A1, A2, B) if state in active],
+                                       dtype=np.int64)
         self.scratch = np.empty((6, n_values))
         self.rho = np.ones(n_values)
         self._row_masks: dict[int, np.ndarray] = {}  # the pixel mask over the rows a frame averages, by rows
@@ -308,10 +309,13 @@ class Estimator:
                 reason_jump = best[1] if best is not None and best[0] < test else None
                 # No mode explains the frame: its noise is evidently beyond the noise model's. Its samples
                 # count for as much as its χ² says they are worth (the measurement's covariance scaled by the
-                # innovation's excess), so the frame moves the state little and its bound widens.
-                # Nor does it teach the rig's slow states anything: only the motion is updated by it.
+                # innovation's excess), so the frame moves the state little and its bound widens. It updates
+                # the motion and the image's appearance (the light, its shape, the focus), which is what such
+                # a frame speaks of: held instead, a shape a wrong jump left would stay for every later frame,
+                # each failing in turn. The geometry (the camera's place, the lens, the grating's latch),
+                # learned over spans of the grating, is not taught by a frame the model does not explain.
                 inflation = self._excess(stats, s)
-                solved = self.idx_motion
+                solved = self.idx_appearance
                 s, A, stats = self._solve(y, mask / inflation, s_prior, P_prior, grating_z,
                                           solved)
         else:

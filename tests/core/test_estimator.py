@@ -208,3 +208,23 @@ def test_a_frame_that_fails_the_test_tries_the_most_evident_jumps_first(paper):
         estimate = trial.update(disturbed, run.t[100], run.reference[100])
         assert estimate.mode == family, (family, estimate)
         assert len(solves) == 1 + estimator_filter.SEARCHED  # the frame's own update, then the jumps tried
+
+
+def test_after_a_shadow_has_passed_the_light_returns_and_the_position_with_it(paper):
+    """A cable's shadow swings across the field twice. Frames no mode explains still update the image's
+    appearance (their samples weighted by their χ²), so a light shape the shadow pressed on the state is let
+    go once the shadow has passed: held instead, every later frame failed in turn and the position ran off by
+    hundreds of µm for the rest of the run."""
+    from graytrack.core.estimator.state import A1, A2
+
+    calibration, _ = build_rig("paper", "", seed=3).record()
+    model = calibrate(calibration, "paper").model
+    run, truth = build_rig("paper", "moving_shadow:passes=2:period_s=4:start_s=2", seed=3, run=1).record()
+    estimates = track(model, run.frames, run.t, run.reference, grating="check")
+    error, bound = _errors(model, estimates, truth, "check")
+    after = np.asarray(run.t) > 7.3  # the second pass is over by about 7.2 s
+    assert after.sum() > 50
+    pull = np.abs(error[after]) / bound[after]
+    assert np.median(pull) < 1.5 and pull.max() < 6.0, (np.median(pull), pull.max())
+    shape = np.array([[e.state[A1], e.state[A2]] for e, late in zip(estimates, after) if late])
+    assert np.abs(shape).max() < 0.01
