@@ -10,10 +10,11 @@ compiled call (kernel.py). A batch is the same recursion over a recording's fram
 
 Flags come from one test. The minimum of the update's cost is the innovation's χ² (kernel.py); a
 frame whose χ² is beyond its quantile at the declared false-alarm rate has met something the
-prediction did not allow for. Each family of states that may jump (the light switched, the camera
-knocked, the stage jerked) is then tried, as the interacting-multiple-model filter weighs its
-modes: the state with that family's jump added to its prediction is updated again, and the jump
-that brings the innovation back within its quantile is taken (the state learned it; the frame's
+prediction did not allow for. The families of states that may jump (the light switched, the camera
+knocked, the stage jerked) are then ranked by their score test of the innovation (``_ranked``) and
+the most evident tried, as the interacting-multiple-model filter weighs its modes: the state with
+that family's jump added to its prediction is updated again, and the jump that brings the
+innovation back within its quantile is taken (the state learned it; the frame's
 ``mode`` names it). A frame no jump explains is flagged, its reason the family whose jump explained
 most. The bound is the posterior σ of position with every nuisance in the state: where the frames
 cannot see a state (the camera's place, a lens's slide, without the grating), the bound carries
@@ -49,11 +50,17 @@ if TYPE_CHECKING:
     from graytrack.core.tracking import TrackResult
 
 GRATING_MODES = ("check", "fuse", "none")
+# frames whose row mean the estimator computes compiled as they come (the cameras' and the recordings' types);
+# any other is made float64 first
+FRAME_TYPES = frozenset(np.dtype(kind) for kind in (np.uint8, np.uint16, np.float32, np.float64))
 ACQUIRE_GRID_PER_PERIOD = 64  # grid positions a period when a frame is placed from nothing (a 64th of a period
 # is well inside Gauss–Newton's quarter-period reach)
 FAILED_TO_REACQUIRE = 3  # frames in a row not placed before the next is placed from nothing again
 # Families whose states may jump between two frames, and the states that jump with them.
 JUMPS = {"light": (G, OFS), "field": (A1, A2), "focus": (B,), "magnification": (M,), "geometry": (C, T), "motion": (V,)}
+SEARCHED = 2  # families tried with their jump on a frame that fails the test, most evident first (_ranked): the
+# families that mimic each other on one frame come in pairs (the light's shape and a shift over less than a
+# period; the stage's jerk and the camera's place without the grating), so the one that moved ranks first or second
 REASON = {"light": "light", "field": "light", "geometry": "geometry", "motion": "geometry", "focus": "focus",
           "magnification": "magnification"}
 
@@ -183,13 +190,30 @@ class Estimator:
         if model.n_rows > 1:
             active.append(T)
         self.idx = np.array(sorted(active), dtype=np.int64)
-        self.idx_motion = np.array([X, V], dtype=np.int64)
+        self.idx_appearance = np.array([state for state in (X, V, G, OFS, A1, A2, B) if state in active],
+                                       dtype=np.int64)
         self.scratch = np.empty((6, n_values))
         self.rho = np.ones(n_values)
         self._row_masks: dict[int, np.ndarray] = {}  # the pixel mask over the rows a frame averages, by rows
         self.stats = np.zeros(kernel.N_STATS)
         self.s = np.zeros(N_STATE)
         self.P = np.zeros((N_STATE, N_STATE))
+        # a frame's own arrays, made once: its gray values, their mask, the main update's answer and the σ
+        self._y = np.empty(n_values)
+        self._masked = np.empty(n_values)
+        self._seen = None if model.pixel_weight is None else np.asarray(model.seen(), dtype=np.float64).reshape(-1)
+        self._answer = (np.empty(N_STATE), np.empty((self.idx.size, self.idx.size)), np.empty(kernel.N_STATS))
+        self._sigma = np.empty(N_STATE)
+        self._P_next = np.zeros((N_STATE, N_STATE))  # where the main update makes the posterior covariance
+        # the update's constants, as the kernel takes them (kernel.U_*, kernel.PX_*): a frame sets the grating's two
+        self.pixels = np.ascontiguousarray(np.stack([self.t_rel, self.r_rel, self.b1, self.b2]))
+        self.params = params = np.zeros(kernel.N_PARAMS)
+        params[[kernel.U_READ, kernel.U_SHOT, kernel.U_DARK]] = self.noise
+        params[kernel.U_PITCH], params[kernel.U_PERIOD] = model.pixel_pitch_mm, model.period_mm
+        params[kernel.U_ROBUST] = 1.0 if robust else 0.0
+        params[kernel.U_CORE], params[kernel.U_CUT] = settings.core_sigma, settings.cut_sigma
+        params[kernel.U_ITERATIONS], params[kernel.U_TOLERANCE] = int(settings.max_iterations), settings.tolerance
+        params[kernel.U_ACCELERATION], params[kernel.U_RATES:] = settings.acceleration ** 2, self.rates2
         self.t_last: float | None = None
         self.last_frame: np.ndarray | None = None
         self.dt_last = 0.0
@@ -204,6 +228,14 @@ class Estimator:
                          "magnification": np.array([settings.jump_stretch]) ** 2,
                          "geometry": np.array([settings.jump_place, settings.jump_turn * pitch]) ** 2,
                          "motion": np.array([settings.jump_motion]) ** 2}
+        from scipy.stats import chi2
+
+        # a family's score beyond χ²(its states)'s quantile at the false-alarm rate points the innovation its way
+        self._score_quantile = {k: float(chi2.isf(settings.false_alarm, k)) for k in (1, 2, 3)}
+        # each family's states by their place among the active ones (the motion's: the position and the velocity)
+        place = {state: i for i, state in enumerate(self.idx.tolist())}
+        self._families = [(family, [place[X], place[V]] if family == "motion" else [place[state] for state in states])
+                          for family, states in JUMPS.items() if all(state in place for state in states)]
         self._warm()
 
     # ------------------------------------------------------------------ the recursion
@@ -230,40 +262,43 @@ class Estimator:
 
     def predict(self, t: float) -> None:
         """State and covariance moved on to time ``t``."""
+        kernel.predict(self.s, self.P, self._advance(t), self.settings.acceleration ** 2, self.rates2)
+
+    def _advance(self, t: float) -> float:
+        """The interval from the last frame's time to ``t`` (s, never negative), ``t`` now the last."""
         dt = 0.0 if self.t_last is None else max(t - self.t_last, 0.0)
-        self.dt_last = dt
-        kernel.predict(self.s, self.P, dt, self.settings.acceleration ** 2, self.rates2)
-        self.t_last = t
+        self.dt_last, self.t_last = dt, t
+        return dt
 
     def update(self, frame: np.ndarray, t: float, reference_mm: float = math.nan) -> FrameEstimate:
         """The frame at time ``t`` (mid-exposure) with its grating reading (NaN: none)."""
         frame = np.asarray(frame)
         last, self.last_frame = self.last_frame, frame
         # (an image again is equal in its first sample too: that one comparison settles nearly every frame)
-        if last is not None and last.shape == frame.shape and last.flat[0] == frame.flat[0] and \
+        if last is not None and last.shape == frame.shape and frame.size and last.item(0) == frame.item(0) and \
                 repeats.repeated(frame[None], self.model.noise_gray or 0.0, last)[0]:
             # the image shows where the stage was, its time and grating where it is: no measurement of either
             return self._unplaced(t, self.stats, math.nan, "the driver delivered the last image again", True)
         y, mask = self._prepared(frame)
+        dt = None
         if not self.started or self.failed >= FAILED_TO_REACQUIRE:
             self._acquire(y, mask, t, reference_mm)
         else:
-            self.predict(t)
+            dt = self._advance(t)  # the prediction to the frame's time, made by the update's own call below
+        grating_z = reference_mm if self.grating == "fuse" and math.isfinite(reference_mm) else math.nan
+        s_prior, P_prior = self.s, self.P  # read, never written (once predicted), until the posterior replaces them
+        s, A, stats = self._solve(y, mask, s_prior, P_prior, grating_z, out=self._answer, predict=dt)
         if self.grating == "check" and math.isfinite(reference_mm) and \
-                abs(self.s[X] - reference_mm) > 0.25 * self.model.period_mm:
+                abs(s_prior.item(X) - reference_mm) > 0.25 * self.model.period_mm:
             self._acquire(y, mask, t, reference_mm)  # the image's period lost: start again at the grating
-        fuse = self.grating == "fuse" and math.isfinite(reference_mm)
-        s_prior, P_prior = self.s.copy(), self.P.copy()
-        s, A, stats = self._solve(y, mask, s_prior, P_prior, reference_mm if fuse else math.nan)
+            s, A, stats = self._solve(y, mask, s_prior, P_prior, grating_z, out=self._answer)
         test = self._test(stats, s)
         mode, solved = "", self.idx
         if test > 1.0:
             best = None
-            for family in JUMPS:
-                if not np.isin(JUMPS[family], self.idx).all():
-                    continue
+            for family in self._ranked(s, A, s_prior, P_prior)[:SEARCHED]:
                 widened = self._jumped(P_prior, family)
-                s_j, A_j, stats_j = self._solve(y, mask, s_prior, widened, reference_mm if fuse else math.nan)
+                s_j, A_j, stats_j = self._solve(y, mask, s_prior, widened, grating_z)
                 test_j = self._test(stats_j, s_j)
                 if best is None or test_j < best[0]:
                     best = (test_j, family, s_j, A_j, stats_j)
@@ -274,77 +309,142 @@ class Estimator:
                 reason_jump = best[1] if best is not None and best[0] < test else None
                 # No mode explains the frame: its noise is evidently beyond the noise model's. Its samples
                 # count for as much as its χ² says they are worth (the measurement's covariance scaled by the
-                # innovation's excess), so the frame moves the state little and its bound widens.
-                # Nor does it teach the rig's slow states anything: only the motion is updated by it.
+                # innovation's excess), so the frame moves the state little and its bound widens. It updates
+                # the motion and the image's appearance (the light, its shape, the focus), which is what such
+                # a frame speaks of: held instead, a shape a wrong jump left would stay for every later frame,
+                # each failing in turn. The geometry (the camera's place, the lens, the grating's latch),
+                # learned over spans of the grating, is not taught by a frame the model does not explain.
                 inflation = self._excess(stats, s)
-                solved = self.idx_motion
-                s, A, stats = self._solve(y, mask / inflation, s_prior, P_prior, reference_mm if fuse else math.nan,
+                solved = self.idx_appearance
+                s, A, stats = self._solve(y, mask / inflation, s_prior, P_prior, grating_z,
                                           solved)
         else:
             reason_jump = None
         placed = stats[kernel.S_CONVERGED] > 0 or stats[kernel.S_ITER] > 0
         used, rejected = stats[kernel.S_USED], stats[kernel.S_REJECTED]
         if used + rejected <= 0 or rejected > self.settings.max_rejected * (used + rejected) or \
-                not np.isfinite(s[X]):
+                not math.isfinite(s[X]):
             placed = False
         if not placed:
             self.failed += 1
             return self._unplaced(t, stats, test, "too many samples set aside" if rejected else "not converged")
         self.failed = 0
-        self.s[:] = s
-        kernel.embed(self.P, A, solved)  # the posterior over the states solved, the prior's elsewhere
+        if s is self._answer[0]:  # the main update's arrays: the state's becomes the next answer's
+            self._answer = (self.s, A, self._answer[2])
+        self.s = s
+        if A is self._answer[1] and stats[kernel.S_POSTERIOR] > 0:  # the main update's: it made the posterior
+            self.P, self._P_next = self._P_next, self.P
+        else:
+            kernel.embed(self.P, A, solved, self._sigma)  # the posterior over the states solved, the prior's elsewhere
         return self._estimate(t, stats, test, mode, reason_jump, reference_mm)
 
     # ------------------------------------------------------------------ parts
     def _prepared(self, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        frame = np.asarray(frame)
-        rows = self.model.rows_averaged(1 if frame.ndim == 1 else frame.shape[0])
-        y = self.model.prepare(frame[None]).reshape(-1)
+        """The frame's gray values as the model sees them (its ``prepare``) and their mask."""
+        model = self.model
+        rows = 1 if frame.ndim == 1 else frame.shape[0]
+        if model.n_rows == 1 and frame.ndim <= 2 and frame.shape[-1] == model.n_pixels and rows > 0:
+            # the row mean prepare takes, compiled into the estimator's own array (prepare's arrays a call
+            # cost a 16-row frame 5 µs)
+            flags = frame.flags
+            if frame.dtype not in FRAME_TYPES or not (flags.c_contiguous and flags.writeable):
+                frame = np.array(frame, dtype=np.float64)
+            y = self._y
+            kernel.row_mean(frame if frame.ndim == 2 else frame.reshape(1, -1), y)
+            if self._seen is not None:
+                np.multiply(y, self._seen, out=y)
+        else:
+            rows = model.rows_averaged(rows)
+            y = np.ascontiguousarray(model.prepare(frame[None]).reshape(-1))
         mask = self._row_masks.get(rows)
         if mask is None:  # a row mean's variance is the sample's over the rows averaged
             mask = self._row_masks[rows] = np.ascontiguousarray(self.mask * rows)
         if self.sensor_range is not None:
             lo, hi = self.sensor_range
-            mask = mask * ((y > lo) & (y < hi))
-        return np.ascontiguousarray(y), mask
+            kernel.in_range(y, lo, hi, mask, self._masked)
+            mask = self._masked
+        return y, mask
 
     def _solve(self, y: np.ndarray, mask: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray,
-               grating_z: float, idx: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The update over the states ``idx`` (default: every active one; the others held at the prior)."""
+               grating_z: float, idx: np.ndarray | None = None,
+               out: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+               predict: float | None = None) -> tuple[np.ndarray, np.ndarray, list]:
+        """The update over the states ``idx`` (default: every active one; the others held at the prior):
+        the state, the posterior information and the figures (kernel.S_*, plain numbers). ``out``: the
+        arrays to answer in (the state, the information over ``idx``, the figures), else new ones; with
+        them, the posterior covariance is made into ``_P_next`` and its σ into ``_sigma`` too.
+        ``predict``: the prior is first moved on by that many seconds, in place (``predict``)."""
         idx = self.idx if idx is None else idx
-        s = s_prior.copy()
-        A = np.zeros((idx.size, idx.size))
-        stats = np.zeros(kernel.N_STATS)
+        s, A, stats = out or (np.empty(N_STATE), np.empty((idx.size, idx.size)), np.empty(kernel.N_STATS))
         grating_w = 1.0 / self.settings.grating_sigma ** 2 if math.isfinite(grating_z) else 0.0
-        settings = self.settings
-        kernel.update(s, s_prior, P_prior, idx, y, mask, self.noise, self.t_rel, self.r_rel, self.b1, self.b2,
-                      self.model.pixel_pitch_mm, self.model.period_mm, grating_z if grating_w else 0.0, grating_w,
-                      self.robust, settings.core_sigma, settings.cut_sigma, settings.max_rejected,
-                      int(settings.max_iterations), settings.tolerance, self.model_args, self.scratch, self.rho, A,
-                      stats)
-        return s, A, stats
+        params = self.params
+        params[kernel.U_GRATING_Z], params[kernel.U_GRATING_W] = grating_z if grating_w else 0.0, grating_w
+        params[kernel.U_PREDICT], params[kernel.U_DT] = (0.0, 0.0) if predict is None else (1.0, predict)
+        params[kernel.U_POSTERIOR] = 0.0 if out is None else 1.0
+        kernel.update(s, s_prior, P_prior, idx, y, mask, self.pixels, params, self.model_args, self.scratch, self.rho,
+                      A, stats, self._P_next, self._sigma)
+        return s, A, stats.tolist()
 
     def _level(self, x_mm: float) -> float:
         if self.chi2_curve is None:
             return self.chi2_calibration
         return self.chi2_calibration * self.chi2_curve.at(x_mm)
 
-    def _test(self, stats: np.ndarray, s: np.ndarray) -> float:
+    def _test(self, stats: list, s: np.ndarray) -> float:
         """The innovation's χ² over its quantile at the false-alarm rate (the stream's spread counted)."""
         used = stats[kernel.S_USED]
         if used <= 0:
             return math.inf
-        level = self._level(float(s[X]))
+        level = self._level(s.item(X))
         chi2 = stats[kernel.S_RESIDUAL] / level + stats[kernel.S_PRIOR] + stats[kernel.S_GRATING]
         dof = used / self.spread ** 2
         return (chi2 / self.spread ** 2) / _quantile(self.z_alpha, dof)
 
-    def _excess(self, stats: np.ndarray, s: np.ndarray) -> float:
+    def _excess(self, stats: list, s: np.ndarray) -> float:
         """The frame's residual χ² per sample over what the noise model and the calibration expect (≥ 1)."""
         used = stats[kernel.S_USED]
         if used <= 0:
             return 1.0
         return max(stats[kernel.S_RESIDUAL] / (used * self._level(float(s[X]))), 1.0)
+
+    def _ranked(self, s: np.ndarray, A: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray) -> list[str]:
+        """The families that may jump, most evident first: each one's score test of the innovation (the
+        Lagrange-multiplier test of a jump in its states) made from the update without a jump. With Λ the
+        prior's information and P⁺ the posterior's covariance over the active states, g = Λ(s⁺ − s⁻) is the
+        innovation seen in the state (Λ times the prior's pull) and has covariance Λ − ΛP⁺Λ when nothing
+        jumped; a family's statistic is g's part in its directions, normalised by that covariance: χ² with
+        as many degrees of freedom as the family has states, each family's standardised for ranking."""
+        idx = self.idx
+        info = np.linalg.inv(P_prior[np.ix_(idx, idx)])
+        g = info @ (s[idx] - s_prior[idx])
+        cov = info - info @ np.linalg.solve(A, info)
+        scored = []
+        for family, where in self._families:
+            if family == "motion":  # a velocity jump in the last interval moved the position with it
+                x, v = where
+                dt = self.dt_last
+                gd = g[v] + dt * g[x]
+                cd = cov[v, v] + 2.0 * dt * cov[x, v] + dt * dt * cov[x, x]
+                statistic = gd * gd / cd if cd > 0.0 else 0.0
+            elif len(where) == 1:
+                cd = cov[where[0], where[0]]
+                statistic = g[where[0]] ** 2 / cd if cd > 0.0 else 0.0
+            elif len(where) > 2:
+                gd = g[where]
+                statistic = float(gd @ np.linalg.solve(cov[np.ix_(where, where)], gd))
+            else:  # two states: the 2×2 form written out
+                i, j = where
+                a, b, d = cov[i, i], cov[i, j], cov[j, j]
+                det = a * d - b * b
+                if not det > 0.0:
+                    continue
+                gi, gj = g[i], g[j]
+                statistic = (d * gi * gi - 2.0 * b * gi * gj + a * gj * gj) / det
+            k = 1 if family == "motion" else len(where)
+            if statistic <= self._score_quantile[k]:
+                continue  # the innovation does not point along this family's states: its jump cannot explain it
+            scored.append(((statistic - k) / math.sqrt(2.0 * k), family))
+        return [family for _, family in sorted(scored, reverse=True)]
 
     def _jumped(self, P: np.ndarray, family: str) -> np.ndarray:
         widened = P.copy()
@@ -362,14 +462,15 @@ class Estimator:
         lens's slide, which the state carries; with the grating only checked, the place is not a state)."""
         return float(self.P[X, X])
 
-    def _estimate(self, t: float, stats: np.ndarray, test: float, mode: str, reason_jump: str | None,
+    def _estimate(self, t: float, stats: list, test: float, mode: str, reason_jump: str | None,
                   reference_mm: float) -> FrameEstimate:
+        """The frame's record from the posterior just embedded (its σ in ``_sigma``)."""
         settings = self.settings
         # plain Python numbers from here: this runs for every frame
         s = self.s.tolist()
-        sigma = np.sqrt(np.maximum(np.diag(self.P), 0.0)).tolist()
-        xinfo, used, rejected, residual = (float(stats[kernel.S_XINFO]), float(stats[kernel.S_USED]),
-                                           float(stats[kernel.S_REJECTED]), float(stats[kernel.S_RESIDUAL]))
+        sigma = self._sigma.tolist()
+        xinfo, used, rejected, residual = (stats[kernel.S_XINFO], stats[kernel.S_USED], stats[kernel.S_REJECTED],
+                                           stats[kernel.S_RESIDUAL])
         floor = 1.0 / math.sqrt(xinfo) if xinfo > 0 else math.inf
         # what the model itself errs by here (its calibration's shared error): no frame can see it
         # (as much of it as the image's share of the position carries: a fused grating pins the rest)
@@ -379,31 +480,34 @@ class Estimator:
         model_var = self._model_share(s[X]) * floor2 * share * share
         var_x = var_image + model_var
         stale, reason, message = False, "", ""
+        checked = self.grating == "check"
         if test > 1.0:
             stale = True
             reason = REASON.get(reason_jump or "", "") or ("transients" if rejected else "light")
             message = f"innovation χ² {test:.2f}x its quantile at the false-alarm rate"
-        if self.grating == "check" and reference_mm == reference_mm:
+        if checked and reference_mm == reference_mm:
             nu = reference_mm - s[X]
             if nu * nu > self.z_two ** 2 * (var_x + settings.grating_sigma ** 2):
                 stale, reason = True, reason or "scale"
                 message = message or f"camera and grating disagree by {nu * 1e3:+.2f} µm"
-        if var_x > settings.dominance * floor2 * self.bound_factor ** 2:
+        bound_factor = self.bound_factor
+        if var_x > settings.dominance * floor2 * bound_factor ** 2:
             carried = "geometry" if model_var > var_x - model_var - floor2 else self._carrier()
             if carried:
                 stale, reason = True, reason or carried
                 message = message or f"the position's bound is carried by the {carried} state"
         focus_sigma = sigma[B]
         shown = abs(s[B]) > self.z_two * focus_sigma
+        # (by position, in the fields' order: by keyword the record cost a frame a microsecond)
         return FrameEstimate(
-            t=t, x_mm=s[X] + (s[C] if self.grating == "check" else 0.0), crlb_mm=math.sqrt(var_x) * self.bound_factor,
-            floor_mm=floor * self.bound_factor, locked=True, rms_gray=float(stats[kernel.S_RMS]),
-            chi2=residual / max(used, 1.0) / self._level(s[X]), test=float(test), rejected_px=int(rejected),
-            iterations=int(stats[kernel.S_ITER]), gain=s[G], offset_gray=s[OFS],
-            focus_px2=s[B] if shown else math.nan, focus_sigma_px2=focus_sigma if shown else math.nan,
-            stretch=s[M], stretch_sigma=sigma[M], place_mm=s[C], place_sigma_mm=sigma[C],
-            mode=mode, repeated=False, stale=stale, stale_reason=reason, message=message,
-            state=tuple(s), sigma=tuple(sigma))
+            t, s[X] + (s[C] if checked else 0.0), math.sqrt(var_x) * bound_factor,  # t, x_mm, crlb_mm
+            floor * bound_factor, True, stats[kernel.S_RMS],  # floor_mm, locked, rms_gray
+            residual / max(used, 1.0) / self._level(s[X]), float(test), int(rejected),  # chi2, test, rejected_px
+            int(stats[kernel.S_ITER]), s[G], s[OFS],  # iterations, gain, offset_gray
+            s[B] if shown else math.nan, focus_sigma if shown else math.nan,  # focus_px2, focus_sigma_px2
+            s[M], sigma[M], s[C], sigma[C],  # stretch, stretch_sigma, place_mm, place_sigma_mm
+            mode, False, stale, reason, message,  # mode, repeated, stale, stale_reason, message
+            tuple(s), tuple(sigma))  # state, sigma
 
     def _model_share(self, x_mm: float) -> float:
         """The model's own error power at ``x_mm`` over the noise floor's (ratio² − 1 of its calibration)."""
@@ -431,7 +535,8 @@ class Estimator:
                 best, family = removed, name
         return family
 
-    def _unplaced(self, t: float, stats: np.ndarray, test: float, why: str, repeated: bool = False) -> FrameEstimate:
+    def _unplaced(self, t: float, stats: np.ndarray | list, test: float, why: str,
+                  repeated: bool = False) -> FrameEstimate:
         nan = math.nan
         return FrameEstimate(t=t, x_mm=nan, crlb_mm=nan, floor_mm=nan, locked=False,
                              rms_gray=float(stats[kernel.S_RMS]), chi2=nan, test=float(test),
@@ -471,6 +576,10 @@ class Estimator:
         self._solve(y, self.mask.copy(), self.s.copy(), self.P.copy(), math.nan)
         self._solve(y, self.mask.copy(), self.s.copy(), self.P.copy(), 0.0)
         kernel.predict(self.s.copy(), self.P.copy(), 0.01, 1.0, self.rates2)
+        kernel.embed(self.P.copy(), np.eye(self.idx.size), self.idx, self._sigma)
+        for kind in FRAME_TYPES:  # each kind of frame a camera delivers, compiled for now
+            kernel.row_mean(np.zeros((2, self.model.n_pixels), dtype=kind), self._y)
+        kernel.in_range(self._y, 0.0, 1.0, self.mask, self._masked)
         self.started = False
 
 
@@ -484,9 +593,10 @@ def track(model: FourierModel, frames: np.ndarray, t: np.ndarray, reference: np.
     estimator = Estimator(model, settings=settings, grating=grating, robust=robust, axis_px=axis_px)
     n = frames.shape[0]
     reference = np.full(n, np.nan) if reference is None or grating == "none" else np.asarray(reference, float)
+    times, readings = np.asarray(t, dtype=np.float64).tolist(), reference.tolist()  # plain numbers, made once
     out = []
     for k in range(n):
-        out.append(estimator.update(frames[k], float(t[k]), float(reference[k])))
+        out.append(estimator.update(frames[k], times[k], readings[k]))
         if progress is not None and (k % 1000 == 999 or k == n - 1):
             progress((k + 1) / n, f"frame {k + 1} of {n}")
     return out

@@ -42,8 +42,22 @@ MAD_TO_SIGMA = 1.4826
 ROBUST_ROUNDS = 6  # reweightings at most: the redescending weights settle in 2–3 on a frame with a blob
 CURVATURE_STEP_PERIODS = 1e-3  # forward-difference step of F″ from the slopes, in periods (error ~ 3 % at order 5)
 # out_stats layout
-(S_COST, S_RESIDUAL, S_PRIOR, S_USED, S_REJECTED, S_ITER, S_XINFO, S_RMS, S_GRATING, S_CONVERGED) = range(10)
-N_STATS = 10
+# (S_POSTERIOR: 1 where the update made the posterior covariance, params[U_POSTERIOR])
+(S_COST, S_RESIDUAL, S_PRIOR, S_USED, S_REJECTED, S_ITER, S_XINFO, S_RMS, S_GRATING, S_CONVERGED,
+ S_POSTERIOR) = range(11)
+N_STATS = 11
+# the update's numbers in one array (a frame's call passes one array, not a dozen arguments: each argument costs
+# the call ~0.1 µs): the noise model's read variance, shot gain and dark level, the pixel pitch and the period (mm),
+# the fused grating's reading (mm) and weight (1/σ², 0: none), robust weights on (1) or off (0), their core and cut
+# (σ), the iterations at most, the tolerance (mm); whether the prior is first predicted (1) or taken as it is (0), over
+# how long (s), the acceleration's variance (mm²/s⁴); whether the posterior covariance is made too (1: ``embed`` into
+# ``P_post``, for the update a frame most likely keeps); from U_RATES on each state's rate (predict's ``rates2``)
+(U_READ, U_SHOT, U_DARK, U_PITCH, U_PERIOD, U_GRATING_Z, U_GRATING_W, U_ROBUST, U_CORE, U_CUT, U_ITERATIONS,
+ U_TOLERANCE, U_PREDICT, U_DT, U_ACCELERATION, U_POSTERIOR, U_RATES) = range(17)
+N_PARAMS = U_RATES + N_STATE
+# the pixels' constants in one (4, P) array: target coordinate from the ROI's centre, row from the strip's middle,
+# the two Legendre terms across the line
+(PX_TARGET, PX_ROW, PX_B1, PX_B2) = range(4)
 
 
 def information(P: np.ndarray, idx: np.ndarray) -> np.ndarray:
@@ -56,9 +70,10 @@ def information(P: np.ndarray, idx: np.ndarray) -> np.ndarray:
     return np.linalg.inv(block)
 
 
-def embed(P: np.ndarray, A: np.ndarray, idx: np.ndarray) -> None:
+def embed(P: np.ndarray, A: np.ndarray, idx: np.ndarray, sigma: np.ndarray) -> None:
     """In place: ``P``'s block over ``idx`` becomes ``A``⁻¹ (the posterior); states outside ``idx`` keep
-    their own variance and lose their correlation with those inside."""
+    their own variance and lose their correlation with those inside. ``sigma``: every state's σ out
+    (a negative variance's 0)."""
     inner = np.linalg.inv(A)
     n, total = idx.size, P.shape[0]
     inside = np.zeros(total, dtype=np.bool_)
@@ -71,6 +86,28 @@ def embed(P: np.ndarray, A: np.ndarray, idx: np.ndarray) -> None:
     for i in range(n):
         for j in range(n):
             P[idx[i], idx[j]] = inner[i, j]
+    for i in range(total):
+        sigma[i] = 0.0 if P[i, i] < 0.0 else math.sqrt(P[i, i])
+
+
+def row_mean(frame: np.ndarray, out: np.ndarray) -> None:
+    """``out`` (n,): the mean of ``frame``'s rows (R, n) in float64, summed row after row and divided by
+    R: what the model's ``prepare`` computes with numpy, to the bit, without its arrays made a frame."""
+    n_rows, n = frame.shape
+    for p in range(n):
+        out[p] = frame[0, p]
+    for r in range(1, n_rows):
+        for p in range(n):
+            out[p] += frame[r, p]
+    if n_rows > 1:
+        for p in range(n):
+            out[p] = out[p] / n_rows
+
+
+def in_range(y: np.ndarray, lo: float, hi: float, mask: np.ndarray, out: np.ndarray) -> None:
+    """``out``: ``mask`` where ``y`` lies strictly between the sensor's limits, 0 elsewhere."""
+    for p in range(y.size):
+        out[p] = mask[p] * (1.0 if (y[p] > lo) & (y[p] < hi) else 0.0)
 
 
 def predict(s: np.ndarray, P: np.ndarray, dt: float, q_accel: float, rates2: np.ndarray) -> None:
@@ -109,6 +146,8 @@ def _normal(s: np.ndarray, idx: np.ndarray, y: np.ndarray, w: np.ndarray, rho: n
         for j in range(n):
             A[i, j] = 0.0
     jac = np.zeros(N_STATE)  # (a dozen numbers a solve: numba keeps them on the stack)
+    active = np.empty(n)  # the Jacobian over the active states, and weighted
+    weighted = np.empty(n)
     g, o, a1, a2, b, m, th = s[G], s[OFS], s[A1], s[A2], s[B], s[M], s[T]
     lever = s[L]
     cost = 0.0
@@ -134,10 +173,18 @@ def _normal(s: np.ndarray, idx: np.ndarray, y: np.ndarray, w: np.ndarray, rho: n
         jac[L] = gdf * m
         jac[T] = gdf * r_rel[p]
         for i in range(n):
-            ji = weight * jac[idx[i]]
+            active[i] = jac[idx[i]]
+        for i in range(n):
+            ji = weight * active[i]
+            weighted[i] = ji
             rhs[i] += ji * r
-            for j in range(i + 1):
-                A[i, j] += ji * jac[idx[j]]
+        # Whole rows, the same products and sums element by element as the lower triangle alone (the
+        # compiler vectorises a row); the upper triangle is then the lower's mirror, as it always was.
+        for i in range(n):
+            ji = weighted[i]
+            row = A[i]
+            for j in range(n):
+                row[j] += ji * active[j]
     for i in range(n):
         for j in range(i):
             A[j, i] = A[i, j]
@@ -165,17 +212,29 @@ def _grating(s: np.ndarray, idx: np.ndarray, z: float, weight: float, A: np.ndar
 
 
 def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndarray, y: np.ndarray, mask: np.ndarray,
-           noise: np.ndarray, t_rel: np.ndarray, r_rel: np.ndarray, b1: np.ndarray, b2: np.ndarray,
-           pitch_mm: float, period_mm: float, grating_z: float, grating_w: float, robust: bool, core: float,
-           cut: float, max_rejected: float, max_iterations: int, tolerance: float, model: tuple,
-           scratch: np.ndarray, rho: np.ndarray, A_out: np.ndarray, stats: np.ndarray) -> None:
-    """Update ``s`` (in place, from its value on entry: the prediction or a better start) with one frame.
+           pixels: np.ndarray, params: np.ndarray, model: tuple, scratch: np.ndarray, rho: np.ndarray,
+           A_out: np.ndarray, stats: np.ndarray, P_post: np.ndarray, sigma: np.ndarray) -> None:
+    """Update ``s`` (in place, from ``s_prior``) with one frame.
 
     ``P_prior``: the prior covariance (its block over the active states ``idx`` is used, centred on
-    ``s_prior``); ``noise``:
-    read variance, shot gain, dark level of the noise model; ``grating_w``: 1/σ_z² of a fused grating reading (0: not
-    fused). ``scratch``: (6, P); ``rho``: (P,) robust weights out; ``A_out``: the posterior information over
-    ``idx``; ``stats``: the figures named by the S_ constants."""
+    ``s_prior``); with ``params[U_PREDICT]`` set, ``s_prior`` and ``P_prior`` are first moved on by
+    ``params[U_DT]`` in place (:func:`predict`: the frame's two calls made one).
+    ``pixels``: (4, P) by the PX_ constants; ``params``: the numbers named by the U_ constants.
+    ``scratch``: (6, P); ``rho``: (P,) robust weights out; ``A_out``: the posterior information over
+    ``idx``; ``stats``: the figures named by the S_ constants; with ``params[U_POSTERIOR]`` set, ``P_post`` the
+    (predicted) prior with the posterior embedded and ``sigma`` every state's σ (:func:`embed`: the frame's
+    next call made in this one)."""
+    t_rel, r_rel, b1, b2 = pixels[PX_TARGET], pixels[PX_ROW], pixels[PX_B1], pixels[PX_B2]
+    read_var, shot_gain, dark = params[U_READ], params[U_SHOT], params[U_DARK]
+    pitch_mm, period_mm = params[U_PITCH], params[U_PERIOD]
+    grating_z, grating_w = params[U_GRATING_Z], params[U_GRATING_W]
+    robust = params[U_ROBUST] > 0.0
+    core, cut, tolerance = params[U_CORE], params[U_CUT], params[U_TOLERANCE]
+    max_iterations = int(params[U_ITERATIONS])
+    if params[U_PREDICT] > 0.0:
+        predict(s_prior, P_prior, params[U_DT], params[U_ACCELERATION], params[U_RATES:])
+    for i in range(s.size):
+        s[i] = s_prior[i]
     n = idx.size
     Pinv = information(P_prior, idx)
     values, slopes, smooth, curvature, w, residual = (scratch[0], scratch[1], scratch[2], scratch[3], scratch[4],
@@ -189,10 +248,10 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
         curvature[p] = (curvature[p] - slopes[p]) / step
         # the noise model's weight at the predicted gray value
         gray = (s[G] + s[A1] * b1[p] + s[A2] * b2[p]) * values[p] + s[OFS]
-        signal = gray - noise[2]
+        signal = gray - dark
         if signal < 0.0:
             signal = 0.0
-        var = noise[0] + noise[1] * signal
+        var = read_var + shot_gain * signal
         if var < 1e-6:
             var = 1e-6
         w[p] = mask[p] / var
@@ -319,6 +378,16 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
     stats[S_RMS] = math.sqrt(rss / used) if used > 0 else math.nan
     stats[S_GRATING] = grating_cost
     stats[S_CONVERGED] = converged
+    stats[S_POSTERIOR] = 0.0
+    if params[U_POSTERIOR] > 0.0:
+        # made on the chance the frame is kept: an update that failed (its information not finite, or
+        # singular) is no error here, the frame is refused by its figures and its covariance not made
+        try:
+            P_post[:, :] = P_prior
+            embed(P_post, A_out, idx, sigma)
+            stats[S_POSTERIOR] = 1.0
+        except Exception:  # noqa: BLE001 - numba's linear algebra raises its one kind
+            pass
 
 
 if kernels.COMPILED:
@@ -326,6 +395,8 @@ if kernels.COMPILED:
     predict = _jit(predict)
     information = _jit(information)
     embed = _jit(embed)
+    row_mean = _jit(row_mean)
+    in_range = _jit(in_range)
     _evaluate = _jit(_evaluate)
     _normal = _jit(_normal)
     _grating = _jit(_grating)

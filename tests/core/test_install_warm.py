@@ -70,3 +70,47 @@ def test_a_live_tracker_compiles_nothing_on_a_live_frame(kind: str, fast_path: b
     assert report["placed"] > report["frames"] // 2
     assert report["late"] == {}, f"compiled on a live frame: {report['late']}"
     assert report["monitor_ready"], "the validity monitor's tables are model install's work, not the first frame's"
+
+
+ESTIMATOR_SCRIPT = textwrap.dedent("""
+    import json, sys
+    import numpy as np
+    from numba.core.registry import CPUDispatcher
+    from graytrack.core.calibration import calibrate
+    from graytrack.core.estimator.live import LiveEstimator
+    from graytrack.drivers.sim.scenarios import build_rig
+
+    calibration, _ = build_rig("paper", "", seed=4).record(2.0)
+    model = calibrate(calibration, "paper").model
+    run, _ = build_rig("paper", "light_change:start_s=0.2", seed=4, run=1).record(0.5)
+
+    def compiled():
+        return {f"{module.__name__}.{name}": len(value.signatures)
+                for module in list(sys.modules.values()) if getattr(module, "__name__", "").startswith("graytrack")
+                for name, value in list(vars(module).items()) if isinstance(value, CPUDispatcher)}
+
+    trackers = {mode: LiveEstimator(model, x0_mm=float(run.reference[0]), grating=mode)
+                for mode in ("check", "fuse", "none")}
+    installed = compiled()
+    # every kind of frame a camera or a recording hands over: 8- and 16-bit codes, float32, float64
+    kinds = (lambda f: f, lambda f: np.clip(f, 0, 255).astype(np.uint8),
+             lambda f: np.clip(f * 16, 0, 4095).astype(np.uint16), lambda f: f.astype(np.float64))
+    placed, jumps = 0, 0
+    for mode, tracker in trackers.items():
+        for k, (frame, grating) in enumerate(zip(run.frames, run.reference)):
+            fix = tracker.update(kinds[k % len(kinds)](frame), float(grating), float(run.t[k]))
+            placed += fix.x_mm == fix.x_mm
+            jumps += bool(tracker.last.mode)
+    after = compiled()
+    print(json.dumps({"frames": 3 * len(run.frames), "placed": int(placed), "jumps": jumps,
+                      "late": {k: v for k, v in after.items() if v != installed.get(k, 0)}}))
+""")
+
+
+def test_a_live_estimator_compiles_nothing_on_a_live_frame() -> None:
+    done = subprocess.run([sys.executable, "-c", ESTIMATOR_SCRIPT], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    report = json.loads(done.stdout.strip().splitlines()[-1])
+    assert report["placed"] > report["frames"] // 2
+    assert report["jumps"] > 0, "the frames must take a jump (the update solved again), or the check proves less"
+    assert report["late"] == {}, f"compiled on a live frame: {report['late']}"
