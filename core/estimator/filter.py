@@ -415,9 +415,12 @@ class Estimator:
         jumped; a family's statistic is g's part in its directions, normalised by that covariance: χ² with
         as many degrees of freedom as the family has states, each family's standardised for ranking."""
         idx = self.idx
-        info = np.linalg.inv(P_prior[np.ix_(idx, idx)])
+        try:
+            info = np.linalg.inv(P_prior[np.ix_(idx, idx)])
+            cov = info - info @ np.linalg.solve(A, info)
+        except np.linalg.LinAlgError:  # a prior or a posterior without an inverse: no jump can be told apart
+            return []
         g = info @ (s[idx] - s_prior[idx])
-        cov = info - info @ np.linalg.solve(A, info)
         scored = []
         for family, where in self._families:
             if family == "motion":  # a velocity jump in the last interval moved the position with it
