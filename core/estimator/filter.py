@@ -363,6 +363,11 @@ class Estimator:
             lo, hi = self.sensor_range
             kernel.in_range(y, lo, hi, mask, self._masked)
             mask = self._masked
+        if frame.dtype.kind == "f" and not math.isfinite(float(y.sum())):
+            # a sample that is not a number (a float camera's dead pixel, a driver's gap) is set aside as a bad
+            # pixel is: the frame is placed from the rest (unchecked, it made the update's matrix NaN and raised)
+            bad = ~np.isfinite(y)
+            y, mask = np.where(bad, 0.0, y), mask * ~bad
         return y, mask
 
     def _solve(self, y: np.ndarray, mask: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray,

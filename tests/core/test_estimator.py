@@ -228,3 +228,18 @@ def test_after_a_shadow_has_passed_the_light_returns_and_the_position_with_it(pa
     assert np.median(pull) < 1.5 and pull.max() < 6.0, (np.median(pull), pull.max())
     shape = np.array([[e.state[A1], e.state[A2]] for e, late in zip(estimates, after) if late])
     assert np.abs(shape).max() < 0.01
+
+
+def test_samples_that_are_not_numbers_are_set_aside_and_the_frame_placed(paper):
+    """A float camera's frame with NaN and infinite samples (a dead pixel, a driver's gap): those samples are
+    set aside as a bad pixel is and the frame is placed from the rest, within its bound; nothing raises."""
+    run, truth = build_rig("paper", "", seed=4, run=8).record(0.6)
+    estimator = Estimator(paper)
+    for k in range(len(run.t)):
+        frame = np.array(run.frames[k], dtype=np.float64)
+        if k % 3 == 1:
+            frame[..., 30] = np.nan
+            frame[..., 61] = np.inf
+        estimate = estimator.update(frame, run.t[k], run.reference[k])
+        assert estimate.locked and not estimate.stale, (k, estimate.message)
+        assert abs(estimate.x_mm - truth.x_mm[k]) < 4.0 * estimate.crlb_mm, k
