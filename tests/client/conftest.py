@@ -1,7 +1,7 @@
 """The client installed alone into a fresh venv (offline), and the daemon as `make run` starts it.
 
 Both are expensive (a venv; a daemon that calibrates itself on the wall clock), so each is made
-once per test process and shared by the tests of this folder.
+once per test process and shared by the tests of this folder (the daemon only while they run).
 """
 
 from __future__ import annotations
@@ -100,7 +100,10 @@ class MakeRun:
         return {**env, "HOME": str(self.home)}
 
 
-@pytest.fixture(scope="session")
+# package scope: the daemon is stopped once this folder's tests are done. Left to the session's end it kept
+# tracking (~0.08 s of CPU a second, and a calibration the README's block starts) beside every later test of
+# its worker, minutes of a busy suite.
+@pytest.fixture(scope="package")
 def make_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[MakeRun]:
     """``python -m graytrack serve --host 127.0.0.1 --port P``, the command `make run` runs, with its
     defaults (the virtual rig; the data directory ``~/.local/state/graytrack``, under a HOME of its

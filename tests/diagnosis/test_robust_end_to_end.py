@@ -33,7 +33,12 @@ def error_against_bound(model, recording) -> tuple[int, float, float]:
 
 @pytest.mark.slow
 def test_a_lab_strip_keeps_its_floor_when_the_light_changes_and_a_pixel_fails_in_the_run():
-    calibration, _ = build_rig("paper", BENCH, seed=3).record(12.0)
+    # 8 s of calibration, 400 frames of 16 rows (the tilted strip's in test_closed_loop.py): the claim is about the
+    # measured run, 8 s as before, whose error is judged against its own frames' bounds. The calibration's length
+    # enters through the noise of the fitted coefficients, a fixed error at each place that adds to the run's
+    # spread in quadrature, about as the coefficients a row over the frames: a few percent of the bound at 400
+    # frames against the 30 % allowed. The three defects sit in every frame, so the loop names them on any length.
+    calibration, _ = build_rig("paper", BENCH, seed=3).record(8.0)
     result = diagnose(calibration)
     report = result.report()
     named = {(item["row"], item["pixel"]) for item in report["findings"]["bad_pixels"]}

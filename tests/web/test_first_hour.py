@@ -11,7 +11,8 @@ from pathlib import Path
 import pytest
 
 from tests.service.helpers import GatedFactory, LiveServer, fast_settings, wait_for
-from tests.web.test_status_page import CHROMIUM, browser, watch_console  # noqa: F401 - the browser fixture
+from tests.web.conftest import CHROMIUM
+from tests.web.test_status_page import watch_console
 
 pytestmark = pytest.mark.skipif(not CHROMIUM.exists(), reason="chromium is not installed (apt-get install chromium)")
 CONTROLS = ("#calibrate", "#move", "#jog-plus", "#home", "#set-velocity", "#stop")
@@ -19,7 +20,7 @@ NARROW = {"width": 390, "height": 844}
 
 
 def test_a_newcomer_is_told_what_the_page_waits_for_where_the_token_is_and_what_the_lost_frames_are(
-        tmp_path: Path, browser) -> None:  # noqa: F811 - the fixture
+        tmp_path: Path, browser) -> None:
     from playwright.sync_api import expect
 
     from graytrack.service.daemon.app import create_app
@@ -98,7 +99,7 @@ def test_a_newcomer_is_told_what_the_page_waits_for_where_the_token_is_and_what_
         assert console == [], console
 
 
-def test_while_the_daemon_warms_up_the_page_says_what_it_is_doing(tmp_path: Path, browser,  # noqa: F811
+def test_while_the_daemon_warms_up_the_page_says_what_it_is_doing(tmp_path: Path, browser,
                                                                    monkeypatch: pytest.MonkeyPatch) -> None:
     from playwright.sync_api import expect
 

@@ -10,12 +10,13 @@ from pathlib import Path
 import pytest
 
 from tests.service.helpers import ServeProcess
-from tests.web.test_status_page import CHROMIUM, browser, watch_console  # noqa: F401 - the browser fixture
+from tests.web.conftest import CHROMIUM
+from tests.web.test_status_page import watch_console
 
 pytestmark = pytest.mark.skipif(not CHROMIUM.exists(), reason="chromium is not installed (apt-get install chromium)")
 
 
-def test_the_page_reads_and_streams_with_the_saved_token_under_the_read_policy(tmp_path: Path, browser) -> None:  # noqa: F811
+def test_the_page_reads_and_streams_with_the_saved_token_under_the_read_policy(tmp_path: Path, browser) -> None:
     from playwright.sync_api import expect
 
     stdout = tmp_path / "stdout.log"

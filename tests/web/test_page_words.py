@@ -15,7 +15,8 @@ from types import SimpleNamespace
 import pytest
 
 from tests.service.helpers import LiveServer, fast_settings, wait_for
-from tests.web.test_status_page import CHROMIUM, browser, watch_console  # noqa: F401 - the browser fixture
+from tests.web.conftest import CHROMIUM
+from tests.web.test_status_page import watch_console
 
 pytestmark = pytest.mark.skipif(not CHROMIUM.exists(), reason="chromium is not installed (apt-get install chromium)")
 NARROW = {"width": 390, "height": 844}
@@ -51,7 +52,7 @@ def stale_on_demand(monkeypatch: pytest.MonkeyPatch) -> dict[str, bool]:
 
 
 def test_the_words_are_explained_stale_shows_at_the_position_and_repeats_are_grouped_at_390_px(
-        tmp_path: Path, browser, stale_on_demand) -> None:  # noqa: F811 - the fixture
+        tmp_path: Path, browser, stale_on_demand) -> None:
     from playwright.sync_api import expect
 
     from graytrack.service.daemon.app import create_app
@@ -155,7 +156,7 @@ WEB = Path(__file__).resolve().parents[2] / "web"
 
 
 @pytest.mark.parametrize("width", [390, 1200])
-def test_no_axis_label_runs_into_another_when_a_tick_sits_on_the_plots_top_edge(browser, width: int) -> None:  # noqa: F811
+def test_no_axis_label_runs_into_another_when_a_tick_sits_on_the_plots_top_edge(browser, width: int) -> None:
     """The worst case for an axis's unit: data whose range ends exactly on a tick, so that tick's number
     is drawn centred on the box's top edge, right under the unit (where they collided)."""
     page = browser.new_page(viewport={"width": width, "height": 600})

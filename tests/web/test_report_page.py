@@ -11,7 +11,8 @@ import pytest
 
 from graytrack.service.calibration_run import calibrate_recording, write_files
 from tests.diagnosis.test_held_out_validation import _stops
-from tests.web.test_status_page import CHROMIUM, browser, watch_console  # noqa: F401 - the shared Chromium fixture
+from tests.web.conftest import CHROMIUM
+from tests.web.test_status_page import watch_console
 
 pytestmark = pytest.mark.skipif(not CHROMIUM.exists(), reason="chromium is not installed (apt-get install chromium)")
 
@@ -22,7 +23,7 @@ def written(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     return write_files(calibrate_recording(_stops(seed=5, effects=""), "paper"), tmp_path_factory.mktemp("report"))
 
 
-def test_the_report_page_renders_its_plot_and_states_the_held_out_figures(written, browser) -> None:  # noqa: F811
+def test_the_report_page_renders_its_plot_and_states_the_held_out_figures(written, browser) -> None:
     report = json.loads(written["json"].read_text())
     held = report["held_out"]
     page = browser.new_page()
