@@ -413,14 +413,18 @@ def _search(columns: np.ndarray, centres: np.ndarray, lit: np.ndarray, lost: np.
     ``lost`` (the depth solved, linear, unless given); None when none gains :data:`SEEN_SIGMAS`². ``columns``:
     one row's (the samples are every row's columns in turn)."""
     best, found = SEEN_SIGMAS**2, None
-    # B on one row's columns, repeated for the others (the samples are the rows' columns row after row): the
-    # same numbers as on every sample, for a 16-row strip's 16th of the erf calls (a search on each frame of a
-    # rolling shutter's calibration took minutes), and without the derivatives a search never reads
+    # B on one row's columns (the samples are the rows' columns row after row): the same numbers as on every
+    # sample, for a 16-row strip's 16th of the erf calls (a search on each frame of a rolling shutter's
+    # calibration took minutes), and without the derivatives a search never reads.
+    # B is the same on every row's column, so the sums over the samples are the columns' sums over the rows
+    # taken first: a product with one row's columns, not with the samples' tile of B
     rows = lit.size // columns.size
+    weighted_lit = weights * lit
+    lit_lost = (weighted_lit * lost).reshape(rows, columns.size).sum(axis=0)
+    lit_power = (weighted_lit * lit).reshape(rows, columns.size).sum(axis=0)
     for width, edge in shapes:
         loss = _grid_loss(columns.tobytes(), centres.tobytes(), float(width), float(edge))
-        values = np.tile(loss, (1, rows)) * lit  # (centres, samples)
-        across, power = values @ (weights * lost), (values * values) @ weights
+        across, power = loss @ lit_lost, (loss * loss) @ lit_power
         if depth is None:
             depths = across / np.maximum(power, 1e-300)
             gain = across * depths
