@@ -88,7 +88,13 @@ from graytrack.drivers.sim.process import RigProcess
 from graytrack.drivers.sim.scenarios import build_rig
 
 def threads(pid="self"):
-    return sorted({tuple(sorted(os.sched_getaffinity(int(t.name)))) for t in Path(f"/proc/{pid}/task").iterdir()})
+    found = set()
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        try:
+            found.add(tuple(sorted(os.sched_getaffinity(int(task.name)))))
+        except ProcessLookupError:  # a thread that ended between the listing and the reading
+            pass
+    return sorted(found)
 
 allowed = sorted(os.sched_getaffinity(0))
 stop = threading.Event()
