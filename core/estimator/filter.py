@@ -190,6 +190,7 @@ class Estimator:
         if model.n_rows > 1:
             active.append(T)
         self.idx = np.array(sorted(active), dtype=np.int64)
+        self._active = frozenset(active)
         self.idx_appearance = np.array([state for state in (X, V, G, OFS, A1, A2, B) if state in active],
                                        dtype=np.int64)
         self.scratch = np.empty((6, n_values))
@@ -234,8 +235,10 @@ class Estimator:
         self._score_quantile = {k: float(chi2.isf(settings.false_alarm, k)) for k in (1, 2, 3)}
         # each family's states by their place among the active ones (the motion's: the position and the velocity)
         place = {state: i for i, state in enumerate(self.idx.tolist())}
-        self._families = [(family, [place[X], place[V]] if family == "motion" else [place[state] for state in states])
-                          for family, states in JUMPS.items() if all(state in place for state in states)]
+        # (a family jumps in the states it has here: one row has no turn, a checked grating no camera's place)
+        self._families = [(family, [place[X], place[V]] if family == "motion" else
+                           [place[state] for state in states if state in place])
+                          for family, states in JUMPS.items() if any(state in place for state in states)]
         self._warm()
 
     # ------------------------------------------------------------------ the recursion
@@ -457,7 +460,8 @@ class Estimator:
     def _jumped(self, P: np.ndarray, family: str) -> np.ndarray:
         widened = P.copy()
         for state, var in zip(JUMPS[family], self.jump_var[family]):
-            widened[state, state] += var
+            if state in self._active:
+                widened[state, state] += var
         if family == "motion":  # a velocity jump during the last interval moved the position with it
             var, dt = self.jump_var[family][0], self.dt_last
             widened[X, X] += var * dt * dt

@@ -243,3 +243,24 @@ def test_samples_that_are_not_numbers_are_set_aside_and_the_frame_placed(paper):
         estimate = estimator.update(frame, run.t[k], run.reference[k])
         assert estimate.locked and not estimate.stale, (k, estimate.message)
         assert abs(estimate.x_mm - truth.x_mm[k]) < 4.0 * estimate.crlb_mm, k
+
+
+def test_a_knocked_camera_on_one_row_is_learned_as_its_place():
+    """One row has no turn across rows, but the camera's place is a state wherever the grating is fused: a
+    knock (the image 40 µm further against the carriage) is that state's jump, not a light shape that mimics a
+    shift over less than a period (a 1-row rig once had no geometry jump at all, and took a knock as the
+    light's tilt or a stretch). On four calibrations of this rig three take it so; the fourth reads the shift as a stretch
+    through the lens's lever, which keeps the position as well (the grating pins both)."""
+    from graytrack.core.estimator.state import C
+
+    calibration, _ = build_rig("paper", "", seed=5).record()
+    model = calibrate(calibration, "paper").model
+    run, truth = build_rig("paper", "knock:um=40:deg=0:at_s=2", seed=5, run=1).record(4.0)
+    estimates = track(model, run.frames, run.t, run.reference, grating="fuse")
+    knocked = int(np.searchsorted(run.t, 2.0))
+    assert estimates[knocked].mode == "geometry", estimates[knocked]
+    assert not any(e.mode for k, e in enumerate(estimates) if k > knocked + 1)
+    place = np.array([e.state[C] for e in estimates[knocked + 10:]]) * 1e3
+    assert np.all(np.abs(place - 40.0) < 3.0), place.min()
+    error, bound = _errors(model, estimates, truth, "fuse")
+    assert np.all(np.abs(error) < 4 * bound)
