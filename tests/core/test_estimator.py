@@ -248,9 +248,9 @@ def test_samples_that_are_not_numbers_are_set_aside_and_the_frame_placed(paper):
 def test_a_knocked_camera_on_one_row_is_learned_as_its_place():
     """One row has no turn across rows, but the camera's place is a state wherever the grating is fused: a
     knock (the image 40 µm further against the carriage) is that state's jump, not a light shape that mimics a
-    shift over less than a period (a 1-row rig once had no geometry jump at all, and took a knock as the
-    light's tilt or a stretch). On four calibrations of this rig three take it so; the fourth reads the shift as a stretch
-    through the lens's lever, which keeps the position as well (the grating pins both)."""
+    shift over less than a period (a 1-row rig once had no geometry jump at all, and took a knock for the
+    light's tilt or a stretch). On four calibrations of this rig three take it so; the fourth reads the shift
+    as a stretch through the lens's lever, which keeps the position as well (the grating pins both)."""
     from graytrack.core.estimator.state import C
 
     calibration, _ = build_rig("paper", "", seed=5).record()
