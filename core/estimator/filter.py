@@ -239,6 +239,12 @@ class Estimator:
         self._families = [(family, [place[X], place[V]] if family == "motion" else
                            [place[state] for state in states if state in place])
                           for family, states in JUMPS.items() if any(state in place for state in states)]
+        # the same as the compiled score test takes them: (kind, i, j), kind 0 one state, 1 two, 2 the motion
+        self._family_rows = np.array([[2 if family == "motion" else len(where) - 1, where[0], where[-1]]
+                                      for family, where in self._families], dtype=np.int64).reshape(-1, 3)
+        self._family_dof = [1 if family == "motion" else len(where) for family, where in self._families]
+        self._statistics = np.zeros(len(self._families))
+        self._unexplained: list[str] = []  # the families tried on the last frame, none of whose jumps explained it
         self._warm()
 
     # ------------------------------------------------------------------ the recursion
@@ -262,6 +268,7 @@ class Estimator:
         self.t_last = t
         self.started = True
         self.failed = 0
+        self._unexplained = []
 
     def predict(self, t: float) -> None:
         """State and covariance moved on to time ``t``."""
@@ -299,7 +306,13 @@ class Estimator:
         mode, solved = "", self.idx
         if test > 1.0:
             best = None
-            for family in self._ranked(s, A, s_prior, P_prior)[:SEARCHED]:
+            ranked = self._ranked(s, A, s_prior, P_prior)[:SEARCHED]
+            if ranked == self._unexplained:
+                # A jump is a step at one frame. The families whose jumps did not explain the last frame, pointed
+                # at again in the same order, are the same unexplained change persisting (a veil, a shadow on its
+                # way), not a new step: their jumps are not solved again.
+                ranked = []
+            for family in ranked:
                 widened = self._jumped(P_prior, family)
                 s_j, A_j, stats_j = self._solve(y, mask, s_prior, widened, grating_z)
                 test_j = self._test(stats_j, s_j)
@@ -308,7 +321,10 @@ class Estimator:
             if best is not None and best[0] <= 1.0:
                 test, mode, s, A, stats = best[0], best[1], best[2], best[3], best[4]
                 reason_jump = None
+                self._unexplained = []
             else:
+                if ranked:
+                    self._unexplained = ranked
                 reason_jump = best[1] if best is not None and best[0] < test else None
                 # No mode explains the frame: its noise is evidently beyond the noise model's. Its samples
                 # count for as much as its χ² says they are worth (the measurement's covariance scaled by the
@@ -323,6 +339,7 @@ class Estimator:
                                           solved)
         else:
             reason_jump = None
+            self._unexplained = []
         placed = stats[kernel.S_CONVERGED] > 0 or stats[kernel.S_ITER] > 0
         used, rejected = stats[kernel.S_USED], stats[kernel.S_REJECTED]
         if used + rejected <= 0 or rejected > self.settings.max_rejected * (used + rejected) or \
@@ -417,44 +434,18 @@ class Estimator:
 
     def _ranked(self, s: np.ndarray, A: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray) -> list[str]:
         """The families that may jump, most evident first: each one's score test of the innovation (the
-        Lagrange-multiplier test of a jump in its states) made from the update without a jump. With Λ the
-        prior's information and P⁺ the posterior's covariance over the active states, g = Λ(s⁺ − s⁻) is the
-        innovation seen in the state (Λ times the prior's pull) and has covariance Λ − ΛP⁺Λ when nothing
-        jumped; a family's statistic is g's part in its directions, normalised by that covariance: χ² with
-        as many degrees of freedom as the family has states, each family's standardised for ranking."""
-        idx = self.idx
-        try:
-            info = np.linalg.inv(P_prior[np.ix_(idx, idx)])
-            cov = info - info @ np.linalg.solve(A, info)
-        except np.linalg.LinAlgError:  # a prior or a posterior without an inverse: no jump can be told apart
+        Lagrange-multiplier test of a jump in its states) made from the update without a jump (kernel.scores:
+        g = Λ(s⁺ − s⁻), the innovation seen in the state, against its covariance Λ − ΛP⁺Λ when nothing
+        jumped): χ² with as many degrees of freedom as the family has states. A family whose statistic is
+        within its quantile at the false-alarm rate cannot explain the innovation and is not tried; the rest
+        are ranked standardised. None where the prior or the posterior has no inverse."""
+        statistics = self._statistics
+        if not kernel.scores(P_prior, A, self.idx, s, s_prior, self._family_rows, self.dt_last, statistics):
             return []
-        g = info @ (s[idx] - s_prior[idx])
         scored = []
-        for family, where in self._families:
-            if family == "motion":  # a velocity jump in the last interval moved the position with it
-                x, v = where
-                dt = self.dt_last
-                gd = g[v] + dt * g[x]
-                cd = cov[v, v] + 2.0 * dt * cov[x, v] + dt * dt * cov[x, x]
-                statistic = gd * gd / cd if cd > 0.0 else 0.0
-            elif len(where) == 1:
-                cd = cov[where[0], where[0]]
-                statistic = g[where[0]] ** 2 / cd if cd > 0.0 else 0.0
-            elif len(where) > 2:
-                gd = g[where]
-                statistic = float(gd @ np.linalg.solve(cov[np.ix_(where, where)], gd))
-            else:  # two states: the 2×2 form written out
-                i, j = where
-                a, b, d = cov[i, i], cov[i, j], cov[j, j]
-                det = a * d - b * b
-                if not det > 0.0:
-                    continue
-                gi, gj = g[i], g[j]
-                statistic = (d * gi * gi - 2.0 * b * gi * gj + a * gj * gj) / det
-            k = 1 if family == "motion" else len(where)
-            if statistic <= self._score_quantile[k]:
-                continue  # the innovation does not point along this family's states: its jump cannot explain it
-            scored.append(((statistic - k) / math.sqrt(2.0 * k), family))
+        for (family, _), k, statistic in zip(self._families, self._family_dof, statistics.tolist()):
+            if statistic > self._score_quantile[k]:
+                scored.append(((statistic - k) / math.sqrt(2.0 * k), family))
         return [family for _, family in sorted(scored, reverse=True)]
 
     def _jumped(self, P: np.ndarray, family: str) -> np.ndarray:
@@ -589,6 +580,8 @@ class Estimator:
         self._solve(y, self.mask.copy(), self.s.copy(), self.P.copy(), 0.0)
         kernel.predict(self.s.copy(), self.P.copy(), 0.01, 1.0, self.rates2)
         kernel.embed(self.P.copy(), np.eye(self.idx.size), self.idx, self._sigma)
+        kernel.scores(self.P, np.eye(self.idx.size), self.idx, self.s, self.s, self._family_rows, 0.01,
+                      self._statistics)
         for kind in FRAME_TYPES:  # each kind of frame a camera delivers, compiled for now
             kernel.row_mean(np.zeros((2, self.model.n_pixels), dtype=kind), self._y)
         kernel.in_range(self._y, 0.0, 1.0, self.mask, self._masked)

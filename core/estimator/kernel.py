@@ -90,6 +90,49 @@ def embed(P: np.ndarray, A: np.ndarray, idx: np.ndarray, sigma: np.ndarray) -> N
         sigma[i] = 0.0 if P[i, i] < 0.0 else math.sqrt(P[i, i])
 
 
+def scores(P_prior: np.ndarray, A: np.ndarray, idx: np.ndarray, s: np.ndarray, s_prior: np.ndarray,
+           families: np.ndarray, dt: float, out: np.ndarray) -> bool:
+    """Each jump family's score statistic of the innovation into ``out`` (filter._ranked's test): with Λ the
+    prior's information over ``idx`` and P⁺ = ``A``⁻¹ the posterior's covariance, g = Λ(s⁺ − s⁻) and its
+    covariance Λ − ΛP⁺Λ; a family's statistic is g's part in its directions normalised by that covariance.
+    ``families``: (F, 3) rows of (kind, i, j) over the active states' places: kind 0 one state (i), 1 two
+    (i, j), 2 the motion (a velocity jump in the last interval: the position i and the velocity j). Returns
+    False (``out`` untouched) where the prior or the posterior has no inverse."""
+    n = idx.size
+    block = np.empty((n, n))
+    for i in range(n):
+        for j in range(n):
+            block[i, j] = P_prior[idx[i], idx[j]]
+    try:
+        info = np.linalg.inv(block)
+        spread = np.linalg.solve(A, info)
+    except Exception:  # noqa: BLE001 - numba's linear algebra raises its one kind
+        return False
+    cov = info - info @ spread
+    step = np.empty(n)
+    for i in range(n):
+        step[i] = s[idx[i]] - s_prior[idx[i]]
+    g = info @ step
+    for f in range(families.shape[0]):
+        kind, i, j = families[f, 0], families[f, 1], families[f, 2]
+        statistic = 0.0
+        if kind == 0:
+            if cov[i, i] > 0.0:
+                statistic = g[i] * g[i] / cov[i, i]
+        elif kind == 1:
+            a, b, d = cov[i, i], cov[i, j], cov[j, j]
+            det = a * d - b * b
+            if det > 0.0:
+                statistic = (d * g[i] * g[i] - 2.0 * b * g[i] * g[j] + a * g[j] * g[j]) / det
+        else:
+            gd = g[j] + dt * g[i]
+            cd = cov[j, j] + 2.0 * dt * cov[i, j] + dt * dt * cov[i, i]
+            if cd > 0.0:
+                statistic = gd * gd / cd
+        out[f] = statistic
+    return True
+
+
 def row_mean(frame: np.ndarray, out: np.ndarray) -> None:
     """``out`` (n,): the mean of ``frame``'s rows (R, n) in float64, summed row after row and divided by
     R: what the model's ``prepare`` computes with numpy, to the bit, without its arrays made a frame."""
@@ -395,6 +438,7 @@ if kernels.COMPILED:
     predict = _jit(predict)
     information = _jit(information)
     embed = _jit(embed)
+    scores = _jit(scores)
     row_mean = _jit(row_mean)
     in_range = _jit(in_range)
     _evaluate = _jit(_evaluate)
