@@ -99,20 +99,25 @@ def scores(P_prior: np.ndarray, A: np.ndarray, idx: np.ndarray, s: np.ndarray, s
     (i, j), 2 the motion (a velocity jump in the last interval: the position i and the velocity j). Returns
     False (``out`` untouched) where the prior or the posterior has no inverse."""
     n = idx.size
-    block = np.empty((n, n))
-    for i in range(n):
-        for j in range(n):
-            block[i, j] = P_prior[idx[i], idx[j]]
-    try:
-        info = np.linalg.inv(block)
-        spread = np.linalg.solve(A, info)
+    try:  # (the inverses as the update makes them: written out below, no other routine to compile)
+        info = information(P_prior, idx)
+        posterior = np.linalg.inv(A)
     except Exception:  # noqa: BLE001 - numba's linear algebra raises its one kind
         return False
-    cov = info - info @ spread
-    step = np.empty(n)
+    spread = np.zeros((n, n))  # P⁺Λ
     for i in range(n):
-        step[i] = s[idx[i]] - s_prior[idx[i]]
-    g = info @ step
+        for k in range(n):
+            pik = posterior[i, k]
+            for j in range(n):
+                spread[i, j] += pik * info[k, j]
+    cov = info.copy()
+    g = np.zeros(n)
+    for i in range(n):
+        for k in range(n):
+            lik = info[i, k]
+            g[i] += lik * (s[idx[k]] - s_prior[idx[k]])
+            for j in range(n):
+                cov[i, j] -= lik * spread[k, j]
     for f in range(families.shape[0]):
         kind, i, j = families[f, 0], families[f, 1], families[f, 2]
         statistic = 0.0
