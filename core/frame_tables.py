@@ -74,11 +74,11 @@ class FrameTables:
         return cls(
             omega=omega,
             coefficients=np.ascontiguousarray(coefficients),
-            offset=np.ascontiguousarray(np.broadcast_to(np.asarray(offset, dtype=np.float64),
-                                                        weights.shape[:2]).reshape(-1)),
+            # (a copy: a broadcast view is read-only, and the compiled kernels take a read-only array as another
+            # type, compiled again for it, ~10 s a fresh process, where the warm-up's model had a writable one)
+            offset=np.array(np.broadcast_to(np.asarray(offset, dtype=np.float64), weights.shape[:2]).reshape(-1)),
             stroke_range_mm=(float(model.stroke_range_mm[0]), float(model.stroke_range_mm[1])),
-            target_map=np.ascontiguousarray(target_map.reshape(-1) if target_map is not None else np.zeros(0),
-                                            dtype=np.float64),
+            target_map=np.array(target_map.reshape(-1) if target_map is not None else np.zeros(0), dtype=np.float64),
             map_size=map_size,
             map_base=np.repeat(map_row.astype(np.int64) * map_size, model.n_pixels),
             map_origin_mm=float(model.target_map_origin_mm) if target_map is not None else 0.0,

@@ -114,3 +114,44 @@ def test_a_live_estimator_compiles_nothing_on_a_live_frame() -> None:
     assert report["placed"] > report["frames"] // 2
     assert report["jumps"] > 0, "the frames must take a jump (the update solved again), or the check proves less"
     assert report["late"] == {}, f"compiled on a live frame: {report['late']}"
+
+
+WARM_SCRIPT = textwrap.dedent("""
+    import dataclasses, json, sys
+    import numpy as np
+    from numba.core.registry import CPUDispatcher
+    from graytrack.core.calibration import calibrate
+    from graytrack.core.estimator.live import LiveEstimator
+    from graytrack.core.tracking import LiveTracker
+    from graytrack.drivers.sim.scenarios import build_rig
+    from graytrack.service.heap import warm_tracking
+
+    calibration, _ = build_rig("paper", "", seed=4).record(2.0)
+    model = calibrate(calibration, "paper").model
+    weight = np.ones((1, model.n_pixels))
+    weight[0, [7, 40]] = 0.0
+    masked = dataclasses.replace(model, pixel_weight=weight)  # two pixels found bad: their offset and gain read 0
+
+    def compiled():
+        return {f"{module.__name__}.{name}": len(value.signatures)
+                for module in list(sys.modules.values()) if getattr(module, "__name__", "").startswith("graytrack")
+                for name, value in list(vars(module).items()) if isinstance(value, CPUDispatcher)}
+
+    warm_tracking(("watches", "estimator"))
+    warmed = compiled()
+    for each in (model, masked):
+        LiveTracker(each, x0_mm=1.0)
+        LiveEstimator(each, x0_mm=1.0, grating="fuse")
+    after = compiled()
+    print(json.dumps({"late": {k: v for k, v in after.items() if v != warmed.get(k, 0)}}))
+""")
+
+
+def test_the_warm_up_compiles_what_every_model_needs() -> None:
+    """The warm-up (a synthetic model, before the test workers and at the daemon's start) compiles the kernels
+    that every calibrated model then loads: a model whose bad pixels are masked (a read-only array once went
+    into the kernels' arguments, another type: every kernel compiled again, ~20 s of CPU a process) included."""
+    done = subprocess.run([sys.executable, "-c", WARM_SCRIPT], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    report = json.loads(done.stdout.strip().splitlines()[-1])
+    assert report["late"] == {}, f"compiled after the warm-up: {report['late']}"
