@@ -259,6 +259,47 @@ def _grating(s: np.ndarray, idx: np.ndarray, z: float, weight: float, A: np.ndar
     return weight * r * r
 
 
+def _reweigh(residual: np.ndarray, w: np.ndarray, rho: np.ndarray, core: float, cut: float, first: bool,
+             apply: bool) -> bool:
+    """Whether the redescending weights the residuals call for (Tukey's taper between ``core`` and ``cut`` robust
+    σ of the normalised residuals, never below the noise model's) differ from ``rho`` by more than 1e-3 at a
+    sample; with ``apply``, ``rho`` becomes them. ``first``: the weights are all 1 yet, and stay so while every
+    normalised residual is within the core at the noise model's σ."""
+    z = np.empty(residual.size)
+    count = 0
+    largest = 0.0
+    for p in range(residual.size):
+        if w[p] > 0.0:
+            z[count] = abs(residual[p]) * math.sqrt(w[p])
+            if z[count] > largest:
+                largest = z[count]
+            count += 1
+    if count == 0 or (first and largest <= core):
+        return False
+    scale = MAD_TO_SIGMA * np.median(z[:count])
+    if scale < 1.0:
+        scale = 1.0
+    changed = False
+    for p in range(residual.size):
+        if w[p] <= 0.0:
+            continue
+        u = abs(residual[p]) * math.sqrt(w[p]) / scale
+        if u <= core:
+            new = 1.0
+        elif u >= cut:
+            new = 0.0
+        else:
+            q = (u - core) / (cut - core)
+            new = (1.0 - q * q) ** 2
+        if abs(new - rho[p]) > 1e-3:
+            changed = True
+            if not apply:
+                return True
+        if apply:
+            rho[p] = new
+    return changed
+
+
 def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndarray, y: np.ndarray, mask: np.ndarray,
            pixels: np.ndarray, params: np.ndarray, model: tuple, scratch: np.ndarray, rho: np.ndarray,
            A_out: np.ndarray, stats: np.ndarray, P_post: np.ndarray, sigma: np.ndarray) -> None:
@@ -340,6 +381,11 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
             if moved <= tolerance:
                 converged = 1.0
                 break
+            if robust and it > 0 and round_ < ROBUST_ROUNDS and _reweigh(residual, w, rho, core, cut, round_ == 0,
+                                                                          False):
+                # where the first step has taken the frame the weights already differ from this round's: they
+                # are reweighted now, not after converging on weights about to change (each round to 1 nm)
+                break
         if converged > 0.0:
             # the last step was below the tolerance: the model there is the model here, to far below any bound
             A[:, :] = bare
@@ -349,41 +395,7 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
                 _evaluate(xi, model, values, slopes, smooth)
             cost = _normal(s, idx, y, w, rho, values, slopes, curvature, t_rel, r_rel, b1, b2, half_d2, A, rhs,
                            residual)
-        if not robust:
-            break
-        # robust σ of the normalised residuals (never below the noise model's), then redescending weights
-        z = np.empty(y.size)
-        count = 0
-        largest = 0.0
-        for p in range(y.size):
-            if w[p] > 0.0:
-                z[count] = abs(residual[p]) * math.sqrt(w[p])
-                if z[count] > largest:
-                    largest = z[count]
-                count += 1
-        if count == 0:
-            break
-        if round_ == 0 and largest <= core:  # within the core at the noise model's σ: every weight stays 1
-            break
-        scale = MAD_TO_SIGMA * np.median(z[:count])
-        if scale < 1.0:
-            scale = 1.0
-        changed = False
-        for p in range(y.size):
-            if w[p] <= 0.0:
-                continue
-            u = abs(residual[p]) * math.sqrt(w[p]) / scale
-            if u <= core:
-                new = 1.0
-            elif u >= cut:
-                new = 0.0
-            else:
-                q = (u - core) / (cut - core)
-                new = (1.0 - q * q) ** 2
-            if abs(new - rho[p]) > 1e-3:
-                changed = True
-            rho[p] = new
-        if not changed:
+        if not robust or not _reweigh(residual, w, rho, core, cut, round_ == 0, True):
             break
         converged = 0.0  # the weights moved: solved again from here
         if round_ == ROBUST_ROUNDS:
@@ -449,4 +461,5 @@ if kernels.COMPILED:
     _evaluate = _jit(_evaluate)
     _normal = _jit(_normal)
     _grating = _jit(_grating)
+    _reweigh = _jit(_reweigh)
     update = _jit(update)
