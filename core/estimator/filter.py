@@ -334,9 +334,9 @@ class Estimator:
                 # each failing in turn. The geometry (the camera's place, the lens, the grating's latch),
                 # learned over spans of the grating, is not taught by a frame the model does not explain.
                 inflation = self._excess(stats, s)
-                solved = self.idx_appearance
+                solved = self.idx_appearance  # (solved again from the frame's own solution and weights)
                 s, A, stats = self._solve(y, mask / inflation, s_prior, P_prior, grating_z,
-                                          solved)
+                                          solved, start=s)
         else:
             reason_jump = None
             self._unexplained = []
@@ -393,19 +393,25 @@ class Estimator:
     def _solve(self, y: np.ndarray, mask: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray,
                grating_z: float, idx: np.ndarray | None = None,
                out: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
-               predict: float | None = None) -> tuple[np.ndarray, np.ndarray, list]:
+               predict: float | None = None, start: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, list]:
         """The update over the states ``idx`` (default: every active one; the others held at the prior):
         the state, the posterior information and the figures (kernel.S_*, plain numbers). ``out``: the
         arrays to answer in (the state, the information over ``idx``, the figures), else new ones; with
         them, the posterior covariance is made into ``_P_next`` and its σ into ``_sigma`` too.
-        ``predict``: the prior is first moved on by that many seconds, in place (``predict``)."""
+        ``predict``: the prior is first moved on by that many seconds, in place (``predict``). ``start``: the
+        iterations begin there over ``idx`` (the prior's elsewhere) with the robust weights the last update left
+        (the frame solved again: its own solution and weights), not at the prior's mean with full weights."""
         idx = self.idx if idx is None else idx
         s, A, stats = out or (np.empty(N_STATE), np.empty((idx.size, idx.size)), np.empty(kernel.N_STATS))
+        if start is not None:
+            s[:] = s_prior
+            s[idx] = start[idx]
         grating_w = 1.0 / self.settings.grating_sigma ** 2 if math.isfinite(grating_z) else 0.0
         params = self.params
         params[kernel.U_GRATING_Z], params[kernel.U_GRATING_W] = grating_z if grating_w else 0.0, grating_w
         params[kernel.U_PREDICT], params[kernel.U_DT] = (0.0, 0.0) if predict is None else (1.0, predict)
         params[kernel.U_POSTERIOR] = 0.0 if out is None else 1.0
+        params[kernel.U_WARM] = 0.0 if start is None else 1.0
         kernel.update(s, s_prior, P_prior, idx, y, mask, self.pixels, params, self.model_args, self.scratch, self.rho,
                       A, stats, self._P_next, self._sigma)
         return s, A, stats.tolist()

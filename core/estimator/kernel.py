@@ -51,9 +51,11 @@ N_STATS = 11
 # the fused grating's reading (mm) and weight (1/σ², 0: none), robust weights on (1) or off (0), their core and cut
 # (σ), the iterations at most, the tolerance (mm); whether the prior is first predicted (1) or taken as it is (0), over
 # how long (s), the acceleration's variance (mm²/s⁴); whether the posterior covariance is made too (1: ``embed`` into
-# ``P_post``, for the update a frame most likely keeps); from U_RATES on each state's rate (predict's ``rates2``)
+# ``P_post``, for the update a frame most likely keeps); whether the iterations start from ``s`` and ``rho`` as passed
+# (1: the frame solved again from its own solution and weights) or from the prior's mean and full weights (0); from
+# U_RATES on each state's rate (predict's ``rates2``)
 (U_READ, U_SHOT, U_DARK, U_PITCH, U_PERIOD, U_GRATING_Z, U_GRATING_W, U_ROBUST, U_CORE, U_CUT, U_ITERATIONS,
- U_TOLERANCE, U_PREDICT, U_DT, U_ACCELERATION, U_POSTERIOR, U_RATES) = range(17)
+ U_TOLERANCE, U_PREDICT, U_DT, U_ACCELERATION, U_POSTERIOR, U_WARM, U_RATES) = range(18)
 N_PARAMS = U_RATES + N_STATE
 # the pixels' constants in one (4, P) array: target coordinate from the ROI's centre, row from the strip's middle,
 # the two Legendre terms across the line
@@ -322,8 +324,10 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
     max_iterations = int(params[U_ITERATIONS])
     if params[U_PREDICT] > 0.0:
         predict(s_prior, P_prior, params[U_DT], params[U_ACCELERATION], params[U_RATES:])
-    for i in range(s.size):
-        s[i] = s_prior[i]
+    warm = params[U_WARM] > 0.0  # from ``s`` and ``rho`` as passed, not the prior's mean and full weights
+    if not warm:
+        for i in range(s.size):
+            s[i] = s_prior[i]
     n = idx.size
     Pinv = information(P_prior, idx)
     values, slopes, smooth, curvature, w, residual = (scratch[0], scratch[1], scratch[2], scratch[3], scratch[4],
@@ -344,7 +348,8 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
         if var < 1e-6:
             var = 1e-6
         w[p] = mask[p] / var
-        rho[p] = 1.0
+        if not warm:
+            rho[p] = 1.0
     A = np.zeros((n, n))
     bare = np.zeros((n, n))  # the samples' normal matrix alone, before the prior and the grating
     rhs = np.zeros(n)
