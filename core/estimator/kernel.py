@@ -359,6 +359,7 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
     cost = 0.0
     for round_ in range(ROBUST_ROUNDS + 1):
         at = xi
+        fresh = False
         for it in range(max_iterations):
             total_iterations += 1
             xi = s[X] + s[C] + s[L] * s[M]
@@ -367,6 +368,12 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
                 at = xi
             cost = _normal(s, idx, y, w, rho, values, slopes, curvature, t_rel, r_rel, b1, b2, half_d2, A, rhs,
                            residual)
+            if robust and it > 0 and round_ < ROBUST_ROUNDS and _reweigh(residual, w, rho, core, cut, round_ == 0,
+                                                                          False):
+                # where the first step has taken the frame the weights already differ from this round's: they
+                # are reweighted from here, not after converging on weights about to change (each round to 1 nm)
+                fresh = True
+                break
             bare[:, :] = A
             for i in range(n):
                 acc = 0.0
@@ -386,15 +393,10 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
             if moved <= tolerance:
                 converged = 1.0
                 break
-            if robust and it > 0 and round_ < ROBUST_ROUNDS and _reweigh(residual, w, rho, core, cut, round_ == 0,
-                                                                          False):
-                # where the first step has taken the frame the weights already differ from this round's: they
-                # are reweighted now, not after converging on weights about to change (each round to 1 nm)
-                break
         if converged > 0.0:
             # the last step was below the tolerance: the model there is the model here, to far below any bound
             A[:, :] = bare
-        else:
+        elif not fresh:  # (fresh: the residuals are this state's already)
             xi = s[X] + s[C] + s[L] * s[M]
             if xi != at:
                 _evaluate(xi, model, values, slopes, smooth)
