@@ -78,6 +78,8 @@ def _trig_stroke(model: FourierModel, x_mm: np.ndarray) -> np.ndarray:
     """``(K, R, n, A·L)``: trig terms times stroke polynomials, the frame-dependent factor."""
     trig = model.trig(x_mm)
     stroke, _ = model.stroke_basis(x_mm)
+    if stroke.shape[1] == 1 and (stroke == 1.0).all():  # no stroke terms, P_0 = 1: the product is trig itself
+        return trig  # (its callers only read it; a copy cost a pass over every sample at each fit)
     product = trig[..., :, None] * stroke[:, None, None, None, :]
     return product.reshape(trig.shape[:3] + (-1,))
 
