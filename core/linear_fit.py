@@ -185,8 +185,7 @@ def phase_slope(model: FourierModel, x_mm: np.ndarray) -> np.ndarray:
     """∂S/∂θ at the model's coefficients, ``(K, R, n)``: the direction every phase parameter moves."""
     trig = model.trig(x_mm)
     stroke, _ = model.stroke_basis(x_mm)
-    weights = np.einsum("rual,kl->krua", model.spatial_weights(), stroke)
-    return np.einsum("krua,krua->kru", trig_derivative(trig, model.harmonics), weights)
+    return model.sum_terms(trig_derivative(trig, model.harmonics), model.frame_weights(stroke))
 
 
 def geometry_sensitivities(model: FourierModel, x_mm: np.ndarray, names: tuple[str, ...]) -> np.ndarray:
