@@ -31,7 +31,7 @@ def test_the_compiled_sums_are_numpys(stroke_degree: int, n_rows: int) -> None:
     terms = factor.shape[-1]
     args = (factor.reshape(300, -1, terms), weights.reshape(300, -1), data.reshape(300, -1))
     sums = []
-    for way in (linear_fit._frame_sums, linear_fit._frame_sums_numpy):
+    for way in (linear_fit._compiled_frame_sums or linear_fit._frame_sums, linear_fit._frame_sums_numpy):
         gram, rhs = np.full((n_rows * 100, terms, terms), 1.0), np.full((n_rows * 100, terms), -1.0)  # added onto
         way(*args, gram, rhs)
         sums.append((gram, rhs))
@@ -54,5 +54,14 @@ def test_the_solved_coefficients_reproduce_a_models_frames() -> None:
     assert np.abs(fitted.coeffs - coeffs).max() < 1e-9
 
 
-def test_the_sums_run_compiled_where_the_kernels_do() -> None:
-    assert (linear_fit._frame_sums is not linear_fit._frame_sums_numpy) == kernels.COMPILED
+def test_the_sums_run_compiled_on_the_model_s_own_trig_terms_where_the_kernels_do(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    calls: list[str] = []
+    if kernels.COMPILED:
+        monkeypatch.setattr(linear_fit, "_compiled_frame_sums", lambda *args: calls.append("compiled"))
+    monkeypatch.setattr(linear_fit, "_frame_sums_numpy", lambda *args: calls.append("numpy"))
+    x_mm = np.linspace(0.1, 10.3, 30)
+    for stroke_degree in (0, 1):  # the trig terms themselves (term-major), then their product with the stroke's
+        data = np.ones((30, 2, 100))
+        linear_fit.normal_equations(_model(stroke_degree, 2), x_mm, data, data)
+    assert calls == (["compiled", "numpy"] if kernels.COMPILED else ["numpy", "numpy"])
