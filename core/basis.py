@@ -89,9 +89,13 @@ def _compiled_harmonics() -> Callable[[np.ndarray, int], np.ndarray] | None:
 
 
 def trig_derivative(trig: np.ndarray, harmonics: int) -> np.ndarray:
-    """d/dθ of :func:`trig_basis` given its value: (sin hθ)' = h cos hθ, (cos hθ)' = -h sin hθ."""
-    out = np.zeros_like(trig)
-    h = np.arange(1, harmonics + 1, dtype=np.float64)
-    out[..., 1::2] = h * trig[..., 2::2]
-    out[..., 2::2] = -h * trig[..., 1::2]
+    """d/dθ of :func:`trig_basis` given its value: (sin hθ)' = h cos hθ, (cos hθ)' = -h sin hθ.
+
+    Term by term into an array of ``trig``'s memory order (term-major from :func:`trig_basis`: each
+    term one contiguous pass), not through every other term's strided copy."""
+    out = np.empty_like(trig)
+    out[..., 0] = 0.0
+    for h in range(1, harmonics + 1):
+        np.multiply(trig[..., 2 * h], float(h), out=out[..., 2 * h - 1])
+        np.multiply(trig[..., 2 * h - 1], -float(h), out=out[..., 2 * h])
     return out

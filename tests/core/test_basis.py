@@ -44,3 +44,15 @@ def test_a_strided_phase_is_read_as_its_values() -> None:
 
 def test_the_recurrence_runs_compiled_where_the_kernels_do() -> None:
     assert (basis._compiled_harmonics() is not None) == kernels.COMPILED
+
+
+@pytest.mark.parametrize("harmonics", [1, 5])
+def test_the_derivative_is_each_harmonics_in_either_memory_order(harmonics: int) -> None:
+    phase = np.random.default_rng(harmonics).uniform(-40.0, 40.0, (30, 4, 25))
+    terms = basis.trig_basis(phase, harmonics)
+    derivative = basis.trig_derivative(terms, harmonics)
+    assert np.array_equal(derivative, basis.trig_derivative(np.ascontiguousarray(terms), harmonics))
+    h = np.arange(1, harmonics + 1)
+    assert np.all(derivative[..., 0] == 0.0)
+    assert np.abs(derivative[..., 1::2] - h * np.cos(phase[..., None] * h)).max() < harmonics * RECURRENCE_TOLERANCE
+    assert np.abs(derivative[..., 2::2] + h * np.sin(phase[..., None] * h)).max() < harmonics * RECURRENCE_TOLERANCE
