@@ -85,7 +85,7 @@ def _compiled_harmonics() -> Callable[[np.ndarray, int], np.ndarray] | None:
 
     if not kernels.COMPILED:
         return None
-    return kernels.numba.njit(cache=True, nogil=True)(_harmonics_loop)  # type: ignore[no-any-return]
+    return kernels.numba.njit(cache=True, nogil=True)(_harmonics_loop)
 
 
 def trig_derivative(trig: np.ndarray, harmonics: int) -> np.ndarray:

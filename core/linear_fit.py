@@ -102,15 +102,14 @@ def normal_equations(model: FourierModel, x_mm: np.ndarray, data: np.ndarray, we
     then enter through one more product with their outer products.
     """
     n_al = model.n_trig * (model.stroke_degree + 1)
-    gram_ru = np.zeros((model.n_rows * model.n_pixels, n_al, n_al))
-    rhs_ru = np.zeros((model.n_rows * model.n_pixels, n_al))
+    gram_ru = np.zeros((model.n_rows, model.n_pixels, n_al, n_al))
+    rhs_ru = np.zeros((model.n_rows, model.n_pixels, n_al))
+    gram_p, rhs_p = gram_ru.reshape(-1, n_al, n_al), rhs_ru.reshape(-1, n_al)  # views, one sample a row
     for part in _frame_chunks(model, len(x_mm)):
         frame_factor = _trig_stroke(model, _positions(x_mm, part))
         n_frames = frame_factor.shape[0]
         _frame_sums(frame_factor.reshape(n_frames, -1, n_al), weights[part].reshape(n_frames, -1),
-                    np.asarray(data[part], dtype=np.float64).reshape(n_frames, -1), gram_ru, rhs_ru)
-    gram_ru = gram_ru.reshape(model.n_rows, model.n_pixels, n_al, n_al)
-    rhs_ru = rhs_ru.reshape(model.n_rows, model.n_pixels, n_al)
+                    np.asarray(data[part], dtype=np.float64).reshape(n_frames, -1), gram_p, rhs_p)
     spatial = np.einsum("ui,rj->ruij", model.pixel_basis(), model.row_basis()).reshape(model.n_rows, model.n_pixels, -1)
     n_ij = spatial.shape[-1]
     outer = np.einsum("rua,rub->ruab", spatial, spatial).reshape(-1, n_ij * n_ij)  # (R·n, IJ·IJ)
