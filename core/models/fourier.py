@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import Any, Literal, overload
+from typing import Any, Callable, Literal, overload
 
 import numpy as np
 
@@ -162,6 +162,14 @@ class FourierModel:
         if not set(changes) & _GEOMETRY_FIELDS and "trig" in self._cache:
             copy._cache["trig"] = self._cache["trig"]
         return copy
+
+    def derived(self, key: str, make: Callable[[], Any]) -> Any:
+        """``make()``, computed once for this model and kept with it: what is derived from the model alone (its
+        trackers' watches ask for the same figures for every run it tracks). A model is never changed in place;
+        a changed one is a copy (:meth:`with_changes`) that derives its own."""
+        if key not in self._cache:
+            self._cache[key] = make()
+        return self._cache[key]
 
     # ----------------------------------------------------------------- bases
     def pixel_basis(self) -> np.ndarray:
