@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any, Callable
 import numpy as np
 
 from graytrack.core.basis import legendre_basis, scaled
+from graytrack.core.regression import tall_least_squares
 
 if TYPE_CHECKING:  # a leaf module: effects and the loop import it, it imports neither
     from graytrack.core.diagnosis.heldout import Fit, LoopModel
@@ -44,7 +45,7 @@ def _flat(values: np.ndarray) -> np.ndarray:
 def _cross_validated(train_basis: np.ndarray, train_res: np.ndarray, val_basis: np.ndarray,
                      val_res: np.ndarray) -> float:
     """Held-out sum of squares removed by a basis fitted on the training residual."""
-    coef, *_ = np.linalg.lstsq(train_basis, train_res, rcond=None)
+    coef = tall_least_squares(train_basis, train_res)
     return float(val_res @ val_res - (val_res - val_basis @ coef) @ (val_res - val_basis @ coef))
 
 

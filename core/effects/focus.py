@@ -27,10 +27,9 @@ def blur_direction(model: FourierModel, x_mm: np.ndarray) -> np.ndarray:
     target phase times −2π²(m/τ)² (gray per mm² of blur variance)."""
     trig = model.trig(x_mm)  # (K, R, n, 2M+1): constant, then sin and cos of each order
     stroke, _ = model.stroke_basis(np.asarray(x_mm, dtype=np.float64))
-    weights = np.einsum("rual,kl->krua", model.spatial_weights(), stroke)
     orders = np.r_[0, np.repeat(np.arange(1, model.harmonics + 1), 2)]
     factor = -0.5 * (TWO_PI / model.period_mm) ** 2 * orders**2
-    return np.einsum("krua,krua->kru", trig * factor, weights)
+    return model.sum_terms(trig * factor, model.frame_weights(stroke))
 
 
 def per_frame_blur(target: np.ndarray, direction: np.ndarray,

@@ -101,7 +101,13 @@ def calibrated_information(model) -> tuple[float, float, np.ndarray] | None:
     """The information per model row on x with the calibrated light and every sample, on a grid over the
     stroke: (grid start, grid step, values); None when the model has no stroke range. From the model
     alone, weighed as its tracker weighs each sample (core/tracking.py), so that a watch made before its
-    tracker (an owner's scale watch, carrying the far-off judgement) judges against the same figure."""
+    tracker (an owner's scale watch, carrying the far-off judgement) judges against the same figure. Made
+    once a model (every tracker of it has a bound and a far-off watch, and the closed loop tracks each of
+    its models on several runs); the values are read-only."""
+    return model.derived("calibrated_information", lambda: _calibrated_information(model))
+
+
+def _calibrated_information(model) -> tuple[float, float, np.ndarray] | None:
     lo, hi = model.stroke_range_mm
     if not (math.isfinite(lo) and math.isfinite(hi)):
         return None
@@ -114,7 +120,9 @@ def calibrated_information(model) -> tuple[float, float, np.ndarray] | None:
         weights, _ = frame_kernel.sample_weights(values, model.pixel_noise, pixel_weight, 1.0, None)
     else:
         weights = model.inverse_variance(np.zeros((model.n_rows, model.n_pixels))).reshape(1, -1)
-    return float(grid[0]), step, np.sum(weights * slopes * slopes, axis=1)
+    information = np.sum(weights * slopes * slopes, axis=1)
+    information.flags.writeable = False
+    return float(grid[0]), step, information
 
 
 def make(tracker) -> BoundWatch | None:

@@ -12,7 +12,10 @@ import shutil
 import signal
 import subprocess
 import sys
+import threading
+import time
 from pathlib import Path
+from typing import IO
 
 import httpx
 import pytest
@@ -23,8 +26,42 @@ from tests.service.helpers import free_port, wait_for
 
 README = ROOT / "README.md"
 MAKE_RUN_HOST = "localhost:8000"
-SECONDS = 20.0  # the calls, then the stream for the rest of it
+SECONDS = 20.0  # at most: the calls, then the stream until it has printed what the test reads
+CALLS = 4  # the block's curl calls, one JSON answer each, printed before the stream's messages
+STREAM_MESSAGES = 10  # the stream's messages the test reads: the block is stopped (^C) once it printed them
 RUN_S = 300.0  # the daemon's first start calibrates (~20 s here, minutes on a slow host)
+
+
+class Printed:
+    """What a process writes to ``stream`` (a binary pipe), read as it comes (the websockets client flushes each
+    message; its line feed comes before the message, so lines would show each one a message late)."""
+
+    def __init__(self, stream: IO[bytes]) -> None:
+        self.chunks: list[bytes] = []
+        self.thread = threading.Thread(target=self._read, args=(stream.fileno(),), daemon=True)
+        self.thread.start()
+
+    def _read(self, fd: int) -> None:
+        while chunk := os.read(fd, 65536):
+            self.chunks.append(chunk)
+
+    def text(self, ended: bool = False) -> str:
+        """All read so far; with ``ended``, all there is (the process has exited: the pipe closes)."""
+        if ended:
+            self.thread.join(timeout=30)
+        return b"".join(self.chunks).decode(errors="replace")
+
+
+def json_values(text: str) -> list:
+    """The JSON objects printed in ``text`` (the calls' answers, then the stream's messages), in order."""
+    decoder, values, position = json.JSONDecoder(), [], 0
+    while (start := text.find("{", position)) >= 0:
+        try:
+            value, position = decoder.raw_decode(text, start)
+        except json.JSONDecodeError:  # one being printed as this was read
+            break
+        values.append(value)
+    return values
 
 
 def block(first_line: str) -> str:
@@ -43,30 +80,30 @@ def test_the_readmes_rest_and_websocket_block_works_as_written(make_run: MakeRun
     wait_for(lambda: httpx.get(f"{make_run.url}/api/status", timeout=5).json()["state"] == "tracking",
              RUN_S, "the daemon to track, as the page shows it before a user turns to the README's calls")
     # stdin stays open, as a terminal's would (the websockets client ends the connection at its end),
-    # until the stream has run; then ^C, as a user stops it
+    # until the stream has printed what is read below (SECONDS at most); then ^C, as a user stops it
     keyboard, typing = os.pipe()
     try:
         with subprocess.Popen(["bash", "-c", code.replace(MAKE_RUN_HOST, f"localhost:{port}")], cwd=ROOT,
                               env=make_run.env(), stdin=keyboard, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                              text=True, start_new_session=True) as shell:
-            try:
-                out, err = shell.communicate(timeout=SECONDS)
-            except subprocess.TimeoutExpired:
+                              start_new_session=True) as shell:
+            out, err = Printed(shell.stdout), Printed(shell.stderr)
+            deadline = time.monotonic() + SECONDS
+            while shell.poll() is None and time.monotonic() < deadline \
+                    and len(json_values(out.text())) < CALLS + STREAM_MESSAGES:
+                time.sleep(0.1)
+            if shell.poll() is None:
                 os.killpg(shell.pid, signal.SIGINT)
-                out, err = shell.communicate(timeout=30)
+            shell.wait(timeout=30)
     finally:
         os.close(keyboard), os.close(typing)
-    decoder, text, answers = json.JSONDecoder(), out, []
-    position = 0
-    while (start := text.find("{", position)) >= 0:  # the answers and the messages, as printed
-        value, position = decoder.raw_decode(text, start)
-        answers.append(value)
+    printed = out.text(ended=True)
+    answers = json_values(printed)
     status, moved, started, latest, *messages = answers
     assert status["state"] == "tracking" and status["faults"] == {}, status
     assert moved["target_mm"] == 5.0, moved
     assert started["state"] in {"queued", "sweeping"} and started["id"] == latest["id"], (started, latest)
     assert latest["state"] in {"queued", "sweeping"} and 0.0 <= latest["progress"] < 1.0, latest
-    assert len(messages) >= 10, out[-2000:]
+    assert len(messages) >= STREAM_MESSAGES, (printed[-2000:], err.text(ended=True)[-2000:])
     assert all({"seq", "t", "x_mm", "locked", "crlb_um"} <= set(m) for m in messages), messages[0]
     seqs = [m["seq"] for m in messages]
     assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs)

@@ -82,3 +82,19 @@ def test_tracker_evaluator_matches_model_with_stroke_terms_and_flat_field(paper_
     expected_values, expected_slopes = model.predict(x, with_derivative=True)
     np.testing.assert_allclose(values, expected_values.reshape(3, -1), rtol=1e-10, atol=1e-9)
     np.testing.assert_allclose(slopes, expected_slopes.reshape(3, -1), rtol=1e-9, atol=1e-8)
+
+
+@pytest.mark.parametrize("stroke_degree", [0, 2])
+def test_the_weights_summed_against_are_each_frames_to_the_bit(stroke_degree):
+    """Without stroke terms the model sums against the pixels' own weights, not a copy for each frame: the same
+    values and slopes to the bit as with the copy (FourierModel.frame_weights)."""
+    model = FourierModel(period_mm=0.86, pixel_pitch_mm=0.0054, n_pixels=60, n_rows=4, harmonics=5, pixel_degree=3,
+                         stroke_degree=stroke_degree, noise_gray=1.0, name="weights")
+    model = model.with_changes(coeffs=np.random.default_rng(stroke_degree).normal(0.0, 1.0, model.coeff_shape))
+    x_mm = np.linspace(0.1, 10.3, 50)
+    stroke, _ = model.stroke_basis(x_mm)
+    weights = model.frame_weights(stroke)
+    assert weights.ndim == (3 if stroke_degree == 0 else 4)
+    each_frame = np.einsum("rual,kl->krua", model.spatial_weights(), stroke)
+    for terms in (model.trig(x_mm), np.ascontiguousarray(model.trig(x_mm)) * 0.5):
+        assert np.array_equal(model.sum_terms(terms, weights), np.einsum("krua,krua->kru", terms, each_frame))

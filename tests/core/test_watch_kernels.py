@@ -312,3 +312,19 @@ def test_scale_watch_names_the_stretch_frame_by_frame_in_a_drifted_chunk(monitor
         assert np.array_equal(a, b) if isinstance(a, np.ndarray) else a == b
     for name in ("_normal", "_noise", "_right", "_scalars"):
         assert np.array_equal(getattr(at_once.magnification, name), getattr(stepped.magnification, name)), name
+
+
+def test_the_calibrated_information_is_made_once_a_model_and_a_changed_model_makes_its_own(paper_models):
+    """Every tracker of a model has a bound and a far-off watch, both from the model's calibrated information:
+    made once a model, read-only, the same figures as made afresh; a copy with another period makes its own."""
+    from graytrack.core.watches.bound import _calibrated_information, calibrated_information
+
+    model = paper_models["paper"].model
+    first = calibrated_information(model)
+    assert calibrated_information(model) is first and not first[2].flags.writeable
+    fresh = _calibrated_information(model)
+    assert first[:2] == fresh[:2] and np.array_equal(first[2], fresh[2])
+    moved = model.with_changes(period_mm=model.period_mm * 1.01, coeffs=model.coeffs)
+    other = calibrated_information(moved)
+    assert other is not first and other[1] != first[1]
+    assert np.array_equal(other[2], _calibrated_information(moved)[2])
