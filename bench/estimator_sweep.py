@@ -1,0 +1,134 @@
+"""The estimator alone over the robustness sweep's cases, fast enough to try a change of it in a minute.
+
+Every case of bench/robustness_sweep.py with the seed paper's model, tracked by the one recursive
+estimator (core/estimator/) in each mode (grating read, ``--trim``, ``--no-reference``) and scored
+frame by frame against the rig's truth, as bench/engine_compare.py scores it, without today's path
+beside it. Each case's model, run and truth are kept in a cache folder the first time (a few minutes
+for the whole sweep), so a later run costs the tracking only (~15 s of CPU).
+
+Tunables are set with ``name=value`` arguments (core/estimator/settings.py), e.g. to try a rate:
+
+    .venv/bin/python bench/estimator_sweep.py [--cache DIR] [--shard K/N] [--only SUBSTRING] [name=value ...]
+
+Per run: the error std over the rms noise floor, the rms pull (error over the stated bound), frames
+lost, the share flagged, placed frames 4+ bounds off the truth and those unflagged (marked ``<<<``
+where they pass 0.5 % of the run's placed frames). The last lines: the totals and the steady runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import os
+import pickle
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from graytrack.core.calibration import calibrate
+from graytrack.core.estimator import filter as estimator
+from graytrack.core.estimator.settings import TUNABLES, EstimatorSettings
+from graytrack.core.timing import model_reference
+from graytrack.drivers.sim.scenarios import build_rig
+from robustness_sweep import CASES, SECONDS, measured_motion
+from truth_score import MODES
+
+FAR_PULL = 4.0  # bounds off the truth beyond which a placed frame counts as far off
+SILENT_SHARE = 0.005  # of a run's placed frames: the acceptance's ceiling for far frames left unflagged
+
+
+def cached_case(folder: Path, scenario: str, rig_effects: str, later: str):
+    """(model, run, truth) of one case, made once and kept in ``folder``."""
+    label = f"{scenario} {rig_effects} {later}"
+    path = folder / f"{hashlib.md5(label.strip().encode()).hexdigest()[:10]}.pkl"
+    if path.exists():
+        with open(path, "rb") as kept:
+            return pickle.load(kept)
+    seconds = SECONDS.get(scenario, 20.0)
+    calibration, _ = build_rig(scenario, rig_effects, seed=3).record(seconds)
+    model = calibrate(calibration, "paper").model
+    rig = build_rig(scenario, ",".join(part for part in (rig_effects, later) if part), seed=3, run=1)
+    run, truth = rig.record(seconds / 2, trajectory=measured_motion(rig, later, seconds / 2))
+    with open(path, "wb") as kept:
+        pickle.dump((model, run, truth), kept)
+    return model, run, truth
+
+
+def scored(model, run, truth, grating: str, settings: EstimatorSettings) -> dict[str, float]:
+    reference = run.reference
+    if float(model.info.get("reference_skew_s", 0.0)):
+        reference = model_reference(model, run.t, reference)
+    if not np.isfinite(reference).any():
+        grating = "none"
+    start = time.process_time()
+    estimates = estimator.track(model, run.frames, run.t, reference, grating=grating, settings=settings)
+    seconds = time.process_time() - start
+    x = np.array([e.x_mm for e in estimates])
+    bound = np.array([e.crlb_mm for e in estimates]) * 1e3
+    floor = np.array([e.floor_mm for e in estimates]) * 1e3
+    stale = np.array([e.stale for e in estimates])
+    repeated = np.array([e.repeated for e in estimates])
+    error = (x - truth.x_mm) * 1e3
+    if grating == "none":  # placed from the image alone: its origin is known up to whole periods
+        period = model.period_mm * 1e3
+        error -= period * np.round(np.nanmedian(error) / period)
+    placed = np.isfinite(error)
+    far = placed & (np.abs(error) > FAR_PULL * bound)
+    return {"ratio": float(np.nanstd(error) / np.sqrt(np.nanmean(floor[placed] ** 2))) if placed.any() else np.nan,
+            "pull": float(np.sqrt(np.nanmean((error / bound) ** 2))) if placed.any() else np.nan,
+            "frames": len(estimates), "placed": int(placed.sum()), "lost": int((~placed & ~repeated).sum()),
+            "flagged": int(stale.sum()), "far": int(far.sum()), "silent": int((far & ~stale).sum()),
+            "seconds": seconds}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--cache", type=Path, default=Path(os.environ.get("TMPDIR", "/tmp")) / "graytrack-sweep",
+                        help="where each case's model, run and truth are kept")
+    parser.add_argument("--shard", default="0/1", help="K/N: every N-th case from the K-th (run N side by side)")
+    parser.add_argument("--only", default="", help="cases whose label holds this text")
+    parser.add_argument("settings", nargs="*", help="name=value of the estimator's tunables")
+    args = parser.parse_args()
+    changes = {}
+    for item in args.settings:
+        name, _, value = item.partition("=")
+        if name not in TUNABLES:
+            sys.exit(f"unknown estimator setting {name!r}; known: {', '.join(TUNABLES)}")
+        changes[name] = float(value)
+    settings = EstimatorSettings().replace(**changes)
+    shard, shards = (int(part) for part in args.shard.split("/"))
+    args.cache.mkdir(parents=True, exist_ok=True)
+    totals = dict.fromkeys(("frames", "placed", "lost", "flagged", "far", "silent", "seconds"), 0.0)
+    over, steady = [], []
+    for number, (scenario, rig_effects, later) in enumerate(CASES):
+        label = f"{scenario} {rig_effects} {later}"
+        if args.only not in label or number % shards != shard:
+            continue
+        model, run, truth = cached_case(args.cache, scenario, rig_effects, later)
+        for mode, options in MODES.items():
+            grating = "none" if options["no_reference"] else ("fuse" if options["trim"] else "check")
+            score = scored(model, run, truth, grating, settings)
+            for key in totals:
+                totals[key] += score[key]
+            mark = " <<<" if score["silent"] > SILENT_SHARE * max(score["placed"], 1) else ""
+            if mark:
+                over.append(score["silent"])
+            line = (f"{label[:66]:66} {mode:15} ratio {score['ratio']:6.2f} pull {score['pull']:5.2f} "
+                    f"lost {score['lost']:4d} flag {100 * score['flagged'] / score['frames']:5.1f}% "
+                    f"far {score['far']:4d} silent {score['silent']:4d}{mark}")
+            if not rig_effects and not later:
+                steady.append(line)
+            print(line, flush=True)
+    placed = max(totals["placed"], 1)
+    print(f"total: placed {totals['placed']:.0f}, 4+ bounds off {totals['far']:.0f}, unflagged {totals['silent']:.0f} "
+          f"({100 * totals['silent'] / placed:.3f} %), flagged {totals['flagged']:.0f}, lost {totals['lost']:.0f}; "
+          f"{len(over)} runs over {100 * SILENT_SHARE:.1f} % unflagged ({sum(over)} frames); "
+          f"{totals['frames'] / max(totals['seconds'], 1e-9):.0f} frames/s")
+    for line in steady:
+        print("steady:", line)
+
+
+if __name__ == "__main__":
+    main()
