@@ -12,7 +12,8 @@ Tunables are set with ``name=value`` arguments (core/estimator/settings.py), e.g
 
 Per run: the error std over the rms noise floor, the rms pull (error over the stated bound), frames
 lost, the share flagged, placed frames 4+ bounds off the truth and those unflagged (marked ``<<<``
-where they pass 0.5 % of the run's placed frames). The last lines: the totals and the steady runs.
+where they pass 0.5 % of the run's placed frames), the samples the sensor's map holds a change for at the
+end (core/estimator/sensor_map.py). The last lines: the totals and the steady runs.
 """
 
 from __future__ import annotations
@@ -63,7 +64,8 @@ def scored(model, run, truth, grating: str, settings: EstimatorSettings) -> dict
     if not np.isfinite(reference).any():
         grating = "none"
     start = time.process_time()
-    estimates = estimator.track(model, run.frames, run.t, reference, grating=grating, settings=settings)
+    tracker = estimator.Estimator(model, settings=settings, grating=grating)
+    estimates = estimator.track(model, run.frames, run.t, reference, estimator=tracker)
     seconds = time.process_time() - start
     x = np.array([e.x_mm for e in estimates])
     bound = np.array([e.crlb_mm for e in estimates]) * 1e3
@@ -80,7 +82,7 @@ def scored(model, run, truth, grating: str, settings: EstimatorSettings) -> dict
             "pull": float(np.sqrt(np.nanmean((error / bound) ** 2))) if placed.any() else np.nan,
             "frames": len(estimates), "placed": int(placed.sum()), "lost": int((~placed & ~repeated).sum()),
             "flagged": int(stale.sum()), "far": int(far.sum()), "silent": int((far & ~stale).sum()),
-            "seconds": seconds}
+            "seconds": seconds, "map": int(tracker.sensor.learned().sum())}
 
 
 def main() -> None:
@@ -117,7 +119,7 @@ def main() -> None:
                 over.append(score["silent"])
             line = (f"{label[:66]:66} {mode:15} ratio {score['ratio']:6.2f} pull {score['pull']:5.2f} "
                     f"lost {score['lost']:4d} flag {100 * score['flagged'] / score['frames']:5.1f}% "
-                    f"far {score['far']:4d} silent {score['silent']:4d}{mark}")
+                    f"far {score['far']:4d} silent {score['silent']:4d} map {score['map']:3d}{mark}")
             if not rig_effects and not later:
                 steady.append(line)
             print(line, flush=True)

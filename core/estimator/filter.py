@@ -40,6 +40,8 @@ from graytrack.core.compression import stream_bound_factor, stream_chi2_spread
 from graytrack.core.errors import TrackingError
 from graytrack.core import repeats
 from graytrack.core.estimator import kernel
+from graytrack.core.estimator.kernel import S_POSTERIOR, S_REJECTED, S_WEIGHED
+from graytrack.core.estimator.sensor_map import SensorMap
 from graytrack.core.estimator.settings import EstimatorSettings
 from graytrack.core.estimator.state import A1, A2, B, C, G, L, M, N_STATE, OFS, SK, STATE, T, V, X
 from graytrack.core.frame_tables import FrameTables
@@ -223,6 +225,13 @@ class Estimator:
         mid = 0.5 * (float(model.stroke_range_mm[0]) + float(model.stroke_range_mm[1]))
         self.mean_gray = float(np.mean(self.evaluator.evaluate(np.array([mid]))[0]))  # the light's scale, gray
         mean = max(abs(self.mean_gray), 1.0)
+        # the sensor's side: a gain and an offset per sample, learned where something lands (sensor_map.py)
+        self.sensor = SensorMap(n_values, self.noise, self.chi2_calibration,
+                                float(norm.isf(settings.false_alarm / (2.0 * n_values))),
+                                np.array([settings.map_jump_gain ** 2, (settings.map_jump_offset * mean) ** 2,
+                                          settings.map_rate_gain ** 2, settings.map_rate_offset ** 2]), mean,
+                                settings.map_most, int(settings.map_reach_px), model.n_pixels)
+        self._noise_var = np.empty(n_values)
         self.jump_var = {"light": np.array([settings.jump_light, settings.jump_light * mean]) ** 2,
                          "field": np.array([settings.jump_field, settings.jump_field]) ** 2,
                          "focus": np.array([settings.jump_focus]) ** 2,
@@ -289,7 +298,9 @@ class Estimator:
                 repeats.repeated(frame[None], self.model.noise_gray or 0.0, last)[0]:
             # the image shows where the stage was, its time and grating where it is: no measurement of either
             return self._unplaced(t, self.stats, math.nan, "the driver delivered the last image again", True)
-        y, mask = self._prepared(frame)
+        y_raw, raw_mask = self._prepared(frame)
+        # seen through what sits on the sensor's side (the frame itself while nothing has landed)
+        y, mask = self.sensor.seen(y_raw, raw_mask) if self.sensor.active else (y_raw, raw_mask)
         dt = None
         if not self.started or self.failed >= FAILED_TO_REACQUIRE:
             self._acquire(y, mask, t, reference_mm)
@@ -303,6 +314,51 @@ class Estimator:
             self._acquire(y, mask, t, reference_mm)  # the image's period lost: start again at the grating
             s, A, stats = self._solve(y, mask, s_prior, P_prior, grating_z, out=self._answer)
         test = self._test(stats, s)
+        main = stats  # the frame's own update (its posterior in _P_next)
+        if test > 1.0:
+            test, mode, s, A, stats, solved, reason_jump = self._search(y, mask, s, A, stats, test, s_prior, P_prior,
+                                                                         grating_z)
+        else:
+            mode, solved, reason_jump = "", self.idx, None
+            self._unexplained = []
+        if (test > 1.0 or stats[S_REJECTED] > 0 or stats[S_WEIGHED] > 0) and not mode and dt is not None \
+                and main[S_POSTERIOR] > 0 and self._anchored(self._P_next, main) and self._landed(y, mask, s):
+            # Something landed on samples no jump of the state explains (a speck on the window, a veil): they wait
+            # outside the position until the motion resolves them (sensor_map.py), and the frame is solved again
+            # without them, so what they showed moves no state.
+            y, mask = self.sensor.seen(y_raw, raw_mask)
+            s, A, stats = self._solve(y, mask, s_prior, P_prior, grating_z, out=self._answer)
+            test, mode, s, A, stats, solved, reason_jump = self._search(y, mask, s, A, stats, self._test(stats, s),
+                                                                         s_prior, P_prior, grating_z)
+        placed = stats[kernel.S_CONVERGED] > 0 or stats[kernel.S_ITER] > 0
+        used, rejected = stats[kernel.S_USED], stats[kernel.S_REJECTED]
+        if used + rejected <= 0 or rejected > self.settings.max_rejected * (used + rejected) or \
+                not math.isfinite(s[X]):
+            placed = False
+        if not placed:
+            self.failed += 1
+            return self._unplaced(t, stats, test, "too many samples set aside" if rejected else "not converged")
+        self.failed = 0
+        if s is self._answer[0]:  # the main update's arrays: the state's becomes the next answer's
+            self._answer = (self.s, A, self._answer[2])
+        self.s = s
+        if A is self._answer[1] and stats[kernel.S_POSTERIOR] > 0:  # the main update's: it made the posterior
+            self.P, self._P_next = self._P_next, self.P
+        else:
+            kernel.embed(self.P, A, solved, self._sigma)  # the posterior over the states solved, the prior's elsewhere
+        if self.sensor.active:
+            # what the frame left at each sample something landed on, into the sensor's map
+            kernel.residuals(self.s, y, self.pixels, self.params, self.model_args, self.scratch, self._noise_var)
+            self.sensor.learn(y_raw, y, self.scratch[5], self._noise_var, raw_mask, self.dt_last,
+                              self._anchored(self.P, stats))
+        return self._estimate(t, stats, test, mode, reason_jump, reference_mm)
+
+    # ------------------------------------------------------------------ parts
+    def _search(self, y: np.ndarray, mask: np.ndarray, s: np.ndarray, A: np.ndarray, stats: list, test: float,
+                s_prior: np.ndarray, P_prior: np.ndarray, grating_z: float) -> tuple:
+        """The frame's update decided: as it is where its test passes, else with the jump that explains it, else
+        at the weight its χ² says its samples are worth. Returns (test, mode, state, information, figures, the
+        states solved, the family whose jump explained most where none did)."""
         mode, solved = "", self.idx
         if test > 1.0:
             best = None
@@ -340,25 +396,15 @@ class Estimator:
         else:
             reason_jump = None
             self._unexplained = []
-        placed = stats[kernel.S_CONVERGED] > 0 or stats[kernel.S_ITER] > 0
-        used, rejected = stats[kernel.S_USED], stats[kernel.S_REJECTED]
-        if used + rejected <= 0 or rejected > self.settings.max_rejected * (used + rejected) or \
-                not math.isfinite(s[X]):
-            placed = False
-        if not placed:
-            self.failed += 1
-            return self._unplaced(t, stats, test, "too many samples set aside" if rejected else "not converged")
-        self.failed = 0
-        if s is self._answer[0]:  # the main update's arrays: the state's becomes the next answer's
-            self._answer = (self.s, A, self._answer[2])
-        self.s = s
-        if A is self._answer[1] and stats[kernel.S_POSTERIOR] > 0:  # the main update's: it made the posterior
-            self.P, self._P_next = self._P_next, self.P
-        else:
-            kernel.embed(self.P, A, solved, self._sigma)  # the posterior over the states solved, the prior's elsewhere
-        return self._estimate(t, stats, test, mode, reason_jump, reference_mm)
+        return test, mode, s, A, stats, solved, reason_jump
 
-    # ------------------------------------------------------------------ parts
+    def _landed(self, y: np.ndarray, mask: np.ndarray, s: np.ndarray) -> int:
+        """Samples something landed on, tested at the frame's update ``s`` (sensor_map.land)."""
+        kernel.residuals(s, y, self.pixels, self.params, self.model_args, self.scratch, self._noise_var)
+        weight = self.scratch[4]
+        np.divide(mask, self._noise_var, out=weight)
+        return self.sensor.land(self.scratch[5], weight)
+
     def _prepared(self, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The frame's gray values as the model sees them (its ``prepare``) and their mask."""
         model = self.model
@@ -518,6 +564,13 @@ class Estimator:
             mode, False, stale, reason, message,  # mode, repeated, stale, stale_reason, message
             tuple(s), tuple(sigma))  # state, sigma
 
+    def _anchored(self, P: np.ndarray, stats: list) -> bool:
+        """Whether the position ``P`` holds is the frame's to say (its variance within the dominance share of the
+        frame's own noise floor), not carried by the state's memory of what the frames cannot see: only then
+        does what a frame leaves at a sample speak of the sample, and the sensor's map learn from it."""
+        xinfo = stats[kernel.S_XINFO]
+        return xinfo > 0 and P[X, X] * xinfo <= self.settings.dominance
+
     def _model_share(self, x_mm: float) -> float:
         """The model's own error power at ``x_mm`` over the noise floor's (ratio² − 1 of its calibration)."""
         edges, ratios, whole = self.model_error
@@ -591,6 +644,12 @@ class Estimator:
         for kind in FRAME_TYPES:  # each kind of frame a camera delivers, compiled for now
             kernel.row_mean(np.zeros((2, self.model.n_pixels), dtype=kind), self._y)
         kernel.in_range(self._y, 0.0, 1.0, self.mask, self._masked)
+        kernel.residuals(self.s, self._y, self.pixels, self.params, self.model_args, self.scratch, self._noise_var)
+        self.sensor.land(self._y, self.mask)  # (every sample fails on a frame of zeros: the map holds back)
+        self.sensor.learn(self._y, self._y, np.zeros(self.n_values), self._noise_var, self.mask, 0.0)
+        self.sensor.active = True
+        self.sensor.seen(self._y, self.mask)
+        self.sensor.reset()
         self.started = False
 
 
@@ -599,9 +658,13 @@ Progress = Callable[[float, str], None]
 
 def track(model: FourierModel, frames: np.ndarray, t: np.ndarray, reference: np.ndarray | None = None,
           grating: str = "check", robust: bool = True, settings: EstimatorSettings | None = None,
-          axis_px: float | None = None, progress: Progress | None = None) -> list[FrameEstimate]:
-    """Every frame of a recording through one estimator, in order: the live recursion, batched."""
-    estimator = Estimator(model, settings=settings, grating=grating, robust=robust, axis_px=axis_px)
+          axis_px: float | None = None, progress: Progress | None = None,
+          estimator: Estimator | None = None) -> list[FrameEstimate]:
+    """Every frame of a recording through one estimator, in order: the live recursion, batched. ``estimator``:
+    the one to run (made from the other arguments where None), to read what it learned afterwards."""
+    if estimator is None:
+        estimator = Estimator(model, settings=settings, grating=grating, robust=robust, axis_px=axis_px)
+    grating = estimator.grating
     n = frames.shape[0]
     reference = np.full(n, np.nan) if reference is None or grating == "none" else np.asarray(reference, float)
     times, readings = np.asarray(t, dtype=np.float64).tolist(), reference.tolist()  # plain numbers, made once

@@ -42,10 +42,11 @@ MAD_TO_SIGMA = 1.4826
 ROBUST_ROUNDS = 6  # reweightings at most: the redescending weights settle in 2–3 on a frame with a blob
 CURVATURE_STEP_PERIODS = 1e-3  # forward-difference step of F″ from the slopes, in periods (error ~ 3 % at order 5)
 # out_stats layout
-# (S_POSTERIOR: 1 where the update made the posterior covariance, params[U_POSTERIOR])
+# (S_POSTERIOR: 1 where the update made the posterior covariance, params[U_POSTERIOR]; S_WEIGHED: samples the robust
+# weights took down, not aside)
 (S_COST, S_RESIDUAL, S_PRIOR, S_USED, S_REJECTED, S_ITER, S_XINFO, S_RMS, S_GRATING, S_CONVERGED,
- S_POSTERIOR) = range(11)
-N_STATS = 11
+ S_POSTERIOR, S_WEIGHED) = range(12)
+N_STATS = 12
 # the update's numbers in one array (a frame's call passes one array, not a dozen arguments: each argument costs
 # the call ~0.1 µs): the noise model's read variance, shot gain and dark level, the pixel pitch and the period (mm),
 # the fused grating's reading (mm) and weight (1/σ², 0: none), robust weights on (1) or off (0), their core and cut
@@ -422,6 +423,7 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
     A_out[:, :] = A
     used = 0.0
     rejected = 0.0
+    weighed = 0.0
     xinfo = 0.0
     rss = 0.0
     level_g = s[G]
@@ -431,6 +433,8 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
         if rho[p] <= 0.0:
             rejected += 1.0
             continue
+        if rho[p] < 1.0:
+            weighed += 1.0
         used += 1.0
         rss += residual[p] * residual[p]
         gdf = (level_g + s[A1] * b1[p] + s[A2] * b2[p]) * slopes[p]
@@ -446,6 +450,7 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
     stats[S_GRATING] = grating_cost
     stats[S_CONVERGED] = converged
     stats[S_POSTERIOR] = 0.0
+    stats[S_WEIGHED] = weighed
     if params[U_POSTERIOR] > 0.0:
         # made on the chance the frame is kept: an update that failed (its information not finite, or
         # singular) is no error here, the frame is refused by its figures and its covariance not made
@@ -455,6 +460,30 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
             stats[S_POSTERIOR] = 1.0
         except Exception:  # noqa: BLE001 - numba's linear algebra raises its one kind
             pass
+
+
+def residuals(s: np.ndarray, y: np.ndarray, pixels: np.ndarray, params: np.ndarray, model: tuple,
+              scratch: np.ndarray, noise_var: np.ndarray) -> None:
+    """Each sample's residual against the state ``s`` (y − h(s), into ``scratch[5]``) and the noise model's
+    variance at h (one sample's, before a mask's weight) into ``noise_var``: what a frame left per sample,
+    for the sensor's map (sensor_map.py)."""
+    t_rel, r_rel, b1, b2 = pixels[PX_TARGET], pixels[PX_ROW], pixels[PX_B1], pixels[PX_B2]
+    pitch_mm, period_mm = params[U_PITCH], params[U_PERIOD]
+    values, slopes, smooth, curvature, residual = scratch[0], scratch[1], scratch[2], scratch[3], scratch[5]
+    xi = s[X] + s[C] + s[L] * s[M]
+    step = CURVATURE_STEP_PERIODS * period_mm
+    _evaluate(xi + step, model, values, curvature, smooth)
+    _evaluate(xi, model, values, slopes, smooth)
+    for p in range(y.size):
+        curvature[p] = (curvature[p] - slopes[p]) / step
+    none = np.empty(0, dtype=np.int64)  # no state: the normal equations are empty, the residuals made
+    _normal(s, none, y, np.zeros(y.size), np.zeros(y.size), values, slopes, curvature, t_rel, r_rel, b1, b2,
+            0.5 * pitch_mm * pitch_mm, np.zeros((0, 0)), np.zeros(0), residual)
+    read_var, shot_gain, dark = params[U_READ], params[U_SHOT], params[U_DARK]
+    for p in range(y.size):
+        signal = y[p] - residual[p] - dark
+        var = read_var + shot_gain * (signal if signal > 0.0 else 0.0)
+        noise_var[p] = var if var > 1e-6 else 1e-6  # (the update's own floor)
 
 
 if kernels.COMPILED:
@@ -470,3 +499,4 @@ if kernels.COMPILED:
     _grating = _jit(_grating)
     _reweigh = _jit(_reweigh)
     update = _jit(update)
+    residuals = _jit(residuals)

@@ -126,6 +126,29 @@ TUNABLES: dict[str, Tunable] = {
         0.25, "1 (share of samples)",
         "a frame with more of its samples set aside is not placed: the rest no longer pins the period",
         low=0.0, high=1.0),
+    "map_jump_gain": Tunable(
+        1.0, "1 (relative)",
+        "what a mark landing on the sensor's side (a speck on the window, a veil) may take of a sample's light in "
+        "one frame: all of it (an opaque speck)", low=0.0),
+    "map_jump_offset": Tunable(
+        0.2, "1 (of the mean gray)",
+        "what light a veil may scatter into a sample in one frame, as a share of the mean gray", low=0.0),
+    "map_rate_gain": Tunable(
+        0.02, "1/√s",
+        "how fast a sample's gain drifts in a second once something has landed on it (a veil forming over "
+        "seconds, a speck settling); samples nothing landed on are as calibrated", low=0.0),
+    "map_rate_offset": Tunable(
+        0.2, "gray/√s", "how fast the light scattered into a sample drifts in a second once a veil is on it",
+        low=0.0),
+    "map_most": Tunable(
+        0.5, "1 (share of samples)",
+        "the most of a frame's samples the sensor's map may hold aside as changed: a frame on which more fail at "
+        "once is one the state misplaced (its light, its position), not one more marks landed on", low=0.0,
+        high=1.0),
+    "map_reach_px": Tunable(
+        2.0, "px",
+        "how far a mark landing on the window reaches beyond the samples that fail their test: out of focus, its "
+        "soft edge is below the test but still moves the position", low=0.0),
     "tolerance": Tunable(
         1e-6, "mm", "the last Gauss–Newton step in position below which a frame is converged (1 nm: far below any "
         "bound; the step is taken, and what remains is that step times the contraction, ≪ 1 converged)",
@@ -168,6 +191,12 @@ class EstimatorSettings:
     core_sigma: float = TUNABLES["core_sigma"].default
     cut_sigma: float = TUNABLES["cut_sigma"].default
     max_rejected: float = TUNABLES["max_rejected"].default
+    map_jump_gain: float = TUNABLES["map_jump_gain"].default
+    map_jump_offset: float = TUNABLES["map_jump_offset"].default
+    map_rate_gain: float = TUNABLES["map_rate_gain"].default
+    map_rate_offset: float = TUNABLES["map_rate_offset"].default
+    map_most: float = TUNABLES["map_most"].default
+    map_reach_px: float = TUNABLES["map_reach_px"].default
     tolerance: float = TUNABLES["tolerance"].default
     max_iterations: float = TUNABLES["max_iterations"].default
 

@@ -1,0 +1,255 @@
+"""What sits on the sensor's side of the image, learned while tracking: a gain and an offset per sample.
+
+Dust on the camera's window, a veil forming on it, a changed vignetting: each changes the same samples
+whatever the stage does. A sample's gray value is then ``(1 + f)·h + e`` of what the calibrated model
+predicts (h, through the estimator's state), with f (the share of the light it takes or adds) and e
+(light scattered into it, gray) that sample's own. They are slow parameters of the estimator's
+measurement model, each sample's pair estimated by its own small Kalman filter from what the frames
+leave at that sample:
+
+- **Untouched** samples are as calibrated (f = e = 0, known): the map costs a steady frame nothing.
+- **A jump**: a sample whose residual fails its test at the estimator's one false-alarm rate (shared
+  over the frame's samples) has had something land on it; its pair's covariance widens by the
+  declared jump (``map_jump_gain``, ``map_jump_offset``), and from then on it drifts at the declared
+  rates (``map_rate_gain``, ``map_rate_offset``) and is updated by every placed frame.
+- **The motion tells f from e**: at rest a sample sees one gray value, which pins only the combination
+  ``f·h + e`` at that h; as the print moves under it, h changes and the two separate. Until they have,
+  the pair's covariance along the unresolved direction is large and the sample counts for little in
+  the position (its weight is the noise model's with the map's variance at the predicted h added):
+  the frame's bound is honest while the map is uncertain. A mark on the print moves on with the
+  stage: the sample it left fails its test again and jumps back, never resolved into the map.
+
+The frame the estimator updates with is the raw one seen through the map: ``(y − e)/(1 + f)``, its
+weight scaled to match (:func:`apply`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from graytrack.core import kernels
+
+# a sample whose light the map says is nearly all taken (1 + f below this) carries nothing of the position
+BLOCKED = 0.05
+
+
+def apply(y: np.ndarray, mask: np.ndarray, touched: np.ndarray, f: np.ndarray, e: np.ndarray, sff: np.ndarray,
+          sfe: np.ndarray, see: np.ndarray, h: np.ndarray, noise: np.ndarray, y_out: np.ndarray,
+          mask_out: np.ndarray) -> None:
+    """The frame seen through the map into ``y_out`` and ``mask_out``: on a touched sample ``(y − e)/(1 + f)``,
+    its weight that of the raw sample's noise (at the last predicted ``h``) with the map's variance added,
+    scaled by (1 + f)²; elsewhere the frame as it is. ``noise``: read variance, shot gain, dark level."""
+    read_var, shot_gain, dark = noise[0], noise[1], noise[2]
+    for p in range(y.size):
+        y_out[p] = y[p]
+        mask_out[p] = mask[p]
+        if not touched[p] or mask[p] <= 0.0:
+            continue
+        scale = 1.0 + f[p]
+        if scale < BLOCKED:
+            mask_out[p] = 0.0
+            continue
+        y_out[p] = (y[p] - e[p]) / scale
+        hp = h[p]
+        model_signal = hp - dark
+        raw_signal = scale * hp + e[p] - dark
+        var_model = read_var + shot_gain * (model_signal if model_signal > 0.0 else 0.0)
+        var_raw = read_var + shot_gain * (raw_signal if raw_signal > 0.0 else 0.0)
+        if mask[p] * (hp * hp * sff[p] + see[p]) > var_raw:
+            # not yet resolved: the gain and the offset each still less known than the sample's noise (the motion
+            # has not yet separated them). What was learned of their combination holds the position the frames
+            # had when it was learned; used for the position, the map would carry that position on, a drift fed
+            # by its own memory. The sample waits outside the position until the motion has resolved it.
+            mask_out[p] = 0.0
+            continue
+        var_map = hp * hp * sff[p] + 2.0 * hp * sfe[p] + see[p]
+        if var_map < 0.0:
+            var_map = 0.0
+        mask_out[p] = mask[p] * var_model * scale * scale / (var_raw + mask[p] * var_map)
+
+
+def learn(y: np.ndarray, y_seen: np.ndarray, residual: np.ndarray, noise_var: np.ndarray, mask: np.ndarray,
+          level: float,
+          dt: float, z2: float, params: np.ndarray, touched: np.ndarray, f: np.ndarray, e: np.ndarray,
+          sff: np.ndarray, sfe: np.ndarray, see: np.ndarray, evidence: np.ndarray, teach: bool, h: np.ndarray) -> int:
+    """One placed frame into the map's touched samples. ``y``: the frame's raw values, ``y_seen``: as the
+    estimator saw them (through the map), ``residual``: those against the posterior state, ``noise_var``: the noise model's
+    variance there (kernel.residuals), ``mask``: the raw frame's weights, ``level``: the calibration's χ² per
+    sample, ``dt``: the interval since the last frame (s), ``z2``: the per-sample test's threshold (σ²),
+    ``params``: the jumps' and the rates' variances (gain jump, offset jump; gain rate, offset rate per
+    second). Each touched sample's pair is moved on by its rates and updated by its residual; one whose
+    residual fails its test jumps first (a change beyond what the pair holds). ``evidence``: each touched
+    sample's log-likelihood ratio of "changed" (its pair) over "as calibrated" (f = e = 0) over the frames
+    since its last jump (each one's predictive density); where it falls below nought the frames speak for
+    the calibration again (a glint gone, a print mark moved on, a shadow passed) and the sample is as
+    calibrated again. ``teach``: whether the pairs learn from this frame (not where the frame's position is
+    carried by the state's memory: what it leaves at a sample then speaks of the position as much as of the
+    sample); the evidence is weighed and a sample let go either way, so none is held aside by a map that
+    cannot learn. ``h`` out: each sample's predicted model value. Returns the samples that jumped."""
+    jump_ff, jump_ee, rate_ff, rate_ee = params[0], params[1], params[2] * dt, params[3] * dt
+    jumped = 0
+    for p in range(y_seen.size):
+        hp = y_seen[p] - residual[p]
+        h[p] = hp
+        if mask[p] <= 0.0:
+            continue
+        r = y[p] - ((1.0 + f[p]) * hp + e[p])  # the raw sample's residual against what the pair predicts
+        var_y = noise_var[p] * level / mask[p]
+        if not touched[p]:
+            continue
+        sff[p] += rate_ff
+        see[p] += rate_ee
+        s = hp * hp * sff[p] + 2.0 * hp * sfe[p] + see[p] + var_y
+        if r * r > z2 * s:
+            # a change beyond what the pair holds: the evidence for a change starts again with this frame's
+            evidence[p] = 0.0
+            sff[p] += jump_ff
+            see[p] += jump_ee
+            s = hp * hp * sff[p] + 2.0 * hp * sfe[p] + see[p] + var_y
+            jumped += 1
+        # the frame's evidence for the pair over the calibration at this sample (each one's predictive density)
+        r0 = y[p] - hp
+        evidence[p] += 0.5 * (r0 * r0 / var_y - r * r / s - math.log(s / var_y))
+        if evidence[p] < 0.0:
+            touched[p] = False
+            f[p], e[p], sff[p], sfe[p], see[p], evidence[p] = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+            continue
+        if not teach:
+            continue
+        kf = (hp * sff[p] + sfe[p]) / s
+        ke = (hp * sfe[p] + see[p]) / s
+        f[p] += kf * r
+        e[p] += ke * r
+        sff[p] -= kf * kf * s
+        sfe[p] -= kf * ke * s
+        see[p] -= ke * ke * s
+    return jumped
+
+
+def land(residual: np.ndarray, weight: np.ndarray, level: float, z2: float, most: float, jump_ff: float,
+         jump_ee: float, reach: int, row: int, touched: np.ndarray, sff: np.ndarray, see: np.ndarray,
+         evidence: np.ndarray) -> int:
+    """Samples something has landed on, from a frame's solve: ``residual`` and ``weight`` (the noise model's
+    inverse variance with the frame's mask) as the update left them. An untouched sample whose residual
+    fails its test (``z2``, σ², against the noise model at the calibration's ``level``) is touched, its pair
+    widened by the jumps, and so are the samples within ``reach`` of it along its row (a mark on the window
+    is out of focus: its soft edge, below the test, lands with it) — as long as the map then holds no more
+    than ``most`` of the frame's samples: a frame on which more fail at once is one the state misplaced (its
+    light, its position), the state's to answer, not the map's. Returns the samples that failed."""
+    core = np.zeros(residual.size, dtype=np.bool_)
+    fresh, held, usable = 0, 0, 0
+    for p in range(residual.size):
+        if weight[p] <= 0.0:
+            if touched[p]:
+                held += 1
+            continue
+        usable += 1
+        if not touched[p] and residual[p] * residual[p] * weight[p] / level > z2:
+            core[p] = True
+            fresh += 1
+    if fresh == 0 or held + fresh > most * (held + usable):
+        return 0
+    for p in range(residual.size):
+        if not core[p]:
+            continue
+        start, stop = p - reach, p + reach + 1
+        first = (p // row) * row
+        if start < first:
+            start = first
+        if stop > first + row:
+            stop = first + row
+        for q in range(start, stop):
+            if weight[q] > 0.0 and not touched[q]:
+                touched[q] = True
+                evidence[q] = 0.0
+                sff[q] = jump_ff
+                see[q] = jump_ee
+    return fresh
+
+
+if kernels.COMPILED:
+    _jit = kernels.numba.njit(cache=True, nogil=True, error_model="numpy")
+    apply = _jit(apply)
+    learn = _jit(learn)
+    land = _jit(land)
+
+
+class SensorMap:
+    """The map of ``n`` samples: each one's gain and offset against calibration with their covariance,
+    and whether anything has landed on it. ``noise``: the noise model (read variance, shot gain, dark);
+    ``level``: the calibration's χ² per sample; ``z``: the per-sample test in σ; ``params``: as
+    :func:`learn` takes them."""
+
+    def __init__(self, n: int, noise: np.ndarray, level: float, z: float, params: np.ndarray,
+                 mean_gray: float, most: float, reach: int, row: int) -> None:
+        self.noise, self.level, self.z2, self.params = noise, float(level), float(z) ** 2, params
+        self.reach, self.row = int(reach), int(row)
+        self.most = float(most)
+        self.mean_gray = float(mean_gray)
+        self.touched = np.zeros(n, dtype=np.bool_)
+        self.f, self.e = np.zeros(n), np.zeros(n)
+        self.sff, self.sfe, self.see = np.zeros(n), np.zeros(n), np.zeros(n)
+        self.evidence = np.zeros(n)
+        self.h = np.zeros(n)
+        self.active = False  # anything landed yet: else the map is the identity and costs nothing
+        self.jumps = 0
+        self._y, self._mask, self._noise_var = np.empty(n), np.empty(n), np.empty(n)
+
+    def reset(self) -> None:
+        self.touched[:] = False
+        for array in (self.f, self.e, self.sff, self.sfe, self.see, self.evidence):
+            array[:] = 0.0
+        self.active = False
+        self.jumps = 0
+
+    def seen(self, y: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The frame as the estimator updates with it (its own arrays; the frame's where nothing landed)."""
+        if not self.active:
+            return y, mask
+        apply(y, mask, self.touched, self.f, self.e, self.sff, self.sfe, self.see, self.h, self.noise, self._y,
+              self._mask)
+        return self._y, self._mask
+
+    def land(self, residual: np.ndarray, weight: np.ndarray) -> int:
+        """Samples something landed on, from a frame's solve (:func:`land`); the frame is to be seen again."""
+        fresh = land(residual, weight, self.level, self.z2, self.most, self.params[0], self.params[1], self.reach,
+                     self.row, self.touched, self.sff, self.see, self.evidence)
+        if fresh:
+            self.active = True
+            self.jumps += fresh
+        return fresh
+
+    def learn(self, y: np.ndarray, y_seen: np.ndarray, residual: np.ndarray, noise_var: np.ndarray,
+              mask: np.ndarray, dt: float, teach: bool = True) -> int:
+        jumped = learn(y, y_seen, residual, noise_var, mask, self.level, dt, self.z2, self.params, self.touched,
+                       self.f, self.e, self.sff, self.sfe, self.see, self.evidence, teach, self.h)
+        self.jumps += jumped
+        return jumped
+
+    def learned(self, resolved: float = 0.05) -> np.ndarray:
+        """The samples the map holds a change for, told apart from the print by the motion: the pair known
+        to ``resolved`` of the light in both directions (the motion has separated f from e) and beyond
+        zero at the false-alarm rate's per-sample threshold."""
+        out = np.zeros(self.touched.size, dtype=bool)
+        where = np.flatnonzero(self.touched)
+        if where.size == 0:
+            return out
+        g = max(self.mean_gray, 1.0)
+        a, b, d = self.sff[where], self.sfe[where] / g, self.see[where] / (g * g)
+        largest = 0.5 * (a + d) + np.sqrt(0.25 * (a - d) ** 2 + b * b)
+        det = np.maximum(a * d - b * b, 1e-300)
+        x, w = self.f[where], self.e[where] / g
+        distance = (d * x * x - 2.0 * b * x * w + a * w * w) / det
+        out[where] = (largest < resolved ** 2) & (distance > self.z2)
+        return out
+
+    def describe(self) -> dict[str, object]:
+        learned = np.flatnonzero(self.learned())
+        return {"touched_samples": int(self.touched.sum()), "learned_samples": int(learned.size),
+                "jumps": self.jumps, "samples": learned.tolist(), "gain": (1.0 + self.f[learned]).round(4).tolist(),
+                "offset_gray": self.e[learned].round(3).tolist()}
+
+
+__all__ = ["SensorMap", "apply", "learn"]
