@@ -75,15 +75,15 @@ def learn(y: np.ndarray, y_seen: np.ndarray, residual: np.ndarray, noise_var: np
           dt: float, z2: float, params: np.ndarray, touched: np.ndarray, f: np.ndarray, e: np.ndarray,
           sff: np.ndarray, sfe: np.ndarray, see: np.ndarray, evidence: np.ndarray, teach: bool, h: np.ndarray) -> int:
     """One placed frame into the map's touched samples. ``y``: the frame's raw values, ``y_seen``: as the
-    estimator saw them (through the map), ``residual``: those against the posterior state, ``noise_var``: the noise model's
-    variance there (kernel.residuals), ``mask``: the raw frame's weights, ``level``: the calibration's χ² per
-    sample, ``dt``: the interval since the last frame (s), ``z2``: the per-sample test's threshold (σ²),
-    ``params``: the jumps' and the rates' variances (gain jump, offset jump; gain rate, offset rate per
-    second). Each touched sample's pair is moved on by its rates and updated by its residual; one whose
-    residual fails its test jumps first (a change beyond what the pair holds). ``evidence``: each touched
-    sample's log-likelihood ratio of "changed" (its pair) over "as calibrated" (f = e = 0) over the frames
-    since its last jump (each one's predictive density); where it falls below nought the frames speak for
-    the calibration again (a glint gone, a print mark moved on, a shadow passed) and the sample is as
+    estimator saw them (through the map), ``residual``: those against the posterior state, ``noise_var``:
+    the noise model's variance there (kernel.residuals), ``mask``: the raw frame's weights, ``level``: the
+    calibration's χ² per sample, ``dt``: the interval since the last frame (s), ``z2``: the per-sample test's
+    threshold (σ²), ``params``: the jumps' and the rates' variances (gain jump, offset jump; gain rate, offset
+    rate per second). Each touched sample's pair is moved on by its rates and updated by its residual; one
+    whose residual fails its test jumps first (a change beyond what the pair holds). ``evidence``: each
+    touched sample's log-likelihood ratio of "changed" (its pair) over "as calibrated" (f = e = 0) over the
+    frames since its last jump (each one's predictive density); where it falls below nought the frames speak
+    for the calibration again (a glint gone, a print mark moved on, a shadow passed) and the sample is as
     calibrated again. ``teach``: whether the pairs learn from this frame (not where the frame's position is
     carried by the state's memory: what it leaves at a sample then speaks of the position as much as of the
     sample); the evidence is weighed and a sample let go either way, so none is held aside by a map that
