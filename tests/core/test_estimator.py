@@ -81,9 +81,11 @@ def test_pinned_nuisances_and_no_motion_prior_reproduce_the_plain_solve(paper):
 @pytest.mark.parametrize("mode", ["check", "fuse", "none"])
 def test_a_steady_run_has_an_honest_bound_and_learns_nothing(paper, mode):
     run, truth = build_rig("paper", "", seed=4, run=2).record()
-    estimates = track(paper, run.frames, run.t, run.reference, grating=mode)
+    estimator = Estimator(paper, grating=mode)
+    estimates = track(paper, run.frames, run.t, run.reference, estimator=estimator)
     error, bound = _errors(paper, estimates, truth, mode)
     assert np.all(np.isfinite(error))
+    assert not estimator.sensor.active and not estimator.sensor.touched.any()  # the sensor's map touched nothing
     pull = np.sqrt(np.mean((error / bound) ** 2))
     assert 0.7 <= pull <= 1.25, pull
     assert sum(e.stale for e in estimates) < 0.01 * len(estimates)
