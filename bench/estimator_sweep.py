@@ -82,7 +82,8 @@ def scored(model, run, truth, grating: str, settings: EstimatorSettings) -> dict
             "pull": float(np.sqrt(np.nanmean((error / bound) ** 2))) if placed.any() else np.nan,
             "frames": len(estimates), "placed": int(placed.sum()), "lost": int((~placed & ~repeated).sum()),
             "flagged": int(stale.sum()), "far": int(far.sum()), "silent": int((far & ~stale).sum()),
-            "seconds": seconds, "map": int(tracker.sensor.learned().sum())}
+            "seconds": seconds, "map": int(tracker.sensor.learned().sum()),
+            "touched": int(tracker.sensor.touched.sum())}
 
 
 def main() -> None:

@@ -1,0 +1,94 @@
+"""Clean runs, many of them: what the estimator learns and flags where nothing changes.
+
+A steady rig must leave the sensor's map untouched (core/estimator/sensor_map.py: nothing landed, so
+nothing learned), stay flagged on fewer than 1 % of its frames and state a bound its errors agree with
+(the rms of error over bound within 0.8–1.25). One steady run a mode (bench/estimator_sweep.py) says
+little about a rate of false landings; this script tracks clean runs of every scenario over several
+seeds (each seed its own calibration and its own run), in each mode (grating read, ``--trim``,
+``--no-reference``), scored frame by frame against the rig's truth:
+
+    .venv/bin/python bench/steady_maps.py [--seeds N] [--shard K/N] [--cache DIR]
+
+Per run: the error std over the noise floor, the rms pull, the share flagged, frames 4+ bounds off
+(and unflagged), the samples the map touched (something landed) and learned. The last lines: how
+many runs touched or learned anything, the largest share flagged and the range of the pulls.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import pickle
+import sys
+from pathlib import Path
+
+from graytrack.core.calibration import calibrate
+from graytrack.core.estimator.settings import EstimatorSettings
+from graytrack.drivers.sim.scenarios import build_rig
+from estimator_sweep import scored
+from robustness_sweep import SECONDS
+from truth_score import MODES
+
+# seeds a scenario is run with at the default --seeds: 8 + 8 + 4 = 20 clean runs, each in three modes
+# (the 16 × 128 lab strip costs four times a paper run; four of its seeds keep the script to minutes)
+SCENARIOS = {"paper": 1.0, "strip16": 1.0, "lab": 0.5}
+STEADY_FLAGGED = 0.01  # a steady run flagged on more than this share of its frames is reported
+
+
+def cached_clean(folder: Path, scenario: str, seed: int):
+    """(model, run, truth) of one clean run: the scenario calibrated and run with ``seed``, made once."""
+    path = folder / f"{scenario}-{seed}.pkl"
+    if path.exists():
+        with open(path, "rb") as kept:
+            return pickle.load(kept)
+    seconds = SECONDS.get(scenario, 20.0)
+    calibration, _ = build_rig(scenario, "", seed=seed).record(seconds)
+    model = calibrate(calibration, "paper").model
+    run, truth = build_rig(scenario, "", seed=seed, run=1).record(seconds / 2)
+    with open(path, "wb") as kept:
+        pickle.dump((model, run, truth), kept)
+    return model, run, truth
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--seeds", type=int, default=8, help="seeds of a paper or strip16 run (the lab's: half)")
+    parser.add_argument("--shard", default="0/1", help="K/N: every N-th run from the K-th (run N side by side)")
+    parser.add_argument("--cache", type=Path,
+                        default=Path(os.environ.get("TMPDIR", "/tmp")) / "graytrack-steady",
+                        help="where each clean run's model, run and truth are kept")
+    args = parser.parse_args()
+    if args.seeds < 1:
+        sys.exit("--seeds must be at least 1")
+    shard, shards = (int(part) for part in args.shard.split("/"))
+    args.cache.mkdir(parents=True, exist_ok=True)
+    settings = EstimatorSettings()
+    runs = [(scenario, seed) for scenario, share in SCENARIOS.items()
+            for seed in range(max(1, round(share * args.seeds)))]
+    touched = learned = flagged_runs = 0
+    pulls, worst_flagged, scored_runs = [], 0.0, 0
+    for number, (scenario, seed) in enumerate(runs):
+        if number % shards != shard:
+            continue
+        model, run, truth = cached_clean(args.cache, scenario, seed)
+        for mode, options in MODES.items():
+            grating = "none" if options["no_reference"] else ("fuse" if options["trim"] else "check")
+            score = scored(model, run, truth, grating, settings)
+            share = score["flagged"] / max(score["frames"], 1)
+            scored_runs += 1
+            touched += score["touched"] > 0
+            learned += score["map"] > 0
+            flagged_runs += share > STEADY_FLAGGED
+            worst_flagged = max(worst_flagged, share)
+            pulls.append(score["pull"])
+            print(f"{scenario:8} seed {seed:2d} {mode:15} ratio {score['ratio']:5.2f} pull {score['pull']:5.2f} "
+                  f"flag {100 * share:5.1f}% far {score['far']:4d} silent {score['silent']:4d} "
+                  f"touched {score['touched']:3d} learned {score['map']:3d}", flush=True)
+    if scored_runs:
+        print(f"total: {scored_runs} clean runs (run x mode): the sensor's map touched on {touched}, learned on "
+              f"{learned}; flagged on more than {100 * STEADY_FLAGGED:.0f} % of the frames in {flagged_runs} "
+              f"(largest {100 * worst_flagged:.1f} %); rms pull {min(pulls):.2f}-{max(pulls):.2f}")
+
+
+if __name__ == "__main__":
+    main()
