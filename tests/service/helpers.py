@@ -323,7 +323,7 @@ def stream_through_daemon(model, run, trim_enabled: bool, slide: Any = None,
                               on_event=lambda kind, message: events.append((kind, message)), trim=trim, slide=slide,
                               engine=engine)
     # as install_model does
-    acquisition._build(model, float(run.reference[0]), 0, "calibration", None, lambda why: None)
+    acquisition._build(model, float(run.reference[0]), 0, "calibration", {}, lambda name, why: None)
     for k in range(run.n_frames):
         frame = Frame(np.asarray(run.frames[k]), k, float(run.t[k]))
         acquisition._track(Sample(frame, float(run.t[k]), float(run.reference[k])))
