@@ -28,16 +28,29 @@ LEARNED_SAMPLES = 10  # samples the map has learned before the first session is 
 STEADY_FLAGS = 0.01  # share of frames the estimator may flag on a steady run (issue #49's acceptance: < 1 %)
 
 
-def passes(daemon: LiveServer, stream: StreamReader, count: int) -> list[dict[str, Any]]:
-    """``count`` passes of the print (2 <-> 8 mm at 0.5 mm/s): the stream's messages meanwhile."""
-    start = len(stream.messages)
+def passes(daemon: LiveServer, count: int, stream: StreamReader | None = None) -> list[dict[str, Any]]:
+    """``count`` passes of the print (2 <-> 8 mm at 0.5 mm/s): the ``stream``'s messages meanwhile."""
+    start = len(stream.messages) if stream is not None else 0
     assert daemon.post("/api/stage/velocity", json={"velocity_mm_s": 0.5}, headers=daemon.auth()).status_code == 200
     for target in PASS * count:
         assert daemon.post("/api/stage/move", json={"target_mm": target}, headers=daemon.auth()).status_code == 202
         wait_for(lambda: abs((daemon.status()["grating_mm"] or -1.0) - target) < 0.01, 60.0, f"the move to {target}",
                  show=lambda: {key: daemon.status()[key] for key in ("state", "grating_mm", "position_mm")})
+    if stream is None:
+        return []
     assert stream.error is None, stream.error
     return stream.messages[start:]
+
+
+def learn(daemon: LiveServer, stream: StreamReader | None = None) -> dict[str, Any]:
+    """Passes of the print until the map has learned ``LEARNED_SAMPLES`` and the daemon has written it (the specks
+    land meanwhile; the motion resolves them): the status's ``sensor_map`` then."""
+    for _ in range(8):
+        passes(daemon, 1, stream)
+        learning = daemon.status()["sensor_map"]
+        if learning["learned_samples"] >= LEARNED_SAMPLES and learning["saved"]:
+            return learning
+    raise AssertionError(f"nothing learned of the window's dust: {daemon.status()['sensor_map']}")
 
 
 def lost_and_flagged(messages: list[dict[str, Any]]) -> tuple[float, float]:
@@ -55,14 +68,8 @@ def test_the_sensor_map_survives_a_restart_and_a_rollback_drops_it(tmp_path: Pat
         first = daemon.wait_state("tracking", 60.0)["active_calibration"]["id"]
         assert daemon.status()["texture"] is None  # the estimator keeps the sensor's map, not (yet) the print's
         with StreamReader(daemon.port) as stream:
-            for _ in range(8):  # the specks land meanwhile; the motion resolves them
-                passes(daemon, stream, 1)
-                learning = daemon.status()["sensor_map"]
-                if learning["learned_samples"] >= LEARNED_SAMPLES and learning["saved"]:
-                    break
-            else:
-                raise AssertionError(f"nothing learned of the window's dust: {daemon.status()['sensor_map']}")
-            lost_before, flagged_before = lost_and_flagged(passes(daemon, stream, 1))
+            learn(daemon, stream)
+            lost_before, flagged_before = lost_and_flagged(passes(daemon, 1, stream))
         learned = daemon.status()["sensor_map"]
         assert learned["calibration"] == first and learned["restored"] == 0 and learned["marks"] >= 1
         assert learned["touched_samples"] >= learned["learned_samples"] >= LEARNED_SAMPLES
@@ -95,7 +102,7 @@ def test_the_sensor_map_survives_a_restart_and_a_rollback_drops_it(tmp_path: Pat
         assert any(f"{len(on_disk['marks'])} mark(s) learned on the sensor's side for calibration {first} restored"
                    in message for message in events(daemon, "sensor_map_restored"))
         with StreamReader(daemon.port) as stream:
-            lost_after, flagged_after = lost_and_flagged(passes(daemon, stream, 1))
+            lost_after, flagged_after = lost_and_flagged(passes(daemon, 1, stream))
         assert lost_after == 0.0 == lost_before
         assert flagged_after <= flagged_before + STEADY_FLAGS, (flagged_after, flagged_before)
         # the restored marks held: the dust is where the map says, none was let go and learned again
