@@ -325,8 +325,11 @@ class SensorMap:
     def look(self, frame: int) -> list[Any]:
         """The marks now against those at the last look, as events of frame ``frame``: ``learned`` (a mark where
         none was), ``changed`` (its gain or offset moved beyond ``CHANGED_Z`` of its σ since it was told, or marks
-        merged), ``dropped`` (a mark no longer learned: the frames speak for the calibration there again). A mark
-        that only grew or shrank by a sample or its figures refined is not told again."""
+        merged), ``dropped`` (the map let all its samples go: the frames speak for the calibration there again). A
+        mark that only grew or shrank by a sample or its figures refined is not told again, nor one whose samples
+        the map still holds but has not resolved again yet (a jump widened them: it waits, set aside, until the
+        motion resolves it, then is told as changed if its figures moved): a mark near the resolution's threshold
+        would otherwise be told dropped and learned again frame after frame."""
         from graytrack.core.texture import TextureEvent
 
         told: list[dict[str, Any]] = self.__dict__.get("_told", [])
@@ -345,7 +348,14 @@ class SensorMap:
                 kept.append(mark)
             else:  # the same mark refined: its extent followed, its figures as last told
                 kept.append({**told[over[0]], **{key: mark[key] for key in ("row", "first_px", "last_px", "samples")}})
-        found += [TextureEvent(frame, "dropped", old) for i, old in enumerate(told) if i not in matched]
+        for i, old in enumerate(told):
+            if i in matched:
+                continue
+            start = old["row"] * self.row
+            if self.touched[start + old["first_px"]:start + old["last_px"] + 1].any():
+                kept.append(old)  # held by the map, not resolved again yet
+            else:
+                found.append(TextureEvent(frame, "dropped", old))
         self._told = kept
         self.events.extend(found)
         return found

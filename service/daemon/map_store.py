@@ -20,7 +20,7 @@ and shown, whether a map is being refined); the keeping is the same and is here,
   every ``SAVE_EVERY_S`` (the first change at once). A full or read-only disk is the ``storage`` fault
   (:mod:`datadir`), the state stays in memory and the write is tried again: the daemon keeps tracking with
   what it learned;
-- the model switch runs under every store's lock (:meth:`MapStore.switch`), so a save never writes the old
+- the model switch runs under every store's lock (:meth:`Stores.switch`), so a save never writes the old
   model's map after it.
 """
 
@@ -197,15 +197,9 @@ class MapStore:
                                                   f"model of calibration {calibration} ({reason}): not restored")
 
     def forget(self) -> None:
-        """The model switch removed the file (under :meth:`switch`'s lock): what was restored at start is history."""
+        """The model switch removed the file (under the lock, :class:`Stores`): what was restored at start is
+        history."""
         self._restored, self._written = (None, 0), None
-
-    def switch(self, switch_model: Callable[[], T]) -> T:
-        """Run the model switch (which removes the file) with no save in between."""
-        with self.lock:
-            done = switch_model()
-            self.forget()
-            return done
 
     # -- while running -----------------------------------------------------------------------
     def save(self, snapshot: MapSnapshot | None, force: bool = False) -> None:

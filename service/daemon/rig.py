@@ -241,7 +241,7 @@ class Rig:
                                   priority=daemon.realtime_priority,
                                   trim=ReferenceTrim(daemon.trim, self._stream_event),
                                   slide=None if daemon.grating else LiveSlide(daemon.axis_px), engine=daemon.engine)
-        if self.model is not None:  # a frame loop restarted: with what the last one learned on the print
+        if self.model is not None:  # a frame loop restarted: with the maps the last one learned
             calibration = self.installed_calibration
             learned = self._learned(lambda store: store.newest(calibration))
             acquisition.install_model(self.model, self.grating.latest_mm() if self.grating else None, calibration,
