@@ -14,6 +14,8 @@ import re
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from graytrack.service.daemon.app import create_app
 from tests.service.helpers import LiveServer, fast_settings, wait_for, wait_job
 from tests.service.hostile import StreamReader
@@ -139,3 +141,38 @@ def test_the_sensor_map_survives_a_restart_and_a_rollback_drops_it(tmp_path: Pat
         rolled = wait_for(lambda: (m := daemon.status()["sensor_map"]) and m["calibration"] == first and m, 10.0,
                           "the first calibration's tracker")
         assert rolled["restored"] == 0 and rolled["learned_samples"] == 0 and not kept.exists()
+
+
+def test_the_frame_loop_tracks_with_a_saved_map_or_without_one_that_does_not_fit() -> None:
+    """The daemon's frame loop (``engine = "estimator"``) builds its tracker with the map saved for the model: a
+    speck saved at pixels 40-45 that the clean frames do not show is taken, then let go as they speak against it
+    (``sensor_map_dropped``). A map that does not fit (another camera's pixel count) is refused through the
+    store's path, with its reason, and every frame is still placed, from the sensor as calibrated."""
+    from graytrack.core.estimator.sensor_map import SensorMap
+    from graytrack.drivers.sim.scenarios import build_rig
+    from tests.conftest import rig_model
+    from tests.service.helpers import stream_through_daemon
+
+    model = rig_model("paper", "", seed=4, seconds=20.0)
+    run, _ = build_rig("paper", "", seed=4, run=1).record(2.0)
+
+    def saved(pixels: int) -> dict[str, Any]:
+        sensor = SensorMap(pixels, np.array([4.0, 0.1, 5.0]), 1.0, 5.0, np.ones(4), 100.0, 0.5, 2, pixels)
+        sensor.touched[40:46], sensor.f[40:46], sensor.sff[40:46], sensor.see[40:46] = True, -0.3, 1e-4, 0.25
+        return sensor.state()
+
+    for pixels, refused in ((model.n_pixels, False), (model.n_pixels + 1, True)):
+        messages, said, acquisition = stream_through_daemon(model, run, False, engine="estimator",
+                                                            learned={"sensor_map": saved(pixels)})
+        assert len(messages) == run.n_frames and all(message["x_mm"] is not None for message in messages)
+        reasons = [message for kind, message in said if kind == "refused"]
+        dropped = [message for kind, message in said if kind == "sensor_map_dropped"]
+        assert not acquisition.tracker.sensor_map.touched.any()  # the clean frames: nothing on the window
+        if refused:
+            assert reasons == [f"sensor_map: {pixels} samples of {pixels} pixels, the map has {model.n_pixels} of "
+                               f"{model.n_pixels}"]
+            assert dropped == []
+        else:
+            assert reasons == [] and len(dropped) == 1, dropped
+            assert re.match(r"frame \d+: the mark on the sensor's side at row 0, pixels 40-45 \(gain 0\.700 \+/- "
+                            r"0\.010, offset \+0\.0 \+/- 0\.5 gray\) no longer holds", dropped[0]), dropped[0]
