@@ -93,6 +93,32 @@ class TextureStatus(BaseModel):
     restored: int = Field(description="marks restored at this start from DATA/texture.json")
 
 
+class SensorMark(BaseModel):
+    """A mark learned on the sensor's side (core/estimator/sensor_map.py): a run of neighbouring samples of one
+    row whose gain and offset the motion resolved (dust on the camera's window, a veil's edge)."""
+
+    row: int = Field(description="the sensor row (0 for a model of one line: the rows averaged)")
+    first_px: int = Field(description="its first pixel")
+    last_px: int = Field(description="its last pixel")
+    samples: int
+    gain: float = Field(description="the light it leaves, mean over its samples (0.7 = 30 % darker)")
+    gain_sigma: float = Field(description="a sample's gain's σ (RMS over the mark)")
+    offset_gray: float = Field(description="light it adds (scattered), gray, mean over its samples")
+    offset_sigma_gray: float = Field(description="a sample's offset's σ, gray (RMS over the mark)")
+
+
+class SensorMapStatus(BaseModel):
+    """The sensor's map the estimator learned, part of the model of record (DATA/sensor_map.json)."""
+
+    calibration: str | None = Field(description="the calibration whose model it was learned with")
+    touched_samples: int = Field(description="samples something landed on (set aside until resolved)")
+    learned_samples: int = Field(description="of those, the samples whose change the motion resolved")
+    marks: int = Field(description="marks learned (runs of learned samples along a row)")
+    shown: list[SensorMark] = Field(description="the widest marks (at most 10; all: GET /api/maps)")
+    saved: bool = Field(description="this state is written to DATA/sensor_map.json")
+    restored: int = Field(description="marks restored at this start from DATA/sensor_map.json")
+
+
 class TrimStatus(BaseModel):
     model_config = ConfigDict(extra="allow")  # the window's line and the followed stretch, when there are
     enabled: bool = Field(description="[daemon] trim: the online trim may correct positions")
@@ -137,6 +163,8 @@ class Status(BaseModel):
     active_calibration: ActiveCalibration | None = Field(description="the calibration whose model is in use")
     texture: TextureStatus | None = Field(None, description="marks the tracker learned on the print (null: no frame "
                                                             "loop or not learning)")
+    sensor_map: SensorMapStatus | None = Field(None, description="the sensor's side the estimator learned (null: the "
+                                                                 "engine keeps none, or no frame loop)")
     simulated: bool
     startup: Startup | None = Field(None, description="while the daemon warms up before opening the rig (state "
                                                        "starting): the step and its progress; null after")

@@ -7,6 +7,7 @@ const TOKEN_KEY = "graytrack.token";
 const STREAM_RATE = 60; // messages/s the page asks for: plenty for the eye, light at 1 kHz
 const KEEP_S = 600;
 const PROFILE_MS = 250;
+const MAPS_MS = 2000; // the learned maps change over many frames, and are saved at most every 10 s
 const $ = (id) => document.getElementById(id);
 const samples = []; // {t (s, page clock), x (mm), e (µm or NaN)}
 let latest = null;
@@ -45,6 +46,11 @@ const GLOSSARY = {
   texture: ["print texture", "Marks that settle on the printed target while the rig runs (dust, a smudge): the " +
     "tracker learns each one's place and depth from what the model leaves unexplained and takes it out, so it " +
     "does not pull the position. Kept with the model in use; dropped when another model is installed."],
+  "sensor-map": ["sensor map", "What sits on the camera's side (dust on its window, a veil) learned per pixel: a " +
+    "gain (the share of the light it leaves) and an offset (light it scatters in), each with its σ. A pixel " +
+    "something landed on is set aside until the stage's motion tells the camera's side from the print; then it " +
+    "counts again, seen through its gain and offset. Kept with the model in use; dropped when another model is " +
+    "installed."],
 };
 
 function explainTerms() {
@@ -161,6 +167,47 @@ async function refreshProfile() {
     }
   } catch (err) {
     $("profile-info").textContent = `no line view: ${err.message}`;
+  }
+}
+
+// -- learned maps --------------------------------------------------------------------------
+let mapRows = 1; // rows of the sensor map (a model of one line has one: the rows averaged)
+
+// The sensor map's line: what is learned and how sure, or honestly that nothing is (or that the engine keeps none).
+function sensorMapLine(m) {
+  if (!m) return "no sensor map: the engine in use keeps none ([daemon] engine = \"estimator\" does)";
+  const notes = [m.restored ? `${m.restored} restored at start` : "", m.saved ? "" : "not saved yet"].filter(Boolean);
+  const tail = notes.length ? ` · ${notes.join(" · ")}` : "";
+  if (!m.learned.length) {
+    return (m.touched.length ? `${m.touched.length} pixel(s) set aside, none yet resolved by the motion`
+      : "nothing learned on the sensor's side") + tail;
+  }
+  const widest = m.marks.slice().sort((a, b) => b.samples - a.samples)[0];
+  const where = widest ? ` · widest at row ${widest.row}, pixels ${widest.first_px}–${widest.last_px}: gain ` +
+    `${fmt(widest.gain, 3)} ± ${fmt(widest.gain_sigma, 3)}, offset ${fmt(widest.offset_gray, 1)} ± ` +
+    `${fmt(widest.offset_sigma_gray, 1)} gray` : "";
+  return `${m.learned.length} pixel(s) learned in ${m.marks.length} mark(s)${where}${tail}`;
+}
+
+async function refreshMaps() {
+  if (document.hidden || !status || status.state === "starting") return;
+  const row = $("profile-row").value;
+  try {
+    const doc = await get(`/api/maps${row === "" || mapRows < 2 ? "" : `?row=${row}`}`);
+    const sensor = doc.sensor_map && status.sensor_map
+      ? { ...doc.sensor_map, saved: status.sensor_map.saved, restored: status.sensor_map.restored } : doc.sensor_map;
+    mapRows = doc.sensor_map ? doc.sensor_map.rows : 1;
+    Plot.sensorMap($("sensor-map"), doc.sensor_map);
+    $("sensor-map").dataset.learned = doc.sensor_map ? String(doc.sensor_map.learned.length) : "";
+    $("sensor-map").dataset.touched = doc.sensor_map ? String(doc.sensor_map.touched.length) : "";
+    $("sensor-map-info").textContent = sensorMapLine(sensor);
+    Plot.textureMap($("texture-map"), doc.texture, doc.stroke_mm);
+    $("texture-map").dataset.marks = doc.texture ? String(doc.texture.marks.length) : "";
+    $("texture-map-info").textContent = doc.texture ? (doc.texture.marks.length
+      ? `${doc.texture.marks.length} mark(s) learned on the print` : "nothing learned on the print")
+      : "no print texture: the engine in use keeps none ([daemon] engine = \"watches\" does)";
+  } catch (err) {
+    $("sensor-map-info").textContent = `no maps: ${err.message}`;
   }
 }
 
@@ -473,6 +520,7 @@ refresh();
 refreshEvents();
 refreshProfile();
 setInterval(refresh, 500);
+setInterval(refreshMaps, MAPS_MS);
 setInterval(refreshEvents, 2000);
 setInterval(refreshProfile, PROFILE_MS);
 requestAnimationFrame(draw);

@@ -112,6 +112,39 @@ const Plot = (() => {
     return clipped;
   }
 
+  // A filled band between lo[i] and hi[i] over n columns of the box (a σ band along the pixels).
+  function band(ctx, box, lo, hi, yRange, color) {
+    const n = lo.length;
+    const px = (i) => box.left + (box.right - box.left) * (i + 0.5) / n;
+    const y = (v) => box.bottom - (box.bottom - box.top) * (Math.min(Math.max(v, yRange[0]), yRange[1]) - yRange[0]) /
+      (yRange[1] - yRange[0]);
+    ctx.fillStyle = color;
+    ctx.beginPath();
+    hi.forEach((v, i) => { if (i) ctx.lineTo(px(i), y(v)); else ctx.moveTo(px(i), y(v)); });
+    for (let i = n - 1; i >= 0; i--) ctx.lineTo(px(i), y(lo[i]));
+    ctx.closePath(); ctx.fill();
+  }
+
+  // The pixel axis under a box: "pixel" at the right, ticks that do not run into it.
+  function pixelAxis(ctx, left, right, n, y) {
+    ctx.fillStyle = "#6b7380"; ctx.textBaseline = "top";
+    ctx.textAlign = "right";
+    label(ctx, "pixel", right, y);
+    const unitLeft = ctx.canvas.labels[ctx.canvas.labels.length - 1].left;
+    ctx.textAlign = "center";
+    for (const i of ticks(0, n - 1, 6)) {
+      const px = left + (right - left) * (i + 0.5) / n;
+      // a tick whose number would run into "pixel" (a narrow screen) is left out
+      if (px + ctx.measureText(String(i)).width / 2 + 4 < unitLeft) label(ctx, String(i), px, y);
+    }
+  }
+
+  // A sentence in the middle of a box: what is (not) there to draw.
+  function note(ctx, box, text) {
+    ctx.fillStyle = "#6b7380"; ctx.textAlign = "center"; ctx.textBaseline = "middle";
+    label(ctx, text, (box.left + box.right) / 2, (box.top + box.bottom) / 2);
+  }
+
   // Position (upper band) and error (lower band) against time, "now" at the right edge.
   function timeSeries(canvas, samples, now, windowS) {
     const { ctx, width, height } = crisp(canvas);
@@ -167,26 +200,96 @@ const Plot = (() => {
       const limit = Math.max(3 * Math.max(...doc.sigma.filter(Number.isFinite)),
                              ...doc.residual.filter(Number.isFinite).map(Math.abs), 0.5);
       const rRange = [-limit * 1.1, limit * 1.1];
-      const y = (v) => bottom.bottom - (bottom.bottom - bottom.top) * (v - rRange[0]) / (rRange[1] - rRange[0]);
-      ctx.fillStyle = "#cbd5e0";
-      ctx.beginPath();
-      doc.sigma.forEach((s, i) => { const px = left + (right - left) * (i + 0.5) / n; if (i) ctx.lineTo(px, y(s)); else ctx.moveTo(px, y(s)); });
-      for (let i = n - 1; i >= 0; i--) ctx.lineTo(left + (right - left) * (i + 0.5) / n, y(-doc.sigma[i]));
-      ctx.closePath(); ctx.fill();
+      band(ctx, bottom, doc.sigma.map((s) => -s), doc.sigma, rRange, "#cbd5e0");
       yAxis(ctx, bottom, rRange, "residual", "#4a5568", false);
       trace(ctx, bottom, xs, doc.residual, xRange, rRange, "#4a5568");
     }
-    ctx.fillStyle = "#6b7380"; ctx.textAlign = "center"; ctx.textBaseline = "top";
-    ctx.textAlign = "right";
-    label(ctx, "pixel", right, height - 18);
+    pixelAxis(ctx, left, right, n, height - 18);
+  }
+
+  // The sensor's map along the pixels (GET /api/maps): each pixel's gain (1: as calibrated) above and offset
+  // (gray) below, each with its ±σ band; pixels something landed on and the motion has not yet resolved are
+  // shaded. `doc` null: the engine keeps no sensor map (said, nothing drawn as if it were one).
+  function sensorMap(canvas, doc) {
+    const { ctx, width, height } = crisp(canvas);
+    const left = 52, right = width - 12, split = Math.round(height * 0.55);
+    const top = { left, right, top: UNIT_ROOM, bottom: split - 8 };
+    const bottom = { left, right, top: split + UNIT_ROOM, bottom: height - 22 };
+    if (!doc) {
+      note(ctx, { left, right, top: 0, bottom: height }, "no sensor map: this engine keeps none");
+      return;
+    }
+    const n = doc.pixels;
+    const xs = doc.gain.map((_, i) => i);
+    const xRange = [-0.5, n - 0.5];
+    const learned = new Set(doc.learned), touched = new Set(doc.touched);
+    for (const i of touched) {
+      if (learned.has(i)) continue;
+      const px = left + (right - left) * (i + 0.5) / n;
+      ctx.fillStyle = "rgba(214,158,46,.25)";
+      ctx.fillRect(px - (right - left) / n / 2, top.top, (right - left) / n, bottom.bottom - top.top);
+    }
+    const span = (values, sigmas, sign) => values.map((v, i) => v + sign * sigmas[i]);
+    const gLo = span(doc.gain, doc.gain_sigma, -1), gHi = span(doc.gain, doc.gain_sigma, 1);
+    const oLo = span(doc.offset_gray, doc.offset_sigma_gray, -1), oHi = span(doc.offset_gray, doc.offset_sigma_gray, 1);
+    // resolved values set the scale (an unresolved sample's σ is its jump's width: drawn clipped at the edge)
+    const shown = (values, sigmas) => values.filter((v, i) => !touched.has(i) || learned.has(i))
+      .concat(doc.learned.map((i) => values[i] - sigmas[i]), doc.learned.map((i) => values[i] + sigmas[i]));
+    const gains = shown(doc.gain, doc.gain_sigma);
+    const gRange = [Math.min(...gains, 0.9) - 0.02, Math.max(...gains, 1.02) + 0.02];
+    const offsets = shown(doc.offset_gray, doc.offset_sigma_gray).map(Math.abs);
+    const oLimit = Math.max(...offsets, 1) * 1.1;
+    const oRange = [-oLimit, oLimit];
+    band(ctx, top, gLo, gHi, gRange, "rgba(43,108,176,.25)");
+    yAxis(ctx, top, gRange, "gain", "#2b6cb0", false);
+    trace(ctx, top, xs, doc.gain, xRange, gRange, "#2b6cb0");
+    band(ctx, bottom, oLo, oHi, oRange, "rgba(183,121,31,.25)");
+    yAxis(ctx, bottom, oRange, "offset", "#b7791f", false);  // in gray (the legend says)
+    trace(ctx, bottom, xs, doc.offset_gray, xRange, oRange, "#b7791f");
+    if (!doc.learned.length) {
+      note(ctx, top, touched.size ? `${touched.size} px set aside, not yet resolved` : "nothing learned: as calibrated");
+    }
+    pixelAxis(ctx, left, right, n, height - 18);
+  }
+
+  // The print's texture along the target (GET /api/maps): each learned mark's stretch of the stroke with its
+  // depth (the light it takes) and ±σ. `doc` null: the engine keeps no print texture.
+  function textureMap(canvas, doc, stroke) {
+    const { ctx, width, height } = crisp(canvas);
+    const left = 52, right = width - 12;
+    const box = { left, right, top: UNIT_ROOM, bottom: height - 22 };
+    if (!doc || !stroke) {
+      note(ctx, { left, right, top: 0, bottom: height }, doc ? "no model: no stroke to draw the print along"
+        : "no print texture: this engine keeps none");
+      return;
+    }
+    const marks = doc.marks;
+    const deepest = Math.max(0.1, ...marks.map((m) => Math.abs(m.depth) + (m.depth_sigma || 0)));
+    const range = [0, Math.min(1, deepest * 1.15)];
+    yAxis(ctx, box, range, "depth", "#2d3748", false);
+    const x = (mm) => left + (right - left) * (mm - stroke[0]) / (stroke[1] - stroke[0]);
+    const y = (v) => box.bottom - (box.bottom - box.top) * (Math.min(Math.max(v, range[0]), range[1]) - range[0]) /
+      (range[1] - range[0]);
+    for (const m of marks) {
+      const x0 = x(m.from_mm), x1 = Math.max(x(m.to_mm), x0 + 2);
+      ctx.fillStyle = "rgba(43,108,176,.55)";
+      ctx.fillRect(x0, y(m.depth), x1 - x0, box.bottom - y(m.depth));
+      if (m.depth_sigma !== null) {  // ±σ as a whisker at the mark's centre
+        const xc = x(m.x_mm);
+        ctx.strokeStyle = "#1a365d"; ctx.lineWidth = 1.5;
+        ctx.beginPath(); ctx.moveTo(xc, y(m.depth - m.depth_sigma)); ctx.lineTo(xc, y(m.depth + m.depth_sigma)); ctx.stroke();
+      }
+    }
+    if (!marks.length) note(ctx, box, "nothing learned: as calibrated");
+    ctx.fillStyle = "#6b7380"; ctx.textBaseline = "top"; ctx.textAlign = "right";
+    label(ctx, "x_w (mm)", right, height - 18);
     const unitLeft = ctx.canvas.labels[ctx.canvas.labels.length - 1].left;
     ctx.textAlign = "center";
-    for (const i of ticks(0, n - 1, 6)) {
-      const px = left + (right - left) * (i + 0.5) / n;
-      // a tick whose number would run into "pixel" (a narrow screen) is left out
-      if (px + ctx.measureText(String(i)).width / 2 + 4 < unitLeft) label(ctx, String(i), px, height - 18);
+    for (const mm of ticks(stroke[0], stroke[1], 6)) {
+      const px = x(mm);
+      if (px + 20 < unitLeft) label(ctx, String(Math.round(mm * 1000) / 1000), px, height - 18);
     }
   }
 
-  return { timeSeries, profile, robustRange, ticks };
+  return { timeSeries, profile, sensorMap, textureMap, robustRange, ticks };
 })();

@@ -26,6 +26,7 @@ weight scaled to match (:func:`apply`).
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -250,6 +251,151 @@ class SensorMap:
         return {"touched_samples": int(self.touched.sum()), "learned_samples": int(learned.size),
                 "jumps": self.jumps, "samples": learned.tolist(), "gain": (1.0 + self.f[learned]).round(4).tolist(),
                 "offset_gray": self.e[learned].round(3).tolist()}
+
+    # ------------------------------------------------------------------ kept between runs, told as it changes
+    # (what the daemon keeps with its model of record, service/daemon/map_store.py, and says in its event log)
+
+    def state(self) -> dict[str, Any]:
+        """The map as a JSON document (:meth:`restore` reads it back): the touched samples' pairs with their
+        covariance and evidence, which of them are learned, and the marks those make. Untouched samples are as
+        calibrated and are not written."""
+        where = np.flatnonzero(self.touched)
+        learned = self.learned()
+        return {"version": MAP_STATE_VERSION, "samples": int(self.touched.size), "pixels": self.row,
+                "rows": self.touched.size // self.row, "jumps": int(self.jumps), "touched": where.tolist(),
+                **{name: getattr(self, name)[where].tolist() for name in PAIR},
+                "learned": learned[where].tolist(), "marks": self.marks(learned)}
+
+    def restore(self, state: dict[str, Any]) -> None:
+        """The map as ``state`` (:meth:`state`) holds it; ValueError (one line) when it is not one this map can
+        hold: another sample count, a bad shape, a value that is not finite or a covariance that is not one.
+        Nothing changes then. The restored marks are what the next look compares against (not learned again)."""
+        try:
+            if state.get("version") != MAP_STATE_VERSION:
+                raise ValueError(f"version {state.get('version')!r}, not {MAP_STATE_VERSION}")
+            if (int(state["samples"]), int(state["pixels"])) != (self.touched.size, self.row):
+                raise ValueError(f"{state['samples']} samples of {state['pixels']} pixels, the map has "
+                                 f"{self.touched.size} of {self.row}")
+            where = np.asarray(state["touched"], dtype=np.int64).reshape(-1)
+            pairs = {name: np.asarray(state[name], dtype=np.float64) for name in PAIR}
+            jumps = int(state.get("jumps", 0))
+        except (KeyError, TypeError, AttributeError) as exc:
+            raise ValueError(f"not a sensor map state ({type(exc).__name__}: {exc})") from None
+        if any(values.shape != where.shape for values in pairs.values()):
+            raise ValueError(f"{where.size} touched samples but the pairs' arrays have lengths "
+                             f"{sorted({values.size for values in pairs.values()})}")
+        if where.size and (where.min() < 0 or where.max() >= self.touched.size or np.unique(where).size != where.size):
+            raise ValueError(f"touched samples must be distinct and within 0..{self.touched.size - 1}")
+        if not all(np.all(np.isfinite(values)) for values in pairs.values()):
+            raise ValueError("a gain, offset, covariance or evidence that is not finite")
+        sff, sfe, see = pairs["sff"], pairs["sfe"], pairs["see"]
+        if np.any(sff < 0) or np.any(see < 0) or np.any(sfe * sfe > sff * see * (1.0 + COVARIANCE_SLACK) + 1e-300):
+            raise ValueError("a gain/offset covariance that is not positive semidefinite")
+        self.reset()
+        self.touched[where] = True
+        for name, values in pairs.items():
+            getattr(self, name)[where] = values
+        # the model's value at each touched sample is the next frame's to say (learn): until then the light's mean
+        self.h[where] = self.mean_gray
+        self.active = bool(where.size)
+        self.jumps = max(jumps, 0)
+        self._told = self.marks()
+
+    def marks(self, learned: np.ndarray | None = None) -> list[dict[str, Any]]:
+        """The learned samples (:meth:`learned`) as marks: each run of neighbouring learned samples along a row,
+        with its mean gain ``1 + f`` and offset ``e`` (gray) and their σ (a sample's, the RMS over the mark's)."""
+        learned = self.learned() if learned is None else learned
+        marks = []
+        for start, stop in _runs(learned, self.row):
+            span = slice(start, stop)
+            marks.append({"row": start // self.row, "first_px": start % self.row, "last_px": (stop - 1) % self.row,
+                          "samples": stop - start, "gain": _figure(1.0 + float(self.f[span].mean())),
+                          "gain_sigma": _figure(math.sqrt(float(self.sff[span].mean()))),
+                          "offset_gray": _figure(float(self.e[span].mean())),
+                          "offset_sigma_gray": _figure(math.sqrt(float(self.see[span].mean())))})
+        return marks
+
+    @property
+    def events(self) -> list[Any]:
+        """What :meth:`look` found, in order (core/texture.py's :class:`TextureEvent`: frame, what, mark)."""
+        if "_events" not in self.__dict__:
+            self._events: list[Any] = []
+        return self._events
+
+    def look(self, frame: int) -> list[Any]:
+        """The marks now against those at the last look, as events of frame ``frame``: ``learned`` (a mark where
+        none was), ``changed`` (its gain or offset moved beyond ``CHANGED_Z`` of its σ since it was told, or marks
+        merged), ``dropped`` (the map let all its samples go: the frames speak for the calibration there again). A
+        mark that only grew or shrank by a sample or its figures refined is not told again, nor one whose samples
+        the map still holds but has not resolved again yet (a jump widened them: it waits, set aside, until the
+        motion resolves it, then is told as changed if its figures moved): a mark near the resolution's threshold
+        would otherwise be told dropped and learned again frame after frame."""
+        from graytrack.core.texture import TextureEvent
+
+        told: list[dict[str, Any]] = self.__dict__.get("_told", [])
+        now = self.marks()
+        found: list[Any] = []
+        kept: list[dict[str, Any]] = []
+        matched: set[int] = set()
+        for mark in now:
+            over = [i for i, old in enumerate(told) if _overlap(old, mark)]
+            matched.update(over)
+            if not over:
+                found.append(TextureEvent(frame, "learned", mark))
+                kept.append(mark)
+            elif len(over) > 1 or _moved(told[over[0]], mark):
+                found.append(TextureEvent(frame, "changed", mark))
+                kept.append(mark)
+            else:  # the same mark refined: its extent followed, its figures as last told
+                kept.append({**told[over[0]], **{key: mark[key] for key in ("row", "first_px", "last_px", "samples")}})
+        for i, old in enumerate(told):
+            if i in matched:
+                continue
+            start = old["row"] * self.row
+            if self.touched[start + old["first_px"]:start + old["last_px"] + 1].any():
+                kept.append(old)  # held by the map, not resolved again yet
+            else:
+                found.append(TextureEvent(frame, "dropped", old))
+        self._told = kept
+        self.events.extend(found)
+        return found
+
+
+MAP_STATE_VERSION = 1  # of :meth:`SensorMap.state`'s document
+PAIR = ("f", "e", "sff", "sfe", "see", "evidence")  # a touched sample's arrays, as the state document names them
+COVARIANCE_SLACK = 1e-6  # relative: a pair's covariance rounded through JSON may sit this far past semidefinite
+CHANGED_Z = 3.0  # a told mark whose gain or offset moved by this many σ (its told and its present one combined) has
+# changed (more landed on it, part of it went); less is the filter refining what it had
+
+
+def _runs(flags: np.ndarray, row: int) -> list[tuple[int, int]]:
+    """(start, stop) of each run of True in ``flags``, a run never crossing from one row of ``row`` to the next."""
+    edges = np.diff(np.concatenate(([0], flags.astype(np.int8), [0])))
+    starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    runs = []
+    for start, stop in zip(starts.tolist(), stops.tolist()):
+        while start // row != (stop - 1) // row:  # split where a row ends
+            end = (start // row + 1) * row
+            runs.append((start, end))
+            start = end
+        runs.append((start, stop))
+    return runs
+
+
+def _figure(value: float) -> float:
+    """``value`` to 4 significant figures (a mark's figures as told and kept: a σ keeps its size however small)."""
+    return float(f"{value:.4g}")
+
+
+def _overlap(a: dict[str, Any], b: dict[str, Any]) -> bool:
+    return a["row"] == b["row"] and a["first_px"] <= b["last_px"] and b["first_px"] <= a["last_px"]
+
+
+def _moved(told: dict[str, Any], now: dict[str, Any]) -> bool:
+    for value, sigma in (("gain", "gain_sigma"), ("offset_gray", "offset_sigma_gray")):
+        if abs(now[value] - told[value]) > CHANGED_Z * math.hypot(told[sigma], now[sigma]):
+            return True
+    return False
 
 
 __all__ = ["SensorMap", "apply", "learn"]

@@ -77,6 +77,9 @@ class AsyncClient:
     async def profile(self, row: int | None = None) -> dict[str, Any]:
         return await self.call(routes.profile(row))
 
+    async def maps(self, row: int | None = None) -> dict[str, Any]:
+        return await self.call(routes.maps(row))
+
     async def metrics(self) -> str:
         return await self.call(routes.metrics())
 

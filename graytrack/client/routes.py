@@ -138,6 +138,11 @@ def profile(row: int | None = None) -> Call[dict[str, Any]]:
     return Call("GET", "/api/profile", dict, params=None if row is None else {"row": row})
 
 
+def maps(row: int | None = None) -> Call[dict[str, Any]]:
+    """The learned maps (``GET /api/maps``): the sensor's along the pixels, the print's along the target."""
+    return Call("GET", "/api/maps", dict, params=None if row is None else {"row": row})
+
+
 def metrics() -> Call[str]:
     return Call("GET", "/metrics", lambda content: content.decode("utf-8"), raw=True)
 

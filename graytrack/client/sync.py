@@ -85,6 +85,9 @@ class Client:
     def profile(self, row: int | None = None) -> dict[str, Any]:
         return self.call(routes.profile(row))
 
+    def maps(self, row: int | None = None) -> dict[str, Any]:
+        return self.call(routes.maps(row))
+
     def metrics(self) -> str:
         return self.call(routes.metrics())
 

@@ -37,8 +37,9 @@ from graytrack.service.daemon.framerate import FrameRate
 from graytrack.service.daemon.grating import Readings
 from graytrack.service.daemon.loss_log import LossLog
 from graytrack.service.daemon.stale_log import StaleLog
-from graytrack.service.daemon.texture_log import TextureLog
-from graytrack.service.daemon.texture_store import TextureSnapshotter
+from graytrack.service.daemon.map_store import MapKind, MapLog, MapSnapshotter
+from graytrack.service.daemon.sensor_map_store import SENSOR_MAP
+from graytrack.service.daemon.texture_store import TEXTURE
 from graytrack.core.slide import SlideWatch
 from graytrack.core.watches.scale import ScaleWatch
 from graytrack.service.daemon.slide import LiveSlide
@@ -53,6 +54,9 @@ log = logging.getLogger("graytrack.daemon")
 Built = tuple[FourierModel, "LiveTracker | LiveEstimator | None", "str | None", "str | None", "ScaleWatch | None",
               "SlideWatch | None"]
 READ_TIMEOUT_S = 0.25  # short, so stop requests and fault timing are honoured promptly
+# the maps each engine learns while tracking, each its tracker's attribute of the kind's name (map_store.py): today's
+# tracker learns the print's texture; the estimator the sensor's map (the print's texture is its next state)
+ENGINE_MAPS: dict[str, tuple[MapKind, ...]] = {"watches": (TEXTURE,), "estimator": (SENSOR_MAP,)}
 
 
 @dataclass(frozen=True)
@@ -133,34 +137,38 @@ class Acquisition(Worker):
         self._last_id: int | None = None
         self._losses = LossLog(on_event)  # frames the camera's counter skipped: frames_lost events
         self._stale = StaleLog(on_event)  # the flag's events: a model gone stale, or a single frame
-        self._texture = TextureLog(on_event)  # what the tracker learns on the print (core/texture.py)
-        self.texture = TextureSnapshotter()  # ... and its newest state, for the model of record (texture_store.py)
+        # what the tracker learns into its maps, as events, and each map's newest state for the model of record
+        # (map_store.py), by the map's name
+        self.kinds = ENGINE_MAPS[engine]
+        self._map_logs = [MapLog(kind, on_event) for kind in self.kinds]
+        self.snapshots = {kind.name: MapSnapshotter(kind) for kind in self.kinds}
 
     # -- control (any thread) --------------------------------------------------------------
     def install_model(self, model: FourierModel, x0_mm: float | None = None, calibration: str | None = None,
-                      texture: dict[str, Any] | None = None,
-                      texture_refused: Callable[[str], None] = lambda reason: None) -> None:
+                      learned: dict[str, dict[str, Any]] | None = None,
+                      refused: Callable[[str, str], None] = lambda name, reason: None) -> None:
         """Track with ``model`` (of calibration ``calibration``) from a coming frame on (started near
-        the grating's reading then, or ``x0_mm``), with the marks ``texture`` learned on the print by
-        an earlier tracker of it (``texture_refused(why)`` when they do not fit it: tracked without
-        them). Its tracker (tables, the compiled solves loaded:
-        40–500 ms, seconds with no compiler cache) is built on a thread of its own: the frame loop
-        keeps every frame meanwhile, tracked with the model it has, and switches between two frames;
+        the grating's reading then, or ``x0_mm``), with the maps ``learned`` (by name: ``texture``, the
+        marks on the print; ``sensor_map``, the sensor's side) an earlier tracker of it learned
+        (``refused(name, why)`` when one does not fit it: tracked without it). Its tracker (tables, the
+        compiled solves loaded: 40–500 ms, seconds with no compiler cache) is built on a thread of its own:
+        the frame loop keeps every frame meanwhile, tracked with the model it has, and switches between two frames;
         each message names the calibration whose model placed it."""
         with self._lock:
             self._generation += 1
             generation = self._generation
-        threading.Thread(target=self._build, args=(model, x0_mm, generation, calibration, texture, texture_refused),
+        threading.Thread(target=self._build, args=(model, x0_mm, generation, calibration, dict(learned or {}), refused),
                          name="tracker-build", daemon=True).start()
 
     def _build(self, model: FourierModel, x0: float | None, generation: int, calibration: str | None,
-               texture: dict[str, Any] | None, texture_refused: Callable[[str], None]) -> None:
+               learned: dict[str, dict[str, Any]], refused: Callable[[str, str], None]) -> None:
         start = x0 if x0 is not None and math.isfinite(x0) else None
+        texture = learned.get(TEXTURE.name)
         if texture is not None:
             try:
                 Texture.from_state(model, texture)  # the saved marks fit this model's grid (else: without them)
             except ValueError as exc:
-                texture_refused(describe(exc))
+                refused(TEXTURE.name, describe(exc))
                 texture = None
         try:
             # without a grating the slide watch (in place of the scale watch), else the tracker's scale watch,
@@ -168,8 +176,10 @@ class Acquisition(Worker):
             if self.engine == "estimator":  # the one estimator: the trim is its fused grating, the slide its lever
                 grating = "none" if self.slide is not None else ("fuse" if self.trim.enabled else "check")
                 axis_px = self.slide.axis_px if self.slide is not None else None
-                built: Built = (model, LiveEstimator(model, start, grating, axis_px=axis_px), None, calibration, None,
-                                None)
+                estimator = LiveEstimator(model, start, grating, axis_px=axis_px,
+                                          sensor_map=learned.get(SENSOR_MAP.name),
+                                          refused=lambda reason: refused(SENSOR_MAP.name, reason))
+                built: Built = (model, estimator, None, calibration, None, None)
             else:
                 slide = self.slide.watch_for(model) if self.slide is not None else None
                 watch = self.trim.watch_for(model) if slide is None else None
@@ -333,8 +343,10 @@ class Acquisition(Worker):
                               f"{sample.frame.frame_id}: {event.reason}")
         self._stale.observe(sample.frame.frame_id,
                             getattr(fix, "stale_reason", None) if getattr(fix, "stale", False) else None)
-        self._texture.observe(tracker.texture)
-        self.texture.observe(tracker.texture, self._calibration)
+        for log_map in self._map_logs:
+            learned = getattr(tracker, log_map.kind.name, None)
+            log_map.observe(learned)
+            self.snapshots[log_map.kind.name].observe(learned, self._calibration)
         self._seq += 1
         message = fix_message(self._seq, sample, fix, stats.dropped, self._calibration)
         self.trim.annotate(message, fix)
@@ -348,7 +360,8 @@ class Acquisition(Worker):
                 watch: ScaleWatch | None, slide: SlideWatch | None, reference_mm: float) -> None:
         """Track with ``tracker`` from this frame on, started at the grating's reading when there is
         one (the stage may have moved while it was built)."""
-        self._texture.replaced(f"calibration {calibration} installed" if calibration else "a model installed")
+        for log_map in self._map_logs:
+            log_map.replaced(f"calibration {calibration} installed" if calibration else "a model installed")
         self._calibration = calibration
         skew = float(model.info.get("reference_skew_s", 0.0) or 0.0)
         self._skew_s = skew if math.isfinite(skew) else 0.0

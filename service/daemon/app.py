@@ -23,7 +23,7 @@ from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
 from starlette.exceptions import HTTPException
 
-from graytrack.service.daemon.api import access, calibration, history, pages, profile, stage, status, stream, trim
+from graytrack.service.daemon.api import access, calibration, history, maps, pages, profile, stage, status, stream, trim
 from graytrack.service.daemon.api.pages import WEB_DIR
 from graytrack.service.daemon.api.schema import strict_openapi
 from graytrack.service.daemon.api.security import WebGuard, WebPolicy
@@ -42,7 +42,7 @@ from graytrack.service.daemon.storage import Storage
 from graytrack.service.daemon.ws_protocol import StreamProtocol
 
 log = logging.getLogger("graytrack.daemon")
-ROUTERS = (status.router, calibration.router, history.router, profile.router, stage.router, stream.router,
+ROUTERS = (status.router, calibration.router, history.router, profile.router, maps.router, stage.router, stream.router,
            pages.router, trim.router, access.router)
 # The frame thread and the event loop share the GIL. A thread that computes for long (a calibration
 # fit, a status document) holds it for Python's default 5 ms switch interval before the stream's

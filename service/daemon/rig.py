@@ -37,7 +37,7 @@ from graytrack.drivers.clock import REAL_TIME, ScaledClock
 from graytrack.drivers.factory import Hardware, open_hardware
 from graytrack.service.daemon import snapshot as parts
 from graytrack.service.daemon import status as status_doc
-from graytrack.service.daemon.acquisition import Acquisition
+from graytrack.service.daemon.acquisition import ENGINE_MAPS, Acquisition
 from graytrack.wire import Activated, ActiveCalibration, Calibration
 from graytrack.service.daemon.slide import LiveSlide
 from graytrack.service.daemon.trim import ReferenceTrim
@@ -53,7 +53,7 @@ from graytrack.service.daemon.stage_control import StageControl
 from graytrack.service.daemon.storage import Storage
 from graytrack.service.daemon.supervision import Faults, Supervisor, sentence
 from graytrack.service.daemon.sweep import Sweep
-from graytrack.service.daemon.texture_store import TextureStore
+from graytrack.service.daemon.map_store import MapStore, Stores
 from graytrack.service.daemon.worker import describe
 
 log = logging.getLogger("graytrack.daemon")
@@ -81,8 +81,11 @@ class Rig:
         self.health = DataDirHealth(storage.root, storage.home, self.faults.reporter("storage"))
         self.events = EventLog(history, self.health.moved, self.faults.reporter("record"), daemon.events_max_age_days,
                                daemon.events_max_count)
-        # the marks learned on the print, kept with the model of record (texture_store.py)
-        self.texture_store = TextureStore(storage, self.health, self.clock.now, self.event)
+        # the maps the engine learns while tracking (the print's texture, the sensor's side), kept with the model of
+        # record (map_store.py), by name; the model switch removes every map's file, its own included
+        self.maps = {kind.name: MapStore(kind, storage, self.health, self.clock.now, self.event)
+                     for kind in ENGINE_MAPS[daemon.engine]}
+        self.map_switch = Stores(*self.maps.values())
         # readings are stamped on the host's clock: a virtual rig run k times faster changes its motion k² faster
         self.readings = Readings(daemon.pair_window_s, daemon.pair_tolerance_um * 1e-3, daemon.pair_rest_s,
                                  change_mm_s2=daemon.pair_change_mm_s2 * self.clock.scale ** 2)
@@ -123,7 +126,7 @@ class Rig:
         self.supervisor.stop()
         self._detach()
         if self.acquisition is not None:  # what the tracker learned since the last write
-            self.texture_store.save(self.acquisition.texture.latest, force=True)
+            self._save_maps(self.acquisition, force=True)
         if not self.health.probe() and self.health.abandon():  # the writes kept while the disk was full: room now?
             log.error("a calibration whose end was logged above reads 'interrupted' at the next start")
         self.event("shutdown", "daemon stopped")
@@ -202,7 +205,7 @@ class Rig:
         elif model is not None:
             log.info("tracking with the saved model %s", model.describe())
             active = self.storage.active_id()
-            self.install(model, active, self.texture_store.load(active))
+            self.install(model, active, self._learned(lambda store: store.load(active)))
         elif daemon.auto_calibrate == "always" or (daemon.auto_calibrate == "sim" and self.settings.simulated):
             log.info("no saved model: calibrating (auto_calibrate = %s)", daemon.auto_calibrate)
             try:
@@ -238,9 +241,11 @@ class Rig:
                                   priority=daemon.realtime_priority,
                                   trim=ReferenceTrim(daemon.trim, self._stream_event),
                                   slide=None if daemon.grating else LiveSlide(daemon.axis_px), engine=daemon.engine)
-        if self.model is not None:  # a frame loop restarted: with what the last one learned on the print
-            acquisition.install_model(self.model, self.grating.latest_mm() if self.grating else None,
-                                      self.installed_calibration, self.texture_store.newest(self.installed_calibration))
+        if self.model is not None:  # a frame loop restarted: with the maps the last one learned
+            calibration = self.installed_calibration
+            learned = self._learned(lambda store: store.newest(calibration))
+            acquisition.install_model(self.model, self.grating.latest_mm() if self.grating else None, calibration,
+                                      learned, self._refused(calibration))
         return acquisition.start()
 
     def _watch(self) -> None:
@@ -250,7 +255,7 @@ class Rig:
         self.events.flush()
         acquisition = self.acquisition
         if acquisition is not None:
-            self.texture_store.save(acquisition.texture.latest)
+            self._save_maps(acquisition)
         with self._lock:
             if self.closing.is_set() or self.hardware is None:
                 return
@@ -267,15 +272,34 @@ class Rig:
                 self.faults.set("stage", f"the controller has not answered POS? for {silent:.1f} s")
 
     def install(self, model: FourierModel, calibration: str | None = None,
-                texture: dict[str, Any] | None = None) -> None:
+                learned: dict[str, dict[str, Any]] | None = None) -> None:
         """Track with ``model`` (of calibration ``calibration``) from a coming frame on, starting near
-        the grating's position, with the marks ``texture`` learned on the print with it before."""
+        the grating's position, with the maps ``learned`` with it before (by name: map_store.py)."""
         assert self.acquisition is not None
         self.model = model
         self.installed_calibration = calibration
         self.faults.set("model", None)
         self.acquisition.install_model(model, self.grating.latest_mm() if self.grating else None, calibration,
-                                       texture, lambda reason: self.texture_store.ignored(calibration, reason))
+                                       learned, self._refused(calibration))
+
+    def _learned(self, state: Callable[[MapStore], dict[str, Any] | None]) -> dict[str, dict[str, Any]]:
+        """Each map's ``state(store)`` that there is, by name."""
+        return {name: found for name, store in self.maps.items() if (found := state(store)) is not None}
+
+    def _refused(self, calibration: str | None) -> Callable[[str, str], None]:
+        """What the tracker calls when a map's saved state does not fit its model (the store says so)."""
+        return lambda name, reason: self.maps[name].ignored(calibration, reason)
+
+    def _save_maps(self, acquisition: Acquisition, force: bool = False) -> None:
+        for name, store in self.maps.items():
+            store.save(acquisition.snapshots[name].latest, force=force)
+
+    def map_status(self, acquisition: Acquisition | None, name: str) -> dict[str, Any] | None:
+        """The status part of the map ``name`` (None: no frame loop, or an engine that keeps none)."""
+        store = self.maps.get(name)
+        if acquisition is None or store is None:
+            return None
+        return store.status(acquisition.snapshots[name].latest)
 
     # -- state -----------------------------------------------------------------------------
     def snapshot(self) -> parts.RigSnapshot:
@@ -294,7 +318,7 @@ class Rig:
             target_mm=self.stage.target_mm, velocity_mm_s=self.stage.velocity_mm_s,
             calibrations_finished=dict(self.calibrations_finished), simulated=self.settings.simulated,
             stale_after_s=stale_after, uptime_s=time.monotonic() - self.started_at,
-            texture=self.texture_store.status(acquisition.texture.latest) if acquisition is not None else None)
+            texture=self.map_status(acquisition, "texture"), sensor_map=self.map_status(acquisition, "sensor_map"))
 
     @property
     def state(self) -> str:
@@ -448,8 +472,8 @@ class Rig:
         needed = (self.storage.calibration_dir(calibration_id) / "model.json").stat().st_size + SWITCH_MARGIN_BYTES
         self.health.refuse(needed)
         try:
-            # the old model's marks go with it: no save of them slips in after the switch removed the file
-            return self.texture_store.switch(lambda: self.storage.switch_model(calibration_id))
+            # the old model's maps go with it: no save of them slips in after the switch removed their files
+            return self.map_switch.switch(lambda: self.storage.switch_model(calibration_id))
         except OSError as exc:
             raise (self.health.failed(exc, needed) or exc) from None
 

@@ -7,6 +7,7 @@ Layout::
     DATA/model.json                 the model the daemon tracks with (loaded at start)
     DATA/active                     the id of the calibration that model came from
     DATA/texture.json               marks the tracker learned on the print with that model (texture_store.py)
+    DATA/sensor_map.json            the sensor's side the estimator learned with that model (sensor_map_store.py)
     DATA/calibrations/<id>/         one sweep: status.json, recording.npz, model.json, report.json(, report.html)
 
 Everything is written atomically (temporary file + rename), so a crash or a full disk never leaves
@@ -149,14 +150,19 @@ class Storage:
     def texture_path(self) -> Path:
         return self.root / "texture.json"
 
+    @property
+    def sensor_map_path(self) -> Path:
+        return self.root / "sensor_map.json"
+
     def switch_model(self, calibration_id: str) -> Switch:
         """``active`` and ``model.json`` become that calibration's, both or neither (:mod:`switch`): the
-        pointer first, then the copy; the print texture learned with the old model goes with it. The
+        pointer first, then the copy; the maps learned with the old model (the print's texture, the
+        sensor's map) go with it. The
         returned switch is applied; ``undo()`` takes all back without needing space (until ``commit()``)."""
         self.check_home()
         source = (self.calibration_dir(calibration_id) / "model.json").read_bytes()
         return Switch([(self.active_path, (calibration_id + "\n").encode()), (self.model_path, source),
-                       (self.texture_path, None)]).apply()
+                       (self.texture_path, None), (self.sensor_map_path, None)]).apply()
 
     def check_home(self) -> None:
         """Raise when the path no longer leads to the directory opened at start (removed, replaced): no

@@ -12,10 +12,7 @@ from __future__ import annotations
 
 from typing import Any, Callable
 
-from graytrack.core.texture import Texture
-
-KINDS = {"learned": "texture_learned", "changed": "texture_changed", "dropped": "texture_dropped",
-         "footprint": "texture_footprint"}
+from graytrack.service.daemon.map_store import MapLog
 
 
 def describe(what: str, mark: dict[str, Any]) -> str:
@@ -33,26 +30,11 @@ def describe(what: str, mark: dict[str, Any]) -> str:
     return f"the mark {where} stopped fitting the frames: dropped, its samples set aside again"
 
 
-class TextureLog:
-    """``observe(texture)`` after each tracked frame: the tracker's new texture events, as events."""
+class TextureLog(MapLog):
+    """``observe(texture)`` after each tracked frame: the tracker's new texture events, as events
+    (:class:`MapLog` with the texture's sentences)."""
 
     def __init__(self, on_event: Callable[[str, str], None]) -> None:
-        self.on_event = on_event
-        self._texture: Texture | None = None
-        self._told = 0  # events of that texture already logged
+        from graytrack.service.daemon.texture_store import TEXTURE
 
-    def observe(self, texture: Texture | None) -> None:
-        if texture is not self._texture:
-            self._texture, self._told = texture, 0
-        if texture is None or len(texture.events) == self._told:
-            return
-        for event in texture.events[self._told:]:
-            self.on_event(KINDS[event.what], f"frame {event.frame}: {describe(event.what, event.mark)}")
-        self._told = len(texture.events)
-
-    def replaced(self, reason: str) -> None:
-        """Another model takes over: what the old one learned goes with it."""
-        texture, self._texture, self._told = self._texture, None, 0
-        if texture is not None and texture.learned:
-            self.on_event("texture_dropped", f"{len(texture.learned)} mark(s) learned on the print dropped with the "
-                                             f"model they were learned for ({reason})")
+        super().__init__(TEXTURE, on_event)

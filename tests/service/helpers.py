@@ -305,12 +305,13 @@ class LiveServer:
         self.thread.join(timeout=20.0)
 
 
-def stream_through_daemon(model, run, trim_enabled: bool, slide: Any = None,
-                          engine: str = "watches") -> tuple[list[dict], list[tuple[str, str]], Any]:
+def stream_through_daemon(model, run, trim_enabled: bool, slide: Any = None, engine: str = "watches",
+                          learned: dict[str, Any] | None = None) -> tuple[list[dict], list[tuple[str, str]], Any]:
     """Every frame of a recorded ``run`` through the daemon's frame loop (its tracker built and switched
     in as for an installed model, with ``[daemon] trim`` as asked; ``slide``: the rig's LiveSlide when it
-    has no grating, ``[daemon] grating = false``): the published messages, the events and the acquisition
-    (its ``trim`` and ``slide`` for the status)."""
+    has no grating, ``[daemon] grating = false``; ``learned``: the maps saved with the model, by name, a map
+    the tracker refuses an event ``refused`` naming it): the published messages, the events and the
+    acquisition (its ``trim`` and ``slide`` for the status)."""
     import numpy as np
 
     from graytrack.service.daemon.acquisition import Acquisition, Sample
@@ -323,7 +324,8 @@ def stream_through_daemon(model, run, trim_enabled: bool, slide: Any = None,
                               on_event=lambda kind, message: events.append((kind, message)), trim=trim, slide=slide,
                               engine=engine)
     # as install_model does
-    acquisition._build(model, float(run.reference[0]), 0, "calibration", None, lambda why: None)
+    acquisition._build(model, float(run.reference[0]), 0, "calibration", learned or {},
+                       lambda name, why: events.append(("refused", f"{name}: {why}")))
     for k in range(run.n_frames):
         frame = Frame(np.asarray(run.frames[k]), k, float(run.t[k]))
         acquisition._track(Sample(frame, float(run.t[k]), float(run.reference[k])))

@@ -207,6 +207,7 @@ class StreamReader:
         self.port = port
         self.seqs: list[int] = []
         self.times: list[float] = []
+        self.messages: list[dict[str, Any]] = []  # every message as received
         self.error: str | None = None
         self._stop = threading.Event()
         self._ready = threading.Event()
@@ -218,6 +219,7 @@ class StreamReader:
                 self._ready.set()
                 while not self._stop.is_set():
                     message = json.loads(ws.recv(timeout=5))
+                    self.messages.append(message)
                     self.seqs.append(message["seq"])
                     self.times.append(time.monotonic())
         except Exception as exc:  # noqa: BLE001 - reported by the caller

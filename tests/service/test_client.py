@@ -59,6 +59,10 @@ def test_status_and_health_are_the_daemons_documents(client: Client) -> None:
     assert status.position_mm is not None and low - 0.01 <= status.position_mm <= high + 0.01
     assert client.health().ok is True
     assert "graytrack_frames" in client.metrics()
+    # the default engine keeps the print's texture, not the sensor's map; the texture drawn along the stroke
+    assert status.sensor_map is None and status.texture is not None
+    maps = client.maps()
+    assert maps["sensor_map"] is None and maps["texture"]["marks"] == [] and maps["stroke_mm"][0] < maps["stroke_mm"][1]
 
 
 def test_a_move_is_seen_converging_in_the_stream(client: Client) -> None:

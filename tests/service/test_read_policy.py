@@ -23,7 +23,8 @@ POLICIES = [("beyond_loopback", "127.0.0.1", False), ("beyond_loopback", "0.0.0.
 
 def _reads(calibration: str) -> list[str]:
     """Every read route (and a path that names none: which routes exist is not told either)."""
-    return ["/api/status", "/api/profile", "/api/events", "/api/calibrations", f"/api/calibrations/{calibration}",
+    return ["/api/status", "/api/profile", "/api/maps", "/api/events", "/api/calibrations",
+            f"/api/calibrations/{calibration}",
             f"/api/calibrations/{calibration}/files/model.json", f"/api/calibrations/{calibration}/files/report.json",
             f"/api/calibrations/{calibration}/files/recording.npz", "/api/calibration/latest",
             f"/api/calibration/{calibration}", "/metrics", "/api/no-such-route"]

@@ -2,8 +2,8 @@
 written beside the model (``DATA/texture.json``, tied to the active calibration), shown in
 ``/api/status``, restored into the tracker at a restart on the same calibration, and dropped, with
 an event, when another model takes over (a rollback). Through a real daemon on the virtual rig
-with dust settling on its print (the model was not told about the dust), and, for a full disk, a
-real small file system."""
+with dust settling on its print (the model was not told about the dust). The store's own rules (a full
+disk, another calibration's file, a damaged one), shared by every learned map: tests/service/test_map_store.py."""
 
 from __future__ import annotations
 
@@ -14,11 +14,7 @@ from pathlib import Path
 
 
 from graytrack.service.daemon.app import create_app
-from graytrack.service.daemon.datadir import DataDirHealth
-from graytrack.service.daemon.storage import Storage
-from graytrack.service.daemon.texture_store import SAVE_EVERY_S, TextureSnapshot, TextureStore
 from tests.service.helpers import LiveServer, fast_settings, wait_for, wait_job
-from tests.service.test_disk_full import fill, small_disk
 
 # specks landing on the print after the start-up calibration's sweep (sim seconds; the test clock runs 10x)
 DUST = {"camera": {"effects": "dust_settling:start_s=30,over_s=10"}}
@@ -96,90 +92,3 @@ def test_marks_the_daemon_learned_survive_a_restart_and_a_rollback_drops_them(tm
         assert not kept.exists() or json.loads(kept.read_text())["calibration"] == job
         dropped = wait_for(lambda: switch_drops()[before:], 10.0, "the texture_dropped event of the rollback")
         assert re.match(r"\d+ mark\(s\) learned on the print dropped with the model", dropped[-1])
-
-
-def test_a_model_switch_removes_the_texture_and_its_undo_puts_it_back(tmp_path: Path) -> None:
-    """Activate and install share one switch (storage.switch_model): the texture goes with the old model, or,
-    when the switch is taken back (a record row that cannot be written), stays with it."""
-    storage = Storage(tmp_path / "data")
-    for calibration in ("20260101T000000000000Z", "20260102T000000000000Z"):
-        storage.calibration_dir(calibration).mkdir()
-        (storage.calibration_dir(calibration) / "model.json").write_text(json.dumps({"id": calibration}))
-    storage.switch_model("20260101T000000000000Z").commit()
-    storage.texture_path.write_text('{"calibration": "20260101T000000000000Z"}')
-    switch = storage.switch_model("20260102T000000000000Z")
-    assert not storage.texture_path.exists() and storage.active_id() == "20260102T000000000000Z"
-    switch.undo()
-    assert json.loads(storage.texture_path.read_text())["calibration"] == storage.active_id()
-    assert storage.active_id() == "20260101T000000000000Z"
-    storage.switch_model("20260102T000000000000Z").commit()
-    assert not storage.texture_path.exists()
-
-
-def snapshot(calibration: str | None, marks: int) -> TextureSnapshot:
-    """A texture state as core/texture.py writes it, with ``marks`` placeholder marks (the store does not read them)."""
-    return TextureSnapshot(calibration, {"version": 1, "rows": 1, "pixels": 100,
-                                         "grid": {"origin_mm": 0.0, "step_mm": 0.003, "scale": 1.0},
-                                         "marks": [{"describe": {"x_mm": 3.0 + k, "from_mm": 2.9 + k, "to_mm": 3.1 + k,
-                                                                 "depth": 0.3, "depth_sigma": 0.01, "frames": 40,
-                                                                 "learned_at": 100 * k}} for k in range(marks)]})
-
-
-class Clock:
-    def __init__(self) -> None:
-        self.t = 0.0
-
-    def __call__(self) -> float:
-        return self.t
-
-
-def test_a_full_disk_keeps_the_texture_in_memory_raises_the_storage_fault_and_writes_it_when_space_returns(
-        tmp_path: Path) -> None:
-    with small_disk(tmp_path / "disk", "2m") as disk:
-        storage = Storage(disk / "data")
-        calibration = "20260101T000000000000Z"
-        storage.set_active(calibration)
-        (disk / "data" / "model.json").write_text("{}")
-        faults: list[str | None] = []
-        said: list[tuple[str, str]] = []
-        health = DataDirHealth(storage.root, storage.home, faults.append)
-        clock = Clock()
-        store = TextureStore(storage, health, clock, lambda kind, message: said.append((kind, message)))
-        filler = fill(disk)
-        learned = snapshot(calibration, 2)
-        store.save(learned)  # ENOSPC: a fault naming the disk, nothing half-written, the state kept
-        assert faults and faults[-1].startswith("disk full") and not storage.texture_path.exists()
-        assert not [p for p in storage.root.iterdir() if p.name.startswith(".texture")]
-        assert store.status(learned)["saved"] is False and store.newest(calibration) is learned.state
-        filler.unlink()
-        assert health.probe()
-        store.save(learned)  # throttled: tried again only SAVE_EVERY_S after the failure
-        assert not storage.texture_path.exists()
-        clock.t += SAVE_EVERY_S
-        store.save(learned)
-        document = json.loads(storage.texture_path.read_text())
-        assert document["calibration"] == calibration and len(document["texture"]["marks"]) == 2
-        assert store.status(learned)["saved"] is True
-        written = storage.texture_path.stat().st_ino
-        clock.t += SAVE_EVERY_S
-        again = snapshot(calibration, 2)  # refined to the same figures: not written again
-        store.save(again)
-        assert storage.texture_path.stat().st_ino == written and store.status(again)["saved"] is True
-
-
-def test_a_texture_of_another_calibration_is_neither_written_nor_restored(tmp_path: Path) -> None:
-    storage = Storage(tmp_path / "data")
-    storage.set_active("20260101T000000000000Z")
-    storage.model_path.write_text("{}")
-    said: list[tuple[str, str]] = []
-    health = DataDirHealth(storage.root, storage.home, lambda reason: None)
-    store = TextureStore(storage, health, Clock(), lambda kind, message: said.append((kind, message)))
-    store.save(snapshot("20250101T000000000000Z", 2))  # an old model's tracker after the switch
-    assert not storage.texture_path.exists()
-    store.save(snapshot("20260101T000000000000Z", 1), force=True)
-    assert store.load("20260101T000000000000Z")["marks"] and said[-1][0] == "texture_restored"
-    storage.model_path.write_text('{"another": "model"}')  # the same id, another model.json: not its marks
-    assert store.load("20260101T000000000000Z") is None and said[-1][0] == "texture_ignored"
-    assert store.load("20250101T000000000000Z") is None and "not for the model in use" in said[-1][1]
-    storage.texture_path.write_text("{not json")
-    assert store.load("20260101T000000000000Z") is None and "cannot be read" in said[-1][1]

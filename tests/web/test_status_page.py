@@ -239,5 +239,64 @@ def test_the_print_texture_learned_is_shown_where_and_how_sure(tmp_path: Path, b
 
         wait_for(same_newest, 10.0, "the page's newest mark to be status's",
                  show=lambda: (line.text_content(), daemon.status()["texture"]["newest"]))
+        # the marks drawn along the target with their depth; this engine keeps no sensor map, and the page says so
+        along = browser_page.locator("#texture-map")
+        expect(along).not_to_have_attribute("data-marks", re.compile(r"^[012]?$"), timeout=10_000)
+        assert {"depth", "x_w (mm)"} <= set(canvas_labels(browser_page, "#texture-map"))
+        assert "no sensor map: this engine keeps none" in canvas_labels(browser_page, "#sensor-map")
+        expect(browser_page.locator("#sensor-map-info")).to_contain_text("no sensor map")
+        assert browser_page.evaluate("document.documentElement.scrollWidth") <= 390
+        assert console == [], console
+
+
+def canvas_labels(browser_page, canvas: str) -> list[str]:
+    """The texts the canvas drew (web/plot.js keeps each with its box), checked to lie inside it and apart."""
+    labels, size = browser_page.locator(canvas).evaluate("c => [c.labels || [], [c.clientWidth, c.clientHeight]]")
+    for k, a in enumerate(labels):
+        assert a["left"] >= 0 and a["top"] >= 0 and a["right"] <= size[0] and a["bottom"] <= size[1], (a, size)
+        for b in labels[k + 1:]:
+            apart = a["right"] <= b["left"] or b["right"] <= a["left"] or a["bottom"] <= b["top"] or \
+                b["bottom"] <= a["top"]
+            assert apart, (canvas, a, b)
+    return [label["text"] for label in labels]
+
+
+def test_the_sensor_map_is_drawn_along_the_pixels_with_its_sigma(tmp_path: Path, browser) -> None:
+    """``[daemon] engine = "estimator"`` with dust landing on the camera's window: the page's "Learned maps" card
+    draws the sensor map along the pixels (gain and offset with their ±σ band), first saying honestly that
+    nothing is learned, then where the widest mark is, how much and how sure; the print's texture, which this
+    engine does not keep, is said to be absent, not drawn empty."""
+    from playwright.sync_api import expect
+
+    from graytrack.service.daemon.app import create_app
+    from tests.service.test_sensor_map_store import LANDING, LEARNED_SAMPLES, learn
+
+    with LiveServer(create_app(fast_settings(tmp_path, tables=LANDING, engine="estimator"))) as daemon:
+        daemon.wait_state("tracking", 60.0)
+        browser_page = browser.new_page(viewport={"width": 390, "height": 844})
+        console = watch_console(browser_page)
+        browser_page.goto(daemon.base + "/")
+        sensor, info = browser_page.locator("#sensor-map"), browser_page.locator("#sensor-map-info")
+        expect(sensor).to_have_attribute("data-learned", "0", timeout=10_000)  # the stage rests: nothing resolved
+        assert re.search(r"nothing learned on the sensor's side|\d+ pixel\(s\) set aside", info.text_content())
+        empty = canvas_labels(browser_page, "#sensor-map")
+        assert "nothing learned: as calibrated" in empty or \
+            any(re.fullmatch(r"\d+ px set aside, not yet resolved", text) for text in empty), empty
+        assert "no print texture: this engine keeps none" in canvas_labels(browser_page, "#texture-map")
+        expect(browser_page.locator("#texture-map-info")).to_contain_text("no print texture")
+
+        learned = learn(daemon)
+        expect(sensor).not_to_have_attribute("data-learned", re.compile(r"^\d$"), timeout=10_000)
+        assert int(sensor.get_attribute("data-learned")) >= LEARNED_SAMPLES <= learned["learned_samples"]
+        expect(info).to_have_text(re.compile(r"^\d+ pixel\(s\) learned in \d+ mark\(s\) · widest at row 0, pixels "
+                                             r"\d+–\d+: gain 0\.\d{3} ± 0\.\d{3}, offset -?\d+\.\d ± \d+\.\d gray"),
+                                  timeout=10_000)
+        drawn = canvas_labels(browser_page, "#sensor-map")
+        assert {"gain", "offset", "pixel"} <= set(drawn), drawn
+        assert not any("nothing learned" in text or "set aside" in text for text in drawn), drawn
+        # the ±σ band is drawn: some pixel's gain band is wider than a line where the map is resolved
+        widths = browser_page.evaluate("""() => fetch('/api/maps').then(r => r.json()).then(d =>
+            d.sensor_map.learned.map(i => d.sensor_map.gain_sigma[i]))""")
+        assert widths and all(0.0 < width < 0.1 for width in widths), widths
         assert browser_page.evaluate("document.documentElement.scrollWidth") <= 390
         assert console == [], console
