@@ -60,6 +60,9 @@ ACQUIRE_GRID_PER_PERIOD = 64  # grid positions a period when a frame is placed f
 FAILED_TO_REACQUIRE = 3  # frames in a row not placed before the next is placed from nothing again
 # Families whose states may jump between two frames, and the states that jump with them.
 JUMPS = {"light": (G, OFS), "field": (A1, A2), "focus": (B,), "magnification": (M,), "geometry": (C, T), "motion": (V,)}
+AGREED_GRID = 65  # positions over half a period where too many samples fail for the sensor's map (_agreed): a
+# 128th of a period apart, well inside Gauss–Newton's quarter-period reach from the one chosen
+AGREED_ROUNDS = 3  # light fits per position, each from the samples the last one left within the test
 SEARCHED = 2  # families tried with their jump on a frame that fails the test, most evident first (_ranked): the
 # families that mimic each other on one frame come in pairs (the light's shape and a shift over less than a
 # period; the stage's jerk and the camera's place without the grating), so the one that moved ranks first or second
@@ -322,7 +325,8 @@ class Estimator:
             mode, solved, reason_jump = "", self.idx, None
             self._unexplained = []
         if (test > 1.0 or stats[S_REJECTED] > 0 or stats[S_WEIGHED] > 0) and not mode and dt is not None \
-                and main[S_POSTERIOR] > 0 and self._anchored(self._P_next, main) and self._landed(y, mask, s):
+                and main[S_POSTERIOR] > 0 and self._anchored(self._P_next, main) and \
+                self._landed(y, mask, s, s_prior, P_prior, grating_z) > 0:
             # Something landed on samples no jump of the state explains (a speck on the window, a veil): they wait
             # outside the position until the motion resolves them (sensor_map.py), and the frame is solved again
             # without them, so what they showed moves no state.
@@ -398,8 +402,76 @@ class Estimator:
             self._unexplained = []
         return test, mode, s, A, stats, solved, reason_jump
 
-    def _landed(self, y: np.ndarray, mask: np.ndarray, s: np.ndarray) -> int:
-        """Samples something landed on, tested at the frame's update ``s`` (sensor_map.land)."""
+    def _landed(self, y: np.ndarray, mask: np.ndarray, s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray,
+                grating_z: float) -> int:
+        """Samples something landed on, tested at the frame's update ``s`` (sensor_map.land). Where more fail
+        than the map may hold, the update itself may be what the marks pulled (specks on the window from the
+        first frame leave no clean state to test against: every sample then fails, the robust weights' scale
+        with them): the frame is placed again by the samples that agree (``_agreed``), solved from those with
+        the light free, and tested at that solution. A state truly misplaced (its light, its position) is
+        placed right by its own samples, and few fail."""
+        fresh = self._land_at(y, mask, s)
+        if fresh >= 0 or self.sensor.most <= 0.0:  # (a map that may hold nothing: no placing again for it)
+            return max(fresh, 0)
+        agreed = self._agreed(y, mask, s)
+        if agreed is None:
+            return 0
+        x_mm, kept = agreed
+        start = s.copy()
+        start[X] = x_mm
+        self.rho[:] = 1.0
+        s, _, stats = self._solve(y, mask * kept, s_prior, self._jumped(P_prior, "light"), grating_z, start=start)
+        if not math.isfinite(s[X]) or stats[kernel.S_USED] <= 0:
+            return 0
+        return max(self._land_at(y, mask, s), 0)
+
+    def _agreed(self, y: np.ndarray, mask: np.ndarray, s: np.ndarray) -> tuple[float, np.ndarray] | None:
+        """The position within a quarter period of ``s`` that most samples agree with, and those samples: on a
+        grid of ``AGREED_GRID`` positions the model's values with the light the agreeing samples share (below),
+        then fitted (gain, offset) to the samples within the per-sample test, ``AGREED_ROUNDS`` times; each
+        position's cost is its samples' χ² with every sample's capped at the test (a mark costs what it costs,
+        however deep). None: no position leaves enough samples to solve with."""
+        grid = s[X] + np.linspace(-0.25, 0.25, AGREED_GRID) * self.model.period_mm
+        values, _ = self.evaluator.evaluate(grid)
+        weight = mask / self._noise_var
+        cap = self.sensor.z2 * self.sensor.level
+        usable = np.flatnonzero(weight > 0.0)
+        half = int(math.ceil((1.0 - self.sensor.most) * usable.size))
+        if half <= self.idx.size:
+            return None
+        # the light the samples that agree share: each sample's gain against the model (less the state's
+        # offset), the shortest span holding the share the map would leave, its middle (a mark darkens or
+        # brightens its samples each its own way; the rest agree within their noise)
+        ratio = np.sort((y[usable] - s[OFS]) / np.where(values[:, usable] > 0.0, values[:, usable], np.nan), axis=1)
+        spans = ratio[:, half - 1:] - ratio[:, :usable.size - half + 1]
+        first = np.argmin(np.where(np.isnan(spans), np.inf, spans), axis=1)
+        rows = np.arange(grid.size)
+        gain = 0.5 * (ratio[rows, first] + ratio[rows, first + half - 1])
+        offset = np.full(grid.size, s[OFS])
+        good = np.isfinite(gain)
+        for _ in range(AGREED_ROUNDS):
+            chi2 = (y - gain[:, None] * values - offset[:, None]) ** 2 * weight
+            kept = (chi2 < cap) & (weight > 0.0)
+            w = weight * kept
+            ones, y1, f1 = w.sum(axis=1), w @ y, (w * values).sum(axis=1)
+            ff, yf = (w * values * values).sum(axis=1), (w * values) @ y
+            det = ff * ones - f1 * f1
+            good = np.isfinite(gain) & (det > 0.0)
+            det = np.where(good, det, 1.0)
+            gain = np.where(good, (yf * ones - f1 * y1) / det, np.nan)
+            offset = np.where(good, (ff * y1 - f1 * yf) / det, 0.0)
+        chi2 = (y - np.nan_to_num(gain)[:, None] * values - offset[:, None]) ** 2 * weight
+        kept = (chi2 < cap) & (weight > 0.0)
+        cost = np.minimum(np.where(weight > 0.0, chi2, 0.0), cap).sum(axis=1) + \
+            np.where(good & (np.nan_to_num(gain) > 0.0), 0.0, np.inf)
+        best = int(np.argmin(cost))
+        if not math.isfinite(cost[best]) or kept[best].sum() <= self.idx.size:
+            return None
+        return float(grid[best]), kept[best].astype(np.float64)
+
+    def _land_at(self, y: np.ndarray, mask: np.ndarray, s: np.ndarray) -> int:
+        """sensor_map.land with the frame's residuals at ``s`` (left in ``scratch[5]``, their weights in
+        ``scratch[4]``)."""
         kernel.residuals(s, y, self.pixels, self.params, self.model_args, self.scratch, self._noise_var)
         weight = self.scratch[4]
         np.divide(mask, self._noise_var, out=weight)

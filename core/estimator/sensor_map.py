@@ -138,7 +138,8 @@ def land(residual: np.ndarray, weight: np.ndarray, level: float, z2: float, most
     widened by the jumps, and so are the samples within ``reach`` of it along its row (a mark on the window
     is out of focus: its soft edge, below the test, lands with it) — as long as the map then holds no more
     than ``most`` of the frame's samples: a frame on which more fail at once is one the state misplaced (its
-    light, its position), the state's to answer, not the map's. Returns the samples that failed."""
+    light, its position), the state's to answer, not the map's. Returns the samples that failed (as a
+    negative count where they were too many: nothing landed)."""
     core = np.zeros(residual.size, dtype=np.bool_)
     fresh, held, usable = 0, 0, 0
     for p in range(residual.size):
@@ -150,8 +151,10 @@ def land(residual: np.ndarray, weight: np.ndarray, level: float, z2: float, most
         if not touched[p] and residual[p] * residual[p] * weight[p] / level > z2:
             core[p] = True
             fresh += 1
-    if fresh == 0 or held + fresh > most * (held + usable):
+    if fresh == 0:
         return 0
+    if held + fresh > most * (held + usable):
+        return -fresh
     for p in range(residual.size):
         if not core[p]:
             continue
@@ -214,10 +217,11 @@ class SensorMap:
         return self._y, self._mask
 
     def land(self, residual: np.ndarray, weight: np.ndarray) -> int:
-        """Samples something landed on, from a frame's solve (:func:`land`); the frame is to be seen again."""
+        """Samples something landed on, from a frame's solve (:func:`land`); the frame is to be seen again.
+        A negative count: that many failed, too many for the map (nothing landed)."""
         fresh = land(residual, weight, self.level, self.z2, self.most, self.params[0], self.params[1], self.reach,
                      self.row, self.touched, self.sff, self.see, self.evidence)
-        if fresh:
+        if fresh > 0:
             self.active = True
             self.jumps += fresh
         return fresh
