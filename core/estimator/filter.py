@@ -257,6 +257,7 @@ class Estimator:
         self._family_dof = [1 if family == "motion" else len(where) for family, where in self._families]
         self._statistics = np.zeros(len(self._families))
         self._unexplained: list[str] = []  # the families tried on the last frame, none of whose jumps explained it
+        self._placed_again = False  # a frame of this episode was placed again by its agreeing samples, in vain
         self._warm()
 
     # ------------------------------------------------------------------ the recursion
@@ -281,6 +282,7 @@ class Estimator:
         self.started = True
         self.failed = 0
         self._unexplained = []
+        self._placed_again = False
 
     def predict(self, t: float) -> None:
         """State and covariance moved on to time ``t``."""
@@ -324,6 +326,7 @@ class Estimator:
         else:
             mode, solved, reason_jump = "", self.idx, None
             self._unexplained = []
+            self._placed_again = False
         if (test > 1.0 or stats[S_REJECTED] > 0 or stats[S_WEIGHED] > 0) and not mode and dt is not None \
                 and main[S_POSTERIOR] > 0 and self._anchored(self._P_next, main) and \
                 self._landed(y, mask, s, s_prior, P_prior, grating_z) > 0:
@@ -413,6 +416,12 @@ class Estimator:
         fresh = self._land_at(y, mask, s)
         if fresh >= 0 or self.sensor.most <= 0.0:  # (a map that may hold nothing: no placing again for it)
             return max(fresh, 0)
+        if self._placed_again:
+            # Placed again in vain on an earlier frame of this episode (frames failing since): what fails is the
+            # state's or a mark too wide for the map (a veil, a smudge), not marks the update was pulled by. Not
+            # placed again until a frame passes its test.
+            return 0
+        self._placed_again = True
         agreed = self._agreed(y, mask, s)
         if agreed is None:
             return 0
@@ -423,7 +432,9 @@ class Estimator:
         s, _, stats = self._solve(y, mask * kept, s_prior, self._jumped(P_prior, "light"), grating_z, start=start)
         if not math.isfinite(s[X]) or stats[kernel.S_USED] <= 0:
             return 0
-        return max(self._land_at(y, mask, s), 0)
+        fresh = max(self._land_at(y, mask, s), 0)
+        self._placed_again = fresh == 0
+        return fresh
 
     def _agreed(self, y: np.ndarray, mask: np.ndarray, s: np.ndarray) -> tuple[float, np.ndarray] | None:
         """The position within a quarter period of ``s`` that most samples agree with, and those samples: on a
