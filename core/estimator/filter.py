@@ -61,7 +61,8 @@ FAILED_TO_REACQUIRE = 3  # frames in a row not placed before the next is placed 
 # Families whose states may jump between two frames, and the states that jump with them.
 JUMPS = {"light": (G, OFS), "field": (A1, A2), "focus": (B,), "magnification": (M,), "geometry": (C, T), "motion": (V,)}
 AGREED_GRID = 65  # positions over half a period where too many samples fail for the sensor's map (_agreed): a
-# 128th of a period apart, well inside Gauss–Newton's quarter-period reach from the one chosen
+# 128th of a period apart, well inside Gauss–Newton's quarter-period reach from the one chosen; as many again
+# within a step of it
 AGREED_ROUNDS = 3  # light fits per position, each from the samples the last one left within the test
 SEARCHED = 2  # families tried with their jump on a frame that fails the test, most evident first (_ranked): the
 # families that mimic each other on one frame come in pairs (the light's shape and a shift over less than a
@@ -438,27 +439,43 @@ class Estimator:
 
     def _agreed(self, y: np.ndarray, mask: np.ndarray, s: np.ndarray) -> tuple[float, np.ndarray] | None:
         """The position within a quarter period of ``s`` that most samples agree with, and those samples: on a
-        grid of ``AGREED_GRID`` positions the model's values with the light the agreeing samples share (below),
-        then fitted (gain, offset) to the samples within the per-sample test, ``AGREED_ROUNDS`` times; each
-        position's cost is its samples' χ² with every sample's capped at the test (a mark costs what it costs,
-        however deep). None: no position leaves enough samples to solve with."""
-        grid = s[X] + np.linspace(-0.25, 0.25, AGREED_GRID) * self.model.period_mm
-        values, _ = self.evaluator.evaluate(grid)
+        grid of ``AGREED_GRID`` positions, then as many within a step of the best (a strip's averaged rows make
+        the agreement narrower than a step), the model's values with the light the agreeing samples share
+        (``_agreement``). None: no position leaves enough samples to solve with."""
         weight = mask / self._noise_var
-        cap = self.sensor.z2 * self.sensor.level
         usable = np.flatnonzero(weight > 0.0)
         half = int(math.ceil((1.0 - self.sensor.most) * usable.size))
         if half <= self.idx.size:
             return None
-        # the light the samples that agree share: each sample's gain against the model (less the state's
-        # offset), the shortest span holding the share the map would leave, its middle (a mark darkens or
-        # brightens its samples each its own way; the rest agree within their noise)
-        ratio = np.sort((y[usable] - s[OFS]) / np.where(values[:, usable] > 0.0, values[:, usable], np.nan), axis=1)
+        step = 0.5 * self.model.period_mm / (AGREED_GRID - 1)
+        centre = float(s[X])
+        for reach in (0.25 * self.model.period_mm, step):
+            grid = centre + np.linspace(-reach, reach, AGREED_GRID)
+            cost, kept = self._agreement(y, weight, usable, half, grid, float(s[OFS]))
+            best = int(np.argmin(cost))
+            if not math.isfinite(cost[best]):
+                return None
+            centre = float(grid[best])
+        if kept[best].sum() <= self.idx.size:
+            return None
+        return centre, kept[best].astype(np.float64)
+
+    def _agreement(self, y: np.ndarray, weight: np.ndarray, usable: np.ndarray, half: int, grid: np.ndarray,
+                   offset0: float) -> tuple[np.ndarray, np.ndarray]:
+        """At each position of ``grid``: the cost of the samples' agreement and the samples within the test. The
+        light is the one the agreeing samples share — each sample's gain against the model (less ``offset0``),
+        the shortest span holding ``half`` of them, its middle (a mark darkens or brightens its samples each its
+        own way; the rest agree within their noise) — then fitted (gain, offset) to the samples within the
+        per-sample test, ``AGREED_ROUNDS`` times; the cost is the samples' χ² with every sample's capped at the
+        test (a mark costs what it costs, however deep)."""
+        values, _ = self.evaluator.evaluate(grid)
+        cap = self.sensor.z2 * self.sensor.level
+        ratio = np.sort((y[usable] - offset0) / np.where(values[:, usable] > 0.0, values[:, usable], np.nan), axis=1)
         spans = ratio[:, half - 1:] - ratio[:, :usable.size - half + 1]
         first = np.argmin(np.where(np.isnan(spans), np.inf, spans), axis=1)
         rows = np.arange(grid.size)
         gain = 0.5 * (ratio[rows, first] + ratio[rows, first + half - 1])
-        offset = np.full(grid.size, s[OFS])
+        offset = np.full(grid.size, offset0)
         good = np.isfinite(gain)
         for _ in range(AGREED_ROUNDS):
             chi2 = (y - gain[:, None] * values - offset[:, None]) ** 2 * weight
@@ -475,10 +492,7 @@ class Estimator:
         kept = (chi2 < cap) & (weight > 0.0)
         cost = np.minimum(np.where(weight > 0.0, chi2, 0.0), cap).sum(axis=1) + \
             np.where(good & (np.nan_to_num(gain) > 0.0), 0.0, np.inf)
-        best = int(np.argmin(cost))
-        if not math.isfinite(cost[best]) or kept[best].sum() <= self.idx.size:
-            return None
-        return float(grid[best]), kept[best].astype(np.float64)
+        return cost, kept
 
     def _land_at(self, y: np.ndarray, mask: np.ndarray, s: np.ndarray) -> int:
         """sensor_map.land with the frame's residuals at ``s`` (left in ``scratch[5]``, their weights in
