@@ -60,7 +60,7 @@ ACQUIRE_GRID_PER_PERIOD = 64  # grid positions a period when a frame is placed f
 FAILED_TO_REACQUIRE = 3  # frames in a row not placed before the next is placed from nothing again
 # Families whose states may jump between two frames, and the states that jump with them.
 JUMPS = {"light": (G, OFS), "field": (A1, A2), "focus": (B,), "magnification": (M,), "geometry": (C, T), "motion": (V,)}
-AGREED_GRID = 65  # positions over half a period where too many samples fail for the sensor's map (_agreed): a
+AGREED_GRID = 33  # positions over half a period where too many samples fail for the sensor's map (_agreed): a
 # 128th of a period apart, well inside Gauss–Newton's quarter-period reach from the one chosen; as many again
 # within a step of it
 AGREED_ROUNDS = 3  # light fits per position, each from the samples the last one left within the test
@@ -441,58 +441,31 @@ class Estimator:
         """The position within a quarter period of ``s`` that most samples agree with, and those samples: on a
         grid of ``AGREED_GRID`` positions, then as many within a step of the best (a strip's averaged rows make
         the agreement narrower than a step), the model's values with the light the agreeing samples share
-        (``_agreement``). None: no position leaves enough samples to solve with."""
+        (kernel.agreement: each sample's gain against the model, the shortest span holding the share the map
+        would leave, then refitted ``AGREED_ROUNDS`` times to the samples within the per-sample test; each
+        position's cost its samples' χ² with every sample's capped at the test: a mark costs what it costs,
+        however deep). None: no position leaves enough samples to solve with."""
         weight = mask / self._noise_var
-        usable = np.flatnonzero(weight > 0.0)
-        half = int(math.ceil((1.0 - self.sensor.most) * usable.size))
+        half = int(math.ceil((1.0 - self.sensor.most) * np.count_nonzero(weight > 0.0)))
         if half <= self.idx.size:
             return None
+        cap = self.sensor.z2 * self.sensor.level
+        cost, gain, offset = np.empty(AGREED_GRID), np.zeros(AGREED_GRID), np.zeros(AGREED_GRID)
         step = 0.5 * self.model.period_mm / (AGREED_GRID - 1)
         centre = float(s[X])
         for reach in (0.25 * self.model.period_mm, step):
             grid = centre + np.linspace(-reach, reach, AGREED_GRID)
-            cost, kept = self._agreement(y, weight, usable, half, grid, float(s[OFS]))
+            values, _ = self.evaluator.evaluate(grid)
+            kernel.agreement(y, weight, values, half, float(s[OFS]), cap, AGREED_ROUNDS, cost, gain, offset)
             best = int(np.argmin(cost))
             if not math.isfinite(cost[best]):
                 return None
             centre = float(grid[best])
-        if kept[best].sum() <= self.idx.size:
-            return None
-        return centre, kept[best].astype(np.float64)
-
-    def _agreement(self, y: np.ndarray, weight: np.ndarray, usable: np.ndarray, half: int, grid: np.ndarray,
-                   offset0: float) -> tuple[np.ndarray, np.ndarray]:
-        """At each position of ``grid``: the cost of the samples' agreement and the samples within the test. The
-        light is the one the agreeing samples share — each sample's gain against the model (less ``offset0``),
-        the shortest span holding ``half`` of them, its middle (a mark darkens or brightens its samples each its
-        own way; the rest agree within their noise) — then fitted (gain, offset) to the samples within the
-        per-sample test, ``AGREED_ROUNDS`` times; the cost is the samples' χ² with every sample's capped at the
-        test (a mark costs what it costs, however deep)."""
-        values, _ = self.evaluator.evaluate(grid)
-        cap = self.sensor.z2 * self.sensor.level
-        ratio = np.sort((y[usable] - offset0) / np.where(values[:, usable] > 0.0, values[:, usable], np.nan), axis=1)
-        spans = ratio[:, half - 1:] - ratio[:, :usable.size - half + 1]
-        first = np.argmin(np.where(np.isnan(spans), np.inf, spans), axis=1)
-        rows = np.arange(grid.size)
-        gain = 0.5 * (ratio[rows, first] + ratio[rows, first + half - 1])
-        offset = np.full(grid.size, offset0)
-        good = np.isfinite(gain)
-        for _ in range(AGREED_ROUNDS):
-            chi2 = (y - gain[:, None] * values - offset[:, None]) ** 2 * weight
-            kept = (chi2 < cap) & (weight > 0.0)
-            w = weight * kept
-            ones, y1, f1 = w.sum(axis=1), w @ y, (w * values).sum(axis=1)
-            ff, yf = (w * values * values).sum(axis=1), (w * values) @ y
-            det = ff * ones - f1 * f1
-            good = np.isfinite(gain) & (det > 0.0)
-            det = np.where(good, det, 1.0)
-            gain = np.where(good, (yf * ones - f1 * y1) / det, np.nan)
-            offset = np.where(good, (ff * y1 - f1 * yf) / det, 0.0)
-        chi2 = (y - np.nan_to_num(gain)[:, None] * values - offset[:, None]) ** 2 * weight
+        chi2 = (y - gain[best] * values[best] - offset[best]) ** 2 * weight
         kept = (chi2 < cap) & (weight > 0.0)
-        cost = np.minimum(np.where(weight > 0.0, chi2, 0.0), cap).sum(axis=1) + \
-            np.where(good & (np.nan_to_num(gain) > 0.0), 0.0, np.inf)
-        return cost, kept
+        if kept.sum() <= self.idx.size:
+            return None
+        return centre, kept.astype(np.float64)
 
     def _land_at(self, y: np.ndarray, mask: np.ndarray, s: np.ndarray) -> int:
         """sensor_map.land with the frame's residuals at ``s`` (left in ``scratch[5]``, their weights in
@@ -738,6 +711,8 @@ class Estimator:
         kernel.embed(self.P.copy(), np.eye(self.idx.size), self.idx, self._sigma)
         kernel.scores(self.P, np.eye(self.idx.size), self.idx, self.s, self.s, self._family_rows, 0.01,
                       self._statistics)
+        grid = np.zeros((2, self.n_values))
+        kernel.agreement(self._y, self.mask, grid, 1, 0.0, 1.0, AGREED_ROUNDS, np.empty(2), np.empty(2), np.empty(2))
         for kind in FRAME_TYPES:  # each kind of frame a camera delivers, compiled for now
             kernel.row_mean(np.zeros((2, self.model.n_pixels), dtype=kind), self._y)
         kernel.in_range(self._y, 0.0, 1.0, self.mask, self._masked)

@@ -141,6 +141,66 @@ def scores(P_prior: np.ndarray, A: np.ndarray, idx: np.ndarray, s: np.ndarray, s
     return True
 
 
+def agreement(y: np.ndarray, weight: np.ndarray, values: np.ndarray, half: int, offset0: float, cap: float,
+              rounds: int, cost: np.ndarray, gain_out: np.ndarray, offset_out: np.ndarray) -> None:
+    """At each position (a row of ``values``: the model's values there) how well the frame's samples agree
+    (filter._agreement): the light the agreeing samples share — each sample's gain against the model (less
+    ``offset0``), the shortest span holding ``half`` of them, its middle — then gain and offset fitted to the
+    samples within the per-sample test (χ² below ``cap``), ``rounds`` times; ``cost`` the samples' χ² each
+    capped at ``cap`` (inf where no light is found), with the light into ``gain_out`` and ``offset_out``."""
+    n_grid, n = values.shape
+    ratio = np.empty(n)
+    for g in range(n_grid):
+        cost[g] = np.inf
+        m = 0
+        for p in range(n):
+            if weight[p] > 0.0 and values[g, p] > 0.0:
+                ratio[m] = (y[p] - offset0) / values[g, p]
+                m += 1
+        if m < half or half < 1:
+            continue
+        ordered = np.sort(ratio[:m])
+        first, narrowest = 0, np.inf
+        for i in range(m - half + 1):
+            span = ordered[i + half - 1] - ordered[i]
+            if span < narrowest:
+                first, narrowest = i, span
+        gain = 0.5 * (ordered[first] + ordered[first + half - 1])
+        offset = offset0
+        found = True
+        for _ in range(rounds):
+            s1 = sy = sf = sff = syf = 0.0
+            for p in range(n):
+                w = weight[p]
+                if w <= 0.0:
+                    continue
+                v = values[g, p]
+                r = y[p] - gain * v - offset
+                if r * r * w < cap:
+                    s1 += w
+                    sy += w * y[p]
+                    sf += w * v
+                    sff += w * v * v
+                    syf += w * v * y[p]
+            det = sff * s1 - sf * sf
+            if not det > 0.0:
+                found = False
+                break
+            gain = (syf * s1 - sf * sy) / det
+            offset = (sff * sy - sf * syf) / det
+        if not found or not gain > 0.0:
+            continue
+        total = 0.0
+        for p in range(n):
+            w = weight[p]
+            if w <= 0.0:
+                continue
+            r = y[p] - gain * values[g, p] - offset
+            c = r * r * w
+            total += c if c < cap else cap
+        cost[g], gain_out[g], offset_out[g] = total, gain, offset
+
+
 def row_mean(frame: np.ndarray, out: np.ndarray) -> None:
     """``out`` (n,): the mean of ``frame``'s rows (R, n) in float64, summed row after row and divided by
     R: what the model's ``prepare`` computes with numpy, to the bit, without its arrays made a frame."""
@@ -493,6 +553,7 @@ if kernels.COMPILED:
     information = _jit(information)
     embed = _jit(embed)
     scores = _jit(scores)
+    agreement = _jit(agreement)
     row_mean = _jit(row_mean)
     in_range = _jit(in_range)
     _evaluate = _jit(_evaluate)
