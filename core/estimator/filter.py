@@ -61,7 +61,7 @@ FAILED_TO_REACQUIRE = 3  # frames in a row not placed before the next is placed 
 # Families whose states may jump between two frames, and the states that jump with them.
 JUMPS = {"light": (G, OFS), "field": (A1, A2), "focus": (B,), "magnification": (M,), "geometry": (C, T), "motion": (V,)}
 AGREED_GRID = 33  # positions over half a period where too many samples fail for the sensor's map (_agreed): a
-# 128th of a period apart, well inside Gauss–Newton's quarter-period reach from the one chosen; as many again
+# 64th of a period apart, well inside Gauss–Newton's quarter-period reach from the one chosen; as many again
 # within a step of it
 AGREED_ROUNDS = 3  # light fits per position, each from the samples the last one left within the test
 SEARCHED = 2  # families tried with their jump on a frame that fails the test, most evident first (_ranked): the
