@@ -1,0 +1,118 @@
+"""The camera on its mount: a step of the image against the carriage that no motion of the stage makes.
+
+Without the grating, a frame places the image, not the carriage: the camera's place on the carriage is
+a state no frame observes, and a knock on the mount (the image jumps tens of µm and stays) passes every
+frame's test, because one frame cannot tell a step of the place from the stage's own acceleration. The
+frames after it can: the stage reaches a new position only through its velocity, so a step with the
+same velocity before and after it is one the stage makes only by accelerating hard, and no harder than
+it can. This is the geometry family's jump decided one frame late, over the last four frames' positions.
+
+The test (:func:`step_test`): over four frames' positions ``p`` at times ``t`` with variances ``var``,
+the weighted least-squares fit of a line with a step between the second and the third frame; the step
+``d = Σ cᵢ pᵢ`` is a functional that a line leaves at zero, so for any stage motion x(t) it equals
+``∫ x″(s) K(s) ds`` with the Peano kernel ``K(s) = Σ cᵢ (tᵢ − s)₊``: a stage accelerating at most ``a``
+makes a step of at most ``a · ∫|K|`` (the allowance). A step beyond the allowance by more than the
+two-sided quantile of its noise at the false-alarm rate is the mount's: the camera's place jumps by
+it, with the variance of the fit and of what the stage may still have done within its allowance
+(uniform over ±allowance), and the frames carry that in their bound from then on.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+SHOWN_ACCELERATION = "stage_shown_acceleration_mm_s2"  # model info: the least acceleration the calibration's
+# grating readings allow over every four frames (shown_acceleration)
+WINDOW = 4  # frames of the test: two before the step, two after (a line's two parameters and the step, one spare)
+
+
+class Step(NamedTuple):
+    """The test's answer: the step (mm), its noise σ (mm), the stage's allowance (mm) and the standardised
+    excess of the step over the allowance (> the quantile: the mount's)."""
+
+    step_mm: float
+    sigma_mm: float
+    allowance_mm: float
+    excess: float
+
+
+def _abs_integral(a: float, b: float, h: float) -> float:
+    """∫|linear from a to b| over an interval of length h."""
+    if a * b >= 0.0:
+        return 0.5 * h * (abs(a) + abs(b))
+    return 0.5 * h * (a * a + b * b) / (abs(a) + abs(b))
+
+
+def step_test(t: np.ndarray, p: np.ndarray, var: np.ndarray, acceleration: float) -> Step | None:
+    """A step between the second and third of four frames (times ``t`` s, positions ``p`` mm, variances
+    ``var`` mm²) against a stage accelerating at most ``acceleration`` mm/s²; None where the times do not
+    increase or the fit has no inverse."""
+    if not (t[1] > t[0] and t[2] > t[1] and t[3] > t[2]) or not np.all(var > 0.0):
+        return None
+    tau = t - 0.5 * (t[1] + t[2])
+    H = np.stack([np.ones(WINDOW), tau, np.array([0.0, 0.0, 1.0, 1.0])], axis=1)
+    W = 1.0 / var
+    normal = H.T @ (H * W[:, None])
+    try:
+        cov = np.linalg.inv(normal)
+    except np.linalg.LinAlgError:
+        return None
+    c = (cov[2] @ H.T) * W  # d = c · p, a functional that every line leaves at zero
+    step = float(c @ p)
+    sigma = math.sqrt(max(float(cov[2, 2]), 0.0))
+    # the Peano kernel at the knots: K(t_j) = Σ_i c_i (t_i − t_j)₊, zero before the first and after the last
+    knots = [float(np.sum(c * np.maximum(t - tj, 0.0))) for tj in t]
+    integral = sum(_abs_integral(knots[j], knots[j + 1], float(t[j + 1] - t[j])) for j in range(WINDOW - 1))
+    allowance = acceleration * integral
+    excess = (abs(step) - allowance) / sigma if sigma > 0.0 else (math.inf if abs(step) > allowance else 0.0)
+    return Step(step, sigma, allowance, excess)
+
+
+def shown_acceleration(t: np.ndarray, reading_mm: np.ndarray) -> float:
+    """The least acceleration (mm/s²) that allows every step the grating's readings make over four frames:
+    what the stage itself was seen to do, vibration and the grating's own noise included (a calibration's
+    readings: the mount stays where it is, so every step there is the stage's). 0 with fewer than four."""
+    t = np.asarray(t, dtype=np.float64)
+    reading = np.asarray(reading_mm, dtype=np.float64)
+    keep = np.isfinite(t) & np.isfinite(reading)
+    t, reading = t[keep], reading[keep]
+    ones = np.ones(WINDOW)
+    shown = 0.0
+    for k in range(t.size - WINDOW + 1):
+        step = step_test(t[k:k + WINDOW], reading[k:k + WINDOW], ones, 1.0)
+        if step is not None and step.allowance_mm > 0.0:
+            shown = max(shown, abs(step.step_mm) / step.allowance_mm)
+    return shown
+
+
+class MountWatch:
+    """The last frames' times, carriage positions and variances, and the test of a step among them.
+
+    ``acceleration``: the most the stage accelerates (mm/s²); ``z``: the two-sided quantile of the
+    false-alarm rate. :meth:`add` takes a frame the model described (its posterior position); it returns
+    the step the mount took, if the test says so, after which the frames it moved are corrected."""
+
+    def __init__(self, acceleration: float, z: float):
+        self.acceleration, self.z = float(acceleration), float(z)
+        self.t = np.zeros(WINDOW)
+        self.p = np.zeros(WINDOW)
+        self.var = np.zeros(WINDOW)
+        self.n = 0
+
+    def reset(self) -> None:
+        self.n = 0
+
+    def add(self, t: float, p_mm: float, var_mm2: float) -> Step | None:
+        self.t[:-1], self.p[:-1], self.var[:-1] = self.t[1:], self.p[1:], self.var[1:]
+        self.t[-1], self.p[-1], self.var[-1] = t, p_mm, var_mm2
+        self.n = min(self.n + 1, WINDOW)
+        if self.n < WINDOW:
+            return None
+        step = step_test(self.t, self.p, self.var, self.acceleration)
+        if step is None or step.excess <= self.z:
+            return None
+        self.p[2:] -= step.step_mm  # the carriage's positions, the step now the place's
+        return step
