@@ -25,7 +25,7 @@ from pathlib import Path
 from graytrack.core.calibration import calibrate
 from graytrack.core.estimator.settings import EstimatorSettings
 from graytrack.drivers.sim.scenarios import build_rig
-from estimator_sweep import scored
+from estimator_sweep import CACHE_VERSION, scored
 from robustness_sweep import SECONDS
 from truth_score import MODES
 
@@ -37,7 +37,7 @@ STEADY_FLAGGED = 0.01  # a steady run flagged on more than this share of its fra
 
 def cached_clean(folder: Path, scenario: str, seed: int):
     """(model, run, truth) of one clean run: the scenario calibrated and run with ``seed``, made once."""
-    path = folder / f"{scenario}-{seed}.pkl"
+    path = folder / f"{scenario}-{seed}-v{CACHE_VERSION}.pkl"
     if path.exists():
         with open(path, "rb") as kept:
             return pickle.load(kept)

@@ -61,6 +61,7 @@ def describe_bytes(n: float) -> str:
 
 
 PIXEL_AXIS_REVERSED = "pixel_axis_reversed"  # meta: frames reversed from the camera's order to the contract's
+STAGE_ACCELERATION = "stage_acceleration_mm_s2"  # meta: the most the stage was commanded to accelerate, mm/s²
 
 
 class RecordingError(GraytrackError):

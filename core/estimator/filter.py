@@ -41,6 +41,7 @@ from graytrack.core.errors import TrackingError
 from graytrack.core import repeats
 from graytrack.core.estimator import kernel
 from graytrack.core.estimator.kernel import S_POSTERIOR, S_REJECTED, S_WEIGHED
+from graytrack.core.estimator.mount import SHOWN_ACCELERATION, MountWatch, Step
 from graytrack.core.estimator.sensor_map import SensorMap
 from graytrack.core.estimator.settings import EstimatorSettings
 from graytrack.core.estimator.state import A1, A2, B, C, G, L, M, N_STATE, OFS, SK, STATE, T, V, X
@@ -259,6 +260,10 @@ class Estimator:
         self._statistics = np.zeros(len(self._families))
         self._unexplained: list[str] = []  # the families tried on the last frame, none of whose jumps explained it
         self._placed_again = False  # a frame of this episode was placed again by its agreeing samples, in vain
+        # without the grating, the camera's place moves only as a step no motion of the stage makes (mount.py)
+        # (as fast as the stage is commanded, and no less than its calibration's grating showed it to be)
+        shown = float(model.info.get(SHOWN_ACCELERATION, 0.0) or 0.0)
+        self.mount = MountWatch(max(settings.stage_acceleration, shown), self.z_two) if grating == "none" else None
         self._warm()
 
     # ------------------------------------------------------------------ the recursion
@@ -284,6 +289,8 @@ class Estimator:
         self.failed = 0
         self._unexplained = []
         self._placed_again = False
+        if self.mount is not None:
+            self.mount.reset()
 
     def predict(self, t: float) -> None:
         """State and covariance moved on to time ``t``."""
@@ -359,7 +366,38 @@ class Estimator:
             kernel.residuals(self.s, y, self.pixels, self.params, self.model_args, self.scratch, self._noise_var)
             self.sensor.learn(y_raw, y, self.scratch[5], self._noise_var, raw_mask, self.dt_last,
                               self._anchored(self.P, stats))
-        return self._estimate(t, stats, test, mode, reason_jump, reference_mm)
+        step = None
+        # (frames that set samples aside, or weighed them down, place the image no better than what they set
+        # aside moved it: a glint's frame is several floors off and would read as a step)
+        if self.mount is not None and test <= 1.0 and stats[kernel.S_XINFO] > 0 and \
+                stats[S_REJECTED] <= 0 and stats[S_WEIGHED] <= 0:
+            step = self.mount.add(t, self.s.item(X), self.bound_factor ** 2 / stats[kernel.S_XINFO])
+            if step is not None:
+                self._mounted(step)
+                mode = reason_jump = "geometry"
+        estimate = self._estimate(t, stats, test, mode, reason_jump, reference_mm)
+        if step is not None:
+            estimate = estimate._replace(
+                stale=True, stale_reason="geometry",
+                message=f"the image stepped {step.step_mm * 1e3:+.1f} ± {step.sigma_mm * 1e3:.1f} µm against the "
+                        f"carriage between the last two frames, beyond the {step.allowance_mm * 1e3:.1f} µm the "
+                        f"stage's acceleration allows: the camera moved on its mount")
+        return estimate
+
+    def _mounted(self, step: Step) -> None:
+        """The camera's place takes the step the mount made (mount.py): the carriage is where the image was less
+        the step, and both carry the step's variance (its fit's and what the stage may have done within its
+        allowance, uniform over ±allowance) in the one direction the frames cannot see, place against carriage."""
+        d = step.step_mm
+        var = step.sigma_mm ** 2 + step.allowance_mm ** 2 / 3.0
+        s, P = self.s, self.P
+        s[X] -= d
+        s[C] += d
+        P[X, X] += var
+        P[C, C] += var
+        P[X, C] -= var
+        P[C, X] -= var
+        self._sigma[X], self._sigma[C] = math.sqrt(P[X, X]), math.sqrt(P[C, C])
 
     # ------------------------------------------------------------------ parts
     def _search(self, y: np.ndarray, mask: np.ndarray, s: np.ndarray, A: np.ndarray, stats: list, test: float,

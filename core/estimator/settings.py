@@ -40,6 +40,13 @@ TUNABLES: dict[str, Tunable] = {
         "the stage's acceleration, as white noise between frames: the fastest rig here oscillates 10 mm at 2 Hz "
         "(830 mm/s² peak); a frame at 50 fps is then barely tied to the last, at 1 kHz within ~0.5 µm",
         low=0.0),
+    "stage_acceleration": Tunable(
+        1000.0, "mm/s²",
+        "the most the stage accelerates (its controller's ACC/DEC, or the peak its motion asks for; a recording "
+        "that states it overrides this): without the grating, a step of the image against the carriage larger "
+        "than such a motion makes between four frames is the camera moving on its mount (mount.py); a rig "
+        "that does not say gets the fastest here's (830 mm/s² peak), which at 50 frames/s allows 300 µm",
+        low=0.0),
     "gain_rate": Tunable(
         0.005, "1/√s",
         "the light's relative drift in a second while the lamp holds (a lamp warming); over less than a period of "
@@ -164,6 +171,7 @@ class EstimatorSettings:
 
     false_alarm: float = TUNABLES["false_alarm"].default
     acceleration: float = TUNABLES["acceleration"].default
+    stage_acceleration: float = TUNABLES["stage_acceleration"].default
     gain_rate: float = TUNABLES["gain_rate"].default
     gain_prior: float = TUNABLES["gain_prior"].default
     offset_rate: float = TUNABLES["offset_rate"].default
@@ -215,6 +223,15 @@ class EstimatorSettings:
         if unknown:
             raise ValueError(f"unknown estimator setting {sorted(unknown)[0]!r}; known: {', '.join(TUNABLES)}")
         return dataclasses.replace(self, **changes)
+
+    def for_recording(self, meta: dict[str, Any]) -> "EstimatorSettings":
+        """These settings with what a recording's metadata states of its rig (the stage's acceleration)."""
+        from graytrack.core.recording import STAGE_ACCELERATION
+
+        value = meta.get(STAGE_ACCELERATION)
+        if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value > 0:
+            return self.replace(stage_acceleration=float(value))
+        return self
 
     def describe(self) -> dict[str, dict[str, Any]]:
         """Every tunable: its value, unit, default and reason."""

@@ -30,7 +30,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from graytrack.core.recording import Recording
+from graytrack.core.recording import STAGE_ACCELERATION, Recording
 from graytrack.drivers.sim import illumination as illum
 from graytrack.drivers.sim import target as tgt
 from graytrack.drivers.sim.camera_side import CameraSide, CameraSideConfig
@@ -441,7 +441,13 @@ class VirtualRig:
             0.5 * (x_samples[:, 1:] + x_samples[:, :-1]).mean(axis=1)  # trapezoid over the exposure
         )
         stored = frames[:, 0, :] if self.n_rows == 1 else frames
-        rec = Recording(stored, clock.stamp[keep], reference, self.meta())
+        meta = self.meta()
+        # what the owner commanded of the stage (a vibration riding on it is the rig's, not a command)
+        commanded = trajectory.base if isinstance(trajectory, Vibrating) else trajectory
+        peak = getattr(commanded, "peak_acceleration_mm_s2", None)
+        if peak is not None and peak > 0:
+            meta[STAGE_ACCELERATION] = float(peak)
+        rec = Recording(stored, clock.stamp[keep], reference, meta)
         info = {"scenario": cfg.scenario, "effects": list(cfg.effects), "seed": self.seed,
                 "config": _jsonable(asdict(cfg))}
         if self.camera_side is not None:

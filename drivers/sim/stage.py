@@ -138,6 +138,11 @@ class SimStage:
         """Target of the last move (or the stop position after ``stop``)."""
         return self._target_mm
 
+    @property
+    def peak_acceleration_mm_s2(self) -> float:
+        """The largest acceleration its commands asked for (what its owner knows of the motion)."""
+        return max((abs(segment.a) for segment in self._segments), default=0.0)
+
     # ----- commands -------------------------------------------------------------------------
     def move_to(self, target_mm: float, t_s: float) -> float:
         """Command an absolute move at time ``t_s``; returns the planned arrival time.
@@ -402,6 +407,7 @@ class FunctionTrajectory:
 
     position_fn: Callable[[np.ndarray], np.ndarray]
     velocity_fn: Callable[[np.ndarray], np.ndarray]
+    peak_acceleration_mm_s2: float | None = None  # the largest acceleration of the formulas, where known
 
     def position(self, t_s: ArrayLike) -> np.ndarray:
         return np.asarray(self.position_fn(np.asarray(t_s, dtype=np.float64)), dtype=np.float64)
@@ -421,6 +427,7 @@ def oscillation(center_mm: float, amplitude_mm: float, frequency_hz: float) -> F
     return FunctionTrajectory(
         lambda t: center_mm + amplitude_mm * np.sin(w * t),
         lambda t: amplitude_mm * w * np.cos(w * t),
+        abs(amplitude_mm) * w * w,
     )
 
 

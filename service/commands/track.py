@@ -265,6 +265,7 @@ def estimated(recording: Recording, model: FourierModel, no_reference: bool = Fa
     import numpy as np
 
     from graytrack.core.estimator import as_result, calibration_level, track
+    from graytrack.core.estimator.settings import EstimatorSettings
     from graytrack.core.timing import model_reference
 
     grating = recording.reference
@@ -272,7 +273,7 @@ def estimated(recording: Recording, model: FourierModel, no_reference: bool = Fa
         grating = model_reference(model, recording.t, grating)
     mode = "none" if no_reference or not np.isfinite(grating).any() else ("fuse" if trim else "check")
     estimates = track(model, recording.frames, recording.t, grating, grating=mode, robust=robust, axis_px=axis_px,
-                      progress=progress)
+                      settings=EstimatorSettings().for_recording(recording.meta), progress=progress)
     return as_result(estimates, calibration_level(model)), grating
 
 

@@ -30,6 +30,7 @@ import numpy as np
 from graytrack.core.models.fourier import FourierModel
 from graytrack.core.texture import Texture
 from graytrack.core.estimator.live import LiveEstimator
+from graytrack.core.estimator.settings import EstimatorSettings
 from graytrack.core.tracking import LiveFix, LiveTracker
 from graytrack.drivers.camera.base import Camera, CameraError, CameraTimeout, Frame
 from graytrack.service.daemon.clock import HOST_CLOCK, Clock
@@ -176,7 +177,9 @@ class Acquisition(Worker):
             if self.engine == "estimator":  # the one estimator: the trim is its fused grating, the slide its lever
                 grating = "none" if self.slide is not None else ("fuse" if self.trim.enabled else "check")
                 axis_px = self.slide.axis_px if self.slide is not None else None
-                estimator = LiveEstimator(model, start, grating, axis_px=axis_px,
+                acceleration = self.slide.stage_acceleration_mm_s2 if self.slide is not None else None
+                settings = None if acceleration is None else EstimatorSettings(stage_acceleration=acceleration)
+                estimator = LiveEstimator(model, start, grating, settings=settings, axis_px=axis_px,
                                           sensor_map=learned.get(SENSOR_MAP.name),
                                           refused=lambda reason: refused(SENSOR_MAP.name, reason))
                 built: Built = (model, estimator, None, calibration, None, None)

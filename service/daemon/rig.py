@@ -240,7 +240,8 @@ class Rig:
                                   daemon.camera_fault_after_s, daemon.reopen_interval_s, self._stream_event,
                                   priority=daemon.realtime_priority,
                                   trim=ReferenceTrim(daemon.trim, self._stream_event),
-                                  slide=None if daemon.grating else LiveSlide(daemon.axis_px), engine=daemon.engine)
+                                  slide=None if daemon.grating else
+                                  LiveSlide(daemon.axis_px, daemon.stage_acceleration_mm_s2), engine=daemon.engine)
         if self.model is not None:  # a frame loop restarted: with the maps the last one learned
             calibration = self.installed_calibration
             learned = self._learned(lambda store: store.newest(calibration))

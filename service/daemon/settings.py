@@ -98,6 +98,11 @@ class DaemonConfig(StrictTable):
     axis_px: float | None = Field(None, ge=0, description="without a grating: the optical axis's distance from the "
                                   "ROI's centre along the line, pixels, the slide's lever (unset: 300, a prior; 0: the "
                                   "ROI on the axis, nothing carried)")
+    stage_acceleration_mm_s2: float | None = Field(
+        None, gt=0, description="without a grating, with engine = estimator: the most the stage accelerates (its "
+        "ACC/DEC); a step of the image against the carriage beyond what such a motion makes over four frames is "
+        "the camera moving on its mount, flagged and carried in the bound (core/estimator/mount.py). Unset: the "
+        "estimator's declared default, or more where the calibration's readout showed the stage faster")
     engine: Literal["watches", "estimator"] = Field(
         "watches", description="the per-frame path: today's solver and its watches, or the one recursive estimator "
         "being built to replace it (core/estimator/: every nuisance a state with a declared rate, the bound its "

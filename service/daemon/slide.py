@@ -29,8 +29,9 @@ from graytrack.core.tracking import LiveFix
 class LiveSlide:
     """The daemon's side of the slide watch without a grating: made per model, its σ folded into each fix."""
 
-    def __init__(self, axis_px: float | None = None) -> None:
+    def __init__(self, axis_px: float | None = None, stage_acceleration_mm_s2: float | None = None) -> None:
         self.axis_px = axis_px  # None: the prior (core/slide.py AXIS_PRIOR_PX)
+        self.stage_acceleration_mm_s2 = stage_acceleration_mm_s2  # None: the estimator's default
         self._watch: SlideWatch | None = None
         self._lock = threading.Lock()  # the frame loop installs, HTTP threads read the status
 

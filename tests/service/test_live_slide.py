@@ -85,6 +85,33 @@ def test_an_axis_on_the_roi_carries_nothing(model):
     assert all(m["slide_sigma_um"] == 0.0 for m in fixes)
 
 
+@pytest.mark.unit  # the daemon's frame loop on recorded frames
+def test_a_knock_streamed_without_a_grating_is_flagged_from_the_frame_after(model):
+    """``[daemon] stage_acceleration_mm_s2`` (the stage's ACC) reaches the estimator: a knock on the camera's
+    mount (40 µm, 0.2°) streamed by the estimator engine without a grating is flagged `geometry` from the
+    frame after it on, none 4+ bounds off the truth unflagged; without the declared acceleration (the
+    estimator's default, 1000 mm/s²: 300 µm allowed at 50 frames/s) the frames after the knock are 40 µm off."""
+    run, truth = build_rig("strip16", "knock:um=40:deg=0.2:at_s=2", seed=3, run=1).record(4.0)
+    knocked = int(np.searchsorted(run.t, 2.0))
+    for acceleration in (100.0, None):
+        messages, _, acquisition = stream_through_daemon(model, run, False, slide=LiveSlide(None, acceleration),
+                                                         engine="estimator")
+        estimator = acquisition.tracker.estimator
+        assert estimator.mount.acceleration >= (acceleration or 1000.0)
+        error = np.array([(m["x_mm"] - truth.x_mm[m["seq"] - 1]) * 1e3 for m in messages])
+        error -= model.period_mm * 1e3 * np.round(np.median(error[:knocked]) / (model.period_mm * 1e3))
+        bound = np.array([m["crlb_um"] for m in messages])
+        flagged = np.array([bool(m["stale"]) for m in messages])
+        reasons = [m["stale_reason"] for m in messages]
+        after = slice(knocked + 2, None)
+        if acceleration is not None:
+            assert np.all(flagged[after]) and set(reasons[after]) == {"geometry"}
+            assert np.sum((np.abs(error) > 4.0 * bound) & ~flagged) <= 1  # the knock's own frame at most
+            assert np.all(np.abs(error[after]) < 4.0 * bound[after])
+        else:
+            assert np.median(np.abs(error[after])) > 30.0
+
+
 @pytest.mark.unit
 def test_the_config_declares_the_rig_without_a_grating():
     daemon = parse_settings({"daemon": {"grating": False, "axis_px": 120}}).daemon
@@ -94,6 +121,10 @@ def test_the_config_declares_the_rig_without_a_grating():
         parse_settings({"daemon": {"grating": False, "trim": True}})
     with pytest.raises(ConfigError, match="axis_px"):
         parse_settings({"daemon": {"grating": False, "axis_px": -5}})
+    assert parse_settings({"daemon": {"grating": False, "stage_acceleration_mm_s2": 50}}).daemon \
+        .stage_acceleration_mm_s2 == 50
+    with pytest.raises(ConfigError, match="stage_acceleration_mm_s2"):
+        parse_settings({"daemon": {"stage_acceleration_mm_s2": 0}})
 
 
 def test_the_running_daemon_without_a_grating_streams_and_shows_the_slide(tmp_path):  # system (tests/conftest.py)
