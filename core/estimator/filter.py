@@ -41,7 +41,7 @@ from graytrack.core.errors import TrackingError
 from graytrack.core import repeats
 from graytrack.core.estimator import kernel
 from graytrack.core.estimator.kernel import S_POSTERIOR, S_REJECTED, S_WEIGHED
-from graytrack.core.estimator.mount import SHOWN_ACCELERATION, MountWatch, Step
+from graytrack.core.estimator.mount import SHOWN_ACCELERATION, MountWatch, Step, step_test
 from graytrack.core.estimator.sensor_map import SensorMap
 from graytrack.core.estimator.settings import EstimatorSettings
 from graytrack.core.estimator.state import A1, A2, B, C, G, L, M, N_STATE, OFS, SK, STATE, T, V, X
@@ -754,6 +754,8 @@ class Estimator:
         for kind in FRAME_TYPES:  # each kind of frame a camera delivers, compiled for now
             kernel.row_mean(np.zeros((2, self.model.n_pixels), dtype=kind), self._y)
         kernel.in_range(self._y, 0.0, 1.0, self.mask, self._masked)
+        MountWatch(1.0, 1.0).add(0.0, 0.0, 1.0)  # (the mount's compiled calls, whatever the mode)
+        step_test(np.arange(4.0), np.zeros(4), np.ones(4), 1.0)
         kernel.residuals(self.s, self._y, self.pixels, self.params, self.model_args, self.scratch, self._noise_var)
         self.sensor.land(self._y, self.mask)  # (every sample fails on a frame of zeros: the map holds back)
         self.sensor.learn(self._y, self._y, np.zeros(self.n_values), self._noise_var, self.mask, 0.0)

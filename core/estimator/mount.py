@@ -24,6 +24,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from graytrack.core import kernels
+
 SHOWN_ACCELERATION = "stage_shown_acceleration_mm_s2"  # model info: the least acceleration the calibration's
 # grating readings allow over every four frames (shown_acceleration)
 WINDOW = 4  # frames of the test: two before the step, two after (a line's two parameters and the step, one spare)
@@ -46,29 +48,82 @@ def _abs_integral(a: float, b: float, h: float) -> float:
     return 0.5 * h * (a * a + b * b) / (abs(a) + abs(b))
 
 
+def _fit(t: np.ndarray, p: np.ndarray, var: np.ndarray, out: np.ndarray) -> bool:
+    """The step's fit over four frames into ``out``: (step, its variance, ∫|K|); False where the times do not
+    increase, a variance is not positive or the fit has no inverse. Written for numba (kernels.COMPILED)."""
+    if not (t[1] > t[0] and t[2] > t[1] and t[3] > t[2]):
+        return False
+    centre = 0.5 * (t[1] + t[2])
+    # the normal matrix of (1, τ, after the step), weighted by 1/var
+    n00 = n01 = n02 = n11 = n12 = n22 = 0.0
+    for i in range(WINDOW):
+        if not var[i] > 0.0:
+            return False
+        w, tau, h = 1.0 / var[i], t[i] - centre, 1.0 if i >= 2 else 0.0
+        n00 += w
+        n01 += w * tau
+        n02 += w * h
+        n11 += w * tau * tau
+        n12 += w * tau * h
+        n22 += w * h * h
+    # the third row of its inverse (cofactors of the symmetric 3 × 3)
+    c0 = n01 * n12 - n02 * n11
+    c1 = n01 * n02 - n00 * n12
+    c2 = n00 * n11 - n01 * n01
+    det = n02 * c0 + n12 * c1 + n22 * c2
+    if not abs(det) > 0.0:
+        return False
+    c0, c1, c2 = c0 / det, c1 / det, c2 / det
+    step = 0.0
+    c = np.empty(WINDOW)  # d = c · p: a functional that every line leaves at zero
+    for i in range(WINDOW):
+        c[i] = (c0 + c1 * (t[i] - centre) + c2 * (1.0 if i >= 2 else 0.0)) / var[i]
+        step += c[i] * p[i]
+    # the Peano kernel at the knots, K(t_j) = Σ_i c_i (t_i − t_j)₊ (zero at the first and the last), and ∫|K|
+    integral, last = 0.0, 0.0
+    for j in range(1, WINDOW):
+        knot = 0.0
+        for i in range(j + 1, WINDOW):
+            knot += c[i] * (t[i] - t[j])
+        integral += _abs_integral(last, knot, t[j] - t[j - 1])
+        last = knot
+    out[0], out[1], out[2] = step, c2, integral
+    return True
+
+
+def _pushed(t: np.ndarray, p: np.ndarray, var: np.ndarray, tk: float, pk: float, vk: float,
+            out: np.ndarray) -> bool:
+    """The newest frame in at the end of the window (the oldest out), then :func:`_fit` of it."""
+    for i in range(WINDOW - 1):
+        t[i], p[i], var[i] = t[i + 1], p[i + 1], var[i + 1]
+    t[WINDOW - 1], p[WINDOW - 1], var[WINDOW - 1] = tk, pk, vk
+    return _fit(t, p, var, out)
+
+
+if kernels.COMPILED:
+    _jit = kernels.numba.njit(cache=True, nogil=True, error_model="numpy")
+    _abs_integral = _jit(_abs_integral)
+    _fit = _jit(_fit)
+    _pushed = _jit(_pushed)
+
+
+def _judged(out: np.ndarray, acceleration: float) -> Step:
+    step, variance, integral = out.tolist()
+    sigma = math.sqrt(variance) if variance > 0.0 else 0.0
+    allowance = acceleration * integral
+    excess = (abs(step) - allowance) / sigma if sigma > 0.0 else (math.inf if abs(step) > allowance else 0.0)
+    return Step(step, sigma, allowance, excess)
+
+
 def step_test(t: np.ndarray, p: np.ndarray, var: np.ndarray, acceleration: float) -> Step | None:
     """A step between the second and third of four frames (times ``t`` s, positions ``p`` mm, variances
     ``var`` mm²) against a stage accelerating at most ``acceleration`` mm/s²; None where the times do not
     increase or the fit has no inverse."""
-    if not (t[1] > t[0] and t[2] > t[1] and t[3] > t[2]) or not np.all(var > 0.0):
+    out = np.empty(3)
+    if not _fit(np.asarray(t, dtype=np.float64), np.asarray(p, dtype=np.float64),
+                np.asarray(var, dtype=np.float64), out):
         return None
-    tau = t - 0.5 * (t[1] + t[2])
-    H = np.stack([np.ones(WINDOW), tau, np.array([0.0, 0.0, 1.0, 1.0])], axis=1)
-    W = 1.0 / var
-    normal = H.T @ (H * W[:, None])
-    try:
-        cov = np.linalg.inv(normal)
-    except np.linalg.LinAlgError:
-        return None
-    c = (cov[2] @ H.T) * W  # d = c · p, a functional that every line leaves at zero
-    step = float(c @ p)
-    sigma = math.sqrt(max(float(cov[2, 2]), 0.0))
-    # the Peano kernel at the knots: K(t_j) = Σ_i c_i (t_i − t_j)₊, zero before the first and after the last
-    knots = [float(np.sum(c * np.maximum(t - tj, 0.0))) for tj in t]
-    integral = sum(_abs_integral(knots[j], knots[j + 1], float(t[j + 1] - t[j])) for j in range(WINDOW - 1))
-    allowance = acceleration * integral
-    excess = (abs(step) - allowance) / sigma if sigma > 0.0 else (math.inf if abs(step) > allowance else 0.0)
-    return Step(step, sigma, allowance, excess)
+    return _judged(out, acceleration)
 
 
 def shown_acceleration(t: np.ndarray, reading_mm: np.ndarray) -> float:
@@ -101,18 +156,19 @@ class MountWatch:
         self.p = np.zeros(WINDOW)
         self.var = np.zeros(WINDOW)
         self.n = 0
+        self._out = np.empty(3)
 
     def reset(self) -> None:
         self.n = 0
 
     def add(self, t: float, p_mm: float, var_mm2: float) -> Step | None:
-        self.t[:-1], self.p[:-1], self.var[:-1] = self.t[1:], self.p[1:], self.var[1:]
-        self.t[-1], self.p[-1], self.var[-1] = t, p_mm, var_mm2
+        fitted = _pushed(self.t, self.p, self.var, t, p_mm, var_mm2, self._out)  # (one compiled call a frame)
         self.n = min(self.n + 1, WINDOW)
-        if self.n < WINDOW:
+        if self.n < WINDOW or not fitted:
             return None
-        step = step_test(self.t, self.p, self.var, self.acceleration)
-        if step is None or step.excess <= self.z:
-            return None
+        out = self._out
+        if abs(out.item(0)) - self.acceleration * out.item(2) <= self.z * math.sqrt(max(out.item(1), 0.0)):
+            return None  # within the stage's allowance and the step's noise: the frame's, as nearly always
+        step = _judged(out, self.acceleration)
         self.p[2:] -= step.step_mm  # the carriage's positions, the step now the place's
         return step
