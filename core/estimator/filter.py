@@ -44,7 +44,8 @@ from graytrack.core.estimator.kernel import S_POSTERIOR, S_REJECTED, S_WEIGHED
 from graytrack.core.estimator.mount import SHOWN_ACCELERATION, MountWatch, Step, step_test
 from graytrack.core.estimator.sensor_map import SensorMap
 from graytrack.core.estimator.settings import EstimatorSettings
-from graytrack.core.estimator.state import A1, A2, B, C, G, L, M, N_STATE, OFS, SK, STATE, T, V, X
+from graytrack.core.estimator.state import (A1, A2, B, BAND, BD, BE, BH, BL, BR, BW, C, G, L, M, N_STATE, OFS, SK,
+                                            STATE, T, V, X)
 from graytrack.core.frame_tables import FrameTables
 from graytrack.core.kernels import TableEvaluator
 from graytrack.core.models.fourier import FourierModel
@@ -68,8 +69,12 @@ AGREED_ROUNDS = 3  # light fits per position, each from the samples the last one
 SEARCHED = 2  # families tried with their jump on a frame that fails the test, most evident first (_ranked): the
 # families that mimic each other on one frame come in pairs (the light's shape and a shift over less than a
 # period; the stage's jerk and the camera's place without the grating), so the one that moved ranks first or second
-REASON = {"light": "light", "field": "light", "geometry": "geometry", "motion": "geometry", "focus": "focus",
-          "magnification": "magnification"}
+BAND_GRID = 16  # a band's entering edges searched a sixteenth of the field apart (its solve reaches a step)
+BAND_SHARPEST = 1.0 / 64.0  # of the field: a band's penumbra at least this soft (a pixel and a half of a hundred)
+BAND_HAZIEST = 0.5  # of the light a band takes, the most it scatters back (a veil: a tenth)
+BAND_BEYOND = 10.0  # fields beyond the end an edge out of view is put (a veil's: its erf there is 1 to 1e-20)
+REASON = {"light": "light", "field": "light", "band": "light", "geometry": "geometry", "motion": "geometry",
+          "focus": "focus", "magnification": "magnification"}
 
 
 class FrameEstimate(NamedTuple):
@@ -136,6 +141,87 @@ def calibration_level(model: FourierModel) -> float:
     return float(model.info.get("calibration_chi2", (rmse / (model.noise_gray or 1.0)) ** 2))
 
 
+class _Layout(NamedTuple):
+    """The active states and each jump family's states by their place among them, as the compiled score test
+    takes them: (kind, i, j), kind 0 one state, 1 two, 2 the motion (the position and the velocity); with each
+    family's degrees of freedom and room for its statistic."""
+
+    idx: np.ndarray
+    families: list
+    rows: np.ndarray
+    dof: list
+    statistics: np.ndarray
+
+
+def _layout(idx: np.ndarray) -> _Layout:
+    place = {state: i for i, state in enumerate(idx.tolist())}
+    # (a family jumps in the states it has here: one row has no turn, a checked grating no camera's place)
+    families = [(family, [place[X], place[V]] if family == "motion" else
+                 [place[state] for state in states if state in place])
+                for family, states in JUMPS.items() if any(state in place for state in states)]
+    rows = np.array([[2 if family == "motion" else len(where) - 1, where[0], where[-1]]
+                     for family, where in families], dtype=np.int64).reshape(-1, 3)
+    dof = [1 if family == "motion" else len(where) for family, where in families]
+    return _Layout(idx, families, rows, dof, np.zeros(len(families)))
+
+
+class _Bands(NamedTuple):
+    """The shapes a band entering is searched among: each one's edges and softness (mm along the target from the
+    ROI's centre) and its light lost at every sample for a depth of 1; the field's ends."""
+
+    left: np.ndarray
+    right: np.ndarray
+    edge: np.ndarray
+    band: np.ndarray  # (shapes, samples)
+    square: np.ndarray  # its square
+    lo: float
+    hi: float
+
+
+def _band_shapes(u: np.ndarray) -> _Bands:
+    """Bands over the field ``u`` (mm): left edges a sixteenth of the field apart from a quarter field before it,
+    each a quarter, a half or the whole field wide or wider than all of it (a veil's edge), and right edges alone
+    (a veil from the left), each with a sharp and a soft penumbra (a sixteenth, a sixth of the field). Narrower
+    marks are the sensor's map's and the print's (a speck, a scratch), or the robust weights' (a thin cable)."""
+    from scipy.special import erf
+
+    lo, hi = float(u.min()), float(u.max())
+    field = max(hi - lo, 1e-9)
+    step = field / BAND_GRID
+    far = BAND_BEYOND * field
+    shapes: list[tuple[float, float, float]] = []
+    for softness in (field / 16.0, field / 6.0):
+        for start in np.arange(lo - 0.25 * field, hi, step).tolist():
+            shapes += [(start, start + width * field, softness) for width in (0.25, 0.5, 1.0)]
+            shapes.append((start, hi + far, softness))
+        shapes += [(lo - far, end, softness) for end in np.arange(lo + step, hi + 0.25 * field, step).tolist()]
+    left, right, edge = (np.array(column) for column in zip(*shapes))
+    scale = np.sqrt(2.0) * edge[:, None]
+    band = 0.5 * (erf((u[None, :] - left[:, None]) / scale) - erf((u[None, :] - right[:, None]) / scale))
+    return _Bands(left, right, edge, np.ascontiguousarray(band), np.ascontiguousarray(band * band), lo, hi)
+
+
+def _longest_run(rows: np.ndarray) -> float:
+    """The longest run of True along any row (a single False between two Trues bridged: a sample on a mark's
+    slope that happened to pass); a run that reaches either end of its row over half the narrowest band's width
+    (a twelfth of the row) is a band's edge entering, as long as any (infinite)."""
+    longest = 0.0
+    for row in rows:
+        values = row.tolist()
+        run, gap = 0, 0
+        for p, value in enumerate(values):
+            if value:
+                run, gap = run + 1 + gap, 0
+                if run >= len(values) / 12.0 and (p == len(values) - 1 or run == p + 1):
+                    return math.inf
+            elif run and gap == 0:
+                gap = 1
+            else:
+                run, gap = 0, 0
+            longest = max(longest, run)
+    return longest
+
+
 class Estimator:
     """The recursive estimator bound to one calibrated model.
 
@@ -188,6 +274,10 @@ class Estimator:
         rates[C] = settings.place_rate
         rates[T] = settings.tilt_rate
         rates[SK] = settings.skew_rate
+        rates[BD], rates[BL], rates[BR], rates[BE], rates[BH] = (
+            settings.band_rate_depth, settings.band_rate_edge, settings.band_rate_edge, settings.band_rate_soft,
+            settings.band_rate_haze)
+        rates[BW] = settings.band_acceleration  # (the band's speed: white acceleration, kernel.predict)
         self.rates2 = rates ** 2
         active = [X, V, G, OFS, A1, A2, B, M]
         if grating != "check":  # checked, the grating judges the place and the slide; else they are states
@@ -196,7 +286,11 @@ class Estimator:
             active.append(SK)
         if model.n_rows > 1:
             active.append(T)
-        self.idx = np.array(sorted(active), dtype=np.int64)
+        self.idx = self.idx_plain = np.array(sorted(active), dtype=np.int64)
+        # With a band in view its states too, and the geometry held (the camera's place, the lens, the latch:
+        # over less than a period a band's edges and a shift trade, and what a band's frames would teach the
+        # place stays after the band has gone, which no frame without the grating could undo).
+        self.idx_band = np.array(sorted((set(active) - {C, L, M, T, SK}) | set(BAND)), dtype=np.int64)
         self._active = frozenset(active)
         self.idx_appearance = np.array([state for state in (X, V, G, OFS, A1, A2, B) if state in active],
                                        dtype=np.int64)
@@ -247,19 +341,14 @@ class Estimator:
 
         # a family's score beyond χ²(its states)'s quantile at the false-alarm rate points the innovation its way
         self._score_quantile = {k: float(chi2.isf(settings.false_alarm, k)) for k in (1, 2, 3)}
-        # each family's states by their place among the active ones (the motion's: the position and the velocity)
-        place = {state: i for i, state in enumerate(self.idx.tolist())}
-        # (a family jumps in the states it has here: one row has no turn, a checked grating no camera's place)
-        self._families = [(family, [place[X], place[V]] if family == "motion" else
-                           [place[state] for state in states if state in place])
-                          for family, states in JUMPS.items() if any(state in place for state in states)]
-        # the same as the compiled score test takes them: (kind, i, j), kind 0 one state, 1 two, 2 the motion
-        self._family_rows = np.array([[2 if family == "motion" else len(where) - 1, where[0], where[-1]]
-                                      for family, where in self._families], dtype=np.int64).reshape(-1, 3)
-        self._family_dof = [1 if family == "motion" else len(where) for family, where in self._families]
-        self._statistics = np.zeros(len(self._families))
+        # a band's states beyond a jump's (six against the light's two): what a band must explain more by
+        self._band_margin = float(chi2.isf(settings.false_alarm, len(BAND) - 2))
+        self._layout = self._layout_plain = _layout(self.idx_plain)
+        self._layout_band = _layout(self.idx_band)
         self._unexplained: list[str] = []  # the families tried on the last frame, none of whose jumps explained it
         self._placed_again = False  # a frame of this episode was placed again by its agreeing samples, in vain
+        self._band_failed = 0  # frames in a row the band followed did not explain
+        self._bands = _band_shapes(self.t_rel)  # the shapes a band entering is searched among (edges, softness)
         # without the grating, the camera's place moves only as a step no motion of the stage makes (mount.py)
         # (as fast as the stage is commanded, and no less than its calibration's grating showed it to be)
         shown = float(model.info.get(SHOWN_ACCELERATION, 0.0) or 0.0)
@@ -289,6 +378,7 @@ class Estimator:
         self.failed = 0
         self._unexplained = []
         self._placed_again = False
+        self._band_off()
         if self.mount is not None:
             self.mount.reset()
 
@@ -366,6 +456,10 @@ class Estimator:
             kernel.residuals(self.s, y, self.pixels, self.params, self.model_args, self.scratch, self._noise_var)
             self.sensor.learn(y_raw, y, self.scratch[5], self._noise_var, raw_mask, self.dt_last,
                               self._anchored(self.P, stats))
+        if self.s.item(BE) > 0.0:
+            self._band_failed = self._band_failed + 1 if test > 1.0 else 0
+            if self._band_failed >= FAILED_TO_REACQUIRE or self._band_gone():
+                self._band_off()
         step = None
         # (frames that set samples aside, or weighed them down, place the image no better than what they set
         # aside moved it: a glint's frame is several floors off and would read as a step)
@@ -408,6 +502,14 @@ class Estimator:
         mode, solved = "", self.idx
         if test > 1.0:
             best = None
+            if s_prior.item(BE) > 0.0:
+                # A band followed jumps in its shape first (a band half in view has shown one edge only; the
+                # field's tilt and a shift would otherwise take what its other edge shows as it enters).
+                s_j, A_j, stats_j = self._solve(y, mask, s_prior, self._band_widened(P_prior, s_prior), grating_z)
+                test_j = self._test(stats_j, s_j)
+                if test_j <= 1.0:
+                    self._unexplained = []
+                    return test_j, "band", s_j, A_j, stats_j, self.idx, None
             ranked = self._ranked(s, A, s_prior, P_prior)[:SEARCHED]
             if ranked == self._unexplained:
                 # A jump is a step at one frame. The families whose jumps did not explain the last frame, pointed
@@ -420,6 +522,19 @@ class Estimator:
                 test_j = self._test(stats_j, s_j)
                 if best is None or test_j < best[0]:
                     best = (test_j, family, s_j, A_j, stats_j)
+            if s_prior.item(BE) <= 0.0:
+                # A change may be a band of shadow or veil entering the field (a shape of the light no low-order
+                # field describes, which over less than a period the field's tilt and a shift would take between
+                # them): searched on every frame that fails while none is followed, and taken over a jump that
+                # explains the frame too only where it explains it better by more than the band's extra states'
+                # χ² quantile at the false-alarm rate.
+                banded = self._banded(y, mask, s, stats, s_prior, P_prior, grating_z)
+                if banded is not None and banded[0] <= 1.0 and (
+                        best is None or best[0] > 1.0 or
+                        self._chi2(banded[3], banded[1]) + self._band_margin < self._chi2(best[4], best[2])):
+                    self._band_on()
+                    self._unexplained = []
+                    return banded[0], "band", banded[1], banded[2], banded[3], self.idx, None
             if best is not None and best[0] <= 1.0:
                 test, mode, s, A, stats = best[0], best[1], best[2], best[3], best[4]
                 reason_jump = None
@@ -443,6 +558,106 @@ class Estimator:
             reason_jump = None
             self._unexplained = []
         return test, mode, s, A, stats, solved, reason_jump
+
+    def _banded(self, y: np.ndarray, mask: np.ndarray, s: np.ndarray, stats: list, s_prior: np.ndarray,
+                P_prior: np.ndarray, grating_z: float) -> tuple | None:
+        """A band entering, searched among the shapes of ``_bands`` on what the update ``s`` left (each shape's
+        depth the weighted least-squares one of the residual, the shape whose depth explains most taken), then
+        solved from there with its states free about it (their entering priors): (test, state, information,
+        figures), or None where no shape explains anything."""
+        kernel.residuals(s, y, self.pixels, self.params, self.model_args, self.scratch, self._noise_var)
+        residual, values = self.scratch[5], self.scratch[0]
+        weight = mask / self._noise_var
+        # A shape of the light leaves residuals of one sign over a run of samples as wide as the narrowest band,
+        # each beyond its noise (by chance: 0.16 to the 17th power on a hundred samples); what a frame leaves in
+        # shorter runs is marks (specks on the window or the print: the maps' and the robust weights')
+        scaled = residual * np.sqrt(weight / self._level(s.item(X)))
+        runs = max(_longest_run((scaled > 1.0).reshape(-1, self.model.n_pixels)),
+                   _longest_run((scaled < -1.0).reshape(-1, self.model.n_pixels)))
+        if runs < self.model.n_pixels / 6.0:
+            return None
+        seen = -(s[G] + s[A1] * self.b1 + s[A2] * self.b2) * values  # the gray a band of depth 1 takes
+        shapes = self._bands
+        # each shape's depth and haze by weighted least squares of the residual, their entering priors about none
+        # (two unknowns, five sums a shape; the priors keep a band whose edge alone is in view from trading a deep
+        # shadow for a bright haze)
+        band, square = shapes.band, shapes.square
+        a11 = square @ (weight * seen * seen) + 1.0 / self.settings.band_prior_depth ** 2
+        a12 = square @ (weight * seen)
+        a22 = square @ weight + 1.0 / self.settings.band_prior_haze ** 2
+        b1, b2 = band @ (weight * residual * seen), band @ (weight * residual)
+        det = a11 * a22 - a12 * a12
+        with np.errstate(divide="ignore", invalid="ignore"):
+            depth = np.where(det > 0.0, (b1 * a22 - b2 * a12) / det, 0.0)
+            haze = np.where(det > 0.0, (b2 * a11 - b1 * a12) / det, 0.0)
+            gain = np.where((det > 0.0) & (np.abs(depth) < 1.0), depth * b1 + haze * b2, 0.0)
+        k = int(np.argmax(gain))
+        # (a shape whose depth explains far less than the frame's χ² exceeds its quantile by cannot bring it
+        # within: not solved; half of it, the robust weights the search does not see counted)
+        excess = self._chi2(stats, s) - _quantile(self.z_alpha, stats[kernel.S_USED] / self.spread ** 2)
+        if not gain[k] > 0.0 or gain[k] / (self._level(s.item(X)) * self.spread ** 2) < 0.5 * excess:
+            return None
+        start = s_prior.copy()
+        start[BD], start[BL], start[BR], start[BW], start[BE], start[BH] = (
+            depth[k], shapes.left[k], shapes.right[k], 0.0, shapes.edge[k], haze[k])
+        widened = P_prior.copy()
+        for state in BAND:
+            widened[state, :] = 0.0
+            widened[:, state] = 0.0
+        widened = self._band_widened(widened, start)
+        s_b, A_b, stats_b = self._solve(y, mask, start, widened, grating_z, self.idx_band)
+        if not math.isfinite(s_b[X]) or self._band_unlike(s_b):
+            return None
+        return self._test(stats_b, s_b), s_b, A_b, stats_b
+
+    def _band_widened(self, P: np.ndarray, s: np.ndarray) -> np.ndarray:
+        """``P`` with the band's entering priors added to its states (a copy)."""
+        settings = self.settings
+        widened = P.copy()
+        for state, sigma in zip(BAND, (settings.band_prior_depth, settings.band_prior_edge, settings.band_prior_edge,
+                                       settings.band_prior_speed, settings.band_prior_soft, settings.band_prior_haze)):
+            widened[state, state] += sigma * sigma
+        return widened
+
+    def _band_on(self) -> None:
+        """A band followed from this frame: its states among the active ones."""
+        self.idx, self._layout = self.idx_band, self._layout_band
+        self._answer = (self._answer[0], np.empty((self.idx.size, self.idx.size)), self._answer[2])
+
+    def _band_off(self) -> None:
+        """No band in view: its states held at zero, out of the active ones."""
+        self._band_failed = 0
+        for state in BAND:
+            self.s[state] = 0.0
+            self.P[state, :] = 0.0
+            self.P[:, state] = 0.0
+        if self.idx is not self.idx_plain:
+            self.idx, self._layout = self.idx_plain, self._layout_plain
+            self._answer = (self._answer[0], np.empty((self.idx.size, self.idx.size)), self._answer[2])
+
+    def _band_unlike(self, s: np.ndarray) -> bool:
+        """Whether a band's shape is no band's: narrower than a sixth of the field or with edges sharper than
+        BAND_SHARPEST of it (a speck, a scratch: the maps' and the robust weights' marks, not a light's shape), or
+        scattering more than BAND_HAZIEST of the light it takes (a depth and a haze that cancel change the
+        print's contrast, not its light: marks on it)."""
+        field = self._bands.hi - self._bands.lo
+        return s.item(BE) < BAND_SHARPEST * field or s.item(BR) - s.item(BL) < field / 6.0 or \
+            abs(s.item(BH)) > BAND_HAZIEST * abs(s.item(BD)) * max(abs(self.mean_gray), 1.0)
+
+    def _band_gone(self) -> bool:
+        """Whether the band followed has left the field or closed: the light it takes anywhere in view (its
+        largest at the field's ends or its middle) below half a sample's read noise."""
+        s = self.s
+        depth, left, right, edge = s.item(BD), s.item(BL), s.item(BR), s.item(BE)
+        if self._band_unlike(s):
+            return True
+        lo, hi = self._bands.lo, self._bands.hi
+        scale = 1.0 / (math.sqrt(2.0) * edge)
+        centre = min(max(0.5 * (left + right), lo), hi)
+        mean, haze = max(abs(self.mean_gray), 1.0), s.item(BH)
+        taken = max(abs(depth * mean - haze) * 0.5 * (math.erf((u - left) * scale) - math.erf((u - right) * scale))
+                    for u in (lo, hi, centre))
+        return taken < 0.5 * math.sqrt(self.noise[0])
 
     def _landed(self, y: np.ndarray, mask: np.ndarray, s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray,
                 grating_z: float) -> int:
@@ -580,10 +795,12 @@ class Estimator:
         used = stats[kernel.S_USED]
         if used <= 0:
             return math.inf
+        return self._chi2(stats, s) / _quantile(self.z_alpha, used / self.spread ** 2)
+
+    def _chi2(self, stats: list, s: np.ndarray) -> float:
+        """The innovation's χ² (the stream's spread counted)."""
         level = self._level(s.item(X))
-        chi2 = stats[kernel.S_RESIDUAL] / level + stats[kernel.S_PRIOR] + stats[kernel.S_GRATING]
-        dof = used / self.spread ** 2
-        return (chi2 / self.spread ** 2) / _quantile(self.z_alpha, dof)
+        return (stats[kernel.S_RESIDUAL] / level + stats[kernel.S_PRIOR] + stats[kernel.S_GRATING]) / self.spread ** 2
 
     def _excess(self, stats: list, s: np.ndarray) -> float:
         """The frame's residual χ² per sample over what the noise model and the calibration expect (≥ 1)."""
@@ -599,11 +816,12 @@ class Estimator:
         jumped): χ² with as many degrees of freedom as the family has states. A family whose statistic is
         within its quantile at the false-alarm rate cannot explain the innovation and is not tried; the rest
         are ranked standardised. None where the prior or the posterior has no inverse."""
-        statistics = self._statistics
-        if not kernel.scores(P_prior, A, self.idx, s, s_prior, self._family_rows, self.dt_last, statistics):
+        layout = self._layout
+        statistics = layout.statistics
+        if not kernel.scores(P_prior, A, layout.idx, s, s_prior, layout.rows, self.dt_last, statistics):
             return []
         scored = []
-        for (family, _), k, statistic in zip(self._families, self._family_dof, statistics.tolist()):
+        for (family, _), k, statistic in zip(layout.families, layout.dof, statistics.tolist()):
             if statistic > self._score_quantile[k]:
                 scored.append(((statistic - k) / math.sqrt(2.0 * k), family))
         return [family for _, family in sorted(scored, reverse=True)]
@@ -654,6 +872,12 @@ class Estimator:
                 stale, reason = True, reason or "scale"
                 message = message or f"camera and grating disagree by {nu * 1e3:+.2f} µm"
         bound_factor = self.bound_factor
+        if s[BE] > 0.0 and self.grating == "none":
+            # A band in view and no grating: its edges and the position trade over less than a period, and a band
+            # entered from a frame's search may sit in a wrong pairing of the two that passes the test (read, the
+            # grating tests the position; fused, it pins it): the frame is said to be in its light, not vouched for.
+            stale, reason = True, reason or "light"
+            message = message or "a band of shadow or veil in view, no grating to check the position against"
         if var_x > settings.dominance * floor2 * bound_factor ** 2:
             carried = "geometry" if model_var > var_x - model_var - floor2 else self._carrier()
             if carried:
@@ -694,7 +918,7 @@ class Estimator:
         info = np.linalg.inv(P)
         ix = idx.index(X)
         best, family = 0.0, ""
-        groups = {"geometry": (C, T), "magnification": (M, L), "light": (G, OFS, A1, A2), "focus": (B,)}
+        groups = {"geometry": (C, T), "magnification": (M, L), "light": (G, OFS, A1, A2) + BAND, "focus": (B,)}
         for name, states in groups.items():
             keep = [i for i, state in enumerate(idx) if state not in states]
             if len(keep) == len(idx):
@@ -747,8 +971,9 @@ class Estimator:
         self._solve(y, self.mask.copy(), self.s.copy(), self.P.copy(), 0.0)
         kernel.predict(self.s.copy(), self.P.copy(), 0.01, 1.0, self.rates2)
         kernel.embed(self.P.copy(), np.eye(self.idx.size), self.idx, self._sigma)
-        kernel.scores(self.P, np.eye(self.idx.size), self.idx, self.s, self.s, self._family_rows, 0.01,
-                      self._statistics)
+        for layout in (self._layout_plain, self._layout_band):
+            kernel.scores(self.P, np.eye(layout.idx.size), layout.idx, self.s, self.s, layout.rows, 0.01,
+                          layout.statistics)
         grid = np.zeros((2, self.n_values))
         kernel.agreement(self._y, self.mask, grid, 1, 0.0, 1.0, AGREED_ROUNDS, np.empty(2), np.empty(2), np.empty(2))
         for kind in FRAME_TYPES:  # each kind of frame a camera delivers, compiled for now

@@ -29,16 +29,19 @@ import math
 import numpy as np
 
 from graytrack.core import kernels
-from graytrack.core.estimator.state import A1, A2, B, C, G, L, M, N_STATE, OFS, SK, STATE, T, V, X
+from graytrack.core.estimator.state import (A1, A2, B, BD, BE, BH, BL, BR, BW, C, G, L, M, N_STATE, OFS, SK, STATE,
+                                            T, V, X)
 
 # The state's layout as this file was compiled for. numba keys its cache by this file's stamp alone, not
 # by the indices it compiles in from state.py: a cache made for another layout indexes the wrong states
 # (seen: NaN or a silently wrong skew). A layout change must therefore change this file, and does:
-LAYOUT = "x_mm v_mm_s gain offset_gray field_tilt field_bow focus_px2 stretch place_mm lever_mm turn_mm_row skew_s"
+LAYOUT = ("x_mm v_mm_s gain offset_gray field_tilt field_bow focus_px2 stretch place_mm lever_mm turn_mm_row skew_s "
+          "band_depth band_left_mm band_right_mm band_speed_mm_s band_edge_mm band_haze_gray")
 if LAYOUT != " ".join(entry.name for entry in STATE):
     raise ImportError("core/estimator/state.py's layout differs from kernel.LAYOUT: update LAYOUT with it "
                       "(it keys the compiled kernel's cache)")
 MAD_TO_SIGMA = 1.4826
+ROOT_2, ROOT_2PI = math.sqrt(2.0), math.sqrt(2.0 * math.pi)
 ROBUST_ROUNDS = 6  # reweightings at most: the redescending weights settle in 2–3 on a frame with a blob
 CURVATURE_STEP_PERIODS = 1e-3  # forward-difference step of F″ from the slopes, in periods (error ~ 3 % at order 5)
 # out_stats layout
@@ -237,9 +240,34 @@ def predict(s: np.ndarray, P: np.ndarray, dt: float, q_accel: float, rates2: np.
     P[X, V] += q_accel * dt2 * dt / 2.0
     P[V, X] += q_accel * dt2 * dt / 2.0
     P[V, V] += q_accel * dt2
-    for i in range(n):
-        if i != X and i != V:
+    if s[BE] > 0.0:  # a band in view: its two edges move together at its speed, whose change is white
+        # (rates2[BW] its acceleration's variance, as the stage's); out of view its states are held at zero
+        s[BL] += s[BW] * dt
+        s[BR] += s[BW] * dt
+        for j in range(n):
+            P[BL, j] += dt * P[BW, j]
+            P[BR, j] += dt * P[BW, j]
+        for i in range(n):
+            P[i, BL] += dt * P[i, BW]
+            P[i, BR] += dt * P[i, BW]
+        q_band = rates2[BW]
+        for i in (BL, BR):
+            for j in (BL, BR):
+                P[i, j] += q_band * dt2 * dt2 / 4.0
+            P[i, BW] += q_band * dt2 * dt / 2.0
+            P[BW, i] += q_band * dt2 * dt / 2.0
+        P[BW, BW] += q_band * dt2
+        for i in (BD, BL, BR, BE, BH):
             P[i, i] += rates2[i] * dt
+    for i in range(n):
+        if i != X and i != V and i < BD:
+            P[i, i] += rates2[i] * dt
+
+
+def _band(u: float, left: float, right: float, edge: float) -> float:
+    """The band's profile B at target coordinate ``u`` (1 in its core, 0 far from it)."""
+    scale = 1.0 / (ROOT_2 * edge)
+    return 0.5 * (math.erf((u - left) * scale) - math.erf((u - right) * scale))
 
 
 def _evaluate(x: float, model: tuple, values: np.ndarray, slopes: np.ndarray, smooth: np.ndarray) -> None:
@@ -261,12 +289,25 @@ def _normal(s: np.ndarray, idx: np.ndarray, y: np.ndarray, w: np.ndarray, rho: n
     weighted = np.empty(n)
     g, o, a1, a2, b, m, th = s[G], s[OFS], s[A1], s[A2], s[B], s[M], s[T]
     lever = s[L]
+    depth, left, right, edge, haze = s[BD], s[BL], s[BR], s[BE], s[BH]
+    banded = edge > 0.0  # a band in view (its states in the state only then)
+    inv_edge = 1.0 / edge if banded else 0.0
     cost = 0.0
     for p in range(y.size):
-        level = g + a1 * b1[p] + a2 * b2[p]
+        level0 = g + a1 * b1[p] + a2 * b2[p]
+        shade, band, d_left, d_right, d_edge = 1.0, 0.0, 0.0, 0.0, 0.0
+        if banded:
+            zl = (t_rel[p] - left) * inv_edge
+            zr = (t_rel[p] - right) * inv_edge
+            band = 0.5 * (math.erf(zl / ROOT_2) - math.erf(zr / ROOT_2))
+            pl = math.exp(-0.5 * zl * zl) / ROOT_2PI
+            pr = math.exp(-0.5 * zr * zr) / ROOT_2PI
+            d_left, d_right, d_edge = -pl * inv_edge, pr * inv_edge, (zr * pr - zl * pl) * inv_edge
+            shade = 1.0 - depth * band
+        level = level0 * shade
         f, df = values[p], slopes[p]
         ft = f + df * (m * t_rel[p] + th * r_rel[p]) + half_d2 * b * curvature[p]
-        r = y[p] - (level * ft + o)
+        r = y[p] - (level * ft + o + haze * band)
         residual[p] = r
         weight = w[p] * rho[p]
         if weight <= 0.0:
@@ -274,10 +315,17 @@ def _normal(s: np.ndarray, idx: np.ndarray, y: np.ndarray, w: np.ndarray, rho: n
         cost += weight * r * r
         gdf = level * df
         jac[X] = gdf
-        jac[G] = ft
+        jac[G] = shade * ft
         jac[OFS] = 1.0
-        jac[A1] = b1[p] * ft
-        jac[A2] = b2[p] * ft
+        jac[A1] = b1[p] * shade * ft
+        jac[A2] = b2[p] * shade * ft
+        if banded:
+            lost = haze - level0 * ft * depth  # what the band changes where its profile is 1
+            jac[BD] = -level0 * ft * band
+            jac[BL] = lost * d_left
+            jac[BR] = lost * d_right
+            jac[BE] = lost * d_edge
+            jac[BH] = band
         jac[B] = level * half_d2 * curvature[p]
         jac[M] = gdf * (t_rel[p] + lever)
         jac[C] = gdf
@@ -403,6 +451,9 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
         curvature[p] = (curvature[p] - slopes[p]) / step
         # the noise model's weight at the predicted gray value
         gray = (s[G] + s[A1] * b1[p] + s[A2] * b2[p]) * values[p] + s[OFS]
+        if s[BE] > 0.0:
+            band = _band(t_rel[p], s[BL], s[BR], s[BE])
+            gray = (gray - s[OFS]) * (1.0 - s[BD] * band) + s[OFS] + s[BH] * band
         signal = gray - dark
         if signal < 0.0:
             signal = 0.0
@@ -499,6 +550,8 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
         used += 1.0
         rss += residual[p] * residual[p]
         gdf = (level_g + s[A1] * b1[p] + s[A2] * b2[p]) * slopes[p]
+        if s[BE] > 0.0:
+            gdf *= 1.0 - s[BD] * _band(t_rel[p], s[BL], s[BR], s[BE])
         xinfo += w[p] * rho[p] * gdf * gdf
     stats[S_COST] = cost + prior + grating_cost
     stats[S_RESIDUAL] = cost
@@ -557,6 +610,7 @@ if kernels.COMPILED:
     row_mean = _jit(row_mean)
     in_range = _jit(in_range)
     _evaluate = _jit(_evaluate)
+    _band = _jit(_band)
     _normal = _jit(_normal)
     _grating = _jit(_grating)
     _reweigh = _jit(_reweigh)

@@ -119,6 +119,32 @@ TUNABLES: dict[str, Tunable] = {
         0.5, "mm/s",
         "the velocity change the stage may make in one frame beyond its acceleration (a collision, a "
         "servo fault, a dropped burst of frames)", low=0.0),
+    "band_acceleration": Tunable(
+        500.0, "mm/s²",
+        "how fast a band of shadow's speed across the field changes (its edges' common acceleration, white between "
+        "frames as the stage's): a cable swinging 20 mm at 1 Hz reaches 800 mm/s²; a band's edges are seen in every "
+        "frame it darkens, so the motion need only carry them across the frames between", low=0.0),
+    "band_rate_depth": Tunable(
+        0.02, "1/√s", "the light a band takes drifting in a second (the lamp behind the cable holding)", low=0.0),
+    "band_rate_edge": Tunable(
+        0.2, "mm/√s", "each of a band's edges wandering against the other in a second (a cable swinging nearer the "
+        "lamp or the print widens its shadow)", low=0.0),
+    "band_rate_soft": Tunable(
+        0.05, "mm/√s", "a band's penumbra changing in a second (the same cable, the same lamp)", low=0.0),
+    "band_rate_haze": Tunable(
+        0.2, "gray/√s", "the light a band scatters drifting in a second (a veil thickening)", low=0.0),
+    "band_prior_depth": Tunable(
+        0.3, "1", "the light a band entering may take, about the depth its search found", low=0.0),
+    "band_prior_edge": Tunable(
+        0.5, "mm", "how far a band's entering edges may be from where its search found them (a step of its grid)",
+        low=0.0),
+    "band_prior_speed": Tunable(
+        30.0, "mm/s", "a band's speed across the field when it enters (a cable swinging through the lamp's light)",
+        low=0.0),
+    "band_prior_soft": Tunable(
+        0.5, "mm", "how far a band's penumbra may be from the one its search found", low=0.0),
+    "band_prior_haze": Tunable(
+        1.0, "gray", "how far the light a band entering scatters may be from what its search found", low=0.0),
     "dominance": Tunable(
         2.0, "1 (variance ratio)",
         "a position whose variance is more than this times the frame's own noise floor's is carried by "
@@ -195,6 +221,16 @@ class EstimatorSettings:
     jump_place: float = TUNABLES["jump_place"].default
     jump_turn: float = TUNABLES["jump_turn"].default
     jump_motion: float = TUNABLES["jump_motion"].default
+    band_acceleration: float = TUNABLES["band_acceleration"].default
+    band_rate_depth: float = TUNABLES["band_rate_depth"].default
+    band_rate_edge: float = TUNABLES["band_rate_edge"].default
+    band_rate_soft: float = TUNABLES["band_rate_soft"].default
+    band_rate_haze: float = TUNABLES["band_rate_haze"].default
+    band_prior_depth: float = TUNABLES["band_prior_depth"].default
+    band_prior_edge: float = TUNABLES["band_prior_edge"].default
+    band_prior_speed: float = TUNABLES["band_prior_speed"].default
+    band_prior_soft: float = TUNABLES["band_prior_soft"].default
+    band_prior_haze: float = TUNABLES["band_prior_haze"].default
     dominance: float = TUNABLES["dominance"].default
     core_sigma: float = TUNABLES["core_sigma"].default
     cut_sigma: float = TUNABLES["cut_sigma"].default

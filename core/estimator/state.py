@@ -33,7 +33,18 @@ STATE: tuple[StateEntry, ...] = (
     StateEntry("lever_mm", "mm", "magnification", "the optical axis's distance behind the ROI's centre"),
     StateEntry("turn_mm_row", "mm/row", "geometry", "the image's shift per row (the camera turned)"),
     StateEntry("skew_s", "s", "scale", "how much earlier than the exposure the grating was latched (with it fused)"),
+    # a band of shadow or veil on the print's plane, fixed to neither the print nor the camera (a cable between the
+    # lamp and the print, a lamp partly blocked): the light lost in its core, its two edges along the target from the
+    # ROI's centre (an edge out of view: a veil over part of the field), their common speed across the field, the
+    # softness of each edge (the penumbra) and the light it scatters under it; states only while a band is in view
+    StateEntry("band_depth", "1", "light", "the light lost in the band's core (0: no band)"),
+    StateEntry("band_left_mm", "mm", "light", "the band's left edge on the print's plane, from the ROI's centre"),
+    StateEntry("band_right_mm", "mm", "light", "the band's right edge on the print's plane, from the ROI's centre"),
+    StateEntry("band_speed_mm_s", "mm/s", "light", "the band's edges' speed across the field"),
+    StateEntry("band_edge_mm", "mm", "light", "the softness of the band's edges (the penumbra's σ)"),
+    StateEntry("band_haze_gray", "gray", "light", "the light the band scatters into what it covers (a veil's haze)"),
 )
-X, V, G, OFS, A1, A2, B, M, C, L, T, SK = range(len(STATE))
+X, V, G, OFS, A1, A2, B, M, C, L, T, SK, BD, BL, BR, BW, BE, BH = range(len(STATE))
+BAND = (BD, BL, BR, BW, BE, BH)
 N_STATE = len(STATE)
 FAMILIES = {entry.family for entry in STATE}

@@ -191,7 +191,9 @@ def test_a_grating_a_period_away_starts_the_estimate_again_and_is_flagged(paper)
 def test_a_frame_that_fails_the_test_tries_the_most_evident_jumps_first(paper):
     """On a frame the prediction cannot explain, each family's jump is ranked by its score test of the
     innovation (made from the update without a jump), and only the first two are solved: the family that
-    moved is among them and is taken, and the search costs two solves, not one a family."""
+    moved is among them and is taken, and the search costs two solves, not one a family (and at most one more,
+    a band of shadow entering, where a band's shape could explain the frame: it is not taken over a jump that
+    explains it as well)."""
     import copy
 
     from graytrack.core.estimator import filter as estimator_filter
@@ -209,7 +211,8 @@ def test_a_frame_that_fails_the_test_tries_the_most_evident_jumps_first(paper):
         trial._solve = lambda *args, **kwargs: solves.append(1) or solve(*args, **kwargs)
         estimate = trial.update(disturbed, run.t[100], run.reference[100])
         assert estimate.mode == family, (family, estimate)
-        assert len(solves) == 1 + estimator_filter.SEARCHED  # the frame's own update, then the jumps tried
+        # the frame's own update, then the jumps tried (and the band's search, where a shape could explain it)
+        assert 1 + estimator_filter.SEARCHED <= len(solves) <= 2 + estimator_filter.SEARCHED
 
 
 def test_after_a_shadow_has_passed_the_light_returns_and_the_position_with_it(paper):
@@ -269,11 +272,12 @@ def test_a_knocked_camera_on_one_row_is_learned_as_its_place():
 
 
 def test_a_change_no_jump_explains_is_searched_once_while_it_persists(paper):
-    """A veil over half the field (a quarter of the light lost, a little scattered light) is no jump of the
-    model's families: its first frame tries the two most evident, and while the same families point at it
-    in the same order later frames are not searched again (their own update and the appearance's: two
-    solves); a lamp dimmed under the veil points elsewhere first and is searched. (The sensor's map, which
-    would take the veil aside, is off here: ``map_most`` 0; tests/core/test_sensor_map.py has it on.)"""
+    """A ripple across the field (the light a few gray up and down every few pixels: no jump of the model's
+    families, no band of shadow) is searched on its first frame (the two most evident families tried), and
+    while the same families point at it in the same order later frames are not searched again (their own
+    update and the appearance's); a lamp dimmed
+    under the ripple points elsewhere first and is searched. (The sensor's map, which would take the ripple
+    aside, is off here: ``map_most`` 0.)"""
     from graytrack.core.estimator import filter as estimator_filter
 
     run, _ = build_rig("paper", "", seed=4, run=3).record()
@@ -281,12 +285,12 @@ def test_a_change_no_jump_explains_is_searched_once_while_it_persists(paper):
     solves = []
     solve = estimator._solve
     estimator._solve = lambda *args, **kwargs: solves.append(1) or solve(*args, **kwargs)
-    half = np.arange(run.frames.shape[-1]) >= run.frames.shape[-1] // 2
+    ripple = 6.0 * np.sin(np.arange(run.frames.shape[-1]) * 0.25)
     costs, tests = [], []
     for k in range(200):
         frame = np.array(run.frames[k], dtype=np.float64)
         if k >= 100:
-            frame[..., half] = frame[..., half] * 0.75 + 5.0
+            frame = frame + ripple
         if k >= 160:
             frame = frame * 0.6
         before = len(solves)
@@ -294,9 +298,9 @@ def test_a_change_no_jump_explains_is_searched_once_while_it_persists(paper):
         costs.append(len(solves) - before)
     assert all(cost == 1 for cost in costs[:100])  # a steady frame: its own update
     assert tests[100] > 1.0 and costs[100] == 2 + estimator_filter.SEARCHED  # searched, then the appearance
-    veiled = costs[101:160]
+    rippled = costs[101:160]
     assert all(test > 1.0 for test in tests[101:160])
-    assert veiled.count(2) >= 0.8 * len(veiled), veiled  # mostly not searched again
+    assert rippled.count(2) >= 0.8 * len(rippled), rippled  # mostly not searched again
     assert costs[160] == 2 + estimator_filter.SEARCHED  # the lamp dimmed: a new step, searched
 
 
