@@ -348,6 +348,7 @@ class Estimator:
         self._unexplained: list[str] = []  # the families tried on the last frame, none of whose jumps explained it
         self._placed_again = False  # a frame of this episode was placed again by its agreeing samples, in vain
         self._band_failed = 0  # frames in a row the band followed did not explain
+        self._band_missed = 0  # frames in a row that failed with no band followed, since one passed its test
         self._bands = _band_shapes(self.t_rel)  # the shapes a band entering is searched among (edges, softness)
         # without the grating, the camera's place moves only as a step no motion of the stage makes (mount.py)
         # (as fast as the stage is commanded, and no less than its calibration's grating showed it to be)
@@ -378,6 +379,7 @@ class Estimator:
         self.failed = 0
         self._unexplained = []
         self._placed_again = False
+        self._band_missed = 0
         self._band_off()
         if self.mount is not None:
             self.mount.reset()
@@ -425,6 +427,7 @@ class Estimator:
             mode, solved, reason_jump = "", self.idx, None
             self._unexplained = []
             self._placed_again = False
+            self._band_missed = 0
         if (test > 1.0 or stats[S_REJECTED] > 0 or stats[S_WEIGHED] > 0) and not mode and dt is not None \
                 and main[S_POSTERIOR] > 0 and self._anchored(self._P_next, main) and \
                 self._landed(y, mask, s, s_prior, P_prior, grating_z) > 0:
@@ -522,19 +525,25 @@ class Estimator:
                 test_j = self._test(stats_j, s_j)
                 if best is None or test_j < best[0]:
                     best = (test_j, family, s_j, A_j, stats_j)
-            if s_prior.item(BE) <= 0.0:
+            missed = self._band_missed
+            if s_prior.item(BE) <= 0.0 and missed & (missed - 1) == 0:
                 # A change may be a band of shadow or veil entering the field (a shape of the light no low-order
                 # field describes, which over less than a period the field's tilt and a shift would take between
-                # them): searched on every frame that fails while none is followed, and taken over a jump that
+                # them): searched on a frame that fails while none is followed, and taken over a jump that
                 # explains the frame too only where it explains it better by more than the band's extra states'
-                # χ² quantile at the false-alarm rate.
+                # χ² quantile at the false-alarm rate. While a change the search did not take persists, it is
+                # searched again at doubling intervals (a band entering shows more of itself frame by frame; a
+                # smudge on the print never becomes one).
                 banded = self._banded(y, mask, s, stats, s_prior, P_prior, grating_z)
                 if banded is not None and banded[0] <= 1.0 and (
                         best is None or best[0] > 1.0 or
                         self._chi2(banded[3], banded[1]) + self._band_margin < self._chi2(best[4], best[2])):
                     self._band_on()
                     self._unexplained = []
+                    self._band_missed = 0
                     return banded[0], "band", banded[1], banded[2], banded[3], self.idx, None
+            if s_prior.item(BE) <= 0.0:
+                self._band_missed = missed + 1
             if best is not None and best[0] <= 1.0:
                 test, mode, s, A, stats = best[0], best[1], best[2], best[3], best[4]
                 reason_jump = None
