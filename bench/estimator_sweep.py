@@ -31,13 +31,14 @@ import numpy as np
 from graytrack.core.calibration import calibrate
 from graytrack.core.estimator import filter as estimator
 from graytrack.core.estimator.settings import TUNABLES, EstimatorSettings
+from graytrack.core.recording import acceleration_phases
 from graytrack.core.timing import model_reference
 from graytrack.drivers.sim.scenarios import build_rig
 from robustness_sweep import CASES, SECONDS, measured_motion
 from truth_score import MODES
 
-CACHE_VERSION = "2"  # what a cached case holds: 2, recordings that state the stage's acceleration and models the
-# acceleration their calibration's readings showed (core/estimator/mount.py); older cases are made again
+CACHE_VERSION = "3"  # what a cached case holds: 3, recordings that state the stage's commanded phases of acceleration
+# and models what their calibration's readings showed beyond them (core/estimator/mount.py); older cases are made again
 FAR_PULL = 4.0  # bounds off the truth beyond which a placed frame counts as far off
 SILENT_SHARE = 0.005  # of a run's placed frames: the acceptance's ceiling for far frames left unflagged
 
@@ -66,7 +67,8 @@ def scored(model, run, truth, grating: str, settings: EstimatorSettings) -> dict
     if not np.isfinite(reference).any():
         grating = "none"
     start = time.process_time()
-    tracker = estimator.Estimator(model, settings=settings.for_recording(run.meta), grating=grating)
+    tracker = estimator.Estimator(model, settings=settings.for_recording(run.meta), grating=grating,
+                                  stage_phases=acceleration_phases(run.meta))
     estimates = estimator.track(model, run.frames, run.t, reference, estimator=tracker)
     seconds = time.process_time() - start
     x = np.array([e.x_mm for e in estimates])

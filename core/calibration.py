@@ -16,11 +16,12 @@ from graytrack.core import effects
 from graytrack.core.adequacy import assessed
 from graytrack.core.calibration_data import CalibrationFit, CalibrationData, calibration_data
 from graytrack.core.errors import CalibrationError
-from graytrack.core.estimator.mount import SHOWN_ACCELERATION, shown_acceleration
+from graytrack.core.estimator.mount import SHOWN_ACCELERATION, SHOWN_BEYOND, shown_acceleration
+from graytrack.core.estimator.settings import TUNABLES
 from graytrack.core.geometry import initial_geometry
 from graytrack.core.geometry_check import MIN_SEEN_SHARE, GeometryError, check_geometry, dark_pixels
 from graytrack.core.models.fourier import FourierModel
-from graytrack.core.recording import Recording
+from graytrack.core.recording import Recording, acceleration_phases
 from graytrack.core.calibration_line import record_calibration_line
 from graytrack.core.structure import ModelSpec, fit_spec
 
@@ -98,6 +99,10 @@ def calibrate(rec: Recording, model: str = "paper", *, harmonics: int | None = N
     record_calibration_line(result.model, rec)  # camera against grating on its own run: drift is measured from it
     # what the stage's own motion showed on the grating (core/estimator/mount.py): no step of the mount is smaller
     result.model.info[SHOWN_ACCELERATION] = shown_acceleration(rec.t, rec.reference)
+    phases = acceleration_phases(rec.meta)
+    if phases is not None:
+        result.model.info[SHOWN_BEYOND] = shown_acceleration(rec.t, rec.reference, phases,
+                                                             TUNABLES["stage_settle"].default)
     if progress:
         progress(1.0, f"done, rms {result.rmse_gray:.3f} gray")
     return result

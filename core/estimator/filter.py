@@ -41,7 +41,7 @@ from graytrack.core.errors import TrackingError
 from graytrack.core import repeats
 from graytrack.core.estimator import kernel
 from graytrack.core.estimator.kernel import S_POSTERIOR, S_REJECTED, S_WEIGHED
-from graytrack.core.estimator.mount import SHOWN_ACCELERATION, MountWatch, Step, step_test
+from graytrack.core.estimator.mount import SHOWN_ACCELERATION, SHOWN_BEYOND, MountWatch, Step, step_test
 from graytrack.core.estimator.sensor_map import SensorMap
 from graytrack.core.estimator.settings import EstimatorSettings
 from graytrack.core.estimator.state import (A1, A2, B, BAND, BD, BE, BH, BL, BR, BW, C, G, L, M, N_STATE, OFS, SK,
@@ -73,6 +73,7 @@ BAND_GRID = 16  # a band's entering edges searched a sixteenth of the field apar
 BAND_SHARPEST = 1.0 / 64.0  # of the field: a band's penumbra at least this soft (a pixel and a half of a hundred)
 BAND_HAZIEST = 0.5  # of the light a band takes, the most it scatters back (a veil: a tenth)
 BAND_BEYOND = 10.0  # fields beyond the end an edge out of view is put (a veil's: its erf there is 1 to 1e-20)
+MOUNT_BLIND = ("light", "field", "band", "focus", "magnification")  # jumps after which the mount's window starts anew
 REASON = {"light": "light", "field": "light", "band": "light", "geometry": "geometry", "motion": "geometry",
           "focus": "focus", "magnification": "magnification"}
 
@@ -229,7 +230,7 @@ class Estimator:
     ``settings``: the declared rates and levels (settings.py)."""
 
     def __init__(self, model: FourierModel, settings: EstimatorSettings | None = None, grating: str = "check",
-                 robust: bool = True, axis_px: float | None = None):
+                 robust: bool = True, axis_px: float | None = None, stage_phases: np.ndarray | None = None):
         if not model.is_calibrated:
             raise TrackingError("the model has no coefficients: calibrate it first")
         if grating not in GRATING_MODES:
@@ -352,8 +353,15 @@ class Estimator:
         self._bands = _band_shapes(self.t_rel)  # the shapes a band entering is searched among (edges, softness)
         # without the grating, the camera's place moves only as a step no motion of the stage makes (mount.py)
         # (as fast as the stage is commanded, and no less than its calibration's grating showed it to be)
+        # With the stage's commanded phases known (a recording's stage_acceleration_phases), an interval allows what
+        # its command asked and what the stage does beyond its commands (no less than its calibration showed); a
+        # calibration that did not state its commands showed only the stage's most, commands and all.
         shown = float(model.info.get(SHOWN_ACCELERATION, 0.0) or 0.0)
-        self.mount = MountWatch(max(settings.stage_acceleration, shown), self.z_two) if grating == "none" else None
+        most = max(settings.stage_acceleration, shown)
+        beyond = model.info.get(SHOWN_BEYOND)
+        beyond = most if beyond is None else max(settings.stage_servo, float(beyond))
+        self.mount = MountWatch(most, self.z_two, stage_phases, beyond, settings.stage_settle) \
+            if grating == "none" else None
         self._warm()
 
     # ------------------------------------------------------------------ the recursion
@@ -464,11 +472,18 @@ class Estimator:
             if self._band_failed >= FAILED_TO_REACQUIRE or self._band_gone():
                 self._band_off()
         step = None
+        if self.mount is not None and mode in MOUNT_BLIND:
+            # a jump of the light or the lens moved the position with it (over less than a period they trade with a
+            # shift): what the frames before it placed is no line to judge a step of the mount against
+            self.mount.reset()
         # (frames that set samples aside, or weighed them down, place the image no better than what they set
         # aside moved it: a glint's frame is several floors off and would read as a step)
-        if self.mount is not None and test <= 1.0 and stats[kernel.S_XINFO] > 0 and \
+        elif self.mount is not None and test <= 1.0 and stats[kernel.S_XINFO] > 0 and \
                 stats[S_REJECTED] <= 0 and stats[S_WEIGHED] <= 0:
-            step = self.mount.add(t, self.s.item(X), self.bound_factor ** 2 / stats[kernel.S_XINFO])
+            # (the frame's noise and the model's own error there, which its calibration measured against the grating:
+            # a model that places a frame several floors off scatters its positions by as much from frame to frame)
+            x = self.s.item(X)
+            step = self.mount.add(t, x, self.bound_factor ** 2 * (1.0 + self._model_share(x)) / stats[kernel.S_XINFO])
             if step is not None:
                 self._mounted(step)
                 mode = reason_jump = "geometry"
@@ -1005,11 +1020,12 @@ Progress = Callable[[float, str], None]
 def track(model: FourierModel, frames: np.ndarray, t: np.ndarray, reference: np.ndarray | None = None,
           grating: str = "check", robust: bool = True, settings: EstimatorSettings | None = None,
           axis_px: float | None = None, progress: Progress | None = None,
-          estimator: Estimator | None = None) -> list[FrameEstimate]:
+          estimator: Estimator | None = None, stage_phases: np.ndarray | None = None) -> list[FrameEstimate]:
     """Every frame of a recording through one estimator, in order: the live recursion, batched. ``estimator``:
     the one to run (made from the other arguments where None), to read what it learned afterwards."""
     if estimator is None:
-        estimator = Estimator(model, settings=settings, grating=grating, robust=robust, axis_px=axis_px)
+        estimator = Estimator(model, settings=settings, grating=grating, robust=robust, axis_px=axis_px,
+                              stage_phases=stage_phases)
     grating = estimator.grating
     n = frames.shape[0]
     reference = np.full(n, np.nan) if reference is None or grating == "none" else np.asarray(reference, float)

@@ -19,6 +19,7 @@ it, with the variance of the fit and of what the stage may still have done withi
 
 from __future__ import annotations
 
+import bisect
 import math
 from typing import NamedTuple
 
@@ -28,6 +29,8 @@ from graytrack.core import kernels
 
 SHOWN_ACCELERATION = "stage_shown_acceleration_mm_s2"  # model info: the least acceleration the calibration's
 # grating readings allow over every four frames (shown_acceleration)
+SHOWN_BEYOND = "stage_shown_beyond_commands_mm_s2"  # model info: the same beyond what the stage was commanded to do,
+# where the calibration's recording stated its commanded phases
 WINDOW = 4  # frames of the test: two before the step, two after (a line's two parameters and the step, one spare)
 
 
@@ -80,14 +83,34 @@ def _fit(t: np.ndarray, p: np.ndarray, var: np.ndarray, out: np.ndarray) -> bool
         c[i] = (c0 + c1 * (t[i] - centre) + c2 * (1.0 if i >= 2 else 0.0)) / var[i]
         step += c[i] * p[i]
     # the Peano kernel at the knots, K(t_j) = Σ_i c_i (t_i − t_j)₊ (zero at the first and the last), and ∫|K|
+    # over each interval between frames (a stage's acceleration there is bounded interval by interval)
     integral, last = 0.0, 0.0
     for j in range(1, WINDOW):
         knot = 0.0
         for i in range(j + 1, WINDOW):
             knot += c[i] * (t[i] - t[j])
-        integral += _abs_integral(last, knot, t[j] - t[j - 1])
+        piece = _abs_integral(last, knot, t[j] - t[j - 1])
+        out[2 + j] = piece
+        integral += piece
         last = knot
     out[0], out[1], out[2] = step, c2, integral
+    # The window's one residual: the speed after the step against the speed before it, q = Σ eᵢ pᵢ, which neither
+    # a line nor the step moves. A step the mount made leaves it within the stage's acceleration and the noise;
+    # a window that holds a jump at its last frame (the step one frame early) does not.
+    before, after = t[1] - t[0], t[3] - t[2]
+    c[0], c[1], c[2], c[3] = -1.0 / before, 1.0 / before, 1.0 / after, -1.0 / after
+    q, var_q = 0.0, 0.0
+    for i in range(WINDOW):
+        q += c[i] * p[i]
+        var_q += c[i] * c[i] * var[i]
+    last = 0.0
+    for j in range(1, WINDOW):
+        knot = 0.0
+        for i in range(j + 1, WINDOW):
+            knot += c[i] * (t[i] - t[j])
+        out[3 + WINDOW + j] = _abs_integral(last, knot, t[j] - t[j - 1])
+        last = knot
+    out[2 + WINDOW], out[3 + WINDOW] = q, var_q
     return True
 
 
@@ -107,39 +130,67 @@ if kernels.COMPILED:
     _pushed = _jit(_pushed)
 
 
-def _judged(out: np.ndarray, acceleration: float) -> Step:
-    step, variance, integral = out.tolist()
+OUT = 3 + 2 * WINDOW  # the fit's answer (_fit): the step, its variance, ∫|K|, ∫|K| over each interval
+# between frames; the speed's change across the step, its variance, its kernel's ∫|K| over each interval
+
+
+def _judged(out: np.ndarray, acceleration: np.ndarray | float) -> Step:
+    """The step against a stage accelerating at most ``acceleration`` (mm/s²; one for the whole window, or one
+    for each interval between its frames)."""
+    step, variance, integral = out.item(0), out.item(1), out.item(2)
     sigma = math.sqrt(variance) if variance > 0.0 else 0.0
-    allowance = acceleration * integral
+    allowance = float(np.dot(acceleration, out[3:WINDOW + 2])) if np.ndim(acceleration) else acceleration * integral
     excess = (abs(step) - allowance) / sigma if sigma > 0.0 else (math.inf if abs(step) > allowance else 0.0)
     return Step(step, sigma, allowance, excess)
 
 
-def step_test(t: np.ndarray, p: np.ndarray, var: np.ndarray, acceleration: float) -> Step | None:
+def step_test(t: np.ndarray, p: np.ndarray, var: np.ndarray, acceleration: np.ndarray | float) -> Step | None:
     """A step between the second and third of four frames (times ``t`` s, positions ``p`` mm, variances
-    ``var`` mm²) against a stage accelerating at most ``acceleration`` mm/s²; None where the times do not
-    increase or the fit has no inverse."""
-    out = np.empty(3)
+    ``var`` mm²) against a stage accelerating at most ``acceleration`` mm/s² (or that in each of the three intervals
+    between them); None where the times do not increase or the fit has no inverse."""
+    out = np.empty(OUT)
     if not _fit(np.asarray(t, dtype=np.float64), np.asarray(p, dtype=np.float64),
                 np.asarray(var, dtype=np.float64), out):
         return None
     return _judged(out, acceleration)
 
 
-def shown_acceleration(t: np.ndarray, reading_mm: np.ndarray) -> float:
+def commanded(t: np.ndarray, phases: np.ndarray | None, settle_s: float) -> np.ndarray | None:
+    """The most the stage was commanded to accelerate in each interval between the frames at times ``t`` (mm/s²,
+    ``t.size − 1`` of them): the largest of the ``phases`` (start s, end s, |a| mm/s², core/recording.py) that
+    overlap it, each held ``settle_s`` past its end while the servo catches up; None without phases."""
+    if phases is None:
+        return None
+    t = np.asarray(t, dtype=np.float64)
+    out = np.zeros(max(t.size - 1, 0))
+    for start, end, acceleration in phases:
+        overlap = (t[1:] > start) & (t[:-1] < end + settle_s)
+        np.maximum(out, np.where(overlap, acceleration, 0.0), out=out)
+    return out
+
+
+def shown_acceleration(t: np.ndarray, reading_mm: np.ndarray, phases: np.ndarray | None = None,
+                       settle_s: float = 0.0) -> float:
     """The least acceleration (mm/s²) that allows every step the grating's readings make over four frames:
     what the stage itself was seen to do, vibration and the grating's own noise included (a calibration's
-    readings: the mount stays where it is, so every step there is the stage's). 0 with fewer than four."""
+    readings: the mount stays where it is, so every step there is the stage's). With the stage's commanded
+    ``phases``: what it did beyond what each interval's command allows (:func:`commanded`), the servo's overshoot
+    and vibration. 0 with fewer than four readings."""
     t = np.asarray(t, dtype=np.float64)
     reading = np.asarray(reading_mm, dtype=np.float64)
     keep = np.isfinite(t) & np.isfinite(reading)
     t, reading = t[keep], reading[keep]
     ones = np.ones(WINDOW)
+    asked = commanded(t, phases, settle_s)
     shown = 0.0
     for k in range(t.size - WINDOW + 1):
-        step = step_test(t[k:k + WINDOW], reading[k:k + WINDOW], ones, 1.0)
-        if step is not None and step.allowance_mm > 0.0:
-            shown = max(shown, abs(step.step_mm) / step.allowance_mm)
+        step = step_test(t[k:k + WINDOW], reading[k:k + WINDOW], ones, 0.0 if asked is None else
+                         asked[k:k + WINDOW - 1])
+        if step is None:
+            continue
+        unit = step_test(t[k:k + WINDOW], reading[k:k + WINDOW], ones, 1.0).allowance_mm  # ∫|K|
+        if unit > 0.0:
+            shown = max(shown, (abs(step.step_mm) - step.allowance_mm) / unit)
     return shown
 
 
@@ -150,16 +201,35 @@ class MountWatch:
     false-alarm rate. :meth:`add` takes a frame the model described (its posterior position); it returns
     the step the mount took, if the test says so, after which the frames it moved are corrected."""
 
-    def __init__(self, acceleration: float, z: float):
+    def __init__(self, acceleration: float, z: float, phases: np.ndarray | None = None, beyond: float = 0.0,
+                 settle_s: float = 0.0):
         self.acceleration, self.z = float(acceleration), float(z)
+        # with the commanded phases known, an interval allows what its command asked (commanded) and what the stage
+        # was seen to do beyond its commands (``beyond``, mm/s²), not the stage's most everywhere
+        self.phases, self.beyond, self.settle_s = phases, float(beyond), float(settle_s)
+        if phases is not None:  # (by start; an earlier phase can reach an interval only while their ends' most does)
+            self._starts = phases[:, 0].tolist()
+            self._reach = (np.maximum.accumulate(phases[:, 1]) + self.settle_s).tolist() if len(phases) else []
+            self._asked = phases[:, 2].tolist()
         self.t = np.zeros(WINDOW)
         self.p = np.zeros(WINDOW)
         self.var = np.zeros(WINDOW)
         self.n = 0
-        self._out = np.empty(3)
+        self._out = np.empty(OUT)
 
     def reset(self) -> None:
         self.n = 0
+
+    def _commanded(self, start: float, end: float) -> float:
+        """The most the stage was commanded to accelerate between ``start`` and ``end`` (s): :func:`commanded`
+        for one interval, by bisection over the phases."""
+        most = 0.0
+        k = bisect.bisect_left(self._starts, end) - 1
+        while k >= 0 and self._reach[k] > start:
+            if self._asked[k] > most and self.phases.item(k, 1) + self.settle_s > start:
+                most = self._asked[k]
+            k -= 1
+        return most
 
     def add(self, t: float, p_mm: float, var_mm2: float) -> Step | None:
         fitted = _pushed(self.t, self.p, self.var, t, p_mm, var_mm2, self._out)  # (one compiled call a frame)
@@ -167,8 +237,21 @@ class MountWatch:
         if self.n < WINDOW or not fitted:
             return None
         out = self._out
-        if abs(out.item(0)) - self.acceleration * out.item(2) <= self.z * math.sqrt(max(out.item(1), 0.0)):
+        least = self.acceleration if self.phases is None else self.beyond
+        noise = self.z * math.sqrt(max(out.item(1), 0.0))
+        if abs(out.item(0)) - least * out.item(2) <= noise:
             return None  # within the stage's allowance and the step's noise: the frame's, as nearly always
-        step = _judged(out, self.acceleration)
+        acceleration = np.full(WINDOW - 1, self.acceleration)
+        if self.phases is not None:
+            acceleration = np.array([self.beyond + self._commanded(self.t.item(j - 1), self.t.item(j))
+                                     for j in range(1, WINDOW)])
+            if abs(out.item(0)) - float(np.dot(acceleration, out[3:WINDOW + 2])) <= noise:
+                return None  # what the stage was commanded to do then makes such a step
+        # the same speed before and after the step (within what the stage may do and the noise), else the window
+        # holds a change that is not a step between its middle frames: a jump at its last frame is tested next
+        turn = abs(out.item(WINDOW + 2)) - float(np.dot(acceleration, out[WINDOW + 4:]))
+        if turn > self.z * math.sqrt(max(out.item(WINDOW + 3), 0.0)):
+            return None
+        step = _judged(out, acceleration)
         self.p[2:] -= step.step_mm  # the carriage's positions, the step now the place's
         return step

@@ -47,6 +47,16 @@ TUNABLES: dict[str, Tunable] = {
         "than such a motion makes between four frames is the camera moving on its mount (mount.py); a rig "
         "that does not say gets the fastest here's (830 mm/s² peak), which at 50 frames/s allows 300 µm",
         low=0.0),
+    "stage_settle": Tunable(
+        0.03, "s",
+        "how long after a commanded phase of acceleration ends (a recording's stage_acceleration_phases) the stage "
+        "may still accelerate as its servo catches up: a few periods of its bandwidth (an 80 Hz servo damped at 0.8 "
+        "settles within 10 ms)", low=0.0),
+    "stage_servo": Tunable(
+        20.0, "mm/s²",
+        "what a stage accelerates beyond its commands (its servo's overshoot, the floor's vibration) where its "
+        "calibration's readings did not show more; with the commands known, a cruise or a rest allows only this "
+        "(at 50 frames/s, 6 µm between four frames instead of the commanded most's 30 µm at 100 mm/s²)", low=0.0),
     "gain_rate": Tunable(
         0.005, "1/√s",
         "the light's relative drift in a second while the lamp holds (a lamp warming); over less than a period of "
@@ -198,6 +208,8 @@ class EstimatorSettings:
     false_alarm: float = TUNABLES["false_alarm"].default
     acceleration: float = TUNABLES["acceleration"].default
     stage_acceleration: float = TUNABLES["stage_acceleration"].default
+    stage_settle: float = TUNABLES["stage_settle"].default
+    stage_servo: float = TUNABLES["stage_servo"].default
     gain_rate: float = TUNABLES["gain_rate"].default
     gain_prior: float = TUNABLES["gain_prior"].default
     offset_rate: float = TUNABLES["offset_rate"].default

@@ -30,7 +30,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from graytrack.core.recording import STAGE_ACCELERATION, Recording
+from graytrack.core.recording import STAGE_ACCELERATION, STAGE_PHASES, Recording
 from graytrack.drivers.sim import illumination as illum
 from graytrack.drivers.sim import target as tgt
 from graytrack.drivers.sim.camera_side import CameraSide, CameraSideConfig
@@ -447,6 +447,8 @@ class VirtualRig:
         peak = getattr(commanded, "peak_acceleration_mm_s2", None)
         if peak is not None and peak > 0:
             meta[STAGE_ACCELERATION] = float(peak)
+        if hasattr(commanded, "acceleration_phases"):  # when, not only how hard: the plan's phases
+            meta[STAGE_PHASES] = [[round(t0, 9), round(t1, 9), float(a)] for t0, t1, a in commanded.acceleration_phases()]
         rec = Recording(stored, clock.stamp[keep], reference, meta)
         info = {"scenario": cfg.scenario, "effects": list(cfg.effects), "seed": self.seed,
                 "config": _jsonable(asdict(cfg))}

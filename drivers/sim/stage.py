@@ -143,6 +143,13 @@ class SimStage:
         """The largest acceleration its commands asked for (what its owner knows of the motion)."""
         return max((abs(segment.a) for segment in self._segments), default=0.0)
 
+    def acceleration_phases(self) -> list[tuple[float, float, float]]:
+        """The planned profile's phases of constant nonzero acceleration: (start s, end s, |acceleration| mm/s²),
+        what the controller was told and its owner knows (the servo follows within its bandwidth)."""
+        segments = self._segments
+        return [(segment.t0, following.t0, abs(segment.a))
+                for segment, following in zip(segments, segments[1:]) if segment.a != 0.0]
+
     # ----- commands -------------------------------------------------------------------------
     def move_to(self, target_mm: float, t_s: float) -> float:
         """Command an absolute move at time ``t_s``; returns the planned arrival time.

@@ -266,6 +266,7 @@ def estimated(recording: Recording, model: FourierModel, no_reference: bool = Fa
 
     from graytrack.core.estimator import as_result, calibration_level, track
     from graytrack.core.estimator.settings import EstimatorSettings
+    from graytrack.core.recording import acceleration_phases
     from graytrack.core.timing import model_reference
 
     grating = recording.reference
@@ -273,7 +274,8 @@ def estimated(recording: Recording, model: FourierModel, no_reference: bool = Fa
         grating = model_reference(model, recording.t, grating)
     mode = "none" if no_reference or not np.isfinite(grating).any() else ("fuse" if trim else "check")
     estimates = track(model, recording.frames, recording.t, grating, grating=mode, robust=robust, axis_px=axis_px,
-                      settings=EstimatorSettings().for_recording(recording.meta), progress=progress)
+                      settings=EstimatorSettings().for_recording(recording.meta), progress=progress,
+                      stage_phases=acceleration_phases(recording.meta))
     return as_result(estimates, calibration_level(model)), grating
 
 

@@ -6,9 +6,9 @@ import pytest
 
 from graytrack.core.calibration import calibrate
 from graytrack.core.estimator import track
-from graytrack.core.estimator.mount import step_test
+from graytrack.core.estimator.mount import SHOWN_BEYOND, MountWatch, commanded, step_test
 from graytrack.core.estimator.settings import EstimatorSettings
-from graytrack.core.recording import STAGE_ACCELERATION
+from graytrack.core.recording import STAGE_ACCELERATION, STAGE_PHASES, acceleration_phases
 from graytrack.drivers.sim.scenarios import build_rig
 
 
@@ -59,7 +59,7 @@ def strip():
 
 def _scored(model, run, truth):
     estimates = track(model, run.frames, run.t, None, grating="none",
-                      settings=EstimatorSettings().for_recording(run.meta))
+                      settings=EstimatorSettings().for_recording(run.meta), stage_phases=acceleration_phases(run.meta))
     x = np.array([e.x_mm for e in estimates])
     bound = np.array([e.crlb_mm for e in estimates])
     error = x - truth.x_mm
@@ -88,6 +88,7 @@ def test_a_knock_without_the_grating_is_found_a_frame_late_and_carried_in_the_bo
     # the same run, the stage's acceleration unknown (a recording that does not say): the fastest rig's
     # 1000 mm/s² allows 300 µm, and the knock is not found
     run.meta.pop(STAGE_ACCELERATION)
+    run.meta.pop(STAGE_PHASES)
     estimates, *_ = _scored(strip, run, truth)
     assert not any("mount" in e.message for e in estimates)
 
@@ -104,3 +105,57 @@ def test_a_stage_stepping_and_settling_is_not_taken_for_a_knock(strip):
     estimates, error, bound, stale = _scored(strip, run, truth)
     assert not any("mount" in e.message for e in estimates)
     assert np.sum((np.abs(error) > 4.0 * bound) & ~stale) == 0
+
+
+def test_commanded_phases_bound_each_interval_and_hold_while_the_servo_settles():
+    phases = np.array([[0.10, 0.15, 100.0], [0.50, 0.55, 40.0], [0.52, 0.60, 70.0]])
+    t = np.arange(0.0, 0.8, 0.02)
+    asked = commanded(t, phases, 0.03)
+    middle = 0.5 * (t[1:] + t[:-1])
+    assert asked[(middle > 0.11) & (middle < 0.14)].min() == 100.0
+    assert asked[np.searchsorted(t, 0.16)] == 100.0  # (0.16–0.18: within the 30 ms the servo settles)
+    assert asked[np.searchsorted(t, 0.20)] == 0.0 and asked[np.searchsorted(t, 0.40)] == 0.0
+    assert asked[np.searchsorted(t, 0.54) - 1] == 70.0  # overlapping phases: the larger
+    watch = MountWatch(100.0, 4.0, phases, 5.0, 0.03)
+    assert [watch._commanded(t[j - 1], t[j]) for j in range(1, t.size)] == asked.tolist()
+    assert commanded(t, None, 0.03) is None
+
+
+def test_a_jump_at_a_windows_last_frame_waits_for_the_window_that_centres_it():
+    """With the commands known the allowance at a cruise is small, and a window whose last frame jumped would read
+    part of the jump as a step between its middle frames; its speed after the step then differs from before
+    (the window's one residual), so it waits, and the next window takes the whole step."""
+    t = np.arange(8) * 0.02
+    x = 1.05 * t
+    x[5:] += 0.040  # the camera knocked between frames 4 and 5, the stage cruising (no phase)
+    watch = MountWatch(100.0, 4.0, np.zeros((0, 3)), 2.0, 0.03)
+    found = [(k, watch.add(t[k], x[k], 1e-8)) for k in range(t.size)]
+    steps = [(k, step) for k, step in found if step is not None]
+    assert len(steps) == 1 and steps[0][0] == 6  # the window 3-6: the step between its middle frames
+    assert steps[0][1].step_mm == pytest.approx(0.040, abs=1e-6)
+
+
+def test_the_calibrations_readings_show_what_the_stage_does_beyond_its_commands(strip):
+    """The strip's calibration sweep states its commanded phases: what the grating saw beyond them (the servo's
+    lag, the readings' quantisation) is a few mm/s², against the commanded 100 mm/s² the phases allow anyway."""
+    assert 0.0 < strip.info[SHOWN_BEYOND] < 20.0
+
+
+def test_a_knock_on_one_row_without_the_grating_is_found_where_the_commands_say_the_stage_cruised():
+    """One row at 50 frames/s: a stage at its 100 mm/s² could move 30 µm between four frames, so the 40 µm knock
+    is not a step beyond the stage's most. The recording states when the stage was commanded to accelerate;
+    at 2 s it cruised, so the interval allows only what the stage does beyond its commands, and the knock is
+    found a frame late and carried from then on."""
+    calibration, _ = build_rig("paper", "", seed=5).record()
+    model = calibrate(calibration, "paper").model
+    run, truth = build_rig("paper", "knock:um=40:deg=0.2:at_s=2", seed=5, run=1).record(6.0)
+    assert acceleration_phases(run.meta) is not None
+    estimates, error, bound, stale = _scored(model, run, truth)
+    knocked = int(np.searchsorted(run.t, 2.0))
+    found = [k for k, e in enumerate(estimates) if "mount" in e.message]
+    assert len(found) == 1 and knocked <= found[0] <= knocked + 2, found
+    after = np.arange(len(estimates)) > found[0]
+    assert np.all(stale[after]) and np.all(np.abs(error[after]) < 4.0 * bound[after])
+    assert np.sum((np.abs(error) > 4.0 * bound) & ~stale) <= 2
+    allowed = float(estimates[found[0]].message.split("beyond the ")[1].split(" µm")[0])
+    assert allowed < 10.0  # a cruise: what the stage does beyond its commands (30 µm at its most without them)

@@ -8,7 +8,7 @@ import zipfile
 import numpy as np
 import pytest
 
-from graytrack.core.recording import Recording, RecordingError, load, save
+from graytrack.core.recording import STAGE_PHASES, Recording, RecordingError, acceleration_phases, load, save
 
 
 def make(shape=(5, 8), dtype=np.uint16, meta=None) -> Recording:
@@ -26,6 +26,37 @@ def test_round_trip(tmp_path, shape, dtype):
     np.testing.assert_array_equal(back.frames, rec.frames)
     np.testing.assert_array_equal(back.reference, rec.reference)
     assert back.meta == rec.meta and back.n_rows == (1 if len(shape) == 2 else 3)
+
+
+def test_frames_are_deflated_only_where_it_pays(tmp_path):
+    """A noisy float camera's frames barely deflate and are stored as they are (reading them back is a copy); an
+    integer camera's are deflated; either way the file is numpy's own .npz and round-trips exactly."""
+    rng = np.random.default_rng(4)
+    light = 120.0 + 60.0 * np.sin(np.linspace(0.0, 40.0, 300 * 16 * 100)).reshape(300, 16, 100)
+    noisy = (light + rng.normal(0.0, 1.5, light.shape)).astype(np.float32)
+    counts = np.clip(np.round(light + rng.normal(0.0, 1.5, light.shape)), 0, 255).astype(np.uint8)
+    t = np.arange(300) * 0.02
+    for frames, stored in ((noisy, zipfile.ZIP_STORED), (counts, zipfile.ZIP_DEFLATED)):
+        path = save(Recording(frames, t, np.linspace(0.0, 5.0, 300), {"period_mm": 8.62}), tmp_path / "r.npz")
+        with zipfile.ZipFile(path) as archive:
+            kinds = {info.filename: info.compress_type for info in archive.infolist()}
+        assert kinds["frames.npy"] == stored
+        assert kinds["t.npy"] == kinds["meta.npy"] == zipfile.ZIP_DEFLATED  # small: always deflated
+        np.testing.assert_array_equal(load(path).frames, frames)
+        with np.load(path) as data:  # numpy's own reader too
+            np.testing.assert_array_equal(data["frames"], frames)
+    assert (tmp_path / "r.npz").stat().st_size < 0.8 * counts.nbytes  # the integer camera's file did shrink
+
+
+def test_the_stages_commanded_phases_round_trip_and_bad_ones_are_refused(tmp_path):
+    rec = make(meta={"period_mm": 8.6, STAGE_PHASES: [[2.0, 2.05, 100.0], [0.1, 0.15, 50]]})
+    back = load(save(rec, tmp_path / "r.npz"))
+    np.testing.assert_array_equal(acceleration_phases(back.meta), [[0.1, 0.15, 50.0], [2.0, 2.05, 100.0]])
+    assert acceleration_phases({}) is None
+    for bad in ([[1.0, 0.5, 100.0]], [[0.0, 1.0, -5.0]], [[0.0, 1.0]], "fast", [[0.0, float("nan"), 1.0]],
+                [[0.0, 1.0, True]]):
+        with pytest.raises(RecordingError, match=STAGE_PHASES):
+            save(make(meta={STAGE_PHASES: bad}), tmp_path / "bad.npz")
 
 
 def write_raw(path, **arrays):
