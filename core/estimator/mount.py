@@ -182,15 +182,13 @@ def shown_acceleration(t: np.ndarray, reading_mm: np.ndarray, phases: np.ndarray
     t, reading = t[keep], reading[keep]
     ones = np.ones(WINDOW)
     asked = commanded(t, phases, settle_s)
+    out = np.empty(OUT)
     shown = 0.0
     for k in range(t.size - WINDOW + 1):
-        step = step_test(t[k:k + WINDOW], reading[k:k + WINDOW], ones, 0.0 if asked is None else
-                         asked[k:k + WINDOW - 1])
-        if step is None:
+        if not _fit(t[k:k + WINDOW], reading[k:k + WINDOW], ones, out) or not out.item(2) > 0.0:
             continue
-        unit = step_test(t[k:k + WINDOW], reading[k:k + WINDOW], ones, 1.0).allowance_mm  # ∫|K|
-        if unit > 0.0:
-            shown = max(shown, (abs(step.step_mm) - step.allowance_mm) / unit)
+        allowed = 0.0 if asked is None else float(np.dot(asked[k:k + WINDOW - 1], out[3:WINDOW + 2]))
+        shown = max(shown, (abs(out.item(0)) - allowed) / out.item(2))  # (∫|K|: the step one mm/s² makes)
     return shown
 
 
@@ -211,6 +209,7 @@ class MountWatch:
             self._starts = phases[:, 0].tolist()
             self._reach = (np.maximum.accumulate(phases[:, 1]) + self.settle_s).tolist() if len(phases) else []
             self._asked = phases[:, 2].tolist()
+            self._ends = (phases[:, 1] + self.settle_s).tolist()
         self.t = np.zeros(WINDOW)
         self.p = np.zeros(WINDOW)
         self.var = np.zeros(WINDOW)
@@ -226,7 +225,7 @@ class MountWatch:
         most = 0.0
         k = bisect.bisect_left(self._starts, end) - 1
         while k >= 0 and self._reach[k] > start:
-            if self._asked[k] > most and self.phases.item(k, 1) + self.settle_s > start:
+            if self._asked[k] > most and self._ends[k] > start:
                 most = self._asked[k]
             k -= 1
         return most

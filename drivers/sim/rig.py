@@ -448,7 +448,8 @@ class VirtualRig:
         if peak is not None and peak > 0:
             meta[STAGE_ACCELERATION] = float(peak)
         if hasattr(commanded, "acceleration_phases"):  # when, not only how hard: the plan's phases
-            meta[STAGE_PHASES] = [[round(t0, 9), round(t1, 9), float(a)] for t0, t1, a in commanded.acceleration_phases()]
+            meta[STAGE_PHASES] = [[round(t0, 9), round(t1, 9), float(a)]
+                                  for t0, t1, a in commanded.acceleration_phases()]
         rec = Recording(stored, clock.stamp[keep], reference, meta)
         info = {"scenario": cfg.scenario, "effects": list(cfg.effects), "seed": self.seed,
                 "config": _jsonable(asdict(cfg))}
