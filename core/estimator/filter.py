@@ -496,6 +496,13 @@ class Estimator:
                         f"stage's acceleration allows: the camera moved on its mount")
         return estimate
 
+    def commanded(self, start: float, end: float, acceleration: float) -> None:
+        """A phase of acceleration the stage's owner commanded (``start``, ``end`` s in the frames' clock, |a|
+        mm/s²), as it issues it: without the grating, the mount's test allows that there and, between the phases
+        it was given, only what the stage does beyond its commands (mount.py). Read or fused, the grating says."""
+        if self.mount is not None:
+            self.mount.command(start, end, acceleration)
+
     def _mounted(self, step: Step) -> None:
         """The camera's place takes the step the mount made (mount.py): the carriage is where the image was less
         the step, and both carry the step's variance (its fit's and what the stage may have done within its

@@ -33,9 +33,13 @@ class LiveEstimator:
 
     def __init__(self, model: FourierModel, x0_mm: float | None = None, grating: str = "check",
                  settings: EstimatorSettings | None = None, axis_px: float | None = None,
-                 sensor_map: dict[str, Any] | None = None, refused: Callable[[str], None] = lambda reason: None):
+                 sensor_map: dict[str, Any] | None = None, refused: Callable[[str], None] = lambda reason: None,
+                 commands_known: bool = False):
         self.model = model
-        self.estimator = Estimator(model, settings=settings, grating=grating, axis_px=axis_px)
+        # commands_known: every phase of acceleration the stage is given comes through :meth:`commanded` (between
+        # them it holds its speed or rests), so a knock without the grating is told from the stage's motion
+        self.estimator = Estimator(model, settings=settings, grating=grating, axis_px=axis_px,
+                                   stage_phases=np.zeros((0, 3)) if commands_known else None)
         self._start = x0_mm
         self.last: FrameEstimate | None = None
         self.frames = 0
@@ -53,6 +57,11 @@ class LiveEstimator:
     @property
     def stale(self) -> bool:
         return bool(self.last is not None and self.last.stale)
+
+    def commanded(self, start: float, end: float, acceleration: float) -> None:
+        """A phase of acceleration the daemon commanded of the stage (s on the frames' clock, mm/s²): see
+        :meth:`Estimator.commanded`."""
+        self.estimator.commanded(start, end, acceleration)
 
     def restart_at(self, x_mm: float) -> None:
         """The next frame starts from ``x_mm`` (the grating's reading at a model switch)."""

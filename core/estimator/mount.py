@@ -205,11 +205,8 @@ class MountWatch:
         # with the commanded phases known, an interval allows what its command asked (commanded) and what the stage
         # was seen to do beyond its commands (``beyond``, mm/s²), not the stage's most everywhere
         self.phases, self.beyond, self.settle_s = phases, float(beyond), float(settle_s)
-        if phases is not None:  # (by start; an earlier phase can reach an interval only while their ends' most does)
-            self._starts = phases[:, 0].tolist()
-            self._reach = (np.maximum.accumulate(phases[:, 1]) + self.settle_s).tolist() if len(phases) else []
-            self._asked = phases[:, 2].tolist()
-            self._ends = (phases[:, 1] + self.settle_s).tolist()
+        self._kept([] if phases is None else
+                   sorted((start, end + self.settle_s, abs(asked)) for start, end, asked in phases.tolist()))
         self.t = np.zeros(WINDOW)
         self.p = np.zeros(WINDOW)
         self.var = np.zeros(WINDOW)
@@ -218,6 +215,30 @@ class MountWatch:
 
     def reset(self) -> None:
         self.n = 0
+
+    @property
+    def commanded_known(self) -> bool:
+        """Whether the stage's commands are known (phases given, even none): between them it holds its speed."""
+        return self.phases is not None
+
+    def command(self, start: float, end: float, acceleration: float) -> None:
+        """One more commanded phase of acceleration (``start``, ``end`` s in the frames' clock, mm/s²), as the
+        stage's owner issues it (a running rig: in any order, each kept while a window may still reach it)."""
+        if self.phases is None:
+            self.phases = np.zeros((0, 3))
+        phases = sorted(zip(self._starts, self._ends, self._asked))
+        if self.n == WINDOW:  # a phase that ended before the window's oldest frame reaches no interval again
+            phases = [phase for phase in phases if phase[1] > self.t.item(0)]
+        phases.append((float(start), float(end) + self.settle_s, abs(float(acceleration))))
+        self._kept(sorted(phases))
+
+    def _kept(self, phases: list[tuple[float, float, float]]) -> None:
+        """The phases (start, settled end, |a|) by start, and where an earlier one may still reach: the most of
+        the ends so far (:meth:`_commanded` walks back only while it reaches the interval)."""
+        self._starts = [phase[0] for phase in phases]
+        self._ends = [phase[1] for phase in phases]
+        self._asked = [phase[2] for phase in phases]
+        self._reach = np.maximum.accumulate(self._ends).tolist() if phases else []
 
     def _commanded(self, start: float, end: float) -> float:
         """The most the stage was commanded to accelerate between ``start`` and ``end`` (s): :func:`commanded`

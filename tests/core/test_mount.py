@@ -159,3 +159,48 @@ def test_a_knock_on_one_row_without_the_grating_is_found_where_the_commands_say_
     assert np.sum((np.abs(error) > 4.0 * bound) & ~stale) <= 2
     allowed = float(estimates[found[0]].message.split("beyond the ")[1].split(" µm")[0])
     assert allowed < 10.0  # a cruise: what the stage does beyond its commands (30 µm at its most without them)
+
+
+def test_phases_given_as_they_are_commanded_are_the_phases_given_up_front():
+    """A running rig hands its commands over as it issues them (in any order, each kept while a window may reach
+    it): every interval is allowed what the same phases given up front allow."""
+    rng = np.random.default_rng(3)
+    starts = np.sort(rng.uniform(0.0, 20.0, 40))
+    phases = np.column_stack([starts, starts + rng.uniform(0.01, 0.3, 40), rng.uniform(10.0, 200.0, 40)])
+    t = np.cumsum(rng.uniform(0.005, 0.05, 600))
+    up_front = commanded(t, phases, 0.03)
+    live = MountWatch(100.0, 4.0, np.zeros((0, 3)), 5.0, 0.03)
+    given = 0
+    for k in range(1, t.size):
+        while given < len(phases) and phases[given, 0] < t[k] + 0.5:  # issued half a second ahead
+            live.command(*phases[given])
+            given += 1
+        live.add(t[k], 0.0, 1e-6)  # (the window's times, for what it may drop)
+        window = live.t if live.n == 4 else None
+        if window is not None:
+            expected = up_front[k - 3:k]
+            assert [live._commanded(window[j - 1], window[j]) for j in range(1, 4)] == expected.tolist()
+    assert len(live._starts) < len(phases)  # what no window reaches again was dropped
+
+
+def test_the_live_estimator_finds_a_knock_from_the_commands_it_is_handed():
+    """The daemon's way: no phases in a recording, each handed to the live estimator as the stage is told."""
+    from graytrack.core.estimator.live import LiveEstimator
+
+    calibration, _ = build_rig("paper", "", seed=5).record()
+    model = calibrate(calibration, "paper").model
+    run, truth = build_rig("paper", "knock:um=40:deg=0.2:at_s=2", seed=5, run=1).record(6.0)
+    phases = acceleration_phases(run.meta)
+    live = LiveEstimator(model, None, "none", settings=EstimatorSettings().for_recording(run.meta),
+                         commands_known=True)
+    given, found = 0, []
+    for k, frame in enumerate(run.frames):
+        while given < len(phases) and phases[given, 0] <= run.t[k]:
+            live.commanded(*phases[given])
+            given += 1
+        live.update(frame, float("nan"), float(run.t[k]))
+        if "mount" in live.last.message:
+            found.append((k, live.last.message))
+    knocked = int(np.searchsorted(run.t, 2.0))
+    assert len(found) == 1 and knocked <= found[0][0] <= knocked + 2, found
+    assert float(found[0][1].split("beyond the ")[1].split(" µm")[0]) < 10.0  # a cruise's allowance, not the 30 µm
