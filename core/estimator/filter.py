@@ -496,10 +496,11 @@ class Estimator:
                         f"stage's acceleration allows: the camera moved on its mount")
         return estimate
 
-    def commanded(self, start: float, end: float, acceleration: float) -> None:
+    def commanded(self, start: float, end: float, acceleration: float | None = None) -> None:
         """A phase of acceleration the stage's owner commanded (``start``, ``end`` s in the frames' clock, |a|
-        mm/s²), as it issues it: without the grating, the mount's test allows that there and, between the phases
-        it was given, only what the stage does beyond its commands (mount.py). Read or fused, the grating says."""
+        mm/s², None: the stage's most), as it issues it (the same ``start`` again: that phase's end now known):
+        without the grating, the mount's test allows that there and, between the phases it was given, only what
+        the stage does beyond its commands (mount.py). Read or fused, the grating says."""
         if self.mount is not None:
             self.mount.command(start, end, acceleration)
 

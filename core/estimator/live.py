@@ -58,7 +58,7 @@ class LiveEstimator:
     def stale(self) -> bool:
         return bool(self.last is not None and self.last.stale)
 
-    def commanded(self, start: float, end: float, acceleration: float) -> None:
+    def commanded(self, start: float, end: float, acceleration: float | None = None) -> None:
         """A phase of acceleration the daemon commanded of the stage (s on the frames' clock, mm/s²): see
         :meth:`Estimator.commanded`."""
         self.estimator.commanded(start, end, acceleration)

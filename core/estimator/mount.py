@@ -221,15 +221,19 @@ class MountWatch:
         """Whether the stage's commands are known (phases given, even none): between them it holds its speed."""
         return self.phases is not None
 
-    def command(self, start: float, end: float, acceleration: float) -> None:
-        """One more commanded phase of acceleration (``start``, ``end`` s in the frames' clock, mm/s²), as the
-        stage's owner issues it (a running rig: in any order, each kept while a window may still reach it)."""
+    def command(self, start: float, end: float, acceleration: float | None = None) -> None:
+        """One more commanded phase of acceleration (``start``, ``end`` s in the frames' clock, mm/s²; None: the
+        stage's most), as the stage's owner issues it (a running rig: in any order, each kept while a window may
+        still reach it). A phase given again with the same ``start`` replaces the one given before: a motion whose
+        end was not known when it began (``end`` = inf: until the stage is seen at rest) is closed that way."""
         if self.phases is None:
             self.phases = np.zeros((0, 3))
-        phases = sorted(zip(self._starts, self._ends, self._asked))
+        start = float(start)
+        phases = sorted(phase for phase in zip(self._starts, self._ends, self._asked) if phase[0] != start)
         if self.n == WINDOW:  # a phase that ended before the window's oldest frame reaches no interval again
             phases = [phase for phase in phases if phase[1] > self.t.item(0)]
-        phases.append((float(start), float(end) + self.settle_s, abs(float(acceleration))))
+        asked = self.acceleration if acceleration is None else abs(float(acceleration))
+        phases.append((start, float(end) + self.settle_s, asked))
         self._kept(sorted(phases))
 
     def _kept(self, phases: list[tuple[float, float, float]]) -> None:

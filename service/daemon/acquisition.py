@@ -181,7 +181,8 @@ class Acquisition(Worker):
                 settings = None if acceleration is None else EstimatorSettings(stage_acceleration=acceleration)
                 estimator = LiveEstimator(model, start, grating, settings=settings, axis_px=axis_px,
                                           sensor_map=learned.get(SENSOR_MAP.name),
-                                          refused=lambda reason: refused(SENSOR_MAP.name, reason))
+                                          refused=lambda reason: refused(SENSOR_MAP.name, reason),
+                                          commands_known=self.slide is not None and self.slide.motion is not None)
                 built: Built = (model, estimator, None, calibration, None, None)
             else:
                 slide = self.slide.watch_for(model) if self.slide is not None else None
@@ -319,6 +320,7 @@ class Acquisition(Worker):
             sample = dataclasses.replace(sample, reference_mm=self.readings.at(sample.t, self._skew_s))
         if self.slide is not None:  # the stage's readout is no grating: the frames go without it
             sample = dataclasses.replace(sample, reference_mm=math.nan)
+            self.slide.hand_commands(tracker)  # what the stage was told since the last frame (motion.py)
         try:
             with self.trim.lock:  # the tracker feeds the scale watch, which a reset may clear meanwhile
                 fix = tracker.update(np.asarray(sample.frame.pixels), sample.reference_mm, sample.t)

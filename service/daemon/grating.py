@@ -124,6 +124,23 @@ class Readings:
             self._before_command = self._x[-1] if self._x else None
             self._moved = self._before_command is None
 
+    def rest_after_command(self) -> float | None:
+        """The host time from which the readings show the stage at rest after the last command (the first of
+        ``REST_READINGS`` or more readings since it that agree with the newest), or None while they do not: moving,
+        not yet seen to start (a command that moved nothing shows its rest only ``rest_s`` after it), or too few
+        readings. A later instant than the stage's arrival, never an earlier one: the reading before it differed."""
+        with self._lock:
+            ts, xs = self._t, self._x
+            n = len(ts)
+            if n < REST_READINGS or ts[-1] <= self.command_t:
+                return None
+            if not self._moved and ts[-1] - self.command_t < self.rest_s:
+                return None
+            newest, first = xs[-1], n
+            while first > 0 and ts[first - 1] > self.command_t and abs(xs[first - 1] - newest) <= self.tolerance_mm:
+                first -= 1
+            return ts[first] if n - first >= REST_READINGS else None
+
     def at(self, t: float, skew_s: float = 0.0) -> float:
         """The grating position at host time ``t``, or NaN when it cannot be known (see module doc).
         ``skew_s``: the readout's latch against the exposure, as the closed loop measured it

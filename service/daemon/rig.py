@@ -39,6 +39,7 @@ from graytrack.service.daemon import snapshot as parts
 from graytrack.service.daemon import status as status_doc
 from graytrack.service.daemon.acquisition import ENGINE_MAPS, Acquisition
 from graytrack.wire import Activated, ActiveCalibration, Calibration
+from graytrack.service.daemon.motion import CommandedMotion
 from graytrack.service.daemon.slide import LiveSlide
 from graytrack.service.daemon.trim import ReferenceTrim
 from graytrack.service.daemon.errors import Busy, DamagedCalibration, InsufficientStorage, NotFound, NotReady
@@ -89,6 +90,11 @@ class Rig:
         # readings are stamped on the host's clock: a virtual rig run k times faster changes its motion k² faster
         self.readings = Readings(daemon.pair_window_s, daemon.pair_tolerance_um * 1e-3, daemon.pair_rest_s,
                                  change_mm_s2=daemon.pair_change_mm_s2 * self.clock.scale ** 2)
+        # the stage's most acceleration on the host clock (a virtual rig run k times faster: k² more)
+        declared = daemon.stage_acceleration_mm_s2
+        self.stage_acceleration_mm_s2 = None if declared is None else declared * self.clock.scale ** 2
+        # every command to the stage is noted here before it is sent (motion.py)
+        self.motion = CommandedMotion(self.readings, self.stage_acceleration_mm_s2)
         self.hardware: Hardware | None = None
         self.grating: GratingPoller | None = None
         self.acquisition: Acquisition | None = None
@@ -103,7 +109,7 @@ class Rig:
         self.started_at = time.monotonic()
         self._sweep_thread: threading.Thread | None = None
         self.stage = StageControl(lambda: self._ready()[0], self._active_job_id, self._abort_active_job,
-                                  self.readings, lambda: self.grating.latest_mm() if self.grating else None,
+                                  self.motion, lambda: self.grating.latest_mm() if self.grating else None,
                                   self.event)
         self._lock = threading.RLock()
         self._damage: dict[tuple[Any, ...], str | None] = {}  # Rig.damage's answers by file identity
@@ -241,7 +247,9 @@ class Rig:
                                   priority=daemon.realtime_priority,
                                   trim=ReferenceTrim(daemon.trim, self._stream_event),
                                   slide=None if daemon.grating else
-                                  LiveSlide(daemon.axis_px, daemon.stage_acceleration_mm_s2), engine=daemon.engine)
+                                  LiveSlide(daemon.axis_px, self.stage_acceleration_mm_s2,
+                                            self.motion if daemon.stage_commanded_here else None),
+                                  engine=daemon.engine)
         if self.model is not None:  # a frame loop restarted: with the maps the last one learned
             calibration = self.installed_calibration
             learned = self._learned(lambda store: store.newest(calibration))
@@ -375,7 +383,8 @@ class Rig:
             self.job = job
             runner = JobRunner(job, self.storage, self._install_calibration, self._finished, health=self.health)
             sweep = Sweep(runner, hardware.stage, acquisition, self.storage, config, self._meta(hardware),
-                          self.readings.note_command, self.clock.scale)
+                          self.motion.note_command, self.clock.scale,
+                          stated=self.motion.stated if self.settings.daemon.stage_commanded_here else None)
             self._sweep_thread = threading.Thread(target=runner.run, args=(sweep,), name="sweep", daemon=True)
             self._sweep_thread.start()
         log.info("calibration %s started (%s, %s model)", job.id,

@@ -24,14 +24,21 @@ from typing import Any
 from graytrack.core.models.fourier import FourierModel
 from graytrack.core.slide import AXIS_PRIOR_PX, SlideWatch
 from graytrack.core.tracking import LiveFix
+from graytrack.service.daemon.motion import CommandedMotion
 
 
 class LiveSlide:
     """The daemon's side of the slide watch without a grating: made per model, its σ folded into each fix."""
 
-    def __init__(self, axis_px: float | None = None, stage_acceleration_mm_s2: float | None = None) -> None:
+    def __init__(self, axis_px: float | None = None, stage_acceleration_mm_s2: float | None = None,
+                 motion: CommandedMotion | None = None) -> None:
         self.axis_px = axis_px  # None: the prior (core/slide.py AXIS_PRIOR_PX)
         self.stage_acceleration_mm_s2 = stage_acceleration_mm_s2  # None: the estimator's default
+        # every motion of the stage commanded through the daemon (``[daemon] stage_commanded_here``): the estimator
+        # engine's mount test allows the stage's most only while it was told to move (motion.py); None: everywhere
+        self.motion = motion
+        self._told: object = None  # the tracker the phases were last handed to, and the stamp it has seen
+        self._stamp = 0
         self._watch: SlideWatch | None = None
         self._lock = threading.Lock()  # the frame loop installs, HTTP threads read the status
 
@@ -43,6 +50,19 @@ class LiveSlide:
     def install(self, watch: SlideWatch | None) -> None:
         with self._lock:
             self._watch = watch
+
+    def hand_commands(self, tracker: object) -> None:
+        """On the frame loop, before a frame: the phases commanded or closed since the last frame (every phase kept,
+        to a tracker new since) to a tracker that takes them (the estimator's ``commanded``)."""
+        motion = self.motion
+        commanded = getattr(tracker, "commanded", None) if motion is not None else None
+        if commanded is None:
+            return
+        if tracker is not self._told:
+            self._told, self._stamp = tracker, 0
+        self._stamp, phases = motion.since(self._stamp)  # type: ignore[union-attr]
+        for start, end in phases:
+            commanded(start, end, motion.acceleration_mm_s2)  # type: ignore[union-attr]
 
     def apply(self, fix: LiveFix) -> float:
         """After the tracker (whose monitor stepped the watch this frame): the fix's bound widened by the
@@ -60,6 +80,7 @@ class LiveSlide:
         sigma_um = watch.last_um if watch is not None else math.nan
         return {"axis_px": AXIS_PRIOR_PX if self.axis_px is None else self.axis_px,
                 "declared": self.axis_px is not None,
+                "stage_commands_known": self.motion is not None,
                 "lever_mm": watch.lever_mm if watch is not None else None,
                 "sigma_um": sigma_um if math.isfinite(sigma_um) else None,
                 "stretch_ppm": watch.watch.rms_ppm if watch is not None and math.isfinite(watch.watch.rms_ppm)

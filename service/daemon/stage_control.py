@@ -3,7 +3,8 @@ the reference move, the velocity, and stop.
 
 Apart from the rig so that what a move may do is in one place: it refuses while a calibration
 moves the stage (a stop aborts that calibration first, then stops), marks the command for the
-grating's pairing (a frame is not paired across a commanded move), and logs one event per action.
+grating's pairing (a frame is not paired across a commanded move) and the estimator's commanded motion
+(motion.py), and logs one event per action.
 Answers are the API's response models.
 
 "Is a calibration running?" and the command that follows are one step under :attr:`StageControl.motion`,
@@ -23,7 +24,7 @@ from typing import Any, Callable, Iterator
 from graytrack.drivers.factory import Hardware
 from graytrack.drivers.stage.errors import StageError, StageLimitError
 from graytrack.service.daemon.errors import Busy, NotReady, OutOfLimits
-from graytrack.service.daemon.grating import Readings
+from graytrack.service.daemon.motion import CommandedMotion
 from graytrack.wire import Homed, Moved, Stopped, Velocity
 
 MAX_VELOCITY_MM_S = 100.0
@@ -49,10 +50,12 @@ class StageControl:
     ``grating_mm()`` the latest grating position; ``event(kind, message, **details)`` logs."""
 
     def __init__(self, ready: Callable[[], Hardware], active_job: Callable[[], str | None],
-                 abort_job: Callable[[str], str | None], readings: Readings,
+                 abort_job: Callable[[str], str | None], commands: CommandedMotion,
                  grating_mm: Callable[[], float | None], event: Callable[..., None]) -> None:
         self._ready, self._active_job, self._abort_job = ready, active_job, abort_job
-        self._readings, self._grating_mm, self._event = readings, grating_mm, event
+        # every command is noted before it is sent: the grating's pairing assumes no rest across it, the estimator
+        # allows the stage's acceleration from it until the readings show the stage at rest again (motion.py)
+        self._commands, self._grating_mm, self._event = commands, grating_mm, event
         # held from the check for a calibration to the end of the command; the rig holds it to start one
         self.motion = threading.RLock()
         self.target_mm: float | None = None  # the last commanded target (the page's moving indicator)
@@ -76,7 +79,7 @@ class StageControl:
 
     def _command(self, action: Callable[[], Any]) -> Any:
         """Run a stage command: a value it refuses is 422, a stage that fails is 503."""
-        self._readings.note_command(time.monotonic())
+        self._commands.note_command(time.monotonic())
         try:
             return action()
         except StageLimitError as exc:

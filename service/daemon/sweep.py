@@ -37,7 +37,7 @@ import numpy as np
 
 from graytrack.core.errors import GraytrackError
 from graytrack.core.models.fourier import FourierModel
-from graytrack.core.recording import PIXEL_AXIS_REVERSED, Recording, save
+from graytrack.core.recording import PIXEL_AXIS_REVERSED, STAGE_PHASES, Recording, save
 from graytrack.drivers.stage.base import Stage
 from graytrack.service.daemon.acquisition import Acquisition, Sample
 from graytrack.service.daemon.clock import HOST_CLOCK, Clock
@@ -98,7 +98,8 @@ class Sweep:
 
     def __init__(self, runner: JobRunner, stage: Stage, acquisition: Acquisition, storage: Storage,
                  config: SweepConfig, meta: dict[str, Any],
-                 on_command: Callable[[float], None], clock_scale: float = 1.0, clock: Clock = HOST_CLOCK) -> None:
+                 on_command: Callable[[float], None], clock_scale: float = 1.0, clock: Clock = HOST_CLOCK,
+                 stated: Callable[[float, float], list[list[float]]] | None = None) -> None:
         self.runner = runner
         self.job = runner.job
         self.stage = stage
@@ -107,6 +108,9 @@ class Sweep:
         self.config = config
         self.meta = meta
         self.on_command = on_command  # the pairing must not assume rest across a commanded move
+        # the phases of acceleration commanded between two instants (motion.py), stated in the recording
+        # (core/recording.py STAGE_PHASES) when every motion of the stage is commanded through the daemon
+        self.stated = stated
         self.clock_scale = clock_scale  # the stage's seconds per wall second (the virtual rig may run fast)
         self.clock = clock  # deadlines and waits for frames (host seconds, service/daemon/clock.py)
 
@@ -117,6 +121,8 @@ class Sweep:
             recording = self._scan(feed) if self.config.kind == "scan" else self._stops(feed)
         finally:
             self.acquisition.unsubscribe(feed)
+        if self.stated is not None and recording.n_frames:
+            recording.meta[STAGE_PHASES] = self.stated(float(recording.t[0]), float(recording.t[-1]))
         path = save(recording, self.storage.calibration_dir(self.job.id) / "recording.npz")
         self.job.files["recording"] = str(path)
         return recording

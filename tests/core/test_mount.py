@@ -1,6 +1,8 @@
 """The camera moving on its mount without the grating (core/estimator/mount.py): a step of the image no motion
 of the stage makes is the camera's place, found one frame late; a stage within its acceleration never is."""
 
+import math
+
 import numpy as np
 import pytest
 
@@ -204,3 +206,16 @@ def test_the_live_estimator_finds_a_knock_from_the_commands_it_is_handed():
     knocked = int(np.searchsorted(run.t, 2.0))
     assert len(found) == 1 and knocked <= found[0][0] <= knocked + 2, found
     assert float(found[0][1].split("beyond the ")[1].split(" µm")[0]) < 10.0  # a cruise's allowance, not the 30 µm
+
+
+def test_a_phase_open_until_the_stage_rests_is_closed_by_giving_it_again():
+    """The daemon knows when it told the stage to move, not how long the move takes: the phase is given open
+    (end inf, the stage's most) and given again, same start, once the readings show the stage at rest."""
+    watch = MountWatch(100.0, 4.0, np.zeros((0, 3)), 5.0, 0.03)
+    watch.command(1.0, math.inf)
+    assert watch._commanded(1.5, 1.52) == 100.0 and watch._commanded(50.0, 50.02) == 100.0
+    watch.command(1.0, 1.4, None)
+    assert watch._starts == [1.0] and watch._commanded(1.42, 1.44) == 100.0  # within the servo's settling
+    assert watch._commanded(1.5, 1.52) == 0.0
+    watch.command(2.0, 2.1, 30.0)
+    assert watch._commanded(2.05, 2.07) == 30.0 and len(watch._starts) == 2

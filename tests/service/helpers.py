@@ -306,11 +306,13 @@ class LiveServer:
 
 
 def stream_through_daemon(model, run, trim_enabled: bool, slide: Any = None, engine: str = "watches",
-                          learned: dict[str, Any] | None = None) -> tuple[list[dict], list[tuple[str, str]], Any]:
+                          learned: dict[str, Any] | None = None,
+                          before_frame: Any = None) -> tuple[list[dict], list[tuple[str, str]], Any]:
     """Every frame of a recorded ``run`` through the daemon's frame loop (its tracker built and switched
     in as for an installed model, with ``[daemon] trim`` as asked; ``slide``: the rig's LiveSlide when it
     has no grating, ``[daemon] grating = false``; ``learned``: the maps saved with the model, by name, a map
-    the tracker refuses an event ``refused`` naming it): the published messages, the events and the
+    the tracker refuses an event ``refused`` naming it; ``before_frame(k)``: called before frame ``k`` is tracked,
+    for what the rig does meanwhile): the published messages, the events and the
     acquisition (its ``trim`` and ``slide`` for the status)."""
     import numpy as np
 
@@ -327,6 +329,8 @@ def stream_through_daemon(model, run, trim_enabled: bool, slide: Any = None, eng
     acquisition._build(model, float(run.reference[0]), 0, "calibration", learned or {},
                        lambda name, why: events.append(("refused", f"{name}: {why}")))
     for k in range(run.n_frames):
+        if before_frame is not None:  # what else happens on the rig up to this frame (commands, readings)
+            before_frame(k)
         frame = Frame(np.asarray(run.frames[k]), k, float(run.t[k]))
         acquisition._track(Sample(frame, float(run.t[k]), float(run.reference[k])))
     return messages, events, acquisition

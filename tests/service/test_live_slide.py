@@ -12,6 +12,9 @@ import numpy as np
 import pytest
 
 from graytrack.core.calibration import calibrate
+from graytrack.core.estimator.mount import SHOWN_ACCELERATION, SHOWN_BEYOND
+from graytrack.core.models.io import load_model
+from graytrack.core.recording import acceleration_phases, load
 from graytrack.drivers.sim.scenarios import build_rig
 from graytrack.drivers.config import ConfigError
 from graytrack.service.daemon.settings import parse_settings
@@ -145,3 +148,17 @@ def test_the_running_daemon_without_a_grating_streams_and_shows_the_slide(tmp_pa
     assert all(m["slide_sigma_um"] > 0 and m["crlb_um"] >= m["slide_sigma_um"] for m in messages)
     assert all("reference_mm" not in m for m in messages)
     assert status["slide"]["axis_px"] == 150.0 and status["slide"]["declared"]
+    # every move of the sweep was commanded through the daemon: its recording states them (service/daemon/motion.py)
+    # and the calibration learned from them what the stage does beyond its commands (core/estimator/mount.py)
+    assert status["slide"]["stage_commands_known"]
+    (folder,) = {path.parent for path in tmp_path.rglob("recording.npz")}
+    recording = load(folder / "recording.npz")
+    phases = acceleration_phases(recording.meta)
+    assert phases is not None and len(phases) >= 2  # a move to each stop
+    assert np.all(phases[:, 0] <= recording.t[-1]) and np.all(phases[:, 1] >= recording.t[0])
+    # the stops' frames are exposed at rest; a phase ends where the readings confirm the rest (a few polls late,
+    # never early), so only a stop's first frames may still fall inside it
+    inside = np.mean([np.any((phases[:, 0] < t) & (t < phases[:, 1])) for t in recording.t])
+    assert inside < 0.25, inside
+    info = load_model(folder / "model.json").info
+    assert 0.0 <= info[SHOWN_BEYOND] < info[SHOWN_ACCELERATION]
