@@ -124,7 +124,9 @@ def _quantile(z: float, dof: float) -> float:
 
 def _model_error(info: dict) -> tuple[list[float], list[float], float]:
     """(edges, ratios, global ratio) of the model's own error on its calibration frames over their
-    bound (core/adequacy.py): the local profile where calibration measured one, else the whole."""
+    bound (core/adequacy.py): the local profile where calibration measured one, else the whole. Each ratio is
+    kept as the error power beyond the floor's (ratio² − 1, at least 0): what :meth:`Estimator._model_share`
+    reads a frame."""
     from graytrack.core.compression import judged_factor
 
     whole = float(info.get("calibration_error_ratio") or 1.0) / judged_factor(info)
@@ -133,7 +135,8 @@ def _model_error(info: dict) -> tuple[list[float], list[float], float]:
     ratios = np.asarray(profile.get("ratio", []), dtype=np.float64)
     if edges.size != ratios.size + 1:
         edges, ratios = np.zeros(0), np.zeros(0)
-    return edges.tolist(), ratios.tolist(), max(whole, 1.0)
+    whole = max(whole, 1.0)
+    return edges.tolist(), [max(ratio * ratio - 1.0, 0.0) for ratio in ratios.tolist()], whole * whole - 1.0
 
 
 def calibration_level(model: FourierModel) -> float:
@@ -771,12 +774,13 @@ class Estimator:
             if frame.dtype not in FRAME_TYPES or not (flags.c_contiguous and flags.writeable):
                 frame = np.array(frame, dtype=np.float64)
             y = self._y
-            kernel.row_mean(frame if frame.ndim == 2 else frame.reshape(1, -1), y)
+            total = kernel.row_mean(frame if frame.ndim == 2 else frame.reshape(1, -1), y)
             if self._seen is not None:
                 np.multiply(y, self._seen, out=y)
         else:
             rows = model.rows_averaged(rows)
             y = np.ascontiguousarray(model.prepare(frame[None]).reshape(-1))
+            total = float(y.sum()) if frame.dtype.kind == "f" else 0.0
         mask = self._row_masks.get(rows)
         if mask is None:  # a row mean's variance is the sample's over the rows averaged
             mask = self._row_masks[rows] = np.ascontiguousarray(self.mask * rows)
@@ -784,7 +788,7 @@ class Estimator:
             lo, hi = self.sensor_range
             kernel.in_range(y, lo, hi, mask, self._masked)
             mask = self._masked
-        if frame.dtype.kind == "f" and not math.isfinite(float(y.sum())):
+        if not math.isfinite(total):
             # a sample that is not a number (a float camera's dead pixel, a driver's gap) is set aside as a bad
             # pixel is: the frame is placed from the rest (unchecked, it made the update's matrix NaN and raised)
             bad = ~np.isfinite(y)
@@ -937,11 +941,10 @@ class Estimator:
 
     def _model_share(self, x_mm: float) -> float:
         """The model's own error power at ``x_mm`` over the noise floor's (ratio² − 1 of its calibration)."""
-        edges, ratios, whole = self.model_error
-        ratio = whole
+        edges, shares, whole = self.model_error
         if edges and edges[0] <= x_mm <= edges[-1]:
-            ratio = ratios[min(bisect.bisect_right(edges, x_mm) - 1, len(ratios) - 1)]
-        return max(ratio * ratio - 1.0, 0.0)
+            return shares[min(bisect.bisect_right(edges, x_mm) - 1, len(shares) - 1)]
+        return whole
 
     def _carrier(self) -> str:
         """The family whose states carry most of the position's variance (what pinning them would remove)."""

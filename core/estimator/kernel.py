@@ -204,9 +204,10 @@ def agreement(y: np.ndarray, weight: np.ndarray, values: np.ndarray, half: int, 
         cost[g], gain_out[g], offset_out[g] = total, gain, offset
 
 
-def row_mean(frame: np.ndarray, out: np.ndarray) -> None:
+def row_mean(frame: np.ndarray, out: np.ndarray) -> float:
     """``out`` (n,): the mean of ``frame``'s rows (R, n) in float64, summed row after row and divided by
-    R: what the model's ``prepare`` computes with numpy, to the bit, without its arrays made a frame."""
+    R: what the model's ``prepare`` computes with numpy, to the bit, without its arrays made a frame.
+    Returns the sum of ``out``: not finite where a sample is not (a float camera's dead pixel)."""
     n_rows, n = frame.shape
     for p in range(n):
         out[p] = frame[0, p]
@@ -216,6 +217,10 @@ def row_mean(frame: np.ndarray, out: np.ndarray) -> None:
     if n_rows > 1:
         for p in range(n):
             out[p] = out[p] / n_rows
+    total = 0.0
+    for p in range(n):
+        total += out[p]
+    return total
 
 
 def in_range(y: np.ndarray, lo: float, hi: float, mask: np.ndarray, out: np.ndarray) -> None:
