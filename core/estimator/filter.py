@@ -44,7 +44,7 @@ from graytrack.core.estimator.kernel import S_POSTERIOR, S_REJECTED, S_WEIGHED
 from graytrack.core.estimator.mount import SHOWN_ACCELERATION, SHOWN_BEYOND, MountWatch, Step, step_test
 from graytrack.core.estimator.sensor_map import SensorMap
 from graytrack.core.estimator.settings import EstimatorSettings
-from graytrack.core.estimator.state import (A1, A2, B, BAND, BD, BE, BH, BL, BR, BW, C, G, L, M, N_STATE, OFS, SK,
+from graytrack.core.estimator.state import (A1, A2, B, BAND, BD, BE, BH, BL, BR, BW, C, G, L, M, N_STATE, OFS, SK, SKR,
                                             STATE, T, V, X)
 from graytrack.core.frame_tables import FrameTables
 from graytrack.core.kernels import TableEvaluator
@@ -278,6 +278,7 @@ class Estimator:
         rates[C] = settings.place_rate
         rates[T] = settings.tilt_rate
         rates[SK] = settings.skew_rate
+        rates[SKR] = settings.clock_drift_rate  # (the latch's rate: its change white, kernel.predict)
         rates[BD], rates[BL], rates[BR], rates[BE], rates[BH] = (
             settings.band_rate_depth, settings.band_rate_edge, settings.band_rate_edge, settings.band_rate_soft,
             settings.band_rate_haze)
@@ -286,15 +287,15 @@ class Estimator:
         active = [X, V, G, OFS, A1, A2, B, M]
         if grating != "check":  # checked, the grating judges the place and the slide; else they are states
             active += [C, L]
-        if grating == "fuse":  # fused, the grating's own latch against the exposure is one too
-            active.append(SK)
+        if grating == "fuse":  # fused, the grating's own latch against the exposure is one too, and its drift
+            active += [SK] + ([SKR] if settings.clock_drift_prior > 0.0 else [])
         if model.n_rows > 1:
             active.append(T)
         self.idx = self.idx_plain = np.array(sorted(active), dtype=np.int64)
         # With a band in view its states too, and the geometry held (the camera's place, the lens, the latch:
         # over less than a period a band's edges and a shift trade, and what a band's frames would teach the
         # place stays after the band has gone, which no frame without the grating could undo).
-        self.idx_band = np.array(sorted((set(active) - {C, L, M, T, SK}) | set(BAND)), dtype=np.int64)
+        self.idx_band = np.array(sorted((set(active) - {C, L, M, T, SK, SKR}) | set(BAND)), dtype=np.int64)
         self._active = frozenset(active)
         self.idx_appearance = np.array([state for state in (X, V, G, OFS, A1, A2, B) if state in active],
                                        dtype=np.int64)
@@ -384,6 +385,7 @@ class Estimator:
         prior[L] = settings.lever_prior * pitch
         prior[T] = 1e-6
         prior[SK] = settings.skew_prior
+        prior[SKR] = settings.clock_drift_prior if SKR in self._active else 0.0  # (held at zero where not fused)
         self.P[:] = np.diag(prior ** 2)
         self.t_last = t
         self.started = True

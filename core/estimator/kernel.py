@@ -29,14 +29,15 @@ import math
 import numpy as np
 
 from graytrack.core import kernels
-from graytrack.core.estimator.state import (A1, A2, B, BD, BE, BH, BL, BR, BW, C, G, L, M, N_STATE, OFS, SK, STATE,
+from graytrack.core.estimator.state import (A1, A2, B, BD, BE, BH, BL, BR, BW, C, G, L, M, N_STATE, OFS, SK, SKR,
+                                            STATE,
                                             T, V, X)
 
 # The state's layout as this file was compiled for. numba keys its cache by this file's stamp alone, not
 # by the indices it compiles in from state.py: a cache made for another layout indexes the wrong states
 # (seen: NaN or a silently wrong skew). A layout change must therefore change this file, and does:
 LAYOUT = ("x_mm v_mm_s gain offset_gray field_tilt field_bow focus_px2 stretch place_mm lever_mm turn_mm_row skew_s "
-          "band_depth band_left_mm band_right_mm band_speed_mm_s band_edge_mm band_haze_gray")
+          "band_depth band_left_mm band_right_mm band_speed_mm_s band_edge_mm band_haze_gray skew_rate_s_s")
 if LAYOUT != " ".join(entry.name for entry in STATE):
     raise ImportError("core/estimator/state.py's layout differs from kernel.LAYOUT: update LAYOUT with it "
                       "(it keys the compiled kernel's cache)")
@@ -245,6 +246,17 @@ def predict(s: np.ndarray, P: np.ndarray, dt: float, q_accel: float, rates2: np.
     P[X, V] += q_accel * dt2 * dt / 2.0
     P[V, X] += q_accel * dt2 * dt / 2.0
     P[V, V] += q_accel * dt2
+    if P[SKR, SKR] > 0.0:  # the latch drifts at its rate (the clocks' rates apart), which itself changes white
+        s[SK] += s[SKR] * dt
+        for j in range(n):
+            P[SK, j] += dt * P[SKR, j]
+        for i in range(n):
+            P[i, SK] += dt * P[i, SKR]
+        q_clock = rates2[SKR]
+        P[SK, SK] += q_clock * dt2 * dt / 3.0
+        P[SK, SKR] += q_clock * dt2 / 2.0
+        P[SKR, SK] += q_clock * dt2 / 2.0
+        P[SKR, SKR] += q_clock * dt
     if s[BE] > 0.0:  # a band in view: its two edges move together at its speed, whose change is white
         # (rates2[BW] its acceleration's variance, as the stage's); out of view its states are held at zero
         s[BL] += s[BW] * dt

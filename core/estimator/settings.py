@@ -101,6 +101,15 @@ TUNABLES: dict[str, Tunable] = {
         3e-5, "s", "how far the grating's latch may be from mid-exposure before any frame (a controller's "
         "latch jitter; the model's own latency, when calibration found one, is taken out first): a wider prior "
         "lets the latch take noise for a skew and bias the fused position", low=0.0),
+    "clock_drift_prior": Tunable(
+        3e-5, "s/s",
+        "how far apart the camera's and the controller's clocks run, as a prior (crystals of ±20 ppm; 100 ppm apart is "
+        "a 3σ pair): with the grating fused the latch drifts at that rate for hours, which a random walk of the "
+        "latch alone lags behind (the lens's lever then took the lag as a slide); a wider prior lets the fused "
+        "position follow the latch's noise", low=0.0),
+    "clock_drift_rate": Tunable(
+        1e-6, "s/s/√s", "how fast the clocks' rates apart change in a second (a crystal warming: a few ppm over "
+        "minutes)", low=0.0),
     "lever_prior": Tunable(
         300.0, "px",
         "how far the optical axis may be from the ROI's centre along the line (a camera's ROI is rarely centred "
@@ -225,6 +234,8 @@ class EstimatorSettings:
     skew_rate: float = TUNABLES["skew_rate"].default
     skew_prior: float = TUNABLES["skew_prior"].default
     lever_prior: float = TUNABLES["lever_prior"].default
+    clock_drift_prior: float = TUNABLES["clock_drift_prior"].default
+    clock_drift_rate: float = TUNABLES["clock_drift_rate"].default
     grating_sigma: float = TUNABLES["grating_sigma"].default
     jump_light: float = TUNABLES["jump_light"].default
     jump_field: float = TUNABLES["jump_field"].default

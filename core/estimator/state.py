@@ -43,8 +43,11 @@ STATE: tuple[StateEntry, ...] = (
     StateEntry("band_speed_mm_s", "mm/s", "light", "the band's edges' speed across the field"),
     StateEntry("band_edge_mm", "mm", "light", "the softness of the band's edges (the penumbra's σ)"),
     StateEntry("band_haze_gray", "gray", "light", "the light the band scatters into what it covers (a veil's haze)"),
+    # the camera's and the controller's clocks run at rates a few tens of ppm apart, steadily for hours: the latch
+    # drifts at that rate (with the grating fused), a random walk alone lags behind it
+    StateEntry("skew_rate_s_s", "s/s", "scale", "how fast the grating's latch drifts (the two clocks' rates apart)"),
 )
-X, V, G, OFS, A1, A2, B, M, C, L, T, SK, BD, BL, BR, BW, BE, BH = range(len(STATE))
+X, V, G, OFS, A1, A2, B, M, C, L, T, SK, BD, BL, BR, BW, BE, BH, SKR = range(len(STATE))
 BAND = (BD, BL, BR, BW, BE, BH)
 N_STATE = len(STATE)
 FAMILIES = {entry.family for entry in STATE}
