@@ -67,6 +67,72 @@ N_PARAMS = U_RATES + N_STATE
 (PX_TARGET, PX_ROW, PX_B1, PX_B2) = range(4)
 
 
+def _cholesky(A: np.ndarray, factor: np.ndarray) -> bool:
+    """``factor``'s lower triangle becomes the Cholesky factor of the symmetric ``A`` (its lower triangle read);
+    False where ``A`` is not positive definite. Every matrix the estimator inverts is a covariance or an
+    information (positive definite); written out, for at 8–19 states a general LAPACK routine through numba
+    costs its checks and copies two to three times the arithmetic."""
+    n = A.shape[0]
+    for j in range(n):
+        d = A[j, j]
+        for k in range(j):
+            d -= factor[j, k] * factor[j, k]
+        if not d > 0.0:
+            return False
+        d = math.sqrt(d)
+        factor[j, j] = d
+        for i in range(j + 1, n):
+            acc = A[i, j]
+            for k in range(j):
+                acc -= factor[i, k] * factor[j, k]
+            factor[i, j] = acc / d
+    return True
+
+
+def _inverse(A: np.ndarray) -> np.ndarray:
+    """``A``⁻¹ of a symmetric positive-definite ``A`` through its Cholesky factor (LAPACK's general inverse
+    where it is not positive definite: an indefinite matrix inverts as before, a singular one raises)."""
+    n = A.shape[0]
+    factor = np.zeros((n, n))
+    if not _cholesky(A, factor):
+        return np.linalg.inv(A)
+    for j in range(n):  # the factor's inverse, in place (lower triangular)
+        factor[j, j] = 1.0 / factor[j, j]
+        for i in range(j + 1, n):
+            acc = 0.0
+            for k in range(j, i):
+                acc -= factor[i, k] * factor[k, j]
+            factor[i, j] = acc / factor[i, i]
+    out = np.empty((n, n))
+    for i in range(n):  # A⁻¹ = L⁻ᵀ L⁻¹
+        for j in range(i + 1):
+            acc = 0.0
+            for k in range(i, n):
+                acc += factor[k, i] * factor[k, j]
+            out[i, j] = acc
+            out[j, i] = acc
+    return out
+
+
+def _solve(A: np.ndarray, rhs: np.ndarray, out: np.ndarray, factor: np.ndarray) -> None:
+    """``out`` = ``A``⁻¹ ``rhs`` for a symmetric positive-definite ``A`` by its Cholesky factor (into ``factor``);
+    LAPACK's general solve where it is not positive definite."""
+    n = A.shape[0]
+    if not _cholesky(A, factor):
+        out[:] = np.linalg.solve(A, rhs)
+        return
+    for i in range(n):  # L u = rhs
+        acc = rhs[i]
+        for k in range(i):
+            acc -= factor[i, k] * out[k]
+        out[i] = acc / factor[i, i]
+    for i in range(n - 1, -1, -1):  # Lᵀ out = u
+        acc = out[i]
+        for k in range(i + 1, n):
+            acc -= factor[k, i] * out[k]
+        out[i] = acc / factor[i, i]
+
+
 def information(P: np.ndarray, idx: np.ndarray) -> np.ndarray:
     """The inverse of ``P``'s block over the states ``idx``."""
     n = idx.size
@@ -74,14 +140,14 @@ def information(P: np.ndarray, idx: np.ndarray) -> np.ndarray:
     for i in range(n):
         for j in range(n):
             block[i, j] = P[idx[i], idx[j]]
-    return np.linalg.inv(block)
+    return _inverse(block)
 
 
 def embed(P: np.ndarray, A: np.ndarray, idx: np.ndarray, sigma: np.ndarray) -> None:
     """In place: ``P``'s block over ``idx`` becomes ``A``⁻¹ (the posterior); states outside ``idx`` keep
     their own variance and lose their correlation with those inside. ``sigma``: every state's σ out
     (a negative variance's 0)."""
-    inner = np.linalg.inv(A)
+    inner = _inverse(A)
     n, total = idx.size, P.shape[0]
     inside = np.zeros(total, dtype=np.bool_)
     for i in range(n):
@@ -108,7 +174,7 @@ def scores(P_prior: np.ndarray, A: np.ndarray, idx: np.ndarray, s: np.ndarray, s
     n = idx.size
     try:  # (the inverses as the update makes them: written out below, no other routine to compile)
         info = information(P_prior, idx)
-        posterior = np.linalg.inv(A)
+        posterior = _inverse(A)
     except Exception:  # noqa: BLE001 - numba's linear algebra raises its one kind
         return False
     spread = np.zeros((n, n))  # P⁺Λ
@@ -484,6 +550,7 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
     bare = np.zeros((n, n))  # the samples' normal matrix alone, before the prior and the grating
     rhs = np.zeros(n)
     delta = np.zeros(n)
+    factor = np.zeros((n, n))  # (the normal matrix's Cholesky factor, each step's)
     total_iterations = 0
     converged = 0.0
     cost = 0.0
@@ -513,7 +580,7 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
                 rhs[i] -= acc
             if grating_w > 0.0:
                 _grating(s, s_prior[V], idx, grating_z, grating_w, A, rhs)
-            delta[:] = np.linalg.solve(A, rhs)
+            _solve(A, rhs, delta, factor)
             moved = 0.0
             for i in range(n):
                 s[idx[i]] += delta[i]
@@ -620,6 +687,9 @@ def residuals(s: np.ndarray, y: np.ndarray, pixels: np.ndarray, params: np.ndarr
 if kernels.COMPILED:
     _jit = kernels.numba.njit(cache=True, nogil=True, error_model="numpy")
     predict = _jit(predict)
+    _cholesky = _jit(_cholesky)
+    _inverse = _jit(_inverse)
+    _solve = _jit(_solve)
     information = _jit(information)
     embed = _jit(embed)
     scores = _jit(scores)

@@ -341,3 +341,24 @@ def test_a_camera_clock_running_fast_is_the_latchs_rate_not_the_lens(paper):
                     settings=EstimatorSettings(clock_drift_prior=0.0))
     error, bound = _errors(paper, without, truth, "fuse")
     assert np.sum((np.abs(error) > 4 * bound) & ~np.array([e.stale for e in without])) > 2 * unflagged
+
+
+def test_the_kernels_inverse_and_solve_are_linear_algebras_and_fall_back_where_not_positive_definite():
+    from graytrack.core.estimator import kernel
+
+    rng = np.random.default_rng(7)
+    for n in (1, 8, 13, 19):
+        root = rng.normal(size=(n, n))
+        spd = root @ root.T + 1e-3 * np.eye(n)  # positive definite, spread over decades
+        rhs = rng.normal(size=n)
+        assert np.allclose(kernel._inverse(spd) @ spd, np.eye(n), atol=1e-8)
+        out, factor = np.empty(n), np.zeros((n, n))
+        kernel._solve(spd, rhs, out, factor)
+        assert np.allclose(out, np.linalg.solve(spd, rhs), rtol=1e-9, atol=1e-9)
+    indefinite = np.diag([2.0, -1.0, 3.0])  # invertible, no Cholesky factor: the general routine answers
+    assert np.allclose(kernel._inverse(indefinite), np.diag([0.5, -1.0, 1.0 / 3.0]))
+    out = np.empty(3)
+    kernel._solve(indefinite, np.array([2.0, 1.0, 3.0]), out, np.zeros((3, 3)))
+    assert np.allclose(out, [1.0, -1.0, 1.0])
+    with pytest.raises(np.linalg.LinAlgError):  # a singular matrix still raises, as the update expects of it
+        kernel._inverse(np.zeros((2, 2)))
