@@ -4,7 +4,9 @@ For each virtual-rig scenario: a calibration run, the closed loop (`graytrack di
 seed paper's model on it, and a second run tracked by both, live (`LiveTracker.update`, as the
 daemon does, one frame at a time, interleaved frame by frame between the models) and in batch
 (`track`, as `graytrack track` does), plus the closed loop's model on the pure-numpy evaluation
-(GRAYTRACK_KERNEL=numpy: what a machine without numba gets). CPU time of this thread; the
+(GRAYTRACK_KERNEL=numpy: what a machine without numba gets), and both models through the one recursive
+estimator (`Estimator.update`, the grating checked, interleaved frame by frame: live and batch are its one
+recursion). CPU time of this thread; the
 ratios are what to read on a shared machine. The first frames of each tracker (model install,
 compilation) are not counted.
 
@@ -29,6 +31,7 @@ import numpy as np  # noqa: E402
 from graytrack.core import kernels  # noqa: E402
 from graytrack.core.calibration import calibrate  # noqa: E402
 from graytrack.core.diagnosis import diagnose  # noqa: E402
+from graytrack.core.estimator import Estimator  # noqa: E402
 from graytrack.core.tracking import LiveTracker, track  # noqa: E402
 from graytrack.drivers.sim.causes import EVERY_FORM  # noqa: E402
 from graytrack.service.grown_models import model_with  # noqa: E402
@@ -58,6 +61,20 @@ def live_costs(models: dict[str, object], frames: np.ndarray, reference: np.ndar
             if k >= WARM_FRAMES:
                 costs[name].append(CLOCK() - started)
     return {name: np.array(values) * 1e6 for name, values in costs.items()}
+
+
+def estimator_costs(models: dict[str, object], frames: np.ndarray, t: np.ndarray,
+                    reference: np.ndarray) -> dict[str, float]:
+    """Per-frame CPU µs (median) of each model's estimator, interleaved frame by frame."""
+    estimators = {name: Estimator(model) for name, model in models.items()}
+    costs = {name: [] for name in models}
+    for k, (frame, time_s, grating) in enumerate(zip(frames, t, reference)):
+        for name, estimator in estimators.items():
+            started = CLOCK()
+            estimator.update(frame, float(time_s), float(grating))
+            if k >= WARM_FRAMES:
+                costs[name].append(CLOCK() - started)
+    return {name: float(np.median(values)) * 1e6 for name, values in costs.items()}
 
 
 def batch_cost(model, frames: np.ndarray, reference: np.ndarray) -> float:
@@ -97,7 +114,7 @@ def main(selection: str = "") -> None:
     baseline = None  # the plain one-row model's live p50, what every model is held to (within 4x)
     print(f"{'recording':52} {'closed loop adds':36} {'live p50 plain/loop µs':>24} {'ratio':>6} "
           f"{'p99 loop':>9} {'vs 1-row':>8} {'track plain/loop µs':>21} {'ratio':>6} {'set-up ms':>10} "
-          f"{'numpy p50':>10}")
+          f"{'numpy p50':>10} {'estimator p50 plain/loop µs':>28} {'ratio':>6}")
     for label, scenario, rig_effects, seconds in CASES:
         if selection not in label:
             continue
@@ -112,12 +129,14 @@ def main(selection: str = "") -> None:
         batch = {name: batch_cost(model, run.frames, run.reference) for name, model in models.items()}
         setup = {name: setup_ms(model, run.frames, run.reference) for name, model in models.items()}
         fallback = float(np.median(numpy_live(models["loop"], run.frames, run.reference)))
+        estimated = estimator_costs(models, run.frames, run.t, run.reference)
         added = ",".join(step.effect for step in loop.steps) or "-"
         print(f"{label:52.52} {added:36.36} {p50['plain']:11.1f} /{p50['loop']:9.1f} "
               f"{p50['loop'] / p50['plain']:6.2f} {np.percentile(live['loop'], 99):9.1f} "
               f"{p50['loop'] / baseline if baseline else float('nan'):8.2f} "
               f"{batch['plain']:9.1f} /{batch['loop']:9.1f} {batch['loop'] / batch['plain']:6.2f} "
-              f"{setup['plain']:4.0f} /{setup['loop']:4.0f} {fallback:10.1f}",
+              f"{setup['plain']:4.0f} /{setup['loop']:4.0f} {fallback:10.1f} "
+              f"{estimated['plain']:15.1f} /{estimated['loop']:9.1f} {estimated['loop'] / estimated['plain']:6.2f}",
               flush=True)
 
 
@@ -125,7 +144,7 @@ def per_effect(selection: str = "") -> None:
     """Every effect family alone: a model grown with it, against the seed paper's model fitted on
     the same recording of its cause, live and batch (drivers/sim/causes.py)."""
     print(f"\n{'effect (its cause on the rig)':62} {'live p50 plain/effect µs':>25} {'ratio':>6} "
-          f"{'track plain/effect µs':>22} {'ratio':>6}")
+          f"{'track plain/effect µs':>22} {'ratio':>6} {'estimator plain/effect µs':>26} {'ratio':>6}")
     for name, cause in EVERY_FORM.items():
         if selection not in name:
             continue
@@ -136,9 +155,11 @@ def per_effect(selection: str = "") -> None:
         live = live_costs(models, run.frames, run.reference)
         p50 = {key: float(np.median(values)) for key, values in live.items()}
         batch = {key: batch_cost(m, run.frames, run.reference) for key, m in models.items()}
+        estimated = estimator_costs(models, run.frames, run.t, run.reference)
         print(f"{name + ' (' + cause.effects + ')':62.62} {p50['plain']:12.1f} /{p50['effect']:9.1f} "
               f"{p50['effect'] / p50['plain']:6.2f} {batch['plain']:10.1f} /{batch['effect']:9.1f} "
-              f"{batch['effect'] / batch['plain']:6.2f}", flush=True)
+              f"{batch['effect'] / batch['plain']:6.2f} {estimated['plain']:13.1f} /{estimated['effect']:9.1f} "
+              f"{estimated['effect'] / estimated['plain']:6.2f}", flush=True)
 
 
 if __name__ == "__main__":
