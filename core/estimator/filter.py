@@ -54,6 +54,8 @@ if TYPE_CHECKING:
     from graytrack.core.tracking import TrackResult
 
 GRATING_MODES = ("check", "fuse", "none")
+# the families a flag may name as carrying the position's bound, with their states (_carrier)
+CARRIERS = (("geometry", (C, T)), ("magnification", (M, L)), ("light", (G, OFS, A1, A2) + BAND), ("focus", (B,)))
 # frames whose row mean the estimator computes compiled as they come (the cameras' and the recordings' types);
 # any other is made float64 first
 FRAME_TYPES = frozenset(np.dtype(kind) for kind in (np.uint8, np.uint16, np.float32, np.float64))
@@ -205,27 +207,6 @@ def _band_shapes(u: np.ndarray) -> _Bands:
     return _Bands(left, right, edge, np.ascontiguousarray(band), np.ascontiguousarray(band * band), lo, hi)
 
 
-def _longest_run(rows: np.ndarray) -> float:
-    """The longest run of True along any row (a single False between two Trues bridged: a sample on a mark's
-    slope that happened to pass); a run that reaches either end of its row over half the narrowest band's width
-    (a twelfth of the row) is a band's edge entering, as long as any (infinite)."""
-    longest = 0.0
-    for row in rows:
-        values = row.tolist()
-        run, gap = 0, 0
-        for p, value in enumerate(values):
-            if value:
-                run, gap = run + 1 + gap, 0
-                if run >= len(values) / 12.0 and (p == len(values) - 1 or run == p + 1):
-                    return math.inf
-            elif run and gap == 0:
-                gap = 1
-            else:
-                run, gap = 0, 0
-            longest = max(longest, run)
-    return longest
-
-
 class Estimator:
     """The recursive estimator bound to one calibrated model.
 
@@ -297,6 +278,7 @@ class Estimator:
         # place stays after the band has gone, which no frame without the grating could undo).
         self.idx_band = np.array(sorted((set(active) - {C, L, M, T, SK, SKR}) | set(BAND)), dtype=np.int64)
         self._active = frozenset(active)
+        self._carriers: dict[bool, list] = {}  # (_carrier's families over each set of states solved)
         self.idx_appearance = np.array([state for state in (X, V, G, OFS, A1, A2, B) if state in active],
                                        dtype=np.int64)
         self.scratch = np.empty((6, n_values))
@@ -609,8 +591,8 @@ class Estimator:
         # each beyond its noise (by chance: 0.16 to the 17th power on a hundred samples); what a frame leaves in
         # shorter runs is marks (specks on the window or the print: the maps' and the robust weights')
         scaled = residual * np.sqrt(weight / self._level(s.item(X)))
-        runs = max(_longest_run((scaled > 1.0).reshape(-1, self.model.n_pixels)),
-                   _longest_run((scaled < -1.0).reshape(-1, self.model.n_pixels)))
+        width = self.model.n_pixels
+        runs = max(kernel.longest_run(scaled, width, 1.0), kernel.longest_run(scaled, width, -1.0))
         if runs < self.model.n_pixels / 6.0:
             return None
         seen = -(s[G] + s[A1] * self.b1 + s[A2] * self.b2) * values  # the gray a band of depth 1 takes
@@ -949,19 +931,18 @@ class Estimator:
         return whole
 
     def _carrier(self) -> str:
-        """The family whose states carry most of the position's variance (what pinning them would remove)."""
-        idx = list(self.idx)
-        P = self.P[np.ix_(idx, idx)]
-        info = np.linalg.inv(P)
-        ix = idx.index(X)
+        """The family whose states carry most of the position's variance (what pinning them would remove:
+        kernel.carried)."""
+        banded = self.idx is self.idx_band
+        carriers = self._carriers.get(banded)
+        if carriers is None:  # (per set of states solved: the plain one, and a band's while one is in view)
+            solved = set(self.idx.tolist())
+            carriers = self._carriers[banded] = [
+                (name, np.array([state for state in states if state in solved], dtype=np.int64))
+                for name, states in CARRIERS if solved.intersection(states)]
         best, family = 0.0, ""
-        groups = {"geometry": (C, T), "magnification": (M, L), "light": (G, OFS, A1, A2) + BAND, "focus": (B,)}
-        for name, states in groups.items():
-            keep = [i for i, state in enumerate(idx) if state not in states]
-            if len(keep) == len(idx):
-                continue
-            pinned = np.linalg.inv(info[np.ix_(keep, keep)])
-            removed = P[ix, ix] - pinned[keep.index(ix), keep.index(ix)]
+        for name, states in carriers:
+            removed = kernel.carried(self.P, states, X)
             if removed > best:
                 best, family = removed, name
         return family
@@ -1008,6 +989,7 @@ class Estimator:
         self._solve(y, self.mask.copy(), self.s.copy(), self.P.copy(), 0.0)
         kernel.predict(self.s.copy(), self.P.copy(), 0.01, 1.0, self.rates2)
         kernel.embed(self.P.copy(), np.eye(self.idx.size), self.idx, self._sigma)
+        kernel.carried(self.P, self.idx, X)
         for layout in (self._layout_plain, self._layout_band):
             kernel.scores(self.P, np.eye(layout.idx.size), layout.idx, self.s, self.s, layout.rows, 0.01,
                           layout.statistics)

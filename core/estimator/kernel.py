@@ -133,6 +133,25 @@ def _solve(A: np.ndarray, rhs: np.ndarray, out: np.ndarray, factor: np.ndarray) 
         out[i] = acc / factor[i, i]
 
 
+def carried(P: np.ndarray, states: np.ndarray, x: int) -> float:
+    """What knowing the ``states`` exactly would remove from state ``x``'s variance under the covariance ``P``:
+    P_xS P_SS⁻¹ P_Sx (the Schur complement; 0 where P_SS is singular: states the frames pin exactly carry
+    nothing)."""
+    n = states.size
+    block, across, out, factor = np.empty((n, n)), np.empty(n), np.empty(n), np.zeros((n, n))
+    for i in range(n):
+        across[i] = P[states[i], x]
+        for j in range(n):
+            block[i, j] = P[states[i], states[j]]
+    if not _cholesky(block, factor):
+        return 0.0  # (a covariance's block: not positive definite only where singular)
+    _solve(block, across, out, factor)
+    removed = 0.0
+    for i in range(n):
+        removed += across[i] * out[i]
+    return removed
+
+
 def information(P: np.ndarray, idx: np.ndarray) -> np.ndarray:
     """The inverse of ``P``'s block over the states ``idx``."""
     n = idx.size
@@ -684,6 +703,29 @@ def residuals(s: np.ndarray, y: np.ndarray, pixels: np.ndarray, params: np.ndarr
         noise_var[p] = var if var > 1e-6 else 1e-6  # (the update's own floor)
 
 
+def longest_run(scaled: np.ndarray, width: int, sign: float) -> float:
+    """The longest run of samples beyond one on the side ``sign`` (``sign · scaled > 1``) along any row of
+    ``width`` samples (a single sample within between two beyond bridged: a sample on a mark's slope that
+    happened to pass); a run that reaches either end of its row over half the narrowest band's width (a
+    twelfth of the row) is a band's edge entering, as long as any (infinite)."""
+    longest = 0.0
+    reach = width / 12.0
+    for first in range(0, scaled.size - width + 1, width):
+        run, gap = 0, 0
+        for p in range(width):
+            if sign * scaled[first + p] > 1.0:
+                run, gap = run + 1 + gap, 0
+                if run >= reach and (p == width - 1 or run == p + 1):
+                    return math.inf
+            elif run and gap == 0:
+                gap = 1
+            else:
+                run, gap = 0, 0
+            if run > longest:
+                longest = run
+    return longest
+
+
 if kernels.COMPILED:
     _jit = kernels.numba.njit(cache=True, nogil=True, error_model="numpy")
     predict = _jit(predict)
@@ -693,7 +735,9 @@ if kernels.COMPILED:
     information = _jit(information)
     embed = _jit(embed)
     scores = _jit(scores)
+    carried = _jit(carried)
     agreement = _jit(agreement)
+    longest_run = _jit(longest_run)
     row_mean = _jit(row_mean)
     in_range = _jit(in_range)
     _evaluate = _jit(_evaluate)

@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 
 from graytrack.core.calibration import calibrate
-from graytrack.core.estimator import Estimator, track
-from graytrack.core.estimator.filter import _longest_run
+from graytrack.core.estimator import Estimator, kernel, track
 from graytrack.core.estimator.state import BD, BE, BL, BR
 from graytrack.drivers.sim.scenarios import build_rig
 
@@ -79,6 +78,14 @@ def test_steady_runs_and_specks_on_the_window_take_no_band(scenario):
             assert not any(e.mode == "band" or e.state[BE] > 0 for e in estimates), (later, grating)
 
 
+def _longest_run(rows: np.ndarray) -> float:
+    """The longest run of True, either side: the samples above as +2, those below as -2 (kernel.longest_run)."""
+    above = kernel.longest_run(np.where(rows, 2.0, 0.0).reshape(-1), rows.shape[1], 1.0)
+    below = kernel.longest_run(np.where(rows, -2.0, 0.0).reshape(-1), rows.shape[1], -1.0)
+    assert above == below  # (the same rule on either side)
+    return above
+
+
 def test_a_run_of_failing_samples_is_a_band_only_when_wide_or_at_an_end():
     row = np.zeros((1, 100), dtype=bool)
     row[0, 40:50] = True
@@ -92,3 +99,8 @@ def test_a_run_of_failing_samples_is_a_band_only_when_wide_or_at_an_end():
     assert _longest_run(edge) == np.inf
     edge[0, 91:95] = False  # five: a speck at the end
     assert _longest_run(edge) == 5
+    rows = np.zeros((2, 100), dtype=bool)
+    rows[0, 97:] = rows[1, :4] = True  # a row's end and the next row's start are not one run: two specks
+    assert _longest_run(rows) == 4
+    rows[1, 4:9] = True  # nine from the second row's start: a band's edge entering
+    assert _longest_run(rows) == np.inf

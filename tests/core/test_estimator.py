@@ -362,3 +362,20 @@ def test_the_kernels_inverse_and_solve_are_linear_algebras_and_fall_back_where_n
     assert np.allclose(out, [1.0, -1.0, 1.0])
     with pytest.raises(np.linalg.LinAlgError):  # a singular matrix still raises, as the update expects of it
         kernel._inverse(np.zeros((2, 2)))
+
+
+def test_what_a_family_carries_is_the_positions_variance_given_its_states():
+    """kernel.carried (the flag's carrier): the position's variance less its variance conditioned on the family's
+    states, computed as the inverse of the information over the other states."""
+    from graytrack.core.estimator import kernel
+
+    rng = np.random.default_rng(11)
+    root = rng.normal(size=(9, 9))
+    P = root @ root.T + 1e-2 * np.eye(9)
+    for states in ([3], [2, 5], [1, 4, 6, 8]):
+        keep = [i for i in range(9) if i not in states]
+        given = np.linalg.inv(np.linalg.inv(P)[np.ix_(keep, keep)])[keep.index(0), keep.index(0)]
+        assert kernel.carried(P, np.array(states), 0) == pytest.approx(P[0, 0] - given, rel=1e-9)
+    uncorrelated = np.diag([4.0, 1.0, 9.0])
+    assert kernel.carried(uncorrelated, np.array([1, 2]), 0) == 0.0
+    assert kernel.carried(np.zeros((3, 3)), np.array([1]), 0) == 0.0  # a state pinned exactly carries nothing
