@@ -990,6 +990,7 @@ class Estimator:
         kernel.predict(self.s.copy(), self.P.copy(), 0.01, 1.0, self.rates2)
         kernel.embed(self.P.copy(), np.eye(self.idx.size), self.idx, self._sigma)
         kernel.carried(self.P, self.idx, X)
+        kernel.longest_run(self._y, self.model.n_pixels, 1.0)
         for layout in (self._layout_plain, self._layout_band):
             kernel.scores(self.P, np.eye(layout.idx.size), layout.idx, self.s, self.s, layout.rows, 0.01,
                           layout.statistics)
