@@ -13,7 +13,7 @@ Tunables are set with ``name=value`` arguments (core/estimator/settings.py), e.g
 Per run: the error std over the rms noise floor, the rms pull (error over the stated bound), frames
 lost, the share flagged, placed frames 4+ bounds off the truth and those unflagged (marked ``<<<``
 where they pass 0.5 % of the run's placed frames), the samples the sensor's map holds a change for at the
-end (core/estimator/sensor_map.py). The last lines: the totals and the steady runs.
+end (core/estimator/sensor_map.py) and the print's nodes (print_map.py). The last lines: the totals and the steady runs.
 """
 
 from __future__ import annotations
@@ -87,6 +87,7 @@ def scored(model, run, truth, grating: str, settings: EstimatorSettings) -> dict
             "frames": len(estimates), "placed": int(placed.sum()), "lost": int((~placed & ~repeated).sum()),
             "flagged": int(stale.sum()), "far": int(far.sum()), "silent": int((far & ~stale).sum()),
             "seconds": seconds, "map": int(tracker.sensor.learned().sum()),
+            "print": int(tracker.print_map.learned().sum()),
             "touched": int(tracker.sensor.touched.sum())}
 
 
@@ -124,7 +125,8 @@ def main() -> None:
                 over.append(score["silent"])
             line = (f"{label[:66]:66} {mode:15} ratio {score['ratio']:6.2f} pull {score['pull']:5.2f} "
                     f"lost {score['lost']:4d} flag {100 * score['flagged'] / score['frames']:5.1f}% "
-                    f"far {score['far']:4d} silent {score['silent']:4d} map {score['map']:3d}{mark}")
+                    f"far {score['far']:4d} silent {score['silent']:4d} map {score['map']:3d} "
+                    f"print {score['print']:4d}{mark}")
             if not rig_effects and not later:
                 steady.append(line)
             print(line, flush=True)

@@ -42,6 +42,7 @@ from graytrack.core import repeats
 from graytrack.core.estimator import kernel
 from graytrack.core.estimator.kernel import S_POSTERIOR, S_REJECTED, S_WEIGHED
 from graytrack.core.estimator.mount import SHOWN_ACCELERATION, SHOWN_BEYOND, MountWatch, Step, step_test
+from graytrack.core.estimator.print_map import PrintMap
 from graytrack.core.estimator.sensor_map import SensorMap
 from graytrack.core.estimator.settings import EstimatorSettings
 from graytrack.core.estimator.state import (A1, A2, B, BAND, BD, BE, BH, BL, BR, BW, C, G, L, M, N_STATE, OFS, SK, SKR,
@@ -317,7 +318,14 @@ class Estimator:
                                 np.array([settings.map_jump_gain ** 2, (settings.map_jump_offset * mean) ** 2,
                                           settings.map_rate_gain ** 2, settings.map_rate_offset ** 2]), mean,
                                 settings.map_most, int(settings.map_reach_px), model.n_pixels)
+        # the print's side: a reflectance change per place along the target, learned where something lands
+        # (print_map.py)
+        self.print_map = PrintMap.of(model, self.noise, self.chi2_calibration, self.sensor.z2 ** 0.5,
+                                     np.array([settings.print_jump ** 2, settings.print_rate ** 2]))
         self._noise_var = np.empty(n_values)
+        self._expected = np.empty(n_values)
+        self._zeros = np.zeros(n_values)
+        self._printed = False  # whether the frame being updated was seen through the print's map
         self.jump_var = {"light": np.array([settings.jump_light, settings.jump_light * mean]) ** 2,
                          "field": np.array([settings.jump_field, settings.jump_field]) ** 2,
                          "focus": np.array([settings.jump_focus]) ** 2,
@@ -399,16 +407,20 @@ class Estimator:
             # the image shows where the stage was, its time and grating where it is: no measurement of either
             return self._unplaced(t, self.stats, math.nan, "the driver delivered the last image again", True)
         y_raw, raw_mask = self._prepared(frame)
-        # seen through what sits on the sensor's side (the frame itself while nothing has landed)
-        y, mask = self.sensor.seen(y_raw, raw_mask) if self.sensor.active else (y_raw, raw_mask)
-        dt = None
-        if not self.started or self.failed >= FAILED_TO_REACQUIRE:
+        dt = predict = None
+        acquiring = not self.started or self.failed >= FAILED_TO_REACQUIRE
+        if not acquiring:
+            dt = predict = self._advance(t)  # the prediction to the frame's time, made by the update's own call
+            if self.print_map.active:  # ... or first, where the print's map is read at the predicted image
+                kernel.predict(self.s, self.P, dt, self.settings.acceleration ** 2, self.rates2)
+                predict = None
+        # seen through what sits on the sensor's side and on the print (the frame itself while nothing has landed)
+        y, mask = self._through_maps(y_raw, raw_mask, not acquiring)
+        if acquiring:
             self._acquire(y, mask, t, reference_mm)
-        else:
-            dt = self._advance(t)  # the prediction to the frame's time, made by the update's own call below
         grating_z = reference_mm if self.grating == "fuse" and math.isfinite(reference_mm) else math.nan
         s_prior, P_prior = self.s, self.P  # read, never written (once predicted), until the posterior replaces them
-        s, A, stats = self._solve(y, mask, s_prior, P_prior, grating_z, out=self._answer, predict=dt)
+        s, A, stats = self._solve(y, mask, s_prior, P_prior, grating_z, out=self._answer, predict=predict)
         if self.grating == "check" and math.isfinite(reference_mm) and \
                 abs(s_prior.item(X) - reference_mm) > 0.25 * self.model.period_mm:
             self._acquire(y, mask, t, reference_mm)  # the image's period lost: start again at the grating
@@ -429,7 +441,7 @@ class Estimator:
             # Something landed on samples no jump of the state explains (a speck on the window, a veil): they wait
             # outside the position until the motion resolves them (sensor_map.py), and the frame is solved again
             # without them, so what they showed moves no state.
-            y, mask = self.sensor.seen(y_raw, raw_mask)
+            y, mask = self._through_maps(y_raw, raw_mask, True)
             s, A, stats = self._solve(y, mask, s_prior, P_prior, grating_z, out=self._answer)
             test, mode, s, A, stats, solved, reason_jump = self._search(y, mask, s, A, stats, self._test(stats, s),
                                                                          s_prior, P_prior, grating_z)
@@ -449,11 +461,8 @@ class Estimator:
             self.P, self._P_next = self._P_next, self.P
         else:
             kernel.embed(self.P, A, solved, self._sigma)  # the posterior over the states solved, the prior's elsewhere
-        if self.sensor.active:
-            # what the frame left at each sample something landed on, into the sensor's map
-            kernel.residuals(self.s, y, self.pixels, self.params, self.model_args, self.scratch, self._noise_var)
-            self.sensor.learn(y_raw, y, self.scratch[5], self._noise_var, raw_mask, self.dt_last,
-                              self._anchored(self.P, stats))
+        if self.sensor.active or self.print_map.active:
+            self._learn(y_raw, raw_mask, y, t, self._anchored(self.P, stats))
         if self.s.item(BE) > 0.0:
             self._band_failed = self._band_failed + 1 if test > 1.0 else 0
             if self._band_failed >= FAILED_TO_REACQUIRE or self._band_gone():
@@ -745,7 +754,56 @@ class Estimator:
         kernel.residuals(s, y, self.pixels, self.params, self.model_args, self.scratch, self._noise_var)
         weight = self.scratch[4]
         np.divide(mask, self._noise_var, out=weight)
-        return self.sensor.land(self.scratch[5], weight)
+        fresh = self.sensor.land(self.scratch[5], weight)
+        if fresh > 0:  # each a candidate on the print too, where the image at ``s`` places it (print_map.py)
+            xi, stretch, _ = self._image(s)
+            self.print_map.land(self.sensor.core, self.t_last or 0.0, xi, stretch)
+        return fresh
+
+    def _through_maps(self, y_raw: np.ndarray, raw_mask: np.ndarray, located: bool) -> tuple[np.ndarray, np.ndarray]:
+        """The frame through the sensor's map and, where the image's place is known (``located``: the state
+        predicted to the frame), the print's map at that place."""
+        y, mask = self.sensor.seen(y_raw, raw_mask) if self.sensor.active else (y_raw, raw_mask)
+        self._printed = self.print_map.active and located
+        if self._printed:
+            y, mask = self.print_map.seen(y, mask, *self._image(self.s, self.P))
+        return y, mask
+
+    @staticmethod
+    def _image(s: np.ndarray, P: np.ndarray | None = None) -> tuple[float, float, float]:
+        """The image's position ξ = x + c + L·m (what the print under the camera is placed by), the stretch, and
+        ξ's variance under ``P`` (0 without)."""
+        x, c, lever, stretch = s.item(X), s.item(C), s.item(L), s.item(M)
+        if P is None:
+            return x + c + lever * stretch, stretch, 0.0
+        g = ((X, 1.0), (C, 1.0), (L, stretch), (M, lever))
+        var = sum(gi * gj * P.item(i, j) for i, gi in g for j, gj in g)
+        return x + c + lever * stretch, stretch, max(var, 0.0)
+
+    def _learn(self, y_raw: np.ndarray, raw_mask: np.ndarray, y: np.ndarray, t: float, teach: bool) -> None:
+        """What the placed frame left at each sample something landed on, into the maps: the print's from the
+        sample with the sensor's side divided out where the sensor's map uses it there, the sensor's against the
+        model's value with the print's change at that place. Each candidate explains the raw sample alone until
+        the motion has decided between them (print_map.py)."""
+        kernel.residuals(self.s, y, self.pixels, self.params, self.model_args, self.scratch, self._noise_var)
+        expected = self._expected
+        np.subtract(y, self.scratch[5], out=expected)  # the model's value at the posterior
+        if self._printed:  # (a frame placed from nothing was not seen through the print's map: it teaches it nothing)
+            sensor = self.sensor
+            if sensor.active:
+                # the sensor's side divided out where its map uses the sample; where it holds the sample as a
+                # candidate, the raw sample, and what the candidate says of it is the print's rival account
+                used = sensor.touched & (sensor._mask > 0.0)
+                y_print = np.where(used, sensor._y, y_raw)
+                held = sensor.touched & ~used
+                other = np.where(held, (1.0 + sensor.f) * expected + sensor.e, expected)
+                other_var = np.where(held, expected * (expected * sensor.sff + 2.0 * sensor.sfe) + sensor.see, 0.0)
+            else:
+                y_print, other, other_var = y_raw, expected, self._zeros
+            self.print_map.learn(y_print, expected, other, other_var, self._noise_var, raw_mask, t, teach)
+            expected *= 1.0 + self.print_map.fp
+        if self.sensor.active:
+            self.sensor.learn(y_raw, expected, self._noise_var, raw_mask, self.dt_last, teach)
 
     def _prepared(self, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The frame's gray values as the model sees them (its ``prepare``) and their mask."""
@@ -1003,10 +1061,14 @@ class Estimator:
         step_test(np.arange(4.0), np.zeros(4), np.ones(4), 1.0)
         kernel.residuals(self.s, self._y, self.pixels, self.params, self.model_args, self.scratch, self._noise_var)
         self.sensor.land(self._y, self.mask)  # (every sample fails on a frame of zeros: the map holds back)
-        self.sensor.learn(self._y, self._y, np.zeros(self.n_values), self._noise_var, self.mask, 0.0)
+        self.sensor.learn(self._y, self._y, self._noise_var, self.mask, 0.0)
         self.sensor.active = True
         self.sensor.seen(self._y, self.mask)
         self.sensor.reset()
+        self.print_map.land(np.zeros(self.n_values, dtype=np.bool_), 0.0, float(self.s[X]), 0.0)
+        self.print_map.seen(self._y, self.mask, float(self.s[X]), 0.0, 0.0)
+        self.print_map.learn(self._y, self._y, self._y, self._zeros, self._noise_var, self.mask, 0.0)
+        self.print_map.reset()
         self.started = False
 
 

@@ -71,12 +71,12 @@ def apply(y: np.ndarray, mask: np.ndarray, touched: np.ndarray, f: np.ndarray, e
         mask_out[p] = mask[p] * var_model * scale * scale / (var_raw + mask[p] * var_map)
 
 
-def learn(y: np.ndarray, y_seen: np.ndarray, residual: np.ndarray, noise_var: np.ndarray, mask: np.ndarray,
-          level: float,
+def learn(y: np.ndarray, expected: np.ndarray, noise_var: np.ndarray, mask: np.ndarray, level: float,
           dt: float, z2: float, params: np.ndarray, touched: np.ndarray, f: np.ndarray, e: np.ndarray,
           sff: np.ndarray, sfe: np.ndarray, see: np.ndarray, evidence: np.ndarray, teach: bool, h: np.ndarray) -> int:
-    """One placed frame into the map's touched samples. ``y``: the frame's raw values, ``y_seen``: as the
-    estimator saw them (through the map), ``residual``: those against the posterior state, ``noise_var``:
+    """One placed frame into the map's touched samples. ``y``: the frame's raw values, ``expected``: what the
+    posterior state predicts at each sample before the sensor's side (the model's value, with what the print's
+    map holds there), ``noise_var``:
     the noise model's variance there (kernel.residuals), ``mask``: the raw frame's weights, ``level``: the
     calibration's χ² per sample, ``dt``: the interval since the last frame (s), ``z2``: the per-sample test's
     threshold (σ²), ``params``: the jumps' and the rates' variances (gain jump, offset jump; gain rate, offset
@@ -91,8 +91,8 @@ def learn(y: np.ndarray, y_seen: np.ndarray, residual: np.ndarray, noise_var: np
     cannot learn. ``h`` out: each sample's predicted model value. Returns the samples that jumped."""
     jump_ff, jump_ee, rate_ff, rate_ee = params[0], params[1], params[2] * dt, params[3] * dt
     jumped = 0
-    for p in range(y_seen.size):
-        hp = y_seen[p] - residual[p]
+    for p in range(y.size):
+        hp = expected[p]
         h[p] = hp
         if mask[p] <= 0.0:
             continue
@@ -131,7 +131,7 @@ def learn(y: np.ndarray, y_seen: np.ndarray, residual: np.ndarray, noise_var: np
 
 def land(residual: np.ndarray, weight: np.ndarray, level: float, z2: float, most: float, jump_ff: float,
          jump_ee: float, reach: int, row: int, touched: np.ndarray, sff: np.ndarray, see: np.ndarray,
-         evidence: np.ndarray) -> int:
+         evidence: np.ndarray, core: np.ndarray) -> int:
     """Samples something has landed on, from a frame's solve: ``residual`` and ``weight`` (the noise model's
     inverse variance with the frame's mask) as the update left them. An untouched sample whose residual
     fails its test (``z2``, σ², against the noise model at the calibration's ``level``) is touched, its pair
@@ -139,10 +139,11 @@ def land(residual: np.ndarray, weight: np.ndarray, level: float, z2: float, most
     is out of focus: its soft edge, below the test, lands with it) — as long as the map then holds no more
     than ``most`` of the frame's samples: a frame on which more fail at once is one the state misplaced (its
     light, its position), the state's to answer, not the map's. Returns the samples that failed (as a
-    negative count where they were too many: nothing landed)."""
-    core = np.zeros(residual.size, dtype=np.bool_)
+    negative count where they were too many: nothing landed); ``core`` out: those samples (the print's map's
+    candidates too, print_map.py)."""
     fresh, held, usable = 0, 0, 0
     for p in range(residual.size):
+        core[p] = False
         if weight[p] <= 0.0:
             if touched[p]:
                 held += 1
@@ -200,6 +201,7 @@ class SensorMap:
         self.active = False  # anything landed yet: else the map is the identity and costs nothing
         self.jumps = 0
         self._y, self._mask, self._noise_var = np.empty(n), np.empty(n), np.empty(n)
+        self.core = np.zeros(n, dtype=np.bool_)  # the samples the last land found failing, held by neither map
 
     def reset(self) -> None:
         self.touched[:] = False
@@ -220,15 +222,15 @@ class SensorMap:
         """Samples something landed on, from a frame's solve (:func:`land`); the frame is to be seen again.
         A negative count: that many failed, too many for the map (nothing landed)."""
         fresh = land(residual, weight, self.level, self.z2, self.most, self.params[0], self.params[1], self.reach,
-                     self.row, self.touched, self.sff, self.see, self.evidence)
+                     self.row, self.touched, self.sff, self.see, self.evidence, self.core)
         if fresh > 0:
             self.active = True
             self.jumps += fresh
         return fresh
 
-    def learn(self, y: np.ndarray, y_seen: np.ndarray, residual: np.ndarray, noise_var: np.ndarray,
-              mask: np.ndarray, dt: float, teach: bool = True) -> int:
-        jumped = learn(y, y_seen, residual, noise_var, mask, self.level, dt, self.z2, self.params, self.touched,
+    def learn(self, y: np.ndarray, expected: np.ndarray, noise_var: np.ndarray, mask: np.ndarray, dt: float,
+              teach: bool = True) -> int:
+        jumped = learn(y, expected, noise_var, mask, self.level, dt, self.z2, self.params, self.touched,
                        self.f, self.e, self.sff, self.sfe, self.see, self.evidence, teach, self.h)
         self.jumps += jumped
         return jumped

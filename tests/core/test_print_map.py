@@ -1,0 +1,150 @@
+"""The print's map in the estimator (core/estimator/print_map.py): what lands on the print is learned at its place
+along the target once the motion has carried it across a pixel, and used for the position from then on; what
+lands on the sensor's side is never learned into it (and what lands on the print never into the sensor's map:
+tests/core/test_sensor_map.py). Scored against the virtual rig's truth, frame by frame, in every mode."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from graytrack.core.estimator import EstimatorSettings
+from graytrack.core.estimator.print_map import NODES_PER_PIXEL, PrintMap, apply, locate
+from tests.core.test_sensor_map import _scored, _tracked, paper  # noqa: F401  (the module's calibrated rig)
+
+
+def _nodes_at(estimator, nodes: np.ndarray) -> np.ndarray:
+    """The target coordinates (mm) of the print map's ``nodes``."""
+    printed = estimator.print_map
+    return printed.origin + (nodes % printed.nodes) * printed.step
+
+
+@pytest.mark.parametrize("grating", ["check", "fuse", "none"])
+def test_dust_settling_on_the_print_is_learned_where_it_lies(paper, grating):  # noqa: F811
+    """Thirty specks land on the print over 8 s. Without the print's map each frame a speck moved into failed at
+    new samples (a fifth of the frames flagged with the grating read, five 4+ bounds off; bench/estimator_sweep.py);
+    with it the specks are learned as the print carries them across the pixels: few frames flagged, none 4+
+    bounds off unflagged, the error within 1.3 noise floors, and the nodes learned darker than calibration and
+    at a speck's place on the print (up to the one offset between the rig's target frame and the model's)."""
+    estimator, estimates, truth, rig = _tracked(paper, "dust_settling", run=2, grating=grating)
+    error, bound, floor, stale = _scored(paper, estimates, truth, grating)
+    assert np.all(np.isfinite(error))
+    assert not np.any((np.abs(error) > 4 * bound) & ~stale)
+    if grating != "none":  # (without the grating most flags are the lens's lever's, which no map changes)
+        assert stale.mean() <= 0.02, stale.mean()
+    if grating != "fuse":  # (fused, the error is the grating's: the floor is the image's)
+        assert np.std(error) <= 1.3 * np.sqrt(np.mean(floor ** 2)), np.std(error)
+    learned = np.flatnonzero(estimator.print_map.learned())
+    assert learned.size >= 20, learned.size
+    # dust darkens (a node at a speck's edge, read with its slope towards a deeper neighbour, may overshoot)
+    assert np.mean(estimator.print_map.f[learned] < 0.0) >= 0.95
+    assert not estimator.sensor.learned().any()
+    specks = np.array([d.x_mm for d in rig.config.target.defects if d.kind == "dust"])
+    widest = max(d.size_mm for d in rig.config.target.defects if d.kind == "dust")
+    at = _nodes_at(estimator, learned)
+    pitch = paper.pixel_pitch_mm
+    shifts = np.arange(-30.0, 30.0, pitch / NODES_PER_PIXEL)
+    distance = np.array([np.median(np.min(np.abs(at[:, None] + shift - specks[None, :]), axis=1))
+                         for shift in shifts])
+    shift = shifts[int(np.argmin(distance))]
+    near = np.min(np.abs(at[:, None] + shift - specks[None, :]), axis=1)
+    reach = 3.0 * widest + EstimatorSettings().map_reach_px * pitch
+    assert np.mean(near <= reach) >= 0.95, np.sort(near)[-10:]
+
+
+@pytest.mark.parametrize("at_rest", [False, True], ids=["moving", "at_rest"])
+@pytest.mark.parametrize("grating", ["check", "none"])
+def test_dust_on_the_window_is_never_learned_into_the_print(paper, grating, at_rest):  # noqa: F811
+    """Specks on the camera's window stay at their pixels as the print moves on: a node they touched is seen clean
+    at the next pixel and let go (at rest too, once the stage moves on); none is learned."""
+    estimator, estimates, truth, _ = _tracked(paper, "window_dust" + (":at_rest=1" if at_rest else ""), run=2,
+                                              grating=grating, at_rest=at_rest)
+    error, bound, _, stale = _scored(paper, estimates, truth, grating)
+    assert estimator.print_map.landed > 0  # each speck was a candidate on the print too
+    assert not estimator.print_map.learned().any(), np.flatnonzero(estimator.print_map.learned())
+    assert not np.any((np.abs(error) > 4 * bound) & ~stale)
+
+
+def _line(n: int = 40) -> tuple[PrintMap, np.ndarray]:
+    """A one-row map over 40 pixels of 0.1 mm, its noise 1 gray², and the model's value 100 gray everywhere."""
+    target = np.arange(n) * 0.1
+    printed = PrintMap(target, 1, n, 0.1 / NODES_PER_PIXEL, -1.0, 8.0, np.array([1.0, 0.0, 0.0]), 1.0, 5.0,
+                       np.array([1.0, 1e-8]), 2)
+    return printed, np.full(n, 100.0)
+
+
+def test_a_mark_moving_with_the_print_is_learned_and_one_staying_at_its_pixel_is_let_go():
+    """The map's own recursion on a made-up line: a mark 30 % deep at one place on the print, seen as the image
+    moves by a tenth of a pixel a frame, is learned there (to its depth within 3σ) and divides out of the
+    frames once it has been carried across a pixel; a mark fixed at one pixel while the image moves is let go
+    (its nodes' evidence falls below nought) and nothing is learned."""
+    rng = np.random.default_rng(1)
+    for on_print in (True, False):
+        printed, h = _line()
+        noise_var, mask = np.ones(h.size), np.ones(h.size)
+        mark = 1.3  # target coordinate (mm) of the print's mark, or the pixel of the window's (13)
+        for frame in range(60):
+            xi = 0.01 * frame
+            if on_print:
+                depth = -0.3 * np.exp(-0.5 * ((xi + printed.target - mark) / 0.05) ** 2)
+            else:
+                depth = -0.3 * np.exp(-0.5 * ((np.arange(h.size) - 13.0) / 0.5) ** 2)
+            y = h * (1.0 + depth) + rng.normal(0.0, 1.0, h.size)
+            if frame == 0:
+                core = np.abs(y - h) > 5.0
+                assert printed.land(core, 0.0, xi, 0.0) > 0
+            y_seen, mask_seen = printed.seen(y, mask, xi, 0.0, 0.0)
+            # (no sensor map: the sensor's side's account of each sample is the model's)
+            printed.learn(y, h, h, np.zeros(h.size), noise_var, mask, 0.02 * frame)
+        learned = np.flatnonzero(printed.learned())
+        if on_print:
+            assert learned.size >= 2
+            at = _nodes_at(type("E", (), {"print_map": printed}), learned)
+            assert np.all(np.abs(at - mark) <= 0.15), at
+            deepest = learned[np.argmin(printed.f[learned])]
+            assert abs(printed.f[deepest] + 0.3) <= 3 * np.sqrt(printed.s[deepest]) + 0.03, printed.f[deepest]
+            # the last frame, seen through the map: the samples the mark darkens are the model's within their noise
+            # (with the map's) and count again
+            darkened = np.abs(y - h) > 10.0
+            assert darkened.any() and np.all(mask_seen[darkened] > 0.2), mask_seen[darkened]
+            assert np.max(np.abs(y_seen - h)[darkened] * np.sqrt(mask_seen[darkened])) < 3.0
+        else:
+            assert learned.size == 0
+            # every node it touched let go, or holding no mark (one never tested against the mark again may wait)
+            assert np.all(np.abs(printed.f[printed.touched]) < 0.05), printed.f[printed.touched]
+
+
+def test_the_compiled_parts_agree_with_their_definitions():
+    """locate: the node nearest each sample's target coordinate and the offset from it; apply: a sample that
+    sees an untouched node is the frame's own, one that sees a learned node is divided by 1 + f, f the node's
+    carried to the sample by its slope towards the next; one whose node the motion has not decided waits."""
+    printed, h = _line(8)
+    k, a = np.empty(8, dtype=np.int64), np.empty(8)
+    xi = 0.0137
+    locate(xi, 0.0, printed.target, printed.centred, printed.rows_of, printed.origin, printed.step, printed.nodes,
+           k, a)
+    u = (xi + printed.target - printed.origin) / printed.step
+    assert np.array_equal(k, np.round(u).astype(np.int64)) and np.allclose(a, u - np.round(u))
+    assert np.all(np.abs(a) <= 0.5)
+    j = int(k[3])
+    printed.touched[[j - 1, j, j + 1]] = True
+    printed.f[[j - 1, j, j + 1]] = -0.1, -0.2, -0.4
+    printed.lo[[j - 1, j, j + 1]], printed.hi[[j - 1, j, j + 1]] = 0.0, 2.0  # carried across two pixels
+    printed.evidence[[j - 1, j, j + 1]] = 100.0  # beyond the sensor's side's account
+    y, mask, out, mask_out, fp = np.full(8, 70.0), np.ones(8), np.empty(8), np.empty(8), np.empty(8)
+    assert apply(y, mask, k, a, printed.touched, printed.f, printed.s, printed.lo, printed.hi, printed.evidence,
+                 printed.confirm, h, printed.noise, 0.0, out, mask_out, fp) == 1
+    towards = -0.4 - -0.2 if a[3] >= 0 else -0.2 - -0.1
+    expected = -0.2 + towards * a[3]
+    assert fp[3] == pytest.approx(expected) and out[3] == pytest.approx(70.0 / (1.0 + expected))
+    assert np.array_equal(np.delete(out, 3), np.full(7, 70.0)) and not np.delete(fp, 3).any()
+    for undecided in ("travel", "evidence"):
+        saved = printed.hi[j], printed.evidence[j]
+        if undecided == "travel":
+            printed.hi[j] = 0.5  # not yet carried across a pixel
+        else:
+            printed.evidence[j] = 0.5 * printed.confirm  # not yet beyond the sensor's side's account by the test
+        apply(y, mask, k, a, printed.touched, printed.f, printed.s, printed.lo, printed.hi, printed.evidence,
+              printed.confirm, h, printed.noise, 0.0, out, mask_out, fp)
+        assert mask_out[3] == 0.0 and mask_out[2] == 1.0, undecided
+        printed.hi[j], printed.evidence[j] = saved
