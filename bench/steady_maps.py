@@ -1,7 +1,7 @@
 """Clean runs, many of them: what the estimator learns and flags where nothing changes.
 
 A steady rig must leave the sensor's map untouched (core/estimator/sensor_map.py: nothing landed, so
-nothing learned), stay flagged on fewer than 1 % of its frames and state a bound its errors agree with
+nothing learned) and the print's map without a mark learned (print_map.py), stay flagged on fewer than 1 % of its frames and state a bound its errors agree with
 (the rms of error over bound within 0.8–1.25). One steady run a mode (bench/estimator_sweep.py) says
 little about a rate of false landings; this script tracks clean runs of every scenario over several
 seeds (each seed its own calibration and its own run), in each mode (grating read, ``--trim``,
@@ -10,7 +10,8 @@ seeds (each seed its own calibration and its own run), in each mode (grating rea
     .venv/bin/python bench/steady_maps.py [--seeds N] [--shard K/N] [--cache DIR]
 
 Per run: the error std over the noise floor, the rms pull, the share flagged, frames 4+ bounds off
-(and unflagged), the samples the map touched (something landed) and learned. The last lines: how
+(and unflagged), the samples the sensor's map touched (something landed) and learned, the print's nodes
+learned. The last lines: how
 many runs touched or learned anything, the largest share flagged and the range of the pulls.
 """
 
@@ -65,7 +66,7 @@ def main() -> None:
     settings = EstimatorSettings()
     runs = [(scenario, seed) for scenario, share in SCENARIOS.items()
             for seed in range(max(1, round(share * args.seeds)))]
-    touched = learned = flagged_runs = 0
+    touched = learned = printed = flagged_runs = 0
     pulls, worst_flagged, scored_runs = [], 0.0, 0
     for number, (scenario, seed) in enumerate(runs):
         if number % shards != shard:
@@ -78,15 +79,16 @@ def main() -> None:
             scored_runs += 1
             touched += score["touched"] > 0
             learned += score["map"] > 0
+            printed += score["print"] > 0
             flagged_runs += share > STEADY_FLAGGED
             worst_flagged = max(worst_flagged, share)
             pulls.append(score["pull"])
             print(f"{scenario:8} seed {seed:2d} {mode:15} ratio {score['ratio']:5.2f} pull {score['pull']:5.2f} "
                   f"flag {100 * share:5.1f}% far {score['far']:4d} silent {score['silent']:4d} "
-                  f"touched {score['touched']:3d} learned {score['map']:3d}", flush=True)
+                  f"touched {score['touched']:3d} learned {score['map']:3d} print {score['print']:3d}", flush=True)
     if scored_runs:
         print(f"total: {scored_runs} clean runs (run x mode): the sensor's map touched on {touched}, learned on "
-              f"{learned}; flagged on more than {100 * STEADY_FLAGGED:.0f} % of the frames in {flagged_runs} "
+              f"{learned}; the print's map learned on {printed}; flagged on more than {100 * STEADY_FLAGGED:.0f} % of the frames in {flagged_runs} "
               f"(largest {100 * worst_flagged:.1f} %); rms pull {min(pulls):.2f}-{max(pulls):.2f}")
 
 
