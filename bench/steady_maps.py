@@ -1,8 +1,8 @@
 """Clean runs, many of them: what the estimator learns and flags where nothing changes.
 
 A steady rig must leave the sensor's map untouched (core/estimator/sensor_map.py: nothing landed, so
-nothing learned) and the print's map without a mark learned (print_map.py), stay flagged on fewer than 1 % of its frames and state a bound its errors agree with
-(the rms of error over bound within 0.8–1.25). One steady run a mode (bench/estimator_sweep.py) says
+nothing learned) and the print's map without a mark learned (print_map.py), stay flagged on fewer than
+1 % of its frames and state a bound its errors agree with (the rms of error over bound within 0.8–1.25). One steady run a mode (bench/estimator_sweep.py) says
 little about a rate of false landings; this script tracks clean runs of every scenario over several
 seeds (each seed its own calibration and its own run), in each mode (grating read, ``--trim``,
 ``--no-reference``), scored frame by frame against the rig's truth:
@@ -88,7 +88,8 @@ def main() -> None:
                   f"touched {score['touched']:3d} learned {score['map']:3d} print {score['print']:3d}", flush=True)
     if scored_runs:
         print(f"total: {scored_runs} clean runs (run x mode): the sensor's map touched on {touched}, learned on "
-              f"{learned}; the print's map learned on {printed}; flagged on more than {100 * STEADY_FLAGGED:.0f} % of the frames in {flagged_runs} "
+              f"{learned}; the print's map learned on {printed}; flagged on more than "
+              f"{100 * STEADY_FLAGGED:.0f} % of the frames in {flagged_runs} "
               f"(largest {100 * worst_flagged:.1f} %); rms pull {min(pulls):.2f}-{max(pulls):.2f}")
 
 
