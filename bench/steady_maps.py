@@ -2,8 +2,9 @@
 
 A steady rig must leave the sensor's map untouched (core/estimator/sensor_map.py: nothing landed, so
 nothing learned) and the print's map without a mark learned (print_map.py), stay flagged on fewer than
-1 % of its frames and state a bound its errors agree with (the rms of error over bound within 0.8–1.25). One steady run a mode (bench/estimator_sweep.py) says
-little about a rate of false landings; this script tracks clean runs of every scenario over several
+1 % of its frames and state a bound its errors agree with (the rms of error over bound within 0.8–1.25).
+One steady run a mode (bench/estimator_sweep.py) says little about a rate of false landings; this script
+tracks clean runs of every scenario over several
 seeds (each seed its own calibration and its own run), in each mode (grating read, ``--trim``,
 ``--no-reference``), scored frame by frame against the rig's truth:
 
