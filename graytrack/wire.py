@@ -119,6 +119,36 @@ class SensorMapStatus(BaseModel):
     restored: int = Field(description="marks restored at this start from DATA/sensor_map.json")
 
 
+class PrintMark(BaseModel):
+    """A mark learned on the print (core/estimator/print_map.py): a run of neighbouring places along the target whose
+    reflectance change the motion resolved (dust settled on the print, a smudge): it moves with the stage."""
+
+    row: int = Field(description="the model's row (0 for a model of one line)")
+    first_node: int = Field(description="its first node along the row (nodes node_mm apart)")
+    last_node: int = Field(description="its last node")
+    nodes: int
+    from_mm: float = Field(description="the stretch of the target it covers, from (mm, x_w)")
+    to_mm: float = Field(description="... to (mm)")
+    x_mm: float = Field(description="its centre, weighted by the light it changes (mm)")
+    reflectance: float = Field(description="the light the print gives there against calibration, mean over its "
+                                           "nodes (0.7 = 30 % darker)")
+    reflectance_sigma: float = Field(description="a node's σ (RMS over the mark)")
+
+
+class PrintMapStatus(BaseModel):
+    """The print's map the estimator learned, part of the model of record (DATA/print_map.json)."""
+
+    calibration: str | None = Field(description="the calibration whose model it was learned with")
+    touched_nodes: int = Field(description="places along the target something landed on (candidates until the "
+                                           "motion decides)")
+    learned_nodes: int = Field(description="of those, the places carried across a pixel and resolved")
+    node_mm: float = Field(description="the places' spacing along the target (a quarter of a pixel's footprint)")
+    marks: int = Field(description="marks learned (runs of learned places along a row)")
+    shown: list[PrintMark] = Field(description="the widest marks (at most 10; all: GET /api/maps)")
+    saved: bool = Field(description="this state is written to DATA/print_map.json")
+    restored: int = Field(description="marks restored at this start from DATA/print_map.json")
+
+
 class TrimStatus(BaseModel):
     model_config = ConfigDict(extra="allow")  # the window's line and the followed stretch, when there are
     enabled: bool = Field(description="[daemon] trim: the online trim may correct positions")
@@ -165,6 +195,8 @@ class Status(BaseModel):
                                                             "loop or not learning)")
     sensor_map: SensorMapStatus | None = Field(None, description="the sensor's side the estimator learned (null: the "
                                                                  "engine keeps none, or no frame loop)")
+    print_map: PrintMapStatus | None = Field(None, description="the print the estimator learned (null: the engine "
+                                                               "keeps none, or no frame loop)")
     simulated: bool
     startup: Startup | None = Field(None, description="while the daemon warms up before opening the rig (state "
                                                        "starting): the step and its progress; null after")

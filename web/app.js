@@ -46,6 +46,10 @@ const GLOSSARY = {
   texture: ["print texture", "Marks that settle on the printed target while the rig runs (dust, a smudge): the " +
     "tracker learns each one's place and depth from what the model leaves unexplained and takes it out, so it " +
     "does not pull the position. Kept with the model in use; dropped when another model is installed."],
+  "print-map": ["print map", "What sits on the print (dust settled on it, a smudge) learned at its place along the " +
+    "target: the share of the light it leaves there, with its σ. A place something landed on is set aside until " +
+    "the motion has carried it across a pixel and shown that it moves with the print (a mark on the camera's side " +
+    "stays at its pixels: the sensor map takes it). Kept with the model in use; dropped when another is installed."],
   "sensor-map": ["sensor map", "What sits on the camera's side (dust on its window, a veil) learned per pixel: a " +
     "gain (the share of the light it leaves) and an offset (light it scatters in), each with its σ. A pixel " +
     "something landed on is set aside until the stage's motion tells the camera's side from the print; then it " +
@@ -189,6 +193,22 @@ function sensorMapLine(m) {
   return `${m.learned.length} pixel(s) learned in ${m.marks.length} mark(s)${where}${tail}`;
 }
 
+// The print map's line (the status's print_map): what is learned along the target and how sure, or honestly
+// that nothing is.
+function printMapLine(m) {
+  if (!m) return "no print map: the engine in use keeps none ([daemon] engine = \"estimator\" does)";
+  const notes = [m.restored ? `${m.restored} restored at start` : "", m.saved ? "" : "not saved yet"].filter(Boolean);
+  const tail = notes.length ? ` · ${notes.join(" · ")}` : "";
+  if (!m.marks) {
+    return (m.touched_nodes ? `${m.touched_nodes} place(s) set aside, none yet decided by the motion`
+      : "nothing learned on the print") + tail;
+  }
+  const widest = m.shown[0];
+  const where = widest ? ` · widest at x_w = ${fmt(widest.x_mm, 3)} mm (${fmt(1000 * (widest.to_mm - widest.from_mm), 0)}` +
+    ` µm): reflectance ${fmt(widest.reflectance, 3)} ± ${fmt(widest.reflectance_sigma, 3)}` : "";
+  return `${m.marks} mark(s) learned on the print${where}${tail}`;
+}
+
 async function refreshMaps() {
   if (document.hidden || !status || status.state === "starting") return;
   const row = $("profile-row").value;
@@ -201,6 +221,17 @@ async function refreshMaps() {
     $("sensor-map").dataset.learned = doc.sensor_map ? String(doc.sensor_map.learned.length) : "";
     $("sensor-map").dataset.touched = doc.sensor_map ? String(doc.sensor_map.touched.length) : "";
     $("sensor-map-info").textContent = sensorMapLine(sensor);
+    // the print as the engine in use keeps it: the estimator's map, or today's tracker's texture
+    $("print-map-along").hidden = !doc.print_map && !!doc.texture;
+    $("texture-along").hidden = !doc.texture && !!doc.print_map;
+    Plot.printMap($("print-map"), doc.print_map, doc.stroke_mm);
+    $("print-map").dataset.marks = doc.print_map ? String(doc.print_map.marks.length) : "";
+    $("print-map").dataset.touched = doc.print_map ? String(doc.print_map.x_mm.length) : "";
+    // (the status's counts; until the next poll has them, the same counted from this document)
+    const shown = doc.print_map ? status.print_map || { touched_nodes: doc.print_map.x_mm.length, marks:
+      doc.print_map.marks.length, shown: doc.print_map.marks.slice().sort((a, b) => b.nodes - a.nodes), saved: true,
+      restored: 0 } : null;
+    $("print-map-info").textContent = printMapLine(shown);
     Plot.textureMap($("texture-map"), doc.texture, doc.stroke_mm);
     $("texture-map").dataset.marks = doc.texture ? String(doc.texture.marks.length) : "";
     $("texture-map-info").textContent = doc.texture ? (doc.texture.marks.length
@@ -316,8 +347,9 @@ function applyStatus(s) {
     ? `held-out error ${fmt(active.error_std_um, 2)} µm · bound ${fmt(active.bound_um, 2)} µm (calibration ${active.id})`
     : (active ? `calibration ${active.id}` : "");
   $("rate").textContent = fmt(s.frame_rate_hz, 1);
-  $("texture").textContent = textureLine(s.texture);
-  $("texture").dataset.marks = s.texture ? String(s.texture.marks) : "";
+  // the print as the engine in use keeps it: the estimator's map, or today's tracker's texture
+  $("texture").textContent = s.print_map ? printMapLine(s.print_map) : textureLine(s.texture);
+  $("texture").dataset.marks = s.print_map ? String(s.print_map.marks) : s.texture ? String(s.texture.marks) : "";
   if (s.position_mm === null) $("position").textContent = "—";
   if (s.limits_mm) {
     $("limits").textContent = `soft limits ${s.limits_mm[0]} … ${s.limits_mm[1]} mm`;

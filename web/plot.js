@@ -281,15 +281,61 @@ const Plot = (() => {
       }
     }
     if (!marks.length) note(ctx, box, "nothing learned: as calibrated");
+    targetAxis(ctx, x, right, stroke, height - 18);
+  }
+
+  // The axis along the target (x_w, mm) under a map drawn along it: `x` maps mm to the canvas, `range` its ends.
+  function targetAxis(ctx, x, right, range, y) {
     ctx.fillStyle = "#6b7380"; ctx.textBaseline = "top"; ctx.textAlign = "right";
-    label(ctx, "x_w (mm)", right, height - 18);
+    label(ctx, "x_w (mm)", right, y);
     const unitLeft = ctx.canvas.labels[ctx.canvas.labels.length - 1].left;
     ctx.textAlign = "center";
-    for (const mm of ticks(stroke[0], stroke[1], 6)) {
+    for (const mm of ticks(range[0], range[1], 6)) {
       const px = x(mm);
-      if (px + 20 < unitLeft) label(ctx, String(Math.round(mm * 1000) / 1000), px, height - 18);
+      if (px + 20 < unitLeft) label(ctx, String(Math.round(mm * 1000) / 1000), px, y);
     }
   }
 
-  return { timeSeries, profile, sensorMap, textureMap, robustRange, ticks };
+  // The print's map along the target (GET /api/maps): each place something landed on, its reflectance (1: as
+  // calibrated) as a bar from 1 with its ±σ whisker; places the motion has not yet decided (a candidate that may
+  // as well sit on the sensor's side) shaded. `doc` null: the engine keeps no print map.
+  function printMap(canvas, doc, stroke) {
+    const { ctx, width, height } = crisp(canvas);
+    const left = 52, right = width - 12;
+    const box = { left, right, top: UNIT_ROOM, bottom: height - 22 };
+    if (!doc || !stroke) {
+      note(ctx, { left, right, top: 0, bottom: height }, doc ? "no model: no stroke to draw the print along"
+        : "no print map: this engine keeps none");
+      return;
+    }
+    const xs = doc.x_mm, r = doc.reflectance, sigma = doc.reflectance_sigma;
+    const range = [Math.min(stroke[0], ...xs), Math.max(stroke[1], ...xs)];
+    const decided = xs.map((_, i) => i).filter((i) => doc.learned[i]);
+    // resolved places set the scale (a candidate's σ is its jump's width)
+    const ends = decided.flatMap((i) => [r[i] - sigma[i], r[i] + sigma[i]]);
+    const rRange = [Math.min(0.9, ...ends) - 0.02, Math.max(1.02, ...ends) + 0.02];
+    const x = (mm) => left + (right - left) * (mm - range[0]) / (range[1] - range[0]);
+    const y = (v) => box.bottom - (box.bottom - box.top) * (Math.min(Math.max(v, rRange[0]), rRange[1]) - rRange[0]) /
+      (rRange[1] - rRange[0]);
+    ctx.fillStyle = "rgba(214,158,46,.35)";
+    for (let i = 0; i < xs.length; i++) if (!doc.learned[i]) ctx.fillRect(x(xs[i]) - 1, box.top, 2, box.bottom - box.top);
+    ctx.strokeStyle = "#a0aec0"; ctx.lineWidth = 1;  // as calibrated
+    ctx.beginPath(); ctx.moveTo(left, y(1)); ctx.lineTo(right, y(1)); ctx.stroke();
+    for (const i of decided) {
+      const px = x(xs[i]);
+      ctx.fillStyle = "rgba(43,108,176,.55)";
+      ctx.fillRect(px - 1, Math.min(y(1), y(r[i])), 2, Math.max(Math.abs(y(r[i]) - y(1)), 1));
+      ctx.strokeStyle = "#1a365d"; ctx.lineWidth = 1;  // ±σ
+      ctx.beginPath(); ctx.moveTo(px, y(r[i] - sigma[i])); ctx.lineTo(px, y(r[i] + sigma[i])); ctx.stroke();
+    }
+    yAxis(ctx, box, rRange, "", "#2b6cb0", false);  // (its unit drawn below)
+    ctx.textAlign = "left"; ctx.textBaseline = "bottom";  // the unit over the plot: wider than the tick labels' room
+    label(ctx, "reflectance", left, box.top - UNIT_GAP);
+    if (!decided.length) {
+      note(ctx, box, xs.length ? `${xs.length} place(s) set aside, not yet decided` : "nothing learned: as calibrated");
+    }
+    targetAxis(ctx, x, right, range, height - 18);
+  }
+
+  return { timeSeries, profile, sensorMap, textureMap, printMap, robustRange, ticks };
 })();

@@ -321,7 +321,7 @@ class Estimator:
         # the print's side: a reflectance change per place along the target, learned where something lands
         # (print_map.py)
         self.print_map = PrintMap.of(model, self.noise, self.chi2_calibration, self.sensor.z2 ** 0.5,
-                                     np.array([settings.print_jump ** 2, settings.print_rate ** 2]))
+                                     np.array([settings.print_jump ** 2, settings.print_rate ** 2]), mean)
         self._noise_var = np.empty(n_values)
         self._expected = np.empty(n_values)
         self._zeros = np.zeros(n_values)

@@ -1,8 +1,8 @@
 """The estimator as the daemon's frame loop drives it: the same interface as today's live tracker
 (``update(frame, reference_mm, t)`` → the frame's record, ``restart_at``, ``texture``, ``stale``), so
-``[daemon] engine = "estimator"`` swaps the per-frame path and nothing else. It also exposes the map the
-estimator learns of the sensor's side (``sensor_map``), looked at for its events every ``LOOK_FRAMES``
-frames, and takes the state of one an earlier tracker of the same model learned."""
+``[daemon] engine = "estimator"`` swaps the per-frame path and nothing else. It also exposes the maps the
+estimator learns (``sensor_map``, the sensor's side; ``print_map``, the print), looked at for their events every
+``LOOK_FRAMES`` frames, and takes the state of those an earlier tracker of the same model learned."""
 
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ from typing import Any, Callable
 import numpy as np
 
 from graytrack.core.estimator.filter import Estimator, FrameEstimate
+from graytrack.core.estimator.print_map import PrintMap
 from graytrack.core.estimator.sensor_map import SensorMap
 from graytrack.core.estimator.settings import EstimatorSettings
 from graytrack.core.models.fourier import FourierModel
@@ -19,22 +20,22 @@ from graytrack.core.models.fourier import FourierModel
 
 RECORD = ("x_mm", "locked", "rms_gray", "crlb_mm", "chi2", "rejected_px", "gain", "offset_gray", "stale",
           "focus_px2", "focus_sigma_px2", "iterations")
-LOOK_FRAMES = 20  # frames between two looks at the sensor map's marks (its events): a mark is resolved over many
-# more frames than this, and a look costs the map's test of every sample (~20 µs for 100, on the frame loop)
+LOOK_FRAMES = 20  # frames between two looks at the maps' marks (their events): a mark is resolved over many more
+# frames than this, and a look costs the map's test of every place (~20 µs for 100 samples, on the frame loop)
 
 
 class LiveEstimator:
     """One :class:`Estimator` for a running rig. ``grating``: ``"check"``, ``"fuse"`` (the daemon's trim)
-    or ``"none"`` (a rig without one). ``sensor_map``: the state of the sensor's map an earlier tracker of
-    this model learned (:meth:`SensorMap.state`); one that does not fit is refused (``refused(why)``) and the
-    tracker starts from the sensor as calibrated."""
+    or ``"none"`` (a rig without one). ``sensor_map``, ``print_map``: the states of the maps an earlier tracker
+    of this model learned (:meth:`SensorMap.state`, :meth:`PrintMap.state`); one that does not fit is refused
+    (``refused(name, why)``) and the tracker starts from that side as calibrated."""
 
-    texture = None  # what the estimator learns on the print: not yet (the maps are its next states)
+    texture = None  # the per-frame path's texture: the estimator's print is its print_map
 
     def __init__(self, model: FourierModel, x0_mm: float | None = None, grating: str = "check",
                  settings: EstimatorSettings | None = None, axis_px: float | None = None,
-                 sensor_map: dict[str, Any] | None = None, refused: Callable[[str], None] = lambda reason: None,
-                 commands_known: bool = False):
+                 sensor_map: dict[str, Any] | None = None, print_map: dict[str, Any] | None = None,
+                 refused: Callable[[str, str], None] = lambda name, reason: None, commands_known: bool = False):
         self.model = model
         # commands_known: every phase of acceleration the stage is given comes through :meth:`commanded` (between
         # them it holds its speed or rests), so a knock without the grating is told from the stage's motion
@@ -43,16 +44,23 @@ class LiveEstimator:
         self._start = x0_mm
         self.last: FrameEstimate | None = None
         self.frames = 0
-        if sensor_map is not None:
-            try:
-                self.estimator.sensor.restore(sensor_map)
-            except ValueError as exc:
-                refused(str(exc))
+        for name, learned, state in (("sensor_map", self.sensor_map, sensor_map),
+                                     ("print_map", self.print_map, print_map)):
+            if state is not None:
+                try:
+                    learned.restore(state)
+                except ValueError as exc:
+                    refused(name, str(exc))
 
     @property
     def sensor_map(self) -> SensorMap:
         """The map of the sensor's side the estimator learns (its ``events`` and ``state()``)."""
         return self.estimator.sensor
+
+    @property
+    def print_map(self) -> PrintMap:
+        """The map of the print the estimator learns (its ``events`` and ``state()``)."""
+        return self.estimator.print_map
 
     @property
     def stale(self) -> bool:
@@ -81,6 +89,7 @@ class LiveEstimator:
         self.frames += 1
         if self.frames % LOOK_FRAMES == 0:
             estimator.sensor.look(self.frames)
+            estimator.print_map.look(self.frames)
         # the record's quantities by the names core/frame_record.py declares (None: no event, no reason)
         record: dict[str, Any] = {name: getattr(estimate, name) for name in RECORD}
         record.update(event=None, stale_reason=estimate.stale_reason or None)

@@ -39,7 +39,10 @@ import math
 
 import numpy as np
 
+from typing import Any
+
 from graytrack.core import kernels
+from graytrack.core.estimator.marks import MarkShape, ToldMarks, figure, runs
 from graytrack.core.estimator.sensor_map import BLOCKED
 
 NODES_PER_PIXEL = 4  # nodes a pixel's footprint on the target (module docstring: a speck keeps its shape)
@@ -143,7 +146,9 @@ def learn(y: np.ndarray, h: np.ndarray, other: np.ndarray, other_var: np.ndarray
         j = k[p]
         if j < 0 or mask[p] <= 0.0 or not touched[j]:
             continue
-        if t > t_last[j]:
+        if t_last[j] != t_last[j]:
+            t_last[j] = t  # restored from another run: its drift is counted from this run's first frame to see it
+        elif t > t_last[j]:
             s[j] += rate * (t - t_last[j])
             t_last[j] = t
         hp = h[p]
@@ -213,15 +218,21 @@ if kernels.COMPILED:
     land = _jit(land)
 
 
-class PrintMap:
+class PrintMap(ToldMarks):
     """The map along the target of a model: ``rows`` rows of nodes ``step`` mm apart from ``origin`` (mm of
     target coordinate), each one's reflectance change and its variance, whether anything landed on it, its
     evidence and the pixels it was seen at. ``target``: each sample's place on the target (the model's
     target_offset, flattened), ``pixels``: samples a row; ``noise``, ``level``, ``z`` as the sensor map's;
-    ``params``: the jump's and the rate's variances; ``reach``: nodes a landing touches either side."""
+    ``params``: the jump's and the rate's variances; ``reach``: nodes a landing touches either side;
+    ``mean_gray``: the light's scale (a restored map's samples' predicted value until a frame says)."""
+
+    # a mark: a run of neighbouring learned nodes along a row (marks.py tells them as they change)
+    SHAPE = MarkShape("first_node", "last_node", ("row", "first_node", "last_node", "nodes", "from_mm", "to_mm",
+                                                  "x_mm"), (("reflectance", "reflectance_sigma"),))
 
     def __init__(self, target: np.ndarray, rows: int, pixels: int, step: float, origin: float, span: float,
-                 noise: np.ndarray, level: float, z: float, params: np.ndarray, reach: int) -> None:
+                 noise: np.ndarray, level: float, z: float, params: np.ndarray, reach: int,
+                 mean_gray: float = 1.0) -> None:
         self.target = np.ascontiguousarray(target, dtype=np.float64)
         self.centred = np.ascontiguousarray(self.target - self.target.mean())
         self.row = int(pixels)
@@ -229,6 +240,8 @@ class PrintMap:
         self.px = np.ascontiguousarray(np.tile(np.arange(pixels, dtype=np.float64), rows))
         self.step, self.origin = float(step), float(origin)
         self.nodes = int(math.ceil(span / step)) + 2
+        self.stride = self.nodes  # nodes a row
+        self.mean_gray = float(mean_gray)
         self.noise, self.level, self.z2, self.params = noise, float(level), float(z) ** 2, params
         self.reach = int(reach)
         # a node is used once its evidence over the sensor's side's account is that of one sample's test at the
@@ -248,7 +261,7 @@ class PrintMap:
         self._y, self._mask = np.empty(n_values), np.empty(n_values)
 
     @classmethod
-    def of(cls, model, noise: np.ndarray, level: float, z: float, params: np.ndarray,
+    def of(cls, model, noise: np.ndarray, level: float, z: float, params: np.ndarray, mean_gray: float = 1.0,
            reach_px: float = REACH_PX) -> "PrintMap":
         """The map over the stroke of ``model`` and the field it sees, a margin beyond."""
         target = np.asarray(model.target_offset(), dtype=np.float64).reshape(-1)
@@ -260,7 +273,7 @@ class PrintMap:
         span = hi + float(target.max()) + MARGIN_MM - origin
         step = model.pixel_pitch_mm / NODES_PER_PIXEL
         return cls(target, model.n_rows, model.n_pixels, step, origin, span, noise, level, z, params,
-                   int(math.ceil(reach_px * NODES_PER_PIXEL)))
+                   int(math.ceil(reach_px * NODES_PER_PIXEL)), mean_gray)
 
     def reset(self) -> None:
         self.touched[:] = False
@@ -314,6 +327,85 @@ class PrintMap:
         return {"touched_nodes": int(self.touched.sum()), "learned_nodes": int(learned.size),
                 "landed_nodes": self.landed, "jumps": self.jumps,
                 "node_mm": self.step}
+
+    def place_mm(self, nodes: np.ndarray) -> np.ndarray:
+        """The target coordinate (mm) of each of ``nodes`` (flat indices)."""
+        return self.origin + (np.asarray(nodes) % self.nodes) * self.step
+
+    # ------------------------------------------------------------------ kept between runs, told as it changes
+    # (what the daemon keeps with its model of record, service/daemon/map_store.py, and says in its event log)
+
+    def state(self) -> dict[str, Any]:
+        """The map as a JSON document (:meth:`restore` reads it back): its grid, the touched nodes' reflectance
+        change with its variance, evidence and the stretch of the row each was seen across, which of them are
+        learned, and the marks those make. Untouched nodes are as calibrated and are not written."""
+        where = np.flatnonzero(self.touched)
+        learned = self.learned()
+        return {"version": MAP_STATE_VERSION, "rows": self.touched.size // self.nodes, "nodes": self.nodes,
+                "node_mm": self.step, "origin_mm": self.origin, "jumps": int(self.jumps), "landed": int(self.landed),
+                "touched": where.tolist(), **{name: getattr(self, name)[where].tolist() for name in NODE},
+                "learned": learned[where].tolist(), "marks": self.marks(learned)}
+
+    def restore(self, state: dict[str, Any]) -> None:
+        """The map as ``state`` (:meth:`state`) holds it; ValueError (one line) when it is not one this map can
+        hold: another grid, a bad shape, a value that is not finite or a variance below nought. Nothing changes
+        then. Each restored node's drift counts from the first frame of this run that sees it; the restored marks
+        are what the next look compares against (not told again)."""
+        try:
+            if state.get("version") != MAP_STATE_VERSION:
+                raise ValueError(f"version {state.get('version')!r}, not {MAP_STATE_VERSION}")
+            grid = (int(state["rows"]), int(state["nodes"]), float(state["node_mm"]), float(state["origin_mm"]))
+            where = np.asarray(state["touched"], dtype=np.int64).reshape(-1)
+            values = {name: np.asarray(state[name], dtype=np.float64) for name in NODE}
+            jumps, landed = int(state.get("jumps", 0)), int(state.get("landed", 0))
+        except (KeyError, TypeError, AttributeError) as exc:
+            raise ValueError(f"not a print map state ({type(exc).__name__}: {exc})") from None
+        rows = self.touched.size // self.nodes
+        if grid[:2] != (rows, self.nodes) or not all(math.isclose(a, b, rel_tol=1e-12, abs_tol=1e-12)
+                                                      for a, b in zip(grid[2:], (self.step, self.origin))):
+            raise ValueError(f"a grid of {grid[0]} row(s) of {grid[1]} nodes {grid[2]:.6g} mm apart from "
+                             f"{grid[3]:.6g} mm, the map's is {rows} of {self.nodes} {self.step:.6g} mm apart from "
+                             f"{self.origin:.6g} mm")
+        if any(array.shape != where.shape for array in values.values()):
+            raise ValueError(f"{where.size} touched nodes but the nodes' arrays have lengths "
+                             f"{sorted({array.size for array in values.values()})}")
+        if where.size and (where.min() < 0 or where.max() >= self.touched.size or np.unique(where).size != where.size):
+            raise ValueError(f"touched nodes must be distinct and within 0..{self.touched.size - 1}")
+        if not all(np.all(np.isfinite(array)) for array in values.values()):
+            raise ValueError("a reflectance change, variance, evidence or stretch seen that is not finite")
+        if np.any(values["s"] < 0.0) or np.any(values["hi"] < values["lo"]):
+            raise ValueError("a variance below nought or a stretch seen that ends before it starts")
+        self.reset()
+        self.touched[where] = True
+        for name, array in values.items():
+            getattr(self, name)[where] = array
+        self.t_last[where] = math.nan
+        self.h[:] = self.mean_gray
+        self.active = bool(where.size)
+        self.jumps, self.landed = max(jumps, 0), max(landed, 0)
+        self.restore_told()
+
+    def marks(self, learned: np.ndarray | None = None) -> list[dict[str, Any]]:
+        """The learned nodes (:meth:`learned`) as marks: each run of neighbouring learned nodes along a row, with
+        the stretch of the target it covers (mm), its centre weighted by the light it changes, its mean reflectance
+        ``1 + f`` (0.7: 30 % darker than calibrated) and a node's σ (the RMS over the mark's)."""
+        learned = self.learned() if learned is None else learned
+        found = []
+        for start, stop in runs(learned, self.nodes):
+            span = slice(start, stop)
+            places = self.place_mm(np.arange(start, stop))
+            weight = np.abs(self.f[span])
+            centre = float(np.dot(weight, places) / weight.sum()) if weight.sum() > 0.0 else float(places.mean())
+            found.append({"row": start // self.nodes, "first_node": start % self.nodes,
+                          "last_node": (stop - 1) % self.nodes, "nodes": stop - start,
+                          "from_mm": round(float(places[0]), 4), "to_mm": round(float(places[-1]), 4),
+                          "x_mm": round(centre, 4), "reflectance": figure(1.0 + float(self.f[span].mean())),
+                          "reflectance_sigma": figure(math.sqrt(float(self.s[span].mean())))})
+        return found
+
+
+MAP_STATE_VERSION = 1  # of :meth:`PrintMap.state`'s document
+NODE = ("f", "s", "evidence", "lo", "hi")  # a touched node's arrays, as the state document names them
 
 
 __all__ = ["PrintMap", "apply", "land", "learn", "locate"]

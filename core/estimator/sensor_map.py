@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from graytrack.core import kernels
+from graytrack.core.estimator.marks import CHANGED_Z, MarkShape, ToldMarks, figure, runs  # noqa: F401 (CHANGED_Z: told here)
 
 # a sample whose light the map says is nearly all taken (1 + f below this) carries nothing of the position
 BLOCKED = 0.05
@@ -181,16 +182,21 @@ if kernels.COMPILED:
     land = _jit(land)
 
 
-class SensorMap:
+class SensorMap(ToldMarks):
     """The map of ``n`` samples: each one's gain and offset against calibration with their covariance,
     and whether anything has landed on it. ``noise``: the noise model (read variance, shot gain, dark);
     ``level``: the calibration's χ² per sample; ``z``: the per-sample test in σ; ``params``: as
     :func:`learn` takes them."""
 
+    # a mark: a run of neighbouring learned samples along a row (marks.py tells them as they change)
+    SHAPE = MarkShape("first_px", "last_px", ("row", "first_px", "last_px", "samples"),
+                      (("gain", "gain_sigma"), ("offset_gray", "offset_sigma_gray")))
+
     def __init__(self, n: int, noise: np.ndarray, level: float, z: float, params: np.ndarray,
                  mean_gray: float, most: float, reach: int, row: int) -> None:
         self.noise, self.level, self.z2, self.params = noise, float(level), float(z) ** 2, params
         self.reach, self.row = int(reach), int(row)
+        self.stride = self.row  # samples a row
         self.most = float(most)
         self.mean_gray = float(mean_gray)
         self.touched = np.zeros(n, dtype=np.bool_)
@@ -237,19 +243,27 @@ class SensorMap:
 
     def learned(self, resolved: float = 0.05) -> np.ndarray:
         """The samples the map holds a change for, told apart from the print by the motion: the pair known
-        to ``resolved`` of the light in both directions (the motion has separated f from e) and beyond
-        zero at the false-alarm rate's per-sample threshold."""
+        to ``resolved`` of the light in both directions (the motion has separated f from e), beyond zero at
+        the false-alarm rate's per-sample threshold, and its evidence over the calibration (which holds what
+        the print's map says there) that of one sample's test at that rate (the likelihood ratio's log at
+        z²/2, as a node of the print's map needs): a pair the frames barely tell from the calibration is not
+        a mark, nor one within what the calibration itself leaves at the sample."""
         out = np.zeros(self.touched.size, dtype=bool)
         where = np.flatnonzero(self.touched)
         if where.size == 0:
             return out
         g = max(self.mean_gray, 1.0)
+        # what the calibration itself leaves at a sample beyond the noise (its χ² per sample above one) is an
+        # offset no frame tells from a change: a mark is beyond it as well as beyond the pair's own uncertainty
+        read_var, shot_gain, dark = self.noise[0], self.noise[1], self.noise[2]
+        misfit = max(self.level - 1.0, 0.0) * (read_var + shot_gain * np.maximum(self.h[where] - dark, 0.0))
         a, b, d = self.sff[where], self.sfe[where] / g, self.see[where] / (g * g)
         largest = 0.5 * (a + d) + np.sqrt(0.25 * (a - d) ** 2 + b * b)
+        d = d + misfit / (g * g)
         det = np.maximum(a * d - b * b, 1e-300)
         x, w = self.f[where], self.e[where] / g
         distance = (d * x * x - 2.0 * b * x * w + a * w * w) / det
-        out[where] = (largest < resolved ** 2) & (distance > self.z2)
+        out[where] = (largest < resolved ** 2) & (distance > self.z2) & (self.evidence[where] >= 0.5 * self.z2)
         return out
 
     def describe(self) -> dict[str, object]:
@@ -305,103 +319,26 @@ class SensorMap:
         self.h[where] = self.mean_gray
         self.active = bool(where.size)
         self.jumps = max(jumps, 0)
-        self._told = self.marks()
+        self.restore_told()
 
     def marks(self, learned: np.ndarray | None = None) -> list[dict[str, Any]]:
         """The learned samples (:meth:`learned`) as marks: each run of neighbouring learned samples along a row,
         with its mean gain ``1 + f`` and offset ``e`` (gray) and their σ (a sample's, the RMS over the mark's)."""
         learned = self.learned() if learned is None else learned
         marks = []
-        for start, stop in _runs(learned, self.row):
+        for start, stop in runs(learned, self.row):
             span = slice(start, stop)
             marks.append({"row": start // self.row, "first_px": start % self.row, "last_px": (stop - 1) % self.row,
-                          "samples": stop - start, "gain": _figure(1.0 + float(self.f[span].mean())),
-                          "gain_sigma": _figure(math.sqrt(float(self.sff[span].mean()))),
-                          "offset_gray": _figure(float(self.e[span].mean())),
-                          "offset_sigma_gray": _figure(math.sqrt(float(self.see[span].mean())))})
+                          "samples": stop - start, "gain": figure(1.0 + float(self.f[span].mean())),
+                          "gain_sigma": figure(math.sqrt(float(self.sff[span].mean()))),
+                          "offset_gray": figure(float(self.e[span].mean())),
+                          "offset_sigma_gray": figure(math.sqrt(float(self.see[span].mean())))})
         return marks
-
-    @property
-    def events(self) -> list[Any]:
-        """What :meth:`look` found, in order (core/texture.py's :class:`TextureEvent`: frame, what, mark)."""
-        if "_events" not in self.__dict__:
-            self._events: list[Any] = []
-        return self._events
-
-    def look(self, frame: int) -> list[Any]:
-        """The marks now against those at the last look, as events of frame ``frame``: ``learned`` (a mark where
-        none was), ``changed`` (its gain or offset moved beyond ``CHANGED_Z`` of its σ since it was told, or marks
-        merged), ``dropped`` (the map let all its samples go: the frames speak for the calibration there again). A
-        mark that only grew or shrank by a sample or its figures refined is not told again, nor one whose samples
-        the map still holds but has not resolved again yet (a jump widened them: it waits, set aside, until the
-        motion resolves it, then is told as changed if its figures moved): a mark near the resolution's threshold
-        would otherwise be told dropped and learned again frame after frame."""
-        from graytrack.core.texture import TextureEvent
-
-        told: list[dict[str, Any]] = self.__dict__.get("_told", [])
-        now = self.marks()
-        found: list[Any] = []
-        kept: list[dict[str, Any]] = []
-        matched: set[int] = set()
-        for mark in now:
-            over = [i for i, old in enumerate(told) if _overlap(old, mark)]
-            matched.update(over)
-            if not over:
-                found.append(TextureEvent(frame, "learned", mark))
-                kept.append(mark)
-            elif len(over) > 1 or _moved(told[over[0]], mark):
-                found.append(TextureEvent(frame, "changed", mark))
-                kept.append(mark)
-            else:  # the same mark refined: its extent followed, its figures as last told
-                kept.append({**told[over[0]], **{key: mark[key] for key in ("row", "first_px", "last_px", "samples")}})
-        for i, old in enumerate(told):
-            if i in matched:
-                continue
-            start = old["row"] * self.row
-            if self.touched[start + old["first_px"]:start + old["last_px"] + 1].any():
-                kept.append(old)  # held by the map, not resolved again yet
-            else:
-                found.append(TextureEvent(frame, "dropped", old))
-        self._told = kept
-        self.events.extend(found)
-        return found
 
 
 MAP_STATE_VERSION = 1  # of :meth:`SensorMap.state`'s document
 PAIR = ("f", "e", "sff", "sfe", "see", "evidence")  # a touched sample's arrays, as the state document names them
 COVARIANCE_SLACK = 1e-6  # relative: a pair's covariance rounded through JSON may sit this far past semidefinite
-CHANGED_Z = 3.0  # a told mark whose gain or offset moved by this many σ (its told and its present one combined) has
-# changed (more landed on it, part of it went); less is the filter refining what it had
-
-
-def _runs(flags: np.ndarray, row: int) -> list[tuple[int, int]]:
-    """(start, stop) of each run of True in ``flags``, a run never crossing from one row of ``row`` to the next."""
-    edges = np.diff(np.concatenate(([0], flags.astype(np.int8), [0])))
-    starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
-    runs = []
-    for start, stop in zip(starts.tolist(), stops.tolist()):
-        while start // row != (stop - 1) // row:  # split where a row ends
-            end = (start // row + 1) * row
-            runs.append((start, end))
-            start = end
-        runs.append((start, stop))
-    return runs
-
-
-def _figure(value: float) -> float:
-    """``value`` to 4 significant figures (a mark's figures as told and kept: a σ keeps its size however small)."""
-    return float(f"{value:.4g}")
-
-
-def _overlap(a: dict[str, Any], b: dict[str, Any]) -> bool:
-    return a["row"] == b["row"] and a["first_px"] <= b["last_px"] and b["first_px"] <= a["last_px"]
-
-
-def _moved(told: dict[str, Any], now: dict[str, Any]) -> bool:
-    for value, sigma in (("gain", "gain_sigma"), ("offset_gray", "offset_sigma_gray")):
-        if abs(now[value] - told[value]) > CHANGED_Z * math.hypot(told[sigma], now[sigma]):
-            return True
-    return False
 
 
 __all__ = ["SensorMap", "apply", "learn"]

@@ -39,6 +39,7 @@ from graytrack.service.daemon.grating import Readings
 from graytrack.service.daemon.loss_log import LossLog
 from graytrack.service.daemon.stale_log import StaleLog
 from graytrack.service.daemon.map_store import MapKind, MapLog, MapSnapshotter
+from graytrack.service.daemon.print_map_store import PRINT_MAP
 from graytrack.service.daemon.sensor_map_store import SENSOR_MAP
 from graytrack.service.daemon.texture_store import TEXTURE
 from graytrack.core.slide import SlideWatch
@@ -56,8 +57,8 @@ Built = tuple[FourierModel, "LiveTracker | LiveEstimator | None", "str | None", 
               "SlideWatch | None"]
 READ_TIMEOUT_S = 0.25  # short, so stop requests and fault timing are honoured promptly
 # the maps each engine learns while tracking, each its tracker's attribute of the kind's name (map_store.py): today's
-# tracker learns the print's texture; the estimator the sensor's map (the print's texture is its next state)
-ENGINE_MAPS: dict[str, tuple[MapKind, ...]] = {"watches": (TEXTURE,), "estimator": (SENSOR_MAP,)}
+# tracker learns the print's texture; the estimator the sensor's map and the print's
+ENGINE_MAPS: dict[str, tuple[MapKind, ...]] = {"watches": (TEXTURE,), "estimator": (SENSOR_MAP, PRINT_MAP)}
 
 
 @dataclass(frozen=True)
@@ -150,8 +151,8 @@ class Acquisition(Worker):
                       refused: Callable[[str, str], None] = lambda name, reason: None) -> None:
         """Track with ``model`` (of calibration ``calibration``) from a coming frame on (started near
         the grating's reading then, or ``x0_mm``), with the maps ``learned`` (by name: ``texture``, the
-        marks on the print; ``sensor_map``, the sensor's side) an earlier tracker of it learned
-        (``refused(name, why)`` when one does not fit it: tracked without it). Its tracker (tables, the
+        marks on the print; ``sensor_map`` and ``print_map``, the estimator's two sides) an earlier tracker of it
+        learned (``refused(name, why)`` when one does not fit it: tracked without it). Its tracker (tables, the
         compiled solves loaded: 40–500 ms, seconds with no compiler cache) is built on a thread of its own:
         the frame loop keeps every frame meanwhile, tracked with the model it has, and switches between two frames;
         each message names the calibration whose model placed it."""
@@ -181,7 +182,7 @@ class Acquisition(Worker):
                 settings = None if acceleration is None else EstimatorSettings(stage_acceleration=acceleration)
                 estimator = LiveEstimator(model, start, grating, settings=settings, axis_px=axis_px,
                                           sensor_map=learned.get(SENSOR_MAP.name),
-                                          refused=lambda reason: refused(SENSOR_MAP.name, reason),
+                                          print_map=learned.get(PRINT_MAP.name), refused=refused,
                                           commands_known=self.slide is not None and self.slide.motion is not None)
                 built: Built = (model, estimator, None, calibration, None, None)
             else:

@@ -1,10 +1,11 @@
 """What the daemon learns while tracking, kept as part of the model of record: one store for each learned map.
 
-Two maps are learned while running: the print's texture (marks on the target, core/texture.py, kept in
-``DATA/texture.json``) and the sensor's map (a gain and an offset per sample on the camera's side,
-core/estimator/sensor_map.py, kept in ``DATA/sensor_map.json``). Either is part of what every later position
-rests on, as much as the model's coefficients: a daemon restarted on the same model would otherwise set those
-samples aside again, lose or flag frames until it had relearnt each mark, and say nothing of why. So what the
+Maps are learned while running: the print's texture (marks on the target, core/texture.py, kept in
+``DATA/texture.json``) by today's tracker; the sensor's map (a gain and an offset per sample on the camera's side,
+core/estimator/sensor_map.py, kept in ``DATA/sensor_map.json``) and the print's map (a reflectance change per place
+along the target, core/estimator/print_map.py, ``DATA/print_map.json``) by the estimator. Each is part of what every
+later position rests on, as much as the model's coefficients: a daemon restarted on the same model would otherwise
+set those samples aside again, lose or flag frames until it had relearnt each mark, and say nothing of why. So what the
 live tracker learned is written beside the model, tied to the calibration it was learned for (its id and the
 SHA-256 of ``DATA/model.json``), reloaded into the tracker at start for that calibration only, and removed by
 the same switch that installs another model (a new calibration, a rollback: :meth:`Storage.switch_model`),
@@ -44,6 +45,7 @@ from graytrack.service.daemon.worker import describe
 log = logging.getLogger("graytrack.daemon")
 T = TypeVar("T")
 SAVE_EVERY_S = 10.0  # at most one write in this long (the rig's clock): marks learned in a burst cost one write
+SHOWN_MARKS = 10  # marks the status lists of a map (the widest first); all of them are in GET /api/maps
 REFRESH_FRAMES = 500  # frames between two snapshots while a learned map is refined without an event
 
 

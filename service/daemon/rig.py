@@ -51,7 +51,7 @@ from graytrack.service.daemon.history import LabHistory
 from graytrack.service.daemon.switch import Switch
 from graytrack.service.daemon.settings import Settings
 from graytrack.service.daemon.stage_control import StageControl
-from graytrack.service.daemon.storage import Storage
+from graytrack.service.daemon.storage import LEARNED_MAPS, Storage
 from graytrack.service.daemon.supervision import Faults, Supervisor, sentence
 from graytrack.service.daemon.sweep import Sweep
 from graytrack.service.daemon.map_store import MapStore, Stores
@@ -327,7 +327,7 @@ class Rig:
             target_mm=self.stage.target_mm, velocity_mm_s=self.stage.velocity_mm_s,
             calibrations_finished=dict(self.calibrations_finished), simulated=self.settings.simulated,
             stale_after_s=stale_after, uptime_s=time.monotonic() - self.started_at,
-            texture=self.map_status(acquisition, "texture"), sensor_map=self.map_status(acquisition, "sensor_map"))
+            **{name: self.map_status(acquisition, name) for name in LEARNED_MAPS})
 
     @property
     def state(self) -> str:

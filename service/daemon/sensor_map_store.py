@@ -12,10 +12,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from graytrack.service.daemon.map_store import MapKind
-
-SHOWN_MARKS = 10  # marks the status lists (the widest first); all of them are in GET /api/maps
-
+from graytrack.service.daemon.map_store import SHOWN_MARKS, MapKind
 
 def describe(what: str, mark: dict[str, Any]) -> str:
     """One sentence for an event of the sensor map's ``events`` (core/estimator/sensor_map.py: ``look``)."""

@@ -134,6 +134,7 @@ class RigSnapshot:
     uptime_s: float
     texture: Mapping[str, Any] | None = None  # the marks learned on the print (texture_store.py; None: no frame loop)
     sensor_map: Mapping[str, Any] | None = None  # the sensor's side learned (sensor_map_store.py; None: none kept)
+    print_map: Mapping[str, Any] | None = None  # the print the estimator learned (print_map_store.py; None: none kept)
     reason: str | None = field(init=False)
 
     def __post_init__(self) -> None:

@@ -53,6 +53,8 @@ def document(snapshot: RigSnapshot) -> dict[str, Any]:
         "texture": dict(snapshot.texture) if snapshot.texture is not None else None,  # learned on the print
         # learned on the sensor's side (the estimator's map: service/daemon/sensor_map_store.py)
         "sensor_map": dict(snapshot.sensor_map) if snapshot.sensor_map is not None else None,
+        # learned on the print by the estimator (service/daemon/print_map_store.py)
+        "print_map": dict(snapshot.print_map) if snapshot.print_map is not None else None,
         "simulated": snapshot.simulated,
         "startup": None,  # the warm-up's step before the rig opens: the route adds it (service/daemon/startup.py)
         "uptime_s": round(snapshot.uptime_s, 3),

@@ -8,6 +8,7 @@ Layout::
     DATA/active                     the id of the calibration that model came from
     DATA/texture.json               marks the tracker learned on the print with that model (texture_store.py)
     DATA/sensor_map.json            the sensor's side the estimator learned with that model (sensor_map_store.py)
+    DATA/print_map.json             the print the estimator learned with that model (print_map_store.py)
     DATA/calibrations/<id>/         one sweep: status.json, recording.npz, model.json, report.json(, report.html)
 
 Everything is written atomically (temporary file + rename), so a crash or a full disk never leaves
@@ -35,6 +36,9 @@ from graytrack.core.models.fourier import FourierModel
 from graytrack.service.daemon.datadir import identity
 from graytrack.service.daemon.errors import DataDirInUse, UnsafeDataDir
 from graytrack.service.daemon.switch import Switch, leftovers
+
+LEARNED_MAPS = ("texture", "sensor_map", "print_map")  # the maps learned with a model (map_store.py's kinds):
+# each goes with the model at a switch, since marks learned against one model sit elsewhere on another's
 
 log = logging.getLogger("graytrack.daemon")
 CALIBRATION_ID = re.compile(r"^\d{8}T\d{6}\d{6}Z$")
@@ -147,12 +151,9 @@ class Storage:
         write_atomic(self.model_path, (self.calibration_dir(calibration_id) / "model.json").read_bytes())
 
     @property
-    def texture_path(self) -> Path:
-        return self.root / "texture.json"
-
-    @property
-    def sensor_map_path(self) -> Path:
-        return self.root / "sensor_map.json"
+    def learned_map_paths(self) -> tuple[Path, ...]:
+        """The files of the maps learned with the model in use (``DATA/<name>.json``, map_store.py's kinds)."""
+        return tuple(self.root / f"{name}.json" for name in LEARNED_MAPS)
 
     def switch_model(self, calibration_id: str) -> Switch:
         """``active`` and ``model.json`` become that calibration's, both or neither (:mod:`switch`): the
@@ -162,7 +163,7 @@ class Storage:
         self.check_home()
         source = (self.calibration_dir(calibration_id) / "model.json").read_bytes()
         return Switch([(self.active_path, (calibration_id + "\n").encode()), (self.model_path, source),
-                       (self.texture_path, None), (self.sensor_map_path, None)]).apply()
+                       *((path, None) for path in self.learned_map_paths)]).apply()
 
     def check_home(self) -> None:
         """Raise when the path no longer leads to the directory opened at start (removed, replaced): no

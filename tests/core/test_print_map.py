@@ -13,12 +13,6 @@ from graytrack.core.estimator.print_map import NODES_PER_PIXEL, PrintMap, apply,
 from tests.core.test_sensor_map import _scored, _tracked, paper  # noqa: F401  (the module's calibrated rig)
 
 
-def _nodes_at(estimator, nodes: np.ndarray) -> np.ndarray:
-    """The target coordinates (mm) of the print map's ``nodes``."""
-    printed = estimator.print_map
-    return printed.origin + (nodes % printed.nodes) * printed.step
-
-
 @pytest.mark.parametrize("grating", ["check", "fuse", "none"])
 def test_dust_settling_on_the_print_is_learned_where_it_lies(paper, grating):  # noqa: F811
     """Thirty specks land on the print over 8 s. Without the print's map each frame a speck moved into failed at
@@ -41,7 +35,7 @@ def test_dust_settling_on_the_print_is_learned_where_it_lies(paper, grating):  #
     assert not estimator.sensor.learned().any()
     specks = np.array([d.x_mm for d in rig.config.target.defects if d.kind == "dust"])
     widest = max(d.size_mm for d in rig.config.target.defects if d.kind == "dust")
-    at = _nodes_at(estimator, learned)
+    at = estimator.print_map.place_mm(learned)
     pitch = paper.pixel_pitch_mm
     shifts = np.arange(-30.0, 30.0, pitch / NODES_PER_PIXEL)
     distance = np.array([np.median(np.min(np.abs(at[:, None] + shift - specks[None, :]), axis=1))
@@ -99,7 +93,7 @@ def test_a_mark_moving_with_the_print_is_learned_and_one_staying_at_its_pixel_is
         learned = np.flatnonzero(printed.learned())
         if on_print:
             assert learned.size >= 2
-            at = _nodes_at(type("E", (), {"print_map": printed}), learned)
+            at = printed.place_mm(learned)
             assert np.all(np.abs(at - mark) <= 0.15), at
             deepest = learned[np.argmin(printed.f[learned])]
             assert abs(printed.f[deepest] + 0.3) <= 3 * np.sqrt(printed.s[deepest]) + 0.03, printed.f[deepest]

@@ -130,14 +130,19 @@ def paper():
 
 def test_the_live_estimator_takes_a_saved_map_or_says_why_not_and_tracks_without_it(paper) -> None:
     run, _ = build_rig("paper", "", seed=4, run=1).record(2.0)
-    said: list[str] = []
-    refused = LiveEstimator(paper, float(run.reference[0]), sensor_map=dusty().state(), refused=said.append)
-    assert said == [f"100 samples of 50 pixels, the map has {paper.n_pixels * paper.n_rows} of {paper.n_pixels}"]
+    said: list[tuple[str, str]] = []
+
+    def refuse(name: str, reason: str) -> None:
+        said.append((name, reason))
+
+    refused = LiveEstimator(paper, float(run.reference[0]), sensor_map=dusty().state(), refused=refuse)
+    assert said == [("sensor_map", f"100 samples of 50 pixels, the map has {paper.n_pixels * paper.n_rows} of "
+                                   f"{paper.n_pixels}")]
     assert not refused.sensor_map.active
     fitting = SensorMap(paper.n_pixels, np.array([4.0, 0.1, 5.0]), 1.0, 5.0, np.ones(4), MEAN_GRAY, 0.5, 2,
                         paper.n_pixels)
     speck(fitting, range(40, 46), 0.7)
-    taken = LiveEstimator(paper, float(run.reference[0]), sensor_map=fitting.state(), refused=said.append)
+    taken = LiveEstimator(paper, float(run.reference[0]), sensor_map=fitting.state(), refused=refuse)
     assert len(said) == 1 and taken.sensor_map.active and taken.sensor_map.marks() == fitting.marks()
     for k in range(LOOK_FRAMES):
         fix = refused.update(run.frames[k], float(run.reference[k]), float(run.t[k]))

@@ -14,9 +14,11 @@ from typing import Any, Callable
 import numpy as np
 import pytest
 
+from graytrack.core.estimator.print_map import PrintMap
 from graytrack.core.estimator.sensor_map import SensorMap
 from graytrack.service.daemon.datadir import DataDirHealth
 from graytrack.service.daemon.map_store import SAVE_EVERY_S, MapKind, MapSnapshot, MapStore, Stores
+from graytrack.service.daemon.print_map_store import PRINT_MAP
 from graytrack.service.daemon.sensor_map_store import SENSOR_MAP
 from graytrack.service.daemon.storage import Storage
 from graytrack.service.daemon.texture_store import TEXTURE
@@ -38,12 +40,23 @@ def sensor_state(marks: int) -> dict[str, Any]:
     for k in range(marks):
         where = np.arange(10 * k, 10 * k + 3)
         sensor.touched[where] = True
-        sensor.f[where], sensor.sff[where], sensor.see[where] = -0.3, 1e-4, 0.25
+        sensor.f[where], sensor.sff[where], sensor.see[where], sensor.evidence[where] = -0.3, 1e-4, 0.25, 40.0
     return sensor.state()
 
 
-KINDS = [(TEXTURE, texture_state), (SENSOR_MAP, sensor_state)]
-IDS = ["texture", "sensor_map"]
+def print_state(marks: int) -> dict[str, Any]:
+    """A print map's state as core/estimator/print_map.py writes it, with ``marks`` resolved specks of 3 nodes."""
+    printed = PrintMap(np.arange(100) * 0.01, 1, 100, 0.0025, 0.0, 5.0, np.array([4.0, 0.1, 5.0]), 1.0, 5.0,
+                       np.ones(2), 4)
+    for k in range(marks):
+        where = np.arange(100 * k + 10, 100 * k + 13)
+        printed.touched[where], printed.f[where], printed.s[where] = True, -0.3, 1e-4
+        printed.evidence[where], printed.hi[where] = 40.0, 2.0
+    return printed.state()
+
+
+KINDS = [(TEXTURE, texture_state), (SENSOR_MAP, sensor_state), (PRINT_MAP, print_state)]
+IDS = [kind.name for kind, _ in KINDS]
 
 
 class Clock:
@@ -120,15 +133,17 @@ def test_a_map_of_another_calibration_or_model_or_a_damaged_file_is_never_restor
                                                 f"calibration {ACTIVE} (100 samples, the map has 200): not restored")
 
 
-def test_the_model_switch_removes_both_maps_and_its_undo_puts_them_back(tmp_path: Path) -> None:
+def test_the_model_switch_removes_every_map_and_its_undo_puts_them_back(tmp_path: Path) -> None:
     """Activate and install share one switch (storage.switch_model): every map goes with the old model, or, when
-    the switch is taken back (a record row that cannot be written), stays with it."""
+    the switch is taken back (a record row that cannot be written), stays with it. Every kind's file is one the
+    switch takes."""
     storage = Storage(tmp_path / "data")
     for calibration in (ACTIVE, "20260102T000000000000Z"):
         storage.calibration_dir(calibration).mkdir()
         (storage.calibration_dir(calibration) / "model.json").write_text(json.dumps({"id": calibration}))
     storage.switch_model(ACTIVE).commit()
-    files = (storage.texture_path, storage.sensor_map_path)
+    files = tuple(kind.file(storage) for kind, _ in KINDS)
+    assert set(files) == set(storage.learned_map_paths)
     for path in files:
         path.write_text(json.dumps({"calibration": ACTIVE}))
     switch = storage.switch_model("20260102T000000000000Z")
