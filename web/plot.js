@@ -255,14 +255,9 @@ const Plot = (() => {
   // The print's texture along the target (GET /api/maps): each learned mark's stretch of the stroke with its
   // depth (the light it takes) and ±σ. `doc` null: the engine keeps no print texture.
   function textureMap(canvas, doc, stroke) {
-    const { ctx, width, height } = crisp(canvas);
-    const left = 52, right = width - 12;
-    const box = { left, right, top: UNIT_ROOM, bottom: height - 22 };
-    if (!doc || !stroke) {
-      note(ctx, { left, right, top: 0, bottom: height }, doc ? "no model: no stroke to draw the print along"
-        : "no print texture: this engine keeps none");
-      return;
-    }
+    const frame = alongTarget(canvas, doc, stroke, "no print texture: this engine keeps none");
+    if (!frame) return;
+    const { ctx, height, left, right, box } = frame;
     const marks = doc.marks;
     const deepest = Math.max(0.1, ...marks.map((m) => Math.abs(m.depth) + (m.depth_sigma || 0)));
     const range = [0, Math.min(1, deepest * 1.15)];
@@ -284,6 +279,18 @@ const Plot = (() => {
     targetAxis(ctx, x, right, stroke, height - 18);
   }
 
+  // A map's canvas along the target, cleared: its plot box, or null when there is nothing to draw (said: `absent`
+  // when the engine keeps no such map, or that there is no model's stroke to draw it along).
+  function alongTarget(canvas, doc, stroke, absent) {
+    const { ctx, width, height } = crisp(canvas);
+    const left = 52, right = width - 12;
+    if (!doc || !stroke) {
+      note(ctx, { left, right, top: 0, bottom: height }, doc ? "no model: no stroke to draw the print along" : absent);
+      return null;
+    }
+    return { ctx, height, left, right, box: { left, right, top: UNIT_ROOM, bottom: height - 22 } };
+  }
+
   // The axis along the target (x_w, mm) under a map drawn along it: `x` maps mm to the canvas, `range` its ends.
   function targetAxis(ctx, x, right, range, y) {
     ctx.fillStyle = "#6b7380"; ctx.textBaseline = "top"; ctx.textAlign = "right";
@@ -300,14 +307,9 @@ const Plot = (() => {
   // calibrated) as a bar from 1 with its ±σ whisker; places the motion has not yet decided (a candidate that may
   // as well sit on the sensor's side) shaded. `doc` null: the engine keeps no print map.
   function printMap(canvas, doc, stroke) {
-    const { ctx, width, height } = crisp(canvas);
-    const left = 52, right = width - 12;
-    const box = { left, right, top: UNIT_ROOM, bottom: height - 22 };
-    if (!doc || !stroke) {
-      note(ctx, { left, right, top: 0, bottom: height }, doc ? "no model: no stroke to draw the print along"
-        : "no print map: this engine keeps none");
-      return;
-    }
+    const frame = alongTarget(canvas, doc, stroke, "no print map: this engine keeps none");
+    if (!frame) return;
+    const { ctx, height, left, right, box } = frame;
     const xs = doc.x_mm, r = doc.reflectance, sigma = doc.reflectance_sigma;
     const range = [Math.min(stroke[0], ...xs), Math.max(stroke[1], ...xs)];
     const decided = xs.map((_, i) => i).filter((i) => doc.learned[i]);

@@ -49,6 +49,16 @@ SHOWN_MARKS = 10  # marks the status lists of a map (the widest first); all of t
 REFRESH_FRAMES = 500  # frames between two snapshots while a learned map is refined without an event
 
 
+def told(what: str, side: str, nature: str, where: str, figures: str) -> str:
+    """One sentence for an event of a map's marks (core/estimator/marks.py): ``what`` (learned, changed, dropped)
+    of a mark on ``side`` (what it is: ``nature``) ``where`` with its ``figures`` (how much, how sure)."""
+    if what == "learned":
+        return f"learned a mark on {side} ({nature}) {where}: {figures}"
+    if what == "changed":
+        return f"the mark on {side} {where} changed (more landed on it, or part went): now {figures}"
+    return f"the mark on {side} {where} ({figures}) no longer holds: the frames read as calibrated there again; dropped"
+
+
 @dataclass(frozen=True)
 class MapKind:
     """What differs between two learned maps. ``name``: the file's stem (``DATA/<name>.json``), the document's

@@ -11,18 +11,13 @@ from __future__ import annotations
 
 from typing import Any
 
-from graytrack.service.daemon.map_store import SHOWN_MARKS, MapKind
+from graytrack.service.daemon.map_store import SHOWN_MARKS, MapKind, told
 
 def describe(what: str, mark: dict[str, Any]) -> str:
     """One sentence for an event of the print map's ``events`` (core/estimator/marks.py: ``look``)."""
     where = f"at x_w = {mark['x_mm']:.4f} mm ({mark['from_mm']:.4f}-{mark['to_mm']:.4f} mm, row {mark['row']})"
     figures = f"reflectance {mark['reflectance']:.3f} +/- {mark['reflectance_sigma']:.3f}"
-    if what == "learned":
-        return f"learned a mark on the print (it moves with the stage) {where}: {figures}"
-    if what == "changed":
-        return f"the mark on the print {where} changed (more landed on it, or part went): now {figures}"
-    return (f"the mark on the print {where} ({figures}) no longer holds: the print reads as calibrated there again; "
-            f"dropped")
+    return told(what, "the print", "it moves with the stage", where, figures)
 
 
 def status(state: dict[str, Any]) -> dict[str, Any]:

@@ -12,19 +12,14 @@ from __future__ import annotations
 
 from typing import Any
 
-from graytrack.service.daemon.map_store import SHOWN_MARKS, MapKind
+from graytrack.service.daemon.map_store import SHOWN_MARKS, MapKind, told
 
 def describe(what: str, mark: dict[str, Any]) -> str:
     """One sentence for an event of the sensor map's ``events`` (core/estimator/sensor_map.py: ``look``)."""
     where = f"at row {mark['row']}, pixels {mark['first_px']}-{mark['last_px']}"
     figures = (f"gain {mark['gain']:.3f} +/- {mark['gain_sigma']:.3f}, offset {mark['offset_gray']:+.1f} "
                f"+/- {mark['offset_sigma_gray']:.1f} gray")
-    if what == "learned":
-        return f"learned a mark on the sensor's side (fixed in pixels: the camera's window) {where}: {figures}"
-    if what == "changed":
-        return f"the mark on the sensor's side {where} changed (more landed on it, or part went): now {figures}"
-    return (f"the mark on the sensor's side {where} ({figures}) no longer holds: the frames read as calibrated "
-            f"there again; dropped")
+    return told(what, "the sensor's side", "fixed in pixels: the camera's window", where, figures)
 
 
 def status(state: dict[str, Any]) -> dict[str, Any]:

@@ -15,9 +15,10 @@ import re
 from pathlib import Path
 
 from graytrack.service.daemon.app import create_app
-from tests.service.helpers import LiveServer, fast_settings, wait_for, wait_job
+from tests.service.helpers import LiveServer, fast_settings, wait_for
 from tests.service.hostile import StreamReader
-from tests.service.test_sensor_map_store import STEADY_FLAGS, events, logged, lost_and_flagged, passes
+from tests.service.test_sensor_map_store import (events, logged, lost_and_flagged, passes, restored_and_passed,
+                                                 switched_away_and_back)
 
 # specks settle on the print after the start-up calibration's sweep (sim seconds; the test clock runs 10x) ...
 SETTLING = {"camera": {"effects": "dust_settling:start_s=40,over_s=5"}}
@@ -83,28 +84,9 @@ def test_the_print_map_survives_a_restart_and_a_rollback_drops_it(tmp_path: Path
 
     # started again on the same data directory, the dust still on the print: the map comes back and is used
     with LiveServer(create_app(fast_settings(data, tables=ON_THE_PRINT, engine="estimator"))) as daemon:
-        assert daemon.wait_state("tracking", 60.0)["active_calibration"]["id"] == first
-        restored = wait_for(lambda: daemon.status()["print_map"], 10.0, "the restored tracker")
-        assert restored["calibration"] == first and restored["restored"] == len(on_disk["marks"])
-        assert any(f"{len(on_disk['marks'])} mark(s) learned on the print for calibration {first} restored"
-                   in message for message in events(daemon, "print_map_restored"))
-        with StreamReader(daemon.port) as stream:
-            lost_after, flagged_after = lost_and_flagged(passes(daemon, 1, stream))
-        assert lost_after == 0.0 == lost_before
-        assert flagged_after <= flagged_before + STEADY_FLAGS, (flagged_after, flagged_before)
+        assert lost_before == 0.0
+        restored_and_passed(daemon, "print_map", "the print", first, len(on_disk["marks"]), flagged_before)
         assert daemon.status()["print_map"]["learned_nodes"] >= 0.75 * sum(on_disk["learned"])
         assert one_pixel(events(daemon, "sensor_map_learned", after=first_session))
 
-        # a new calibration takes over: the map goes with the old model, said, and its file with it
-        job = daemon.post("/api/calibration", headers=daemon.auth()).json()["id"]
-        wait_job(daemon.get, job, "done", 60.0)
-        wait_for(lambda: (m := daemon.status()["print_map"]) and m["calibration"] == job, 10.0, "the new tracker")
-        assert not kept.exists() or json.loads(kept.read_text())["calibration"] == job
-        dropped = wait_for(lambda: [m for m in events(daemon, "print_map_dropped") if f"(calibration {job} installed)"
-                                    in m], 10.0, "the print_map_dropped event of the new calibration")
-        assert re.match(r"[1-9]\d* mark\(s\) learned on the print dropped with the model", dropped[-1])
-        # rolled back to the first calibration: what it had learned is gone with the file, it starts as calibrated
-        assert daemon.post(f"/api/calibrations/{first}/activate", headers=daemon.auth()).status_code == 200
-        rolled = wait_for(lambda: (m := daemon.status()["print_map"]) and m["calibration"] == first and m, 10.0,
-                          "the first calibration's tracker")
-        assert rolled["restored"] == 0 and not kept.exists()
+        assert switched_away_and_back(daemon, "print_map", "the print", kept, first)["learned_nodes"] == 0

@@ -77,6 +77,40 @@ def lost_and_flagged(messages: list[dict[str, Any]]) -> tuple[float, float]:
     return lost / len(messages), sum(bool(message["stale"]) for message in messages) / len(messages)
 
 
+def restored_and_passed(daemon: LiveServer, name: str, side: str, first: str, marks: int,
+                        flagged_before: float) -> None:
+    """A daemon started again on the data directory of calibration ``first`` restored its ``marks`` marks of the map
+    ``name`` (on ``side``), said so, and a pass of the print then loses no frame and flags no more than the first
+    session's pass did, and ``STEADY_FLAGS`` of the frames."""
+    assert daemon.wait_state("tracking", 60.0)["active_calibration"]["id"] == first
+    restored = wait_for(lambda: daemon.status()[name], 10.0, "the restored tracker")
+    assert restored["calibration"] == first and restored["restored"] == marks
+    assert any(f"{marks} mark(s) learned on {side} for calibration {first} restored" in message
+               for message in events(daemon, f"{name}_restored"))
+    with StreamReader(daemon.port) as stream:
+        lost_after, flagged_after = lost_and_flagged(passes(daemon, 1, stream))
+    assert lost_after == 0.0
+    assert flagged_after <= flagged_before + STEADY_FLAGS, (flagged_after, flagged_before)
+
+
+def switched_away_and_back(daemon: LiveServer, name: str, side: str, kept: Path, first: str) -> dict[str, Any]:
+    """A new calibration takes over: the map ``name`` (of marks on ``side``) goes with the old model, said, and its
+    file ``kept`` with it; rolled back to the calibration ``first``, what it had learned is gone with the file and it
+    starts as calibrated: the status's part of the map then."""
+    job = daemon.post("/api/calibration", headers=daemon.auth()).json()["id"]
+    wait_job(daemon.get, job, "done", 60.0)
+    wait_for(lambda: (m := daemon.status()[name]) and m["calibration"] == job, 10.0, "the new tracker")
+    assert not kept.exists() or json.loads(kept.read_text())["calibration"] == job
+    dropped = wait_for(lambda: [m for m in events(daemon, f"{name}_dropped") if f"(calibration {job} installed)" in m],
+                       10.0, f"the {name}_dropped event of the new calibration")
+    assert re.match(rf"[1-9]\d* mark\(s\) learned on {side} dropped with the model", dropped[-1]), dropped[-1]
+    assert daemon.post(f"/api/calibrations/{first}/activate", headers=daemon.auth()).status_code == 200
+    rolled = wait_for(lambda: (m := daemon.status()[name]) and m["calibration"] == first and m, 10.0,
+                      "the first calibration's tracker")
+    assert rolled["restored"] == 0 and not kept.exists()
+    return rolled
+
+
 def test_the_sensor_map_survives_a_restart_and_a_rollback_drops_it(tmp_path: Path) -> None:
     data = tmp_path / "data"
     kept = data / "sensor_map.json"
@@ -113,34 +147,16 @@ def test_the_sensor_map_survives_a_restart_and_a_rollback_drops_it(tmp_path: Pat
 
     # started again on the same data directory, the dust still on the window: the map comes back and is used
     with LiveServer(create_app(fast_settings(data, tables=ON_THE_WINDOW, engine="estimator"))) as daemon:
-        assert daemon.wait_state("tracking", 60.0)["active_calibration"]["id"] == first
-        restored = wait_for(lambda: daemon.status()["sensor_map"], 10.0, "the restored tracker")
-        assert restored["calibration"] == first and restored["restored"] == len(on_disk["marks"])
-        assert any(f"{len(on_disk['marks'])} mark(s) learned on the sensor's side for calibration {first} restored"
-                   in message for message in events(daemon, "sensor_map_restored"))
-        with StreamReader(daemon.port) as stream:
-            lost_after, flagged_after = lost_and_flagged(passes(daemon, 1, stream))
-        assert lost_after == 0.0 == lost_before
         # (without the map restored, the same restart flags every frame of such a pass: docs/daemon.md)
-        assert flagged_after <= flagged_before + STEADY_FLAGS, (flagged_after, flagged_before)
+        assert lost_before == 0.0
+        restored_and_passed(daemon, "sensor_map", "the sensor's side", first, len(on_disk["marks"]), flagged_before)
         # the restored marks held: the dust is where the map says, none was let go and learned again (a weak mark's
         # samples may wait a while unresolved after a jump: most, not all, are resolved at any one time)
         assert not events(daemon, "sensor_map_dropped", after=first_session)
         assert daemon.status()["sensor_map"]["learned_samples"] >= 0.75 * sum(on_disk["learned"])
 
-        # a new calibration takes over: the map goes with the old model, said, and its file with it
-        job = daemon.post("/api/calibration", headers=daemon.auth()).json()["id"]
-        wait_job(daemon.get, job, "done", 60.0)
-        wait_for(lambda: (m := daemon.status()["sensor_map"]) and m["calibration"] == job, 10.0, "the new tracker")
-        assert not kept.exists() or json.loads(kept.read_text())["calibration"] == job
-        dropped = wait_for(lambda: [m for m in events(daemon, "sensor_map_dropped") if f"(calibration {job} installed)"
-                                    in m], 10.0, "the sensor_map_dropped event of the new calibration")
-        assert re.match(r"[1-9]\d* mark\(s\) learned on the sensor's side dropped with the model", dropped[-1])
-        # rolled back to the first calibration: what it had learned is gone with the file, it starts as calibrated
-        assert daemon.post(f"/api/calibrations/{first}/activate", headers=daemon.auth()).status_code == 200
-        rolled = wait_for(lambda: (m := daemon.status()["sensor_map"]) and m["calibration"] == first and m, 10.0,
-                          "the first calibration's tracker")
-        assert rolled["restored"] == 0 and rolled["learned_samples"] == 0 and not kept.exists()
+        rolled = switched_away_and_back(daemon, "sensor_map", "the sensor's side", kept, first)
+        assert rolled["learned_samples"] == 0
 
 
 def test_the_frame_loop_tracks_with_a_saved_map_or_without_one_that_does_not_fit() -> None:
