@@ -461,8 +461,6 @@ class Estimator:
             self.P, self._P_next = self._P_next, self.P
         else:
             kernel.embed(self.P, A, solved, self._sigma)  # the posterior over the states solved, the prior's elsewhere
-        if self.sensor.active or self.print_map.active:
-            self._learn(y_raw, raw_mask, y, t, self._anchored(self.P, stats))
         if self.s.item(BE) > 0.0:
             self._band_failed = self._band_failed + 1 if test > 1.0 else 0
             if self._band_failed >= FAILED_TO_REACQUIRE or self._band_gone():
@@ -490,6 +488,13 @@ class Estimator:
                 message=f"the image stepped {step.step_mm * 1e3:+.1f} ± {step.sigma_mm * 1e3:.1f} µm against the "
                         f"carriage between the last two frames, beyond the {step.allowance_mm * 1e3:.1f} µm the "
                         f"stage's acceleration allows: the camera moved on its mount")
+        if self.sensor.active or self.print_map.active:
+            # where a frame sees a place of the print says how far the print carried it only where the one test
+            # vouches for the frame's position (a flagged frame may be placed a pixel off: a jump taken, the
+            # grating disagreeing); the maps learn from what it leaves at the samples wherever its position is
+            # its own (a change being learned is flagged until it is)
+            anchored = self._anchored(self.P, stats)
+            self._learn(y_raw, raw_mask, y, t, anchored, anchored and not estimate.stale)
         return estimate
 
     def commanded(self, start: float, end: float, acceleration: float | None = None) -> None:
@@ -780,7 +785,8 @@ class Estimator:
         var = sum(gi * gj * P.item(i, j) for i, gi in g for j, gj in g)
         return x + c + lever * stretch, stretch, max(var, 0.0)
 
-    def _learn(self, y_raw: np.ndarray, raw_mask: np.ndarray, y: np.ndarray, t: float, teach: bool) -> None:
+    def _learn(self, y_raw: np.ndarray, raw_mask: np.ndarray, y: np.ndarray, t: float, teach: bool,
+               vouched: bool) -> None:
         """What the placed frame left at each sample something landed on, into the maps: the print's from the
         sample with the sensor's side divided out where the sensor's map uses it there, the sensor's against the
         model's value with the print's change at that place. Each candidate explains the raw sample alone until
@@ -800,10 +806,13 @@ class Estimator:
                 other_var = np.where(held, expected * (expected * sensor.sff + 2.0 * sensor.sfe) + sensor.see, 0.0)
             else:
                 y_print, other, other_var = y_raw, expected, self._zeros
-            self.print_map.learn(y_print, expected, other, other_var, self._noise_var, raw_mask, t, teach)
+            self.print_map.learn(y_print, expected, other, other_var, self._noise_var, raw_mask, t, teach, vouched)
             expected *= 1.0 + self.print_map.fp
+            rival, rival_var = self.print_map.rival, self.print_map.rival_var
+        else:
+            rival, rival_var = expected, self._zeros
         if self.sensor.active:
-            self.sensor.learn(y_raw, expected, self._noise_var, raw_mask, self.dt_last, teach)
+            self.sensor.learn(y_raw, expected, rival, rival_var, self._noise_var, raw_mask, self.dt_last, teach)
 
     def _prepared(self, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The frame's gray values as the model sees them (its ``prepare``) and their mask."""
@@ -1061,7 +1070,7 @@ class Estimator:
         step_test(np.arange(4.0), np.zeros(4), np.ones(4), 1.0)
         kernel.residuals(self.s, self._y, self.pixels, self.params, self.model_args, self.scratch, self._noise_var)
         self.sensor.land(self._y, self.mask)  # (every sample fails on a frame of zeros: the map holds back)
-        self.sensor.learn(self._y, self._y, self._noise_var, self.mask, 0.0)
+        self.sensor.learn(self._y, self._y, self._y, self._zeros, self._noise_var, self.mask, 0.0)
         self.sensor.active = True
         self.sensor.seen(self._y, self.mask)
         self.sensor.reset()

@@ -124,7 +124,8 @@ def learn(y: np.ndarray, h: np.ndarray, other: np.ndarray, other_var: np.ndarray
           mask: np.ndarray, level: float,
           t: float, z2: float, params: np.ndarray, k: np.ndarray, a: np.ndarray, px: np.ndarray,
           touched: np.ndarray, f: np.ndarray, s: np.ndarray, evidence: np.ndarray, lo: np.ndarray, hi: np.ndarray,
-          t_last: np.ndarray, teach: bool) -> int:
+          t_last: np.ndarray, teach: bool, vouched: bool, fp: np.ndarray, rival: np.ndarray,
+          rival_var: np.ndarray) -> int:
     """One placed frame into the touched nodes it sees. ``y``: each sample as the print's side of the image
     gives it (the sensor's pair divided out where the sensor map uses it), ``h``: the model's value there (the
     posterior state's), ``other``: what the sensor's side says the sample is where the print is as
@@ -139,11 +140,20 @@ def learn(y: np.ndarray, h: np.ndarray, other: np.ndarray, other_var: np.ndarray
     pixels, a mark on the print is where the node says, one on the sensor's side where the sensor's map
     says), the node let go where it falls below nought; where ``teach``, the node is updated by the residual
     against it carried to the sample by its slope (its neighbour held: each node learns from the samples
-    nearest it alone). Returns the nodes that jumped."""
+    nearest it alone). ``vouched``: whether the frame's test vouches for its position: only then does where it sees
+    a node count for the stretch of the row the print carried the node across. ``fp``: the f the frame was divided
+    by at each sample (:func:`apply`). ``rival``,
+    ``rival_var`` out: what the print's side says each sample is before the sensor's side, and that account's
+    variance — the model's value times ``1 + fp`` where the map is used (variance 0: the model's), the node's
+    prediction where it holds a candidate the motion has not decided (the node's variance) — against which the
+    sensor's map weighs its own evidence, as this map weighs its against ``other``. Returns the nodes that
+    jumped."""
     jump, rate = params[0], params[1]
     jumped = 0
     for p in range(y.size):
         j = k[p]
+        rival[p] = (1.0 + fp[p]) * h[p]
+        rival_var[p] = 0.0
         if j < 0 or mask[p] <= 0.0 or not touched[j]:
             continue
         if t_last[j] != t_last[j]:
@@ -161,11 +171,15 @@ def learn(y: np.ndarray, h: np.ndarray, other: np.ndarray, other_var: np.ndarray
             s[j] += jump
             s_pred = hp * hp * s[j] + var_y
             jumped += 1
-        position = px[p] - a[p] / NODES_PER_PIXEL  # where along the row the node itself was seen
-        if position < lo[j]:
-            lo[j] = position
-        if position > hi[j]:
-            hi[j] = position
+        if fp[p] == 0.0:  # a candidate here, not used: its account is the print's rival to the sensor's pair
+            rival[p] = y[p] - r
+            rival_var[p] = hp * hp * s[j]
+        if vouched:  # (where along the row a frame the test flagged placed the node says nothing of the motion)
+            position = px[p] - a[p] / NODES_PER_PIXEL  # where along the row the node itself was seen
+            if position < lo[j]:
+                lo[j] = position
+            if position > hi[j]:
+                hi[j] = position
         r0 = y[p] - other[p]
         s0 = var_y + other_var[p]
         evidence[j] += 0.5 * (r0 * r0 / s0 - r * r / s_pred - math.log(s_pred / s0))
@@ -255,6 +269,8 @@ class PrintMap(ToldMarks):
         self.k, self.a = np.full(n_values, -1, dtype=np.int64), np.zeros(n_values)
         self.h = np.zeros(n_values)
         self.fp = np.zeros(n_values)  # the f each sample of the last frame seen was divided by
+        # what the print's side said each sample of the last frame learned from is, and that account's variance
+        self.rival, self.rival_var = np.zeros(n_values), np.zeros(n_values)
         self.active = False
         self.jumps = 0
         self.landed = 0  # nodes touched as candidates, in all
@@ -306,11 +322,13 @@ class PrintMap(ToldMarks):
         return fresh
 
     def learn(self, y: np.ndarray, h: np.ndarray, other: np.ndarray, other_var: np.ndarray, noise_var: np.ndarray,
-              mask: np.ndarray, t: float, teach: bool = True) -> int:
-        """The placed frame (located by the last :meth:`seen`) into the nodes it sees (:func:`learn`)."""
+              mask: np.ndarray, t: float, teach: bool = True, vouched: bool = True) -> int:
+        """The placed frame (located by the last :meth:`seen`) into the nodes it sees (:func:`learn`); ``rival``
+        and ``rival_var`` then hold the print's side's account of each sample."""
         self.h[:] = h
         jumped = learn(y, h, other, other_var, noise_var, mask, self.level, t, self.z2, self.params, self.k, self.a,
-                       self.px, self.touched, self.f, self.s, self.evidence, self.lo, self.hi, self.t_last, teach)
+                       self.px, self.touched, self.f, self.s, self.evidence, self.lo, self.hi, self.t_last, teach,
+                       vouched, self.fp, self.rival, self.rival_var)
         self.jumps += jumped
         return jumped
 

@@ -72,12 +72,15 @@ def apply(y: np.ndarray, mask: np.ndarray, touched: np.ndarray, f: np.ndarray, e
         mask_out[p] = mask[p] * var_model * scale * scale / (var_raw + mask[p] * var_map)
 
 
-def learn(y: np.ndarray, expected: np.ndarray, noise_var: np.ndarray, mask: np.ndarray, level: float,
-          dt: float, z2: float, params: np.ndarray, touched: np.ndarray, f: np.ndarray, e: np.ndarray,
-          sff: np.ndarray, sfe: np.ndarray, see: np.ndarray, evidence: np.ndarray, teach: bool, h: np.ndarray) -> int:
+def learn(y: np.ndarray, expected: np.ndarray, rival: np.ndarray, rival_var: np.ndarray, noise_var: np.ndarray,
+          mask: np.ndarray, level: float, dt: float, z2: float, params: np.ndarray, touched: np.ndarray, f: np.ndarray,
+          e: np.ndarray, sff: np.ndarray, sfe: np.ndarray, see: np.ndarray, evidence: np.ndarray, rivalry: np.ndarray,
+          teach: bool, h: np.ndarray) -> int:
     """One placed frame into the map's touched samples. ``y``: the frame's raw values, ``expected``: what the
     posterior state predicts at each sample before the sensor's side (the model's value, with what the print's
-    map holds there), ``noise_var``:
+    map holds there), ``rival``, ``rival_var``: what the print's side says the sample is where the sensor's side
+    is as calibrated, and that account's variance (``expected`` and 0, but where the print's map holds a
+    candidate there the motion has not decided, that candidate's prediction and variance), ``noise_var``:
     the noise model's variance there (kernel.residuals), ``mask``: the raw frame's weights, ``level``: the
     calibration's χ² per sample, ``dt``: the interval since the last frame (s), ``z2``: the per-sample test's
     threshold (σ²), ``params``: the jumps' and the rates' variances (gain jump, offset jump; gain rate, offset
@@ -86,7 +89,10 @@ def learn(y: np.ndarray, expected: np.ndarray, noise_var: np.ndarray, mask: np.n
     touched sample's log-likelihood ratio of "changed" (its pair) over "as calibrated" (f = e = 0) over the
     frames since its last jump (each one's predictive density); where it falls below nought the frames speak
     for the calibration again (a glint gone, a print mark moved on, a shadow passed) and the sample is as
-    calibrated again. ``teach``: whether the pairs learn from this frame (not where the frame's position is
+    calibrated again. ``rivalry``: the same ratio over the print's side's account (``rival``): at the pixel a
+    mark landed at, the two candidates tell the same and it stays near nought until the motion carries the
+    print's candidate away — what tells the maps apart (:meth:`SensorMap.learned`), where ``evidence`` says only
+    that something changed. ``teach``: whether the pairs learn from this frame (not where the frame's position is
     carried by the state's memory: what it leaves at a sample then speaks of the position as much as of the
     sample); the evidence is weighed and a sample let go either way, so none is held aside by a map that
     cannot learn. ``h`` out: each sample's predicted model value. Returns the samples that jumped."""
@@ -107,16 +113,21 @@ def learn(y: np.ndarray, expected: np.ndarray, noise_var: np.ndarray, mask: np.n
         if r * r > z2 * s:
             # a change beyond what the pair holds: the evidence for a change starts again with this frame's
             evidence[p] = 0.0
+            rivalry[p] = 0.0
             sff[p] += jump_ff
             see[p] += jump_ee
             s = hp * hp * sff[p] + 2.0 * hp * sfe[p] + see[p] + var_y
             jumped += 1
-        # the frame's evidence for the pair over the calibration at this sample (each one's predictive density)
+        # the frame's evidence for the pair over the calibration and over the print's side's account at this
+        # sample (each one's predictive density)
         r0 = y[p] - hp
         evidence[p] += 0.5 * (r0 * r0 / var_y - r * r / s - math.log(s / var_y))
+        r0 = y[p] - rival[p]
+        s0 = var_y + rival_var[p]
+        rivalry[p] += 0.5 * (r0 * r0 / s0 - r * r / s - math.log(s / s0))
         if evidence[p] < 0.0:
             touched[p] = False
-            f[p], e[p], sff[p], sfe[p], see[p], evidence[p] = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+            f[p], e[p], sff[p], sfe[p], see[p], evidence[p], rivalry[p] = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
             continue
         if not teach:
             continue
@@ -132,7 +143,7 @@ def learn(y: np.ndarray, expected: np.ndarray, noise_var: np.ndarray, mask: np.n
 
 def land(residual: np.ndarray, weight: np.ndarray, level: float, z2: float, most: float, jump_ff: float,
          jump_ee: float, reach: int, row: int, touched: np.ndarray, sff: np.ndarray, see: np.ndarray,
-         evidence: np.ndarray, core: np.ndarray) -> int:
+         evidence: np.ndarray, rivalry: np.ndarray, core: np.ndarray) -> int:
     """Samples something has landed on, from a frame's solve: ``residual`` and ``weight`` (the noise model's
     inverse variance with the frame's mask) as the update left them. An untouched sample whose residual
     fails its test (``z2``, σ², against the noise model at the calibration's ``level``) is touched, its pair
@@ -170,6 +181,7 @@ def land(residual: np.ndarray, weight: np.ndarray, level: float, z2: float, most
             if weight[q] > 0.0 and not touched[q]:
                 touched[q] = True
                 evidence[q] = 0.0
+                rivalry[q] = 0.0
                 sff[q] = jump_ff
                 see[q] = jump_ee
     return fresh
@@ -203,6 +215,7 @@ class SensorMap(ToldMarks):
         self.f, self.e = np.zeros(n), np.zeros(n)
         self.sff, self.sfe, self.see = np.zeros(n), np.zeros(n), np.zeros(n)
         self.evidence = np.zeros(n)
+        self.rivalry = np.zeros(n)  # the evidence over the print's side's account (learn)
         self.h = np.zeros(n)
         self.active = False  # anything landed yet: else the map is the identity and costs nothing
         self.jumps = 0
@@ -211,7 +224,7 @@ class SensorMap(ToldMarks):
 
     def reset(self) -> None:
         self.touched[:] = False
-        for array in (self.f, self.e, self.sff, self.sfe, self.see, self.evidence):
+        for array in (self.f, self.e, self.sff, self.sfe, self.see, self.evidence, self.rivalry):
             array[:] = 0.0
         self.active = False
         self.jumps = 0
@@ -228,16 +241,17 @@ class SensorMap(ToldMarks):
         """Samples something landed on, from a frame's solve (:func:`land`); the frame is to be seen again.
         A negative count: that many failed, too many for the map (nothing landed)."""
         fresh = land(residual, weight, self.level, self.z2, self.most, self.params[0], self.params[1], self.reach,
-                     self.row, self.touched, self.sff, self.see, self.evidence, self.core)
+                     self.row, self.touched, self.sff, self.see, self.evidence, self.rivalry, self.core)
         if fresh > 0:
             self.active = True
             self.jumps += fresh
         return fresh
 
-    def learn(self, y: np.ndarray, expected: np.ndarray, noise_var: np.ndarray, mask: np.ndarray, dt: float,
-              teach: bool = True) -> int:
-        jumped = learn(y, expected, noise_var, mask, self.level, dt, self.z2, self.params, self.touched,
-                       self.f, self.e, self.sff, self.sfe, self.see, self.evidence, teach, self.h)
+    def learn(self, y: np.ndarray, expected: np.ndarray, rival: np.ndarray, rival_var: np.ndarray,
+              noise_var: np.ndarray, mask: np.ndarray, dt: float, teach: bool = True) -> int:
+        jumped = learn(y, expected, rival, rival_var, noise_var, mask, self.level, dt, self.z2, self.params,
+                       self.touched, self.f, self.e, self.sff, self.sfe, self.see, self.evidence, self.rivalry, teach,
+                       self.h)
         self.jumps += jumped
         return jumped
 
@@ -245,9 +259,11 @@ class SensorMap(ToldMarks):
         """The samples the map holds a change for, told apart from the print by the motion: the pair known
         to ``resolved`` of the light in both directions (the motion has separated f from e), beyond zero at
         the false-alarm rate's per-sample threshold, and its evidence over the calibration (which holds what
-        the print's map says there) that of one sample's test at that rate (the likelihood ratio's log at
-        z²/2, as a node of the print's map needs): a pair the frames barely tell from the calibration is not
-        a mark, nor one within what the calibration itself leaves at the sample."""
+        the print's map uses there) and over the print's side's account (its candidate there, while it had one)
+        each that of one sample's test at that rate (the likelihood ratio's log at z²/2, as a node of the
+        print's map needs against the sensor's side): a pair the frames barely tell from the calibration is not
+        a mark, nor one within what the calibration itself leaves at the sample, nor one the print's candidate
+        explained as well while it lay under the sample (a speck on the print seen while the stage rested)."""
         out = np.zeros(self.touched.size, dtype=bool)
         where = np.flatnonzero(self.touched)
         if where.size == 0:
@@ -263,7 +279,8 @@ class SensorMap(ToldMarks):
         det = np.maximum(a * d - b * b, 1e-300)
         x, w = self.f[where], self.e[where] / g
         distance = (d * x * x - 2.0 * b * x * w + a * w * w) / det
-        out[where] = (largest < resolved ** 2) & (distance > self.z2) & (self.evidence[where] >= 0.5 * self.z2)
+        out[where] = (largest < resolved ** 2) & (distance > self.z2) & (self.evidence[where] >= 0.5 * self.z2) & \
+            (self.rivalry[where] >= 0.5 * self.z2)
         return out
 
     def describe(self) -> dict[str, object]:
@@ -297,7 +314,9 @@ class SensorMap(ToldMarks):
                 raise ValueError(f"{state['samples']} samples of {state['pixels']} pixels, the map has "
                                  f"{self.touched.size} of {self.row}")
             where = np.asarray(state["touched"], dtype=np.int64).reshape(-1)
-            pairs = {name: np.asarray(state[name], dtype=np.float64) for name in PAIR}
+            # (a document written before the rivalry was kept: the evidence over the calibration stands for it)
+            pairs = {name: np.asarray(state[name if name in state or name != "rivalry" else "evidence"],
+                                      dtype=np.float64) for name in PAIR}
             jumps = int(state.get("jumps", 0))
         except (KeyError, TypeError, AttributeError) as exc:
             raise ValueError(f"not a sensor map state ({type(exc).__name__}: {exc})") from None
@@ -337,7 +356,8 @@ class SensorMap(ToldMarks):
 
 
 MAP_STATE_VERSION = 1  # of :meth:`SensorMap.state`'s document
-PAIR = ("f", "e", "sff", "sfe", "see", "evidence")  # a touched sample's arrays, as the state document names them
+# a touched sample's arrays, as the state document names them
+PAIR = ("f", "e", "sff", "sfe", "see", "evidence", "rivalry")
 COVARIANCE_SLACK = 1e-6  # relative: a pair's covariance rounded through JSON may sit this far past semidefinite
 
 

@@ -34,7 +34,7 @@ def speck(sensor: SensorMap, samples: range, gain: float, offset: float = 0.2, s
     sensor.touched[where] = True
     sensor.f[where], sensor.e[where] = gain - 1.0, offset
     sensor.sff[where], sensor.see[where], sensor.sfe[where] = sigma_gain ** 2, sigma_offset ** 2, 0.0
-    sensor.evidence[where] = 40.0
+    sensor.evidence[where] = sensor.rivalry[where] = 40.0
     sensor.active = True
 
 
@@ -66,13 +66,50 @@ def test_a_state_restores_the_same_map_through_json() -> None:
     again = blank()
     again.restore(state)
     assert again.active and np.array_equal(again.touched, sensor.touched)
-    for name in ("f", "e", "sff", "sfe", "see", "evidence"):
+    for name in ("f", "e", "sff", "sfe", "see", "evidence", "rivalry"):
         assert np.array_equal(getattr(again, name), getattr(sensor, name)), name
     assert np.array_equal(again.learned(), sensor.learned()) and again.marks() == sensor.marks()
     assert again.look(1) == []  # what was restored is what the next look compares against: not learned again
     empty = blank()
     empty.restore(blank().state())
     assert not empty.active and not empty.touched.any()
+
+
+def test_a_state_written_before_the_rivalry_was_kept_restores_it_from_the_evidence() -> None:
+    """A document without ``rivalry`` (the evidence over the print's candidate) was written when the evidence over
+    the calibration was the only one: it stands for both, and the same samples are learned."""
+    sensor = dusty()
+    state = json.loads(json.dumps(sensor.state()))
+    del state["rivalry"]
+    again = blank()
+    again.restore(state)
+    assert np.array_equal(again.rivalry, sensor.evidence)
+    assert np.array_equal(again.learned(), sensor.learned())
+
+
+def test_a_pair_the_prints_candidate_explains_as_well_is_not_told() -> None:
+    """One sample made 30 % darker while the light under it changes (the motion resolves the pair): told as a mark
+    when the print's side holds nothing there (its account is the calibration's), not when the print's candidate
+    at that sample predicts the same darkening — then the frames say something changed (its evidence over the
+    calibration grows) but not on which side (its rivalry stays near nought), and the map does not say it."""
+    rng = np.random.default_rng(3)
+    told = {}
+    for candidate in (False, True):
+        sensor = blank()
+        sensor.active = True
+        mask, noise_var = np.ones(sensor.touched.size), np.full(sensor.touched.size, 4.0 + 0.1 * 95.0)
+        sensor.land(np.where(np.arange(sensor.touched.size) == 7, 100.0, 0.0), mask / noise_var)
+        for frame in range(200):
+            h = np.full(sensor.touched.size, 60.0 + 80.0 * (frame % 20) / 19.0)
+            y = h * np.where(np.arange(h.size) == 7, 0.7, 1.0) + rng.normal(0.0, 3.0, h.size)
+            rival = h * np.where(np.arange(h.size) == 7, 0.7, 1.0) if candidate else h
+            rival_var = np.where(np.arange(h.size) == 7, (0.01 * h) ** 2, 0.0) if candidate else np.zeros(h.size)
+            sensor.learn(y, h, rival, rival_var, noise_var, mask, 0.05)
+        assert sensor.touched[7] and sensor.evidence[7] > 100.0
+        told[candidate] = bool(sensor.learned()[7])
+        if candidate:
+            assert abs(sensor.rivalry[7]) < 0.5 * sensor.z2, sensor.rivalry[7]
+    assert told == {False: True, True: False}
 
 
 @pytest.mark.parametrize("change,reason", [

@@ -295,6 +295,19 @@ class LiveServer:
     def wait_state(self, state: str, timeout_s: float = 20.0) -> dict[str, Any]:
         return _state_waiter(self.status, state, timeout_s, f"state {state!r}")
 
+    def after_calibration(self, change: tuple[float, float]) -> dict[str, Any]:
+        """Tracking on the start-up calibration, then waited on the rig's own clock until a change of the rig timed
+        ``change`` = (from, to) rig seconds has happened: the status then. The change must begin after the
+        calibration's sweep, which takes the rig's clock ~40 s on a quiet machine and over 100 s on a loaded one
+        (its serial exchanges run on the wall clock, the test's rig clock at 10x): otherwise the sweep would
+        calibrate it in, and the test's premise — a change after calibration — would not hold."""
+        tracking = self.wait_state("tracking", 60.0)
+        began = self.rig.clock.now()
+        assert began < change[0], (f"the start-up calibration ran into the change (tracking from {began:.0f} s of "
+                                   f"the rig's clock, the change from {change[0]:g} s)")
+        time.sleep(self.rig.clock.duration_to_host(change[1] - began))
+        return tracking
+
     def __enter__(self) -> "LiveServer":
         self.thread.start()
         wait_for(lambda: self.server.started, 10.0, "uvicorn to start")

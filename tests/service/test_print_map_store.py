@@ -17,22 +17,21 @@ from pathlib import Path
 from graytrack.service.daemon.app import create_app
 from tests.service.helpers import LiveServer, fast_settings, wait_for
 from tests.service.hostile import StreamReader
-from tests.service.test_sensor_map_store import (events, logged, lost_and_flagged, passes, restored_and_passed,
-                                                 switched_away_and_back)
+from tests.service.test_sensor_map_store import (LANDS, events, logged, lost_and_flagged, passes,
+                                                 restored_and_passed, switched_away_and_back)
 
-# specks settle on the print after the start-up calibration's sweep (sim seconds; the test clock runs 10x) ...
-SETTLING = {"camera": {"effects": "dust_settling:start_s=40,over_s=5"}}
+# specks settle on the print after the start-up calibration's sweep, while the stage rests (LANDS, rig seconds) ...
+SETTLING = {"camera": {"effects": f"dust_settling:start_s={LANDS[0]:g},over_s={LANDS[1] - LANDS[0]:g}"}}
 # ... and, for the daemon started again, the same specks (the effect's own random stream) on the print from the start
 ON_THE_PRINT = {"camera": {"effects": "dust_settling:start_s=0,over_s=0"}}
 LEARNED_MARKS = 3  # marks the map has learned before the first session is measured (thirty specks over the stroke)
 
 
 def one_pixel(told: list[str]) -> bool:
-    """Whether every mark told on the sensor's side is a single pixel. Known: where a speck on the print sat under
-    a pixel while the stage rested (a session started with the dust on, a turn at the field's edge), the sensor's
-    pair there may be told for a while as a contrast change (gain ≈ 1.17, offset ≈ −15 gray) before it is let go
-    (the map holds nothing at the end), since the sensor's evidence is weighed against the calibration and not
-    yet against the print's candidate there; counted in docs/daemon.md. Anything wider is a failure."""
+    """Whether every mark told on the sensor's side is a single pixel. Known: in ~2 of 10 sessions with dust on the
+    print, one pixel is told for a while as a contrast change (gain ≈ 1.1-1.25, offset ≈ −13 to −18 gray), its
+    evidence over both the calibration and the print's candidate far past the test (the frames at that pixel do
+    beat both accounts: not yet traced); counted in docs/daemon.md. Anything wider is a failure."""
     return all(re.search(r"pixels (\d+)-\1:", message) for message in told)
 
 
@@ -51,7 +50,7 @@ def test_the_print_map_survives_a_restart_and_a_rollback_drops_it(tmp_path: Path
     data = tmp_path / "data"
     kept = data / "print_map.json"
     with LiveServer(create_app(fast_settings(data, tables=SETTLING, engine="estimator"))) as daemon:
-        first = daemon.wait_state("tracking", 60.0)["active_calibration"]["id"]
+        first = daemon.after_calibration(LANDS)["active_calibration"]["id"]
         assert daemon.status()["texture"] is None  # the estimator's print is its print map
         with StreamReader(daemon.port) as stream:
             learn(daemon, stream)

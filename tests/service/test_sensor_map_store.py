@@ -20,8 +20,10 @@ from graytrack.service.daemon.app import create_app
 from tests.service.helpers import LiveServer, fast_settings, wait_for, wait_job
 from tests.service.hostile import StreamReader
 
-# Six specks land on the window after the start-up calibration's sweep (sim seconds; the test clock runs 10x) ...
-LANDING = {"camera": {"effects": "window_dust:start_s=40,over_s=5"}}
+# Six specks land on the window after the start-up calibration's sweep (rig seconds; the test clock runs 10x:
+# LiveServer.after_calibration) ...
+LANDS = (150.0, 155.0)
+LANDING = {"camera": {"effects": f"window_dust:start_s={LANDS[0]:g},over_s={LANDS[1] - LANDS[0]:g}"}}
 # ... and, for the daemon started again, the same specks (the effect's own random stream) on the window from the start
 ON_THE_WINDOW = {"camera": {"effects": "window_dust:start_s=0,over_s=0"}}
 PASS = (8.0, 2.0)  # mm: one pass of the print each way under the camera
@@ -115,7 +117,7 @@ def test_the_sensor_map_survives_a_restart_and_a_rollback_drops_it(tmp_path: Pat
     data = tmp_path / "data"
     kept = data / "sensor_map.json"
     with LiveServer(create_app(fast_settings(data, tables=LANDING, engine="estimator"))) as daemon:
-        first = daemon.wait_state("tracking", 60.0)["active_calibration"]["id"]
+        first = daemon.after_calibration(LANDS)["active_calibration"]["id"]
         assert daemon.status()["texture"] is None  # the estimator keeps the sensor's map, not (yet) the print's
         with StreamReader(daemon.port) as stream:
             learn(daemon, stream)
@@ -133,7 +135,9 @@ def test_the_sensor_map_survives_a_restart_and_a_rollback_drops_it(tmp_path: Pat
         assert along["texture"] is None and along["stroke_mm"][0] < along["stroke_mm"][1]
         sensor = along["sensor_map"]
         assert len(sensor["gain"]) == len(sensor["gain_sigma"]) == sensor["pixels"] == 100
-        assert len(sensor["learned"]) == learned["learned_samples"]  # one row: a sample is a pixel
+        # one row: a sample is a pixel (the two reads of a live map agree once a look has caught up with the last frame)
+        wait_for(lambda: len(daemon.get("/api/maps").json()["sensor_map"]["learned"]) ==
+                 daemon.status()["sensor_map"]["learned_samples"], 10.0, "the map's two reads to agree")
         untouched = sorted(set(range(100)) - set(sensor["touched"]))
         assert all(sensor["gain"][p] == 1.0 and sensor["gain_sigma"][p] == 0.0 for p in untouched)
         assert min(sensor["gain"][p] for p in sensor["learned"]) < 0.9
@@ -175,7 +179,7 @@ def test_the_frame_loop_tracks_with_a_saved_map_or_without_one_that_does_not_fit
     def saved(pixels: int) -> dict[str, Any]:
         sensor = SensorMap(pixels, np.array([4.0, 0.1, 5.0]), 1.0, 5.0, np.ones(4), 100.0, 0.5, 2, pixels)
         sensor.touched[40:46], sensor.f[40:46], sensor.sff[40:46], sensor.see[40:46] = True, -0.3, 1e-4, 0.25
-        sensor.evidence[40:46] = 40.0
+        sensor.evidence[40:46] = sensor.rivalry[40:46] = 40.0
         return sensor.state()
 
     for pixels, refused in ((model.n_pixels, False), (model.n_pixels + 1, True)):

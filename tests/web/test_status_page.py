@@ -275,9 +275,10 @@ def test_the_sensor_map_is_drawn_along_the_pixels_with_its_sigma(tmp_path: Path,
     from playwright.sync_api import expect
 
     from graytrack.service.daemon.app import create_app
-    from tests.service.test_sensor_map_store import LANDING, LEARNED_SAMPLES, learn
+    from tests.service.test_sensor_map_store import LANDING, LANDS, LEARNED_SAMPLES, learn
 
     with LiveServer(create_app(fast_settings(tmp_path, tables=LANDING, engine="estimator"))) as daemon:
+        daemon.after_calibration(LANDS)  # the specks have landed while the stage rests
         browser_page, console = phone_page(daemon, browser)
         sensor, info = browser_page.locator("#sensor-map"), browser_page.locator("#sensor-map-info")
         expect(sensor).to_have_attribute("data-learned", "0", timeout=10_000)  # the stage rests: nothing resolved
@@ -316,8 +317,10 @@ def test_the_print_map_is_drawn_along_the_target_with_its_sigma(tmp_path: Path, 
 
     from graytrack.service.daemon.app import create_app
     from tests.service.test_print_map_store import LEARNED_MARKS, SETTLING, learn
+    from tests.service.test_sensor_map_store import LANDS
 
     with LiveServer(create_app(fast_settings(tmp_path, tables=SETTLING, engine="estimator"))) as daemon:
+        daemon.after_calibration(LANDS)  # the specks have landed while the stage rests
         browser_page, console = phone_page(daemon, browser)
         printed, info = browser_page.locator("#print-map"), browser_page.locator("#print-map-info")
         # the stage rests: nothing decided (specks that landed meanwhile wait as candidates)
