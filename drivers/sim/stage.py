@@ -92,7 +92,9 @@ class SimStage:
         self._segments: list[_Segment] = [_Segment(float(t_s), float(position_mm), 0.0, 0.0, 0.0, 0.0)]
         self._last_command_t = float(t_s)
         self._target_mm = float(position_mm)
-        self._t_end = float(t_s)
+        # created at rest and settled already: a controller that has just powered up answers on target
+        # at once, not after its settle time (a client's first query can come within milliseconds)
+        self._t_end = float(t_s) - self.config.settle_time_s
         self._rebuild()
 
     # ----- settings -------------------------------------------------------------------------

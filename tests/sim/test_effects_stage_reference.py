@@ -25,6 +25,14 @@ def test_move_respects_velocity_and_acceleration_limits_and_arrives():
     assert not stage.on_target(t_end - 0.01) and stage.on_target(t_end + 0.2)
 
 
+def test_a_stage_at_rest_from_its_creation_is_on_target_at_once():
+    """A controller just powered up answers on target; a client's first #5 can come within milliseconds."""
+    stage = SimStage(SimStageConfig(), position_mm=3.0, t_s=100.0)
+    assert stage.on_target(100.0) and stage.on_target(100.0 + 1e-4)
+    t_end = stage.move_to(4.0, 100.0)
+    assert not stage.on_target(t_end) and stage.on_target(t_end + 0.2)
+
+
 def test_soft_limits_stop_and_moves_during_moves():
     stage = SimStage(SimStageConfig(soft_limits_mm=(0.0, 20.0)))
     with pytest.raises(SoftLimitError):
