@@ -13,7 +13,9 @@ Tunables are set with ``name=value`` arguments (core/estimator/settings.py), e.g
 Per run: the error std over the rms noise floor, the rms pull (error over the stated bound), frames
 lost, the share flagged, placed frames 4+ bounds off the truth and those unflagged (marked ``<<<``
 where they pass 0.5 % of the run's placed frames), the samples the sensor's map holds a change for at the
-end (core/estimator/sensor_map.py) and the print's nodes (print_map.py). The last lines: the totals and the steady runs.
+end (core/estimator/sensor_map.py) and the print's nodes (print_map.py). The last lines: the totals and the steady runs
+(nothing changed after calibration, each rig of the sweep plain as well: the acceptance's flagged < 1 % with nothing
+learned and an rms pull within 0.8-1.25), those outside it marked.
 """
 
 from __future__ import annotations
@@ -41,6 +43,10 @@ CACHE_VERSION = "3"  # what a cached case holds: 3, recordings that state the st
 # and models what their calibration's readings showed beyond them (core/estimator/mount.py); older cases are made again
 FAR_PULL = 4.0  # bounds off the truth beyond which a placed frame counts as far off
 SILENT_SHARE = 0.005  # of a run's placed frames: the acceptance's ceiling for far frames left unflagged
+STEADY_FLAGGED = 0.01  # of a steady run's frames: the acceptance's ceiling for flags where nothing changed
+STEADY_PULL = (0.8, 1.25)  # the acceptance's band for a steady run's rms error over its stated bound
+# every rig of the sweep also plain, nothing changed after calibration (the sweep names only the paper rig's)
+PLAIN = [(scenario, "", "") for scenario in dict.fromkeys(case[0] for case in CASES) if (scenario, "", "") not in CASES]
 
 
 def cached_case(folder: Path, scenario: str, rig_effects: str, later: str):
@@ -110,7 +116,7 @@ def main() -> None:
     args.cache.mkdir(parents=True, exist_ok=True)
     totals = dict.fromkeys(("frames", "placed", "lost", "flagged", "far", "silent", "seconds"), 0.0)
     over, steady = [], []
-    for number, (scenario, rig_effects, later) in enumerate(CASES):
+    for number, (scenario, rig_effects, later) in enumerate(CASES + PLAIN):
         label = f"{scenario} {rig_effects} {later}"
         if args.only not in label or number % shards != shard:
             continue
@@ -127,14 +133,20 @@ def main() -> None:
                     f"lost {score['lost']:4d} flag {100 * score['flagged'] / score['frames']:5.1f}% "
                     f"far {score['far']:4d} silent {score['silent']:4d} map {score['map']:3d} "
                     f"print {score['print']:4d}{mark}")
-            if not rig_effects and not later:
-                steady.append(line)
+            if not later:
+                low, high = STEADY_PULL
+                honest = score["flagged"] <= STEADY_FLAGGED * score["frames"] and low <= score["pull"] <= high \
+                    and not score["map"] and not score["print"]
+                steady.append(line + ("" if honest else " ***"))
             print(line, flush=True)
     placed = max(totals["placed"], 1)
     print(f"total: placed {totals['placed']:.0f}, 4+ bounds off {totals['far']:.0f}, unflagged {totals['silent']:.0f} "
           f"({100 * totals['silent'] / placed:.3f} %), flagged {totals['flagged']:.0f}, lost {totals['lost']:.0f}; "
           f"{len(over)} runs over {100 * SILENT_SHARE:.1f} % unflagged ({sum(over)} frames); "
           f"{totals['frames'] / max(totals['seconds'], 1e-9):.0f} frames/s")
+    print(f"steady: {len(steady)} runs, {sum(line.endswith('***') for line in steady)} outside the acceptance (***: "
+          f"flagged over {100 * STEADY_FLAGGED:.0f} %, something learned, or an rms pull outside "
+          f"{STEADY_PULL[0]}-{STEADY_PULL[1]})")
     for line in steady:
         print("steady:", line)
 
