@@ -418,6 +418,10 @@ class Estimator:
         y, mask = self._through_maps(y_raw, raw_mask, not acquiring)
         if acquiring:
             self._acquire(y, mask, t, reference_mm)
+        if self.idx is not self.idx_plain and not self.s.item(BE) > 0.0:
+            # a band the search took on a frame it then could not place is not followed: its states were never set,
+            # and solved among the active ones their zero prior would make this update singular
+            self._band_off()
         grating_z = reference_mm if self.grating == "fuse" and math.isfinite(reference_mm) else math.nan
         s_prior, P_prior = self.s, self.P  # read, never written (once predicted), until the posterior replaces them
         s, A, stats = self._solve(y, mask, s_prior, P_prior, grating_z, out=self._answer, predict=predict)
@@ -811,8 +815,14 @@ class Estimator:
             rival, rival_var = self.print_map.rival, self.print_map.rival_var
         else:
             rival, rival_var = expected, self._zeros
-        if self.sensor.active:
-            self.sensor.learn(y_raw, expected, rival, rival_var, self._noise_var, raw_mask, self.dt_last, teach)
+        if self.sensor.active and self.sensor.learn(y_raw, expected, rival, rival_var, self._noise_var, raw_mask,
+                                                    self.dt_last, teach) > 0 and self._printed:
+            # A sample the sensor's side held that fails what it holds is something new there (a speck the print
+            # carries past the pixel, or one settling on it at rest): a candidate on the print too, as a sample
+            # neither map held is (_land_at), or the sensor's pair, with the print's side as calibrated there,
+            # would beat it on the print's own mark.
+            xi, stretch, _ = self._image(self.s)
+            self.print_map.land(self.sensor.jumped, t, xi, stretch)
 
     def _prepared(self, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The frame's gray values as the model sees them (its ``prepare``) and their mask."""
@@ -965,7 +975,10 @@ class Estimator:
             # grating tests the position; fused, it pins it): the frame is said to be in its light, not vouched for.
             stale, reason = True, reason or "light"
             message = message or "a band of shadow or veil in view, no grating to check the position against"
-        if var_x > settings.dominance * floor2 * bound_factor ** 2:
+        # A position the frame cannot vouch for (its variance carried by what its image cannot see) is flagged with
+        # what carries it; where the grating is read and checked its test above is the position's test, and a frame
+        # it finds where the image put it is vouched for by it.
+        if var_x > settings.dominance * floor2 * bound_factor ** 2 and not (checked and reference_mm == reference_mm):
             carried = "geometry" if model_var > var_x - model_var - floor2 else self._carrier()
             if carried:
                 stale, reason = True, reason or carried

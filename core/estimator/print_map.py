@@ -399,6 +399,12 @@ class PrintMap(ToldMarks):
             getattr(self, name)[where] = array
         self.t_last[where] = math.nan
         self.h[:] = self.mean_gray
+        # what the last run had not decided starts again as a candidate just landed (as the sensor map's,
+        # sensor_map.py restore: kept, one would be decided at its first deviation on the last run's travel and
+        # evidence)
+        undecided = where[~self.learned()[where]]
+        self.f[undecided], self.s[undecided], self.evidence[undecided] = 0.0, self.params[0], 0.0
+        self.hi[undecided] = self.lo[undecided]
         self.active = bool(where.size)
         self.jumps, self.landed = max(jumps, 0), max(landed, 0)
         self.restore_told()

@@ -75,7 +75,7 @@ def apply(y: np.ndarray, mask: np.ndarray, touched: np.ndarray, f: np.ndarray, e
 def learn(y: np.ndarray, expected: np.ndarray, rival: np.ndarray, rival_var: np.ndarray, noise_var: np.ndarray,
           mask: np.ndarray, level: float, dt: float, z2: float, params: np.ndarray, touched: np.ndarray, f: np.ndarray,
           e: np.ndarray, sff: np.ndarray, sfe: np.ndarray, see: np.ndarray, evidence: np.ndarray, rivalry: np.ndarray,
-          teach: bool, h: np.ndarray) -> int:
+          teach: bool, h: np.ndarray, jumped_out: np.ndarray) -> int:
     """One placed frame into the map's touched samples. ``y``: the frame's raw values, ``expected``: what the
     posterior state predicts at each sample before the sensor's side (the model's value, with what the print's
     map holds there), ``rival``, ``rival_var``: what the print's side says the sample is where the sensor's side
@@ -95,12 +95,14 @@ def learn(y: np.ndarray, expected: np.ndarray, rival: np.ndarray, rival_var: np.
     that something changed. ``teach``: whether the pairs learn from this frame (not where the frame's position is
     carried by the state's memory: what it leaves at a sample then speaks of the position as much as of the
     sample); the evidence is weighed and a sample let go either way, so none is held aside by a map that
-    cannot learn. ``h`` out: each sample's predicted model value. Returns the samples that jumped."""
+    cannot learn. ``h`` out: each sample's predicted model value; ``jumped_out`` out: the samples that jumped. Returns
+    how many jumped."""
     jump_ff, jump_ee, rate_ff, rate_ee = params[0], params[1], params[2] * dt, params[3] * dt
     jumped = 0
     for p in range(y.size):
         hp = expected[p]
         h[p] = hp
+        jumped_out[p] = False
         if mask[p] <= 0.0:
             continue
         r = y[p] - ((1.0 + f[p]) * hp + e[p])  # the raw sample's residual against what the pair predicts
@@ -118,6 +120,7 @@ def learn(y: np.ndarray, expected: np.ndarray, rival: np.ndarray, rival_var: np.
             see[p] += jump_ee
             s = hp * hp * sff[p] + 2.0 * hp * sfe[p] + see[p] + var_y
             jumped += 1
+            jumped_out[p] = True
         # the frame's evidence for the pair over the calibration and over the print's side's account at this
         # sample (each one's predictive density)
         r0 = y[p] - hp
@@ -221,6 +224,7 @@ class SensorMap(ToldMarks):
         self.jumps = 0
         self._y, self._mask, self._noise_var = np.empty(n), np.empty(n), np.empty(n)
         self.core = np.zeros(n, dtype=np.bool_)  # the samples the last land found failing, held by neither map
+        self.jumped = np.zeros(n, dtype=np.bool_)  # the held samples the last learn found failing their pair
 
     def reset(self) -> None:
         self.touched[:] = False
@@ -251,7 +255,7 @@ class SensorMap(ToldMarks):
               noise_var: np.ndarray, mask: np.ndarray, dt: float, teach: bool = True) -> int:
         jumped = learn(y, expected, rival, rival_var, noise_var, mask, self.level, dt, self.z2, self.params,
                        self.touched, self.f, self.e, self.sff, self.sfe, self.see, self.evidence, self.rivalry, teach,
-                       self.h)
+                       self.h, self.jumped)
         self.jumps += jumped
         return jumped
 
@@ -336,6 +340,15 @@ class SensorMap(ToldMarks):
             getattr(self, name)[where] = values
         # the model's value at each touched sample is the next frame's to say (learn): until then the light's mean
         self.h[where] = self.mean_gray
+        # What the last run had not decided starts again as a candidate just landed (as calibrated, the jumps'
+        # variance, no evidence): its pair and evidence spoke of the print as it passed then, and the rig may have
+        # changed while it was off. Kept, a candidate would meet this run's first deviation at its sample with the
+        # last run's frames behind it (its pair resolved, its evidence won) and be told before the motion has said
+        # whose it is; landed again, it waits outside the position until this run's motion decides.
+        undecided = where[~self.learned()[where]]
+        for name in PAIR:
+            getattr(self, name)[undecided] = 0.0
+        self.sff[undecided], self.see[undecided] = self.params[0], self.params[1]
         self.active = bool(where.size)
         self.jumps = max(jumps, 0)
         self.restore_told()

@@ -168,7 +168,8 @@ TUNABLES: dict[str, Tunable] = {
         2.0, "1 (variance ratio)",
         "a position whose variance is more than this times the frame's own noise floor's is carried by "
         "the state's memory of what the frames cannot see (a knock, a lens without the grating): it is "
-        "flagged with the state that carries it", low=1.0),
+        "flagged with the state that carries it, unless a grating read and checked finds it where the image put it",
+        low=1.0),
     "core_sigma": Tunable(
         3.5, "σ", "robust weight: full for samples within this many robust σ (the measurement's outlier model)",
         low=1.0),

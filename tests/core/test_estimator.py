@@ -252,6 +252,34 @@ def test_samples_that_are_not_numbers_are_set_aside_and_the_frame_placed(paper):
         assert abs(estimate.x_mm - truth.x_mm[k]) < 4.0 * estimate.crlb_mm, k
 
 
+def test_a_checked_grating_is_the_one_test_of_a_16_row_strips_position():
+    """With the grating read and checked, the position is tested against it at the false-alarm rate on every frame:
+    a frame whose bound is carried by states its image cannot see (the light's shape over less than a period) but
+    which the grating finds where the image put it is not flagged on that account (on this steady strip 4 % of the
+    frames were, each of them within its bound of the truth)."""
+    calibration, _ = build_rig("strip16", "", seed=3).record(20.0)
+    model = calibrate(calibration, "paper").model
+    run, truth = build_rig("strip16", "", seed=3, run=1).record(10.0)
+    estimates = track(model, run.frames, run.t, run.reference, grating="check")
+    error, bound = _errors(model, estimates, truth, "check")
+    assert sum(e.stale for e in estimates) < 0.01 * len(estimates), [e.message for e in estimates if e.stale][:3]
+    assert np.all(np.abs(error) < 4 * bound)
+    assert 0.8 <= np.sqrt(np.mean((error / bound) ** 2)) <= 1.25
+
+
+def test_a_band_taken_on_a_frame_that_is_not_placed_is_not_followed(paper):
+    """The search takes a band (its states among the solved ones) on a frame it then cannot place: the band's states
+    were never set, and solved with their zero prior the next update was singular (LinAlgError out of the frame loop,
+    seen on dust settling on the print after 535 frames). The band is let go before the next frame is solved."""
+    run, _ = build_rig("paper", "", seed=4, run=2).record(1.0)
+    estimator = Estimator(paper)
+    track(paper, run.frames[:10], run.t[:10], run.reference[:10], estimator=estimator)
+    estimator._band_on()  # (as the search does when a band's shape explains a frame it then cannot place)
+    placed = [estimator.update(run.frames[k], float(run.t[k]), float(run.reference[k])) for k in range(10, 20)]
+    assert estimator.idx is estimator.idx_plain
+    assert all(math.isfinite(e.x_mm) for e in placed)
+
+
 def test_a_knocked_camera_on_one_row_is_learned_as_its_place():
     """One row has no turn across rows, but the camera's place is a state wherever the grating is fused: a
     knock (the image 40 µm further against the carriage) is that state's jump, not a light shape that mimics a
@@ -344,24 +372,31 @@ def test_a_camera_clock_running_fast_is_the_latchs_rate_not_the_lens(paper):
 
 
 def test_the_kernels_inverse_and_solve_are_linear_algebras_and_fall_back_where_not_positive_definite():
+    from graytrack.core import kernels
     from graytrack.core.estimator import kernel
 
+    inverse = kernel._inverse
+    if kernels.COMPILED:
+        # called as the update calls it, from compiled code: called from Python, a cached kernel that returns an
+        # array has no environment for its result once another kernel of the file was loaded from the cache with
+        # it (numba 0.68: "NRT_adapt_ndarray_to_python: 'descr' is NULL"); no caller outside the kernel does so
+        inverse = kernels.numba.njit(lambda A: kernel._inverse(A))
     rng = np.random.default_rng(7)
     for n in (1, 8, 13, 19):
         root = rng.normal(size=(n, n))
         spd = root @ root.T + 1e-3 * np.eye(n)  # positive definite, spread over decades
         rhs = rng.normal(size=n)
-        assert np.allclose(kernel._inverse(spd) @ spd, np.eye(n), atol=1e-8)
+        assert np.allclose(inverse(spd) @ spd, np.eye(n), atol=1e-8)
         out, factor = np.empty(n), np.zeros((n, n))
         kernel._solve(spd, rhs, out, factor)
         assert np.allclose(out, np.linalg.solve(spd, rhs), rtol=1e-9, atol=1e-9)
     indefinite = np.diag([2.0, -1.0, 3.0])  # invertible, no Cholesky factor: the general routine answers
-    assert np.allclose(kernel._inverse(indefinite), np.diag([0.5, -1.0, 1.0 / 3.0]))
+    assert np.allclose(inverse(indefinite), np.diag([0.5, -1.0, 1.0 / 3.0]))
     out = np.empty(3)
     kernel._solve(indefinite, np.array([2.0, 1.0, 3.0]), out, np.zeros((3, 3)))
     assert np.allclose(out, [1.0, -1.0, 1.0])
     with pytest.raises(np.linalg.LinAlgError):  # a singular matrix still raises, as the update expects of it
-        kernel._inverse(np.zeros((2, 2)))
+        inverse(np.zeros((2, 2)))
 
 
 def test_what_a_family_carries_is_the_positions_variance_given_its_states():

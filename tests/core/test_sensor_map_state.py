@@ -66,13 +66,31 @@ def test_a_state_restores_the_same_map_through_json() -> None:
     again = blank()
     again.restore(state)
     assert again.active and np.array_equal(again.touched, sensor.touched)
+    held = sensor.learned()
     for name in ("f", "e", "sff", "sfe", "see", "evidence", "rivalry"):
-        assert np.array_equal(getattr(again, name), getattr(sensor, name)), name
+        assert np.array_equal(getattr(again, name)[held], getattr(sensor, name)[held]), name
     assert np.array_equal(again.learned(), sensor.learned()) and again.marks() == sensor.marks()
     assert again.look(1) == []  # what was restored is what the next look compares against: not learned again
     empty = blank()
     empty.restore(blank().state())
     assert not empty.active and not empty.touched.any()
+
+
+def test_a_candidate_the_last_run_had_not_decided_comes_back_as_just_landed() -> None:
+    """Its pair and evidence spoke of the print as it passed then: restored as they were, a candidate resolved by the
+    last run's motion with its evidence won would be told at this run's first deviation at its sample (seen in the
+    daemon: dust on the print at rest after a restart, told on the sensor's side at the 20th frame). It comes back
+    as calibrated at the jumps' width with no evidence, to be decided by this run's motion; a mark stays a mark."""
+    sensor = dusty()
+    speck(sensor, range(30, 33), 1.0, offset=0.0)  # resolved at calibration's light, its evidence won: undecided
+    assert not sensor.learned()[30:33].any()
+    again = blank()
+    again.restore(json.loads(json.dumps(sensor.state())))
+    assert again.touched[30:33].all() and again.touched[90]
+    for p in (30, 31, 32, 90):
+        assert (again.f[p], again.e[p], again.sfe[p], again.evidence[p], again.rivalry[p]) == (0.0, 0.0, 0.0, 0.0, 0.0)
+        assert (again.sff[p], again.see[p]) == (again.params[0], again.params[1])
+    assert again.learned()[10:15].all() and again.marks() == sensor.marks()
 
 
 def test_a_state_written_before_the_rivalry_was_kept_restores_it_from_the_evidence() -> None:

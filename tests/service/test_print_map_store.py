@@ -25,6 +25,9 @@ SETTLING = {"camera": {"effects": f"dust_settling:start_s={LANDS[0]:g},over_s={L
 # ... and, for the daemon started again, the same specks (the effect's own random stream) on the print from the start
 ON_THE_PRINT = {"camera": {"effects": "dust_settling:start_s=0,over_s=0"}}
 LEARNED_MARKS = 3  # marks the map has learned before the first session is measured (thirty specks over the stroke)
+# a restored session's first pass decides again the specks the first session had not (they come back as candidates
+# just landed: core/estimator/print_map.py restore): issue #49's share for dust on the print, not a steady run's
+DUST_FLAGS = 0.05
 
 
 def one_pixel(told: list[str]) -> bool:
@@ -84,7 +87,8 @@ def test_the_print_map_survives_a_restart_and_a_rollback_drops_it(tmp_path: Path
     # started again on the same data directory, the dust still on the print: the map comes back and is used
     with LiveServer(create_app(fast_settings(data, tables=ON_THE_PRINT, engine="estimator"))) as daemon:
         assert lost_before == 0.0
-        restored_and_passed(daemon, "print_map", "the print", first, len(on_disk["marks"]), flagged_before)
+        restored_and_passed(daemon, "print_map", "the print", first, len(on_disk["marks"]), flagged_before,
+                            DUST_FLAGS)
         assert daemon.status()["print_map"]["learned_nodes"] >= 0.75 * sum(on_disk["learned"])
         assert one_pixel(events(daemon, "sensor_map_learned", after=first_session))
 
