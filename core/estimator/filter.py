@@ -307,6 +307,7 @@ class Estimator:
         self.t_last: float | None = None
         self.last_frame: np.ndarray | None = None
         self.dt_last = 0.0
+        self._xi_last = math.nan  # the image's position at the last frame the maps learned from (mm)
         self.failed = 0
         self.started = False
         mid = 0.5 * (float(model.stroke_range_mm[0]) + float(model.stroke_range_mm[1]))
@@ -379,6 +380,7 @@ class Estimator:
         self.P[:] = np.diag(prior ** 2)
         self.t_last = t
         self.started = True
+        self._xi_last = math.nan
         self.failed = 0
         self._unexplained = []
         self._placed_again = False
@@ -815,8 +817,11 @@ class Estimator:
             rival, rival_var = self.print_map.rival, self.print_map.rival_var
         else:
             rival, rival_var = expected, self._zeros
+        xi = self._image(self.s)[0]
+        moved = abs(xi - self._xi_last) / self.model.pixel_pitch_mm if self._xi_last == self._xi_last else 0.0
+        self._xi_last = xi
         if self.sensor.active and self.sensor.learn(y_raw, expected, rival, rival_var, self._noise_var, raw_mask,
-                                                    self.dt_last, teach) > 0 and self._printed:
+                                                    self.dt_last, teach, moved) > 0 and self._printed:
             # A sample the sensor's side held that fails what it holds is something new there (a speck the print
             # carries past the pixel, or one settling on it at rest): a candidate on the print too, as a sample
             # neither map held is (_land_at), or the sensor's pair, with the print's side as calibrated there,

@@ -43,11 +43,9 @@ from typing import Any
 
 from graytrack.core import kernels
 from graytrack.core.estimator.marks import MarkShape, ToldMarks, figure, runs
-from graytrack.core.estimator.sensor_map import BLOCKED
+from graytrack.core.estimator.sensor_map import BLOCKED, TRAVEL_PX  # (TRAVEL_PX: a node carried across it is used)
 
 NODES_PER_PIXEL = 4  # nodes a pixel's footprint on the target (module docstring: a speck keeps its shape)
-TRAVEL_PX = 1.0  # pixels the print must have carried a node across before it is used: seen by two pixels, a
-# mark on the sensor's side would have left it
 REACH_PX = 1.0  # how far a mark landing on the print reaches beyond the samples that fail their test: the print
 # is in focus, so a mark's edge below the test lies within a pixel of them (a mark on the window, out of focus,
 # reaches further: the sensor map's map_reach_px)

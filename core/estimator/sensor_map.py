@@ -35,6 +35,8 @@ from graytrack.core.estimator.marks import CHANGED_Z, MarkShape, ToldMarks, figu
 
 # a sample whose light the map says is nearly all taken (1 + f below this) carries nothing of the position
 BLOCKED = 0.05
+TRAVEL_PX = 1.0  # pixels of the print's motion a candidate must hold its own over before either map uses it: seen
+# by two pixels, a mark on the print has moved on and one on the sensor's side has stayed (print_map.py's too)
 
 
 def apply(y: np.ndarray, mask: np.ndarray, touched: np.ndarray, f: np.ndarray, e: np.ndarray, sff: np.ndarray,
@@ -75,7 +77,7 @@ def apply(y: np.ndarray, mask: np.ndarray, touched: np.ndarray, f: np.ndarray, e
 def learn(y: np.ndarray, expected: np.ndarray, rival: np.ndarray, rival_var: np.ndarray, noise_var: np.ndarray,
           mask: np.ndarray, level: float, dt: float, z2: float, params: np.ndarray, touched: np.ndarray, f: np.ndarray,
           e: np.ndarray, sff: np.ndarray, sfe: np.ndarray, see: np.ndarray, evidence: np.ndarray, rivalry: np.ndarray,
-          teach: bool, h: np.ndarray, jumped_out: np.ndarray) -> int:
+          teach: bool, h: np.ndarray, jumped_out: np.ndarray, moved: float, travel: np.ndarray) -> int:
     """One placed frame into the map's touched samples. ``y``: the frame's raw values, ``expected``: what the
     posterior state predicts at each sample before the sensor's side (the model's value, with what the print's
     map holds there), ``rival``, ``rival_var``: what the print's side says the sample is where the sensor's side
@@ -95,8 +97,11 @@ def learn(y: np.ndarray, expected: np.ndarray, rival: np.ndarray, rival_var: np.
     that something changed. ``teach``: whether the pairs learn from this frame (not where the frame's position is
     carried by the state's memory: what it leaves at a sample then speaks of the position as much as of the
     sample); the evidence is weighed and a sample let go either way, so none is held aside by a map that
-    cannot learn. ``h`` out: each sample's predicted model value; ``jumped_out`` out: the samples that jumped. Returns
-    how many jumped."""
+    cannot learn. ``h`` out: each sample's predicted model value; ``jumped_out`` out: the samples that jumped.
+    ``moved``: how far the print moved under the pixels since the last frame (px); ``travel``: over how much of the
+    print's motion each sample's rivalry has stayed above nought (a mark on the sensor's side keeps beating the
+    print's side while the print moves under it; a speck the print carries onto the pixel beats it for a frame or
+    two, and is gone). Returns how many jumped."""
     jump_ff, jump_ee, rate_ff, rate_ee = params[0], params[1], params[2] * dt, params[3] * dt
     jumped = 0
     for p in range(y.size):
@@ -116,6 +121,7 @@ def learn(y: np.ndarray, expected: np.ndarray, rival: np.ndarray, rival_var: np.
             # a change beyond what the pair holds: the evidence for a change starts again with this frame's
             evidence[p] = 0.0
             rivalry[p] = 0.0
+            travel[p] = 0.0
             sff[p] += jump_ff
             see[p] += jump_ee
             s = hp * hp * sff[p] + 2.0 * hp * sfe[p] + see[p] + var_y
@@ -128,9 +134,11 @@ def learn(y: np.ndarray, expected: np.ndarray, rival: np.ndarray, rival_var: np.
         r0 = y[p] - rival[p]
         s0 = var_y + rival_var[p]
         rivalry[p] += 0.5 * (r0 * r0 / s0 - r * r / s - math.log(s / s0))
+        travel[p] = travel[p] + moved if rivalry[p] > 0.0 else 0.0
         if evidence[p] < 0.0:
             touched[p] = False
             f[p], e[p], sff[p], sfe[p], see[p], evidence[p], rivalry[p] = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+            travel[p] = 0.0
             continue
         if not teach:
             continue
@@ -219,6 +227,7 @@ class SensorMap(ToldMarks):
         self.sff, self.sfe, self.see = np.zeros(n), np.zeros(n), np.zeros(n)
         self.evidence = np.zeros(n)
         self.rivalry = np.zeros(n)  # the evidence over the print's side's account (learn)
+        self.travel = np.zeros(n)  # the print's motion (px) under the sample while its rivalry held (learn)
         self.h = np.zeros(n)
         self.active = False  # anything landed yet: else the map is the identity and costs nothing
         self.jumps = 0
@@ -228,7 +237,7 @@ class SensorMap(ToldMarks):
 
     def reset(self) -> None:
         self.touched[:] = False
-        for array in (self.f, self.e, self.sff, self.sfe, self.see, self.evidence, self.rivalry):
+        for array in (self.f, self.e, self.sff, self.sfe, self.see, self.evidence, self.rivalry, self.travel):
             array[:] = 0.0
         self.active = False
         self.jumps = 0
@@ -252,10 +261,10 @@ class SensorMap(ToldMarks):
         return fresh
 
     def learn(self, y: np.ndarray, expected: np.ndarray, rival: np.ndarray, rival_var: np.ndarray,
-              noise_var: np.ndarray, mask: np.ndarray, dt: float, teach: bool = True) -> int:
+              noise_var: np.ndarray, mask: np.ndarray, dt: float, teach: bool = True, moved: float = 0.0) -> int:
         jumped = learn(y, expected, rival, rival_var, noise_var, mask, self.level, dt, self.z2, self.params,
                        self.touched, self.f, self.e, self.sff, self.sfe, self.see, self.evidence, self.rivalry, teach,
-                       self.h, self.jumped)
+                       self.h, self.jumped, moved, self.travel)
         self.jumps += jumped
         return jumped
 
@@ -267,7 +276,9 @@ class SensorMap(ToldMarks):
         each that of one sample's test at that rate (the likelihood ratio's log at z²/2, as a node of the
         print's map needs against the sensor's side): a pair the frames barely tell from the calibration is not
         a mark, nor one within what the calibration itself leaves at the sample, nor one the print's candidate
-        explained as well while it lay under the sample (a speck on the print seen while the stage rested)."""
+        explained as well while it lay under the sample (a speck on the print seen while the stage rested), nor one
+        that has beaten it over less than ``TRAVEL_PX`` of the print's motion (a speck the print carries onto the
+        pixel, where the print's side holds no candidate: the pair's own width takes it for a frame or two)."""
         out = np.zeros(self.touched.size, dtype=bool)
         where = np.flatnonzero(self.touched)
         if where.size == 0:
@@ -284,7 +295,7 @@ class SensorMap(ToldMarks):
         x, w = self.f[where], self.e[where] / g
         distance = (d * x * x - 2.0 * b * x * w + a * w * w) / det
         out[where] = (largest < resolved ** 2) & (distance > self.z2) & (self.evidence[where] >= 0.5 * self.z2) & \
-            (self.rivalry[where] >= 0.5 * self.z2)
+            (self.rivalry[where] >= 0.5 * self.z2) & (self.travel[where] >= TRAVEL_PX)
         return out
 
     def describe(self) -> dict[str, object]:
@@ -318,9 +329,11 @@ class SensorMap(ToldMarks):
                 raise ValueError(f"{state['samples']} samples of {state['pixels']} pixels, the map has "
                                  f"{self.touched.size} of {self.row}")
             where = np.asarray(state["touched"], dtype=np.int64).reshape(-1)
-            # (a document written before the rivalry was kept: the evidence over the calibration stands for it)
+            # (a document written before the rivalry was kept: the evidence over the calibration stands for it; before
+            # the travel was: its samples as carried far enough)
             pairs = {name: np.asarray(state[name if name in state or name != "rivalry" else "evidence"],
-                                      dtype=np.float64) for name in PAIR}
+                                      dtype=np.float64) if name != "travel" or name in state else
+                     np.full(len(state["touched"]), TRAVEL_PX) for name in PAIR}
             jumps = int(state.get("jumps", 0))
         except (KeyError, TypeError, AttributeError) as exc:
             raise ValueError(f"not a sensor map state ({type(exc).__name__}: {exc})") from None
@@ -370,7 +383,7 @@ class SensorMap(ToldMarks):
 
 MAP_STATE_VERSION = 1  # of :meth:`SensorMap.state`'s document
 # a touched sample's arrays, as the state document names them
-PAIR = ("f", "e", "sff", "sfe", "see", "evidence", "rivalry")
+PAIR = ("f", "e", "sff", "sfe", "see", "evidence", "rivalry", "travel")
 COVARIANCE_SLACK = 1e-6  # relative: a pair's covariance rounded through JSON may sit this far past semidefinite
 
 

@@ -35,6 +35,7 @@ def speck(sensor: SensorMap, samples: range, gain: float, offset: float = 0.2, s
     sensor.f[where], sensor.e[where] = gain - 1.0, offset
     sensor.sff[where], sensor.see[where], sensor.sfe[where] = sigma_gain ** 2, sigma_offset ** 2, 0.0
     sensor.evidence[where] = sensor.rivalry[where] = 40.0
+    sensor.travel[where] = 2.0  # held its own while the print moved two pixels under it
     sensor.active = True
 
 
@@ -67,13 +68,29 @@ def test_a_state_restores_the_same_map_through_json() -> None:
     again.restore(state)
     assert again.active and np.array_equal(again.touched, sensor.touched)
     held = sensor.learned()
-    for name in ("f", "e", "sff", "sfe", "see", "evidence", "rivalry"):
+    for name in ("f", "e", "sff", "sfe", "see", "evidence", "rivalry", "travel"):
         assert np.array_equal(getattr(again, name)[held], getattr(sensor, name)[held]), name
     assert np.array_equal(again.learned(), sensor.learned()) and again.marks() == sensor.marks()
     assert again.look(1) == []  # what was restored is what the next look compares against: not learned again
     empty = blank()
     empty.restore(blank().state())
     assert not empty.active and not empty.touched.any()
+
+
+def test_a_pair_is_told_only_once_it_has_held_its_own_over_a_pixel_of_the_prints_motion() -> None:
+    """A pair the frames have narrowed (a pixel the calibration leaves a little off) takes a speck the print carries
+    onto its pixel within its width, where the print's side holds no candidate, and beats the print's side for a
+    frame or two (seen: told as a contrast change of one pixel, then dropped). A mark on the sensor's side keeps
+    beating it while the print moves on under it."""
+    sensor = dusty()
+    assert sensor.learned()[10:15].all()
+    sensor.travel[10:15] = 0.4
+    assert not sensor.learned()[10:15].any()
+    state = json.loads(json.dumps(dusty().state()))
+    del state["travel"]  # a document from before the travel was kept: its marks as carried far enough
+    again = blank()
+    again.restore(state)
+    assert again.learned()[10:15].all() and again.marks() == dusty().marks()
 
 
 def test_a_candidate_the_last_run_had_not_decided_comes_back_as_just_landed() -> None:
@@ -122,7 +139,7 @@ def test_a_pair_the_prints_candidate_explains_as_well_is_not_told() -> None:
             y = h * np.where(np.arange(h.size) == 7, 0.7, 1.0) + rng.normal(0.0, 3.0, h.size)
             rival = h * np.where(np.arange(h.size) == 7, 0.7, 1.0) if candidate else h
             rival_var = np.where(np.arange(h.size) == 7, (0.01 * h) ** 2, 0.0) if candidate else np.zeros(h.size)
-            sensor.learn(y, h, rival, rival_var, noise_var, mask, 0.05)
+            sensor.learn(y, h, rival, rival_var, noise_var, mask, 0.05, moved=0.5)  # the print half a pixel on
         assert sensor.touched[7] and sensor.evidence[7] > 100.0
         told[candidate] = bool(sensor.learned()[7])
         if candidate:

@@ -41,7 +41,7 @@ def sensor_state(marks: int) -> dict[str, Any]:
         where = np.arange(10 * k, 10 * k + 3)
         sensor.touched[where] = True
         sensor.f[where], sensor.sff[where], sensor.see[where], sensor.evidence[where] = -0.3, 1e-4, 0.25, 40.0
-        sensor.rivalry[where] = 40.0
+        sensor.rivalry[where], sensor.travel[where] = 40.0, 2.0
     return sensor.state()
 
 

@@ -180,6 +180,7 @@ def test_the_frame_loop_tracks_with_a_saved_map_or_without_one_that_does_not_fit
         sensor = SensorMap(pixels, np.array([4.0, 0.1, 5.0]), 1.0, 5.0, np.ones(4), 100.0, 0.5, 2, pixels)
         sensor.touched[40:46], sensor.f[40:46], sensor.sff[40:46], sensor.see[40:46] = True, -0.3, 1e-4, 0.25
         sensor.evidence[40:46] = sensor.rivalry[40:46] = 40.0
+        sensor.travel[40:46] = 2.0  # held its own over two pixels of the print's motion: a mark
         return sensor.state()
 
     for pixels, refused in ((model.n_pixels, False), (model.n_pixels + 1, True)):
