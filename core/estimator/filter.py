@@ -431,7 +431,7 @@ class Estimator:
                 abs(s_prior.item(X) - reference_mm) > 0.25 * self.model.period_mm:
             self._acquire(y, mask, t, reference_mm)  # the image's period lost: start again at the grating
             s, A, stats = self._solve(y, mask, s_prior, P_prior, grating_z, out=self._answer)
-        test = self._test(stats, s)
+        test = self._test(stats)
         main = stats  # the frame's own update (its posterior in _P_next)
         if test > 1.0:
             test, mode, s, A, stats, solved, reason_jump = self._search(y, mask, s, A, stats, test, s_prior, P_prior,
@@ -449,7 +449,7 @@ class Estimator:
             # without them, so what they showed moves no state.
             y, mask = self._through_maps(y_raw, raw_mask, True)
             s, A, stats = self._solve(y, mask, s_prior, P_prior, grating_z, out=self._answer)
-            test, mode, s, A, stats, solved, reason_jump = self._search(y, mask, s, A, stats, self._test(stats, s),
+            test, mode, s, A, stats, solved, reason_jump = self._search(y, mask, s, A, stats, self._test(stats),
                                                                          s_prior, P_prior, grating_z)
         placed = stats[kernel.S_CONVERGED] > 0 or stats[kernel.S_ITER] > 0
         used, rejected = stats[kernel.S_USED], stats[kernel.S_REJECTED]
@@ -483,7 +483,8 @@ class Estimator:
             # (the frame's noise and the model's own error there, which its calibration measured against the grating:
             # a model that places a frame several floors off scatters its positions by as much from frame to frame)
             x = self.s.item(X)
-            step = self.mount.add(t, x, self.bound_factor ** 2 * (1.0 + self._model_share(x)) / stats[kernel.S_XINFO])
+            level = self.params.item(kernel.U_LEVEL)
+            step = self.mount.add(t, x, self._frame_variance(x, stats[kernel.S_XINFO], level))
             if step is not None:
                 self._mounted(step)
                 mode = reason_jump = "geometry"
@@ -539,7 +540,7 @@ class Estimator:
                 # A band followed jumps in its shape first (a band half in view has shown one edge only; the
                 # field's tilt and a shift would otherwise take what its other edge shows as it enters).
                 s_j, A_j, stats_j = self._solve(y, mask, s_prior, self._band_widened(P_prior, s_prior), grating_z)
-                test_j = self._test(stats_j, s_j)
+                test_j = self._test(stats_j)
                 if test_j <= 1.0:
                     self._unexplained = []
                     return test_j, "band", s_j, A_j, stats_j, self.idx, None
@@ -552,7 +553,7 @@ class Estimator:
             for family in ranked:
                 widened = self._jumped(P_prior, family)
                 s_j, A_j, stats_j = self._solve(y, mask, s_prior, widened, grating_z)
-                test_j = self._test(stats_j, s_j)
+                test_j = self._test(stats_j)
                 if best is None or test_j < best[0]:
                     best = (test_j, family, s_j, A_j, stats_j)
             missed = self._band_missed
@@ -567,7 +568,7 @@ class Estimator:
                 banded = self._banded(y, mask, s, stats, s_prior, P_prior, grating_z)
                 if banded is not None and banded[0] <= 1.0 and (
                         best is None or best[0] > 1.0 or
-                        self._chi2(banded[3], banded[1]) + self._band_margin < self._chi2(best[4], best[2])):
+                        self._chi2(banded[3]) + self._band_margin < self._chi2(best[4])):
                     self._band_on()
                     self._unexplained = []
                     self._band_missed = 0
@@ -589,7 +590,7 @@ class Estimator:
                 # a frame speaks of: held instead, a shape a wrong jump left would stay for every later frame,
                 # each failing in turn. The geometry (the camera's place, the lens, the grating's latch),
                 # learned over spans of the grating, is not taught by a frame the model does not explain.
-                inflation = self._excess(stats, s)
+                inflation = self._excess(stats)
                 solved = self.idx_appearance  # (solved again from the frame's own solution and weights)
                 s, A, stats = self._solve(y, mask / inflation, s_prior, P_prior, grating_z,
                                           solved, start=s)
@@ -633,7 +634,7 @@ class Estimator:
         k = int(np.argmax(gain))
         # (a shape whose depth explains far less than the frame's χ² exceeds its quantile by cannot bring it
         # within: not solved; half of it, the robust weights the search does not see counted)
-        excess = self._chi2(stats, s) - _quantile(self.z_alpha, stats[kernel.S_USED] / self.spread ** 2)
+        excess = self._chi2(stats) - _quantile(self.z_alpha, stats[kernel.S_USED] / self.spread ** 2)
         if not gain[k] > 0.0 or gain[k] / (self._level(s.item(X)) * self.spread ** 2) < 0.5 * excess:
             return None
         start = s_prior.copy()
@@ -647,7 +648,7 @@ class Estimator:
         s_b, A_b, stats_b = self._solve(y, mask, start, widened, grating_z, self.idx_band)
         if not math.isfinite(s_b[X]) or self._band_unlike(s_b):
             return None
-        return self._test(stats_b, s_b), s_b, A_b, stats_b
+        return self._test(stats_b), s_b, A_b, stats_b
 
     def _band_widened(self, P: np.ndarray, s: np.ndarray) -> np.ndarray:
         """``P`` with the band's entering priors added to its states (a copy)."""
@@ -883,6 +884,7 @@ class Estimator:
         params[kernel.U_PREDICT], params[kernel.U_DT] = (0.0, 0.0) if predict is None else (1.0, predict)
         params[kernel.U_POSTERIOR] = 0.0 if out is None else 1.0
         params[kernel.U_WARM] = 0.0 if start is None else 1.0
+        params[kernel.U_LEVEL] = self._level(s_prior.item(X))
         kernel.update(s, s_prior, P_prior, idx, y, mask, self.pixels, params, self.model_args, self.scratch, self.rho,
                       A, stats, self._P_next, self._sigma)
         return s, A, stats.tolist()
@@ -892,24 +894,24 @@ class Estimator:
             return self.chi2_calibration
         return self.chi2_calibration * self.chi2_curve.at(x_mm)
 
-    def _test(self, stats: list, s: np.ndarray) -> float:
+    def _test(self, stats: list) -> float:
         """The innovation's χ² over its quantile at the false-alarm rate (the stream's spread counted)."""
         used = stats[kernel.S_USED]
         if used <= 0:
             return math.inf
-        return self._chi2(stats, s) / _quantile(self.z_alpha, used / self.spread ** 2)
+        return self._chi2(stats) / _quantile(self.z_alpha, used / self.spread ** 2)
 
-    def _chi2(self, stats: list, s: np.ndarray) -> float:
+    def _chi2(self, stats: list) -> float:
         """The innovation's χ² (the stream's spread counted)."""
-        level = self._level(s.item(X))
-        return (stats[kernel.S_RESIDUAL] / level + stats[kernel.S_PRIOR] + stats[kernel.S_GRATING]) / self.spread ** 2
+        # (the samples' residual is in units of their variance, the calibration's level in it: kernel.U_LEVEL)
+        return (stats[kernel.S_RESIDUAL] + stats[kernel.S_PRIOR] + stats[kernel.S_GRATING]) / self.spread ** 2
 
-    def _excess(self, stats: list, s: np.ndarray) -> float:
+    def _excess(self, stats: list) -> float:
         """The frame's residual χ² per sample over what the noise model and the calibration expect (≥ 1)."""
         used = stats[kernel.S_USED]
         if used <= 0:
             return 1.0
-        return max(stats[kernel.S_RESIDUAL] / (used * self._level(float(s[X]))), 1.0)
+        return max(stats[kernel.S_RESIDUAL] / used, 1.0)
 
     def _ranked(self, s: np.ndarray, A: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray) -> list[str]:
         """The families that may jump, most evident first: each one's score test of the innovation (the
@@ -954,13 +956,18 @@ class Estimator:
         sigma = self._sigma.tolist()
         xinfo, used, rejected, residual = (stats[kernel.S_XINFO], stats[kernel.S_USED], stats[kernel.S_REJECTED],
                                            stats[kernel.S_RESIDUAL])
-        floor = 1.0 / math.sqrt(xinfo) if xinfo > 0 else math.inf
-        # what the model itself errs by here (its calibration's shared error): no frame can see it
-        # (as much of it as the image's share of the position carries: a fused grating pins the rest)
+        # The frame's own variance of the position as the update weighed its samples (their noise times the
+        # calibration's χ² level there: kernel.U_LEVEL), and the noise floor (the noise alone: the Cramér–Rao bound).
+        level = self.params.item(kernel.U_LEVEL)
+        floor2 = 1.0 / xinfo if xinfo > 0 else math.inf
+        floor = math.sqrt(floor2 / level)
+        # What a frame's position errs by is what its calibration measured against the grating (the floor, widened
+        # by a stream's quantisation and the model's own error there), not what the χ² level of its gray values says
+        # (a misfit of the gray values need not move the position as much, nor as little): over the image's share
+        # of the position (a fused grating pins the rest) the one is taken for the other, either way.
         var_image = self._position_variance()
-        floor2 = floor * floor
-        share = min(var_image / floor2, 1.0) if floor > 0 else 1.0
-        model_var = self._model_share(s[X]) * floor2 * share * share
+        share = min(var_image / floor2, 1.0) if xinfo > 0 else 1.0
+        model_var = (self._frame_variance(s[X], xinfo, level) - floor2) * share * share
         var_x = var_image + model_var
         stale, reason, message = False, "", ""
         checked = self.grating == "check"
@@ -992,9 +999,9 @@ class Estimator:
         shown = abs(s[B]) > self.z_two * focus_sigma
         # (by position, in the fields' order: by keyword the record cost a frame a microsecond)
         return FrameEstimate(
-            t, s[X] + (s[C] if checked else 0.0), math.sqrt(var_x) * bound_factor,  # t, x_mm, crlb_mm
+            t, s[X] + (s[C] if checked else 0.0), math.sqrt(var_x),  # t, x_mm, crlb_mm
             floor * bound_factor, True, stats[kernel.S_RMS],  # floor_mm, locked, rms_gray
-            residual / max(used, 1.0) / self._level(s[X]), float(test), int(rejected),  # chi2, test, rejected_px
+            residual / max(used, 1.0), float(test), int(rejected),  # chi2, test, rejected_px
             int(stats[kernel.S_ITER]), s[G], s[OFS],  # iterations, gain, offset_gray
             s[B] if shown else math.nan, focus_sigma if shown else math.nan,  # focus_px2, focus_sigma_px2
             s[M], sigma[M], s[C], sigma[C],  # stretch, stretch_sigma, place_mm, place_sigma_mm
@@ -1007,6 +1014,12 @@ class Estimator:
         does what a frame leaves at a sample speak of the sample, and the sensor's map learn from it."""
         xinfo = stats[kernel.S_XINFO]
         return xinfo > 0 and P[X, X] * xinfo <= self.settings.dominance
+
+    def _frame_variance(self, x_mm: float, xinfo: float, level: float) -> float:
+        """The variance of a frame's position at ``x_mm`` alone, as calibration measured it against the grating: the
+        noise floor (the frame's information ``xinfo`` with its samples weighed by the noise times ``level``)
+        widened by a stream's quantisation and the model's own error there."""
+        return self.bound_factor ** 2 * (1.0 + self._model_share(x_mm)) / (xinfo * level)
 
     def _model_share(self, x_mm: float) -> float:
         """The model's own error power at ``x_mm`` over the noise floor's (ratio² − 1 of its calibration)."""

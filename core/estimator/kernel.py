@@ -58,9 +58,11 @@ N_STATS = 12
 # how long (s), the acceleration's variance (mm²/s⁴); whether the posterior covariance is made too (1: ``embed`` into
 # ``P_post``, for the update a frame most likely keeps); whether the iterations start from ``s`` and ``rho`` as passed
 # (1: the frame solved again from its own solution and weights) or from the prior's mean and full weights (0); from
-# U_RATES on each state's rate (predict's ``rates2``)
+# the calibration's χ² level at the frame's place (each sample's variance is the noise model's times it: what the
+# model's own error adds to a sample, as calibration measured it); from U_RATES on each state's rate (predict's
+# ``rates2``)
 (U_READ, U_SHOT, U_DARK, U_PITCH, U_PERIOD, U_GRATING_Z, U_GRATING_W, U_ROBUST, U_CORE, U_CUT, U_ITERATIONS,
- U_TOLERANCE, U_PREDICT, U_DT, U_ACCELERATION, U_POSTERIOR, U_WARM, U_RATES) = range(18)
+ U_TOLERANCE, U_PREDICT, U_DT, U_ACCELERATION, U_POSTERIOR, U_WARM, U_LEVEL, U_RATES) = range(19)
 N_PARAMS = U_RATES + N_STATE
 # the pixels' constants in one (4, P) array: target coordinate from the ROI's centre, row from the strip's middle,
 # the two Legendre terms across the line
@@ -529,6 +531,7 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
     next call made in this one)."""
     t_rel, r_rel, b1, b2 = pixels[PX_TARGET], pixels[PX_ROW], pixels[PX_B1], pixels[PX_B2]
     read_var, shot_gain, dark = params[U_READ], params[U_SHOT], params[U_DARK]
+    level = params[U_LEVEL]
     pitch_mm, period_mm = params[U_PITCH], params[U_PERIOD]
     grating_z, grating_w = params[U_GRATING_Z], params[U_GRATING_W]
     robust = params[U_ROBUST] > 0.0
@@ -562,7 +565,7 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
         var = read_var + shot_gain * signal
         if var < 1e-6:
             var = 1e-6
-        w[p] = mask[p] / var
+        w[p] = mask[p] / (var * level)
         if not warm:
             rho[p] = 1.0
     A = np.zeros((n, n))
