@@ -106,7 +106,8 @@ TUNABLES: dict[str, Tunable] = {
         "how far apart the camera's and the controller's clocks run, as a prior (crystals of ±20 ppm; 100 ppm apart is "
         "a 3σ pair): with the grating fused the latch drifts at that rate for hours, which a random walk of the "
         "latch alone lags behind (the lens's lever then took the lag as a slide); a wider prior lets the fused "
-        "position follow the latch's noise", low=0.0),
+        "position follow the latch's noise; none where a recording says the controller triggers the camera",
+        low=0.0),
     "clock_drift_rate": Tunable(
         1e-6, "s/s/√s", "how fast the clocks' rates apart change in a second (a crystal warming: a few ppm over "
         "minutes)", low=0.0),
@@ -295,13 +296,17 @@ class EstimatorSettings:
         return dataclasses.replace(self, **changes)
 
     def for_recording(self, meta: dict[str, Any]) -> "EstimatorSettings":
-        """These settings with what a recording's metadata states of its rig (the stage's acceleration)."""
-        from graytrack.core.recording import STAGE_ACCELERATION
+        """These settings with what a recording's metadata states of its rig: the stage's acceleration, and a camera
+        triggered by the stage controller (one clock for the exposures and the grating's latch: none runs apart)."""
+        from graytrack.core.recording import CAMERA_TRIGGER, STAGE_ACCELERATION
 
+        settings = self
         value = meta.get(STAGE_ACCELERATION)
         if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value > 0:
-            return self.replace(stage_acceleration=float(value))
-        return self
+            settings = settings.replace(stage_acceleration=float(value))
+        if meta.get(CAMERA_TRIGGER) == "hardware":
+            settings = settings.replace(clock_drift_prior=0.0)
+        return settings
 
     def describe(self) -> dict[str, dict[str, Any]]:
         """Every tunable: its value, unit, default and reason."""

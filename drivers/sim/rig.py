@@ -30,7 +30,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from graytrack.core.recording import STAGE_ACCELERATION, STAGE_PHASES, Recording
+from graytrack.core.recording import CAMERA_TRIGGER, STAGE_ACCELERATION, STAGE_PHASES, Recording
 from graytrack.drivers.sim import illumination as illum
 from graytrack.drivers.sim import target as tgt
 from graytrack.drivers.sim.camera_side import CameraSide, CameraSideConfig
@@ -486,6 +486,9 @@ class VirtualRig:
             "exposure_s": cfg.timing.exposure_s,
             "grating_resolution_mm": cfg.grating.resolution_mm,
             "gray_scale": "8-bit equivalent" if cfg.sensor.bit_depth is None else f"{cfg.sensor.bit_depth}-bit",
+            # the virtual camera exposes on the frame clock that latches the grating, unless it runs on its own
+            # (the `clock_drift` effect)
+            CAMERA_TRIGGER: "free-run" if cfg.timing.clock_ppm else "hardware",
         }
         if cfg.sensor.bit_depth is not None:
             meta["bit_depth"] = cfg.sensor.bit_depth

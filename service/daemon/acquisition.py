@@ -110,7 +110,7 @@ class Acquisition(Worker):
                  fault_after_s: float, reopen_interval_s: float,
                  on_event: Callable[[str, str], None] = lambda kind, message: None, priority: int = 0,
                  trim: ReferenceTrim | None = None, clock: Clock = HOST_CLOCK, slide: LiveSlide | None = None,
-                 engine: str = "watches") -> None:
+                 engine: str = "watches", rig_meta: dict[str, Any] | None = None) -> None:
         super().__init__("acquisition", lambda reason: faults("acquisition", reason))
         self.clock = clock  # what silence, rates and the reopen pause are measured on (service/daemon/clock.py)
         self.on_event = on_event  # lock losses, re-acquisitions, stale-model flags: the event log
@@ -118,6 +118,9 @@ class Acquisition(Worker):
         self.trim = trim or ReferenceTrim(False, on_event)  # camera against grating (service/daemon/trim.py)
         self.slide = slide  # no grating on the rig: each bound carries the slide (service/daemon/slide.py)
         self.engine = engine  # the per-frame path: "watches" (LiveTracker) or "estimator" (core/estimator/)
+        # what the rig states of itself, as its recordings' meta does (what triggers the camera): the estimator's
+        # settings read it as they read a recording's
+        self.estimator_settings = EstimatorSettings().for_recording(rig_meta or {})
         self.camera = camera
         self.readings = readings
         self.publish = publish
@@ -179,7 +182,8 @@ class Acquisition(Worker):
                 grating = "none" if self.slide is not None else ("fuse" if self.trim.enabled else "check")
                 axis_px = self.slide.axis_px if self.slide is not None else None
                 acceleration = self.slide.stage_acceleration_mm_s2 if self.slide is not None else None
-                settings = None if acceleration is None else EstimatorSettings(stage_acceleration=acceleration)
+                settings = self.estimator_settings if acceleration is None else \
+                    self.estimator_settings.replace(stage_acceleration=acceleration)
                 estimator = LiveEstimator(model, start, grating, settings=settings, axis_px=axis_px,
                                           sensor_map=learned.get(SENSOR_MAP.name),
                                           print_map=learned.get(PRINT_MAP.name), refused=refused,

@@ -32,7 +32,7 @@ from graytrack import __version__
 from graytrack.core.errors import ModelError
 from graytrack.core.models import load_model
 from graytrack.core.models.fourier import FourierModel
-from graytrack.core.recording import PIXEL_AXIS_REVERSED
+from graytrack.core.recording import CAMERA_TRIGGER, PIXEL_AXIS_REVERSED
 from graytrack.drivers.clock import REAL_TIME, ScaledClock
 from graytrack.drivers.factory import Hardware, open_hardware
 from graytrack.service.daemon import snapshot as parts
@@ -249,7 +249,7 @@ class Rig:
                                   slide=None if daemon.grating else
                                   LiveSlide(daemon.axis_px, self.stage_acceleration_mm_s2,
                                             self.motion if daemon.stage_commanded_here else None),
-                                  engine=daemon.engine)
+                                  engine=daemon.engine, rig_meta=self._meta(self.hardware))
         if self.model is not None:  # a frame loop restarted: with the maps the last one learned
             calibration = self.installed_calibration
             learned = self._learned(lambda store: store.newest(calibration))
@@ -509,6 +509,8 @@ class Rig:
     def _meta(self, hardware: Hardware) -> dict[str, Any]:
         meta: dict[str, Any] = hardware.rig.meta() if hardware.rig is not None else {}  # type: ignore[attr-defined]
         meta.update({"source": "graytrack serve", "daemon_version": __version__})
+        if hardware.rig is None:  # a real camera: [camera] trigger, where its driver has one, starts each exposure
+            meta[CAMERA_TRIGGER] = str(getattr(hardware.camera, "trigger", "free-run"))
         if getattr(hardware.camera.settings, "flip", False):  # [camera] flip: frames reversed at the driver
             meta[PIXEL_AXIS_REVERSED] = True
         for key in ("pixel_pitch_mm", "period_mm"):

@@ -37,6 +37,27 @@ def test_the_daemon_streams_the_estimators_positions_within_their_bounds(paper, 
     assert placed[-1]["gain"] == pytest.approx(0.85, abs=0.03)
 
 
+def test_a_fused_stream_carries_the_clocks_rate_only_for_a_camera_on_its_own_clock(paper):
+    """The daemon hands the estimator what its rig states of itself: the virtual camera is triggered on the clock
+    that latches the grating, and a steady fused stream's bound is then the grating's and the latch's (rms pull
+    within 0.8-1.25); said to run free, the bound carries the two clocks' rate apart as well."""
+    from graytrack.core.recording import CAMERA_TRIGGER
+
+    run, truth = build_rig("paper", "", seed=12, run=3).record(10.0)
+    pulls = {}
+    for trigger in ("hardware", "free-run"):
+        messages, _, acquisition = stream_through_daemon(paper, run, trim_enabled=True, engine="estimator",
+                                                         rig_meta={**run.meta, CAMERA_TRIGGER: trigger})
+        assert acquisition.estimator_settings.clock_drift_prior == (0.0 if trigger == "hardware" else 30e-6)
+        placed = [m for m in messages if m.get("x_mm") is not None]
+        error = np.array([(m["x_mm"] - truth.x_mm[m["seq"] - 1]) * 1e3 for m in placed])
+        bound = np.array([m["crlb_um"] for m in placed])
+        assert sum(m["stale"] for m in placed) < 0.01 * len(placed)
+        pulls[trigger] = np.sqrt(np.mean((error / bound) ** 2))
+    assert 0.8 <= pulls["hardware"] <= 1.25, pulls
+    assert pulls["free-run"] < pulls["hardware"], pulls
+
+
 def test_the_engine_is_a_declared_setting():
     assert DaemonConfig().engine == "watches"
     assert DaemonConfig(engine="estimator").engine == "estimator"
