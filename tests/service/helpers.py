@@ -318,6 +318,14 @@ class LiveServer:
         self.thread.join(timeout=20.0)
 
 
+def _rig_meta(meta: dict[str, Any]) -> dict[str, Any]:
+    """What a virtual rig states of itself (VirtualRig.meta): its recording's meta less what that run commanded of
+    the stage, which the daemon knows from its own settings and commands."""
+    from graytrack.core.recording import STAGE_ACCELERATION, STAGE_PHASES
+
+    return {key: value for key, value in meta.items() if key not in (STAGE_ACCELERATION, STAGE_PHASES)}
+
+
 def stream_through_daemon(model, run, trim_enabled: bool, slide: Any = None, engine: str = "watches",
                           learned: dict[str, Any] | None = None, before_frame: Any = None,
                           rig_meta: dict[str, Any] | None = None) -> tuple[list[dict], list[tuple[str, str]], Any]:
@@ -326,7 +334,7 @@ def stream_through_daemon(model, run, trim_enabled: bool, slide: Any = None, eng
     has no grating, ``[daemon] grating = false``; ``learned``: the maps saved with the model, by name, a map
     the tracker refuses an event ``refused`` naming it; ``before_frame(k)``: called before frame ``k`` is tracked,
     for what the rig does meanwhile; ``rig_meta``: what the rig states of itself, the run's meta where None, as the
-    daemon on the virtual rig hands its rig's): the published messages, the events and the
+    daemon on the virtual rig hands its rig's, :func:`_rig_meta`): the published messages, the events and the
     acquisition (its ``trim`` and ``slide`` for the status)."""
     import numpy as np
 
@@ -338,7 +346,7 @@ def stream_through_daemon(model, run, trim_enabled: bool, slide: Any = None, eng
     trim = ReferenceTrim(trim_enabled, lambda kind, message: events.append((kind, message)))
     acquisition = Acquisition(None, None, messages.append, lambda *fault: None, 1.0, 1.0,
                               on_event=lambda kind, message: events.append((kind, message)), trim=trim, slide=slide,
-                              engine=engine, rig_meta=run.meta if rig_meta is None else rig_meta)
+                              engine=engine, rig_meta=_rig_meta(run.meta) if rig_meta is None else rig_meta)
     # as install_model does
     acquisition._build(model, float(run.reference[0]), 0, "calibration", learned or {},
                        lambda name, why: events.append(("refused", f"{name}: {why}")))
