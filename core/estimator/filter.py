@@ -308,6 +308,7 @@ class Estimator:
         self.last_frame: np.ndarray | None = None
         self.dt_last = 0.0
         self._xi_last = math.nan  # the image's position at the last frame the maps learned from (mm)
+        self._checked = math.nan  # the grating's reading of the frame being updated, where it is read and checked
         self.failed = 0
         self.started = False
         mid = 0.5 * (float(model.stroke_range_mm[0]) + float(model.stroke_range_mm[1]))
@@ -425,6 +426,7 @@ class Estimator:
             # and solved among the active ones their zero prior would make this update singular
             self._band_off()
         grating_z = reference_mm if self.grating == "fuse" and math.isfinite(reference_mm) else math.nan
+        self._checked = reference_mm if self.grating == "check" else math.nan
         s_prior, P_prior = self.s, self.P  # read, never written (once predicted), until the posterior replaces them
         s, A, stats = self._solve(y, mask, s_prior, P_prior, grating_z, out=self._answer, predict=predict)
         if self.grating == "check" and math.isfinite(reference_mm) and \
@@ -550,12 +552,17 @@ class Estimator:
                 # at again in the same order, are the same unexplained change persisting (a veil, a shadow on its
                 # way), not a new step: their jumps are not solved again.
                 ranked = []
+            # (each jump's test and, where the grating is read and checked, the grating's with it: a jump both
+            # find explains the frame before one the grating contradicts; where none does, the gray values decide)
+            tried = []
             for family in ranked:
                 widened = self._jumped(P_prior, family)
                 s_j, A_j, stats_j = self._solve(y, mask, s_prior, widened, grating_z)
                 test_j = self._test(stats_j)
-                if best is None or test_j < best[0]:
-                    best = (test_j, family, s_j, A_j, stats_j)
+                tried.append((self._with_grating(test_j, s_j, A_j, stats_j), test_j, family, s_j, A_j, stats_j))
+            if tried:
+                both = min(tried, key=lambda candidate: candidate[0])
+                best = both[1:] if both[0] <= 1.0 else min(tried, key=lambda candidate: candidate[1])[1:]
             missed = self._band_missed
             if s_prior.item(BE) <= 0.0 and missed & (missed - 1) == 0:
                 # A change may be a band of shadow or veil entering the field (a shape of the light no low-order
@@ -901,6 +908,24 @@ class Estimator:
             return math.inf
         return self._chi2(stats) / _quantile(self.z_alpha, used / self.spread ** 2)
 
+    def _with_grating(self, test: float, s: np.ndarray, A: np.ndarray, stats: list) -> float:
+        """A jump's test, with the grating's where it is read and checked (the larger of the two, each over its
+        quantile at the false-alarm rate): of two jumps that explain the gray values, one that puts the image where
+        the grating says the carriage is not explains less of the frame (over less than a period a gain hunting
+        read as the light's shape and a shift)."""
+        reading = self._checked
+        if reading != reading:
+            return test
+        try:
+            var_image = float(np.linalg.inv(A)[0, 0])  # (the position is the first state solved)
+        except np.linalg.LinAlgError:
+            return test
+        level = self.params.item(kernel.U_LEVEL)
+        x = s.item(X)
+        var_x = var_image + self._model_variance(x, var_image, stats[kernel.S_XINFO], level)
+        nu = reading - x
+        return max(test, nu * nu / (self.z_two ** 2 * (var_x + self.settings.grating_sigma ** 2)))
+
     def _chi2(self, stats: list) -> float:
         """The innovation's χ² (the stream's spread counted)."""
         # (the samples' residual is in units of their variance, the calibration's level in it: kernel.U_LEVEL)
@@ -966,8 +991,7 @@ class Estimator:
         # (a misfit of the gray values need not move the position as much, nor as little): over the image's share
         # of the position (a fused grating pins the rest) the one is taken for the other, either way.
         var_image = self._position_variance()
-        share = min(var_image / floor2, 1.0) if xinfo > 0 else 1.0
-        model_var = (self._frame_variance(s[X], xinfo, level) - floor2) * share * share
+        model_var = self._model_variance(s[X], var_image, xinfo, level)
         var_x = var_image + model_var
         stale, reason, message = False, "", ""
         checked = self.grating == "check"
@@ -1014,6 +1038,15 @@ class Estimator:
         does what a frame leaves at a sample speak of the sample, and the sensor's map learn from it."""
         xinfo = stats[kernel.S_XINFO]
         return xinfo > 0 and P[X, X] * xinfo <= self.settings.dominance
+
+    def _model_variance(self, x_mm: float, var_image: float, xinfo: float, level: float) -> float:
+        """What the bound adds to the posterior's variance ``var_image`` of the position: the frame's own share in it
+        taken at what calibration measured (:meth:`_frame_variance`) instead of as its samples were weighed (either
+        sign; ``xinfo``: the frame's information on the position, its samples weighed at ``level``)."""
+        if not xinfo > 0:
+            return 0.0
+        share = min(var_image * xinfo, 1.0)
+        return (self._frame_variance(x_mm, xinfo, level) - 1.0 / xinfo) * share * share
 
     def _frame_variance(self, x_mm: float, xinfo: float, level: float) -> float:
         """The variance of a frame's position at ``x_mm`` alone, as calibration measured it against the grating: the

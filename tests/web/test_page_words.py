@@ -103,15 +103,25 @@ def test_the_words_are_explained_stale_shows_at_the_position_and_repeats_are_gro
         expect(grouped).to_have_attribute("data-kind", "frames_lost", timeout=10_000)
         expect(grouped).to_have_attribute("data-count", re.compile(r"^\d+$"))
         wait_for(lambda: int(grouped.get_attribute("data-count")) >= REPEATS, 10.0, "the repeats grouped")
-        count = int(grouped.get_attribute("data-count"))
+        seen: dict = {}
+
+        def as_logged() -> bool:
+            """The page's events as the log has them (a real frame loss may be logged between the page's poll and
+            this read: the page shows it at its next poll)."""
+            seen["events"] = events = daemon.get("/api/events").json()
+            seen["count"] = count = int(grouped.get_attribute("data-count"))
+            tail = len(events) - max(i for i, e in enumerate(events) if e["kind"] != "frames_lost") - 1
+            seen["counts"] = [int(c) for c in page.locator("#events li").evaluate_all(
+                "items => items.map(li => li.dataset.count)")]
+            # the frames_lost events in a row, all in the one line, and every event on a line
+            return count == tail and sum(seen["counts"]) == len(events)
+
+        wait_for(as_logged, 10.0, "the page's events to be the log's", show=lambda: seen)
+        events, count = seen["events"], seen["count"]
         expect(grouped.locator(".count")).to_have_text(f"×{count}")
-        events = daemon.get("/api/events").json()
-        expect(grouped.locator(".text")).to_have_text(events[-1]["message"])  # the newest (a real loss may follow)
-        tail = len(events) - max(i for i, e in enumerate(events) if e["kind"] != "frames_lost") - 1
-        assert count == tail, (count, tail)  # the frames_lost events in a row, all in the one line
+        expect(grouped.locator(".text")).to_have_text(events[-1]["message"])  # the newest
         lines = page.locator("#events li")
-        counts = [int(c) for c in lines.evaluate_all("items => items.map(li => li.dataset.count)")]
-        assert sum(counts) == len(events) and lines.count() < len(events) - REPEATS + 2, (counts, len(events))
+        assert lines.count() < len(events) - REPEATS + 2, (seen["counts"], len(events))
         kinds = lines.evaluate_all("items => items.map(li => li.dataset.kind)")
         for kind in ("calibration_done", "model_installed"):
             line = page.locator(f"#events li[data-kind={kind}]")
