@@ -241,7 +241,11 @@ def test_the_print_texture_learned_is_shown_where_and_how_sure(tmp_path: Path, b
         # the marks drawn along the target with their depth; this engine keeps no sensor map, and the page says so
         along = browser_page.locator("#texture-map")
         expect(along).not_to_have_attribute("data-marks", re.compile(r"^[012]?$"), timeout=10_000)
-        assert {"depth", "x_w (mm)"} <= set(canvas_labels(browser_page, "#texture-map"))
+        # (polled, the page drawing the map at every status it reads: once, under load, its labels were read empty
+        # after its count of marks had been set; what the console said then is shown with a timeout)
+        wait_for(lambda: {"depth", "x_w (mm)"} <= set(canvas_labels(browser_page, "#texture-map")), 10.0,
+                 "the texture's map drawn with its axes",
+                 show=lambda: (along.get_attribute("data-marks"), canvas_labels(browser_page, "#texture-map"), console))
         assert "no sensor map: this engine keeps none" in canvas_labels(browser_page, "#sensor-map")
         expect(browser_page.locator("#sensor-map-info")).to_contain_text("no sensor map")
         assert browser_page.evaluate("document.documentElement.scrollWidth") <= 390
