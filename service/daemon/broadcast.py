@@ -80,6 +80,7 @@ class Broadcaster:
         self.published = 0
         self.sent = 0
         self.dropped = 0
+        self.cpu_s = 0.0  # the loop's CPU in deliveries: the stream's, not a request's (limits.ServingShare)
 
     def bind(self, loop: asyncio.AbstractEventLoop) -> None:
         """Deliver on ``loop`` (the server's, known only once the app runs)."""
@@ -129,6 +130,7 @@ class Broadcaster:
         """On the loop: everything handed over so far, in order. The flag drops first, so a message
         appended while this runs is either taken here or schedules the next delivery (never stranded)."""
         self._scheduled = False
+        began = time.thread_time()
         handover = self._handover
         clients = self._clients  # an immutable tuple: no lock on the hot path
         while handover:
@@ -139,3 +141,4 @@ class Broadcaster:
                     self.sent += 1
                 elif outcome < 0:
                     self.dropped += 1
+        self.cpu_s += time.thread_time() - began

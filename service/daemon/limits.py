@@ -20,8 +20,12 @@ and in :class:`ws_protocol.StreamProtocol` for upgraded connections:
   holds at most one read of bytes, 256 KiB, and one request in work);
 * a client (its address; an IPv6 one by its /64) begins at most ``requests_per_s_per_client`` requests a
   second, and all together ``requests_per_s`` (each a second's worth at once): beyond, the next request
-  waits its turn unparsed (:class:`RequestBudget`), so a flood spends a bounded share of the interpreter
-  the frame loop and the stage link run in, and is slowed, not refused;
+  waits its turn unparsed (:class:`RequestBudget`); and serving altogether (the event loop, the request
+  threads: everything but the rig's own threads) takes at most ``serving_share`` of a core, measured
+  (:class:`ServingShare`): a request's cost is what it takes, not what one was assumed to take (an
+  ``/api/status`` answer measured 3.7 ms of CPU beside a 200 Hz frame loop on a 2-core machine, where the
+  rates alone had assumed 1 ms). So a flood spends a bounded share of the interpreter the frame loop and the
+  stage link run in, and is slowed, not refused;
 * an answer the client does not take (the transport's buffer above its high-water mark) for
   ``request_timeout_s`` closes the connection;
 * a request (head and body) must arrive whole within ``request_timeout_s`` of its first byte, or of
@@ -45,6 +49,7 @@ import ipaddress
 import json
 import logging
 import time
+from collections import deque
 from functools import partial
 from typing import Any, Callable
 
@@ -64,6 +69,10 @@ WS_MESSAGE_TOO_BIG = 1009
 HARD_CAP_FACTOR = 2  # beyond this many times a connection limit a connection is closed unanswered
 REFUSAL_LOG_INTERVAL_S = 60.0
 HEAD_TOO_LARGE = f"the request's target and headers exceed {MAX_HEAD_BYTES} bytes"
+COST_REQUESTS = 16  # requests a measurement of the mean cost of one spans (fewer: the stream's own cost dominates)
+COST_WINDOW_S = 1.0  # ... within this: a slower trickle says more about the rest of serving than about requests
+INITIAL_COST_S = 0.002  # a request's CPU before any was measured
+MAX_COST_S = 0.05  # the most one request is charged up front (a measurement stretched by a stall is not a cost)
 BURST_S = 1.0  # the request budget's buckets hold a second's worth: a page loading its files at once never waits
 MAX_TRACKED_CLIENTS = 1024  # request budgets kept before the full ones are forgotten
 IPV6_CLIENT_PREFIX = 64  # one IPv6 client is its /64: a host picks addresses within it at will (SLAAC, privacy)
@@ -108,6 +117,55 @@ class Ticket:
                 del self._counts[self.key]
 
 
+class ServingShare:
+    """The share of one core serving may take (``share``, CPU seconds per second), measured on ``cpu`` (CPU
+    seconds serving has used: the process's, less the rig's threads').
+
+    A bucket of CPU seconds, filled at ``share`` and holding ``burst_s`` worth, from which what serving used is
+    taken as it is measured, at each request begun. While the bucket holds anything a request goes at once;
+    in debt, it waits until the rate has paid the debt back, and is charged the mean cost of recent requests at
+    once, so that requests waiting together go one after another instead of all at the same refill (once it
+    goes, what it costs is measured instead, and the charge comes back). The debt is held to one burst: a cost
+    that is not the requests' (a collection, a thread's end) never holds one back longer than ``burst_s``."""
+
+    def __init__(self, share: float, burst_s: float, cpu: Callable[[], float],
+                 monotonic: Callable[[], float] = time.monotonic) -> None:
+        self.share, self.capacity = share, share * burst_s
+        self._cpu, self._monotonic = cpu, monotonic
+        self._level, self._at, self._used = self.capacity, monotonic(), cpu()
+        self._charged: deque[tuple[float, float]] = deque()  # (when it goes, estimate) of requests waiting
+        self.cost_s = INITIAL_COST_S  # the mean CPU of one request, from the last busy window
+        self._window = (self._at, self._used, 0)  # start, CPU then, requests since
+
+    @property
+    def used_s(self) -> float:
+        """CPU seconds serving has used (the measurement itself)."""
+        return self._cpu()
+
+    def take(self) -> float:
+        """The seconds a request begun now waits for the share (0: go now)."""
+        now, used = self._monotonic(), self._cpu()
+        level = min(self.capacity, self._level + self.share * (now - self._at)) - (used - self._used)
+        charged = self._charged
+        while charged and charged[0][0] <= now:  # gone: from now on what it costs is measured instead
+            level += charged.popleft()[1]
+        began, used0, count = self._window
+        count += 1
+        if count >= COST_REQUESTS:
+            if now - began <= COST_WINDOW_S:
+                self.cost_s = min(max((used - used0) / count, 0.0), MAX_COST_S)
+            self._window = (now, used, 0)
+        else:
+            self._window = (began, used0, count)
+        wait = 0.0
+        if level < 0:
+            level = max(level, -self.capacity) - self.cost_s
+            wait = -level / self.share
+            charged.append((now + wait, self.cost_s))
+        self._level, self._at, self._used = level, now, used
+        return wait
+
+
 class RequestBudget:
     """Token buckets of requests begun: one per client, one for all, each holding ``burst_s`` worth of its rate.
     A request takes a token of both at once, lent when there is none: it then waits until the debt is paid
@@ -116,9 +174,10 @@ class RequestBudget:
     its lent token back when it closes while waiting, so the debt is at most the waiting connections' count."""
 
     def __init__(self, per_client_hz: float, total_hz: float, burst_s: float,
-                 monotonic: Callable[[], float] = time.monotonic) -> None:
+                 monotonic: Callable[[], float] = time.monotonic, share: ServingShare | None = None) -> None:
         self.per_client_hz, self.total_hz, self.burst_s = per_client_hz, total_hz, burst_s
         self._monotonic = monotonic
+        self.share = share  # serving's measured share of a core, when one is set
         self._total = (total_hz * burst_s, monotonic())
         self._clients: dict[str, tuple[float, float]] = {}
 
@@ -135,7 +194,8 @@ class RequestBudget:
         self._total, self._clients[key] = (total, now), (own, now)
         if len(self._clients) > MAX_TRACKED_CLIENTS:
             self._forget_full(now)
-        return max(-total / self.total_hz, -own / self.per_client_hz, 0.0)
+        waits = max(-total / self.total_hz, -own / self.per_client_hz, 0.0)
+        return max(waits, self.share.take()) if self.share is not None else waits
 
     def give_back(self, key: str) -> None:
         """Return the token a request of ``key`` was lent and never used (its connection closed while it waited):
@@ -156,7 +216,8 @@ class RequestBudget:
 class ConnectionLimits:
     """The limits (from ``[daemon]``) and what they refused, shared by every connection's protocol."""
 
-    def __init__(self, daemon: DaemonConfig, monotonic: Callable[[], float] = time.monotonic) -> None:
+    def __init__(self, daemon: DaemonConfig, monotonic: Callable[[], float] = time.monotonic,
+                 serving_cpu: Callable[[], float] | None = None) -> None:
         self.max_connections = daemon.max_connections
         self.max_per_client = daemon.max_connections_per_client
         self.request_timeout_s = daemon.request_timeout_s
@@ -167,7 +228,9 @@ class ConnectionLimits:
         self.oversized = 0  # request heads over MAX_HEAD_BYTES and WebSocket messages over the control size
         self.stalled = 0  # connections closed for not taking their answers within request_timeout_s
         self._by_client: dict[str, int] = {}
-        self.budget = RequestBudget(daemon.requests_per_s_per_client, daemon.requests_per_s, BURST_S, monotonic)
+        share = (ServingShare(daemon.serving_share, BURST_S, serving_cpu, monotonic)
+                 if serving_cpu is not None else None)
+        self.budget = RequestBudget(daemon.requests_per_s_per_client, daemon.requests_per_s, BURST_S, monotonic, share)
         self.paced = 0  # requests that waited for the request budget
         self._monotonic = monotonic
         self._logged_at = -REFUSAL_LOG_INTERVAL_S

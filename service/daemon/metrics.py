@@ -78,7 +78,7 @@ def gauge(name: str, help_text: str, value: float | int | bool | None) -> list[s
     return family(name, "gauge", help_text, [({}, value)])
 
 
-def counter(name: str, help_text: str, value: int) -> list[str]:
+def counter(name: str, help_text: str, value: float | int) -> list[str]:
     return family(name, "counter", help_text, [({}, value)])
 
 
@@ -142,7 +142,13 @@ def render(snapshot: RigSnapshot, broadcaster: Broadcaster, limits: ConnectionLi
                   "stalled (closed: its answers not read within request_timeout_s)",
                   [({"why": why}, value) for why, value in limits.counters().items()])
     out += counter("graytrack_requests_paced_total", "requests that waited for the request budget "
-                   "(requests_per_s_per_client, requests_per_s)", limits.paced)
+                   "(requests_per_s_per_client, requests_per_s, serving_share)", limits.paced)
+    share = limits.budget.share
+    if share is not None:
+        out += counter("graytrack_serving_cpu_seconds_total", "CPU seconds spent serving clients (the process's, "
+                       "less the rig's threads'): what serving_share bounds", share.used_s)
+        out += gauge("graytrack_request_cpu_seconds", "the mean CPU of one request, from the last busy window "
+                     "(what a waiting request is charged)", share.cost_s)
     out += family("graytrack_model_stale", "gauge",
                   "1 for the family of causes the model is stale for (all 0: it holds)",
                   [({"reason": cause}, status.get("stale_reason") == cause) for cause in FAMILIES])

@@ -65,11 +65,15 @@ class DaemonConfig(StrictTable):
                                             "beyond max_connections")
     requests_per_s_per_client: float = Field(200.0, gt=0, le=1e6, description="requests one client may begin per "
                                              "second (a second's worth at once); beyond, its next request waits, "
-                                             "unread: at about 1 ms of the interpreter each, one client's requests "
-                                             "take at most a fifth of the time the frame loop shares with them")
+                                             "unread (one client cannot take the others' turns)")
     requests_per_s: float = Field(500.0, gt=0, le=1e6, description="requests all clients together may begin per "
                                   "second (a second's worth at once); beyond, the next requests wait, unread (a "
                                   "flood from many clients slows the answers, not the frame loop)")
+    serving_share: float = Field(0.25, gt=0, le=1.0, description="the share of one core (CPU seconds per second, "
+                                 "measured) that serving clients may take: the event loop and the request threads, the "
+                                 "stream's deliveries apart; beyond, the next request waits, unread. The frame loop "
+                                 "and the stage link share one interpreter with serving: a quarter leaves them the "
+                                 "rest of it, whatever a request costs")
     request_timeout_s: float = Field(10.0, gt=0, le=3600, description="a request (head and body) must arrive whole "
                                      "within this of its first byte, a new connection send one within this: else "
                                      "408 and closed (slow or idle clients cannot hold connections); a client "

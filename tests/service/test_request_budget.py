@@ -1,10 +1,15 @@
-"""The request budget and the per-client count (service/daemon/limits.py) on an injected clock."""
+"""The request budget, serving's share of a core and the per-client count (service/daemon/limits.py), on an
+injected clock."""
 
 from __future__ import annotations
 
+import threading
+import time
+
 import pytest
 
-from graytrack.service.daemon.limits import ConnectionLimits, RequestBudget, client_key
+from graytrack.service.daemon.limits import ConnectionLimits, RequestBudget, ServingShare, client_key
+from graytrack.service.daemon.worker import ThreadGroup
 from graytrack.service.daemon.settings import DaemonConfig
 
 pytestmark = pytest.mark.unit
@@ -90,3 +95,75 @@ def test_connections_are_counted_per_client_until_released() -> None:
     other.release()
     other.release()  # once only
     assert limits.admit(("192.0.2.8", 2)).client_connections == 1
+
+
+class Cpu:
+    """Serving's CPU seconds, advanced by hand."""
+
+    def __init__(self) -> None:
+        self.used = 5.0
+
+    def __call__(self) -> float:
+        return self.used
+
+
+def test_serving_beyond_its_share_makes_the_next_requests_wait_one_after_another() -> None:
+    """Requests cost what they are measured to cost: a quarter of a core holds 0.25 s of CPU at once; spent,
+    the waiting requests go in turn, a mean request's cost apart, never all at the same refill."""
+    clock, cpu = Clock(), Cpu()
+    share = ServingShare(0.25, 1.0, cpu, clock)
+    waits = []
+    for _ in range(16):  # 16 requests of 20 ms within a second: the first window measures their cost
+        waits.append(share.take())
+        cpu.used += 0.02
+        clock.now += 0.01
+    # 17.5 ms of the bucket each (20 ms used, 2.5 ms refilled): the 16th finds it empty
+    assert waits[:15] == [0.0] * 15 and waits[15] > 0
+    assert share.cost_s == pytest.approx(0.02, rel=0.1)
+    level_waits = [share.take() for _ in range(3)]  # three more at once, nothing measured between them
+    assert level_waits[1] - level_waits[0] == pytest.approx(share.cost_s / 0.25)
+    assert level_waits[2] - level_waits[1] == pytest.approx(share.cost_s / 0.25)
+
+
+def test_cpu_charged_for_a_request_that_never_ran_is_given_back_by_the_measurement() -> None:
+    clock, cpu = Clock(), Cpu()
+    share = ServingShare(0.25, 1.0, cpu, clock)
+    cpu.used += 0.5  # serving overspent by a quarter second: in debt
+    assert share.take() > 0
+    clock.now += 1.01
+    # the waiting request's connection closed: nothing ran, so nothing was used
+    assert share.take() == 0.0, "a second at a quarter pays 0.25 s of debt, and the charge comes back"
+
+
+def test_a_debt_never_holds_a_request_longer_than_a_burst() -> None:
+    """A cost that is not the requests' (a collection, a thread's end counted at once) is bounded."""
+    clock, cpu = Clock(), Cpu()
+    share = ServingShare(0.25, 1.0, cpu, clock)
+    cpu.used += 30.0
+    assert share.take() <= 1.0 + share.cost_s / 0.25 + 1e-9
+
+
+def test_a_quiet_daemon_answers_at_once_whatever_the_share() -> None:
+    clock, cpu = Clock(), Cpu()
+    share = ServingShare(0.05, 1.0, cpu, clock)
+    for _ in range(50):  # a page polling every 100 ms, 1 ms per answer: 1 % of a core
+        assert share.take() == 0.0
+        cpu.used += 0.001
+        clock.now += 0.1
+
+
+def test_the_rig_threads_cpu_is_kept_after_they_end() -> None:
+    """The process's CPU keeps an ended thread's seconds; so must the rig's group, or serving would be
+    charged them when the thread ends."""
+    group = ThreadGroup()
+
+    def spin() -> None:
+        with group.member():
+            end = time.thread_time() + 0.05
+            while time.thread_time() < end:
+                pass
+
+    thread = threading.Thread(target=spin)
+    thread.start()
+    thread.join()
+    assert 0.05 <= group.cpu_s() < 0.5
