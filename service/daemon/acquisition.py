@@ -48,7 +48,7 @@ from graytrack.service.daemon.slide import LiveSlide
 from graytrack.service.daemon.trim import ReferenceTrim
 from graytrack.core import frame_record
 from graytrack.drivers.realtime import raise_thread_priority
-from graytrack.service.daemon.worker import Worker, describe, rig_thread
+from graytrack.service.daemon.worker import Worker, describe
 
 log = logging.getLogger("graytrack.daemon")
 # a model's tracker built off the frame loop: (model, tracker or None, why it cannot be used, its calibration's
@@ -162,8 +162,7 @@ class Acquisition(Worker):
         with self._lock:
             self._generation += 1
             generation = self._generation
-        threading.Thread(target=rig_thread(self._build),
-                         args=(model, x0_mm, generation, calibration, dict(learned or {}), refused),
+        threading.Thread(target=self._build, args=(model, x0_mm, generation, calibration, dict(learned or {}), refused),
                          name="tracker-build", daemon=True).start()
 
     def _build(self, model: FourierModel, x0: float | None, generation: int, calibration: str | None,

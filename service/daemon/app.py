@@ -29,7 +29,7 @@ from graytrack.service.daemon.api.schema import strict_openapi
 from graytrack.service.daemon.api.security import WebGuard, WebPolicy
 from graytrack.service.daemon.broadcast import Broadcaster
 from graytrack.service.daemon.errors import DaemonError
-from graytrack.service.daemon.limits import ConnectionLimits, server_protocols
+from graytrack.service.daemon.limits import ConnectionLimits, ServingCpu, server_protocols
 from graytrack.service.daemon.logs import LogGuard
 from graytrack.service.heap import freeze_long_lived, thaw, warm_tracking
 from graytrack.service.daemon.datadir import require_room
@@ -40,7 +40,6 @@ from graytrack.service.daemon.settings import Settings
 from graytrack.service.daemon.startup import WarmUp
 from graytrack.service.daemon.storage import Storage
 from graytrack.service.daemon.ws_protocol import StreamProtocol
-from graytrack.service.daemon.worker import serving_cpu_s
 
 log = logging.getLogger("graytrack.daemon")
 ROUTERS = (status.router, calibration.router, history.router, profile.router, maps.router, stage.router, stream.router,
@@ -166,7 +165,8 @@ def create_app(settings: Settings, factory: HardwareFactory = default_factory) -
     app.state.startup = startup
     app.state.token_source = token_source
     # what serving costs, the stream's deliveries apart: the stream is the rig's output, a request is not
-    app.state.limits = ConnectionLimits(settings.daemon, serving_cpu=lambda: serving_cpu_s() - broadcaster.cpu_s)
+    serving = ServingCpu()
+    app.state.limits = ConnectionLimits(settings.daemon, serving_cpu=lambda: serving() - broadcaster.cpu_s)
     app.state.server_options = server_options(settings, app.state.limits)
     app.state.policy = WebPolicy(settings.daemon, token)
     app.add_middleware(WebGuard, policy=app.state.policy)

@@ -20,8 +20,8 @@ and in :class:`ws_protocol.StreamProtocol` for upgraded connections:
   holds at most one read of bytes, 256 KiB, and one request in work);
 * a client (its address; an IPv6 one by its /64) begins at most ``requests_per_s_per_client`` requests a
   second, and all together ``requests_per_s`` (each a second's worth at once): beyond, the next request
-  waits its turn unparsed (:class:`RequestBudget`); and serving altogether (the event loop, the request
-  threads: everything but the rig's own threads) takes at most ``serving_share`` of a core, measured
+  waits its turn unparsed (:class:`RequestBudget`); and serving altogether (the event loop and the request
+  threads, the stream's deliveries apart) takes at most ``serving_share`` of a core, measured
   (:class:`ServingShare`): a request's cost is what it takes, not what one was assumed to take (an
   ``/api/status`` answer measured 3.7 ms of CPU beside a 200 Hz frame loop on a 2-core machine, where the
   rates alone had assumed 1 ms). So a flood spends a bounded share of the interpreter the frame loop and the
@@ -48,6 +48,7 @@ from __future__ import annotations
 import ipaddress
 import json
 import logging
+import threading
 import time
 from collections import deque
 from functools import partial
@@ -117,9 +118,41 @@ class Ticket:
                 del self._counts[self.key]
 
 
+WORKER_THREAD = "AnyIO worker thread"  # the name of anyio's threads, which run the sync endpoints (FastAPI's pool)
+
+
+class ServingCpu:
+    """CPU seconds the threads that serve clients have used: the event loop's (the thread of the first call: the
+    protocol asks on the loop) and anyio's worker threads' (found by name; a worker that ended keeps what it was
+    counted). The rig's threads, and any other (a test's own clients in the same process), are not counted."""
+
+    def __init__(self) -> None:
+        self._loop_clock: int | None = None
+        self._workers: dict[int, float] = {}  # a worker thread's ident -> its CPU seconds last read
+        self._ended = 0.0  # what workers counted so far used, ended or not (their increments summed)
+
+    def __call__(self) -> float:
+        if self._loop_clock is None:
+            self._loop_clock = time.pthread_getcpuclockid(threading.get_ident())
+        workers: dict[int, float] = {}
+        counted = self._ended
+        for thread in threading.enumerate():
+            ident = thread.ident
+            if thread.name != WORKER_THREAD or ident is None:
+                continue
+            try:
+                used = time.clock_gettime(time.pthread_getcpuclockid(ident))
+            except OSError:  # ended between the listing and the reading
+                continue
+            counted += max(used - self._workers.get(ident, 0.0), 0.0)
+            workers[ident] = used
+        self._workers, self._ended = workers, counted
+        return counted + time.clock_gettime(self._loop_clock)
+
+
 class ServingShare:
     """The share of one core serving may take (``share``, CPU seconds per second), measured on ``cpu`` (CPU
-    seconds serving has used: the process's, less the rig's threads').
+    seconds serving has used: :class:`ServingCpu`'s, the stream's deliveries apart).
 
     A bucket of CPU seconds, filled at ``share`` and holding ``burst_s`` worth, from which what serving used is
     taken as it is measured, at each request begun. While the bucket holds anything a request goes at once;
@@ -139,8 +172,8 @@ class ServingShare:
 
     @property
     def used_s(self) -> float:
-        """CPU seconds serving has used (the measurement itself)."""
-        return self._cpu()
+        """CPU seconds serving had used at the last request begun."""
+        return self._used
 
     def take(self) -> float:
         """The seconds a request begun now waits for the share (0: go now)."""

@@ -55,7 +55,7 @@ from graytrack.service.daemon.storage import LEARNED_MAPS, Storage
 from graytrack.service.daemon.supervision import Faults, Supervisor, sentence
 from graytrack.service.daemon.sweep import Sweep
 from graytrack.service.daemon.map_store import MapStore, Stores
-from graytrack.service.daemon.worker import describe, rig_thread
+from graytrack.service.daemon.worker import describe
 
 log = logging.getLogger("graytrack.daemon")
 HardwareFactory = Callable[[Settings, ScaledClock], Hardware]
@@ -385,8 +385,7 @@ class Rig:
             sweep = Sweep(runner, hardware.stage, acquisition, self.storage, config, self._meta(hardware),
                           self.motion.note_command, self.clock.scale,
                           stated=self.motion.stated if self.settings.daemon.stage_commanded_here else None)
-            self._sweep_thread = threading.Thread(target=rig_thread(runner.run), args=(sweep,), name="sweep",
-                                                  daemon=True)
+            self._sweep_thread = threading.Thread(target=runner.run, args=(sweep,), name="sweep", daemon=True)
             self._sweep_thread.start()
         log.info("calibration %s started (%s, %s model)", job.id,
                  f"{config.positions} stops x {config.frames_per_position} frames" if config.kind == "stops"

@@ -21,7 +21,6 @@ import time
 from typing import Any, Callable
 
 from graytrack.drivers.realtime import raise_thread_priority
-from graytrack.service.daemon.worker import rig_thread
 
 log = logging.getLogger("graytrack.daemon")
 WARM_STEP = "loading the tracker's compiled kernels"
@@ -50,7 +49,7 @@ class WarmUp:
         loop = asyncio.get_running_loop()
         done: asyncio.Future[None] = loop.create_future()
         # a daemon thread, not the loop's executor: a shutdown during a first compile does not wait for it
-        threading.Thread(target=rig_thread(self._warm), args=(loop, done), name="warm-up", daemon=True).start()
+        threading.Thread(target=self._warm, args=(loop, done), name="warm-up", daemon=True).start()
         await done
         then()
 

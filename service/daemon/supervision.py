@@ -15,7 +15,7 @@ import threading
 import time
 from typing import Callable
 
-from graytrack.service.daemon.worker import describe, rig_thread
+from graytrack.service.daemon.worker import describe
 
 log = logging.getLogger("graytrack.daemon")
 Reporter = Callable[[str, "str | None"], None]
@@ -99,7 +99,7 @@ class Supervisor:
         self.bring_up, self.watch, self.faults = bring_up, watch, faults
         self.retry_s, self.watch_s = retry_s, watch_s
         self.stopping = threading.Event()
-        self.thread = threading.Thread(target=rig_thread(self._run), name="rig-supervisor", daemon=True)
+        self.thread = threading.Thread(target=self._run, name="rig-supervisor", daemon=True)
 
     def start(self) -> None:
         self.thread.start()

@@ -10,9 +10,7 @@ from __future__ import annotations
 
 import logging
 import threading
-import time
-from contextlib import contextmanager
-from typing import Callable, Iterator, TypeVar
+from typing import Callable, TypeVar
 
 log = logging.getLogger("graytrack.daemon")
 WorkerT = TypeVar("WorkerT", bound="Worker")
@@ -33,56 +31,6 @@ def describe(exc: BaseException) -> str:
     return text if speaks else f"{type(exc).__name__}: {text}"
 
 
-class ThreadGroup:
-    """The CPU seconds a set of threads has used, those that have ended included: what the rig's own threads
-    (the frame loop, the grating poller, a calibration's sweep and fit) take of the process, so that the rest,
-    what serving clients costs, can be told from the process's total (limits.py)."""
-
-    def __init__(self) -> None:
-        self._live: dict[int, int] = {}  # thread ident -> its CPU clock
-        self._ended = 0.0
-        self._lock = threading.Lock()
-
-    @contextmanager
-    def member(self) -> Iterator[None]:
-        """The calling thread counts in the group while the block runs."""
-        ident = threading.get_ident()
-        clock = time.pthread_getcpuclockid(ident) if hasattr(time, "pthread_getcpuclockid") else None
-        if clock is None:  # a platform without per-thread clocks: nothing is told apart
-            yield
-            return
-        with self._lock:
-            self._live[ident] = clock
-        try:
-            yield
-        finally:
-            with self._lock:
-                self._ended += time.thread_time()
-                del self._live[ident]
-
-    def cpu_s(self) -> float:
-        with self._lock:
-            return self._ended + sum(time.clock_gettime(clock) for clock in self._live.values())
-
-
-# the threads that run the rig in this process; everything else (the event loop, the request threads) serves
-RIG_THREADS = ThreadGroup()
-
-
-def rig_thread(target: Callable[..., None]) -> Callable[..., None]:
-    """``target`` run as one of :data:`RIG_THREADS` (for a thread that is not a :class:`Worker`)."""
-    def run(*args: object) -> None:
-        with RIG_THREADS.member():
-            target(*args)
-    return run
-
-
-def serving_cpu_s() -> float:
-    """CPU seconds this process has spent outside the rig's threads: the event loop, the threads answering
-    requests, the stream."""
-    return time.process_time() - RIG_THREADS.cpu_s()
-
-
 class Worker:
     """Subclasses implement ``_run`` and poll ``self._stop`` (or wait on it) to end promptly."""
 
@@ -100,10 +48,6 @@ class Worker:
         """Called before the loop restarts after a crash."""
 
     def _supervised(self) -> None:
-        with RIG_THREADS.member():
-            self._loop()
-
-    def _loop(self) -> None:
         while not self._stop.is_set():
             try:
                 self._run()

@@ -8,8 +8,8 @@ import time
 
 import pytest
 
-from graytrack.service.daemon.limits import ConnectionLimits, RequestBudget, ServingShare, client_key
-from graytrack.service.daemon.worker import ThreadGroup
+from graytrack.service.daemon.limits import (WORKER_THREAD, ConnectionLimits, RequestBudget, ServingCpu,
+                                             ServingShare, client_key)
 from graytrack.service.daemon.settings import DaemonConfig
 
 pytestmark = pytest.mark.unit
@@ -152,18 +152,27 @@ def test_a_quiet_daemon_answers_at_once_whatever_the_share() -> None:
         clock.now += 0.1
 
 
-def test_the_rig_threads_cpu_is_kept_after_they_end() -> None:
-    """The process's CPU keeps an ended thread's seconds; so must the rig's group, or serving would be
-    charged them when the thread ends."""
-    group = ThreadGroup()
+def test_serving_counts_the_loop_and_the_request_threads_and_keeps_what_an_ended_one_used() -> None:
+    """The threads that answer requests are anyio's workers (FastAPI runs sync endpoints there) and the loop (here
+    the test's own thread, the first to ask); any other thread of the process (the rig's, a test's own clients) is
+    not serving's."""
+    cpu = ServingCpu()
+    before, loop_before = cpu(), time.thread_time()
 
-    def spin() -> None:
-        with group.member():
-            end = time.thread_time() + 0.05
-            while time.thread_time() < end:
-                pass
+    def spin(seconds: float) -> None:
+        end = time.thread_time() + seconds
+        while time.thread_time() < end:
+            pass
 
-    thread = threading.Thread(target=spin)
-    thread.start()
-    thread.join()
-    assert 0.05 <= group.cpu_s() < 0.5
+    other = threading.Thread(target=spin, args=(0.1,), name="rig")
+    other.start()
+    other.join()
+    assert cpu() - before - (time.thread_time() - loop_before) < 0.01, "another thread's CPU is not serving's"
+    worker = threading.Thread(target=spin, args=(0.05,), name=WORKER_THREAD)
+    worker.start()
+    while worker.is_alive():  # read while it runs, then after it has gone
+        cpu()
+        time.sleep(0.001)
+    worker.join()
+    workers = cpu() - before - (time.thread_time() - loop_before)
+    assert 0.04 <= workers < 0.1, "a worker's CPU counted, and kept after it ended"
