@@ -146,7 +146,8 @@ def render(snapshot: RigSnapshot, broadcaster: Broadcaster, limits: ConnectionLi
     share = limits.budget.share
     if share is not None:
         out += counter("graytrack_serving_cpu_seconds_total", "CPU seconds spent serving clients (the event loop "
-                       "and the request threads, the stream's deliveries apart): what serving_share bounds", share.used_s)
+                       "and the request threads, the stream's deliveries apart): what serving_share bounds",
+                       share.used_s)
         out += gauge("graytrack_request_cpu_seconds", "the mean CPU of one request, from the last busy window "
                      "(what a waiting request is charged)", share.cost_s)
     out += family("graytrack_model_stale", "gauge",
