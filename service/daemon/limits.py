@@ -48,6 +48,7 @@ from __future__ import annotations
 import ipaddress
 import json
 import logging
+import math
 import threading
 import time
 from collections import deque
@@ -70,7 +71,7 @@ WS_MESSAGE_TOO_BIG = 1009
 HARD_CAP_FACTOR = 2  # beyond this many times a connection limit a connection is closed unanswered
 REFUSAL_LOG_INTERVAL_S = 60.0
 HEAD_TOO_LARGE = f"the request's target and headers exceed {MAX_HEAD_BYTES} bytes"
-COST_REQUESTS = 16  # requests a measurement of the mean cost of one spans (fewer: the stream's own cost dominates)
+COST_REQUESTS = 16  # requests a measurement of the mean cost of one spans (fewer: serving's other work dominates)
 COST_WINDOW_S = 1.0  # ... within this: a slower trickle says more about the rest of serving than about requests
 INITIAL_COST_S = 0.002  # a request's CPU before any was measured
 MAX_COST_S = 0.05  # the most one request is charged up front (a measurement stretched by a stall is not a cost)
@@ -165,19 +166,22 @@ class ServingShare:
                  monotonic: Callable[[], float] = time.monotonic) -> None:
         self.share, self.capacity = share, share * burst_s
         self._cpu, self._monotonic = cpu, monotonic
-        self._level, self._at, self._used = self.capacity, monotonic(), cpu()
+        # (measured from the first request on: the loop's thread is the one that asks, not the one that builds this)
+        self._level, self._at, self._used = self.capacity, monotonic(), math.nan
         self._charged: deque[tuple[float, float]] = deque()  # (when it goes, estimate) of requests waiting
         self.cost_s = INITIAL_COST_S  # the mean CPU of one request, from the last busy window
-        self._window = (self._at, self._used, 0)  # start, CPU then, requests since
+        self._window = (self._at, math.nan, 0)  # start, CPU then, requests since
 
     @property
     def used_s(self) -> float:
-        """CPU seconds serving had used at the last request begun."""
-        return self._used
+        """CPU seconds serving had used at the last request begun (0 before the first)."""
+        return 0.0 if math.isnan(self._used) else self._used
 
     def take(self) -> float:
         """The seconds a request begun now waits for the share (0: go now)."""
         now, used = self._monotonic(), self._cpu()
+        if math.isnan(self._used):
+            self._used, self._window = used, (now, used, 0)
         level = min(self.capacity, self._level + self.share * (now - self._at)) - (used - self._used)
         charged = self._charged
         while charged and charged[0][0] <= now:  # gone: from now on what it costs is measured instead

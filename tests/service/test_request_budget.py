@@ -128,6 +128,7 @@ def test_serving_beyond_its_share_makes_the_next_requests_wait_one_after_another
 def test_cpu_charged_for_a_request_that_never_ran_is_given_back_by_the_measurement() -> None:
     clock, cpu = Clock(), Cpu()
     share = ServingShare(0.25, 1.0, cpu, clock)
+    assert share.take() == 0.0  # (the first request: where serving's CPU is measured from)
     cpu.used += 0.5  # serving overspent by a quarter second: in debt
     assert share.take() > 0
     clock.now += 1.01
@@ -139,6 +140,7 @@ def test_a_debt_never_holds_a_request_longer_than_a_burst() -> None:
     """A cost that is not the requests' (a collection, a thread's end counted at once) is bounded."""
     clock, cpu = Clock(), Cpu()
     share = ServingShare(0.25, 1.0, cpu, clock)
+    share.take()
     cpu.used += 30.0
     assert share.take() <= 1.0 + share.cost_s / 0.25 + 1e-9
 
