@@ -6,9 +6,10 @@ the stage link's failed readings, faults) over the flood against quiet windows o
 before and after it.
 
     nice -n 5 .venv/bin/python bench/pipeline_flood.py [--connections 10] [--seconds 20] [--unread]
-                                                       [--test-rig [--client-hz 200]]
+                                                       [--unauthorized] [--test-rig [--client-hz 200]]
 
-``--unread``: the flood never reads its answers (the daemon's writes back up instead). ``--test-rig``: the
+``--unread``: the flood never reads its answers (the daemon's writes back up instead). ``--unauthorized``: a
+stranger's flood, moves (``POST /api/stage/move``) without the token, each answered 401. ``--test-rig``: the
 rig of tests/service/test_pipeline_flood.py (the tests' fast rig, 200 frames per wall second, its virtual rig
 in a process of its own) instead of the embedded default that ``make run`` starts.
 """
@@ -27,6 +28,7 @@ import httpx  # noqa: E402
 from tests.service.helpers import ServeProcess  # noqa: E402
 from tests.service.hostile import FLOOD_RIG, quiet_flood_quiet  # noqa: E402
 
+UNAUTHORIZED = {"method": "POST", "path": "/api/stage/move", "body": b'{"target_mm": 1.0}'}  # what a stranger writes
 SHOWN = ("frames", "frames_lost", "camera_dropped", "grating_errors", "faults")
 
 
@@ -36,6 +38,8 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=20.0, help="length of the flood (and of the quiet window)")
     parser.add_argument("--unread", action="store_true", help="the flood leaves its answers unread")
     parser.add_argument("--test-rig", action="store_true", help="the tests' fast rig instead of the default one")
+    parser.add_argument("--unauthorized", action="store_true",
+                        help="the flood writes moves (POST /api/stage/move) without the token instead of reads")
     parser.add_argument("--client-hz", type=float, default=None,
                         help="[daemon] requests_per_s_per_client of the test rig (default: the daemon's)")
     args = parser.parse_args()
@@ -43,14 +47,16 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as folder, \
             ServeProcess(Path(folder), **tables) if args.test_rig else ServeProcess(Path(folder), True) as daemon:
         daemon.wait_state("tracking", timeout_s=300)
+        request = UNAUTHORIZED if args.unauthorized else {}
         figures = quiet_flood_quiet(daemon.base, daemon.process.pid, daemon.port, args.seconds, args.connections,
-                                    read_answers=not args.unread)
+                                    read_answers=not args.unread, **request)
         alive = daemon.status() is not None
         limits = [line for line in httpx.get(f"{daemon.base}/metrics", timeout=10).text.splitlines()
                   if line.startswith(("graytrack_connections_refused_total{", "graytrack_requests_paced_total "))]
         code = daemon.terminate()
     flood = figures.client
-    print(f"{args.connections} connections pipelining GET /api/status for {args.seconds:g} s "
+    what = "POST /api/stage/move without the token" if args.unauthorized else "GET /api/status"
+    print(f"{args.connections} connections pipelining {what} for {args.seconds:g} s "
           f"({'answers unread' if args.unread else 'reading the answers'}): {flood.sent_requests:,} requests "
           f"written, {flood.answers:,} answered {dict(sorted(flood.statuses.items()))}; "
           f"{len(flood.errors)} connection errors {flood.errors[:3]}")

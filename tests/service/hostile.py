@@ -252,7 +252,8 @@ FLOOD_READ_BYTES = 256 * 1024  # what one connection reads of its answers per wa
 
 @dataclass
 class PipelineFlood:
-    """``n`` connections that each write ``GET path`` requests ``PIPELINE_BATCH`` at a time, pipelined (no
+    """``n`` connections that each write ``method path`` requests (with ``body``, as JSON, where given; never a
+    token) ``PIPELINE_BATCH`` at a time, pipelined (no
     waiting for answers), for ``seconds``, while reading whatever answers come back (``read_answers``; else
     they are left unread, the socket's buffers full). Non-blocking sockets and one select loop: the loop ends at
     its deadline whatever the daemon does. Counts bytes sent and the answers' status lines."""
@@ -262,13 +263,18 @@ class PipelineFlood:
     seconds: float = 20.0
     path: str = "/api/status"
     read_answers: bool = True
+    method: str = "GET"
+    body: bytes = b""
     sent_requests: int = 0
     answers: int = 0
     statuses: dict[str, int] = field(default_factory=dict)
     errors: list[str] = field(default_factory=list)
 
     def run(self) -> None:
-        request = f"GET {self.path} HTTP/1.1\r\nHost: 127.0.0.1:{self.port}\r\n\r\n".encode()
+        head = f"{self.method} {self.path} HTTP/1.1\r\nHost: 127.0.0.1:{self.port}\r\n"
+        if self.body:
+            head += f"Content-Type: application/json\r\nContent-Length: {len(self.body)}\r\n"
+        request = (head + "\r\n").encode() + self.body
         batch = request * PIPELINE_BATCH
         selector = selectors.DefaultSelector()
         socks: list[socket.socket] = []
@@ -363,16 +369,16 @@ FLOOD_RIG: dict[str, dict[str, Any]] = {"camera": {"rig_process": True}}
 
 
 def quiet_flood_quiet(base: str, pid: int, port: int, seconds: float, connections: int,
-                      read_answers: bool = True) -> FloodFigures:
+                      read_answers: bool = True, **request: Any) -> FloodFigures:
     """The rig's counters over ``seconds`` of quiet, over ``seconds`` of :class:`PipelineFlood` on
-    ``connections`` connections (RSS sampled every :data:`RSS_SAMPLE_S` meanwhile), and over ``seconds`` of
-    quiet again once the flood's connections closed (what the host's load alone does to the rig, on both sides
-    of the flood); RSS at the end."""
+    ``connections`` connections (``request``: its method, path and body, where not reads of the status; RSS
+    sampled every :data:`RSS_SAMPLE_S` meanwhile), and over ``seconds`` of quiet again once the flood's
+    connections closed (what the host's load alone does to the rig, on both sides of the flood); RSS at the end."""
     start = rig_counters(base)
     time.sleep(seconds)
     quiet_end = rig_counters(base)
     before = rss_mb(pid)
-    flood = PipelineFlood(port, connections, seconds, read_answers=read_answers)
+    flood = PipelineFlood(port, connections, seconds, read_answers=read_answers, **request)
     thread = threading.Thread(target=flood.run, name="flood")
     flood_start = rig_counters(base)
     thread.start()
