@@ -335,7 +335,15 @@ def test_the_print_map_is_drawn_along_the_target_with_its_sigma(tmp_path: Path, 
         # (on a loaded machine, decided at rest on its travel at the sweep's end: x_w ≈ 13.8 mm, 1–3 % darker).
         kept = daemon.status()["print_map"]
         assert all(mark["reflectance"] > FAINT for mark in kept["shown"]), kept["shown"]
-        expect(printed).to_have_attribute("data-marks", str(kept["marks"]), timeout=10_000)
+        # the page shows what the daemon holds (read again at each look: such a place may be decided meanwhile)
+        seen: list = []
+
+        def drawn_as_held() -> bool:
+            seen[:] = [printed.get_attribute("data-marks"), daemon.status()["print_map"]["marks"]]
+            return seen[0] == str(seen[1])
+
+        wait_for(drawn_as_held, 10.0, "the page's print map as the daemon holds it", show=lambda: seen)
+        kept = daemon.status()["print_map"]
         if not kept["marks"]:  # and the page says nothing is learned
             expect(info).to_have_text(re.compile(r"^(nothing learned on the print|\d+ place\(s\) set aside, none "
                                                  r"yet decided by the motion)"))
