@@ -47,13 +47,14 @@ def test_with_no_lag_budget_a_late_read_skips_to_the_newest_and_counts_the_rest_
     with AravisCamera("Fake_1", settings, n_buffers=32) as camera:
         first = camera.read(1.0)
         time.sleep(0.2)  # ~40 frames arrive; the pool holds up to 32 of them
+        asked = time.monotonic()
         fresh = camera.read(1.0)
-        received = time.monotonic()
     assert frames_between(first.frame_id, fresh.frame_id) >= 20
     assert camera.stats.dropped >= 20
-    # The oldest queued frame would be over 150 ms old; the newest is a few ms old plus whatever
-    # the scheduler adds under the parallel suite's load.
-    assert received - fresh.t_host < 0.1, "the handed-out frame is the newest, not the oldest queued"
+    # When the read was asked for, the oldest queued frame was over 150 ms old and the newest a frame period;
+    # the frame handed out is at least as new as the newest then (measured from the asking, not from the
+    # return: a loaded scheduler may hold the test's thread after the read as long as it likes).
+    assert asked - fresh.t_host < 0.1, "the handed-out frame is the newest, not the oldest queued"
 
 
 def test_software_trigger_produces_one_frame_per_read_and_mono16_is_uint16() -> None:
