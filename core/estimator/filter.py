@@ -22,7 +22,8 @@ its uncertainty, and once that uncertainty outweighs the frame's own noise floor
 flagged with the family that carries it.
 
 Grating modes: ``"check"`` (read, not fused: each frame's position is the image's own, tested
-against the grating at the same false-alarm rate, flagged ``scale`` when they disagree),
+against the grating at the same false-alarm rate, flagged ``scale`` when they disagree; the recursion
+goes on from the frame's account with the grating where the image's was refuted: ``_carried``),
 ``"fuse"`` (a second measurement of the carriage: the camera's place and the lens's lever are
 learned against it, the ``--trim`` of the command line), ``"none"`` (no grating read).
 """
@@ -443,8 +444,11 @@ class Estimator:
             self._unexplained = []
             self._placed_again = False
             self._band_missed = 0
-        if (test > 1.0 or stats[S_REJECTED] > 0 or stats[S_WEIGHED] > 0) and not mode and dt is not None \
-                and main[S_POSTERIOR] > 0 and self._anchored(self._P_next, main) and \
+        # (read and checked, the grating's test is the position's: what a frame leaves at its samples speaks of them
+        # wherever the state's memory carries its position's variance, as the frame's flags do)
+        located = self._checked == self._checked
+        if (test > 1.0 or stats[S_REJECTED] > 0 or stats[S_WEIGHED] > 0) and not mode and dt is not None and \
+                (located or main[S_POSTERIOR] > 0 and self._anchored(self._P_next, main)) and \
                 self._landed(y, mask, s, s_prior, P_prior, grating_z) > 0:
             # Something landed on samples no jump of the state explains (a speck on the window, a veil): they wait
             # outside the position until the motion resolves them (sensor_map.py), and the frame is solved again
@@ -462,6 +466,11 @@ class Estimator:
             self.failed += 1
             return self._unplaced(t, stats, test, "too many samples set aside" if rejected else "not converged")
         self.failed = 0
+        # Read and checked, a grating that finds the carriage where the frame's account does not place the image is a
+        # measurement the account failed: the frame is reported as its image placed it (flagged by that test), and
+        # the recursion carries on from the account the grating agrees with (_carried), not from one it refuted.
+        carried = self._carried(y, mask, s_prior, P_prior) if located and \
+            self._with_grating(test, s, A, stats) > 1.0 else None
         if s is self._answer[0]:  # the main update's arrays: the state's becomes the next answer's
             self._answer = (self.s, A, self._answer[2])
         self.s = s
@@ -504,6 +513,11 @@ class Estimator:
             # its own (a change being learned is flagged until it is)
             anchored = self._anchored(self.P, stats)
             self._learn(y_raw, raw_mask, y, t, anchored, anchored and not estimate.stale)
+        if carried is not None:  # (the maps learn from the frame as its image placed it, as it is reported)
+            self.s, A, idx, self.P = carried
+            kernel.embed(self.P, A, idx, self._sigma)
+            if idx is not self.idx:
+                self._band_on()
         return estimate
 
     def commanded(self, start: float, end: float, acceleration: float | None = None) -> None:
@@ -513,6 +527,40 @@ class Estimator:
         the stage does beyond its commands (mount.py). Read or fused, the grating says."""
         if self.mount is not None:
             self.mount.command(start, end, acceleration)
+
+    def _carried(self, y: np.ndarray, mask: np.ndarray, s_prior: np.ndarray,
+                 P_prior: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+        """The frame's account with the grating it checks as a second measurement of the carriage, for the
+        recursion to carry where the image's own account and the grating disagree: (state, posterior information,
+        the states solved, the prior's covariance to embed it in). Solved with the grating, and with the jump of
+        each family its score test then points to (the frame's innovation seen with the carriage pinned: a
+        vignetting change or a veil forming reads as the light's shape there, not as a shift), or with a band
+        entering, the account that explains the gray values best is kept; None where none explains them within
+        their test (the frame's own account then stands, as it did before the grating refuted it)."""
+        if (self.idx is self.idx_band) != (s_prior.item(BE) > 0.0):
+            return None  # (a band entered or left on this frame: its account stands)
+        reading = self._checked
+        P_keep = P_prior.copy()
+        s_f, A_f, stats_f = self._solve(y, mask, s_prior, P_keep, reading)
+        if not math.isfinite(s_f[X]):
+            return None
+        best = (self._chi2(stats_f), s_f, A_f, stats_f)
+        ranked = self._ranked(s_f, A_f, s_prior, P_keep)[:SEARCHED]
+        for family in ranked:
+            s_j, A_j, stats_j = self._solve(y, mask, s_prior, self._jumped(P_keep, family), reading)
+            chi2 = self._chi2(stats_j)
+            if math.isfinite(s_j[X]) and chi2 < best[0]:
+                best = (chi2, s_j, A_j, stats_j)
+        if ranked and s_prior.item(BE) <= 0.0:
+            # (as in the frame's own search: a band entering is taken over a jump only where it explains more by its
+            # extra states' quantile)
+            banded = self._banded(y, mask, s_f, stats_f, s_prior, P_keep, reading)
+            if banded is not None and banded[0] <= 1.0 and self._chi2(banded[3]) + self._band_margin < best[0]:
+                return banded[1], banded[2], self.idx_band, P_keep
+        _, s_f, A_f, stats_f = best
+        if self._test(stats_f) > 1.0:
+            return None  # (no account the grating agrees with explains the frame either: the frame's own stands)
+        return s_f, A_f, self.idx, P_keep
 
     def _mounted(self, step: Step) -> None:
         """The camera's place takes the step the mount made (mount.py): the carriage is where the image was less

@@ -39,7 +39,11 @@ def _scored(model, later: str, grating: str, scenario: str = "paper", seed: int 
 def test_a_moving_shadow_is_followed_as_a_band(paper, grating):
     """A cable's shadow (a third of the light, 3 mm wide with 1 mm penumbras) crossing the field twice, back and
     forth, undeclared: searched as a band where its first frames fail, then followed, its edges moving at the
-    band's speed. Error within 1.5 noise floors (20.6 before the band), nothing lost, none 4 bounds off unflagged."""
+    band's speed. Error within 1.5 noise floors without the grating (20.6 before the band), nothing lost, none 4
+    bounds off unflagged. With the grating read and checked, within 1.8: where the grating refutes a frame's account
+    the recursion carries on from the account it agrees with (filter.py ``_carried``), which on this seed's shadow
+    took a shape of the light one frame before the band could be told (1.40 before; over bench/band_variants.py's
+    shadows and veils the carry took the frames 4+ bounds off from 5,544 to 4,977, unflagged 122 to 115)."""
     estimates, ratio, silent, lost = _scored(paper, "moving_shadow:passes=2:period_s=4:start_s=2", grating)
     entered = [k for k, e in enumerate(estimates) if e.mode == "band"]
     assert entered, "no band entered"
@@ -48,7 +52,7 @@ def test_a_moving_shadow_is_followed_as_a_band(paper, grating):
     speeds = [abs(e.state[BL] - estimates[k - 1].state[BL]) / (e.t - estimates[k - 1].t)
               for k, e in enumerate(estimates) if k and followed[k] and followed[k - 1]]
     assert np.median(speeds) > 5.0  # mm/s: the band crosses the field (19 mm/s), it is no mark on the window
-    assert ratio <= 1.5, ratio
+    assert ratio <= (1.8 if grating == "check" else 1.5), ratio
     assert lost == 0.0 and silent <= 1
 
 
