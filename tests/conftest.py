@@ -9,8 +9,12 @@ and files only, seeded, fast. ``pytest -m unit`` is the quick check while editin
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import functools
 import os
+from collections.abc import Callable, Iterator
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -59,6 +63,36 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         if item.get_closest_marker("unit") is not None:
             continue
         item.add_marker(pytest.mark.system if system else pytest.mark.unit)
+
+
+@contextlib.contextmanager
+def _locked(path: Path) -> Iterator[None]:
+    with path.open("a") as handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
+
+
+def shared_once(factory: pytest.TempPathFactory, name: str, build: Callable[[Path], None]) -> Path:
+    """A folder ``build(folder)`` filled once for the whole run, whichever test worker asks first: the others wait
+    for it and read the same folder (its readers must copy what they change). Keyed by ``name`` under the run's
+    shared temporary folder (each xdist worker's base temp is a child of it); a build that failed is tried again
+    by the next one to ask, from an empty folder."""
+    base = factory.getbasetemp()
+    root = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+    folder, done = root / f"shared-{name}", root / f"shared-{name}.done"
+    with _locked(root / f"shared-{name}.lock"):
+        if not done.exists():
+            if folder.exists():
+                import shutil
+
+                shutil.rmtree(folder)
+            folder.mkdir()
+            build(folder)
+            done.touch()
+    return folder
 
 
 PAPER_META = {"pixel_pitch_mm": paper.PIXEL_PITCH_MM, "period_mm": 8.6, "source": "tests: Table 2 field"}
