@@ -40,6 +40,7 @@ def _workers(config: pytest.Config) -> int:
 
 
 def pytest_configure(config: pytest.Config) -> None:
+    config.pluginmanager.register(HeavyFirst(), "graytrack-heavy-first")
     # set before the workers start, which inherit it (and so do the daemons and commands tests start from them);
     # a value the caller set is kept
     if (workers := _workers(config)) > 0:
@@ -63,6 +64,84 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         if item.get_closest_marker("unit") is not None:
             continue
         item.add_marker(pytest.mark.system if system else pytest.mark.unit)
+
+
+# The suite's heaviest parts, in seconds of a test worker (summed `--durations`, rounded), whole for the folders
+# whose package-scoped fixtures (a daemon, a Dask cluster) would be made again if their modules were split.
+# What is not named weighs nothing here: it fills in after them.
+HEAVY_S = {
+    "tests/diagnosis/test_closed_loop.py": 136, "tests/web/test_status_page.py": 135,
+    "tests/core/test_geometry_check.py": 111, "tests/service/test_schemathesis.py": 101, "tests/client": 97,
+    "tests/service/test_lifecycle.py": 97, "tests/service/test_history.py": 96, "tests/core/test_validity.py": 90,
+    "tests/batch": 63, "tests/service/test_disk_full.py": 62, "tests/service/test_supervision.py": 59,
+    "tests/diagnosis/test_bad_pixels.py": 59, "tests/core/test_transients.py": 57,
+    "tests/service/test_print_map_store.py": 48, "tests/core/test_estimator.py": 43,
+    "tests/diagnosis/test_period_refit.py": 43, "tests/service/test_sensor_map_store.py": 41,
+    "tests/service/test_log_flood.py": 38, "tests/service/test_epics.py": 37, "tests/core/test_frame_kernel.py": 36,
+    "tests/service/test_limits.py": 34, "tests/core/test_tracking_light_field.py": 33,
+    "tests/diagnosis/test_robust_end_to_end.py": 33, "tests/service/test_secret_logs.py": 32,
+    "tests/diagnosis/test_report_figures.py": 29, "tests/service/test_damaged_calibration.py": 26,
+    "tests/core/test_install_warm.py": 25, "tests/service/test_texture_store.py": 24,
+    "tests/web/test_first_hour.py": 24, "tests/diagnosis/test_demo_report.py": 22, "tests/core/test_compression.py": 21,
+    "tests/diagnosis/test_diagnose_cli.py": 21, "tests/drivers/test_pipython.py": 21,
+    "tests/web/test_page_read_token.py": 21,
+    "tests/diagnosis/test_target_growth_end_to_end.py": 20, "tests/core/test_tracking_focus.py": 20,
+    "tests/core/test_tracking_shadow.py": 20,
+}
+WHOLE_FOLDERS = ("tests/client", "tests/batch")
+
+
+def _group(item: pytest.Item, root: Path) -> str:
+    path = item.path.relative_to(root).as_posix()
+    return next((folder for folder in WHOLE_FOLDERS if path.startswith(folder + "/")), path)
+
+
+def _chunks(n_items: int, n_workers: int) -> list[int]:
+    """How many of the collected tests pytest-xdist's worksteal hands each worker at the start: the first
+    ``n // workers`` in order, then ``remaining // workers left`` of the rest, and so on (each works its share in
+    order, then takes the far end of the longest share still waiting)."""
+    sizes, left = [], n_items
+    for remaining in range(n_workers, 0, -1):
+        sizes.append(left // remaining)
+        left -= sizes[-1]
+    return sizes
+
+
+class HeavyFirst:
+    """A plugin of its own (registered in :func:`pytest_configure`): this conftest's own collection hook marks the
+    tests before ``-m`` deselects, this one orders what is left after."""
+
+    @pytest.hookimpl(trylast=True)
+    def pytest_collection_modifyitems(self, config: pytest.Config, items: list[pytest.Item]) -> None:
+        heavy_first(config, items)
+
+
+def heavy_first(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """On a worksteal worker, the order that starts every worker on heavy parts: each heavy part (HEAVY_S) goes to
+    the share that weighs least so far, heaviest first, and the light tests fill each share up to its size after
+    them. Left in file order, a share could end on a test of a minute (the page tests come last) that no other
+    worker can take from it while it runs; light tests at each share's end are what the worker that finishes first
+    takes over. Every worker computes the same order (xdist checks that they collected the same)."""
+    workers = int(getattr(config, "workerinput", {}).get("workercount", 0))
+    if workers < 2 or config.getoption("dist", None) != "worksteal" or not items:
+        return
+    groups: dict[str, list[pytest.Item]] = {}
+    for item in items:
+        groups.setdefault(_group(item, config.rootpath), []).append(item)
+    heavy = sorted((key for key in groups if key in HEAVY_S), key=lambda key: -HEAVY_S[key])
+    shares: list[list[pytest.Item]] = [[] for _ in range(workers)]
+    weights = [0] * workers
+    for key in heavy:
+        lightest = weights.index(min(weights))
+        shares[lightest] += groups[key]
+        weights[lightest] += HEAVY_S[key]
+    light = [item for key, group in groups.items() if key not in HEAVY_S for item in group]
+    for share, size in zip(shares, _chunks(len(items), workers)):
+        take = max(0, size - len(share))
+        share += light[:take]
+        del light[:take]
+    shares[-1] += light
+    items[:] = [item for share in shares for item in share]
 
 
 @contextlib.contextmanager
