@@ -204,6 +204,21 @@ def paper_models(paper_cal):
 
 
 @functools.lru_cache(maxsize=None)
+def warm_kernels() -> None:
+    """Every compiled kernel the suite runs, compiled into numba's disk cache (``make test`` runs this while lint
+    does): the tracker's (the daemon's own warm-up, service/heap.py) and those of calibration and batch tracking,
+    which on a fresh clone each test worker and each daemon it starts would otherwise compile on first use, ~10 s
+    of CPU apiece (loaded from the cache in well under a second after)."""
+    from graytrack.core.tracking import track
+    from graytrack.service.heap import warm_tracking
+
+    warm_tracking(("watches", "estimator"))
+    recording = paper_recording(200)
+    model = calibrate(recording, "paper").model
+    track(model, recording.frames, reference=recording.reference, light="auto", robust=True)
+
+
+@functools.lru_cache(maxsize=None)
 def rig_model(scenario: str, effects: str = "", seed: int = 3, seconds: float = 20.0):
     """The seed paper's model calibrated on ``seconds`` of the virtual rig (``build_rig(scenario, effects,
     seed)``): made once a test process for every module that tracks its later runs with it (seeded: the same
