@@ -39,6 +39,36 @@ def _workers(config: pytest.Config) -> int:
     return workers if isinstance(workers, int) else 0
 
 
+def _share_httpx_tls_context() -> None:
+    """httpx's top-level calls (``httpx.get(...)``, as the tests poll a daemon) build a client each, and each client
+    a TLS context that loads certifi's CA bundle: ~60 ms of CPU a call, for requests to http://127.0.0.1 that never
+    use it; polled every 20 ms, a waiting test spent most of a core on it. In the test processes the default context
+    (verify=True, no client certificate, the same environment) is built once and handed to every client that asks
+    for it; every other request builds its own as before. What is verified, and how, is unchanged."""
+    try:
+        from httpx._transports import default
+    except ImportError:  # another httpx: every client builds its own, as before
+        return
+    build = default.create_ssl_context
+    if getattr(build, "shared", False):
+        return
+    contexts: dict[tuple[object, ...], object] = {}
+
+    def create_ssl_context(verify: object = True, cert: object = None, trust_env: bool = True) -> object:
+        if verify is not True or cert is not None:
+            return build(verify=verify, cert=cert, trust_env=trust_env)
+        key = (trust_env, os.environ.get("SSL_CERT_FILE"), os.environ.get("SSL_CERT_DIR"))
+        if key not in contexts:
+            contexts[key] = build(verify=verify, cert=cert, trust_env=trust_env)
+        return contexts[key]
+
+    create_ssl_context.shared = True  # type: ignore[attr-defined]
+    default.create_ssl_context = create_ssl_context
+
+
+_share_httpx_tls_context()
+
+
 def pytest_configure(config: pytest.Config) -> None:
     config.pluginmanager.register(HeavyFirst(), "graytrack-heavy-first")
     # set before the workers start, which inherit it (and so do the daemons and commands tests start from them);
