@@ -67,8 +67,13 @@ lint: $(STAMP)
 # ~270 test modules again in each worker and in the `alone` run (collecting the suite: 9.7 s, 4.0 s from the
 # caches), and each daemon and command a test starts compiles graytrack again (~0.3 s of CPU each).
 test unit: export PYTHONDONTWRITEBYTECODE =
-test: lint $(STAMP)
-	@$(BIN)/python -m pytest -n $(PYTEST_WORKERS) --dist worksteal -m "not alone" $(PYTEST_ARGS); first=$$?; \
+# The suite's compiled kernels are compiled (on a fresh clone, ~100 s of CPU; loaded from numba's cache in a second
+# after) while lint runs, on the other core, rather than by the test session before its workers start or by each
+# worker and daemon on first use (tests/conftest.py warm_kernels).
+test: $(STAMP)
+	@$(BIN)/python -c 'from tests.conftest import warm_kernels; warm_kernels()' & \
+	warm=$$!; $(MAKE) --no-print-directory lint; linted=$$?; wait $$warm; [ $$linted -eq 0 ] || exit $$linted; \
+	$(BIN)/python -m pytest -n $(PYTEST_WORKERS) --dist worksteal -m "not alone" $(PYTEST_ARGS); first=$$?; \
 	$(BIN)/python -m pytest -n 0 -m alone $(PYTEST_ARGS); alone=$$?; \
 	[ $$alone -eq 5 ] && alone=0; \
 	[ $$first -eq 0 ] && [ $$alone -eq 0 ]  # 5: no alone test selected

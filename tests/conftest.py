@@ -9,8 +9,12 @@ and files only, seeded, fast. ``pytest -m unit`` is the quick check while editin
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import functools
 import os
+from collections.abc import Callable, Iterator
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -35,7 +39,38 @@ def _workers(config: pytest.Config) -> int:
     return workers if isinstance(workers, int) else 0
 
 
+def _share_httpx_tls_context() -> None:
+    """httpx's top-level calls (``httpx.get(...)``, as the tests poll a daemon) build a client each, and each client
+    a TLS context that loads certifi's CA bundle: ~60 ms of CPU a call, for requests to http://127.0.0.1 that never
+    use it; polled every 20 ms, a waiting test spent most of a core on it. In the test processes the default context
+    (verify=True, no client certificate, the same environment) is built once and handed to every client that asks
+    for it; every other request builds its own as before. What is verified, and how, is unchanged."""
+    try:
+        from httpx._transports import default
+    except ImportError:  # another httpx: every client builds its own, as before
+        return
+    build = default.create_ssl_context
+    if getattr(build, "shared", False):
+        return
+    contexts: dict[tuple[object, ...], object] = {}
+
+    def create_ssl_context(verify: object = True, cert: object = None, trust_env: bool = True) -> object:
+        if verify is not True or cert is not None:
+            return build(verify=verify, cert=cert, trust_env=trust_env)
+        key = (trust_env, os.environ.get("SSL_CERT_FILE"), os.environ.get("SSL_CERT_DIR"))
+        if key not in contexts:
+            contexts[key] = build(verify=verify, cert=cert, trust_env=trust_env)
+        return contexts[key]
+
+    create_ssl_context.shared = True  # type: ignore[attr-defined]
+    default.create_ssl_context = create_ssl_context
+
+
+_share_httpx_tls_context()
+
+
 def pytest_configure(config: pytest.Config) -> None:
+    config.pluginmanager.register(HeavyFirst(), "graytrack-heavy-first")
     # set before the workers start, which inherit it (and so do the daemons and commands tests start from them);
     # a value the caller set is kept
     if (workers := _workers(config)) > 0:
@@ -59,6 +94,114 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         if item.get_closest_marker("unit") is not None:
             continue
         item.add_marker(pytest.mark.system if system else pytest.mark.unit)
+
+
+# The suite's heaviest parts, in seconds of a test worker (summed `--durations`, rounded), whole for the folders
+# whose package-scoped fixtures (a daemon, a Dask cluster) would be made again if their modules were split.
+# What is not named weighs nothing here: it fills in after them.
+HEAVY_S = {
+    "tests/diagnosis/test_closed_loop.py": 136, "tests/web/test_status_page.py": 135,
+    "tests/core/test_geometry_check.py": 111, "tests/service/test_schemathesis.py": 101, "tests/client": 97,
+    "tests/service/test_lifecycle.py": 97, "tests/service/test_history.py": 96, "tests/core/test_validity.py": 90,
+    "tests/batch": 63, "tests/service/test_disk_full.py": 62, "tests/service/test_supervision.py": 59,
+    "tests/diagnosis/test_bad_pixels.py": 59, "tests/core/test_transients.py": 57,
+    "tests/service/test_print_map_store.py": 48, "tests/core/test_estimator.py": 43,
+    "tests/diagnosis/test_period_refit.py": 43, "tests/service/test_sensor_map_store.py": 41,
+    "tests/service/test_log_flood.py": 38, "tests/service/test_epics.py": 37, "tests/core/test_frame_kernel.py": 36,
+    "tests/service/test_limits.py": 34, "tests/core/test_tracking_light_field.py": 33,
+    "tests/diagnosis/test_robust_end_to_end.py": 33, "tests/service/test_secret_logs.py": 32,
+    "tests/diagnosis/test_report_figures.py": 29, "tests/service/test_damaged_calibration.py": 26,
+    "tests/core/test_install_warm.py": 25, "tests/service/test_texture_store.py": 24,
+    "tests/web/test_first_hour.py": 24, "tests/diagnosis/test_demo_report.py": 22, "tests/core/test_compression.py": 21,
+    "tests/diagnosis/test_diagnose_cli.py": 21, "tests/drivers/test_pipython.py": 21,
+    "tests/web/test_page_read_token.py": 21,
+    "tests/diagnosis/test_target_growth_end_to_end.py": 20, "tests/core/test_tracking_focus.py": 20,
+    "tests/core/test_tracking_shadow.py": 20,
+}
+WHOLE_FOLDERS = ("tests/client", "tests/batch")
+
+
+def _group(item: pytest.Item, root: Path) -> str:
+    path = item.path.relative_to(root).as_posix()
+    return next((folder for folder in WHOLE_FOLDERS if path.startswith(folder + "/")), path)
+
+
+def _chunks(n_items: int, n_workers: int) -> list[int]:
+    """How many of the collected tests pytest-xdist's worksteal hands each worker at the start: the first
+    ``n // workers`` in order, then ``remaining // workers left`` of the rest, and so on (each works its share in
+    order, then takes the far end of the longest share still waiting)."""
+    sizes, left = [], n_items
+    for remaining in range(n_workers, 0, -1):
+        sizes.append(left // remaining)
+        left -= sizes[-1]
+    return sizes
+
+
+class HeavyFirst:
+    """A plugin of its own (registered in :func:`pytest_configure`): this conftest's own collection hook marks the
+    tests before ``-m`` deselects, this one orders what is left after."""
+
+    @pytest.hookimpl(trylast=True)
+    def pytest_collection_modifyitems(self, config: pytest.Config, items: list[pytest.Item]) -> None:
+        heavy_first(config, items)
+
+
+def heavy_first(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """On a worksteal worker, the order that starts every worker on heavy parts: each heavy part (HEAVY_S) goes to
+    the share that weighs least so far, heaviest first, and the light tests fill each share up to its size after
+    them. Left in file order, a share could end on a test of a minute (the page tests come last) that no other
+    worker can take from it while it runs; light tests at each share's end are what the worker that finishes first
+    takes over. Every worker computes the same order (xdist checks that they collected the same)."""
+    workers = int(getattr(config, "workerinput", {}).get("workercount", 0))
+    if workers < 2 or config.getoption("dist", None) != "worksteal" or not items:
+        return
+    groups: dict[str, list[pytest.Item]] = {}
+    for item in items:
+        groups.setdefault(_group(item, config.rootpath), []).append(item)
+    heavy = sorted((key for key in groups if key in HEAVY_S), key=lambda key: -HEAVY_S[key])
+    shares: list[list[pytest.Item]] = [[] for _ in range(workers)]
+    weights = [0] * workers
+    for key in heavy:
+        lightest = weights.index(min(weights))
+        shares[lightest] += groups[key]
+        weights[lightest] += HEAVY_S[key]
+    light = [item for key, group in groups.items() if key not in HEAVY_S for item in group]
+    for share, size in zip(shares, _chunks(len(items), workers)):
+        take = max(0, size - len(share))
+        share += light[:take]
+        del light[:take]
+    shares[-1] += light
+    items[:] = [item for share in shares for item in share]
+
+
+@contextlib.contextmanager
+def _locked(path: Path) -> Iterator[None]:
+    with path.open("a") as handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
+
+
+def shared_once(factory: pytest.TempPathFactory, name: str, build: Callable[[Path], None]) -> Path:
+    """A folder ``build(folder)`` filled once for the whole run, whichever test worker asks first: the others wait
+    for it and read the same folder (its readers must copy what they change). Keyed by ``name`` under the run's
+    shared temporary folder (each xdist worker's base temp is a child of it); a build that failed is tried again
+    by the next one to ask, from an empty folder."""
+    base = factory.getbasetemp()
+    root = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+    folder, done = root / f"shared-{name}", root / f"shared-{name}.done"
+    with _locked(root / f"shared-{name}.lock"):
+        if not done.exists():
+            if folder.exists():
+                import shutil
+
+                shutil.rmtree(folder)
+            folder.mkdir()
+            build(folder)
+            done.touch()
+    return folder
 
 
 PAPER_META = {"pixel_pitch_mm": paper.PIXEL_PITCH_MM, "period_mm": 8.6, "source": "tests: Table 2 field"}
@@ -88,6 +231,21 @@ def paper_val() -> Recording:
 @pytest.fixture(scope="session")
 def paper_models(paper_cal):
     return {kind: calibrate(paper_cal, kind) for kind in ("ideal", "paper")}
+
+
+@functools.lru_cache(maxsize=None)
+def warm_kernels() -> None:
+    """Every compiled kernel the suite runs, compiled into numba's disk cache (``make test`` runs this while lint
+    does): the tracker's (the daemon's own warm-up, service/heap.py) and those of calibration and batch tracking,
+    which on a fresh clone each test worker and each daemon it starts would otherwise compile on first use, ~10 s
+    of CPU apiece (loaded from the cache in well under a second after)."""
+    from graytrack.core.tracking import track
+    from graytrack.service.heap import warm_tracking
+
+    warm_tracking(("watches", "estimator"))
+    recording = paper_recording(200)
+    model = calibrate(recording, "paper").model
+    track(model, recording.frames, reference=recording.reference, light="auto", robust=True)
 
 
 @functools.lru_cache(maxsize=None)

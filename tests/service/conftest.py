@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import shutil
 from collections.abc import Iterator
 from pathlib import Path
@@ -11,6 +12,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from graytrack.service.daemon.app import create_app
+from tests.conftest import shared_once
 from tests.service.helpers import LiveServer, ServeProcess, fast_settings, wait_job, wait_state
 
 
@@ -45,16 +47,22 @@ def daemon(data_dir: Path) -> Iterator[LiveServer]:
 
 @pytest.fixture(scope="session")
 def _two_calibrations(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[str]]:
-    folder = tmp_path_factory.mktemp("two-calibrations")
-    with ServeProcess(folder, daemon={"auto_calibrate": "never"}) as first:
-        first.wait_state("idle")
-        done: list[str] = []
-        for _ in range(2):
-            job = httpx.post(f"{first.base}/api/calibration", headers=first.auth(), timeout=5).json()["id"]
-            wait_job(first.get, job, "done", 60.0)
-            done.append(job)
-        assert first.terminate() == 0
-    return folder / "data", done
+    """Made once for the run (tests/conftest.py shared_once: the test workers share it) and read only: its users
+    copy the data directory before a daemon writes into it."""
+
+    def make(folder: Path) -> None:
+        with ServeProcess(folder, daemon={"auto_calibrate": "never"}) as first:
+            first.wait_state("idle")
+            done: list[str] = []
+            for _ in range(2):
+                job = httpx.post(f"{first.base}/api/calibration", headers=first.auth(), timeout=5).json()["id"]
+                wait_job(first.get, job, "done", 60.0)
+                done.append(job)
+            assert first.terminate() == 0
+        (folder / "done.json").write_text(json.dumps(done))
+
+    folder = shared_once(tmp_path_factory, "two-calibrations", make)
+    return folder / "data", json.loads((folder / "done.json").read_text())
 
 
 @pytest.fixture

@@ -103,29 +103,32 @@ def test_page_shows_live_position_and_runs_a_calibration(page) -> None:
     assert console == [], console
 
 
-def test_a_page_on_another_origin_cannot_frame_the_status_page(page, tmp_path: Path) -> None:
+def test_a_page_on_another_origin_cannot_frame_the_status_page(browser, tmp_path: Path) -> None:
     import functools
     import http.server
     import threading
 
-    browser_page, daemon = page
-    daemon.wait_state("tracking")
     site = tmp_path / "site"
     site.mkdir()
     (site / "own.html").write_text('<p id="own">the attacker\'s own page</p>')
-    (site / "index.html").write_text(f'<iframe id="victim" src="{daemon.base}/"></iframe>'
-                                     '<iframe id="control" src="/own.html"></iframe>')
     handler = functools.partial(http.server.SimpleHTTPRequestHandler, directory=str(site))
     attacker = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
     threading.Thread(target=attacker.serve_forever, daemon=True).start()
+    # A daemon that does not calibrate itself: the page (web/index.html, static) and the headers that forbid framing
+    # it are served the same in every state; a start-up calibration would only take the test's CPU.
     try:
-        browser_page.goto(f"http://127.0.0.1:{attacker.server_address[1]}/index.html")
-        browser_page.wait_for_timeout(1500)
-        frames = {frame.url: frame for frame in browser_page.frames[1:]}
-        control = next(f for url, f in frames.items() if url.endswith("/own.html"))
-        assert control.query_selector("#own") is not None, "the control frame loads: framing as such works"
-        victim = [f for url, f in frames.items() if not url.endswith("/own.html")]
-        assert victim and all(f.query_selector("#position") is None for f in victim), [f.url for f in victim]
+        with ServeProcess(tmp_path, daemon={"auto_calibrate": "never"}) as daemon:
+            daemon.wait_state("idle")
+            (site / "index.html").write_text(f'<iframe id="victim" src="{daemon.base}/"></iframe>'
+                                             '<iframe id="control" src="/own.html"></iframe>')
+            browser_page = browser.new_page()
+            browser_page.goto(f"http://127.0.0.1:{attacker.server_address[1]}/index.html")
+            browser_page.wait_for_timeout(1500)
+            frames = {frame.url: frame for frame in browser_page.frames[1:]}
+            control = next(f for url, f in frames.items() if url.endswith("/own.html"))
+            assert control.query_selector("#own") is not None, "the control frame loads: framing as such works"
+            victim = [f for url, f in frames.items() if not url.endswith("/own.html")]
+            assert victim and all(f.query_selector("#position") is None for f in victim), [f.url for f in victim]
     finally:
         attacker.shutdown()
 
