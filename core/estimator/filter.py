@@ -469,8 +469,10 @@ class Estimator:
         # Read and checked, a grating that finds the carriage where the frame's account does not place the image is a
         # measurement the account failed: the frame is reported as its image placed it (flagged by that test), and
         # the recursion carries on from the account the grating agrees with (_carried), not from one it refuted.
+        # (the main update's posterior is made already: its position's variance is read, not inverted again)
+        made = self._P_next.item(X, X) if A is self._answer[1] and stats[kernel.S_POSTERIOR] > 0 else None
         carried = self._carried(y, mask, s_prior, P_prior) if located and \
-            self._with_grating(test, s, A, stats) > 1.0 else None
+            self._with_grating(test, s, A, stats, made) > 1.0 else None
         if s is self._answer[0]:  # the main update's arrays: the state's becomes the next answer's
             self._answer = (self.s, A, self._answer[2])
         self.s = s
@@ -956,7 +958,8 @@ class Estimator:
             return math.inf
         return self._chi2(stats) / _quantile(self.z_alpha, used / self.spread ** 2)
 
-    def _with_grating(self, test: float, s: np.ndarray, A: np.ndarray, stats: list) -> float:
+    def _with_grating(self, test: float, s: np.ndarray, A: np.ndarray, stats: list,
+                      var_image: float | None = None) -> float:
         """A jump's test, with the grating's where it is read and checked (the larger of the two, each over its
         quantile at the false-alarm rate): of two jumps that explain the gray values, one that puts the image where
         the grating says the carriage is not explains less of the frame (over less than a period a gain hunting
@@ -964,10 +967,11 @@ class Estimator:
         reading = self._checked
         if reading != reading:
             return test
-        try:
-            var_image = float(np.linalg.inv(A)[0, 0])  # (the position is the first state solved)
-        except np.linalg.LinAlgError:
-            return test
+        if var_image is None:  # (``var_image``: the position's posterior variance, where it is made already)
+            try:
+                var_image = float(np.linalg.inv(A)[0, 0])  # (the position is the first state solved)
+            except np.linalg.LinAlgError:
+                return test
         level = self.params.item(kernel.U_LEVEL)
         x = s.item(X)
         var_x = var_image + self._model_variance(x, var_image, stats[kernel.S_XINFO], level)
