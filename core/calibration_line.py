@@ -11,7 +11,7 @@ import math
 import numpy as np
 
 from graytrack.core.adequacy import error_profile
-from graytrack.core.chi2_curve import measured as measured_chi2_curve
+from graytrack.core.chi2_curve import frame_spread, measured as measured_chi2_curve
 from graytrack.core.noise import reference_resolution_mm
 from graytrack.core.reference_monitor import MIN_FRAMES, Line, ReferenceMonitor, structure_profile, structure_um
 from graytrack.core.timing import model_reference
@@ -46,6 +46,13 @@ def record_calibration_line(model, recording) -> Line | None:
         model.info["calibration_chi2_curve"] = curve.as_dict()
     else:
         model.info.pop("calibration_chi2_curve", None)
+    # ... and how widely one frame's χ² scatters about that level against white noise in as many samples: noise
+    # the samples share (a row's offset drawn each frame, a pixel flickering between two levels) scatters it as
+    # fewer samples' would (core/chi2_curve.py frame_spread)
+    if result.chi2 is not None:
+        model.info["frame_chi2_spread"] = round(
+            frame_spread(result.x_mm[result.locked], result.chi2[result.locked], curve,
+                         model.n_rows * model.n_pixels * float(np.mean(model.seen()))), 3)
     step = float(recording.meta.get("grating_resolution_mm", 0.0) or 0.0) or reference_resolution_mm(reference)
     lo, hi = model.stroke_range_mm
     monitor = ReferenceMonitor(0.5 * (lo + hi), 0.5 * (hi - lo), window=max(reference.size, MIN_FRAMES),

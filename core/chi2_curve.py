@@ -18,6 +18,7 @@ average: what is left is the noise, and a change.
 
 from __future__ import annotations
 
+import math
 from bisect import bisect_right
 from dataclasses import dataclass
 
@@ -84,6 +85,30 @@ class Chi2Curve:
             return None
         low, high = LEVEL_RANGE
         return cls(tuple(x_mm), tuple(min(max(v, low), high) for v in level))
+
+
+def frame_spread(x_mm: np.ndarray, chi2: np.ndarray, curve: Chi2Curve | None, samples: float) -> float:
+    """How much wider than white noise's in ``samples`` samples (√(2/samples) of the level) one frame's χ² scatters
+    from the next's, at least 1: the share of the noise the samples do not draw independently (a row's offset
+    drawn each frame is one draw for a whole row, a pixel flickering between two levels one for a pixel). A
+    frame's test counts its samples as ``samples / spread²`` independent ones.
+
+    Measured on the frames in their order along the stroke, from each one's difference with the next (half the
+    mean square): what varies with the place the frames see (a misfit the level along the stroke, ``curve``, is
+    too coarse to hold: a smudge the model could not take in) is nearly the same for neighbours a few µm apart and
+    drops out, where noise drawn each frame does not. Kept where it stands clear of its own sampling noise
+    (:data:`SIGNIFICANCE` of a variance ratio's over as many differences), else 1."""
+    usable = np.isfinite(x_mm) & np.isfinite(chi2) & (chi2 > 0.0)
+    if usable.sum() < MIN_FRAMES_PER_BIN or samples < 1.0:
+        return 1.0
+    x, values = np.asarray(x_mm, dtype=np.float64)[usable], np.asarray(chi2, dtype=np.float64)[usable]
+    level = np.ones_like(x) if curve is None else np.array([curve.at(float(place)) for place in x])
+    # (in logarithms: a χ²'s scatter is relative to its level, which a misfit raises where it is)
+    logs = np.log(values / level)[np.argsort(x, kind="stable")]
+    ratio = 0.5 * float(np.mean(np.diff(logs) ** 2)) / (2.0 / samples)  # the variance over white noise's
+    if ratio - 1.0 <= SIGNIFICANCE * math.sqrt(2.0 / (logs.size - 1)):
+        return 1.0
+    return math.sqrt(ratio)
 
 
 def measured(x_mm: np.ndarray, chi2: np.ndarray) -> Chi2Curve | None:

@@ -248,7 +248,9 @@ class Estimator:
             raise TrackingError(f"the model's calibration χ² is {self.chi2_calibration:g}: recalibrate")
         self.chi2_curve = Chi2Curve.from_info(model.info)
         self.model_error = _model_error(model.info)
-        self.spread = stream_chi2_spread(model.info)  # a lossy stream's χ² scatters as fewer samples'
+        # a lossy stream's χ² scatters as fewer samples', and so does noise the samples share (its calibration's
+        # frames measured it: core/chi2_curve.py frame_spread)
+        self.spread = max(stream_chi2_spread(model.info), float(model.info.get("frame_chi2_spread") or 1.0))
         self.bound_factor = stream_bound_factor(model.info)
         limits = model.info.get("sensor_range_gray") if robust else None
         self.sensor_range = None if limits is None else (float(limits[0]), float(limits[1]))

@@ -53,7 +53,9 @@ def paper_rig() -> Iterator[Rig]:
     truth = rig.make_stage(position_mm=0.2, t_s=clock.now())
     axis = SimStageAxis(truth, rig.make_grating(truth))
     with SimGCSController(axis, clock=clock.now) as controller:
-        stage = GCSStage(controller.path, timeout_s=0.5, velocity_mm_s=20.0, soft_limits_mm=(0.0, 10.46))
+        # (a reply's timeout in wall time: the controller answers within milliseconds, but a loaded test machine
+        # may stall either end of the pty for a second; a tight one tested nothing but the machine's load)
+        stage = GCSStage(controller.path, timeout_s=5.0, velocity_mm_s=20.0, soft_limits_mm=(0.0, 10.46))
         with stage, SimCamera(rig, truth, clock=clock) as camera:
             yield Rig(rig, truth, stage, camera)
 
