@@ -37,6 +37,9 @@ if TYPE_CHECKING:
 KINDS = ("ideal", "paper", "auto")
 Progress = Callable[[float, str], None]
 NO_TRANSIENTS = {"count": 0, "frames": 0, "samples": 0, "events": []}
+SHARED_NOISE_SPREAD = 2.0  # a frames' χ² spread (core/chi2_curve.py frame_spread) from which the calibration says
+# the sensor's noise is shared between samples: each frame's test then counts a quarter of its samples or fewer,
+# and a camera with row banding or flickering pixels is worth a look (its black level, its readout settings)
 
 
 @dataclass
@@ -84,6 +87,12 @@ class CalibrationRun:
                          f"its quantisation widens every position's bound {stream['bound_factor']:.1f}x "
                          "(tracking reports the wider bound); "
                          "set the camera to an uncompressed pixel format (Mono8, Mono12) for the sensor's own")
+        spread = float(info.get("frame_chi2_spread") or 1.0)
+        if spread >= SHARED_NOISE_SPREAD:
+            lines.append(f"warning: the frames' residual scatters {spread:.1f}x as widely from frame to frame as "
+                         "independent noise in each sample would: the sensor's noise is shared between samples (a "
+                         "row's offset drawn each frame, pixels flickering between two levels); each frame's test "
+                         f"counts {1.0 / spread ** 2:.0%} of its samples as independent")
         if inadequacy(info):
             ratio = info["calibration_error_ratio"] / judged_factor(info)
             lines.append(f"warning: this model places its own calibration frames {ratio:.1f}x as far off as their "

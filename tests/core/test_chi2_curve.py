@@ -163,3 +163,14 @@ def test_noise_the_samples_share_is_counted_and_a_steady_run_is_not_flagged_for_
         # (the rig's bound is a little narrow for its errors whatever the test: rms pull 1.1-1.3, the calibration's
         # own frames 1.27 theirs; a frame in 150 just past 4 bounds goes unflagged without the grating)
         assert silent <= 0.01, (grating, silent)
+
+
+def test_the_calibration_says_the_sensors_noise_is_shared(banded, rig_model):
+    from graytrack.service.calibration_run import CalibrationRun
+
+    model, _, _ = banded
+    assert any("noise is shared between samples" in line
+               for line in CalibrationRun("paper", model, {}, None, None).warnings())
+    clean, _ = rig_model  # a clean strip: nothing to say
+    assert "frame_chi2_spread" in clean.info and clean.info["frame_chi2_spread"] == 1.0
+    assert not any("shared" in line for line in CalibrationRun("paper", clean, {}, None, None).warnings())
