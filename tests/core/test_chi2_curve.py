@@ -171,6 +171,8 @@ def test_the_calibration_says_the_sensors_noise_is_shared(banded, rig_model):
     model, _, _ = banded
     assert any("noise is shared between samples" in line
                for line in CalibrationRun("paper", model, {}, None, None).warnings())
+    assert "noise shared between samples" in model.describe()  # (the daemon's status and the report name the model so)
     clean, _ = rig_model  # a clean strip: nothing to say
     assert "frame_chi2_spread" in clean.info and clean.info["frame_chi2_spread"] == 1.0
     assert not any("shared" in line for line in CalibrationRun("paper", clean, {}, None, None).warnings())
+    assert "shared" not in clean.describe()
