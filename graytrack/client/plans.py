@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from typing import Any, Awaitable, Callable, Generator, TypeVar
 
 from graytrack.client import routes
-from graytrack.client.errors import CalibrationFailed, NotReady, WaitTimeout
+from graytrack.client.errors import CalibrationFailed, Conflict, GraytrackClientError, NotReady, WaitTimeout
 from graytrack.client.routes import Call
 from graytrack.wire import Calibration, Moved, Status
 
@@ -65,7 +65,8 @@ def calibrated(progress: Progress | None, timeout_s: float, poll_s: float) -> Pl
 
     A daemon that has just started (``make run``) is ``starting``, then calibrates itself on the
     virtual rig; starting a second calibration then would be refused (409), so this waits out the
-    start and follows the daemon's own job instead. Returns the status once calibrated."""
+    start and follows the daemon's own job instead. A daemon that begins its own between the status
+    read and the request (409: one runs) is followed too. Returns the status once calibrated."""
     deadline = time.monotonic() + timeout_s
     status: Status = yield routes.status()
     while status.state == "starting" and time.monotonic() < deadline:
@@ -75,7 +76,15 @@ def calibrated(progress: Progress | None, timeout_s: float, poll_s: float) -> Pl
     if job is not None and job.state not in FAILED | {"done"}:
         yield from follow((yield routes.calibration(job.id)), progress, timeout_s, poll_s)
     elif not status.calibrated:
-        yield from calibrate(progress, timeout_s, poll_s)
+        try:
+            started: Calibration = yield routes.start_calibration()
+        except Conflict:
+            status = yield routes.status()
+            job = status.calibration
+            if job is None or job.state in FAILED | {"done"}:
+                raise  # refused for another reason than a calibration under way
+            started = yield routes.calibration(job.id)
+        yield from follow(started, progress, timeout_s, poll_s)
     return (yield routes.status())
 
 
@@ -113,7 +122,12 @@ def run(plan: Plan[T], send: Callable[[Call[Any]], Any]) -> T:
                 time.sleep(step.seconds)
                 step = plan.send(None)
             else:
-                step = plan.send(send(step))
+                try:
+                    answer = send(step)
+                except GraytrackClientError as refused:  # the daemon's refusal is the plan's to handle or raise
+                    step = plan.throw(refused)
+                else:
+                    step = plan.send(answer)
     except StopIteration as done:
         return done.value
     finally:
@@ -129,7 +143,12 @@ async def run_async(plan: Plan[T], send: Callable[[Call[Any]], Awaitable[Any]]) 
                 await asyncio.sleep(step.seconds)
                 step = plan.send(None)
             else:
-                step = plan.send(await send(step))
+                try:
+                    answer = await send(step)
+                except GraytrackClientError as refused:  # (as run)
+                    step = plan.throw(refused)
+                else:
+                    step = plan.send(answer)
     except StopIteration as done:
         return done.value
     finally:

@@ -9,6 +9,7 @@ from typing import Any
 import pytest
 
 from graytrack.client import plans
+from graytrack.client.errors import Conflict
 from graytrack.client.routes import Call
 from graytrack.wire import Calibration, CalibrationStarted, JobSummary, Status
 
@@ -74,3 +75,44 @@ def test_a_calibrated_daemon_is_left_alone() -> None:
     daemon = Daemon([status("tracking", True, ("done", 1.0)), status("tracking", True, ("done", 1.0))], [])
     done, reports = ensure(daemon)
     assert daemon.sent == ["GET /api/status"] * 2 and reports == [] and done.calibrated
+
+
+class Racing(Daemon):
+    """A daemon that begins its own calibration between the status read and the client's request."""
+
+    def __call__(self, call: Call[Any]) -> Any:
+        if call.method == "POST":
+            self.sent.append(f"{call.method} {call.path}")
+            raise Conflict("POST /api/calibration: 409 calibration c1 is already running")
+        return super().__call__(call)
+
+
+def test_a_calibration_the_daemon_began_meanwhile_is_followed_not_refused() -> None:
+    daemon = Racing([status("idle", False), status("calibrating", False, ("sweeping", 0.1)),
+                     status("tracking", True, ("done", 1.0))],
+                    [job("sweeping", 0.2), job("done", 1.0)])
+    done, reports = ensure(daemon)
+    assert daemon.sent == ["GET /api/status", "POST /api/calibration", "GET /api/status",
+                           "GET /api/calibration/c1", "GET /api/calibration/c1", "GET /api/status"]
+    assert reports == [(0.2, "sweeping"), (1.0, "done")] and done.calibrated
+
+
+def test_a_refusal_with_no_calibration_under_way_is_raised() -> None:
+    daemon = Racing([status("idle", False), status("idle", False, ("failed", 0.3))], [])
+    with pytest.raises(Conflict):
+        ensure(daemon)
+    assert daemon.sent == ["GET /api/status", "POST /api/calibration", "GET /api/status"]
+
+
+def test_the_asyncio_driver_hands_a_refusal_to_the_plan_too() -> None:
+    import asyncio
+
+    daemon = Racing([status("idle", False), status("calibrating", False, ("sweeping", 0.1)),
+                     status("tracking", True, ("done", 1.0))],
+                    [job("done", 1.0)])
+
+    async def send(call: Call[Any]) -> Any:
+        return daemon(call)
+
+    done = asyncio.run(plans.run_async(plans.calibrated(None, timeout_s=60.0, poll_s=0.0), send))
+    assert done.calibrated and daemon.sent.count("POST /api/calibration") == 1
