@@ -39,10 +39,11 @@ from graytrack.drivers.sim.scenarios import build_rig
 from robustness_sweep import CASES, SECONDS, measured_motion
 from truth_score import MODES
 
-CACHE_VERSION = "5"  # what a cached case holds: 3, recordings that state the stage's commanded phases of acceleration
+CACHE_VERSION = "6"  # what a cached case holds: 3, recordings that state the stage's commanded phases of acceleration
 # and models what their calibration's readings showed beyond them (core/estimator/mount.py); 4, recordings that state
 # what triggers the camera (core/recording.py CAMERA_TRIGGER); 5, models that state how widely their frames' χ²
-# scatters (core/chi2_curve.py frame_spread); older cases are made again
+# scatters (core/chi2_curve.py frame_spread); 6, and a strip's row banding (core/adequacy.py row_offset_gray); older
+# cases are made again
 FAR_PULL = 4.0  # bounds off the truth beyond which a placed frame counts as far off
 SILENT_SHARE = 0.005  # of a run's placed frames: the acceptance's ceiling for far frames left unflagged
 STEADY_FLAGGED = 0.01  # of a steady run's frames: the acceptance's ceiling for flags where nothing changed

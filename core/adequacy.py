@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from graytrack.core.calibration_data import CalibrationData
+from graytrack.core.chi2_curve import frame_spread
 from graytrack.core.compression import bound_factor, find_jpeg, judged_factor
 from graytrack.core.light_level import stated_level
 from graytrack.core.light_return import replay
@@ -24,6 +25,11 @@ from graytrack.core.stream_focus import stream_focus_factor
 INADEQUATE_RATIO = 2.0  # beyond this, every position the model gives is flagged (core/watches/adequacy.py)
 # frames of a running χ² mean whose spread a stream's is measured on (the tracker's FIELD_WINDOW: its blur suspicion)
 SPREAD_WINDOW = 20
+ROW_SIGNIFICANCE = 3.0  # standard errors by which the rows' offsets must stand out of their noise to be kept: below,
+# no banding is the better guess (a strip's solve then spends nothing on it)
+ROW_LEVEL_SHARE = 0.95  # the χ² level with the rows' offsets taken out, over the level with them, below which they are
+# taken out of every frame: offsets that carry less of the residual move a frame's solve by less than its noise (a
+# JPEG stream's blocks leave a few hundredths of a gray a row)
 PROFILE_FRAMES = 25  # calibration frames per stretch of the stroke in the local error profile (its ratio to ~15 %)
 
 
@@ -150,6 +156,19 @@ def assessed(model: FourierModel, data: CalibrationData) -> FourierModel:
                                 "chi2_spread": round(chi2_spread(per_frame, used), 3)}
     elif "calibration_chi2" in model.info:  # a light that moved during calibration is the tracker's to solve
         model.info["calibration_chi2"] = stated_level(float(model.info["calibration_chi2"]), solved, n_values)
+    for key in ("row_offset_gray", "row_chi2_share", "row_chi2_spread"):
+        model.info.pop(key, None)
+    if (row := row_offset_gray(model, data)) is not None:
+        # what the estimator, which takes each row's offset out of a frame (core/estimator/kernel.py _normal), judges
+        # a frame's χ² against: the level and the frames' spread with the offsets taken out as it takes them
+        weights, residual, x_mm = solved_residuals(model, data)
+        plain, without = rows_taken_out(weights, residual, model.n_rows, row)
+        counted = (weights > 0).sum(axis=1)
+        share = level(without, counted) / level(plain, counted)
+        if share < ROW_LEVEL_SHARE:
+            model.info["row_offset_gray"] = round(row, 4)
+            model.info["row_chi2_share"] = round(share, 4)
+            model.info["row_chi2_spread"] = round(frame_spread(x_mm, without, None, float(np.median(counted))), 3)
     errors = frame_errors(model, data)
     ratio = error_ratio(errors)
     model.info["calibration_error_ratio"] = round(ratio, 3) if np.isfinite(ratio) else None
@@ -172,6 +191,58 @@ def chi2_as_tracked(model: FourierModel, data: CalibrationData) -> float:
 def frame_chi2(model: FourierModel, data: CalibrationData) -> tuple[np.ndarray, np.ndarray]:
     """(χ² per used sample, samples used) of each calibration frame looked at that the model can
     solve, with its light solved as the tracker solves it (:func:`chi2_as_tracked`)."""
+    weights, residual, _ = solved_residuals(model, data)
+    used = (weights > 0).sum(axis=1)
+    return np.einsum("kp,kp->k", weights, residual**2) / np.maximum(used, 1), used
+
+
+def row_offset_gray(model: FourierModel, data: CalibrationData) -> float | None:
+    """The σ (gray) of an offset each row of a strip draws afresh every frame (a sensor's row banding: its readout's
+    reference drifting line by line), from the calibration frames' residuals; None where the model sees one row or
+    the rows' mean residuals scatter no more than their noise (:data:`ROW_SIGNIFICANCE` of their sampling σ).
+    Measured from each frame's row means against the next frame's along the stroke: what the model misses in a
+    row moves with the place the frames see and drops out between neighbours; the light solved per frame takes
+    the rows' common offset (the R/(R−1) of the rest)."""
+    if model.n_rows < 2:
+        return None
+    weights, residual, x_mm = solved_residuals(model, data)
+    n_frames, rows = residual.shape[0], model.n_rows
+    if n_frames < 3:
+        return None
+    w = weights.reshape(n_frames, rows, -1)
+    total = w.sum(axis=2)
+    seen = total > 0
+    means = np.where(seen, (w * residual.reshape(n_frames, rows, -1)).sum(axis=2) / np.where(seen, total, 1.0), 0.0)
+    white = np.where(seen, 1.0 / np.where(seen, total, 1.0), 0.0)
+    order = np.argsort(x_mm, kind="stable")
+    means, white, seen = means[order], white[order], seen[order]
+    both = seen[1:] & seen[:-1]
+    if both.sum() < 3:
+        return None
+    # half a difference's square less the two frames' own noise: the offset's variance, one estimate a pair
+    each = 0.5 * ((means[1:] - means[:-1]) ** 2 - white[1:] - white[:-1])[both]
+    variance = float(each.mean()) * rows / (rows - 1)
+    if variance <= ROW_SIGNIFICANCE * float(each.std()) / np.sqrt(each.size):
+        return None
+    return float(np.sqrt(variance))
+
+
+def rows_taken_out(weights: np.ndarray, residual: np.ndarray, rows: int, row_gray: float
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """(χ² per used sample as it is, and with each row's offset of σ ``row_gray`` taken out as the estimator takes
+    it: less q²/(W + 1/σ²) a row, q its weighted residual sum, W its weights') of each frame."""
+    n_frames = residual.shape[0]
+    w = weights.reshape(n_frames, rows, -1)
+    r = residual.reshape(n_frames, rows, -1)
+    cost = np.einsum("krp,krp->k", w, r**2)
+    q, total = (w * r).sum(axis=2), w.sum(axis=2)
+    used = np.maximum((weights > 0).sum(axis=1), 1)
+    return cost / used, (cost - (q * q / (total + 1.0 / row_gray**2)).sum(axis=1)) / used
+
+
+def solved_residuals(model: FourierModel, data: CalibrationData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(weights, residuals ``(K, P)``, places mm) of each calibration frame looked at that the model can solve, with
+    its light (a gain and an offset) solved as the tracker solves it."""
     data = picked_frames(data)
     n_frames = data.x_mm.size
     frames = model.prepare(data.frames).reshape(n_frames, -1)
@@ -183,8 +254,7 @@ def frame_chi2(model: FourierModel, data: CalibrationData) -> tuple[np.ndarray, 
     solvable = np.linalg.det(fisher) > 0
     gain_offset = np.linalg.solve(fisher[solvable], score[solvable][..., None])[..., 0]
     residual = frames[solvable] - np.einsum("kpi,ki->kp", basis[solvable], gain_offset)
-    used = (weights[solvable] > 0).sum(axis=1)
-    return np.einsum("kp,kp->k", weights[solvable], residual**2) / np.maximum(used, 1), used
+    return weights[solvable], residual, data.x_mm[solvable]
 
 
 def level(per_frame: np.ndarray, used: np.ndarray) -> float:

@@ -88,6 +88,11 @@ class CalibrationRun:
                          "(tracking reports the wider bound); "
                          "set the camera to an uncompressed pixel format (Mono8, Mono12) for the sensor's own")
         spread = float(info.get("frame_chi2_spread") or 1.0)
+        if info.get("row_offset_gray"):
+            lines.append(f"warning: every row of the strip is offset by {float(info['row_offset_gray']):.2f} gray (σ) "
+                         "drawn afresh each frame (row banding: the readout's reference drifting line by line); "
+                         "tracking takes each row's offset out of every frame, at some cost in precision: the "
+                         "camera's black-level clamp or readout settings may remove it")
         if spread >= SHARED_NOISE_SPREAD:
             lines.append(f"warning: the frames' residual scatters {spread:.1f}x as widely from frame to frame as "
                          "independent noise in each sample would: the sensor's noise is shared between samples (a "

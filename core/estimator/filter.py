@@ -249,8 +249,13 @@ class Estimator:
         self.chi2_curve = Chi2Curve.from_info(model.info)
         self.model_error = _model_error(model.info)
         # a lossy stream's χ² scatters as fewer samples', and so does noise the samples share (its calibration's
-        # frames measured it: core/chi2_curve.py frame_spread)
-        self.spread = max(stream_chi2_spread(model.info), float(model.info.get("frame_chi2_spread") or 1.0))
+        # frames measured it: core/chi2_curve.py frame_spread); with the rows' offsets taken out of each frame (below),
+        # as it scatters without them, against the level without them
+        banding = model.n_rows > 1 and float(model.info.get("row_offset_gray") or 0.0) > 0.0
+        shared = model.info.get("row_chi2_spread" if banding else "frame_chi2_spread")
+        self.spread = max(stream_chi2_spread(model.info), float(shared or 1.0))
+        if banding:
+            self.chi2_calibration *= float(model.info.get("row_chi2_share") or 1.0)
         self.bound_factor = stream_bound_factor(model.info)
         limits = model.info.get("sensor_range_gray") if robust else None
         self.sensor_range = None if limits is None else (float(limits[0]), float(limits[1]))
@@ -307,6 +312,11 @@ class Estimator:
         params[kernel.U_CORE], params[kernel.U_CUT] = settings.core_sigma, settings.cut_sigma
         params[kernel.U_ITERATIONS], params[kernel.U_TOLERANCE] = int(settings.max_iterations), settings.tolerance
         params[kernel.U_ACCELERATION], params[kernel.U_RATES:] = settings.acceleration ** 2, self.rates2
+        # an offset each row draws afresh every frame, as calibration measured it (core/adequacy.py row_offset_gray):
+        # eliminated from each frame's solve, so that a row's banding moves no state
+        if banding:
+            params[kernel.U_ROW_LENGTH] = model.n_pixels
+            params[kernel.U_ROW_PRECISION] = 1.0 / float(model.info["row_offset_gray"]) ** 2
         self.t_last: float | None = None
         self.last_frame: np.ndarray | None = None
         self.dt_last = 0.0

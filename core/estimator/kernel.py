@@ -59,10 +59,12 @@ N_STATS = 12
 # ``P_post``, for the update a frame most likely keeps); whether the iterations start from ``s`` and ``rho`` as passed
 # (1: the frame solved again from its own solution and weights) or from the prior's mean and full weights (0); from
 # the calibration's χ² level at the frame's place (each sample's variance is the noise model's times it: what the
-# model's own error adds to a sample, as calibration measured it); from U_RATES on each state's rate (predict's
+# model's own error adds to a sample, as calibration measured it); the samples a row and the precision of an offset
+# each row draws afresh every frame (gray⁻², 0: none; _normal); from U_RATES on each state's rate (predict's
 # ``rates2``)
 (U_READ, U_SHOT, U_DARK, U_PITCH, U_PERIOD, U_GRATING_Z, U_GRATING_W, U_ROBUST, U_CORE, U_CUT, U_ITERATIONS,
- U_TOLERANCE, U_PREDICT, U_DT, U_ACCELERATION, U_POSTERIOR, U_WARM, U_LEVEL, U_RATES) = range(19)
+ U_TOLERANCE, U_PREDICT, U_DT, U_ACCELERATION, U_POSTERIOR, U_WARM, U_LEVEL, U_ROW_LENGTH, U_ROW_PRECISION,
+ U_RATES) = range(21)
 N_PARAMS = U_RATES + N_STATE
 # the pixels' constants in one (4, P) array: target coordinate from the ROI's centre, row from the strip's middle,
 # the two Legendre terms across the line
@@ -380,14 +382,21 @@ def _evaluate(x: float, model: tuple, values: np.ndarray, slopes: np.ndarray, sm
 
 def _normal(s: np.ndarray, idx: np.ndarray, y: np.ndarray, w: np.ndarray, rho: np.ndarray, values: np.ndarray,
             slopes: np.ndarray, curvature: np.ndarray, t_rel: np.ndarray, r_rel: np.ndarray, b1: np.ndarray,
-            b2: np.ndarray, half_d2: float, A: np.ndarray, rhs: np.ndarray, residual: np.ndarray) -> float:
+            b2: np.ndarray, half_d2: float, A: np.ndarray, rhs: np.ndarray, residual: np.ndarray,
+            row_len: int = 0, row_precision: float = 0.0) -> float:
     """The normal matrix and right-hand side of the frame's samples over the active states; the
-    residuals into ``residual``; returns Σρw r²."""
+    residuals into ``residual``; returns Σρw r². With ``row_precision`` (1/σ² of an offset each row of
+    ``row_len`` samples draws afresh every frame, gray⁻²: a sensor's row banding), each row's offset is
+    eliminated from the equations (their Schur complement: what the row's own mean level says is its
+    offset's, as far as its prior allows), the cost counts its prior, and the residuals are left without it."""
     n = idx.size
     for i in range(n):
         rhs[i] = 0.0
         for j in range(n):
             A[i, j] = 0.0
+    rows = row_precision > 0.0 and row_len > 0
+    u = np.zeros(n)  # the row's Σρw·Jacobian, Σρw and Σρw·r
+    row_w, row_q, row_start = 0.0, 0.0, 0
     jac = np.zeros(N_STATE)  # (a dozen numbers a solve: numba keeps them on the stack)
     active = np.empty(n)  # the Jacobian over the active states, and weighted
     weighted = np.empty(n)
@@ -397,7 +406,24 @@ def _normal(s: np.ndarray, idx: np.ndarray, y: np.ndarray, w: np.ndarray, rho: n
     banded = edge > 0.0  # a band in view (its states in the state only then)
     inv_edge = 1.0 / edge if banded else 0.0
     cost = 0.0
-    for p in range(y.size):
+    for p in range(y.size + (1 if rows else 0)):
+        if rows and p % row_len == 0 and p > 0:  # the last row's offset eliminated
+            denom = row_w + row_precision
+            offset = row_q / denom
+            cost -= row_q * offset
+            for i in range(n):
+                rhs[i] -= u[i] * offset
+                ui = u[i] / denom
+                row = A[i]
+                for j in range(n):
+                    row[j] -= ui * u[j]
+            for i in range(n):
+                u[i] = 0.0
+            for k in range(row_start, p):
+                residual[k] -= offset
+            row_w, row_q, row_start = 0.0, 0.0, p
+        if p == y.size:
+            break
         level0 = g + a1 * b1[p] + a2 * b2[p]
         shade, band, d_left, d_right, d_edge = 1.0, 0.0, 0.0, 0.0, 0.0
         if banded:
@@ -441,6 +467,11 @@ def _normal(s: np.ndarray, idx: np.ndarray, y: np.ndarray, w: np.ndarray, rho: n
             ji = weight * active[i]
             weighted[i] = ji
             rhs[i] += ji * r
+        if rows:
+            row_w += weight
+            row_q += weight * r
+            for i in range(n):
+                u[i] += weighted[i]
         # Whole rows, the same products and sums element by element as the lower triangle alone (the
         # compiler vectorises a row); the upper triangle is then the lower's mirror, as it always was.
         for i in range(n):
@@ -537,6 +568,7 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
     robust = params[U_ROBUST] > 0.0
     core, cut, tolerance = params[U_CORE], params[U_CUT], params[U_TOLERANCE]
     max_iterations = int(params[U_ITERATIONS])
+    row_length, row_precision = int(params[U_ROW_LENGTH]), params[U_ROW_PRECISION]
     if params[U_PREDICT] > 0.0:
         predict(s_prior, P_prior, params[U_DT], params[U_ACCELERATION], params[U_RATES:])
     warm = params[U_WARM] > 0.0  # from ``s`` and ``rho`` as passed, not the prior's mean and full weights
@@ -586,7 +618,7 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
                 _evaluate(xi, model, values, slopes, smooth)
                 at = xi
             cost = _normal(s, idx, y, w, rho, values, slopes, curvature, t_rel, r_rel, b1, b2, half_d2, A, rhs,
-                           residual)
+                           residual, row_length, row_precision)
             if robust and it > 0 and round_ < ROBUST_ROUNDS and _reweigh(residual, w, rho, core, cut, round_ == 0,
                                                                           False):
                 # where the first step has taken the frame the weights already differ from this round's: they
@@ -620,13 +652,13 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
             if xi != at:
                 _evaluate(xi, model, values, slopes, smooth)
             cost = _normal(s, idx, y, w, rho, values, slopes, curvature, t_rel, r_rel, b1, b2, half_d2, A, rhs,
-                           residual)
+                           residual, row_length, row_precision)
         if not robust or not _reweigh(residual, w, rho, core, cut, round_ == 0, True):
             break
         converged = 0.0  # the weights moved: solved again from here
         if round_ == ROBUST_ROUNDS:
             cost = _normal(s, idx, y, w, rho, values, slopes, curvature, t_rel, r_rel, b1, b2, half_d2, A, rhs,
-                           residual)
+                           residual, row_length, row_precision)
     # the posterior information (normal matrix with the prior and the grating) and the figures
     prior = 0.0
     for i in range(n):

@@ -150,19 +150,49 @@ def scored(model, run, truth, grating: str) -> tuple[float, float]:
     return float(stale.mean()), float(np.mean(far & ~stale))
 
 
+def without_rows(model):
+    """The model as tracked before a strip's row banding was taken out of its frames (the spread alone counts)."""
+    plain = copy.deepcopy(model)
+    for key in ("row_offset_gray", "row_chi2_share", "row_chi2_spread"):
+        plain.info.pop(key, None)
+    return plain
+
+
 def test_noise_the_samples_share_is_counted_and_a_steady_run_is_not_flagged_for_it(banded):
     model, run, truth = banded
-    assert model.info["frame_chi2_spread"] > 3.0  # 16 rows of 128 samples scatter their χ² as a few hundred
-    white = copy.deepcopy(model)
+    counted = without_rows(model)  # the frames' χ² spread alone answers the banding here
+    assert counted.info["frame_chi2_spread"] > 3.0  # 16 rows of 128 samples scatter their χ² as a few hundred
+    white = copy.deepcopy(counted)
     white.info["frame_chi2_spread"] = 1.0
     for grating in ("check", "none"):
-        flagged, silent = scored(model, run, truth, grating)
+        flagged, silent = scored(counted, run, truth, grating)
         as_white, _ = scored(white, run, truth, grating)
         # counted as independent, the same frames fail their test on one frame in seven, for nothing
         assert as_white > 0.1 and flagged < 0.02, (grating, flagged, as_white)
-        # (the rig's bound is a little narrow for its errors whatever the test: rms pull 1.1-1.3, the calibration's
-        # own frames 1.27 theirs; a frame in 150 just past 4 bounds goes unflagged without the grating)
+        # (without the rows' offsets taken out the bound is a little narrow for the errors: rms pull 1.1-1.3; a
+        # frame in 150 just past 4 bounds goes unflagged without the grating)
         assert silent <= 0.01, (grating, silent)
+
+
+def test_a_strips_row_banding_is_measured_and_taken_out_of_every_frame(banded, rig_model):
+    """Each row offset by a gray drawn afresh every frame: calibration measures its σ, and the estimator takes each
+    row's offset out of the frame instead of letting it move the position through the row's slopes."""
+    from graytrack.core.estimator import filter as estimator
+
+    model, run, truth = banded
+    assert model.info["row_offset_gray"] == pytest.approx(1.0, abs=0.1)  # the rig's banding: σ 1 gray
+    assert 0.2 < model.info["row_chi2_share"] < 0.6  # most of the residual the calibration left was the banding
+    assert "row_offset_gray" not in rig_model[0].info  # a clean strip has none
+    errors = {}
+    for name, tracked in (("rows", model), ("spread alone", without_rows(model))):
+        estimates = estimator.track(tracked, run.frames, run.t, run.reference, grating="check")
+        error_um = (np.array([e.x_mm for e in estimates]) - truth.x_mm) * 1e3
+        pull = math.sqrt(np.mean((error_um / (np.array([e.crlb_mm for e in estimates]) * 1e3)) ** 2))
+        errors[name] = (float(np.std(error_um)), pull, float(np.mean([e.stale for e in estimates])))
+    (rows, pull, flagged), (alone, pull_alone, _) = errors["rows"], errors["spread alone"]
+    assert rows < 0.8 * alone, errors  # measured 0.52 against 0.76 µm
+    assert 0.8 < pull < 1.25 and pull < pull_alone, errors  # the steady acceptance's band (1.28 with the spread alone)
+    assert flagged < 0.01, errors
 
 
 def test_the_calibration_says_the_sensors_noise_is_shared(banded, rig_model):
@@ -172,6 +202,8 @@ def test_the_calibration_says_the_sensors_noise_is_shared(banded, rig_model):
     assert any("noise is shared between samples" in line
                for line in CalibrationRun("paper", model, {}, None, None).warnings())
     assert "noise shared between samples" in model.describe()  # (the daemon's status and the report name the model so)
+    assert "row banding 1.0" in model.describe()
+    assert any("row banding" in line for line in CalibrationRun("paper", model, {}, None, None).warnings())
     clean, _ = rig_model  # a clean strip: nothing to say
     assert "frame_chi2_spread" in clean.info and clean.info["frame_chi2_spread"] == 1.0
     assert not any("shared" in line for line in CalibrationRun("paper", clean, {}, None, None).warnings())
