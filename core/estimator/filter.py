@@ -51,6 +51,7 @@ from graytrack.core.estimator.state import (A1, A2, B, BAND, BD, BE, BH, BL, BR,
 from graytrack.core.frame_tables import FrameTables
 from graytrack.core.kernels import TableEvaluator
 from graytrack.core.models.fourier import FourierModel
+from graytrack.core.quantiles import chi2_isf, normal_isf
 
 if TYPE_CHECKING:
     from graytrack.core.tracking import TrackResult
@@ -221,14 +222,12 @@ class Estimator:
             raise TrackingError("the model has no coefficients: calibrate it first")
         if grating not in GRATING_MODES:
             raise TrackingError(f"grating mode must be one of {', '.join(GRATING_MODES)}, got {grating!r}")
-        from scipy.stats import norm
-
         self.model, self.grating, self.robust = model, grating, robust
         self.settings = settings = settings or EstimatorSettings()
         if axis_px is not None:
             settings = self.settings = settings.replace(lever_prior=float(axis_px))
-        self.z_alpha = float(norm.isf(settings.false_alarm))
-        self.z_two = float(norm.isf(settings.false_alarm / 2.0))
+        self.z_alpha = normal_isf(settings.false_alarm)
+        self.z_two = normal_isf(settings.false_alarm / 2.0)
         tables = FrameTables.of(model)
         self.evaluator = TableEvaluator(tables)
         self.model_args = self.evaluator._args
@@ -329,7 +328,7 @@ class Estimator:
         mean = max(abs(self.mean_gray), 1.0)
         # the sensor's side: a gain and an offset per sample, learned where something lands (sensor_map.py)
         self.sensor = SensorMap(n_values, self.noise, self.chi2_calibration,
-                                float(norm.isf(settings.false_alarm / (2.0 * n_values))),
+                                normal_isf(settings.false_alarm / (2.0 * n_values)),
                                 np.array([settings.map_jump_gain ** 2, (settings.map_jump_offset * mean) ** 2,
                                           settings.map_rate_gain ** 2, settings.map_rate_offset ** 2]), mean,
                                 settings.map_most, int(settings.map_reach_px), model.n_pixels)
@@ -347,12 +346,10 @@ class Estimator:
                          "magnification": np.array([settings.jump_stretch]) ** 2,
                          "geometry": np.array([settings.jump_place, settings.jump_turn * pitch]) ** 2,
                          "motion": np.array([settings.jump_motion]) ** 2}
-        from scipy.stats import chi2
-
         # a family's score beyond χ²(its states)'s quantile at the false-alarm rate points the innovation its way
-        self._score_quantile = {k: float(chi2.isf(settings.false_alarm, k)) for k in (1, 2, 3)}
+        self._score_quantile = {k: chi2_isf(settings.false_alarm, k) for k in (1, 2, 3)}
         # a band's states beyond a jump's (six against the light's two): what a band must explain more by
-        self._band_margin = float(chi2.isf(settings.false_alarm, len(BAND) - 2))
+        self._band_margin = chi2_isf(settings.false_alarm, len(BAND) - 2)
         self._layout = self._layout_plain = _layout(self.idx_plain)
         self._layout_band = _layout(self.idx_band)
         self._unexplained: list[str] = []  # the families tried on the last frame, none of whose jumps explained it
