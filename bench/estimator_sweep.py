@@ -52,24 +52,28 @@ STEADY_PULL = (0.8, 1.25)  # the acceptance's band for a steady run's rms error 
 PLAIN = [(scenario, "", "") for scenario in dict.fromkeys(case[0] for case in CASES) if (scenario, "", "") not in CASES]
 
 
-def cached_case(folder: Path, scenario: str, rig_effects: str, later: str):
-    """(model, run, truth) of one case, made once and kept in ``folder``."""
-    label = f"{scenario} {rig_effects} {later}"
+def cached_case(folder: Path, scenario: str, rig_effects: str, later: str, seed: int = 3):
+    """(model, run, truth) of one case, made once and kept in ``folder``: the scenario with ``rig_effects``
+    calibrated, then run with ``later`` added, both with ``seed`` (steady_maps.py, map_seeds.py: several)."""
+    label = f"{scenario} {rig_effects} {later}" + (f" seed {seed}" if seed != 3 else "")
     path = folder / f"{hashlib.md5((CACHE_VERSION + label.strip()).encode()).hexdigest()[:10]}.pkl"
     if path.exists():
         with open(path, "rb") as kept:
             return pickle.load(kept)
     seconds = SECONDS.get(scenario, 20.0)
-    calibration, _ = build_rig(scenario, rig_effects, seed=3).record(seconds)
+    calibration, _ = build_rig(scenario, rig_effects, seed=seed).record(seconds)
     model = calibrate(calibration, "paper").model
-    rig = build_rig(scenario, ",".join(part for part in (rig_effects, later) if part), seed=3, run=1)
+    rig = build_rig(scenario, ",".join(part for part in (rig_effects, later) if part), seed=seed, run=1)
     run, truth = rig.record(seconds / 2, trajectory=measured_motion(rig, later, seconds / 2))
     with open(path, "wb") as kept:
         pickle.dump((model, run, truth), kept)
     return model, run, truth
 
 
-def scored(model, run, truth, grating: str, settings: EstimatorSettings) -> dict[str, float]:
+def scored(model, run, truth, grating: str, settings: EstimatorSettings,
+           after: np.ndarray | None = None) -> dict[str, float]:
+    """The estimator's run scored against the truth; ``after``: the frames whose flags count apart (the share of
+    them flagged, ``flagged_after``: a change's frames once it has settled, map_seeds.py)."""
     reference = run.reference
     if float(model.info.get("reference_skew_s", 0.0)):
         reference = model_reference(model, run.t, reference)
@@ -97,7 +101,8 @@ def scored(model, run, truth, grating: str, settings: EstimatorSettings) -> dict
             "flagged": int(stale.sum()), "far": int(far.sum()), "silent": int((far & ~stale).sum()),
             "seconds": seconds, "map": int(tracker.sensor.learned().sum()),
             "print": int(tracker.print_map.learned().sum()),
-            "touched": int(tracker.sensor.touched.sum())}
+            "touched": int(tracker.sensor.touched.sum()),
+            "flagged_after": float(stale[after].mean()) if after is not None and after.any() else 0.0}
 
 
 def main() -> None:

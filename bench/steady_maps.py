@@ -20,36 +20,17 @@ from __future__ import annotations
 
 import argparse
 import os
-import pickle
 import sys
 from pathlib import Path
 
-from graytrack.core.calibration import calibrate
 from graytrack.core.estimator.settings import EstimatorSettings
-from graytrack.drivers.sim.scenarios import build_rig
-from estimator_sweep import CACHE_VERSION, scored
-from robustness_sweep import SECONDS
+from estimator_sweep import cached_case, scored
 from truth_score import MODES
 
 # seeds a scenario is run with at the default --seeds: 8 + 8 + 4 = 20 clean runs, each in three modes
 # (the 16 × 128 lab strip costs four times a paper run; four of its seeds keep the script to minutes)
 SCENARIOS = {"paper": 1.0, "strip16": 1.0, "lab": 0.5}
 STEADY_FLAGGED = 0.01  # a steady run flagged on more than this share of its frames is reported
-
-
-def cached_clean(folder: Path, scenario: str, seed: int):
-    """(model, run, truth) of one clean run: the scenario calibrated and run with ``seed``, made once."""
-    path = folder / f"{scenario}-{seed}-v{CACHE_VERSION}.pkl"
-    if path.exists():
-        with open(path, "rb") as kept:
-            return pickle.load(kept)
-    seconds = SECONDS.get(scenario, 20.0)
-    calibration, _ = build_rig(scenario, "", seed=seed).record(seconds)
-    model = calibrate(calibration, "paper").model
-    run, truth = build_rig(scenario, "", seed=seed, run=1).record(seconds / 2)
-    with open(path, "wb") as kept:
-        pickle.dump((model, run, truth), kept)
-    return model, run, truth
 
 
 def main() -> None:
@@ -72,7 +53,7 @@ def main() -> None:
     for number, (scenario, seed) in enumerate(runs):
         if number % shards != shard:
             continue
-        model, run, truth = cached_clean(args.cache, scenario, seed)
+        model, run, truth = cached_case(args.cache, scenario, "", "", seed)
         for mode, options in MODES.items():
             grating = "none" if options["no_reference"] else ("fuse" if options["trim"] else "check")
             score = scored(model, run, truth, grating, settings)

@@ -331,7 +331,7 @@ class Estimator:
                                 normal_isf(settings.false_alarm / (2.0 * n_values)),
                                 np.array([settings.map_jump_gain ** 2, (settings.map_jump_offset * mean) ** 2,
                                           settings.map_rate_gain ** 2, settings.map_rate_offset ** 2]), mean,
-                                settings.map_most, int(settings.map_reach_px), model.n_pixels)
+                                settings.map_most, int(settings.map_reach_px), model.n_pixels, settings.map_hold)
         # the print's side: a reflectance change per place along the target, learned where something lands
         # (print_map.py)
         self.print_map = PrintMap.of(model, self.noise, self.chi2_calibration, self.sensor.z2 ** 0.5,

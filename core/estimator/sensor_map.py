@@ -152,18 +152,19 @@ def learn(y: np.ndarray, expected: np.ndarray, rival: np.ndarray, rival_var: np.
     return jumped
 
 
-def land(residual: np.ndarray, weight: np.ndarray, level: float, z2: float, most: float, jump_ff: float,
-         jump_ee: float, reach: int, row: int, touched: np.ndarray, sff: np.ndarray, see: np.ndarray,
+def land(residual: np.ndarray, weight: np.ndarray, level: float, z2: float, most: float, hold: float,
+         jump_ff: float, jump_ee: float, reach: int, row: int, touched: np.ndarray, sff: np.ndarray, see: np.ndarray,
          evidence: np.ndarray, rivalry: np.ndarray, core: np.ndarray) -> int:
     """Samples something has landed on, from a frame's solve: ``residual`` and ``weight`` (the noise model's
     inverse variance with the frame's mask) as the update left them. An untouched sample whose residual
     fails its test (``z2``, σ², against the noise model at the calibration's ``level``) is touched, its pair
     widened by the jumps, and so are the samples within ``reach`` of it along its row (a mark on the window
-    is out of focus: its soft edge, below the test, lands with it) — as long as the map then holds no more
-    than ``most`` of the frame's samples: a frame on which more fail at once is one the state misplaced (its
-    light, its position), the state's to answer, not the map's. Returns the samples that failed (as a
-    negative count where they were too many: nothing landed); ``core`` out: those samples (the print's map's
-    candidates too, print_map.py)."""
+    is out of focus: its soft edge, below the test, lands with it) — as long as no more than ``most`` of the
+    samples the frame still uses fail at once (where more do, the state is misplaced: its light, its position,
+    the state's to answer, not the map's; what the map already holds aside says nothing of that) and the map
+    then holds no more than ``hold`` of the frame's samples (a full map takes nothing more, and what fails is
+    the robust weights'). Returns the samples that failed (as a negative count where they were too many:
+    nothing landed); ``core`` out: those samples (the print's map's candidates too, print_map.py)."""
     fresh, held, usable = 0, 0, 0
     for p in range(residual.size):
         core[p] = False
@@ -177,8 +178,12 @@ def land(residual: np.ndarray, weight: np.ndarray, level: float, z2: float, most
             fresh += 1
     if fresh == 0:
         return 0
-    if held + fresh > most * (held + usable):
+    if fresh > most * usable:
         return -fresh
+    if held + fresh > hold * (held + usable):
+        for p in range(residual.size):
+            core[p] = False
+        return 0  # (the map is full: what fails is the outlier model's to weigh, the state not suspect)
     for p in range(residual.size):
         if not core[p]:
             continue
@@ -216,11 +221,11 @@ class SensorMap(ToldMarks):
                       (("gain", "gain_sigma"), ("offset_gray", "offset_sigma_gray")))
 
     def __init__(self, n: int, noise: np.ndarray, level: float, z: float, params: np.ndarray,
-                 mean_gray: float, most: float, reach: int, row: int) -> None:
+                 mean_gray: float, most: float, reach: int, row: int, hold: float = 1.0) -> None:
         self.noise, self.level, self.z2, self.params = noise, float(level), float(z) ** 2, params
         self.reach, self.row = int(reach), int(row)
         self.stride = self.row  # samples a row
-        self.most = float(most)
+        self.most, self.hold = float(most), float(hold)
         self.mean_gray = float(mean_gray)
         self.touched = np.zeros(n, dtype=np.bool_)
         self.f, self.e = np.zeros(n), np.zeros(n)
@@ -253,7 +258,8 @@ class SensorMap(ToldMarks):
     def land(self, residual: np.ndarray, weight: np.ndarray) -> int:
         """Samples something landed on, from a frame's solve (:func:`land`); the frame is to be seen again.
         A negative count: that many failed, too many for the map (nothing landed)."""
-        fresh = land(residual, weight, self.level, self.z2, self.most, self.params[0], self.params[1], self.reach,
+        fresh = land(residual, weight, self.level, self.z2, self.most, self.hold, self.params[0], self.params[1],
+                     self.reach,
                      self.row, self.touched, self.sff, self.see, self.evidence, self.rivalry, self.core)
         if fresh > 0:
             self.active = True

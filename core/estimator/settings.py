@@ -196,9 +196,15 @@ TUNABLES: dict[str, Tunable] = {
         low=0.0),
     "map_most": Tunable(
         0.5, "1 (share of samples)",
-        "the most of a frame's samples the sensor's map may hold aside as changed: a frame on which more fail at "
-        "once is one the state misplaced (its light, its position), not one more marks landed on", low=0.0,
-        high=1.0),
+        "the most of the samples a frame still uses that may fail at once and land on the sensor's map: a frame "
+        "on which more fail is one the state misplaced (its light, its position), not one more marks landed on",
+        low=0.0, high=1.0),
+    "map_hold": Tunable(
+        0.6, "1 (share of samples)",
+        "the most of a frame's samples the sensor's map may hold aside in all: the rest place the frame and test "
+        "what lands next; beyond it what keeps failing is more likely a state the frames cannot place (without "
+        "the grating, a position the state's memory carries) than more marks",
+        low=0.0, high=1.0),
     "map_reach_px": Tunable(
         2.0, "px",
         "how far a mark landing on the window reaches beyond the samples that fail their test: out of focus, its "
@@ -273,6 +279,7 @@ class EstimatorSettings:
     map_rate_gain: float = TUNABLES["map_rate_gain"].default
     map_rate_offset: float = TUNABLES["map_rate_offset"].default
     map_most: float = TUNABLES["map_most"].default
+    map_hold: float = TUNABLES["map_hold"].default
     map_reach_px: float = TUNABLES["map_reach_px"].default
     print_jump: float = TUNABLES["print_jump"].default
     print_rate: float = TUNABLES["print_rate"].default

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from graytrack.core.estimator import EstimatorSettings
+from graytrack.core.estimator.marks import runs
 from graytrack.core.estimator.print_map import NODES_PER_PIXEL, PrintMap, apply, locate
 from tests.core.test_sensor_map import _scored, _tracked, paper  # noqa: F401  (the module's calibrated rig)
 
@@ -30,8 +31,11 @@ def test_dust_settling_on_the_print_is_learned_where_it_lies(paper, grating):  #
         assert np.std(error) <= 1.3 * np.sqrt(np.mean(floor ** 2)), np.std(error)
     learned = np.flatnonzero(estimator.print_map.learned())
     assert learned.size >= 20, learned.size
-    # dust darkens (a node at a speck's edge, read with its slope towards a deeper neighbour, may overshoot)
-    assert np.mean(estimator.print_map.f[learned] < 0.0) >= 0.95
+    # dust darkens: every mark (a run of neighbouring learned nodes) is darker than calibration. Within one the nodes,
+    # each learned from the samples nearest it, may ring about the speck's profile (without the grating a node
+    # between two deep ones was read 5-18 % brighter on one node in ten)
+    marks = runs(estimator.print_map.learned(), estimator.print_map.stride)
+    assert all(estimator.print_map.f[start:stop].mean() < 0.0 for start, stop in marks), marks
     assert not estimator.sensor.learned().any()
     specks = np.array([d.x_mm for d in rig.config.target.defects if d.kind == "dust"])
     widest = max(d.size_mm for d in rig.config.target.defects if d.kind == "dust")
