@@ -494,7 +494,7 @@ class Estimator:
             if self._band_failed >= FAILED_TO_REACQUIRE or self._band_gone():
                 self._band_off()
         step = None
-        if self.mount is not None and mode in MOUNT_BLIND:
+        if self.mount is not None and any(family in MOUNT_BLIND for family in mode.split("+")):
             # a jump of the light or the lens moved the position with it (over less than a period they trade with a
             # shift): what the frames before it placed is no line to judge a step of the mount against
             self.mount.reset()
@@ -619,6 +619,20 @@ class Estimator:
                 s_j, A_j, stats_j = self._solve(y, mask, s_prior, widened, grating_z)
                 test_j = self._test(stats_j)
                 tried.append((self._with_grating(test_j, s_j, A_j, stats_j), test_j, family, s_j, A_j, stats_j))
+            if len(tried) > 1 and min(candidate[0] for candidate in tried) > 1.0 and \
+                    REASON[ranked[0]] == REASON[ranked[1]] and self._band_missed == 0:
+                # One change may move two families of one cause at once (a vignetting change or a lamp moved: the
+                # light's level and its shape; a knock: the camera's place and the stage's velocity seen): where
+                # neither jump alone explains the frame, the two jump together. A step, it comes on a frame after
+                # one the model described. (Of two causes, or on a change under way, their joint freedom would
+                # over less than a period explain a change neither made: a veil forming taken by the field.)
+                family = "+".join(ranked)
+                s_j, A_j, stats_j = self._solve(y, mask, s_prior, self._jumped(P_prior, family), grating_z)
+                test_j = self._test(stats_j)
+                both_j = self._with_grating(test_j, s_j, A_j, stats_j)
+                if both_j <= 1.0 or self._checked != self._checked:
+                    # (read and checked, the grating must find the carriage where the two place the image)
+                    tried.append((both_j, test_j, family, s_j, A_j, stats_j))
             if tried:
                 both = min(tried, key=lambda candidate: candidate[0])
                 best = both[1:] if both[0] <= 1.0 else min(tried, key=lambda candidate: candidate[1])[1:]
@@ -1016,16 +1030,18 @@ class Estimator:
                 scored.append(((statistic - k) / math.sqrt(2.0 * k), family))
         return [family for _, family in sorted(scored, reverse=True)]
 
-    def _jumped(self, P: np.ndarray, family: str) -> np.ndarray:
+    def _jumped(self, P: np.ndarray, families: str) -> np.ndarray:
+        """``P`` widened by the jump of each family named (several joined by "+")."""
         widened = P.copy()
-        for state, var in zip(JUMPS[family], self.jump_var[family]):
-            if state in self._active:
-                widened[state, state] += var
-        if family == "motion":  # a velocity jump during the last interval moved the position with it
-            var, dt = self.jump_var[family][0], self.dt_last
-            widened[X, X] += var * dt * dt
-            widened[X, V] += var * dt
-            widened[V, X] += var * dt
+        for family in families.split("+"):
+            for state, var in zip(JUMPS[family], self.jump_var[family]):
+                if state in self._active:
+                    widened[state, state] += var
+            if family == "motion":  # a velocity jump during the last interval moved the position with it
+                var, dt = self.jump_var[family][0], self.dt_last
+                widened[X, X] += var * dt * dt
+                widened[X, V] += var * dt
+                widened[V, X] += var * dt
         return widened
 
     def _position_variance(self) -> float:
@@ -1058,7 +1074,7 @@ class Estimator:
         checked = self.grating == "check"
         if test > 1.0:
             stale = True
-            reason = REASON.get(reason_jump or "", "") or ("transients" if rejected else "light")
+            reason = REASON.get((reason_jump or "").split("+")[0], "") or ("transients" if rejected else "light")
             message = f"innovation χ² {test:.2f}x its quantile at the false-alarm rate"
         if checked and reference_mm == reference_mm:
             nu = reference_mm - s[X]

@@ -486,6 +486,27 @@ def test_of_two_jumps_that_explain_the_gray_values_the_one_the_grating_finds_is_
     assert not np.any((np.abs(error) > 4 * bound) & ~stale)
 
 
+@pytest.mark.parametrize("seed", [2, 3])
+def test_a_vignetting_step_jumps_the_lights_level_and_shape_together(paper, seed):
+    """The lens's vignetting changes at once by 10 % at the sensor's half-width, no grating read. The change moves
+    the light's level and its shape across the line together, so neither family's jump alone explains the frame;
+    jumped apart, the level followed at its drift rate while the shape and a shift traded, 10-14 floors off with
+    22-36 frames 4+ bounds off unflagged. The two of one cause jump together on the frame the step comes."""
+    run, truth = build_rig("paper", "vignetting_change:delta=0.1:ramp_s=0", seed=seed, run=1).record(10.0)
+    estimates = track(paper, run.frames, run.t, None, grating="none",
+                      settings=EstimatorSettings().for_recording(run.meta))
+    error, bound = _errors(paper, estimates, truth, "none")
+    stale = np.array([e.stale for e in estimates])
+    floor = np.array([e.floor_mm for e in estimates]) * 1e3
+    step = int(np.searchsorted(run.t, 2.0))
+    assert {e.mode for e in estimates[step:step + 3]} >= {"light+field"}
+    assert np.sqrt(np.mean(error ** 2)) < 2.0 * np.sqrt(np.mean(floor ** 2))
+    assert np.sqrt(np.mean((error / bound) ** 2)) < 1.25
+    # a second on, the light's new level and shape are learned: no frame is flagged for the light
+    assert not any(e.stale and e.stale_reason == "light" for e in estimates[step + 50:])
+    assert not np.any((np.abs(error) > 4 * bound) & ~stale)
+
+
 def test_a_checked_grating_that_refutes_the_frames_account_is_what_the_recursion_carries_on_from(paper):
     """The lens's vignetting changes during the run (5 % at the field's edge over a second), the grating read and
     checked. Frame by frame the change is small against the noise and each frame passes its own test, but over less
