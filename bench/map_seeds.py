@@ -16,7 +16,7 @@ those unflagged, and what each map learned: a mark learned into the other side's
 
     .venv/bin/python bench/map_seeds.py [--seeds N] [--shard K/N] [--cache DIR] [--only TEXT] [name=value ...]
 
-The last lines hold the cases against the acceptance of "the rig's two maps": each run within 1.3 noise
+The last lines count the runs outside it by change and mode, and hold the cases against the acceptance of "the rig's two maps": each run within 1.3 noise
 floors (under ``--trim``, whose error is the fused grating's, within 1.3 of its stated bound), ≤ 1 % of its
 frames lost and ≤ 5 % flagged after the change settled, ≤ 0.5 % of the placed frames 4+ bounds off without a
 flag, nothing learned into the wrong map. Clean runs are ``steady_maps.py``'s.
@@ -86,6 +86,7 @@ def main() -> None:
     runs = [(scenario, change, side, seed) for scenario in SCENARIOS for change, side in CHANGES
             for seed in range(1, args.seeds + 1) if args.only in f"{scenario} {change}"]
     outside, scored_runs, silent, placed, wrong = [], 0, 0, 0, 0
+    counted: dict[tuple[str, str], list[int]] = {}  # (change, mode): [runs, outside]
     for number, (scenario, change, side, seed) in enumerate(runs):
         if number % shards != shard:
             continue
@@ -109,12 +110,20 @@ def main() -> None:
                 if missed]
             if misses:
                 outside.append((scenario, change, seed, mode, misses))
+            tally = counted.setdefault((f"{scenario} {change}", mode), [0, 0])
+            tally[0] += 1
+            tally[1] += bool(misses)
             print(f"{scenario:8} {change:46} seed {seed} {mode:15} ratio {score['ratio']:6.2f} "
                   f"pull {score['pull']:5.2f} lost {score['lost']:3d} flag {100 * score['flagged'] / frames:5.1f}% "
                   f"after {100 * score['flagged_after']:5.1f}% far {score['far']:4d} silent {score['silent']:3d} "
                   f"sensor {score['map']:3d} print {score['print']:3d} wrong {mislearned:3d}"
                   f"{'  <<< ' + ', '.join(misses) if misses else ''}", flush=True)
     if scored_runs:
+        print("outside the acceptance, by change and mode (runs outside / runs):")
+        print(f"  {'':56}" + "".join(f"{mode:>16}" for mode in MODES))
+        for case in dict.fromkeys(case for case, _ in counted):
+            cells = [counted.get((case, mode)) for mode in MODES]
+            print(f"  {case:56}" + "".join(f"{f'{cell[1]}/{cell[0]}' if cell else '-':>16}" for cell in cells))
         print(f"total: {scored_runs} runs (run x mode), {len(outside)} outside the acceptance; unflagged 4+ bounds "
               f"off {silent} of {placed} placed frames; {wrong} marks learned into the wrong map")
 
