@@ -16,10 +16,10 @@ those unflagged, and what each map learned: a mark learned into the other side's
 
     .venv/bin/python bench/map_seeds.py [--seeds N] [--shard K/N] [--cache DIR] [--only TEXT] [name=value ...]
 
-The last lines count the runs outside it by change and mode, and hold the cases against the acceptance of "the rig's two maps": each run within 1.3 noise
-floors (under ``--trim``, whose error is the fused grating's, within 1.3 of its stated bound), ≤ 1 % of its
-frames lost and ≤ 5 % flagged after the change settled, ≤ 0.5 % of the placed frames 4+ bounds off without a
-flag, nothing learned into the wrong map. Clean runs are ``steady_maps.py``'s.
+The last lines count the runs outside the acceptance of "the rig's two maps" by change and mode: each run
+within 1.3 noise floors (under ``--trim``, whose error is the fused grating's, within 1.3 of its stated
+bound), ≤ 1 % of its frames lost and ≤ 5 % flagged after the change settled, ≤ 0.5 % of the placed frames
+4+ bounds off without a flag, nothing learned into the wrong map. Clean runs are ``steady_maps.py``'s.
 """
 
 from __future__ import annotations
