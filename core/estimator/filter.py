@@ -106,7 +106,7 @@ class FrameEstimate(NamedTuple):
     stretch_sigma: float
     place_mm: float
     place_sigma_mm: float
-    mode: str  # the family whose jump this frame took ("" none)
+    mode: str  # the family whose jump this frame took ("" none; two of one cause jumped together: "light+field")
     repeated: bool  # the driver delivered the last image again (core/repeats.py): set aside, no position
     stale: bool
     stale_reason: str
