@@ -42,12 +42,13 @@ from graytrack.core.errors import TrackingError
 from graytrack.core import repeats
 from graytrack.core.estimator import kernel
 from graytrack.core.estimator.kernel import S_POSTERIOR, S_REJECTED, S_WEIGHED
+from graytrack.core.estimator.commands import StageCommands
 from graytrack.core.estimator.mount import SHOWN_ACCELERATION, SHOWN_BEYOND, MountWatch, Step, step_test
 from graytrack.core.estimator.print_map import PrintMap
 from graytrack.core.estimator.sensor_map import SensorMap
 from graytrack.core.estimator.settings import EstimatorSettings
-from graytrack.core.estimator.state import (A1, A2, B, BAND, BD, BE, BH, BL, BR, BW, C, G, L, M, N_STATE, OFS, SK, SKR,
-                                            STATE, T, V, X)
+from graytrack.core.estimator.state import (A1, A2, B, BAND, BD, BE, BH, BL, BR, BW, C, D, G, L, M, N_STATE, OFS,
+                                            SK, SKR, STATE, T, V, X)
 from graytrack.core.frame_tables import FrameTables
 from graytrack.core.kernels import TableEvaluator
 from graytrack.core.models.fourier import FourierModel
@@ -272,8 +273,18 @@ class Estimator:
             settings.band_rate_depth, settings.band_rate_edge, settings.band_rate_edge, settings.band_rate_soft,
             settings.band_rate_haze)
         rates[BW] = settings.band_acceleration  # (the band's speed: white acceleration, kernel.predict)
-        self.rates2 = rates ** 2
         active = [X, V, G, OFS, A1, A2, B, M]
+        # The stage follows its commanded path within its jitter (kernel.predict; the path bends where commanded,
+        # _advance): where the image places the carriage (the grating read and checked, or none), that path carries
+        # the velocity from frame to frame instead of each frame's pull. Fused, the grating reads the carriage at
+        # every frame, and at a constant speed its latch's skew and the velocity are one product (x − v·skew): a
+        # velocity the path holds leaves the skew to take what the image's model misses at each place, so there
+        # the stage may accelerate anywhere, and the velocity follows the frames.
+        self.on_path = grating != "fuse" and settings.stage_jitter > 0.0
+        if self.on_path:
+            active.append(D)
+            rates[D] = settings.stage_jitter
+        self.rates2 = rates ** 2
         if grating != "check":  # checked, the grating judges the place and the slide; else they are states
             active += [C, L]
         if grating == "fuse":  # fused, the grating's own latch against the exposure is one too, and its drift
@@ -287,7 +298,8 @@ class Estimator:
         self.idx_band = np.array(sorted((set(active) - {C, L, M, T, SK, SKR}) | set(BAND)), dtype=np.int64)
         self._active = frozenset(active)
         self._carriers: dict[bool, list] = {}  # (_carrier's families over each set of states solved)
-        self.idx_appearance = np.array([state for state in (X, V, G, OFS, A1, A2, B) if state in active],
+        self.idx_appearance = np.array([state for state in (X, V, G, OFS, A1, A2, B, D) if state in active and
+                                        not (state == V and self.on_path)],
                                        dtype=np.int64)
         self.scratch = np.empty((6, n_values))
         self.rho = np.ones(n_values)
@@ -366,7 +378,10 @@ class Estimator:
         most = max(settings.stage_acceleration, shown)
         beyond = model.info.get(SHOWN_BEYOND)
         beyond = most if beyond is None else max(settings.stage_servo, float(beyond))
-        self.mount = MountWatch(most, self.z_two, stage_phases, beyond, settings.stage_settle) \
+        # what the stage was commanded to do: where its path bends (the motion's process noise) and, without the
+        # grating, what steps the mount's test allows
+        self.commands = StageCommands(stage_phases, most, settings.stage_settle)
+        self.mount = MountWatch(most, self.z_two, beyond=beyond, commands=self.commands) \
             if grating == "none" else None
         self._warm()
 
@@ -388,6 +403,7 @@ class Estimator:
         prior[T] = 1e-6
         prior[SK] = settings.skew_prior
         prior[SKR] = settings.clock_drift_prior if SKR in self._active else 0.0  # (held at zero where not fused)
+        prior[D] = settings.stage_jitter if self.on_path else 0.0  # (the path as unknown as the position and jitter)
         self.P[:] = np.diag(prior ** 2)
         self.t_last = t
         self.started = True
@@ -402,11 +418,18 @@ class Estimator:
 
     def predict(self, t: float) -> None:
         """State and covariance moved on to time ``t``."""
-        kernel.predict(self.s, self.P, self._advance(t), self.settings.acceleration ** 2, self.rates2)
+        dt = self._advance(t)
+        kernel.predict(self.s, self.P, dt, self.params.item(kernel.U_ACCELERATION), self.rates2)
 
     def _advance(self, t: float) -> float:
-        """The interval from the last frame's time to ``t`` (s, never negative), ``t`` now the last."""
+        """The interval from the last frame's time to ``t`` (s, never negative), ``t`` now the last; the path's
+        acceleration variance over it (``params[U_ACCELERATION]``, mm²/s⁴): where the stage's commands are known,
+        what they asked then (its phases, mm/s²) or else how little its path bends between them; where they are
+        not, the stage's acceleration anywhere."""
         dt = 0.0 if self.t_last is None else max(t - self.t_last, 0.0)
+        if self.on_path and self.commands.known:
+            asked = self.commands.asked(t - dt, t) if dt > 0.0 else 0.0
+            self.params[kernel.U_ACCELERATION] = asked * asked + self.settings.stage_drift ** 2
         self.dt_last, self.t_last = dt, t
         return dt
 
@@ -425,7 +448,7 @@ class Estimator:
         if not acquiring:
             dt = predict = self._advance(t)  # the prediction to the frame's time, made by the update's own call
             if self.print_map.active:  # ... or first, where the print's map is read at the predicted image
-                kernel.predict(self.s, self.P, dt, self.settings.acceleration ** 2, self.rates2)
+                kernel.predict(self.s, self.P, dt, self.params.item(kernel.U_ACCELERATION), self.rates2)
                 predict = None
         # seen through what sits on the sensor's side and on the print (the frame itself while nothing has landed)
         y, mask = self._through_maps(y_raw, raw_mask, not acquiring)
@@ -537,7 +560,9 @@ class Estimator:
         without the grating, the mount's test allows that there and, between the phases it was given, only what
         the stage does beyond its commands (mount.py). Read or fused, the grating says."""
         if self.mount is not None:
-            self.mount.command(start, end, acceleration)
+            self.mount.command(start, end, acceleration)  # (the window's oldest frame: what it drops)
+        else:
+            self.commands.command(start, end, acceleration, -math.inf if self.t_last is None else self.t_last)
 
     def _carried(self, y: np.ndarray, mask: np.ndarray, s_prior: np.ndarray,
                  P_prior: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:

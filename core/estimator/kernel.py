@@ -29,15 +29,14 @@ import math
 import numpy as np
 
 from graytrack.core import kernels
-from graytrack.core.estimator.state import (A1, A2, B, BD, BE, BH, BL, BR, BW, C, G, L, M, N_STATE, OFS, SK, SKR,
-                                            STATE,
-                                            T, V, X)
+from graytrack.core.estimator.state import (A1, A2, B, BD, BE, BH, BL, BR, BW, C, D, G, L, M, N_STATE, OFS, SK,
+                                            SKR, STATE, T, V, X)
 
 # The state's layout as this file was compiled for. numba keys its cache by this file's stamp alone, not
 # by the indices it compiles in from state.py: a cache made for another layout indexes the wrong states
 # (seen: NaN or a silently wrong skew). A layout change must therefore change this file, and does:
 LAYOUT = ("x_mm v_mm_s gain offset_gray field_tilt field_bow focus_px2 stretch place_mm lever_mm turn_mm_row skew_s "
-          "band_depth band_left_mm band_right_mm band_speed_mm_s band_edge_mm band_haze_gray skew_rate_s_s")
+          "band_depth band_left_mm band_right_mm band_speed_mm_s band_edge_mm band_haze_gray skew_rate_s_s jitter_mm")
 if LAYOUT != " ".join(entry.name for entry in STATE):
     raise ImportError("core/estimator/state.py's layout differs from kernel.LAYOUT: update LAYOUT with it "
                       "(it keys the compiled kernel's cache)")
@@ -324,17 +323,24 @@ def predict(s: np.ndarray, P: np.ndarray, dt: float, q_accel: float, rates2: np.
     variance ``q_accel`` (mm²/s⁴) held over the interval (the discrete white-acceleration model); every
     other state a random walk of variance ``rates2`` per second."""
     n = s.size
-    s[X] += s[V] * dt
-    # P ← F P Fᵀ with F = I + dt·e_X e_Vᵀ
+    # The carriage is its path plus the last frame's jitter D: the path moves on at its velocity, the jitter is
+    # drawn afresh (variance rates2[D], white, not a walk): x⁺ = x + v·dt − d + d⁺, d⁺ new.
+    s[X] += s[V] * dt - s[D]
+    s[D] = 0.0
+    # P ← F P Fᵀ with F = I + dt·e_X e_Vᵀ − e_X e_Dᵀ, then the jitter's row and column anew
     for j in range(n):
-        P[X, j] += dt * P[V, j]
+        P[X, j] += dt * P[V, j] - P[D, j]
     for i in range(n):
-        P[i, X] += dt * P[i, V]
+        P[i, X] += dt * P[i, V] - P[i, D]
+    for i in range(n):
+        P[i, D] = 0.0
+        P[D, i] = 0.0
     dt2 = dt * dt
-    P[X, X] += q_accel * dt2 * dt2 / 4.0
+    P[X, X] += q_accel * dt2 * dt2 / 4.0 + rates2[D]
     P[X, V] += q_accel * dt2 * dt / 2.0
     P[V, X] += q_accel * dt2 * dt / 2.0
     P[V, V] += q_accel * dt2
+    P[X, D] = P[D, X] = P[D, D] = rates2[D]
     if P[SKR, SKR] > 0.0:  # the latch drifts at its rate (the clocks' rates apart), which itself changes white
         s[SK] += s[SKR] * dt
         for j in range(n):

@@ -19,13 +19,13 @@ it, with the variance of the fit and of what the stage may still have done withi
 
 from __future__ import annotations
 
-import bisect
 import math
 from typing import NamedTuple
 
 import numpy as np
 
 from graytrack.core import kernels
+from graytrack.core.estimator.commands import StageCommands, commanded
 
 SHOWN_ACCELERATION = "stage_shown_acceleration_mm_s2"  # model info: the least acceleration the calibration's
 # grating readings allow over every four frames (shown_acceleration)
@@ -155,20 +155,6 @@ def step_test(t: np.ndarray, p: np.ndarray, var: np.ndarray, acceleration: np.nd
     return _judged(out, acceleration)
 
 
-def commanded(t: np.ndarray, phases: np.ndarray | None, settle_s: float) -> np.ndarray | None:
-    """The most the stage was commanded to accelerate in each interval between the frames at times ``t`` (mm/s²,
-    ``t.size − 1`` of them): the largest of the ``phases`` (start s, end s, |a| mm/s², core/recording.py) that
-    overlap it, each held ``settle_s`` past its end while the servo catches up; None without phases."""
-    if phases is None:
-        return None
-    t = np.asarray(t, dtype=np.float64)
-    out = np.zeros(max(t.size - 1, 0))
-    for start, end, acceleration in phases:
-        overlap = (t[1:] > start) & (t[:-1] < end + settle_s)
-        np.maximum(out, np.where(overlap, acceleration, 0.0), out=out)
-    return out
-
-
 def shown_acceleration(t: np.ndarray, reading_mm: np.ndarray, phases: np.ndarray | None = None,
                        settle_s: float = 0.0) -> float:
     """The least acceleration (mm/s²) that allows every step the grating's readings make over four frames:
@@ -200,13 +186,13 @@ class MountWatch:
     the step the mount took, if the test says so, after which the frames it moved are corrected."""
 
     def __init__(self, acceleration: float, z: float, phases: np.ndarray | None = None, beyond: float = 0.0,
-                 settle_s: float = 0.0):
+                 settle_s: float = 0.0, commands: StageCommands | None = None):
         self.acceleration, self.z = float(acceleration), float(z)
-        # with the commanded phases known, an interval allows what its command asked (commanded) and what the stage
-        # was seen to do beyond its commands (``beyond``, mm/s²), not the stage's most everywhere
-        self.phases, self.beyond, self.settle_s = phases, float(beyond), float(settle_s)
-        self._kept([] if phases is None else
-                   sorted((start, end + self.settle_s, abs(asked)) for start, end, asked in phases.tolist()))
+        # with the commanded phases known, an interval allows what its command asked and what the stage was seen to
+        # do beyond its commands (``beyond``, mm/s²), not the stage's most everywhere (``commands``: shared with
+        # the motion's process noise, else made of ``phases``)
+        self.commands = commands if commands is not None else StageCommands(phases, acceleration, settle_s)
+        self.beyond = float(beyond)
         self.t = np.zeros(WINDOW)
         self.p = np.zeros(WINDOW)
         self.var = np.zeros(WINDOW)
@@ -219,41 +205,12 @@ class MountWatch:
     @property
     def commanded_known(self) -> bool:
         """Whether the stage's commands are known (phases given, even none): between them it holds its speed."""
-        return self.phases is not None
+        return self.commands.known
 
     def command(self, start: float, end: float, acceleration: float | None = None) -> None:
-        """One more commanded phase of acceleration (``start``, ``end`` s in the frames' clock, mm/s²; None: the
-        stage's most), as the stage's owner issues it (a running rig: in any order, each kept while a window may
-        still reach it). A phase given again with the same ``start`` replaces the one given before: a motion whose
-        end was not known when it began (``end`` = inf: until the stage is seen at rest) is closed that way."""
-        if self.phases is None:
-            self.phases = np.zeros((0, 3))
-        start = float(start)
-        phases = sorted(phase for phase in zip(self._starts, self._ends, self._asked) if phase[0] != start)
-        if self.n == WINDOW:  # a phase that ended before the window's oldest frame reaches no interval again
-            phases = [phase for phase in phases if phase[1] > self.t.item(0)]
-        asked = self.acceleration if acceleration is None else abs(float(acceleration))
-        phases.append((start, float(end) + self.settle_s, asked))
-        self._kept(sorted(phases))
-
-    def _kept(self, phases: list[tuple[float, float, float]]) -> None:
-        """The phases (start, settled end, |a|) by start, and where an earlier one may still reach: the most of
-        the ends so far (:meth:`_commanded` walks back only while it reaches the interval)."""
-        self._starts = [phase[0] for phase in phases]
-        self._ends = [phase[1] for phase in phases]
-        self._asked = [phase[2] for phase in phases]
-        self._reach = np.maximum.accumulate(self._ends).tolist() if phases else []
-
-    def _commanded(self, start: float, end: float) -> float:
-        """The most the stage was commanded to accelerate between ``start`` and ``end`` (s): :func:`commanded`
-        for one interval, by bisection over the phases."""
-        most = 0.0
-        k = bisect.bisect_left(self._starts, end) - 1
-        while k >= 0 and self._reach[k] > start:
-            if self._asked[k] > most and self._ends[k] > start:
-                most = self._asked[k]
-            k -= 1
-        return most
+        """One more commanded phase (:meth:`StageCommands.command`), a phase that ended before the window's oldest
+        frame dropped (it reaches no interval again)."""
+        self.commands.command(start, end, acceleration, self.t.item(0) if self.n == WINDOW else -math.inf)
 
     def add(self, t: float, p_mm: float, var_mm2: float) -> Step | None:
         fitted = _pushed(self.t, self.p, self.var, t, p_mm, var_mm2, self._out)  # (one compiled call a frame)
@@ -261,13 +218,14 @@ class MountWatch:
         if self.n < WINDOW or not fitted:
             return None
         out = self._out
-        least = self.acceleration if self.phases is None else self.beyond
+        known = self.commands.known
+        least = self.beyond if known else self.acceleration
         noise = self.z * math.sqrt(max(out.item(1), 0.0))
         if abs(out.item(0)) - least * out.item(2) <= noise:
             return None  # within the stage's allowance and the step's noise: the frame's, as nearly always
         acceleration = np.full(WINDOW - 1, self.acceleration)
-        if self.phases is not None:
-            acceleration = np.array([self.beyond + self._commanded(self.t.item(j - 1), self.t.item(j))
+        if known:
+            acceleration = np.array([self.beyond + self.commands.asked(self.t.item(j - 1), self.t.item(j))
                                      for j in range(1, WINDOW)])
             if abs(out.item(0)) - float(np.dot(acceleration, out[3:WINDOW + 2])) <= noise:
                 return None  # what the stage was commanded to do then makes such a step

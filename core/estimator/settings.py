@@ -57,6 +57,19 @@ TUNABLES: dict[str, Tunable] = {
         "what a stage accelerates beyond its commands (its servo's overshoot, the floor's vibration) where its "
         "calibration's readings did not show more; with the commands known, a cruise or a rest allows only this "
         "(at 50 frames/s, 6 µm between four frames instead of the commanded most's 30 µm at 100 mm/s²)", low=0.0),
+    "stage_jitter": Tunable(
+        20e-3, "mm",
+        "how far a frame's position may be off the path the frames before it drew, afresh each frame: the stage's "
+        "ripple and the floor's vibration (µm), and what the image's model misses for a few frames (a light or a "
+        "mark changing: tens of µm over less than a period); the path then keeps the stage's velocity, not each "
+        "frame's pull: a tighter tie lets such a pull bend the path, and the frames after it inherit the bend",
+        low=0.0),
+    "stage_drift": Tunable(
+        1.0, "mm/s²",
+        "how much the stage's path bends between its commanded phases, as white acceleration (a servo holding its "
+        "speed against friction and a cable's drag: its velocity wanders by tens of µm/s over a second; its "
+        "ripple is the jitter); where the commands are not known, the path bends by the stage's acceleration",
+        low=0.0),
     "gain_rate": Tunable(
         0.005, "1/√s",
         "the light's relative drift in a second while the lamp holds (a lamp warming); over less than a period of "
@@ -235,6 +248,8 @@ class EstimatorSettings:
     stage_acceleration: float = TUNABLES["stage_acceleration"].default
     stage_settle: float = TUNABLES["stage_settle"].default
     stage_servo: float = TUNABLES["stage_servo"].default
+    stage_jitter: float = TUNABLES["stage_jitter"].default
+    stage_drift: float = TUNABLES["stage_drift"].default
     gain_rate: float = TUNABLES["gain_rate"].default
     gain_prior: float = TUNABLES["gain_prior"].default
     offset_rate: float = TUNABLES["offset_rate"].default

@@ -46,8 +46,11 @@ STATE: tuple[StateEntry, ...] = (
     # the camera's and the controller's clocks run at rates a few tens of ppm apart, steadily for hours: the latch
     # drifts at that rate (with the grating fused), a random walk alone lags behind it
     StateEntry("skew_rate_s_s", "s/s", "scale", "how fast the grating's latch drifts (the two clocks' rates apart)"),
+    # a stage follows its commanded path within a servo's ripple and the floor's vibration: at one frame the carriage
+    # is off the path by what no later frame inherits (white); the path itself bends only where it was commanded to
+    StateEntry("jitter_mm", "mm", "geometry", "the carriage off its path at this frame (a servo's ripple, vibration)"),
 )
-X, V, G, OFS, A1, A2, B, M, C, L, T, SK, BD, BL, BR, BW, BE, BH, SKR = range(len(STATE))
+X, V, G, OFS, A1, A2, B, M, C, L, T, SK, BD, BL, BR, BW, BE, BH, SKR, D = range(len(STATE))
 BAND = (BD, BL, BR, BW, BE, BH)
 N_STATE = len(STATE)
 FAMILIES = {entry.family for entry in STATE}

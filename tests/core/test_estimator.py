@@ -486,6 +486,44 @@ def test_of_two_jumps_that_explain_the_gray_values_the_one_the_grating_finds_is_
     assert not np.any((np.abs(error) > 4 * bound) & ~stale)
 
 
+def test_the_carriage_is_its_path_and_a_jitter_no_later_frame_inherits():
+    """The prediction moves the path on at its velocity and draws the jitter afresh: a frame that placed the
+    carriage 3 µm off its path hands the next frame the path, not the 3 µm; the path's own variance is carried and
+    the new jitter's added once, to the position only."""
+    from graytrack.core.estimator import kernel
+    from graytrack.core.estimator.state import D, N_STATE, V, X
+
+    s, P, rates2 = np.zeros(N_STATE), np.zeros((N_STATE, N_STATE)), np.zeros(N_STATE)
+    s[X], s[V], s[D] = 1.0, 2.0, 0.003
+    P[X, X], P[D, D], P[X, D], P[D, X] = 5e-6, 4e-6, 3e-6, 3e-6  # (mm²: the path's variance 5 − 2·3 + 4 = 3e-6)
+    P[V, V] = 1e-4
+    rates2[D] = 0.02 ** 2
+    kernel.predict(s, P, 0.01, 0.0, rates2)
+    assert s[X] == pytest.approx(1.0 - 0.003 + 2.0 * 0.01) and s[D] == 0.0
+    assert P[X, X] == pytest.approx(3e-6 + 1e-4 * 0.01 ** 2 + 0.02 ** 2)
+    assert P[X, D] == P[D, X] == P[D, D] == pytest.approx(0.02 ** 2)
+    assert P[X, V] == pytest.approx(1e-4 * 0.01)
+
+
+@pytest.mark.parametrize("seed", [2, 3])
+def test_a_lamp_hunting_without_the_grating_leaves_the_stages_path_where_it_was(paper, seed):
+    """The lamp's gain hunts by 5 % (nothing declares it) while the stage cruises and no grating is read: over less
+    than a period the light's shape pulls each frame's position. The stage follows its commanded path, so the path
+    carries the velocity from frame to frame and a frame's pull stays that frame's (its jitter). A velocity free to
+    follow each frame took the pulls with it: 3-4 noise floors off, a quarter of the frames flagged."""
+    from graytrack.core.recording import acceleration_phases
+
+    run, truth = build_rig("paper", "gain_hunting:depth=0.05", seed=seed, run=1).record(10.0)
+    estimates = track(paper, run.frames, run.t, None, grating="none",
+                      settings=EstimatorSettings().for_recording(run.meta), stage_phases=acceleration_phases(run.meta))
+    error, bound = _errors(paper, estimates, truth, "none")
+    stale = np.array([e.stale for e in estimates])
+    floor = np.array([e.floor_mm for e in estimates]) * 1e3
+    assert np.sqrt(np.mean(error ** 2)) < 2.0 * np.sqrt(np.mean(floor ** 2))
+    assert stale.mean() < 0.05
+    assert np.mean((np.abs(error) > 4 * bound) & ~stale) < 0.01
+
+
 @pytest.mark.parametrize("seed", [2, 3])
 def test_a_vignetting_step_jumps_the_lights_level_and_shape_together(paper, seed):
     """The lens's vignetting changes at once by 10 % at the sensor's half-width, no grating read. The change moves

@@ -119,7 +119,7 @@ def test_commanded_phases_bound_each_interval_and_hold_while_the_servo_settles()
     assert asked[np.searchsorted(t, 0.20)] == 0.0 and asked[np.searchsorted(t, 0.40)] == 0.0
     assert asked[np.searchsorted(t, 0.54) - 1] == 70.0  # overlapping phases: the larger
     watch = MountWatch(100.0, 4.0, phases, 5.0, 0.03)
-    assert [watch._commanded(t[j - 1], t[j]) for j in range(1, t.size)] == asked.tolist()
+    assert [watch.commands.asked(t[j - 1], t[j]) for j in range(1, t.size)] == asked.tolist()
     assert commanded(t, None, 0.03) is None
 
 
@@ -181,8 +181,8 @@ def test_phases_given_as_they_are_commanded_are_the_phases_given_up_front():
         window = live.t if live.n == 4 else None
         if window is not None:
             expected = up_front[k - 3:k]
-            assert [live._commanded(window[j - 1], window[j]) for j in range(1, 4)] == expected.tolist()
-    assert len(live._starts) < len(phases)  # what no window reaches again was dropped
+            assert [live.commands.asked(window[j - 1], window[j]) for j in range(1, 4)] == expected.tolist()
+    assert len(live.commands.starts) < len(phases)  # what no window reaches again was dropped
 
 
 def test_the_live_estimator_finds_a_knock_from_the_commands_it_is_handed():
@@ -213,9 +213,9 @@ def test_a_phase_open_until_the_stage_rests_is_closed_by_giving_it_again():
     (end inf, the stage's most) and given again, same start, once the readings show the stage at rest."""
     watch = MountWatch(100.0, 4.0, np.zeros((0, 3)), 5.0, 0.03)
     watch.command(1.0, math.inf)
-    assert watch._commanded(1.5, 1.52) == 100.0 and watch._commanded(50.0, 50.02) == 100.0
+    assert watch.commands.asked(1.5, 1.52) == 100.0 and watch.commands.asked(50.0, 50.02) == 100.0
     watch.command(1.0, 1.4, None)
-    assert watch._starts == [1.0] and watch._commanded(1.42, 1.44) == 100.0  # within the servo's settling
-    assert watch._commanded(1.5, 1.52) == 0.0
+    assert watch.commands.starts == [1.0] and watch.commands.asked(1.42, 1.44) == 100.0  # within the servo's settling
+    assert watch.commands.asked(1.5, 1.52) == 0.0
     watch.command(2.0, 2.1, 30.0)
-    assert watch._commanded(2.05, 2.07) == 30.0 and len(watch._starts) == 2
+    assert watch.commands.asked(2.05, 2.07) == 30.0 and len(watch.commands.starts) == 2
