@@ -280,9 +280,10 @@ class Estimator:
         # every frame, and at a constant speed its latch's skew and the velocity are one product (x − v·skew): a
         # velocity the path holds leaves the skew to take what the image's model misses at each place, so there
         # the stage may accelerate anywhere, and the velocity follows the frames.
+        # (the jitter is a state no sample sees apart from the position: never solved, conditioned on the states
+        # solved after each update, kernel.jitter and kernel.embed)
         self.on_path = grating != "fuse" and settings.stage_jitter > 0.0
         if self.on_path:
-            active.append(D)
             rates[D] = settings.stage_jitter
         self.rates2 = rates ** 2
         if grating != "check":  # checked, the grating judges the place and the slide; else they are states
@@ -298,7 +299,7 @@ class Estimator:
         self.idx_band = np.array(sorted((set(active) - {C, L, M, T, SK, SKR}) | set(BAND)), dtype=np.int64)
         self._active = frozenset(active)
         self._carriers: dict[bool, list] = {}  # (_carrier's families over each set of states solved)
-        self.idx_appearance = np.array([state for state in (X, V, G, OFS, A1, A2, B, D) if state in active and
+        self.idx_appearance = np.array([state for state in (X, V, G, OFS, A1, A2, B) if state in active and
                                         not (state == V and self.on_path)],
                                        dtype=np.int64)
         self.scratch = np.empty((6, n_values))
@@ -511,7 +512,8 @@ class Estimator:
         if A is self._answer[1] and stats[kernel.S_POSTERIOR] > 0:  # the main update's: it made the posterior
             self.P, self._P_next = self._P_next, self.P
         else:
-            kernel.embed(self.P, A, solved, self._sigma)  # the posterior over the states solved, the prior's elsewhere
+            # the posterior over the states solved, the prior's elsewhere (the jitter's conditioned on them)
+            kernel.embed(self.P, A, solved, self._sigma, np.asarray(stats)[kernel.S_JITTER:])
         if self.s.item(BE) > 0.0:
             self._band_failed = self._band_failed + 1 if test > 1.0 else 0
             if self._band_failed >= FAILED_TO_REACQUIRE or self._band_gone():
@@ -548,8 +550,8 @@ class Estimator:
             anchored = self._anchored(self.P, stats)
             self._learn(y_raw, raw_mask, y, t, anchored, anchored and not estimate.stale)
         if carried is not None:  # (the maps learn from the frame as its image placed it, as it is reported)
-            self.s, A, idx, self.P = carried
-            kernel.embed(self.P, A, idx, self._sigma)
+            self.s, A, idx, self.P, figures = carried
+            kernel.embed(self.P, A, idx, self._sigma, np.asarray(figures)[kernel.S_JITTER:])
             if idx is not self.idx:
                 self._band_on()
         return estimate
@@ -565,13 +567,13 @@ class Estimator:
             self.commands.command(start, end, acceleration, -math.inf if self.t_last is None else self.t_last)
 
     def _carried(self, y: np.ndarray, mask: np.ndarray, s_prior: np.ndarray,
-                 P_prior: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+                 P_prior: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list] | None:
         """The frame's account with the grating it checks as a second measurement of the carriage, for the
         recursion to carry where the image's own account and the grating disagree: (state, posterior information,
-        the states solved, the prior's covariance to embed it in). Solved with the grating, and with the jump of
-        each family its score test then points to (the frame's innovation seen with the carriage pinned: a
-        vignetting change or a veil forming reads as the light's shape there, not as a shift), or with a band
-        entering, the account that explains the gray values best is kept; None where none explains them within
+        the states solved, the prior's covariance to embed it in, the solve's figures). Solved with the grating,
+        and with the jump of each family its score test then points to (the frame's innovation seen with the carriage
+        pinned: a vignetting change or a veil forming reads as the light's shape there, not as a shift), or with a
+        band entering, the account that explains the gray values best is kept; None where none explains them within
         their test (the frame's own account then stands, as it did before the grating refuted it)."""
         if (self.idx is self.idx_band) != (s_prior.item(BE) > 0.0):
             return None  # (a band entered or left on this frame: its account stands)
@@ -592,11 +594,11 @@ class Estimator:
             # extra states' quantile)
             banded = self._banded(y, mask, s_f, stats_f, s_prior, P_keep, reading)
             if banded is not None and banded[0] <= 1.0 and self._chi2(banded[3]) + self._band_margin < best[0]:
-                return banded[1], banded[2], self.idx_band, P_keep
+                return banded[1], banded[2], self.idx_band, P_keep, banded[3]
         _, s_f, A_f, stats_f = best
         if self._test(stats_f) > 1.0:
             return None  # (no account the grating agrees with explains the frame either: the frame's own stands)
-        return s_f, A_f, self.idx, P_keep
+        return s_f, A_f, self.idx, P_keep, stats_f
 
     def _mounted(self, step: Step) -> None:
         """The camera's place takes the step the mount made (mount.py): the carriage is where the image was less
@@ -1221,7 +1223,7 @@ class Estimator:
         self._solve(y, self.mask.copy(), self.s.copy(), self.P.copy(), math.nan)
         self._solve(y, self.mask.copy(), self.s.copy(), self.P.copy(), 0.0)
         kernel.predict(self.s.copy(), self.P.copy(), 0.01, 1.0, self.rates2)
-        kernel.embed(self.P.copy(), np.eye(self.idx.size), self.idx, self._sigma)
+        kernel.embed(self.P.copy(), np.eye(self.idx.size), self.idx, self._sigma, np.zeros(N_STATE))
         kernel.carried(self.P, self.idx, X)
         kernel.longest_run(self._y, self.model.n_pixels, 1.0)
         for layout in (self._layout_plain, self._layout_band):

@@ -49,7 +49,8 @@ CURVATURE_STEP_PERIODS = 1e-3  # forward-difference step of F″ from the slopes
 # weights took down, not aside)
 (S_COST, S_RESIDUAL, S_PRIOR, S_USED, S_REJECTED, S_ITER, S_XINFO, S_RMS, S_GRATING, S_CONVERGED,
  S_POSTERIOR, S_WEIGHED) = range(12)
-N_STATS = 12
+S_JITTER = 12  # from here, one a state solved: the carriage's jitter's gain on it under the solve's prior (jitter)
+N_STATS = S_JITTER + N_STATE
 # the update's numbers in one array (a frame's call passes one array, not a dozen arguments: each argument costs
 # the call ~0.1 µs): the noise model's read variance, shot gain and dark level, the pixel pitch and the period (mm),
 # the fused grating's reading (mm) and weight (1/σ², 0: none), robust weights on (1) or off (0), their core and cut
@@ -165,12 +166,38 @@ def information(P: np.ndarray, idx: np.ndarray) -> np.ndarray:
     return _inverse(block)
 
 
-def embed(P: np.ndarray, A: np.ndarray, idx: np.ndarray, sigma: np.ndarray) -> None:
-    """In place: ``P``'s block over ``idx`` becomes ``A``⁻¹ (the posterior); states outside ``idx`` keep
-    their own variance and lose their correlation with those inside. ``sigma``: every state's σ out
-    (a negative variance's 0)."""
+def jitter(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndarray, info: np.ndarray,
+           gain: np.ndarray) -> None:
+    """In place: the jitter's posterior mean from the states solved, and its gain on them into ``gain``. No sample
+    sees it apart from the position (it moves the path, not the image), so it is never solved: its posterior is
+    its prior conditioned on the states solved, s_D = s_D⁻ + K (s − s⁻) with K = P⁻_D,idx · ``info`` (the prior's
+    information over ``idx``), exactly what solving it with them gives; K = 0 where it is not a state here."""
+    n = idx.size
+    for j in range(n):
+        gain[j] = 0.0
+    if not P_prior[D, D] > 0.0:
+        return
+    acc = s_prior[D]
+    for j in range(n):
+        k = 0.0
+        for i in range(n):
+            k += P_prior[D, idx[i]] * info[i, j]
+        gain[j] = k
+        acc += k * (s[idx[j]] - s_prior[idx[j]])
+    s[D] = acc
+
+
+def embed(P: np.ndarray, A: np.ndarray, idx: np.ndarray, sigma: np.ndarray, gain: np.ndarray) -> None:
+    """In place: ``P`` (the prior's covariance) has its block over ``idx`` made ``A``⁻¹ (the posterior); states
+    outside ``idx`` keep their own variance and lose their correlation with those inside, but for the carriage's
+    jitter, whose posterior is its prior conditioned on them with the solve's ``gain`` K (:func:`jitter`: a
+    solve's ``stats[S_JITTER:]``): P_D,idx = K P⁺, P_DD = P_DD⁻ − K P⁻_idx,D + K P⁺ Kᵀ. ``sigma``: every
+    state's σ out (a negative variance's 0)."""
     inner = _inverse(A)
     n, total = idx.size, P.shape[0]
+    kept = P[D, D]
+    for j in range(n):
+        kept -= gain[j] * P[idx[j], D]
     inside = np.zeros(total, dtype=np.bool_)
     for i in range(n):
         inside[idx[i]] = True
@@ -181,6 +208,16 @@ def embed(P: np.ndarray, A: np.ndarray, idx: np.ndarray, sigma: np.ndarray) -> N
     for i in range(n):
         for j in range(n):
             P[idx[i], idx[j]] = inner[i, j]
+    if kept > 0.0 and not inside[D]:  # (solved with the others, it is theirs already)
+        spread = kept
+        for i in range(n):
+            acc = 0.0
+            for j in range(n):
+                acc += gain[j] * inner[j, i]
+            P[D, idx[i]] = acc
+            P[idx[i], D] = acc
+            spread += acc * gain[i]
+        P[D, D] = spread
     for i in range(total):
         sigma[i] = 0.0 if P[i, i] < 0.0 else math.sqrt(P[i, i])
 
@@ -665,6 +702,7 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
         if round_ == ROBUST_ROUNDS:
             cost = _normal(s, idx, y, w, rho, values, slopes, curvature, t_rel, r_rel, b1, b2, half_d2, A, rhs,
                            residual, row_length, row_precision)
+    jitter(s, s_prior, P_prior, idx, Pinv, stats[S_JITTER:])
     # the posterior information (normal matrix with the prior and the grating) and the figures
     prior = 0.0
     for i in range(n):
@@ -714,7 +752,7 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
         # singular) is no error here, the frame is refused by its figures and its covariance not made
         try:
             P_post[:, :] = P_prior
-            embed(P_post, A_out, idx, sigma)
+            embed(P_post, A_out, idx, sigma, stats[S_JITTER:])
             stats[S_POSTERIOR] = 1.0
         except Exception:  # noqa: BLE001 - numba's linear algebra raises its one kind
             pass
@@ -774,6 +812,7 @@ if kernels.COMPILED:
     _inverse = _jit(_inverse)
     _solve = _jit(_solve)
     information = _jit(information)
+    jitter = _jit(jitter)
     embed = _jit(embed)
     scores = _jit(scores)
     carried = _jit(carried)

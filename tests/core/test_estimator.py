@@ -505,6 +505,43 @@ def test_the_carriage_is_its_path_and_a_jitter_no_later_frame_inherits():
     assert P[X, V] == pytest.approx(1e-4 * 0.01)
 
 
+def test_the_jitter_conditioned_on_the_states_solved_is_what_solving_it_with_them_gives():
+    """No sample sees the jitter apart from the position, so the update never solves it: its posterior is its prior
+    conditioned on the states solved. On a linear measurement of four states that is exactly the joint solve's,
+    mean and covariance."""
+    from graytrack.core.estimator import kernel
+    from graytrack.core.estimator.state import D, G, N_STATE, OFS, V, X
+
+    rng = np.random.default_rng(5)
+    root = rng.normal(size=(N_STATE, N_STATE))
+    P = root @ root.T + N_STATE * np.eye(N_STATE)
+    P[D, :] = P[:, D] = 0.0
+    P[D, D], P[X, D], P[D, X] = 4.0, 3.0, 3.0  # (as after a prediction: the jitter is part of the position only)
+    s_prior, z = rng.normal(size=N_STATE), rng.normal(size=3)
+    solved, joint = np.array([X, V, G, OFS]), np.array([X, V, G, OFS, D])
+    H = rng.normal(size=(3, solved.size))
+
+    innovation = z - H @ s_prior[solved]
+
+    def update(idx, H):
+        A = np.linalg.inv(P[np.ix_(idx, idx)]) + H.T @ H
+        s = s_prior.copy()
+        s[idx] += np.linalg.solve(A, H.T @ innovation)
+        return s, A
+
+    s, A = update(solved, H)
+    gain = np.zeros(N_STATE)
+    kernel.jitter(s, s_prior, P, solved, np.linalg.inv(P[np.ix_(solved, solved)]), gain)
+    conditioned, sigma = P.copy(), np.empty(N_STATE)
+    kernel.embed(conditioned, A, solved, sigma, gain)
+    s_joint, A_joint = update(joint, np.hstack([H, np.zeros((3, 1))]))
+    together = P.copy()
+    kernel.embed(together, A_joint, joint, sigma, np.zeros(N_STATE))
+    assert s[D] == pytest.approx(s_joint[D], abs=1e-12) and s[D] != s_prior[D]
+    assert np.allclose(s[joint], s_joint[joint], atol=1e-12)
+    assert np.allclose(conditioned[np.ix_(joint, joint)], together[np.ix_(joint, joint)], atol=1e-12)
+
+
 @pytest.mark.parametrize("seed", [2, 3])
 def test_a_lamp_hunting_without_the_grating_leaves_the_stages_path_where_it_was(paper, seed):
     """The lamp's gain hunts by 5 % (nothing declares it) while the stage cruises and no grating is read: over less
