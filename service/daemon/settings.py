@@ -108,11 +108,13 @@ class DaemonConfig(StrictTable):
         "the camera moving on its mount, flagged and carried in the bound (core/estimator/mount.py). Unset: the "
         "estimator's declared default, or more where the calibration's readout showed the stage faster")
     stage_commanded_here: bool = Field(
-        True, description="without a grating, with engine = estimator: every motion of the stage is commanded "
-        "through this daemon (REST moves, jogs, homing, velocity changes, stops, the calibration sweep), so the "
-        "stage's most acceleration is allowed only from a command until its readings show it at rest again, and a "
-        "step of the image while it rests or cruises is the camera's mount far sooner (service/daemon/motion.py); "
-        "false: something else also drives the stage, and its most is allowed throughout")
+        True, description="with engine = estimator: every motion of the stage is commanded through this daemon (REST "
+        "moves, jogs, homing, velocity changes, stops, the calibration sweep), so the stage's most acceleration is "
+        "allowed only from a command until its readings show it at rest again: between commands the estimator's "
+        "stage holds its path (its velocity carried from frame to frame, unless the grating is fused) and, without "
+        "a grating, a step of the image while it rests or cruises is the camera's mount far sooner "
+        "(service/daemon/motion.py); false: something else also drives the stage, and its most is allowed "
+        "throughout")
     engine: Literal["watches", "estimator"] = Field(
         "watches", description="the per-frame path: today's solver and its watches, or the one recursive estimator "
         "being built to replace it (core/estimator/: every nuisance a state with a declared rate, the bound its "

@@ -35,7 +35,8 @@ class LiveSlide:
         self.axis_px = axis_px  # None: the prior (core/slide.py AXIS_PRIOR_PX)
         self.stage_acceleration_mm_s2 = stage_acceleration_mm_s2  # None: the estimator's default
         # every motion of the stage commanded through the daemon (``[daemon] stage_commanded_here``): the estimator
-        # engine's mount test allows the stage's most only while it was told to move (motion.py); None: everywhere
+        # engine's stage bends its path, and its mount test allows the stage's most, only while it was told to move
+        # (motion.py); None: everywhere
         self.motion = motion
         self._told: object = None  # the tracker the phases were last handed to, and the stamp it has seen
         self._stamp = 0
