@@ -52,6 +52,7 @@ from graytrack.core.estimator.state import (A1, A2, B, BAND, BD, BE, BH, BL, BR,
 from graytrack.core.frame_tables import FrameTables
 from graytrack.core.kernels import TableEvaluator
 from graytrack.core.models.fourier import FourierModel
+from graytrack.core.period_rival import repeats as repeats_each_period
 from graytrack.core.quantiles import chi2_isf, normal_isf
 
 if TYPE_CHECKING:
@@ -79,6 +80,8 @@ BAND_GRID = 16  # a band's entering edges searched a sixteenth of the field apar
 BAND_SHARPEST = 1.0 / 64.0  # of the field: a band's penumbra at least this soft (a pixel and a half of a hundred)
 BAND_HAZIEST = 0.5  # of the light a band takes, the most it scatters back (a veil: a tenth)
 BAND_BEYOND = 10.0  # fields beyond the end an edge out of view is put (a veil's: its erf there is 1 to 1e-20)
+STROKE_MARGIN_MM = 1.0  # how far beyond its calibrated stroke a stage may be placed (an overshoot at either end):
+# a place a whole number of periods off that would put any frame of the run further out is not the frame's
 MOUNT_BLIND = ("light", "field", "band", "focus", "magnification")  # jumps after which the mount's window starts anew
 REASON = {"light": "light", "field": "light", "band": "light", "geometry": "geometry", "motion": "geometry",
           "focus": "focus", "magnification": "magnification"}
@@ -248,6 +251,12 @@ class Estimator:
             raise TrackingError(f"the model's calibration χ² is {self.chi2_calibration:g}: recalibrate")
         self.chi2_curve = Chi2Curve.from_info(model.info)
         self.model_error = _model_error(model.info)
+        # From the image alone a model that repeats once a period places a frame up to whole periods (its origin
+        # is the acquisition's pick): what calibration keeps along the stroke (its χ² curve, its model's error) is
+        # read at every place the frame may be, those a whole number of periods away that keep each frame the run
+        # has placed within the stroke (_places).
+        self._folded = grating == "none" and repeats_each_period(model)
+        self._reach = [math.inf, -math.inf]  # the run's placed positions, lowest and highest (mm)
         # a lossy stream's χ² scatters as fewer samples', and so does noise the samples share (its calibration's
         # frames measured it: core/chi2_curve.py frame_spread); with the rows' offsets taken out of each frame (below),
         # as it scatters without them, against the level without them
@@ -414,6 +423,7 @@ class Estimator:
         self._placed_again = False
         self._band_missed = 0
         self._band_off()
+        self._reach = [math.inf, -math.inf]
         if self.mount is not None:
             self.mount.reset()
 
@@ -499,6 +509,9 @@ class Estimator:
             self.failed += 1
             return self._unplaced(t, stats, test, "too many samples set aside" if rejected else "not converged")
         self.failed = 0
+        if self._folded:
+            x = s.item(X)
+            self._reach = [min(self._reach[0], x), max(self._reach[1], x)]
         # Read and checked, a grating that finds the carriage where the frame's account does not place the image is a
         # measurement the account failed: the frame is reported as its image placed it (flagged by that test), and
         # the recursion carries on from the account the grating agrees with (_carried), not from one it refuted.
@@ -997,9 +1010,27 @@ class Estimator:
         return s, A, stats.tolist()
 
     def _level(self, x_mm: float) -> float:
-        if self.chi2_curve is None:
+        """The calibration's χ² per sample at ``x_mm``; where the frame may be at several places (_places), the
+        highest of theirs (a change shows above every place the frame may be)."""
+        curve = self.chi2_curve
+        if curve is None:
             return self.chi2_calibration
-        return self.chi2_calibration * self.chi2_curve.at(x_mm)
+        if self._folded:
+            return self.chi2_calibration * max(curve.at(place) for place in self._places(x_mm))
+        return self.chi2_calibration * curve.at(x_mm)
+
+    def _places(self, x_mm: float) -> list[float]:
+        """Where along the stroke a frame placed at ``x_mm`` may be: ``x_mm`` a whole number of periods on either
+        way, wherever the run's placed frames moved with it stay within the stroke (``STROKE_MARGIN_MM`` beyond
+        either end); ``x_mm`` itself where none does (a run that left the stroke: what it keeps there is all it
+        has)."""
+        period = self.model.period_mm
+        lo, hi = float(self.model.stroke_range_mm[0]) - STROKE_MARGIN_MM, \
+            float(self.model.stroke_range_mm[1]) + STROKE_MARGIN_MM
+        low, high = min(self._reach[0], x_mm), max(self._reach[1], x_mm)
+        first = math.ceil((lo - low) / period)
+        last = math.floor((hi - high) / period)
+        return [x_mm + k * period for k in range(first, last + 1)] or [x_mm]
 
     def _test(self, stats: list) -> float:
         """The innovation's χ² over its quantile at the false-alarm rate (the stream's spread counted)."""
@@ -1159,11 +1190,17 @@ class Estimator:
         return self.bound_factor ** 2 * (1.0 + self._model_share(x_mm)) / (xinfo * level)
 
     def _model_share(self, x_mm: float) -> float:
-        """The model's own error power at ``x_mm`` over the noise floor's (ratio² − 1 of its calibration)."""
+        """The model's own error power at ``x_mm`` over the noise floor's (ratio² − 1 of its calibration); where the
+        frame may be at several places (_places), their mean (each as likely: the variance of what it errs by)."""
         edges, shares, whole = self.model_error
-        if edges and edges[0] <= x_mm <= edges[-1]:
-            return shares[min(bisect.bisect_right(edges, x_mm) - 1, len(shares) - 1)]
-        return whole
+        if not edges:
+            return whole
+        places = self._places(x_mm) if self._folded else (x_mm,)
+        total = 0.0
+        for place in places:
+            total += shares[min(bisect.bisect_right(edges, place) - 1, len(shares) - 1)] \
+                if edges[0] <= place <= edges[-1] else whole
+        return total / len(places)
 
     def _carrier(self) -> str:
         """The family whose states carry most of the position's variance (what pinning them would remove:

@@ -603,3 +603,37 @@ def test_a_checked_grating_that_refutes_the_frames_account_is_what_the_recursion
     refuted = [e for e, reading in zip(estimates, run.reference) if e.stale_reason == "scale"]
     assert refuted and all(abs(e.x_mm - reading) > 3.0 * e.crlb_mm
                            for e, reading in zip(estimates, run.reference) if e.stale_reason == "scale")
+
+
+def test_without_the_grating_what_calibration_kept_along_the_stroke_is_read_wherever_the_frame_may_be(paper):
+    """A model that repeats once a period places a frame from the image alone up to whole periods: the acquisition
+    picks the origin (on the paper rig, period 8.6 mm over a 10.45 mm stroke, a stage at 0 is as well placed at
+    8.6). Calibration keeps the model's own error stretch by stretch along the stroke; here the first 2 mm err 6
+    times the noise floor. Read at the place the acquisition picked, a frame a period away from the flawed stretch
+    was given the floor's bound there, or the flawed stretch's where it stood a period from it. The frame may be at
+    each place a whole number of periods away that keeps the run within the stroke: their mean error power is its
+    bound, until the run's travel leaves one place, and then that place's is."""
+    model = dataclasses.replace(paper, info=dict(paper.info))
+    lo, hi = (float(v) for v in model.stroke_range_mm)
+    model.info["calibration_error_profile"] = {"edges_mm": [lo, lo + 2.0, hi], "ratio": [6.0, 1.0]}
+    run, truth = build_rig("paper", "", seed=5, run=1).record(8.0)
+    checked = track(model, run.frames, run.t, run.reference, grating="check")
+    alone = Estimator(model, grating="none")
+    estimates = [alone.update(frame, t) for frame, t in zip(run.frames, run.t)]
+    shift = model.period_mm * round(float(np.median([e.x_mm for e in estimates] - truth.x_mm)) / model.period_mm)
+    bound_alone = np.array([e.crlb_mm for e in estimates])
+    bound_checked = np.array([e.crlb_mm for e in checked])
+    floor = np.array([e.floor_mm for e in estimates])
+    # in the flawed stretch (past the stroke's very end, where no stretch is kept), the run's travel too short to
+    # tell the places apart
+    flawed = (truth.x_mm > lo + 0.1) & (truth.x_mm < lo + 1.5)
+    assert flawed.sum() > 20
+    # counted whichever place the acquisition picked: more than the floor's, less than the flawed stretch's alone
+    assert np.all(bound_alone[flawed] > 2.0 * floor[flawed])
+    assert np.all(bound_alone[flawed] < 0.9 * bound_checked[flawed])
+    # once the travel leaves one place, it is the stage's own (the image's less the acquisition's whole periods)
+    (place,) = alone._places(estimates[-1].x_mm)
+    assert place == pytest.approx(estimates[-1].x_mm - shift)
+    resolved = truth.x_mm > lo + 5.0
+    assert resolved.sum() > 20
+    assert np.median(bound_alone[resolved] / bound_checked[resolved]) == pytest.approx(1.0, rel=0.2)
