@@ -1148,9 +1148,13 @@ class Estimator:
             message = message or "a band of shadow or veil in view, no grating to check the position against"
         # A position the frame cannot vouch for (its variance carried by what its image cannot see) is flagged with
         # what carries it; where the grating is read and checked its test above is the position's test, and a frame
-        # it finds where the image put it is vouched for by it.
-        if var_x > settings.dominance * floor2 * bound_factor ** 2 and not (checked and reference_mm == reference_mm):
-            carried = "geometry" if model_var > var_x - model_var - floor2 else self._carrier()
+        # it finds where the image put it is vouched for by it. A bound carried by the model's own error at the
+        # frame's place is what calibration measured there against the grating: the bound states it, and nothing
+        # changed (flagged, a steady run without the grating on a model erring a few floors in places was flagged
+        # on nearly every frame).
+        if var_x > settings.dominance * floor2 * bound_factor ** 2 and not (checked and reference_mm == reference_mm) \
+                and not model_var > var_x - model_var - floor2:
+            carried = self._carrier()
             if carried:
                 stale, reason = True, reason or carried
                 message = message or f"the position's bound is carried by the {carried} state"

@@ -612,7 +612,8 @@ def test_without_the_grating_what_calibration_kept_along_the_stroke_is_read_wher
     times the noise floor. Read at the place the acquisition picked, a frame a period away from the flawed stretch
     was given the floor's bound there, or the flawed stretch's where it stood a period from it. The frame may be at
     each place a whole number of periods away that keeps the run within the stroke: their mean error power is its
-    bound, until the run's travel leaves one place, and then that place's is."""
+    bound, until the run's travel leaves one place, and then that place's is; and it is no flag (nothing changed:
+    the bound says what calibration measured there)."""
     model = dataclasses.replace(paper, info=dict(paper.info))
     lo, hi = (float(v) for v in model.stroke_range_mm)
     model.info["calibration_error_profile"] = {"edges_mm": [lo, lo + 2.0, hi], "ratio": [6.0, 1.0]}
@@ -631,6 +632,8 @@ def test_without_the_grating_what_calibration_kept_along_the_stroke_is_read_wher
     # counted whichever place the acquisition picked: more than the floor's, less than the flawed stretch's alone
     assert np.all(bound_alone[flawed] > 2.0 * floor[flawed])
     assert np.all(bound_alone[flawed] < 0.9 * bound_checked[flawed])
+    # what calibration measured there is a bound the frame states, not a change it flags
+    assert not any(e.stale for e, inside in zip(estimates, flawed) if inside)
     # once the travel leaves one place, it is the stage's own (the image's less the acquisition's whole periods)
     (place,) = alone._places(estimates[-1].x_mm)
     assert place == pytest.approx(estimates[-1].x_mm - shift)
