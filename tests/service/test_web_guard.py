@@ -193,7 +193,10 @@ def _exchange(daemon: LiveServer, raw: bytes) -> tuple[int, dict[str, str], byte
         head, _, body = reply.partition(b"\r\n\r\n")
         lines = head.decode("latin-1").split("\r\n")
         headers = {name.lower(): value.strip() for name, _, value in (line.partition(":") for line in lines[1:])}
-        while len(body) < int(headers.get("content-length", 0)) and (chunk := s.recv(65536)):
+        # (an answer to HEAD has no body, whatever length it states: read on, a kept-alive connection would only
+        # time out)
+        expected = 0 if raw.startswith(b"HEAD ") else int(headers.get("content-length", 0))
+        while len(body) < expected and (chunk := s.recv(65536)):
             body += chunk
     return int(lines[0].split()[1]), headers, body
 
