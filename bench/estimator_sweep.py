@@ -70,10 +70,10 @@ def cached_case(folder: Path, scenario: str, rig_effects: str, later: str, seed:
     return model, run, truth
 
 
-def scored(model, run, truth, grating: str, settings: EstimatorSettings,
-           after: np.ndarray | None = None) -> dict[str, float]:
-    """The estimator's run scored against the truth; ``after``: the frames whose flags count apart (the share of
-    them flagged, ``flagged_after``: a change's frames once it has settled, map_seeds.py)."""
+def tracked(model, run, truth, grating: str, settings: EstimatorSettings):
+    """The estimator's run against the truth, frame by frame: (its tracker, CPU seconds, and the arrays ``error``
+    (µm, whole periods taken out where placed from the image alone), ``bound``, ``floor`` (µm), ``stale``,
+    ``repeated``), with ``grating`` the mode it ran in (none where the run read no grating)."""
     reference = run.reference
     if float(model.info.get("reference_skew_s", 0.0)):
         reference = model_reference(model, run.t, reference)
@@ -93,11 +93,20 @@ def scored(model, run, truth, grating: str, settings: EstimatorSettings,
     if grating == "none":  # placed from the image alone: its origin is known up to whole periods
         period = model.period_mm * 1e3
         error -= period * np.round(np.nanmedian(error) / period)
+    return tracker, seconds, {"error": error, "bound": bound, "floor": floor, "stale": stale, "repeated": repeated}
+
+
+def scored(model, run, truth, grating: str, settings: EstimatorSettings,
+           after: np.ndarray | None = None) -> dict[str, float]:
+    """The estimator's run scored against the truth; ``after``: the frames whose flags count apart (the share of
+    them flagged, ``flagged_after``: a change's frames once it has settled, map_seeds.py)."""
+    tracker, seconds, frames = tracked(model, run, truth, grating, settings)
+    error, bound, floor, stale, repeated = (frames[key] for key in ("error", "bound", "floor", "stale", "repeated"))
     placed = np.isfinite(error)
     far = placed & (np.abs(error) > FAR_PULL * bound)
     return {"ratio": float(np.nanstd(error) / np.sqrt(np.nanmean(floor[placed] ** 2))) if placed.any() else np.nan,
             "pull": float(np.sqrt(np.nanmean((error / bound) ** 2))) if placed.any() else np.nan,
-            "frames": len(estimates), "placed": int(placed.sum()), "lost": int((~placed & ~repeated).sum()),
+            "frames": error.size, "placed": int(placed.sum()), "lost": int((~placed & ~repeated).sum()),
             "flagged": int(stale.sum()), "far": int(far.sum()), "silent": int((far & ~stale).sum()),
             "seconds": seconds, "map": int(tracker.sensor.learned().sum()),
             "print": int(tracker.print_map.learned().sum()),

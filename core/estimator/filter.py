@@ -229,7 +229,9 @@ class Estimator:
         self.model, self.grating, self.robust = model, grating, robust
         self.settings = settings = settings or EstimatorSettings()
         if axis_px is not None:
-            settings = self.settings = settings.replace(lever_prior=float(axis_px))
+            # the lever's size is what the bound needs (a declared axis and a prior of that size carry the same slide
+            # σ: the stretch times it); its sign would only pick the slide's direction, which no frame corrects here
+            settings = self.settings = settings.replace(lever_prior=abs(float(axis_px)))
         self.z_alpha = normal_isf(settings.false_alarm)
         self.z_two = normal_isf(settings.false_alarm / 2.0)
         tables = FrameTables.of(model)
@@ -296,7 +298,7 @@ class Estimator:
             rates[D] = settings.stage_jitter
         self.rates2 = rates ** 2
         if grating != "check":  # checked, the grating judges the place and the slide; else they are states
-            active += [C, L]
+            active += [C] + ([L] if settings.lever_prior > 0.0 else [])  # (an ROI on the lens's axis: no lever)
         if grating == "fuse":  # fused, the grating's own latch against the exposure is one too, and its drift
             active += [SK] + ([SKR] if settings.clock_drift_prior > 0.0 else [])
         if model.n_rows > 1:
@@ -307,6 +309,10 @@ class Estimator:
         # place stays after the band has gone, which no frame without the grating could undo).
         self.idx_band = np.array(sorted((set(active) - {C, L, M, T, SK, SKR}) | set(BAND)), dtype=np.int64)
         self._active = frozenset(active)
+        # without the grating what no frame sees of the carriage against the image: the lens's slide, and with it the
+        # camera's place on the carriage (_stated)
+        self._slide_states = np.array([state for state in (M, L) if state in active], dtype=np.int64)
+        self._unseen_states = np.array([state for state in (M, L, C, T) if state in active], dtype=np.int64)
         self._carriers: dict[bool, list] = {}  # (_carrier's families over each set of states solved)
         self.idx_appearance = np.array([state for state in (X, V, G, OFS, A1, A2, B) if state in active and
                                         not (state == V and self.on_path)],
@@ -342,6 +348,8 @@ class Estimator:
         self.last_frame: np.ndarray | None = None
         self.dt_last = 0.0
         self._xi_last = math.nan  # the image's position at the last frame the maps learned from (mm)
+        self._lens_var, self._lens_m = 0.0, 0.0  # the stretch a filter at the lens's fastest rate holds (_lens)
+        self._t_start = 0.0  # when the estimate started (s: the camera's creep is counted from it, _stated)
         self._checked = math.nan  # the grating's reading of the frame being updated, where it is read and checked
         self.failed = 0
         self.started = False
@@ -417,7 +425,9 @@ class Estimator:
         self.P[:] = np.diag(prior ** 2)
         self.t_last = t
         self.started = True
+        self._t_start = t
         self._xi_last = math.nan
+        self._lens_var, self._lens_m = float(self.P[M, M]), 0.0
         self.failed = 0
         self._unexplained = []
         self._placed_again = False
@@ -527,6 +537,7 @@ class Estimator:
         else:
             # the posterior over the states solved, the prior's elsewhere (the jitter's conditioned on them)
             kernel.embed(self.P, A, solved, self._sigma, np.asarray(stats)[kernel.S_JITTER:])
+        self._lens(s_prior, P_prior)
         if self.s.item(BE) > 0.0:
             self._band_failed = self._band_failed + 1 if test > 1.0 else 0
             if self._band_failed >= FAILED_TO_REACQUIRE or self._band_gone():
@@ -1107,6 +1118,36 @@ class Estimator:
         lens's slide, which the state carries; with the grating only checked, the place is not a state)."""
         return float(self.P[X, X])
 
+    def _lens(self, s_prior: np.ndarray, P_prior: np.ndarray) -> None:
+        """The stretch as a filter following the lens at its fastest declared rate holds it (mean and variance; the
+        estimate follows the likely rate, which such a lens outruns): its variance grown at that rate over the
+        interval, then the frame's own reading of the stretch taken in, with the information the frame gave the
+        estimate's stretch (the marginal's posterior less its prior) at the value it moved it towards (what it moved
+        it by, over its gain). ``s_prior``, ``P_prior``: the state and covariance predicted to the frame."""
+        if self.grating != "none":
+            return
+        lens_var = self._lens_var + self.settings.stretch_rate_most ** 2 * self.dt_last
+        posterior, prior = self.P.item(M, M), P_prior.item(M, M)
+        if 0.0 < posterior < prior:
+            gained = 1.0 / posterior - 1.0 / prior
+            reading = s_prior.item(M) + (self.s.item(M) - s_prior.item(M)) / (1.0 - posterior / prior)
+            taken = 1.0 / (1.0 / lens_var + gained)
+            self._lens_m = taken * (self._lens_m / lens_var + gained * reading)
+            lens_var = taken
+        self._lens_var = lens_var
+
+    def _slide_variance(self) -> float:
+        """What the lens's slide L·m adds to the position's variance beyond the linearised posterior's, without the
+        grating (fused, the grating reads the carriage; checked, its test judges the slide). The lever is a prior no
+        frame narrows, estimated near zero, so the position takes no slide out and errs by L·m: its expected square
+        is σ_L²·E[m²], with E[m²] what the frames allow were the lens drifting at its fastest declared rate (_lens:
+        its mean² and variance), less the estimate's m̂² the posterior already carries through its Jacobian; and
+        σ_Lm², the product's second order."""
+        if self.grating != "none":
+            return 0.0
+        P, drifted = self.P, self._lens_m * self._lens_m + self._lens_var
+        return float(P[L, L] * max(drifted - self.s[M] * self.s[M], P[M, M]) + P[L, M] * P[L, M])
+
     def _estimate(self, t: float, stats: list, test: float, mode: str, reason_jump: str | None,
                   reference_mm: float) -> FrameEstimate:
         """The frame's record from the posterior just embedded (its σ in ``_sigma``)."""
@@ -1127,7 +1168,8 @@ class Estimator:
         # of the position (a fused grating pins the rest) the one is taken for the other, either way.
         var_image = self._position_variance()
         model_var = self._model_variance(s[X], var_image, xinfo, level)
-        var_x = var_image + model_var
+        slide_var = self._slide_variance()
+        var_x = var_image + model_var + slide_var
         stale, reason, message = False, "", ""
         checked = self.grating == "check"
         if test > 1.0:
@@ -1151,9 +1193,12 @@ class Estimator:
         # it finds where the image put it is vouched for by it. A bound carried by the model's own error at the
         # frame's place is what calibration measured there against the grating: the bound states it, and nothing
         # changed (flagged, a steady run without the grating on a model erring a few floors in places was flagged
-        # on nearly every frame).
-        if var_x > settings.dominance * floor2 * bound_factor ** 2 and not (checked and reference_mm == reference_mm) \
-                and not model_var > var_x - model_var - floor2:
+        # on nearly every frame). Without the grating, what no frame can see of the carriage against the image (the
+        # lens's slide, the camera's creep on its mount) is the bound's to state, not a change to flag: flagged, a
+        # steady run was flagged on every frame after half a minute, its bound grown as the declared rates allow.
+        held = var_x - slide_var - self._stated(t)
+        if held > settings.dominance * floor2 * bound_factor ** 2 and not (checked and reference_mm == reference_mm) \
+                and not model_var > held - model_var - floor2:
             carried = self._carrier()
             if carried:
                 stale, reason = True, reason or carried
@@ -1170,6 +1215,17 @@ class Estimator:
             s[M], sigma[M], s[C], sigma[C],  # stretch, stretch_sigma, place_mm, place_sigma_mm
             mode, False, stale, reason, message,  # mode, repeated, stale, stale_reason, message
             tuple(s), tuple(sigma))  # state, sigma
+
+    def _stated(self, t: float) -> float:
+        """What of the position's variance the bound states without a flag, without the grating: what the states no
+        frame sees carry of it, the lens's slide wholly (its stretch seen, or the fastest the lens may drift, times a
+        lever no frame sees) and the camera's place on the carriage up to what its declared creep allows since the
+        estimate started (beyond that, a knock the test found carries it: flagged until the frames settle it)."""
+        if self.grating != "none":
+            return 0.0
+        slide = kernel.carried(self.P, self._slide_states, X)
+        crept = self.settings.grating_sigma ** 2 + self.settings.place_rate ** 2 * max(t - self._t_start, 0.0)
+        return slide + min(max(kernel.carried(self.P, self._unseen_states, X) - slide, 0.0), crept)
 
     def _anchored(self, P: np.ndarray, stats: list) -> bool:
         """Whether the position ``P`` holds is the frame's to say (its variance within the dominance share of the

@@ -98,6 +98,12 @@ TUNABLES: dict[str, Tunable] = {
         "grating its slide reaches the position through the lever, so a faster rate widens every bound of a steady "
         "run (at 100 ppm/√s the paper rig's bound grew by a half)", low=0.0),
     "stretch_prior": Tunable(5e-6, "1", "the magnification at the first frame against calibration's", low=0.0),
+    "stretch_rate_most": Tunable(
+        300e-6, "1/√s",
+        "the fastest the magnification may drift (a lens warming in a draught, a focus ring settling: 0.15 % in 10 s "
+        "is 1.6σ of it); the estimate follows the likely rate above, but without the grating no frame tells the "
+        "slide it gives the image from a move of the stage, so the bound carries the stretch the frames cannot "
+        "rule out at this rate", low=0.0),
     "place_rate": Tunable(
         0.05e-3, "mm/√s",
         "the camera creeping on its mount against the carriage in a second (a clamped mount: tens of nm); "
@@ -260,6 +266,7 @@ class EstimatorSettings:
     focus_prior: float = TUNABLES["focus_prior"].default
     stretch_rate: float = TUNABLES["stretch_rate"].default
     stretch_prior: float = TUNABLES["stretch_prior"].default
+    stretch_rate_most: float = TUNABLES["stretch_rate_most"].default
     place_rate: float = TUNABLES["place_rate"].default
     tilt_rate: float = TUNABLES["tilt_rate"].default
     skew_rate: float = TUNABLES["skew_rate"].default

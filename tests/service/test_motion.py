@@ -118,4 +118,5 @@ def test_a_knock_at_rest_streamed_without_a_grating_is_found_from_the_commands()
     assert np.sum((np.abs(error) > 4.0 * bound) & ~flagged) <= 2
     error, bound, flagged, mount = outcomes[False]
     assert not mount.commanded_known
-    assert np.sum((np.abs(error[after]) > 4.0 * bound[after]) & ~flagged[after]) > 100  # the stage's most hid it
+    # the stage's most hid it: unflagged, and beyond the bound (which carries the lens's slide too) for a second
+    assert np.sum((np.abs(error[after]) > 4.0 * bound[after]) & ~flagged[after]) > 20
