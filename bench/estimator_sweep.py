@@ -114,6 +114,17 @@ def scored(model, run, truth, grating: str, settings: EstimatorSettings,
             "flagged_after": float(stale[after].mean()) if after is not None and after.any() else 0.0}
 
 
+def settings_of(items: list[str]) -> EstimatorSettings:
+    """The estimator's settings with ``name=value`` changes (exits naming the known ones on an unknown name)."""
+    changes = {}
+    for item in items:
+        name, _, value = item.partition("=")
+        if name not in TUNABLES:
+            sys.exit(f"unknown estimator setting {name!r}; known: {', '.join(TUNABLES)}")
+        changes[name] = float(value)
+    return EstimatorSettings().replace(**changes)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--cache", type=Path, default=Path(os.environ.get("TMPDIR", "/tmp")) / "graytrack-sweep",
@@ -122,13 +133,7 @@ def main() -> None:
     parser.add_argument("--only", default="", help="cases whose label holds this text")
     parser.add_argument("settings", nargs="*", help="name=value of the estimator's tunables")
     args = parser.parse_args()
-    changes = {}
-    for item in args.settings:
-        name, _, value = item.partition("=")
-        if name not in TUNABLES:
-            sys.exit(f"unknown estimator setting {name!r}; known: {', '.join(TUNABLES)}")
-        changes[name] = float(value)
-    settings = EstimatorSettings().replace(**changes)
+    settings = settings_of(args.settings)
     shard, shards = (int(part) for part in args.shard.split("/"))
     args.cache.mkdir(parents=True, exist_ok=True)
     totals = dict.fromkeys(("frames", "placed", "lost", "flagged", "far", "silent", "seconds"), 0.0)

@@ -18,13 +18,11 @@ import argparse
 import hashlib
 import os
 import pickle
-import sys
 from pathlib import Path
 
 import numpy as np
 
-from estimator_sweep import CACHE_VERSION, FAR_PULL, STEADY_FLAGGED, STEADY_PULL, cached_case, tracked
-from graytrack.core.estimator.settings import TUNABLES, EstimatorSettings
+from estimator_sweep import CACHE_VERSION, FAR_PULL, STEADY_FLAGGED, STEADY_PULL, cached_case, settings_of, tracked
 from graytrack.drivers.sim.scenarios import build_rig
 from robustness_sweep import SECONDS
 from truth_score import MODES
@@ -58,13 +56,7 @@ def main() -> None:
     parser.add_argument("--only", default="", help="rigs whose name holds this text")
     parser.add_argument("settings", nargs="*", help="name=value of the estimator's tunables")
     args = parser.parse_args()
-    changes = {}
-    for item in args.settings:
-        name, _, value = item.partition("=")
-        if name not in TUNABLES:
-            sys.exit(f"unknown estimator setting {name!r}; known: {', '.join(TUNABLES)}")
-        changes[name] = float(value)
-    settings = EstimatorSettings().replace(**changes)
+    settings = settings_of(args.settings)
     args.cache.mkdir(parents=True, exist_ok=True)
     outside = 0
     for scenario in RIGS:
