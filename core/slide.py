@@ -32,7 +32,9 @@ import numpy as np
 from graytrack.core.watches.magnification import MagnificationWatch
 from graytrack.core.watches.scale import ScaleWatch
 
-AXIS_PRIOR_PX = 300.0  # pixels: the optical axis from the ROI's centre when the rig does not say
+# pixels: the optical axis from the ROI's centre when the rig does not say (the estimator's ``lever_prior`` is the
+# same prior: core/estimator/settings.py; importing it here would load the estimator's kernels with the watches)
+AXIS_PRIOR_PX = 300.0
 # frames the largest stretch the frames allowed is held for: the watch's mean can dip for some frames
 # where its estimate errs with the print's phase (a one-row paper rig's temperature cycle read 150 ppm
 # at its second rise, truth 1100: 7 frames 4+ bounds off unflagged), while a lens cannot cool that fast
@@ -97,12 +99,13 @@ def carry(result, slide: SlideWatch | None) -> dict[str, np.ndarray]:
     return {"slide_sigma_um": sigma_um}
 
 
-def describe(slide: SlideWatch | None, columns: dict[str, np.ndarray]) -> list[str]:
-    """The line ``graytrack track`` prints about the slide its bounds carry (none without a slide watch)."""
+def describe(lever_mm: float, declared: bool, columns: dict[str, np.ndarray]) -> list[str]:
+    """The line ``graytrack track`` prints about the slide its bounds carry, the optical axis ``lever_mm`` from the
+    ROI's centre (``declared`` by the rig, else the prior's); none where no column says a slide."""
     sigma_um = columns.get("slide_sigma_um")
-    if slide is None or sigma_um is None or not np.isfinite(sigma_um).any():
+    if sigma_um is None or not np.isfinite(sigma_um).any():
         return []
-    source = "declared" if slide.declared else f"the prior {AXIS_PRIOR_PX:.0f} px; declare it with --axis-px"
+    source = "declared" if declared else f"the prior {AXIS_PRIOR_PX:.0f} px; declare it with --axis-px"
     return [f"slide   no grating read: each bound carries what a magnification change could slide the image by, "
-            f"the optical axis {slide.lever_mm:.2f} mm from the ROI's centre ({source}): median "
+            f"the optical axis {lever_mm:.2f} mm from the ROI's centre ({source}): median "
             f"{np.nanmedian(sigma_um):.2f} um, max {np.nanmax(sigma_um):.2f} um (slide_sigma_um, in crlb_um)"]

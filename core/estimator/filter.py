@@ -117,6 +117,7 @@ class FrameEstimate(NamedTuple):
     message: str
     state: tuple[float, ...]  # every state (state.py's order) and its σ
     sigma: tuple[float, ...]
+    slide_mm: float = math.nan  # without the grating: what the lens's slide adds to the bound (in crlb_mm)
 
 
 def _legendre(n_rows: int, n_pixels: int) -> tuple[np.ndarray, np.ndarray]:
@@ -1122,15 +1123,18 @@ class Estimator:
         """The stretch as a filter following the lens at its fastest declared rate holds it (mean and variance; the
         estimate follows the likely rate, which such a lens outruns): its variance grown at that rate over the
         interval, then the frame's own reading of the stretch taken in, with the information the frame gave the
-        estimate's stretch (the marginal's posterior less its prior) at the value it moved it towards (what it moved
-        it by, over its gain). ``s_prior``, ``P_prior``: the state and covariance predicted to the frame."""
+        estimate's stretch (the marginal's posterior less its prior, over the model's own error there as the
+        position's bound counts it) at the value it moved it towards (what it moved it by, over its gain).
+        ``s_prior``, ``P_prior``: the state and covariance predicted to the frame."""
         if self.grating != "none":
             return
         lens_var = self._lens_var + self.settings.stretch_rate_most ** 2 * self.dt_last
         posterior, prior = self.P.item(M, M), P_prior.item(M, M)
         if 0.0 < posterior < prior:
-            gained = 1.0 / posterior - 1.0 / prior
             reading = s_prior.item(M) + (self.s.item(M) - s_prior.item(M)) / (1.0 - posterior / prior)
+            # (the reading errs by the model's own error at the frame's place, as its position does: a lab strip's
+            # model erring three floors read ±2,500 ppm of stretch on a steady run, taken as the lens's)
+            gained = (1.0 / posterior - 1.0 / prior) / (1.0 + self._model_share(self.s.item(X)))
             taken = 1.0 / (1.0 / lens_var + gained)
             self._lens_m = taken * (self._lens_m / lens_var + gained * reading)
             lens_var = taken
@@ -1214,7 +1218,8 @@ class Estimator:
             s[B] if shown else math.nan, focus_sigma if shown else math.nan,  # focus_px2, focus_sigma_px2
             s[M], sigma[M], s[C], sigma[C],  # stretch, stretch_sigma, place_mm, place_sigma_mm
             mode, False, stale, reason, message,  # mode, repeated, stale, stale_reason, message
-            tuple(s), tuple(sigma))  # state, sigma
+            tuple(s), tuple(sigma),  # state, sigma
+            math.sqrt(slide_var) if self.grating == "none" else math.nan)  # slide_mm
 
     def _stated(self, t: float) -> float:
         """What of the position's variance the bound states without a flag, without the grating: what the states no
@@ -1379,7 +1384,7 @@ def as_result(estimates: list[FrameEstimate], chi2_calibration: float) -> "Track
 
     events = [LockEvent(frame=k, reason=e.message, x_before_mm=math.nan, x_after_mm=math.nan, reacquired=False)
               for k, e in enumerate(estimates) if not e.locked]
-    return TrackResult(x_mm=column("x_mm"), locked=column("locked", bool), rms_gray=column("rms_gray"),
+    result = TrackResult(x_mm=column("x_mm"), locked=column("locked", bool), rms_gray=column("rms_gray"),
                        crlb_mm=column("crlb_mm"), iterations=column("iterations", np.int64), gain=column("gain"),
                        offset_gray=column("offset_gray"), events=events, chi2=column("chi2"),
                        rejected_px=column("rejected_px", np.int64), stale=column("stale", bool),
@@ -1387,6 +1392,10 @@ def as_result(estimates: list[FrameEstimate], chi2_calibration: float) -> "Track
                        stale_reason=column("stale_reason", object).astype(str),
                        transient_px=np.zeros(len(estimates), dtype=np.int64), focus_px2=column("focus_px2"),
                        focus_sigma_px2=column("focus_sigma_px2"))
+    slide_um = column("slide_mm") * 1e3
+    if np.isfinite(slide_um).any():
+        result.slide_sigma_um = slide_um
+    return result
 
 
 __all__ = ["Estimator", "FrameEstimate", "GRATING_MODES", "STATE", "as_result", "calibration_level", "track"]

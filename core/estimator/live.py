@@ -66,6 +66,12 @@ class LiveEstimator:
     def stale(self) -> bool:
         return bool(self.last is not None and self.last.stale)
 
+    @property
+    def slide_um(self) -> float:
+        """What the lens's slide adds to the newest frame's bound without the grating, µm (in its ``crlb_mm``;
+        NaN with the grating or before a frame)."""
+        return self.last.slide_mm * 1e3 if self.last is not None else math.nan
+
     def commanded(self, start: float, end: float, acceleration: float | None = None) -> None:
         """A phase of acceleration the daemon commanded of the stage (s on the frames' clock, mm/s²): see
         :meth:`Estimator.commanded`."""

@@ -244,7 +244,8 @@ def run(args: argparse.Namespace) -> int:
     scale = check(recording, model, result, args.trim, watch)
     slid = carry(result, slide) if result.slide_sigma_um is None else {"slide_sigma_um": result.slide_sigma_um}
     path = write_csv(args.out, {**result_columns(recording.t, result, grating), **slid, **scale.columns})
-    print("\n".join(summary(result, grating) + describe(slide, slid) + scale.lines + texture_lines(result, args.out)))
+    said = describe(slide.lever_mm, slide.declared, slid) if slide is not None else []
+    print("\n".join(summary(result, grating) + said + scale.lines + texture_lines(result, args.out)))
     from graytrack.core.geometry_check import refusal
 
     if refusal(model):
@@ -284,10 +285,15 @@ def run_estimator(args: argparse.Namespace, recording: Recording, model: Fourier
     from graytrack.service.progress import ProgressBar
     from graytrack.service.tables import write_csv
 
+    from graytrack.core.slide import AXIS_PRIOR_PX, describe
+
     result, grating = estimated(recording, model, args.no_reference, args.trim, not args.no_robust, args.axis_px,
                                 ProgressBar("track"))
-    path = write_csv(args.out, result_columns(recording.t, result, grating))
-    print("\n".join(summary(result, grating)))
+    slid = {} if result.slide_sigma_um is None else {"slide_sigma_um": result.slide_sigma_um}
+    path = write_csv(args.out, {**result_columns(recording.t, result, grating), **slid})
+    lever_px = AXIS_PRIOR_PX if args.axis_px is None else abs(args.axis_px)
+    print("\n".join(summary(result, grating) + describe(lever_px * model.pixel_pitch_mm, args.axis_px is not None,
+                                                           slid)))
     warning = stale_warning(result)
     if warning:
         print(warning, file=sys.stderr)

@@ -336,7 +336,7 @@ class Acquisition(Worker):
             return
         self.faults("tracking", None)
         fix = self.trim.apply(fix, sample.reference_mm)
-        slide_um = self.slide.apply(fix) if self.slide is not None else math.nan
+        slide_um = self.slide.apply(fix, getattr(tracker, "slide_um", math.nan)) if self.slide is not None else math.nan
         stats = self.stats
         stats.tracked += 1
         stats.last_tracked_wall = self.clock.now()

@@ -41,6 +41,7 @@ class LiveSlide:
         self._told: object = None  # the tracker the phases were last handed to, and the stamp it has seen
         self._stamp = 0
         self._watch: SlideWatch | None = None
+        self._stated_um = math.nan  # the slide the estimator's newest bound states (no watch then), µm
         self._lock = threading.Lock()  # the frame loop installs, HTTP threads read the status
 
     def watch_for(self, model: FourierModel) -> SlideWatch:
@@ -65,11 +66,15 @@ class LiveSlide:
         for start, end in phases:
             commanded(start, end, motion.acceleration_mm_s2)  # type: ignore[union-attr]
 
-    def apply(self, fix: LiveFix) -> float:
+    def apply(self, fix: LiveFix, stated_um: float = math.nan) -> float:
         """After the tracker (whose monitor stepped the watch this frame): the fix's bound widened by the
-        slide's σ in quadrature; returns that σ in µm (NaN before the first frame the watch saw)."""
+        slide's σ in quadrature; returns that σ in µm (NaN before the first frame the watch saw). A tracker that
+        states the slide in its own bound (the estimator) gives it as ``stated_um``: returned, not added again."""
         watch = self._watch
-        sigma_um = watch.last_um if watch is not None else math.nan
+        if watch is None:
+            self._stated_um = stated_um
+            return stated_um
+        sigma_um = watch.last_um
         if math.isfinite(sigma_um):
             fix.crlb_mm = math.hypot(fix.crlb_mm, sigma_um * 1e-3)
         return sigma_um
@@ -78,7 +83,7 @@ class LiveSlide:
         """``/api/status``'s ``slide``: the lever and the σ the newest frame's bound carries."""
         with self._lock:
             watch = self._watch
-        sigma_um = watch.last_um if watch is not None else math.nan
+        sigma_um = watch.last_um if watch is not None else self._stated_um
         return {"axis_px": AXIS_PRIOR_PX if self.axis_px is None else self.axis_px,
                 "declared": self.axis_px is not None,
                 "stage_commands_known": self.motion is not None,

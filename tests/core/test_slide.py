@@ -97,6 +97,23 @@ def test_track_writes_the_slide_it_carries(models, tmp_path, capsys):
 
 
 
+def test_the_estimator_writes_the_slide_its_bound_states_without_a_grating(models, tmp_path, capsys):
+    """``track --engine estimator`` without the grating: each bound states the lens's slide (core/estimator/,
+    ``slide_mm``), written as the same column and said in the same line; on the lens's axis, none."""
+    save_model(models["strip16"], tmp_path / "m.json")
+    save(build_rig("strip16", RAMP, seed=3, run=1).record(4.0)[0], tmp_path / "run.npz")
+    common = ["track", str(tmp_path / "run.npz"), "--model", str(tmp_path / "m.json"), "--engine", "estimator"]
+    assert main([*common, "--out", str(tmp_path / "n.csv"), "--no-reference"]) == 0
+    assert "slide   no grating read" in capsys.readouterr().out
+    assert main([*common, "--out", str(tmp_path / "a.csv"), "--no-reference", "--axis-px", "0"]) == 0
+    assert "(declared): median 0.00 um" in capsys.readouterr().out
+    assert main([*common, "--out", str(tmp_path / "g.csv")]) == 0
+    assert "slide   no grating read" not in capsys.readouterr().out
+    unread, on_axis = (read_columns(tmp_path / f"{name}.csv") for name in "na")
+    assert np.all(unread["slide_sigma_um"] > 0) and np.all(unread["crlb_um"] >= unread["slide_sigma_um"])
+    assert np.all(on_axis["slide_sigma_um"] == 0)
+    assert "slide_sigma_um" not in read_columns(tmp_path / "g.csv")  # the grating checks the slide
+
 def test_chunks_without_a_grating_carry_the_slide_too(models):
     """``track --chunk-frames`` without a grating: each chunk's tracker carries a slide watch of its own
     (core/chunked.py); before, its bounds carried nothing (and the column was NaN)."""

@@ -107,6 +107,10 @@ def test_a_knock_streamed_without_a_grating_is_flagged_from_the_frame_after(mode
         flagged = np.array([bool(m["stale"]) for m in messages])
         reasons = [m["stale_reason"] for m in messages]
         after = slice(knocked + 2, None)
+        # the slide the estimator's bound states, streamed and in the status as the slide watch's is
+        slide = np.array([m["slide_sigma_um"] for m in messages])
+        assert np.all(slide > 0) and np.all(bound >= slide)
+        assert acquisition.slide.status()["sigma_um"] == pytest.approx(slide[-1])
         if acceleration is not None:
             assert np.all(flagged[after]) and set(reasons[after]) == {"geometry"}
             assert np.sum((np.abs(error) > 4.0 * bound) & ~flagged) <= 1  # the knock's own frame at most
