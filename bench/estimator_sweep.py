@@ -38,12 +38,14 @@ from graytrack.core.timing import model_reference
 from graytrack.drivers.sim.scenarios import build_rig
 from robustness_sweep import CASES, SECONDS, measured_motion
 from truth_score import MODES
+from truth_score import scored as path_scored
 
-CACHE_VERSION = "6"  # what a cached case holds: 3, recordings that state the stage's commanded phases of acceleration
+CACHE_VERSION = "7"  # what a cached case holds: 3, recordings that state the stage's commanded phases of acceleration
 # and models what their calibration's readings showed beyond them (core/estimator/mount.py); 4, recordings that state
 # what triggers the camera (core/recording.py CAMERA_TRIGGER); 5, models that state how widely their frames' χ²
-# scatters (core/chi2_curve.py frame_spread); 6, and a strip's row banding (core/adequacy.py row_offset_gray); older
-# cases are made again
+# scatters (core/chi2_curve.py frame_spread); 6, and a strip's row banding (core/adequacy.py row_offset_gray); 7, the
+# offset each frame draws afresh (core/adequacy.py frame_offset_gray); older cases are made again
+RATIO_KEPT = 1.05  # the acceptance's ceiling for a run's error against today's path's on the same run
 FAR_PULL = 4.0  # bounds off the truth beyond which a placed frame counts as far off
 SILENT_SHARE = 0.005  # of a run's placed frames: the acceptance's ceiling for far frames left unflagged
 STEADY_FLAGGED = 0.01  # of a steady run's frames: the acceptance's ceiling for flags where nothing changed
@@ -105,6 +107,7 @@ def scored(model, run, truth, grating: str, settings: EstimatorSettings,
     placed = np.isfinite(error)
     far = placed & (np.abs(error) > FAR_PULL * bound)
     return {"ratio": float(np.nanstd(error) / np.sqrt(np.nanmean(floor[placed] ** 2))) if placed.any() else np.nan,
+            "std": float(np.nanstd(error)) if placed.any() else np.nan,
             "pull": float(np.sqrt(np.nanmean((error / bound) ** 2))) if placed.any() else np.nan,
             "frames": error.size, "placed": int(placed.sum()), "lost": int((~placed & ~repeated).sum()),
             "flagged": int(stale.sum()), "far": int(far.sum()), "silent": int((far & ~stale).sum()),
@@ -112,6 +115,28 @@ def scored(model, run, truth, grating: str, settings: EstimatorSettings,
             "print": int(tracker.print_map.learned().sum()),
             "touched": int(tracker.sensor.touched.sum()),
             "flagged_after": float(stale[after].mean()) if after is not None and after.any() else 0.0}
+
+
+def todays(folder: Path, model, run, truth, label: str, mode: str):
+    """Today's path (`graytrack track` without ``--engine estimator``) on the same run and mode, its score kept in
+    ``folder`` by the run's frames and the model's coefficients (that path no longer changes, and it tracks a
+    changing rig a few times slower than the estimator: a case made again for what only the estimator reads keeps
+    it)."""
+    path = folder / f"{todays_key(model, run, label, mode)}.watches.pkl"
+    if path.exists():
+        with open(path, "rb") as kept:
+            return pickle.load(kept)
+    score = path_scored(model, run, truth, engine="watches", **MODES[mode])
+    with open(path, "wb") as kept:
+        pickle.dump(score, kept)
+    return score
+
+
+def todays_key(model, run, label: str, mode: str) -> str:
+    """The name today's score of a run is kept under (:func:`todays`)."""
+    content = hashlib.md5(np.ascontiguousarray(run.frames).tobytes())
+    content.update(np.ascontiguousarray(model.coeffs).tobytes())
+    return hashlib.md5((label.strip() + mode + content.hexdigest()).encode()).hexdigest()[:12]
 
 
 def settings_of(items: list[str]) -> EstimatorSettings:
@@ -131,13 +156,17 @@ def main() -> None:
                         help="where each case's model, run and truth are kept")
     parser.add_argument("--shard", default="0/1", help="K/N: every N-th case from the K-th (run N side by side)")
     parser.add_argument("--only", default="", help="cases whose label holds this text")
+    parser.add_argument("--against", action="store_true",
+                        help="also score today's path on each run (kept in the cache) and count the runs whose "
+                             "error std is more than 5 %% above its (both over today's noise floor: the acceptance "
+                             "of making the estimator the default)")
     parser.add_argument("settings", nargs="*", help="name=value of the estimator's tunables")
     args = parser.parse_args()
     settings = settings_of(args.settings)
     shard, shards = (int(part) for part in args.shard.split("/"))
     args.cache.mkdir(parents=True, exist_ok=True)
     totals = dict.fromkeys(("frames", "placed", "lost", "flagged", "far", "silent", "seconds"), 0.0)
-    over, steady = [], []
+    over, steady, worse = [], [], []
     for number, (scenario, rig_effects, later) in enumerate(CASES + PLAIN):
         label = f"{scenario} {rig_effects} {later}"
         if args.only not in label or number % shards != shard:
@@ -155,6 +184,16 @@ def main() -> None:
                     f"lost {score['lost']:4d} flag {100 * score['flagged'] / score['frames']:5.1f}% "
                     f"far {score['far']:4d} silent {score['silent']:4d} map {score['map']:3d} "
                     f"print {score['print']:4d}{mark}")
+            if args.against:
+                # both against today's floor: each path states its own (the estimator's, with the light known from
+                # the frames before, is the narrower), the acceptance compares their errors on the same data
+                today = todays(args.cache, model, run, truth, label, mode)
+                ours = score["std"] / today.bound_um
+                above = ours > RATIO_KEPT * today.ratio
+                line += (f" | on today's floor {ours:6.2f} today {today.ratio:6.2f} silent {today.silent:4d}"
+                         + (" >>>" if above else ""))
+                if above:
+                    worse.append(line)
             if not later:
                 low, high = STEADY_PULL
                 honest = score["flagged"] <= STEADY_FLAGGED * score["frames"] and low <= score["pull"] <= high \
@@ -166,6 +205,9 @@ def main() -> None:
           f"({100 * totals['silent'] / placed:.3f} %), flagged {totals['flagged']:.0f}, lost {totals['lost']:.0f}; "
           f"{len(over)} runs over {100 * SILENT_SHARE:.1f} % unflagged ({sum(over)} frames); "
           f"{totals['frames'] / max(totals['seconds'], 1e-9):.0f} frames/s")
+    if args.against:
+        print(f"against today's path: {len(worse)} runs with an error std more than "
+              f"{100 * (RATIO_KEPT - 1):.0f} % above it (>>>)")
     print(f"steady: {len(steady)} runs, {sum(line.endswith('***') for line in steady)} outside the acceptance (***: "
           f"flagged over {100 * STEADY_FLAGGED:.0f} %, something learned, or an rms pull outside "
           f"{STEADY_PULL[0]}-{STEADY_PULL[1]})")

@@ -156,8 +156,11 @@ def assessed(model: FourierModel, data: CalibrationData) -> FourierModel:
                                 "chi2_spread": round(chi2_spread(per_frame, used), 3)}
     elif "calibration_chi2" in model.info:  # a light that moved during calibration is the tracker's to solve
         model.info["calibration_chi2"] = stated_level(float(model.info["calibration_chi2"]), solved, n_values)
-    for key in ("row_offset_gray", "row_chi2_share", "row_chi2_spread"):
+    for key in ("row_offset_gray", "row_chi2_share", "row_chi2_spread", "frame_offset_gray"):
         model.info.pop(key, None)
+    # the offset each frame draws afresh (the estimator takes it out of each frame as it takes a row's)
+    if (offset := frame_offset_gray(model, data)) is not None:
+        model.info["frame_offset_gray"] = round(offset, 4)
     if (row := row_offset_gray(model, data)) is not None:
         # what the estimator, which takes each row's offset out of a frame (core/estimator/kernel.py _normal), judges
         # a frame's χ² against: the level and the frames' spread with the offsets taken out as it takes them
@@ -243,6 +246,14 @@ def rows_taken_out(weights: np.ndarray, residual: np.ndarray, rows: int, row_gra
 def solved_residuals(model: FourierModel, data: CalibrationData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(weights, residuals ``(K, P)``, places mm) of each calibration frame looked at that the model can solve, with
     its light (a gain and an offset) solved as the tracker solves it."""
+    weights, residual, x_mm, _, _ = light_solved(model, data)
+    return weights, residual, x_mm
+
+
+def light_solved(model: FourierModel, data: CalibrationData
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`solved_residuals` and each frame's light: (gain, offset gray) ``(K, 2)`` and their covariance from the
+    noise model ``(K, 2, 2)``."""
     data = picked_frames(data)
     n_frames = data.x_mm.size
     frames = model.prepare(data.frames).reshape(n_frames, -1)
@@ -254,7 +265,33 @@ def solved_residuals(model: FourierModel, data: CalibrationData) -> tuple[np.nda
     solvable = np.linalg.det(fisher) > 0
     gain_offset = np.linalg.solve(fisher[solvable], score[solvable][..., None])[..., 0]
     residual = frames[solvable] - np.einsum("kpi,ki->kp", basis[solvable], gain_offset)
-    return weights[solvable], residual, data.x_mm[solvable]
+    return weights[solvable], residual, data.x_mm[solvable], gain_offset, np.linalg.inv(fisher[solvable])
+
+
+def frame_offset_gray(model: FourierModel, data: CalibrationData) -> float | None:
+    """The σ (gray) of an offset each frame draws afresh about its neighbours' (a one-row sensor's line offset at each
+    readout, its black level's reference drifting frame by frame), None where it does not stand out of the offset's
+    own estimation noise (:data:`ROW_SIGNIFICANCE` of its sampling σ).
+
+    Measured as :func:`row_offset_gray` measures a row's: each frame's offset (its light solved as the tracker solves
+    it) against the next frame's along the stroke, half a difference's square less the two estimates' own variance
+    (the noise model's, times the frames' χ² level where the model leaves more than noise): stray light that drifts
+    over the sweep and what the model misses at a place drop out between neighbours, an offset drawn each frame does
+    not. (A gain drawn afresh is not taken out so: the gain and the position share the print's shape over a field of
+    a few periods, and a camera's gain hunting swings further than a frame's own draw; the light's states and jumps
+    follow it.)"""
+    weights, residual, x_mm, light, covariance = light_solved(model, data)
+    if x_mm.size < 3:
+        return None
+    used = (weights > 0).sum(axis=1)
+    chi2 = np.einsum("kp,kp->k", weights, residual**2) / np.maximum(used, 1)
+    order = np.argsort(x_mm, kind="stable")
+    offset, own = light[order, 1], covariance[order, 1, 1] * max(1.0, level(chi2, used))
+    each = 0.5 * (np.diff(offset) ** 2 - own[1:] - own[:-1])
+    variance = float(each.mean())
+    if variance <= ROW_SIGNIFICANCE * float(each.std()) / np.sqrt(each.size):
+        return None
+    return float(np.sqrt(variance))
 
 
 def level(per_frame: np.ndarray, used: np.ndarray) -> float:

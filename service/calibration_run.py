@@ -93,6 +93,11 @@ class CalibrationRun:
                          "drawn afresh each frame (row banding: the readout's reference drifting line by line); "
                          "tracking takes each row's offset out of every frame, at some cost in precision: the "
                          "camera's black-level clamp or readout settings may remove it")
+        if info.get("frame_offset_gray"):
+            lines.append(f"warning: every frame is offset by {float(info['frame_offset_gray']):.2f} gray (σ) drawn "
+                         "afresh each frame (the readout's black level drifting frame by frame); tracking takes "
+                         "each frame's offset out of its solve, at some cost in precision: the camera's black-level "
+                         "clamp or readout settings may remove it")
         if spread >= SHARED_NOISE_SPREAD:
             lines.append(f"warning: the frames' residual scatters {spread:.1f}x as widely from frame to frame as "
                          "independent noise in each sample would: the sensor's noise is shared between samples (a "

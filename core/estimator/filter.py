@@ -345,6 +345,11 @@ class Estimator:
         if banding:
             params[kernel.U_ROW_LENGTH] = model.n_pixels
             params[kernel.U_ROW_PRECISION] = 1.0 / float(model.info["row_offset_gray"]) ** 2
+        elif float(model.info.get("frame_offset_gray") or 0.0) > 0.0:
+            # an offset the whole frame draws afresh, as calibration measured it (a one-row sensor's line offset at
+            # each readout: core/adequacy.py frame_offset_gray), taken out of each frame as a row's is
+            params[kernel.U_ROW_LENGTH] = n_values
+            params[kernel.U_ROW_PRECISION] = 1.0 / float(model.info["frame_offset_gray"]) ** 2
         self.t_last: float | None = None
         self.last_frame: np.ndarray | None = None
         self.dt_last = 0.0

@@ -153,7 +153,7 @@ def scored(model, run, truth, grating: str) -> tuple[float, float]:
 def without_rows(model):
     """The model as tracked before a strip's row banding was taken out of its frames (the spread alone counts)."""
     plain = copy.deepcopy(model)
-    for key in ("row_offset_gray", "row_chi2_share", "row_chi2_spread"):
+    for key in ("row_offset_gray", "row_chi2_share", "row_chi2_spread", "frame_offset_gray"):
         plain.info.pop(key, None)
     return plain
 
