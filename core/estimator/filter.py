@@ -391,6 +391,10 @@ class Estimator:
         self._unexplained: list[str] = []  # the families tried on the last frame, none of whose jumps explained it
         self._placed_again = False  # a frame of this episode was placed again by its agreeing samples, in vain
         self._band_failed = 0  # frames in a row the band followed did not explain
+        # whether a change (a jump taken, a frame failing its test) has left the position's bound carried by a state's
+        # memory since the frames last vouched for it: what carries it then is flagged (_estimate); what the priors
+        # and the declared rates carry is no change, and the bound states it
+        self._changed = False
         self._band_missed = 0  # frames in a row that failed with no band followed, since one passed its test
         self._bands = _band_shapes(self.t_rel)  # the shapes a band entering is searched among (edges, softness)
         # without the grating, the camera's place moves only as a step no motion of the stage makes (mount.py)
@@ -432,6 +436,7 @@ class Estimator:
         self.t_last = t
         self.started = True
         self._t_start = t
+        self._changed = False
         self._xi_last = math.nan
         self._lens_var, self._lens_m = float(self.P[M, M]), 0.0
         self.failed = 0
@@ -565,6 +570,8 @@ class Estimator:
             if step is not None:
                 self._mounted(step)
                 mode = reason_jump = "geometry"
+        if mode or test > 1.0:
+            self._changed = True
         estimate = self._estimate(t, stats, test, mode, reason_jump, reference_mm)
         if step is not None:
             estimate = estimate._replace(
@@ -1206,7 +1213,10 @@ class Estimator:
         # lens's slide, the camera's creep on its mount) is the bound's to state, not a change to flag: flagged, a
         # steady run was flagged on every frame after half a minute, its bound grown as the declared rates allow.
         held = var_x - slide_var - self._stated(t)
-        if held > settings.dominance * floor2 * bound_factor ** 2 and not (checked and reference_mm == reference_mm) \
+        vouched = held <= settings.dominance * floor2 * bound_factor ** 2
+        if vouched:
+            self._changed = False
+        elif self._changed and not (checked and reference_mm == reference_mm) \
                 and not model_var > held - model_var - floor2:
             carried = self._carrier()
             if carried:

@@ -691,3 +691,24 @@ def test_without_the_grating_what_no_frame_sees_is_stated_in_the_bound_and_a_kno
                     settings=settings)
     after = knocked_run.t > 10.5
     assert np.mean([e.stale and e.stale_reason == "geometry" for e, late in zip(knocked, after) if late]) > 0.9
+
+
+def test_a_bound_the_priors_carry_is_stated_and_one_a_change_left_is_flagged():
+    """Without the grating, the 16-row strip's clean run with the blur at its first frame as unknown as a refocused
+    lens leaves it (0.3 px²): for the first seconds the light's states carry the position's bound (the blur and the
+    light's level trade), which is no change. Flagged whenever a state's memory carried the bound, 13 % of that run's
+    frames were; the bound is now flagged only where a change (a jump taken, a frame failing its test) left it
+    carried, and stated otherwise. A knock leaves it carried: still flagged from the frame after."""
+    calibration, _ = build_rig("strip16", "", seed=3).record()
+    model = calibrate(calibration, "paper").model
+    run, truth = build_rig("strip16", "", seed=3, run=1).record(10.0)
+    settings = EstimatorSettings().for_recording(run.meta).replace(focus_prior=0.3)
+    estimates = track(model, run.frames, run.t, np.full(run.t.size, np.nan), grating="none", settings=settings)
+    error, bound = _errors(model, estimates, truth, "none")
+    assert np.mean([e.stale for e in estimates]) < 0.01
+    assert np.all(np.abs(error) < 4.0 * bound)
+    knocked_run, _ = build_rig("strip16", "knock:um=40:deg=0.2:at_s=5", seed=3, run=1).record(10.0)
+    knocked = track(model, knocked_run.frames, knocked_run.t, np.full(knocked_run.t.size, np.nan), grating="none",
+                    settings=settings)
+    after = knocked_run.t > 5.5
+    assert np.mean([e.stale and e.stale_reason == "geometry" for e, late in zip(knocked, after) if late]) > 0.9
