@@ -1,11 +1,14 @@
 """The client installed alone into a fresh venv (offline), and the daemon as `make run` starts it.
 
-Both are expensive (a venv; a daemon that calibrates itself on the wall clock), so each is made
-once per test process and shared by the tests of this folder (the daemon only while they run).
+Both are expensive (a venv; a daemon that calibrates itself on the wall clock), so each is shared by
+the tests of this folder: the daemon made once per test process while they run, the venv once per
+checkout (kept in pytest's cache, keyed by what it is made of).
 """
 
 from __future__ import annotations
 
+import hashlib
+import importlib.metadata
 import json
 import os
 import shutil
@@ -23,6 +26,7 @@ from packaging.requirements import Requirement
 from packaging.utils import canonicalize_name
 
 from tests.client.wheelhouse import closure, pack
+from tests.conftest import _locked
 from tests.service.helpers import free_port, wait_for
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -67,16 +71,37 @@ class Venv:
         return subprocess.run(program, cwd=self.bin, capture_output=True, text=True, timeout=60)
 
 
-@pytest.fixture(scope="session")
-def client_venv(tmp_path_factory: pytest.TempPathFactory) -> Venv:
-    """A fresh venv where ``pip install --no-index --find-links WHEELS graytrack`` installed the client.
+def shipped_files(root: Path = ROOT) -> Iterator[Path]:
+    """The files :func:`build_wheel` copies from the checkout (the same ignore rules, in a stable order)."""
+    ignore = shutil.ignore_patterns(*NOT_SHIPPED)
+    for folder, subfolders, names in os.walk(root):
+        skipped = ignore(folder, subfolders + names)
+        subfolders[:] = sorted(name for name in subfolders if name not in skipped)
+        for name in sorted(names):
+            if name not in skipped:
+                yield Path(folder) / name
 
-    WHEELS holds graytrack's wheel, built from this checkout, and what its requirements need, packed
-    from this venv (tests/client/wheelhouse.py): nothing is downloaded."""
-    folder = tmp_path_factory.mktemp("client-alone")
-    wheels = folder / "wheels"
+
+def client_venv_key() -> str:
+    """What the client's venv is made of: every file of the checkout that goes into the wheel, this fixture's own
+    code, the interpreter, and the version of every distribution installed here (the wheelhouse is packed from
+    them). Any change to one of them makes another venv; an unchanged checkout installs the same files again."""
+    digest = hashlib.sha256()
+    for path in [*shipped_files(), Path(__file__), Path(__file__).with_name("wheelhouse.py")]:
+        digest.update(str(path.relative_to(ROOT)).encode() + b"\0" + hashlib.sha256(path.read_bytes()).digest())
+    installed = sorted(f"{d.metadata['Name']}=={d.version}" for d in importlib.metadata.distributions())
+    digest.update("\n".join([sys.version, sys.executable, *installed]).encode())
+    return digest.hexdigest()[:24]
+
+
+def make_client_venv(folder: Path, work: Path) -> None:
+    """``folder / "venv"``: a fresh venv where ``pip install --no-index --find-links WHEELS graytrack`` installed the
+    client, and ``folder / "installed.json"``: what is installed in it. WHEELS (in ``work``) holds graytrack's wheel,
+    built from this checkout, and what its requirements need, packed from this venv (tests/client/wheelhouse.py):
+    nothing is downloaded."""
+    wheels = work / "wheels"
     wheels.mkdir()
-    for dist in closure(base_requirements(build_wheel(folder / "source", wheels))).values():
+    for dist in closure(base_requirements(build_wheel(work / "source", wheels))).values():
         pack(dist, wheels)
     venv = folder / "venv"
     subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True)
@@ -85,8 +110,38 @@ def client_venv(tmp_path_factory: pytest.TempPathFactory) -> Venv:
                     "--find-links", str(wheels), "graytrack"], check=True, capture_output=True, text=True)
     listing = subprocess.run([str(python), "-c", "import importlib.metadata as m, json; print(json.dumps("
                               "{d.metadata['Name']: d.version for d in m.distributions()}))"],
-                             cwd=folder, check=True, capture_output=True, text=True).stdout
-    return Venv(python, {canonicalize_name(name): version for name, version in json.loads(listing).items()})
+                             cwd=work, check=True, capture_output=True, text=True).stdout
+    (folder / "installed.json").write_text(listing)
+
+
+@pytest.fixture(scope="session")
+def client_venv(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Venv:
+    """A fresh venv where ``pip install --no-index --find-links WHEELS graytrack`` installed the client
+    (:func:`make_client_venv`).
+
+    Kept in pytest's cache under :func:`client_venv_key` (a venv cannot be moved: its scripts name its path), so a
+    run on the checkout a previous run installed from uses that venv, which the tests only read, rather than
+    building the wheel and installing it all again (~7 s on a quiet 2-core machine, 20 s in a busy suite). Another
+    checkout makes its own, and the older ones are removed. Without pytest's cache (``-p no:cacheprovider``) it is
+    made for this run alone."""
+    cache = getattr(request.config, "cache", None)
+    if cache is None:
+        folder = tmp_path_factory.mktemp("client-alone")
+        make_client_venv(folder, folder)
+    else:
+        root = cache.mkdir("client-venv")
+        folder = root / client_venv_key()
+        with _locked(root / "lock"):  # another test process of this run, or another run, may be making it
+            if not (folder / "done").exists():
+                for old in root.iterdir():
+                    if old.is_dir():
+                        shutil.rmtree(old)
+                folder.mkdir()
+                make_client_venv(folder, tmp_path_factory.mktemp("client-alone"))
+                (folder / "done").touch()
+    installed = json.loads((folder / "installed.json").read_text())
+    return Venv(folder / "venv" / "bin" / "python",
+                {canonicalize_name(name): version for name, version in installed.items()})
 
 
 @dataclass(frozen=True)
