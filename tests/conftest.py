@@ -204,6 +204,44 @@ def shared_once(factory: pytest.TempPathFactory, name: str, build: Callable[[Pat
     return folder
 
 
+@pytest.fixture(scope="session")
+def _one_calibration(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The data directory a daemon on the fast test rig (tests/service/helpers.py FAST_TABLES) leaves when it has
+    calibrated itself at its first start and stopped: one calibration, done and active, and its record. Made once
+    for the run (:func:`shared_once`: the test workers share it) and read only: :func:`calibrated` copies it."""
+
+    def make(folder: Path) -> None:
+        from fastapi.testclient import TestClient
+
+        from graytrack.service.daemon.app import create_app
+        from tests.service.helpers import fast_settings, wait_state
+
+        with TestClient(create_app(fast_settings(folder / "data"))) as client:
+            wait_state(client, "tracking", 60.0)
+
+    return shared_once(tmp_path_factory, "one-calibration", make) / "data"
+
+
+@pytest.fixture
+def calibrated(_one_calibration: Path) -> Callable[[Path], Path]:
+    """``calibrated(data)``: ``data`` made a copy of :func:`_one_calibration`'s data directory, for a daemon that
+    starts tracking on the rig's model of record at once, where the test is about what happens after the daemon's
+    first calibration, not about that calibration (a sweep and a fit on the wall clock, seconds of a busy test
+    worker). Both engines' tracking kernels are loaded in this process first: a daemon's rig clock starts with its
+    app, and the daemon made next then opens its rig without spending that clock on loading them."""
+    from graytrack.service.heap import warm_tracking
+
+    warm_tracking(("watches", "estimator"))
+
+    def copy(data: Path) -> Path:
+        import shutil
+
+        shutil.copytree(_one_calibration, data)
+        return data
+
+    return copy
+
+
 PAPER_META = {"pixel_pitch_mm": paper.PIXEL_PITCH_MM, "period_mm": 8.6, "source": "tests: Table 2 field"}
 
 

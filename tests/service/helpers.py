@@ -296,14 +296,16 @@ class LiveServer:
         return _state_waiter(self.status, state, timeout_s, f"state {state!r}")
 
     def after_calibration(self, change: tuple[float, float]) -> dict[str, Any]:
-        """Tracking on the start-up calibration, then waited on the rig's own clock until a change of the rig timed
-        ``change`` = (from, to) rig seconds has happened: the status then. The change must begin after the
-        calibration's sweep, which takes the rig's clock ~40 s on a quiet machine and over 100 s on a loaded one
-        (its serial exchanges run on the wall clock, the test's rig clock at 10x): otherwise the sweep would
-        calibrate it in, and the test's premise — a change after calibration — would not hold."""
+        """Tracking on a model of the rig as it was calibrated, then waited on the rig's own clock until a change of
+        the rig timed ``change`` = (from, to) rig seconds has happened: the status then. The change must begin after
+        tracking has begun: on a saved model (tests/conftest.py calibrated) that is as soon as the rig is open, a
+        second or two of the rig's clock (the test's clock runs at 10x); after a start-up calibration it is after the
+        sweep, which takes the rig's clock ~40 s on a quiet machine and over 100 s on a loaded one (its serial
+        exchanges run on the wall clock). Otherwise the daemon would start from the changed rig, or the sweep would
+        calibrate the change in, and the test's premise — a change after calibration — would not hold."""
         tracking = self.wait_state("tracking", 60.0)
         began = self.rig.clock.now()
-        assert began < change[0], (f"the start-up calibration ran into the change (tracking from {began:.0f} s of "
+        assert began < change[0], (f"the daemon began tracking after the change had begun (from {began:.0f} s of "
                                    f"the rig's clock, the change from {change[0]:g} s)")
         time.sleep(self.rig.clock.duration_to_host(change[1] - began))
         return tracking

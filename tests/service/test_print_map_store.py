@@ -20,7 +20,7 @@ from tests.service.hostile import StreamReader
 from tests.service.test_sensor_map_store import (LANDS, events, logged, lost_and_flagged, passes,
                                                  restored_and_passed, switched_away_and_back)
 
-# specks settle on the print after the start-up calibration's sweep, while the stage rests (LANDS, rig seconds) ...
+# specks settle on the print after the daemon's first calibration, while the stage rests (LANDS, rig seconds) ...
 SETTLING = {"camera": {"effects": f"dust_settling:start_s={LANDS[0]:g},over_s={LANDS[1] - LANDS[0]:g}"}}
 # ... and, for the daemon started again, the same specks (the effect's own random stream) on the print from the start
 ON_THE_PRINT = {"camera": {"effects": "dust_settling:start_s=0,over_s=0"}}
@@ -49,8 +49,8 @@ def learn(daemon: LiveServer, stream: StreamReader | None = None) -> dict:
     raise AssertionError(f"nothing learned of the print's dust: {daemon.status()['print_map']}")
 
 
-def test_the_print_map_survives_a_restart_and_a_rollback_drops_it(tmp_path: Path) -> None:
-    data = tmp_path / "data"
+def test_the_print_map_survives_a_restart_and_a_rollback_drops_it(tmp_path: Path, calibrated) -> None:
+    data = calibrated(tmp_path / "data")  # the daemon's first calibration, done: the dust settles after it
     kept = data / "print_map.json"
     with LiveServer(create_app(fast_settings(data, tables=SETTLING, engine="estimator"))) as daemon:
         first = daemon.after_calibration(LANDS)["active_calibration"]["id"]

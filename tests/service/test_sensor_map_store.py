@@ -20,9 +20,9 @@ from graytrack.service.daemon.app import create_app
 from tests.service.helpers import LiveServer, fast_settings, wait_for, wait_job
 from tests.service.hostile import StreamReader
 
-# Six specks land on the window after the start-up calibration's sweep (rig seconds; the test clock runs 10x:
-# LiveServer.after_calibration) ...
-LANDS = (150.0, 155.0)
+# Six specks land on the window while the daemon tracks at rest on its saved calibration (rig seconds from its start;
+# the test clock runs 10x: LiveServer.after_calibration, which checks that tracking began before) ...
+LANDS = (40.0, 45.0)
 LANDING = {"camera": {"effects": f"window_dust:start_s={LANDS[0]:g},over_s={LANDS[1] - LANDS[0]:g}"}}
 # ... and, for the daemon started again, the same specks (the effect's own random stream) on the window from the start
 ON_THE_WINDOW = {"camera": {"effects": "window_dust:start_s=0,over_s=0"}}
@@ -113,8 +113,8 @@ def switched_away_and_back(daemon: LiveServer, name: str, side: str, kept: Path,
     return rolled
 
 
-def test_the_sensor_map_survives_a_restart_and_a_rollback_drops_it(tmp_path: Path) -> None:
-    data = tmp_path / "data"
+def test_the_sensor_map_survives_a_restart_and_a_rollback_drops_it(tmp_path: Path, calibrated) -> None:
+    data = calibrated(tmp_path / "data")  # the daemon's first calibration, done: the dust lands after it
     kept = data / "sensor_map.json"
     with LiveServer(create_app(fast_settings(data, tables=LANDING, engine="estimator"))) as daemon:
         first = daemon.after_calibration(LANDS)["active_calibration"]["id"]

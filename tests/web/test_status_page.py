@@ -276,7 +276,7 @@ def canvas_labels(browser_page, canvas: str) -> list[str]:
     return [label["text"] for label in labels]
 
 
-def test_the_sensor_map_is_drawn_along_the_pixels_with_its_sigma(tmp_path: Path, browser) -> None:
+def test_the_sensor_map_is_drawn_along_the_pixels_with_its_sigma(tmp_path: Path, browser, calibrated) -> None:
     """``[daemon] engine = "estimator"`` with dust landing on the camera's window: the page's "Learned maps" card
     draws the sensor map along the pixels (gain and offset with their ±σ band), first saying honestly that
     nothing is learned, then where the widest mark is, how much and how sure; the print is drawn as this engine
@@ -286,7 +286,8 @@ def test_the_sensor_map_is_drawn_along_the_pixels_with_its_sigma(tmp_path: Path,
     from graytrack.service.daemon.app import create_app
     from tests.service.test_sensor_map_store import LANDING, LANDS, LEARNED_SAMPLES, learn
 
-    with LiveServer(create_app(fast_settings(tmp_path, tables=LANDING, engine="estimator"))) as daemon:
+    data = calibrated(tmp_path / "data")  # the daemon's first calibration, done: the dust lands after it
+    with LiveServer(create_app(fast_settings(data, tables=LANDING, engine="estimator"))) as daemon:
         daemon.after_calibration(LANDS)  # the specks have landed while the stage rests
         browser_page, console = phone_page(daemon, browser)
         sensor, info = browser_page.locator("#sensor-map"), browser_page.locator("#sensor-map-info")
@@ -318,7 +319,7 @@ def test_the_sensor_map_is_drawn_along_the_pixels_with_its_sigma(tmp_path: Path,
         assert browser_page.evaluate("document.documentElement.scrollWidth") <= 390
         assert console == [], console
 
-def test_the_print_map_is_drawn_along_the_target_with_its_sigma(tmp_path: Path, browser) -> None:
+def test_the_print_map_is_drawn_along_the_target_with_its_sigma(tmp_path: Path, browser, calibrated) -> None:
     """``[daemon] engine = "estimator"`` with dust settling on the print: the "Learned maps" card draws the print's
     map along the target (each place's reflectance from 1 with its ±σ) and says where the widest mark is, how
     much and how sure, as the status card's print line does; nothing is learned on the sensor's side."""
@@ -328,7 +329,8 @@ def test_the_print_map_is_drawn_along_the_target_with_its_sigma(tmp_path: Path, 
     from tests.service.test_print_map_store import LEARNED_MARKS, SETTLING, learn
     from tests.service.test_sensor_map_store import LANDS
 
-    with LiveServer(create_app(fast_settings(tmp_path, tables=SETTLING, engine="estimator"))) as daemon:
+    data = calibrated(tmp_path / "data")  # the daemon's first calibration, done: the dust settles after it
+    with LiveServer(create_app(fast_settings(data, tables=SETTLING, engine="estimator"))) as daemon:
         daemon.after_calibration(LANDS)  # the specks have landed while the stage rests
         browser_page, console = phone_page(daemon, browser)
         printed, info = browser_page.locator("#print-map"), browser_page.locator("#print-map-info")
