@@ -391,9 +391,9 @@ class Estimator:
         self._unexplained: list[str] = []  # the families tried on the last frame, none of whose jumps explained it
         self._placed_again = False  # a frame of this episode was placed again by its agreeing samples, in vain
         self._band_failed = 0  # frames in a row the band followed did not explain
-        # whether a change (a jump taken, a frame failing its test) has left the position's bound carried by a state's
-        # memory since the frames last vouched for it: what carries it then is flagged (_estimate); what the priors
-        # and the declared rates carry is no change, and the bound states it
+        # whether anything has changed since the estimate started (a jump taken, a frame failing its test): until then
+        # what carries the position's bound is the priors', which the bound states; after, a state's memory carrying
+        # it may be a change the frames follow without failing (a veil forming under the light's states), flagged
         self._changed = False
         self._band_missed = 0  # frames in a row that failed with no band followed, since one passed its test
         self._bands = _band_shapes(self.t_rel)  # the shapes a band entering is searched among (edges, softness)
@@ -1213,10 +1213,8 @@ class Estimator:
         # lens's slide, the camera's creep on its mount) is the bound's to state, not a change to flag: flagged, a
         # steady run was flagged on every frame after half a minute, its bound grown as the declared rates allow.
         held = var_x - slide_var - self._stated(t)
-        vouched = held <= settings.dominance * floor2 * bound_factor ** 2
-        if vouched:
-            self._changed = False
-        elif self._changed and not (checked and reference_mm == reference_mm) \
+        if held > settings.dominance * floor2 * bound_factor ** 2 and self._changed \
+                and not (checked and reference_mm == reference_mm) \
                 and not model_var > held - model_var - floor2:
             carried = self._carrier()
             if carried:

@@ -697,8 +697,8 @@ def test_a_bound_the_priors_carry_is_stated_and_one_a_change_left_is_flagged():
     """Without the grating, the 16-row strip's clean run with the blur at its first frame as unknown as a refocused
     lens leaves it (0.3 px²): for the first seconds the light's states carry the position's bound (the blur and the
     light's level trade), which is no change. Flagged whenever a state's memory carried the bound, 13 % of that run's
-    frames were; the bound is now flagged only where a change (a jump taken, a frame failing its test) left it
-    carried, and stated otherwise. A knock leaves it carried: still flagged from the frame after."""
+    frames were; until something has changed (a jump taken, a frame failing its test) the bound states what the
+    priors carry. A knock is a change: the frames after it are still flagged from the frame after."""
     calibration, _ = build_rig("strip16", "", seed=3).record()
     model = calibrate(calibration, "paper").model
     run, truth = build_rig("strip16", "", seed=3, run=1).record(10.0)
