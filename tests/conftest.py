@@ -222,7 +222,7 @@ def _one_calibration(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return shared_once(tmp_path_factory, "one-calibration", make) / "data"
 
 
-@pytest.fixture
+@pytest.fixture(scope="session")
 def calibrated(_one_calibration: Path) -> Callable[[Path], Path]:
     """``calibrated(data)``: ``data`` made a copy of :func:`_one_calibration`'s data directory, for a daemon that
     starts tracking on the rig's model of record at once, where the test is about what happens after the daemon's
@@ -236,7 +236,7 @@ def calibrated(_one_calibration: Path) -> Callable[[Path], Path]:
     def copy(data: Path) -> Path:
         import shutil
 
-        shutil.copytree(_one_calibration, data)
+        shutil.copytree(_one_calibration, data, dirs_exist_ok=True)  # ``data`` may be a test's own empty tmp_path
         return data
 
     return copy

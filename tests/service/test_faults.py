@@ -8,9 +8,9 @@ from graytrack.service.daemon.app import create_app
 from tests.service.helpers import GatedFactory, fast_settings, wait_for, wait_state
 
 
-def test_camera_silence_and_camera_errors_are_faults_that_clear(tmp_path) -> None:
+def test_camera_silence_and_camera_errors_are_faults_that_clear(tmp_path, calibrated) -> None:
     factory = GatedFactory()
-    with TestClient(create_app(fast_settings(tmp_path), factory)) as client:
+    with TestClient(create_app(fast_settings(calibrated(tmp_path)), factory)) as client:
         wait_state(client, "tracking", 20.0)
         camera = factory.hardware.camera
 
@@ -36,9 +36,9 @@ def test_camera_silence_and_camera_errors_are_faults_that_clear(tmp_path) -> Non
         assert "graytrack_camera_errors_total 1.0" in metrics and "graytrack_faults_total 2.0" in metrics
 
 
-def test_a_vanished_serial_port_is_a_stage_fault_until_it_returns(tmp_path) -> None:
+def test_a_vanished_serial_port_is_a_stage_fault_until_it_returns(tmp_path, calibrated) -> None:
     factory = GatedFactory()
-    with TestClient(create_app(fast_settings(tmp_path), factory)) as client:
+    with TestClient(create_app(fast_settings(calibrated(tmp_path)), factory)) as client:
         wait_state(client, "tracking", 20.0)
         controller = factory.hardware.controller
         controller.vanish()
@@ -63,14 +63,15 @@ def test_hardware_that_cannot_be_opened_is_retried(tmp_path) -> None:
         wait_state(client, "tracking", 20.0)
 
 
-def test_a_silent_controller_is_a_fault_within_the_cameras_time_and_its_figure_is_withdrawn(tmp_path) -> None:
+def test_a_silent_controller_is_a_fault_within_the_cameras_time_and_its_figure_is_withdrawn(tmp_path,
+                                                                                             calibrated) -> None:
     """The controller stops answering (every POS? dropped): the serial timeout is 5 s in these tests,
     but the daemon calls the silence a fault after camera_fault_after_s (1 s), and the last
     grating figure is withdrawn after stale_after_s instead of shown frozen."""
     from graytrack.drivers.stage.sim_controller import Fault
 
     factory = GatedFactory()
-    with TestClient(create_app(fast_settings(tmp_path), factory)) as client:
+    with TestClient(create_app(fast_settings(calibrated(tmp_path)), factory)) as client:
         wait_state(client, "tracking", 20.0)
         assert client.get("/api/status").json()["grating_mm"] is not None
         controller = factory.hardware.controller

@@ -39,7 +39,8 @@ def _schemathesis(daemon: ServeProcess, token: str, cwd: Path, checks: str,
         capture_output=True, text=True, timeout=600, cwd=cwd)  # its example database stays there
 
 
-def test_generated_requests_get_no_server_error_and_match_the_schema(tmp_path: Path) -> None:
+def test_generated_requests_get_no_server_error_and_match_the_schema(tmp_path: Path, calibrated) -> None:
+    calibrated(tmp_path / "data")  # tracking from its start: the requests are the test, not the first calibration
     with ServeProcess(tmp_path) as daemon:
         daemon.wait_state("tracking", timeout_s=120)
         token = daemon.auth()["Authorization"]

@@ -16,8 +16,8 @@ from tests.service.helpers import LiveServer, fast_settings
 
 
 @pytest.fixture(scope="module")
-def daemon(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LiveServer]:
-    with LiveServer(create_app(fast_settings(tmp_path_factory.mktemp("schema")))) as server:
+def daemon(tmp_path_factory: pytest.TempPathFactory, calibrated) -> Iterator[LiveServer]:
+    with LiveServer(create_app(fast_settings(calibrated(tmp_path_factory.mktemp("schema"))))) as server:
         server.wait_state("tracking")
         yield server
 

@@ -13,9 +13,9 @@ from graytrack.service.daemon.app import create_app
 from tests.service.helpers import GatedFactory, LiveServer, fast_settings, wait_for, wait_job
 
 
-def test_frames_of_another_width_are_a_tracking_fault_not_a_dead_loop(tmp_path) -> None:
+def test_frames_of_another_width_are_a_tracking_fault_not_a_dead_loop(tmp_path, calibrated) -> None:
     factory = GatedFactory()
-    with LiveServer(create_app(fast_settings(tmp_path), factory)) as daemon:
+    with LiveServer(create_app(fast_settings(calibrated(tmp_path)), factory)) as daemon:
         daemon.wait_state("tracking")
         assert daemon.get("/healthz").status_code == 200
         factory.hardware.camera.narrow_by = 7  # an ROI change on the camera
@@ -30,8 +30,9 @@ def test_frames_of_another_width_are_a_tracking_fault_not_a_dead_loop(tmp_path) 
         assert wait_for(lambda: daemon.get("/healthz").status_code == 200, what="healthy again")
 
 
-def test_a_crashing_frame_loop_is_reported_and_restarted(tmp_path, monkeypatch: pytest.MonkeyPatch) -> None:
-    with LiveServer(create_app(fast_settings(tmp_path))) as daemon:
+def test_a_crashing_frame_loop_is_reported_and_restarted(tmp_path, monkeypatch: pytest.MonkeyPatch,
+                                                          calibrated) -> None:
+    with LiveServer(create_app(fast_settings(calibrated(tmp_path)))) as daemon:
         daemon.wait_state("tracking")
         real_at, calls = grating.Readings.at, {"n": 0}
 
@@ -66,8 +67,8 @@ def test_an_unusable_saved_model_is_a_fault_with_its_reason_and_a_calibration_re
         assert json.loads((tmp_path / "model.json").read_text())["schema"] == "graytrack.model"
 
 
-def test_a_model_the_tracker_cannot_evaluate_is_a_fault(tmp_path) -> None:
-    with LiveServer(create_app(fast_settings(tmp_path))) as daemon:
+def test_a_model_the_tracker_cannot_evaluate_is_a_fault(tmp_path, calibrated) -> None:
+    with LiveServer(create_app(fast_settings(calibrated(tmp_path)))) as daemon:
         daemon.wait_state("tracking")
     # the model of record is the active calibration's own (DATA/model.json is its copy)
     of_record = tmp_path / "calibrations" / (tmp_path / "active").read_text().strip() / "model.json"
@@ -86,8 +87,8 @@ def test_a_model_the_tracker_cannot_evaluate_is_a_fault(tmp_path) -> None:
     (OSError(28, "No space left on device"), "No space left on device"),
 ])
 def test_an_unexpected_error_in_a_calibration_fails_the_job_and_restores_the_daemon(
-        tmp_path, monkeypatch: pytest.MonkeyPatch, failure: Exception, reason: str) -> None:
-    with LiveServer(create_app(fast_settings(tmp_path))) as daemon:
+        tmp_path, monkeypatch: pytest.MonkeyPatch, failure: Exception, reason: str, calibrated) -> None:
+    with LiveServer(create_app(fast_settings(calibrated(tmp_path)))) as daemon:
         daemon.wait_state("tracking")
         model_before = (tmp_path / "model.json").read_text()
         if isinstance(failure, OSError):  # the disk fills while the new model is installed
@@ -170,10 +171,10 @@ def test_no_room_for_a_sweep_is_refused_before_anything_is_written(tmp_path, mon
         assert daemon.post("/api/calibration", headers=daemon.auth()).status_code == 202
 
 
-def test_a_valid_but_wrong_model_is_not_healthy(tmp_path) -> None:
+def test_a_valid_but_wrong_model_is_not_healthy(tmp_path, calibrated) -> None:
     """A model whose period is 5 % off loads and tracks, but the images are not what it describes:
     the model is flagged stale with a cause, /healthz answers 503 and the status says so."""
-    with LiveServer(create_app(fast_settings(tmp_path))) as daemon:
+    with LiveServer(create_app(fast_settings(calibrated(tmp_path)))) as daemon:
         daemon.wait_state("tracking")
         model = daemon.rig.model
         daemon.rig.install(model.with_changes(period_mm=model.period_mm * 1.05, coeffs=model.coeffs))

@@ -16,8 +16,8 @@ from tests.service.helpers import LiveServer, fast_settings
 
 
 @pytest.fixture(scope="module")
-def daemon(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LiveServer]:
-    folder = tmp_path_factory.mktemp("guard")
+def daemon(tmp_path_factory: pytest.TempPathFactory, calibrated) -> Iterator[LiveServer]:
+    folder = calibrated(tmp_path_factory.mktemp("guard"))
     with LiveServer(create_app(fast_settings(folder, allowed_origins=["https://console.lab.example"]))) as server:
         server.wait_state("tracking")
         yield server

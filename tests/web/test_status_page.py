@@ -25,7 +25,9 @@ def watch_console(browser_page) -> list[str]:
 
 
 @pytest.fixture
-def page(tmp_path: Path, browser) -> Iterator[tuple[object, ServeProcess]]:
+def page(tmp_path: Path, browser, calibrated) -> Iterator[tuple[object, ServeProcess]]:
+    """A daemon tracking on its first calibration (made before, tests/conftest.py calibrated), and a page."""
+    calibrated(tmp_path / "data")
     with ServeProcess(tmp_path) as daemon:
         yield browser.new_page(), daemon
 
@@ -133,12 +135,12 @@ def test_a_page_on_another_origin_cannot_frame_the_status_page(browser, tmp_path
         attacker.shutdown()
 
 
-def test_the_line_view_shows_the_frame_with_the_model_following_it(tmp_path: Path, browser) -> None:
+def test_the_line_view_shows_the_frame_with_the_model_following_it(tmp_path: Path, browser, calibrated) -> None:
     from playwright.sync_api import expect
 
     from graytrack.service.daemon.app import create_app
 
-    with LiveServer(create_app(fast_settings(tmp_path))) as daemon:
+    with LiveServer(create_app(fast_settings(calibrated(tmp_path)))) as daemon:
         daemon.wait_state("tracking")
         browser_page = browser.new_page(viewport={"width": 390, "height": 844})
         console = watch_console(browser_page)
@@ -176,13 +178,14 @@ def test_the_line_view_shows_the_frame_with_the_model_following_it(tmp_path: Pat
         assert console == [], console
 
 
-def test_a_fault_is_in_the_event_log_and_disables_the_controls_with_its_reason(tmp_path: Path, browser) -> None:
+def test_a_fault_is_in_the_event_log_and_disables_the_controls_with_its_reason(tmp_path: Path, browser,
+                                                                              calibrated) -> None:
     from playwright.sync_api import expect
 
     from graytrack.service.daemon.app import create_app
 
     factory = GatedFactory()
-    with LiveServer(create_app(fast_settings(tmp_path), factory)) as daemon:
+    with LiveServer(create_app(fast_settings(calibrated(tmp_path)), factory)) as daemon:
         daemon.wait_state("tracking")
         browser_page = browser.new_page(viewport={"width": 390, "height": 844})
         console = watch_console(browser_page)
