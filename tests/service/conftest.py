@@ -32,14 +32,16 @@ def token(tracking: TestClient) -> dict[str, str]:
 
 
 @pytest.fixture(scope="module")
-def data_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The data directory of :func:`daemon` (its token is ``data_dir / "data" / "token"``)."""
-    return tmp_path_factory.mktemp("live")
+def data_dir(tmp_path_factory: pytest.TempPathFactory, calibrated) -> Path:
+    """The data directory of :func:`daemon` (its token is ``data_dir / "token"``): the run's first
+    calibration in it (tests/conftest.py calibrated)."""
+    return calibrated(tmp_path_factory.mktemp("live"))
 
 
 @pytest.fixture(scope="module")
 def daemon(data_dir: Path) -> Iterator[LiveServer]:
-    """The daemon on a real uvicorn server (a client connects over the network), tracking."""
+    """The daemon on a real uvicorn server (a client connects over the network), tracking from its start on the
+    calibration in :func:`data_dir`."""
     with LiveServer(create_app(fast_settings(data_dir))) as server:
         server.wait_state("tracking", 40.0)
         yield server

@@ -88,8 +88,10 @@ def stop_bridge(bridge: Bridge) -> str:
 
 
 @pytest.fixture(scope="module")
-def daemon(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ServeProcess]:
-    with ServeProcess(tmp_path_factory.mktemp("epics")) as process:
+def daemon(tmp_path_factory: pytest.TempPathFactory, calibrated) -> Iterator[ServeProcess]:
+    folder = tmp_path_factory.mktemp("epics")
+    calibrated(folder / "data")  # tracking from its start: the bridge is the test, not the first calibration
+    with ServeProcess(folder) as process:
         process.wait_state("tracking", 40.0)
         yield process
 
@@ -166,7 +168,8 @@ def test_a_calibrate_write_starts_a_calibration(bridge: Bridge, daemon: ServePro
 
 
 def test_without_a_token_writes_fail_and_a_dead_daemon_makes_every_pv_invalid(
-        tmp_path: Path) -> None:
+        tmp_path: Path, calibrated) -> None:
+    calibrated(tmp_path / "data")
     with ServeProcess(tmp_path) as daemon, ca_ports():
         daemon.wait_state("tracking", 40.0)
         bridge = start_bridge(daemon.base)

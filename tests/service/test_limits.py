@@ -28,9 +28,11 @@ FRAMES_PER_S = 200.0  # the fast test rig's 20 simulated frames/s at 10x wall ti
 
 
 @pytest.fixture(scope="module")
-def daemon(tmp_path_factory: pytest.TempPathFactory):
+def daemon(tmp_path_factory: pytest.TempPathFactory, calibrated):
     raise_fd_limit(1024)
-    with ServeProcess(tmp_path_factory.mktemp("limits"), daemon={
+    folder = tmp_path_factory.mktemp("limits")
+    calibrated(folder / "data")  # tracking from its start: the limits are the test, not the first calibration
+    with ServeProcess(folder, daemon={
             "max_connections": MAX_CONNECTIONS, "max_connections_per_client": PER_CLIENT,
             "requests_per_s_per_client": CLIENT_HZ,
             "request_timeout_s": REQUEST_TIMEOUT_S}) as process:
