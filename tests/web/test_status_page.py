@@ -213,7 +213,7 @@ def test_a_fault_is_in_the_event_log_and_disables_the_controls_with_its_reason(t
         assert console == [], console
 
 
-def test_the_print_texture_learned_is_shown_where_and_how_sure(tmp_path: Path, browser) -> None:
+def test_the_print_texture_learned_is_shown_where_and_how_sure(tmp_path: Path, browser, calibrated) -> None:
     """Dust settles on the print (the model was not told): the page's "Print texture" line says how many
     marks the daemon learned, where the newest is on the target and how sure, from ``/api/status``."""
     from playwright.sync_api import expect
@@ -221,7 +221,7 @@ def test_the_print_texture_learned_is_shown_where_and_how_sure(tmp_path: Path, b
     from graytrack.service.daemon.app import create_app
     from tests.service.test_texture_store import DUST, learn
 
-    with LiveServer(create_app(fast_settings(tmp_path, tables=DUST))) as daemon:
+    with LiveServer(create_app(fast_settings(calibrated(tmp_path), tables=DUST))) as daemon:
         browser_page, console = phone_page(daemon, browser)
         line = browser_page.locator("#texture")
         expect(line).to_have_attribute("data-marks", re.compile(r"^\d+$"), timeout=10_000)
