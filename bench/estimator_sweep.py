@@ -40,11 +40,12 @@ from robustness_sweep import CASES, SECONDS, measured_motion
 from truth_score import MODES
 from truth_score import scored as path_scored
 
-CACHE_VERSION = "7"  # what a cached case holds: 3, recordings that state the stage's commanded phases of acceleration
+CACHE_VERSION = "8"  # what a cached case holds: 3, recordings that state the stage's commanded phases of acceleration
 # and models what their calibration's readings showed beyond them (core/estimator/mount.py); 4, recordings that state
 # what triggers the camera (core/recording.py CAMERA_TRIGGER); 5, models that state how widely their frames' χ²
 # scatters (core/chi2_curve.py frame_spread); 6, and a strip's row banding (core/adequacy.py row_offset_gray); 7, the
-# offset each frame draws afresh (core/adequacy.py frame_offset_gray); older cases are made again
+# offset each frame draws afresh (core/adequacy.py frame_offset_gray); 8, the print's map its calibration learned
+# (core/estimator/filter.py calibration_print_map); older cases are made again
 RATIO_KEPT = 1.05  # the acceptance's ceiling for a run's error against today's path's on the same run
 FAR_PULL = 4.0  # bounds off the truth beyond which a placed frame counts as far off
 SILENT_SHARE = 0.005  # of a run's placed frames: the acceptance's ceiling for far frames left unflagged
@@ -112,7 +113,7 @@ def scored(model, run, truth, grating: str, settings: EstimatorSettings,
             "frames": error.size, "placed": int(placed.sum()), "lost": int((~placed & ~repeated).sum()),
             "flagged": int(stale.sum()), "far": int(far.sum()), "silent": int((far & ~stale).sum()),
             "seconds": seconds, "map": int(tracker.sensor.learned().sum()),
-            "print": int(tracker.print_map.learned().sum()),
+            "print": int((tracker.print_map.learned() & ~tracker.print_map.restored).sum()),  # (this run's)
             "touched": int(tracker.sensor.touched.sum()),
             "flagged_after": float(stale[after].mean()) if after is not None and after.any() else 0.0}
 

@@ -56,9 +56,11 @@ from graytrack.core.period_rival import repeats as repeats_each_period
 from graytrack.core.quantiles import chi2_isf, normal_isf
 
 if TYPE_CHECKING:
+    from graytrack.core.recording import Recording
     from graytrack.core.tracking import TrackResult
 
 GRATING_MODES = ("check", "fuse", "none")
+CALIBRATION_PRINT_MAP = "print_map"  # the model's info key for the print's map its calibration learned
 # the families a flag may name as carrying the position's bound, with their states (_carrier)
 CARRIERS = (("geometry", (C, T)), ("magnification", (M, L)), ("light", (G, OFS, A1, A2) + BAND), ("focus", (B,)))
 # frames whose row mean the estimator computes compiled as they come (the cameras' and the recordings' types);
@@ -412,6 +414,15 @@ class Estimator:
         self.mount = MountWatch(most, self.z_two, beyond=beyond, commands=self.commands) \
             if grating == "none" else None
         self._warm()
+        # the print's own marks as calibration's sweep learned them (calibration_print_map): with the grating the run
+        # is placed on the print's coordinates and starts with them known; from the image alone its origin is the
+        # acquisition's pick, up to whole periods, and the map would sit a period off
+        calibrated = model.info.get(CALIBRATION_PRINT_MAP)
+        if calibrated and grating != "none":
+            try:
+                self.print_map.restore(calibrated)
+            except ValueError:  # (a map another grid made: the print as calibrated, as before such maps were kept)
+                self.print_map.reset()
 
     # ------------------------------------------------------------------ the recursion
     def start(self, x_mm: float, t: float, sigma_mm: float) -> None:
@@ -1388,6 +1399,24 @@ def track(model: FourierModel, frames: np.ndarray, t: np.ndarray, reference: np.
     return out
 
 
+def calibration_print_map(model: FourierModel, rec: "Recording") -> dict | None:
+    """The print's map (:meth:`PrintMap.state`) the estimator learns on calibration's own recording ``rec`` with its
+    grating fused, where it learned a mark: the print's own dust and scratches the model's smooth series cannot hold,
+    known to every run from its first frame instead of learned again in each (a steady run learns nothing)."""
+    from graytrack.core.recording import acceleration_phases
+    from graytrack.core.timing import model_reference
+
+    reference = np.asarray(rec.reference, dtype=np.float64)
+    if not np.isfinite(reference).any():
+        return None
+    if float(model.info.get("reference_skew_s", 0.0)):
+        reference = model_reference(model, rec.t, reference)
+    estimator = Estimator(model, settings=EstimatorSettings().for_recording(rec.meta), grating="fuse",
+                          stage_phases=acceleration_phases(rec.meta))
+    track(model, rec.frames, rec.t, reference, estimator=estimator)
+    return estimator.print_map.state() if estimator.print_map.learned().any() else None
+
+
 def as_result(estimates: list[FrameEstimate], chi2_calibration: float) -> "TrackResult":
     """The estimates as the command's per-frame columns (core/frame_record.py names them), made once."""
     from graytrack.core.tracking import LockEvent, TrackResult
@@ -1411,4 +1440,5 @@ def as_result(estimates: list[FrameEstimate], chi2_calibration: float) -> "Track
     return result
 
 
-__all__ = ["Estimator", "FrameEstimate", "GRATING_MODES", "STATE", "as_result", "calibration_level", "track"]
+__all__ = ["CALIBRATION_PRINT_MAP", "Estimator", "FrameEstimate", "GRATING_MODES", "STATE", "as_result",
+           "calibration_level", "calibration_print_map", "track"]

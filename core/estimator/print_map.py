@@ -272,6 +272,7 @@ class PrintMap(ToldMarks):
         self.active = False
         self.jumps = 0
         self.landed = 0  # nodes touched as candidates, in all
+        self.restored = np.zeros(n, dtype=np.bool_)  # learned before this run (restore)
         self._y, self._mask = np.empty(n_values), np.empty(n_values)
 
     @classmethod
@@ -290,6 +291,7 @@ class PrintMap(ToldMarks):
                    int(math.ceil(reach_px * NODES_PER_PIXEL)), mean_gray)
 
     def reset(self) -> None:
+        self.restored = np.zeros(self.touched.size, dtype=np.bool_)  # learned before this run (restore)
         self.touched[:] = False
         for array in (self.f, self.s, self.evidence, self.lo, self.hi, self.t_last):
             array[:] = 0.0
@@ -405,6 +407,7 @@ class PrintMap(ToldMarks):
         self.hi[undecided] = self.lo[undecided]
         self.active = bool(where.size)
         self.jumps, self.landed = max(jumps, 0), max(landed, 0)
+        self.restored = self.learned()
         self.restore_told()
 
     def marks(self, learned: np.ndarray | None = None) -> list[dict[str, Any]]:

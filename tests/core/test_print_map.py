@@ -5,6 +5,8 @@ tests/core/test_sensor_map.py). Scored against the virtual rig's truth, frame by
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 import pytest
 
@@ -146,3 +148,37 @@ def test_the_compiled_parts_agree_with_their_definitions():
               printed.confirm, h, printed.noise, 0.0, out, mask_out, fp)
         assert mask_out[3] == 0.0 and mask_out[2] == 1.0, undecided
         printed.hi[j], printed.evidence[j] = saved
+
+
+def test_the_prints_own_marks_are_learned_on_its_calibration_and_a_steady_run_learns_none():
+    """A print with three scratches, there at calibration and in the run. The model's smooth series cannot hold a
+    scratch; the estimator learned them again in every run (17 nodes read, 18 fused). Calibration now runs the
+    estimator over its own sweep with the grating fused and keeps the print's map it learned with the model: a run
+    with the grating starts from it and learns nothing, placed as well. A clean print's calibration keeps none."""
+    from graytrack.core.calibration import calibrate
+    from graytrack.core.estimator import filter as estimator
+    from graytrack.drivers.sim.scenarios import build_rig
+
+    calibration, _ = build_rig("paper", "scratches:count=3", seed=3).record(20.0)
+    model = calibrate(calibration, "paper").model
+    kept = model.info[estimator.CALIBRATION_PRINT_MAP]
+    assert sum(kept["learned"]) >= 5 and kept["marks"], kept["marks"]
+    clean, _ = build_rig("paper", "", seed=3).record(20.0)
+    assert estimator.CALIBRATION_PRINT_MAP not in calibrate(clean, "paper").model.info
+    run, truth = build_rig("paper", "scratches:count=3", seed=3, run=1).record(10.0)
+    bare = copy.deepcopy(model)
+    bare.info.pop(estimator.CALIBRATION_PRINT_MAP)
+    for grating in ("check", "fuse"):
+        figures = {}
+        for name, tracked in (("kept", model), ("bare", bare)):
+            tracker = estimator.Estimator(tracked, settings=EstimatorSettings().for_recording(run.meta),
+                                          grating=grating)
+            estimates = estimator.track(tracked, run.frames, run.t, run.reference, estimator=tracker)
+            error = (np.array([e.x_mm for e in estimates]) - truth.x_mm) * 1e3
+            bound = np.array([e.crlb_mm for e in estimates]) * 1e3
+            stale = np.array([e.stale for e in estimates])
+            new = int((tracker.print_map.learned() & ~tracker.print_map.restored).sum())
+            figures[name] = (new, float(np.std(error)), int(np.sum((np.abs(error) > 4 * bound) & ~stale)))
+        (new, std, silent), (new_bare, std_bare, _) = figures["kept"], figures["bare"]
+        assert new == 0 and new_bare >= 5, (grating, figures)
+        assert std <= 1.05 * std_bare and silent == 0, (grating, figures)
