@@ -22,9 +22,10 @@ def _calibrate(daemon: LiveServer) -> str:
 
 
 @pytest.fixture(scope="module")
-def daemon(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LiveServer]:
-    """A daemon with two calibrations: the automatic one at start and one on request."""
-    with LiveServer(create_app(fast_settings(tmp_path_factory.mktemp("record")))) as server:
+def daemon(tmp_path_factory: pytest.TempPathFactory, calibrated) -> Iterator[LiveServer]:
+    """A daemon with two calibrations: the automatic one of its first start (the run's, copied: tests/conftest.py
+    calibrated) and one on request."""
+    with LiveServer(create_app(fast_settings(calibrated(tmp_path_factory.mktemp("record"))))) as server:
         server.wait_state("tracking")
         _calibrate(server)
         yield server
@@ -130,7 +131,7 @@ def test_history_survives_a_restart_and_a_kill_9(tmp_path: Path) -> None:
 
 
 def test_the_trackers_fit_figures_and_stale_model_flags_reach_status_metrics_and_events(
-        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, calibrated) -> None:
     from types import SimpleNamespace
 
     from graytrack.core import tracking
@@ -143,7 +144,7 @@ def test_the_trackers_fit_figures_and_stale_model_flags_reach_status_metrics_and
                                   "stale": flag["stale"], "stale_reason": "focus" if flag["stale"] else None})
 
     monkeypatch.setattr(tracking.LiveTracker, "update", update)
-    with LiveServer(create_app(fast_settings(tmp_path))) as daemon:
+    with LiveServer(create_app(fast_settings(calibrated(tmp_path)))) as daemon:
         daemon.wait_state("tracking")
         flag["stale"] = True
         wait_for(lambda: "model_stale" in [e["kind"] for e in daemon.get("/api/events").json()], what="the stale flag")
