@@ -16,9 +16,11 @@ from tests.web.test_status_page import watch_console
 pytestmark = pytest.mark.skipif(not CHROMIUM.exists(), reason="chromium is not installed (apt-get install chromium)")
 
 
-def test_the_page_reads_and_streams_with_the_saved_token_under_the_read_policy(tmp_path: Path, browser) -> None:
+def test_the_page_reads_and_streams_with_the_saved_token_under_the_read_policy(tmp_path: Path, browser,
+                                                                               calibrated) -> None:
     from playwright.sync_api import expect
 
+    calibrated(tmp_path / "data")  # tracking from its start: the page is the test, not the first calibration
     stdout = tmp_path / "stdout.log"
     with ServeProcess(tmp_path, stdout_path=stdout, daemon={"read_token": "always", "log_level": "debug"}) as daemon:
         daemon.wait_state("tracking")

@@ -52,12 +52,12 @@ def stale_on_demand(monkeypatch: pytest.MonkeyPatch) -> dict[str, bool]:
 
 
 def test_the_words_are_explained_stale_shows_at_the_position_and_repeats_are_grouped_at_390_px(
-        tmp_path: Path, browser, stale_on_demand) -> None:
+        tmp_path: Path, browser, stale_on_demand, calibrated) -> None:
     from playwright.sync_api import expect
 
     from graytrack.service.daemon.app import create_app
 
-    with LiveServer(create_app(fast_settings(tmp_path / "data"))) as daemon:
+    with LiveServer(create_app(fast_settings(calibrated(tmp_path / "data")))) as daemon:
         daemon.wait_state("tracking", 60.0)
         page = browser.new_page(viewport=NARROW)
         console = watch_console(page)
