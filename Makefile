@@ -67,6 +67,10 @@ lint: $(STAMP)
 # ~270 test modules again in each worker and in the `alone` run (collecting the suite: 9.7 s, 4.0 s from the
 # caches), and each daemon and command a test starts compiles graytrack again (~0.3 s of CPU each).
 test unit: export PYTHONDONTWRITEBYTECODE =
+# The alone run reads only the files that name the mark (collecting the whole suite again to find its few tests took
+# ~10 s; tests/test_alone_files.py checks that every test marked alone is in one of them); given PYTEST_ARGS, which
+# may select tests of their own, it collects as before.
+ALONE_FILES := $(shell grep -rlE --include='*.py' 'mark\.alone' tests)
 # The suite's compiled kernels are compiled (on a fresh clone, ~100 s of CPU; loaded from numba's cache in a second
 # after) while lint runs, on the other core, rather than by the test session before its workers start or by each
 # worker and daemon on first use (tests/conftest.py warm_kernels).
@@ -74,7 +78,7 @@ test: $(STAMP)
 	@$(BIN)/python -c 'from tests.conftest import warm_kernels; warm_kernels()' & \
 	warm=$$!; $(MAKE) --no-print-directory lint; linted=$$?; wait $$warm; [ $$linted -eq 0 ] || exit $$linted; \
 	$(BIN)/python -m pytest -n $(PYTEST_WORKERS) --dist worksteal -m "not alone" $(PYTEST_ARGS); first=$$?; \
-	$(BIN)/python -m pytest -n 0 -m alone $(PYTEST_ARGS); alone=$$?; \
+	$(BIN)/python -m pytest -n 0 -m alone $(if $(PYTEST_ARGS),,$(ALONE_FILES)) $(PYTEST_ARGS); alone=$$?; \
 	[ $$alone -eq 5 ] && alone=0; \
 	[ $$first -eq 0 ] && [ $$alone -eq 0 ]  # 5: no alone test selected
 

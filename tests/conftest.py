@@ -87,7 +87,13 @@ def pytest_sessionstart(session: pytest.Session) -> None:
         warm_tracking(("watches", "estimator"))
 
 
+# The files holding tests marked ``alone``, as collected (before ``-m`` deselects them): tests/test_alone_files.py
+# checks them against the files make test's alone run reads.
+ALONE_FILES = pytest.StashKey[set[Path]]()
+
+
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    config.stash[ALONE_FILES] = {item.path for item in items if item.get_closest_marker("alone") is not None}
     for item in items:
         parts = item.path.relative_to(config.rootpath).parts
         system = len(parts) > 2 and parts[0] == "tests" and parts[1] in SYSTEM_FOLDERS
