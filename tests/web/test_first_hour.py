@@ -20,13 +20,14 @@ NARROW = {"width": 390, "height": 844}
 
 
 def test_a_newcomer_is_told_what_the_page_waits_for_where_the_token_is_and_what_the_lost_frames_are(
-        tmp_path: Path, browser) -> None:
+        tmp_path: Path, browser, calibrated) -> None:
     from playwright.sync_api import expect
 
     from graytrack.service.daemon.app import create_app
 
     factory = GatedFactory()
-    with LiveServer(create_app(fast_settings(tmp_path / "data"), factory)) as daemon:
+    # its first calibration done (the run's, copied: tests/conftest.py calibrated): the page is the test
+    with LiveServer(create_app(fast_settings(calibrated(tmp_path / "data")), factory)) as daemon:
         daemon.wait_state("tracking", 60.0)
         page = browser.new_page(viewport=NARROW)
         console = watch_console(page)
