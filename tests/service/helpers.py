@@ -296,17 +296,27 @@ class LiveServer:
         return _state_waiter(self.status, state, timeout_s, f"state {state!r}")
 
     def after_calibration(self, change: tuple[float, float]) -> dict[str, Any]:
-        """Tracking on a model of the rig as it was calibrated, then waited on the rig's own clock until a change of
-        the rig timed ``change`` = (from, to) rig seconds has happened: the status then. The change must begin after
-        tracking has begun: on a saved model (tests/conftest.py calibrated) that is as soon as the rig is open, a
-        second or two of the rig's clock (the test's clock runs at 10x); after a start-up calibration it is after the
-        sweep, which takes the rig's clock ~40 s on a quiet machine and over 100 s on a loaded one (its serial
-        exchanges run on the wall clock). Otherwise the daemon would start from the changed rig, or the sweep would
-        calibrate the change in, and the test's premise — a change after calibration — would not hold."""
+        """Tracking on a model of the rig as it was calibrated, the stage at rest where the sweep's last stop left it,
+        then waited on the rig's own clock until a change of the rig timed ``change`` = (from, to) rig seconds has
+        happened: the status then. A daemon that calibrated itself at its start rests there already; one started on
+        a saved calibration (tests/conftest.py calibrated) has its stage where the rig put it, at 0 mm, outside the
+        calibrated stroke, and is moved there first, so that the change meets the rig as a start-up calibration
+        leaves it. The change must begin once the stage rests: on a saved model that is a second or two of the rig's
+        clock (the test's clock runs at 10x); after a start-up calibration it is after the sweep, which takes the
+        rig's clock ~40 s on a quiet machine and over 100 s on a loaded one (its serial exchanges run on the wall
+        clock). Otherwise the daemon would start from the changed rig, or the sweep would calibrate the change in,
+        and the test's premise — a change after calibration, the stage at rest — would not hold."""
+        from graytrack.service.daemon.sweep import sweep_positions
+
         tracking = self.wait_state("tracking", 60.0)
+        rest = float(sweep_positions(self.rig.hardware.stage.limits(), self.rig.settings.sweep)[-1])
+        assert self.post("/api/stage/move", json={"target_mm": rest}, headers=self.auth()).status_code == 202
+        wait_for(lambda: (s := self.status())["grating_mm"] is not None and abs(s["grating_mm"] - rest) < 0.001
+                 and not s["moving"], 20.0, f"the stage at rest at {rest:g} mm",
+                 show=lambda: {key: self.status()[key] for key in ("state", "grating_mm", "moving")})
         began = self.rig.clock.now()
-        assert began < change[0], (f"the daemon began tracking after the change had begun (from {began:.0f} s of "
-                                   f"the rig's clock, the change from {change[0]:g} s)")
+        assert began < change[0], (f"the stage came to rest after the change had begun (at {began:.0f} s of the "
+                                   f"rig's clock, the change from {change[0]:g} s)")
         time.sleep(self.rig.clock.duration_to_host(change[1] - began))
         return tracking
 
