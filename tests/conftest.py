@@ -106,23 +106,21 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
 # whose package-scoped fixtures (a daemon, a Dask cluster) would be made again if their modules were split.
 # What is not named weighs nothing here: it fills in after them.
 HEAVY_S = {
-    "tests/diagnosis/test_closed_loop.py": 136, "tests/web/test_status_page.py": 135,
-    "tests/core/test_geometry_check.py": 111, "tests/service/test_schemathesis.py": 101, "tests/client": 97,
-    "tests/service/test_lifecycle.py": 97, "tests/service/test_history.py": 96, "tests/core/test_validity.py": 90,
-    "tests/batch": 63, "tests/service/test_disk_full.py": 62, "tests/service/test_supervision.py": 59,
-    "tests/diagnosis/test_bad_pixels.py": 59, "tests/core/test_transients.py": 57,
-    "tests/service/test_print_map_store.py": 48, "tests/core/test_estimator.py": 43,
-    "tests/diagnosis/test_period_refit.py": 43, "tests/service/test_sensor_map_store.py": 41,
-    "tests/service/test_log_flood.py": 38, "tests/service/test_epics.py": 37, "tests/core/test_frame_kernel.py": 36,
-    "tests/service/test_limits.py": 34, "tests/core/test_tracking_light_field.py": 33,
-    "tests/diagnosis/test_robust_end_to_end.py": 33, "tests/service/test_secret_logs.py": 32,
-    "tests/diagnosis/test_report_figures.py": 29, "tests/service/test_damaged_calibration.py": 26,
-    "tests/core/test_install_warm.py": 25, "tests/service/test_texture_store.py": 24,
-    "tests/web/test_first_hour.py": 24, "tests/diagnosis/test_demo_report.py": 22, "tests/core/test_compression.py": 21,
-    "tests/diagnosis/test_diagnose_cli.py": 21, "tests/drivers/test_pipython.py": 21,
-    "tests/web/test_page_read_token.py": 21,
-    "tests/diagnosis/test_target_growth_end_to_end.py": 20, "tests/core/test_tracking_focus.py": 20,
-    "tests/core/test_tracking_shadow.py": 20,
+    "tests/diagnosis/test_closed_loop.py": 90, "tests/client": 69, "tests/web/test_status_page.py": 68,
+    "tests/batch": 61, "tests/core/test_validity.py": 56, "tests/service/test_history.py": 54,
+    "tests/core/test_geometry_check.py": 51, "tests/service/test_schemathesis.py": 50,
+    "tests/service/test_lifecycle.py": 49, "tests/service/test_disk_full.py": 36, "tests/core/test_estimator.py": 34,
+    "tests/service/test_print_map_store.py": 28, "tests/service/test_epics.py": 24,
+    "tests/diagnosis/test_bad_pixels.py": 23, "tests/core/test_transients.py": 22, "tests/drivers/test_pipython.py": 22,
+    "tests/service/test_sensor_map_store.py": 21, "tests/service/test_limits.py": 20, "tests/service/test_api.py": 20,
+    "tests/service/test_log_flood.py": 19, "tests/service/test_damaged_calibration.py": 19,
+    "tests/diagnosis/test_robust_end_to_end.py": 19, "tests/core/test_calibration_focus.py": 19,
+    "tests/service/test_supervision.py": 19, "tests/web/test_first_hour.py": 17, "tests/core/test_install_warm.py": 15,
+    "tests/web/test_page_read_token.py": 14, "tests/diagnosis/test_period_refit.py": 14,
+    "tests/core/test_chi2_curve.py": 14, "tests/core/test_tracking_light_field.py": 14,
+    "tests/diagnosis/test_target_growth_end_to_end.py": 13, "tests/diagnosis/test_report_figures.py": 13,
+    "tests/core/test_compression.py": 13, "tests/service/test_move_calibration_race.py": 12,
+    "tests/service/test_texture_store.py": 12, "tests/core/test_tracking_focus.py": 12,
 }
 WHOLE_FOLDERS = ("tests/client", "tests/batch")
 
