@@ -8,7 +8,7 @@ tracks clean runs of every scenario over several
 seeds (each seed its own calibration and its own run), in each mode (grating read, ``--trim``,
 ``--no-reference``), scored frame by frame against the rig's truth:
 
-    .venv/bin/python bench/steady_maps.py [--seeds N] [--shard K/N] [--cache DIR]
+    .venv/bin/python bench/steady_maps.py [--seeds N] [--shard K/N] [--cache DIR] [name=value ...]
 
 Per run: the error std over the noise floor, the rms pull, the share flagged, frames 4+ bounds off
 (and unflagged), the samples the sensor's map touched (something landed) and learned, the print's nodes
@@ -23,8 +23,7 @@ import os
 import sys
 from pathlib import Path
 
-from graytrack.core.estimator.settings import EstimatorSettings
-from estimator_sweep import cached_case, scored
+from estimator_sweep import cached_case, scored, settings_of
 from truth_score import MODES
 
 # seeds a scenario is run with at the default --seeds: 8 + 8 + 4 = 20 clean runs, each in three modes
@@ -40,12 +39,13 @@ def main() -> None:
     parser.add_argument("--cache", type=Path,
                         default=Path(os.environ.get("TMPDIR", "/tmp")) / "graytrack-steady",
                         help="where each clean run's model, run and truth are kept")
+    parser.add_argument("settings", nargs="*", help="name=value of the estimator's tunables")
     args = parser.parse_args()
     if args.seeds < 1:
         sys.exit("--seeds must be at least 1")
     shard, shards = (int(part) for part in args.shard.split("/"))
     args.cache.mkdir(parents=True, exist_ok=True)
-    settings = EstimatorSettings()
+    settings = settings_of(args.settings)
     runs = [(scenario, seed) for scenario, share in SCENARIOS.items()
             for seed in range(max(1, round(share * args.seeds)))]
     touched = learned = printed = flagged_runs = 0

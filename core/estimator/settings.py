@@ -91,7 +91,12 @@ TUNABLES: dict[str, Tunable] = {
     "focus_rate": Tunable(
         1e-4, "px²/√s", "the blur variance drifting in a second while the lens holds (a mount warming over minutes)",
         low=0.0),
-    "focus_prior": Tunable(0.003, "px²", "the blur at the first frame against calibration's", low=0.0),
+    "focus_prior": Tunable(
+        0.3, "px²",
+        "the blur at the first frame against calibration's (another day, a lens refocused or its mount warmer: a "
+        "few tenths of a pixel in σ); on a strip of a few rows the blur's harmonics tell it within a second, on one "
+        "row over less than a period it trades with the light's gain and offset, which it moves no position through",
+        low=0.0),
     "stretch_rate": Tunable(
         30e-6, "1/√s",
         "the magnification drifting in a second (a lens warming up changes it by ~1500 ppm over 10 s); without the "
