@@ -320,15 +320,15 @@ class Estimator:
         self.idx_appearance = np.array([state for state in (X, V, G, OFS, A1, A2, B) if state in active and
                                         not (state == V and self.on_path)],
                                        dtype=np.int64)
-        self.scratch = np.empty((6, n_values))
+        self.scratch = np.zeros((6, n_values))
         self.rho = np.ones(n_values)
         self._row_masks: dict[int, np.ndarray] = {}  # the pixel mask over the rows a frame averages, by rows
         self.stats = np.zeros(kernel.N_STATS)
         self.s = np.zeros(N_STATE)
         self.P = np.zeros((N_STATE, N_STATE))
         # a frame's own arrays, made once: its gray values, their mask, the main update's answer and the σ
-        self._y = np.empty(n_values)
-        self._masked = np.empty(n_values)
+        self._y = np.zeros(n_values)
+        self._masked = np.zeros(n_values)
         self._seen = None if model.pixel_weight is None else np.asarray(model.seen(), dtype=np.float64).reshape(-1)
         self._answer = (np.empty(N_STATE), np.empty((self.idx.size, self.idx.size)), np.empty(kernel.N_STATS))
         self._sigma = np.empty(N_STATE)
@@ -374,8 +374,8 @@ class Estimator:
         # (print_map.py)
         self.print_map = PrintMap.of(model, self.noise, self.chi2_calibration, self.sensor.z2 ** 0.5,
                                      np.array([settings.print_jump ** 2, settings.print_rate ** 2]), mean)
-        self._noise_var = np.empty(n_values)
-        self._expected = np.empty(n_values)
+        self._noise_var = np.ones(n_values)
+        self._expected = np.zeros(n_values)
         self._zeros = np.zeros(n_values)
         self._printed = False  # whether the frame being updated was seen through the print's map
         self.jump_var = {"light": np.array([settings.jump_light, settings.jump_light * mean]) ** 2,
@@ -1343,7 +1343,9 @@ class Estimator:
         self.P[G, G], self.P[OFS, OFS] = 1.0, (0.5 * max(self.mean_gray, 1.0)) ** 2  # the light unknown too
 
     def _warm(self) -> None:
-        """Compile (or load) the kernel now, at model install, not on a live frame."""
+        """Compile (or load) the kernel now, at model install, not on a live frame. (Every array it passes is
+        defined: what the maps' calls leave behind is reset, but a value read from memory never written would be
+        whatever it holds.)"""
         y = np.zeros(self.n_values)
         self.start(0.5 * sum(self.model.stroke_range_mm), 0.0, 1.0)
         self._solve(y, self.mask.copy(), self.s.copy(), self.P.copy(), math.nan)
@@ -1359,6 +1361,7 @@ class Estimator:
         kernel.agreement(self._y, self.mask, grid, 1, 0.0, 1.0, AGREED_ROUNDS, np.empty(2), np.empty(2), np.empty(2))
         for kind in FRAME_TYPES:  # each kind of frame a camera delivers, compiled for now
             kernel.row_mean(np.zeros((2, self.model.n_pixels), dtype=kind), self._y)
+        self._y[:] = 0.0
         kernel.in_range(self._y, 0.0, 1.0, self.mask, self._masked)
         MountWatch(1.0, 1.0).add(0.0, 0.0, 1.0)  # (the mount's compiled calls, whatever the mode)
         step_test(np.arange(4.0), np.zeros(4), np.ones(4), 1.0)

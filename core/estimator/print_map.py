@@ -265,7 +265,7 @@ class PrintMap(ToldMarks):
         self.lo, self.hi, self.t_last = np.zeros(n), np.zeros(n), np.zeros(n)
         n_values = self.target.size
         self.k, self.a = np.full(n_values, -1, dtype=np.int64), np.zeros(n_values)
-        self.h = np.zeros(n_values)
+        self.h = np.full(n_values, self.mean_gray)  # each sample's last predicted model value (apply weighs by it)
         self.fp = np.zeros(n_values)  # the f each sample of the last frame seen was divided by
         # what the print's side said each sample of the last frame learned from is, and that account's variance
         self.rival, self.rival_var = np.zeros(n_values), np.zeros(n_values)
@@ -296,6 +296,7 @@ class PrintMap(ToldMarks):
         for array in (self.f, self.s, self.evidence, self.lo, self.hi, self.t_last):
             array[:] = 0.0
         self.fp[:] = 0.0
+        self.h[:] = self.mean_gray  # (as the sensor map's reset: no frame before it weighs this run's samples)
         self.active = False
         self.jumps = 0
         self.landed = 0

@@ -233,7 +233,9 @@ class SensorMap(ToldMarks):
         self.evidence = np.zeros(n)
         self.rivalry = np.zeros(n)  # the evidence over the print's side's account (learn)
         self.travel = np.zeros(n)  # the print's motion (px) under the sample while its rivalry held (learn)
-        self.h = np.zeros(n)
+        # each sample's last predicted model value, by which a touched sample's noise is weighed (apply): until a
+        # frame the map learns from says, the light's mean
+        self.h = np.full(n, self.mean_gray)
         self.active = False  # anything landed yet: else the map is the identity and costs nothing
         self.jumps = 0
         self._y, self._mask, self._noise_var = np.empty(n), np.empty(n), np.empty(n)
@@ -244,6 +246,9 @@ class SensorMap(ToldMarks):
         self.touched[:] = False
         for array in (self.f, self.e, self.sff, self.sfe, self.see, self.evidence, self.rivalry, self.travel):
             array[:] = 0.0
+        # (a frame may land samples before the map has learned from any since: they are weighed at the light's mean,
+        # not at what a frame before the reset left)
+        self.h[:] = self.mean_gray
         self.active = False
         self.jumps = 0
 

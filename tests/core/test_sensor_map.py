@@ -152,3 +152,32 @@ def test_dense_dust_on_the_window_is_held_aside_past_half_the_line(paper):
     assert 0.5 < held <= EstimatorSettings().map_hold + 0.05, held  # (+ a speck's reach landing at the cap)
     assert np.std(error) <= 2.0 * np.sqrt(np.mean(floor ** 2)), np.std(error)
     assert not np.any((np.abs(error) > 4 * bound) & ~stale)
+
+
+def test_a_first_landing_weighs_its_samples_by_what_the_map_was_given_not_by_memory_never_written(monkeypatch):
+    """The estimator's arrays made without values (numpy's empty) hold whatever the memory held. The sensor's map
+    weighs a touched sample by the model's value a frame last predicted there; before any frame had taught it, that
+    was what compiling the kernels at model install had left: on a strip that keeps every row's samples (the lab's
+    16 × 128), memory the row mean never wrote. Where that memory held a NaN, the first speck to land crashed the
+    update ("Array must not contain infs or NaNs"), now and then, on one machine and not on another. With every
+    such array filled with NaN, the run is the same to the bit as one with memory as it comes."""
+    calibration, _ = build_rig("lab", "", seed=3).record(3.0)
+    model = calibrate(calibration, "paper").model
+    run, _ = build_rig("lab", "window_dust", seed=3, run=1).record(2.0)
+    settings = EstimatorSettings().for_recording(run.meta)
+    as_it_comes = track(model, run.frames, run.t, run.reference, grating="fuse", settings=settings)
+    empty = np.empty
+
+    def never_written(shape, dtype=float, *args, **kwargs):
+        array = empty(shape, dtype, *args, **kwargs)
+        if np.dtype(dtype).kind == "f":
+            array.fill(np.nan)
+        return array
+
+    monkeypatch.setattr(np, "empty", never_written)
+    estimator = Estimator(model, settings=settings, grating="fuse")
+    filled = track(model, run.frames, run.t, run.reference, estimator=estimator)
+    monkeypatch.undo()
+    assert estimator.sensor.touched.any()  # (a speck landed)
+    assert np.array_equal([e.x_mm for e in filled], [e.x_mm for e in as_it_comes])
+    assert np.array_equal([e.crlb_mm for e in filled], [e.crlb_mm for e in as_it_comes])
