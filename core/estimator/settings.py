@@ -94,8 +94,9 @@ TUNABLES: dict[str, Tunable] = {
     "focus_prior": Tunable(
         0.3, "px²",
         "the blur at the first frame against calibration's (another day, a lens refocused or its mount warmer: a "
-        "few tenths of a pixel in σ); on a strip of a few rows the blur's harmonics tell it within a second, on one "
-        "row over less than a period it trades with the light's gain and offset, which it moves no position through",
+        "twentieth of a pixel on a blur σ of 3 px is 0.3 px²); on a strip of a few rows the blur's harmonics tell it "
+        "within a second, on one row over less than a period it trades with the light's gain and offset, which moves "
+        "no position",
         low=0.0),
     "stretch_rate": Tunable(
         30e-6, "1/√s",

@@ -719,7 +719,7 @@ def test_a_bound_the_priors_carry_is_stated_and_one_a_change_left_is_flagged():
 @pytest.mark.parametrize("grating", ["check", "none"])
 def test_a_strip_whose_blur_changed_before_the_run_finds_it_and_keeps_it_out_of_the_position(grating):
     """A 16-row strip calibrated 200 µm out of focus runs half a pixel blurrier (σ² 3.5 px² more): the blur's
-    harmonics tell it within a second. With the blur held as calibrated within 0.05 px² at the first frame, the
+    harmonics tell it within a second. With the blur held as calibrated within 0.003 px² at the first frame, the
     misfit went to the magnification (swinging ±1,000 ppm along the stroke) and through it to the position without
     the grating: 10–14× the noise floor (seeds 3, 4; read, the grating's test found the blur by a jump, 1.7–1.9×).
     The declared prior lets the first frames find the blur: 1.6–1.8× (1.5–1.7× read)."""
