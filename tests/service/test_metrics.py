@@ -112,7 +112,8 @@ def test_no_family_comes_or_goes_from_start_through_tracking_to_a_stale_model(tm
         daemon.wait_state("tracking")
         tracking = scrape(wait_for(lambda: (t := daemon.get("/metrics").text)
                                    and 'graytrack_state{state="tracking"} 1.0' in t
-                                   and "graytrack_stale 0.0" in t and t, what="a fresh tracked frame"))
+                                   and "graytrack_stale 0.0" in t and "graytrack_position_meters NaN" not in t
+                                   and t, what="a fresh tracked frame, placed"))
         assert set(tracking) == set(first)
         assert {s.labels["outcome"]: s.value for s in tracking["graytrack_calibrations_total"]} == {
             "done": 1.0, "failed": 0.0, "aborted": 0.0, "interrupted": 0.0}
