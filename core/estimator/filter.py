@@ -324,6 +324,7 @@ class Estimator:
         self.rho = np.ones(n_values)
         self._row_masks: dict[int, np.ndarray] = {}  # the pixel mask over the rows a frame averages, by rows
         self.stats = np.zeros(kernel.N_STATS)
+        self.update_errors = 0  # frames whose update failed on numbers that were not finite (update)
         self.s = np.zeros(N_STATE)
         self.P = np.zeros((N_STATE, N_STATE))
         # a frame's own arrays, made once: its gray values, their mask, the main update's answer and the σ
@@ -478,6 +479,18 @@ class Estimator:
 
     def update(self, frame: np.ndarray, t: float, reference_mm: float = math.nan) -> FrameEstimate:
         """The frame at time ``t`` (mid-exposure) with its grating reading (NaN: none)."""
+        try:
+            return self._update(frame, t, reference_mm)
+        except np.linalg.LinAlgError as exc:
+            # A solve met numbers that are not finite (a covariance gone wrong, a weight no map could give): the
+            # frame is not placed and says why, and the estimate starts again from the next frame, rather than
+            # carry a state it cannot trust or stop the frame loop that drives it.
+            self.failed = FAILED_TO_REACQUIRE
+            self.update_errors += 1
+            return self._unplaced(t, self.stats, math.nan,
+                                  f"the update failed ({exc}); the estimate starts again from the next frame")
+
+    def _update(self, frame: np.ndarray, t: float, reference_mm: float) -> FrameEstimate:
         frame = np.asarray(frame)
         last, self.last_frame = self.last_frame, frame
         # (an image again is equal in its first sample too: that one comparison settles nearly every frame)

@@ -746,3 +746,30 @@ def test_a_strip_whose_blur_changed_before_the_run_finds_it_and_keeps_it_out_of_
     if grating == "none":  # (read and checked, the grating refutes the magnification's account and a jump finds it)
         *_, held = tracked(settings.replace(focus_prior=0.003))
         assert held > 3.0 * ratio
+
+
+def test_an_update_that_fails_on_numbers_not_finite_says_so_and_starts_again(paper, monkeypatch):
+    """A solve that meets numbers that are not finite raises in the compiled update (numba's "Array must not
+    contain infs or NaNs"): the frame is not placed, its message says why, and the estimate starts again from the
+    next frame; nothing escapes to the frame loop that drives it."""
+    from graytrack.core.estimator import kernel
+
+    run, truth = build_rig("paper", "", seed=4, run=1).record(2.0)
+    estimator = Estimator(paper, grating="check")
+    real, calls = kernel.update, []
+
+    def failing_once(*args):
+        calls.append(1)
+        if len(calls) == 60:
+            raise np.linalg.LinAlgError("Array must not contain infs or NaNs.")
+        return real(*args)
+
+    monkeypatch.setattr(kernel, "update", failing_once)
+    estimates = [estimator.update(run.frames[k], run.t[k], run.reference[k]) for k in range(run.frames.shape[0])]
+    failed = [k for k, e in enumerate(estimates) if "the update failed" in e.message]
+    assert len(failed) == 1 and estimator.update_errors == 1
+    k = failed[0]
+    assert math.isnan(estimates[k].x_mm) and estimates[k].stale
+    after = np.array([e.x_mm for e in estimates[k + 1:]])
+    assert np.all(np.isfinite(after))
+    assert np.max(np.abs(after - truth.x_mm[k + 1:])) * 1e3 < 10.0  # µm: placed again from the grating
