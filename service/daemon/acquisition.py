@@ -36,7 +36,7 @@ from graytrack.drivers.camera.base import Camera, CameraError, CameraTimeout, Fr
 from graytrack.service.daemon.clock import HOST_CLOCK, Clock
 from graytrack.service.daemon.framerate import FrameRate
 from graytrack.service.daemon.grating import Readings
-from graytrack.service.daemon.loss_log import LossLog
+from graytrack.service.daemon.loss_log import QUIET_S as LOSS_QUIET_S, LossLog
 from graytrack.service.daemon.stale_log import StaleLog
 from graytrack.service.daemon.map_store import MapKind, MapLog, MapSnapshotter
 from graytrack.service.daemon.print_map_store import PRINT_MAP
@@ -110,7 +110,8 @@ class Acquisition(Worker):
                  fault_after_s: float, reopen_interval_s: float,
                  on_event: Callable[[str, str], None] = lambda kind, message: None, priority: int = 0,
                  trim: ReferenceTrim | None = None, clock: Clock = HOST_CLOCK, slide: LiveSlide | None = None,
-                 engine: str = "watches", rig_meta: dict[str, Any] | None = None) -> None:
+                 engine: str = "watches", rig_meta: dict[str, Any] | None = None,
+                 loss_quiet_s: float = LOSS_QUIET_S) -> None:
         super().__init__("acquisition", lambda reason: faults("acquisition", reason))
         self.clock = clock  # what silence, rates and the reopen pause are measured on (service/daemon/clock.py)
         self.on_event = on_event  # lock losses, re-acquisitions, stale-model flags: the event log
@@ -140,7 +141,7 @@ class Acquisition(Worker):
         self.rate = FrameRate()  # restarts after an outage (service/daemon/framerate.py)
         self._seq = 0
         self._last_id: int | None = None
-        self._losses = LossLog(on_event)  # frames the camera's counter skipped: frames_lost events
+        self._losses = LossLog(on_event, loss_quiet_s)  # frames the camera's counter skipped: frames_lost events
         self._stale = StaleLog(on_event)  # the flag's events: a model gone stale, or a single frame
         # what the tracker learns into its maps, as events, and each map's newest state for the model of record
         # (map_store.py), by the map's name

@@ -4,9 +4,10 @@ The page and the stream show a running count of frames missing from the camera's
 count that rises with nothing in the event log reads as a fault nobody explains: on a fresh start
 the first calibration's fit shares two cores with the frame loop and ~40 frames go missing. Each gap
 is logged as ``frames_lost``: how many, between which frames, and the total since start (the figure
-the page shows), so the count always has its events. Gaps within ``quiet_s`` of the last event are
-summed into the next one: a reader that keeps falling behind writes a few events a minute, not one
-per frame (the event log keeps every kind's newest, and a flood would push the rest out).
+the page shows), so the count always has its events. Gaps within ``quiet_s`` of the last event
+(``[daemon] frames_lost_quiet_s``, 10 s) are summed into the next one: a reader that keeps falling
+behind writes a few events a minute, not one per frame (the event log keeps every kind's newest, and
+a flood would push the rest out).
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from __future__ import annotations
 import math
 from typing import Callable
 
-QUIET_S = 10.0  # at most one frames_lost event per this many seconds
+QUIET_S = 10.0  # at most one frames_lost event per this many seconds: [daemon] frames_lost_quiet_s's default
 
 
 class LossLog:

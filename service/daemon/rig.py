@@ -249,7 +249,8 @@ class Rig:
                                   slide=None if daemon.grating else
                                   LiveSlide(daemon.axis_px, self.stage_acceleration_mm_s2,
                                             self.motion if daemon.stage_commanded_here else None),
-                                  engine=daemon.engine, rig_meta=self._meta(self.hardware))
+                                  engine=daemon.engine, rig_meta=self._meta(self.hardware),
+                                  loss_quiet_s=daemon.frames_lost_quiet_s)
         if self.model is not None:  # a frame loop restarted: with the maps the last one learned
             calibration = self.installed_calibration
             learned = self._learned(lambda store: store.newest(calibration))

@@ -18,6 +18,7 @@ from graytrack.drivers.config import (ConfigError, HardwareConfig, StrictTable, 
                                       parse_hardware)
 from graytrack.drivers.realtime import DEFAULT_LEVEL
 from graytrack.drivers.registry import stages
+from graytrack.service.daemon.loss_log import QUIET_S as LOSS_QUIET_S
 
 DEFAULT_HOST = "127.0.0.1"  # docs/contracts.md: loopback unless told otherwise
 DEFAULT_PORT = 8000
@@ -44,6 +45,10 @@ class DaemonConfig(StrictTable):
     pair_rest_s: float = Field(0.25, gt=0, description="host seconds the newest grating reading of a stage at rest "
                                                        "(no command since) stands for")
     stale_after_s: float = Field(0.5, gt=0, description="a position or rate older than this is withdrawn (null)")
+    frames_lost_quiet_s: float = Field(LOSS_QUIET_S, gt=0, description="host seconds: frames lost within this of the "
+                                       "last frames_lost event are summed into the next one, so a frame loop that "
+                                       "keeps falling behind writes a few events a minute, not one per frame (the "
+                                       "event log keeps every kind's newest, and a flood would push the rest out)")
     read_token: Literal["beyond_loopback", "always", "never"] = Field(
         "beyond_loopback", description="when reads (status, profile, events, calibrations and their files, metrics, "
         "the stream) need the bearer token: when the daemon listens beyond loopback, always, or never; the page, "

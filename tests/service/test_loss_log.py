@@ -43,3 +43,15 @@ def test_the_first_gap_is_logged_at_once_and_later_ones_summed_into_one_event_wh
 def test_one_frame_lost_is_said_in_the_singular() -> None:
     events, _ = _events(list(range(10)) + list(range(11, 20)))
     assert events == [("frames_lost", events[0][1])] and events[0][1].startswith("1 camera frame lost before frame 11")
+
+
+def test_the_quiet_period_is_a_daemon_setting_of_10_s_by_default() -> None:
+    from pydantic import ValidationError
+
+    from graytrack.service.daemon.loss_log import QUIET_S
+    from graytrack.service.daemon.settings import DaemonConfig
+
+    assert QUIET_S == 10.0 and DaemonConfig().frames_lost_quiet_s == QUIET_S
+    assert DaemonConfig(frames_lost_quiet_s=0.5).frames_lost_quiet_s == 0.5
+    with pytest.raises(ValidationError, match="frames_lost_quiet_s"):
+        DaemonConfig(frames_lost_quiet_s=0)
