@@ -7,6 +7,7 @@ documented way to an RS-232 port is its ``PISerial`` gateway, connected with ``C
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -64,19 +65,50 @@ def _stop(served: Served, sig: int = signal.SIGTERM) -> tuple[int, str]:
     return served.process.returncode, out
 
 
-@pytest.fixture
-def served(tmp_path: Path) -> Iterator[Served]:
-    served = _start(tmp_path / "ttyPI")
-    yield served
-    _stop(served)
+@contextlib.contextmanager
+def _running(link: Path) -> Iterator[Served]:
+    served = _start(link)
+    try:
+        yield served
+    finally:
+        _stop(served)
 
 
-@pytest.fixture
-def pidevice(served: Served) -> Iterator[GCSDevice]:
+@contextlib.contextmanager
+def _connected(served: Served) -> Iterator[GCSDevice]:
     gateway = PISerial(str(served.link), BAUD, autoconnect=False)
     with GCSDevice(gateway=gateway) as device:
         gateway.ConnectRS232(port=str(served.link), baudrate=BAUD)
         device.timeout = TIMEOUT_MS
+        yield device
+
+
+@pytest.fixture(scope="module")
+def _shared(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
+    """One controller process for the module's tests that leave its axis as they found it (no servo, reference,
+    stage name or motion of their own): each connects afresh and leaves the error register cleared."""
+    with _running(tmp_path_factory.mktemp("pi") / "ttyPI") as served:
+        yield served
+
+
+@pytest.fixture
+def served(_shared: Served) -> Served:
+    assert _shared.process.poll() is None, "the module's controller process exited"
+    return _shared
+
+
+@pytest.fixture
+def pidevice(served: Served) -> Iterator[GCSDevice]:
+    with _connected(served) as device:
+        yield device
+        device.errcheck, device.timeout = False, TIMEOUT_MS
+        device.qERR()  # read back: the next test's connection starts with an empty register
+
+
+@pytest.fixture
+def fresh_pidevice(tmp_path: Path) -> Iterator[GCSDevice]:
+    """A controller process of the test's own, as at power-on: no servo, unreferenced, where the rig put its axis."""
+    with _running(tmp_path / "ttyPI") as served, _connected(served) as device:
         yield device
 
 
@@ -117,21 +149,21 @@ def test_parameters_listed_by_hpa_are_read_with_their_types(pidevice: GCSDevice)
     assert pidevice.HasqHPA() and pidevice.HasIsMoving() and pidevice.HasStopAll()
 
 
-def test_servo_reference_move_and_position(pidevice: GCSDevice) -> None:
-    pidevice.SVO(AXIS, True)
-    assert pidevice.qSVO() == {AXIS: True}
-    pidevice.FRF(AXIS)
-    assert pidevice.qFRF(AXIS) == {AXIS: True}
-    start = pidevice.qPOS(AXIS)[AXIS]
+def test_servo_reference_move_and_position(fresh_pidevice: GCSDevice) -> None:
+    fresh_pidevice.SVO(AXIS, True)
+    assert fresh_pidevice.qSVO() == {AXIS: True}
+    fresh_pidevice.FRF(AXIS)
+    assert fresh_pidevice.qFRF(AXIS) == {AXIS: True}
+    start = fresh_pidevice.qPOS(AXIS)[AXIS]
     target = start + 4.0  # 0.8 s at the rig's 5 mm/s
-    pidevice.MOV(AXIS, target)
-    assert pidevice.qMOV(AXIS) == {AXIS: pytest.approx(target, abs=1e-9)}
-    assert pidevice.IsMoving(AXIS) == {AXIS: True}
-    _wait_on_target(pidevice)
-    assert pidevice.IsMoving() == {AXIS: False}
+    fresh_pidevice.MOV(AXIS, target)
+    assert fresh_pidevice.qMOV(AXIS) == {AXIS: pytest.approx(target, abs=1e-9)}
+    assert fresh_pidevice.IsMoving(AXIS) == {AXIS: True}
+    _wait_on_target(fresh_pidevice)
+    assert fresh_pidevice.IsMoving() == {AXIS: False}
     # POS? is the rig's grating: 0.5 µm steps, settled within the 0.5 µm on-target window
-    assert pidevice.qPOS(AXIS)[AXIS] == pytest.approx(target, abs=1.5e-3)
-    assert pidevice.qERR() == 0
+    assert fresh_pidevice.qPOS(AXIS)[AXIS] == pytest.approx(target, abs=1.5e-3)
+    assert fresh_pidevice.qERR() == 0
 
 
 def test_single_character_commands_answer_and_leave_the_next_line_intact(pidevice: GCSDevice) -> None:
@@ -146,34 +178,34 @@ def test_single_character_commands_answer_and_leave_the_next_line_intact(pidevic
     assert pidevice.qIDN() == idn and pidevice.qERR() == 0
 
 
-def test_stop_all_interrupts_a_move(pidevice: GCSDevice) -> None:
-    pidevice.SVO(AXIS, True)
-    pidevice.FRF(AXIS)
-    start = pidevice.qPOS(AXIS)[AXIS]
-    target = pidevice.qTMX(AXIS)[AXIS] - 1.0  # 5 s at the rig's 5 mm/s from its stroke start
-    pidevice.MOV(AXIS, target)
+def test_stop_all_interrupts_a_move(fresh_pidevice: GCSDevice) -> None:
+    fresh_pidevice.SVO(AXIS, True)
+    fresh_pidevice.FRF(AXIS)
+    start = fresh_pidevice.qPOS(AXIS)[AXIS]
+    target = fresh_pidevice.qTMX(AXIS)[AXIS] - 1.0  # 5 s at the rig's 5 mm/s from its stroke start
+    fresh_pidevice.MOV(AXIS, target)
     time.sleep(0.2)
-    pidevice.StopAll(noraise=True)
+    fresh_pidevice.StopAll(noraise=True)
     deadline = time.monotonic() + 5.0
-    while pidevice.IsMoving()[AXIS]:
+    while fresh_pidevice.IsMoving()[AXIS]:
         assert time.monotonic() < deadline
         time.sleep(0.02)
-    stopped_at = pidevice.qPOS(AXIS)[AXIS]
+    stopped_at = fresh_pidevice.qPOS(AXIS)[AXIS]
     assert start < stopped_at < target - 5.0
-    assert pidevice.qERR() == 0
+    assert fresh_pidevice.qERR() == 0
 
 
 @pytest.mark.parametrize("stages", [DEFAULT_STAGE, "OTHER-STAGE"])
-def test_pitools_startup_references_and_switches_the_servo_on(pidevice: GCSDevice, stages: str) -> None:
+def test_pitools_startup_references_and_switches_the_servo_on(fresh_pidevice: GCSDevice, stages: str) -> None:
     """The fresh controller is unreferenced with the servo off: FRF is refused (5), PIPython switches the
     servo on and retries, waits with #7 and FRF?, then sets the servo; another stage name goes out as CST."""
-    assert pidevice.qFRF(AXIS) == {AXIS: False} and pidevice.qSVO(AXIS) == {AXIS: False}
-    pitools.startup(pidevice, stages=stages, refmodes="FRF")
-    assert pidevice.qFRF(AXIS) == {AXIS: True} and pidevice.qSVO(AXIS) == {AXIS: True}
-    assert pidevice.qCST() == {AXIS: stages}
-    assert pidevice.qERR() == 0
-    pitools.moveandwait(pidevice, AXIS, 3.0)
-    assert pidevice.qPOS(AXIS)[AXIS] == pytest.approx(3.0, abs=1.5e-3)
+    assert fresh_pidevice.qFRF(AXIS) == {AXIS: False} and fresh_pidevice.qSVO(AXIS) == {AXIS: False}
+    pitools.startup(fresh_pidevice, stages=stages, refmodes="FRF")
+    assert fresh_pidevice.qFRF(AXIS) == {AXIS: True} and fresh_pidevice.qSVO(AXIS) == {AXIS: True}
+    assert fresh_pidevice.qCST() == {AXIS: stages}
+    assert fresh_pidevice.qERR() == 0
+    pitools.moveandwait(fresh_pidevice, AXIS, 3.0)
+    assert fresh_pidevice.qPOS(AXIS)[AXIS] == pytest.approx(3.0, abs=1.5e-3)
 
 
 def test_an_unknown_command_sets_error_2_and_the_next_command_works(pidevice: GCSDevice) -> None:
