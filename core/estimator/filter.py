@@ -399,6 +399,7 @@ class Estimator:
         # it may be a change the frames follow without failing (a veil forming under the light's states), flagged
         self._changed = False
         self._band_missed = 0  # frames in a row that failed with no band followed, since one passed its test
+        self._refuted_missed = 0  # ... the grating refuted with no band taken, since one it did not refute (_carried)
         self._bands = _band_shapes(self.t_rel)  # the shapes a band entering is searched among (edges, softness)
         # without the grating, the camera's place moves only as a step no motion of the stage makes (mount.py)
         # (as fast as the stage is commanded, and no less than its calibration's grating showed it to be)
@@ -454,7 +455,7 @@ class Estimator:
         self.failed = 0
         self._unexplained = []
         self._placed_again = False
-        self._band_missed = 0
+        self._band_missed = self._refuted_missed = 0
         self._band_off()
         self._reach = [math.inf, -math.inf]
         if self.mount is not None:
@@ -562,8 +563,10 @@ class Estimator:
         # the recursion carries on from the account the grating agrees with (_carried), not from one it refuted.
         # (the main update's posterior is made already: its position's variance is read, not inverted again)
         made = self._P_next.item(X, X) if A is self._answer[1] and stats[kernel.S_POSTERIOR] > 0 else None
-        carried = self._carried(y, mask, s_prior, P_prior) if located and \
-            self._with_grating(test, s, A, stats, made) > 1.0 else None
+        refuted = located and self._with_grating(test, s, A, stats, made) > 1.0
+        carried = self._carried(y, mask, s_prior, P_prior) if refuted else None
+        if not refuted:
+            self._refuted_missed = 0
         if s is self._answer[0]:  # the main update's arrays: the state's becomes the next answer's
             self._answer = (self.s, A, self._answer[2])
         self.s = s
@@ -650,11 +653,15 @@ class Estimator:
             chi2 = self._chi2(stats_j)
             if math.isfinite(s_j[X]) and chi2 < best[0]:
                 best = (chi2, s_j, A_j, stats_j)
-        if ranked and s_prior.item(BE) <= 0.0:
+        missed = self._refuted_missed
+        self._refuted_missed = missed + 1
+        if ranked and s_prior.item(BE) <= 0.0 and missed & (missed - 1) == 0:
             # (as in the frame's own search: a band entering is taken over a jump only where it explains more by its
-            # extra states' quantile)
+            # extra states' quantile, and while a refutation it did not explain persists, searched again at doubling
+            # intervals: a knock refutes every later frame's account, and no band is what it shows)
             banded = self._banded(y, mask, s_f, stats_f, s_prior, P_keep, reading)
             if banded is not None and banded[0] <= 1.0 and self._chi2(banded[3]) + self._band_margin < best[0]:
+                self._refuted_missed = 0
                 return banded[1], banded[2], self.idx_band, P_keep, banded[3]
         _, s_f, A_f, stats_f = best
         if self._test(stats_f) > 1.0:
