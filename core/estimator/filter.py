@@ -963,8 +963,12 @@ class Estimator:
         x, c, lever, stretch = s.item(X), s.item(C), s.item(L), s.item(M)
         if P is None:
             return x + c + lever * stretch, stretch, 0.0
-        g = ((X, 1.0), (C, 1.0), (L, stretch), (M, lever))
-        var = sum(gi * gj * P.item(i, j) for i, gi in g for j, gj in g)
+        # gᵀ P g with g = (1, 1, m, L) over (x, c, L, m), written out (a frame calls this several times)
+        pxx, pcc, pll, pmm = P.item(X, X), P.item(C, C), P.item(L, L), P.item(M, M)
+        pxc, pxl, pxm = P.item(X, C), P.item(X, L), P.item(X, M)
+        pcl, pcm, plm = P.item(C, L), P.item(C, M), P.item(L, M)
+        var = (pxx + pcc + stretch * stretch * pll + lever * lever * pmm
+               + 2.0 * (pxc + stretch * (pxl + pcl) + lever * (pxm + pcm) + stretch * lever * plm))
         return x + c + lever * stretch, stretch, max(var, 0.0)
 
     def _learn(self, y_raw: np.ndarray, raw_mask: np.ndarray, y: np.ndarray, t: float, teach: bool,
