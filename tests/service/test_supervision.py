@@ -17,7 +17,8 @@ def test_frames_of_another_width_are_a_tracking_fault_not_a_dead_loop(tmp_path, 
     factory = GatedFactory()
     with LiveServer(create_app(fast_settings(calibrated(tmp_path)), factory)) as daemon:
         daemon.wait_state("tracking")
-        assert daemon.get("/healthz").status_code == 200
+        # (healthy once a frame has been tracked since: on a loaded machine the first may come after the state)
+        assert wait_for(lambda: daemon.get("/healthz").status_code == 200, what="healthy")
         factory.hardware.camera.narrow_by = 7  # an ROI change on the camera
         status = daemon.wait_state("fault")
         assert status["faults"]["tracking"].startswith("frame ") and "cannot be tracked" in status["faults"]["tracking"]
