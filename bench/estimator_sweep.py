@@ -151,6 +151,26 @@ def settings_of(items: list[str]) -> EstimatorSettings:
     return EstimatorSettings().replace(**changes)
 
 
+def seeded_arguments(doc: str, seeds: int, what: str, cache: str) -> tuple[argparse.Namespace, EstimatorSettings,
+                                                                          int, int]:
+    """The command line of a bench over seeds of scenarios and ``what`` changes (map_seeds.py, print_marks.py):
+    ``--seeds`` (default ``seeds``), ``--shard K/N``, ``--only``, ``--cache`` (default ``$TMPDIR/cache``) and the
+    estimator's ``name=value`` tunables. Returns the arguments (the cache made), the settings and the shard."""
+    parser = argparse.ArgumentParser(description=doc.split("\n")[0])
+    parser.add_argument("--seeds", type=int, default=seeds, help=f"seeds of each scenario and {what}")
+    parser.add_argument("--shard", default="0/1", help="K/N: every N-th run from the K-th (run N side by side)")
+    parser.add_argument("--only", default="", help=f"the runs whose scenario and {what} hold this text")
+    parser.add_argument("--cache", type=Path, default=Path(os.environ.get("TMPDIR", "/tmp")) / cache,
+                        help="where each run's model, run and truth (and today's score) are kept")
+    parser.add_argument("settings", nargs="*", help="name=value of the estimator's tunables")
+    args = parser.parse_args()
+    if args.seeds < 1:
+        sys.exit("--seeds must be at least 1")
+    shard, shards = (int(part) for part in args.shard.split("/"))
+    args.cache.mkdir(parents=True, exist_ok=True)
+    return args, settings_of(args.settings), shard, shards
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--cache", type=Path, default=Path(os.environ.get("TMPDIR", "/tmp")) / "graytrack-sweep",

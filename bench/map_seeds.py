@@ -24,16 +24,10 @@ bound), ≤ 1 % of its frames lost and ≤ 5 % flagged after the change settled,
 
 from __future__ import annotations
 
-import argparse
-import os
-import sys
-from pathlib import Path
-
 import numpy as np
 
-from graytrack.core.estimator.settings import EstimatorSettings
 from graytrack.drivers.sim.effects import parse_effects
-from estimator_sweep import cached_case, scored
+from estimator_sweep import cached_case, scored, seeded_arguments
 from truth_score import MODES
 
 # (the change, which side it is on, two strengths): the defaults, and a stronger or wider version
@@ -66,23 +60,7 @@ def settled_s(change: str) -> float:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--seeds", type=int, default=3, help="seeds of each scenario and change")
-    parser.add_argument("--shard", default="0/1", help="K/N: every N-th run from the K-th (run N side by side)")
-    parser.add_argument("--only", default="", help="the runs whose scenario and change hold this text")
-    parser.add_argument("--cache", type=Path, default=Path(os.environ.get("TMPDIR", "/tmp")) / "graytrack-maps",
-                        help="where each run's model, run and truth are kept")
-    parser.add_argument("settings", nargs="*", help="name=value of the estimator's tunables")
-    args = parser.parse_args()
-    if args.seeds < 1:
-        sys.exit("--seeds must be at least 1")
-    shard, shards = (int(part) for part in args.shard.split("/"))
-    args.cache.mkdir(parents=True, exist_ok=True)
-    try:
-        settings = EstimatorSettings().replace(**{name: float(value) for name, value in
-                                                  (item.split("=", 1) for item in args.settings)})
-    except (TypeError, ValueError) as exc:
-        sys.exit(f"settings: {exc}")
+    args, settings, shard, shards = seeded_arguments(__doc__, 3, "change", "graytrack-maps")
     runs = [(scenario, change, side, seed) for scenario in SCENARIOS for change, side in CHANGES
             for seed in range(1, args.seeds + 1) if args.only in f"{scenario} {change}"]
     outside, scored_runs, silent, placed, wrong = [], 0, 0, 0, 0

@@ -17,12 +17,7 @@ path, and the totals.
 
 from __future__ import annotations
 
-import argparse
-import os
-import sys
-from pathlib import Path
-
-from estimator_sweep import RATIO_KEPT, SILENT_SHARE, cached_case, scored, settings_of, todays
+from estimator_sweep import RATIO_KEPT, SILENT_SHARE, cached_case, scored, seeded_arguments, todays
 from truth_score import MODES
 
 # (a smudge's Gaussian σ, µm, and its depth at the centre): the sweep's (700 µm, 0.35), narrower and fainter ones
@@ -32,19 +27,7 @@ SCENARIOS = ("paper", "strip16")
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--seeds", type=int, default=2, help="seeds of each scenario and mark")
-    parser.add_argument("--shard", default="0/1", help="K/N: every N-th run from the K-th (run N side by side)")
-    parser.add_argument("--only", default="", help="the runs whose scenario and mark hold this text")
-    parser.add_argument("--cache", type=Path, default=Path(os.environ.get("TMPDIR", "/tmp")) / "graytrack-marks",
-                        help="where each run's model, recording and truth, and today's score, are kept")
-    parser.add_argument("settings", nargs="*", help="name=value of the estimator's tunables")
-    args = parser.parse_args()
-    if args.seeds < 1:
-        sys.exit("--seeds must be at least 1")
-    settings = settings_of(args.settings)
-    shard, shards = (int(part) for part in args.shard.split("/"))
-    args.cache.mkdir(parents=True, exist_ok=True)
+    args, settings, shard, shards = seeded_arguments(__doc__, 2, "mark", "graytrack-marks")
     runs = [(scenario, mark, seed) for scenario in SCENARIOS for mark in MARKS
             for seed in range(1, args.seeds + 1) if args.only in f"{scenario} {mark}"]
     counted: dict[tuple[str, str], list[int]] = {}  # (mark, mode): [runs, above today's]
