@@ -8,7 +8,7 @@ tracks clean runs of every scenario over several
 seeds (each seed its own calibration and its own run), in each mode (grating read, ``--trim``,
 ``--no-reference``), scored frame by frame against the rig's truth:
 
-    .venv/bin/python bench/steady_maps.py [--seeds N] [--shard K/N] [--cache DIR] [name=value ...]
+    .venv/bin/python bench/steady_maps.py [--seeds N] [--shard K/N] [--cache DIR] [--only RIG] [name=value ...]
 
 Per run: the error std over the noise floor, the rms pull, the share flagged, frames 4+ bounds off
 (and unflagged), the samples the sensor's map touched (something landed) and learned, the print's nodes
@@ -18,12 +18,7 @@ many runs touched or learned anything, the largest share flagged and the range o
 
 from __future__ import annotations
 
-import argparse
-import os
-import sys
-from pathlib import Path
-
-from estimator_sweep import cached_case, scored, settings_of
+from estimator_sweep import cached_case, scored, seeded_arguments
 from truth_score import MODES
 
 # seeds a scenario is run with at the default --seeds: 8 + 8 + 4 = 20 clean runs, each in three modes
@@ -33,20 +28,9 @@ STEADY_FLAGGED = 0.01  # a steady run flagged on more than this share of its fra
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--seeds", type=int, default=8, help="seeds of a paper or strip16 run (the lab's: half)")
-    parser.add_argument("--shard", default="0/1", help="K/N: every N-th run from the K-th (run N side by side)")
-    parser.add_argument("--cache", type=Path,
-                        default=Path(os.environ.get("TMPDIR", "/tmp")) / "graytrack-steady",
-                        help="where each clean run's model, run and truth are kept")
-    parser.add_argument("settings", nargs="*", help="name=value of the estimator's tunables")
-    args = parser.parse_args()
-    if args.seeds < 1:
-        sys.exit("--seeds must be at least 1")
-    shard, shards = (int(part) for part in args.shard.split("/"))
-    args.cache.mkdir(parents=True, exist_ok=True)
-    settings = settings_of(args.settings)
-    runs = [(scenario, seed) for scenario, share in SCENARIOS.items()
+    # (--seeds: of a paper or strip16 run, the lab's half; --only: the scenarios whose name holds it)
+    args, settings, shard, shards = seeded_arguments(__doc__, 8, "run", "graytrack-steady")
+    runs = [(scenario, seed) for scenario, share in SCENARIOS.items() if args.only in scenario
             for seed in range(max(1, round(share * args.seeds)))]
     touched = learned = printed = flagged_runs = 0
     pulls, worst_flagged, scored_runs = [], 0.0, 0
