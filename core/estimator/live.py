@@ -91,12 +91,20 @@ class LiveEstimator:
             estimator.start(self._start, t, max(estimator.settings.grating_sigma, 0.01 * self.model.period_mm))
             estimator.t_last = t
         self._start = None
+        before, errors = self.last, estimator.update_errors
         estimate = self.last = estimator.update(frame, t, reference_mm)
         self.frames += 1
+        event = None
+        if estimator.update_errors > errors:  # the estimate starts again from the next frame: the lock is lost
+            from graytrack.core.tracking import LockEvent
+
+            event = LockEvent(frame=self.frames, reason=estimate.message.removeprefix("not placed: "),
+                              x_before_mm=before.x_mm if before is not None else math.nan, x_after_mm=math.nan,
+                              reacquired=False)
         if self.frames % LOOK_FRAMES == 0:
             estimator.sensor.look(self.frames)
             estimator.print_map.look(self.frames)
         # the record's quantities by the names core/frame_record.py declares (None: no event, no reason)
         record: dict[str, Any] = {name: getattr(estimate, name) for name in RECORD}
-        record.update(event=None, stale_reason=estimate.stale_reason or None)
+        record.update(event=event, stale_reason=estimate.stale_reason or None)
         return LiveFix(**record)

@@ -12,6 +12,7 @@ import pytest
 
 from graytrack.core.calibration import calibrate
 from graytrack.core.estimator import TUNABLES, Estimator, EstimatorSettings, FrameEstimate, track
+from graytrack.core.estimator.live import LiveEstimator
 from graytrack.core.estimator.state import A1, A2
 from graytrack.core.tracking import Tracker
 from graytrack.core.tracking import track as plain_track
@@ -773,3 +774,9 @@ def test_an_update_that_fails_on_numbers_not_finite_says_so_and_starts_again(pap
     after = np.array([e.x_mm for e in estimates[k + 1:]])
     assert np.all(np.isfinite(after))
     assert np.max(np.abs(after - truth.x_mm[k + 1:])) * 1e3 < 10.0  # µm: placed again from the grating
+    # as the daemon drives it: the frame's record carries the loss of lock, which its event log tells
+    live, calls[:] = LiveEstimator(paper, grating="check"), []
+    fixes = [live.update(run.frames[j], run.reference[j], run.t[j]) for j in range(run.frames.shape[0])]
+    events = [(j, fix.event) for j, fix in enumerate(fixes) if fix.event is not None]
+    assert len(events) == 1 and events[0][0] == k
+    assert events[0][1].lost and not events[0][1].reacquired and "the update failed" in events[0][1].reason
