@@ -47,7 +47,7 @@ from graytrack.core.estimator.mount import SHOWN_ACCELERATION, SHOWN_BEYOND, Mou
 from graytrack.core.estimator.print_map import PrintMap
 from graytrack.core.estimator.sensor_map import SensorMap
 from graytrack.core.estimator.settings import EstimatorSettings
-from graytrack.core.estimator.state import (A1, A2, B, BAND, BD, BE, BH, BL, BR, BW, C, D, G, L, M, N_STATE, OFS,
+from graytrack.core.estimator.state import (A1, A2, B, BAND, BD, BE, BH, BL, BR, BW, C, D, FR, G, L, M, N_STATE, OFS,
                                             SK, SKR, STATE, T, V, X)
 from graytrack.core.frame_tables import FrameTables
 from graytrack.core.kernels import TableEvaluator
@@ -62,7 +62,7 @@ if TYPE_CHECKING:
 GRATING_MODES = ("check", "fuse", "none")
 CALIBRATION_PRINT_MAP = "print_map"  # the model's info key for the print's map its calibration learned
 # the families a flag may name as carrying the position's bound, with their states (_carrier)
-CARRIERS = (("geometry", (C, T)), ("magnification", (M, L)), ("light", (G, OFS, A1, A2) + BAND), ("focus", (B,)))
+CARRIERS = (("geometry", (C, T)), ("magnification", (M, L)), ("light", (G, OFS, A1, A2) + BAND), ("focus", (B, FR)))
 # frames whose row mean the estimator computes compiled as they come (the cameras' and the recordings' types);
 # any other is made float64 first
 FRAME_TYPES = frozenset(np.dtype(kind) for kind in (np.uint8, np.uint16, np.float32, np.float64))
@@ -278,6 +278,7 @@ class Estimator:
         rates[G], rates[OFS] = settings.gain_rate, settings.offset_rate
         rates[A1] = rates[A2] = settings.field_rate
         rates[B] = settings.focus_rate
+        rates[FR] = settings.focus_drift_rate  # (the blur's rate: its change white, kernel.predict)
         rates[M] = settings.stretch_rate
         rates[C] = settings.place_rate
         rates[T] = settings.tilt_rate
@@ -287,7 +288,7 @@ class Estimator:
             settings.band_rate_depth, settings.band_rate_edge, settings.band_rate_edge, settings.band_rate_soft,
             settings.band_rate_haze)
         rates[BW] = settings.band_acceleration  # (the band's speed: white acceleration, kernel.predict)
-        active = [X, V, G, OFS, A1, A2, B, M]
+        active = [X, V, G, OFS, A1, A2, B, M] + ([FR] if settings.focus_drift_prior > 0.0 else [])
         # The stage follows its commanded path within its jitter (kernel.predict; the path bends where commanded,
         # _advance): where the image places the carriage (the grating read and checked, or none), that path carries
         # the velocity from frame to frame instead of each frame's pull. Fused, the grating reads the carriage at
@@ -317,7 +318,7 @@ class Estimator:
         self._slide_states = np.array([state for state in (M, L) if state in active], dtype=np.int64)
         self._unseen_states = np.array([state for state in (M, L, C, T) if state in active], dtype=np.int64)
         self._carriers: dict[bool, list] = {}  # (_carrier's families over each set of states solved)
-        self.idx_appearance = np.array([state for state in (X, V, G, OFS, A1, A2, B) if state in active and
+        self.idx_appearance = np.array([state for state in (X, V, G, OFS, A1, A2, B, FR) if state in active and
                                         not (state == V and self.on_path)],
                                        dtype=np.int64)
         self.scratch = np.zeros((6, n_values))
@@ -438,6 +439,7 @@ class Estimator:
         prior[G], prior[OFS] = settings.gain_prior, settings.offset_prior
         prior[A1] = prior[A2] = settings.field_prior
         prior[B] = settings.focus_prior
+        prior[FR] = settings.focus_drift_prior if FR in self._active else 0.0
         prior[M] = settings.stretch_prior
         prior[C] = settings.grating_sigma
         prior[L] = settings.lever_prior * pitch

@@ -29,17 +29,19 @@ import math
 import numpy as np
 
 from graytrack.core import kernels
-from graytrack.core.estimator.state import (A1, A2, B, BD, BE, BH, BL, BR, BW, C, D, G, L, M, N_STATE, OFS, SK,
-                                            SKR, STATE, T, V, X)
+from graytrack.core.estimator.state import (A1, A2, B, BD, BE, BH, BL, BR, BW, C, D, DRIFTS, G, L, M, N_STATE, OFS,
+                                            SK, STATE, T, V, X)
 
 # The state's layout as this file was compiled for. numba keys its cache by this file's stamp alone, not
 # by the indices it compiles in from state.py: a cache made for another layout indexes the wrong states
 # (seen: NaN or a silently wrong skew). A layout change must therefore change this file, and does:
 LAYOUT = ("x_mm v_mm_s gain offset_gray field_tilt field_bow focus_px2 stretch place_mm lever_mm turn_mm_row skew_s "
-          "band_depth band_left_mm band_right_mm band_speed_mm_s band_edge_mm band_haze_gray skew_rate_s_s jitter_mm")
+          "band_depth band_left_mm band_right_mm band_speed_mm_s band_edge_mm band_haze_gray skew_rate_s_s jitter_mm "
+          "focus_rate_px2_s")
 if LAYOUT != " ".join(entry.name for entry in STATE):
     raise ImportError("core/estimator/state.py's layout differs from kernel.LAYOUT: update LAYOUT with it "
                       "(it keys the compiled kernel's cache)")
+_DRIFTS = np.array(DRIFTS, dtype=np.int64)  # (compiled in as a constant)
 MAD_TO_SIGMA = 1.4826
 ROOT_2, ROOT_2PI = math.sqrt(2.0), math.sqrt(2.0 * math.pi)
 ROBUST_ROUNDS = 6  # reweightings at most: the redescending weights settle in 2–3 on a frame with a blob
@@ -378,17 +380,22 @@ def predict(s: np.ndarray, P: np.ndarray, dt: float, q_accel: float, rates2: np.
     P[V, X] += q_accel * dt2 * dt / 2.0
     P[V, V] += q_accel * dt2
     P[X, D] = P[D, X] = P[D, D] = rates2[D]
-    if P[SKR, SKR] > 0.0:  # the latch drifts at its rate (the clocks' rates apart), which itself changes white
-        s[SK] += s[SKR] * dt
+    for pair in range(_DRIFTS.shape[0]):
+        # a state drifting at its rate, which itself changes white (the latch at the clocks' rates apart, the blur as
+        # a lens warms): x⁺ = x + r·dt, P ← F P Fᵀ + Q with Q the integrated random walk's
+        i_x, i_r = _DRIFTS[pair, 0], _DRIFTS[pair, 1]
+        if not P[i_r, i_r] > 0.0:  # (not a state of this estimator: held at zero)
+            continue
+        s[i_x] += s[i_r] * dt
         for j in range(n):
-            P[SK, j] += dt * P[SKR, j]
+            P[i_x, j] += dt * P[i_r, j]
         for i in range(n):
-            P[i, SK] += dt * P[i, SKR]
-        q_clock = rates2[SKR]
-        P[SK, SK] += q_clock * dt2 * dt / 3.0
-        P[SK, SKR] += q_clock * dt2 / 2.0
-        P[SKR, SK] += q_clock * dt2 / 2.0
-        P[SKR, SKR] += q_clock * dt
+            P[i, i_x] += dt * P[i, i_r]
+        q = rates2[i_r]
+        P[i_x, i_x] += q * dt2 * dt / 3.0
+        P[i_x, i_r] += q * dt2 / 2.0
+        P[i_r, i_x] += q * dt2 / 2.0
+        P[i_r, i_r] += q * dt
     if s[BE] > 0.0:  # a band in view: its two edges move together at its speed, whose change is white
         # (rates2[BW] its acceleration's variance, as the stage's); out of view its states are held at zero
         s[BL] += s[BW] * dt

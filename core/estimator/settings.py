@@ -98,6 +98,16 @@ TUNABLES: dict[str, Tunable] = {
         "within a second, on one row over less than a period it trades with the light's gain and offset, which moves "
         "no position",
         low=0.0),
+    "focus_drift_prior": Tunable(
+        0.05, "px²/s",
+        "how fast the blur variance may be drifting at the first frame (a lens settling after a refocus: a tenth of a "
+        "pixel on a blur σ of 2 px within 10 s is 0.04 px²/s); 0: no drift state, the blur a random walk alone",
+        low=0.0),
+    "focus_drift_rate": Tunable(
+        0.5, "px²/s/√s",
+        "how fast the blur's drift itself may change in a second: a lens warming and cooling with a duty cycle of "
+        "seconds (its blur σ 1.5 px out and back within 6 s turns its drift by ~0.5 px²/s in a second); slower "
+        "warmings change it far less, and a step of the focus is a jump", low=0.0),
     "stretch_rate": Tunable(
         30e-6, "1/√s",
         "the magnification drifting in a second (a lens warming up changes it by ~1500 ppm over 10 s); without the "
@@ -270,6 +280,8 @@ class EstimatorSettings:
     field_prior: float = TUNABLES["field_prior"].default
     focus_rate: float = TUNABLES["focus_rate"].default
     focus_prior: float = TUNABLES["focus_prior"].default
+    focus_drift_prior: float = TUNABLES["focus_drift_prior"].default
+    focus_drift_rate: float = TUNABLES["focus_drift_rate"].default
     stretch_rate: float = TUNABLES["stretch_rate"].default
     stretch_prior: float = TUNABLES["stretch_prior"].default
     stretch_rate_most: float = TUNABLES["stretch_rate_most"].default

@@ -49,8 +49,14 @@ STATE: tuple[StateEntry, ...] = (
     # a stage follows its commanded path within a servo's ripple and the floor's vibration: at one frame the carriage
     # is off the path by what no later frame inherits (white); the path itself bends only where it was commanded to
     StateEntry("jitter_mm", "mm", "geometry", "the carriage off its path at this frame (a servo's ripple, vibration)"),
+    # a lens warming or cooling drifts its focus steadily over seconds to minutes: the blur drifts at that rate, which
+    # itself changes slowly (a random walk of the blur alone lags behind a warming lens by most of what it drifted)
+    StateEntry("focus_rate_px2_s", "px²/s", "focus", "how fast the blur variance drifts (a lens warming or cooling)"),
 )
-X, V, G, OFS, A1, A2, B, M, C, L, T, SK, BD, BL, BR, BW, BE, BH, SKR, D = range(len(STATE))
+X, V, G, OFS, A1, A2, B, M, C, L, T, SK, BD, BL, BR, BW, BE, BH, SKR, D, FR = range(len(STATE))
 BAND = (BD, BL, BR, BW, BE, BH)
+# each state that drifts at a rate the state holds too (an integrated random walk: the rate's change white), with
+# that rate's state: the grating's latch and the clocks' rates apart, the blur and a lens's warming
+DRIFTS = ((SK, SKR), (B, FR))
 N_STATE = len(STATE)
 FAMILIES = {entry.family for entry in STATE}
