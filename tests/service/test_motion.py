@@ -118,6 +118,7 @@ def test_a_knock_at_rest_streamed_without_a_grating_is_found_from_the_commands()
     assert np.sum((np.abs(error) > 4.0 * bound) & ~flagged) <= 2
     error, bound, flagged, mount = outcomes[False]
     assert not mount.commanded_known
-    # the stage's most hid it: unflagged, and beyond the bound (which carries the lens's slide too) on many of the
-    # frames after it (19 of the 195; 21+ with the blur held as calibrated at the first frame)
-    assert np.sum((np.abs(error[after]) > 4.0 * bound[after]) & ~flagged[after]) > 10
+    # the stage's most hid it: no frame after it flagged, each one the knock's 40 µm off (within the 4 bounds the
+    # lens's slide and the blur's drift carry without the grating on 1-row frames: 15–20 µm; the commands found it
+    # within two frames and placed every later one within 2 µm)
+    assert not flagged[after].any() and np.mean(np.abs(error[after]) > 30.0) > 0.9
