@@ -92,11 +92,11 @@ TUNABLES: dict[str, Tunable] = {
         1e-4, "px²/√s", "the blur variance drifting in a second while the lens holds (a mount warming over minutes)",
         low=0.0),
     "focus_prior": Tunable(
-        0.3, "px²",
+        1.0, "px²",
         "the blur at the first frame against calibration's (another day, a lens refocused or its mount warmer: a "
-        "twentieth of a pixel on a blur σ of 3 px is 0.3 px²); on a strip of a few rows the blur's harmonics tell it "
+        "sixth of a pixel on a blur σ of 3 px is 1 px²); on a strip of a few rows the blur's harmonics tell it "
         "within a second, on one row over less than a period it trades with the light's gain and offset, which moves "
-        "no position",
+        "no position; narrower, a blur another day left would be taken for a drift, and followed past itself",
         low=0.0),
     "focus_drift_prior": Tunable(
         0.05, "px²/s",

@@ -723,7 +723,8 @@ def test_a_strip_whose_blur_changed_before_the_run_finds_it_and_keeps_it_out_of_
     harmonics tell it within a second. With the blur held as calibrated within 0.003 px² at the first frame, the
     misfit went to the magnification (swinging ±1,000 ppm along the stroke) and through it to the position without
     the grating: 10–14× the noise floor (seeds 3, 4; read, the grating's test found the blur by a jump, 1.7–1.9×).
-    The declared prior lets the first frames find the blur: 1.6–1.8× (1.5–1.7× read)."""
+    The declared prior lets the first frames find the blur: 1.1–1.25× (at 0.3 px² with the blur's drift a state, the
+    drift took the step and overshot it: 1.6–1.9×)."""
     calibration, _ = build_rig("strip16", "defocus:sigma_um=200", seed=3).record()
     model = calibrate(calibration, "paper").model
     run, truth = build_rig("strip16", "defocus:sigma_um=200,focus_drift:px=0.5", seed=3, run=1).record(10.0)
@@ -740,7 +741,7 @@ def test_a_strip_whose_blur_changed_before_the_run_finds_it_and_keeps_it_out_of_
     settings = EstimatorSettings().for_recording(run.meta)
     estimates, error, bound, ratio = tracked(settings)
     stale = np.array([e.stale for e in estimates])
-    assert ratio < 2.0
+    assert ratio < 1.5
     assert ((np.abs(error) > 4.0 * bound) & ~stale).sum() <= 0.005 * error.size
     late = estimates[-50:]
     assert all(abs(e.focus_px2 - changed) < 0.2 * changed for e in late)  # shown, near the truth
