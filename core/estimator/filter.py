@@ -42,6 +42,7 @@ from graytrack.core.errors import TrackingError
 from graytrack.core import repeats
 from graytrack.core.estimator import kernel
 from graytrack.core.estimator.kernel import S_POSTERIOR, S_REJECTED, S_WEIGHED
+from graytrack.core.estimator.light_modes import LightModes, reweigh
 from graytrack.core.estimator.commands import StageCommands
 from graytrack.core.estimator.mount import SHOWN_ACCELERATION, SHOWN_BEYOND, MountWatch, Step, step_test
 from graytrack.core.estimator.print_map import PrintMap
@@ -275,7 +276,12 @@ class Estimator:
         self.sensor_range = None if limits is None else (float(limits[0]), float(limits[1]))
         pitch = model.pixel_pitch_mm
         rates = np.zeros(N_STATE)
-        rates[G], rates[OFS] = settings.gain_rate, settings.offset_rate
+        # the light's gain and offset hold or drift, a mode the frames decide (light_modes.py); with no switching, one
+        # mode: the drifting rates throughout
+        self.light = LightModes(settings.light_switch_rate,
+                                (settings.gain_rate_holding ** 2, settings.offset_rate_holding ** 2),
+                                (settings.gain_rate ** 2, settings.offset_rate ** 2))
+        rates[G], rates[OFS] = (math.sqrt(rate) for rate in self.light.rates())  # (each frame's mode's: _advance)
         rates[A1] = rates[A2] = settings.field_rate
         rates[B] = settings.focus_rate
         rates[FR] = settings.focus_drift_rate  # (the blur's rate: its change white, kernel.predict)
@@ -458,6 +464,8 @@ class Estimator:
         self._unexplained = []
         self._placed_again = False
         self._band_missed = self._refuted_missed = 0
+        self.light.reset()
+        self._light_rates()
         self._band_off()
         self._reach = [math.inf, -math.inf]
         if self.mount is not None:
@@ -474,11 +482,21 @@ class Estimator:
         what they asked then (its phases, mm/s²) or else how little its path bends between them; where they are
         not, the stage's acceleration anywhere."""
         dt = 0.0 if self.t_last is None else max(t - self.t_last, 0.0)
+        if self.light.switch_rate > 0.0:  # the light predicted in the mode its frames make likelier (light_modes.py)
+            was = self.light.drifting
+            if self.light.advance(dt) != was:
+                self._light_rates()
         if self.on_path and self.commands.known:
             asked = self.commands.asked(t - dt, t) if dt > 0.0 else 0.0
             self.params[kernel.U_ACCELERATION] = asked * asked + self.settings.stage_drift ** 2
         self.dt_last, self.t_last = dt, t
         return dt
+
+    def _light_rates(self) -> None:
+        """The light's gain and offset predicted at the rates of the mode the frame is in (light_modes.py)."""
+        g2, o2 = self.light.rates()
+        self.rates2[G], self.rates2[OFS] = g2, o2
+        self.params[kernel.U_RATES + G], self.params[kernel.U_RATES + OFS] = g2, o2
 
     def update(self, frame: np.ndarray, t: float, reference_mm: float = math.nan) -> FrameEstimate:
         """The frame at time ``t`` (mid-exposure) with its grating reading (NaN: none)."""
@@ -525,6 +543,9 @@ class Estimator:
                 abs(s_prior.item(X) - reference_mm) > 0.25 * self.model.period_mm:
             self._acquire(y, mask, t, reference_mm)  # the image's period lost: start again at the grating
             s, A, stats = self._solve(y, mask, s_prior, P_prior, grating_z, out=self._answer)
+        if dt and stats[kernel.S_POSTERIOR] > 0 and self.light.switch_rate > 0.0:
+            # what the frame read of the light, weighed under both its modes (light_modes.py)
+            self.light.weigh(P_prior, self._P_next, s_prior, s, G, OFS, dt)
         test = self._test(stats)
         main = stats  # the frame's own update (its posterior in _P_next)
         if test > 1.0:
@@ -1377,6 +1398,7 @@ class Estimator:
         self._solve(y, self.mask.copy(), self.s.copy(), self.P.copy(), math.nan)
         self._solve(y, self.mask.copy(), self.s.copy(), self.P.copy(), 0.0)
         kernel.predict(self.s.copy(), self.P.copy(), 0.01, 1.0, self.rates2)
+        reweigh(self.P, self.P, self.s, self.s, G, OFS, 0.0, 0.0, False, 0.5)
         kernel.embed(self.P.copy(), np.eye(self.idx.size), self.idx, self._sigma, np.zeros(N_STATE))
         kernel.carried(self.P, self.idx, X)
         kernel.longest_run(self._y, self.model.n_pixels, 1.0)

