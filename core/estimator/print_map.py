@@ -331,6 +331,8 @@ class PrintMap(ToldMarks):
                        self.px, self.touched, self.f, self.s, self.evidence, self.lo, self.hi, self.t_last, teach,
                        vouched, self.fp, self.rival, self.rival_var)
         self.jumps += jumped
+        if not self.touched.any():
+            self.active = False  # (every candidate let go: the map is the print as calibrated again, and costs nothing)
         return jumped
 
     def learned(self) -> np.ndarray:

@@ -277,6 +277,8 @@ class SensorMap(ToldMarks):
                        self.touched, self.f, self.e, self.sff, self.sfe, self.see, self.evidence, self.rivalry, teach,
                        self.h, self.jumped, moved, self.travel)
         self.jumps += jumped
+        if not self.touched.any():
+            self.active = False  # (every candidate let go: the map is the identity again, and costs nothing)
         return jumped
 
     def learned(self, resolved: float = 0.05) -> np.ndarray:
