@@ -191,6 +191,11 @@ def learn(y: np.ndarray, h: np.ndarray, other: np.ndarray, other_var: np.ndarray
             gain = hp * s[j] / s_pred
             f[j] += gain * r
             s[j] -= gain * gain * s_pred
+            if hi[j] - lo[j] >= TRAVEL_PX and f[j] * f[j] <= s[j]:
+                # carried across the pixels and within its own σ of nought: nothing there the frames can tell (a false
+                # alarm's candidate, or a mark gone), as the print was calibrated
+                touched[j] = False
+                f[j], s[j], evidence[j] = 0.0, 0.0, 0.0
     return jumped
 
 
