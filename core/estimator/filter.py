@@ -80,7 +80,9 @@ SEARCHED = 2  # families tried with their jump on a frame that fails the test, m
 # families that mimic each other on one frame come in pairs (the light's shape and a shift over less than a
 # period; the stage's jerk and the camera's place without the grating), so the one that moved ranks first or second
 BAND_GRID = 16  # a band's entering edges searched a sixteenth of the field apart (its solve reaches a step)
-BAND_SHARPEST = 1.0 / 64.0  # of the field: a band's penumbra at least this soft (a pixel and a half of a hundred)
+BAND_SHARPEST = 1.0 / 64.0  # of the field: a band's penumbra at least this soft (a pixel and a half of a hundred:
+# a shadow's edge on the print is as sharp as the optics make it, a veil's on the window far softer), a bound of its
+# solve: a band barely in view tells its penumbra little, and its solve would otherwise take it sharp past nought
 BAND_HAZIEST = 0.5  # of the light a band takes, the most it scatters back (a veil: a tenth)
 BAND_BEYOND = 10.0  # fields beyond the end an edge out of view is put (a veil's: its erf there is 1 to 1e-20)
 STROKE_MARGIN_MM = 1.0  # how far beyond its calibrated stroke a stage may be placed (an overshoot at either end):
@@ -408,6 +410,7 @@ class Estimator:
         self._band_missed = 0  # frames in a row that failed with no band followed, since one passed its test
         self._refuted_missed = 0  # ... the grating refuted with no band taken, since one it did not refute (_carried)
         self._bands = _band_shapes(self.t_rel)  # the shapes a band entering is searched among (edges, softness)
+        self.params[kernel.U_BAND_SHARPEST] = BAND_SHARPEST * (self._bands.hi - self._bands.lo)
         # without the grating, the camera's place moves only as a step no motion of the stage makes (mount.py)
         # (as fast as the stage is commanded, and no less than its calibration's grating showed it to be)
         # With the stage's commanded phases known (a recording's stage_acceleration_phases), an interval allows what
@@ -874,12 +877,12 @@ class Estimator:
             self._answer = (self._answer[0], np.empty((self.idx.size, self.idx.size)), self._answer[2])
 
     def _band_unlike(self, s: np.ndarray) -> bool:
-        """Whether a band's shape is no band's: narrower than a sixth of the field or with edges sharper than
-        BAND_SHARPEST of it (a speck, a scratch: the maps' and the robust weights' marks, not a light's shape), or
-        scattering more than BAND_HAZIEST of the light it takes (a depth and a haze that cancel change the
-        print's contrast, not its light: marks on it)."""
+        """Whether a band's shape is no band's: narrower than a sixth of the field (a speck, a scratch: the maps'
+        and the robust weights' marks, not a light's shape; its penumbra is solved no sharper than BAND_SHARPEST
+        of the field, kernel.U_BAND_SHARPEST), or scattering more than BAND_HAZIEST of the light it takes (a depth
+        and a haze that cancel change the print's contrast, not its light: marks on it)."""
         field = self._bands.hi - self._bands.lo
-        return s.item(BE) < BAND_SHARPEST * field or s.item(BR) - s.item(BL) < field / 6.0 or \
+        return s.item(BR) - s.item(BL) < field / 6.0 or \
             abs(s.item(BH)) > BAND_HAZIEST * abs(s.item(BD)) * max(abs(self.mean_gray), 1.0)
 
     def _band_gone(self) -> bool:

@@ -62,11 +62,12 @@ N_STATS = S_JITTER + N_STATE
 # (1: the frame solved again from its own solution and weights) or from the prior's mean and full weights (0); from
 # the calibration's χ² level at the frame's place (each sample's variance is the noise model's times it: what the
 # model's own error adds to a sample, as calibration measured it); the samples a row and the precision of an offset
-# each row draws afresh every frame (gray⁻², 0: none; _normal); from U_RATES on each state's rate (predict's
+# each row draws afresh every frame (gray⁻², 0: none; _normal); the softest a band's penumbra may be solved to (mm:
+# a step that would take its σ below is taken to it, as onto any bound); from U_RATES on each state's rate (predict's
 # ``rates2``)
 (U_READ, U_SHOT, U_DARK, U_PITCH, U_PERIOD, U_GRATING_Z, U_GRATING_W, U_ROBUST, U_CORE, U_CUT, U_ITERATIONS,
  U_TOLERANCE, U_PREDICT, U_DT, U_ACCELERATION, U_POSTERIOR, U_WARM, U_LEVEL, U_ROW_LENGTH, U_ROW_PRECISION,
- U_RATES) = range(21)
+ U_BAND_SHARPEST, U_RATES) = range(22)
 N_PARAMS = U_RATES + N_STATE
 # the pixels' constants in one (4, P) array: target coordinate from the ROI's centre, row from the strip's middle,
 # the two Legendre terms across the line
@@ -622,6 +623,8 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
     if params[U_PREDICT] > 0.0:
         predict(s_prior, P_prior, params[U_DT], params[U_ACCELERATION], params[U_RATES:])
     warm = params[U_WARM] > 0.0  # from ``s`` and ``rho`` as passed, not the prior's mean and full weights
+    sharpest = params[U_BAND_SHARPEST]
+    banding = s_prior[BE] > 0.0  # (a band in view: its states solved)
     if not warm:
         for i in range(s.size):
             s[i] = s_prior[i]
@@ -688,6 +691,11 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
             moved = 0.0
             for i in range(n):
                 s[idx[i]] += delta[i]
+            if banding and s[BE] < sharpest:
+                # A band barely in view tells its penumbra little, and a full step can take its σ through nought,
+                # where the band vanishes from the model and the next step, seeing only its prior, undoes this
+                # one (the solve then swings between the two): the step is taken to the bound instead.
+                s[BE] = sharpest
             for i in range(n):
                 if idx[i] == X or idx[i] == C:
                     moved += abs(delta[i])
