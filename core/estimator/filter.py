@@ -296,7 +296,11 @@ class Estimator:
             settings.band_rate_depth, settings.band_rate_edge, settings.band_rate_edge, settings.band_rate_soft,
             settings.band_rate_haze)
         rates[BW] = settings.band_acceleration  # (the band's speed: white acceleration, kernel.predict)
-        active = [X, V, G, OFS, A1, A2, B, M] + ([FR] if settings.focus_drift_prior > 0.0 else [])
+        active = [X, V, G, OFS, A1, A2, B, M]
+        # the rates of the blur's and the latch's drifts: states (with a variance) only where they may drift, and
+        # never solved (state.py UNREAD: conditioned on the states solved, kernel.conditioned)
+        self._drifts = frozenset(([FR] if settings.focus_drift_prior > 0.0 else []) +
+                                 ([SKR] if grating == "fuse" and settings.clock_drift_prior > 0.0 else []))
         # The stage follows its commanded path within its jitter (kernel.predict; the path bends where commanded,
         # _advance): where the image places the carriage (the grating read and checked, or none), that path carries
         # the velocity from frame to frame instead of each frame's pull. Fused, the grating reads the carriage at
@@ -304,7 +308,7 @@ class Estimator:
         # velocity the path holds leaves the skew to take what the image's model misses at each place, so there
         # the stage may accelerate anywhere, and the velocity follows the frames.
         # (the jitter is a state no sample sees apart from the position: never solved, conditioned on the states
-        # solved after each update, kernel.jitter and kernel.embed)
+        # solved after each update, kernel.conditioned and kernel.embed)
         self.on_path = grating != "fuse" and settings.stage_jitter > 0.0
         if self.on_path:
             rates[D] = settings.stage_jitter
@@ -312,21 +316,21 @@ class Estimator:
         if grating != "check":  # checked, the grating judges the place and the slide; else they are states
             active += [C] + ([L] if settings.lever_prior > 0.0 else [])  # (an ROI on the lens's axis: no lever)
         if grating == "fuse":  # fused, the grating's own latch against the exposure is one too, and its drift
-            active += [SK] + ([SKR] if settings.clock_drift_prior > 0.0 else [])
+            active.append(SK)
         if model.n_rows > 1:
             active.append(T)
         self.idx = self.idx_plain = np.array(sorted(active), dtype=np.int64)
         # With a band in view its states too, and the geometry held (the camera's place, the lens, the latch:
         # over less than a period a band's edges and a shift trade, and what a band's frames would teach the
         # place stays after the band has gone, which no frame without the grating could undo).
-        self.idx_band = np.array(sorted((set(active) - {C, L, M, T, SK, SKR}) | set(BAND)), dtype=np.int64)
+        self.idx_band = np.array(sorted((set(active) - {C, L, M, T, SK}) | set(BAND)), dtype=np.int64)
         self._active = frozenset(active)
         # without the grating what no frame sees of the carriage against the image: the lens's slide, and with it the
         # camera's place on the carriage (_stated)
         self._slide_states = np.array([state for state in (M, L) if state in active], dtype=np.int64)
         self._unseen_states = np.array([state for state in (M, L, C, T) if state in active], dtype=np.int64)
         self._carriers: dict[bool, list] = {}  # (_carrier's families over each set of states solved)
-        self.idx_appearance = np.array([state for state in (X, V, G, OFS, A1, A2, B, FR) if state in active and
+        self.idx_appearance = np.array([state for state in (X, V, G, OFS, A1, A2, B) if state in active and
                                         not (state == V and self.on_path)],
                                        dtype=np.int64)
         self.scratch = np.zeros((6, n_values))
@@ -448,13 +452,13 @@ class Estimator:
         prior[G], prior[OFS] = settings.gain_prior, settings.offset_prior
         prior[A1] = prior[A2] = settings.field_prior
         prior[B] = settings.focus_prior
-        prior[FR] = settings.focus_drift_prior if FR in self._active else 0.0
+        prior[FR] = settings.focus_drift_prior if FR in self._drifts else 0.0
         prior[M] = settings.stretch_prior
         prior[C] = settings.grating_sigma
         prior[L] = settings.lever_prior * pitch
         prior[T] = 1e-6
         prior[SK] = settings.skew_prior
-        prior[SKR] = settings.clock_drift_prior if SKR in self._active else 0.0  # (held at zero where not fused)
+        prior[SKR] = settings.clock_drift_prior if SKR in self._drifts else 0.0  # (held at zero where not fused)
         prior[D] = settings.stage_jitter if self.on_path else 0.0  # (the path as unknown as the position and jitter)
         self.P[:] = np.diag(prior ** 2)
         self.t_last = t
@@ -600,7 +604,7 @@ class Estimator:
             self.P, self._P_next = self._P_next, self.P
         else:
             # the posterior over the states solved, the prior's elsewhere (the jitter's conditioned on them)
-            kernel.embed(self.P, A, solved, self._sigma, np.asarray(stats)[kernel.S_JITTER:])
+            kernel.embed(self.P, A, solved, self._sigma, np.asarray(stats)[kernel.S_GAIN:])
         self._lens(s_prior, P_prior)
         if self.s.item(BE) > 0.0:
             self._band_failed = self._band_failed + 1 if test > 1.0 else 0
@@ -641,7 +645,7 @@ class Estimator:
             self._learn(y_raw, raw_mask, y, t, anchored, anchored and not estimate.stale)
         if carried is not None:  # (the maps learn from the frame as its image placed it, as it is reported)
             self.s, A, idx, self.P, figures = carried
-            kernel.embed(self.P, A, idx, self._sigma, np.asarray(figures)[kernel.S_JITTER:])
+            kernel.embed(self.P, A, idx, self._sigma, np.asarray(figures)[kernel.S_GAIN:])
             if idx is not self.idx:
                 self._band_on()
         return estimate
@@ -1347,7 +1351,7 @@ class Estimator:
         banded = self.idx is self.idx_band
         carriers = self._carriers.get(banded)
         if carriers is None:  # (per set of states solved: the plain one, and a band's while one is in view)
-            solved = set(self.idx.tolist())
+            solved = set(self.idx.tolist()) | self._drifts  # (a drift's rate carries the state it drifts)
             carriers = self._carriers[banded] = [
                 (name, np.array([state for state in states if state in solved], dtype=np.int64))
                 for name, states in CARRIERS if solved.intersection(states)]

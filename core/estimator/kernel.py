@@ -30,7 +30,7 @@ import numpy as np
 
 from graytrack.core import kernels
 from graytrack.core.estimator.state import (A1, A2, B, BD, BE, BH, BL, BR, BW, C, D, DRIFTS, G, L, M, N_STATE, OFS,
-                                            SK, STATE, T, V, X)
+                                            SK, STATE, T, UNREAD, V, X)
 
 # The state's layout as this file was compiled for. numba keys its cache by this file's stamp alone, not
 # by the indices it compiles in from state.py: a cache made for another layout indexes the wrong states
@@ -38,9 +38,11 @@ from graytrack.core.estimator.state import (A1, A2, B, BD, BE, BH, BL, BR, BW, C
 LAYOUT = ("x_mm v_mm_s gain offset_gray field_tilt field_bow focus_px2 stretch place_mm lever_mm turn_mm_row skew_s "
           "band_depth band_left_mm band_right_mm band_speed_mm_s band_edge_mm band_haze_gray skew_rate_s_s jitter_mm "
           "focus_rate_px2_s")
-if LAYOUT != " ".join(entry.name for entry in STATE):
-    raise ImportError("core/estimator/state.py's layout differs from kernel.LAYOUT: update LAYOUT with it "
-                      "(it keys the compiled kernel's cache)")
+UNREAD_LAYOUT = "jitter_mm skew_rate_s_s focus_rate_px2_s"
+if LAYOUT != " ".join(entry.name for entry in STATE) or UNREAD_LAYOUT != " ".join(STATE[i].name for i in UNREAD):
+    raise ImportError("core/estimator/state.py's layout differs from kernel.LAYOUT or UNREAD_LAYOUT: update them "
+                      "with it (they key the compiled kernel's cache)")
+_UNREAD = np.array(UNREAD, dtype=np.int64)  # (compiled in as a constant)
 _DRIFTS = np.array(DRIFTS, dtype=np.int64)  # (compiled in as a constant)
 MAD_TO_SIGMA = 1.4826
 ROOT_2, ROOT_2PI = math.sqrt(2.0), math.sqrt(2.0 * math.pi)
@@ -51,8 +53,8 @@ CURVATURE_STEP_PERIODS = 1e-3  # forward-difference step of F″ from the slopes
 # weights took down, not aside)
 (S_COST, S_RESIDUAL, S_PRIOR, S_USED, S_REJECTED, S_ITER, S_XINFO, S_RMS, S_GRATING, S_CONVERGED,
  S_POSTERIOR, S_WEIGHED) = range(12)
-S_JITTER = 12  # from here, one a state solved: the carriage's jitter's gain on it under the solve's prior (jitter)
-N_STATS = S_JITTER + N_STATE
+S_GAIN = 12  # from here, one row of N_STATE a state of UNREAD: its gain on each state solved under the solve's prior
+N_STATS = S_GAIN + len(UNREAD) * N_STATE  # (conditioned)
 # the update's numbers in one array (a frame's call passes one array, not a dozen arguments: each argument costs
 # the call ~0.1 µs): the noise model's read variance, shot gain and dark level, the pixel pitch and the period (mm),
 # the fused grating's reading (mm) and weight (1/σ², 0: none), robust weights on (1) or off (0), their core and cut
@@ -169,41 +171,66 @@ def information(P: np.ndarray, idx: np.ndarray) -> np.ndarray:
     return _inverse(block)
 
 
-def jitter(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndarray, info: np.ndarray,
-           gain: np.ndarray) -> None:
-    """In place: the jitter's posterior mean from the states solved, and its gain on them into ``gain``. No sample
-    sees it apart from the position (it moves the path, not the image), so it is never solved: its posterior is
-    its prior conditioned on the states solved, s_D = s_D⁻ + K (s − s⁻) with K = P⁻_D,idx · ``info`` (the prior's
-    information over ``idx``), exactly what solving it with them gives; K = 0 where it is not a state here."""
+def conditioned(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndarray, info: np.ndarray,
+                gain: np.ndarray) -> None:
+    """In place: each state of UNREAD its posterior mean from the states solved, and its gains on them into
+    ``gain`` (row k of N_STATE the k-th's). No sample and no reading sees them (state.py UNREAD), so they are never
+    solved: each posterior is the prior conditioned on the states solved, s_u = s_u⁻ + K (s − s⁻) with
+    K = P⁻_u,idx · ``info`` (the prior's information over ``idx``), exactly what solving them with the others
+    gives; K = 0 where it is not a state of this estimator (no variance)."""
     n = idx.size
-    for j in range(n):
-        gain[j] = 0.0
-    if not P_prior[D, D] > 0.0:
-        return
-    acc = s_prior[D]
-    for j in range(n):
-        k = 0.0
-        for i in range(n):
-            k += P_prior[D, idx[i]] * info[i, j]
-        gain[j] = k
-        acc += k * (s[idx[j]] - s_prior[idx[j]])
-    s[D] = acc
+    for k in range(_UNREAD.size):
+        u = _UNREAD[k]
+        row = k * N_STATE
+        for j in range(n):
+            gain[row + j] = 0.0
+        if not P_prior[u, u] > 0.0:
+            continue
+        acc = s_prior[u]
+        for j in range(n):
+            g = 0.0
+            for i in range(n):
+                g += P_prior[u, idx[i]] * info[i, j]
+            gain[row + j] = g
+            acc += g * (s[idx[j]] - s_prior[idx[j]])
+        s[u] = acc
 
 
 def embed(P: np.ndarray, A: np.ndarray, idx: np.ndarray, sigma: np.ndarray, gain: np.ndarray) -> None:
     """In place: ``P`` (the prior's covariance) has its block over ``idx`` made ``A``⁻¹ (the posterior); states
-    outside ``idx`` keep their own variance and lose their correlation with those inside, but for the carriage's
-    jitter, whose posterior is its prior conditioned on them with the solve's ``gain`` K (:func:`jitter`: a
-    solve's ``stats[S_JITTER:]``): P_D,idx = K P⁺, P_DD = P_DD⁻ − K P⁻_idx,D + K P⁺ Kᵀ. ``sigma``: every
+    outside ``idx`` keep their own variance and lose their correlation with those inside, but for the states of
+    UNREAD, whose posterior is their prior conditioned on them with the solve's gains K (:func:`conditioned`: a
+    solve's ``stats[S_GAIN:]``): P_u,idx = K_u P⁺, P_uw = P⁻_uw − K_u P⁻_idx,w + K_u P⁺ K_wᵀ. ``sigma``: every
     state's σ out (a negative variance's 0)."""
     inner = _inverse(A)
-    n, total = idx.size, P.shape[0]
-    kept = P[D, D]
-    for j in range(n):
-        kept -= gain[j] * P[idx[j], D]
+    n, total, m = idx.size, P.shape[0], _UNREAD.size
     inside = np.zeros(total, dtype=np.bool_)
     for i in range(n):
         inside[idx[i]] = True
+    # each unread state's gain row carried through the posterior (K_u P⁺), and what the prior keeps of it
+    live = np.zeros(m, dtype=np.bool_)
+    carried = np.zeros((m, n))
+    kept = np.zeros((m, m))
+    for a in range(m):
+        u = _UNREAD[a]
+        live[a] = P[u, u] > 0.0 and not inside[u]
+    for a in range(m):
+        if not live[a]:
+            continue
+        u, row = _UNREAD[a], a * N_STATE
+        for i in range(n):
+            acc = 0.0
+            for j in range(n):
+                acc += gain[row + j] * inner[j, i]
+            carried[a, i] = acc
+        for b in range(m):
+            if not live[b]:
+                continue
+            w = _UNREAD[b]
+            acc = P[u, w]
+            for j in range(n):
+                acc -= gain[row + j] * P[idx[j], w]
+            kept[a, b] = acc
     for i in range(total):
         for j in range(total):
             if inside[i] != inside[j]:
@@ -211,16 +238,21 @@ def embed(P: np.ndarray, A: np.ndarray, idx: np.ndarray, sigma: np.ndarray, gain
     for i in range(n):
         for j in range(n):
             P[idx[i], idx[j]] = inner[i, j]
-    if kept > 0.0 and not inside[D]:  # (solved with the others, it is theirs already)
-        spread = kept
+    for a in range(m):
+        if not live[a]:
+            continue
+        u, row = _UNREAD[a], a * N_STATE
         for i in range(n):
-            acc = 0.0
-            for j in range(n):
-                acc += gain[j] * inner[j, i]
-            P[D, idx[i]] = acc
-            P[idx[i], D] = acc
-            spread += acc * gain[i]
-        P[D, D] = spread
+            P[u, idx[i]] = carried[a, i]
+            P[idx[i], u] = carried[a, i]
+        for b in range(m):
+            if not live[b]:
+                continue
+            w, row_w = _UNREAD[b], b * N_STATE
+            acc = kept[a, b]
+            for i in range(n):
+                acc += carried[a, i] * gain[row_w + i]
+            P[u, w] = acc
     for i in range(total):
         sigma[i] = 0.0 if P[i, i] < 0.0 else math.sqrt(P[i, i])
 
@@ -717,7 +749,7 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
         if round_ == ROBUST_ROUNDS:
             cost = _normal(s, idx, y, w, rho, values, slopes, curvature, t_rel, r_rel, b1, b2, half_d2, A, rhs,
                            residual, row_length, row_precision)
-    jitter(s, s_prior, P_prior, idx, Pinv, stats[S_JITTER:])
+    conditioned(s, s_prior, P_prior, idx, Pinv, stats[S_GAIN:])
     # the posterior information (normal matrix with the prior and the grating) and the figures
     prior = 0.0
     for i in range(n):
@@ -767,7 +799,7 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
         # singular) is no error here, the frame is refused by its figures and its covariance not made
         try:
             P_post[:, :] = P_prior
-            embed(P_post, A_out, idx, sigma, stats[S_JITTER:])
+            embed(P_post, A_out, idx, sigma, stats[S_GAIN:])
             stats[S_POSTERIOR] = 1.0
         except Exception:  # noqa: BLE001 - numba's linear algebra raises its one kind
             pass
@@ -827,7 +859,7 @@ if kernels.COMPILED:
     _inverse = _jit(_inverse)
     _solve = _jit(_solve)
     information = _jit(information)
-    jitter = _jit(jitter)
+    conditioned = _jit(conditioned)
     embed = _jit(embed)
     scores = _jit(scores)
     carried = _jit(carried)

@@ -58,5 +58,10 @@ BAND = (BD, BL, BR, BW, BE, BH)
 # each state that drifts at a rate the state holds too (an integrated random walk: the rate's change white), with
 # that rate's state: the grating's latch and the clocks' rates apart, the blur and a lens's warming
 DRIFTS = ((SK, SKR), (B, FR))
+# the states no sample and no reading sees: the carriage's jitter moves the path, not the image, and a drift's rate
+# shows only through the state it drifts. Each update solves the others; these are their prior conditioned on the
+# solution (kernel.conditioned, kernel.embed), exactly what solving them with the others would give, a row and a
+# column fewer in every solve.
+UNREAD = (D, SKR, FR)
 N_STATE = len(STATE)
 FAMILIES = {entry.family for entry in STATE}

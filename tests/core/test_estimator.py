@@ -510,41 +510,45 @@ def test_the_carriage_is_its_path_and_a_jitter_no_later_frame_inherits():
     assert P[X, V] == pytest.approx(1e-4 * 0.01)
 
 
-def test_the_jitter_conditioned_on_the_states_solved_is_what_solving_it_with_them_gives():
-    """No sample sees the jitter apart from the position, so the update never solves it: its posterior is its prior
-    conditioned on the states solved. On a linear measurement of four states that is exactly the joint solve's,
-    mean and covariance."""
+def test_the_unread_states_conditioned_on_the_states_solved_are_what_solving_them_with_them_gives():
+    """No sample sees the jitter apart from the position, nor the rates of the blur's and the latch's drifts apart
+    from the states they drift, so the update never solves them: their posterior is their prior conditioned on the
+    states solved (kernel.conditioned, kernel.embed). On a linear measurement of five states that is exactly the
+    joint solve's, mean and covariance, the three unread states' correlations with each other included."""
     from graytrack.core.estimator import kernel
-    from graytrack.core.estimator.state import D, G, N_STATE, OFS, V, X
+    from graytrack.core.estimator.state import B, D, FR, G, N_STATE, OFS, SK, SKR, UNREAD, V, X
 
     rng = np.random.default_rng(5)
     root = rng.normal(size=(N_STATE, N_STATE))
     P = root @ root.T + N_STATE * np.eye(N_STATE)
     P[D, :] = P[:, D] = 0.0
     P[D, D], P[X, D], P[D, X] = 4.0, 3.0, 3.0  # (as after a prediction: the jitter is part of the position only)
-    s_prior, z = rng.normal(size=N_STATE), rng.normal(size=3)
-    solved, joint = np.array([X, V, G, OFS]), np.array([X, V, G, OFS, D])
-    H = rng.normal(size=(3, solved.size))
-
-    innovation = z - H @ s_prior[solved]
+    s_prior, z = rng.normal(size=N_STATE), rng.normal(size=4)
+    solved = np.array([X, V, G, OFS, B])
+    joint = np.array(sorted(solved.tolist() + list(UNREAD)))
+    H = rng.normal(size=(4, solved.size))
 
     def update(idx, H):
         A = np.linalg.inv(P[np.ix_(idx, idx)]) + H.T @ H
         s = s_prior.copy()
-        s[idx] += np.linalg.solve(A, H.T @ innovation)
+        s[idx] += np.linalg.solve(A, H.T @ (z - H @ s_prior[idx]))
         return s, A
 
     s, A = update(solved, H)
-    gain = np.zeros(N_STATE)
-    kernel.jitter(s, s_prior, P, solved, np.linalg.inv(P[np.ix_(solved, solved)]), gain)
+    gain = np.zeros(len(UNREAD) * N_STATE)
+    kernel.conditioned(s, s_prior, P, solved, np.linalg.inv(P[np.ix_(solved, solved)]), gain)
     conditioned, sigma = P.copy(), np.empty(N_STATE)
     kernel.embed(conditioned, A, solved, sigma, gain)
-    s_joint, A_joint = update(joint, np.hstack([H, np.zeros((3, 1))]))
+    H_joint = np.zeros((4, joint.size))
+    H_joint[:, np.searchsorted(joint, solved)] = H
+    s_joint, A_joint = update(joint, H_joint)
     together = P.copy()
-    kernel.embed(together, A_joint, joint, sigma, np.zeros(N_STATE))
-    assert s[D] == pytest.approx(s_joint[D], abs=1e-12) and s[D] != s_prior[D]
+    kernel.embed(together, A_joint, joint, sigma, np.zeros(len(UNREAD) * N_STATE))
+    for u in (D, FR, SKR):
+        assert s[u] == pytest.approx(s_joint[u], abs=1e-12) and s[u] != s_prior[u]
     assert np.allclose(s[joint], s_joint[joint], atol=1e-12)
     assert np.allclose(conditioned[np.ix_(joint, joint)], together[np.ix_(joint, joint)], atol=1e-12)
+    assert conditioned[SK, SK] == P[SK, SK] and conditioned[SK, X] == 0.0  # (held: its own variance, no correlation)
 
 
 @pytest.mark.parametrize("seed", [2, 3])
