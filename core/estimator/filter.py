@@ -83,6 +83,8 @@ BAND_GRID = 16  # a band's entering edges searched a sixteenth of the field apar
 BAND_SHARPEST = 1.0 / 64.0  # of the field: a band's penumbra at least this soft (a pixel and a half of a hundred:
 # a shadow's edge on the print is as sharp as the optics make it, a veil's on the window far softer), a bound of its
 # solve: a band barely in view tells its penumbra little, and its solve would otherwise take it sharp past nought
+BAND_HELD_TRAVEL = 4.0  # of a band's penumbra (its σ): the print's travel under a band that holds its place on the
+# pixels, after which the position and its edges no longer trade (_band_held)
 BAND_HAZIEST = 0.5  # of the light a band takes, the most it scatters back (a veil: a tenth)
 BAND_BEYOND = 10.0  # fields beyond the end an edge out of view is put (a veil's: its erf there is 1 to 1e-20)
 STROKE_MARGIN_MM = 1.0  # how far beyond its calibrated stroke a stage may be placed (an overshoot at either end):
@@ -413,6 +415,7 @@ class Estimator:
         self._changed = False
         self._band_missed = 0  # frames in a row that failed with no band followed, since one passed its test
         self._refuted_missed = 0  # ... the grating refuted with no band taken, since one it did not refute (_carried)
+        self._band_entered = math.nan  # the image's position where the band followed entered (_band_held)
         self._bands = _band_shapes(self.t_rel)  # the shapes a band entering is searched among (edges, softness)
         self.params[kernel.U_BAND_SHARPEST] = BAND_SHARPEST * (self._bands.hi - self._bands.lo)
         # without the grating, the camera's place moves only as a step no motion of the stage makes (mount.py)
@@ -866,6 +869,7 @@ class Estimator:
 
     def _band_on(self) -> None:
         """A band followed from this frame: its states among the active ones."""
+        self._band_entered = self._image(self.s)[0]
         self.idx, self._layout = self.idx_band, self._layout_band
         self._answer = (self._answer[0], np.empty((self.idx.size, self.idx.size)), self._answer[2])
 
@@ -888,6 +892,15 @@ class Estimator:
         field = self._bands.hi - self._bands.lo
         return s.item(BR) - s.item(BL) < field / 6.0 or \
             abs(s.item(BH)) > BAND_HAZIEST * abs(s.item(BD)) * max(abs(self.mean_gray), 1.0)
+
+    def _band_held(self, s: list, sigma: list) -> bool:
+        """Whether the band followed has held its place on the pixels (its speed within its test of nought) while
+        the print carried the image across BAND_HELD_TRAVEL of its penumbras since it entered: a veil on the window,
+        a shadow that stays. A position paired wrongly with its edges would have moved them with the print (the
+        print's pattern is what places the image): held, they are the camera's, and the motion has told the two
+        apart, as it tells a mark on the window from one on the print (sensor_map.py)."""
+        return abs(s[BW]) <= self.z_two * sigma[BW] and \
+            abs(s[X] + s[C] + s[L] * s[M] - self._band_entered) > BAND_HELD_TRAVEL * s[BE]
 
     def _band_gone(self) -> bool:
         """Whether the band followed has left the field or closed: the light it takes anywhere in view (its
@@ -1263,10 +1276,11 @@ class Estimator:
                 stale, reason = True, reason or "scale"
                 message = message or f"camera and grating disagree by {nu * 1e3:+.2f} µm"
         bound_factor = self.bound_factor
-        if s[BE] > 0.0 and self.grating == "none":
+        if s[BE] > 0.0 and self.grating == "none" and not self._band_held(s, sigma):
             # A band in view and no grating: its edges and the position trade over less than a period, and a band
             # entered from a frame's search may sit in a wrong pairing of the two that passes the test (read, the
-            # grating tests the position; fused, it pins it): the frame is said to be in its light, not vouched for.
+            # grating tests the position; fused, it pins it): the frame is said to be in its light, not vouched for,
+            # until the motion has told the two apart (_band_held).
             stale, reason = True, reason or "light"
             message = message or "a band of shadow or veil in view, no grating to check the position against"
         # A position the frame cannot vouch for (its variance carried by what its image cannot see) is flagged with
