@@ -315,10 +315,16 @@ def test_the_sensor_map_is_drawn_along_the_pixels_with_its_sigma(tmp_path: Path,
         widths = browser_page.evaluate("""() => fetch('/api/maps').then(r => r.json()).then(d =>
             d.sensor_map.learned.map(i => d.sensor_map.gain_sigma[i]))""")
         assert widths and all(0.0 < width < 0.1 for width in widths), widths
-        # told apart: the window's dust is not learned on the print (known: a single place may be held for a while,
-        # 1 of 8 sessions; docs/daemon.md)
-        printed = daemon.get("/api/maps").json()["print_map"]
-        assert all(mark["nodes"] == 1 for mark in printed["marks"]) and len(printed["marks"]) <= 1, printed
+        # told apart: the window's dust is not learned on the print. A place the print carried away from a speck
+        # may be held for a while (1 of 8 sessions, a node or two: docs/daemon.md) until its evidence lets it go as
+        # the stage moves on, which the test waits for rather than catch it at one moment.
+
+        def printed_apart():
+            printed = daemon.get("/api/maps").json()["print_map"]
+            return all(mark["nodes"] == 1 for mark in printed["marks"]) and len(printed["marks"]) <= 1
+
+        wait_for(printed_apart, 20.0, "the print's map holding none of the window's dust",
+                 show=lambda: daemon.get("/api/maps").json()["print_map"]["marks"])
         assert browser_page.evaluate("document.documentElement.scrollWidth") <= 390
         assert console == [], console
 
