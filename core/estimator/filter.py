@@ -80,6 +80,7 @@ SEARCHED = 2  # families tried with their jump on a frame that fails the test, m
 # families that mimic each other on one frame come in pairs (the light's shape and a shift over less than a
 # period; the stage's jerk and the camera's place without the grating), so the one that moved ranks first or second
 BAND_GRID = 16  # a band's entering edges searched a sixteenth of the field apart (its solve reaches a step)
+EDGE_RUN = 3  # samples at a row's end beyond their noise on one side: a band's edge entering (by chance: 0.4 % a frame)
 BAND_SHARPEST = 1.0 / 64.0  # of the field: a band's penumbra at least this soft (a pixel and a half of a hundred:
 # a shadow's edge on the print is as sharp as the optics make it, a veil's on the window far softer), a bound of its
 # solve: a band barely in view tells its penumbra little, and its solve would otherwise take it sharp past nought
@@ -557,6 +558,24 @@ class Estimator:
             # what the frame read of the light, weighed under both its modes (light_modes.py)
             self.light.weigh(P_prior, self._P_next, s_prior, s, G, OFS, dt)
         test = self._test(stats)
+        # (read and checked, the grating's test is the position's: what a frame leaves at its samples speaks of them
+        # wherever the state's memory carries its position's variance, as the frame's flags do)
+        located = self._checked == self._checked
+        landed = False
+        if test > 1.0 and (stats[S_REJECTED] > 0 or stats[S_WEIGHED] > 0) and dt is not None and \
+                not s_prior.item(BE) > 0.0 and \
+                (located or stats[kernel.S_POSTERIOR] > 0 and self._anchored(self._P_next, stats)) and \
+                self._marks_only(y, mask, s, True) and self._landed(y, mask, s, s_prior, P_prior, grating_z) > 0:
+            # A frame that fails with samples its robust weights set aside has marks on them first: something
+            # landed on a few samples (a speck on the window or the print) is what they show before any change of
+            # the whole image is (a jump of the light, the lens or the mount would otherwise take a speck with the
+            # samples it cannot explain set aside: a magnification jump of 0.5 % seen taking one). They wait outside
+            # the position until the motion resolves them (sensor_map.py), and the frame is solved again without
+            # them; what fails then is searched as before.
+            y, mask = self._through_maps(y_raw, raw_mask, True)
+            s, A, stats = self._solve(y, mask, s_prior, P_prior, grating_z, out=self._answer)
+            test = self._test(stats)
+            landed = True
         main = stats  # the frame's own update (its posterior in _P_next)
         if test > 1.0:
             test, mode, s, A, stats, solved, reason_jump = self._search(y, mask, s, A, stats, test, s_prior, P_prior,
@@ -566,11 +585,8 @@ class Estimator:
             self._unexplained = []
             self._placed_again = False
             self._band_missed = 0
-        # (read and checked, the grating's test is the position's: what a frame leaves at its samples speaks of them
-        # wherever the state's memory carries its position's variance, as the frame's flags do)
-        located = self._checked == self._checked
-        if (test > 1.0 or stats[S_REJECTED] > 0 or stats[S_WEIGHED] > 0) and not mode and dt is not None and \
-                (located or main[S_POSTERIOR] > 0 and self._anchored(self._P_next, main)) and \
+        if not landed and (test > 1.0 or stats[S_REJECTED] > 0 or stats[S_WEIGHED] > 0) and not mode and \
+                dt is not None and (located or main[S_POSTERIOR] > 0 and self._anchored(self._P_next, main)) and \
                 self._landed(y, mask, s, s_prior, P_prior, grating_z) > 0:
             # Something landed on samples no jump of the state explains (a speck on the window, a veil): they wait
             # outside the position until the motion resolves them (sensor_map.py), and the frame is solved again
@@ -813,17 +829,10 @@ class Estimator:
         depth the weighted least-squares one of the residual, the shape whose depth explains most taken), then
         solved from there with its states free about it (their entering priors): (test, state, information,
         figures), or None where no shape explains anything."""
-        kernel.residuals(s, y, self.pixels, self.params, self.model_args, self.scratch, self._noise_var)
+        if self._marks_only(y, mask, s):
+            return None
         residual, values = self.scratch[5], self.scratch[0]
         weight = mask / self._noise_var
-        # A shape of the light leaves residuals of one sign over a run of samples as wide as the narrowest band,
-        # each beyond its noise (by chance: 0.16 to the 17th power on a hundred samples); what a frame leaves in
-        # shorter runs is marks (specks on the window or the print: the maps' and the robust weights')
-        scaled = residual * np.sqrt(weight / self._level(s.item(X)))
-        width = self.model.n_pixels
-        runs = max(kernel.longest_run(scaled, width, 1.0), kernel.longest_run(scaled, width, -1.0))
-        if runs < self.model.n_pixels / 6.0:
-            return None
         seen = -(s[G] + s[A1] * self.b1 + s[A2] * self.b2) * values  # the gray a band of depth 1 takes
         shapes = self._bands
         # each shape's depth and haze by weighted least squares of the residual, their entering priors about none
@@ -857,6 +866,26 @@ class Estimator:
         if not math.isfinite(s_b[X]) or self._band_unlike(s_b):
             return None
         return self._test(stats_b), s_b, A_b, stats_b
+
+    def _marks_only(self, y: np.ndarray, mask: np.ndarray, s: np.ndarray, inside: bool = False) -> bool:
+        """Whether what the frame leaves at ``s`` (its residuals left in ``scratch[5]``) is marks only: a shape of
+        the light leaves residuals of one sign over a run of samples as wide as the narrowest band, each beyond its
+        noise (by chance: 0.16 to the 17th power on a hundred samples); what a frame leaves in shorter runs is
+        marks (specks on the window or the print: the maps' and the robust weights'). ``inside``: and none of them
+        at either end of a row (EDGE_RUN samples of one sign beyond their noise there: a band's edge may be
+        entering, which its first frames show as a short run at the field's end)."""
+        kernel.residuals(s, y, self.pixels, self.params, self.model_args, self.scratch, self._noise_var)
+        scaled = self.scratch[5] * np.sqrt(mask / self._noise_var / self._level(s.item(X)))
+        width = self.model.n_pixels
+        runs = max(kernel.longest_run(scaled, width, 1.0), kernel.longest_run(scaled, width, -1.0))
+        if runs >= width / 6.0:
+            return False
+        if inside:
+            rows = scaled.reshape(-1, width)
+            for end in (rows[:, :EDGE_RUN], rows[:, -EDGE_RUN:]):
+                if ((end > 1.0).all(axis=1) | (end < -1.0).all(axis=1)).any():
+                    return False
+        return True
 
     def _band_widened(self, P: np.ndarray, s: np.ndarray) -> np.ndarray:
         """``P`` with the band's entering priors added to its states (a copy)."""
