@@ -45,8 +45,10 @@ def test_a_moving_shadow_is_followed_as_a_band(paper, grating):
     took a shape of the light one frame before the band could be told (1.40 before; over bench/band_variants.py's
     shadows and veils the carry took the frames 4+ bounds off from 5,544 to 4,977, unflagged 122 to 115). With the
     light's two modes (light_modes.py) 2.1 read and 2.6 without the grating, from 1.40 and 1.23 with the light
-    drifting throughout: a light held until the shadow comes leaves the first frames of its pass to the band and
-    the position (the cost of holding a steady light, not yet paid back; docs/robustness.md)."""
+    drifting throughout: the shadow's first frame was taken by a jump of the light, and the band searched on the
+    next held the light at that jump's posterior, leaving the pass to the jump's light and the position. Searched
+    after such a jump, the band is solved with the light as free as the jump left it: 1.7 both ways (the sweep's
+    seed 1.45; docs/robustness.md)."""
     estimates, ratio, silent, lost = _scored(paper, "moving_shadow:passes=2:period_s=4:start_s=2", grating)
     entered = [k for k, e in enumerate(estimates) if e.mode == "band"]
     assert entered, "no band entered"
@@ -55,7 +57,7 @@ def test_a_moving_shadow_is_followed_as_a_band(paper, grating):
     speeds = [abs(e.state[BL] - estimates[k - 1].state[BL]) / (e.t - estimates[k - 1].t)
               for k, e in enumerate(estimates) if k and followed[k] and followed[k - 1]]
     assert np.median(speeds) > 5.0  # mm/s: the band crosses the field (19 mm/s), it is no mark on the window
-    assert ratio <= (2.5 if grating == "check" else 3.0), ratio
+    assert ratio <= 2.0, ratio
     assert lost == 0.0 and silent <= 1
 
 
