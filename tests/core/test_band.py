@@ -137,3 +137,30 @@ def test_a_run_of_failing_samples_is_a_band_only_when_wide_or_at_an_end():
     assert _longest_run(rows) == 4
     rows[1, 4:9] = True  # nine from the second row's start: a band's edge entering
     assert _longest_run(rows) == np.inf
+
+
+def test_without_the_grating_the_lens_lever_is_held_and_a_stretch_taken_after_a_shadow_moves_no_position_silently():
+    """A cable's shadow crossing a 16-row strip twice, no grating read: after its second pass a magnification jump
+    explained the frames (0.47 % of stretch), and the lens's lever, solved, was narrowed from its ±19 mm prior to
+    −9 ± 4 mm by where the stage's path (pulled by the pass's frames) said the carriage was: the position 37 µm off
+    under a 7 µm bound, 112 frames 4+ bounds off unflagged. No frame tells the lever without the grating
+    (the image places x + L·m): it is held at its prior and only its uncertainty enters the bound (filter.py
+    ``_slide_variance``). None far off unflagged, far off 166 → under 60 (the passes' own frames, flagged)."""
+    from graytrack.core.estimator.settings import EstimatorSettings
+    from graytrack.core.estimator.state import L
+    from graytrack.core.recording import acceleration_phases
+
+    model = calibrate(build_rig("strip16", "", seed=5).record(20.0)[0], "paper").model
+    run, truth = build_rig("strip16", "moving_shadow:passes=2:period_s=4:start_s=2", seed=5, run=1).record(10.0)
+    estimator = Estimator(model, settings=EstimatorSettings().for_recording(run.meta), grating="none",
+                          stage_phases=acceleration_phases(run.meta))
+    estimates = track(model, run.frames, run.t, None, estimator=estimator)
+    error = (np.array([e.x_mm for e in estimates]) - truth.x_mm) * 1e3
+    period = model.period_mm * 1e3
+    error -= period * np.round(np.nanmedian(error) / period)
+    bound = np.array([e.crlb_mm for e in estimates]) * 1e3
+    stale = np.array([e.stale for e in estimates])
+    far = np.abs(error) > 4 * bound
+    assert not np.any(far & ~stale), np.flatnonzero(far & ~stale)
+    assert far.sum() < 60
+    assert all(e.state[L] == 0.0 for e in estimates)  # (held at its prior's mean)
