@@ -367,7 +367,13 @@ class Estimator:
         params[kernel.U_ROBUST] = 1.0 if robust else 0.0
         params[kernel.U_CORE], params[kernel.U_CUT] = settings.core_sigma, settings.cut_sigma
         params[kernel.U_ITERATIONS], params[kernel.U_TOLERANCE] = int(settings.max_iterations), settings.tolerance
-        params[kernel.U_ACCELERATION], params[kernel.U_RATES:] = settings.acceleration ** 2, self.rates2
+        # The stage's acceleration anywhere (where its commands are known, _advance): on its path, a phase of a
+        # profile no one told the estimator, held over an interval; fused, what frees the velocity to follow the
+        # frames, white within it (kernel.predict: held, a velocity read that well from the positions rings).
+        anywhere = settings.acceleration ** 2
+        params[kernel.U_ACCELERATION], params[kernel.U_ACCELERATION_WHITE] = (anywhere, 0.0) if self.on_path else \
+            (0.0, anywhere)
+        params[kernel.U_RATES:] = self.rates2
         # an offset each row draws afresh every frame, as calibration measured it (core/adequacy.py row_offset_gray):
         # eliminated from each frame's solve, so that a row's banding moves no state
         if banding:
@@ -496,13 +502,14 @@ class Estimator:
     def predict(self, t: float) -> None:
         """State and covariance moved on to time ``t``."""
         dt = self._advance(t)
-        kernel.predict(self.s, self.P, dt, self.params.item(kernel.U_ACCELERATION), self.rates2)
+        kernel.predict(self.s, self.P, dt, self.params.item(kernel.U_ACCELERATION),
+                       self.params.item(kernel.U_ACCELERATION_WHITE), self.rates2)
 
     def _advance(self, t: float) -> float:
         """The interval from the last frame's time to ``t`` (s, never negative), ``t`` now the last; the path's
-        acceleration variance over it (``params[U_ACCELERATION]``, mm²/s⁴): where the stage's commands are known,
-        what they asked then (its phases, mm/s²) or else how little its path bends between them; where they are
-        not, the stage's acceleration anywhere."""
+        acceleration's variance over it (``params[U_ACCELERATION]``, mm²/s⁴, held over the interval): where the
+        stage's commands are known, what they asked then (its phases, mm/s²) or else how little its path bends
+        between them; where they are not, the stage's acceleration anywhere (as set at the start)."""
         dt = 0.0 if self.t_last is None else max(t - self.t_last, 0.0)
         if self.light.switch_rate > 0.0:  # the light predicted in the mode its frames make likelier (light_modes.py)
             was = self.light.drifting
@@ -547,7 +554,8 @@ class Estimator:
         if not acquiring:
             dt = predict = self._advance(t)  # the prediction to the frame's time, made by the update's own call
             if self.print_map.active:  # ... or first, where the print's map is read at the predicted image
-                kernel.predict(self.s, self.P, dt, self.params.item(kernel.U_ACCELERATION), self.rates2)
+                kernel.predict(self.s, self.P, dt, self.params.item(kernel.U_ACCELERATION),
+                               self.params.item(kernel.U_ACCELERATION_WHITE), self.rates2)
                 predict = None
         # seen through what sits on the sensor's side and on the print (the frame itself while nothing has landed)
         y, mask = self._through_maps(y_raw, raw_mask, not acquiring)
@@ -1463,7 +1471,7 @@ class Estimator:
         self.start(0.5 * sum(self.model.stroke_range_mm), 0.0, 1.0)
         self._solve(y, self.mask.copy(), self.s.copy(), self.P.copy(), math.nan)
         self._solve(y, self.mask.copy(), self.s.copy(), self.P.copy(), 0.0)
-        kernel.predict(self.s.copy(), self.P.copy(), 0.01, 1.0, self.rates2)
+        kernel.predict(self.s.copy(), self.P.copy(), 0.01, 1.0, 1.0, self.rates2)
         reweigh(self.P, self.P, self.s, self.s, G, OFS, 0.0, 0.0, False, 0.5)
         kernel.embed(self.P.copy(), np.eye(self.idx.size), self.idx, self._sigma, np.zeros(N_STATE))
         kernel.carried(self.P, self.idx, X)

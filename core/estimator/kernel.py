@@ -59,7 +59,8 @@ N_STATS = S_GAIN + len(UNREAD) * N_STATE  # (conditioned)
 # the call ~0.1 µs): the noise model's read variance, shot gain and dark level, the pixel pitch and the period (mm),
 # the fused grating's reading (mm) and weight (1/σ², 0: none), robust weights on (1) or off (0), their core and cut
 # (σ), the iterations at most, the tolerance (mm); whether the prior is first predicted (1) or taken as it is (0), over
-# how long (s), the acceleration's variance (mm²/s⁴); whether the posterior covariance is made too (1: ``embed`` into
+# how long (s), the acceleration's variance (mm²/s⁴) held over the interval and that of one white within it (predict);
+# whether the posterior covariance is made too (1: ``embed`` into
 # ``P_post``, for the update a frame most likely keeps); whether the iterations start from ``s`` and ``rho`` as passed
 # (1: the frame solved again from its own solution and weights) or from the prior's mean and full weights (0); from
 # the calibration's χ² level at the frame's place (each sample's variance is the noise model's times it: what the
@@ -68,8 +69,8 @@ N_STATS = S_GAIN + len(UNREAD) * N_STATE  # (conditioned)
 # a step that would take its σ below is taken to it, as onto any bound); from U_RATES on each state's rate (predict's
 # ``rates2``)
 (U_READ, U_SHOT, U_DARK, U_PITCH, U_PERIOD, U_GRATING_Z, U_GRATING_W, U_ROBUST, U_CORE, U_CUT, U_ITERATIONS,
- U_TOLERANCE, U_PREDICT, U_DT, U_ACCELERATION, U_POSTERIOR, U_WARM, U_LEVEL, U_ROW_LENGTH, U_ROW_PRECISION,
- U_BAND_SHARPEST, U_RATES) = range(22)
+ U_TOLERANCE, U_PREDICT, U_DT, U_ACCELERATION, U_ACCELERATION_WHITE, U_POSTERIOR, U_WARM, U_LEVEL, U_ROW_LENGTH,
+ U_ROW_PRECISION, U_BAND_SHARPEST, U_RATES) = range(23)
 N_PARAMS = U_RATES + N_STATE
 # the pixels' constants in one (4, P) array: target coordinate from the ROI's centre, row from the strip's middle,
 # the two Legendre terms across the line
@@ -390,10 +391,11 @@ def in_range(y: np.ndarray, lo: float, hi: float, mask: np.ndarray, out: np.ndar
         out[p] = mask[p] * (1.0 if (y[p] > lo) & (y[p] < hi) else 0.0)
 
 
-def predict(s: np.ndarray, P: np.ndarray, dt: float, q_accel: float, rates2: np.ndarray) -> None:
+def predict(s: np.ndarray, P: np.ndarray, dt: float, q_held: float, q_white: float, rates2: np.ndarray) -> None:
     """In place: the state and covariance moved on by ``dt`` s: constant velocity with an acceleration of
-    variance ``q_accel`` (mm²/s⁴) held over the interval (the discrete white-acceleration model); every
-    other state a random walk of variance ``rates2`` per second."""
+    variance ``q_held`` (mm²/s⁴) held over the interval (a commanded phase: the discrete model) and one of
+    variance ``q_white`` white within it (the stage's own wandering: the continuous model, of the same velocity
+    variance q·dt² over the interval); every other state a random walk of variance ``rates2`` per second."""
     n = s.size
     # The carriage is its path plus the last frame's jitter D: the path moves on at its velocity, the jitter is
     # drawn afresh (variance rates2[D], white, not a walk): x⁺ = x + v·dt − d + d⁺, d⁺ new.
@@ -408,10 +410,16 @@ def predict(s: np.ndarray, P: np.ndarray, dt: float, q_accel: float, rates2: np.
         P[i, D] = 0.0
         P[D, i] = 0.0
     dt2 = dt * dt
-    P[X, X] += q_accel * dt2 * dt2 / 4.0 + rates2[D]
-    P[X, V] += q_accel * dt2 * dt / 2.0
-    P[V, X] += q_accel * dt2 * dt / 2.0
-    P[V, V] += q_accel * dt2
+    # An acceleration held over the interval ties the velocity's change to the position's wholly (correlation 1): where
+    # the frames read the position far better than that acceleration moves it (the grating fused, no path held), the
+    # velocity was then twice the last step's less the one before, and its error rang from frame to frame at half
+    # the frame rate without ever decaying (±0.4 mm/s at 1 mm/s, the position's bound with it on alternate frames).
+    # One white within the interval leaves a quarter of the velocity's change unread by the positions (correlation
+    # √3/2), and the ringing halves from frame to frame.
+    P[X, X] += (q_held / 4.0 + q_white / 3.0) * dt2 * dt2 + rates2[D]
+    P[X, V] += (q_held + q_white) * dt2 * dt / 2.0
+    P[V, X] += (q_held + q_white) * dt2 * dt / 2.0
+    P[V, V] += (q_held + q_white) * dt2
     P[X, D] = P[D, X] = P[D, D] = rates2[D]
     for pair in range(_DRIFTS.shape[0]):
         # a state drifting at its rate, which itself changes white (the latch at the clocks' rates apart, the blur as
@@ -653,7 +661,7 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
     max_iterations = int(params[U_ITERATIONS])
     row_length, row_precision = int(params[U_ROW_LENGTH]), params[U_ROW_PRECISION]
     if params[U_PREDICT] > 0.0:
-        predict(s_prior, P_prior, params[U_DT], params[U_ACCELERATION], params[U_RATES:])
+        predict(s_prior, P_prior, params[U_DT], params[U_ACCELERATION], params[U_ACCELERATION_WHITE], params[U_RATES:])
     warm = params[U_WARM] > 0.0  # from ``s`` and ``rho`` as passed, not the prior's mean and full weights
     sharpest = params[U_BAND_SHARPEST]
     banding = s_prior[BE] > 0.0  # (a band in view: its states solved)

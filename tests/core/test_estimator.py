@@ -365,17 +365,34 @@ def test_the_gratings_latch_does_not_make_the_velocity_ring():
     assert np.sqrt(np.mean((velocity - truth.v_mm_s)[cruise] ** 2)) < 0.25 * truth.v_mm_s.max()
 
 
+def test_a_fused_grating_reads_the_velocity_and_the_bound_without_ringing(paper):
+    """Fused, the grating reads the carriage to a fraction of a µm each frame and no path holds the velocity: an
+    acceleration held over each interval tied the velocity's change to the position's wholly, so the velocity was
+    twice the last step's less the one before, and its error rang at half the frame rate without decaying
+    (±0.4 mm/s at 1 mm/s where the latch had drifted; the position's bound alternating with it, 26 frames of a
+    clock's drift 4+ bounds off on the narrower ones). White within the interval, the ringing halves each frame.
+    Held, this clean run's velocity is 4.9 % off its cruise (rms) and its bound changes by 5 % a frame."""
+    run, truth = build_rig("paper", "", seed=0, run=1).record()
+    estimates = track(paper, run.frames, run.t, run.reference, grating="fuse")
+    cruise = truth.v_mm_s > 0.99 * truth.v_mm_s.max()
+    velocity = np.array([e.state[1] for e in estimates])
+    assert np.sqrt(np.mean((velocity - truth.v_mm_s)[cruise] ** 2)) < 0.025 * truth.v_mm_s.max()
+    bound = np.array([e.crlb_mm for e in estimates])[cruise]
+    assert np.sqrt(np.mean(np.diff(np.log(bound)) ** 2)) < 0.025
+
+
 def test_a_camera_clock_running_fast_is_the_latchs_rate_not_the_lens(paper):
     """The camera's clock runs 100 ppm fast against the grating's (the latch drifts a millisecond over ten
     seconds), the grating fused. Followed as a random walk alone the latch lagged the drift, the lens's lever
     took the lag as a slide (−92 mm against its 18.75 mm prior) and 169 of 500 frames were 4+ bounds off the
-    truth unflagged; the latch's rate as a state (the two clocks' rates apart, a 30 ppm prior) follows it."""
+    truth unflagged; the latch's rate as a state (the two clocks' rates apart, a 30 ppm prior) follows it, and
+    no more than the acceptance's 0.5 % of the frames are 4+ bounds off unflagged."""
     run, truth = build_rig("paper", "clock_drift:ppm=100", seed=0, run=1).record()
     estimates = track(paper, run.frames, run.t, run.reference, grating="fuse")
     error, bound = _errors(paper, estimates, truth, "fuse")
     stale = np.array([e.stale for e in estimates])
     unflagged = np.sum((np.abs(error) > 4 * bound) & ~stale)
-    assert unflagged <= 0.1 * len(estimates), unflagged
+    assert unflagged <= 0.005 * len(estimates), unflagged
     without = track(paper, run.frames, run.t, run.reference, grating="fuse",
                     settings=EstimatorSettings(clock_drift_prior=0.0))
     error, bound = _errors(paper, without, truth, "fuse")
@@ -503,7 +520,7 @@ def test_the_carriage_is_its_path_and_a_jitter_no_later_frame_inherits():
     P[X, X], P[D, D], P[X, D], P[D, X] = 5e-6, 4e-6, 3e-6, 3e-6  # (mm²: the path's variance 5 − 2·3 + 4 = 3e-6)
     P[V, V] = 1e-4
     rates2[D] = 0.02 ** 2
-    kernel.predict(s, P, 0.01, 0.0, rates2)
+    kernel.predict(s, P, 0.01, 0.0, 0.0, rates2)
     assert s[X] == pytest.approx(1.0 - 0.003 + 2.0 * 0.01) and s[D] == 0.0
     assert P[X, X] == pytest.approx(3e-6 + 1e-4 * 0.01 ** 2 + 0.02 ** 2)
     assert P[X, D] == P[D, X] == P[D, D] == pytest.approx(0.02 ** 2)
