@@ -340,6 +340,7 @@ class Estimator:
         # without the grating what no frame sees of the carriage against the image: the lens's slide, and with it the
         # camera's place on the carriage (_stated)
         self._slide_states = np.array([state for state in (M, L) if state in active], dtype=np.int64)
+        self._band_states = np.array(BAND, dtype=np.int64)
         self._unseen_states = np.array([state for state in (M, L, C, T) if state in active], dtype=np.int64)
         self._carriers: dict[bool, list] = {}  # (_carrier's families over each set of states solved)
         self.idx_appearance = np.array([state for state in (X, V, G, OFS, A1, A2, B) if state in active and
@@ -1329,7 +1330,13 @@ class Estimator:
                 stale, reason = True, reason or "scale"
                 message = message or f"camera and grating disagree by {nu * 1e3:+.2f} µm"
         bound_factor = self.bound_factor
-        if s[BE] > 0.0 and self.grating == "none" and not self._band_held(s, sigma):
+        vouched = 0.0  # (of the position's variance: what a band the motion told from the position carries)
+        if s[BE] > 0.0 and self.grating == "none" and self._band_held(s, sigma):
+            # A band held on the pixels while the print carried the image across it is the camera's (a veil on the
+            # window, a shadow that stays): its edges and the position no longer trade, so what its states carry of
+            # the position is the bound's to state, as a lens's slide is, not a change to flag.
+            vouched = kernel.carried(self.P, self._band_states, X)
+        elif s[BE] > 0.0 and self.grating == "none":
             # A band in view and no grating: its edges and the position trade over less than a period, and a band
             # entered from a frame's search may sit in a wrong pairing of the two that passes the test (read, the
             # grating tests the position; fused, it pins it): the frame is said to be in its light, not vouched for,
@@ -1344,7 +1351,7 @@ class Estimator:
         # on nearly every frame). Without the grating, what no frame can see of the carriage against the image (the
         # lens's slide, the camera's creep on its mount) is the bound's to state, not a change to flag: flagged, a
         # steady run was flagged on every frame after half a minute, its bound grown as the declared rates allow.
-        held = var_x - slide_var - self._stated(t)
+        held = var_x - slide_var - self._stated(t) - vouched
         if held > settings.dominance * floor2 * bound_factor ** 2 and self._changed \
                 and not (checked and reference_mm == reference_mm) \
                 and not model_var > held - model_var - floor2:

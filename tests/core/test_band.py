@@ -67,7 +67,9 @@ def test_a_veil_that_stays_is_followed_as_a_band_with_one_edge(paper, grating):
     staying: a band whose far edge lies beyond the field, its haze the light the veil scatters. Within two noise
     floors (16.6 before), none 4 bounds off unflagged beyond one frame. Without the grating a band's frames are
     flagged until the print has carried the image across its penumbras with the band held on the pixels (which
-    tells its edges from the position): every frame from the veil on was flagged before, now under half."""
+    tells its edges from the position): every frame from the veil on was flagged before. Once held, what the
+    band's states carry of the position is stated in the bound, not flagged as the light's carrying it: 42 % of
+    the band's frames flagged before, now under 10 %."""
     estimates, ratio, silent, lost = _scored(paper, "veil", grating)
     last = estimates[-1].state
     assert last[BE] > 0 and last[BD] > 0.1
@@ -77,7 +79,7 @@ def test_a_veil_that_stays_is_followed_as_a_band_with_one_edge(paper, grating):
     banded = [e for e in estimates if e.state[BE] > 0]
     told = [e for e in banded if e.message.startswith("a band of shadow or veil in view")]
     assert len(banded) > 300 and len(told) < 0.1 * len(banded)  # (the motion tells them apart within half a second)
-    assert np.mean([e.stale for e in banded]) < 0.5
+    assert np.mean([e.stale for e in banded]) < 0.1
 
 
 def test_a_veil_on_a_strip_is_taken_from_its_first_faint_frame_without_the_grating():
