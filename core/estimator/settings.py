@@ -151,11 +151,12 @@ TUNABLES: dict[str, Tunable] = {
         "latch jitter; the model's own latency, when calibration found one, is taken out first): a wider prior "
         "lets the latch take noise for a skew and bias the fused position", low=0.0),
     "clock_drift_prior": Tunable(
-        3e-5, "s/s",
-        "how far apart the camera's and the controller's clocks run, as a prior (crystals of ±20 ppm; 100 ppm apart is "
-        "a 3σ pair): with the grating fused the latch drifts at that rate for hours, which a random walk of the "
-        "latch alone lags behind (the lens's lever then took the lag as a slide); a wider prior lets the fused "
-        "position follow the latch's noise; none where a recording says the controller triggers the camera",
+        1e-4, "s/s",
+        "how far apart the camera's and the controller's clocks run, as a prior (a free-running camera's crystal and "
+        "a controller's, each within ±50–100 ppm over temperature and age: 100 ppm apart is a 1σ pair): with the "
+        "grating fused the latch drifts at that rate for hours, which a random walk of the latch alone lags behind "
+        "(the lens's lever then took the lag as a slide); a wider prior lets the fused position follow the latch's "
+        "noise; none where a recording says the controller triggers the camera",
         low=0.0),
     "clock_drift_rate": Tunable(
         1e-6, "s/s/√s", "how fast the clocks' rates apart change in a second (a crystal warming: a few ppm over "

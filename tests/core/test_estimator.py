@@ -387,7 +387,7 @@ def test_a_camera_clock_running_fast_is_the_latchs_rate_not_the_lens(paper):
     """The camera's clock runs 100 ppm fast against the grating's (the latch drifts a millisecond over ten
     seconds), the grating fused. Followed as a random walk alone the latch lagged the drift, the lens's lever
     took the lag as a slide (−92 mm against its 18.75 mm prior) and 169 of 500 frames were 4+ bounds off the
-    truth unflagged; the latch's rate as a state (the two clocks' rates apart, a 30 ppm prior) follows it, and
+    truth unflagged; the latch's rate as a state (the two clocks' rates apart, a prior of 100 ppm) follows it, and
     no more than the acceptance's 0.5 % of the frames are 4+ bounds off unflagged."""
     run, truth = build_rig("paper", "clock_drift:ppm=100", seed=0, run=1).record()
     estimates = track(paper, run.frames, run.t, run.reference, grating="fuse")
@@ -470,9 +470,10 @@ def test_a_model_that_misses_the_sensors_pixel_sensitivity_keeps_its_misfit_out_
 
 def test_a_camera_on_its_own_clock_carries_the_clocks_rate_in_a_fused_bound_and_a_triggered_one_does_not(paper):
     """A free-running camera's clock and the controller's are two crystals: fused, the bound carries the rate they
-    may run apart (a 30 ppm prior), which one pass at constant speed pins no better than its prior (0.3 µm after ten
-    seconds at 1 mm/s, twice the grating's own). A camera the controller triggers exposes on the clock that latches
-    the grating: its recording says so (``camera_trigger``) and its fused bound is the grating's and the latch's."""
+    may run apart (a prior of 100 ppm), which one pass at constant speed pins no better than its prior (1 µm after
+    ten seconds at 1 mm/s, seven times the grating's own). A camera the controller triggers exposes on the clock
+    that latches the grating: its recording says so (``camera_trigger``) and its fused bound is the grating's and
+    the latch's."""
     from graytrack.core.recording import CAMERA_TRIGGER
 
     run, truth = build_rig("paper", "", seed=4, run=2).record()

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from graytrack.core.calibration import calibrate
+from graytrack.core.estimator import EstimatorSettings
 from graytrack.drivers.sim.scenarios import build_rig
 from graytrack.service.daemon.settings import DaemonConfig
 from tests.service.helpers import stream_through_daemon
@@ -48,7 +49,8 @@ def test_a_fused_stream_carries_the_clocks_rate_only_for_a_camera_on_its_own_clo
     for trigger in ("hardware", "free-run"):
         messages, _, acquisition = stream_through_daemon(paper, run, trim_enabled=True, engine="estimator",
                                                          rig_meta={**run.meta, CAMERA_TRIGGER: trigger})
-        assert acquisition.estimator_settings.clock_drift_prior == (0.0 if trigger == "hardware" else 30e-6)
+        free = EstimatorSettings().clock_drift_prior
+        assert acquisition.estimator_settings.clock_drift_prior == (0.0 if trigger == "hardware" else free)
         placed = [m for m in messages if m.get("x_mm") is not None]
         error = np.array([(m["x_mm"] - truth.x_mm[m["seq"] - 1]) * 1e3 for m in placed])
         bound = np.array([m["crlb_um"] for m in placed])
