@@ -87,6 +87,8 @@ BAND_SHARPEST = 1.0 / 64.0  # of the field: a band's penumbra at least this soft
 BAND_HELD_TRAVEL = 4.0  # of a band's penumbra (its σ): the print's travel under a band that holds its place on the
 # pixels, after which the position and its edges no longer trade (_band_held)
 BAND_HAZIEST = 0.5  # of the light a band takes, the most it scatters back (a veil: a tenth)
+BAND_SLIP = 1e-4  # mm/s: how fast a band the print carries may slip against it (none: a mark on the print; a
+# speed's own variance kept apart from the stage's velocity's, so that the two are not one state twice in a solve)
 BAND_BEYOND = 10.0  # fields beyond the end an edge out of view is put (a veil's: its erf there is 1 to 1e-20)
 STROKE_MARGIN_MM = 1.0  # how far beyond its calibrated stroke a stage may be placed (an overshoot at either end):
 # a place a whole number of periods off that would put any frame of the run further out is not the frame's
@@ -434,6 +436,10 @@ class Estimator:
         self._refuted_missed = 0  # ... the grating refuted with no band taken, since one it did not refute (_carried)
         self._last_mode = ""  # the family whose jump the last frame took
         self._band_entered = math.nan  # the image's position where the band followed entered (_band_held)
+        # where the band followed stood on its first frame (its edges and penumbra), and whether the print carries it
+        # (_band_on_print)
+        self._band_edges: tuple[float, float, float] | None = None
+        self._band_print = False
         self._bands = _band_shapes(self.t_rel)  # the shapes a band entering is searched among (edges, softness)
         self.params[kernel.U_BAND_SHARPEST] = BAND_SHARPEST * (self._bands.hi - self._bands.lo)
         # without the grating, the camera's place moves only as a step no motion of the stage makes (mount.py)
@@ -550,6 +556,8 @@ class Estimator:
             # the image shows where the stage was, its time and grating where it is: no measurement of either
             return self._unplaced(t, self.stats, math.nan, "the driver delivered the last image again", True)
         y_raw, raw_mask = self._prepared(frame)
+        if self.started and self.s.item(BE) > 0.0:
+            self._band_on_print()
         dt = predict = None
         acquiring = not self.started or self.failed >= FAILED_TO_REACQUIRE
         if not acquiring:
@@ -926,6 +934,8 @@ class Estimator:
     def _band_on(self) -> None:
         """A band followed from this frame: its states among the active ones."""
         self._band_entered = self._image(self.s)[0]
+        self._band_edges, self._band_print = None, False
+        self.rates2[BW] = self.params[kernel.U_RATES + BW] = self.settings.band_acceleration ** 2
         self.idx, self._layout = self.idx_band, self._layout_band
         self._answer = (self._answer[0], np.empty((self.idx.size, self.idx.size)), self._answer[2])
 
@@ -939,6 +949,31 @@ class Estimator:
         if self.idx is not self.idx_plain:
             self.idx, self._layout = self.idx_plain, self._layout_plain
             self._answer = (self._answer[0], np.empty((self.idx.size, self.idx.size)), self._answer[2])
+
+    def _band_on_print(self) -> None:
+        """A band the print carries is the print's (a smudge, a stain): told by the motion, as a mark on the print is
+        (sensor_map.py), once the print has carried the image across BAND_HELD_TRAVEL of the band's first penumbras
+        and an edge in view moved with it (by the image's travel against it, within half of that), and from then on
+        its speed across the field is the print's under the camera, the stage's velocity against it, before every
+        frame (the band's edges then move with the position and no longer trade with it over less than a period;
+        followed at a swinging cable's acceleration, a smudge's band let the position run 10-40 µm off under it)."""
+        s = self.s.tolist()
+        if self._band_edges is None:
+            self._band_edges = (s[BL], s[BR], s[BE])
+            return
+        if not self._band_print:
+            travel = s[X] + s[C] + s[L] * s[M] - self._band_entered
+            lo, hi = self._bands.lo, self._bands.hi
+            moved = [s[edge] - was for edge, was in zip((BL, BR), self._band_edges[:2]) if lo <= s[edge] <= hi]
+            self._band_print = bool(moved) and abs(travel) > BAND_HELD_TRAVEL * self._band_edges[2] and \
+                min(abs(m + travel) for m in moved) < 0.5 * abs(travel)
+        if self._band_print:
+            P = self.P
+            self.s[BW] = -self.s[V]
+            P[BW, :] = -P[V, :]
+            P[:, BW] = -P[:, V]
+            P[BW, BW] = P[V, V] + BAND_SLIP * BAND_SLIP
+            self.rates2[BW] = self.params[kernel.U_RATES + BW] = 0.0
 
     def _band_unlike(self, s: np.ndarray) -> bool:
         """Whether a band's shape is no band's: narrower than a sixth of the field (a speck, a scratch: the maps'
