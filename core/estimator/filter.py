@@ -48,8 +48,8 @@ from graytrack.core.estimator.mount import SHOWN_ACCELERATION, SHOWN_BEYOND, Mou
 from graytrack.core.estimator.print_map import PrintMap
 from graytrack.core.estimator.sensor_map import SensorMap
 from graytrack.core.estimator.settings import EstimatorSettings
-from graytrack.core.estimator.state import (A1, A2, B, BAND, BD, BE, BH, BL, BR, BW, C, D, FR, G, L, M, N_STATE, OFS,
-                                            SK, SKR, STATE, T, V, X)
+from graytrack.core.estimator.state import (A1, A2, B, BAND, BD, BE, BH, BL, BR, BW, C, D, FC, FR, FS, G, L, M, N_STATE,
+                                            OFS, SK, SKR, STATE, T, V, X)
 from graytrack.core.frame_tables import FrameTables
 from graytrack.core.kernels import TableEvaluator
 from graytrack.core.models.fourier import FourierModel
@@ -63,7 +63,8 @@ if TYPE_CHECKING:
 GRATING_MODES = ("check", "fuse", "none")
 CALIBRATION_PRINT_MAP = "print_map"  # the model's info key for the print's map its calibration learned
 # the families a flag may name as carrying the position's bound, with their states (_carrier)
-CARRIERS = (("geometry", (C, T)), ("magnification", (M, L)), ("light", (G, OFS, A1, A2) + BAND), ("focus", (B, FR)))
+CARRIERS = (("geometry", (C, T)), ("magnification", (M, L)), ("light", (G, OFS, A1, A2, FC, FS) + BAND),
+            ("focus", (B, FR)))
 # frames whose row mean the estimator computes compiled as they come (the cameras' and the recordings' types);
 # any other is made float64 first
 FRAME_TYPES = frozenset(np.dtype(kind) for kind in (np.uint8, np.uint16, np.float32, np.float64))
@@ -71,7 +72,8 @@ ACQUIRE_GRID_PER_PERIOD = 64  # grid positions a period when a frame is placed f
 # is well inside Gauss–Newton's quarter-period reach)
 FAILED_TO_REACQUIRE = 3  # frames in a row not placed before the next is placed from nothing again
 # Families whose states may jump between two frames, and the states that jump with them.
-JUMPS = {"light": (G, OFS), "field": (A1, A2), "focus": (B,), "magnification": (M,), "geometry": (C, T), "motion": (V,)}
+# (a lamp switched brings its own flicker: the light's jump frees the flicker's parts too, read through the gain)
+JUMPS = {"light": (G, OFS, FC, FS), "field": (A1, A2), "focus": (B,), "magnification": (M,), "geometry": (C, T), "motion": (V,)}
 AGREED_GRID = 33  # positions over half a period where too many samples fail for the sensor's map (_agreed): a
 # 64th of a period apart, well inside Gauss–Newton's quarter-period reach from the one chosen; as many again
 # within a step of it
@@ -291,6 +293,12 @@ class Estimator:
                                 (settings.gain_rate ** 2, settings.offset_rate ** 2))
         rates[G], rates[OFS] = (math.sqrt(rate) for rate in self.light.rates())  # (each frame's mode's: _advance)
         rates[A1] = rates[A2] = settings.field_rate
+        # the lamp's flicker at twice the mains moves the frame's light on from frame to frame (kernel.predict), at
+        # the phase of the frame's time from the estimate's start (_advance)
+        self._flicker = settings.flicker_prior > 0.0 and settings.mains_hz > 0.0
+        self._flicker_omega = 4.0 * math.pi * settings.mains_hz  # rad/s
+        self._flicker_t0 = 0.0
+        rates[FC] = rates[FS] = settings.flicker_rate if self._flicker else 0.0
         rates[B] = settings.focus_rate
         rates[FR] = settings.focus_drift_rate  # (the blur's rate: its change white, kernel.predict)
         rates[M] = settings.stretch_rate
@@ -339,6 +347,7 @@ class Estimator:
         # place stays after the band has gone, which no frame without the grating could undo).
         self.idx_band = np.array(sorted((set(active) - {C, L, M, T, SK}) | set(BAND)), dtype=np.int64)
         self._active = frozenset(active)
+        self._jumping = self._active | ({FC, FS} if self._flicker else set())  # (the states a jump widens)
         # without the grating what no frame sees of the carriage against the image: the lens's slide, and with it the
         # camera's place on the carriage (_stated)
         self._slide_states = np.array([state for state in (M, L) if state in active], dtype=np.int64)
@@ -413,7 +422,8 @@ class Estimator:
         self._expected = np.zeros(n_values)
         self._zeros = np.zeros(n_values)
         self._printed = False  # whether the frame being updated was seen through the print's map
-        self.jump_var = {"light": np.array([settings.jump_light, settings.jump_light * mean]) ** 2,
+        flicker = settings.flicker_prior if self._flicker else 0.0
+        self.jump_var = {"light": np.array([settings.jump_light, settings.jump_light * mean, flicker, flicker]) ** 2,
                          "field": np.array([settings.jump_field, settings.jump_field]) ** 2,
                          "focus": np.array([settings.jump_focus]) ** 2,
                          "magnification": np.array([settings.jump_stretch]) ** 2,
@@ -478,6 +488,7 @@ class Estimator:
         prior[V] = 100.0  # mm/s: any speed the stage can go
         prior[G], prior[OFS] = settings.gain_prior, settings.offset_prior
         prior[A1] = prior[A2] = settings.field_prior
+        prior[FC] = prior[FS] = settings.flicker_prior if self._flicker else 0.0
         prior[B] = settings.focus_prior
         prior[FR] = settings.focus_drift_prior if FR in self._drifts else 0.0
         prior[M] = settings.stretch_prior
@@ -490,7 +501,8 @@ class Estimator:
         self.P[:] = np.diag(prior ** 2)
         self.t_last = t
         self.started = True
-        self._t_start = t
+        self._t_start = self._flicker_t0 = t
+        self.params[kernel.U_FLICKER:kernel.U_RATES] = (0.0, 0.0, 1.0, 0.0)
         self._changed = False
         self._xi_last = math.nan
         self._lens_var, self._lens_m = float(self.P[M, M]), 0.0
@@ -510,7 +522,8 @@ class Estimator:
         """State and covariance moved on to time ``t``."""
         dt = self._advance(t)
         kernel.predict(self.s, self.P, dt, self.params.item(kernel.U_ACCELERATION),
-                       self.params.item(kernel.U_ACCELERATION_WHITE), self.rates2)
+                       self.params.item(kernel.U_ACCELERATION_WHITE), self.rates2,
+                       self.params[kernel.U_FLICKER:kernel.U_RATES])
 
     def _advance(self, t: float) -> float:
         """The interval from the last frame's time to ``t`` (s, never negative), ``t`` now the last; the path's
@@ -525,6 +538,12 @@ class Estimator:
         if self.on_path and self.commands.known:
             asked = self.commands.asked(t - dt, t) if dt > 0.0 else 0.0
             self.params[kernel.U_ACCELERATION] = asked * asked + self.settings.stage_drift ** 2
+        if self._flicker:  # the flicker's turn over the interval (kernel.predict)
+            phase = self._flicker_omega * (t - self._flicker_t0)
+            flicker = self.params[kernel.U_FLICKER:kernel.U_RATES]
+            cos_new, sin_new = math.cos(phase), math.sin(phase)
+            flicker[0], flicker[1] = cos_new - flicker[2], sin_new - flicker[3]
+            flicker[2], flicker[3] = cos_new, sin_new
         self.dt_last, self.t_last = dt, t
         return dt
 
@@ -564,7 +583,8 @@ class Estimator:
             dt = predict = self._advance(t)  # the prediction to the frame's time, made by the update's own call
             if self.print_map.active:  # ... or first, where the print's map is read at the predicted image
                 kernel.predict(self.s, self.P, dt, self.params.item(kernel.U_ACCELERATION),
-                               self.params.item(kernel.U_ACCELERATION_WHITE), self.rates2)
+                               self.params.item(kernel.U_ACCELERATION_WHITE), self.rates2,
+                               self.params[kernel.U_FLICKER:kernel.U_RATES])
                 predict = None
         # seen through what sits on the sensor's side and on the print (the frame itself while nothing has landed)
         y, mask = self._through_maps(y_raw, raw_mask, not acquiring)
@@ -1286,7 +1306,7 @@ class Estimator:
         widened = P.copy()
         for family in families.split("+"):
             for state, var in zip(JUMPS[family], self.jump_var[family]):
-                if state in self._active:
+                if state in self._jumping:
                     widened[state, state] += var
             if family == "motion":  # a velocity jump during the last interval moved the position with it
                 var, dt = self.jump_var[family][0], self.dt_last
@@ -1514,7 +1534,7 @@ class Estimator:
         self.start(0.5 * sum(self.model.stroke_range_mm), 0.0, 1.0)
         self._solve(y, self.mask.copy(), self.s.copy(), self.P.copy(), math.nan)
         self._solve(y, self.mask.copy(), self.s.copy(), self.P.copy(), 0.0)
-        kernel.predict(self.s.copy(), self.P.copy(), 0.01, 1.0, 1.0, self.rates2)
+        kernel.predict(self.s.copy(), self.P.copy(), 0.01, 1.0, 1.0, self.rates2, np.zeros(4))
         reweigh(self.P, self.P, self.s, self.s, G, OFS, 0.0, 0.0, False, 0.5)
         kernel.embed(self.P.copy(), np.eye(self.idx.size), self.idx, self._sigma, np.zeros(N_STATE))
         kernel.carried(self.P, self.idx, X)

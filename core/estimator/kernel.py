@@ -29,16 +29,16 @@ import math
 import numpy as np
 
 from graytrack.core import kernels
-from graytrack.core.estimator.state import (A1, A2, B, BD, BE, BH, BL, BR, BW, C, D, DRIFTS, G, L, M, N_STATE, OFS,
-                                            SK, STATE, T, UNREAD, V, X)
+from graytrack.core.estimator.state import (A1, A2, B, BD, BE, BH, BL, BR, BW, C, D, DRIFTS, FC, FS, G, L, M, N_STATE,
+                                            OFS, SK, STATE, T, UNREAD, V, X)
 
 # The state's layout as this file was compiled for. numba keys its cache by this file's stamp alone, not
 # by the indices it compiles in from state.py: a cache made for another layout indexes the wrong states
 # (seen: NaN or a silently wrong skew). A layout change must therefore change this file, and does:
 LAYOUT = ("x_mm v_mm_s gain offset_gray field_tilt field_bow focus_px2 stretch place_mm lever_mm turn_mm_row skew_s "
           "band_depth band_left_mm band_right_mm band_speed_mm_s band_edge_mm band_haze_gray skew_rate_s_s jitter_mm "
-          "focus_rate_px2_s")
-UNREAD_LAYOUT = "jitter_mm skew_rate_s_s focus_rate_px2_s"
+          "focus_rate_px2_s flicker_cos flicker_sin")
+UNREAD_LAYOUT = "jitter_mm skew_rate_s_s focus_rate_px2_s flicker_cos flicker_sin"
 if LAYOUT != " ".join(entry.name for entry in STATE) or UNREAD_LAYOUT != " ".join(STATE[i].name for i in UNREAD):
     raise ImportError("core/estimator/state.py's layout differs from kernel.LAYOUT or UNREAD_LAYOUT: update them "
                       "with it (they key the compiled kernel's cache)")
@@ -66,11 +66,12 @@ N_STATS = S_GAIN + len(UNREAD) * N_STATE  # (conditioned)
 # the calibration's χ² level at the frame's place (each sample's variance is the noise model's times it: what the
 # model's own error adds to a sample, as calibration measured it); the samples a row and the precision of an offset
 # each row draws afresh every frame (gray⁻², 0: none; _normal); the softest a band's penumbra may be solved to (mm:
-# a step that would take its σ below is taken to it, as onto any bound); from U_RATES on each state's rate (predict's
-# ``rates2``)
+# a step that would take its σ below is taken to it, as onto any bound); from U_FLICKER the flicker's turn over the
+# interval (predict's ``flicker``: four numbers); from U_RATES on each state's rate (predict's ``rates2``)
 (U_READ, U_SHOT, U_DARK, U_PITCH, U_PERIOD, U_GRATING_Z, U_GRATING_W, U_ROBUST, U_CORE, U_CUT, U_ITERATIONS,
  U_TOLERANCE, U_PREDICT, U_DT, U_ACCELERATION, U_ACCELERATION_WHITE, U_POSTERIOR, U_WARM, U_LEVEL, U_ROW_LENGTH,
- U_ROW_PRECISION, U_BAND_SHARPEST, U_RATES) = range(23)
+ U_ROW_PRECISION, U_BAND_SHARPEST, U_FLICKER) = range(23)
+U_RATES = U_FLICKER + 4
 N_PARAMS = U_RATES + N_STATE
 # the pixels' constants in one (4, P) array: target coordinate from the ROI's centre, row from the strip's middle,
 # the two Legendre terms across the line
@@ -391,12 +392,35 @@ def in_range(y: np.ndarray, lo: float, hi: float, mask: np.ndarray, out: np.ndar
         out[p] = mask[p] * (1.0 if (y[p] > lo) & (y[p] < hi) else 0.0)
 
 
-def predict(s: np.ndarray, P: np.ndarray, dt: float, q_held: float, q_white: float, rates2: np.ndarray) -> None:
+def predict(s: np.ndarray, P: np.ndarray, dt: float, q_held: float, q_white: float, rates2: np.ndarray,
+            flicker: np.ndarray) -> None:
     """In place: the state and covariance moved on by ``dt`` s: constant velocity with an acceleration of
     variance ``q_held`` (mm²/s⁴) held over the interval (a commanded phase: the discrete model) and one of
     variance ``q_white`` white within it (the stage's own wandering: the continuous model, of the same velocity
-    variance q·dt² over the interval); every other state a random walk of variance ``rates2`` per second."""
+    variance q·dt² over the interval); every other state a random walk of variance ``rates2`` per second. The
+    frame's light (the gain) moved on by the lamp's flicker: ``flicker`` the change over the interval of the
+    cosine and the sine of twice the mains's phase, and their values at the new time."""
     n = s.size
+    if P[FC, FC] > 0.0 or P[FS, FS] > 0.0:
+        # The gain is the lamp's mean light plus the flicker's parts times the cosine and the sine at the frame's
+        # time: g⁺ = g + Δcos·f_c + Δsin·f_s (P ← F P Fᵀ), and each part's own walk w moves the new frame's light by
+        # its cosine or sine times w.
+        d_cos, d_sin, cos_new, sin_new = flicker[0], flicker[1], flicker[2], flicker[3]
+        s[G] += d_cos * s[FC] + d_sin * s[FS]
+        for j in range(n):
+            P[G, j] += d_cos * P[FC, j] + d_sin * P[FS, j]
+        for i in range(n):
+            P[i, G] += d_cos * P[i, FC] + d_sin * P[i, FS]
+        # (each part walks by its rate relative to the flicker's depth: a flicker's phase turns with the grid's
+        # frequency and its depth with the lamp, a lamp without one holds none, whatever the camera's frame rate)
+        q_cos = q_sin = 0.5 * rates2[FC] * dt * (s[FC] * s[FC] + s[FS] * s[FS])
+        P[FC, FC] += q_cos
+        P[FS, FS] += q_sin
+        P[G, FC] += cos_new * q_cos
+        P[FC, G] += cos_new * q_cos
+        P[G, FS] += sin_new * q_sin
+        P[FS, G] += sin_new * q_sin
+        P[G, G] += cos_new * cos_new * q_cos + sin_new * sin_new * q_sin
     # The carriage is its path plus the last frame's jitter D: the path moves on at its velocity, the jitter is
     # drawn afresh (variance rates2[D], white, not a walk): x⁺ = x + v·dt − d + d⁺, d⁺ new.
     s[X] += s[V] * dt - s[D]
@@ -661,7 +685,8 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
     max_iterations = int(params[U_ITERATIONS])
     row_length, row_precision = int(params[U_ROW_LENGTH]), params[U_ROW_PRECISION]
     if params[U_PREDICT] > 0.0:
-        predict(s_prior, P_prior, params[U_DT], params[U_ACCELERATION], params[U_ACCELERATION_WHITE], params[U_RATES:])
+        predict(s_prior, P_prior, params[U_DT], params[U_ACCELERATION], params[U_ACCELERATION_WHITE], params[U_RATES:],
+                params[U_FLICKER:U_RATES])
     warm = params[U_WARM] > 0.0  # from ``s`` and ``rho`` as passed, not the prior's mean and full weights
     sharpest = params[U_BAND_SHARPEST]
     banding = s_prior[BE] > 0.0  # (a band in view: its states solved)

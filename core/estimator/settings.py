@@ -102,6 +102,20 @@ TUNABLES: dict[str, Tunable] = {
         "of the image, so a shape that wanders freely wanders the position with it: a real change is a jump",
         low=0.0),
     "field_prior": Tunable(2e-4, "1", "the light's shape at the first frame against calibration's", low=0.0),
+    "mains_hz": Tunable(
+        50.0, "Hz",
+        "the mains frequency the lamp runs on (60 where the grid is): a lamp on it flickers at twice it, which a "
+        "camera of a few hundred frames a second samples at a phase that walks from frame to frame", low=0.0),
+    "flicker_prior": Tunable(
+        0.02, "1",
+        "each part of the lamp's flicker at twice the mains at the first frame, relative to its light (a halogen's "
+        "1-2 %; a fluorescent tube or a cheap LED driver more, which its frames then read; 0: a lamp on DC, no "
+        "flicker state)", low=0.0),
+    "flicker_rate": Tunable(
+        0.3, "1/√s",
+        "the flicker drifting in a second relative to its depth (its phase in radians: the grid's frequency a few "
+        "hundredths of a hertz off nominal turns it by 0.1-0.6 rad a second; its depth as the lamp warms): a lamp "
+        "without a flicker holds none, so a steady light costs nothing", low=0.0),
     "focus_rate": Tunable(
         1e-4, "px²/√s", "the blur variance drifting in a second while the lens holds (a mount warming over minutes)",
         low=0.0),
@@ -296,6 +310,9 @@ class EstimatorSettings:
     light_switch_rate: float = TUNABLES["light_switch_rate"].default
     field_rate: float = TUNABLES["field_rate"].default
     field_prior: float = TUNABLES["field_prior"].default
+    mains_hz: float = TUNABLES["mains_hz"].default
+    flicker_prior: float = TUNABLES["flicker_prior"].default
+    flicker_rate: float = TUNABLES["flicker_rate"].default
     focus_rate: float = TUNABLES["focus_rate"].default
     focus_prior: float = TUNABLES["focus_prior"].default
     focus_drift_prior: float = TUNABLES["focus_drift_prior"].default

@@ -1,10 +1,10 @@
 """The estimator's state: what the rig does between frames, one entry a quantity.
 
 Position and velocity of the stage; the light (a gain, an offset, and its shape across the line as
-two Legendre terms); the focus (blur variance relative to calibration); the magnification (a
-stretch about the optical axis, and the axis's lever from the ROI's centre); the camera's place on
-the carriage (an offset along the axis, and its turn across rows). Each belongs to the family a
-flag names when that state is what moved.
+two Legendre terms, and a lamp's flicker at twice the mains); the focus (blur variance relative to
+calibration); the magnification (a stretch about the optical axis, and the axis's lever from the
+ROI's centre); the camera's place on the carriage (an offset along the axis, and its turn across
+rows). Each belongs to the family a flag names when that state is what moved.
 """
 
 from __future__ import annotations
@@ -52,16 +52,25 @@ STATE: tuple[StateEntry, ...] = (
     # a lens warming or cooling drifts its focus steadily over seconds to minutes: the blur drifts at that rate, which
     # itself changes slowly (a random walk of the blur alone lags behind a warming lens by most of what it drifted)
     StateEntry("focus_rate_px2_s", "px²/s", "focus", "how fast the blur variance drifts (a lens warming or cooling)"),
+    # a lamp on the mains flickers at twice its frequency: the light a frame sees is the lamp's mean times that
+    # flicker at the frame's time, which a camera faster than the flicker samples at a phase that walks from frame
+    # to frame (at 200 frames/s, 100 Hz alternates; held at its mean, every frame's light was off by the flicker,
+    # and over less than a period of the print the position with it). The gain is the frame's light; these two, the
+    # flicker's parts in phase with the cosine and the sine of twice the mains at the frame's time, move it on from
+    # frame to frame (kernel.predict) and are read only through it
+    StateEntry("flicker_cos", "1", "light", "the lamp's flicker at twice the mains: its part with the cosine"),
+    StateEntry("flicker_sin", "1", "light", "the lamp's flicker at twice the mains: its part with the sine"),
 )
-X, V, G, OFS, A1, A2, B, M, C, L, T, SK, BD, BL, BR, BW, BE, BH, SKR, D, FR = range(len(STATE))
+X, V, G, OFS, A1, A2, B, M, C, L, T, SK, BD, BL, BR, BW, BE, BH, SKR, D, FR, FC, FS = range(len(STATE))
+FLICKER = (FC, FS)
 BAND = (BD, BL, BR, BW, BE, BH)
 # each state that drifts at a rate the state holds too (an integrated random walk: the rate's change white), with
 # that rate's state: the grating's latch and the clocks' rates apart, the blur and a lens's warming
 DRIFTS = ((SK, SKR), (B, FR))
-# the states no sample and no reading sees: the carriage's jitter moves the path, not the image, and a drift's rate
-# shows only through the state it drifts. Each update solves the others; these are their prior conditioned on the
-# solution (kernel.conditioned, kernel.embed), exactly what solving them with the others would give, a row and a
-# column fewer in every solve.
-UNREAD = (D, SKR, FR)
+# the states no sample and no reading sees: the carriage's jitter moves the path, not the image, a drift's rate
+# shows only through the state it drifts, and the flicker only through the frame's light it moves. Each update
+# solves the others; these are their prior conditioned on the solution (kernel.conditioned, kernel.embed), exactly
+# what solving them with the others would give, a row and a column fewer in every solve.
+UNREAD = (D, SKR, FR, FC, FS)
 N_STATE = len(STATE)
 FAMILIES = {entry.family for entry in STATE}

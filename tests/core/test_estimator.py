@@ -523,7 +523,7 @@ def test_the_carriage_is_its_path_and_a_jitter_no_later_frame_inherits():
     P[X, X], P[D, D], P[X, D], P[D, X] = 5e-6, 4e-6, 3e-6, 3e-6  # (mm²: the path's variance 5 − 2·3 + 4 = 3e-6)
     P[V, V] = 1e-4
     rates2[D] = 0.02 ** 2
-    kernel.predict(s, P, 0.01, 0.0, 0.0, rates2)
+    kernel.predict(s, P, 0.01, 0.0, 0.0, rates2, np.zeros(4))
     assert s[X] == pytest.approx(1.0 - 0.003 + 2.0 * 0.01) and s[D] == 0.0
     assert P[X, X] == pytest.approx(3e-6 + 1e-4 * 0.01 ** 2 + 0.02 ** 2)
     assert P[X, D] == P[D, X] == P[D, D] == pytest.approx(0.02 ** 2)
