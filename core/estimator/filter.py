@@ -70,10 +70,14 @@ CARRIERS = (("geometry", (C, T)), ("magnification", (M, L)), ("light", (G, OFS, 
 FRAME_TYPES = frozenset(np.dtype(kind) for kind in (np.uint8, np.uint16, np.float32, np.float64))
 ACQUIRE_GRID_PER_PERIOD = 64  # grid positions a period when a frame is placed from nothing (a 64th of a period
 # is well inside Gauss–Newton's quarter-period reach)
+FLICKER_ROUNDING = 1e-9  # a change of the flicker's cosine or sine over an interval below this is the phase's own
+# rounding (frames at a whole number of the flicker's cycles apart, 1e-12 at a minute): none, and the flicker's parts
+# stay untied to the light, costing its solve nothing
 FAILED_TO_REACQUIRE = 3  # frames in a row not placed before the next is placed from nothing again
 # Families whose states may jump between two frames, and the states that jump with them.
 # (a lamp switched brings its own flicker: the light's jump frees the flicker's parts too, read through the gain)
-JUMPS = {"light": (G, OFS, FC, FS), "field": (A1, A2), "focus": (B,), "magnification": (M,), "geometry": (C, T), "motion": (V,)}
+JUMPS = {"light": (G, OFS, FC, FS), "field": (A1, A2), "focus": (B,), "magnification": (M,), "geometry": (C, T),
+         "motion": (V,)}
 AGREED_GRID = 33  # positions over half a period where too many samples fail for the sensor's map (_agreed): a
 # 64th of a period apart, well inside Gauss–Newton's quarter-period reach from the one chosen; as many again
 # within a step of it
@@ -542,7 +546,10 @@ class Estimator:
             phase = self._flicker_omega * (t - self._flicker_t0)
             flicker = self.params[kernel.U_FLICKER:kernel.U_RATES]
             cos_new, sin_new = math.cos(phase), math.sin(phase)
-            flicker[0], flicker[1] = cos_new - flicker[2], sin_new - flicker[3]
+            d_cos, d_sin = cos_new - flicker[2], sin_new - flicker[3]
+            if abs(d_cos) < FLICKER_ROUNDING and abs(d_sin) < FLICKER_ROUNDING:
+                d_cos = d_sin = 0.0  # (a frame rate that samples the flicker at one phase: it never moves the light)
+            flicker[0], flicker[1] = d_cos, d_sin
             flicker[2], flicker[3] = cos_new, sin_new
         self.dt_last, self.t_last = dt, t
         return dt

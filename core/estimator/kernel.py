@@ -188,6 +188,13 @@ def conditioned(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np
             gain[row + j] = 0.0
         if not P_prior[u, u] > 0.0:
             continue
+        tied = False  # (a state the prediction has not tied to any solved one keeps its prior: gains of nought)
+        for j in range(n):
+            if P_prior[u, idx[j]] != 0.0:
+                tied = True
+                break
+        if not tied:
+            continue
         acc = s_prior[u]
         for j in range(n):
             g = 0.0
@@ -214,8 +221,14 @@ def embed(P: np.ndarray, A: np.ndarray, idx: np.ndarray, sigma: np.ndarray, gain
     carried = np.zeros((m, n))
     kept = np.zeros((m, m))
     for a in range(m):
-        u = _UNREAD[a]
-        live[a] = P[u, u] > 0.0 and not inside[u]
+        u, row = _UNREAD[a], a * N_STATE
+        live[a] = False
+        if P[u, u] > 0.0 and not inside[u]:
+            # (with gains of nought, what embedding it would carry and keep is what it holds: skipped, the same)
+            for j in range(n):
+                if gain[row + j] != 0.0:
+                    live[a] = True
+                    break
     for a in range(m):
         if not live[a]:
             continue
