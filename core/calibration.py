@@ -103,12 +103,11 @@ def calibrate(rec: Recording, model: str = "paper", *, harmonics: int | None = N
     if phases is not None:
         result.model.info[SHOWN_BEYOND] = shown_acceleration(rec.t, rec.reference, phases,
                                                              TUNABLES["stage_settle"].default)
-    # the print's own marks, learned on this very sweep by the estimator (what tracking then starts from)
-    from graytrack.core.estimator.filter import CALIBRATION_PRINT_MAP, calibration_print_map
+    # the print's own marks and the model's own error as the estimator meets them on this very sweep (what tracking
+    # then starts from, and what its bound states)
+    from graytrack.core.estimator.filter import kept_from_calibration
 
-    result.model.info.pop(CALIBRATION_PRINT_MAP, None)
-    if (marks := calibration_print_map(result.model, rec)) is not None:
-        result.model.info[CALIBRATION_PRINT_MAP] = marks
+    kept_from_calibration(result.model, rec)
     if progress:
         progress(1.0, f"done, rms {result.rmse_gray:.3f} gray")
     return result

@@ -266,6 +266,9 @@ def diagnose(calibration: Recording, validation: Recording | None = None, progre
                                refine_geometry=False).model
     assessed(final_model, corrected)
     record_calibration_line(final_model, calibration)  # camera against grating: drift is measured from it
+    from graytrack.core.estimator.filter import kept_from_calibration  # (the estimator imports what imports this)
+
+    kept_from_calibration(final_model, calibration)  # what the estimator starts from and states (core/calibration.py)
     remaining = _candidates(current)
     if steps:  # the final model's own residual and geometry (the seed model's doubts may be gone)
         verdict = check_geometry(corrected, final_model)

@@ -62,6 +62,7 @@ if TYPE_CHECKING:
 
 GRATING_MODES = ("check", "fuse", "none")
 CALIBRATION_PRINT_MAP = "print_map"  # the model's info key for the print's map its calibration learned
+CALIBRATION_ERROR = "estimator_error_profile"  # ... and for the model's own error as the estimator errs with it
 # the families a flag may name as carrying the position's bound, with their states (_carrier)
 CARRIERS = (("geometry", (C, T)), ("magnification", (M, L)), ("light", (G, OFS, A1, A2, FC, FS) + BAND),
             ("focus", (B, FR)))
@@ -156,8 +157,11 @@ def _model_error(info: dict) -> tuple[list[float], list[float], float]:
     reads a frame."""
     from graytrack.core.compression import judged_factor
 
-    whole = float(info.get("calibration_error_ratio") or 1.0) / judged_factor(info)
-    profile = info.get("calibration_error_profile") or {}
+    # the estimator's own where its calibration measured it (calibration_error: over its floor, a stream's widening
+    # in it), else today's tracking's
+    own = info.get(CALIBRATION_ERROR)
+    profile = own or info.get("calibration_error_profile") or {}
+    whole = float(own["whole"]) if own else float(info.get("calibration_error_ratio") or 1.0) / judged_factor(info)
     edges = np.asarray(profile.get("edges_mm", []), dtype=np.float64)
     ratios = np.asarray(profile.get("ratio", []), dtype=np.float64)
     if edges.size != ratios.size + 1:
@@ -1594,11 +1598,8 @@ def track(model: FourierModel, frames: np.ndarray, t: np.ndarray, reference: np.
     return out
 
 
-def calibration_print_map(model: FourierModel, rec: "Recording") -> dict | None:
-    """The print's map (:meth:`PrintMap.state`) the estimator learns on calibration's own recording ``rec`` with its
-    grating fused, where it learned a mark: the print's own dust and scratches the model's smooth series cannot hold,
-    known to every run from its first frame instead of learned again in each (a steady run learns nothing)."""
-    from graytrack.core.recording import acceleration_phases
+def _calibration_reference(model: FourierModel, rec: "Recording") -> np.ndarray | None:
+    """Calibration's grating readings at each exposure (its latch's skew taken out), None where it read none."""
     from graytrack.core.timing import model_reference
 
     reference = np.asarray(rec.reference, dtype=np.float64)
@@ -1606,6 +1607,64 @@ def calibration_print_map(model: FourierModel, rec: "Recording") -> dict | None:
         return None
     if float(model.info.get("reference_skew_s", 0.0)):
         reference = model_reference(model, rec.t, reference)
+    return reference
+
+
+def calibration_error(model: FourierModel, rec: "Recording") -> dict | None:
+    """The model's own error along the stroke as the estimator errs with it: calibration's recording ``rec`` tracked
+    with the grating read and checked (each position the image's own), against the grating, over the bound the
+    estimator states without the model's error (its noise floor widened by a stream's quantisation) and the
+    grating's rounding: stretch by stretch what repeats at the place (core/adequacy.py ``error_profile``), and
+    ``whole``, the same over the stroke. Today's tracking measures its own (core/calibration_line.py): the two paths
+    err differently where the model misses (a glare read 23 floors by the one, 5.5 by the other), and the bound of
+    each is its own error's. None without a grating or with too few frames placed."""
+    from graytrack.core.adequacy import PROFILE_FRAMES, error_profile, shared_error
+    from graytrack.core.noise import reference_resolution_mm
+    from graytrack.core.recording import acceleration_phases
+
+    reference = _calibration_reference(model, rec)
+    if reference is None:
+        return None
+    estimator = Estimator(model, settings=EstimatorSettings().for_recording(rec.meta), grating="check",
+                          stage_phases=acceleration_phases(rec.meta))
+    estimates = track(model, rec.frames, rec.t, reference, estimator=estimator)
+    x = np.array([e.x_mm for e in estimates])
+    floor = np.array([e.floor_mm for e in estimates])
+    usable = np.isfinite(x) & np.isfinite(reference) & np.isfinite(floor)
+    if usable.sum() < 2 * PROFILE_FRAMES:
+        return None
+    step = float(rec.meta.get("grating_resolution_mm", 0.0) or 0.0) or reference_resolution_mm(reference)
+    error = x[usable] - reference[usable]
+    error -= error.mean()
+    bound2 = floor[usable] ** 2 + step * step / 12.0  # (the grating's rounding is in the error)
+    profile = error_profile(reference[usable], error, bound2)
+    if profile is None:
+        return None
+    order = np.argsort(reference[usable])
+    shared = float(np.mean(shared_error(error[order])))
+    whole = round(math.sqrt(max(1.0 + shared / float(np.mean(bound2)), 0.0)), 3)
+    return {"edges_mm": profile["edges_mm"], "ratio": profile["ratio"], "whole": whole}
+
+
+def kept_from_calibration(model: FourierModel, rec: "Recording") -> None:
+    """What the estimator keeps from calibration's own recording ``rec`` in the model's info: the print's map it
+    learns there (:func:`calibration_print_map`) and the model's own error along the stroke as it errs
+    (:func:`calibration_error`), each replaced (or removed where none)."""
+    for key, made in ((CALIBRATION_PRINT_MAP, calibration_print_map), (CALIBRATION_ERROR, calibration_error)):
+        model.info.pop(key, None)
+        if (kept := made(model, rec)) is not None:
+            model.info[key] = kept
+
+
+def calibration_print_map(model: FourierModel, rec: "Recording") -> dict | None:
+    """The print's map (:meth:`PrintMap.state`) the estimator learns on calibration's own recording ``rec`` with its
+    grating fused, where it learned a mark: the print's own dust and scratches the model's smooth series cannot hold,
+    known to every run from its first frame instead of learned again in each (a steady run learns nothing)."""
+    from graytrack.core.recording import acceleration_phases
+
+    reference = _calibration_reference(model, rec)
+    if reference is None:
+        return None
     estimator = Estimator(model, settings=EstimatorSettings().for_recording(rec.meta), grating="fuse",
                           stage_phases=acceleration_phases(rec.meta))
     track(model, rec.frames, rec.t, reference, estimator=estimator)
@@ -1635,5 +1694,6 @@ def as_result(estimates: list[FrameEstimate], chi2_calibration: float) -> "Track
     return result
 
 
-__all__ = ["CALIBRATION_PRINT_MAP", "Estimator", "FrameEstimate", "GRATING_MODES", "STATE", "as_result",
-           "calibration_level", "calibration_print_map", "track"]
+__all__ = ["CALIBRATION_ERROR", "CALIBRATION_PRINT_MAP", "Estimator", "FrameEstimate", "GRATING_MODES", "STATE",
+           "as_result", "calibration_error", "calibration_level", "calibration_print_map", "kept_from_calibration",
+           "track"]
