@@ -31,6 +31,7 @@ learned against it, the ``--trim`` of the command line), ``"none"`` (no grating 
 from __future__ import annotations
 
 import bisect
+import copy
 import math
 from typing import TYPE_CHECKING, Callable, NamedTuple
 
@@ -46,6 +47,7 @@ from graytrack.core.estimator.light_modes import LightModes, reweigh
 from graytrack.core.estimator.commands import StageCommands
 from graytrack.core.estimator.mount import SHOWN_ACCELERATION, SHOWN_BEYOND, MountWatch, Step, step_test
 from graytrack.core.estimator.print_map import PrintMap
+from graytrack.core.estimator.print_origin import PrintOrigin
 from graytrack.core.estimator.sensor_map import SensorMap
 from graytrack.core.estimator.settings import EstimatorSettings
 from graytrack.core.estimator.state import (A1, A2, B, BAND, BD, BE, BH, BL, BR, BW, C, D, FC, FR, FS, G, L, M, N_STATE,
@@ -62,6 +64,9 @@ if TYPE_CHECKING:
 
 GRATING_MODES = ("check", "fuse", "none")
 CALIBRATION_PRINT_MAP = "print_map"  # the model's info key for the print's map its calibration learned
+CALIBRATION_SURVEY_SIGMA = 3.0  # σ beyond which calibration's own sweep lands a sample on the print (_survey): a
+# speck a few % deep, 2-3 σ of a sample's noise, lands by a run's own test only by chance, and a steady run then
+# learned what its calibration had not; a candidate is kept only where the motion and its evidence decide it a mark
 CALIBRATION_ERROR = "estimator_error_profile"  # ... and for the model's own error as the estimator errs with it
 # the families a flag may name as carrying the position's bound, with their states (_carrier)
 CARRIERS = (("geometry", (C, T)), ("magnification", (M, L)), ("light", (G, OFS, A1, A2, FC, FS) + BAND),
@@ -240,15 +245,18 @@ class Estimator:
     """The recursive estimator bound to one calibrated model.
 
     ``grating``: how a grating reading is used (module docstring). ``robust``: robust reweighting on.
-    ``settings``: the declared rates and levels (settings.py)."""
+    ``settings``: the declared rates and levels (settings.py). ``survey_sigma``: where not nought, every sample a
+    placed frame leaves beyond that many σ lands on the print (:meth:`_survey`: calibration's own sweep)."""
 
     def __init__(self, model: FourierModel, settings: EstimatorSettings | None = None, grating: str = "check",
-                 robust: bool = True, axis_px: float | None = None, stage_phases: np.ndarray | None = None):
+                 robust: bool = True, axis_px: float | None = None, stage_phases: np.ndarray | None = None,
+                 survey_sigma: float = 0.0):
         if not model.is_calibrated:
             raise TrackingError("the model has no coefficients: calibrate it first")
         if grating not in GRATING_MODES:
             raise TrackingError(f"grating mode must be one of {', '.join(GRATING_MODES)}, got {grating!r}")
         self.model, self.grating, self.robust = model, grating, robust
+        self.survey_sigma = float(survey_sigma)
         self.settings = settings = settings or EstimatorSettings()
         if axis_px is not None:
             # the lever's size is what the bound needs (a declared axis and a prior of that size carry the same slide
@@ -424,6 +432,8 @@ class Estimator:
                                 settings.map_most, int(settings.map_reach_px), model.n_pixels, settings.map_hold)
         # the print's side: a reflectance change per place along the target, learned where something lands
         # (print_map.py)
+        self.print_origin: PrintOrigin | None = None  # (calibration's marks telling the period: print_origin.py)
+        self._origin_periods: int | None = None  # the print's coordinates ahead of the run's, once the marks told
         self.print_map = PrintMap.of(model, self.noise, self.chi2_calibration, self.sensor.z2 ** 0.5,
                                      np.array([settings.print_jump ** 2, settings.print_rate ** 2]), mean)
         self._noise_var = np.ones(n_values)
@@ -477,13 +487,16 @@ class Estimator:
         self._warm()
         # the print's own marks as calibration's sweep learned them (calibration_print_map): with the grating the run
         # is placed on the print's coordinates and starts with them known; from the image alone its origin is the
-        # acquisition's pick, up to whole periods, and the map would sit a period off
+        # acquisition's pick, up to whole periods, and the marks tell which (print_origin.py) before they are read
         calibrated = model.info.get(CALIBRATION_PRINT_MAP)
-        if calibrated and grating != "none":
-            try:
+        try:
+            if calibrated and grating != "none":
                 self.print_map.restore(calibrated)
-            except ValueError:  # (a map another grid made: the print as calibrated, as before such maps were kept)
-                self.print_map.reset()
+            elif calibrated and self._folded:
+                finder = PrintOrigin(calibrated, copy.deepcopy(self.print_map), model.period_mm)
+                self.print_origin = finder if finder.any else None
+        except ValueError:  # (a map another grid made: the print as calibrated, as before such maps were kept)
+            self.print_map.reset()
 
     # ------------------------------------------------------------------ the recursion
     def start(self, x_mm: float, t: float, sigma_mm: float) -> None:
@@ -525,6 +538,11 @@ class Estimator:
         self._reach = [math.inf, -math.inf]
         if self.mount is not None:
             self.mount.reset()
+        if self.print_origin is not None:  # placed afresh from the image: its period the acquisition's pick again
+            self.print_origin.reset()
+            if self._origin_periods is not None:
+                self._origin_periods = None
+                self.print_map.reset()
 
     def predict(self, t: float) -> None:
         """State and covariance moved on to time ``t``."""
@@ -722,6 +740,11 @@ class Estimator:
             # its own (a change being learned is flagged until it is)
             anchored = self._anchored(self.P, stats)
             self._learn(y_raw, raw_mask, y, t, anchored, anchored and not estimate.stale)
+        if self.survey_sigma > 0.0 and not estimate.stale and self._anchored(self.P, stats):
+            self._survey(y, mask, t)
+        if self.print_origin is not None and self._origin_periods is None and not estimate.stale and \
+                self._anchored(self.P, stats):
+            self._find_origin(y_raw, raw_mask)
         if carried is not None:  # (the maps learn from the frame as its image placed it, as it is reported)
             self.s, A, idx, self.P, figures = carried
             kernel.embed(self.P, A, idx, self._sigma, np.asarray(figures)[kernel.S_GAIN:])
@@ -1173,6 +1196,44 @@ class Estimator:
             # would beat it on the print's own mark.
             xi, stretch, _ = self._image(self.s)
             self.print_map.land(self.sensor.jumped, t, xi, stretch)
+
+    def _find_origin(self, y_raw: np.ndarray, raw_mask: np.ndarray) -> None:
+        """The vouched frame (``y_raw``, its weights ``raw_mask``, seen through the sensor's map alone: the run's own
+        print map may already hold the marks it weighs) weighed for calibration's marks at each place it may be
+        (print_origin.py); once one is decided, the print's map restored there. (The places the bound reads the
+        model's error at stay the run's travel's to narrow: told by the marks within a few frames, a run's first
+        frames read there what calibration's own passing frames erred, and a run from rest erred 14 µm where those
+        had 2.5.)"""
+        finder, period = self.print_origin, self.model.period_mm
+        x = self.s.item(X)
+        candidates = [round((place - x) / period) for place in self._places(x)]
+        xi, stretch, _ = self._image(self.s)
+        if finder is None or not any(finder.in_view(xi, periods) for periods in candidates):
+            return
+        y, mask = self.sensor.seen(y_raw, raw_mask) if self.sensor.active else (y_raw, raw_mask)
+        kernel.residuals(self.s, y, self.pixels, self.params, self.model_args, self.scratch, self._noise_var)
+        expected = np.subtract(y, self.scratch[5], out=self._expected)
+        decided = finder.observe(y, expected, self._noise_var, mask, self.params.item(kernel.U_LEVEL), xi, stretch,
+                                 candidates)
+        if decided is not None:
+            # (what the run's own map holds so far is dropped: its marks were these, or will land again)
+            self.print_map.restore(finder.state, shift_mm=decided * period)
+            self._origin_periods = decided
+
+    def _survey(self, y: np.ndarray, mask: np.ndarray, t: float) -> None:
+        """Every sample of the placed frame ``y`` (as the maps show it, ``mask`` its weights: a candidate waiting
+        has none) beyond ``survey_sigma`` of its variance (the noise's at the calibration's level) lands on the print
+        where no node holds it yet. A frame's test lands a sample only beyond the false-alarm rate's σ across all of
+        its samples, which a speck a few % deep passes by chance: on calibration's own sweep, the position pinned by
+        the grating over many frames, the print's every such speck is a candidate, decided by the motion and its
+        evidence as any (print_map.py), so that a run starts from it instead of learning it."""
+        kernel.residuals(self.s, y, self.pixels, self.params, self.model_args, self.scratch, self._noise_var)
+        residual = self.scratch[5]
+        beyond = mask * residual * residual > self.survey_sigma ** 2 * self.params.item(kernel.U_LEVEL) * \
+            self._noise_var
+        if beyond.any():
+            xi, stretch, _ = self._image(self.s)
+            self.print_map.land(beyond, t, xi, stretch)
 
     def _prepared(self, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The frame's gray values as the model sees them (its ``prepare``) and their mask."""
@@ -1666,9 +1727,12 @@ def calibration_print_map(model: FourierModel, rec: "Recording") -> dict | None:
     if reference is None:
         return None
     estimator = Estimator(model, settings=EstimatorSettings().for_recording(rec.meta), grating="fuse",
-                          stage_phases=acceleration_phases(rec.meta))
+                          stage_phases=acceleration_phases(rec.meta), survey_sigma=CALIBRATION_SURVEY_SIGMA)
     track(model, rec.frames, rec.t, reference, estimator=estimator)
-    return estimator.print_map.state() if estimator.print_map.learned().any() else None
+    if not estimator.print_map.learned().any():
+        return None
+    estimator.print_map.keep_learned()
+    return estimator.print_map.state()
 
 
 def as_result(estimates: list[FrameEstimate], chi2_calibration: float) -> "TrackResult":

@@ -255,7 +255,11 @@ class PrintMap(ToldMarks):
         self.row = int(pixels)
         self.rows_of = np.ascontiguousarray(np.repeat(np.arange(rows, dtype=np.int64), pixels))
         self.px = np.ascontiguousarray(np.tile(np.arange(pixels, dtype=np.float64), rows))
-        self.step, self.origin = float(step), float(origin)
+        # the grid from ``origin`` along the print's coordinates; a run placed from the image alone is a whole number
+        # of periods off them (``shift``: the print's coordinate less the run's, print_origin.py), and the grid is
+        # read at ``origin`` less it
+        self.step, self.base_origin, self.shift = float(step), float(origin), 0.0
+        self.origin = self.base_origin
         self.nodes = int(math.ceil(span / step)) + 2
         self.stride = self.nodes  # nodes a row
         self.mean_gray = float(mean_gray)
@@ -297,6 +301,7 @@ class PrintMap(ToldMarks):
 
     def reset(self) -> None:
         self.restored = np.zeros(self.touched.size, dtype=np.bool_)  # learned before this run (restore)
+        self.shift, self.origin = 0.0, self.base_origin
         self.touched[:] = False
         for array in (self.f, self.s, self.evidence, self.lo, self.hi, self.t_last):
             array[:] = 0.0
@@ -348,6 +353,15 @@ class PrintMap(ToldMarks):
             beyond = self.f * self.f > self.z2 * self.s
         return travelled & beyond
 
+    def keep_learned(self) -> None:
+        """Every touched node the map has not learned let go (as calibrated): what a finished sweep left undecided is
+        no mark to start a run from."""
+        undecided = self.touched & ~self.learned()
+        self.touched[undecided] = False
+        for array in (self.f, self.s, self.evidence):
+            array[undecided] = 0.0
+        self.active = bool(self.touched.any())
+
     def describe(self) -> dict[str, object]:
         learned = np.flatnonzero(self.learned())
         return {"touched_nodes": int(self.touched.sum()), "learned_nodes": int(learned.size),
@@ -355,8 +369,8 @@ class PrintMap(ToldMarks):
                 "node_mm": self.step}
 
     def place_mm(self, nodes: np.ndarray) -> np.ndarray:
-        """The target coordinate (mm) of each of ``nodes`` (flat indices)."""
-        return self.origin + (np.asarray(nodes) % self.nodes) * self.step
+        """The print's coordinate (mm) of each of ``nodes`` (flat indices)."""
+        return self.base_origin + (np.asarray(nodes) % self.nodes) * self.step
 
     # ------------------------------------------------------------------ kept between runs, told as it changes
     # (what the daemon keeps with its model of record, service/daemon/map_store.py, and says in its event log)
@@ -368,12 +382,14 @@ class PrintMap(ToldMarks):
         where = np.flatnonzero(self.touched)
         learned = self.learned()
         return {"version": MAP_STATE_VERSION, "rows": self.touched.size // self.nodes, "nodes": self.nodes,
-                "node_mm": self.step, "origin_mm": self.origin, "jumps": int(self.jumps), "landed": int(self.landed),
+                "node_mm": self.step, "origin_mm": self.base_origin, "shift_mm": self.shift, "jumps": int(self.jumps),
+                "landed": int(self.landed),
                 "touched": where.tolist(), **{name: getattr(self, name)[where].tolist() for name in NODE},
                 "learned": learned[where].tolist(), "marks": self.marks(learned)}
 
-    def restore(self, state: dict[str, Any]) -> None:
-        """The map as ``state`` (:meth:`state`) holds it; ValueError (one line) when it is not one this map can
+    def restore(self, state: dict[str, Any], shift_mm: float | None = None) -> None:
+        """The map as ``state`` (:meth:`state`) holds it, read ``shift_mm`` behind the print's coordinates (the
+        state's own shift where None); ValueError (one line) when it is not one this map can
         hold: another grid, a bad shape, a value that is not finite or a variance below nought. Nothing changes
         then. Each restored node's drift counts from the first frame of this run that sees it; the restored marks
         are what the next look compares against (not told again)."""
@@ -384,24 +400,26 @@ class PrintMap(ToldMarks):
             where = np.asarray(state["touched"], dtype=np.int64).reshape(-1)
             values = {name: np.asarray(state[name], dtype=np.float64) for name in NODE}
             jumps, landed = int(state.get("jumps", 0)), int(state.get("landed", 0))
+            shift = float(state.get("shift_mm", 0.0) if shift_mm is None else shift_mm)
         except (KeyError, TypeError, AttributeError) as exc:
             raise ValueError(f"not a print map state ({type(exc).__name__}: {exc})") from None
         rows = self.touched.size // self.nodes
         if grid[:2] != (rows, self.nodes) or not all(math.isclose(a, b, rel_tol=1e-12, abs_tol=1e-12)
-                                                      for a, b in zip(grid[2:], (self.step, self.origin))):
+                                                      for a, b in zip(grid[2:], (self.step, self.base_origin))):
             raise ValueError(f"a grid of {grid[0]} row(s) of {grid[1]} nodes {grid[2]:.6g} mm apart from "
                              f"{grid[3]:.6g} mm, the map's is {rows} of {self.nodes} {self.step:.6g} mm apart from "
-                             f"{self.origin:.6g} mm")
+                             f"{self.base_origin:.6g} mm")
         if any(array.shape != where.shape for array in values.values()):
             raise ValueError(f"{where.size} touched nodes but the nodes' arrays have lengths "
                              f"{sorted({array.size for array in values.values()})}")
         if where.size and (where.min() < 0 or where.max() >= self.touched.size or np.unique(where).size != where.size):
             raise ValueError(f"touched nodes must be distinct and within 0..{self.touched.size - 1}")
-        if not all(np.all(np.isfinite(array)) for array in values.values()):
+        if not all(np.all(np.isfinite(array)) for array in values.values()) or not math.isfinite(shift):
             raise ValueError("a reflectance change, variance, evidence or stretch seen that is not finite")
         if np.any(values["s"] < 0.0) or np.any(values["hi"] < values["lo"]):
             raise ValueError("a variance below nought or a stretch seen that ends before it starts")
         self.reset()
+        self.shift, self.origin = shift, self.base_origin - shift
         self.touched[where] = True
         for name, array in values.items():
             getattr(self, name)[where] = array
