@@ -69,6 +69,7 @@ def describe_bytes(n: float) -> str:
 
 PIXEL_AXIS_REVERSED = "pixel_axis_reversed"  # meta: frames reversed from the camera's order to the contract's
 STAGE_ACCELERATION = "stage_acceleration_mm_s2"  # meta: the most the stage was commanded to accelerate, mm/s²
+MAINS_HZ = "mains_hz"  # meta: the mains frequency the rig's lamp runs on, Hz (it flickers at twice it; 0: on DC)
 CAMERA_TRIGGER = "camera_trigger"  # meta: what starts each exposure: "hardware" (the stage controller's line, on the
 # clock that latches the grating: one clock, none to run apart), "software" or "free-run" (the camera's own clock)
 STAGE_PHASES = "stage_acceleration_phases"  # meta: the stage's commanded phases of acceleration, in the frames'

@@ -378,14 +378,23 @@ class EstimatorSettings:
         return dataclasses.replace(self, **changes)
 
     def for_recording(self, meta: dict[str, Any]) -> "EstimatorSettings":
-        """These settings with what a recording's metadata states of its rig: the stage's acceleration, and a camera
-        triggered by the stage controller (one clock for the exposures and the grating's latch: none runs apart)."""
-        from graytrack.core.recording import CAMERA_TRIGGER, STAGE_ACCELERATION
+        """These settings with what a recording's metadata states of its rig: the stage's acceleration, a camera
+        triggered by the stage controller (one clock for the exposures and the grating's latch: none runs apart),
+        and the mains its lamp runs on (0: on DC, no flicker)."""
+        from graytrack.core.recording import CAMERA_TRIGGER, MAINS_HZ, STAGE_ACCELERATION
+
+        def number(key: str) -> float | None:
+            value = meta.get(key)
+            if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value):
+                return float(value)
+            return None
 
         settings = self
-        value = meta.get(STAGE_ACCELERATION)
-        if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value > 0:
-            settings = settings.replace(stage_acceleration=float(value))
+        acceleration, mains = number(STAGE_ACCELERATION), number(MAINS_HZ)
+        if acceleration is not None and acceleration > 0:
+            settings = settings.replace(stage_acceleration=acceleration)
+        if mains is not None and mains >= 0:
+            settings = settings.replace(mains_hz=mains)
         if meta.get(CAMERA_TRIGGER) == "hardware":
             settings = settings.replace(clock_drift_prior=0.0)
         return settings

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import math
 import sys
 from typing import TYPE_CHECKING
 
@@ -47,6 +49,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="the optical axis's distance from the ROI's centre along the line, pixels (the camera's "
                              "geometry): without a grating each bound carries what a magnification change could "
                              "slide the image by (column slide_sigma_um; default 300, a prior; 0: the ROI on the axis)")
+    parser.add_argument("--mains-hz", type=float, default=None, metavar="HZ",
+                        help="--engine estimator: the mains frequency the rig's lamp runs on, whose flicker at twice "
+                             "it the estimator follows (default: the recording's mains_hz, else 50; 60 where the grid "
+                             "is; 0: a lamp on DC)")
     parser.add_argument("--flip", action="store_true",
                         help="reverse the pixel axis first (default: when the model was calibrated with --flip)")
     parser.add_argument("--engine", choices=("watches", "estimator"), default="watches",
@@ -232,6 +238,10 @@ def run(args: argparse.Namespace) -> int:
 
     single_threaded_blas()  # frame-sized products: a second BLAS thread only spins (service/blas.py)
     chunks = chunk_options(args)
+    if args.mains_hz is not None and args.engine != "estimator":
+        from graytrack.service.errors import CliError
+
+        raise CliError("--mains-hz: only the estimator follows a lamp's flicker (add --engine estimator)")
     output_file(args.out)
     recording = load(args.recording)
     model = load_model(args.model)
@@ -287,6 +297,13 @@ def run_estimator(args: argparse.Namespace, recording: Recording, model: Fourier
 
     from graytrack.core.slide import AXIS_PRIOR_PX, describe
 
+    from graytrack.core.recording import MAINS_HZ
+    from graytrack.service.errors import CliError
+
+    if args.mains_hz is not None:
+        if not (math.isfinite(args.mains_hz) and args.mains_hz >= 0):
+            raise CliError(f"--mains-hz {args.mains_hz:g}: must be a frequency of 0 or more (Hz)")
+        recording = dataclasses.replace(recording, meta={**recording.meta, MAINS_HZ: float(args.mains_hz)})
     result, grating = estimated(recording, model, args.no_reference, args.trim, not args.no_robust, args.axis_px,
                                 ProgressBar("track"))
     slid = {} if result.slide_sigma_um is None else {"slide_sigma_um": result.slide_sigma_um}

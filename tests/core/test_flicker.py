@@ -106,3 +106,37 @@ def test_a_frame_rate_that_holds_the_flickers_phase_leaves_it_unread_and_costs_n
     assert max(max(abs(e.state[FC]), abs(e.state[FS])) for e in on) < 1e-9  # (the phase's rounding: 1e-12)
     x_on, x_off = (np.array([e.x_mm for e in estimates]) for estimates in (on, off))
     np.testing.assert_allclose(x_on, x_off, rtol=0, atol=1e-9)
+
+
+def test_track_follows_the_flicker_of_the_mains_it_is_told(fast_model, tmp_path, capsys):
+    """``track --engine estimator --mains-hz``, or a recording's ``mains_hz``: the mains the lamp runs on, whose
+    flicker at twice it the estimator follows (50 unless told; 0: a lamp on DC, none followed). A lamp on 50 Hz told
+    to be on DC is read as the lamp's mean, and the positions with it; the flag overrides what the recording states.
+    A bad frequency, or the flag without the estimator, is an error naming the flag."""
+    import dataclasses
+
+    from graytrack.core.models import save_model
+    from graytrack.core.recording import MAINS_HZ, save
+    from graytrack.service.cli import main
+    from tests.tables import read_columns
+
+    save_model(fast_model, tmp_path / "m.json")
+    run, truth = build_rig("paper", f"{FAST},flicker:mains_hz=50:depth={DEPTH}:phase_deg=30", seed=4,
+                           run=1).record(4.0)
+    save(run, tmp_path / "run.npz")
+    save(dataclasses.replace(run, meta={**run.meta, MAINS_HZ: 0.0}), tmp_path / "dc.npz")
+    errors = {}
+    for name, recording, extra in (("default", "run", []), ("dc", "run", ["--mains-hz", "0"]),
+                                   ("stated", "dc", []), ("overridden", "dc", ["--mains-hz", "50"])):
+        assert main(["track", str(tmp_path / f"{recording}.npz"), "--model", str(tmp_path / "m.json"), "--engine",
+                     "estimator", "--out", str(tmp_path / f"{name}.csv"), *extra]) == 0
+        columns = read_columns(tmp_path / f"{name}.csv")
+        errors[name] = float(np.nanstd(columns["x_mm"] - truth.x_mm)) * 1e3
+    assert errors["dc"] > 2.0 * errors["default"] and errors["stated"] > 2.0 * errors["default"], errors
+    assert errors["overridden"] == pytest.approx(errors["default"], rel=1e-6)
+    capsys.readouterr()
+    common = ["track", str(tmp_path / "run.npz"), "--model", str(tmp_path / "m.json")]
+    assert main([*common, "--engine", "estimator", "--out", str(tmp_path / "bad.csv"), "--mains-hz", "-5"]) != 0
+    assert "--mains-hz" in capsys.readouterr().err
+    assert main([*common, "--out", str(tmp_path / "w.csv"), "--mains-hz", "50"]) != 0
+    assert "--engine estimator" in capsys.readouterr().err
