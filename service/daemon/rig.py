@@ -32,7 +32,7 @@ from graytrack import __version__
 from graytrack.core.errors import ModelError
 from graytrack.core.models import load_model
 from graytrack.core.models.fourier import FourierModel
-from graytrack.core.recording import CAMERA_TRIGGER, PIXEL_AXIS_REVERSED
+from graytrack.core.recording import CAMERA_TRIGGER, MAINS_HZ, PIXEL_AXIS_REVERSED
 from graytrack.drivers.clock import REAL_TIME, ScaledClock
 from graytrack.drivers.factory import Hardware, open_hardware
 from graytrack.service.daemon import snapshot as parts
@@ -518,6 +518,8 @@ class Rig:
             value = getattr(self.settings.sweep, key)
             if value is not None:
                 meta[key] = value
+        if self.settings.daemon.mains_hz is not None:  # [daemon] mains_hz: the lamp's mains, its flicker at twice it
+            meta[MAINS_HZ] = self.settings.daemon.mains_hz
         return meta
 
     def calibration(self, calibration_id: str) -> Calibration:

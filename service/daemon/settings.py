@@ -112,6 +112,10 @@ class DaemonConfig(StrictTable):
         "ACC/DEC); a step of the image against the carriage beyond what such a motion makes over four frames is "
         "the camera moving on its mount, flagged and carried in the bound (core/estimator/mount.py). Unset: the "
         "estimator's declared default, or more where the calibration's readout showed the stage faster")
+    mains_hz: float | None = Field(
+        None, ge=0, description="with engine = estimator: the mains frequency the rig's lamp runs on (Hz: 60 where the "
+        "grid is, 0 a lamp on DC), whose flicker at twice it the estimator follows; written into the daemon's "
+        "recordings as meta.mains_hz. Unset: the estimator's declared default (50)")
     stage_commanded_here: bool = Field(
         True, description="with engine = estimator: every motion of the stage is commanded through this daemon (REST "
         "moves, jogs, homing, velocity changes, stops, the calibration sweep), so the stage's most acceleration is "

@@ -65,3 +65,24 @@ def test_the_engine_is_a_declared_setting():
     assert DaemonConfig(engine="estimator").engine == "estimator"
     with pytest.raises(ValueError):
         DaemonConfig(engine="kalman")
+
+
+def test_the_lamps_mains_is_a_declared_setting_written_into_the_daemons_recordings(tmp_path):
+    """``[daemon] mains_hz``: the mains the rig's lamp runs on, whose flicker at twice it the estimator follows. The
+    daemon states it in every recording it makes (its calibration sweep's too), and a frame loop hands it to the
+    estimator with the rest of what the rig states of itself."""
+    from fastapi.testclient import TestClient
+
+    from graytrack.core.recording import MAINS_HZ, load
+    from graytrack.service.daemon.app import create_app
+    from tests.service.helpers import fast_settings, wait_state
+
+    assert DaemonConfig().mains_hz is None and DaemonConfig(mains_hz=60).mains_hz == 60.0
+    with pytest.raises(ValueError):
+        DaemonConfig(mains_hz=-50)
+    app = create_app(fast_settings(tmp_path, engine="estimator", mains_hz=60.0))
+    with TestClient(app) as client:
+        wait_state(client, "tracking", 30.0)
+        latest = client.get("/api/calibration/latest").json()
+        assert load(latest["files"]["recording"]).meta[MAINS_HZ] == 60.0
+        assert app.state.rig.acquisition.estimator_settings.mains_hz == 60.0
