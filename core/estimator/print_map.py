@@ -45,6 +45,14 @@ from graytrack.core import kernels
 from graytrack.core.estimator.marks import MarkShape, ToldMarks, figure, runs
 from graytrack.core.estimator.sensor_map import BLOCKED, TRAVEL_PX  # (TRAVEL_PX: a node carried across it is used)
 
+# numba keys its cache by this file's stamp alone, and compiles in the values this file's functions read from
+# another: a change of them there, unstated here, left the compiled map with the old values. Stated here, a change
+# there must change this file, and does:
+COMPILED_FROM_SENSOR_MAP = {"BLOCKED": 0.05, "TRAVEL_PX": 1.0}
+if COMPILED_FROM_SENSOR_MAP != {"BLOCKED": BLOCKED, "TRAVEL_PX": TRAVEL_PX}:
+    raise ImportError("core/estimator/sensor_map.py's BLOCKED or TRAVEL_PX differ from print_map.py's "
+                      "COMPILED_FROM_SENSOR_MAP: update it with them (they key the compiled print map's cache)")
+
 NODES_PER_PIXEL = 4  # nodes a pixel's footprint on the target (module docstring: a speck keeps its shape)
 REACH_PX = 1.0  # how far a mark landing on the print reaches beyond the samples that fail their test: the print
 # is in focus, so a mark's edge below the test lies within a pixel of them (a mark on the window, out of focus,
