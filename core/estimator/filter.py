@@ -45,6 +45,7 @@ from graytrack.core.estimator import kernel
 from graytrack.core.estimator.kernel import S_POSTERIOR, S_REJECTED, S_WEIGHED
 from graytrack.core.estimator.light_modes import LightModes, reweigh
 from graytrack.core.estimator.commands import StageCommands
+from graytrack.core.estimator.flat_field import FLAT_FIELD, FlatField, calibration_flat_field
 from graytrack.core.estimator.mount import SHOWN_ACCELERATION, SHOWN_BEYOND, MountWatch, Step, step_test
 from graytrack.core.estimator.print_map import PrintMap
 from graytrack.core.estimator.print_origin import PrintOrigin
@@ -246,11 +247,12 @@ class Estimator:
 
     ``grating``: how a grating reading is used (module docstring). ``robust``: robust reweighting on.
     ``settings``: the declared rates and levels (settings.py). ``survey_sigma``: where not nought, every sample a
-    placed frame leaves beyond that many σ lands on the print (:meth:`_survey`: calibration's own sweep)."""
+    placed frame leaves beyond that many σ lands on the print (:meth:`_survey`: calibration's own sweep).
+    ``flat_field``: the sensor's pattern its frames are seen through (flat_field.py), where not the model's own."""
 
     def __init__(self, model: FourierModel, settings: EstimatorSettings | None = None, grating: str = "check",
                  robust: bool = True, axis_px: float | None = None, stage_phases: np.ndarray | None = None,
-                 survey_sigma: float = 0.0):
+                 survey_sigma: float = 0.0, flat_field: FlatField | None = None):
         if not model.is_calibrated:
             raise TrackingError("the model has no coefficients: calibrate it first")
         if grating not in GRATING_MODES:
@@ -276,12 +278,18 @@ class Estimator:
         self.b1, self.b2 = _legendre(model.n_rows, model.n_pixels)
         self.mask = np.ones(n_values) if model.pixel_weight is None else \
             np.ascontiguousarray(model.pixel_weight, dtype=np.float64).reshape(-1)
+        # the sensor's rough pattern calibration's sweep measured (flat_field.py): every frame is seen through it,
+        # each sample's weight its gain's square (its noise as the camera read it, scaled), and the calibration's
+        # frames leave a level, a course along the stroke and a spread of their own with it out
+        self.flat = flat_field if flat_field is not None else FlatField.from_info(model.info, n_values)
+        if self.flat is not None:
+            self.mask = np.ascontiguousarray(self.mask * self.flat.gain ** 2)
         noise = model.noise()
         self.noise = np.array([noise.read_var + noise.quant_var, noise.shot_gain, noise.dark_gray])
-        self.chi2_calibration = calibration_level(model)
+        self.chi2_calibration = calibration_level(model) if self.flat is None else self.flat.level
         if not (math.isfinite(self.chi2_calibration) and self.chi2_calibration > 0):
             raise TrackingError(f"the model's calibration χ² is {self.chi2_calibration:g}: recalibrate")
-        self.chi2_curve = Chi2Curve.from_info(model.info)
+        self.chi2_curve = Chi2Curve.from_info(model.info) if self.flat is None else self.flat.curve
         self.model_error = _model_error(model.info)
         # From the image alone a model that repeats once a period places a frame up to whole periods (its origin
         # is the acquisition's pick): what calibration keeps along the stroke (its χ² curve, its model's error) is
@@ -293,7 +301,8 @@ class Estimator:
         # frames measured it: core/chi2_curve.py frame_spread); with the rows' offsets taken out of each frame (below),
         # as it scatters without them, against the level without them
         banding = model.n_rows > 1 and float(model.info.get("row_offset_gray") or 0.0) > 0.0
-        shared = model.info.get("row_chi2_spread" if banding else "frame_chi2_spread")
+        shared = model.info.get("row_chi2_spread") if banding else \
+            model.info.get("frame_chi2_spread") if self.flat is None else self.flat.spread
         self.spread = max(stream_chi2_spread(model.info), float(shared or 1.0))
         if banding:
             self.chi2_calibration *= float(model.info.get("row_chi2_share") or 1.0)
@@ -1220,6 +1229,15 @@ class Estimator:
             self.print_map.restore(finder.state, shift_mm=decided * period)
             self._origin_periods = decided
 
+    def left(self, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """What the frame just updated left at each sample against the posterior, as the estimator sees its samples
+        (through the sensor's pattern, flat_field.py): the model's value there, the residual and the sample's weight
+        (its mask and robust weight over its noise's variance). New arrays."""
+        y, mask = self._prepared(frame)
+        kernel.residuals(self.s, y, self.pixels, self.params, self.model_args, self.scratch, self._noise_var)
+        residual = self.scratch[5].copy()
+        return y - residual, residual, mask * self.rho / self._noise_var
+
     def _survey(self, y: np.ndarray, mask: np.ndarray, t: float) -> None:
         """Every sample of the placed frame ``y`` (as the maps show it, ``mask`` its weights: a candidate waiting
         has none) beyond ``survey_sigma`` of its variance (the noise's at the calibration's level) lands on the print
@@ -1265,6 +1283,9 @@ class Estimator:
             # pixel is: the frame is placed from the rest (unchecked, it made the update's matrix NaN and raised)
             bad = ~np.isfinite(y)
             y, mask = np.where(bad, 0.0, y), mask * ~bad
+        if self.flat is not None:
+            # (after the sensor's range, which is the camera's own: prepare may hand back the caller's frame)
+            y = self.flat.apply(y, y if y is self._y else np.empty_like(y))
         return y, mask
 
     def _solve(self, y: np.ndarray, mask: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray,
@@ -1708,11 +1729,15 @@ def calibration_error(model: FourierModel, rec: "Recording") -> dict | None:
 
 
 def kept_from_calibration(model: FourierModel, rec: "Recording") -> None:
-    """What the estimator keeps from calibration's own recording ``rec`` in the model's info: the print's map it
-    learns there (:func:`calibration_print_map`) and the model's own error along the stroke as it errs
-    (:func:`calibration_error`), each replaced (or removed where none)."""
-    for key, made in ((CALIBRATION_PRINT_MAP, calibration_print_map), (CALIBRATION_ERROR, calibration_error)):
+    """What the estimator keeps from calibration's own recording ``rec`` in the model's info: the sensor's rough
+    pattern it measures there (flat_field.py), the print's map it learns (:func:`calibration_print_map`) and the
+    model's own error along the stroke as it errs (:func:`calibration_error`), each with those before it, each
+    replaced (or removed where none)."""
+    made_here = ((FLAT_FIELD, calibration_flat_field), (CALIBRATION_PRINT_MAP, calibration_print_map),
+                 (CALIBRATION_ERROR, calibration_error))
+    for key, _ in made_here:  # (each is made with what comes before it, not with what an earlier calibration kept)
         model.info.pop(key, None)
+    for key, made in made_here:
         if (kept := made(model, rec)) is not None:
             model.info[key] = kept
 
