@@ -1,0 +1,246 @@
+"""Pixels that read at one of two levels, switching at random: found on calibration's sweep, each frame's taken.
+
+A charge trap next to a pixel's photodiode (random telegraph noise) moves the pixel's dark level by a fixed step
+when it captures an electron and back when it releases it, at random instants: the pixel reads at one of two
+levels, staying at each for tens of milliseconds to seconds. Neither map is for it. The sensor's map learns a
+change that stays (dust landing); a pixel that keeps flipping lands again at every flip, and the print's map, a
+candidate beside it each time, takes one of those landings for a mark on the print now and then (a node the print
+carried from the landing's neighbour onto the flipping pixel finds it high there: a steady run learned a mark).
+
+Calibration's sweep reads every sample at both levels many times, the position pinned by the grating, so what each
+sample leaves against the model is its own record (:func:`calibration_two_level`), less the line in the model's
+value it holds (its own gain and dark level: the sensor's pattern, flat_field.py). A sample is two-level where
+that record splits into two levels far apart against its noise (``SEPARATION_SIGMA``), each held over runs of
+frames rather than single ones (a trap's dwell, not a glint's or a spike's: ``HELD_Z``), and where which level it
+reads says nothing of what it sees nor of the other samples: not of the model's value there (a clipped sample reads
+low at the print's bright phase only, and a gain's residual, a sine's, splits in two as well), not of the place along
+the stroke (a mark on the print, a glint off it, reads at its place only), not of what the frame's other samples
+leave (a change of the whole image moves every sample at once; a trap moves its own pixel). What is kept: the
+levels, the noise about them and how often the sample switches (per second).
+
+Tracking, each such sample's level is a mode of its own (:meth:`TwoLevel.apply`): of the two, the one the frame's
+value at the predicted state makes likelier, with the sample's switching rate as the prior of leaving the last
+one (an IMM's choice, per sample); its level taken out of the sample, and the sample's variance widened by what the
+choice leaves open (a value half-way between counts for little). The estimator and the maps see the sample as the
+steady pixel it is between flips.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from graytrack.core.models.fourier import FourierModel
+    from graytrack.core.recording import Recording
+
+TWO_LEVEL = "estimator_two_level"  # the model's info key it is kept under
+TWO_LEVEL_VERSION = 1
+SEPARATION_SIGMA = 4.0  # σ of the sample's noise the two levels must lie apart at least: a frame's value then sits
+# nearer the wrong one on under 2.3 % of the frames (the midpoint 2σ from each), while a sample's plain noise split in
+# two has its halves' means 1.6σ apart
+LEVEL_SPREAD = 1.5  # the most the two levels' own spreads may differ by (a factor): a trap moves the level, not the
+# noise about it (the frames a mark on the print darkens, each by what part of it a sample sees, spread far wider
+# than the rest)
+HELD_Z = 3.0  # σ of the count of switches independent frames would show by which a two-level sample must switch less
+# (a level held over frames: a trap's dwell; a glint or a noise spike lasts a frame or a few, each a switch there
+# and back)
+LEAST_FRAMES = 10  # frames at the rarer level at least (fewer tell no level)
+LEAST_RUNS = 5  # separate runs at the rarer level at least: fewer tell no switching (a change that came and went
+# once or twice is the sensor's map's to follow)
+STRETCHES = 8  # stretches of the sweep along the stroke, and bins of the model's value, in each of which a two-level
+# sample reads its high level as often as over the whole sweep (within HELD_Z of the count, each run of the rarer level
+# counted as one)
+MIN_FRAMES = 40  # placed frames of the sweep at least (else nothing is found)
+
+
+@dataclass(frozen=True)
+class TwoLevel:
+    """The two-level samples of a model: their indices in the frame as the model sees it, their ``low`` and
+    ``high`` levels (gray, what the sample reads beyond the model at each), the noise about them (gray σ) and how
+    often each switches (per second)."""
+
+    samples: np.ndarray
+    low: np.ndarray
+    high: np.ndarray
+    sigma: np.ndarray
+    rate_hz: np.ndarray
+
+    def as_dict(self) -> dict[str, Any]:
+        def rounded(values: np.ndarray) -> list[float]:
+            return [round(float(v), 4) for v in values]
+
+        return {"version": TWO_LEVEL_VERSION, "samples": [int(v) for v in self.samples], "low_gray": rounded(self.low),
+                "high_gray": rounded(self.high), "sigma_gray": rounded(self.sigma), "rate_hz": rounded(self.rate_hz)}
+
+    @classmethod
+    def from_info(cls, info: dict, samples: int) -> "TwoLevel | None":
+        """The two-level samples a model's info keeps for frames of ``samples`` samples; None where it keeps none (or
+        a record of another shape or version: the frames as the model sees them, as before they were kept)."""
+        body = info.get(TWO_LEVEL)
+        if not isinstance(body, dict) or body.get("version") != TWO_LEVEL_VERSION:
+            return None
+        try:
+            index = np.asarray(body["samples"], dtype=np.int64)
+            arrays = [np.asarray(body[key], dtype=np.float64) for key in ("low_gray", "high_gray", "sigma_gray",
+                                                                           "rate_hz")]
+        except (KeyError, TypeError, ValueError):
+            return None
+        if index.ndim != 1 or not index.size or np.any((index < 0) | (index >= samples)) or \
+                any(array.shape != index.shape or not np.all(np.isfinite(array)) for array in arrays) or \
+                np.any(arrays[2] <= 0.0) or np.any(arrays[3] < 0.0):
+            return None
+        return cls(index, *arrays)
+
+    def apply(self, y: np.ndarray, mask: np.ndarray, residual: np.ndarray, gain: np.ndarray | None, dt: float,
+              modes: np.ndarray, taken: np.ndarray) -> np.ndarray:
+        """Each two-level sample's level taken out of ``y`` in place (the frame as the estimator sees it, through
+        the sensor's pattern whose ``gain`` divides a level there), its weight in ``mask`` (in place) widened by
+        what the choice leaves open. ``residual``: what each sample leaves against the model at the predicted
+        state; ``dt``: the interval since the last frame (s; the switching prior's); ``modes``: each sample's last
+        level (True: high), updated; ``taken``: the gray taken out of each sample of the frame, written. Returns
+        the mask (a copy where it changed)."""
+        mask_out = mask
+        for i, p in enumerate(self.samples.tolist()):
+            scale = 1.0 if gain is None else float(gain[p])
+            low, high, sigma = self.low[i] / scale, self.high[i] / scale, self.sigma[i] / scale
+            r = float(residual[p])
+            stay = math.exp(-self.rate_hz[i] * dt) if dt > 0.0 else 1.0
+            stay = min(max(stay, 1e-12), 1.0 - 1e-12)
+            prior_high = stay if modes[i] else 1.0 - stay
+            # log odds of the high level: the prior's, and the frame's value at the two levels' noise
+            odds = math.log(prior_high / (1.0 - prior_high)) + ((r - low) ** 2 - (r - high) ** 2) / (2.0 * sigma ** 2)
+            high_now = odds > 0.0
+            p_high = 1.0 / (1.0 + math.exp(-min(max(odds, -700.0), 700.0)))
+            modes[i] = high_now
+            level = high if high_now else low
+            y[p] -= level
+            taken[p] = level
+            left_open = p_high * (1.0 - p_high) * (high - low) ** 2  # the choice's own variance
+            if left_open > 1e-12 * sigma * sigma and mask[p] > 0.0:
+                if mask_out is mask:
+                    mask_out = mask.copy()
+                mask_out[p] = mask[p] * sigma * sigma / (sigma * sigma + left_open)
+        return mask_out
+
+
+def _independent(at_high: np.ndarray, bins: np.ndarray, run: float) -> bool:
+    """Whether the frames ``at_high`` read the high level as often in each of ``bins`` (an index a frame) as over
+    all, within ``HELD_Z`` of the count (its variance a binomial's times ``run``, the frames a level holds for)."""
+    share = float(at_high.mean())
+    for b in np.unique(bins).tolist():
+        inside = bins == b
+        n = int(inside.sum())
+        if n < LEAST_FRAMES:
+            continue
+        spread = math.sqrt(n * share * (1.0 - share) * run)
+        if abs(float(at_high[inside].sum()) - n * share) > HELD_Z * spread + 1.0:
+            return False
+    return True
+
+
+def found(residual: np.ndarray, h: np.ndarray, t: np.ndarray, stretch: np.ndarray) -> TwoLevel | None:
+    """The two-level samples among the columns of ``residual`` (frames × samples, gray: what each sample left
+    against the model on each placed frame, in time order; ``h`` the model's value there), ``t`` their times and
+    ``stretch`` their stretch along the stroke: None where none is."""
+    frames, samples = residual.shape
+    if frames < MIN_FRAMES:
+        return None
+    # each sample's own line in the model's value taken out (its gain and dark level: the sensor's pattern's)
+    together = residual.sum(axis=1)  # what the frame's samples leave together
+    mean_h, mean_r = h.mean(axis=0), residual.mean(axis=0)
+    dh = h - mean_h
+    slope = (dh * (residual - mean_r)).sum(axis=0) / np.maximum((dh * dh).sum(axis=0), 1e-12)
+    residual = residual - mean_r - slope * dh
+    kept: list[tuple[int, float, float, float, float]] = []
+    ordered = np.sort(residual, axis=0)
+    duration = float(t[-1] - t[0]) if frames > 1 else 0.0
+    for p in range(samples):
+        values = ordered[:, p]
+        if not np.all(np.isfinite(values)):
+            continue
+        # the split of the sorted values into a low and a high part with the least variance within them
+        total = np.cumsum(values)
+        square = np.cumsum(values * values)
+        n_low = np.arange(1, frames)
+        low_sum, high_sum = total[:-1], total[-1] - total[:-1]
+        within = (square[:-1] - low_sum ** 2 / n_low) + (square[-1] - square[:-1] - high_sum ** 2 / (frames - n_low))
+        split = int(np.argmin(within)) + 1
+        rarer = min(split, frames - split)
+        if rarer < LEAST_FRAMES:
+            continue
+        low, high = float(total[split - 1] / split), float((total[-1] - total[split - 1]) / (frames - split))
+        sigma = math.sqrt(max(float(within[split - 1]) / (frames - 2), 1e-12))
+        if high - low < SEPARATION_SIGMA * sigma:
+            continue
+        spreads = (float(np.std(values[:split])), float(np.std(values[split:])))
+        if max(spreads) > LEVEL_SPREAD * max(min(spreads), 1e-12):
+            continue
+        at_high = residual[:, p] > 0.5 * (low + high)
+        # held over frames: fewer switches than independent frames at these shares would make, beyond chance
+        share = float(at_high.mean())
+        switches = int(np.count_nonzero(at_high[1:] != at_high[:-1]))
+        independent = 2.0 * (frames - 1) * share * (1.0 - share)
+        if not switches < independent - HELD_Z * math.sqrt(independent):
+            continue
+        # switching: the rarer level read in runs enough; which level says nothing of the place along the stroke, the
+        # model's value there or what the frame's other samples leave
+        rarer_level = at_high if share <= 0.5 else ~at_high
+        runs = int(np.count_nonzero(rarer_level[1:] & ~rarer_level[:-1])) + int(rarer_level[0])
+        if runs < LEAST_RUNS:
+            continue
+        run = float(rarer_level.sum()) / runs
+        value_bins = np.searchsorted(np.quantile(h[:, p], np.linspace(0.0, 1.0, STRETCHES + 1)[1:-1]), h[:, p])
+        if not all(_independent(at_high, bins, run) for bins in (stretch, value_bins)):
+            continue
+        # the other samples leave the same at either level (each run of the rarer level one reading of it)
+        others = (together - residual[:, p]) / max(samples - 1, 1)
+        high_others, low_others = others[at_high], others[~at_high]
+        apart = float(high_others.mean() - low_others.mean())
+        spread = math.sqrt((float(high_others.var()) * high_others.size + float(low_others.var()) * low_others.size)
+                           / frames)
+        if abs(apart) > HELD_Z * spread * math.sqrt(run * (1.0 / high_others.size + 1.0 / low_others.size)):
+            continue
+        # (the levels about the sample's own line: what it reads beyond the model at each, at its mean value)
+        kept.append((p, low + float(mean_r[p]), high + float(mean_r[p]), sigma,
+                     switches / duration if duration > 0.0 else 0.0))
+    if not kept:
+        return None
+    columns = [np.array(column) for column in zip(*kept)]
+    return TwoLevel(columns[0].astype(np.int64), columns[1], columns[2], columns[3], columns[4])
+
+
+def calibration_two_level(model: "FourierModel", rec: "Recording") -> dict | None:
+    """The two-level samples (:class:`TwoLevel`, as a document) the estimator finds on calibration's own recording
+    ``rec`` with its grating fused; None without a grating, with too few frames placed, or where none is."""
+    from graytrack.core.estimator.filter import Estimator, _calibration_reference
+    from graytrack.core.estimator.settings import EstimatorSettings
+    from graytrack.core.recording import acceleration_phases
+
+    reference = _calibration_reference(model, rec)
+    if reference is None or np.isfinite(reference).sum() < MIN_FRAMES:
+        return None
+    bare = model.with_changes(info={key: value for key, value in model.info.items() if key != TWO_LEVEL})
+    estimator = Estimator(bare, settings=EstimatorSettings().for_recording(rec.meta), grating="fuse",
+                          stage_phases=acceleration_phases(rec.meta))
+    usable = reference[np.isfinite(reference)]
+    edges = np.quantile(usable, np.linspace(0.0, 1.0, STRETCHES + 1)[1:-1])
+    rows, values, times, places = [], [], [], []
+    readings = reference.tolist()
+    for k, when in enumerate(np.asarray(rec.t, dtype=np.float64).tolist()):
+        estimate = estimator.update(rec.frames[k], when, readings[k])
+        if not math.isfinite(estimate.x_mm):
+            continue
+        h, r, _ = estimator.left(rec.frames[k])
+        rows.append(r.astype(np.float32))
+        values.append(h.astype(np.float32))
+        times.append(when)
+        places.append(estimate.x_mm)
+    if len(rows) < MIN_FRAMES:
+        return None
+    kept = found(np.array(rows, dtype=np.float64), np.array(values, dtype=np.float64), np.array(times),
+                 np.searchsorted(edges, np.array(places)))
+    return None if kept is None else kept.as_dict()
