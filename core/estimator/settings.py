@@ -379,9 +379,8 @@ class EstimatorSettings:
 
     def for_recording(self, meta: dict[str, Any]) -> "EstimatorSettings":
         """These settings with what a recording's metadata states of its rig: the stage's acceleration, a camera
-        triggered by the stage controller (one clock for the exposures and the grating's latch: none runs apart, so
-        the latch keeps the latency it has, neither drifting at a rate nor walking), and the mains its lamp runs on
-        (0: on DC, no flicker)."""
+        triggered by the stage controller (one clock for the exposures and the grating's latch: none runs apart),
+        and the mains its lamp runs on (0: on DC, no flicker)."""
         from graytrack.core.recording import CAMERA_TRIGGER, MAINS_HZ, STAGE_ACCELERATION
 
         def number(key: str) -> float | None:
@@ -397,7 +396,11 @@ class EstimatorSettings:
         if mains is not None and mains >= 0:
             settings = settings.replace(mains_hz=mains)
         if meta.get(CAMERA_TRIGGER) == "hardware":
-            settings = settings.replace(clock_drift_prior=0.0, skew_rate=0.0)
+            # (the latch's walk stays: at a steady speed it is the image's offset against the grating walking, and
+            # stands for what the frames cannot tell from a latch there, a latency no calibration measured and the
+            # model's error along the stroke; held, the latch takes them as a constant the fused bound no longer
+            # carries)
+            settings = settings.replace(clock_drift_prior=0.0)
         return settings
 
     def describe(self) -> dict[str, dict[str, Any]]:
