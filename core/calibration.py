@@ -24,6 +24,7 @@ from graytrack.core.models.fourier import FourierModel
 from graytrack.core.recording import Recording, acceleration_phases
 from graytrack.core.calibration_line import record_calibration_line
 from graytrack.core.structure import ModelSpec, fit_spec
+from graytrack.core.effects.bad_pixels import EFFECT as BAD_PIXELS
 
 Progress = Callable[[float, str], None]
 RowMode = Literal["auto", "mean", "each"]
@@ -51,6 +52,23 @@ def rows_disagree(model: FourierModel, data: CalibrationData) -> bool:
     return excess > ROW_DISAGREEMENT_EXCESS
 
 
+def _two_level_pixels(model: FourierModel, rec: Recording, rows: int) -> list[tuple[int, int, str]]:
+    """The (row, pixel, reason) of each pixel that reads at one of two levels on the sweep ``rec`` against the
+    ``model`` just fitted (none without a grating); a model that averages ``rows`` rows names its pixel in every
+    row (its sample is their mean: which row flips it cannot tell)."""
+    from graytrack.core.estimator.two_level import calibration_two_level
+
+    if rec.reference is None or not np.isfinite(rec.reference).any():
+        return []
+    found = calibration_two_level(model, rec)
+    if found is None:
+        return []
+    named = found.bad_pixels(model.n_pixels)
+    if model.n_rows == 1 and rows > 1:
+        named = [(row, pixel, reason) for _, pixel, reason in named for row in range(rows)]
+    return named
+
+
 KIND_SPECS = {
     "ideal": ModelSpec(harmonics=1, pixel_degree=0, name="ideal"),
     "paper": ModelSpec(harmonics=5, pixel_degree=3, name="paper"),
@@ -73,24 +91,36 @@ def calibrate(rec: Recording, model: str = "paper", *, harmonics: int | None = N
         spec = spec.with_changes(harmonics=harmonics)
     if pixel_degree is not None:
         spec = spec.with_changes(pixel_degree=pixel_degree)
-    data = calibration_data(rec)
+    raw = calibration_data(rec)
     # Data quality first, whatever the kind: a stuck pixel left in a cubic pixel fit biases the
     # whole model (core/effects: bad pixels are masked and listed in the model's info).
-    spec = effects.screened(spec, data)
-    data = effects.prepare_data(spec, data)
-    period, pitch, row_shift = initial_geometry(data)
-    result = fit_spec(spec, data, period, pitch, progress=progress)
-    n_rows = data.frames.shape[1]
-    # Whole rows set aside (off the print) blind the row mean at every column: only rows of their own see.
-    blind = float(np.mean(result.model.seen())) < MIN_SEEN_SHARE
-    # A ROI that sees the print on fewer pixels than any model may use is refused whatever models its
-    # rows: the geometry check says so below, without a row-by-row fit that cannot help.
-    hopeless = n_rows > 1 and 1.0 - float(dark_pixels(data, result.model.period_mm).mean()) < MIN_SEEN_SHARE
-    if n_rows > 1 and not hopeless and (rows == "each" or (rows == "auto" and (
-            blind or rows_disagree(result.model, data)))):
-        geometry = result.model
-        result = fit_spec(spec.with_changes(per_row=True), data, geometry.period_mm, geometry.pixel_pitch_mm,
-                          row_shift, progress)
+    spec = effects.screened(spec, raw)
+
+    def fitted(spec: ModelSpec) -> tuple[CalibrationFit, CalibrationData]:
+        data = effects.prepare_data(spec, raw)
+        period, pitch, row_shift = initial_geometry(data)
+        result = fit_spec(spec, data, period, pitch, progress=progress)
+        n_rows = data.frames.shape[1]
+        # Whole rows set aside (off the print) blind the row mean at every column: only rows of their own see.
+        blind = float(np.mean(result.model.seen())) < MIN_SEEN_SHARE
+        # A ROI that sees the print on fewer pixels than any model may use is refused whatever models its
+        # rows: the geometry check says so below, without a row-by-row fit that cannot help.
+        hopeless = n_rows > 1 and 1.0 - float(dark_pixels(data, result.model.period_mm).mean()) < MIN_SEEN_SHARE
+        if n_rows > 1 and not hopeless and (rows == "each" or (rows == "auto" and (
+                blind or rows_disagree(result.model, data)))):
+            geometry = result.model
+            result = fit_spec(spec.with_changes(per_row=True), data, geometry.period_mm, geometry.pixel_pitch_mm,
+                              row_shift, progress)
+        return result, data
+
+    result, data = fitted(spec)
+    # Pixels that read at one of two levels at random (a charge trap) show only against a model, on the sweep with
+    # the grating pinning it: set aside as bad pixels too, and the model fitted again without them
+    # (core/estimator/two_level.py)
+    flipping = _two_level_pixels(result.model, rec, data.frames.shape[1])
+    if flipping:
+        spec = BAD_PIXELS.grow(spec, tuple(flipping)) or spec
+        result, data = fitted(spec)
     assessed(result.model, data)
     result.geometry = check_geometry(data, result.model, result.rmse_gray)
     result.model.info["geometry"] = result.geometry.as_dict()

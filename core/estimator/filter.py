@@ -46,7 +46,6 @@ from graytrack.core.estimator.kernel import S_POSTERIOR, S_REJECTED, S_WEIGHED
 from graytrack.core.estimator.light_modes import LightModes, reweigh
 from graytrack.core.estimator.commands import StageCommands
 from graytrack.core.estimator.flat_field import FLAT_FIELD, FlatField, calibration_flat_field
-from graytrack.core.estimator.two_level import TWO_LEVEL, TwoLevel, calibration_two_level
 from graytrack.core.estimator.mount import SHOWN_ACCELERATION, SHOWN_BEYOND, MountWatch, Step, step_test
 from graytrack.core.estimator.print_map import PrintMap
 from graytrack.core.estimator.print_origin import PrintOrigin
@@ -283,11 +282,6 @@ class Estimator:
         # each sample's weight its gain's square (its noise as the camera read it, scaled), and the calibration's
         # frames leave a level, a course along the stroke and a spread of their own with it out
         self.flat = flat_field if flat_field is not None else FlatField.from_info(model.info, n_values)
-        # the samples that read at one of two levels (two_level.py): each frame's level, by the predicted state, taken
-        # out (the gray taken out of each sample of the last frame in ``_taken``)
-        self.two_level = TwoLevel.from_info(model.info, n_values)
-        self._modes = np.zeros(0 if self.two_level is None else self.two_level.samples.size, dtype=np.bool_)
-        self._taken = np.zeros(n_values)
         if self.flat is not None:
             self.mask = np.ascontiguousarray(self.mask * self.flat.gain ** 2)
         noise = model.noise()
@@ -625,15 +619,11 @@ class Estimator:
         acquiring = not self.started or self.failed >= FAILED_TO_REACQUIRE
         if not acquiring:
             dt = predict = self._advance(t)  # the prediction to the frame's time, made by the update's own call
-            if self.print_map.active or self.two_level is not None:
-                # ... or first, where the print's map is read at the predicted image, or a two-level sample's level
-                # chosen by what the frame leaves there
+            if self.print_map.active:  # ... or first, where the print's map is read at the predicted image
                 kernel.predict(self.s, self.P, dt, self.params.item(kernel.U_ACCELERATION),
                                self.params.item(kernel.U_ACCELERATION_WHITE), self.rates2,
                                self.params[kernel.U_FLICKER:kernel.U_RATES])
                 predict = None
-            if self.two_level is not None:
-                y_raw, raw_mask = self._levelled(y_raw, raw_mask, dt)
         # seen through what sits on the sensor's side and on the print (the frame itself while nothing has landed)
         y, mask = self._through_maps(y_raw, raw_mask, not acquiring)
         if acquiring:
@@ -1239,28 +1229,11 @@ class Estimator:
             self.print_map.restore(finder.state, shift_mm=decided * period)
             self._origin_periods = decided
 
-    def _levelled(self, y: np.ndarray, mask: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
-        """The frame with each two-level sample's level taken out, chosen by what it leaves against the model at the
-        predicted state (two_level.py), and the mask with what the choices leave open."""
-        levels = self.two_level
-        if levels is None:
-            return y, mask
-        if y is not self._y:
-            y = y.copy()
-        kernel.residuals(self.s, y, self.pixels, self.params, self.model_args, self.scratch, self._noise_var)
-        self._taken[:] = 0.0
-        mask = levels.apply(y, mask, self.scratch[5], None if self.flat is None else self.flat.gain, dt,
-                                    self._modes, self._taken)
-        return y, mask
-
     def left(self, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """What the frame just updated left at each sample against the posterior, as the estimator sees its samples
-        (through the sensor's pattern, flat_field.py, and with a two-level sample's level taken out, two_level.py):
-        the model's value there, the residual and the sample's weight (its mask and robust weight over its noise's
-        variance). New arrays."""
+        (through the sensor's pattern, flat_field.py): the model's value there, the residual and the sample's weight
+        (its mask and robust weight over its noise's variance). New arrays."""
         y, mask = self._prepared(frame)
-        if self.two_level is not None:
-            y = y - self._taken
         kernel.residuals(self.s, y, self.pixels, self.params, self.model_args, self.scratch, self._noise_var)
         residual = self.scratch[5].copy()
         return y - residual, residual, mask * self.rho / self._noise_var
@@ -1756,12 +1729,12 @@ def calibration_error(model: FourierModel, rec: "Recording") -> dict | None:
 
 
 def kept_from_calibration(model: FourierModel, rec: "Recording") -> None:
-    """What the estimator keeps from calibration's own recording ``rec`` in the model's info: the samples that read
-    at one of two levels (two_level.py), the sensor's rough pattern it measures there (flat_field.py), the print's
-    map it learns (:func:`calibration_print_map`) and the model's own error along the stroke as it errs
-    (:func:`calibration_error`), each with those before it, each replaced (or removed where none)."""
-    made_here = ((TWO_LEVEL, calibration_two_level), (FLAT_FIELD, calibration_flat_field),
-                 (CALIBRATION_PRINT_MAP, calibration_print_map), (CALIBRATION_ERROR, calibration_error))
+    """What the estimator keeps from calibration's own recording ``rec`` in the model's info: the sensor's rough
+    pattern it measures there (flat_field.py), the print's map it learns (:func:`calibration_print_map`) and the
+    model's own error along the stroke as it errs (:func:`calibration_error`), each with those before it, each
+    replaced (or removed where none)."""
+    made_here = ((FLAT_FIELD, calibration_flat_field), (CALIBRATION_PRINT_MAP, calibration_print_map),
+                 (CALIBRATION_ERROR, calibration_error))
     for key, _ in made_here:  # (each is made with what comes before it, not with what an earlier calibration kept)
         model.info.pop(key, None)
     for key, made in made_here:

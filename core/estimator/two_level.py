@@ -1,11 +1,12 @@
-"""Pixels that read at one of two levels, switching at random: found on calibration's sweep, each frame's taken.
+"""Pixels that read at one of two levels, switching at random: found on calibration's sweep and set aside.
 
 A charge trap next to a pixel's photodiode (random telegraph noise) moves the pixel's dark level by a fixed step
 when it captures an electron and back when it releases it, at random instants: the pixel reads at one of two
-levels, staying at each for tens of milliseconds to seconds. Neither map is for it. The sensor's map learns a
-change that stays (dust landing); a pixel that keeps flipping lands again at every flip, and the print's map, a
-candidate beside it each time, takes one of those landings for a mark on the print now and then (a node the print
-carried from the landing's neighbour onto the flipping pixel finds it high there: a steady run learned a mark).
+levels, staying at each for tens of milliseconds to seconds. Left in, it costs twice. The model's smooth pixel
+polynomials take the pixel's mean level into their fit, and the pixels about it err by the bump that leaves. While
+tracking, every flip lands in the estimator's two maps: the sensor's lets the pixel go each time it reads as
+calibrated again, and the print's, a candidate beside it each time, now and then learns one flip as a mark on
+the print (a node the print carried from the landing's neighbour onto the flipping pixel finds it high there).
 
 Calibration's sweep reads every sample at both levels many times, the position pinned by the grating, so what each
 sample leaves against the model is its own record (:func:`calibration_two_level`), less the line in the model's
@@ -15,21 +16,18 @@ frames rather than single ones (a trap's dwell, not a glint's or a spike's: ``HE
 reads says nothing of what it sees nor of the other samples: not of the model's value there (a clipped sample reads
 low at the print's bright phase only, and a gain's residual, a sine's, splits in two as well), not of the place along
 the stroke (a mark on the print, a glint off it, reads at its place only), not of what the frame's other samples
-leave (a change of the whole image moves every sample at once; a trap moves its own pixel). What is kept: the
-levels, the noise about them and how often the sample switches (per second).
+leave (a change of the whole image moves every sample at once; a trap moves its own pixel).
 
-Tracking, each such sample's level is a mode of its own (:meth:`TwoLevel.apply`): of the two, the one the frame's
-value at the predicted state makes likelier, with the sample's switching rate as the prior of leaving the last
-one (an IMM's choice, per sample); its level taken out of the sample, and the sample's variance widened by what the
-choice leaves open (a value half-way between counts for little). The estimator and the maps see the sample as the
-steady pixel it is between flips.
+Calibration (core/calibration.py) sets such pixels aside as bad pixels (core/effects/bad_pixels.py: weight 0 in
+the fit and in tracking, named with the reason) and fits again: one pixel in a hundred is a percent of the
+information, against a bias the flips put into the model and the maps.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -37,8 +35,6 @@ if TYPE_CHECKING:
     from graytrack.core.models.fourier import FourierModel
     from graytrack.core.recording import Recording
 
-TWO_LEVEL = "estimator_two_level"  # the model's info key it is kept under
-TWO_LEVEL_VERSION = 1
 SEPARATION_SIGMA = 4.0  # σ of the sample's noise the two levels must lie apart at least: a frame's value then sits
 # nearer the wrong one on under 2.3 % of the frames (the midpoint 2σ from each), while a sample's plain noise split in
 # two has its halves' means 1.6σ apart
@@ -59,9 +55,9 @@ MIN_FRAMES = 40  # placed frames of the sweep at least (else nothing is found)
 
 @dataclass(frozen=True)
 class TwoLevel:
-    """The two-level samples of a model: their indices in the frame as the model sees it, their ``low`` and
-    ``high`` levels (gray, what the sample reads beyond the model at each), the noise about them (gray σ) and how
-    often each switches (per second)."""
+    """Two-level samples: their indices in the frame as the model sees it, their ``low`` and ``high`` levels (gray,
+    what the sample reads beyond the model at each), the noise about them (gray σ) and how often each switches (per
+    second)."""
 
     samples: np.ndarray
     low: np.ndarray
@@ -69,62 +65,12 @@ class TwoLevel:
     sigma: np.ndarray
     rate_hz: np.ndarray
 
-    def as_dict(self) -> dict[str, Any]:
-        def rounded(values: np.ndarray) -> list[float]:
-            return [round(float(v), 4) for v in values]
-
-        return {"version": TWO_LEVEL_VERSION, "samples": [int(v) for v in self.samples], "low_gray": rounded(self.low),
-                "high_gray": rounded(self.high), "sigma_gray": rounded(self.sigma), "rate_hz": rounded(self.rate_hz)}
-
-    @classmethod
-    def from_info(cls, info: dict, samples: int) -> "TwoLevel | None":
-        """The two-level samples a model's info keeps for frames of ``samples`` samples; None where it keeps none (or
-        a record of another shape or version: the frames as the model sees them, as before they were kept)."""
-        body = info.get(TWO_LEVEL)
-        if not isinstance(body, dict) or body.get("version") != TWO_LEVEL_VERSION:
-            return None
-        try:
-            index = np.asarray(body["samples"], dtype=np.int64)
-            arrays = [np.asarray(body[key], dtype=np.float64) for key in ("low_gray", "high_gray", "sigma_gray",
-                                                                           "rate_hz")]
-        except (KeyError, TypeError, ValueError):
-            return None
-        if index.ndim != 1 or not index.size or np.any((index < 0) | (index >= samples)) or \
-                any(array.shape != index.shape or not np.all(np.isfinite(array)) for array in arrays) or \
-                np.any(arrays[2] <= 0.0) or np.any(arrays[3] < 0.0):
-            return None
-        return cls(index, *arrays)
-
-    def apply(self, y: np.ndarray, mask: np.ndarray, residual: np.ndarray, gain: np.ndarray | None, dt: float,
-              modes: np.ndarray, taken: np.ndarray) -> np.ndarray:
-        """Each two-level sample's level taken out of ``y`` in place (the frame as the estimator sees it, through
-        the sensor's pattern whose ``gain`` divides a level there), its weight in ``mask`` (in place) widened by
-        what the choice leaves open. ``residual``: what each sample leaves against the model at the predicted
-        state; ``dt``: the interval since the last frame (s; the switching prior's); ``modes``: each sample's last
-        level (True: high), updated; ``taken``: the gray taken out of each sample of the frame, written. Returns
-        the mask (a copy where it changed)."""
-        mask_out = mask
-        for i, p in enumerate(self.samples.tolist()):
-            scale = 1.0 if gain is None else float(gain[p])
-            low, high, sigma = self.low[i] / scale, self.high[i] / scale, self.sigma[i] / scale
-            r = float(residual[p])
-            stay = math.exp(-self.rate_hz[i] * dt) if dt > 0.0 else 1.0
-            stay = min(max(stay, 1e-12), 1.0 - 1e-12)
-            prior_high = stay if modes[i] else 1.0 - stay
-            # log odds of the high level: the prior's, and the frame's value at the two levels' noise
-            odds = math.log(prior_high / (1.0 - prior_high)) + ((r - low) ** 2 - (r - high) ** 2) / (2.0 * sigma ** 2)
-            high_now = odds > 0.0
-            p_high = 1.0 / (1.0 + math.exp(-min(max(odds, -700.0), 700.0)))
-            modes[i] = high_now
-            level = high if high_now else low
-            y[p] -= level
-            taken[p] = level
-            left_open = p_high * (1.0 - p_high) * (high - low) ** 2  # the choice's own variance
-            if left_open > 1e-12 * sigma * sigma and mask[p] > 0.0:
-                if mask_out is mask:
-                    mask_out = mask.copy()
-                mask_out[p] = mask[p] * sigma * sigma / (sigma * sigma + left_open)
-        return mask_out
+    def bad_pixels(self, pixels: int) -> list[tuple[int, int, str]]:
+        """Each sample as a bad pixel (row, pixel, reason) of a model with ``pixels`` samples a row."""
+        return [(int(p) // pixels, int(p) % pixels,
+                 f"reads at one of two levels {high - low:.1f} gray apart, {rate:.1f} switches/s (a charge trap)")
+                for p, low, high, rate in zip(self.samples.tolist(), self.low.tolist(), self.high.tolist(),
+                                               self.rate_hz.tolist())]
 
 
 def _independent(at_high: np.ndarray, bins: np.ndarray, run: float) -> bool:
@@ -213,9 +159,9 @@ def found(residual: np.ndarray, h: np.ndarray, t: np.ndarray, stretch: np.ndarra
     return TwoLevel(columns[0].astype(np.int64), columns[1], columns[2], columns[3], columns[4])
 
 
-def calibration_two_level(model: "FourierModel", rec: "Recording") -> dict | None:
-    """The two-level samples (:class:`TwoLevel`, as a document) the estimator finds on calibration's own recording
-    ``rec`` with its grating fused; None without a grating, with too few frames placed, or where none is."""
+def calibration_two_level(model: "FourierModel", rec: "Recording") -> TwoLevel | None:
+    """The two-level samples the estimator finds on calibration's own recording ``rec`` with its grating fused and
+    the ``model`` just fitted; None without a grating, with too few frames placed, or where none is."""
     from graytrack.core.estimator.filter import Estimator, _calibration_reference
     from graytrack.core.estimator.settings import EstimatorSettings
     from graytrack.core.recording import acceleration_phases
@@ -223,8 +169,7 @@ def calibration_two_level(model: "FourierModel", rec: "Recording") -> dict | Non
     reference = _calibration_reference(model, rec)
     if reference is None or np.isfinite(reference).sum() < MIN_FRAMES:
         return None
-    bare = model.with_changes(info={key: value for key, value in model.info.items() if key != TWO_LEVEL})
-    estimator = Estimator(bare, settings=EstimatorSettings().for_recording(rec.meta), grating="fuse",
+    estimator = Estimator(model, settings=EstimatorSettings().for_recording(rec.meta), grating="fuse",
                           stage_phases=acceleration_phases(rec.meta))
     usable = reference[np.isfinite(reference)]
     edges = np.quantile(usable, np.linspace(0.0, 1.0, STRETCHES + 1)[1:-1])
@@ -241,6 +186,5 @@ def calibration_two_level(model: "FourierModel", rec: "Recording") -> dict | Non
         places.append(estimate.x_mm)
     if len(rows) < MIN_FRAMES:
         return None
-    kept = found(np.array(rows, dtype=np.float64), np.array(values, dtype=np.float64), np.array(times),
+    return found(np.array(rows, dtype=np.float64), np.array(values, dtype=np.float64), np.array(times),
                  np.searchsorted(edges, np.array(places)))
-    return None if kept is None else kept.as_dict()

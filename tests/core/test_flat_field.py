@@ -113,6 +113,6 @@ def test_a_pattern_on_the_sensor_is_taken_out_and_the_bound_stays_honest(effects
 def test_what_is_not_a_fixed_pattern_is_not_taken_out(effects):
     """Pixels flipping between two levels, glints on a frame in twenty and a clean rig: a pattern fitted there is a
     mean no frame reads (it set the telegraph pixels half a swing off on every frame: 1.11 → 1.58 noise floors) or
-    noise, and none is kept (the telegraph pixels' levels are taken frame by frame: tests/core/test_two_level.py)."""
+    noise, and none is kept (calibration sets the telegraph pixels aside: tests/core/test_two_level.py)."""
     model = rig_model("paper", effects, seed=3)
     assert model.info.get(FLAT_FIELD) is None

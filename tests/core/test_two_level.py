@@ -1,5 +1,5 @@
 """Pixels that read at one of two levels (core/estimator/two_level.py): found on calibration's sweep where each
-level is held over runs of frames whatever the sample sees, and each frame's level taken out while tracking."""
+level is held over runs of frames whatever the sample sees, and set aside by calibration as bad pixels."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 
 from graytrack.core.estimator import EstimatorSettings
 from graytrack.core.estimator.filter import Estimator, track
-from graytrack.core.estimator.two_level import TWO_LEVEL, TwoLevel, found
+from graytrack.core.estimator.two_level import found
 from graytrack.core.recording import acceleration_phases
 from graytrack.drivers.sim.scenarios import build_rig
 from tests.conftest import rig_model
@@ -29,8 +29,9 @@ def _switching(rng: np.random.Generator, frames: int, rate_per_frame: float) -> 
 def test_a_sample_holding_two_levels_whatever_it_sees_is_found_and_nothing_else():
     """On a synthetic sweep of 1,000 frames at 50 frames/s: two traps (6 and 4 gray, switching 4 and 2 times a
     second) are found with their levels and rates; a sample whose residual follows the print's sine (a gain's), one
-    clipped at the print's bright phase, one a mark darkens at one place of the stroke, one a glint lifts for a frame
-    or two, and every sample at once on a few stretches of frames (a change of the whole image) are not."""
+    clipped at the print's bright phase, one a mark darkens at one place of the stroke, one a glint off the print
+    lifts for a frame or two there, and every sample at once on a few stretches of frames (a change of the whole
+    image) are not."""
     rng = np.random.default_rng(11)
     frames, samples = 1000, 12
     t = np.arange(frames) / 50.0
@@ -53,69 +54,49 @@ def test_a_sample_holding_two_levels_whatever_it_sees_is_found_and_nothing_else(
     assert np.allclose(kept.high - kept.low, [6.0, 4.0], atol=0.2)
     assert np.allclose(kept.sigma, noise, rtol=0.15)
     assert np.allclose(kept.rate_hz, [4.0, 2.0], rtol=0.3)
+    named = kept.bad_pixels(5)
+    assert [(row, pixel) for row, pixel, _ in named] == [(0, 1), (0, 2)] and "two levels" in named[0][2]
 
 
-def test_a_frames_level_is_the_likelier_one_with_the_switching_rate_as_its_prior():
-    """A value at either level is taken at it; one half-way is taken where the sample was (leaving a level is the
-    rarer thing), its weight cut by what the choice leaves open; a level taken out is written down."""
-    levels = TwoLevel(np.array([2]), np.array([0.0]), np.array([6.0]), np.array([0.7]), np.array([4.0]))
-    y, mask = np.full(4, 100.0), np.ones(4)
-    modes, taken = np.zeros(1, dtype=bool), np.zeros(4)
-    residual = np.array([0.0, 0.0, 5.8, 0.0])
-    out = levels.apply(y.copy(), mask, residual, None, 0.02, modes, taken)
-    assert modes[0] and taken[2] == 6.0 and out[2] == pytest.approx(1.0, abs=1e-6)
-    y_half = y.copy()
-    out = levels.apply(y_half, mask, np.array([0.0, 0.0, 3.0, 0.0]), None, 0.02, modes, taken)
-    assert modes[0] and y_half[2] == pytest.approx(94.0) and out[2] < 0.2 and mask[2] == 1.0
-    levels.apply(y.copy(), mask, np.array([0.0, 0.0, 0.1, 0.0]), None, 0.02, modes, taken)
-    assert not modes[0] and taken[2] == 0.0
+def test_the_rigs_flickering_pixels_are_found_at_calibration_and_the_16_row_strips_in_their_rows():
+    """Calibration sets aside exactly the 16-row strip's telegraph pixels (the truth's), each in its own row, as
+    bad pixels that read at one of two levels; a clean strip sets none aside."""
+    effects = "row_banding:gray=1,telegraph_pixels:count=6"
+    model = rig_model("strip16", effects, seed=3, seconds=10.0)
+    _, truth = build_rig("strip16", effects, seed=3, run=1).record(0.2)
+    listed = model.info.get("bad_pixels") or []
+    flipping = [(entry["row"], entry["pixel"]) for entry in listed if "two levels" in entry["reason"]]
+    assert sorted(flipping) == sorted((p["row"], p["pixel"]) for p in truth.info["config"]["sensor"]["bad_pixels"])
+    clean = rig_model("strip16", "", seed=3, seconds=10.0)
+    assert not [entry for entry in clean.info.get("bad_pixels") or [] if "two levels" in entry["reason"]]
 
 
-def test_a_document_of_another_shape_or_version_is_not_read():
-    good = TwoLevel(np.array([1, 3]), np.zeros(2), np.full(2, 6.0), np.full(2, 0.7), np.full(2, 4.0)).as_dict()
-    assert TwoLevel.from_info({TWO_LEVEL: good}, 4) is not None
-    assert TwoLevel.from_info({TWO_LEVEL: good}, 3) is None
-    assert TwoLevel.from_info({TWO_LEVEL: {**good, "version": 99}}, 4) is None
-    assert TwoLevel.from_info({TWO_LEVEL: {**good, "sigma_gray": [0.7, -1.0]}}, 4) is None
-    assert TwoLevel.from_info({TWO_LEVEL: {**good, "rate_hz": [4.0]}}, 4) is None
-    assert TwoLevel.from_info({}, 4) is None
-
-
-def _tracked(model, run, grating: str) -> tuple[Estimator, np.ndarray, np.ndarray, list]:
-    estimator = Estimator(model, settings=EstimatorSettings().for_recording(run.meta), grating=grating,
-                          stage_phases=acceleration_phases(run.meta))
-    estimates = track(model, run.frames, run.t, run.reference, estimator=estimator)
-    return estimator, np.array([e.x_mm for e in estimates]), np.array([e.crlb_mm for e in estimates]), estimates
-
-
-@pytest.mark.parametrize("scenario, effects", [("paper", TELEGRAPH),
-                                               ("strip16", "row_banding:gray=1,telegraph_pixels:count=6")])
-def test_the_rigs_flickering_pixels_are_found_at_calibration_and_a_steady_run_learns_nothing_of_them(scenario,
-                                                                                                      effects):
-    """Calibration finds the rig's telegraph pixels and no other (the truth's), their 6-gray swing and their flips.
-    A steady run, with the grating read and without it, then learns no mark on the print from their flips (each flip
-    landed as a candidate in both maps, and now and then the print's took one: a steady run learned one to two),
-    flags none of its frames and states a bound its errors keep."""
-    seconds = 10.0 if scenario == "strip16" else 20.0
-    model = rig_model(scenario, effects, seed=3, seconds=seconds)
-    run, truth = build_rig(scenario, effects, seed=3, run=1).record(seconds / 2)
-    kept = TwoLevel.from_info(model.info, model.n_rows * model.n_pixels)
-    pixels = truth.info["config"]["sensor"]["bad_pixels"]
-    assert kept is not None
-    assert sorted(kept.samples.tolist()) == sorted(p["row"] * model.n_pixels + p["pixel"] for p in pixels)
-    assert np.allclose(kept.high - kept.low, 6.0, atol=0.4)
-    # (~4 flips a second; a strip's row banding, a gray on every row each frame, adds a few a second the noise makes)
-    assert np.all((kept.rate_hz > 2.5) & (kept.rate_hz < 8.0))
-    for grating in ("check", "none"):
-        estimator, x, bound, estimates = _tracked(model, run, grating)
-        error = (x - truth.x_mm) * 1e3
+@pytest.mark.parametrize("grating", ["check", "none"])
+def test_with_the_flickering_pixels_aside_a_steady_run_errs_as_a_clean_rigs_and_learns_nothing(grating):
+    """The paper rig with three telegraph pixels: calibrated with them in, the model's pixel polynomials took their
+    mean into the fit, and every flip landed in the estimator's maps (a steady run learned a mark on the print from
+    them); today's path erred 1.23 noise floors, the estimator 1.1. Set aside, a steady run errs as the clean rig's
+    (within 8 %), learns nothing, flags nothing and states a bound its errors keep."""
+    model = rig_model("paper", TELEGRAPH, seed=3)
+    assert sorted(entry["pixel"] for entry in model.info.get("bad_pixels") or []) == [4, 9, 51]
+    clean = rig_model("paper", "", seed=3)
+    errors = {}
+    for name, rig_effects, used in (("telegraph", TELEGRAPH, model), ("clean", "", clean)):
+        run, truth = build_rig("paper", rig_effects, seed=3, run=1).record(10.0)
+        estimator = Estimator(used, settings=EstimatorSettings().for_recording(run.meta), grating=grating,
+                              stage_phases=acceleration_phases(run.meta))
+        estimates = track(used, run.frames, run.t, run.reference, estimator=estimator)
+        error = (np.array([e.x_mm for e in estimates]) - truth.x_mm) * 1e3
         if grating == "none":
-            period = model.period_mm * 1e3
+            period = used.period_mm * 1e3
             error -= period * np.round(np.nanmedian(error) / period)
+        bound = np.array([e.crlb_mm for e in estimates]) * 1e3
         placed = np.isfinite(error)
         assert placed.mean() > 0.99
         assert not (estimator.print_map.learned() & ~estimator.print_map.restored).any()
+        assert not estimator.sensor.learned().any()
         assert sum(e.stale for e in estimates) < 0.01 * len(estimates)
-        assert np.all(np.abs(error[placed]) < 4.0 * bound[placed] * 1e3)
         if grating == "check":
-            assert 0.8 <= math.sqrt(np.mean((error[placed] / (bound[placed] * 1e3)) ** 2)) <= 1.25
+            assert 0.8 <= math.sqrt(np.mean((error[placed] / bound[placed]) ** 2)) <= 1.25
+        errors[name] = float(np.std(error[placed]))
+    assert errors["telegraph"] < 1.08 * errors["clean"]
