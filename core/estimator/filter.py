@@ -748,7 +748,7 @@ class Estimator:
             # grating disagreeing); the maps learn from what it leaves at the samples wherever its position is
             # its own (a change being learned is flagged until it is)
             anchored = self._anchored(self.P, stats)
-            self._learn(y_raw, raw_mask, y, t, anchored, anchored and not estimate.stale)
+            self._learn(y_raw, raw_mask, y, mask, t, anchored, anchored and not estimate.stale)
         if self.survey_sigma > 0.0 and not estimate.stale and self._anchored(self.P, stats):
             self._survey(y, mask, t)
         if self.print_origin is not None and self._origin_periods is None and not estimate.stale and \
@@ -972,7 +972,8 @@ class Estimator:
         marks (specks on the window or the print: the maps' and the robust weights'). ``inside``: and none of them
         at either end of a row (EDGE_RUN samples of one sign beyond their noise there: a band's edge may be
         entering, which its first frames show as a short run at the field's end)."""
-        kernel.residuals(s, y, self.pixels, self.params, self.model_args, self.scratch, self._noise_var)
+        kernel.residuals(s, y, mask, self.rho, self.pixels, self.params, self.model_args, self.scratch,
+                         self._noise_var)
         scaled = self.scratch[5] * np.sqrt(mask / self._noise_var / self._level(s.item(X)))
         width = self.model.n_pixels
         runs = max(kernel.longest_run(scaled, width, 1.0), kernel.longest_run(scaled, width, -1.0))
@@ -1135,7 +1136,8 @@ class Estimator:
     def _land_at(self, y: np.ndarray, mask: np.ndarray, s: np.ndarray) -> int:
         """sensor_map.land with the frame's residuals at ``s`` (left in ``scratch[5]``, their weights in
         ``scratch[4]``)."""
-        kernel.residuals(s, y, self.pixels, self.params, self.model_args, self.scratch, self._noise_var)
+        kernel.residuals(s, y, mask, self.rho, self.pixels, self.params, self.model_args, self.scratch,
+                         self._noise_var)
         weight = self.scratch[4]
         np.divide(mask, self._noise_var, out=weight)
         fresh = self.sensor.land(self.scratch[5], weight)
@@ -1168,13 +1170,15 @@ class Estimator:
                + 2.0 * (pxc + stretch * (pxl + pcl) + lever * (pxm + pcm) + stretch * lever * plm))
         return x + c + lever * stretch, stretch, max(var, 0.0)
 
-    def _learn(self, y_raw: np.ndarray, raw_mask: np.ndarray, y: np.ndarray, t: float, teach: bool,
-               vouched: bool) -> None:
+    def _learn(self, y_raw: np.ndarray, raw_mask: np.ndarray, y: np.ndarray, mask: np.ndarray, t: float,
+               teach: bool, vouched: bool) -> None:
         """What the placed frame left at each sample something landed on, into the maps: the print's from the
         sample with the sensor's side divided out where the sensor's map uses it there, the sensor's against the
         model's value with the print's change at that place. Each candidate explains the raw sample alone until
-        the motion has decided between them (print_map.py)."""
-        kernel.residuals(self.s, y, self.pixels, self.params, self.model_args, self.scratch, self._noise_var)
+        the motion has decided between them (print_map.py). ``mask``: the weights of ``y``, the frame as the update saw
+        it."""
+        kernel.residuals(self.s, y, mask, self.rho, self.pixels, self.params, self.model_args, self.scratch,
+                         self._noise_var)
         expected = self._expected
         np.subtract(y, self.scratch[5], out=expected)  # the model's value at the posterior
         if self._printed:  # (a frame placed from nothing was not seen through the print's map: it teaches it nothing)
@@ -1220,7 +1224,8 @@ class Estimator:
         if finder is None or not any(finder.in_view(xi, periods) for periods in candidates):
             return
         y, mask = self.sensor.seen(y_raw, raw_mask) if self.sensor.active else (y_raw, raw_mask)
-        kernel.residuals(self.s, y, self.pixels, self.params, self.model_args, self.scratch, self._noise_var)
+        kernel.residuals(self.s, y, mask, self.rho, self.pixels, self.params, self.model_args, self.scratch,
+                         self._noise_var)
         expected = np.subtract(y, self.scratch[5], out=self._expected)
         decided = finder.observe(y, expected, self._noise_var, mask, self.params.item(kernel.U_LEVEL), xi, stretch,
                                  candidates)
@@ -1234,7 +1239,8 @@ class Estimator:
         (through the sensor's pattern, flat_field.py): the model's value there, the residual and the sample's weight
         (its mask and robust weight over its noise's variance). New arrays."""
         y, mask = self._prepared(frame)
-        kernel.residuals(self.s, y, self.pixels, self.params, self.model_args, self.scratch, self._noise_var)
+        kernel.residuals(self.s, y, mask, self.rho, self.pixels, self.params, self.model_args, self.scratch,
+                         self._noise_var)
         residual = self.scratch[5].copy()
         return y - residual, residual, mask * self.rho / self._noise_var
 
@@ -1245,7 +1251,8 @@ class Estimator:
         its samples, which a speck a few % deep passes by chance: on calibration's own sweep, the position pinned by
         the grating over many frames, the print's every such speck is a candidate, decided by the motion and its
         evidence as any (print_map.py), so that a run starts from it instead of learning it."""
-        kernel.residuals(self.s, y, self.pixels, self.params, self.model_args, self.scratch, self._noise_var)
+        kernel.residuals(self.s, y, mask, self.rho, self.pixels, self.params, self.model_args, self.scratch,
+                         self._noise_var)
         residual = self.scratch[5]
         beyond = mask * residual * residual > self.survey_sigma ** 2 * self.params.item(kernel.U_LEVEL) * \
             self._noise_var
@@ -1643,7 +1650,8 @@ class Estimator:
         kernel.in_range(self._y, 0.0, 1.0, self.mask, self._masked)
         MountWatch(1.0, 1.0).add(0.0, 0.0, 1.0)  # (the mount's compiled calls, whatever the mode)
         step_test(np.arange(4.0), np.zeros(4), np.ones(4), 1.0)
-        kernel.residuals(self.s, self._y, self.pixels, self.params, self.model_args, self.scratch, self._noise_var)
+        kernel.residuals(self.s, self._y, self.mask, self.rho, self.pixels, self.params, self.model_args, self.scratch,
+                         self._noise_var)
         self.sensor.land(self._y, self.mask)  # (every sample fails on a frame of zeros: the map holds back)
         self.sensor.learn(self._y, self._y, self._y, self._zeros, self._noise_var, self.mask, 0.0)
         self.sensor.active = True

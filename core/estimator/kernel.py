@@ -851,11 +851,15 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
             pass
 
 
-def residuals(s: np.ndarray, y: np.ndarray, pixels: np.ndarray, params: np.ndarray, model: tuple,
-              scratch: np.ndarray, noise_var: np.ndarray) -> None:
+def residuals(s: np.ndarray, y: np.ndarray, mask: np.ndarray, rho: np.ndarray, pixels: np.ndarray,
+              params: np.ndarray, model: tuple, scratch: np.ndarray, noise_var: np.ndarray) -> None:
     """Each sample's residual against the state ``s`` (y − h(s), into ``scratch[5]``) and the noise model's
     variance at h (one sample's, before a mask's weight) into ``noise_var``: what a frame left per sample,
-    for the sensor's map (sensor_map.py)."""
+    for the maps (sensor_map.py, print_map.py). Where each row draws an offset afresh every frame (a sensor's row
+    banding: ``params[U_ROW_PRECISION]``), it is taken out of the row's residuals as the update takes it (_normal:
+    the residuals' weighted sum over the row's weights and the offset's precision, each sample weighed by ``mask``
+    and its robust weight ``rho`` over its noise at the calibration's level): what the row shares that frame is no
+    sample's own, and left in, a row's offset beyond the noise landed its samples on the maps."""
     t_rel, r_rel, b1, b2 = pixels[PX_TARGET], pixels[PX_ROW], pixels[PX_B1], pixels[PX_B2]
     pitch_mm, period_mm = params[U_PITCH], params[U_PERIOD]
     values, slopes, smooth, curvature, residual = scratch[0], scratch[1], scratch[2], scratch[3], scratch[5]
@@ -873,6 +877,18 @@ def residuals(s: np.ndarray, y: np.ndarray, pixels: np.ndarray, params: np.ndarr
         signal = y[p] - residual[p] - dark
         var = read_var + shot_gain * (signal if signal > 0.0 else 0.0)
         noise_var[p] = var if var > 1e-6 else 1e-6  # (the update's own floor)
+    row_len, precision, level = int(params[U_ROW_LENGTH]), params[U_ROW_PRECISION], params[U_LEVEL]
+    if precision > 0.0 and row_len > 0 and level > 0.0:
+        for start in range(0, y.size, row_len):
+            stop = min(start + row_len, y.size)
+            total, weighted = 0.0, 0.0
+            for p in range(start, stop):
+                weight = mask[p] * rho[p] / (noise_var[p] * level)
+                total += weight
+                weighted += weight * residual[p]
+            offset = weighted / (total + precision)
+            for p in range(start, stop):
+                residual[p] -= offset
 
 
 def longest_run(scaled: np.ndarray, width: int, sign: float) -> float:

@@ -13,8 +13,9 @@ sample leaves against the model is its own record (:func:`calibration_two_level`
 value it holds (its own gain and dark level: the sensor's pattern, flat_field.py). A sample is two-level where
 that record splits into two levels far apart against its noise (``SEPARATION_SIGMA``), each held over runs of
 frames rather than single ones (a trap's dwell, not a glint's or a spike's: ``HELD_Z``), and where which level it
-reads says nothing of what it sees nor of the other samples: not of the model's value there (a clipped sample reads
-low at the print's bright phase only, and a gain's residual, a sine's, splits in two as well), not of the place along
+reads says nothing of what it sees nor of the other samples: not of the print's phase there (a clipped sample reads
+low at the print's bright phase only, a gain's residual, a sine's, splits in two as well, and so does what a model
+too plain for the print misses at each phase: the ideal sine's), not of the place along
 the stroke (a mark on the print, a glint off it, reads at its place only), not of what the frame's other samples
 leave (a change of the whole image moves every sample at once; a trap moves its own pixel).
 
@@ -38,9 +39,10 @@ if TYPE_CHECKING:
 SEPARATION_SIGMA = 4.0  # σ of the sample's noise the two levels must lie apart at least: a frame's value then sits
 # nearer the wrong one on under 2.3 % of the frames (the midpoint 2σ from each), while a sample's plain noise split in
 # two has its halves' means 1.6σ apart
-LEVEL_SPREAD = 1.5  # the most the two levels' own spreads may differ by (a factor): a trap moves the level, not the
-# noise about it (the frames a mark on the print darkens, each by what part of it a sample sees, spread far wider
-# than the rest)
+NOISE_SPREAD = 2.0  # the most each level's own spread may be of the sample's noise (a factor): a trap moves the level,
+# not the noise about it (what the model's own error and the light leave at a sample adds a little); the frames a
+# mark on the print darkens, each by what part of it a sample sees, spread far wider, as do the two halves of what a
+# model too plain for the print misses at each phase
 HELD_Z = 3.0  # σ of the count of switches independent frames would show by which a two-level sample must switch less
 # (a level held over frames: a trap's dwell; a glint or a noise spike lasts a frame or a few, each a switch there
 # and back)
@@ -48,9 +50,10 @@ LEAST_FRAMES = 10  # frames at the rarer level at least (fewer tell no level)
 LEAST_RUNS = 5  # separate runs at the rarer level at least: fewer tell no switching (a change that came and went
 # once or twice is the sensor's map's to follow)
 STRETCHES = 8  # stretches of the sweep along the stroke, and bins of the model's value, in each of which a two-level
-# sample reads its high level as often as over the whole sweep (within HELD_Z of the count, each run of the rarer level
-# counted as one)
+# sample reads its high level as often as over the whole sweep, and as many bins of the print's phase (within HELD_Z
+# of the count, each run of the rarer level counted as one)
 MIN_FRAMES = 40  # placed frames of the sweep at least (else nothing is found)
+MAD_TO_SIGMA = 1.4826
 
 
 @dataclass(frozen=True)
@@ -88,15 +91,19 @@ def _independent(at_high: np.ndarray, bins: np.ndarray, run: float) -> bool:
     return True
 
 
-def found(residual: np.ndarray, h: np.ndarray, t: np.ndarray, stretch: np.ndarray) -> TwoLevel | None:
+def found(residual: np.ndarray, h: np.ndarray, phase: np.ndarray, t: np.ndarray,
+          stretch: np.ndarray) -> TwoLevel | None:
     """The two-level samples among the columns of ``residual`` (frames × samples, gray: what each sample left
-    against the model on each placed frame, in time order; ``h`` the model's value there), ``t`` their times and
-    ``stretch`` their stretch along the stroke: None where none is."""
+    against the model on each placed frame, in time order; ``h`` the model's value there and ``phase`` the print's
+    phase it saw, in periods), ``t`` the frames' times and ``stretch`` their stretch along the stroke: None where
+    none is. Each sample's noise is what its record changes by from one frame to the next (the median's σ: a trap's
+    flips are a few of its frames)."""
     frames, samples = residual.shape
     if frames < MIN_FRAMES:
         return None
     # each sample's own line in the model's value taken out (its gain and dark level: the sensor's pattern's)
     together = residual.sum(axis=1)  # what the frame's samples leave together
+    noise = MAD_TO_SIGMA * np.median(np.abs(np.diff(residual, axis=0)), axis=0) / math.sqrt(2.0)
     mean_h, mean_r = h.mean(axis=0), residual.mean(axis=0)
     dh = h - mean_h
     slope = (dh * (residual - mean_r)).sum(axis=0) / np.maximum((dh * dh).sum(axis=0), 1e-12)
@@ -122,8 +129,7 @@ def found(residual: np.ndarray, h: np.ndarray, t: np.ndarray, stretch: np.ndarra
         sigma = math.sqrt(max(float(within[split - 1]) / (frames - 2), 1e-12))
         if high - low < SEPARATION_SIGMA * sigma:
             continue
-        spreads = (float(np.std(values[:split])), float(np.std(values[split:])))
-        if max(spreads) > LEVEL_SPREAD * max(min(spreads), 1e-12):
+        if max(float(np.std(values[:split])), float(np.std(values[split:]))) > NOISE_SPREAD * float(noise[p]):
             continue
         at_high = residual[:, p] > 0.5 * (low + high)
         # held over frames: fewer switches than independent frames at these shares would make, beyond chance
@@ -139,8 +145,8 @@ def found(residual: np.ndarray, h: np.ndarray, t: np.ndarray, stretch: np.ndarra
         if runs < LEAST_RUNS:
             continue
         run = float(rarer_level.sum()) / runs
-        value_bins = np.searchsorted(np.quantile(h[:, p], np.linspace(0.0, 1.0, STRETCHES + 1)[1:-1]), h[:, p])
-        if not all(_independent(at_high, bins, run) for bins in (stretch, value_bins)):
+        phase_bins = np.minimum((np.mod(phase[:, p], 1.0) * STRETCHES).astype(np.int64), STRETCHES - 1)
+        if not all(_independent(at_high, bins, run) for bins in (stretch, phase_bins)):
             continue
         # the other samples leave the same at either level (each run of the rarer level one reading of it)
         others = (together - residual[:, p]) / max(samples - 1, 1)
@@ -162,6 +168,7 @@ def found(residual: np.ndarray, h: np.ndarray, t: np.ndarray, stretch: np.ndarra
 def calibration_two_level(model: "FourierModel", rec: "Recording") -> TwoLevel | None:
     """The two-level samples the estimator finds on calibration's own recording ``rec`` with its grating fused and
     the ``model`` just fitted; None without a grating, with too few frames placed, or where none is."""
+    from graytrack.core.estimator import kernel
     from graytrack.core.estimator.filter import Estimator, _calibration_reference
     from graytrack.core.estimator.settings import EstimatorSettings
     from graytrack.core.recording import acceleration_phases
@@ -173,7 +180,9 @@ def calibration_two_level(model: "FourierModel", rec: "Recording") -> TwoLevel |
                           stage_phases=acceleration_phases(rec.meta))
     usable = reference[np.isfinite(reference)]
     edges = np.quantile(usable, np.linspace(0.0, 1.0, STRETCHES + 1)[1:-1])
-    rows, values, times, places = [], [], [], []
+    rows, values, phases, times, places = [], [], [], [], []
+    target = estimator.pixels[kernel.PX_TARGET]
+    period = model.period_mm
     readings = reference.tolist()
     for k, when in enumerate(np.asarray(rec.t, dtype=np.float64).tolist()):
         estimate = estimator.update(rec.frames[k], when, readings[k])
@@ -182,9 +191,10 @@ def calibration_two_level(model: "FourierModel", rec: "Recording") -> TwoLevel |
         h, r, _ = estimator.left(rec.frames[k])
         rows.append(r.astype(np.float32))
         values.append(h.astype(np.float32))
+        phases.append(((estimate.x_mm + estimate.place_mm + target) / period).astype(np.float32))
         times.append(when)
         places.append(estimate.x_mm)
     if len(rows) < MIN_FRAMES:
         return None
-    return found(np.array(rows, dtype=np.float64), np.array(values, dtype=np.float64), np.array(times),
-                 np.searchsorted(edges, np.array(places)))
+    return found(np.array(rows, dtype=np.float64), np.array(values, dtype=np.float64),
+                 np.array(phases, dtype=np.float64), np.array(times), np.searchsorted(edges, np.array(places)))

@@ -15,6 +15,7 @@ from graytrack.core.calibration import calibrate
 from graytrack.core.estimator import Estimator, EstimatorSettings, track
 from graytrack.drivers.sim.scenarios import build_rig
 from graytrack.drivers.sim.stage import steps
+from tests.conftest import rig_model
 from tests.core.test_estimator import _errors
 
 
@@ -202,3 +203,20 @@ def test_a_first_landing_weighs_its_samples_by_what_the_map_was_given_not_by_mem
     assert estimator.sensor.touched.any()  # (a speck landed)
     assert np.array_equal([e.x_mm for e in filled], [e.x_mm for e in as_it_comes])
     assert np.array_equal([e.crlb_mm for e in filled], [e.crlb_mm for e in as_it_comes])
+
+
+@pytest.mark.parametrize("grating", ["check", "none"])
+def test_a_rows_offset_drawn_each_frame_lands_nothing_on_the_maps(grating):
+    """A 16-row strip whose rows each draw an offset of 1 gray every frame (row banding, 1.4 noise σ): the update
+    takes each row's offset out, and what the maps read of a sample must too, or a row's offset beyond the noise
+    lands its samples (a steady run touched 270 samples of the sensor's map and learned 2 marks on the print).
+    Nothing lands, nothing is learned, no frame is flagged."""
+    effects = "row_banding:gray=1"
+    model = rig_model("strip16", effects, seed=3, seconds=10.0)
+    assert model.info.get("row_offset_gray")
+    run, truth = build_rig("strip16", effects, seed=3, run=1).record(5.0)
+    estimator = Estimator(model, settings=EstimatorSettings().for_recording(run.meta), grating=grating)
+    estimates = track(model, run.frames, run.t, run.reference, estimator=estimator)
+    assert not estimator.sensor.touched.any()
+    assert not (estimator.print_map.learned() & ~estimator.print_map.restored).any()
+    assert sum(e.stale for e in estimates) < 0.01 * len(estimates)

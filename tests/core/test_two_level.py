@@ -49,7 +49,8 @@ def test_a_sample_holding_two_levels_whatever_it_sees_is_found_and_nothing_else(
     whole = (np.arange(frames) // 100) % 3 == 1
     r[:, 7:] += 5.0 * whole[:, None]  # every sample at once
     stretch = np.minimum((x / 10.0 * 8).astype(int), 7)
-    kept = found(r, h, t, stretch)
+    phase = x[:, None] / 2.0 + np.linspace(0.0, 3.0, samples)[None, :] / (2.0 * np.pi)
+    kept = found(r, h, phase, t, stretch)
     assert kept is not None and kept.samples.tolist() == [1, 2]
     assert np.allclose(kept.high - kept.low, [6.0, 4.0], atol=0.2)
     assert np.allclose(kept.sigma, noise, rtol=0.15)
