@@ -103,6 +103,13 @@ class CalibrationRun:
                          "independent noise in each sample would: the sensor's noise is shared between samples (a "
                          "row's offset drawn each frame, pixels flickering between two levels); each frame's test "
                          f"counts {1.0 / spread ** 2:.0%} of its samples as independent")
+        flipping = [entry for entry in info.get("bad_pixels") or [] if "two levels" in str(entry.get("reason", ""))]
+        if flipping:  # (core/estimator/two_level.py: set aside by calibration)
+            named = ", ".join(f"({entry['row']}, {entry['pixel']})" for entry in flipping[:8])
+            more = f" and {len(flipping) - 8} more" if len(flipping) > 8 else ""
+            lines.append(f"warning: pixel(s) {named}{more} read at one of two levels, switching at random (a charge "
+                         "trap in the sensor: random telegraph noise); set aside (weight 0) in the model and in "
+                         f"tracking; ({flipping[0]['row']}, {flipping[0]['pixel']}) {flipping[0]['reason']}")
         if inadequacy(info):
             ratio = info["calibration_error_ratio"] / judged_factor(info)
             lines.append(f"warning: this model places its own calibration frames {ratio:.1f}x as far off as their "

@@ -71,7 +71,7 @@ class TwoLevel:
     def bad_pixels(self, pixels: int) -> list[tuple[int, int, str]]:
         """Each sample as a bad pixel (row, pixel, reason) of a model with ``pixels`` samples a row."""
         return [(int(p) // pixels, int(p) % pixels,
-                 f"reads at one of two levels {high - low:.1f} gray apart, {rate:.1f} switches/s (a charge trap)")
+                 f"reads at one of two levels {high - low:.1f} gray apart, {rate:.1f} switches/s")
                 for p, low, high, rate in zip(self.samples.tolist(), self.low.tolist(), self.high.tolist(),
                                                self.rate_hz.tolist())]
 

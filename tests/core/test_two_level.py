@@ -13,6 +13,7 @@ from graytrack.core.estimator.filter import Estimator, track
 from graytrack.core.estimator.two_level import found
 from graytrack.core.recording import acceleration_phases
 from graytrack.drivers.sim.scenarios import build_rig
+from graytrack.service.calibration_run import CalibrationRun
 from tests.conftest import rig_model
 
 TELEGRAPH = "telegraph_pixels:count=3"
@@ -80,6 +81,8 @@ def test_with_the_flickering_pixels_aside_a_steady_run_errs_as_a_clean_rigs_and_
     (within 8 %), learns nothing, flags nothing and states a bound its errors keep."""
     model = rig_model("paper", TELEGRAPH, seed=3)
     assert sorted(entry["pixel"] for entry in model.info.get("bad_pixels") or []) == [4, 9, 51]
+    warned = [line for line in CalibrationRun("paper", model, {}, None, None).warnings() if "two levels" in line]
+    assert len(warned) == 1 and "(0, 4), (0, 9), (0, 51)" in warned[0]
     clean = rig_model("paper", "", seed=3)
     errors = {}
     for name, rig_effects, used in (("telegraph", TELEGRAPH, model), ("clean", "", clean)):
