@@ -8,6 +8,7 @@ import json
 import numpy as np
 import pytest
 
+from graytrack.core.validity import FAMILIES
 from graytrack.service.daemon import grating, sweep
 from graytrack.service.daemon.app import create_app
 from tests.service.helpers import GatedFactory, LiveServer, fast_settings, wait_for, wait_job
@@ -174,13 +175,21 @@ def test_no_room_for_a_sweep_is_refused_before_anything_is_written(tmp_path, mon
 
 def test_a_valid_but_wrong_model_is_not_healthy(tmp_path, calibrated) -> None:
     """A model whose period is 5 % off loads and tracks, but the images are not what it describes:
-    the model is flagged stale with a cause, /healthz answers 503 and the status says so."""
+    the model is flagged stale, /healthz answers 503 and the status says so. Near the stroke's
+    start the scale's error is small in µm and the per-frame nuisances name a cause of their own;
+    mid-stroke the camera sits hundreds of bounds off the grating and ``scale`` is named, whatever
+    the nuisances suggest (core/watches/far_off.py)."""
     with LiveServer(create_app(fast_settings(calibrated(tmp_path)))) as daemon:
         daemon.wait_state("tracking")
         model = daemon.rig.model
         daemon.rig.install(model.with_changes(period_mm=model.period_mm * 1.05, coeffs=model.coeffs))
         status = wait_for(lambda: (s := daemon.status())["model_stale"] and s, 20.0, "the stale flag")
-        assert status["stale_reason"] in ("geometry", "light", "scale")
+        assert status["stale_reason"] in FAMILIES
         health = daemon.get("/healthz")
         assert health.status_code == 503 and "stale" in health.json()["reason"]
         assert "model_stale" in [e["kind"] for e in daemon.get("/api/events").json()]
+        daemon.post("/api/stage/move", json={"target_mm": 5.0}, headers=daemon.auth())
+        status = wait_for(lambda: (s := daemon.status())["stale_reason"] == "scale" and not s["moving"] and s,
+                          20.0, "the scale named mid-stroke")
+        assert status["model_stale"] and abs(status["position_mm"] - status["grating_mm"]) > 0.2
+        assert daemon.get("/healthz").status_code == 503
