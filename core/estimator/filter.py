@@ -33,6 +33,7 @@ from __future__ import annotations
 import bisect
 import copy
 import math
+from collections import deque
 from typing import TYPE_CHECKING, Callable, NamedTuple
 
 import numpy as np
@@ -174,6 +175,15 @@ def _model_error(info: dict) -> tuple[list[float], list[float], float]:
         edges, ratios = np.zeros(0), np.zeros(0)
     whole = max(whole, 1.0)
     return edges.tolist(), [max(ratio * ratio - 1.0, 0.0) for ratio in ratios.tolist()], whole * whole - 1.0
+
+
+def _persistence_curve(info: dict) -> tuple[list[float], list[float]] | None:
+    """(distances, shares) of what persists of a frame's error against the grating over a window that travelled
+    that far (:func:`calibration_error` ``persist``), from all of it at rest; None where calibration measured none."""
+    measured = (info.get(CALIBRATION_ERROR) or {}).get("persist")
+    if not measured or not measured.get("distance_mm"):
+        return None
+    return [0.0] + [float(d) for d in measured["distance_mm"]], [1.0] + [float(p) for p in measured["share"]]
 
 
 def calibration_level(model: FourierModel) -> float:
@@ -425,6 +435,14 @@ class Estimator:
         self.last_frame: np.ndarray | None = None
         self.dt_last = 0.0
         self._xi_last = math.nan  # the image's position at the last frame the maps learned from (mm)
+        # read and checked: the grating less the position over the last frames, with the frames' own variance
+        # (_disagreeing)
+        self._check_length = max(int(settings.check_window), 1)
+        self._check: deque[tuple[float, float, float]] = deque()
+        self._check_sum = self._check_var = 0.0
+        # what of a frame's error against the grating persists over the distance a window travels (calibration's)
+        self._persist = _persistence_curve(model.info)
+        self._drift_only = False  # the frame's flag is the window's alone (_estimate)
         self._lens_var, self._lens_m = 0.0, 0.0  # the stretch a filter at the lens's fastest rate holds (_lens)
         self._t_start = 0.0  # when the estimate started (s: the camera's creep is counted from it, _stated)
         self._checked = math.nan  # the grating's reading of the frame being updated, where it is read and checked
@@ -535,6 +553,8 @@ class Estimator:
         self.params[kernel.U_FLICKER:kernel.U_RATES] = (0.0, 0.0, 1.0, 0.0)
         self._changed = False
         self._xi_last = math.nan
+        self._check.clear()
+        self._check_sum = self._check_var = 0.0
         self._lens_var, self._lens_m = float(self.P[M, M]), 0.0
         self.failed = 0
         self._unexplained = []
@@ -742,16 +762,19 @@ class Estimator:
                 message=f"the image stepped {step.step_mm * 1e3:+.1f} ± {step.sigma_mm * 1e3:.1f} µm against the "
                         f"carriage between the last two frames, beyond the {step.allowance_mm * 1e3:.1f} µm the "
                         f"stage's acceleration allows: the camera moved on its mount")
+        # (a frame flagged only for the window's drift against the grating, less than a bound a frame, places what
+        # it shows of the print by less than a bound off: what the maps learn from it stands)
+        vouched = not estimate.stale or self._drift_only
         if self.sensor.active or self.print_map.active:
             # where a frame sees a place of the print says how far the print carried it only where the one test
             # vouches for the frame's position (a flagged frame may be placed a pixel off: a jump taken, the
             # grating disagreeing); the maps learn from what it leaves at the samples wherever its position is
             # its own (a change being learned is flagged until it is)
             anchored = self._anchored(self.P, stats)
-            self._learn(y_raw, raw_mask, y, mask, t, anchored, anchored and not estimate.stale)
-        if self.survey_sigma > 0.0 and not estimate.stale and self._anchored(self.P, stats):
+            self._learn(y_raw, raw_mask, y, mask, t, anchored, anchored and vouched)
+        if self.survey_sigma > 0.0 and vouched and self._anchored(self.P, stats):
             self._survey(y, mask, t)
-        if self.print_origin is not None and self._origin_periods is None and not estimate.stale and \
+        if self.print_origin is not None and self._origin_periods is None and vouched and \
                 self._anchored(self.P, stats):
             self._find_origin(y_raw, raw_mask)
         if carried is not None:  # (the maps learn from the frame as its image placed it, as it is reported)
@@ -1441,6 +1464,35 @@ class Estimator:
             lens_var = taken
         self._lens_var = lens_var
 
+    def _disagreeing(self, nu: float, var: float, x_mm: float) -> bool:
+        """The grating's reading less the frame's position (``nu``, mm) with the variance the frame states for it
+        (``var``), added to the last ``check_window`` frames read; whether their mean disagrees beyond the same
+        quantile as one frame's. A drift of the image against the carriage by less than a bound a frame (a lens
+        warming slides the image, a print growing) is there frame after frame; one frame's test passes most of them,
+        their mean does not. What of a frame's error persists over the window is what calibration's sweep measured
+        to persist over the distance the window travelled (:func:`_persistence`; at rest, all of it): a fixed
+        pattern on the sensor or the print repeats where the frames overlap. No test where calibration measured
+        none."""
+        persist = self._persist
+        if persist is None:
+            return False
+        window = self._check
+        if len(window) >= self._check_length:
+            gone, gone_var, _ = window.popleft()
+            self._check_sum -= gone
+            self._check_var -= gone_var
+        window.append((nu, var, x_mm))
+        self._check_sum += nu
+        self._check_var += var
+        n = len(window)
+        if n < self._check_length:
+            return False
+        places = [entry[2] for entry in window]
+        share = max(float(np.interp(max(places) - min(places), persist[0], persist[1])),
+                    self.settings.check_persist_least)
+        mean = self._check_sum / n
+        return mean * mean > self.z_two ** 2 * (self._check_var / n) * (share + (1.0 - share) / n)
+
     def _slide_variance(self) -> float:
         """What the lens's slide L·m adds to the position's variance, without the grating (fused, the grating reads
         the carriage; checked, its test judges the slide). The lever is a prior no frame narrows, held at nought
@@ -1475,6 +1527,7 @@ class Estimator:
         slide_var = self._slide_variance()
         var_x = var_image + model_var + slide_var
         stale, reason, message = False, "", ""
+        self._drift_only = False
         checked = self.grating == "check"
         if test > 1.0:
             stale = True
@@ -1482,9 +1535,16 @@ class Estimator:
             message = f"innovation χ² {test:.2f}x its quantile at the false-alarm rate"
         if checked and reference_mm == reference_mm:
             nu = reference_mm - s[X]
+            drifting = self._disagreeing(nu, var_x + settings.grating_sigma ** 2, s[X])
             if nu * nu > self.z_two ** 2 * (var_x + settings.grating_sigma ** 2):
                 stale, reason = True, reason or "scale"
                 message = message or f"camera and grating disagree by {nu * 1e3:+.2f} µm"
+            elif drifting:
+                mean = self._check_sum / len(self._check)
+                self._drift_only = not stale
+                stale, reason = True, reason or "scale"
+                message = message or (f"camera and grating disagree by {mean * 1e3:+.2f} µm on average over the last "
+                                      f"{len(self._check)} frames")
         bound_factor = self.bound_factor
         vouched = 0.0  # (of the position's variance: what a band the motion told from the position carries)
         if s[BE] > 0.0 and self.grating == "none" and self._band_held(s, sigma):
@@ -1733,7 +1793,35 @@ def calibration_error(model: FourierModel, rec: "Recording") -> dict | None:
     order = np.argsort(reference[usable])
     shared = float(np.mean(shared_error(error[order])))
     whole = round(math.sqrt(max(1.0 + shared / float(np.mean(bound2)), 0.0)), 3)
-    return {"edges_mm": profile["edges_mm"], "ratio": profile["ratio"], "whole": whole}
+    return {"edges_mm": profile["edges_mm"], "ratio": profile["ratio"], "whole": whole,
+            "persist": _persistence(reference[usable], error)}
+
+
+PERSISTENCE_FRAMES = (2, 4, 8, 16, 32, 64, 128)  # windows over which calibration measures what of its error persists
+
+
+def _persistence(x_mm: np.ndarray, error: np.ndarray) -> dict:
+    """What of a frame's error against the grating persists over a window of frames, by the distance the window
+    travelled (calibration's sweep, in time order): for each window of ``PERSISTENCE_FRAMES``, the share p of the
+    error's variance its moving mean keeps beyond what a mean of independent errors would (var(mean) = var·(p +
+    (1 − p)/n)), at the window's median span; the shares held to rise as the distance shrinks (at rest, all)."""
+    var = float(np.var(error))
+    distances, shares = [], []
+    for n in PERSISTENCE_FRAMES:
+        if error.size < 4 * n or not var > 0.0:
+            break
+        kernel_n = np.ones(n) / n
+        mean = np.convolve(error, kernel_n, mode="valid")
+        span = float(np.median(np.abs(x_mm[n - 1:] - x_mm[:x_mm.size - n + 1])))
+        share = (float(np.mean(mean * mean)) / var - 1.0 / n) / (1.0 - 1.0 / n)
+        if span > 0.0:
+            distances.append(span)
+            shares.append(min(max(share, 0.0), 1.0))
+    order = np.argsort(distances, kind="stable")
+    distances, shares = [round(distances[k], 6) for k in order], [shares[k] for k in order]
+    for k in range(len(shares) - 2, -1, -1):  # (a nearer window keeps no less than a farther one)
+        shares[k] = max(shares[k], shares[k + 1])
+    return {"distance_mm": distances, "share": [round(share, 4) for share in shares]}
 
 
 def kept_from_calibration(model: FourierModel, rec: "Recording") -> None:

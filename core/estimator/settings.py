@@ -179,6 +179,18 @@ TUNABLES: dict[str, Tunable] = {
         300.0, "px",
         "how far the optical axis may be from the ROI's centre along the line (a camera's ROI is rarely centred "
         "on the lens): a magnification change slides the image by this lever times the change", low=0.0),
+    "check_window": Tunable(
+        25, "frames",
+        "read and checked, the last frames whose mean disagreement of camera and grating is tested beside each "
+        "frame's own (at the same false-alarm rate): an image sliding against the carriage by less than a bound a "
+        "frame (a lens warming, a print growing) shows in their mean while single frames pass; longer, a slow drift "
+        "shows sooner in the mean but a step is flagged later", low=1),
+    "check_persist_least": Tunable(
+        0.25, "1",
+        "of a frame's stated variance against the grating, the least taken to persist over the window whatever "
+        "calibration measured: calibration measures on the frames its model was fitted to, where the model's error "
+        "along the stroke shows less than on a run's (a clean paper rig's run stood 2 µm off the grating over 1.5 mm, "
+        "1.3 bounds a frame, where its calibration measured none to persist)", low=0.0, high=1.0),
     "grating_sigma": Tunable(
         0.15e-3, "mm",
         "the grating reading's error against the stage at the exposure: a 0.5 µm step's quantisation "
@@ -327,6 +339,8 @@ class EstimatorSettings:
     lever_prior: float = TUNABLES["lever_prior"].default
     clock_drift_prior: float = TUNABLES["clock_drift_prior"].default
     clock_drift_rate: float = TUNABLES["clock_drift_rate"].default
+    check_window: float = TUNABLES["check_window"].default
+    check_persist_least: float = TUNABLES["check_persist_least"].default
     grating_sigma: float = TUNABLES["grating_sigma"].default
     jump_light: float = TUNABLES["jump_light"].default
     jump_field: float = TUNABLES["jump_field"].default

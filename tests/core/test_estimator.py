@@ -635,10 +635,11 @@ def test_a_checked_grating_that_refutes_the_frames_account_is_what_the_recursion
     assert stale.mean() < 0.05
     assert np.sum(np.abs(error) > 4 * bound) < 15
     assert not np.any((np.abs(error) > 4 * bound) & ~stale)
-    # a refuted frame keeps its image's place: reported where the grating says the carriage is not
-    refuted = [e for e, reading in zip(estimates, run.reference) if e.stale_reason == "scale"]
-    assert refuted and all(abs(e.x_mm - reading) > 3.0 * e.crlb_mm
-                           for e, reading in zip(estimates, run.reference) if e.stale_reason == "scale")
+    # a refuted frame keeps its image's place: reported where the grating says the carriage is not (a frame flagged
+    # for the last frames' mean disagreement alone, core/estimator/filter.py _disagreeing, is not refuted itself)
+    refuted = [(e, reading) for e, reading in zip(estimates, run.reference)
+               if e.stale_reason == "scale" and "on average" not in e.message]
+    assert refuted and all(abs(e.x_mm - reading) > 3.0 * e.crlb_mm for e, reading in refuted)
 
 
 def test_the_bound_states_the_models_error_as_the_estimator_errs_with_it():
