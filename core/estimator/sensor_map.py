@@ -94,8 +94,12 @@ def learn(y: np.ndarray, expected: np.ndarray, rival: np.ndarray, rival_var: np.
     calibrated again. ``rivalry``: the same ratio over the print's side's account (``rival``): at the pixel a
     mark landed at, the two candidates tell the same and it stays near nought until the motion carries the
     print's candidate away — what tells the maps apart (:meth:`SensorMap.learned`), where ``evidence`` says only
-    that something changed. ``teach``: whether the pairs learn from this frame (not where the frame's position is
-    carried by the state's memory: what it leaves at a sample then speaks of the position as much as of the
+    that something changed. Told apart the other way, the sample is let go too: where the print's side's account
+    beats the pair by one sample's test at the false-alarm rate (its log at −z²/2, the bar a mark is learned at),
+    the change is the print's (dust settling, a smudge the print carries past the pixel) and its candidate
+    there holds it; kept, the pair would hold the sample aside frame after frame as the mark moves on.
+    ``teach``: whether the pairs learn from this frame (not where the frame's position is carried by the state's
+    memory: what it leaves at a sample then speaks of the position as much as of the
     sample); the evidence is weighed and a sample let go either way, so none is held aside by a map that
     cannot learn. ``h`` out: each sample's predicted model value; ``jumped_out`` out: the samples that jumped.
     ``moved``: how far the print moved under the pixels since the last frame (px); ``travel``: over how much of the
@@ -135,7 +139,7 @@ def learn(y: np.ndarray, expected: np.ndarray, rival: np.ndarray, rival_var: np.
         s0 = var_y + rival_var[p]
         rivalry[p] += 0.5 * (r0 * r0 / s0 - r * r / s - math.log(s / s0))
         travel[p] = travel[p] + moved if rivalry[p] > 0.0 else 0.0
-        if evidence[p] < 0.0:
+        if evidence[p] < 0.0 or rivalry[p] < -0.5 * z2:  # (the calibration's account or the print's is better)
             touched[p] = False
             f[p], e[p], sff[p], sfe[p], see[p], evidence[p], rivalry[p] = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
             travel[p] = 0.0

@@ -13,7 +13,7 @@ import pytest
 from graytrack.core.estimator import EstimatorSettings
 from graytrack.core.estimator.marks import runs
 from graytrack.core.estimator.print_map import NODES_PER_PIXEL, PrintMap, apply, locate
-from tests.core.test_sensor_map import _scored, _tracked, paper  # noqa: F401  (the module's calibrated rig)
+from tests.core.test_sensor_map import UNPLACED_WITHOUT_GRATING, _scored, _tracked, paper  # noqa: F401  (its rig)
 
 
 @pytest.mark.parametrize("grating", ["check", "fuse", "none"])
@@ -25,12 +25,13 @@ def test_dust_settling_on_the_print_is_learned_where_it_lies(paper, grating):  #
     at a speck's place on the print (up to the one offset between the rig's target frame and the model's)."""
     estimator, estimates, truth, rig = _tracked(paper, "dust_settling", run=2, grating=grating)
     error, bound, floor, stale = _scored(paper, estimates, truth, grating)
-    assert np.all(np.isfinite(error))
+    assert np.mean(~np.isfinite(error)) <= (UNPLACED_WITHOUT_GRATING if grating == "none" else 0.0)
+    assert np.all(stale[~np.isfinite(error)])
     assert not np.any((np.abs(error) > 4 * bound) & ~stale)
     if grating != "none":  # (without the grating most flags are the lens's lever's, which no map changes)
         assert stale.mean() <= 0.02, stale.mean()
     if grating != "fuse":  # (fused, the error is the grating's: the floor is the image's)
-        assert np.std(error) <= 1.3 * np.sqrt(np.mean(floor ** 2)), np.std(error)
+        assert np.nanstd(error) <= 1.3 * np.sqrt(np.nanmean(floor ** 2)), np.nanstd(error)
     learned = np.flatnonzero(estimator.print_map.learned())
     assert learned.size >= 20, learned.size
     # dust darkens: every mark (a run of neighbouring learned nodes) is darker than calibration. Within one the nodes,
@@ -189,3 +190,29 @@ def test_the_prints_own_marks_are_learned_on_its_calibration_and_a_steady_run_le
         (new, std, silent, apart), (new_bare, std_bare, _, _) = figures["kept"], figures["bare"]
         assert new_bare >= 5 and new <= 0.2 * new_bare and apart == 0, (grating, figures)
         assert std <= 1.05 * std_bare and silent == 0, (grating, figures)
+
+
+@pytest.mark.parametrize("grating", ["check", "none"])
+def test_dust_on_a_strips_print_is_let_go_from_the_sensors_side_as_the_print_carries_it(grating):
+    """Dust settling on the print of a 16-row strip: at each sample a speck passes, the sensor's side and the print's
+    each hold a candidate until the motion tells them apart. The print's account beats the sensor's pair as the speck
+    moves on, and the sample is let go there and then (sensor_map.learn, the rivalry): the sensor's side holds aside
+    a tenth of the samples on average over the run, where, let go only once the calibration's account beat the pair,
+    it held more than a third, and learned a speck or two of the print as its own."""
+    from graytrack.core.calibration import calibrate
+    from graytrack.core.estimator import Estimator, track
+    from graytrack.drivers.sim.scenarios import build_rig
+
+    calibration, _ = build_rig("strip16", "", seed=1).record(20.0)
+    model = calibrate(calibration, "paper").model
+    recording, _ = build_rig("strip16", "dust_settling", seed=1, run=1).record(10.0)
+    estimator = Estimator(model, grating=grating)
+    held = []
+    for k in range(recording.n_frames):  # (frame by frame: what the sensor's side holds aside after each)
+        track(model, recording.frames[k:k + 1], recording.t[k:k + 1],
+              recording.reference[k:k + 1] if grating != "none" else None, estimator=estimator)
+        sensor = estimator.sensor
+        held.append(np.count_nonzero(sensor.touched & ~sensor.learned()) / sensor.touched.size)
+    assert np.mean(held) < 0.2, np.mean(held)
+    assert not estimator.sensor.learned().any(), np.flatnonzero(estimator.sensor.learned())
+    assert estimator.print_map.learned().sum() >= 50, estimator.print_map.learned().sum()
