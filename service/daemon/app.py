@@ -166,7 +166,8 @@ def create_app(settings: Settings, factory: HardwareFactory = default_factory) -
     app.state.token_source = token_source
     # what serving costs, the stream's deliveries apart: the stream is the rig's output, a request is not
     serving = ServingCpu()
-    app.state.limits = ConnectionLimits(settings.daemon, serving_cpu=lambda: serving() - broadcaster.cpu_s)
+    app.state.limits = ConnectionLimits(settings.daemon, serving_cpu=lambda: serving() - broadcaster.cpu_s,
+                                        rig_lost=rig.frames_lost)
     app.state.server_options = server_options(settings, app.state.limits)
     app.state.policy = WebPolicy(settings.daemon, token)
     app.add_middleware(WebGuard, policy=app.state.policy)

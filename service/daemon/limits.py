@@ -75,6 +75,13 @@ COST_REQUESTS = 16  # requests a measurement of the mean cost of one spans (fewe
 COST_WINDOW_S = 1.0  # ... within this: a slower trickle says more about the rest of serving than about requests
 INITIAL_COST_S = 0.002  # a request's CPU before any was measured
 MAX_COST_S = 0.05  # the most one request is charged up front (a measurement stretched by a stall is not a cost)
+# The rig before serving: a frame the rig loses while serving has its share cuts that share by this factor at
+# once (down to RIG_FIRST_FLOOR of it) and drops what the bucket holds; it then grows back linearly, whole after
+# RIG_FIRST_RECOVER_S without a loss. The declared share is what serving may take on a host with room; on a slower
+# or busier one the frame loop's own need decides (the interpreter is one: what serving takes, the loop waits for).
+RIG_FIRST_CUT = 0.5
+RIG_FIRST_FLOOR = 0.125  # of the declared share: a status page polled every second still answers at once
+RIG_FIRST_RECOVER_S = 10.0  # host seconds without a frame lost for the whole share to come back
 BURST_S = 1.0  # the request budget's buckets hold a second's worth: a page loading its files at once never waits
 MAX_TRACKED_CLIENTS = 1024  # request budgets kept before the full ones are forgotten
 IPV6_CLIENT_PREFIX = 64  # one IPv6 client is its /64: a host picks addresses within it at will (SLAAC, privacy)
@@ -160,12 +167,19 @@ class ServingShare:
     in debt, it waits until the rate has paid the debt back, and is charged the mean cost of recent requests at
     once, so that requests waiting together go one after another instead of all at the same refill (once it
     goes, what it costs is measured instead, and the charge comes back). The debt is held to one burst: a cost
-    that is not the requests' (a collection, a thread's end) never holds one back longer than ``burst_s``."""
+    that is not the requests' (a collection, a thread's end) never holds one back longer than ``burst_s``.
+
+    ``lost`` (frames the rig has lost so far; a count that falls is a new frame loop's) puts the rig first: a
+    loss seen at a request cuts the share in force (``scale`` of the declared one, :data:`RIG_FIRST_CUT`) and
+    empties the bucket; the share grows back over :data:`RIG_FIRST_RECOVER_S` without one."""
 
     def __init__(self, share: float, burst_s: float, cpu: Callable[[], float],
-                 monotonic: Callable[[], float] = time.monotonic) -> None:
-        self.share, self.capacity = share, share * burst_s
-        self._cpu, self._monotonic = cpu, monotonic
+                 monotonic: Callable[[], float] = time.monotonic, lost: Callable[[], int] | None = None) -> None:
+        self.declared, self.capacity = share, share * burst_s
+        self.scale = 1.0  # of the declared share, in force (below 1 while the rig has been losing frames)
+        self.cuts = 0  # times a frame lost cut the share
+        self._cpu, self._monotonic, self._lost = cpu, monotonic, lost
+        self._lost_seen = lost() if lost is not None else 0
         # (measured from the first request on: the loop's thread is the one that asks, not the one that builds this)
         self._level, self._at, self._used = self.capacity, monotonic(), math.nan
         self._charged: deque[tuple[float, float]] = deque()  # (when it goes, estimate) of requests waiting
@@ -177,15 +191,37 @@ class ServingShare:
         """CPU seconds serving had used at the last request begun (0 before the first)."""
         return 0.0 if math.isnan(self._used) else self._used
 
+    @property
+    def share(self) -> float:
+        """The share of a core in force (CPU seconds per second)."""
+        return self.declared * self.scale
+
+    def _rig_first(self, now: float) -> bool:
+        """Grow the share back for the time since the last request; cut it if the rig lost a frame meanwhile."""
+        self.scale = min(1.0, self.scale + (now - self._at) / RIG_FIRST_RECOVER_S)
+        if self._lost is None:
+            return False
+        lost, seen = self._lost(), self._lost_seen
+        self._lost_seen = lost
+        if lost <= seen:  # none (or a new frame loop, counting from 0 again)
+            return False
+        self.scale = max(RIG_FIRST_FLOOR, self.scale * RIG_FIRST_CUT)
+        self.cuts += 1
+        return True
+
     def take(self) -> float:
         """The seconds a request begun now waits for the share (0: go now)."""
         now, used = self._monotonic(), self._cpu()
         if math.isnan(self._used):
             self._used, self._window = used, (now, used, 0)
-        level = min(self.capacity, self._level + self.share * (now - self._at)) - (used - self._used)
+        refill = self.share * (now - self._at)  # at the share in force since the last request
+        cut = self._rig_first(now)
+        level = min(self.capacity * self.scale, self._level + refill) - (used - self._used)
         charged = self._charged
         while charged and charged[0][0] <= now:  # gone: from now on what it costs is measured instead
             level += charged.popleft()[1]
+        if cut:  # what the bucket held is the rig's again: this request waits its turn too
+            level = min(level, 0.0)
         began, used0, count = self._window
         count += 1
         if count >= COST_REQUESTS:
@@ -195,7 +231,7 @@ class ServingShare:
         else:
             self._window = (began, used0, count)
         wait = 0.0
-        if level < 0:
+        if level < 0 or cut:
             level = max(level, -self.capacity) - self.cost_s
             wait = -level / self.share
             charged.append((now + wait, self.cost_s))
@@ -254,7 +290,7 @@ class ConnectionLimits:
     """The limits (from ``[daemon]``) and what they refused, shared by every connection's protocol."""
 
     def __init__(self, daemon: DaemonConfig, monotonic: Callable[[], float] = time.monotonic,
-                 serving_cpu: Callable[[], float] | None = None) -> None:
+                 serving_cpu: Callable[[], float] | None = None, rig_lost: Callable[[], int] | None = None) -> None:
         self.max_connections = daemon.max_connections
         self.max_per_client = daemon.max_connections_per_client
         self.request_timeout_s = daemon.request_timeout_s
@@ -265,7 +301,7 @@ class ConnectionLimits:
         self.oversized = 0  # request heads over MAX_HEAD_BYTES and WebSocket messages over the control size
         self.stalled = 0  # connections closed for not taking their answers within request_timeout_s
         self._by_client: dict[str, int] = {}
-        share = (ServingShare(daemon.serving_share, BURST_S, serving_cpu, monotonic)
+        share = (ServingShare(daemon.serving_share, BURST_S, serving_cpu, monotonic, rig_lost)
                  if serving_cpu is not None else None)
         self.budget = RequestBudget(daemon.requests_per_s_per_client, daemon.requests_per_s, BURST_S, monotonic, share)
         self.paced = 0  # requests that waited for the request budget

@@ -148,6 +148,10 @@ def render(snapshot: RigSnapshot, broadcaster: Broadcaster, limits: ConnectionLi
         out += counter("graytrack_serving_cpu_seconds_total", "CPU seconds spent serving clients (the event loop "
                        "and the request threads, the stream's deliveries apart): what serving_share bounds",
                        share.used_s)
+        out += gauge("graytrack_serving_share", "the share of a core serving may take now: serving_share, cut "
+                     "while the frame loop loses frames (the rig first) and grown back after", share.share)
+        out += counter("graytrack_serving_share_cuts_total", "times a frame the rig lost cut serving's share",
+                       share.cuts)
         out += gauge("graytrack_request_cpu_seconds", "the mean CPU of one request, from the last busy window "
                      "(what a waiting request is charged)", share.cost_s)
     out += family("graytrack_model_stale", "gauge",

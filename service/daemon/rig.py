@@ -330,6 +330,11 @@ class Rig:
             stale_after_s=stale_after, uptime_s=time.monotonic() - self.started_at,
             **{name: self.map_status(acquisition, name) for name in LEARNED_MAPS})
 
+    def frames_lost(self) -> int:
+        """Frames the frame loop in work has lost (gaps in the camera's count); 0 without one."""
+        acquisition = self.acquisition
+        return acquisition.stats.dropped if acquisition is not None else 0
+
     @property
     def state(self) -> str:
         return self.snapshot().state

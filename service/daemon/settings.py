@@ -78,7 +78,9 @@ class DaemonConfig(StrictTable):
                                  "measured) that serving clients may take: the event loop and the request threads, the "
                                  "stream's deliveries apart; beyond, the next request waits, unread. The frame loop "
                                  "and the stage link share one interpreter with serving: a quarter leaves them the "
-                                 "rest of it, whatever a request costs")
+                                 "rest of it, whatever a request costs. A frame the rig loses cuts the share in "
+                                 "force by half (to an eighth at least), grown back over 10 s without a loss: the "
+                                 "rig first on a host slower than this share assumes")
     request_timeout_s: float = Field(10.0, gt=0, le=3600, description="a request (head and body) must arrive whole "
                                      "within this of its first byte, a new connection send one within this: else "
                                      "408 and closed (slow or idle clients cannot hold connections); a client "
