@@ -713,6 +713,7 @@ class Estimator:
         if self._folded:
             x = s.item(X)
             self._reach = [min(self._reach[0], x), max(self._reach[1], x)]
+            self._print_at_place(x)
         # Read and checked, a grating that finds the carriage where the frame's account does not place the image is a
         # measurement the account failed: the frame is reported as its image placed it (flagged by that test), and
         # the recursion carries on from the account the grating agrees with (_carried), not from one it refuted.
@@ -1354,6 +1355,20 @@ class Estimator:
         if self._folded:
             return self.chi2_calibration * max(curve.at(place) for place in self._places(x_mm))
         return self.chi2_calibration * curve.at(x_mm)
+
+    def _print_at_place(self, x_mm: float) -> None:
+        """Placed from the image alone, the run's coordinates are a whole number of periods off the print's (the
+        acquisition's pick); until calibration's marks tell how many (_find_origin), the print's map is read at a
+        place the run's travel still allows (_places): the run's own coordinates while they are one, else the
+        nearest. A map read a period off sees its nodes beyond the print's grid (no mark lands there) or at another
+        place's; what it held when the travel ruled its place out was placed there, and is dropped (the marks land
+        again where they are). A map restored from another run keeps the shift it was saved with."""
+        if self._origin_periods is not None or self.print_map.restored.any():
+            return
+        period = self.model.period_mm
+        allowed = [round((place - x_mm) / period) for place in self._places(x_mm)]
+        if round(self.print_map.shift / period) not in allowed:
+            self.print_map.reread(min(allowed, key=abs) * period)
 
     def _places(self, x_mm: float) -> list[float]:
         """Where along the stroke a frame placed at ``x_mm`` may be: ``x_mm`` a whole number of periods on either

@@ -319,6 +319,11 @@ class PrintMap(ToldMarks):
         self.jumps = 0
         self.landed = 0
 
+    def reread(self, shift_mm: float) -> None:
+        """Every node dropped, and the grid read ``shift_mm`` behind the print's coordinates from now on."""
+        self.reset()
+        self.shift, self.origin = float(shift_mm), self.base_origin - float(shift_mm)
+
     def seen(self, y: np.ndarray, mask: np.ndarray, xi: float, stretch: float,
              var_xi: float) -> tuple[np.ndarray, np.ndarray]:
         """The frame as the estimator updates with it, the image at ``xi`` ± √``var_xi`` mm stretched by

@@ -13,7 +13,7 @@ import pytest
 from graytrack.core.estimator import EstimatorSettings
 from graytrack.core.estimator.marks import runs
 from graytrack.core.estimator.print_map import NODES_PER_PIXEL, PrintMap, apply, locate
-from tests.core.test_sensor_map import UNPLACED_WITHOUT_GRATING, _scored, _tracked, paper  # noqa: F401  (its rig)
+from tests.core.test_sensor_map import _scored, _tracked, paper  # noqa: F401  (its rig)
 
 
 @pytest.mark.parametrize("grating", ["check", "fuse", "none"])
@@ -22,18 +22,23 @@ def test_dust_settling_on_the_print_is_learned_where_it_lies(paper, grating):  #
     new samples (a fifth of the frames flagged with the grating read, five 4+ bounds off; bench/estimator_sweep.py);
     with it the specks are learned as the print carries them across the pixels: few frames flagged, none 4+
     bounds off unflagged, the error within 1.3 noise floors, and the nodes learned darker than calibration and
-    at a speck's place on the print (up to the one offset between the rig's target frame and the model's)."""
+    at a speck's place on the print (up to the one offset between the rig's target frame and the model's).
+
+    Without the grating too: the run is placed a period off the print's coordinates there (this rig's stroke is
+    longer than its period), and the map is read where the run's travel puts it (filter.py _print_at_place). Read
+    at the run's own coordinates instead, most of its frames saw the print beyond the map's grid: 24 nodes learned
+    where the grating's runs learn 140, the sensor's side holding half the line for the print's dust, 2-5 % of the
+    frames flagged, one unplaced and the error 2.4-8.9 µm against 1.7-1.8."""
     estimator, estimates, truth, rig = _tracked(paper, "dust_settling", run=2, grating=grating)
     error, bound, floor, stale = _scored(paper, estimates, truth, grating)
-    assert np.mean(~np.isfinite(error)) <= (UNPLACED_WITHOUT_GRATING if grating == "none" else 0.0)
-    assert np.all(stale[~np.isfinite(error)])
+    assert np.all(np.isfinite(error))
     assert not np.any((np.abs(error) > 4 * bound) & ~stale)
-    if grating != "none":  # (without the grating most flags are the lens's lever's, which no map changes)
-        assert stale.mean() <= 0.02, stale.mean()
+    assert stale.mean() <= 0.02, stale.mean()
     if grating != "fuse":  # (fused, the error is the grating's: the floor is the image's)
         assert np.nanstd(error) <= 1.3 * np.sqrt(np.nanmean(floor ** 2)), np.nanstd(error)
     learned = np.flatnonzero(estimator.print_map.learned())
-    assert learned.size >= 20, learned.size
+    assert learned.size >= 100, learned.size
+    assert estimator.sensor.touched.mean() <= 0.25, estimator.sensor.touched.mean()
     # dust darkens: every mark (a run of neighbouring learned nodes) is darker than calibration. Within one the nodes,
     # each learned from the samples nearest it, may ring about the speck's profile (without the grating a node
     # between two deep ones was read 5-18 % brighter on one node in ten)
