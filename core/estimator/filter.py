@@ -721,6 +721,8 @@ class Estimator:
         made = self._P_next.item(X, X) if A is self._answer[1] and stats[kernel.S_POSTERIOR] > 0 else None
         refuted = located and self._with_grating(test, s, A, stats, made) > 1.0
         carried = self._carried(y, mask, s_prior, P_prior) if refuted else None
+        if refuted:
+            self._land_refuted(y, mask, s_prior, P_prior)
         if not refuted:
             self._refuted_missed = 0
         if s is self._answer[0]:  # the main update's arrays: the state's becomes the next answer's
@@ -1157,14 +1159,14 @@ class Estimator:
             return None
         return centre, kept.astype(np.float64)
 
-    def _land_at(self, y: np.ndarray, mask: np.ndarray, s: np.ndarray) -> int:
+    def _land_at(self, y: np.ndarray, mask: np.ndarray, s: np.ndarray, hold: float | None = None) -> int:
         """sensor_map.land with the frame's residuals at ``s`` (left in ``scratch[5]``, their weights in
         ``scratch[4]``)."""
         kernel.residuals(s, y, mask, self.rho, self.pixels, self.params, self.model_args, self.scratch,
                          self._noise_var)
         weight = self.scratch[4]
         np.divide(mask, self._noise_var, out=weight)
-        fresh = self.sensor.land(self.scratch[5], weight)
+        fresh = self.sensor.land(self.scratch[5], weight, hold)
         if fresh > 0:  # each a candidate on the print too, where the image at ``s`` places it (print_map.py)
             xi, stretch, _ = self._image(s)
             self.print_map.land(self.sensor.core, self.t_last or 0.0, xi, stretch)
@@ -1267,6 +1269,18 @@ class Estimator:
                          self._noise_var)
         residual = self.scratch[5].copy()
         return y - residual, residual, mask * self.rho / self._noise_var
+
+    def _land_refuted(self, y: np.ndarray, mask: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray) -> None:
+        """A frame the grating read refutes: what it leaves at each sample with the carriage where the grating says
+        (its states at their prior's rates, none jumped) lands in both maps, the motion to decide between them. A
+        mark on the print wider than what a sample's own test catches at the image's account (a smudge's wings, a
+        veil's soft edge) pulls the position and the light's shape with it over less than a period, so its samples
+        pass there; with the carriage pinned they fail where the mark is. The map's hold does not bind here: it
+        keeps what a misplaced state leaves out of the maps, and the grating places the carriage (where most
+        samples fail at once, a knock or a lamp, nothing lands: sensor_map.land's ``most``)."""
+        s_g, _, _ = self._solve(y, mask, s_prior, P_prior.copy(), self._checked)
+        if math.isfinite(s_g[X]):
+            self._land_at(y, mask, s_g, hold=1.0)
 
     def _survey(self, y: np.ndarray, mask: np.ndarray, t: float) -> None:
         """Every sample of the placed frame ``y`` (as the maps show it, ``mask`` its weights: a candidate waiting

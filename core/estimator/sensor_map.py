@@ -264,10 +264,12 @@ class SensorMap(ToldMarks):
               self._mask)
         return self._y, self._mask
 
-    def land(self, residual: np.ndarray, weight: np.ndarray) -> int:
+    def land(self, residual: np.ndarray, weight: np.ndarray, hold: float | None = None) -> int:
         """Samples something landed on, from a frame's solve (:func:`land`); the frame is to be seen again.
-        A negative count: that many failed, too many for the map (nothing landed)."""
-        fresh = land(residual, weight, self.level, self.z2, self.most, self.hold, self.params[0], self.params[1],
+        A negative count: that many failed, too many for the map (nothing landed). ``hold``: the share of the
+        frame the map may hold (its own where None)."""
+        fresh = land(residual, weight, self.level, self.z2, self.most, self.hold if hold is None else hold,
+                     self.params[0], self.params[1],
                      self.reach,
                      self.row, self.touched, self.sff, self.see, self.evidence, self.rivalry, self.core)
         if fresh > 0:
