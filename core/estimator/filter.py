@@ -467,6 +467,7 @@ class Estimator:
         self._expected = np.zeros(n_values)
         self._zeros = np.zeros(n_values)
         self._printed = False  # whether the frame being updated was seen through the print's map
+        self._pinned: np.ndarray | None = None  # the last refuted frame's account with the carriage pinned (_carried)
         flicker = settings.flicker_prior if self._flicker else 0.0
         self.jump_var = {"light": np.array([settings.jump_light, settings.jump_light * mean, flicker, flicker]) ** 2,
                          "field": np.array([settings.jump_field, settings.jump_field]) ** 2,
@@ -721,8 +722,8 @@ class Estimator:
         made = self._P_next.item(X, X) if A is self._answer[1] and stats[kernel.S_POSTERIOR] > 0 else None
         refuted = located and self._with_grating(test, s, A, stats, made) > 1.0
         carried = self._carried(y, mask, s_prior, P_prior) if refuted else None
-        if refuted:
-            self._land_refuted(y, mask, s_prior, P_prior)
+        if refuted and self._pinned is not None:
+            self._land_refuted(y, mask, self._pinned)
         if not refuted:
             self._refuted_missed = 0
         if s is self._answer[0]:  # the main update's arrays: the state's becomes the next answer's
@@ -806,6 +807,7 @@ class Estimator:
         pinned: a vignetting change or a veil forming reads as the light's shape there, not as a shift), or with a
         band entering, the account that explains the gray values best is kept; None where none explains them within
         their test (the frame's own account then stands, as it did before the grating refuted it)."""
+        self._pinned = None
         if (self.idx is self.idx_band) != (s_prior.item(BE) > 0.0):
             return None  # (a band entered or left on this frame: its account stands)
         reading = self._checked
@@ -813,6 +815,7 @@ class Estimator:
         s_f, A_f, stats_f = self._solve(y, mask, s_prior, P_keep, reading)
         if not math.isfinite(s_f[X]):
             return None
+        self._pinned = s_f  # (the carriage pinned, no state jumped: what _land_refuted lands from)
         best = (self._chi2(stats_f), s_f, A_f, stats_f)
         ranked = self._ranked(s_f, A_f, s_prior, P_keep)[:SEARCHED]
         for family in ranked:
@@ -1270,17 +1273,15 @@ class Estimator:
         residual = self.scratch[5].copy()
         return y - residual, residual, mask * self.rho / self._noise_var
 
-    def _land_refuted(self, y: np.ndarray, mask: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray) -> None:
-        """A frame the grating read refutes: what it leaves at each sample with the carriage where the grating says
-        (its states at their prior's rates, none jumped) lands in both maps, the motion to decide between them. A
-        mark on the print wider than what a sample's own test catches at the image's account (a smudge's wings, a
-        veil's soft edge) pulls the position and the light's shape with it over less than a period, so its samples
-        pass there; with the carriage pinned they fail where the mark is. The map's hold does not bind here: it
-        keeps what a misplaced state leaves out of the maps, and the grating places the carriage (where most
-        samples fail at once, a knock or a lamp, nothing lands: sensor_map.land's ``most``)."""
-        s_g, _, _ = self._solve(y, mask, s_prior, P_prior.copy(), self._checked)
-        if math.isfinite(s_g[X]):
-            self._land_at(y, mask, s_g, hold=1.0)
+    def _land_refuted(self, y: np.ndarray, mask: np.ndarray, pinned: np.ndarray) -> None:
+        """A frame the grating read refutes: what it leaves at each sample at ``pinned`` (the frame solved with the
+        grating as a measurement, no state jumped: _carried's first account) lands in both maps, the motion to
+        decide between them. A mark on the print wider than what a sample's own test catches at the image's account
+        (a smudge's wings, a veil's soft edge) pulls the position and the light's shape with it over less than a
+        period, so its samples pass there; with the carriage pinned they fail where the mark is. The map's hold does
+        not bind here: it keeps what a misplaced state leaves out of the maps, and the grating places the carriage
+        (where most samples fail at once, a knock or a lamp, nothing lands: sensor_map.land's ``most``)."""
+        self._land_at(y, mask, pinned, hold=1.0)
 
     def _survey(self, y: np.ndarray, mask: np.ndarray, t: float) -> None:
         """Every sample of the placed frame ``y`` (as the maps show it, ``mask`` its weights: a candidate waiting
