@@ -180,29 +180,21 @@ def test_serving_counts_the_loop_and_the_request_threads_and_keeps_what_an_ended
     assert 0.04 <= workers < 0.1, "a worker's CPU counted, and kept after it ended"
 
 
-class Lost:
-    def __init__(self) -> None:
-        self.frames = 0
-
-    def __call__(self) -> int:
-        return self.frames
-
-
 def test_a_frame_the_rig_loses_cuts_servings_share_and_it_grows_back() -> None:
     """The rig first: serving's share is what it may take where the frame loop has room; a frame lost while
     serving has it halves the share in force at once (the bucket emptied), to an eighth at least, and a quiet
     stretch gives it back."""
-    clock, cpu, lost = Clock(), Cpu(), Lost()
-    share = ServingShare(0.25, 1.0, cpu, clock, lost)
+    clock, cpu, lost = Clock(), Cpu(), [0]  # (frames the rig lost so far)
+    share = ServingShare(0.25, 1.0, cpu, clock, lambda: lost[0])
     assert share.take() == 0.0
     assert share.share == 0.25
-    lost.frames += 3  # the frame loop fell behind
+    lost[0] += 3  # the frame loop fell behind
     clock.now += 0.01
     wait = share.take()
     assert share.share == pytest.approx(0.125) and share.cuts == 1
     assert wait == pytest.approx(share.cost_s / 0.125), "the bucket was emptied: the next request waits its cost"
     for _ in range(5):  # a loss at every request: the share falls to its floor, not to nought
-        lost.frames += 1
+        lost[0] += 1
         share.take()
     assert share.share == pytest.approx(0.25 * 0.125) and share.cuts == 6
     clock.now += 5.0  # half the recovery time without a loss
@@ -214,11 +206,9 @@ def test_a_frame_the_rig_loses_cuts_servings_share_and_it_grows_back() -> None:
 
 
 def test_a_new_frame_loop_counting_from_nought_is_no_loss() -> None:
-    clock, cpu, lost = Clock(), Cpu(), Lost()
-    lost.frames = 40
-    share = ServingShare(0.25, 1.0, cpu, clock, lost)
-    lost.frames = 0  # the camera reopened: a new frame loop
+    clock, cpu, lost = Clock(), Cpu(), [40]
+    share = ServingShare(0.25, 1.0, cpu, clock, lambda: lost[0])
+    lost[0] = 0  # the camera reopened: a new frame loop
     share.take()
-    lost.frames = 0
     share.take()
     assert share.share == 0.25 and share.cuts == 0
