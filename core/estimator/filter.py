@@ -31,6 +31,7 @@ learned against it, the ``--trim`` of the command line), ``"none"`` (no grating 
 from __future__ import annotations
 
 import bisect
+import collections
 import copy
 import math
 from collections import deque
@@ -364,6 +365,12 @@ class Estimator:
         self.rates2 = rates ** 2
         if grating != "check":  # checked, the grating judges the place and the slide; else the place is a state
             active.append(C)
+        # Read and checked, the place is held where it is (no frame tells it from the carriage) until the grating
+        # refutes the frames by one offset from the first of a run of refutations: a knock (_steady_step). The
+        # grating's disagreement with each frame's own account (mm) and its variance, over those first frames:
+        self._step_frames = max(int(settings.place_step_frames), 1)
+        self._refutations: collections.deque = collections.deque(maxlen=self._step_frames)
+        self._spoiled = False  # whether the run of refutations followed a frame off its test or a jump
         # The lens's lever (its axis from the ROI's centre) is a state where the grating is fused, which reads the
         # carriage against the image. Without it no frame tells the lever: the image places x + L·m, and solved, the
         # lever was narrowed by whatever the stage's path said the carriage was, so that a stretch the frames took
@@ -721,7 +728,21 @@ class Estimator:
         # (the main update's posterior is made already: its position's variance is read, not inverted again)
         made = self._P_next.item(X, X) if A is self._answer[1] and stats[kernel.S_POSTERIOR] > 0 else None
         refuted = located and self._with_grating(test, s, A, stats, made) > 1.0
-        carried = self._carried(y, mask, s_prior, P_prior) if refuted else None
+        if refuted:
+            if len(self._refutations) < self._step_frames:  # (a knock shows its whole step from its first frame)
+                var = (made if made is not None else self.P.item(X, X)) + self.settings.grating_sigma ** 2
+                self._refutations.append((s.item(X) - reference_mm, var))
+                # (a knock moves the whole image: each frame's own account still explains every sample)
+                self._spoiled = self._spoiled or bool(mode) or test > 1.0 or stats[S_REJECTED] > 0 or \
+                    stats[S_WEIGHED] > 0
+        else:
+            self._refutations.clear()
+            # (refutations that follow a frame off its test, or a jump of another family, may be what that frame or
+            # jump put the account off by: no step of the camera's place)
+            self._spoiled = bool(mode) or test > 1.0
+        knocked = self._steady_step() if refuted else None
+        self._pinned = None
+        carried = self._carried(y, mask, s_prior, P_prior) if refuted and knocked is None else None
         if refuted and self._pinned is not None:
             self._land_refuted(y, mask, self._pinned)
         if not refuted:
@@ -739,8 +760,12 @@ class Estimator:
             self._band_failed = self._band_failed + 1 if test > 1.0 else 0
             if self._band_failed >= FAILED_TO_REACQUIRE or self._band_gone():
                 self._band_off()
-        step = None
-        if self.mount is not None and any(family in MOUNT_BLIND for family in mode.split("+")):
+        step = knocked
+        if knocked is not None:
+            self._mounted(knocked)
+            self._refutations.clear()
+            mode = reason_jump = "geometry"
+        elif self.mount is not None and any(family in MOUNT_BLIND for family in mode.split("+")):
             # a jump of the light or the lens moved the position with it (over less than a period they trade with a
             # shift): what the frames before it placed is no line to judge a step of the mount against
             self.mount.reset()
@@ -760,7 +785,13 @@ class Estimator:
             self._changed = True
         estimate = self._estimate(t, stats, test, mode, reason_jump, reference_mm)
         self._last_mode = mode
-        if step is not None:
+        if knocked is not None:
+            estimate = estimate._replace(
+                stale=True, stale_reason="geometry",
+                message=f"the image stepped {knocked.step_mm * 1e3:+.1f} ± {knocked.sigma_mm * 1e3:.1f} µm against the "
+                        f"grating's carriage over the last {self._step_frames} frames and held it: the camera moved "
+                        f"on its mount")
+        elif step is not None:
             estimate = estimate._replace(
                 stale=True, stale_reason="geometry",
                 message=f"the image stepped {step.step_mm * 1e3:+.1f} ± {step.sigma_mm * 1e3:.1f} µm against the "
@@ -1273,6 +1304,22 @@ class Estimator:
         residual = self.scratch[5].copy()
         return y - residual, residual, mask * self.rho / self._noise_var
 
+    def _steady_step(self) -> Step | None:
+        """The camera's step on its mount where the first ``place_step_frames`` frames of a run the grating read
+        refutes disagreed with it by one offset, each pair within the false-alarm rate's two-sided σ of their
+        difference, and no frame before or among them was off its test or took a jump (a knock shows its whole step
+        at once and holds it; a mark the print carries, or the lens drifting, pulls each frame's account by what
+        grows and changes as it moves); None otherwise. The step is their mean, its σ the mean's."""
+        refutations = self._refutations
+        if self._spoiled or len(refutations) < self._step_frames:
+            return None
+        offsets = [offset for offset, _ in refutations]
+        variances = [var for _, var in refutations]
+        if max(offsets) - min(offsets) > self.z_two * math.sqrt(2.0 * max(variances)):
+            return None
+        n = len(offsets)
+        return Step(sum(offsets) / n, math.sqrt(sum(variances)) / n, 0.0, 0.0)
+
     def _land_refuted(self, y: np.ndarray, mask: np.ndarray, pinned: np.ndarray) -> None:
         """A frame the grating read refutes: what it leaves at each sample at ``pinned`` (the frame solved with the
         grating as a measurement, no state jumped: _carried's first account) lands in both maps, the motion to
@@ -1609,7 +1656,7 @@ class Estimator:
         shown = abs(s[B]) > self.z_two * focus_sigma
         # (by position, in the fields' order: by keyword the record cost a frame a microsecond)
         return FrameEstimate(
-            t, s[X] + (s[C] if checked else 0.0), math.sqrt(var_x),  # t, x_mm, crlb_mm
+            t, s[X], math.sqrt(var_x),  # t, x_mm, crlb_mm
             floor * bound_factor, True, stats[kernel.S_RMS],  # floor_mm, locked, rms_gray
             residual / max(used, 1.0), float(test), int(rejected),  # chi2, test, rejected_px
             int(stats[kernel.S_ITER]), s[G], s[OFS],  # iterations, gain, offset_gray

@@ -152,6 +152,12 @@ TUNABLES: dict[str, Tunable] = {
         0.05e-3, "mm/√s",
         "the camera creeping on its mount against the carriage in a second (a clamped mount: tens of nm); "
         "a knock is a jump, not this rate", low=0.0),
+    "place_step_frames": Tunable(
+        5, "frames",
+        "read and checked, how many frames from the first of a run the grating refutes must disagree with it by one "
+        "offset (within their noise, each explaining its own samples) before the camera's place takes it as a step "
+        "(a knock): a mark the print carries or a veil pulls the image's account by what changes or fails samples, "
+        "a knock moves the whole image and holds", low=1),
     "tilt_rate": Tunable(
         1e-6, "mm/row/√s", "the camera turning about the optical axis in a second (a clamped mount: µrad)",
         low=0.0),
@@ -333,6 +339,7 @@ class EstimatorSettings:
     stretch_prior: float = TUNABLES["stretch_prior"].default
     stretch_rate_most: float = TUNABLES["stretch_rate_most"].default
     place_rate: float = TUNABLES["place_rate"].default
+    place_step_frames: float = TUNABLES["place_step_frames"].default
     tilt_rate: float = TUNABLES["tilt_rate"].default
     skew_rate: float = TUNABLES["skew_rate"].default
     skew_prior: float = TUNABLES["skew_prior"].default

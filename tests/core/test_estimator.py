@@ -309,6 +309,29 @@ def test_a_knocked_camera_on_one_row_is_learned_as_its_place():
     assert np.all(np.abs(error) < 4 * bound)
 
 
+def test_a_knock_the_grating_read_refutes_by_one_offset_becomes_the_cameras_place():
+    """Read and checked, no frame tells the camera's place from the carriage, so it is held where it is; after a
+    knock (the image 40 µm further against the carriage, turned 0.2°) the grating refutes every frame by one
+    offset. Once the first frames of that run of refutations agree on it (each within its noise, none off its own
+    test), the place takes the step (flagged `geometry` once) and the position is the carriage's again. Before, every
+    later frame was reported 40 µm off, flagged `scale`, to the end of the run (60 % of the frames flagged)."""
+    from graytrack.core.estimator.state import C
+
+    model = calibrate(build_rig("strip16", "", seed=3).record(20.0)[0], "paper").model
+    run, truth = build_rig("strip16", "knock:um=40:deg=0.2:at_s=2", seed=3, run=1).record(10.0)
+    estimates = track(model, run.frames, run.t, run.reference, grating="check")
+    knocked = int(np.searchsorted(run.t, 2.0))
+    stepped = [k for k, e in enumerate(estimates) if e.stale_reason == "geometry"]
+    assert len(stepped) == 1 and knocked < stepped[0] <= knocked + 10, stepped
+    assert abs(estimates[stepped[0] + 1].state[C] * 1e3 - 40.0) < 2.0, estimates[stepped[0] + 1].state[C]
+    error, bound = _errors(model, estimates, truth, "check")
+    stale = np.array([e.stale for e in estimates])
+    later = slice(stepped[0] + 1, None)
+    assert np.sqrt(np.mean(error[later] ** 2)) < 1.5, np.sqrt(np.mean(error[later] ** 2))
+    assert stale[later].mean() < 0.1, stale[later].mean()
+    assert not np.any((np.abs(error) > 4 * bound) & ~stale)
+
+
 def test_a_change_no_jump_explains_is_searched_once_while_it_persists(paper):
     """A ripple across the field (the light a few gray up and down every few pixels: no jump of the model's
     families, no band of shadow) is searched on its first frame (the two most evident families tried, and the
