@@ -785,18 +785,15 @@ class Estimator:
             self._changed = True
         estimate = self._estimate(t, stats, test, mode, reason_jump, reference_mm)
         self._last_mode = mode
-        if knocked is not None:
+        if step is not None:
+            where = (f"the grating's carriage over the last {self._step_frames} frames and held it"
+                     if knocked is not None else
+                     f"the carriage between the last two frames, beyond the {step.allowance_mm * 1e3:.1f} µm the "
+                     f"stage's acceleration allows")
             estimate = estimate._replace(
                 stale=True, stale_reason="geometry",
-                message=f"the image stepped {knocked.step_mm * 1e3:+.1f} ± {knocked.sigma_mm * 1e3:.1f} µm against the "
-                        f"grating's carriage over the last {self._step_frames} frames and held it: the camera moved "
-                        f"on its mount")
-        elif step is not None:
-            estimate = estimate._replace(
-                stale=True, stale_reason="geometry",
-                message=f"the image stepped {step.step_mm * 1e3:+.1f} ± {step.sigma_mm * 1e3:.1f} µm against the "
-                        f"carriage between the last two frames, beyond the {step.allowance_mm * 1e3:.1f} µm the "
-                        f"stage's acceleration allows: the camera moved on its mount")
+                message=f"the image stepped {step.step_mm * 1e3:+.1f} ± {step.sigma_mm * 1e3:.1f} µm against "
+                        f"{where}: the camera moved on its mount")
         # (a frame flagged only for the window's drift against the grating, less than a bound a frame, places what
         # it shows of the print by less than a bound off: what the maps learn from it stands)
         vouched = not estimate.stale or self._drift_only
