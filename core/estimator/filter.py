@@ -31,7 +31,6 @@ learned against it, the ``--trim`` of the command line), ``"none"`` (no grating 
 from __future__ import annotations
 
 import bisect
-import collections
 import copy
 import math
 from collections import deque
@@ -369,7 +368,7 @@ class Estimator:
         # refutes the frames by one offset from the first of a run of refutations: a knock (_steady_step). The
         # grating's disagreement with each frame's own account (mm) and its variance, over those first frames:
         self._step_frames = max(int(settings.place_step_frames), 1)
-        self._refutations: collections.deque = collections.deque(maxlen=self._step_frames)
+        self._refutations: deque = deque(maxlen=self._step_frames)
         self._spoiled = False  # whether the run of refutations followed a frame off its test or a jump
         # The lens's lever (its axis from the ROI's centre) is a state where the grating is fused, which reads the
         # carriage against the image. Without it no frame tells the lever: the image places x + L·m, and solved, the
@@ -568,6 +567,8 @@ class Estimator:
         self._unexplained = []
         self._placed_again = False
         self._band_missed = self._refuted_missed = 0
+        self._refutations.clear()
+        self._spoiled = False
         self._last_mode = ""
         self.light.reset()
         self._light_rates()
