@@ -387,6 +387,13 @@ class Estimator:
         # over less than a period a band's edges and a shift trade, and what a band's frames would teach the
         # place stays after the band has gone, which no frame without the grating could undo).
         self.idx_band = np.array(sorted((set(active) - {C, L, M, T, SK}) | set(BAND)), dtype=np.int64)
+        # Read and checked, the lever is learned where the grating reads the carriage: in the account the recursion
+        # carries where the image's own was refuted (_carried). A lens whose magnification drifts slides the image
+        # by the lever times the stretch the frames see, which the grating then refutes while it grows; learned
+        # there, the frames' own accounts take the slide out. Solved in every frame's own update it would be
+        # narrowed by the stage's path instead, and take up what a mark or a veil stretches the image by.
+        self.idx_carried = np.array(sorted(set(active) | {L}), dtype=np.int64) \
+            if grating == "check" and settings.lever_prior > 0.0 else self.idx_plain
         self._active = frozenset(active)
         self._jumping = self._active | ({FC, FS} if self._flicker else set())  # (the states a jump widens)
         # without the grating what no frame sees of the carriage against the image: the lens's slide, and with it the
@@ -485,6 +492,7 @@ class Estimator:
         self._score_quantile = {k: chi2_isf(settings.false_alarm, k) for k in (1, 2, 3)}
         # a band's states beyond a jump's (six against the light's two): what a band must explain more by
         self._band_margin = chi2_isf(settings.false_alarm, len(BAND) - 2)
+        self._lever_margin = chi2_isf(settings.false_alarm, 1)  # (what the lens's lever must explain more by)
         self._layout = self._layout_plain = _layout(self.idx_plain)
         self._layout_band = _layout(self.idx_band)
         self._unexplained: list[str] = []  # the families tried on the last frame, none of whose jumps explained it
@@ -743,7 +751,11 @@ class Estimator:
             self._spoiled = bool(mode) or test > 1.0
         knocked = self._steady_step() if refuted else None
         self._pinned = None
-        carried = self._carried(y, mask, s_prior, P_prior) if refuted and knocked is None else None
+        # (the lens's lever learned only where the image explains itself and the grating alone refutes it: a slide;
+        # a frame with samples set aside or off its test may be stretched by what sits on them)
+        lens = refuted and not mode and test <= 1.0 and stats[S_REJECTED] <= 0 and stats[S_WEIGHED] <= 0 and \
+            not self.sensor.touched.any() and not self.print_map.touched.any()
+        carried = self._carried(y, mask, s_prior, P_prior, lens) if refuted and knocked is None else None
         if refuted and self._pinned is not None:
             self._land_refuted(y, mask, self._pinned)
         if not refuted:
@@ -813,7 +825,7 @@ class Estimator:
         if carried is not None:  # (the maps learn from the frame as its image placed it, as it is reported)
             self.s, A, idx, self.P, figures = carried
             kernel.embed(self.P, A, idx, self._sigma, np.asarray(figures)[kernel.S_GAIN:])
-            if idx is not self.idx:
+            if idx is self.idx_band and self.idx is not self.idx_band:
                 self._band_on()
         return estimate
 
@@ -827,8 +839,8 @@ class Estimator:
         else:
             self.commands.command(start, end, acceleration, -math.inf if self.t_last is None else self.t_last)
 
-    def _carried(self, y: np.ndarray, mask: np.ndarray, s_prior: np.ndarray,
-                 P_prior: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list] | None:
+    def _carried(self, y: np.ndarray, mask: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray,
+                 lens: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list] | None:
         """The frame's account with the grating it checks as a second measurement of the carriage, for the
         recursion to carry where the image's own account and the grating disagree: (state, posterior information,
         the states solved, the prior's covariance to embed it in, the solve's figures). Solved with the grating,
@@ -845,13 +857,21 @@ class Estimator:
         if not math.isfinite(s_f[X]):
             return None
         self._pinned = s_f  # (the carriage pinned, no state jumped: what _land_refuted lands from)
-        best = (self._chi2(stats_f), s_f, A_f, stats_f)
+        best = (self._chi2(stats_f), s_f, A_f, stats_f, self.idx, "")
         ranked = self._ranked(s_f, A_f, s_prior, P_keep)[:SEARCHED]
         for family in ranked:
             s_j, A_j, stats_j = self._solve(y, mask, s_prior, self._jumped(P_keep, family), reading)
             chi2 = self._chi2(stats_j)
             if math.isfinite(s_j[X]) and chi2 < best[0]:
-                best = (chi2, s_j, A_j, stats_j)
+                best = (chi2, s_j, A_j, stats_j, self.idx, family)
+        if lens and self.idx is self.idx_plain and self.idx_carried is not self.idx_plain:
+            # the lens's lever solved too, with the jump that explained most: a state more, taken where it explains
+            # more by its quantile (a light's shape changing stretches the image as the lens does over less than a
+            # period, and its jump explains it without a lever that would stay)
+            P_lens = self._jumped(P_keep, best[5]) if best[5] else P_keep
+            s_l, A_l, stats_l = self._solve(y, mask, s_prior, P_lens, reading, self.idx_carried)
+            if math.isfinite(s_l[X]) and self._chi2(stats_l) + self._lever_margin < best[0]:
+                best = (self._chi2(stats_l), s_l, A_l, stats_l, self.idx_carried, best[5])
         missed = self._refuted_missed
         self._refuted_missed = missed + 1
         if ranked and s_prior.item(BE) <= 0.0 and missed & (missed - 1) == 0:
@@ -862,10 +882,10 @@ class Estimator:
             if banded is not None and banded[0] <= 1.0 and self._chi2(banded[3]) + self._band_margin < best[0]:
                 self._refuted_missed = 0
                 return banded[1], banded[2], self.idx_band, P_keep, banded[3]
-        _, s_f, A_f, stats_f = best
+        _, s_f, A_f, stats_f, idx, _ = best
         if self._test(stats_f) > 1.0:
             return None  # (no account the grating agrees with explains the frame either: the frame's own stands)
-        return s_f, A_f, self.idx, P_keep, stats_f
+        return s_f, A_f, idx, P_keep, stats_f
 
     def _mounted(self, step: Step) -> None:
         """The camera's place takes the step the mount made (mount.py): the carriage is where the image was less

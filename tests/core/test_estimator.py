@@ -332,6 +332,26 @@ def test_a_knock_the_grating_read_refutes_by_one_offset_becomes_the_cameras_plac
     assert not np.any((np.abs(error) > 4 * bound) & ~stale)
 
 
+def test_a_lens_whose_magnification_cycles_read_by_the_grating_has_its_lever_learned():
+    """Read and checked, a lens whose magnification comes and goes (1500 ppm, a 6 s cycle) slides the image by the
+    lever (the optical axis 300 pixel footprints from the ROI's centre, 18.6 mm) times the stretch, 28 µm at its
+    most, and the grating refutes it. The lever is learned in the account the recursion carries on from where the
+    image's own was refuted and explained no other way (a state more, taken where it explains more by its
+    quantile), and the frames' own accounts then take the slide out. Before, the position erred 13.7 µm rms and 81 %
+    of the frames were flagged."""
+    from graytrack.core.estimator.state import L
+
+    model = calibrate(build_rig("strip16", "", seed=5).record(20.0)[0], "paper").model
+    run, truth = build_rig("strip16", "magnification_drift:ppm=1500:cycle_s=6", seed=5, run=1).record(10.0)
+    estimates = track(model, run.frames, run.t, run.reference, grating="check")
+    error, bound = _errors(model, estimates, truth, "check")
+    stale = np.array([e.stale for e in estimates])
+    assert np.sqrt(np.mean(error ** 2)) < 5.0, np.sqrt(np.mean(error ** 2))
+    assert stale.mean() < 0.6, stale.mean()
+    assert 10.0 < abs(estimates[-1].state[L]) < 40.0, estimates[-1].state[L]
+    assert np.sum((np.abs(error) > 4 * bound) & ~stale) <= 0.005 * error.size
+
+
 def test_a_change_no_jump_explains_is_searched_once_while_it_persists(paper):
     """A ripple across the field (the light a few gray up and down every few pixels: no jump of the model's
     families, no band of shadow) is searched on its first frame (the two most evident families tried, and the
