@@ -186,6 +186,18 @@ def _persistence_curve(info: dict) -> tuple[list[float], list[float]] | None:
     return [0.0] + [float(d) for d in measured["distance_mm"]], [1.0] + [float(p) for p in measured["share"]]
 
 
+def _interpolated(x: float, xs: list[float], ys: list[float]) -> float:
+    """``ys`` at ``x`` along the increasing ``xs``, linearly between them and held beyond either end (np.interp's
+    answer for one number, without its conversion of the lists to arrays: a tenth of a frame's update)."""
+    k = bisect.bisect_right(xs, x)
+    if k <= 0:
+        return ys[0]
+    if k >= len(xs):
+        return ys[-1]
+    x0, y0 = xs[k - 1], ys[k - 1]
+    return (ys[k] - y0) / (xs[k] - x0) * (x - x0) + y0
+
+
 def calibration_level(model: FourierModel) -> float:
     """The χ² per sample the calibration's own frames left: what a frame's residual is judged against."""
     rmse = float(model.info.get("calibration_rmse_gray", model.noise_gray or 1.0))
@@ -307,6 +319,7 @@ class Estimator:
         # has placed within the stroke (_places).
         self._folded = grating == "none" and repeats_each_period(model)
         self._reach = [math.inf, -math.inf]  # the run's placed positions, lowest and highest (mm)
+        self._share_at: tuple[float, list[float], float] = (math.nan, [], 0.0)  # (_model_share's last answer)
         # a lossy stream's χ² scatters as fewer samples', and so does noise the samples share (its calibration's
         # frames measured it: core/chi2_curve.py frame_spread); with the rows' offsets taken out of each frame (below),
         # as it scatters without them, against the level without them
@@ -314,6 +327,7 @@ class Estimator:
         shared = model.info.get("row_chi2_spread") if banding else \
             model.info.get("frame_chi2_spread") if self.flat is None else self.flat.spread
         self.spread = max(stream_chi2_spread(model.info), float(shared or 1.0))
+        self._test_quantiles: dict[float, float] = {}  # χ²'s quantile by the samples a frame used (_test)
         if banding:
             self.chi2_calibration *= float(model.info.get("row_chi2_share") or 1.0)
         self.bound_factor = stream_bound_factor(model.info)
@@ -451,7 +465,8 @@ class Estimator:
         # read and checked: the grating less the position over the last frames, with the frames' own variance
         # (_disagreeing)
         self._check_length = max(int(settings.check_window), 1)
-        self._check: deque[tuple[float, float, float]] = deque()
+        self._check: deque[tuple[float, float]] = deque()
+        self._check_places: deque[float] = deque()  # (where each of them was placed, mm)
         self._check_sum = self._check_var = 0.0
         # what of a frame's error against the grating persists over the distance a window travels (calibration's)
         self._persist = _persistence_curve(model.info)
@@ -569,6 +584,7 @@ class Estimator:
         self._changed = False
         self._xi_last = math.nan
         self._check.clear()
+        self._check_places.clear()
         self._check_sum = self._check_var = 0.0
         self._lens_var, self._lens_m = float(self.P[M, M]), 0.0
         self.failed = 0
@@ -1468,7 +1484,10 @@ class Estimator:
         used = stats[kernel.S_USED]
         if used <= 0:
             return math.inf
-        return self._chi2(stats) / _quantile(self.z_alpha, used / self.spread ** 2)
+        quantile = self._test_quantiles.get(used)
+        if quantile is None:  # (a frame uses the same samples as the last one but for a few: each count once)
+            quantile = self._test_quantiles[used] = _quantile(self.z_alpha, used / self.spread ** 2)
+        return self._chi2(stats) / quantile
 
     def _with_grating(self, test: float, s: np.ndarray, A: np.ndarray, stats: list,
                       var_image: float | None = None) -> float:
@@ -1536,7 +1555,7 @@ class Estimator:
     def _position_variance(self) -> float:
         """Variance of the reported position (the carriage's: the image's less the camera's place and the
         lens's slide, which the state carries; with the grating only checked, the place is not a state)."""
-        return float(self.P[X, X])
+        return self.P.item(X, X)
 
     def _lens(self, s_prior: np.ndarray, P_prior: np.ndarray) -> None:
         """The stretch as a filter following the lens at its fastest declared rate holds it (mean and variance; the
@@ -1571,22 +1590,26 @@ class Estimator:
         persist = self._persist
         if persist is None:
             return False
-        window = self._check
+        window, places = self._check, self._check_places
         if len(window) >= self._check_length:
-            gone, gone_var, _ = window.popleft()
+            gone, gone_var = window.popleft()
+            places.popleft()
             self._check_sum -= gone
             self._check_var -= gone_var
-        window.append((nu, var, x_mm))
+        window.append((nu, var))
+        places.append(x_mm)
         self._check_sum += nu
         self._check_var += var
         n = len(window)
         if n < self._check_length:
             return False
-        places = [entry[2] for entry in window]
-        share = max(float(np.interp(max(places) - min(places), persist[0], persist[1])),
-                    self.settings.check_persist_least)
         mean = self._check_sum / n
-        return mean * mean > self.z_two ** 2 * (self._check_var / n) * (share + (1.0 - share) / n)
+        least = self.settings.check_persist_least
+        allowed = self.z_two ** 2 * (self._check_var / n)
+        if mean * mean <= allowed * (least + (1.0 - least) / n):  # (within it at the least share: within it at any)
+            return False
+        share = max(_interpolated(max(places) - min(places), persist[0], persist[1]), least)
+        return mean * mean > allowed * (share + (1.0 - share) / n)
 
     def _slide_variance(self) -> float:
         """What the lens's slide L·m adds to the position's variance, without the grating (fused, the grating reads
@@ -1662,18 +1685,18 @@ class Estimator:
         # on nearly every frame). Without the grating, what no frame can see of the carriage against the image (the
         # lens's slide, the camera's creep on its mount) is the bound's to state, not a change to flag: flagged, a
         # steady run was flagged on every frame after half a minute, its bound grown as the declared rates allow.
-        held = var_x - slide_var - self._stated(t) - vouched
-        if held > settings.dominance * floor2 * bound_factor ** 2 and self._changed \
-                and not (checked and reference_mm == reference_mm) \
-                and not model_var > held - model_var - floor2:
-            carried = self._carrier()
-            if carried:
-                stale, reason = True, reason or carried
-                message = message or f"the position's bound is carried by the {carried} state"
+        if self._changed and not (checked and reference_mm == reference_mm):
+            held = var_x - slide_var - self._stated(t) - vouched
+            if held > settings.dominance * floor2 * bound_factor ** 2 and not model_var > held - model_var - floor2:
+                carried = self._carrier()
+                if carried:
+                    stale, reason = True, reason or carried
+                    message = message or f"the position's bound is carried by the {carried} state"
         focus_sigma = sigma[B]
         shown = abs(s[B]) > self.z_two * focus_sigma
-        # (by position, in the fields' order: by keyword the record cost a frame a microsecond)
-        return FrameEstimate(
+        # (by position, in the fields' order, made from the one tuple: by keyword, or through the record's own
+        # constructor, it cost a frame a microsecond or two)
+        return FrameEstimate._make((
             t, s[X], math.sqrt(var_x),  # t, x_mm, crlb_mm
             floor * bound_factor, True, stats[kernel.S_RMS],  # floor_mm, locked, rms_gray
             residual / max(used, 1.0), float(test), int(rejected),  # chi2, test, rejected_px
@@ -1682,7 +1705,7 @@ class Estimator:
             s[M], sigma[M], s[C], sigma[C],  # stretch, stretch_sigma, place_mm, place_sigma_mm
             mode, False, stale, reason, message,  # mode, repeated, stale, stale_reason, message
             tuple(s), tuple(sigma),  # state, sigma
-            math.sqrt(slide_var) if self.grating == "none" else math.nan)  # slide_mm
+            math.sqrt(slide_var) if self.grating == "none" else math.nan))  # slide_mm
 
     def _stated(self, t: float) -> float:
         """What of the position's variance the bound states without a flag, without the grating: what the states no
@@ -1723,12 +1746,15 @@ class Estimator:
         edges, shares, whole = self.model_error
         if not edges:
             return whole
+        if x_mm == self._share_at[0] and self._reach == self._share_at[1]:  # (the frame's bound and its test ask)
+            return self._share_at[2]
         places = self._places(x_mm) if self._folded else (x_mm,)
         total = 0.0
         for place in places:
             total += shares[min(bisect.bisect_right(edges, place) - 1, len(shares) - 1)] \
                 if edges[0] <= place <= edges[-1] else whole
-        return total / len(places)
+        self._share_at = (x_mm, list(self._reach), total / len(places))
+        return self._share_at[2]
 
     def _carrier(self) -> str:
         """The family whose states carry most of the position's variance (what pinning them would remove:
