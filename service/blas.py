@@ -12,12 +12,16 @@ from __future__ import annotations
 import logging
 
 log = logging.getLogger(__name__)
+_BEFORE: list[int] = []  # what the first call found: the limit then holds for the rest of the process
 
 
 def single_threaded_blas() -> int | None:
     """Limit numpy's and scipy's BLAS libraries (loaded here, so that the limit reaches both) to one
     thread for the rest of the process; returns the most threads any had before (None:
-    threadpoolctl is missing)."""
+    threadpoolctl is missing). Once limited, a process is not searched again (a command run twice
+    in one process, as the benches and the tests run it, paid the search each time)."""
+    if _BEFORE:
+        return _BEFORE[0]
     try:
         from threadpoolctl import ThreadpoolController
     except ImportError:  # pragma: no cover - a dependency; without it only speed is lost
@@ -32,4 +36,5 @@ def single_threaded_blas() -> int | None:
     before = max((pool.get("num_threads", 1) for pool in controller.info() if pool.get("user_api") == "blas"),
                  default=1)
     controller.limit(limits=1, user_api="blas")
+    _BEFORE.append(before)
     return before
