@@ -112,6 +112,15 @@ REASON = {"light": "light", "field": "light", "band": "light", "geometry": "geom
           "focus": "focus", "magnification": "magnification"}
 
 
+class _Figures(list):
+    """A solve's figures (kernel.S_* before kernel.S_GAIN) as plain numbers, read every frame, with the unread
+    states' gains on the states solved beside them (``gains``, the solve's array: read only where a jump's or a
+    carried account's posterior is embedded, and valid until the arrays it answered in are solved into again)."""
+
+    __slots__ = ("gains",)
+    gains: np.ndarray
+
+
 class FrameEstimate(NamedTuple):
     """One frame's estimate, made once and immutable (a named tuple: a frame's record costs a
     microsecond). Figures are NaN where they do not exist; ``crlb_mm`` is the posterior σ of position
@@ -798,7 +807,7 @@ class Estimator:
             self.P, self._P_next = self._P_next, self.P
         else:
             # the posterior over the states solved, the prior's elsewhere (the jitter's conditioned on them)
-            kernel.embed(self.P, A, solved, self._sigma, np.asarray(stats)[kernel.S_GAIN:])
+            kernel.embed(self.P, A, solved, self._sigma, stats.gains)
         self._lens(s_prior, P_prior)
         if self.s.item(BE) > 0.0:
             self._band_failed = self._band_failed + 1 if test > 1.0 else 0
@@ -855,7 +864,7 @@ class Estimator:
             self._find_origin(y_raw, raw_mask)
         if carried is not None:  # (the maps learn from the frame as its image placed it, as it is reported)
             self.s, A, idx, self.P, figures = carried
-            kernel.embed(self.P, A, idx, self._sigma, np.asarray(figures)[kernel.S_GAIN:])
+            kernel.embed(self.P, A, idx, self._sigma, figures.gains)
             if idx is self.idx_band and self.idx is not self.idx_band:
                 self._band_on()
         return estimate
@@ -1433,7 +1442,7 @@ class Estimator:
     def _solve(self, y: np.ndarray, mask: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray,
                grating_z: float, idx: np.ndarray | None = None,
                out: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
-               predict: float | None = None, start: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, list]:
+               predict: float | None = None, start: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, _Figures]:
         """The update over the states ``idx`` (default: every active one; the others held at the prior):
         the state, the posterior information and the figures (kernel.S_*, plain numbers). ``out``: the
         arrays to answer in (the state, the information over ``idx``, the figures), else new ones; with
@@ -1455,7 +1464,9 @@ class Estimator:
         params[kernel.U_LEVEL] = self._level(s_prior.item(X))
         kernel.update(s, s_prior, P_prior, idx, y, mask, self.pixels, params, self.model_args, self.scratch, self.rho,
                       A, stats, self._P_next, self._sigma)
-        return s, A, stats.tolist()
+        figures = _Figures(stats[:kernel.S_GAIN].tolist())
+        figures.gains = stats[kernel.S_GAIN:]
+        return s, A, figures
 
     def _level(self, x_mm: float) -> float:
         """The calibration's χ² per sample at ``x_mm``; where the frame may be at several places (_places), the
