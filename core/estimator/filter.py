@@ -1442,7 +1442,8 @@ class Estimator:
     def _solve(self, y: np.ndarray, mask: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray,
                grating_z: float, idx: np.ndarray | None = None,
                out: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
-               predict: float | None = None, start: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, _Figures]:
+               predict: float | None = None,
+               start: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, _Figures]:
         """The update over the states ``idx`` (default: every active one; the others held at the prior):
         the state, the posterior information and the figures (kernel.S_*, plain numbers). ``out``: the
         arrays to answer in (the state, the information over ``idx``, the figures), else new ones; with
