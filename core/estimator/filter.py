@@ -880,7 +880,7 @@ class Estimator:
             self.commands.command(start, end, acceleration, -math.inf if self.t_last is None else self.t_last)
 
     def _carried(self, y: np.ndarray, mask: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray,
-                 lens: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list] | None:
+                 lens: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, _Figures] | None:
         """The frame's account with the grating it checks as a second measurement of the carriage, for the
         recursion to carry where the image's own account and the grating disagree: (state, posterior information,
         the states solved, the prior's covariance to embed it in, the solve's figures). Solved with the grating,
