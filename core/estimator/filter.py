@@ -43,7 +43,7 @@ from graytrack.core.compression import stream_bound_factor, stream_chi2_spread
 from graytrack.core.errors import TrackingError
 from graytrack.core import repeats
 from graytrack.core.estimator import kernel
-from graytrack.core.estimator.kernel import S_POSTERIOR, S_REJECTED, S_WEIGHED
+from graytrack.core.estimator.kernel import S_POSTERIOR, S_REJECTED, S_WEIGHED, U_FLICKER
 from graytrack.core.estimator.light_modes import LightModes, reweigh
 from graytrack.core.estimator.commands import StageCommands
 from graytrack.core.estimator.flat_field import FLAT_FIELD, FlatField, calibration_flat_field
@@ -312,6 +312,8 @@ class Estimator:
             settings = self.settings = settings.replace(lever_prior=abs(float(axis_px)))
         self.z_alpha = normal_isf(settings.false_alarm)
         self.z_two = normal_isf(settings.false_alarm / 2.0)
+        self.z_two2 = self.z_two ** 2  # (its square: read every frame)
+        self.grating_var = settings.grating_sigma ** 2  # (the grating's reading's variance, mm²: read every frame)
         tables = FrameTables.of(model)
         self.evaluator = TableEvaluator(tables)
         self.model_args = self.evaluator._args
@@ -344,6 +346,7 @@ class Estimator:
         self._folded = grating == "none" and repeats_each_period(model)
         self._reach = [math.inf, -math.inf]  # the run's placed positions, lowest and highest (mm)
         self._share_at: tuple[float, list[float], float] = (math.nan, [], 0.0)  # (_model_share's last answer)
+        self._variance_at: tuple[tuple, list[float], float] = ((), [], 0.0)  # (_model_variance's last question, answer)
         # a lossy stream's χ² scatters as fewer samples', and so does noise the samples share (its calibration's
         # frames measured it: core/chi2_curve.py frame_spread); with the rows' offsets taken out of each frame (below),
         # as it scatters without them, against the level without them
@@ -652,13 +655,13 @@ class Estimator:
             self.params[kernel.U_ACCELERATION] = asked * asked + self.settings.stage_drift ** 2
         if self._flicker:  # the flicker's turn over the interval (kernel.predict)
             phase = self._flicker_omega * (t - self._flicker_t0)
-            flicker = self.params[kernel.U_FLICKER:kernel.U_RATES]
+            params = self.params
             cos_new, sin_new = math.cos(phase), math.sin(phase)
-            d_cos, d_sin = cos_new - flicker[2], sin_new - flicker[3]
+            d_cos, d_sin = cos_new - params.item(U_FLICKER + 2), sin_new - params.item(U_FLICKER + 3)
             if abs(d_cos) < FLICKER_ROUNDING and abs(d_sin) < FLICKER_ROUNDING:
                 d_cos = d_sin = 0.0  # (a frame rate that samples the flicker at one phase: it never moves the light)
-            flicker[0], flicker[1] = d_cos, d_sin
-            flicker[2], flicker[3] = cos_new, sin_new
+            params[U_FLICKER], params[U_FLICKER + 1] = d_cos, d_sin
+            params[U_FLICKER + 2], params[U_FLICKER + 3] = cos_new, sin_new
         self.dt_last, self.t_last = dt, t
         return dt
 
@@ -779,7 +782,7 @@ class Estimator:
         refuted = located and self._with_grating(test, s, A, stats, made) > 1.0
         if refuted:
             if len(self._refutations) < self._step_frames:  # (a knock shows its whole step from its first frame)
-                var = (made if made is not None else self.P.item(X, X)) + self.settings.grating_sigma ** 2
+                var = (made if made is not None else self.P.item(X, X)) + self.grating_var
                 self._refutations.append((s.item(X) - reference_mm, var))
                 # (a knock moves the whole image: each frame's own account still explains every sample)
                 self._spoiled = self._spoiled or bool(mode) or test > 1.0 or stats[S_REJECTED] > 0 or \
@@ -1456,7 +1459,7 @@ class Estimator:
         if start is not None:
             s[:] = s_prior
             s[idx] = start[idx]
-        grating_w = 1.0 / self.settings.grating_sigma ** 2 if math.isfinite(grating_z) else 0.0
+        grating_w = 1.0 / self.grating_var if math.isfinite(grating_z) else 0.0
         params = self.params
         params[kernel.U_GRATING_Z], params[kernel.U_GRATING_W] = grating_z if grating_w else 0.0, grating_w
         params[kernel.U_PREDICT], params[kernel.U_DT] = (0.0, 0.0) if predict is None else (1.0, predict)
@@ -1534,7 +1537,7 @@ class Estimator:
         x = s.item(X)
         var_x = var_image + self._model_variance(x, var_image, stats[kernel.S_XINFO], level)
         nu = reading - x
-        return max(test, nu * nu / (self.z_two ** 2 * (var_x + self.settings.grating_sigma ** 2)))
+        return max(test, nu * nu / (self.z_two2 * (var_x + self.grating_var)))
 
     def _chi2(self, stats: list) -> float:
         """The innovation's χ² (the stream's spread counted)."""
@@ -1632,7 +1635,7 @@ class Estimator:
             return False
         mean = self._check_sum / n
         least = self.settings.check_persist_least
-        allowed = self.z_two ** 2 * (self._check_var / n)
+        allowed = self.z_two2 * (self._check_var / n)
         if mean * mean <= allowed * (least + (1.0 - least) / n):  # (within it at the least share: within it at any)
             return False
         share = max(_interpolated(max(places) - min(places), persist[0], persist[1]), least)
@@ -1680,8 +1683,9 @@ class Estimator:
             message = f"innovation χ² {test:.2f}x its quantile at the false-alarm rate"
         if checked and reference_mm == reference_mm:
             nu = reference_mm - s[X]
-            drifting = self._disagreeing(nu, var_x + settings.grating_sigma ** 2, s[X])
-            if nu * nu > self.z_two ** 2 * (var_x + settings.grating_sigma ** 2):
+            var_nu = var_x + self.grating_var
+            drifting = self._disagreeing(nu, var_nu, s[X])
+            if nu * nu > self.z_two2 * var_nu:
                 stale, reason = True, reason or "scale"
                 message = message or f"camera and grating disagree by {nu * 1e3:+.2f} µm"
             elif drifting:
@@ -1742,7 +1746,7 @@ class Estimator:
         if self.grating != "none":
             return 0.0
         slide = kernel.carried(self.P, self._slide_states, X)
-        crept = self.settings.grating_sigma ** 2 + self.settings.place_rate ** 2 * max(t - self._t_start, 0.0)
+        crept = self.grating_var + self.settings.place_rate ** 2 * max(t - self._t_start, 0.0)
         return slide + min(max(kernel.carried(self.P, self._unseen_states, X) - slide, 0.0), crept)
 
     def _anchored(self, P: np.ndarray, stats: list) -> bool:
@@ -1758,8 +1762,13 @@ class Estimator:
         sign; ``xinfo``: the frame's information on the position, its samples weighed at ``level``)."""
         if not xinfo > 0:
             return 0.0
+        asked = (x_mm, var_image, xinfo, level)
+        if asked == self._variance_at[0] and self._reach == self._variance_at[1]:  # (the frame's test and its bound)
+            return self._variance_at[2]
         share = min(var_image * xinfo, 1.0)
-        return (self._frame_variance(x_mm, xinfo, level) - 1.0 / xinfo) * share * share
+        var = (self._frame_variance(x_mm, xinfo, level) - 1.0 / xinfo) * share * share
+        self._variance_at = (asked, list(self._reach), var)
+        return var
 
     def _frame_variance(self, x_mm: float, xinfo: float, level: float) -> float:
         """The variance of a frame's position at ``x_mm`` alone, as calibration measured it against the grating: the
