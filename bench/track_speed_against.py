@@ -18,12 +18,14 @@ import sys
 import tempfile
 
 HERE = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-# the child's imports of graytrack.* resolved in ROOT (the editable install maps them to this tree)
+# the child's imports of graytrack.* resolved in ROOT (the editable install maps them to the checkout it was
+# installed from, which need not be this one: another worktree run with the same interpreter)
 PRELUDE = """
-import runpy, sys
+import os, runpy, sys
 import __editable___graytrack_0_1_0_finder as finder
+installed = os.path.dirname(finder.MAPPING["graytrack"])
 for key, value in list(finder.MAPPING.items()):
-    finder.MAPPING[key] = value.replace({here!r}, {root!r}, 1)
+    finder.MAPPING[key] = value.replace(installed, {root!r}, 1)
 sys.argv = ["bench/track_speed.py", {part!r}]
 runpy.run_path("bench/track_speed.py", run_name="__main__")
 """
@@ -33,7 +35,7 @@ HEADING = re.compile(r"^(\d+) row\(s\)")
 
 def figures(root: str, part: str) -> dict[str, tuple[float, str]]:
     """One run of the bench in ``root``: {row: (value, unit)}; live rows are read as their p50."""
-    code = PRELUDE.format(here=HERE, root=root, part=part)
+    code = PRELUDE.format(root=root, part=part)
     out = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, check=True).stdout
     rows, heading = {}, ""
     for line in out.splitlines():
