@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 
 from graytrack.drivers.sim.effects import parse_effects
-from estimator_sweep import cached_case, scored, seeded_arguments
+from estimator_sweep import cached_case, level_scaled, scored, seeded_arguments
 from truth_score import MODES
 
 # (the change, which side it is on, two strengths): the defaults, and a stronger or wider version
@@ -72,7 +72,7 @@ def main() -> None:
         after = np.asarray(run.t) >= float(run.t[0]) + settled_s(change) + SEPARATED_S
         for mode, options in MODES.items():
             grating = "none" if options["no_reference"] else ("fuse" if options["trim"] else "check")
-            score = scored(model, run, truth, grating, settings, after=after)
+            score = scored(level_scaled(model, args.level_scale), run, truth, grating, settings, after=after)
             frames = max(score["frames"], 1)
             mislearned = score["print"] if side == "sensor" else score["map"]
             scored_runs += 1

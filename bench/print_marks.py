@@ -17,7 +17,7 @@ path, and the totals.
 
 from __future__ import annotations
 
-from estimator_sweep import RATIO_KEPT, SILENT_SHARE, cached_case, scored, seeded_arguments, todays
+from estimator_sweep import RATIO_KEPT, SILENT_SHARE, cached_case, level_scaled, scored, seeded_arguments, todays
 from truth_score import MODES
 
 # (a smudge's Gaussian σ, µm, and its depth at the centre): the sweep's (700 µm, 0.35), narrower and fainter ones
@@ -39,7 +39,7 @@ def main() -> None:
         label = f"{scenario}  {mark} seed {seed}"
         for mode, options in MODES.items():
             grating = "none" if options["no_reference"] else ("fuse" if options["trim"] else "check")
-            score = scored(model, run, truth, grating, settings)
+            score = scored(level_scaled(model, args.level_scale), run, truth, grating, settings)
             today = todays(args.cache, model, run, truth, label, mode)
             ours = score["std"] / today.bound_um
             worse = ours > RATIO_KEPT * today.ratio

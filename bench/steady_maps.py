@@ -20,7 +20,7 @@ many runs touched or learned anything, the largest share flagged and the range o
 
 from __future__ import annotations
 
-from estimator_sweep import STEADY_FLAGGED, cached_case, scored, seeded_arguments
+from estimator_sweep import STEADY_FLAGGED, cached_case, level_scaled, scored, seeded_arguments
 from truth_score import MODES
 
 # seeds a scenario is run with at the default --seeds: 8 + 8 + 4 = 20 clean runs, each in three modes
@@ -41,7 +41,7 @@ def main() -> None:
         model, run, truth = cached_case(args.cache, scenario, "", "", seed)
         for mode, options in MODES.items():
             grating = "none" if options["no_reference"] else ("fuse" if options["trim"] else "check")
-            score = scored(model, run, truth, grating, settings)
+            score = scored(level_scaled(model, args.level_scale), run, truth, grating, settings)
             share = score["flagged"] / max(score["frames"], 1)
             scored_runs += 1
             touched += score["touched"] > 0
