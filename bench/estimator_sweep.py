@@ -147,7 +147,8 @@ def scored(model, run, truth, grating: str, settings: EstimatorSettings,
             "seconds": seconds, "map": int(tracker.sensor.learned().sum()),
             "print": int((tracker.print_map.learned() & ~tracker.print_map.restored).sum()),  # (this run's)
             "touched": int(tracker.sensor.touched.sum()),
-            "flagged_after": float(stale[after].mean()) if after is not None and after.any() else 0.0}
+            "flagged_after": float(stale[after].mean()) if after is not None and after.any() else 0.0,
+            "error": error}
 
 
 def todays(folder: Path, model, run, truth, label: str, mode: str):
@@ -158,7 +159,10 @@ def todays(folder: Path, model, run, truth, label: str, mode: str):
     path = folder / f"{todays_key(model, run, label, mode)}.watches.pkl"
     if path.exists():
         with open(path, "rb") as kept:
-            return pickle.load(kept)
+            score = pickle.load(kept)
+        # (kept before the frames it placed were: made again where it lost some, the rest need none)
+        if not score.lost or getattr(score, "placed_frames", None) is not None:
+            return score
     score = path_scored(model, run, truth, engine="watches", **MODES[mode])
     with open(path, "wb") as kept:
         pickle.dump(score, kept)
@@ -267,9 +271,14 @@ def main() -> None:
                 # both against today's floor: each path states its own (the estimator's, with the light known from
                 # the frames before, is the narrower), the acceptance compares their errors on the same data
                 today = todays(args.cache, model, run, truth, label, mode)
-                ours = score["std"] / today.bound_um
+                ours, common = score["std"] / today.bound_um, ""
+                if today.lost and today.placed_frames:
+                    # where today's path lost frames its ratio is over those it placed: the two are compared on
+                    # those (what only the estimator placed is no accuracy today's path kept)
+                    ours = float(np.nanstd(score["error"][list(today.placed_frames)])) / today.bound_um
+                    common = f" (both on the {len(today.placed_frames)} frames today's path placed)"
                 above = ours > RATIO_KEPT * today.ratio
-                line += (f" | on today's floor {ours:6.2f} today {today.ratio:6.2f} silent {today.silent:4d}"
+                line += (f" | on today's floor {ours:6.2f} today {today.ratio:6.2f} silent {today.silent:4d}{common}"
                          + (" >>>" if above else ""))
                 if above:
                     worse.append(line)

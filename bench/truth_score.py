@@ -42,6 +42,7 @@ class Score:
     focus: int  # frames whose focus term was on (an estimate shown: core/focus_follow.py)
     trimmed: int  # frames a trim was in force on
     stretched: int = 0  # frames solved with the lens's stretch taken out (core/stretch_follow.py, under --trim)
+    placed_frames: tuple[int, ...] | None = None  # which frames were placed (None: not kept)
 
     @property
     def ratio(self) -> float:
@@ -93,7 +94,8 @@ def scored(model, run, truth, trim: bool = False, no_reference: bool = False, en
                  flagged=int(flagged.sum()), far=int(far.sum()), silent=int((far & ~flagged).sum()),
                  marks=int((result.texture or {}).get("learned", 0)), focus=int(focus.sum()),
                  trimmed=int(trimmed.sum()),
-                 stretched=watch.stretch_follow.corrected_frames if watch is not None and watch.stretch_follow else 0)
+                 stretched=watch.stretch_follow.corrected_frames if watch is not None and watch.stretch_follow else 0,
+                 placed_frames=tuple(np.flatnonzero(placed).tolist()))
 
 
 def estimator_scored(model, run, truth, trim: bool = False, no_reference: bool = False) -> Score:
