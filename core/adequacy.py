@@ -30,6 +30,7 @@ ROW_SIGNIFICANCE = 3.0  # standard errors by which the rows' offsets must stand 
 ROW_LEVEL_SHARE = 0.95  # the χ² level with the rows' offsets taken out, over the level with them, below which they are
 # taken out of every frame: offsets that carry less of the residual move a frame's solve by less than its noise (a
 # JPEG stream's blocks leave a few hundredths of a gray a row)
+FRAME_GAIN_RATE = "frame_gain_rate"  # the model's info key: how fast the gain walks from frame to frame (1/√s)
 PROFILE_FRAMES = 25  # calibration frames per stretch of the stroke in the local error profile (its ratio to ~15 %)
 
 
@@ -156,11 +157,15 @@ def assessed(model: FourierModel, data: CalibrationData) -> FourierModel:
                                 "chi2_spread": round(chi2_spread(per_frame, used), 3)}
     elif "calibration_chi2" in model.info:  # a light that moved during calibration is the tracker's to solve
         model.info["calibration_chi2"] = stated_level(float(model.info["calibration_chi2"]), solved, n_values)
-    for key in ("row_offset_gray", "row_chi2_share", "row_chi2_spread", "frame_offset_gray"):
+    for key in ("row_offset_gray", "row_chi2_share", "row_chi2_spread", "frame_offset_gray", FRAME_GAIN_RATE):
         model.info.pop(key, None)
     # the offset each frame draws afresh (the estimator takes it out of each frame as it takes a row's)
     if (offset := frame_offset_gray(model, data)) is not None:
         model.info["frame_offset_gray"] = round(offset, 4)
+    # how fast the camera's gain moves from frame to frame (a camera hunting its exposure: the estimator's light
+    # drifts at least that fast, core/estimator/filter.py)
+    if (rate := frame_gain_rate(model, data)) is not None:
+        model.info[FRAME_GAIN_RATE] = round(rate, 5)
     if (row := row_offset_gray(model, data)) is not None:
         # what the estimator, which takes each row's offset out of a frame (core/estimator/kernel.py _normal), judges
         # a frame's χ² against: the level and the frames' spread with the offsets taken out as it takes them
@@ -288,6 +293,50 @@ def frame_offset_gray(model: FourierModel, data: CalibrationData) -> float | Non
     order = np.argsort(x_mm, kind="stable")
     offset, own = light[order, 1], covariance[order, 1, 1] * max(1.0, level(chi2, used))
     each = 0.5 * (np.diff(offset) ** 2 - own[1:] - own[:-1])
+    variance = float(each.mean())
+    if variance <= ROW_SIGNIFICANCE * float(each.std()) / np.sqrt(each.size):
+        return None
+    return float(np.sqrt(variance))
+
+
+def frame_gain_rate(model: FourierModel, data: CalibrationData) -> float | None:
+    """How fast the light's gain walks from frame to frame (relative, 1/√s: a random walk's σ after a second), None
+    where it does not stand out of its estimate's noise (:data:`ROW_SIGNIFICANCE` of its sampling σ) or the frames
+    have no times.
+
+    A camera hunting its exposure steps its gain by a percent between frames, a regulated lamp holds it for minutes:
+    the one is a rig's property calibration's frames show, and the estimator lets its light drift at least that fast
+    (a light held where it hunts puts each step into the position over less than a period). Measured from each
+    frame's gain (its light solved as the tracker solves it) by how the square of the difference between two frames
+    grows with the time between them, one frame apart against two: a random walk's grows with the time, while what
+    is drawn afresh each frame (the noise, a stream's quantisation) or belongs to the place the frame sees (what the
+    model misses there, the print's marks, over the few hundredths of a millimetre between neighbours) does not. A
+    lamp's flicker at twice the mains (``meta["mains_hz"]``, the estimator's own where it does not say), which the
+    estimator follows with states of its own, is fitted out of the gains first."""
+    from graytrack.core.estimator.settings import TUNABLES
+    from graytrack.core.recording import MAINS_HZ
+
+    picked = picked_frames(data)
+    if picked.t_s is None:
+        return None
+    _, _, _, light, _ = light_solved(model, data)
+    t = np.asarray(picked.t_s, dtype=np.float64)
+    if light.shape[0] != t.size or t.size < 8:  # (a frame the model could not solve breaks the sequence)
+        return None
+    gain = light[:, 0]
+    mains = float(picked.meta.get(MAINS_HZ, TUNABLES["mains_hz"].default) or 0.0)
+    if mains > 0.0:
+        phase = 4.0 * np.pi * mains * t
+        basis = np.stack([np.ones_like(t), np.cos(phase), np.sin(phase)], axis=1)
+        fitted, *_ = np.linalg.lstsq(basis, gain, rcond=None)
+        gain = gain - basis[:, 1:] @ fitted[1:]
+    one, two = np.diff(gain) ** 2, (gain[2:] - gain[:-2]) ** 2
+    dt_one, dt_two = np.diff(t), t[2:] - t[:-2]
+    longer = dt_two - 0.5 * (dt_one[1:] + dt_one[:-1])
+    usable = longer > 0.0
+    if usable.sum() < 4:
+        return None
+    each = ((two - 0.5 * (one[1:] + one[:-1]))[usable]) / longer[usable]
     variance = float(each.mean())
     if variance <= ROW_SIGNIFICANCE * float(each.std()) / np.sqrt(each.size):
         return None

@@ -98,6 +98,10 @@ class CalibrationRun:
                          "afresh each frame (the readout's black level drifting frame by frame); tracking takes "
                          "each frame's offset out of its solve, at some cost in precision: the camera's black-level "
                          "clamp or readout settings may remove it")
+        if info.get("frame_gain_rate"):
+            lines.append(f"warning: the light's gain walks {100 * float(info['frame_gain_rate']):.1f} % per √s from "
+                         "frame to frame (a camera hunting its exposure or gain); tracking lets the light move that "
+                         "fast, at some cost in precision: fix the camera's exposure and gain (auto-exposure off)")
         if spread >= SHARED_NOISE_SPREAD:
             lines.append(f"warning: the frames' residual scatters {spread:.1f}x as widely from frame to frame as "
                          "independent noise in each sample would: the sensor's noise is shared between samples (a "

@@ -38,6 +38,7 @@ from typing import TYPE_CHECKING, Callable, NamedTuple
 
 import numpy as np
 
+from graytrack.core.adequacy import FRAME_GAIN_RATE
 from graytrack.core.chi2_curve import Chi2Curve
 from graytrack.core.compression import stream_bound_factor, stream_chi2_spread
 from graytrack.core.errors import TrackingError
@@ -363,10 +364,13 @@ class Estimator:
         pitch = model.pixel_pitch_mm
         rates = np.zeros(N_STATE)
         # the light's gain and offset hold or drift, a mode the frames decide (light_modes.py); with no switching, one
-        # mode: the drifting rates throughout
+        # mode: the drifting rates throughout. Drifting, the gain walks at least as fast as calibration's frames showed
+        # it walk from frame to frame (a camera hunting its exposure: core/adequacy.py frame_gain_rate), whose steps
+        # held to the declared drift went into the position
+        gain_rate = max(settings.gain_rate, float(model.info.get(FRAME_GAIN_RATE) or 0.0))
         self.light = LightModes(settings.light_switch_rate,
                                 (settings.gain_rate_holding ** 2, settings.offset_rate_holding ** 2),
-                                (settings.gain_rate ** 2, settings.offset_rate ** 2))
+                                (gain_rate ** 2, settings.offset_rate ** 2))
         rates[G], rates[OFS] = (math.sqrt(rate) for rate in self.light.rates())  # (each frame's mode's: _advance)
         rates[A1] = rates[A2] = settings.field_rate
         # the lamp's flicker at twice the mains moves the frame's light on from frame to frame (kernel.predict), at
@@ -442,6 +446,9 @@ class Estimator:
         self._slide_states = np.array([state for state in (M, L) if state in active], dtype=np.int64)
         self._band_states = np.array(BAND, dtype=np.int64)
         self._unseen_states = np.array([state for state in (M, L, C, T) if state in active], dtype=np.int64)
+        # a light calibration saw walk from frame to frame (a camera hunting its exposure): what it carries of the
+        # position is the rig's own precision, as a frame solved with its light free states it (_stated)
+        self._walking_light = np.array([G, OFS], dtype=np.int64) if gain_rate > settings.gain_rate else None
         self._carriers: dict[bool, list] = {}  # (_carrier's families over each set of states solved)
         self.idx_appearance = np.array([state for state in (X, V, G, OFS, A1, A2, B) if state in active and
                                         not (state == V and self.on_path)],
@@ -1742,12 +1749,14 @@ class Estimator:
         """What of the position's variance the bound states without a flag, without the grating: what the states no
         frame sees carry of it, the lens's slide wholly (its stretch seen, or the fastest the lens may drift, times a
         lever no frame sees) and the camera's place on the carriage up to what its declared creep allows since the
-        estimate started (beyond that, a knock the test found carries it: flagged until the frames settle it)."""
+        estimate started (beyond that, a knock the test found carries it: flagged until the frames settle it); and
+        where calibration saw the light walk from frame to frame, what the light carries (the rig's own precision)."""
         if self.grating != "none":
             return 0.0
         slide = kernel.carried(self.P, self._slide_states, X)
         crept = self.grating_var + self.settings.place_rate ** 2 * max(t - self._t_start, 0.0)
-        return slide + min(max(kernel.carried(self.P, self._unseen_states, X) - slide, 0.0), crept)
+        walked = 0.0 if self._walking_light is None else kernel.carried(self.P, self._walking_light, X)
+        return slide + min(max(kernel.carried(self.P, self._unseen_states, X) - slide, 0.0), crept) + walked
 
     def _anchored(self, P: np.ndarray, stats: list) -> bool:
         """Whether the position ``P`` holds is the frame's to say (its variance within the dominance share of the

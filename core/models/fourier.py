@@ -406,6 +406,8 @@ class FourierModel:
             parts.append(f"row banding {float(self.info['row_offset_gray']):.2f} gray taken out")
         if self.info.get("frame_offset_gray"):  # (core/adequacy.py frame_offset_gray)
             parts.append(f"an offset of {float(self.info['frame_offset_gray']):.2f} gray drawn each frame taken out")
+        if self.info.get("frame_gain_rate"):  # (core/adequacy.py frame_gain_rate)
+            parts.append(f"the gain walking {100 * float(self.info['frame_gain_rate']):.1f} %/√s from frame to frame")
         if float(self.info.get("frame_chi2_spread") or 1.0) > 1.0:  # (core/chi2_curve.py frame_spread)
             parts.append(f"noise shared between samples: χ² spread {float(self.info['frame_chi2_spread']):.1f}x")
         return f"{self.name} ({', '.join(parts)}; τ={self.period_mm:.4f} mm, α·d={self.pixel_pitch_mm:.5f} mm)"
