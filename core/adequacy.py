@@ -11,6 +11,8 @@ however still its χ² stays, and every one of its positions must say so.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from graytrack.core.calibration_data import CalibrationData
@@ -31,6 +33,7 @@ ROW_LEVEL_SHARE = 0.95  # the χ² level with the rows' offsets taken out, over 
 # taken out of every frame: offsets that carry less of the residual move a frame's solve by less than its noise (a
 # JPEG stream's blocks leave a few hundredths of a gray a row)
 FRAME_GAIN_RATE = "frame_gain_rate"  # the model's info key: how fast the gain walks from frame to frame (1/√s)
+LIGHT_PROFILE = "light_profile"  # ... and the light's gain along the stroke (light_profile)
 PROFILE_FRAMES = 25  # calibration frames per stretch of the stroke in the local error profile (its ratio to ~15 %)
 
 
@@ -157,7 +160,8 @@ def assessed(model: FourierModel, data: CalibrationData) -> FourierModel:
                                 "chi2_spread": round(chi2_spread(per_frame, used), 3)}
     elif "calibration_chi2" in model.info:  # a light that moved during calibration is the tracker's to solve
         model.info["calibration_chi2"] = stated_level(float(model.info["calibration_chi2"]), solved, n_values)
-    for key in ("row_offset_gray", "row_chi2_share", "row_chi2_spread", "frame_offset_gray", FRAME_GAIN_RATE):
+    for key in ("row_offset_gray", "row_chi2_share", "row_chi2_spread", "frame_offset_gray", FRAME_GAIN_RATE,
+                LIGHT_PROFILE):
         model.info.pop(key, None)
     # the offset each frame draws afresh (the estimator takes it out of each frame as it takes a row's)
     if (offset := frame_offset_gray(model, data)) is not None:
@@ -166,6 +170,9 @@ def assessed(model: FourierModel, data: CalibrationData) -> FourierModel:
     # drifts at least that fast, core/estimator/filter.py)
     if (rate := frame_gain_rate(model, data)) is not None:
         model.info[FRAME_GAIN_RATE] = round(rate, 5)
+    # the light along the stroke (the estimator carries its gain from place to place by it)
+    if (profile := light_profile(model, data)) is not None:
+        model.info[LIGHT_PROFILE] = profile
     if (row := row_offset_gray(model, data)) is not None:
         # what the estimator, which takes each row's offset out of a frame (core/estimator/kernel.py _normal), judges
         # a frame's χ² against: the level and the frames' spread with the offsets taken out as it takes them
@@ -341,6 +348,39 @@ def frame_gain_rate(model: FourierModel, data: CalibrationData) -> float | None:
     if variance <= ROW_SIGNIFICANCE * float(each.std()) / np.sqrt(each.size):
         return None
     return float(np.sqrt(variance))
+
+
+def light_profile(model: FourierModel, data: CalibrationData) -> dict | None:
+    """The light's gain along the stroke, relative to its mean (``{"x_mm": [...], "gain": [...]}``, the means of
+    stretches of :data:`PROFILE_FRAMES` calibration frames, at their mean places), None where it does not stand out
+    of its own scatter (:data:`ROW_SIGNIFICANCE` standard errors of the stretches' spread beyond what the scatter
+    within them gives).
+
+    A lamp lights the print unevenly (its spot, a gradient across a long stroke) and the print's ink is not equally
+    dark everywhere: the light a frame sees changes with the place it sees, fixed to the print, while the model's
+    series holds what is fixed to the pixels. Calibration's frames, each solved for its light at the grating's place,
+    show it as a gain that follows the place; the estimator carries its gain from place to place by it instead of
+    letting its light drift. The scatter within a stretch (the noise, what the model misses between neighbouring
+    places) is the measure of each stretch's mean: no noise model is trusted for it."""
+    _, _, x_mm, light, _ = light_solved(model, data)
+    if x_mm.size < 4 * PROFILE_FRAMES:
+        return None
+    order = np.argsort(x_mm, kind="stable")
+    x_sorted, gain = x_mm[order], light[order, 0]
+    stretches = x_sorted.size // PROFILE_FRAMES
+    cut = stretches * PROFILE_FRAMES
+    places = x_sorted[:cut].reshape(stretches, PROFILE_FRAMES)
+    gains = gain[:cut].reshape(stretches, PROFILE_FRAMES)
+    means = gains.mean(axis=1)
+    within = gains.var(axis=1, ddof=1) / PROFILE_FRAMES  # each stretch's mean's variance from its own scatter
+    between = float(np.var(means, ddof=1))
+    # the stretches' spread beyond their means' own, in standard errors of that spread (a χ² of stretches - 1 degrees)
+    excess = (between - float(within.mean())) / (float(within.mean()) * math.sqrt(2.0 / (stretches - 1)))
+    if not excess > ROW_SIGNIFICANCE:
+        return None
+    relative = means / float(means.mean())
+    return {"x_mm": [round(float(x), 5) for x in places.mean(axis=1)],
+            "gain": [round(float(g), 6) for g in relative]}
 
 
 def level(per_frame: np.ndarray, used: np.ndarray) -> float:

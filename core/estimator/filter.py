@@ -38,7 +38,7 @@ from typing import TYPE_CHECKING, Callable, NamedTuple
 
 import numpy as np
 
-from graytrack.core.adequacy import FRAME_GAIN_RATE
+from graytrack.core.adequacy import FRAME_GAIN_RATE, LIGHT_PROFILE
 from graytrack.core.chi2_curve import Chi2Curve
 from graytrack.core.compression import stream_bound_factor, stream_chi2_spread
 from graytrack.core.errors import TrackingError
@@ -167,16 +167,17 @@ def _quantile(z: float, dof: float) -> float:
     return k * (1.0 - c + z * math.sqrt(c)) ** 3
 
 
-def _model_error(info: dict) -> tuple[list[float], list[float], float]:
+def _model_error(info: dict, mapped: dict | None = None) -> tuple[list[float], list[float], float]:
     """(edges, ratios, global ratio) of the model's own error on its calibration frames over their
-    bound (core/adequacy.py): the local profile where calibration measured one, else the whole. Each ratio is
+    bound (core/adequacy.py): the local profile where calibration measured one, else the whole; ``mapped``: what
+    remains of it with its error map taken out (calibration_error's ``map``), where the map is read. Each ratio is
     kept as the error power beyond the floor's (ratio² − 1, at least 0): what :meth:`Estimator._model_share`
     reads a frame."""
     from graytrack.core.compression import judged_factor
 
     # the estimator's own where its calibration measured it (calibration_error: over its floor, a stream's widening
     # in it), else today's tracking's
-    own = info.get(CALIBRATION_ERROR)
+    own = mapped or info.get(CALIBRATION_ERROR)
     profile = own or info.get("calibration_error_profile") or {}
     whole = float(own["whole"]) if own else float(info.get("calibration_error_ratio") or 1.0) / judged_factor(info)
     edges = np.asarray(profile.get("edges_mm", []), dtype=np.float64)
@@ -187,10 +188,11 @@ def _model_error(info: dict) -> tuple[list[float], list[float], float]:
     return edges.tolist(), [max(ratio * ratio - 1.0, 0.0) for ratio in ratios.tolist()], whole * whole - 1.0
 
 
-def _persistence_curve(info: dict) -> tuple[list[float], list[float]] | None:
+def _persistence_curve(info: dict, mapped: dict | None = None) -> tuple[list[float], list[float]] | None:
     """(distances, shares) of what persists of a frame's error against the grating over a window that travelled
-    that far (:func:`calibration_error` ``persist``), from all of it at rest; None where calibration measured none."""
-    measured = (info.get(CALIBRATION_ERROR) or {}).get("persist")
+    that far (:func:`calibration_error` ``persist``; ``mapped``: of what its error map leaves, where the map is read),
+    from all of it at rest; None where calibration measured none."""
+    measured = (mapped or info.get(CALIBRATION_ERROR) or {}).get("persist")
     if not measured or not measured.get("distance_mm"):
         return None
     return [0.0] + [float(d) for d in measured["distance_mm"]], [1.0] + [float(p) for p in measured["share"]]
@@ -339,7 +341,15 @@ class Estimator:
         if not (math.isfinite(self.chi2_calibration) and self.chi2_calibration > 0):
             raise TrackingError(f"the model's calibration χ² is {self.chi2_calibration:g}: recalibrate")
         self.chi2_curve = Chi2Curve.from_info(model.info) if self.flat is None else self.flat.curve
-        self.model_error = _model_error(model.info)
+        # Read and checked, where the image places the carriage at each place as calibration measured it against the
+        # grating (its error map, calibration_error): every sample is evaluated there (kernel.U_MAPPED), so that the
+        # state is the carriage's place, and the bound keeps what the map leaves. Not fused, where the grating and the
+        # latch's skew take up what the image misses at a place, nor from the image alone, which places a frame up to
+        # whole periods and would read another place's.
+        mapped = (model.info.get(CALIBRATION_ERROR) or {}).get("map") if grating == "check" else None
+        self._error_map = None if not mapped else (
+            [float(x) for x in mapped["x_mm"]], [float(e) for e in mapped["error_mm"]])
+        self.model_error = _model_error(model.info, mapped)
         # From the image alone a model that repeats once a period places a frame up to whole periods (its origin
         # is the acquisition's pick): what calibration keeps along the stroke (its χ² curve, its model's error) is
         # read at every place the frame may be, those a whole number of periods away that keep each frame the run
@@ -446,6 +456,12 @@ class Estimator:
         self._slide_states = np.array([state for state in (M, L) if state in active], dtype=np.int64)
         self._band_states = np.array(BAND, dtype=np.int64)
         self._unseen_states = np.array([state for state in (M, L, C, T) if state in active], dtype=np.int64)
+        # The light along the stroke as calibration's frames read it (core/adequacy.py light_profile): the gain a frame
+        # sees is carried from the last frame's place to its own by it (_carry_light), the lamp's drift apart. Not from
+        # the image alone, which places a frame up to whole periods and would read the light of another place.
+        profile = model.info.get(LIGHT_PROFILE) if grating != "none" else None
+        self._light_along = None if not profile else (
+            [float(x) for x in profile["x_mm"]], [math.log(float(g)) for g in profile["gain"]])
         # a light calibration saw walk from frame to frame (a camera hunting its exposure): what it carries of the
         # position is the rig's own precision, as a frame solved with its light free states it (_stated)
         self._walking_light = np.array([G, OFS], dtype=np.int64) if gain_rate > settings.gain_rate else None
@@ -503,7 +519,7 @@ class Estimator:
         self._check_places: deque[float] = deque()  # (where each of them was placed, mm)
         self._check_sum = self._check_var = 0.0
         # what of a frame's error against the grating persists over the distance a window travels (calibration's)
-        self._persist = _persistence_curve(model.info)
+        self._persist = _persistence_curve(model.info, mapped)
         self._drift_only = False  # the frame's flag is the window's alone (_estimate)
         self._lens_var, self._lens_m = 0.0, 0.0  # the stretch a filter at the lens's fastest rate holds (_lens)
         self._t_start = 0.0  # when the estimate started (s: the camera's creep is counted from it, _stated)
@@ -672,6 +688,17 @@ class Estimator:
         self.dt_last, self.t_last = dt, t
         return dt
 
+    def _carry_light(self, along: tuple[list[float], list[float]], before: float, after: float) -> None:
+        """The gain (and its variance) carried from the place ``before`` to ``after`` (mm) by the light ``along`` the
+        stroke calibration read (places, log gains): the gain is the frame's light, the lamp's level times the light
+        at the frame's place."""
+        xs, logs = along
+        ratio = math.exp(_interpolated(after, xs, logs) - _interpolated(before, xs, logs))
+        if ratio != 1.0:
+            self.s[G] *= ratio
+            self.P[G, :] *= ratio
+            self.P[:, G] *= ratio
+
     def _light_rates(self) -> None:
         """The light's gain and offset predicted at the rates of the mode the frame is in (light_modes.py)."""
         g2, o2 = self.light.rates()
@@ -706,15 +733,24 @@ class Estimator:
         acquiring = not self.started or self.failed >= FAILED_TO_REACQUIRE
         if not acquiring:
             dt = predict = self._advance(t)  # the prediction to the frame's time, made by the update's own call
-            if self.print_map.active:  # ... or first, where the print's map is read at the predicted image
+            if self.print_map.active or self._light_along is not None or self._error_map is not None:
+                # ... or first, where the print's map is read at the predicted image, the light carried to its place,
+                # or the image's place read off the error map there
+                before = self.s.item(X)
                 kernel.predict(self.s, self.P, dt, self.params.item(kernel.U_ACCELERATION),
                                self.params.item(kernel.U_ACCELERATION_WHITE), self.rates2,
                                self.params[kernel.U_FLICKER:kernel.U_RATES])
                 predict = None
+                if self._light_along is not None:
+                    self._carry_light(self._light_along, before, self.s.item(X))
+                if self._error_map is not None:
+                    self.params[kernel.U_MAPPED] = _interpolated(self.s.item(X), *self._error_map)
         # seen through what sits on the sensor's side and on the print (the frame itself while nothing has landed)
         y, mask = self._through_maps(y_raw, raw_mask, not acquiring)
         if acquiring:
             self._acquire(y, mask, t, reference_mm)
+            if self._error_map is not None:
+                self.params[kernel.U_MAPPED] = _interpolated(self.s.item(X), *self._error_map)
         if self.idx is not self.idx_plain and not self.s.item(BE) > 0.0:
             # a band the search took on a frame it then could not place is not followed: its states were never set,
             # and solved among the active ones their zero prior would make this update singular
@@ -1953,14 +1989,56 @@ def calibration_error(model: FourierModel, rec: "Recording") -> dict | None:
     error = x[usable] - reference[usable]
     error -= error.mean()
     bound2 = floor[usable] ** 2 + step * step / 12.0  # (the grating's rounding is in the error)
-    profile = error_profile(reference[usable], error, bound2)
-    if profile is None:
+    places = reference[usable]
+
+    def measured(error: np.ndarray) -> dict | None:
+        profile = error_profile(places, error, bound2)
+        if profile is None:
+            return None
+        shared = float(np.mean(shared_error(error[np.argsort(places)])))
+        whole = round(math.sqrt(max(1.0 + shared / float(np.mean(bound2)), 0.0)), 3)
+        return {"edges_mm": profile["edges_mm"], "ratio": profile["ratio"], "whole": whole,
+                "persist": _persistence(places, error)}
+
+    plain = measured(error)
+    if plain is None:
         return None
-    order = np.argsort(reference[usable])
-    shared = float(np.mean(shared_error(error[order])))
-    whole = round(math.sqrt(max(1.0 + shared / float(np.mean(bound2)), 0.0)), 3)
-    return {"edges_mm": profile["edges_mm"], "ratio": profile["ratio"], "whole": whole,
-            "persist": _persistence(reference[usable], error)}
+    # what of it the image repeats at each place (the print's marks, a light uneven along the target, the model's
+    # series missing the print's shape there), read and checked taken out of every frame's place, and what it leaves
+    mapped = error_map(places, error)
+    if mapped is not None and (left := measured(error - np.interp(places, mapped["x_mm"], mapped["error_mm"]))):
+        plain["map"] = {**mapped, **left}
+    return plain
+
+
+def error_map(x_mm: np.ndarray, error: np.ndarray) -> dict | None:
+    """Where the image places the carriage at each place of the stroke against the grating, as calibration's frames
+    erred (``{"x_mm": [...], "error_mm": [...]}``: the means of stretches of :data:`core.adequacy.PROFILE_FRAMES`
+    frames at their mean places), None where the stretches' means scatter no more than their frames do within them
+    (:data:`core.adequacy.ROW_SIGNIFICANCE` standard errors of their spread).
+
+    The model's series holds what is fixed to the pixels; what is fixed to the print and the model misses (its marks,
+    ink not equally dark, the light uneven along the target, a pitch not the series' own) moves the image's place by
+    as much at that place on every pass. Each mean is shrunk by its own noise's share of the means' spread (a
+    Wiener weight: the scatter within a stretch is its measure, no noise model is trusted for it), so that a map that
+    barely stands out moves a frame by no more than what it holds."""
+    from graytrack.core.adequacy import PROFILE_FRAMES, ROW_SIGNIFICANCE
+
+    if x_mm.size < 4 * PROFILE_FRAMES:
+        return None
+    order = np.argsort(x_mm, kind="stable")
+    stretches = x_mm.size // PROFILE_FRAMES
+    cut = stretches * PROFILE_FRAMES
+    places = x_mm[order][:cut].reshape(stretches, PROFILE_FRAMES)
+    errors = error[order][:cut].reshape(stretches, PROFILE_FRAMES)
+    means = errors.mean(axis=1)
+    within = float(errors.var(axis=1, ddof=1).mean()) / PROFILE_FRAMES
+    between = float(np.var(means, ddof=1))
+    if not within > 0.0 or (between - within) / (within * math.sqrt(2.0 / (stretches - 1))) <= ROW_SIGNIFICANCE:
+        return None
+    kept = 1.0 - within / between
+    return {"x_mm": [round(float(x), 5) for x in places.mean(axis=1)],
+            "error_mm": [round(float(kept * (e - means.mean())), 7) for e in means]}
 
 
 PERSISTENCE_FRAMES = (2, 4, 8, 16, 32, 64, 128)  # windows over which calibration measures what of its error persists

@@ -66,11 +66,13 @@ N_STATS = S_GAIN + len(UNREAD) * N_STATE  # (conditioned)
 # the calibration's χ² level at the frame's place (each sample's variance is the noise model's times it: what the
 # model's own error adds to a sample, as calibration measured it); the samples a row and the precision of an offset
 # each row draws afresh every frame (gray⁻², 0: none; _normal); the softest a band's penumbra may be solved to (mm:
-# a step that would take its σ below is taken to it, as onto any bound); from U_FLICKER the flicker's turn over the
+# a step that would take its σ below is taken to it, as onto any bound); where the image places the carriage at the
+# frame's place as calibration measured it against the grating (mm: its error map, filter.py calibration_error, added
+# to the place every sample is evaluated at); from U_FLICKER the flicker's turn over the
 # interval (predict's ``flicker``: four numbers); from U_RATES on each state's rate (predict's ``rates2``)
 (U_READ, U_SHOT, U_DARK, U_PITCH, U_PERIOD, U_GRATING_Z, U_GRATING_W, U_ROBUST, U_CORE, U_CUT, U_ITERATIONS,
  U_TOLERANCE, U_PREDICT, U_DT, U_ACCELERATION, U_ACCELERATION_WHITE, U_POSTERIOR, U_WARM, U_LEVEL, U_ROW_LENGTH,
- U_ROW_PRECISION, U_BAND_SHARPEST, U_FLICKER) = range(23)
+ U_ROW_PRECISION, U_BAND_SHARPEST, U_MAPPED, U_FLICKER) = range(24)
 U_RATES = U_FLICKER + 4
 N_PARAMS = U_RATES + N_STATE
 # the pixels' constants in one (4, P) array: target coordinate from the ROI's centre, row from the strip's middle,
@@ -710,7 +712,7 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
     Pinv = information(P_prior, idx)
     values, slopes, smooth, curvature, w, residual = (scratch[0], scratch[1], scratch[2], scratch[3], scratch[4],
                                                       scratch[5])
-    xi = s[X] + s[C] + s[L] * s[M]
+    xi = s[X] + s[C] + s[L] * s[M] + params[U_MAPPED]
     step = CURVATURE_STEP_PERIODS * period_mm
     _evaluate(xi + step, model, values, curvature, smooth)
     _evaluate(xi, model, values, slopes, smooth)
@@ -744,7 +746,7 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
         fresh = False
         for it in range(max_iterations):
             total_iterations += 1
-            xi = s[X] + s[C] + s[L] * s[M]
+            xi = s[X] + s[C] + s[L] * s[M] + params[U_MAPPED]
             if xi != at:
                 _evaluate(xi, model, values, slopes, smooth)
                 at = xi
@@ -784,7 +786,7 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
             # the last step was below the tolerance: the model there is the model here, to far below any bound
             A[:, :] = bare
         elif not fresh:  # (fresh: the residuals are this state's already)
-            xi = s[X] + s[C] + s[L] * s[M]
+            xi = s[X] + s[C] + s[L] * s[M] + params[U_MAPPED]
             if xi != at:
                 _evaluate(xi, model, values, slopes, smooth)
             cost = _normal(s, idx, y, w, rho, values, slopes, curvature, t_rel, r_rel, b1, b2, half_d2, A, rhs,
@@ -863,7 +865,7 @@ def residuals(s: np.ndarray, y: np.ndarray, mask: np.ndarray, rho: np.ndarray, p
     t_rel, r_rel, b1, b2 = pixels[PX_TARGET], pixels[PX_ROW], pixels[PX_B1], pixels[PX_B2]
     pitch_mm, period_mm = params[U_PITCH], params[U_PERIOD]
     values, slopes, smooth, curvature, residual = scratch[0], scratch[1], scratch[2], scratch[3], scratch[5]
-    xi = s[X] + s[C] + s[L] * s[M]
+    xi = s[X] + s[C] + s[L] * s[M] + params[U_MAPPED]
     step = CURVATURE_STEP_PERIODS * period_mm
     _evaluate(xi + step, model, values, curvature, smooth)
     _evaluate(xi, model, values, slopes, smooth)

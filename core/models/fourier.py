@@ -406,6 +406,12 @@ class FourierModel:
             parts.append(f"row banding {float(self.info['row_offset_gray']):.2f} gray taken out")
         if self.info.get("frame_offset_gray"):  # (core/adequacy.py frame_offset_gray)
             parts.append(f"an offset of {float(self.info['frame_offset_gray']):.2f} gray drawn each frame taken out")
+        if self.info.get("light_profile"):  # (core/adequacy.py light_profile)
+            gain = [float(g) for g in self.info["light_profile"]["gain"]]
+            parts.append(f"the light along the stroke within {100 * (max(gain) - min(gain)):.1f} %")
+        if (mapped := (self.info.get("estimator_error_profile") or {}).get("map")):  # (estimator/filter.py error_map)
+            parts.append(f"the image's place mapped along the stroke within "
+                         f"{1e3 * (max(mapped['error_mm']) - min(mapped['error_mm'])):.1f} µm")
         if self.info.get("frame_gain_rate"):  # (core/adequacy.py frame_gain_rate)
             parts.append(f"the gain walking {100 * float(self.info['frame_gain_rate']):.1f} %/√s from frame to frame")
         if float(self.info.get("frame_chi2_spread") or 1.0) > 1.0:  # (core/chi2_curve.py frame_spread)
