@@ -1923,7 +1923,7 @@ def track(model: FourierModel, frames: np.ndarray, t: np.ndarray, reference: np.
     n = frames.shape[0]
     reference = np.full(n, np.nan) if reference is None or grating == "none" else np.asarray(reference, float)
     times, readings = np.asarray(t, dtype=np.float64).tolist(), reference.tolist()  # plain numbers, made once
-    out = []
+    out: list[FrameEstimate] = []
     update, append = estimator.update, out.append  # (looked up once: the loop runs a frame's worth of calls)
     if progress is None:
         for k, frame in enumerate(frames):
