@@ -459,10 +459,6 @@ class Estimator:
         self._masked = np.zeros(n_values)
         self._seen = None if model.pixel_weight is None else np.asarray(model.seen(), dtype=np.float64).reshape(-1)
         self._answer = (np.empty(N_STATE), np.empty((self.idx.size, self.idx.size)), np.empty(kernel.N_STATS))
-        # (the main update's figures array, which every answer keeps, and its two parts as _solve reads them: views
-        # made once, not two slices a solve)
-        self._answer_stats = stats = self._answer[2]
-        self._answer_parts = (stats[:S_GAIN], stats[S_GAIN:])
         self._sigma = np.empty(N_STATE)
         self._P_next = np.zeros((N_STATE, N_STATE))  # where the main update makes the posterior covariance
         # the update's constants, as the kernel takes them (kernel.U_*, kernel.PX_*): a frame sets the grating's two
@@ -1489,12 +1485,8 @@ class Estimator:
         params[U_LEVEL] = self.chi2_calibration if self.chi2_curve is None else self._level(s_prior.item(X))
         kernel.update(s, s_prior, P_prior, idx, y, mask, self.pixels, params, self.model_args, self.scratch, self.rho,
                       A, stats, self._P_next, self._sigma)
-        if stats is self._answer_stats:
-            head, gains = self._answer_parts
-        else:
-            head, gains = stats[:S_GAIN], stats[S_GAIN:]
-        figures = _Figures(head.tolist())
-        figures.gains = gains
+        figures = _Figures(stats[:S_GAIN].tolist())
+        figures.gains = stats[S_GAIN:]
         return s, A, figures
 
     def _level(self, x_mm: float) -> float:
