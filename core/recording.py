@@ -11,6 +11,7 @@ zip inflating to gigabytes) is refused in one line instead of exhausting memory.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -157,7 +158,10 @@ def validate(rec: Recording) -> None:
     n_frames = frames.shape[0]
     if n_frames == 0 or frames.shape[-1] < 2 or (frames.ndim == 3 and frames.shape[1] == 0):
         raise RecordingError(f"frames: empty shape {frames.shape}")
-    if frames.dtype.kind == "f":
+    # (a float recording's extremes answer both of its checks in two passes and no temporary array: a NaN or an
+    # infinity is among them wherever one is in the frames, and the largest magnitude is one of them)
+    lowest, highest = (float(frames.min()), float(frames.max())) if frames.dtype.kind == "f" else (0.0, 0.0)
+    if frames.dtype.kind == "f" and not (math.isfinite(lowest) and math.isfinite(highest)):
         bad = ~np.isfinite(frames).reshape(n_frames, -1).all(axis=1)
         if bad.any():
             raise RecordingError(
@@ -167,7 +171,7 @@ def validate(rec: Recording) -> None:
     for key, values in (("t", rec.t), ("reference", rec.reference)):
         if values.shape != (n_frames,):
             raise RecordingError(f"{key}: expected shape ({n_frames},) to match frames, got {values.shape}")
-    if frames.dtype.kind == "f" and np.abs(frames).max() > MAX_ABS_GRAY:
+    if frames.dtype.kind == "f" and max(-lowest, highest) > MAX_ABS_GRAY:
         raise RecordingError(f"frames: gray values beyond ±{MAX_ABS_GRAY:g} are not gray levels")
     if not np.isfinite(rec.t).all():
         raise RecordingError("t: holds NaN or infinite times")
@@ -234,8 +238,12 @@ def load(path: str | os.PathLike[str]) -> Recording:
             if missing:
                 raise RecordingError(f"{path}: missing key {missing[0]!r}")
             wanted = [*ARRAY_KEYS, "meta"] if "meta" in members else list(ARRAY_KEYS)
-            _check_declared_sizes(archive, {key: members[key] for key in wanted})
-            arrays = {key: _read_member(archive, members[key], key) for key in wanted}
+            with contextlib.ExitStack() as opened:
+                # each member's header read once: the budget checked on all of them before any data is read, which
+                # is then read on from where each header ended (reading every header twice cost a load as much as
+                # a small recording's data)
+                headers = _check_declared_sizes(archive, {key: members[key] for key in wanted}, opened)
+                arrays = {key: _read_member(key, *headers[key]) for key in wanted}
     except RecordingError as exc:
         raise RecordingError(f"{path}: {exc}" if not str(exc).startswith(str(path)) else str(exc)) from None
     except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, OSError, ValueError, NotImplementedError) as exc:
@@ -267,11 +275,13 @@ def _read_header(fh: Any) -> tuple[tuple[int, ...], bool, np.dtype]:
         return _HEADER_READERS[version](fh, max_header_size=10_000)
 
 
-def _npy_header(archive: zipfile.ZipFile, info: zipfile.ZipInfo, key: str) -> tuple[tuple[int, ...], np.dtype]:
-    """Shape and dtype from a member's ``.npy`` header, read without reading the array."""
+def _npy_header(archive: zipfile.ZipFile, info: zipfile.ZipInfo, key: str,
+                opened: contextlib.ExitStack) -> tuple[Any, tuple[int, ...], bool, np.dtype]:
+    """The member opened (closed with ``opened``) and left at the start of its data, and shape, Fortran order and
+    dtype from its ``.npy`` header, read without reading the array."""
     try:
-        with archive.open(info) as fh:
-            shape, _, dtype = _read_header(fh)
+        fh = opened.enter_context(archive.open(info))
+        shape, fortran, dtype = _read_header(fh)
     except Exception as exc:  # noqa: BLE001 - numpy's header parser raises anything from SyntaxError to TokenError
         raise RecordingError(f"{key}: broken .npy header ({type(exc).__name__}: "
                              f"{str(exc).splitlines()[0] if str(exc) else ''})") from None
@@ -279,15 +289,18 @@ def _npy_header(archive: zipfile.ZipFile, info: zipfile.ZipInfo, key: str) -> tu
         raise RecordingError(f"{key}: broken .npy header (shape {shape!r})")
     if dtype.hasobject:
         raise RecordingError(f"{key}: holds Python objects, which a recording never does")
-    return shape, dtype
+    return fh, shape, fortran, dtype
 
 
-def _check_declared_sizes(archive: zipfile.ZipFile, members: dict[str, zipfile.ZipInfo]) -> None:
-    """Refuse before reading when the arrays declared would not fit the memory budget."""
+def _check_declared_sizes(archive: zipfile.ZipFile, members: dict[str, zipfile.ZipInfo],
+                          opened: contextlib.ExitStack) -> dict[str, tuple[Any, tuple[int, ...], bool, np.dtype]]:
+    """Refuse before reading when the arrays declared would not fit the memory budget. Returns each member opened
+    at the start of its data (closed with ``opened``), with its shape, Fortran order and dtype."""
     budget = memory_budget_bytes()
     total = 0
+    headers = {}
     for key, info in members.items():
-        shape, dtype = _npy_header(archive, info, key)
+        fh, shape, fortran, dtype = headers[key] = _npy_header(archive, info, key, opened)
         stored = math.prod(shape) * dtype.itemsize
         if key == "meta" and stored > MAX_META_BYTES:
             raise RecordingError(f"meta: declares {describe_bytes(stored)}, more than a JSON note needs")
@@ -299,26 +312,25 @@ def _check_declared_sizes(archive: zipfile.ZipFile, members: dict[str, zipfile.Z
             raise RecordingError(
                 f"{key}: declares {shape} {dtype}, needing {describe_bytes(total)} in memory, beyond the budget of "
                 f"{describe_bytes(budget)} ({BUDGET_ENV} sets it; default a quarter of this machine's memory)")
+    return headers
 
 
-def _read_member(archive: zipfile.ZipFile, info: zipfile.ZipInfo, key: str) -> np.ndarray:
-    """The member's array (its header was checked against the budget by :func:`_npy_header`)."""
+def _read_member(key: str, opened: Any, shape: tuple[int, ...], fortran: bool, dtype: np.dtype) -> np.ndarray:
+    """The member's array, read on from the end of its header (checked against the budget by :func:`_npy_header`)."""
     try:
-        with archive.open(info) as opened:
-            # a member opened for reading is a ZipExtFile (a BufferedIOBase: readinto), typed IO[bytes]
-            fh = cast(zipfile.ZipExtFile, opened)
-            shape, fortran, dtype = _read_header(fh)
-            if dtype.hasobject:
-                raise ValueError("holds Python objects")
-            flat = np.empty(math.prod(shape), dtype=dtype)
-            buffer = flat.data.cast("B")
-            filled = 0
-            while filled < len(buffer):  # straight into the array: no second copy of a large recording
-                got = fh.readinto(buffer[filled:])
-                if not got:
-                    raise EOFError(f"{filled} of {len(buffer)} bytes")
-                filled += got
-            return flat.reshape(shape, order="F" if fortran else "C")
+        # a member opened for reading is a ZipExtFile (a BufferedIOBase: readinto), typed IO[bytes]
+        fh = cast(zipfile.ZipExtFile, opened)
+        if dtype.hasobject:
+            raise ValueError("holds Python objects")
+        flat = np.empty(math.prod(shape), dtype=dtype)
+        buffer = flat.data.cast("B")
+        filled = 0
+        while filled < len(buffer):  # straight into the array: no second copy of a large recording
+            got = fh.readinto(buffer[filled:])
+            if not got:
+                raise EOFError(f"{filled} of {len(buffer)} bytes")
+            filled += got
+        return flat.reshape(shape, order="F" if fortran else "C")
     except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
         raise RecordingError(f"{key}: cannot be read "
                              f"({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})") from None

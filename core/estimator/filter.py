@@ -44,7 +44,8 @@ from graytrack.core.compression import stream_bound_factor, stream_chi2_spread
 from graytrack.core.errors import TrackingError
 from graytrack.core import repeats
 from graytrack.core.estimator import kernel
-from graytrack.core.estimator.kernel import S_POSTERIOR, S_REJECTED, S_WEIGHED, U_FLICKER
+from graytrack.core.estimator.kernel import (S_GAIN, S_POSTERIOR, S_REJECTED, S_WEIGHED, U_DT, U_FLICKER, U_GRATING_W,
+                                             U_GRATING_Z, U_LEVEL, U_POSTERIOR, U_PREDICT, U_WARM)
 from graytrack.core.estimator.light_modes import LightModes, reweigh
 from graytrack.core.estimator.commands import StageCommands
 from graytrack.core.estimator.flat_field import FLAT_FIELD, FlatField, calibration_flat_field
@@ -668,10 +669,17 @@ class Estimator:
         acceleration's variance over it (``params[U_ACCELERATION]``, mm²/s⁴, held over the interval): where the
         stage's commands are known, what they asked then (its phases, mm/s²) or else how little its path bends
         between them; where they are not, the stage's acceleration anywhere (as set at the start)."""
-        dt = 0.0 if self.t_last is None else max(t - self.t_last, 0.0)
-        if self.light.switch_rate > 0.0:  # the light predicted in the mode its frames make likelier (light_modes.py)
-            was = self.light.drifting
-            if self.light.advance(dt) != was:
+        last = self.t_last
+        if last is None:
+            dt = 0.0
+        else:
+            dt = t - last
+            if dt < 0.0:  # (max(dt, 0.0) without the call: the same number, -0.0 and NaN kept as it kept them)
+                dt = 0.0
+        light = self.light
+        if light.switch_rate > 0.0:  # the light predicted in the mode its frames make likelier (light_modes.py)
+            was = light.drifting
+            if light.advance(dt) != was:
                 self._light_rates()
         if self.on_path and self.commands.known:
             asked = self.commands.asked(t - dt, t) if dt > 0.0 else 0.0
@@ -719,7 +727,8 @@ class Estimator:
                                   f"the update failed ({exc}); the estimate starts again from the next frame")
 
     def _update(self, frame: np.ndarray, t: float, reference_mm: float) -> FrameEstimate:
-        frame = np.asarray(frame)
+        if type(frame) is not np.ndarray:  # (an array is its own asarray: the call spared a frame)
+            frame = np.asarray(frame)
         last, self.last_frame = self.last_frame, frame
         # (an image again is equal in its first sample too: that one comparison settles nearly every frame)
         if last is not None and last.shape == frame.shape and frame.size and last.item(0) == frame.item(0) and \
@@ -807,7 +816,7 @@ class Estimator:
         placed = stats[kernel.S_CONVERGED] > 0 or stats[kernel.S_ITER] > 0
         used, rejected = stats[kernel.S_USED], stats[kernel.S_REJECTED]
         if used + rejected <= 0 or rejected > self.settings.max_rejected * (used + rejected) or \
-                not math.isfinite(s[X]):
+                not math.isfinite(s.item(X)):
             placed = False
         if not placed:
             self.failed += 1
@@ -854,7 +863,8 @@ class Estimator:
         else:
             # the posterior over the states solved, the prior's elsewhere (the jitter's conditioned on them)
             kernel.embed(self.P, A, solved, self._sigma, stats.gains)
-        self._lens(s_prior, P_prior)
+        if self.grating == "none":  # (_lens's own test, without the call on every other frame)
+            self._lens(s_prior, P_prior)
         if self.s.item(BE) > 0.0:
             self._band_failed = self._band_failed + 1 if test > 1.0 else 0
             if self._band_failed >= FAILED_TO_REACQUIRE or self._band_gone():
@@ -1502,17 +1512,24 @@ class Estimator:
         if start is not None:
             s[:] = s_prior
             s[idx] = start[idx]
-        grating_w = 1.0 / self.grating_var if math.isfinite(grating_z) else 0.0
+        # (every frame solves once at least: the kernel's numbers by the names imported, no tuples made for them)
         params = self.params
-        params[kernel.U_GRATING_Z], params[kernel.U_GRATING_W] = grating_z if grating_w else 0.0, grating_w
-        params[kernel.U_PREDICT], params[kernel.U_DT] = (0.0, 0.0) if predict is None else (1.0, predict)
-        params[kernel.U_POSTERIOR] = 0.0 if out is None else 1.0
-        params[kernel.U_WARM] = 0.0 if start is None else 1.0
-        params[kernel.U_LEVEL] = self._level(s_prior.item(X))
+        if math.isfinite(grating_z):
+            grating_w = 1.0 / self.grating_var
+            params[U_GRATING_Z], params[U_GRATING_W] = grating_z if grating_w else 0.0, grating_w
+        else:
+            params[U_GRATING_Z] = params[U_GRATING_W] = 0.0
+        if predict is None:
+            params[U_PREDICT] = params[U_DT] = 0.0
+        else:
+            params[U_PREDICT], params[U_DT] = 1.0, predict
+        params[U_POSTERIOR] = 0.0 if out is None else 1.0
+        params[U_WARM] = 0.0 if start is None else 1.0
+        params[U_LEVEL] = self.chi2_calibration if self.chi2_curve is None else self._level(s_prior.item(X))
         kernel.update(s, s_prior, P_prior, idx, y, mask, self.pixels, params, self.model_args, self.scratch, self.rho,
                       A, stats, self._P_next, self._sigma)
-        figures = _Figures(stats[:kernel.S_GAIN].tolist())
-        figures.gains = stats[kernel.S_GAIN:]
+        figures = _Figures(stats[:S_GAIN].tolist())
+        figures.gains = stats[S_GAIN:]
         return s, A, figures
 
     def _level(self, x_mm: float) -> float:
@@ -1706,7 +1723,7 @@ class Estimator:
                                            stats[kernel.S_RESIDUAL])
         # The frame's own variance of the position as the update weighed its samples (their noise times the
         # calibration's χ² level there: kernel.U_LEVEL), and the noise floor (the noise alone: the Cramér–Rao bound).
-        level = self.params.item(kernel.U_LEVEL)
+        level = self.params.item(U_LEVEL)
         floor2 = 1.0 / xinfo if xinfo > 0 else math.inf
         floor = math.sqrt(floor2 / level)
         # What a frame's position errs by is what its calibration measured against the grating (the floor, widened
@@ -1715,7 +1732,7 @@ class Estimator:
         # of the position (a fused grating pins the rest) the one is taken for the other, either way.
         var_image = self._position_variance()
         model_var = self._model_variance(s[X], var_image, xinfo, level)
-        slide_var = self._slide_variance()
+        slide_var = self._slide_variance() if self.grating == "none" else 0.0  # (its own answer with the grating)
         var_x = var_image + model_var + slide_var
         stale, reason, message = False, "", ""
         self._drift_only = False
@@ -1769,8 +1786,9 @@ class Estimator:
         focus_sigma = sigma[B]
         shown = abs(s[B]) > self.z_two * focus_sigma
         # (by position, in the fields' order, made from the one tuple: by keyword, or through the record's own
-        # constructor, it cost a frame a microsecond or two)
-        return FrameEstimate._make((
+        # constructor, it cost a frame a microsecond or two; tuple.__new__ is what _make calls, less its count of
+        # the fields, which this one tuple has by construction)
+        return tuple.__new__(FrameEstimate, (
             t, s[X], math.sqrt(var_x),  # t, x_mm, crlb_mm
             floor * bound_factor, True, stats[kernel.S_RMS],  # floor_mm, locked, rms_gray
             residual / max(used, 1.0), float(test), int(rejected),  # chi2, test, rejected_px
@@ -1942,10 +1960,15 @@ def track(model: FourierModel, frames: np.ndarray, t: np.ndarray, reference: np.
     n = frames.shape[0]
     reference = np.full(n, np.nan) if reference is None or grating == "none" else np.asarray(reference, float)
     times, readings = np.asarray(t, dtype=np.float64).tolist(), reference.tolist()  # plain numbers, made once
-    out = []
+    out: list[FrameEstimate] = []
+    update, append = estimator.update, out.append  # (looked up once: the loop runs a frame's worth of calls)
+    if progress is None:
+        for k, frame in enumerate(frames):
+            append(update(frame, times[k], readings[k]))
+        return out
     for k in range(n):
-        out.append(estimator.update(frames[k], times[k], readings[k]))
-        if progress is not None and (k % 1000 == 999 or k == n - 1):
+        append(update(frames[k], times[k], readings[k]))
+        if k % 1000 == 999 or k == n - 1:
             progress((k + 1) / n, f"frame {k + 1} of {n}")
     return out
 
