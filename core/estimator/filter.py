@@ -2000,21 +2000,23 @@ def calibration_error(model: FourierModel, rec: "Recording") -> dict | None:
     reference = _calibration_reference(model, rec)
     if reference is None:
         return None
-    estimator = Estimator(model, settings=EstimatorSettings().for_recording(rec.meta), grating="check",
-                          stage_phases=acceleration_phases(rec.meta))
-    estimates = track(model, rec.frames, rec.t, reference, estimator=estimator)
-    x = np.array([e.x_mm for e in estimates])
-    floor = np.array([e.floor_mm for e in estimates])
-    usable = np.isfinite(x) & np.isfinite(reference) & np.isfinite(floor)
-    if usable.sum() < 2 * PROFILE_FRAMES:
-        return None
     step = float(rec.meta.get("grating_resolution_mm", 0.0) or 0.0) or reference_resolution_mm(reference)
-    error = x[usable] - reference[usable]
-    error -= error.mean()
-    bound2 = floor[usable] ** 2 + step * step / 12.0  # (the grating's rounding is in the error)
-    places = reference[usable]
 
-    def measured(error: np.ndarray) -> dict | None:
+    def erred() -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """(places, error less its mean, bound²) of calibration's frames tracked as a run is, None where too few."""
+        estimator = Estimator(model, settings=EstimatorSettings().for_recording(rec.meta), grating="check",
+                              stage_phases=acceleration_phases(rec.meta))
+        estimates = track(model, rec.frames, rec.t, reference, estimator=estimator)
+        x = np.array([e.x_mm for e in estimates])
+        floor = np.array([e.floor_mm for e in estimates])
+        usable = np.isfinite(x) & np.isfinite(reference) & np.isfinite(floor)
+        if usable.sum() < 2 * PROFILE_FRAMES:
+            return None
+        error = x[usable] - reference[usable]
+        # (the grating's rounding is in the error)
+        return reference[usable], error - error.mean(), floor[usable] ** 2 + step * step / 12.0
+
+    def measured(places: np.ndarray, error: np.ndarray, bound2: np.ndarray) -> dict | None:
         profile = error_profile(places, error, bound2)
         if profile is None:
             return None
@@ -2023,18 +2025,30 @@ def calibration_error(model: FourierModel, rec: "Recording") -> dict | None:
         return {"edges_mm": profile["edges_mm"], "ratio": profile["ratio"], "whole": whole,
                 "persist": _persistence(places, error)}
 
-    plain = measured(error)
-    if plain is None:
+    first = erred()
+    plain = None if first is None else measured(*first)
+    if first is None or plain is None:
         return None
-    # what of it the image repeats at each place (the print's marks, a light uneven along the target, the model's
-    # series missing the print's shape there), read and checked taken out of every frame's place, and what it leaves
+    # What of it the image repeats at each place (the print's marks, a light uneven along the target, the model's
+    # series missing the print's shape there), read and checked taken out of every frame's place; what it leaves is
+    # the bound's, measured on frames the map was not made from (each frame against the map its neighbours in time
+    # made, every other one: a run's noise is not calibration's, while what repeats at a place both halves share)
+    places, error, bound2 = first
     mapped = error_map(places, error)
-    if mapped is not None and (left := measured(error - np.interp(places, mapped["x_mm"], mapped["error_mm"]))):
+    if mapped is None:
+        return plain
+    left_error = np.empty_like(error)
+    for half in (0, 1):
+        made, read = slice(1 - half, None, 2), slice(half, None, 2)
+        other = error_map(places[made], error[made], kept=1.0)
+        left_error[read] = error[read] - (0.0 if other is None else
+                                          np.interp(places[read], other["x_mm"], other["error_mm"]))
+    if (left := measured(places, left_error, bound2)) is not None:
         plain["map"] = {**mapped, **left}
     return plain
 
 
-def error_map(x_mm: np.ndarray, error: np.ndarray) -> dict | None:
+def error_map(x_mm: np.ndarray, error: np.ndarray, kept: float | None = None) -> dict | None:
     """Where the image places the carriage at each place of the stroke against the grating, as calibration's frames
     erred (``{"x_mm": [...], "error_mm": [...]}``: the means of stretches of :data:`core.adequacy.PROFILE_FRAMES`
     frames at their mean places), None where the stretches' means scatter no more than their frames do within them
@@ -2059,7 +2073,7 @@ def error_map(x_mm: np.ndarray, error: np.ndarray) -> dict | None:
     between = float(np.var(means, ddof=1))
     if not within > 0.0 or (between - within) / (within * math.sqrt(2.0 / (stretches - 1))) <= ROW_SIGNIFICANCE:
         return None
-    kept = 1.0 - within / between
+    kept = 1.0 - within / between if kept is None else kept
     return {"x_mm": [round(float(x), 5) for x in places.mean(axis=1)],
             "error_mm": [round(float(kept * (e - means.mean())), 7) for e in means]}
 

@@ -693,6 +693,8 @@ def test_the_bound_states_the_models_error_as_the_estimator_errs_with_it():
     effects = "glare:gray=20"
     calibration, _ = build_rig("paper", effects, seed=3).record(20.0)
     model = calibrate(calibration, "paper").model
+    # (the account without what repeats at each place taken out: tests/core/test_error_map.py reads that)
+    model.info[CALIBRATION_ERROR] = {k: v for k, v in model.info[CALIBRATION_ERROR].items() if k != "map"}
     own, today = model.info[CALIBRATION_ERROR], model.info["calibration_error_profile"]
     assert own["edges_mm"][0] >= model.stroke_range_mm[0] - 0.1 and len(own["ratio"]) == len(own["edges_mm"]) - 1
     assert np.median(own["ratio"]) < 0.5 * np.median(today["ratio"])  # (the model misses: the paths err apart)
