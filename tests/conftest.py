@@ -294,3 +294,30 @@ def rig_model(scenario: str, effects: str = "", seed: int = 3, seconds: float = 
     model every time; tracking reads a model and never changes it, so the modules share one)."""
     calibration, _ = build_rig(scenario, effects, seed=seed).record(seconds)
     return calibrate(calibration, "paper").model
+
+
+def estimator_figures(model, run, truth, grating: str = "check") -> dict[str, float]:
+    """``run`` tracked by the estimator (core/estimator/) against ``truth``, frame by frame: the error's std (µm),
+    its rms over the stated bound (``pull``), the share of frames flagged and the frames 4+ bounds off unflagged
+    (``silent``); from the image alone (``grating`` "none") the error is taken up to whole periods."""
+    from graytrack.core.estimator import filter as estimator
+
+    estimates = estimator.track(model, run.frames, run.t, run.reference, grating=grating)
+    error_um = (np.array([e.x_mm for e in estimates]) - truth.x_mm) * 1e3
+    if grating == "none":  # placed from the image alone: its origin is known up to whole periods
+        period_um = model.period_mm * 1e3
+        error_um -= period_um * np.round(np.median(error_um) / period_um)
+    bound_um = np.array([e.crlb_mm for e in estimates]) * 1e3
+    stale = np.array([e.stale for e in estimates])
+    far = np.abs(error_um) > 4.0 * bound_um
+    return {"std": float(np.std(error_um)), "pull": float(np.sqrt(np.mean((error_um / bound_um) ** 2))),
+            "flagged": float(stale.mean()), "silent": int((far & ~stale).sum())}
+
+
+def calibrated_rig(scenario: str, effects: str = "", seed: int = 3, calibration_s: float = 20.0,
+                   run_s: float = 10.0):
+    """(the seed paper's model, its calibration recording, a later run, its truth) of the virtual rig
+    ``build_rig(scenario, effects, seed)``: calibrated on one run and measured on another."""
+    calibration, _ = build_rig(scenario, effects, seed=seed).record(calibration_s)
+    run, truth = build_rig(scenario, effects, seed=seed, run=1).record(run_s)
+    return calibrate(calibration, "paper").model, calibration, run, truth

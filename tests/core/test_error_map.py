@@ -13,7 +13,6 @@ image places a frame up to whole periods."""
 from __future__ import annotations
 
 import copy
-import math
 
 import numpy as np
 import pytest
@@ -22,6 +21,7 @@ from graytrack.core.adequacy import LIGHT_PROFILE
 from graytrack.core.calibration import calibrate
 from graytrack.core.estimator import filter as estimator
 from graytrack.drivers.sim.scenarios import build_rig
+from tests.conftest import estimator_figures, rig_model
 
 pytestmark = pytest.mark.unit
 
@@ -29,22 +29,8 @@ pytestmark = pytest.mark.unit
 @pytest.fixture(scope="module")
 def scratched():
     """The paper rig's print with three scratches, calibrated on one run and measured on another."""
-    calibration, _ = build_rig("paper", "scratches:count=3", seed=3).record(20.0)
-    run, truth = build_rig("paper", "scratches:count=3", seed=3, run=1).record(10.0)
-    return calibrate(calibration, "paper").model, run, truth
-
-
-def tracked(model, run, truth, grating: str = "check") -> dict[str, float]:
-    estimates = estimator.track(model, run.frames, run.t, run.reference, grating=grating)
-    error_um = (np.array([e.x_mm for e in estimates]) - truth.x_mm) * 1e3
-    if grating == "none":  # placed from the image alone: its origin is known up to whole periods
-        period_um = model.period_mm * 1e3
-        error_um -= period_um * np.round(np.median(error_um) / period_um)
-    bound_um = np.array([e.crlb_mm for e in estimates]) * 1e3
-    stale = np.array([e.stale for e in estimates])
-    far = np.abs(error_um) > 4.0 * bound_um
-    return {"std": float(np.std(error_um)), "pull": math.sqrt(np.mean((error_um / bound_um) ** 2)),
-            "flagged": float(stale.mean()), "silent": int((far & ~stale).sum())}
+    return (rig_model("paper", "scratches:count=3"),
+            *build_rig("paper", "scratches:count=3", seed=3, run=1).record(10.0))
 
 
 def unmapped(model):
@@ -62,7 +48,7 @@ def test_a_scratched_prints_error_along_the_stroke_is_mapped_and_taken_out(scrat
     # the scratches move the image's place by several µm where they are in view (the frames' floor: ~1.5 µm)
     assert np.ptp(mapped["error_mm"]) * 1e3 > 4.0, mapped
     assert "the image's place mapped along the stroke" in model.describe()
-    with_map, without = tracked(model, run, truth), tracked(unmapped(model), run, truth)
+    with_map, without = estimator_figures(model, run, truth), estimator_figures(unmapped(model), run, truth)
     # 2.27 → 1.83 µm (2.70 with the light along the stroke not carried either; today's path 2.51): what repeats at a
     # place is no longer in the position
     assert with_map["std"] < 0.85 * without["std"], (with_map, without)
@@ -75,8 +61,8 @@ def test_the_map_is_read_only_where_the_image_places_the_carriage_and_the_gratin
     model, run, truth = scratched
     # (from the image alone a frame is placed up to whole periods: the map would be read at another place; fused,
     # the grating and the latch's skew take up what the image misses at a place)
-    assert tracked(model, run, truth, grating)["std"] == pytest.approx(tracked(unmapped(model), run, truth,
-                                                                              grating)["std"], rel=1e-9)
+    mapped = estimator_figures(model, run, truth, grating)
+    assert mapped["std"] == pytest.approx(estimator_figures(unmapped(model), run, truth, grating)["std"], rel=1e-9)
 
 
 def test_nothing_repeats_on_a_clean_rig_and_nothing_is_kept():
@@ -107,7 +93,7 @@ def test_a_glare_on_one_row_is_mapped_and_what_the_map_does_not_carry_over_is_fl
     calibration, _ = build_rig("paper", "glare:gray=20", seed=3).record(20.0)
     model = calibrate(calibration, "paper").model
     run, truth = build_rig("paper", "glare:gray=20", seed=3, run=1).record(10.0)
-    with_map, without = tracked(model, run, truth), tracked(unmapped(model), run, truth)
+    with_map, without = estimator_figures(model, run, truth), estimator_figures(unmapped(model), run, truth)
     assert with_map["std"] < 0.5 * without["std"], (with_map, without)
     assert with_map["silent"] == 0 and with_map["flagged"] < 0.03, with_map
     assert with_map["pull"] < 1.6, with_map

@@ -7,15 +7,14 @@ the model's shape."""
 from __future__ import annotations
 
 import copy
-import math
 
-import numpy as np
 import pytest
 
 from graytrack.core.adequacy import frame_offset_gray
 from graytrack.core.calibration import calibrate
 from graytrack.core.calibration_data import calibration_data
 from graytrack.drivers.sim.scenarios import build_rig
+from tests.conftest import calibrated_rig, estimator_figures
 
 pytestmark = pytest.mark.unit
 
@@ -24,9 +23,7 @@ pytestmark = pytest.mark.unit
 def banded():
     """The paper rig's one row with its readout offset drawn afresh every frame (σ 1 gray), calibrated on one run
     and measured on another."""
-    calibration, _ = build_rig("paper", "row_banding:gray=1", seed=3).record(20.0)
-    run, truth = build_rig("paper", "row_banding:gray=1", seed=3, run=1).record(10.0)
-    return calibrate(calibration, "paper").model, calibration, run, truth
+    return calibrated_rig("paper", "row_banding:gray=1")
 
 
 def test_the_frames_own_offset_is_measured_and_a_clean_rig_has_none(banded):
@@ -40,23 +37,14 @@ def test_the_frames_own_offset_is_measured_and_a_clean_rig_has_none(banded):
 
 
 def test_the_estimator_takes_the_frames_own_offset_out_of_its_solve(banded):
-    from graytrack.core.estimator import filter as estimator
-
     model, _, run, truth = banded
     without = copy.deepcopy(model)
     without.info.pop("frame_offset_gray")
-    figures = {}
-    for name, tracked in (("taken out", model), ("left in", without)):
-        estimates = estimator.track(tracked, run.frames, run.t, run.reference, grating="check")
-        error_um = (np.array([e.x_mm for e in estimates]) - truth.x_mm) * 1e3
-        bound_um = np.array([e.crlb_mm for e in estimates]) * 1e3
-        figures[name] = (float(np.std(error_um)), math.sqrt(np.mean((error_um / bound_um) ** 2)),
-                         float(np.mean([e.stale for e in estimates])))
-    (taken, pull, flagged), (left, pull_left, _) = figures["taken out"], figures["left in"]
+    taken, left = estimator_figures(model, run, truth), estimator_figures(without, run, truth)
     # a frame's offset moved the position through the model's shape: 2.16 µm against 1.71 (today's path 1.75)
-    assert taken < 0.85 * left, figures
-    assert 0.8 < pull < 1.25 and pull < pull_left, figures  # the steady acceptance's band (1.19 left in)
-    assert flagged < 0.01, figures
+    assert taken["std"] < 0.85 * left["std"], (taken, left)
+    assert 0.8 < taken["pull"] < 1.25 and taken["pull"] < left["pull"], (taken, left)  # the steady band (1.19 left)
+    assert taken["flagged"] < 0.01, taken
 
 
 def test_the_calibration_says_each_frame_draws_its_own_offset(banded):
