@@ -342,20 +342,24 @@ class Estimator:
         if not (math.isfinite(self.chi2_calibration) and self.chi2_calibration > 0):
             raise TrackingError(f"the model's calibration χ² is {self.chi2_calibration:g}: recalibrate")
         self.chi2_curve = Chi2Curve.from_info(model.info) if self.flat is None else self.flat.curve
-        # Read and checked, where the image places the carriage at each place as calibration measured it against the
-        # grating (its error map, calibration_error): every sample is evaluated there (kernel.U_MAPPED), so that the
-        # state is the carriage's place, and the bound keeps what the map leaves. Not fused, where the grating and the
-        # latch's skew take up what the image misses at a place, nor from the image alone, which places a frame up to
-        # whole periods and would read another place's.
-        mapped = (model.info.get(CALIBRATION_ERROR) or {}).get("map") if grating == "check" else None
+        # Where the image places the carriage at each place as calibration measured it against the grating (its error
+        # map, calibration_error): every sample is evaluated there (kernel.U_MAPPED), so that the state is the
+        # carriage's place, and the bound keeps what the map leaves. Read and checked from the first frame; from the
+        # image alone, which places a frame up to whole periods, once the run's travel leaves it one place (_mapping);
+        # not fused, where the grating and the latch's skew take up what the image misses at a place.
+        mapped = (model.info.get(CALIBRATION_ERROR) or {}).get("map" if grating == "check" else "map_alone") \
+            if grating != "fuse" else None
         self._error_map = None if not mapped else (
             [float(x) for x in mapped["x_mm"]], [float(e) for e in mapped["error_mm"]])
-        self.model_error = _model_error(model.info, mapped)
+        self._plain_error = _model_error(model.info)
+        self._mapped_error = _model_error(model.info, mapped) if mapped else self._plain_error
         # From the image alone a model that repeats once a period places a frame up to whole periods (its origin
         # is the acquisition's pick): what calibration keeps along the stroke (its χ² curve, its model's error) is
         # read at every place the frame may be, those a whole number of periods away that keep each frame the run
         # has placed within the stroke (_places).
         self._folded = grating == "none" and repeats_each_period(model)
+        self._mapped_at = math.nan if self._folded else 0.0  # (the map's place less the state's, once it is known)
+        self.model_error = self._plain_error if self._folded else self._mapped_error
         self._reach = [math.inf, -math.inf]  # the run's placed positions, lowest and highest (mm)
         self._share_at: tuple[float, list[float], float] = (math.nan, [], 0.0)  # (_model_share's last answer)
         self._variance_at: tuple[tuple, list[float], float] = ((), [], 0.0)  # (_model_variance's last question, answer)
@@ -696,6 +700,32 @@ class Estimator:
         self.dt_last, self.t_last = dt, t
         return dt
 
+    def _mapping(self, mapped: tuple[list[float], list[float]]) -> None:
+        """The image's place off the error map ``mapped`` (places, errors: mm) at the frame's predicted place, into
+        the update's ``U_MAPPED``. From the image alone the place is known once the run's travel leaves the frames
+        one place a whole number of periods from where they were placed (_places): from then on the map is read
+        there, the bound keeps what it leaves, and the state moves by what the map says the image erred by at the
+        first frame read, so that the state becomes the carriage's place and the image's stays where it was."""
+        x = self.s.item(X)
+        if self._mapped_at != self._mapped_at:  # (not yet known)
+            period = self.model.period_mm
+            lo, hi = float(self.model.stroke_range_mm[0]) - STROKE_MARGIN_MM, \
+                float(self.model.stroke_range_mm[1]) + STROKE_MARGIN_MM
+            low, high = min(self._reach[0], x), max(self._reach[1], x)
+            first, last = math.ceil((lo - low) / period), math.floor((hi - high) / period)
+            if first != last:
+                return
+            self._mapped_at = first * period
+            self.model_error = self._mapped_error
+            self._share_at, self._variance_at = (math.nan, [], 0.0), ((), [], 0.0)
+            shift = _interpolated(x + self._mapped_at, *mapped)
+            self.s[X] = x = x - shift
+            self.params[kernel.U_MAPPED] = shift
+            if self.mount is not None:  # (the state's step is the map's, not the camera moving on its mount)
+                self.mount.reset()
+            return
+        self.params[kernel.U_MAPPED] = _interpolated(x + self._mapped_at, *mapped)
+
     def _carry_light(self, along: tuple[list[float], list[float]], before: float, after: float) -> None:
         """The gain (and its variance) carried from the place ``before`` to ``after`` (mm) by the light ``along`` the
         stroke calibration read (places, log gains): the gain is the frame's light, the lamp's level times the light
@@ -753,13 +783,13 @@ class Estimator:
                 if self._light_along is not None:
                     self._carry_light(self._light_along, before, self.s.item(X))
                 if self._error_map is not None:
-                    self.params[kernel.U_MAPPED] = _interpolated(self.s.item(X), *self._error_map)
+                    self._mapping(self._error_map)
         # seen through what sits on the sensor's side and on the print (the frame itself while nothing has landed)
         y, mask = self._through_maps(y_raw, raw_mask, not acquiring)
         if acquiring:
             self._acquire(y, mask, t, reference_mm)
             if self._error_map is not None:
-                self.params[kernel.U_MAPPED] = _interpolated(self.s.item(X), *self._error_map)
+                self._mapping(self._error_map)
         if self.idx is not self.idx_plain and not self.s.item(BE) > 0.0:
             # a band the search took on a frame it then could not place is not followed: its states were never set,
             # and solved among the active ones their zero prior would make this update singular
@@ -2002,9 +2032,10 @@ def calibration_error(model: FourierModel, rec: "Recording") -> dict | None:
         return None
     step = float(rec.meta.get("grating_resolution_mm", 0.0) or 0.0) or reference_resolution_mm(reference)
 
-    def erred() -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-        """(places, error less its mean, bound²) of calibration's frames tracked as a run is, None where too few."""
-        estimator = Estimator(model, settings=EstimatorSettings().for_recording(rec.meta), grating="check",
+    def erred(grating: str) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """(places, error less its mean, bound²) of calibration's frames tracked as a run is in the mode ``grating``
+        ("check", or "none": placed up to whole periods, taken out), None where too few are placed."""
+        estimator = Estimator(model, settings=EstimatorSettings().for_recording(rec.meta), grating=grating,
                               stage_phases=acceleration_phases(rec.meta))
         estimates = track(model, rec.frames, rec.t, reference, estimator=estimator)
         x = np.array([e.x_mm for e in estimates])
@@ -2013,6 +2044,7 @@ def calibration_error(model: FourierModel, rec: "Recording") -> dict | None:
         if usable.sum() < 2 * PROFILE_FRAMES:
             return None
         error = x[usable] - reference[usable]
+        error -= model.period_mm * np.round(float(np.median(error)) / model.period_mm)
         # (the grating's rounding is in the error)
         return reference[usable], error - error.mean(), floor[usable] ** 2 + step * step / 12.0
 
@@ -2025,26 +2057,33 @@ def calibration_error(model: FourierModel, rec: "Recording") -> dict | None:
         return {"edges_mm": profile["edges_mm"], "ratio": profile["ratio"], "whole": whole,
                 "persist": _persistence(places, error)}
 
-    first = erred()
+    def mapped(erred: tuple[np.ndarray, np.ndarray, np.ndarray]) -> dict | None:
+        """What of the error the image repeats at each place (the print's marks, a light uneven along the target,
+        the model's series missing the print's shape there), and what it leaves: the bound's, measured on frames the
+        map was not made from (each frame against the map its neighbours in time made, every other one: a run's
+        noise is not calibration's, while what repeats at a place both halves share)."""
+        places, error, bound2 = erred
+        made_map = error_map(places, error)
+        if made_map is None:
+            return None
+        left_error = np.empty_like(error)
+        for half in (0, 1):
+            made, read = slice(1 - half, None, 2), slice(half, None, 2)
+            other = error_map(places[made], error[made], kept=1.0)
+            left_error[read] = error[read] - (0.0 if other is None else
+                                              np.interp(places[read], other["x_mm"], other["error_mm"]))
+        left = measured(places, left_error, bound2)
+        return None if left is None else {**made_map, **left}
+
+    first = erred("check")
     plain = None if first is None else measured(*first)
     if first is None or plain is None:
         return None
-    # What of it the image repeats at each place (the print's marks, a light uneven along the target, the model's
-    # series missing the print's shape there), read and checked taken out of every frame's place; what it leaves is
-    # the bound's, measured on frames the map was not made from (each frame against the map its neighbours in time
-    # made, every other one: a run's noise is not calibration's, while what repeats at a place both halves share)
-    places, error, bound2 = first
-    mapped = error_map(places, error)
-    if mapped is None:
-        return plain
-    left_error = np.empty_like(error)
-    for half in (0, 1):
-        made, read = slice(1 - half, None, 2), slice(half, None, 2)
-        other = error_map(places[made], error[made], kept=1.0)
-        left_error[read] = error[read] - (0.0 if other is None else
-                                          np.interp(places[read], other["x_mm"], other["error_mm"]))
-    if (left := measured(places, left_error, bound2)) is not None:
-        plain["map"] = {**mapped, **left}
+    # read and checked, and from the image alone (whose states follow the frames otherwise: its own pass)
+    for key, grating in (("map", "check"), ("map_alone", "none")):
+        made = mapped(first) if grating == "check" else (None if (alone := erred(grating)) is None else mapped(alone))
+        if made is not None:
+            plain[key] = made
     return plain
 
 
