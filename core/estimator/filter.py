@@ -700,13 +700,12 @@ class Estimator:
         self.dt_last, self.t_last = dt, t
         return dt
 
-    def _mapping(self, mapped: tuple[list[float], list[float]]) -> None:
-        """The image's place off the error map ``mapped`` (places, errors: mm) at the frame's predicted place, into
-        the update's ``U_MAPPED``. From the image alone the place is known once the run's travel leaves the frames
-        one place a whole number of periods from where they were placed (_places): from then on the map is read
-        there, the bound keeps what it leaves, and the state moves by what the map says the image erred by at the
-        first frame read, so that the state becomes the carriage's place and the image's stays where it was."""
-        x = self.s.item(X)
+    def _mapping(self, mapped: tuple[list[float], list[float]], x: float) -> None:
+        """The image's place off the error map ``mapped`` (places, errors: mm) at the frame's predicted place ``x``
+        (mm), into the update's ``U_MAPPED``. From the image alone the place is known once the run's travel leaves
+        the frames one place a whole number of periods from where they were placed (_places): from then on the map
+        is read there, the bound keeps what it leaves, and the state moves by what the map says the image erred by
+        at the first frame read, so that the state becomes the carriage's place and the image's stays where it was."""
         if self._mapped_at != self._mapped_at:  # (not yet known)
             period = self.model.period_mm
             lo, hi = float(self.model.stroke_range_mm[0]) - STROKE_MARGIN_MM, \
@@ -719,7 +718,7 @@ class Estimator:
             self.model_error = self._mapped_error
             self._share_at, self._variance_at = (math.nan, [], 0.0), ((), [], 0.0)
             shift = _interpolated(x + self._mapped_at, *mapped)
-            self.s[X] = x = x - shift
+            self.s[X] -= shift
             self.params[kernel.U_MAPPED] = shift
             if self.mount is not None:  # (the state's step is the map's, not the camera moving on its mount)
                 self.mount.reset()
@@ -772,24 +771,26 @@ class Estimator:
         acquiring = not self.started or self.failed >= FAILED_TO_REACQUIRE
         if not acquiring:
             dt = predict = self._advance(t)  # the prediction to the frame's time, made by the update's own call
-            if self.print_map.active or self._light_along is not None or self._error_map is not None:
-                # ... or first, where the print's map is read at the predicted image, the light carried to its place,
-                # or the image's place read off the error map there
-                before = self.s.item(X)
+            before = self.s.item(X)
+            if self.print_map.active:  # ... or first, where the print's map is read at the predicted image
                 kernel.predict(self.s, self.P, dt, self.params.item(kernel.U_ACCELERATION),
                                self.params.item(kernel.U_ACCELERATION_WHITE), self.rates2,
                                self.params[kernel.U_FLICKER:kernel.U_RATES])
                 predict = None
+            if self._light_along is not None or self._error_map is not None:
+                # the light carried to the frame's predicted place, and the image's place read off the error map there
+                # (the prediction's mean: the path on at its velocity, the last frame's jitter dropped, kernel.predict)
+                ahead = self.s.item(X) if predict is None else before + self.s.item(V) * dt - self.s.item(D)
                 if self._light_along is not None:
-                    self._carry_light(self._light_along, before, self.s.item(X))
+                    self._carry_light(self._light_along, before, ahead)
                 if self._error_map is not None:
-                    self._mapping(self._error_map)
+                    self._mapping(self._error_map, ahead)
         # seen through what sits on the sensor's side and on the print (the frame itself while nothing has landed)
         y, mask = self._through_maps(y_raw, raw_mask, not acquiring)
         if acquiring:
             self._acquire(y, mask, t, reference_mm)
             if self._error_map is not None:
-                self._mapping(self._error_map)
+                self._mapping(self._error_map, self.s.item(X))
         if self.idx is not self.idx_plain and not self.s.item(BE) > 0.0:
             # a band the search took on a frame it then could not place is not followed: its states were never set,
             # and solved among the active ones their zero prior would make this update singular
