@@ -77,8 +77,7 @@ def test_from_the_image_alone_its_own_map_is_read_once_the_run_has_one_place():
 
 
 def test_nothing_repeats_on_a_clean_rig_and_nothing_is_kept():
-    calibration, _ = build_rig("paper", "", seed=3).record(20.0)
-    model = calibrate(calibration, "paper").model
+    model = rig_model("paper")
     assert "map" not in model.info[estimator.CALIBRATION_ERROR]
     assert LIGHT_PROFILE not in model.info
 
@@ -101,8 +100,7 @@ def test_a_glare_on_one_row_is_mapped_and_what_the_map_does_not_carry_over_is_fl
     elsewhere), which no pass of calibration's own frames can measure: the bound states what calibration's frames
     left (1.1 floors) and the run errs by 1.35; the grating checks it, and what it finds is flagged, none 4+ bounds
     off unflagged."""
-    calibration, _ = build_rig("paper", "glare:gray=20", seed=3).record(20.0)
-    model = calibrate(calibration, "paper").model
+    model = rig_model("paper", "glare:gray=20")
     run, truth = build_rig("paper", "glare:gray=20", seed=3, run=1).record(10.0)
     with_map, without = estimator_figures(model, run, truth), estimator_figures(unmapped(model), run, truth)
     assert with_map["std"] < 0.5 * without["std"], (with_map, without)

@@ -11,11 +11,9 @@ import copy
 import pytest
 
 from graytrack.core.adequacy import FRAME_GAIN_RATE, frame_gain_rate
-from graytrack.core.calibration import calibrate
 from graytrack.core.calibration_data import calibration_data
 from graytrack.core.estimator.settings import TUNABLES
-from graytrack.drivers.sim.scenarios import build_rig
-from tests.conftest import calibrated_rig, estimator_figures
+from tests.conftest import calibrated_rig, estimator_figures, rig_model
 
 pytestmark = pytest.mark.unit
 
@@ -45,9 +43,8 @@ def test_a_hunting_gain_is_measured_and_kept_with_the_model(hunting):
     ("lab", ""),  # 200 frames/s: the 100 Hz flicker alternates from frame to frame, the lamp's drift is slow
 ])
 def test_a_light_that_holds_flickers_or_meets_the_prints_marks_walks_as_a_lamp_is_declared_to(scenario, effects):
-    calibration, _ = build_rig(scenario, effects, seed=3).record(3.0 if scenario == "lab" else 20.0)
-    model = calibrate(calibration, "paper").model
-    rate = frame_gain_rate(model, calibration_data(calibration))
+    model = rig_model(scenario, effects, seconds=3.0 if scenario == "lab" else 20.0)
+    rate = model.info.get(FRAME_GAIN_RATE)
     # none measured, or of the declared drift's order (the lab's lamp walks a little: 0.004-0.006 /√s); a hunting
     # camera's is twenty times it
     assert rate is None or rate < 2 * TUNABLES["gain_rate"].default, (scenario, effects, rate)
