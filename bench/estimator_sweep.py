@@ -232,12 +232,19 @@ def seeded_arguments(doc: str, seeds: int, what: str, cache: str) -> tuple[argpa
     return args, settings_of(args.settings), shard, shards
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+def sweep_parser(doc: str) -> argparse.ArgumentParser:
+    """The command line of a bench over the sweep's cases (this one, tunable_sensitivity.py): ``--cache`` (this
+    bench's, shared), ``--shard K/N`` and ``--only``."""
+    parser = argparse.ArgumentParser(description=doc.split("\n")[0])
     parser.add_argument("--cache", type=Path, default=Path(os.environ.get("TMPDIR", "/tmp")) / "graytrack-sweep",
                         help="where each case's model, run and truth are kept")
     parser.add_argument("--shard", default="0/1", help="K/N: every N-th case from the K-th (run N side by side)")
     parser.add_argument("--only", default="", help="cases whose label holds this text")
+    return parser
+
+
+def main() -> None:
+    parser = sweep_parser(__doc__)
     parser.add_argument("--against", action="store_true",
                         help="also score today's path on each run (kept in the cache) and count the runs whose "
                              "error std is more than 5 %% above its (both over today's noise floor: the acceptance "
