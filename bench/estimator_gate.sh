@@ -10,6 +10,8 @@
 # run (tens of minutes: every case rendered and today's path scored) a gate costs the tracking only (a few minutes).
 # The totals of each bench are printed, and with BASE_TAG every sweep run that moved (bench/sweep_diff.py).
 # LEVEL_SCALE=0.99 (env) holds every frame against a calibration level 1 % off: which runs move on chance alone.
+# SENSITIVITY=1 (env) also runs tunable_sensitivity.py read and without the grating (a few minutes more): the runs
+# whose figures turn several-fold, or lose their flags, when one rate is set 1.5x off.
 set -euo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
 python="$here/../.venv/bin/python"
@@ -33,10 +35,21 @@ for bench in estimator_sweep map_seeds steady_maps; do
     done
     wait
 done
+if [[ "${SENSITIVITY:-0}" == 1 ]]; then
+    for shard in 0 1; do
+        "$python" tunable_sensitivity.py --modes=grating,--no-reference --shard "$shard/2" "$@" \
+            > "$out/tunable_sensitivity.$shard.txt" 2>&1 &
+    done
+    wait
+fi
 for bench in estimator_sweep map_seeds steady_maps; do
     echo "== $bench ($tag)"
     grep -h '^total\|^against\|^steady: [0-9]' "$out/$bench".*.txt || true
 done
+if [[ "${SENSITIVITY:-0}" == 1 ]]; then
+    echo "== tunable_sensitivity ($tag)"
+    grep -h ' edge$\|^total' "$out"/tunable_sensitivity.*.txt || true
+fi
 if [[ -n "$base" ]]; then
     "$python" sweep_diff.py "$root/$base/estimator_sweep.0.txt,$root/$base/estimator_sweep.1.txt" \
         "$out/estimator_sweep.0.txt,$out/estimator_sweep.1.txt"

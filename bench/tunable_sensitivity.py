@@ -3,15 +3,15 @@
 A declared rate is a physical judgement, good to a factor of two at best; a run whose error moves several-fold when
 one rate is set half as high again (or two thirds as high) is not measured by its figure at the declared value, and
 a rig a little unlike the simulated one meets its other outcome. Every case of the robustness sweep
-(estimator_sweep.py's, its cache shared) is tracked in each mode at the declared settings and with each of the
-chosen tunables scaled by 1/F and by F, one at a time. Per run: the error over the noise floor at the declared
-settings, its least and most over the scaled ones (with the tunable and factor of the most), the worst rms pull and
-the most placed frames 4+ bounds off the truth unflagged. A run is marked ``edge`` where its most error is more than
-``EDGE_SPREAD`` times its least and above the noise floor, or where a scaled setting leaves more frames far off
-unflagged than the declared one does.
+(estimator_sweep.py's, its cache shared) is tracked in each mode at the settings given (name=value, else the
+declared) and with each of the chosen tunables scaled by 1/F and by F, one at a time. Per run: the error over the
+noise floor at the settings given, its least and most over the scaled ones (with the tunable and factor of the
+most), the worst rms pull and the most placed frames 4+ bounds off the truth unflagged. A run is marked ``edge``
+where its most error is more than ``EDGE_SPREAD`` times its least and above the noise floor, or where a scaled
+setting leaves more frames far off unflagged than the settings given do.
 
     .venv/bin/python bench/tunable_sensitivity.py [--only SUBSTRING] [--shard K/N] [--factor F]
-        [--tunables a,b,...] [--modes grating,--trim,--no-reference] [--each] [--cache DIR]
+        [--tunables a,b,...] [--modes grating,--trim,--no-reference] [--each] [--cache DIR] [name=value ...]
 """
 
 from __future__ import annotations
@@ -20,8 +20,8 @@ import sys
 
 import numpy as np
 
-from estimator_sweep import PLAIN, cached_case, scored, sweep_parser
-from graytrack.core.estimator.settings import TUNABLES, EstimatorSettings
+from estimator_sweep import PLAIN, cached_case, scored, settings_of, sweep_parser
+from graytrack.core.estimator.settings import TUNABLES
 from robustness_sweep import CASES
 from truth_score import MODES
 
@@ -39,6 +39,7 @@ def main() -> None:
     parser.add_argument("--tunables", default=",".join(RATES), help="comma-separated names of the tunables scaled")
     parser.add_argument("--modes", default=",".join(MODES), help="comma-separated modes run")
     parser.add_argument("--each", action="store_true", help="also print each scaled setting's figures")
+    parser.add_argument("settings", nargs="*", help="name=value of the estimator's tunables scaled about")
     args = parser.parse_args()
     names = [name for name in args.tunables.split(",") if name]
     unknown = [name for name in names if name not in TUNABLES]
@@ -51,7 +52,7 @@ def main() -> None:
         sys.exit("--factor must be above 1")
     shard, shards = (int(part) for part in args.shard.split("/"))
     args.cache.mkdir(parents=True, exist_ok=True)
-    declared = EstimatorSettings()
+    declared = settings_of(args.settings)
     variants = [(f"{name}×{scale:.2g}", declared.replace(**{name: getattr(declared, name) * scale}))
                 for name in names for scale in (1.0 / args.factor, args.factor)]
     edges = runs = 0
