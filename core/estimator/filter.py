@@ -351,7 +351,9 @@ class Estimator:
             if grating != "fuse" else None
         self._error_map = None if not mapped else (
             [float(x) for x in mapped["x_mm"]], [float(e) for e in mapped["error_mm"]])
-        self._plain_error = _model_error(model.info)
+        # (from the image alone, before its map is read, the error its own pass measured: its states err otherwise)
+        self._plain_error = _model_error(model.info, (model.info.get(CALIBRATION_ERROR) or {}).get("alone")
+                                         if grating == "none" else None)
         self._mapped_error = _model_error(model.info, mapped) if mapped else self._plain_error
         # From the image alone a model that repeats once a period places a frame up to whole periods (its origin
         # is the acquisition's pick): what calibration keeps along the stroke (its χ² curve, its model's error) is
@@ -2080,11 +2082,15 @@ def calibration_error(model: FourierModel, rec: "Recording") -> dict | None:
     plain = None if first is None else measured(*first)
     if first is None or plain is None:
         return None
-    # read and checked, and from the image alone (whose states follow the frames otherwise: its own pass)
-    for key, grating in (("map", "check"), ("map_alone", "none")):
-        made = mapped(first) if grating == "check" else (None if (alone := erred(grating)) is None else mapped(alone))
-        if made is not None:
-            plain[key] = made
+    if (made := mapped(first)) is not None:
+        plain["map"] = made
+    # From the image alone the states follow the frames otherwise than read and checked, and the model's error with
+    # them: its own pass says what a frame errs by there before its map is read (``alone``), and makes that map.
+    if (alone := erred("none")) is not None:
+        if (own := measured(*alone)) is not None:
+            plain["alone"] = own
+        if (made := mapped(alone)) is not None:
+            plain["map_alone"] = made
     return plain
 
 
