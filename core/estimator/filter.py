@@ -116,11 +116,16 @@ REASON = {"light": "light", "field": "light", "band": "light", "geometry": "geom
 
 class _Figures(list):
     """A solve's figures (kernel.S_* before kernel.S_GAIN) as plain numbers, read every frame, with the unread
-    states' gains on the states solved beside them (``gains``, the solve's array: read only where a jump's or a
-    carried account's posterior is embedded, and valid until the arrays it answered in are solved into again)."""
+    states' gains on the states solved beside them (``gains``, of the solve's array: read only where a jump's or a
+    carried account's posterior is embedded, and valid until the arrays it answered in are solved into again; made
+    when read, for most solves never need it)."""
 
-    __slots__ = ("gains",)
-    gains: np.ndarray
+    __slots__ = ("stats",)
+    stats: np.ndarray
+
+    @property
+    def gains(self) -> np.ndarray:
+        return self.stats[S_GAIN:]
 
 
 class FrameEstimate(NamedTuple):
@@ -154,6 +159,9 @@ class FrameEstimate(NamedTuple):
     state: tuple[float, ...]  # every state (state.py's order) and its σ
     sigma: tuple[float, ...]
     slide_mm: float = math.nan  # without the grating: what the lens's slide adds to the bound (in crlb_mm)
+
+
+_NOT_ASKED = (math.nan, math.nan, math.nan, math.nan, None, 0.0)  # (Estimator._model_variance's cache, empty)
 
 
 def _legendre(n_rows: int, n_pixels: int) -> tuple[np.ndarray, np.ndarray]:
@@ -362,9 +370,11 @@ class Estimator:
         self._folded = grating == "none" and repeats_each_period(model)
         self._mapped_at = math.nan if self._folded else 0.0  # (the map's place less the state's, once it is known)
         self.model_error = self._plain_error if self._folded else self._mapped_error
-        self._reach = [math.inf, -math.inf]  # the run's placed positions, lowest and highest (mm)
-        self._share_at: tuple[float, list[float], float] = (math.nan, [], 0.0)  # (_model_share's last answer)
-        self._variance_at: tuple[tuple, list[float], float] = ((), [], 0.0)  # (_model_variance's last question, answer)
+        self._reach = [math.inf, -math.inf]  # the run's placed positions, lowest and highest (mm; a new list each move)
+        # (_model_share's last question and answer, _model_variance's: each with the run's reach it was asked under,
+        # a new list whenever the reach changes)
+        self._share_at: tuple[float, list[float] | None, float] = (math.nan, None, 0.0)
+        self._variance_at: tuple[float, float, float, float, list[float] | None, float] = _NOT_ASKED
         # a lossy stream's χ² scatters as fewer samples', and so does noise the samples share (its calibration's
         # frames measured it: core/chi2_curve.py frame_spread); with the rows' offsets taken out of each frame (below),
         # as it scatters without them, against the level without them
@@ -718,7 +728,7 @@ class Estimator:
                 return
             self._mapped_at = first * period
             self.model_error = self._mapped_error
-            self._share_at, self._variance_at = (math.nan, [], 0.0), ((), [], 0.0)
+            self._share_at, self._variance_at = (math.nan, None, 0.0), _NOT_ASKED
             shift = _interpolated(x + self._mapped_at, *mapped)
             self.s[X] -= shift
             self.params[kernel.U_MAPPED] = shift
@@ -1562,7 +1572,7 @@ class Estimator:
         kernel.update(s, s_prior, P_prior, idx, y, mask, self.pixels, params, self.model_args, self.scratch, self.rho,
                       A, stats, self._P_next, self._sigma)
         figures = _Figures(stats[:S_GAIN].tolist())
-        figures.gains = stats[S_GAIN:]
+        figures.stats = stats
         return s, A, figures
 
     def _level(self, x_mm: float) -> float:
@@ -1858,12 +1868,12 @@ class Estimator:
         sign; ``xinfo``: the frame's information on the position, its samples weighed at ``level``)."""
         if not xinfo > 0:
             return 0.0
-        asked = (x_mm, var_image, xinfo, level)
-        if asked == self._variance_at[0] and self._reach == self._variance_at[1]:  # (the frame's test and its bound)
-            return self._variance_at[2]
+        at = self._variance_at  # (the frame's test and its bound ask the same)
+        if at[0] == x_mm and at[1] == var_image and at[2] == xinfo and at[3] == level and at[4] is self._reach:
+            return at[5]
         share = min(var_image * xinfo, 1.0)
         var = (self._frame_variance(x_mm, xinfo, level) - 1.0 / xinfo) * share * share
-        self._variance_at = (asked, list(self._reach), var)
+        self._variance_at = (x_mm, var_image, xinfo, level, self._reach, var)
         return var
 
     def _frame_variance(self, x_mm: float, xinfo: float, level: float) -> float:
@@ -1875,17 +1885,18 @@ class Estimator:
     def _model_share(self, x_mm: float) -> float:
         """The model's own error power at ``x_mm`` over the noise floor's (ratio² − 1 of its calibration); where the
         frame may be at several places (_places), their mean (each as likely: the variance of what it errs by)."""
+        at = self._share_at  # (the frame's bound and its test ask the same)
+        if x_mm == at[0] and at[1] is self._reach:
+            return at[2]
         edges, shares, whole = self.model_error
         if not edges:
             return whole
-        if x_mm == self._share_at[0] and self._reach == self._share_at[1]:  # (the frame's bound and its test ask)
-            return self._share_at[2]
         places = self._places(x_mm) if self._folded else (x_mm,)
         total = 0.0
         for place in places:
             total += shares[min(bisect.bisect_right(edges, place) - 1, len(shares) - 1)] \
                 if edges[0] <= place <= edges[-1] else whole
-        self._share_at = (x_mm, list(self._reach), total / len(places))
+        self._share_at = (x_mm, self._reach, total / len(places))
         return self._share_at[2]
 
     def _carrier(self) -> str:
