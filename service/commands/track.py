@@ -299,15 +299,17 @@ def run_estimator(args: argparse.Namespace, recording: Recording, model: Fourier
 
     from graytrack.core.recording import MAINS_HZ
     from graytrack.service.errors import CliError
+    from graytrack.core.collector import collector_paused
 
     if args.mains_hz is not None:
         if not (math.isfinite(args.mains_hz) and args.mains_hz >= 0):
             raise CliError(f"--mains-hz {args.mains_hz:g}: must be a frequency of 0 or more (Hz)")
         recording = dataclasses.replace(recording, meta={**recording.meta, MAINS_HZ: float(args.mains_hz)})
-    result, grating = estimated(recording, model, args.no_reference, args.trim, not args.no_robust, args.axis_px,
-                                ProgressBar("track"))
-    slid = {} if result.slide_sigma_um is None else {"slide_sigma_um": result.slide_sigma_um}
-    path = write_csv(args.out, {**result_columns(recording.t, result, grating), **slid})
+    with collector_paused():
+        result, grating = estimated(recording, model, args.no_reference, args.trim, not args.no_robust, args.axis_px,
+                                    ProgressBar("track"))
+        slid = {} if result.slide_sigma_um is None else {"slide_sigma_um": result.slide_sigma_um}
+        path = write_csv(args.out, {**result_columns(recording.t, result, grating), **slid})
     lever_px = AXIS_PRIOR_PX if args.axis_px is None else abs(args.axis_px)
     print("\n".join(summary(result, grating) + describe(lever_px * model.pixel_pitch_mm, args.axis_px is not None,
                                                            slid)))
