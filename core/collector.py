@@ -1,4 +1,6 @@
-"""The cyclic garbage collector held off while a loop builds records frame by frame.
+"""The cyclic garbage collector held off while a loop builds records frame by frame: in a process that is the
+loop's own (the ``track`` command), never in the library's loop, which a daemon's other threads share the process
+with.
 
 A track keeps a few containers a frame to its end (the frame's estimate and its state's tuples): the collector's
 passes over its youngest generation then come every couple of hundred frames, and each walks every container made

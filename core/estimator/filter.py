@@ -40,7 +40,6 @@ import numpy as np
 
 from graytrack.core.adequacy import FRAME_GAIN_RATE, LIGHT_PROFILE
 from graytrack.core.chi2_curve import Chi2Curve
-from graytrack.core.collector import collector_paused
 from graytrack.core.compression import stream_bound_factor, stream_chi2_spread
 from graytrack.core.errors import TrackingError
 from graytrack.core import repeats
@@ -2007,15 +2006,14 @@ def track(model: FourierModel, frames: np.ndarray, t: np.ndarray, reference: np.
     times, readings = np.asarray(t, dtype=np.float64).tolist(), reference.tolist()  # plain numbers, made once
     out: list[FrameEstimate] = []
     update, append = estimator.update, out.append  # (looked up once: the loop runs a frame's worth of calls)
-    with collector_paused():  # (the records kept make the collector's passes, not garbage: core/collector.py)
-        if progress is None:
-            for k, frame in enumerate(frames):
-                append(update(frame, times[k], readings[k]))
-            return out
-        for k in range(n):
-            append(update(frames[k], times[k], readings[k]))
-            if k % 1000 == 999 or k == n - 1:
-                progress((k + 1) / n, f"frame {k + 1} of {n}")
+    if progress is None:
+        for k, frame in enumerate(frames):
+            append(update(frame, times[k], readings[k]))
+        return out
+    for k in range(n):
+        append(update(frames[k], times[k], readings[k]))
+        if k % 1000 == 999 or k == n - 1:
+            progress((k + 1) / n, f"frame {k + 1} of {n}")
     return out
 
 
