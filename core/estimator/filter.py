@@ -54,6 +54,7 @@ from graytrack.core.estimator.print_map import PrintMap
 from graytrack.core.estimator.print_origin import PrintOrigin
 from graytrack.core.estimator.sensor_map import SensorMap
 from graytrack.core.estimator.settings import EstimatorSettings
+from graytrack.core.estimator.shape_contest import ShapeContest
 from graytrack.core.estimator.state import (A1, A2, B, BAND, BD, BE, BH, BL, BR, BW, C, D, FC, FR, FS, G, L, M, N_STATE,
                                             OFS, SK, SKR, STATE, T, V, X)
 from graytrack.core.frame_tables import FrameTables
@@ -491,6 +492,16 @@ class Estimator:
         self._row_masks: dict[int, np.ndarray] = {}  # the pixel mask over the rows a frame averages, by rows
         self.stats = np.zeros(kernel.N_STATS)
         self.update_errors = 0  # frames whose update failed on numbers that were not finite (update)
+        # the light's shape at the first frames, as calibrated against changed since (shape_contest.py): the rival
+        # followed beside this estimator, whether this one is a contest's (its frames' evidence then kept) and
+        # whether a contest was held already
+        self._contest: ShapeContest | None = None
+        # (read or fused, the grating places the carriage whatever the shape: the contest is the image's alone)
+        self._contested = grating != "none" or settings.shape_contest_frames <= 0 or \
+            settings.field_changed_prior <= settings.field_prior
+        self._weighing = False
+        self._updating = False  # (within a frame's update: a start made there is the update's own)
+        self.evidence = math.nan  # the last frame's log-likelihood under this estimator (while weighed)
         self.s = np.zeros(N_STATE)
         self.P = np.zeros((N_STATE, N_STATE))
         # a frame's own arrays, made once: its gray values, their mask, the main update's answer and the σ
@@ -624,7 +635,11 @@ class Estimator:
 
     # ------------------------------------------------------------------ the recursion
     def start(self, x_mm: float, t: float, sigma_mm: float) -> None:
-        """The state before the first frame: position ``x_mm`` ± ``sigma_mm``, nuisances at calibration."""
+        """The state before the first frame: position ``x_mm`` ± ``sigma_mm``, nuisances at calibration (a start
+        given from outside while the first frames' contest runs ends it: the shape as calibrated stands)."""
+        if self._contest is not None and not self._updating:
+            self._contest = None
+            self._weighing = False
         settings, pitch = self.settings, self.model.pixel_pitch_mm
         self.s[:] = 0.0
         self.s[X], self.s[G] = x_mm, 1.0
@@ -755,7 +770,42 @@ class Estimator:
         self.params[kernel.U_RATES + G], self.params[kernel.U_RATES + OFS] = g2, o2
 
     def update(self, frame: np.ndarray, t: float, reference_mm: float = math.nan) -> FrameEstimate:
-        """The frame at time ``t`` (mid-exposure) with its grating reading (NaN: none)."""
+        """The frame at time ``t`` (mid-exposure) with its grating reading (NaN: none). Over the first frames the
+        light's shape as calibrated and as changed are weighed side by side (shape_contest.py): the estimate is this
+        estimator's until the rival's evidence takes over, and from then on the rival's (this estimator becomes it)."""
+        if not self._contested:
+            self._contest_open()
+        estimate = self._guarded(frame, t, reference_mm)
+        contest = self._contest
+        if contest is not None:
+            rival = contest.rival
+            other = rival._guarded(frame, t, reference_mm)
+            verdict = contest.weigh(self.evidence, rival.evidence, other.test <= 1.0)
+            if verdict:
+                self._contest = None
+                self._weighing = rival._weighing = False
+                if verdict == "rival":
+                    self.__dict__.update(rival.__dict__)
+                    return other
+        return estimate
+
+    def _contest_open(self) -> None:
+        """The rival of the first frames: this estimator as it stands (maps restored, a start given), its light's
+        shape allowed the prior of one changed since calibration."""
+        self._contested = True
+        wide = self.settings.field_changed_prior
+        rival = copy.deepcopy(self, {id(self.model): self.model})
+        rival.settings = self.settings.replace(field_prior=wide)
+        if rival.started:
+            for state in (A1, A2):
+                rival.P[state, state] = max(rival.P.item(state, state), wide * wide)
+        self._weighing = rival._weighing = True
+        self._contest = ShapeContest(rival, 0.5 * self._score_quantile[2], int(self.settings.shape_contest_frames))
+
+    def _guarded(self, frame: np.ndarray, t: float, reference_mm: float) -> FrameEstimate:
+        """One frame's update (:meth:`update` without the contest)."""
+        self.evidence = math.nan
+        self._updating = True
         try:
             return self._update(frame, t, reference_mm)
         except np.linalg.LinAlgError as exc:
@@ -766,6 +816,8 @@ class Estimator:
             self.update_errors += 1
             return self._unplaced(t, self.stats, math.nan,
                                   f"the update failed ({exc}); the estimate starts again from the next frame")
+        finally:
+            self._updating = False
 
     def _update(self, frame: np.ndarray, t: float, reference_mm: float) -> FrameEstimate:
         if type(frame) is not np.ndarray:  # (an array is its own asarray: the call spared a frame)
@@ -901,6 +953,12 @@ class Estimator:
         if s is self._answer[0]:  # the main update's arrays: the state's becomes the next answer's
             self._answer = (self.s, A, self._answer[2])
         self.s = s
+        if self._weighing:  # the frame's marginal likelihood: the cost at the update and the Occam factor
+            # (the samples' misfit counted at what calibration measured of a frame's error beside their noise: a model
+            # erring a few floors along the stroke leaves misfits that a shape freed would take up on any run)
+            sign, occam = np.linalg.slogdet(P_prior[np.ix_(solved, solved)] @ A)
+            share = self._model_share(s.item(X))
+            self.evidence = -0.5 * (stats[kernel.S_COST] / (1.0 + share) + occam) if sign > 0 else math.nan
         if A is self._answer[1] and stats[kernel.S_POSTERIOR] > 0:  # the main update's: it made the posterior
             self.P, self._P_next = self._P_next, self.P
         else:
@@ -977,6 +1035,8 @@ class Estimator:
             self.mount.command(start, end, acceleration)  # (the window's oldest frame: what it drops)
         else:
             self.commands.command(start, end, acceleration, -math.inf if self.t_last is None else self.t_last)
+        if self._contest is not None:  # (the rival of the first frames hears the stage's commands too)
+            self._contest.rival.commanded(start, end, acceleration)
 
     def _carried(self, y: np.ndarray, mask: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray,
                  lens: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, _Figures] | None:

@@ -102,6 +102,16 @@ TUNABLES: dict[str, Tunable] = {
         "of the image, so a shape that wanders freely wanders the position with it: a real change is a jump",
         low=0.0),
     "field_prior": Tunable(2e-4, "1", "the light's shape at the first frame against calibration's", low=0.0),
+    "field_changed_prior": Tunable(
+        1e-2, "1",
+        "the light's shape at the first frame where it changed since calibration (a lamp moved, an aperture knocked, "
+        "light uneven along a print laid since: a percent across the line), the rival hypothesis of the first frames "
+        "(core/estimator/shape_contest.py)", low=0.0),
+    "shape_contest_frames": Tunable(
+        30, "frames",
+        "how many first frames the light's shape as calibrated and as changed are followed side by side before the "
+        "one the evidence has not refuted stands (each costs a second update: a changed shape shows from the first "
+        "frames, a clean run pays for these only); 0: the shape as calibrated, no contest", low=0),
     "mains_hz": Tunable(
         50.0, "Hz",
         "the mains frequency the lamp runs on (60 where the grid is): a lamp on it flickers at twice it, which a "
@@ -328,6 +338,8 @@ class EstimatorSettings:
     light_switch_rate: float = TUNABLES["light_switch_rate"].default
     field_rate: float = TUNABLES["field_rate"].default
     field_prior: float = TUNABLES["field_prior"].default
+    field_changed_prior: float = TUNABLES["field_changed_prior"].default
+    shape_contest_frames: float = TUNABLES["shape_contest_frames"].default
     mains_hz: float = TUNABLES["mains_hz"].default
     flicker_prior: float = TUNABLES["flicker_prior"].default
     flicker_rate: float = TUNABLES["flicker_rate"].default
