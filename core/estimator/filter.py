@@ -44,9 +44,9 @@ from graytrack.core.compression import stream_bound_factor, stream_chi2_spread
 from graytrack.core.errors import TrackingError
 from graytrack.core import repeats
 from graytrack.core.estimator import kernel
-from graytrack.core.estimator.kernel import (S_GAIN, S_POSTERIOR, S_REJECTED, S_WEIGHED, U_DT, U_FLICKER, U_GRATING_W,
-                                             U_GRATING_Z, U_LEVEL, U_POSTERIOR, U_PREDICT, U_WARM)
-from graytrack.core.estimator.light_modes import LightModes, reweigh
+from graytrack.core.estimator.kernel import (S_GAIN, S_LIGHT, S_POSTERIOR, S_REJECTED, S_WEIGHED, U_DT, U_FLICKER,
+                                             U_GRATING_W, U_GRATING_Z, U_LEVEL, U_LIGHT, U_POSTERIOR, U_PREDICT, U_WARM)
+from graytrack.core.estimator.light_modes import LightModes
 from graytrack.core.estimator.commands import StageCommands
 from graytrack.core.estimator.flat_field import FLAT_FIELD, FlatField, calibration_flat_field
 from graytrack.core.estimator.mount import SHOWN_ACCELERATION, SHOWN_BEYOND, MountWatch, Step, step_test
@@ -862,14 +862,15 @@ class Estimator:
         grating_z = reference_mm if self.grating == "fuse" and math.isfinite(reference_mm) else math.nan
         self._checked = reference_mm if self.grating == "check" else math.nan
         s_prior, P_prior = self.s, self.P  # read, never written (once predicted), until the posterior replaces them
-        s, A, stats = self._solve(y, mask, s_prior, P_prior, grating_z, out=self._answer, predict=predict)
+        s, A, stats = self._solve(y, mask, s_prior, P_prior, grating_z, out=self._answer, predict=predict,
+                                  light_dt=dt)
         if self.grating == "check" and math.isfinite(reference_mm) and \
                 abs(s_prior.item(X) - reference_mm) > 0.25 * self.model.period_mm:
             self._acquire(y, mask, t, reference_mm)  # the image's period lost: start again at the grating
-            s, A, stats = self._solve(y, mask, s_prior, P_prior, grating_z, out=self._answer)
-        if dt and stats[kernel.S_POSTERIOR] > 0 and self.light.switch_rate > 0.0:
-            # what the frame read of the light, weighed under both its modes (light_modes.py)
-            self.light.weigh(P_prior, self._P_next, s_prior, s, G, OFS, dt)
+            s, A, stats = self._solve(y, mask, s_prior, P_prior, grating_z, out=self._answer, light_dt=dt)
+        if stats[S_POSTERIOR] > 0 and self.params.item(U_LIGHT) > 0.0:
+            # what the frame read of the light, weighed under both its modes (light_modes.py) in the update's call
+            self.light.probability = stats[S_LIGHT]
         test = self._test(stats)
         # (read and checked, the grating's test is the position's: what a frame leaves at its samples speaks of them
         # wherever the state's memory carries its position's variance, as the frame's flags do)
@@ -1601,15 +1602,18 @@ class Estimator:
     def _solve(self, y: np.ndarray, mask: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray,
                grating_z: float, idx: np.ndarray | None = None,
                out: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
-               predict: float | None = None,
-               start: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, _Figures]:
+               predict: float | None = None, start: np.ndarray | None = None,
+               light_dt: float | None = None) -> tuple[np.ndarray, np.ndarray, _Figures]:
         """The update over the states ``idx`` (default: every active one; the others held at the prior):
         the state, the posterior information and the figures (kernel.S_*, plain numbers). ``out``: the
         arrays to answer in (the state, the information over ``idx``, the figures), else new ones; with
         them, the posterior covariance is made into ``_P_next`` and its σ into ``_sigma`` too.
         ``predict``: the prior is first moved on by that many seconds, in place (``predict``). ``start``: the
         iterations begin there over ``idx`` (the prior's elsewhere) with the robust weights the last update left
-        (the frame solved again: its own solution and weights), not at the prior's mean with full weights."""
+        (the frame solved again: its own solution and weights), not at the prior's mean with full weights.
+        ``light_dt``: with ``out``, the frame's reading of the light is weighed under both its modes after that
+        interval (s) too, into the figures' ``S_LIGHT`` (kernel.U_LIGHT; where the light's chain weighs a frame at
+        all: LightModes.weighing)."""
         idx = self.idx if idx is None else idx
         s, A, stats = out or (np.empty(N_STATE), np.empty((idx.size, idx.size)), np.empty(kernel.N_STATS))
         if start is not None:
@@ -1627,6 +1631,12 @@ class Estimator:
         else:
             params[U_PREDICT], params[U_DT] = 1.0, predict
         params[U_POSTERIOR] = 0.0 if out is None else 1.0
+        weighing = None if light_dt is None or out is None else self.light.weighing(light_dt)
+        if weighing is None:
+            params[U_LIGHT] = 0.0
+        else:
+            params[U_LIGHT] = 1.0
+            params[U_LIGHT + 1], params[U_LIGHT + 2], params[U_LIGHT + 3], params[U_LIGHT + 4] = weighing
         params[U_WARM] = 0.0 if start is None else 1.0
         params[U_LEVEL] = self.chi2_calibration if self.chi2_curve is None else self._level(s_prior.item(X))
         kernel.update(s, s_prior, P_prior, idx, y, mask, self.pixels, params, self.model_args, self.scratch, self.rho,
@@ -2019,7 +2029,6 @@ class Estimator:
         self._solve(y, self.mask.copy(), self.s.copy(), self.P.copy(), math.nan)
         self._solve(y, self.mask.copy(), self.s.copy(), self.P.copy(), 0.0)
         kernel.predict(self.s.copy(), self.P.copy(), 0.01, 1.0, 1.0, self.rates2, np.zeros(4))
-        reweigh(self.P, self.P, self.s, self.s, G, OFS, 0.0, 0.0, False, 0.5)
         kernel.embed(self.P.copy(), np.eye(self.idx.size), self.idx, self._sigma, np.zeros(N_STATE))
         kernel.carried(self.P, self.idx, X)
         kernel.longest_run(self._y, self.model.n_pixels, 1.0)

@@ -29,6 +29,7 @@ import math
 import numpy as np
 
 from graytrack.core import kernels
+from graytrack.core.estimator.light_modes import reweigh
 from graytrack.core.estimator.state import (A1, A2, B, BD, BE, BH, BL, BR, BW, C, D, DRIFTS, FC, FS, G, L, M, N_STATE,
                                             OFS, SK, STATE, T, UNREAD, V, X)
 
@@ -50,10 +51,11 @@ ROBUST_ROUNDS = 6  # reweightings at most: the redescending weights settle in 2�
 CURVATURE_STEP_PERIODS = 1e-3  # forward-difference step of F″ from the slopes, in periods (error ~ 3 % at order 5)
 # out_stats layout
 # (S_POSTERIOR: 1 where the update made the posterior covariance, params[U_POSTERIOR]; S_WEIGHED: samples the robust
-# weights took down, not aside)
+# weights took down, not aside; S_LIGHT: the light's drifting mode's probability after the frame, where params[U_LIGHT]
+# asked it weighed)
 (S_COST, S_RESIDUAL, S_PRIOR, S_USED, S_REJECTED, S_ITER, S_XINFO, S_RMS, S_GRATING, S_CONVERGED,
- S_POSTERIOR, S_WEIGHED) = range(12)
-S_GAIN = 12  # from here, one row of N_STATE a state of UNREAD: its gain on each state solved under the solve's prior
+ S_POSTERIOR, S_WEIGHED, S_LIGHT) = range(13)
+S_GAIN = 13  # from here, one row of N_STATE a state of UNREAD: its gain on each state solved under the solve's prior
 N_STATS = S_GAIN + len(UNREAD) * N_STATE  # (conditioned)
 # the update's numbers in one array (a frame's call passes one array, not a dozen arguments: each argument costs
 # the call ~0.1 µs): the noise model's read variance, shot gain and dark level, the pixel pitch and the period (mm),
@@ -68,11 +70,15 @@ N_STATS = S_GAIN + len(UNREAD) * N_STATE  # (conditioned)
 # each row draws afresh every frame (gray⁻², 0: none; _normal); the softest a band's penumbra may be solved to (mm:
 # a step that would take its σ below is taken to it, as onto any bound); where the image places the carriage at the
 # frame's place as calibration measured it against the grating (mm: its error map, filter.py calibration_error, added
-# to the place every sample is evaluated at); from U_FLICKER the flicker's turn over the
+# to the place every sample is evaluated at); from U_LIGHT whether the frame's reading of the light is weighed under
+# both its modes where the posterior is made (1, else 0: light_modes.py reweigh, in this call rather than one more a
+# frame) and reweigh's numbers: the drift's variances over the interval, whether the frame was predicted drifting (1/0)
+# and the chain's probability for it; from U_FLICKER the flicker's turn over the
 # interval (predict's ``flicker``: four numbers); from U_RATES on each state's rate (predict's ``rates2``)
 (U_READ, U_SHOT, U_DARK, U_PITCH, U_PERIOD, U_GRATING_Z, U_GRATING_W, U_ROBUST, U_CORE, U_CUT, U_ITERATIONS,
  U_TOLERANCE, U_PREDICT, U_DT, U_ACCELERATION, U_ACCELERATION_WHITE, U_POSTERIOR, U_WARM, U_LEVEL, U_ROW_LENGTH,
- U_ROW_PRECISION, U_BAND_SHARPEST, U_MAPPED, U_FLICKER) = range(24)
+ U_ROW_PRECISION, U_BAND_SHARPEST, U_MAPPED, U_LIGHT) = range(24)
+U_FLICKER = U_LIGHT + 5
 U_RATES = U_FLICKER + 4
 N_PARAMS = U_RATES + N_STATE
 # the pixels' constants in one (4, P) array: target coordinate from the ROI's centre, row from the strip's middle,
@@ -689,7 +695,8 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
     ``scratch``: (6, P); ``rho``: (P,) robust weights out; ``A_out``: the posterior information over
     ``idx``; ``stats``: the figures named by the S_ constants; with ``params[U_POSTERIOR]`` set, ``P_post`` the
     (predicted) prior with the posterior embedded and ``sigma`` every state's σ (:func:`embed`: the frame's
-    next call made in this one)."""
+    next call made in this one), and with ``params[U_LIGHT]`` set too, the light's modes weighed on it into
+    ``stats[S_LIGHT]`` (light_modes.py reweigh: another)."""
     t_rel, r_rel, b1, b2 = pixels[PX_TARGET], pixels[PX_ROW], pixels[PX_B1], pixels[PX_B2]
     read_var, shot_gain, dark = params[U_READ], params[U_SHOT], params[U_DARK]
     level = params[U_LEVEL]
@@ -851,6 +858,9 @@ def update(s: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray, idx: np.ndar
             stats[S_POSTERIOR] = 1.0
         except Exception:  # noqa: BLE001 - numba's linear algebra raises its one kind
             pass
+        if stats[S_POSTERIOR] > 0.0 and params[U_LIGHT] > 0.0:
+            stats[S_LIGHT] = reweigh(P_prior, P_post, s_prior, s, G, OFS, params[U_LIGHT + 1], params[U_LIGHT + 2],
+                                     params[U_LIGHT + 3] > 0.0, params[U_LIGHT + 4])
 
 
 def residuals(s: np.ndarray, y: np.ndarray, mask: np.ndarray, rho: np.ndarray, pixels: np.ndarray,

@@ -65,10 +65,18 @@ class LightModes:
         """The frame's reading of the light weighed under both modes, the drifting mode's probability updated.
         ``P_prior``, ``s_prior`` and ``P_post``, ``s_post``: the state's covariance and mean before and after the
         frame's update in its mode, ``gain``, ``offset``: the light's two states in them, ``dt``: the interval (s)."""
+        weighing = self.weighing(dt)
+        if weighing is not None:
+            self.probability = reweigh(P_prior, P_post, s_prior, s_post, gain, offset, *weighing)
+
+    def weighing(self, dt: float) -> tuple[float, float, bool, float] | None:
+        """:func:`reweigh`'s numbers for a frame after the interval ``dt`` (s): the drift's variances over it, whether
+        the frame is predicted drifting and the chain's probability for it; None where no frame is weighed (no
+        interval, or one mode only). (The estimator's update weighs in its own compiled call: kernel.U_LIGHT.)"""
         if dt > 0.0 and self.switch_rate > 0.0:
-            self.probability = reweigh(P_prior, P_post, s_prior, s_post, gain, offset,
-                                       (self.moving[0] - self.holding[0]) * dt,
-                                       (self.moving[1] - self.holding[1]) * dt, self.drifting, self._before)
+            return ((self.moving[0] - self.holding[0]) * dt, (self.moving[1] - self.holding[1]) * dt, self.drifting,
+                    self._before)
+        return None
 
 
 def reweigh(P_prior: np.ndarray, P_post: np.ndarray, s_prior: np.ndarray, s_post: np.ndarray, gain: int, offset: int,

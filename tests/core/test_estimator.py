@@ -940,3 +940,26 @@ def test_an_update_that_fails_on_numbers_not_finite_says_so_and_starts_again(pap
     events = [(j, fix.event) for j, fix in enumerate(fixes) if fix.event is not None]
     assert len(events) == 1 and events[0][0] == k
     assert events[0][1].lost and not events[0][1].reacquired and "the update failed" in events[0][1].reason
+
+
+def test_the_light_weighed_in_the_updates_call_is_what_its_modes_weigh(paper):
+    """The frame's reading of the light weighed under both modes in the update's own compiled call (kernel.U_LIGHT)
+    is light_modes.py's reweigh of the same prior and posterior, to the bit."""
+    from graytrack.core.estimator import kernel
+    from graytrack.core.estimator.light_modes import reweigh
+    from graytrack.core.estimator.state import G, OFS
+
+    run, _ = build_rig("paper", "", seed=4, run=4).record(0.5)
+    estimator = Estimator(paper)
+    for k in range(20):
+        estimator.update(run.frames[k], float(run.t[k]), float(run.reference[k]))
+    dt = float(run.t[20] - run.t[19])
+    assert estimator.light.weighing(dt) is not None  # (the default light switches: a frame is weighed)
+    y, mask = estimator._prepared(run.frames[20])
+    s_prior, P_prior = estimator.s.copy(), estimator.P.copy()
+    out = (np.empty_like(s_prior), np.empty_like(estimator._answer[1]), np.empty(kernel.N_STATS))
+    s, _, figures = estimator._solve(y, mask, s_prior, P_prior, math.nan, out=out, predict=dt, light_dt=dt)
+    assert figures[kernel.S_POSTERIOR] > 0
+    # (the prior as the call predicted it, in place; the posterior it made into _P_next)
+    weighed = reweigh(P_prior, estimator._P_next, s_prior, s, G, OFS, *estimator.light.weighing(dt))
+    assert figures[kernel.S_LIGHT] == weighed
