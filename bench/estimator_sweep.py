@@ -47,7 +47,7 @@ from robustness_sweep import CASES, SECONDS, measured_motion
 from truth_score import MODES
 from truth_score import scored as path_scored
 
-CACHE_VERSION = "24"  # what a cached case holds: 3, recordings that state the stage's commanded phases of acceleration
+CACHE_VERSION = "25"  # what a cached case holds: 3, recordings that state the stage's commanded phases of acceleration
 # and models what their calibration's readings showed beyond them (core/estimator/mount.py); 4, recordings that state
 # what triggers the camera (core/recording.py CAMERA_TRIGGER); 5, models that state how widely their frames' χ²
 # scatters (core/chi2_curve.py frame_spread); 6, and a strip's row banding (core/adequacy.py row_offset_gray); 7, the
@@ -63,7 +63,8 @@ CACHE_VERSION = "24"  # what a cached case holds: 3, recordings that state the s
 # (light_profile) and where the image places the carriage there (filter.py error_map); 20, the map with what it
 # leaves of the model's error beside the plain account; 21, what it leaves measured on the frames it was not made
 # from; 22, and the map of a pass from the image alone; 24, and that pass's own error before its map is read (23 was
-# a try not kept); older cases are made again
+# a try not kept); 25, and that pass weighs the light's shape at its first frames as a run does (shape_contest.py);
+# older cases are made again
 RATIO_KEPT = 1.05  # the acceptance's ceiling for a run's error against today's path's on the same run
 FAR_PULL = 4.0  # bounds off the truth beyond which a placed frame counts as far off
 SILENT_SHARE = 0.005  # of a run's placed frames: the acceptance's ceiling for far frames left unflagged
