@@ -296,13 +296,14 @@ def rig_model(scenario: str, effects: str = "", seed: int = 3, seconds: float = 
     return calibrate(calibration, "paper").model
 
 
-def estimator_figures(model, run, truth, grating: str = "check") -> dict[str, float]:
-    """``run`` tracked by the estimator (core/estimator/) against ``truth``, frame by frame: the error's std (µm),
-    its rms over the stated bound (``pull``), the share of frames flagged and the frames 4+ bounds off unflagged
-    (``silent``); from the image alone (``grating`` "none") the error is taken up to whole periods."""
+def estimator_figures(model, run, truth, grating: str = "check", settings=None) -> dict[str, float]:
+    """``run`` tracked by the estimator (core/estimator/, its ``settings`` where given) against ``truth``, frame by
+    frame: the error's std (µm), its rms over the stated bound (``pull``), the share of frames flagged and the frames
+    4+ bounds off unflagged (``silent``); from the image alone (``grating`` "none") the error is taken up to whole
+    periods."""
     from graytrack.core.estimator import filter as estimator
 
-    estimates = estimator.track(model, run.frames, run.t, run.reference, grating=grating)
+    estimates = estimator.track(model, run.frames, run.t, run.reference, grating=grating, settings=settings)
     error_um = (np.array([e.x_mm for e in estimates]) - truth.x_mm) * 1e3
     if grating == "none":  # placed from the image alone: its origin is known up to whole periods
         period_um = model.period_mm * 1e3

@@ -54,7 +54,7 @@ from graytrack.core.estimator.print_map import PrintMap
 from graytrack.core.estimator.print_origin import PrintOrigin
 from graytrack.core.estimator.sensor_map import SensorMap
 from graytrack.core.estimator.settings import EstimatorSettings
-from graytrack.core.estimator.shape_contest import ShapeContest
+from graytrack.core.estimator.shape_contest import Rival, ShapeContest
 from graytrack.core.estimator.state import (A1, A2, B, BAND, BD, BE, BH, BL, BR, BW, C, D, FC, FR, FS, G, L, M, N_STATE,
                                             OFS, SK, SKR, STATE, T, V, X)
 from graytrack.core.frame_tables import FrameTables
@@ -498,7 +498,8 @@ class Estimator:
         self._contest: ShapeContest | None = None
         # (read or fused, the grating places the carriage whatever the shape: the contest is the image's alone)
         self._contested = grating != "none" or settings.shape_contest_frames <= 0 or \
-            settings.field_changed_prior <= settings.field_prior
+            (settings.field_changed_prior <= settings.field_prior and
+             settings.stretch_changed_prior <= settings.stretch_prior)
         self._weighing = False
         self._updating = False  # (within a frame's update: a start made there is the update's own)
         self.evidence = math.nan  # the last frame's log-likelihood under this estimator (while weighed)
@@ -778,29 +779,41 @@ class Estimator:
         estimate = self._guarded(frame, t, reference_mm)
         contest = self._contest
         if contest is not None:
-            rival = contest.rival
-            other = rival._guarded(frame, t, reference_mm)
-            verdict = contest.weigh(self.evidence, rival.evidence, other.test <= 1.0)
-            if verdict:
+            rivals = list(contest.rivals)
+            others = [rival.estimator._guarded(frame, t, reference_mm) for rival in rivals]
+            verdict = contest.weigh(self.evidence, [rival.estimator.evidence for rival in rivals],
+                                    [other.test <= 1.0 for other in others])
+            if verdict is not None:
                 self._contest = None
-                self._weighing = rival._weighing = False
-                if verdict == "rival":
-                    self.__dict__.update(rival.__dict__)
-                    return other
+                self._weighing = False
+                if isinstance(verdict, Rival):  # (the rival that explained the frames becomes this estimator)
+                    verdict.estimator._weighing = False
+                    self.__dict__.update(verdict.estimator.__dict__)
+                    return others[rivals.index(verdict)]
         return estimate
 
     def _contest_open(self) -> None:
-        """The rival of the first frames: this estimator as it stands (maps restored, a start given), its light's
-        shape allowed the prior of one changed since calibration."""
+        """The rivals of the first frames: this estimator as it stands (maps restored, a start given), one family's
+        states allowed the priors of a rig changed since calibration in each: the light's shape, the magnification."""
         self._contested = True
-        wide = self.settings.field_changed_prior
-        rival = copy.deepcopy(self, {id(self.model): self.model})
-        rival.settings = self.settings.replace(field_prior=wide)
-        if rival.started:
-            for state in (A1, A2):
-                rival.P[state, state] = max(rival.P.item(state, state), wide * wide)
-        self._weighing = rival._weighing = True
-        self._contest = ShapeContest(rival, 0.5 * self._score_quantile[2], int(self.settings.shape_contest_frames))
+        settings = self.settings
+        rivals = []
+        for states, changed in (((A1, A2), {"field_prior": max(settings.field_changed_prior, settings.field_prior)}),
+                                ((M,), {"stretch_prior": max(settings.stretch_changed_prior, settings.stretch_prior)})):
+            sigma = next(iter(changed.values()))
+            if sigma <= getattr(settings, next(iter(changed))):
+                continue
+            rival = copy.deepcopy(self, {id(self.model): self.model})
+            rival.settings = settings.replace(**changed)
+            if rival.started:
+                for state in states:
+                    rival.P[state, state] = max(rival.P.item(state, state), sigma * sigma)
+                if M in states:  # (the lens's own filter starts there too)
+                    rival._lens_var = max(rival._lens_var, sigma * sigma)
+            rival._weighing = True
+            rivals.append(Rival(rival, 0.5 * self._score_quantile[len(states)]))
+        self._weighing = bool(rivals)
+        self._contest = ShapeContest(rivals, int(settings.shape_contest_frames)) if rivals else None
 
     def _guarded(self, frame: np.ndarray, t: float, reference_mm: float) -> FrameEstimate:
         """One frame's update (:meth:`update` without the contest)."""
@@ -1036,8 +1049,9 @@ class Estimator:
             self.mount.command(start, end, acceleration)  # (the window's oldest frame: what it drops)
         else:
             self.commands.command(start, end, acceleration, -math.inf if self.t_last is None else self.t_last)
-        if self._contest is not None:  # (the rival of the first frames hears the stage's commands too)
-            self._contest.rival.commanded(start, end, acceleration)
+        if self._contest is not None:  # (the rivals of the first frames hear the stage's commands too)
+            for rival in self._contest.rivals:
+                rival.estimator.commanded(start, end, acceleration)
 
     def _carried(self, y: np.ndarray, mask: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray,
                  lens: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, _Figures] | None:

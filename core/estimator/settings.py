@@ -107,9 +107,18 @@ TUNABLES: dict[str, Tunable] = {
         "the light's shape at the first frame where it changed since calibration (a lamp moved, an aperture knocked, "
         "light uneven along a print laid since: a percent across the line), the rival hypothesis of the first frames "
         "(core/estimator/shape_contest.py)", low=0.0),
+    "stretch_changed_prior": Tunable(
+        0.0, "1",
+        "from the image alone, the magnification at the first frame where it changed since calibration (a lens "
+        "refocused, a spacer changed: 0.1 for percents), a rival of its own in the first frames' contest "
+        "(core/estimator/shape_contest.py); none by default: a model's own error at fixed places (a glare or a "
+        "smudge calibrated in) reads as a stretch changed, and the stretch's rival took over steady runs there (a "
+        "glare 2.05 -> 5.63 of its floor with 7 frames silent), where a lens refocused 10 % errs 64 µm with 17 "
+        "frames silent without it and none with it", low=0.0),
     "shape_contest_frames": Tunable(
         30, "frames",
-        "how many first frames the light's shape as calibrated and as changed are followed side by side before the "
+        "how many first frames the rig as calibrated and as changed (the light's shape; the magnification where "
+        "stretch_changed_prior allows) are followed side by side before the "
         "one the evidence has not refuted stands (each costs a second update: a changed shape shows from the first "
         "frames, a clean run pays for these only); 0: the shape as calibrated, no contest", low=0),
     "mains_hz": Tunable(
@@ -339,6 +348,7 @@ class EstimatorSettings:
     field_rate: float = TUNABLES["field_rate"].default
     field_prior: float = TUNABLES["field_prior"].default
     field_changed_prior: float = TUNABLES["field_changed_prior"].default
+    stretch_changed_prior: float = TUNABLES["stretch_changed_prior"].default
     shape_contest_frames: float = TUNABLES["shape_contest_frames"].default
     mains_hz: float = TUNABLES["mains_hz"].default
     flicker_prior: float = TUNABLES["flicker_prior"].default

@@ -7,27 +7,38 @@ the shape held as calibrated is the better (a clean 16-row strip)."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
 from graytrack.core.estimator import filter as estimator
 from graytrack.core.estimator.settings import EstimatorSettings
-from graytrack.core.estimator.shape_contest import ShapeContest
+from graytrack.core.estimator.shape_contest import Rival, ShapeContest
 from graytrack.drivers.sim.scenarios import build_rig
 from tests.conftest import estimator_figures, rig_model
 
 pytestmark = pytest.mark.unit
 
 
-def test_the_contest_takes_the_rival_only_on_evidence_at_the_false_alarm_rate():
-    held = ShapeContest(rival=None, threshold=6.9, frames=30)
-    assert [held.weigh(0.0, -0.1, True) for _ in range(29)] == [""] * 29 and held.weigh(0.0, -0.1, True) == "held"
-    taken = ShapeContest(rival=None, threshold=6.9, frames=30)
-    assert taken.weigh(-100.0, -96.0, True) == "" and taken.weigh(-100.0, -96.0, True) == "rival"  # 8 nats, 2 frames
-    refuted = ShapeContest(rival=None, threshold=6.9, frames=30)
-    assert refuted.weigh(0.0, -7.0, True) == "held"
-    unexplained = ShapeContest(rival=None, threshold=6.9, frames=3)  # a frame it did not explain: a misfit, no shape
-    assert [unexplained.weigh(-900.0, -500.0, ok) for ok in (False, True, True)] == ["", "", "held"]
+def test_a_rival_takes_over_only_on_evidence_at_the_false_alarm_rate_having_explained_every_frame():
+    def contest(frames=30):
+        return ShapeContest([Rival("shape", 6.9), Rival("stretch", 5.4)], frames)
+
+    held = contest()
+    assert [held.weigh(0.0, [-0.1, -0.1], [True, True]) for _ in range(29)] == [None] * 29
+    assert held.weigh(0.0, [-0.1, -0.1], [True, True]) is True  # nothing said the rig changed
+    taken = contest()
+    assert taken.weigh(-100.0, [-96.0, -99.0], [True, True]) is None  # 4 nats for the shape: not yet
+    assert taken.weigh(-100.0, [-96.0, -99.0], [True, True]).estimator == "shape"  # 8 over two frames
+    refuted = contest()
+    assert refuted.weigh(0.0, [-7.0, -1.0], [True, True]) is None and [r.estimator for r in refuted.rivals] == \
+        ["stretch"]  # the shape's rival out, the stretch's still weighed
+    assert refuted.weigh(0.0, [math.nan], [True]) is None  # (a frame it could not weigh says nothing)
+    assert refuted.weigh(0.0, [-5.0], [True]) is True  # the stretch's rival out too: the rig as calibrated
+    unexplained = contest(3)  # a frame it did not explain: a misfit, not a change
+    assert [unexplained.weigh(-900.0, [-500.0, -950.0], [ok, True]) for ok in (False, True)] == [None, None]
+    assert unexplained.weigh(-900.0, [-500.0, -950.0], [True, True]) is True
 
 
 @pytest.fixture(scope="module")
@@ -35,13 +46,17 @@ def paper():
     return rig_model("paper")
 
 
-@pytest.mark.parametrize("later", ["vignetting:edge=0.15", "gradient:per_10mm=0.05"])
+@pytest.mark.parametrize("later", ["vignetting:edge=0.15", "gradient:per_10mm=0.05", "magnification:percent=10"])
 def test_a_light_changed_before_the_run_is_not_taken_as_a_shift(paper, later):
     run, truth = build_rig("paper", later, seed=3, run=1).record(10.0)
-    figures = estimator_figures(paper, run, truth, "none")
-    # (held as calibrated: the vignetting 54.8 µm, 79 frames silent; the gradient 10.4 µm, 18 silent)
+    # (the stretch's rival is one a user who refocuses the lens between calibration and the run declares)
+    settings = EstimatorSettings().replace(stretch_changed_prior=0.1) if later.startswith("magnification") else None
+    figures = estimator_figures(paper, run, truth, "none", settings)
+    # (held as calibrated: the vignetting 54.8 µm, 79 frames silent; the gradient 10.4 µm, 18 silent; the lens
+    # refocused 64 µm, 17 silent)
     assert figures["silent"] <= 0.005 * truth.x_mm.size, figures
-    assert figures["std"] < 3.0, figures  # µm (the clean run's 1.5)
+    if not later.startswith("magnification"):  # (a lens refocused slides the image by what no frame sees: a bound)
+        assert figures["std"] < 3.0, figures  # µm (the clean run's 1.5)
 
 
 def test_where_nothing_changed_the_shape_as_calibrated_stands():
