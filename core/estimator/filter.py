@@ -789,7 +789,10 @@ class Estimator:
                 if isinstance(verdict, Rival):  # (the rival that explained the frames becomes this estimator)
                     verdict.estimator._weighing = False
                     self.__dict__.update(verdict.estimator.__dict__)
-                    return others[rivals.index(verdict)]
+                    taken = others[rivals.index(verdict)]
+                    said = (f"{verdict.what} changed since calibration ({verdict.ratio:.1f} nats of evidence over "
+                            f"{int(self.settings.shape_contest_frames) - contest.left} frames): followed as changed")
+                    return taken._replace(message=f"{taken.message}; {said}" if taken.message else said)
         return estimate
 
     def _contest_open(self) -> None:
@@ -798,8 +801,11 @@ class Estimator:
         self._contested = True
         settings = self.settings
         rivals = []
-        for states, changed in (((A1, A2), {"field_prior": max(settings.field_changed_prior, settings.field_prior)}),
-                                ((M,), {"stretch_prior": max(settings.stretch_changed_prior, settings.stretch_prior)})):
+        for what, states, changed in (
+                ("the light's shape across the line", (A1, A2),
+                 {"field_prior": max(settings.field_changed_prior, settings.field_prior)}),
+                ("the magnification", (M,),
+                 {"stretch_prior": max(settings.stretch_changed_prior, settings.stretch_prior)})):
             sigma = next(iter(changed.values()))
             if sigma <= getattr(settings, next(iter(changed))):
                 continue
@@ -811,7 +817,7 @@ class Estimator:
                 if M in states:  # (the lens's own filter starts there too)
                     rival._lens_var = max(rival._lens_var, sigma * sigma)
             rival._weighing = True
-            rivals.append(Rival(rival, 0.5 * self._score_quantile[len(states)]))
+            rivals.append(Rival(rival, 0.5 * self._score_quantile[len(states)], what))
         self._weighing = bool(rivals)
         self._contest = ShapeContest(rivals, int(settings.shape_contest_frames)) if rivals else None
 

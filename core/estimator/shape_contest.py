@@ -30,11 +30,13 @@ from typing import Any
 
 @dataclass
 class Rival:
-    """One family's rival: its estimator, the threshold it must pass (nats), its log-likelihood ratio over the held
-    estimator so far and the frames of the contest its updates did not explain."""
+    """One family's rival: its estimator, the threshold it must pass (nats), what changed in it (said in the frame's
+    message where it takes over), its log-likelihood ratio over the held estimator so far and the frames of the
+    contest its updates did not explain."""
 
     estimator: Any
     threshold: float
+    what: str = ""
     ratio: float = 0.0
     unexplained: int = 0
 
