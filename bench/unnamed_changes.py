@@ -7,7 +7,9 @@ between calibration and the run (a print changed, a lens swapped, a sensor warme
 and the run is tracked by the estimator in every mode (grating read, ``--trim``, ``--no-reference``) and scored frame
 by frame against the rig's truth as bench/estimator_sweep.py scores it.
 
-What it asks of each run is the acceptance's "never silently wrong": ≤ 0.5 % of placed frames 4+ bounds off the truth
+The command refuses frames reversed against the model at the grating's positions before either engine tracks them
+(``graytrack track``: a print mirrored); the bench tracks them anyway, as the library does. What it asks of each run
+is the acceptance's "never silently wrong": ≤ 0.5 % of placed frames 4+ bounds off the truth
 without a flag (marked ``<<<``). The error over the noise floor and the share flagged say what the change cost; a
 change the model cannot follow may be flagged on every frame, and should be. With ``--against`` today's path is
 scored on the same run (the ratio on today's floor, ``>>>`` where the estimator errs more than 5 % more).
@@ -28,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from estimator_sweep import FAR_PULL, RATIO_KEPT, SILENT_SHARE, cached_case, scored, settings_of, todays
+from graytrack.core.errors import TrackingError
 from graytrack.drivers.sim.effects import EFFECTS
 from truth_score import MODES
 
@@ -71,13 +74,17 @@ def main() -> None:
             if silent:
                 silent_runs.append(line)
             if args.against:
-                today = todays(args.cache, model, run, truth, label, mode)
-                ours = score["std"] / today.bound_um
-                above = bool(np.isfinite(ours)) and ours > RATIO_KEPT * today.ratio
-                line += f" | on today's floor {ours:7.2f} today {today.ratio:7.2f} silent {today.silent:4d}" + \
-                    (" >>>" if above else "")
-                if above:
-                    worse.append(line)
+                try:
+                    today = todays(args.cache, model, run, truth, label, mode)
+                except TrackingError as refusal:  # (today's path refuses what it cannot track: a reversed print)
+                    line += f" | today refused: {str(refusal)[:60]}"
+                else:
+                    ours = score["std"] / today.bound_um
+                    above = bool(np.isfinite(ours)) and ours > RATIO_KEPT * today.ratio
+                    line += f" | on today's floor {ours:7.2f} today {today.ratio:7.2f} silent {today.silent:4d}" + \
+                        (" >>>" if above else "")
+                    if above:
+                        worse.append(line)
             print(line, flush=True)
     placed = max(totals["placed"], 1)
     print(f"total: placed {totals['placed']}, {FAR_PULL:g}+ bounds off {totals['far']}, unflagged {totals['silent']} "

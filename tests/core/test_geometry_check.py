@@ -229,8 +229,12 @@ def test_track_refuses_frames_reversed_against_the_model(mirrored, flipped, tmp_
     assert orientation_mismatch(model, run.flipped()) < 0.5
     model_path, run_path = tmp_path / "model.json", save(run.flipped(), tmp_path / "run.npz")
     save_model(model, model_path)
-    assert main(["track", str(run_path), "--model", str(model_path), "--flip", "--out", str(tmp_path / "t.csv")]) == 2
-    assert "the frames look reversed against the model" in capsys.readouterr().err
+    for engine in ("watches", "estimator"):  # either engine, with the grating read or not
+        for unread in ([], ["--no-reference"]):
+            assert main(["track", str(run_path), "--model", str(model_path), "--flip", "--engine", engine, *unread,
+                         "--out", str(tmp_path / "t.csv")]) == 2, (engine, unread)
+            assert "the frames look reversed against the model" in capsys.readouterr().err
+    assert not (tmp_path / "t.csv").exists()
 
 
 def test_a_batch_calibration_row_of_a_mirrored_recording_fails_with_the_cause(mirrored_short, tmp_path) -> None:
