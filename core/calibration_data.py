@@ -6,6 +6,7 @@ frames, flat frames (nothing to see) get a message that says which.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -16,7 +17,7 @@ from graytrack.core.errors import CalibrationError
 from graytrack.core.models.fourier import FourierModel
 from graytrack.core.noise import estimate_pixel_noise, estimate_sigma
 from graytrack.core.pixel_noise import PixelNoise
-from graytrack.core.recording import Recording
+from graytrack.core.recording import SENSOR_RANGE, Recording
 from graytrack.core.transients import find_transients
 
 MIN_FRAMES = 20
@@ -104,7 +105,13 @@ def calibration_data(rec: Recording) -> CalibrationData:
 
 
 def sensor_range(meta: dict[str, Any]) -> tuple[float, float] | None:
-    """The readout's floor and ceiling (0, 2^bits − 1) when the recording states its bit depth."""
+    """The readout's floor and ceiling when the recording states them (``sensor_range_gray``: a camera that clips
+    its float output), else (0, 2^bits − 1) when it states its bit depth."""
+    stated = meta.get(SENSOR_RANGE)
+    if isinstance(stated, (list, tuple)) and len(stated) == 2 and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in stated) \
+            and stated[0] < stated[1]:
+        return float(stated[0]), float(stated[1])
     bit_depth = meta.get("bit_depth")
     if isinstance(bit_depth, int) and not isinstance(bit_depth, bool) and 1 <= bit_depth <= 32:
         return 0.0, float(2**bit_depth - 1)

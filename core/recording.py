@@ -73,6 +73,8 @@ STAGE_ACCELERATION = "stage_acceleration_mm_s2"  # meta: the most the stage was 
 MAINS_HZ = "mains_hz"  # meta: the mains frequency the rig's lamp runs on, Hz (it flickers at twice it; 0: on DC)
 CAMERA_TRIGGER = "camera_trigger"  # meta: what starts each exposure: "hardware" (the stage controller's line, on the
 # clock that latches the grating: one clock, none to run apart), "software" or "free-run" (the camera's own clock)
+SENSOR_RANGE = "sensor_range_gray"  # meta: [floor, ceiling] the camera's readout clips at, gray (where its bit depth
+# does not say: a camera whose float output is clipped)
 STAGE_PHASES = "stage_acceleration_phases"  # meta: the stage's commanded phases of acceleration, in the frames'
 # clock: [[start s, end s, |acceleration| mm/s²], ...] (between them it was commanded to hold its speed or rest)
 

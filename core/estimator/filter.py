@@ -387,8 +387,12 @@ class Estimator:
         if banding:
             self.chi2_calibration *= float(model.info.get("row_chi2_share") or 1.0)
         self.bound_factor = stream_bound_factor(model.info)
-        limits = model.info.get("sensor_range_gray") if robust else None
-        self.sensor_range = None if limits is None else (float(limits[0]), float(limits[1]))
+        # the readout's limits: where the run's recording states its camera's (settings.for_recording), those; else
+        # calibration's camera's, as the model states them
+        limits = model.info.get("sensor_range_gray") or (-math.inf, math.inf)
+        lo = settings.sensor_floor_gray if math.isfinite(settings.sensor_floor_gray) else float(limits[0])
+        hi = settings.sensor_ceiling_gray if math.isfinite(settings.sensor_ceiling_gray) else float(limits[1])
+        self.sensor_range = (lo, hi) if robust and (math.isfinite(lo) or math.isfinite(hi)) else None
         pitch = model.pixel_pitch_mm
         rates = np.zeros(N_STATE)
         # the light's gain and offset hold or drift, a mode the frames decide (light_modes.py); with no switching, one
@@ -1596,6 +1600,8 @@ class Estimator:
                 frame = np.array(frame, dtype=np.float64)
             y = self._y
             total = kernel.row_mean(frame if frame.ndim == 2 else frame.reshape(1, -1), y)
+            if rows > 1 and self.sensor_range is not None:
+                kernel.rows_clipped(frame, self.sensor_range[0], self.sensor_range[1], y)
             if self._seen is not None:
                 np.multiply(y, self._seen, out=y)
         else:

@@ -407,6 +407,21 @@ def row_mean(frame: np.ndarray, out: np.ndarray) -> float:
     return total
 
 
+def rows_clipped(frame: np.ndarray, lo: float, hi: float, y: np.ndarray) -> None:
+    """In place: ``y``, the mean of ``frame``'s rows (R, n), at the sensor's limit wherever a row's sample sits
+    at it (a mean over a clipped sample is biased by the clip: its column carries no position either)."""
+    n_rows, n = frame.shape
+    for p in range(n):
+        for r in range(n_rows):
+            v = frame[r, p]
+            if v >= hi:
+                y[p] = hi
+                break
+            if v <= lo:
+                y[p] = lo
+                break
+
+
 def in_range(y: np.ndarray, lo: float, hi: float, mask: np.ndarray, out: np.ndarray) -> None:
     """``out``: ``mask`` where ``y`` lies strictly between the sensor's limits, 0 elsewhere."""
     for p in range(y.size):
@@ -941,6 +956,7 @@ if kernels.COMPILED:
     longest_run = _jit(longest_run)
     row_mean = _jit(row_mean)
     in_range = _jit(in_range)
+    rows_clipped = _jit(rows_clipped)
     _evaluate = _jit(_evaluate)
     _band = _jit(_band)
     _normal = _jit(_normal)

@@ -121,6 +121,15 @@ TUNABLES: dict[str, Tunable] = {
         "stretch_changed_prior allows) are followed side by side before the "
         "one the evidence has not refuted stands (each costs a second update: a changed shape shows from the first "
         "frames, a clean run pays for these only); 0: the shape as calibrated, no contest", low=0),
+    "sensor_floor_gray": Tunable(
+        -math.inf, "gray",
+        "the readout's floor: a sample at or below it sits clipped and carries no position, and is set aside (a "
+        "recording that states its camera's range, its bit depth or a clip, sets it; -inf: the floor the model's "
+        "calibration stated, if any)", low=-math.inf),
+    "sensor_ceiling_gray": Tunable(
+        math.inf, "gray",
+        "the readout's ceiling, as the floor: a camera whose gain was raised since calibration saturates where its "
+        "calibration did not (inf: the ceiling the model's calibration stated, if any)", low=-math.inf),
     "mains_hz": Tunable(
         50.0, "Hz",
         "the mains frequency the lamp runs on (60 where the grid is): a lamp on it flickers at twice it, which a "
@@ -350,6 +359,8 @@ class EstimatorSettings:
     field_changed_prior: float = TUNABLES["field_changed_prior"].default
     stretch_changed_prior: float = TUNABLES["stretch_changed_prior"].default
     shape_contest_frames: float = TUNABLES["shape_contest_frames"].default
+    sensor_floor_gray: float = TUNABLES["sensor_floor_gray"].default
+    sensor_ceiling_gray: float = TUNABLES["sensor_ceiling_gray"].default
     mains_hz: float = TUNABLES["mains_hz"].default
     flicker_prior: float = TUNABLES["flicker_prior"].default
     flicker_rate: float = TUNABLES["flicker_rate"].default
@@ -423,7 +434,8 @@ class EstimatorSettings:
     def for_recording(self, meta: dict[str, Any]) -> "EstimatorSettings":
         """These settings with what a recording's metadata states of its rig: the stage's acceleration, a camera
         triggered by the stage controller (one clock for the exposures and the grating's latch: none runs apart),
-        and the mains its lamp runs on (0: on DC, no flicker)."""
+        the mains its lamp runs on (0: on DC, no flicker) and the range its camera reads out."""
+        from graytrack.core.calibration_data import sensor_range
         from graytrack.core.recording import CAMERA_TRIGGER, MAINS_HZ, STAGE_ACCELERATION
 
         def number(key: str) -> float | None:
@@ -438,6 +450,9 @@ class EstimatorSettings:
             settings = settings.replace(stage_acceleration=acceleration)
         if mains is not None and mains >= 0:
             settings = settings.replace(mains_hz=mains)
+        limits = sensor_range(meta)
+        if limits is not None:
+            settings = settings.replace(sensor_floor_gray=limits[0], sensor_ceiling_gray=limits[1])
         if meta.get(CAMERA_TRIGGER) == "hardware":
             # (the latch's walk stays: at a steady speed it is the image's offset against the grating walking, and
             # stands for what the frames cannot tell from a latch there, a latency no calibration measured and the

@@ -52,6 +52,7 @@ if TYPE_CHECKING:
 
 TriggerMode = Literal["free-run", "software", "hardware"]
 PIXEL_DTYPES = {"Mono8": np.uint8, "Mono10": np.uint16, "Mono12": np.uint16, "Mono16": np.uint16}
+PIXEL_BITS = {"Mono8": 8, "Mono10": 10, "Mono12": 12, "Mono16": 16}  # what each format reads out, unpacked
 GVSP_FRAME_ID_MODULUS = 1 << 16  # GigE Vision 1.x block ids are 16 bits and skip 0 on wrap
 TIMING_FLOOR_S = 100e-6  # host wake-up and clock-conversion jitter left after the envelope fit
 
@@ -135,6 +136,10 @@ class AravisCamera(Camera):
         if not fit.established:
             return self._period_s + fit.spread_s
         return 3.0 * fit.spread_s + TIMING_FLOOR_S
+
+    @property
+    def bit_depth(self) -> int:
+        return PIXEL_BITS[self.pixel_format]
 
     @property
     def model(self) -> str:

@@ -158,6 +158,12 @@ class Camera(Device):
         """The bound this driver states on |Frame.t_host - true mid-exposure|."""
         return 0.0
 
+    @property
+    def bit_depth(self) -> int | None:
+        """The bits of the readout, where the driver knows them (a sample at 2^bits − 1 sits clipped): recordings
+        state it, and calibration and tracking set aside the samples at its limits. None: not known."""
+        return None
+
     # -- settings --------------------------------------------------------------------------
     def set_exposure(self, exposure_us: float) -> None:
         _positive("exposure_us", exposure_us)

@@ -90,6 +90,7 @@ class OpenCVCamera(Camera):
         self.realtime = realtime
         self._source_fps = 0.0
         self._cap: cv2.VideoCapture | None = None
+        self._frame_dtype: np.dtype | None = None  # the last frame's, as decoded (bit_depth)
         self._cond = threading.Condition()
         self._backlog: Backlog[_Grabbed] = Backlog(BACKLOG_IMAGES)
         self._ended: str | None = None
@@ -170,6 +171,12 @@ class OpenCVCamera(Camera):
         known = self.settings.exposure_us is not None or self.nominal_exposure_s is not None
         return period if known else 1.5 * period
 
+    @property
+    def bit_depth(self) -> int | None:
+        """8 once a frame decoded to 8 bits (OpenCV's default); before a frame, or for a 16-bit source handed out as
+        it is, not known."""
+        return 8 if self._frame_dtype == np.uint8 else None
+
     def mid_exposure(self, t_grab: float) -> float:
         """Mid-exposure estimated from the host time ``grab`` returned."""
         return t_grab - self.readout_s - 0.5 * self.exposure_s
@@ -245,6 +252,7 @@ class OpenCVCamera(Camera):
 
     def _frame(self, image: np.ndarray, frame_id: int, t_grab: float, t_device: float | None) -> Frame:
         mono = to_mono(image)
+        self._frame_dtype = mono.dtype
         strip = self.settings.roi.crop(mono)
         return Frame(np.ascontiguousarray(strip), frame_id, self.mid_exposure(t_grab), t_device,
                      exposure_s=self.exposure_s, t_uncertainty_s=self.t_uncertainty_s)

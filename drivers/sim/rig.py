@@ -30,7 +30,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from graytrack.core.recording import CAMERA_TRIGGER, STAGE_ACCELERATION, STAGE_PHASES, Recording
+from graytrack.core.recording import CAMERA_TRIGGER, SENSOR_RANGE, STAGE_ACCELERATION, STAGE_PHASES, Recording
 from graytrack.drivers.sim import illumination as illum
 from graytrack.drivers.sim import target as tgt
 from graytrack.drivers.sim.camera_side import CameraSide, CameraSideConfig
@@ -39,7 +39,7 @@ from graytrack.drivers.sim.grating import GratingConfig, GratingReadout
 from graytrack.drivers.sim.illumination import IlluminationConfig
 from graytrack.drivers.sim.optics import (OpticsConfig, defocus_attenuation, drifted_offsets, focus_attenuation,
                                          off_target, pixel_geometry)
-from graytrack.drivers.sim.sensor import Sensor, SensorConfig
+from graytrack.drivers.sim.sensor import FULL_SCALE_GRAY, Sensor, SensorConfig
 from graytrack.drivers.sim.stage import SimStage, SimStageConfig, Trajectory, Vibrating, oscillation, sweep
 from graytrack.drivers.sim.target import TargetConfig
 from graytrack.drivers.sim.timing import TimingConfig, frame_clock
@@ -492,6 +492,8 @@ class VirtualRig:
         }
         if cfg.sensor.bit_depth is not None:
             meta["bit_depth"] = cfg.sensor.bit_depth
+        elif cfg.sensor.clip:  # a float camera that clips at full scale states it (its bit depth does not)
+            meta[SENSOR_RANGE] = [0.0, FULL_SCALE_GRAY]
         return meta
 
 

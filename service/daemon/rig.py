@@ -517,6 +517,8 @@ class Rig:
         meta.update({"source": "graytrack serve", "daemon_version": __version__})
         if hardware.rig is None:  # a real camera: [camera] trigger, where its driver has one, starts each exposure
             meta[CAMERA_TRIGGER] = str(getattr(hardware.camera, "trigger", "free-run"))
+            if hardware.camera.bit_depth is not None:  # its readout's ceiling: samples clipped there set aside
+                meta["bit_depth"] = hardware.camera.bit_depth
         if getattr(hardware.camera.settings, "flip", False):  # [camera] flip: frames reversed at the driver
             meta[PIXEL_AXIS_REVERSED] = True
         for key in ("pixel_pitch_mm", "period_mm"):

@@ -61,6 +61,7 @@ def test_software_trigger_produces_one_frame_per_read_and_mono16_is_uint16() -> 
     settings = CameraSettings(roi=Roi(row=5, rows=2, col=0, cols=32))
     with AravisCamera("Fake_1", settings, trigger="software", pixel_format="Mono16") as camera:
         frames = [camera.read(1.0) for _ in range(3)]
+        assert camera.bit_depth == 16  # (its readout's ceiling, stated in recordings)
     assert [f.pixels.dtype for f in frames] == [np.dtype(np.uint16)] * 3
     assert all(f.pixels.shape == (2, 32) for f in frames)
     assert len({f.frame_id for f in frames}) == 3

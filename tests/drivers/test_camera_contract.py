@@ -328,3 +328,21 @@ def test_flip_reverses_the_pixel_axis_of_every_frame_handed_out(case: Case) -> N
         camera.close()
     assert frame.pixels.shape == (2, 30)
     case.check_pixels(dataclasses.replace(frame, pixels=frame.pixels[:, ::-1]), roi)  # as delivered, reversed
+
+
+def test_a_frame_stays_within_the_readout_the_camera_states(case: Case) -> None:
+    """``bit_depth``: what recordings state of the camera's readout, where calibration and tracking set aside the
+    samples clipped at 2^bits − 1 (known once a frame is read where the driver learns it from its frames)."""
+    camera = opened(case, case.settings(Roi(row=1, rows=2, col=2, cols=30)))
+    try:
+        frames = [camera.read(2.0) for _ in range(3)]
+        bits = camera.bit_depth
+    finally:
+        camera.close()
+    if isinstance(camera, SimCamera):  # the virtual rig's camera: its recordings state the rig's sensor instead
+        assert bits is None
+        return
+    assert bits in (8, 10, 12, 16)
+    for frame in frames:
+        assert frame.pixels.dtype.kind == "u" and frame.pixels.dtype.itemsize * 8 >= bits
+        assert int(frame.pixels.max()) <= 2**bits - 1

@@ -42,7 +42,9 @@ def expected_gray(index: int) -> np.ndarray:
 def test_file_frames_come_in_order_as_mono_roi_strips_with_ids_and_media_time(video: Path) -> None:
     roi = Roi(row=5, rows=3, col=10, cols=64)
     with OpenCVCamera(str(video), CameraSettings(roi=roi)) as camera:
+        assert camera.bit_depth is None  # (before a frame: not known)
         frames = list(camera.frames())
+        assert camera.bit_depth == 8  # its readout's ceiling, 255, stated in recordings
     assert [f.frame_id for f in frames] == list(range(N_FRAMES))
     assert [f.t_device for f in frames] == pytest.approx([i / FPS for i in range(N_FRAMES)])
     for frame in frames:
