@@ -969,7 +969,11 @@ class Estimator:
         # a frame with samples set aside or off its test may be stretched by what sits on them)
         lens = refuted and not mode and test <= 1.0 and stats[S_REJECTED] <= 0 and stats[S_WEIGHED] <= 0 and \
             not self.sensor.touched.any() and not self.print_map.touched.any()
-        carried = self._carried(y, mask, s_prior, P_prior, lens) if refuted and knocked is None else None
+        # (an account that needed a jump to explain its frame, or explains it not at all, and that the grating
+        # refutes has no claim on the frames after it: they go on from the grating's account even where that fails;
+        # a frame acquired is a start, whose account the next frames judge)
+        carried = self._carried(y, mask, s_prior, P_prior, lens, (bool(mode) or test > 1.0) and not acquiring) \
+            if refuted and knocked is None else None
         if refuted and self._pinned is not None:
             self._land_refuted(y, mask, self._pinned)
         if not refuted:
@@ -1064,14 +1068,24 @@ class Estimator:
                 rival.estimator.commanded(start, end, acceleration)
 
     def _carried(self, y: np.ndarray, mask: np.ndarray, s_prior: np.ndarray, P_prior: np.ndarray,
-                 lens: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, _Figures] | None:
+                 lens: bool = False, doubted: bool = False
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, _Figures] | None:
         """The frame's account with the grating it checks as a second measurement of the carriage, for the
         recursion to carry where the image's own account and the grating disagree: (state, posterior information,
         the states solved, the prior's covariance to embed it in, the solve's figures). Solved with the grating,
         and with the jump of each family its score test then points to (the frame's innovation seen with the carriage
         pinned: a vignetting change or a veil forming reads as the light's shape there, not as a shift), or with a
-        band entering, the account that explains the gray values best is kept; None where none explains them within
-        their test (the frame's own account then stands, as it did before the grating refuted it)."""
+        band entering, the account that explains the gray values best is kept. Where none explains them within
+        their test, the frame's own account stands, as it did before the grating refuted it (None), unless it is
+        ``doubted``: it needed a jump to explain the frame, or does not explain it either (once the recursion has
+        started: a first frame's account, acquired from the image alone, is a start; its pinned account, fitted to
+        whatever the image then holds, dust on the window not yet learned, would carry that instead). The
+        recursion then goes on from the account with the carriage pinned and no state jumped. A model that no longer
+        fits the print (its tone curve changed, a sensor's gamma, a lens refocused) fits it best somewhere the grating
+        refutes, a light's jump taking it there on the second frame (the paper rig's print tone: 387 µm off, carried
+        on for a hundred frames while the focus and the light's shape bent to keep it); the grating's account, even
+        failing, is where the carriage is. One that explains its frame without a jump still stands against the grating
+        (a knock: the image moved against the carriage, and the grating refutes it by one offset from then on)."""
         self._pinned = None
         if (self.idx is self.idx_band) != (s_prior.item(BE) > 0.0):
             return None  # (a band entered or left on this frame: its account stands)
@@ -1081,7 +1095,7 @@ class Estimator:
         if not math.isfinite(s_f[X]):
             return None
         self._pinned = s_f  # (the carriage pinned, no state jumped: what _land_refuted lands from)
-        best = (self._chi2(stats_f), s_f, A_f, stats_f, self.idx, "")
+        best = plain = (self._chi2(stats_f), s_f, A_f, stats_f, self.idx, "")
         ranked = self._ranked(s_f, A_f, s_prior, P_keep)[:SEARCHED]
         for family in ranked:
             s_j, A_j, stats_j = self._solve(y, mask, s_prior, self._jumped(P_keep, family), reading)
@@ -1108,7 +1122,11 @@ class Estimator:
                 return banded[1], banded[2], self.idx_band, P_keep, banded[3]
         _, s_f, A_f, stats_f, idx, _ = best
         if self._test(stats_f) > 1.0:
-            return None  # (no account the grating agrees with explains the frame either: the frame's own stands)
+            if not doubted:
+                return None  # (no account the grating agrees with explains the frame either: the frame's own stands)
+            # (the grating's plain account, no state jumped: a jump that explains the frame no better than failing is
+            # not taken as one; a magnification's jump taken there for a shadow's edge stayed in every later frame)
+            _, s_f, A_f, stats_f, idx, _ = plain
         return s_f, A_f, idx, P_keep, stats_f
 
     def _mounted(self, step: Step) -> None:

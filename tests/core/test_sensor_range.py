@@ -57,6 +57,6 @@ def test_a_camera_saturating_since_calibration_is_tracked_from_its_unclipped_sam
         # is set aside)
         assert figures["std"] < 1.1 * floor, (grating, figures, floor)
     # the run's range unread (as the model states none): the bright bars read as the print's, and the light's gain
-    # found wrong with them (68-131 µm read, 39-44 % flagged)
+    # found wrong with them (28-71 % of the frames flagged, frames lost)
     unread = estimator_figures(model, run, truth, "check")
-    assert unread["std"] > 20.0 * floor, unread
+    assert unread["flagged"] > 0.1 and not unread["std"] < 5.0 * floor, unread
