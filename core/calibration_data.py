@@ -118,6 +118,24 @@ def sensor_range(meta: dict[str, Any]) -> tuple[float, float] | None:
     return None
 
 
+def readout_mismatch(model_info: dict[str, Any], meta: dict[str, Any]) -> str | None:
+    """Why a model cannot read frames whose recording (or camera) states ``meta``: calibrated on one readout range
+    (``model_info['sensor_range_gray']``, its calibration's camera) and read out on another (a camera set to 12 or 16
+    bits since, whose gray values are 16 or 256 times the model's: either engine would take them for a light changed
+    past anything a lamp does, and flag every frame). None where either does not say, or both agree."""
+    calibrated, now = model_info.get("sensor_range_gray"), sensor_range(meta)
+    if calibrated is None or now is None:
+        return None
+    try:
+        lo, hi = float(calibrated[0]), float(calibrated[1])
+    except (TypeError, ValueError, IndexError):
+        return None
+    if math.isclose(lo, now[0], abs_tol=1e-9) and math.isclose(hi, now[1], rel_tol=1e-9):
+        return None
+    return (f"the model was calibrated on a camera reading out {lo:g}-{hi:g} gray and these frames read out "
+            f"{now[0]:g}-{now[1]:g}: their gray values are not the model's")
+
+
 def usable_samples(frames: np.ndarray, meta: dict[str, Any]) -> np.ndarray:
     """0 where a pixel sits at the sensor's floor or ceiling (clipped: carries no position)."""
     weights = np.ones(frames.shape)

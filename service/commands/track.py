@@ -169,6 +169,18 @@ def texture_lines(result: TrackResult, out: str) -> list[str]:
     return [f"{summary_line(result.texture)} ({path})"]
 
 
+def refuse_mismatched(recording: Recording, model: FourierModel) -> None:
+    """Raises TrackingError where the frames cannot be the model's: read out on another range than its calibration's
+    (a camera's pixel format changed since), or reversed against it (:func:`refuse_reversed`)."""
+    from graytrack.core.calibration_data import readout_mismatch
+    from graytrack.core.errors import TrackingError
+
+    mismatch = readout_mismatch(model.info, recording.meta)
+    if mismatch is not None:
+        raise TrackingError(f"{mismatch}; recalibrate with the camera as it is now, or set its pixel format back")
+    refuse_reversed(recording, model)
+
+
 def refuse_reversed(recording: Recording, model: FourierModel) -> None:
     """Raises TrackingError where the frames fit the model far better reversed at the grating's positions (a camera
     remounted since calibration, ReverseX toggled, ``--flip`` given twice or forgotten): either engine would track
@@ -195,10 +207,11 @@ def solve(recording: Recording, model: FourierModel, no_reference: bool = False,
     tracker carries one of its own with the same lever: the result's ``slide_sigma_um``).
 
     ``recording`` is oriented already (:func:`oriented`); frames that fit the model far better
-    reversed are refused here (:func:`refuse_reversed`), before a run tracked millimetres off."""
+    reversed, or read out on another range than the model's, are refused here (:func:`refuse_mismatched`), before a
+    run tracked millimetres off."""
     import numpy as np
 
-    refuse_reversed(recording, model)
+    refuse_mismatched(recording, model)
 
     from graytrack.core.timing import model_reference
     from graytrack.core.tracking import track
@@ -255,7 +268,7 @@ def run(args: argparse.Namespace) -> int:
     model = load_model(args.model)
     recording = oriented(recording, model, args.flip, note=print)
     if args.engine == "estimator":
-        refuse_reversed(recording, model)  # (today's path refuses them in solve)
+        refuse_mismatched(recording, model)  # (today's path refuses them in solve)
         return run_estimator(args, recording, model)
     slide = slide_for(recording, model, args.no_reference, args.axis_px)  # no grating vouches: the slide
     result, grating, watch = solve(recording, model, args.no_reference, ProgressBar("track"), chunks, args.light,

@@ -29,6 +29,7 @@ import numpy as np
 from typing import Any, Callable
 
 from graytrack import __version__
+from graytrack.core.calibration_data import readout_mismatch
 from graytrack.core.errors import ModelError
 from graytrack.core.models import load_model
 from graytrack.core.models.fourier import FourierModel
@@ -204,10 +205,11 @@ class Rig:
             self.faults.set("model", f"the saved model {self.storage.model_path} cannot be used "
                                      f"({describe(exc)}); run a calibration to replace it")
             return
-        mismatch = None if model is None else self._flip_mismatch(model)
+        mismatch = None if model is None else self._camera_mismatch(model)
         if mismatch is not None:
-            self.faults.set("model", mismatch)
-            self.event("geometry", mismatch)
+            kind, message = mismatch
+            self.faults.set("model", message)
+            self.event(kind, message)
         elif model is not None:
             log.info("tracking with the saved model %s", model.describe())
             active = self.storage.active_id()
@@ -446,9 +448,9 @@ class Rig:
             if row is None:
                 raise NotFound(f"no finished calibration {calibration_id!r}")
             model = self._stored_model(calibration_id)
-            mismatch = self._flip_mismatch(model)
+            mismatch = self._camera_mismatch(model)
             if mismatch is not None:  # a conflict with the camera's configuration, not a wait: retrying will not help
-                raise Busy(mismatch)
+                raise Busy(mismatch[1])
             self._switch_model(calibration_id).commit()  # both files or neither: a 507 changes nothing
             self.install(model, calibration_id)
         self.event("model_installed", f"model of calibration {calibration_id} activated: {model.describe()}",
@@ -503,14 +505,20 @@ class Rig:
             return ActiveCalibration(id=active)
         return ActiveCalibration.model_validate({key: row[key] for key in ActiveCalibration.model_fields})
 
-    def _flip_mismatch(self, model: FourierModel) -> str | None:
-        """Why ``model`` cannot track this camera's frames: calibrated with the other ``[camera] flip``."""
+    def _camera_mismatch(self, model: FourierModel) -> tuple[str, str] | None:
+        """Why ``model`` cannot track this camera's frames, as (event kind, message): calibrated on another readout
+        range (``pixels``: a pixel format changed since), or with the other ``[camera] flip`` (``geometry``)."""
+        if self.hardware is not None:
+            readout = readout_mismatch(model.info, self._meta(self.hardware))
+            if readout is not None:
+                return "pixels", f"{readout}; recalibrate, or set the camera's pixel format back"
         calibrated = model.info.get("camera_flip")
         now = bool(getattr(self.hardware.camera.settings, "flip", False)) if self.hardware is not None else None
         if calibrated is None or now is None or bool(calibrated) == now:
             return None
-        return (f"the model was calibrated with [camera] flip = {str(bool(calibrated)).lower()} and the camera now has "
-                f"flip = {str(now).lower()}: its frames run the other way; recalibrate or set flip back")
+        return "geometry", (f"the model was calibrated with [camera] flip = {str(bool(calibrated)).lower()} and the "
+                            f"camera now has flip = {str(now).lower()}: its frames run the other way; recalibrate or "
+                            f"set flip back")
 
     def _meta(self, hardware: Hardware) -> dict[str, Any]:
         meta: dict[str, Any] = hardware.rig.meta() if hardware.rig is not None else {}  # type: ignore[attr-defined]

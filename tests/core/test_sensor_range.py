@@ -12,10 +12,13 @@ import math
 import numpy as np
 import pytest
 
-from graytrack.core.calibration_data import sensor_range
+from graytrack.core.calibration import calibrate
+from graytrack.core.calibration_data import readout_mismatch, sensor_range
 from graytrack.core.estimator.settings import EstimatorSettings
-from graytrack.core.recording import SENSOR_RANGE
+from graytrack.core.models import save_model
+from graytrack.core.recording import SENSOR_RANGE, save
 from graytrack.drivers.sim.scenarios import build_rig
+from graytrack.service.cli import main
 from tests.conftest import estimator_figures, rig_model
 
 pytestmark = pytest.mark.unit
@@ -60,3 +63,28 @@ def test_a_camera_saturating_since_calibration_is_tracked_from_its_unclipped_sam
     # found wrong with them (28-71 % of the frames flagged, frames lost)
     unread = estimator_figures(model, run, truth, "check")
     assert unread["flagged"] > 0.1 and not unread["std"] < 5.0 * floor, unread
+
+
+def test_a_recording_read_out_on_another_range_than_the_models_is_refused(tmp_path, capsys):
+    """A camera set to 12 bits since its 8-bit calibration: its gray values are 16 times the model's, which either
+    engine would take for a light changed past anything a lamp does. The command refuses it with the cause and the
+    fix; the same bit depth, or a recording or model that states none, passes."""
+    assert readout_mismatch({"sensor_range_gray": [0.0, 255.0]}, {"bit_depth": 8}) is None
+    assert readout_mismatch({}, {"bit_depth": 12}) is None and readout_mismatch({"sensor_range_gray": [0, 255]}, {}) \
+        is None
+    said = readout_mismatch({"sensor_range_gray": [0.0, 255.0]}, {"bit_depth": 12})
+    assert said is not None and "0-255" in said and "0-4095" in said
+    calibration, _ = build_rig("paper", "quantize:bits=8", seed=3).record(10.0)
+    model = calibrate(calibration, "paper").model
+    assert model.info["sensor_range_gray"] == [0.0, 255.0]
+    model_path = tmp_path / "model.json"
+    save_model(model, model_path)
+    for bits, refused in ((12, True), (8, False)):
+        run, _ = build_rig("paper", f"quantize:bits={bits}", seed=3, run=1).record(2.0)
+        run_path, out = save(run, tmp_path / f"run{bits}.npz"), tmp_path / f"t{bits}.csv"
+        for engine in ("watches", "estimator"):
+            code = main(["track", str(run_path), "--model", str(model_path), "--engine", engine, "--out", str(out)])
+            assert code == (2 if refused else 0), (bits, engine)
+            err = capsys.readouterr().err
+            assert ("0-4095" in err and "set its pixel format back" in err) == refused, err
+        assert out.exists() != refused
