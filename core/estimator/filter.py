@@ -970,8 +970,9 @@ class Estimator:
         lens = refuted and not mode and test <= 1.0 and stats[S_REJECTED] <= 0 and stats[S_WEIGHED] <= 0 and \
             not self.sensor.touched.any() and not self.print_map.touched.any()
         # (an account that needed a jump to explain its frame, or explains it not at all, and that the grating
-        # refutes has no claim on the frames after it: they go on from the grating's account even where that fails;
-        # a frame acquired is a start, whose account the next frames judge)
+        # refutes has no claim on the frames after it: they go on from the grating's account, the one with no state
+        # jumped where none pinned to the grating explains the frame; a frame acquired is a start, which the next
+        # frames judge)
         carried = self._carried(y, mask, s_prior, P_prior, lens, (bool(mode) or test > 1.0) and not acquiring) \
             if refuted and knocked is None else None
         if refuted and self._pinned is not None:
