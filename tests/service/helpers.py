@@ -181,6 +181,19 @@ class GatedFactory:
         return hardware
 
 
+def activate_refused(client: TestClient, events: str, *said: str) -> dict[str, Any]:
+    """The daemon ``client`` started in fault over its saved model: the last event of kind ``events`` holds every
+    text of ``said``, and activating the newest calibration again is refused as a conflict with the camera's
+    configuration (409), not a wait; returns the refusal's body."""
+    wait_for(lambda: [e for e in client.get("/api/events").json() if e["kind"] == events
+                      and all(text in e["message"] for text in said)], 10.0, f"a {events} event")
+    calibration_id = client.get("/api/calibrations").json()["items"][0]["id"]
+    token = client.app.state.storage.token_path.read_text().strip()
+    reply = client.post(f"/api/calibrations/{calibration_id}/activate", headers={"Authorization": f"Bearer {token}"})
+    assert reply.status_code == 409, reply.text
+    return reply.json()
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

@@ -8,7 +8,7 @@ from fastapi.testclient import TestClient
 
 from graytrack.core.recording import load
 from graytrack.service.daemon.app import create_app
-from tests.service.helpers import fast_settings, wait_for, wait_state
+from tests.service.helpers import activate_refused, fast_settings, wait_for, wait_state
 
 
 def _finished_job(client: TestClient) -> dict:
@@ -48,13 +48,7 @@ def test_a_mirrored_camera_fails_the_sweep_with_the_cause_and_flip_true_calibrat
     with TestClient(create_app(unflipped)) as client:
         status = wait_state(client, "fault", 20.0)
         assert status["calibrated"] is False
-        events = wait_for(lambda: [e for e in client.get("/api/events").json() if e["kind"] == "geometry"], 10.0,
-                          "a geometry event")
-        assert "calibrated with [camera] flip = true and the camera now has flip = false" in events[-1]["message"]
         # Activating that calibration again is a conflict with the camera's configuration (409), not "not ready"
-        calibration_id = client.get("/api/calibrations").json()["items"][0]["id"]
-        token = client.app.state.storage.token_path.read_text().strip()
-        reply = client.post(f"/api/calibrations/{calibration_id}/activate",
-                            headers={"Authorization": f"Bearer {token}"})
-        assert reply.status_code == 409, reply.text
-        assert "recalibrate or set flip back" in reply.json()["error"]
+        refusal = activate_refused(client, "geometry",
+                                   "calibrated with [camera] flip = true and the camera now has flip = false")
+        assert "recalibrate or set flip back" in refusal["error"]

@@ -7,7 +7,7 @@ from __future__ import annotations
 from fastapi.testclient import TestClient
 
 from graytrack.service.daemon.app import create_app
-from tests.service.helpers import fast_settings, wait_for, wait_state
+from tests.service.helpers import activate_refused, fast_settings, wait_state
 
 
 def test_a_camera_read_out_on_another_range_than_the_saved_models_is_refused(tmp_path) -> None:
@@ -20,15 +20,8 @@ def test_a_camera_read_out_on_another_range_than_the_saved_models_is_refused(tmp
     with TestClient(create_app(twelve)) as client:
         status = wait_state(client, "fault", 20.0)
         assert status["calibrated"] is False
-        events = wait_for(lambda: [e for e in client.get("/api/events").json() if e["kind"] == "pixels"], 10.0,
-                          "a pixels event")
-        assert "0-255" in events[-1]["message"] and "0-4095" in events[-1]["message"]
-        calibration_id = client.get("/api/calibrations").json()["items"][0]["id"]
-        token = client.app.state.storage.token_path.read_text().strip()
-        reply = client.post(f"/api/calibrations/{calibration_id}/activate",
-                            headers={"Authorization": f"Bearer {token}"})
-        assert reply.status_code == 409, reply.text
-        assert "set the camera's pixel format back" in reply.json()["error"]
+        refusal = activate_refused(client, "pixels", "0-255", "0-4095")
+        assert "set the camera's pixel format back" in refusal["error"]
 
     # back at 8 bits the same saved model tracks again
     with TestClient(create_app(eight)) as client:
