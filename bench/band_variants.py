@@ -7,14 +7,17 @@ over 60 % of the line from the other end, and a clean run; with the grating read
 error std over the noise floor, the rms pull, the share flagged, frames 4+ bounds off the truth and of them
 unflagged; the last line their totals.
 
-    .venv/bin/python bench/band_variants.py
+    .venv/bin/python bench/band_variants.py [name=value ...]
+
+``name=value``: the estimator's tunables set as estimator_sweep.py sets them (an unknown name exits, naming the known).
 """
 
 from __future__ import annotations
 
-from estimator_sweep import scored
+import sys
+
+from estimator_sweep import scored, settings_of
 from graytrack.core.calibration import calibrate
-from graytrack.core.estimator.settings import EstimatorSettings
 from graytrack.drivers.sim.scenarios import build_rig
 
 CHANGES = ("moving_shadow:passes=2:period_s=4:start_s=2",
@@ -24,6 +27,7 @@ SEEDS = (4, 5)
 
 
 def main() -> None:
+    settings = settings_of(sys.argv[1:])
     far = silent = 0
     for scenario in ("paper", "strip16"):
         for seed in SEEDS:
@@ -31,7 +35,7 @@ def main() -> None:
             for later in CHANGES:
                 run, truth = build_rig(scenario, later, seed=seed, run=1).record(10.0)
                 for grating in ("check", "none"):
-                    score = scored(model, run, truth, grating, EstimatorSettings())
+                    score = scored(model, run, truth, grating, settings)
                     far, silent = far + score["far"], silent + score["silent"]
                     print(f"{scenario:8} {seed} {later or 'clean':72} {grating:6} ratio {score['ratio']:6.2f} "
                           f"pull {score['pull']:5.2f} flag {100 * score['flagged'] / score['frames']:5.1f}% "
